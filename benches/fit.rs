@@ -185,7 +185,14 @@ fn main() {
         "machine: {} logical CPUs",
         std::thread::available_parallelism().map_or(0, |n| n.get())
     );
-    bench_fit(100_000, 9);
-    bench_fit(1_000_000, 3);
-    bench_whole_file(200_000);
+    // `cargo bench --bench fit -- fit` (or `-- file`) runs one part only.
+    let only: Vec<String> = std::env::args().skip(1).filter(|a| !a.starts_with('-')).collect();
+    let wanted = |part: &str| only.is_empty() || only.iter().any(|o| o == part);
+    if wanted("fit") {
+        bench_fit(100_000, 9);
+        bench_fit(1_000_000, 3);
+    }
+    if wanted("file") {
+        bench_whole_file(200_000);
+    }
 }

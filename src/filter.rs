@@ -147,48 +147,80 @@ impl ZeroPhaseFilter {
     /// Filters each of `inputs` into the matching `outputs` (equal lengths).
     pub fn apply_columns(&self, inputs: &[&[f64]], outputs: &mut [&mut [f64]]) -> Result<(), FilterError> {
         let samples = inputs.first().map_or(0, |c| c.len());
-        if self.sections.is_empty() {
-            outputs.iter_mut().zip(inputs).for_each(|(o, i)| o.copy_from_slice(i));
+        for (input_group, output_group) in inputs.chunks(LANES).zip(outputs.chunks_mut(LANES)) {
+            let fill = |interior: &mut [[f64; LANES]]| {
+                for (lane, x) in input_group.iter().enumerate() {
+                    for (b, &value) in interior.iter_mut().zip(x.iter()) {
+                        b[lane] = value;
+                    }
+                }
+            };
+            self.apply_lanes(samples, fill, output_group, 0)?;
+        }
+        Ok(())
+    }
+
+    /// Filters up to [`LANES`] signals of `samples` samples that `fill`
+    /// writes, one lane each, into the interleaved rows it is given. Output
+    /// lane `k` receives samples `skip .. skip + outputs[k].len()` of the
+    /// filtered signal, so trimming costs no copy.
+    pub fn apply_lanes(
+        &self,
+        samples: usize,
+        fill: impl FnOnce(&mut [[f64; LANES]]),
+        outputs: &mut [&mut [f64]],
+        skip: usize,
+    ) -> Result<(), FilterError> {
+        let pad = if self.sections.is_empty() { 0 } else { self.pad };
+        if samples == 0 && pad == 0 {
             return Ok(());
         }
-        if samples <= self.pad {
-            return Err(FilterError::TooShort {
-                samples,
-                needed: self.pad,
-            });
+        if samples <= pad {
+            return Err(FilterError::TooShort { samples, needed: pad });
         }
-        let mut buffer = vec![[0.0; LANES]; samples + 2 * self.pad];
-        for (input_group, output_group) in inputs.chunks(LANES).zip(outputs.chunks_mut(LANES)) {
-            self.fill_extended(input_group, &mut buffer);
-            self.run_pass(buffer.iter_mut());
-            self.run_pass(buffer.iter_mut().rev());
-            for (lane, output) in output_group.iter_mut().enumerate() {
-                for (o, b) in output.iter_mut().zip(&buffer[self.pad..]) {
-                    *o = b[lane];
-                }
+        let mut buffer = vec![[0.0; LANES]; samples + 2 * pad];
+        fill(&mut buffer[pad..pad + samples]);
+        if !self.sections.is_empty() {
+            extend_odd(&mut buffer, pad, samples);
+            self.both_passes(&mut buffer);
+        }
+        let interior = &buffer[pad + skip.min(samples)..pad + samples];
+        for (lane, output) in outputs.iter_mut().enumerate() {
+            for (o, b) in output.iter_mut().zip(interior) {
+                *o = b[lane];
             }
         }
         Ok(())
     }
 
-    /// Writes the odd extension of each input into its lane of `buffer`.
-    fn fill_extended(&self, inputs: &[&[f64]], buffer: &mut [[f64; LANES]]) {
-        let pad = self.pad;
-        for (lane, x) in inputs.iter().enumerate() {
-            let n = x.len();
-            let (first, last) = (x[0], x[n - 1]);
-            for k in 0..pad {
-                buffer[k][lane] = 2.0 * first - x[pad - k];
-                buffer[pad + n + k][lane] = 2.0 * last - x[n - 2 - k];
-            }
-            for (b, &value) in buffer[pad..pad + n].iter_mut().zip(x.iter()) {
-                b[lane] = value;
-            }
+    /// Forward then backward pass over the whole buffer, with AVX2 when the
+    /// processor has it. No fused multiply-add is used, so both paths give
+    /// the same bits.
+    fn both_passes(&self, buffer: &mut [[f64; LANES]]) {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the processor supports AVX2, checked just above.
+            unsafe { self.both_passes_avx2(buffer) };
+            return;
         }
+        self.both_passes_portable(buffer);
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn both_passes_avx2(&self, buffer: &mut [[f64; LANES]]) {
+        self.both_passes_portable(buffer);
+    }
+
+    #[inline(always)]
+    fn both_passes_portable(&self, buffer: &mut [[f64; LANES]]) {
+        self.run_pass(buffer.iter_mut());
+        self.run_pass(buffer.iter_mut().rev());
     }
 
     /// One causal pass in transposed direct form II, in place, in the order
     /// the iterator gives, starting from the steady state of the first sample.
+    #[inline(always)]
     fn run_pass<'a>(&self, mut samples: impl Iterator<Item = &'a mut [f64; LANES]>) {
         let Some(first) = samples.next() else { return };
         let start = *first;
@@ -215,6 +247,19 @@ impl ZeroPhaseFilter {
             }
         }
         *sample = x;
+    }
+}
+
+/// Odd extension about each end: the `pad` rows before `buffer[pad]` and
+/// after `buffer[pad + samples - 1]` mirror the interior through its end value.
+fn extend_odd(buffer: &mut [[f64; LANES]], pad: usize, samples: usize) {
+    let (first, last) = (buffer[pad], buffer[pad + samples - 1]);
+    for k in 0..pad {
+        let (inner_head, inner_tail) = (buffer[2 * pad - k], buffer[pad + samples - 2 - k]);
+        for lane in 0..LANES {
+            buffer[k][lane] = 2.0 * first[lane] - inner_head[lane];
+            buffer[pad + samples + k][lane] = 2.0 * last[lane] - inner_tail[lane];
+        }
     }
 }
 

@@ -13,7 +13,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::error::{Error, Result};
-use crate::filter::{EdgePadding, FilterBand, FilterError, ZeroPhaseFilter};
+use crate::filter::{EdgePadding, FilterBand, FilterError, ZeroPhaseFilter, LANES};
 use crate::flight_log::{FlightLog, VectorSensor};
 use crate::segments::valid_runs;
 use crate::solve::{solve, Solution, SolveOptions};
@@ -150,13 +150,32 @@ pub fn fit_channel(
             source_name: "[filter]".into(),
             message: e.to_string(),
         })?;
-    let mut stack = Stack::new(options.terms);
-    let mut fits = Vec::with_capacity(windows.len());
-    for window in windows {
-        fits.push(stack.add_window(log, sensor, scalar, window, &filter, options)?);
+    let trim = settings.trim_samples;
+    let needed = filter.min_samples().max(2 * trim + 1);
+    let plans: Vec<WindowPlan> = windows
+        .iter()
+        .map(|window| WindowPlan::new(log, sensor, scalar, window, needed, trim))
+        .collect::<Result<_>>()?;
+    let field = log.vector_components(sensor);
+    let (columns, target) = stack_filtered(field, scalar, &plans, &filter, options).map_err(|e| Error::Fit {
+        channel: channel.into(),
+        message: e.to_string(),
+    })?;
+    let mut fits: Vec<WindowFit> = Vec::with_capacity(plans.len());
+    let mut start = 0;
+    for plan in plans {
+        let used = plan.used(trim);
+        fits.push(WindowFit {
+            window: plan.window.clone(),
+            stacked_rows: start..start + used,
+            samples_used: used,
+            samples_dropped: plan.rows - used,
+            band_before_nt: Vec::new(),
+            band_after_nt: Vec::new(),
+        });
+        start += used;
     }
     let folds: Vec<Range<usize>> = fits.iter().map(|f| f.stacked_rows.clone()).collect();
-    let Stack { columns, target, .. } = stack;
     let solution = solve(columns, &target, &folds, &options.solve).map_err(|e| Error::Fit {
         channel: channel.into(),
         message: e.to_string(),
@@ -182,82 +201,103 @@ pub fn fit_channel(
     })
 }
 
-/// The stacked, filtered, trimmed design columns and target.
-struct Stack {
-    terms: TermSet,
-    columns: Vec<Vec<f64>>,
-    target: Vec<f64>,
+/// The runs of one window that are long enough to filter and trim.
+struct WindowPlan<'w> {
+    window: &'w CalibrationWindow,
+    /// Rows of the flight inside the window.
+    rows: usize,
+    runs: Vec<Range<usize>>,
 }
 
-impl Stack {
-    fn new(terms: TermSet) -> Self {
-        Stack {
-            terms,
-            columns: vec![Vec::new(); terms.len()],
-            target: Vec::new(),
-        }
-    }
-
-    fn add_window(
-        &mut self,
+impl<'w> WindowPlan<'w> {
+    fn new(
         log: &FlightLog,
         sensor: &VectorSensor,
         scalar: &[f64],
-        window: &CalibrationWindow,
-        filter: &ZeroPhaseFilter,
-        options: &FitOptions,
-    ) -> Result<WindowFit> {
+        window: &'w CalibrationWindow,
+        needed: usize,
+        trim: usize,
+    ) -> Result<Self> {
         let field = log.vector_components(sensor);
         let rows = window.rows(log.time_s());
-        let valid: Vec<bool> = (0..log.len())
-            .map(|i| rows.contains(&i) && scalar[i].is_finite() && field.iter().all(|c| c[i].is_finite()))
+        let valid: Vec<bool> = rows
+            .clone()
+            .map(|i| scalar[i].is_finite() && field.iter().all(|c| c[i].is_finite()))
             .collect();
-        let runs = valid_runs(log.time_s(), &valid, rows.clone(), log.median_interval_s());
-        let trim = options.filter.trim_samples;
-        let needed = filter.min_samples().max(2 * trim + 1);
-        let start = self.target.len();
-        for run in runs.iter().filter(|r| r.len() >= needed) {
-            self.add_run(field, scalar, run.clone(), filter, trim)
-                .map_err(|e| too_short(window, e.to_string()))?;
-        }
-        let used = self.target.len() - start;
-        if used == 0 {
+        let runs = valid_runs(&log.time_s()[rows.clone()], &valid, 0..rows.len(), log.median_interval_s());
+        let kept: Vec<Range<usize>> = runs
+            .iter()
+            .filter(|r| r.len() >= needed)
+            .map(|r| rows.start + r.start..rows.start + r.end)
+            .collect();
+        if kept.is_empty() {
             let longest = runs.iter().map(Range::len).max().unwrap_or(0);
             let problem = format!("its longest run of valid samples has {longest} samples, but filtering and trimming {trim} samples at each end need at least {needed}");
             return Err(too_short(window, problem));
         }
-        Ok(WindowFit {
-            window: window.clone(),
-            stacked_rows: start..self.target.len(),
-            samples_used: used,
-            samples_dropped: rows.len() - used,
-            band_before_nt: Vec::new(),
-            band_after_nt: Vec::new(),
+        Ok(WindowPlan {
+            window,
+            rows: rows.len(),
+            runs: kept,
         })
     }
 
-    fn add_run(
-        &mut self,
-        field: [&[f64]; 3],
-        scalar: &[f64],
-        run: Range<usize>,
-        filter: &ZeroPhaseFilter,
-        trim: usize,
-    ) -> std::result::Result<(), FilterError> {
-        let mut inputs = self.terms.design_columns(field, run.clone());
-        inputs.push(scalar[run.clone()].to_vec());
-        let views: Vec<&[f64]> = inputs.iter().map(Vec::as_slice).collect();
-        let mut outputs = vec![vec![0.0; run.len()]; views.len()];
-        let mut output_views: Vec<&mut [f64]> = outputs.iter_mut().map(Vec::as_mut_slice).collect();
-        filter.apply_columns(&views, &mut output_views)?;
-        let keep = trim..run.len() - trim;
-        let target = outputs.pop().unwrap_or_default();
-        self.target.extend_from_slice(&target[keep.clone()]);
-        for (stacked, filtered) in self.columns.iter_mut().zip(&outputs) {
-            stacked.extend_from_slice(&filtered[keep.clone()]);
-        }
-        Ok(())
+    /// Samples this window contributes after trimming.
+    fn used(&self, trim: usize) -> usize {
+        self.runs.iter().map(|r| r.len() - 2 * trim).sum()
     }
+}
+
+/// Builds the stacked, filtered, trimmed design columns and target: every
+/// run of every window, [`LANES`] columns per filter pass, the passes in
+/// parallel. Each pass writes its own rows, so the result does not depend
+/// on the number of threads.
+fn stack_filtered(
+    field: [&[f64]; 3],
+    scalar: &[f64],
+    plans: &[WindowPlan],
+    filter: &ZeroPhaseFilter,
+    options: &FitOptions,
+) -> std::result::Result<(Vec<Vec<f64>>, Vec<f64>), FilterError> {
+    let trim = options.filter.trim_samples;
+    let terms = options.terms;
+    let width = terms.len() + 1;
+    let total: usize = plans.iter().map(|p| p.used(trim)).sum();
+    let mut stacked: Vec<Vec<f64>> = vec![vec![0.0; total]; width];
+    let runs: Vec<Range<usize>> = plans.iter().flat_map(|p| p.runs.iter().cloned()).collect();
+    // One task per (run, group of LANES columns), each owning its output rows.
+    let mut tasks: Vec<(Range<usize>, Range<usize>, Vec<&mut [f64]>)> = Vec::new();
+    let mut rests: Vec<&mut [f64]> = stacked.iter_mut().map(Vec::as_mut_slice).collect();
+    for run in &runs {
+        let keep = run.len() - 2 * trim;
+        let mut pieces: Vec<&mut [f64]> = Vec::with_capacity(width);
+        for rest in &mut rests {
+            let (piece, tail) = std::mem::take(rest).split_at_mut(keep);
+            pieces.push(piece);
+            *rest = tail;
+        }
+        let mut pieces = pieces.into_iter();
+        for first in (0..width).step_by(LANES) {
+            let group = first..(first + LANES).min(width);
+            let outputs: Vec<&mut [f64]> = pieces.by_ref().take(group.len()).collect();
+            tasks.push((run.clone(), group, outputs));
+        }
+    }
+    tasks.into_par_iter().try_for_each(|(run, group, mut outputs)| {
+        let fill = |rows: &mut [[f64; LANES]]| {
+            let design = group.start..group.end.min(width - 1);
+            terms.fill_lanes(field, run.clone(), design.clone(), rows);
+            if group.end == width {
+                let lane = design.len();
+                for (row, &value) in rows.iter_mut().zip(&scalar[run.clone()]) {
+                    row[lane] = value;
+                }
+            }
+        };
+        filter.apply_lanes(run.len(), fill, &mut outputs, trim)
+    })?;
+    let target = stacked.pop().unwrap_or_default();
+    Ok((stacked, target))
 }
 
 fn too_short(window: &CalibrationWindow, problem: String) -> Error {

@@ -176,20 +176,64 @@ impl TermSet {
 
     fn fill_run(&self, terms: &[Term], field_nt: [&[f64]; 3], run: Range<usize>, columns: &mut [&mut [f64]]) {
         let derivative = field_nt.map(|b| central_difference(&b[run.clone()]));
-        let scale = self.bt_scale_nt;
         for (offset, row) in run.enumerate() {
-            let b = field_nt.map(|c| c[row]);
-            let total = (b[0] * b[0] + b[1] * b[1] + b[2] * b[2]).sqrt();
-            let u = b.map(|component| component / total);
+            let sample = Sample::new(field_nt, row, &derivative, offset);
             for (column, term) in columns.iter_mut().zip(terms) {
-                column[offset] = match *term {
-                    Term::Permanent(i) => u[i],
-                    Term::Induced(i, j) => u[i] * b[j] / scale,
-                    Term::Eddy(i, j) => u[i] * derivative[j][offset] / scale,
-                    Term::FieldDerivative(j) => derivative[j][offset] / scale,
-                    Term::Bias => 1.0,
-                };
+                column[offset] = sample.term(*term, self.bt_scale_nt);
             }
+        }
+    }
+
+    /// Writes the design columns with indices `columns` over the contiguous
+    /// run `run` into interleaved rows, one per sample: column
+    /// `columns.start + k` goes to lane `k`. This feeds the multi-lane
+    /// filter without materialising the columns.
+    pub fn fill_lanes<const L: usize>(
+        &self,
+        field_nt: [&[f64]; 3],
+        run: Range<usize>,
+        columns: Range<usize>,
+        rows: &mut [[f64; L]],
+    ) {
+        let terms = self.terms();
+        let terms = &terms[columns];
+        let derivative = field_nt.map(|b| central_difference(&b[run.clone()]));
+        for (offset, (row, out)) in run.zip(rows.iter_mut()).enumerate() {
+            let sample = Sample::new(field_nt, row, &derivative, offset);
+            for (lane, term) in out.iter_mut().zip(terms) {
+                *lane = sample.term(*term, self.bt_scale_nt);
+            }
+        }
+    }
+}
+
+/// The field, its direction cosines and its derivative at one sample.
+struct Sample {
+    b: [f64; 3],
+    u: [f64; 3],
+    db: [f64; 3],
+}
+
+impl Sample {
+    #[inline]
+    fn new(field_nt: [&[f64]; 3], row: usize, derivative: &[Vec<f64>; 3], offset: usize) -> Self {
+        let b = field_nt.map(|c| c[row]);
+        let total = (b[0] * b[0] + b[1] * b[1] + b[2] * b[2]).sqrt();
+        Sample {
+            b,
+            u: b.map(|component| component / total),
+            db: [0, 1, 2].map(|j| derivative[j][offset]),
+        }
+    }
+
+    #[inline]
+    fn term(&self, term: Term, scale: f64) -> f64 {
+        match term {
+            Term::Permanent(i) => self.u[i],
+            Term::Induced(i, j) => self.u[i] * self.b[j] / scale,
+            Term::Eddy(i, j) => self.u[i] * self.db[j] / scale,
+            Term::FieldDerivative(j) => self.db[j] / scale,
+            Term::Bias => 1.0,
         }
     }
 }
