@@ -224,7 +224,12 @@ impl<'w> WindowPlan<'w> {
             .clone()
             .map(|i| scalar[i].is_finite() && field.iter().all(|c| c[i].is_finite()))
             .collect();
-        let runs = valid_runs(&log.time_s()[rows.clone()], &valid, 0..rows.len(), log.median_interval_s());
+        let runs = valid_runs(
+            &log.time_s()[rows.clone()],
+            &valid,
+            0..rows.len(),
+            log.median_interval_s(),
+        );
         let kept: Vec<Range<usize>> = runs
             .iter()
             .filter(|r| r.len() >= needed)
@@ -248,6 +253,10 @@ impl<'w> WindowPlan<'w> {
     }
 }
 
+/// Rows of the flight, stacked columns (design, then target) and the
+/// stacked rows those columns receive.
+type FilterTask<'a> = (Range<usize>, Range<usize>, Vec<&'a mut [f64]>);
+
 /// Builds the stacked, filtered, trimmed design columns and target: every
 /// run of every window, [`LANES`] columns per filter pass, the passes in
 /// parallel. Each pass writes its own rows, so the result does not depend
@@ -266,7 +275,7 @@ fn stack_filtered(
     let mut stacked: Vec<Vec<f64>> = vec![vec![0.0; total]; width];
     let runs: Vec<Range<usize>> = plans.iter().flat_map(|p| p.runs.iter().cloned()).collect();
     // One task per (run, group of LANES columns), each owning its output rows.
-    let mut tasks: Vec<(Range<usize>, Range<usize>, Vec<&mut [f64]>)> = Vec::new();
+    let mut tasks: Vec<FilterTask> = Vec::new();
     let mut rests: Vec<&mut [f64]> = stacked.iter_mut().map(Vec::as_mut_slice).collect();
     for run in &runs {
         let keep = run.len() - 2 * trim;

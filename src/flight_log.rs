@@ -88,6 +88,7 @@ pub struct FlightLog {
     time_column: String,
     time_s: Vec<f64>,
     channels: Vec<Channel>,
+    source_row_offsets: Option<Vec<u64>>,
 }
 
 impl FlightLog {
@@ -114,7 +115,25 @@ impl FlightLog {
             time_column,
             time_s,
             channels,
+            source_row_offsets: None,
         })
+    }
+
+    /// Records where each row's record starts in the source text file (byte
+    /// offsets, one per row, increasing), so outputs can copy the rows
+    /// verbatim. Ignored unless there is one offset per row.
+    pub fn with_source_row_offsets(mut self, offsets: Vec<u64>) -> Self {
+        let increasing = offsets.windows(2).all(|w| w[0] < w[1]);
+        if offsets.len() == self.time_s.len() && increasing {
+            self.source_row_offsets = Some(offsets);
+        }
+        self
+    }
+
+    /// Byte offset of each row's record in the source text file, when the
+    /// reader recorded them.
+    pub fn source_row_offsets(&self) -> Option<&[u64]> {
+        self.source_row_offsets.as_deref()
     }
 
     /// Where the log was read from.

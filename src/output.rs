@@ -7,7 +7,7 @@
 //! magcomp's columns (CONTRACT §3).
 
 use std::fs::File;
-use std::io::{BufRead, BufReader, BufWriter, Write};
+use std::io::{BufRead, BufReader, BufWriter, Read, Write};
 use std::path::Path;
 
 use serde::Serialize;
@@ -89,7 +89,16 @@ pub fn flags_column_name(existing: &[String]) -> String {
 /// Writes the compensated CSV: every input row and column, then one column
 /// per compensated channel and the flags column. Returns the added column
 /// names.
-pub fn write_compensated_csv(input: &Path, output: &Path, compensation: &Compensation) -> Result<Vec<String>> {
+///
+/// A comma-separated input whose row offsets are known (`row_offsets`, from
+/// the reader) is copied byte for byte, each row's text followed by the new
+/// cells; other inputs are re-read and written as comma-separated records.
+pub fn write_compensated_csv(
+    input: &Path,
+    row_offsets: Option<&[u64]>,
+    output: &Path,
+    compensation: &Compensation,
+) -> Result<Vec<String>> {
     let (separator, header) = read_header(input)?;
     let mut added: Vec<String> = Vec::new();
     for channel in &compensation.channels {
@@ -99,6 +108,14 @@ pub fn write_compensated_csv(input: &Path, output: &Path, compensation: &Compens
     let existing: Vec<String> = header.iter().chain(&added).cloned().collect();
     added.push(flags_column_name(&existing));
     let rows = compensation.flags.len();
+    if let (Separator::Byte(b','), Some(offsets)) = (separator, row_offsets) {
+        if offsets.len() == rows {
+            write_atomic(output, |writer| {
+                copy_verbatim(input, offsets, &added, writer, &mut ExtraColumns::new(compensation))
+            })?;
+            return Ok(added);
+        }
+    }
     write_atomic(output, |writer| {
         let mut csv = csv::Writer::from_writer(writer);
         csv.write_record(header.iter().chain(&added))?;
@@ -135,6 +152,88 @@ impl<'a> ExtraColumns<'a> {
         record.push_field(self.compensation.flags[self.row].as_bytes());
         self.row += 1;
     }
+
+    /// Writes `,value` per channel and `,flags` for the next row.
+    fn write_cells<W: Write>(&mut self, out: &mut W) -> std::io::Result<()> {
+        for channel in &self.compensation.channels {
+            out.write_all(b",")?;
+            out.write_all(self.buffer.format(channel.values[self.row]))?;
+        }
+        out.write_all(b",")?;
+        write_cell(out, self.compensation.flags[self.row].as_bytes())?;
+        self.row += 1;
+        Ok(())
+    }
+}
+
+/// Copies the header and every row of a comma-separated `input` verbatim
+/// (without its line terminator), appending the added cells to each.
+fn copy_verbatim<W: Write>(
+    input: &Path,
+    offsets: &[u64],
+    added: &[String],
+    out: &mut W,
+    extra: &mut ExtraColumns,
+) -> std::io::Result<()> {
+    let mut file = BufReader::with_capacity(1 << 20, File::open(input)?);
+    let mut text = Vec::new();
+    let header_length = offsets.first().copied().unwrap_or(0);
+    read_span(&mut file, Some(header_length), &mut text)?;
+    out.write_all(without_terminator(&text))?;
+    for name in added {
+        out.write_all(b",")?;
+        write_cell(out, name.as_bytes())?;
+    }
+    out.write_all(b"\n")?;
+    for (i, start) in offsets.iter().enumerate() {
+        let length = offsets.get(i + 1).map(|next| next - start);
+        read_span(&mut file, length, &mut text)?;
+        out.write_all(without_terminator(&text))?;
+        extra.write_cells(out)?;
+        out.write_all(b"\n")?;
+    }
+    Ok(())
+}
+
+/// Reads the next `length` bytes, or up to the end when `None`.
+fn read_span(file: &mut impl Read, length: Option<u64>, text: &mut Vec<u8>) -> std::io::Result<()> {
+    text.clear();
+    match length {
+        Some(length) => {
+            text.resize(length as usize, 0);
+            file.read_exact(text).map_err(|e| match e.kind() {
+                std::io::ErrorKind::UnexpectedEof => {
+                    std::io::Error::other("the input is shorter than when it was read; was it modified during the run?")
+                }
+                _ => e,
+            })
+        }
+        None => file.read_to_end(text).map(|_| ()),
+    }
+}
+
+/// A record's text without the line terminators (and blank lines) around it.
+fn without_terminator(text: &[u8]) -> &[u8] {
+    let is_text = |b: &u8| *b != b'\n' && *b != b'\r';
+    let start = text.iter().position(is_text).unwrap_or(text.len());
+    let end = text.iter().rposition(is_text).map_or(start, |p| p + 1);
+    &text[start..end]
+}
+
+/// Writes one comma-separated cell, quoted when it holds a comma, a quote
+/// or a line break.
+fn write_cell<W: Write>(out: &mut W, cell: &[u8]) -> std::io::Result<()> {
+    if !cell.iter().any(|b| matches!(b, b',' | b'"' | b'\n' | b'\r')) {
+        return out.write_all(cell);
+    }
+    out.write_all(b"\"")?;
+    for part in cell.split_inclusive(|&b| b == b'"') {
+        out.write_all(part)?;
+        if part.ends_with(b"\"") {
+            out.write_all(b"\"")?;
+        }
+    }
+    out.write_all(b"\"")
 }
 
 fn row_count_changed(rows: usize) -> std::io::Error {

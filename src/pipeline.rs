@@ -79,7 +79,12 @@ pub fn process_flight(job: &FlightJob, options: &StageOptions, outputs: &FlightO
         .zip(&compensation.channels)
         .map(|(model, channel)| assess_quality(&log, model, channel))
         .collect();
-    let added_columns = write_compensated_csv(&job.input, &outputs.compensated_csv, &compensation)?;
+    let added_columns = write_compensated_csv(
+        &job.input,
+        log.source_row_offsets(),
+        &outputs.compensated_csv,
+        &compensation,
+    )?;
     let notes = renaming_notes(&channels, &added_columns);
     let result = FlightResult {
         flight: job.input.clone(),

@@ -369,7 +369,7 @@ fn press_statistics(
     let m = weights.len();
     let weight_matrix = Mat::from_fn(p, m, |k, l| weights[l][k]);
     let fitted_weights = Mat::from_fn(p, m, |k, l| weights[l][k] * spectrum.uty[k]);
-    let whole = [0..y.len()];
+    let whole = std::slice::from_ref(&(0..y.len())).to_vec();
     let ranges: &[Range<usize>] = if folds.is_empty() { &whole } else { folds };
     let blocks: Vec<(usize, Range<usize>)> = ranges
         .iter()

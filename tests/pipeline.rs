@@ -215,3 +215,48 @@ fn compensate_command_writes_all_outputs_and_honours_fixed_lambda() {
     let quality: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(report).unwrap()).unwrap();
     assert_eq!(quality["channels"][0]["fom_manoeuvres"], 12);
 }
+
+#[test]
+fn awkward_csv_text_is_copied_verbatim() {
+    let folder = tempfile::tempdir().unwrap();
+    let (csv, windows) = small_flight(folder.path());
+    // A byte-order mark, CRLF line ends, a quoted text column holding a
+    // comma and a quote, a blank line, and no terminator on the last row.
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let lines: Vec<String> = text
+        .lines()
+        .enumerate()
+        .map(|(i, line)| match i {
+            0 => format!("\u{feff}{line},note"),
+            _ => format!("{line},\"leg {}, \"\"box\"\"\"", i % 7),
+        })
+        .collect();
+    let blank_after = lines.len() / 2;
+    let mut awkward = String::new();
+    for (i, line) in lines.iter().enumerate() {
+        awkward.push_str(line);
+        if i + 1 < lines.len() {
+            awkward.push_str("\r\n");
+        }
+        if i == blank_after {
+            awkward.push_str("\r\n");
+        }
+    }
+    std::fs::write(&csv, &awkward).unwrap();
+    run_with_threads(2, &csv, &windows, folder.path());
+    let out = std::fs::read_to_string(folder.path().join("flight_compensated.csv")).unwrap();
+    let out_lines: Vec<&str> = out.split('\n').filter(|l| !l.is_empty()).collect();
+    assert_eq!(out_lines.len(), lines.len(), "one output line per input record");
+    assert_eq!(out_lines[0], format!("{},mag_1_c,mag_2_c,flags", lines[0]));
+    for (input, output) in lines.iter().zip(&out_lines).skip(1) {
+        let appended = output
+            .strip_prefix(input.as_str())
+            .expect("input record copied unchanged");
+        let cells: Vec<&str> = appended.split(',').collect();
+        assert_eq!(cells.len(), 4, "{appended}");
+        assert!(
+            cells[1].parse::<f64>().is_ok() && cells[2].parse::<f64>().is_ok(),
+            "{appended}"
+        );
+    }
+}

@@ -59,14 +59,15 @@ pub fn read_csv(path: &Path, names: &ColumnNames) -> Result<FlightLog> {
         Separator::Byte(delimiter) => read_delimited(path, file, delimiter, &mut builder)?,
         Separator::Whitespace => read_whitespace(path, file, &mut builder)?,
     }
-    builder.finish(names)
+    let offsets = std::mem::take(&mut builder.row_offsets);
+    Ok(builder.finish(names)?.with_source_row_offsets(offsets))
 }
 
 /// Opens a `csv` reader over a delimited file with magcomp's settings.
+/// Cells are not trimmed here; [`parse_cell`] ignores surrounding spaces.
 pub fn delimited_reader<R: Read>(reader: R, delimiter: u8) -> csv::Reader<R> {
     csv::ReaderBuilder::new()
         .delimiter(delimiter)
-        .trim(csv::Trim::All)
         .has_headers(true)
         .from_reader(reader)
 }
@@ -78,8 +79,10 @@ fn read_delimited(path: &Path, file: File, delimiter: u8, builder: &mut ColumnBu
         match reader.read_byte_record(&mut record) {
             Ok(false) => return Ok(()),
             Ok(true) => {
-                let line = record.position().map_or(0, |p| p.line());
+                let position = record.position();
+                let line = position.map_or(0, |p| p.line());
                 builder.push_row(record.iter(), line)?;
+                builder.row_offsets.push(position.map_or(0, |p| p.byte()));
             }
             Err(error) => return Err(csv_error(path, error)),
         }
@@ -90,6 +93,7 @@ fn read_whitespace(path: &Path, file: File, builder: &mut ColumnBuilder) -> Resu
     let mut reader = BufReader::with_capacity(1 << 20, file);
     let mut line = Vec::new();
     let mut line_number = 0u64;
+    let mut offset = 0u64;
     loop {
         line.clear();
         let read = reader
@@ -99,11 +103,14 @@ fn read_whitespace(path: &Path, file: File, builder: &mut ColumnBuilder) -> Resu
             return Ok(());
         }
         line_number += 1;
+        let start = offset;
+        offset += read as u64;
         if line_number == 1 || line.iter().all(u8::is_ascii_whitespace) {
             continue;
         }
         let fields = line.split(u8::is_ascii_whitespace).filter(|f| !f.is_empty());
         builder.push_row(fields, line_number)?;
+        builder.row_offsets.push(start);
     }
 }
 
@@ -143,6 +150,8 @@ struct ColumnBuilder<'a> {
     values: Vec<Vec<f64>>,
     time_index: usize,
     previous_time: f64,
+    /// Byte offset of each data row's record.
+    row_offsets: Vec<u64>,
 }
 
 impl<'a> ColumnBuilder<'a> {
@@ -178,6 +187,7 @@ impl<'a> ColumnBuilder<'a> {
             values,
             time_index,
             previous_time: f64::NEG_INFINITY,
+            row_offsets: Vec::new(),
         })
     }
 
