@@ -128,7 +128,7 @@ fn run(config: &Path) -> anyhow::Result<()> {
         bar.finish_and_clear();
         let result = result.with_context(|| format!("processing {}", job.input.display()))?;
         print!("{}", summary(&result));
-        println!("  wrote {}", outputs.compensated_csv.display());
+        println!("  wrote {}", outputs.compensated.display());
     }
     Ok(())
 }
@@ -165,7 +165,7 @@ fn compensate(args: CompensateArgs) -> anyhow::Result<()> {
         windows,
     };
     let outputs = FlightOutputs {
-        compensated_csv: args.out.clone(),
+        compensated: args.out.clone(),
         model_json: args.model,
         quality_json: args.report,
     };

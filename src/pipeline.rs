@@ -9,15 +9,15 @@ use crate::config::FlightJob;
 use crate::error::{Error, Result};
 use crate::fit::{fit_channels, FitOptions, FittedTollesLawson};
 use crate::flight_log::{FlightLog, VectorSensor};
-use crate::ingest::{read_flight_log, IngestOptions};
-use crate::output::{write_compensated_csv, write_json};
+use crate::ingest::{detect_format, read_flight_log, Format, IngestOptions};
+use crate::output::{write_compensated, write_json};
 use crate::quality::{assess_quality, ChannelQuality};
 
 /// Where one flight's outputs go.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct FlightOutputs {
-    /// Compensated CSV.
-    pub compensated_csv: PathBuf,
+    /// Compensated flight (CSV, or XYZ for an XYZ input).
+    pub compensated: PathBuf,
     /// Model JSON, if wanted.
     pub model_json: Option<PathBuf>,
     /// Quality JSON, if wanted.
@@ -30,8 +30,13 @@ impl FlightOutputs {
         let stem = input
             .file_stem()
             .map_or("flight".into(), |s| s.to_string_lossy().into_owned());
+        // Geosoft users get XYZ back; everything else gets CSV.
+        let extension = match detect_format(input) {
+            Ok(Format::Xyz) => "xyz",
+            _ => "csv",
+        };
         FlightOutputs {
-            compensated_csv: directory.join(format!("{stem}_compensated.csv")),
+            compensated: directory.join(format!("{stem}_compensated.{extension}")),
             model_json: Some(directory.join(format!("{stem}_model.json"))),
             quality_json: Some(directory.join(format!("{stem}_quality.json"))),
         }
@@ -79,12 +84,7 @@ pub fn process_flight(job: &FlightJob, options: &StageOptions, outputs: &FlightO
         .zip(&compensation.channels)
         .map(|(model, channel)| assess_quality(&log, model, channel))
         .collect();
-    let added_columns = write_compensated_csv(
-        &job.input,
-        log.source_row_offsets(),
-        &outputs.compensated_csv,
-        &compensation,
-    )?;
+    let added_columns = write_compensated(&log, &options.ingest.columns, &outputs.compensated, &compensation)?;
     let notes = renaming_notes(&channels, &added_columns);
     let result = FlightResult {
         flight: job.input.clone(),

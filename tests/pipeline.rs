@@ -40,7 +40,7 @@ fn run_with_threads(threads: usize, csv: &Path, windows: &Path, out: &Path) -> V
     let outputs = FlightOutputs::in_directory(out, csv);
     let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
     pool.install(|| process_flight(&job, &options(), &outputs)).unwrap();
-    let mut bytes = std::fs::read(&outputs.compensated_csv).unwrap();
+    let mut bytes = std::fs::read(&outputs.compensated).unwrap();
     bytes.extend(std::fs::read(outputs.model_json.unwrap()).unwrap());
     bytes.extend(std::fs::read(outputs.quality_json.unwrap()).unwrap());
     bytes

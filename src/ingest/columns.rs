@@ -130,6 +130,52 @@ impl ColumnNames {
     }
 }
 
+/// The CONTRACT name of an uppercase SGL Geosoft field name, as used in the
+/// XYZ deliveries of the MagNav challenge data: `TIME` → `tt`, `LINE` →
+/// `line`, `UNCOMPMAG1` → `mag_1_uc`, `FLUXB_X` → `flux_b_x`, `FLUXB_TOT` →
+/// `flux_b_t`, `PITCH`/`ROLL`/`AZIMUTH` → `ins_pitch`/`ins_roll`/`ins_yaw`,
+/// `LAT`/`LONG` → `lat`/`lon`, `DIURNAL` → `diurnal`; any other all-uppercase
+/// name (`CUR_STRB`) is lowercased. `None` for names that are not uppercase.
+pub fn sgl_uppercase_alias(name: &str) -> Option<String> {
+    let is_upper = name.bytes().any(|b| b.is_ascii_uppercase())
+        && name
+            .bytes()
+            .all(|b| b.is_ascii_uppercase() || b.is_ascii_digit() || b == b'_');
+    if !is_upper {
+        return None;
+    }
+    let fixed = match name {
+        "TIME" => Some("tt"),
+        "PITCH" => Some("ins_pitch"),
+        "ROLL" => Some("ins_roll"),
+        "AZIMUTH" => Some("ins_yaw"),
+        "LONG" => Some("lon"),
+        _ => None,
+    };
+    if let Some(fixed) = fixed {
+        return Some(fixed.into());
+    }
+    if let Some(n) = name
+        .strip_prefix("UNCOMPMAG")
+        .filter(|n| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()))
+    {
+        return Some(format!("mag_{n}_uc"));
+    }
+    if let Some(rest) = name.strip_prefix("FLUX") {
+        if let Some((letter, component)) = rest.split_once('_') {
+            let component = match component {
+                "X" | "Y" | "Z" => component.to_ascii_lowercase(),
+                "TOT" => "t".into(),
+                _ => String::new(),
+            };
+            if letter.len() == 1 && !component.is_empty() {
+                return Some(format!("flux_{}_{component}", letter.to_ascii_lowercase()));
+            }
+        }
+    }
+    Some(name.to_ascii_lowercase())
+}
+
 /// `mag_<n>_uc` with n one or more digits.
 fn is_sgl_scalar(name: &str) -> bool {
     name.strip_prefix("mag_")
@@ -184,6 +230,25 @@ mod tests {
         );
         assert_eq!(names.role_of("cur_strb"), Some(ChannelRole::Auxiliary));
         assert_eq!(names.role_of("diurnal"), Some(ChannelRole::BaseStation));
+    }
+
+    #[test]
+    fn uppercase_sgl_names_map_to_contract_names() {
+        let cases = [
+            ("TIME", "tt"),
+            ("LINE", "line"),
+            ("UNCOMPMAG1", "mag_1_uc"),
+            ("FLUXB_X", "flux_b_x"),
+            ("FLUXD_TOT", "flux_d_t"),
+            ("AZIMUTH", "ins_yaw"),
+            ("CUR_STRB", "cur_strb"),
+            ("LONG", "lon"),
+        ];
+        for (upper, lower) in cases {
+            assert_eq!(sgl_uppercase_alias(upper).as_deref(), Some(lower), "{upper}");
+        }
+        assert_eq!(sgl_uppercase_alias("mag_1_uc"), None);
+        assert_eq!(sgl_uppercase_alias("Cur_Strb"), None);
     }
 
     #[test]

@@ -143,7 +143,7 @@ enum ColumnKind {
 }
 
 /// Accumulates parsed cells column by column.
-struct ColumnBuilder<'a> {
+pub(crate) struct ColumnBuilder<'a> {
     path: &'a Path,
     names: Vec<String>,
     kinds: Vec<ColumnKind>,
@@ -151,11 +151,11 @@ struct ColumnBuilder<'a> {
     time_index: usize,
     previous_time: f64,
     /// Byte offset of each data row's record.
-    row_offsets: Vec<u64>,
+    pub(crate) row_offsets: Vec<u64>,
 }
 
 impl<'a> ColumnBuilder<'a> {
-    fn new(path: &'a Path, names: Vec<String>, roles: &ColumnNames) -> Result<Self> {
+    pub(crate) fn new(path: &'a Path, names: Vec<String>, roles: &ColumnNames) -> Result<Self> {
         let time_index = names
             .iter()
             .position(|n| *n == roles.time)
@@ -191,7 +191,7 @@ impl<'a> ColumnBuilder<'a> {
         })
     }
 
-    fn push_row<'f>(&mut self, fields: impl Iterator<Item = &'f [u8]>, line: u64) -> Result<()> {
+    pub(crate) fn push_row<'f>(&mut self, fields: impl Iterator<Item = &'f [u8]>, line: u64) -> Result<()> {
         let mut count = 0;
         for cell in fields {
             if count < self.names.len() {
@@ -261,7 +261,7 @@ impl<'a> ColumnBuilder<'a> {
         }
     }
 
-    fn finish(self, roles: &ColumnNames) -> Result<FlightLog> {
+    pub(crate) fn finish(self, roles: &ColumnNames) -> Result<FlightLog> {
         let rows = self.values[self.time_index].len();
         if rows == 0 {
             return Err(Error::MalformedRow {

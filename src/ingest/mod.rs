@@ -6,6 +6,7 @@
 
 pub mod columns;
 pub mod csv;
+pub mod xyz;
 
 use std::io::Read;
 use std::path::Path;
@@ -22,30 +23,60 @@ pub struct IngestOptions {
     pub columns: ColumnNames,
 }
 
-/// Reads the flight log at `path`, choosing the reader by extension or content.
-pub fn read_flight_log(path: &Path, options: &IngestOptions) -> Result<FlightLog> {
+/// The file formats magcomp reads.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Format {
+    /// CSV and other delimited text with a header row.
+    DelimitedText,
+    /// Geosoft XYZ.
+    Xyz,
+    /// MCAP container.
+    Mcap,
+    /// HDF5 (MagNav challenge layout).
+    Hdf5,
+}
+
+/// Chooses the format of `path` from its extension, or from its first bytes
+/// when the extension says nothing.
+pub fn detect_format(path: &Path) -> Result<Format> {
     let extension = path
         .extension()
         .and_then(|e| e.to_str())
         .map(str::to_ascii_lowercase)
         .unwrap_or_default();
     match extension.as_str() {
-        "csv" | "txt" | "tsv" | "dat" => csv::read_csv(path, &options.columns),
-        "mcap" | "h5" | "hdf5" | "xyz" | "gdb" => Err(unsupported(path, &extension)),
-        _ => read_by_content(path, options),
+        "csv" | "txt" | "tsv" | "dat" => return Ok(Format::DelimitedText),
+        "xyz" => return Ok(Format::Xyz),
+        "mcap" => return Ok(Format::Mcap),
+        "h5" | "hdf5" => return Ok(Format::Hdf5),
+        _ => {}
     }
-}
-
-fn read_by_content(path: &Path, options: &IngestOptions) -> Result<FlightLog> {
     let mut head = [0u8; 512];
     let mut file = std::fs::File::open(path).map_err(|e| Error::io(path, "opening", e))?;
     let read = file.read(&mut head).map_err(|e| Error::io(path, "reading", e))?;
     let head = &head[..read];
-    let looks_textual = !head.is_empty() && head.iter().all(|b| b.is_ascii_graphic() || b.is_ascii_whitespace());
-    if looks_textual && !head.starts_with(b"/") {
-        return csv::read_csv(path, &options.columns);
+    if head.starts_with(b"\x89MCAP") {
+        return Ok(Format::Mcap);
     }
-    Err(unsupported(path, "unknown"))
+    if head.starts_with(b"\x89HDF\r\n\x1a\n") {
+        return Ok(Format::Hdf5);
+    }
+    let looks_textual = !head.is_empty() && head.iter().all(|b| b.is_ascii_graphic() || b.is_ascii_whitespace());
+    match (looks_textual, xyz::looks_like_xyz(head)) {
+        (true, true) => Ok(Format::Xyz),
+        (true, false) => Ok(Format::DelimitedText),
+        _ => Err(unsupported(path, "unknown")),
+    }
+}
+
+/// Reads the flight log at `path`, choosing the reader by extension or content.
+pub fn read_flight_log(path: &Path, options: &IngestOptions) -> Result<FlightLog> {
+    match detect_format(path)? {
+        Format::DelimitedText => csv::read_csv(path, &options.columns),
+        Format::Xyz => xyz::read_xyz(path, &options.columns),
+        Format::Mcap => Err(unsupported(path, "mcap")),
+        Format::Hdf5 => Err(unsupported(path, "hdf5")),
+    }
 }
 
 fn unsupported(path: &Path, kind: &str) -> Error {
@@ -53,8 +84,8 @@ fn unsupported(path: &Path, kind: &str) -> Error {
         path: path.to_path_buf(),
         message: format!(
             "this build reads delimited text flight logs (CSV with a header row; ',', ';', tab or \
-             whitespace separated). The '{kind}' format is not readable yet; export the flight as CSV \
-             with SGL field names (tt, mag_1_uc, flux_a_x, ...)."
+             whitespace separated) and Geosoft XYZ. The '{kind}' format is not readable here; export the \
+             flight as CSV with SGL field names (tt, mag_1_uc, flux_a_x, ...)."
         ),
     }
 }

@@ -12,9 +12,13 @@ use std::path::Path;
 
 use serde::Serialize;
 
+pub mod text;
+
 use crate::compensate::Compensation;
 use crate::error::{Error, Result};
+use crate::flight_log::FlightLog;
 use crate::ingest::csv::{delimited_reader, read_header, Separator};
+use crate::ingest::{detect_format, ColumnNames, Format};
 
 /// Writes `path` atomically: `write` fills a temporary file in the same
 /// folder, which then replaces `path`.
@@ -86,6 +90,69 @@ pub fn flags_column_name(existing: &[String]) -> String {
     }
 }
 
+/// Writes the compensated flight to `output`, in the format its extension
+/// names (`.xyz` for Geosoft XYZ, anything else comma-separated text).
+/// Every input row is written. Returns the added column names.
+pub fn write_compensated(
+    log: &FlightLog,
+    names: &ColumnNames,
+    output: &Path,
+    compensation: &Compensation,
+) -> Result<Vec<String>> {
+    let input_format = detect_format(log.source()).ok();
+    let wants_xyz = detect_output_format(output) == Format::Xyz;
+    if !wants_xyz && input_format == Some(Format::DelimitedText) {
+        return write_compensated_csv(log.source(), log.source_row_offsets(), output, compensation);
+    }
+    let existing: Vec<String> = std::iter::once(log.time_column().to_string())
+        .chain(log.channels().iter().map(|c| c.name.clone()))
+        .collect();
+    let added = added_column_names(&existing, compensation);
+    match (wants_xyz, input_format) {
+        (true, Some(Format::Xyz)) => text::copy_xyz(log, names, &added, output, compensation)?,
+        (true, _) => text::write_log_xyz(log, &added, output, Some(compensation))?,
+        (false, _) => text::write_log_csv(log, &added, output, Some(compensation))?,
+    }
+    Ok(added)
+}
+
+/// Writes a flight log as it is, in the format `output`'s extension names:
+/// `.xyz` for Geosoft XYZ, anything else comma-separated text.
+pub fn write_flight_log(log: &FlightLog, output: &Path) -> Result<()> {
+    match detect_output_format(output) {
+        Format::Xyz => text::write_log_xyz(log, &[], output, None),
+        _ => text::write_log_csv(log, &[], output, None),
+    }
+}
+
+/// The format an output path asks for, by extension (CSV by default).
+pub fn detect_output_format(output: &Path) -> Format {
+    let extension = output
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase)
+        .unwrap_or_default();
+    match extension.as_str() {
+        "xyz" => Format::Xyz,
+        "mcap" => Format::Mcap,
+        "h5" | "hdf5" => Format::Hdf5,
+        _ => Format::DelimitedText,
+    }
+}
+
+/// Names of the columns magcomp adds after `existing`: one per compensated
+/// channel, then the flags column.
+fn added_column_names(existing: &[String], compensation: &Compensation) -> Vec<String> {
+    let mut added: Vec<String> = Vec::new();
+    for channel in &compensation.channels {
+        let taken: Vec<String> = existing.iter().chain(&added).cloned().collect();
+        added.push(output_column_name(&channel.channel, &taken));
+    }
+    let taken: Vec<String> = existing.iter().chain(&added).cloned().collect();
+    added.push(flags_column_name(&taken));
+    added
+}
+
 /// Writes the compensated CSV: every input row and column, then one column
 /// per compensated channel and the flags column. Returns the added column
 /// names.
@@ -100,13 +167,7 @@ pub fn write_compensated_csv(
     compensation: &Compensation,
 ) -> Result<Vec<String>> {
     let (separator, header) = read_header(input)?;
-    let mut added: Vec<String> = Vec::new();
-    for channel in &compensation.channels {
-        let existing: Vec<String> = header.iter().chain(&added).cloned().collect();
-        added.push(output_column_name(&channel.channel, &existing));
-    }
-    let existing: Vec<String> = header.iter().chain(&added).cloned().collect();
-    added.push(flags_column_name(&existing));
+    let added = added_column_names(&header, compensation);
     let rows = compensation.flags.len();
     if let (Separator::Byte(b','), Some(offsets)) = (separator, row_offsets) {
         if offsets.len() == rows {
@@ -151,6 +212,25 @@ impl<'a> ExtraColumns<'a> {
         }
         record.push_field(self.compensation.flags[self.row].as_bytes());
         self.row += 1;
+    }
+
+    /// Writes ` value` per channel (`*` for a null) and ` flags` for the
+    /// next row of an XYZ file.
+    fn write_xyz_cells<W: Write>(&mut self, out: &mut W) -> std::io::Result<()> {
+        for channel in &self.compensation.channels {
+            out.write_all(b" ")?;
+            let value = channel.values[self.row];
+            out.write_all(if value.is_finite() {
+                self.buffer.format(value)
+            } else {
+                b"*"
+            })?;
+        }
+        let flags = &self.compensation.flags[self.row];
+        out.write_all(b" ")?;
+        out.write_all(if flags.is_empty() { b"*" } else { flags.as_bytes() })?;
+        self.row += 1;
+        Ok(())
     }
 
     /// Writes `,value` per channel and `,flags` for the next row.

@@ -1,0 +1,196 @@
+//! Every format ingests to the same flight log, and the pipeline gives the
+//! same compensated values on each.
+
+use std::path::{Path, PathBuf};
+
+use magcomp::config::{FlightJob, Pipeline};
+use magcomp::flight_log::FlightLog;
+use magcomp::ingest::{read_flight_log, IngestOptions};
+use magcomp::output::write_flight_log;
+use magcomp::pipeline::{process_flight, FlightOutputs, StageOptions};
+use magcomp::sample_flight::{generate, write, SampleFlightSpec};
+use magcomp::windows::read_detect_json;
+
+fn small_flight(folder: &Path) -> (PathBuf, PathBuf) {
+    let spec = SampleFlightSpec {
+        line_count: 2,
+        line_duration_s: 60.0,
+        ..SampleFlightSpec::default()
+    };
+    let csv = folder.join("flight.csv");
+    let windows = folder.join("flight.windows.json");
+    write(&generate(&spec, 11), &csv, &windows).unwrap();
+    (csv, windows)
+}
+
+/// Asserts two logs hold the same samples; `tolerance` is relative.
+fn assert_same_log(a: &FlightLog, b: &FlightLog, tolerance: f64) {
+    assert_eq!(a.len(), b.len(), "row count");
+    let close = |x: f64, y: f64| (x.is_nan() && y.is_nan()) || (x - y).abs() <= tolerance * x.abs().max(1.0);
+    assert!(a.time_s().iter().zip(b.time_s()).all(|(x, y)| close(*x, *y)), "time");
+    assert_eq!(a.channels().len(), b.channels().len(), "channel count");
+    for channel in a.channels() {
+        let other = b
+            .channel(&channel.name)
+            .unwrap_or_else(|| panic!("{} missing", channel.name));
+        assert_eq!(channel.role, other.role, "{}", channel.name);
+        let worst = channel
+            .values
+            .iter()
+            .zip(&other.values)
+            .position(|(x, y)| !close(*x, *y));
+        assert!(worst.is_none(), "{} differs at row {worst:?}", channel.name);
+    }
+}
+
+fn options() -> StageOptions {
+    let pipeline = Pipeline::default();
+    StageOptions {
+        ingest: pipeline.ingest,
+        fit: pipeline.fit,
+        level: pipeline.level,
+    }
+}
+
+/// Compensated values of `column` from a CSV or XYZ output.
+fn output_column(path: &Path, column: &str) -> Vec<String> {
+    let text = std::fs::read_to_string(path).unwrap();
+    let xyz = path.extension().is_some_and(|e| e == "xyz");
+    let split = |line: &str| -> Vec<String> {
+        match xyz {
+            true => line.split_ascii_whitespace().map(String::from).collect(),
+            false => line.split(',').map(String::from).collect(),
+        }
+    };
+    let mut lines = text.lines().filter(|l| !l.starts_with("Line "));
+    let header = loop {
+        let line = lines.next().unwrap();
+        if xyz && line.starts_with('/') && line.contains(column) {
+            break split(line.trim_start_matches('/'));
+        }
+        if !xyz {
+            break split(line);
+        }
+    };
+    let index = header.iter().position(|h| h == column).unwrap();
+    lines
+        .filter(|l| !l.starts_with('/'))
+        .map(|l| {
+            let cells = split(l);
+            match cells[index].as_str() {
+                "*" => String::new(),
+                v => v.to_string(),
+            }
+        })
+        .collect()
+}
+
+#[test]
+fn csv_and_xyz_ingest_to_the_same_log_and_compensate_identically() {
+    let folder = tempfile::tempdir().unwrap();
+    let (csv, windows) = small_flight(folder.path());
+    let ingest = IngestOptions::default();
+    let from_csv = read_flight_log(&csv, &ingest).unwrap();
+    let xyz = folder.path().join("flight.xyz");
+    write_flight_log(&from_csv, &xyz).unwrap();
+    let from_xyz = read_flight_log(&xyz, &ingest).unwrap();
+    // Shortest round-trip number text: exact.
+    assert_same_log(&from_csv, &from_xyz, 0.0);
+
+    let mut compensated = Vec::new();
+    for input in [&csv, &xyz] {
+        let job = FlightJob {
+            input: input.clone(),
+            vector: None,
+            channels: None,
+            windows: read_detect_json(&windows).unwrap(),
+        };
+        let outputs = FlightOutputs::in_directory(&folder.path().join("out"), input);
+        process_flight(&job, &options(), &outputs).unwrap();
+        compensated.push(output_column(&outputs.compensated, "mag_1_c"));
+    }
+    assert_eq!(compensated[0].len(), from_csv.len());
+    assert!(
+        compensated[0] == compensated[1],
+        "CSV and XYZ inputs compensate differently"
+    );
+}
+
+#[test]
+fn sgl_xyz_with_line_records_runs_through_the_cli() {
+    let folder = tempfile::tempdir().unwrap();
+    let (csv, windows) = small_flight(folder.path());
+    let log = read_flight_log(&csv, &IngestOptions::default()).unwrap();
+    // Rewrite as an SGL-style delivery: uppercase names, line records, no
+    // line column.
+    let rename = |name: &str| match name {
+        "tt" => "TIME".to_string(),
+        "ins_pitch" => "PITCH".into(),
+        "ins_roll" => "ROLL".into(),
+        "ins_yaw" => "AZIMUTH".into(),
+        n if n.starts_with("mag_") => format!("UNCOMPMAG{}", &n[4..5]),
+        n if n.starts_with("flux_") => format!("FLUX{}_{}", n[5..6].to_uppercase(), n[7..].to_uppercase()),
+        n => n.to_uppercase(),
+    };
+    let keep: Vec<usize> = (0..log.channels().len())
+        .filter(|&i| log.channels()[i].name != "line")
+        .collect();
+    let line = &log.channel("line").unwrap().values;
+    let mut text = String::from("/ SGL 2020 delivery\n/ ");
+    let names: Vec<String> = std::iter::once("tt")
+        .chain(keep.iter().map(|&i| log.channels()[i].name.as_str()))
+        .map(rename)
+        .collect();
+    text += &names.join("  ");
+    text += "\n";
+    let mut current = f64::NAN;
+    for row in 0..log.len() {
+        if line[row] != current {
+            current = line[row];
+            text += &format!("Line {current}\n");
+        }
+        text += &format!("{}", log.time_s()[row]);
+        for &i in &keep {
+            let v = log.channels()[i].values[row];
+            text += &if v.is_finite() { format!("  {v}") } else { "  *".into() };
+        }
+        text += "\n";
+    }
+    let xyz = folder.path().join("Flt1002.xyz");
+    std::fs::write(&xyz, &text).unwrap();
+    let from_xyz = read_flight_log(&xyz, &IngestOptions::default()).unwrap();
+    assert_same_log(&log, &from_xyz, 0.0);
+
+    let windows_arg: Vec<String> = read_detect_json(&windows)
+        .unwrap()
+        .iter()
+        .map(|w| format!("{}:{}", w.t_start, w.t_end))
+        .collect();
+    let out = folder.path().join("Flt1002_c.xyz");
+    let mut args = vec![
+        "compensate".to_string(),
+        xyz.display().to_string(),
+        "--out".into(),
+        out.display().to_string(),
+    ];
+    for w in &windows_arg {
+        args.push("--window".into());
+        args.push(w.clone());
+    }
+    let status = std::process::Command::new(env!("CARGO_BIN_EXE_magcomp"))
+        .args(&args)
+        .output()
+        .unwrap();
+    assert!(status.status.success(), "{}", String::from_utf8_lossy(&status.stderr));
+    let written = std::fs::read_to_string(&out).unwrap();
+    let input_lines: Vec<&str> = text.lines().collect();
+    let output_lines: Vec<&str> = written.lines().collect();
+    assert_eq!(input_lines.len(), output_lines.len(), "every line is kept");
+    assert_eq!(output_lines[1], format!("{} mag_1_c mag_2_c flags", input_lines[1]));
+    for (i, o) in input_lines.iter().zip(&output_lines).skip(2) {
+        assert!(o.starts_with(i), "line copied unchanged: {i}");
+    }
+    let values = output_column(&out, "mag_1_c");
+    assert_eq!(values.len(), log.len());
+    assert!(values.iter().filter(|v| v.parse::<f64>().is_ok()).count() > log.len() * 99 / 100);
+}
