@@ -50,6 +50,7 @@ pub mod fit;
 pub mod flight_log;
 pub mod ingest;
 pub mod linalg;
+pub mod messages;
 pub mod output;
 pub mod pipeline;
 pub mod quality;

@@ -6,6 +6,7 @@
 
 pub mod columns;
 pub mod csv;
+pub mod align;
 pub mod xyz;
 
 use std::io::Read;

@@ -1,0 +1,272 @@
+//! Placing channels recorded at different rates on one time base.
+//!
+//! Sensors are logged at their own rates and clocks (scalar 10–20 Hz,
+//! fluxgate 10–100 Hz, INS 50 Hz, currents 1–10 Hz). The time base is the
+//! timestamps of one channel: by default the first scalar magnetometer,
+//! otherwise the one named in `[alignment] time_base`. Every other channel
+//! is evaluated at those times:
+//! - continuous channels by linear interpolation between the two samples
+//!   that bracket the time;
+//! - counters and line numbers (integer fields, the line channel) by the
+//!   previous value;
+//! - when the bracketing samples are further apart than the gap tolerance
+//!   (by default 2.5 of the channel's own median intervals), the row stays
+//!   missing and gets a `gap:<channel>` flag;
+//! - before a channel's first sample or after its last the row stays
+//!   missing: nothing is extrapolated.
+//!
+//! What was done to each channel is recorded in an [`AlignmentReport`].
+
+use serde::{Deserialize, Serialize};
+
+/// One recorded series before alignment.
+#[derive(Debug, Clone)]
+pub struct Stream {
+    /// Channel name it becomes.
+    pub name: String,
+    /// Where it came from (topic and field).
+    pub source: String,
+    /// Hold the previous value instead of interpolating.
+    pub hold: bool,
+    /// Sample times, nanoseconds.
+    pub times_ns: Vec<u64>,
+    /// Sample values.
+    pub values: Vec<f64>,
+}
+
+/// `[alignment]` settings.
+#[derive(Debug, Clone, Default, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct AlignmentOptions {
+    /// Channel whose timestamps are the time base; default the first scalar
+    /// magnetometer.
+    pub time_base: Option<String>,
+    /// Longest interval, seconds, across which a channel is interpolated;
+    /// default 2.5 of the channel's own median sample interval.
+    pub gap_tolerance_s: Option<f64>,
+}
+
+/// How one channel was placed on the time base.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ResampledChannel {
+    /// Channel name.
+    pub channel: String,
+    /// Topic and field it came from.
+    pub source: String,
+    /// Samples recorded.
+    pub samples: usize,
+    /// Median recorded rate, Hz.
+    pub rate_hz: f64,
+    /// `time base`, `linear` or `previous value`.
+    pub method: &'static str,
+    /// Gap tolerance used, seconds.
+    pub gap_tolerance_s: f64,
+    /// Rows left missing because they fall in a gap.
+    pub rows_in_gaps: usize,
+    /// Rows left missing because they are outside the channel's span.
+    pub rows_outside: usize,
+}
+
+/// What alignment did.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct AlignmentReport {
+    /// Channel whose timestamps are the time base.
+    pub time_base: String,
+    /// Rows of the time base.
+    pub rows: usize,
+    /// Duplicate time-base timestamps dropped.
+    pub duplicate_times_dropped: usize,
+    /// Every channel, in output order.
+    pub channels: Vec<ResampledChannel>,
+}
+
+/// Channels on one time base.
+#[derive(Debug, Clone)]
+pub struct Aligned {
+    /// Time base, seconds.
+    pub time_s: Vec<f64>,
+    /// `(name, values)` per channel, in stream order, the base included.
+    pub channels: Vec<(String, Vec<f64>)>,
+    /// Per-row flags (`gap:<channel>`, `;`-separated).
+    pub row_flags: Vec<String>,
+    /// What was done.
+    pub report: AlignmentReport,
+}
+
+/// Aligns `streams` on the timestamps of stream `base` (an index).
+pub fn align(mut streams: Vec<Stream>, base: usize, options: &AlignmentOptions) -> Aligned {
+    streams.iter_mut().for_each(sort_by_time);
+    let (base_times, duplicates) = {
+        let mut times = streams[base].times_ns.clone();
+        let before = times.len();
+        times.dedup();
+        let after = times.len();
+        (times, before - after)
+    };
+    let time_s: Vec<f64> = base_times.iter().map(|&t| t as f64 / 1e9).collect();
+    let mut row_flags = vec![String::new(); base_times.len()];
+    let mut channels = Vec::with_capacity(streams.len());
+    let mut report = Vec::with_capacity(streams.len());
+    for (index, stream) in streams.into_iter().enumerate() {
+        let interval_s = median_interval_ns(&stream.times_ns) / 1e9;
+        let tolerance_s = options.gap_tolerance_s.unwrap_or(2.5 * interval_s);
+        let method = match (index == base, stream.hold) {
+            (true, _) => "time base",
+            (false, true) => "previous value",
+            (false, false) => "linear",
+        };
+        let resampled = resample(&stream, &base_times, (tolerance_s * 1e9) as u64);
+        for &row in &resampled.gap_rows {
+            let flag = format!("gap:{}", stream.name);
+            if !row_flags[row].is_empty() {
+                row_flags[row].push(';');
+            }
+            row_flags[row].push_str(&flag);
+        }
+        report.push(ResampledChannel {
+            channel: stream.name.clone(),
+            source: stream.source.clone(),
+            samples: stream.times_ns.len(),
+            rate_hz: if interval_s > 0.0 { 1.0 / interval_s } else { 0.0 },
+            method,
+            gap_tolerance_s: tolerance_s,
+            rows_in_gaps: resampled.gap_rows.len(),
+            rows_outside: resampled.outside,
+        });
+        channels.push((stream.name, resampled.values));
+    }
+    let time_base = report[base].channel.clone();
+    Aligned {
+        report: AlignmentReport {
+            time_base,
+            rows: time_s.len(),
+            duplicate_times_dropped: duplicates,
+            channels: report,
+        },
+        time_s,
+        channels,
+        row_flags,
+    }
+}
+
+fn sort_by_time(stream: &mut Stream) {
+    if stream.times_ns.windows(2).all(|w| w[0] <= w[1]) {
+        return;
+    }
+    let mut order: Vec<usize> = (0..stream.times_ns.len()).collect();
+    order.sort_by_key(|&i| stream.times_ns[i]);
+    stream.times_ns = order.iter().map(|&i| stream.times_ns[i]).collect();
+    stream.values = order.iter().map(|&i| stream.values[i]).collect();
+}
+
+fn median_interval_ns(times: &[u64]) -> f64 {
+    let mut steps: Vec<u64> = times.windows(2).map(|w| w[1] - w[0]).filter(|&s| s > 0).collect();
+    if steps.is_empty() {
+        return 0.0;
+    }
+    let middle = steps.len() / 2;
+    *steps.select_nth_unstable(middle).1 as f64
+}
+
+struct Resampled {
+    values: Vec<f64>,
+    gap_rows: Vec<usize>,
+    outside: usize,
+}
+
+/// Evaluates `stream` at the sorted `base` times.
+fn resample(stream: &Stream, base: &[u64], tolerance_ns: u64) -> Resampled {
+    let (times, values) = (&stream.times_ns, &stream.values);
+    let mut out = Resampled {
+        values: vec![f64::NAN; base.len()],
+        gap_rows: Vec::new(),
+        outside: 0,
+    };
+    let (Some(&first), Some(&last)) = (times.first(), times.last()) else {
+        out.outside = base.len();
+        return out;
+    };
+    let mut j = 0;
+    for (row, &t) in base.iter().enumerate() {
+        if t < first || t > last {
+            out.outside += 1;
+            continue;
+        }
+        while j + 1 < times.len() && times[j + 1] <= t {
+            j += 1;
+        }
+        if times[j] == t {
+            out.values[row] = values[j];
+            continue;
+        }
+        let (ta, tb) = (times[j], times[j + 1]);
+        if tb - ta > tolerance_ns {
+            out.gap_rows.push(row);
+            continue;
+        }
+        out.values[row] = match stream.hold {
+            true => values[j],
+            false => {
+                let fraction = (t - ta) as f64 / (tb - ta) as f64;
+                values[j] + fraction * (values[j + 1] - values[j])
+            }
+        };
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn stream(name: &str, hold: bool, times_s: &[f64], values: &[f64]) -> Stream {
+        Stream {
+            name: name.into(),
+            source: format!("/test/{name}"),
+            hold,
+            times_ns: times_s.iter().map(|t| (t * 1e9).round() as u64).collect(),
+            values: values.to_vec(),
+        }
+    }
+
+    #[test]
+    fn interpolates_holds_and_never_extrapolates() {
+        let base = stream("mag_1_uc", false, &[1.0, 1.1, 1.2, 1.3, 1.4, 1.5], &[0.0; 6]);
+        let slope = stream("flux_a_x", false, &[1.05, 1.15, 1.25, 1.35], &[10.0, 20.0, 30.0, 40.0]);
+        let line = stream("line", true, &[0.0, 1.22], &[7.0, 8.0]);
+        let aligned = align(vec![base, slope, line], 0, &AlignmentOptions::default());
+        let x = &aligned.channels[1].1;
+        assert!(x[0].is_nan() && x[4].is_nan() && x[5].is_nan(), "outside the span: {x:?}");
+        for (got, want) in x[1..4].iter().zip([15.0, 25.0, 35.0]) {
+            assert!((got - want).abs() < 1e-9, "{got} vs {want}");
+        }
+        assert_eq!(aligned.channels[2].1[..3], [7.0, 7.0, 7.0]);
+        assert!(aligned.channels[2].1[3].is_nan(), "after the last sample");
+        assert_eq!(aligned.report.channels[1].rows_outside, 3);
+        assert_eq!(aligned.report.channels[2].method, "previous value");
+    }
+
+    #[test]
+    fn gaps_stay_missing_and_are_flagged() {
+        let base = stream("mag_1_uc", false, &[0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6], &[0.0; 7]);
+        let current = stream("cur_a", false, &[0.0, 0.1, 0.2, 0.55, 0.6], &[1.0, 1.0, 1.0, 2.0, 2.0]);
+        let aligned = align(vec![base, current], 0, &AlignmentOptions::default());
+        let values = &aligned.channels[1].1;
+        assert!(values[3].is_nan() && values[4].is_nan() && values[5].is_nan());
+        assert_eq!(aligned.row_flags[4], "gap:cur_a");
+        assert_eq!(aligned.report.channels[1].rows_in_gaps, 3);
+        let loose = AlignmentOptions {
+            gap_tolerance_s: Some(1.0),
+            ..AlignmentOptions::default()
+        };
+        let aligned = align(
+            vec![
+                stream("m", false, &[0.0, 0.3], &[0.0, 0.0]),
+                stream("c", false, &[0.0, 0.6], &[0.0, 6.0]),
+            ],
+            0,
+            &loose,
+        );
+        assert!((aligned.channels[1].1[1] - 3.0).abs() < 1e-12);
+    }
+}
