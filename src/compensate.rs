@@ -146,7 +146,10 @@ fn calibration_mean(log: &FlightLog, model: &FittedTollesLawson, interference: &
 
 /// Reasons a row's outputs are missing, `;`-separated, in model order.
 fn row_flags(log: &FlightLog, models: &[FittedTollesLawson]) -> Vec<String> {
-    let mut flags = vec![String::new(); log.len()];
+    let mut flags = match log.row_flags().len() == log.len() {
+        true => log.row_flags().to_vec(),
+        false => vec![String::new(); log.len()],
+    };
     let mut push = |row: usize, reason: String| {
         if !flags[row].split(';').any(|r| r == reason) {
             if !flags[row].is_empty() {

@@ -8,6 +8,10 @@
 //! [columns]            # SGL names by default; map your own here
 //! time = "tt"
 //!
+//! [alignment]          # multi-rate inputs (MCAP)
+//! time_base = "mag_1_uc"   # default: the first scalar magnetometer
+//! gap_tolerance_s = 0.5    # default: 2.5 of each channel's own interval
+//!
 //! [filter]
 //! band = "bandpass"    # bandpass | lowpass | highpass | none
 //! low_hz = 0.1
@@ -39,6 +43,7 @@ use crate::compensate::LevelConvention;
 use crate::error::{Error, Result};
 use crate::filter::{EdgePadding, FilterBand};
 use crate::fit::{FilterSettings, FitOptions};
+use crate::ingest::align::AlignmentOptions;
 use crate::ingest::{ColumnNames, IngestOptions};
 use crate::solve::{Criterion, LambdaChoice, SolveOptions};
 use crate::tolles_lawson::{EddyTerms, InducedTerms, TermSet};
@@ -162,6 +167,8 @@ pub struct RawFlight {
 pub struct RawPipeline {
     /// Column-name mapping.
     pub columns: ColumnNames,
+    /// Multi-rate alignment (MCAP inputs).
+    pub alignment: AlignmentOptions,
     /// Band-pass settings.
     pub filter: RawFilter,
     /// Fit settings.
@@ -236,7 +243,10 @@ impl Pipeline {
             .map(|f| flight_job(f, base, source_name))
             .collect::<Result<Vec<_>>>()?;
         Ok(Pipeline {
-            ingest: IngestOptions { columns: raw.columns },
+            ingest: IngestOptions {
+                columns: raw.columns,
+                alignment: raw.alignment,
+            },
             fit,
             level: raw.fit.level,
             output_directory: base.join(raw.output.directory),

@@ -9,6 +9,7 @@
 use std::path::{Path, PathBuf};
 
 use crate::error::{Error, Result};
+use crate::ingest::align::AlignmentReport;
 
 /// The three body axes of a vector magnetometer.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -89,6 +90,8 @@ pub struct FlightLog {
     time_s: Vec<f64>,
     channels: Vec<Channel>,
     source_row_offsets: Option<Vec<u64>>,
+    row_flags: Vec<String>,
+    alignment: Option<AlignmentReport>,
 }
 
 impl FlightLog {
@@ -116,7 +119,34 @@ impl FlightLog {
             time_s,
             channels,
             source_row_offsets: None,
+            row_flags: Vec::new(),
+            alignment: None,
         })
+    }
+
+    /// Attaches per-row flags raised while reading (e.g. `gap:cur_a` where
+    /// a channel had a gap); ignored unless there is one per row.
+    pub fn with_row_flags(mut self, flags: Vec<String>) -> Self {
+        if flags.len() == self.time_s.len() {
+            self.row_flags = flags;
+        }
+        self
+    }
+
+    /// Per-row flags raised while reading; empty when there are none.
+    pub fn row_flags(&self) -> &[String] {
+        &self.row_flags
+    }
+
+    /// Records how multi-rate channels were placed on the time base.
+    pub fn with_alignment(mut self, report: AlignmentReport) -> Self {
+        self.alignment = Some(report);
+        self
+    }
+
+    /// How multi-rate channels were placed on the time base, when they were.
+    pub fn alignment(&self) -> Option<&AlignmentReport> {
+        self.alignment.as_ref()
     }
 
     /// Records where each row's record starts in the source text file (byte

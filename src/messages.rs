@@ -300,7 +300,14 @@ impl MessageLayout {
     /// Decodes one message, writing each numeric field into its slot of
     /// `values` (which must have one entry per slot; absent fields are 0 as
     /// protobuf 3 defines).
-    pub fn decode(&self, mut data: &[u8], values: &mut [f64]) -> Result<(), prost::DecodeError> {
+    pub fn decode(&self, data: &[u8], values: &mut [f64]) -> Result<(), String> {
+        self.decode_wire(data, values).map_err(|e| match e {
+            WireError::Prost(e) => e.to_string(),
+            WireError::Mismatch => "a field's wire type does not match its schema".into(),
+        })
+    }
+
+    fn decode_wire(&self, mut data: &[u8], values: &mut [f64]) -> Result<(), WireError> {
         values.iter_mut().for_each(|v| *v = 0.0);
         while data.has_remaining() {
             let (number, wire) = decode_key(&mut data)?;
@@ -333,10 +340,22 @@ impl MessageLayout {
                         _ => f64::from(raw),
                     }
                 }
-                _ => return Err(prost::DecodeError::new("a field's wire type does not match its schema")),
+                _ => return Err(WireError::Mismatch),
             };
         }
         Ok(())
+    }
+}
+
+/// Why a message could not be decoded.
+enum WireError {
+    Prost(prost::DecodeError),
+    Mismatch,
+}
+
+impl From<prost::DecodeError> for WireError {
+    fn from(error: prost::DecodeError) -> Self {
+        WireError::Prost(error)
     }
 }
 

@@ -78,6 +78,9 @@ pub struct AlignmentReport {
     pub duplicate_times_dropped: usize,
     /// Every channel, in output order.
     pub channels: Vec<ResampledChannel>,
+    /// Remarks from reading: topics skipped and why, messages that failed
+    /// to decode, how the file was read.
+    pub notes: Vec<String>,
 }
 
 /// Channels on one time base.
@@ -142,6 +145,7 @@ pub fn align(mut streams: Vec<Stream>, base: usize, options: &AlignmentOptions) 
             rows: time_s.len(),
             duplicate_times_dropped: duplicates,
             channels: report,
+            notes: Vec::new(),
         },
         time_s,
         channels,

@@ -7,6 +7,7 @@
 pub mod columns;
 pub mod csv;
 pub mod align;
+pub mod mcap;
 pub mod xyz;
 
 use std::io::Read;
@@ -18,10 +19,12 @@ use crate::error::{Error, Result};
 use crate::flight_log::FlightLog;
 
 /// Options for reading a flight log.
-#[derive(Debug, Clone, Default, PartialEq, Eq)]
+#[derive(Debug, Clone, Default, PartialEq)]
 pub struct IngestOptions {
     /// Which column plays which role.
     pub columns: ColumnNames,
+    /// How multi-rate channels (MCAP) go onto one time base.
+    pub alignment: align::AlignmentOptions,
 }
 
 /// The file formats magcomp reads.
@@ -75,7 +78,7 @@ pub fn read_flight_log(path: &Path, options: &IngestOptions) -> Result<FlightLog
     match detect_format(path)? {
         Format::DelimitedText => csv::read_csv(path, &options.columns),
         Format::Xyz => xyz::read_xyz(path, &options.columns),
-        Format::Mcap => Err(unsupported(path, "mcap")),
+        Format::Mcap => mcap::read_mcap(path, &options.columns, &options.alignment),
         Format::Hdf5 => Err(unsupported(path, "hdf5")),
     }
 }
@@ -85,7 +88,7 @@ fn unsupported(path: &Path, kind: &str) -> Error {
         path: path.to_path_buf(),
         message: format!(
             "this build reads delimited text flight logs (CSV with a header row; ',', ';', tab or \
-             whitespace separated) and Geosoft XYZ. The '{kind}' format is not readable here; export the \
+             whitespace separated), Geosoft XYZ and MCAP. The '{kind}' format is not readable here; export the \
              flight as CSV with SGL field names (tt, mag_1_uc, flux_a_x, ...)."
         ),
     }

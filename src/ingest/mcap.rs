@@ -1,0 +1,378 @@
+//! MCAP flight logs (CONTRACT §4).
+//!
+//! Protobuf messages are decoded through the `FileDescriptorSet` embedded in
+//! the file's schemas, by field name, so any producer's numbering works.
+//! JSON messages (with a `jsonschema` or no schema) are read by the same
+//! field names. Topics map to channels as CONTRACT §4 lays out:
+//! `/mag/<n>/scalar` → `mag_<n>_uc`, `/mag/<s>/vector` → `flux_<s>_x|y|z`,
+//! `/ins/attitude` → `ins_roll|pitch|yaw`, `/gps/fix` → `lat`, `lon`, `alt`
+//! (or the column named by the channel's `magcomp.altitude_column`
+//! metadata), `/aux/<column>` → `<column>`. Numeric fields of any other
+//! topic become auxiliary channels named `<topic>_<field>`.
+//!
+//! The file is read through its summary and chunk index when it has them,
+//! chunks decoded in parallel and merged in file order; a file without a
+//! summary is scanned linearly. Channels then go onto one time base (see
+//! [`align`](super::align)). A truncated or corrupt file is an error, never
+//! a panic.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use mcap::read::Summary;
+use rayon::prelude::*;
+
+use super::align::{align, AlignmentOptions, Stream};
+use super::columns::ColumnNames;
+use crate::error::{Error, Result};
+use crate::flight_log::{Channel, ChannelRole, FlightLog};
+use crate::messages::MessageLayout;
+
+/// Metadata key on a `/gps/fix` channel naming the height column.
+pub const ALTITUDE_COLUMN_KEY: &str = "magcomp.altitude_column";
+
+/// How one MCAP channel's messages are decoded.
+#[derive(Debug, Clone)]
+enum Decoder {
+    Protobuf(MessageLayout),
+    Json,
+    Skip(String),
+}
+
+/// Per MCAP channel: its topic, decoder and the height column of a fix.
+#[derive(Debug, Clone)]
+struct TopicPlan {
+    topic: String,
+    decoder: Decoder,
+    altitude_column: String,
+}
+
+/// Decoded samples of one MCAP channel in one part of the file.
+#[derive(Debug, Default, Clone)]
+struct Decoded {
+    times_ns: Vec<u64>,
+    /// Field name of each column: from the schema for protobuf, by first
+    /// appearance for JSON.
+    fields: Vec<String>,
+    /// One column per field, one value per message (NaN where a JSON
+    /// message lacks the field).
+    values: Vec<Vec<f64>>,
+    errors: usize,
+    first_error: Option<String>,
+}
+
+impl Decoded {
+    /// The column of `field`, created (missing so far) when new.
+    fn column(&mut self, field: &str) -> usize {
+        match self.fields.iter().position(|f| f == field) {
+            Some(index) => index,
+            None => {
+                self.fields.push(field.to_string());
+                self.values.push(vec![f64::NAN; self.times_ns.len()]);
+                self.fields.len() - 1
+            }
+        }
+    }
+
+    /// Appends `other` (a later part of the same channel), matching fields by name.
+    fn append(&mut self, other: Decoded) {
+        let before = self.times_ns.len();
+        let added = other.times_ns.len();
+        self.times_ns.extend(other.times_ns);
+        for (field, values) in other.fields.iter().zip(other.values) {
+            let index = match self.fields.iter().position(|f| f == field) {
+                Some(index) => index,
+                None => {
+                    self.fields.push(field.clone());
+                    self.values.push(vec![f64::NAN; before]);
+                    self.fields.len() - 1
+                }
+            };
+            self.values[index].extend(values);
+        }
+        for column in &mut self.values {
+            column.resize(before + added, f64::NAN);
+        }
+        self.errors += other.errors;
+        self.first_error = self.first_error.take().or(other.first_error);
+    }
+}
+
+/// Reads an MCAP flight log.
+pub fn read_mcap(path: &Path, names: &ColumnNames, alignment: &AlignmentOptions) -> Result<FlightLog> {
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, "reading", e))?;
+    let corrupt = |message: String| Error::UnsupportedFormat {
+        path: path.to_path_buf(),
+        message,
+    };
+    if !bytes.starts_with(mcap::MAGIC) {
+        return Err(corrupt(
+            "the file does not start with the MCAP magic bytes; it is not an MCAP file or it is damaged".into(),
+        ));
+    }
+    // The mcap crate is trusted to return errors, but a damaged file must
+    // never take the whole run down: a panic inside it becomes an error.
+    let decoded = std::panic::catch_unwind(|| decode_file(&bytes, names))
+        .map_err(|_| corrupt("the MCAP file is corrupt (its records could not be parsed)".into()))?
+        .map_err(|e| corrupt(format!("the MCAP file is truncated or corrupt: {e}")))?;
+    build_log(path, names, alignment, decoded)
+}
+
+type FileContents = (BTreeMap<u16, TopicPlan>, BTreeMap<u16, Decoded>, Vec<String>);
+
+fn decode_file(bytes: &[u8], names: &ColumnNames) -> std::result::Result<FileContents, String> {
+    let summary = Summary::read(bytes).ok().flatten();
+    let indexed = summary.as_ref().filter(|s| {
+        !s.chunk_indexes.is_empty()
+            && s.chunk_indexes.iter().all(|c| {
+                c.chunk_start_offset
+                    .checked_add(c.chunk_length)
+                    .is_some_and(|end| end <= bytes.len() as u64 && c.chunk_length > 9)
+            })
+    });
+    let mut plans: BTreeMap<u16, TopicPlan> = BTreeMap::new();
+    let mut notes = Vec::new();
+    match indexed {
+        Some(summary) => {
+            for (id, channel) in &summary.channels {
+                plans.insert(*id, plan_topic(channel, names));
+            }
+            let parts: Vec<std::result::Result<BTreeMap<u16, Decoded>, String>> = summary
+                .chunk_indexes
+                .par_iter()
+                .map(|index| {
+                    let messages = summary.stream_chunk(bytes, index).map_err(|e| e.to_string())?;
+                    let mut part = BTreeMap::new();
+                    for message in messages {
+                        let message = message.map_err(|e| e.to_string())?;
+                        add_message(&plans, &mut part, message.channel.id, message.log_time, &message.data);
+                    }
+                    Ok(part)
+                })
+                .collect();
+            let mut merged: BTreeMap<u16, Decoded> = BTreeMap::new();
+            for part in parts {
+                for (id, decoded) in part? {
+                    merged.entry(id).or_default().append(decoded);
+                }
+            }
+            Ok((plans, merged, notes))
+        }
+        None => {
+            notes.push("the file has no chunk index; it was read by a linear scan".to_string());
+            let mut part = BTreeMap::new();
+            for message in mcap::MessageStream::new(bytes).map_err(|e| e.to_string())? {
+                let message = message.map_err(|e| e.to_string())?;
+                let id = message.channel.id;
+                if !plans.contains_key(&id) {
+                    plans.insert(id, plan_topic(&message.channel, names));
+                }
+                add_message(&plans, &mut part, id, message.log_time, &message.data);
+            }
+            Ok((plans, part, notes))
+        }
+    }
+}
+
+/// Decides how to decode a channel and what its fields become.
+fn plan_topic(channel: &mcap::Channel, names: &ColumnNames) -> TopicPlan {
+    let topic = channel.topic.clone();
+    let schema = channel.schema.as_ref();
+    let decoder = match (channel.message_encoding.as_str(), schema) {
+        ("protobuf", Some(schema)) if schema.encoding == "protobuf" => {
+            match MessageLayout::from_descriptor_set(&schema.data, &schema.name) {
+                Ok(layout) => Decoder::Protobuf(layout),
+                Err(e) => Decoder::Skip(e),
+            }
+        }
+        ("json", _) => Decoder::Json,
+        (encoding, _) => Decoder::Skip(format!("message encoding '{encoding}' is not read")),
+    };
+    let altitude_column = channel
+        .metadata
+        .get(ALTITUDE_COLUMN_KEY)
+        .cloned()
+        .unwrap_or_else(|| "alt".into());
+    let _ = names;
+    TopicPlan {
+        topic,
+        decoder,
+        altitude_column,
+    }
+}
+
+/// The flight-log channel name of `field` on `topic` (CONTRACT §4).
+pub fn channel_name(topic: &str, field: &str, altitude_column: &str) -> String {
+    let parts: Vec<&str> = topic.trim_matches('/').split('/').collect();
+    let known = match (parts.as_slice(), field) {
+        (["mag", n, "scalar"], "total_nt") => Some(format!("mag_{n}_uc")),
+        (["mag", n, "compensated"], "total_nt") => Some(format!("mag_{n}_c")),
+        (["mag", s, "vector"], "x_nt" | "y_nt" | "z_nt") => Some(format!("flux_{s}_{}", &field[..1])),
+        (["ins", "attitude"], "roll_deg" | "pitch_deg" | "yaw_deg") => {
+            Some(format!("ins_{}", field.trim_end_matches("_deg")))
+        }
+        (["gps", "fix"], "latitude") => Some("lat".into()),
+        (["gps", "fix"], "longitude") => Some("lon".into()),
+        (["gps", "fix"], "altitude") => Some(altitude_column.into()),
+        (["aux", column @ ..], "value") if !column.is_empty() => Some(column.join("_")),
+        _ => None,
+    };
+    known.unwrap_or_else(|| {
+        let stem: String = parts
+            .join("_")
+            .chars()
+            .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
+            .collect();
+        format!("{stem}_{field}")
+    })
+}
+
+fn add_message(plans: &BTreeMap<u16, TopicPlan>, part: &mut BTreeMap<u16, Decoded>, id: u16, log_time: u64, data: &[u8]) {
+    let Some(plan) = plans.get(&id) else { return };
+    let decoded = part.entry(id).or_default();
+    let result = match &plan.decoder {
+        Decoder::Skip(_) => return,
+        Decoder::Protobuf(layout) => decode_protobuf(layout, data, decoded),
+        Decoder::Json => decode_json(data, decoded),
+    };
+    match result {
+        Ok(()) => decoded.times_ns.push(log_time),
+        Err(e) => {
+            decoded.errors += 1;
+            decoded.first_error.get_or_insert(e);
+        }
+    }
+}
+
+fn decode_protobuf(layout: &MessageLayout, data: &[u8], decoded: &mut Decoded) -> std::result::Result<(), String> {
+    let slots = layout.names.len();
+    if decoded.fields.is_empty() && slots > 0 {
+        decoded.fields = layout.names.clone();
+        decoded.values = vec![Vec::new(); slots];
+    }
+    let mut stack = [0.0; 32];
+    let mut heap = Vec::new();
+    let buffer: &mut [f64] = if slots <= stack.len() {
+        &mut stack[..slots]
+    } else {
+        heap.resize(slots, 0.0);
+        &mut heap
+    };
+    layout.decode(data, buffer)?;
+    for (column, value) in decoded.values.iter_mut().zip(buffer.iter()) {
+        column.push(*value);
+    }
+    Ok(())
+}
+
+/// JSON messages: the numeric (and boolean) top-level fields, by name.
+fn decode_json(data: &[u8], decoded: &mut Decoded) -> std::result::Result<(), String> {
+    let object: serde_json::Map<String, serde_json::Value> =
+        serde_json::from_slice(data).map_err(|e| format!("not a JSON object: {e}"))?;
+    let row = decoded.times_ns.len();
+    for (field, value) in &object {
+        let number = match value {
+            serde_json::Value::Number(n) => n.as_f64(),
+            serde_json::Value::Bool(b) => Some(f64::from(u8::from(*b))),
+            _ => None,
+        };
+        if let Some(number) = number {
+            let column = decoded.column(field);
+            decoded.values[column].push(number);
+        }
+    }
+    for column in &mut decoded.values {
+        column.resize(row + 1, f64::NAN);
+    }
+    Ok(())
+}
+
+fn build_log(
+    path: &Path,
+    names: &ColumnNames,
+    alignment: &AlignmentOptions,
+    (plans, decoded, mut notes): FileContents,
+) -> Result<FlightLog> {
+    for plan in plans.values() {
+        if let Decoder::Skip(why) = &plan.decoder {
+            notes.push(format!("topic '{}' skipped: {why}", plan.topic));
+        }
+    }
+    let mut streams: Vec<Stream> = Vec::new();
+    for (id, data) in decoded {
+        let plan = &plans[&id];
+        if let Some(error) = &data.first_error {
+            notes.push(format!(
+                "topic '{}': {} messages could not be decoded and were left out (first: {error})",
+                plan.topic, data.errors
+            ));
+            if data.times_ns.is_empty() {
+                return Err(Error::UnsupportedFormat {
+                    path: path.to_path_buf(),
+                    message: format!("no message on topic '{}' could be decoded: {error}", plan.topic),
+                });
+            }
+        }
+        let integer = |field: &str| match &plan.decoder {
+            Decoder::Protobuf(layout) => layout
+                .names
+                .iter()
+                .position(|n| n == field)
+                .is_some_and(|i| layout.kinds[i].is_integer()),
+            _ => false,
+        };
+        for (field, values) in data.fields.iter().zip(data.values) {
+            if values.len() != data.times_ns.len() {
+                continue;
+            }
+            let name = channel_name(&plan.topic, field, &plan.altitude_column);
+            streams.push(Stream {
+                hold: integer(field) || name == names.line,
+                name,
+                source: format!("{}:{field}", plan.topic),
+                times_ns: data.times_ns.clone(),
+                values,
+            });
+        }
+    }
+    streams.sort_by(|a, b| a.name.cmp(&b.name).then(a.source.cmp(&b.source)));
+    streams.dedup_by(|later, earlier| later.name == earlier.name);
+    let base = match &alignment.time_base {
+        Some(name) => streams.iter().position(|s| &s.name == name).ok_or_else(|| Error::Config {
+            source_name: "[alignment] time_base".into(),
+            message: format!(
+                "no channel '{name}' in {}; the channels are: {}",
+                path.display(),
+                streams.iter().map(|s| s.name.as_str()).collect::<Vec<_>>().join(", ")
+            ),
+        })?,
+        None => streams
+            .iter()
+            .position(|s| names.role_of(&s.name) == Some(ChannelRole::ScalarMagnetometer))
+            .ok_or_else(|| Error::MissingColumn {
+                path: path.to_path_buf(),
+                role: "scalar magnetometer",
+                looked_for: "a /mag/<n>/scalar topic".into(),
+                hint: "Record the scalar magnetometers on /mag/<n>/scalar, or name the time-base channel in [alignment] time_base.".into(),
+            })?,
+    };
+    if streams[base].times_ns.is_empty() {
+        return Err(Error::AllMissing {
+            path: path.to_path_buf(),
+            column: streams[base].name.clone(),
+        });
+    }
+    let mut aligned = align(streams, base, alignment);
+    aligned.report.notes = notes;
+    let channels: Vec<Channel> = aligned
+        .channels
+        .into_iter()
+        .filter_map(|(name, values)| {
+            let role = names.role_of(&name)?;
+            Some(Channel { name, role, values })
+        })
+        .collect();
+    Ok(FlightLog::new(path, names.time.clone(), aligned.time_s, channels)?
+        .with_row_flags(aligned.row_flags)
+        .with_alignment(aligned.report))
+}
