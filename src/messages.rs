@@ -139,7 +139,10 @@ fn timestamp_file() -> FileDescriptorProto {
         package: Some("google.protobuf".into()),
         message_type: vec![message(
             "Timestamp",
-            vec![field("seconds", 1, Type::Int64, None), field("nanos", 2, Type::Int32, None)],
+            vec![
+                field("seconds", 1, Type::Int64, None),
+                field("nanos", 2, Type::Int32, None),
+            ],
         )],
         syntax: Some("proto3".into()),
         ..Default::default()
@@ -170,7 +173,12 @@ fn magcomp_file() -> FileDescriptorProto {
             ),
             message(
                 "Attitude",
-                vec![stamp(), double("roll_deg", 2), double("pitch_deg", 3), double("yaw_deg", 4)],
+                vec![
+                    stamp(),
+                    double("roll_deg", 2),
+                    double("pitch_deg", 3),
+                    double("yaw_deg", 4),
+                ],
             ),
             message("Sample", vec![stamp(), double("value", 2), string("unit", 3)]),
         ],
@@ -365,7 +373,8 @@ mod tests {
 
     #[test]
     fn layout_from_our_descriptor_decodes_our_messages() {
-        let layout = MessageLayout::from_descriptor_set(&descriptor_set("magcomp.VectorMag"), "magcomp.VectorMag").unwrap();
+        let layout =
+            MessageLayout::from_descriptor_set(&descriptor_set("magcomp.VectorMag"), "magcomp.VectorMag").unwrap();
         assert_eq!(layout.names, ["x_nt", "y_nt", "z_nt"]);
         let message = VectorMag {
             timestamp: Some(timestamp(1_700_000_000_123_456_789)),
@@ -377,7 +386,8 @@ mod tests {
         let mut values = vec![f64::NAN; 3];
         layout.decode(&message.encode_to_vec(), &mut values).unwrap();
         assert_eq!(values, [16_500.25, 0.0, 48_000.5]);
-        let fix = MessageLayout::from_descriptor_set(&descriptor_set("foxglove.LocationFix"), "foxglove.LocationFix").unwrap();
+        let fix = MessageLayout::from_descriptor_set(&descriptor_set("foxglove.LocationFix"), "foxglove.LocationFix")
+            .unwrap();
         assert_eq!(fix.names, ["latitude", "longitude", "altitude"]);
     }
 

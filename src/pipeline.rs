@@ -9,14 +9,16 @@ use crate::config::FlightJob;
 use crate::error::{Error, Result};
 use crate::fit::{fit_channels, FitOptions, FittedTollesLawson};
 use crate::flight_log::{FlightLog, VectorSensor};
+use crate::ingest::align::AlignmentReport;
 use crate::ingest::{detect_format, read_flight_log, Format, IngestOptions};
-use crate::output::{write_compensated, write_json};
+use crate::output::mcap::McapExtras;
+use crate::output::{added_column_names, write_atomic, write_compensated};
 use crate::quality::{assess_quality, ChannelQuality};
 
 /// Where one flight's outputs go.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct FlightOutputs {
-    /// Compensated flight (CSV, or XYZ for an XYZ input).
+    /// Compensated flight (CSV, or XYZ / MCAP for such inputs).
     pub compensated: PathBuf,
     /// Model JSON, if wanted.
     pub model_json: Option<PathBuf>,
@@ -30,9 +32,10 @@ impl FlightOutputs {
         let stem = input
             .file_stem()
             .map_or("flight".into(), |s| s.to_string_lossy().into_owned());
-        // Geosoft users get XYZ back; everything else gets CSV.
+        // Geosoft and MCAP users get their format back; everything else CSV.
         let extension = match detect_format(input) {
             Ok(Format::Xyz) => "xyz",
+            Ok(Format::Mcap) => "mcap",
             _ => "csv",
         };
         FlightOutputs {
@@ -54,6 +57,9 @@ pub struct FlightResult {
     pub added_columns: Vec<String>,
     /// Remarks for the user (renamed outputs and the like).
     pub notes: Vec<String>,
+    /// How multi-rate channels were placed on one time base (MCAP inputs).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub alignment: Option<AlignmentReport>,
     /// Quality figures per channel.
     pub channels: Vec<ChannelQuality>,
     /// The fitted models.
@@ -84,23 +90,52 @@ pub fn process_flight(job: &FlightJob, options: &StageOptions, outputs: &FlightO
         .zip(&compensation.channels)
         .map(|(model, channel)| assess_quality(&log, model, channel))
         .collect();
-    let added_columns = write_compensated(&log, &options.ingest.columns, &outputs.compensated, &compensation)?;
+    let added_columns = added_column_names(&log, &outputs.compensated, &compensation)?;
     let notes = renaming_notes(&channels, &added_columns);
     let result = FlightResult {
         flight: job.input.clone(),
         rows: log.len(),
         added_columns,
         notes,
+        alignment: log.alignment().cloned(),
         channels: quality,
         models,
     };
-    if let Some(path) = &outputs.model_json {
-        write_json(path, "the fitted models", &ModelFile::new(&result))?;
-    }
-    if let Some(path) = &outputs.quality_json {
-        write_json(path, "the quality figures", &result)?;
+    let model_text = to_json(
+        outputs.model_json.as_deref(),
+        "the fitted models",
+        &ModelFile::new(&result),
+    )?;
+    let quality_text = to_json(outputs.quality_json.as_deref(), "the quality figures", &result)?;
+    let extras = McapExtras {
+        documents: vec![
+            ("model".into(), model_text.clone()),
+            ("quality".into(), quality_text.clone()),
+        ],
+    };
+    write_compensated(
+        &log,
+        &options.ingest.columns,
+        &outputs.compensated,
+        &compensation,
+        &result.added_columns,
+        &extras,
+    )?;
+    for (path, text) in [(&outputs.model_json, model_text), (&outputs.quality_json, quality_text)] {
+        if let Some(path) = path {
+            write_atomic(path, |w| std::io::Write::write_all(w, text.as_bytes()))?;
+        }
     }
     Ok(result)
+}
+
+/// Pretty JSON text of `value`; `path` only names the file in an error.
+fn to_json<T: Serialize>(path: Option<&Path>, what: &'static str, value: &T) -> Result<String> {
+    serde_json::to_string_pretty(value).map_err(|e| Error::Serialise {
+        path: path.map(Path::to_path_buf).unwrap_or_default(),
+        what,
+        message: e.to_string(),
+    })
 }
 
 /// The model JSON: the flight and its fitted models.

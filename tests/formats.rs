@@ -54,7 +54,7 @@ fn options() -> StageOptions {
 
 /// Compensated values of `column` from a CSV or XYZ output.
 fn output_column(path: &Path, column: &str) -> Vec<String> {
-    let text = std::fs::read_to_string(path).unwrap();
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     let xyz = path.extension().is_some_and(|e| e == "xyz");
     let split = |line: &str| -> Vec<String> {
         match xyz {
@@ -96,9 +96,21 @@ fn csv_and_xyz_ingest_to_the_same_log_and_compensate_identically() {
     let from_xyz = read_flight_log(&xyz, &ingest).unwrap();
     // Shortest round-trip number text: exact.
     assert_same_log(&from_csv, &from_xyz, 0.0);
+    let mcap = folder.path().join("flight.mcap");
+    write_flight_log(&from_csv, &mcap).unwrap();
+    let from_mcap = read_flight_log(&mcap, &ingest).unwrap();
+    // Doubles are stored as they are and times as integer nanoseconds, which
+    // give back the same doubles for times of 0.1 s resolution.
+    assert_same_log(&from_csv, &from_mcap, 0.0);
+    let report = from_mcap.alignment().expect("an MCAP log records its alignment");
+    assert_eq!(report.time_base, "mag_1_uc");
+    assert!(report
+        .channels
+        .iter()
+        .all(|c| c.rows_in_gaps == 0 && c.rows_outside == 0));
 
     let mut compensated = Vec::new();
-    for input in [&csv, &xyz] {
+    for input in [&csv, &xyz, &mcap] {
         let job = FlightJob {
             input: input.clone(),
             vector: None,
@@ -107,12 +119,31 @@ fn csv_and_xyz_ingest_to_the_same_log_and_compensate_identically() {
         };
         let outputs = FlightOutputs::in_directory(&folder.path().join("out"), input);
         process_flight(&job, &options(), &outputs).unwrap();
-        compensated.push(output_column(&outputs.compensated, "mag_1_c"));
+        let values: Vec<u64> = match outputs.compensated.extension().is_some_and(|e| e == "mcap") {
+            // MCAP in, MCAP out: the compensated topic reads back as mag_1_c.
+            true => read_flight_log(&outputs.compensated, &ingest)
+                .unwrap()
+                .channel("mag_1_c")
+                .expect("/mag/1/compensated is written")
+                .values
+                .iter()
+                .map(|v| if v.is_nan() { u64::MAX } else { v.to_bits() })
+                .collect(),
+            false => output_column(&outputs.compensated, "mag_1_c")
+                .iter()
+                .map(|v| v.parse::<f64>().map_or(u64::MAX, f64::to_bits))
+                .collect(),
+        };
+        compensated.push(values);
     }
     assert_eq!(compensated[0].len(), from_csv.len());
     assert!(
         compensated[0] == compensated[1],
         "CSV and XYZ inputs compensate differently"
+    );
+    assert!(
+        compensated[0] == compensated[2],
+        "CSV and MCAP inputs compensate differently"
     );
 }
 

@@ -240,7 +240,10 @@ mod tests {
         let line = stream("line", true, &[0.0, 1.22], &[7.0, 8.0]);
         let aligned = align(vec![base, slope, line], 0, &AlignmentOptions::default());
         let x = &aligned.channels[1].1;
-        assert!(x[0].is_nan() && x[4].is_nan() && x[5].is_nan(), "outside the span: {x:?}");
+        assert!(
+            x[0].is_nan() && x[4].is_nan() && x[5].is_nan(),
+            "outside the span: {x:?}"
+        );
         for (got, want) in x[1..4].iter().zip([15.0, 25.0, 35.0]) {
             assert!((got - want).abs() < 1e-9, "{got} vs {want}");
         }

@@ -164,9 +164,9 @@ fn decode_file(bytes: &[u8], names: &ColumnNames) -> std::result::Result<FileCon
             for message in mcap::MessageStream::new(bytes).map_err(|e| e.to_string())? {
                 let message = message.map_err(|e| e.to_string())?;
                 let id = message.channel.id;
-                if !plans.contains_key(&id) {
-                    plans.insert(id, plan_topic(&message.channel, names));
-                }
+                plans
+                    .entry(id)
+                    .or_insert_with(|| plan_topic(&message.channel, names));
                 add_message(&plans, &mut part, id, message.log_time, &message.data);
             }
             Ok((plans, part, notes))
@@ -227,7 +227,13 @@ pub fn channel_name(topic: &str, field: &str, altitude_column: &str) -> String {
     })
 }
 
-fn add_message(plans: &BTreeMap<u16, TopicPlan>, part: &mut BTreeMap<u16, Decoded>, id: u16, log_time: u64, data: &[u8]) {
+fn add_message(
+    plans: &BTreeMap<u16, TopicPlan>,
+    part: &mut BTreeMap<u16, Decoded>,
+    id: u16,
+    log_time: u64,
+    data: &[u8],
+) {
     let Some(plan) = plans.get(&id) else { return };
     let decoded = part.entry(id).or_default();
     let result = match &plan.decoder {

@@ -4,9 +4,9 @@
 //! as a fallback. Delimited text (CSV, `;`, tab, whitespace-aligned) is read
 //! here; every reader produces the same flight-log model.
 
+pub mod align;
 pub mod columns;
 pub mod csv;
-pub mod align;
 pub mod mcap;
 pub mod xyz;
 

@@ -12,6 +12,7 @@ use std::path::Path;
 
 use serde::Serialize;
 
+pub mod mcap;
 pub mod text;
 
 use crate::compensate::Compensation;
@@ -90,30 +91,43 @@ pub fn flags_column_name(existing: &[String]) -> String {
     }
 }
 
-/// Writes the compensated flight to `output`, in the format its extension
-/// names (`.xyz` for Geosoft XYZ, anything else comma-separated text).
-/// Every input row is written. Returns the added column names.
+/// The names of the columns magcomp adds to the compensated output of
+/// `log` at `output`: one per compensated channel, then the flags column,
+/// renamed with `_magcomp` where the input already has the name.
+pub fn added_column_names(log: &FlightLog, output: &Path, compensation: &Compensation) -> Result<Vec<String>> {
+    let copies_csv = detect_output_format(output) == Format::DelimitedText
+        && detect_format(log.source()).ok() == Some(Format::DelimitedText);
+    let existing: Vec<String> = match copies_csv {
+        true => read_header(log.source())?.1,
+        false => std::iter::once(log.time_column().to_string())
+            .chain(log.channels().iter().map(|c| c.name.clone()))
+            .collect(),
+    };
+    Ok(new_column_names(&existing, compensation))
+}
+
+/// Writes the compensated flight to `output` in the format its extension
+/// names: `.xyz` Geosoft XYZ, `.mcap` MCAP (with `extras` stored in it),
+/// anything else comma-separated text. Every input row is written, with the
+/// `added` columns (from [`added_column_names`]).
 pub fn write_compensated(
     log: &FlightLog,
     names: &ColumnNames,
     output: &Path,
     compensation: &Compensation,
-) -> Result<Vec<String>> {
+    added: &[String],
+    extras: &mcap::McapExtras,
+) -> Result<()> {
     let input_format = detect_format(log.source()).ok();
-    let wants_xyz = detect_output_format(output) == Format::Xyz;
-    if !wants_xyz && input_format == Some(Format::DelimitedText) {
-        return write_compensated_csv(log.source(), log.source_row_offsets(), output, compensation);
+    match (detect_output_format(output), input_format) {
+        (Format::Mcap, _) => mcap::write_mcap(log, output, Some(compensation), extras),
+        (Format::Xyz, Some(Format::Xyz)) => text::copy_xyz(log, names, added, output, compensation),
+        (Format::Xyz, _) => text::write_log_xyz(log, added, output, Some(compensation)),
+        (_, Some(Format::DelimitedText)) => {
+            write_compensated_csv(log.source(), log.source_row_offsets(), output, compensation, added)
+        }
+        _ => text::write_log_csv(log, added, output, Some(compensation)),
     }
-    let existing: Vec<String> = std::iter::once(log.time_column().to_string())
-        .chain(log.channels().iter().map(|c| c.name.clone()))
-        .collect();
-    let added = added_column_names(&existing, compensation);
-    match (wants_xyz, input_format) {
-        (true, Some(Format::Xyz)) => text::copy_xyz(log, names, &added, output, compensation)?,
-        (true, _) => text::write_log_xyz(log, &added, output, Some(compensation))?,
-        (false, _) => text::write_log_csv(log, &added, output, Some(compensation))?,
-    }
-    Ok(added)
 }
 
 /// Writes a flight log as it is, in the format `output`'s extension names:
@@ -121,6 +135,7 @@ pub fn write_compensated(
 pub fn write_flight_log(log: &FlightLog, output: &Path) -> Result<()> {
     match detect_output_format(output) {
         Format::Xyz => text::write_log_xyz(log, &[], output, None),
+        Format::Mcap => mcap::write_mcap(log, output, None, &mcap::McapExtras::default()),
         _ => text::write_log_csv(log, &[], output, None),
     }
 }
@@ -142,7 +157,7 @@ pub fn detect_output_format(output: &Path) -> Format {
 
 /// Names of the columns magcomp adds after `existing`: one per compensated
 /// channel, then the flags column.
-fn added_column_names(existing: &[String], compensation: &Compensation) -> Vec<String> {
+fn new_column_names(existing: &[String], compensation: &Compensation) -> Vec<String> {
     let mut added: Vec<String> = Vec::new();
     for channel in &compensation.channels {
         let taken: Vec<String> = existing.iter().chain(&added).cloned().collect();
@@ -165,29 +180,28 @@ pub fn write_compensated_csv(
     row_offsets: Option<&[u64]>,
     output: &Path,
     compensation: &Compensation,
-) -> Result<Vec<String>> {
+    added: &[String],
+) -> Result<()> {
     let (separator, header) = read_header(input)?;
-    let added = added_column_names(&header, compensation);
     let rows = compensation.flags.len();
     if let (Separator::Byte(b','), Some(offsets)) = (separator, row_offsets) {
         if offsets.len() == rows {
             write_atomic(output, |writer| {
-                copy_verbatim(input, offsets, &added, writer, &mut ExtraColumns::new(compensation))
+                copy_verbatim(input, offsets, added, writer, &mut ExtraColumns::new(compensation))
             })?;
-            return Ok(added);
+            return Ok(());
         }
     }
     write_atomic(output, |writer| {
         let mut csv = csv::Writer::from_writer(writer);
-        csv.write_record(header.iter().chain(&added))?;
+        csv.write_record(header.iter().chain(added))?;
         let mut extra = ExtraColumns::new(compensation);
         match separator {
             Separator::Byte(delimiter) => copy_delimited(input, delimiter, &mut csv, &mut extra, rows)?,
             Separator::Whitespace => copy_whitespace(input, &mut csv, &mut extra, rows)?,
         }
         csv.flush()
-    })?;
-    Ok(added)
+    })
 }
 
 /// Formats magcomp's cells for one row at a time.

@@ -1,0 +1,311 @@
+//! Writing flight logs and compensated flights as MCAP (CONTRACT §4).
+//!
+//! Every message is protobuf with its `FileDescriptorSet` as the schema, in
+//! zstd-compressed, indexed chunks, so Foxglove and Lichtblick open the file
+//! and any MCAP reader can decode it from the file alone. `log_time` is the
+//! sample time in nanoseconds and each message repeats it in `timestamp`.
+//! A missing sample is written as NaN, so every row survives a round trip.
+//!
+//! | channels | topic | message |
+//! |---|---|---|
+//! | `mag_<n>_uc` (any scalar) | `/mag/<n>/scalar` | `magcomp.ScalarMag` |
+//! | `flux_<s>_x/y/z` | `/mag/<s>/vector` | `magcomp.VectorMag` |
+//! | `ins_roll/pitch/yaw` | `/ins/attitude` | `magcomp.Attitude` |
+//! | `lat`, `lon` and a height | `/gps/fix` | `foxglove.LocationFix` |
+//! | every other channel | `/aux/<name>` | `magcomp.Sample` |
+//! | compensated `mag_<n>` | `/mag/<n>/compensated` | `magcomp.ScalarMag` |
+//!
+//! The fitted model and quality figures go in as metadata records and JSON
+//! attachments.
+
+use std::collections::BTreeMap;
+use std::io::{Seek, Write};
+use std::path::Path;
+
+use prost::Message;
+
+use super::write_atomic;
+use crate::compensate::Compensation;
+use crate::error::{Error, Result};
+use crate::flight_log::{AttitudeAngle, ChannelRole, FlightLog};
+use crate::ingest::mcap::ALTITUDE_COLUMN_KEY;
+use crate::messages::{descriptor_set, timestamp, Attitude, LocationFix, Sample, ScalarMag, VectorMag};
+
+/// JSON documents stored with the data.
+#[derive(Debug, Clone, Default)]
+pub struct McapExtras {
+    /// `(name, JSON text)` pairs, e.g. `("model", …)`.
+    pub documents: Vec<(String, String)>,
+}
+
+/// One topic to write: its message per row (or `None` for a missing sample).
+struct Topic<'a> {
+    topic: String,
+    schema: &'static str,
+    metadata: BTreeMap<String, String>,
+    encode: Box<dyn Fn(usize, u64) -> Option<Vec<u8>> + 'a>,
+}
+
+/// Writes `log` (and the compensated channels, if any) to `output`.
+pub fn write_mcap(
+    log: &FlightLog,
+    output: &Path,
+    compensation: Option<&Compensation>,
+    extras: &McapExtras,
+) -> Result<()> {
+    let times = log_times_ns(log)?;
+    let topics = plan_topics(log, compensation);
+    let mut failure: Option<mcap::McapError> = None;
+    write_atomic(output, |file| {
+        let result = write_records(file, &times, &topics, extras);
+        result.map_err(|e| {
+            let text = e.to_string();
+            failure = Some(e);
+            std::io::Error::other(text)
+        })
+    })?;
+    match failure {
+        Some(e) => Err(Error::io(output, "writing MCAP", std::io::Error::other(e.to_string()))),
+        None => Ok(()),
+    }
+}
+
+fn log_times_ns(log: &FlightLog) -> Result<Vec<u64>> {
+    log.time_s()
+        .iter()
+        .enumerate()
+        .map(|(row, &t)| match t >= 0.0 && t * 1e9 < u64::MAX as f64 {
+            true => Ok((t * 1e9).round() as u64),
+            false => Err(Error::BadTime {
+                path: log.source().to_path_buf(),
+                location: format!("sample {row}"),
+                column: log.time_column().to_string(),
+                problem: format!(
+                    "is {t} s; MCAP log times are nanoseconds from 0, so negative times cannot be written"
+                ),
+            }),
+        })
+        .collect()
+}
+
+fn write_records<W: Write + Seek>(
+    file: W,
+    times: &[u64],
+    topics: &[Topic],
+    extras: &McapExtras,
+) -> std::result::Result<(), mcap::McapError> {
+    let options = mcap::WriteOptions::new()
+        .compression(Some(mcap::Compression::Zstd))
+        .profile("")
+        .library(concat!("magcomp ", env!("CARGO_PKG_VERSION")));
+    let mut writer = options.create(file)?;
+    let mut channels = Vec::with_capacity(topics.len());
+    for topic in topics {
+        let schema = writer.add_schema(topic.schema, "protobuf", &descriptor_set(topic.schema))?;
+        channels.push(writer.add_channel(schema, &topic.topic, "protobuf", &topic.metadata)?);
+    }
+    let mut sequence = vec![0u32; topics.len()];
+    for (row, &time) in times.iter().enumerate() {
+        for (k, topic) in topics.iter().enumerate() {
+            let Some(data) = (topic.encode)(row, time) else {
+                continue;
+            };
+            sequence[k] += 1;
+            let header = mcap::records::MessageHeader {
+                channel_id: channels[k],
+                sequence: sequence[k],
+                log_time: time,
+                publish_time: time,
+            };
+            writer.write_to_known_channel(&header, &data)?;
+        }
+    }
+    let created = times.first().copied().unwrap_or(0);
+    for (name, json) in &extras.documents {
+        writer.write_metadata(&mcap::records::Metadata {
+            name: format!("magcomp.{name}"),
+            metadata: BTreeMap::from([("json".to_string(), json.clone())]),
+        })?;
+        writer.attach(&mcap::Attachment {
+            log_time: created,
+            create_time: created,
+            name: format!("{name}.json"),
+            media_type: "application/json".into(),
+            data: std::borrow::Cow::Borrowed(json.as_bytes()),
+        })?;
+    }
+    writer.finish()?;
+    Ok(())
+}
+
+/// The `<n>` of `mag_<n>_uc`, or the whole name.
+fn scalar_label(name: &str) -> &str {
+    name.strip_prefix("mag_")
+        .and_then(|rest| rest.strip_suffix("_uc"))
+        .unwrap_or(name)
+}
+
+fn unit_of(name: &str, role: &ChannelRole) -> &'static str {
+    match role {
+        ChannelRole::BaseStation | ChannelRole::VectorTotal { .. } => "nT",
+        _ if name.starts_with("cur_") => "A",
+        _ if name.starts_with("vol_") => "V",
+        _ => "",
+    }
+}
+
+fn plan_topics<'a>(log: &'a FlightLog, compensation: Option<&'a Compensation>) -> Vec<Topic<'a>> {
+    let mut topics: Vec<Topic<'a>> = Vec::new();
+    let mut covered = vec![false; log.channels().len()];
+    let channel = |i: usize| &log.channels()[i].values;
+    for (i, c) in log.channels().iter().enumerate() {
+        if c.role == ChannelRole::ScalarMagnetometer {
+            covered[i] = true;
+            let frame = c.name.clone();
+            topics.push(Topic {
+                topic: format!("/mag/{}/scalar", scalar_label(&c.name)),
+                schema: "magcomp.ScalarMag",
+                metadata: BTreeMap::new(),
+                encode: Box::new(move |row, time| {
+                    let total = channel(i)[row];
+                    Some({
+                        ScalarMag {
+                            timestamp: Some(timestamp(time)),
+                            frame_id: frame.clone(),
+                            total_nt: total,
+                        }
+                        .encode_to_vec()
+                    })
+                }),
+            });
+        }
+    }
+    for sensor in log.vector_sensors() {
+        sensor.axes.iter().for_each(|&i| covered[i] = true);
+        let [x, y, z] = sensor.axes;
+        let label = sensor
+            .prefix
+            .strip_prefix("flux_")
+            .unwrap_or(&sensor.prefix)
+            .to_string();
+        let frame = sensor.prefix.clone();
+        topics.push(Topic {
+            topic: format!("/mag/{label}/vector"),
+            schema: "magcomp.VectorMag",
+            metadata: BTreeMap::new(),
+            encode: Box::new(move |row, time| {
+                let v = [channel(x)[row], channel(y)[row], channel(z)[row]];
+                Some({
+                    VectorMag {
+                        timestamp: Some(timestamp(time)),
+                        frame_id: frame.clone(),
+                        x_nt: v[0],
+                        y_nt: v[1],
+                        z_nt: v[2],
+                    }
+                    .encode_to_vec()
+                })
+            }),
+        });
+    }
+    let find = |role: ChannelRole, name: &str| {
+        log.channels()
+            .iter()
+            .position(|c| c.role == role && (name.is_empty() || c.name == name))
+    };
+    let attitude = [AttitudeAngle::Roll, AttitudeAngle::Pitch, AttitudeAngle::Yaw]
+        .map(|angle| find(ChannelRole::Attitude(angle), ""));
+    let attitude_names = ["ins_roll", "ins_pitch", "ins_yaw"];
+    if let [Some(roll), Some(pitch), Some(yaw)] = attitude {
+        if [roll, pitch, yaw]
+            .iter()
+            .zip(attitude_names)
+            .all(|(&i, n)| log.channels()[i].name == n)
+        {
+            [roll, pitch, yaw].iter().for_each(|&i| covered[i] = true);
+            topics.push(Topic {
+                topic: "/ins/attitude".into(),
+                schema: "magcomp.Attitude",
+                metadata: BTreeMap::new(),
+                encode: Box::new(move |row, time| {
+                    let a = [channel(roll)[row], channel(pitch)[row], channel(yaw)[row]];
+                    Some({
+                        Attitude {
+                            timestamp: Some(timestamp(time)),
+                            roll_deg: a[0],
+                            pitch_deg: a[1],
+                            yaw_deg: a[2],
+                        }
+                        .encode_to_vec()
+                    })
+                }),
+            });
+        }
+    }
+    let lat = find(ChannelRole::Position, "lat");
+    let lon = find(ChannelRole::Position, "lon");
+    let height = ["alt", "msl", "utm_z"]
+        .iter()
+        .find_map(|h| find(ChannelRole::Position, h));
+    if let (Some(lat), Some(lon), Some(height)) = (lat, lon, height) {
+        [lat, lon, height].iter().for_each(|&i| covered[i] = true);
+        let metadata = BTreeMap::from([(ALTITUDE_COLUMN_KEY.to_string(), log.channels()[height].name.clone())]);
+        topics.push(Topic {
+            topic: "/gps/fix".into(),
+            schema: "foxglove.LocationFix",
+            metadata,
+            encode: Box::new(move |row, time| {
+                let p = [channel(lat)[row], channel(lon)[row], channel(height)[row]];
+                Some({
+                    LocationFix {
+                        latitude: p[0],
+                        longitude: p[1],
+                        altitude: p[2],
+                        timestamp: Some(timestamp(time)),
+                        frame_id: "wgs84".into(),
+                    }
+                    .encode_to_vec()
+                })
+            }),
+        });
+    }
+    for (i, c) in log.channels().iter().enumerate().filter(|(i, _)| !covered[*i]) {
+        let unit = unit_of(&c.name, &c.role);
+        topics.push(Topic {
+            topic: format!("/aux/{}", c.name),
+            schema: "magcomp.Sample",
+            metadata: BTreeMap::new(),
+            encode: Box::new(move |row, time| {
+                let value = channel(i)[row];
+                Some({
+                    Sample {
+                        timestamp: Some(timestamp(time)),
+                        value,
+                        unit: unit.into(),
+                    }
+                    .encode_to_vec()
+                })
+            }),
+        });
+    }
+    for compensated in compensation.map(|c| c.channels.as_slice()).unwrap_or_default() {
+        let frame = compensated.channel.clone();
+        topics.push(Topic {
+            topic: format!("/mag/{}/compensated", scalar_label(&compensated.channel)),
+            schema: "magcomp.ScalarMag",
+            metadata: BTreeMap::new(),
+            encode: Box::new(move |row, time| {
+                let total = compensated.values[row];
+                Some({
+                    ScalarMag {
+                        timestamp: Some(timestamp(time)),
+                        frame_id: frame.clone(),
+                        total_nt: total,
+                    }
+                    .encode_to_vec()
+                })
+            }),
+        });
+    }
+    topics
+}
