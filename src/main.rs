@@ -31,6 +31,18 @@ enum Command {
     },
     /// Fit on calibration windows and compensate every row of one flight.
     Compensate(CompensateArgs),
+    /// Rewrite a flight log in another format (CSV, XYZ or MCAP, by the
+    /// output's extension); MCAP inputs are aligned on one time base.
+    Convert {
+        /// The flight log to read.
+        flight: PathBuf,
+        /// Output file; its extension picks the format.
+        #[arg(long)]
+        out: PathBuf,
+        /// Settings file for columns and alignment (flights in it are ignored).
+        #[arg(long)]
+        config: Option<PathBuf>,
+    },
     /// Write a sample flight (box and survey lines) and its calibration windows.
     SampleFlight {
         /// Output CSV.
@@ -84,6 +96,7 @@ fn main() -> ExitCode {
         Command::Run { config } => run(&config),
         Command::Compensate(args) => compensate(args),
         Command::SampleFlight { out, windows, seed } => sample_flight(&out, &windows, seed),
+        Command::Convert { flight, out, config } => convert(&flight, &out, config.as_deref()),
     };
     match outcome {
         Ok(()) => ExitCode::SUCCESS,
@@ -174,6 +187,28 @@ fn compensate(args: CompensateArgs) -> anyhow::Result<()> {
     bar.finish_and_clear();
     print!("{}", summary(&result?));
     println!("  wrote {}", args.out.display());
+    Ok(())
+}
+
+fn convert(flight: &Path, out: &Path, config: Option<&Path>) -> anyhow::Result<()> {
+    let pipeline = match config {
+        Some(path) => Pipeline::load(path)?,
+        None => Pipeline::default(),
+    };
+    let log = magcomp::ingest::read_flight_log(flight, &pipeline.ingest)?;
+    magcomp::output::write_flight_log(&log, out)?;
+    println!(
+        "wrote {} ({} rows, {} channels)",
+        out.display(),
+        log.len(),
+        log.channels().len()
+    );
+    if let Some(report) = log.alignment() {
+        println!("  time base: {} ({} rows)", report.time_base, report.rows);
+        for note in &report.notes {
+            println!("  note: {note}");
+        }
+    }
     Ok(())
 }
 
