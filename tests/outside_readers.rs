@@ -69,11 +69,23 @@ fn compensated_mcap_decodes_with_the_official_python_reader() {
     assert_eq!(summary["schemas"]["/mag/a/vector"], "magcomp.VectorMag");
     assert_eq!(summary["schemas"]["/gps/fix"], "foxglove.LocationFix");
     assert_eq!(summary["timestamps_match_log_time"], true);
-    assert!(summary["chunk_indexes"].as_u64().unwrap() > 0, "the file is chunked and indexed");
+    assert!(
+        summary["chunk_indexes"].as_u64().unwrap() > 0,
+        "the file is chunked and indexed"
+    );
     let first_scalar = log.channel("mag_1_uc").unwrap().values[0];
-    assert_eq!(summary["first"]["/mag/1/scalar"]["total_nt"].as_f64(), Some(first_scalar));
+    assert_eq!(
+        summary["first"]["/mag/1/scalar"]["total_nt"].as_f64(),
+        Some(first_scalar)
+    );
     let first_x = log.channel("flux_a_x").unwrap().values[0];
     assert_eq!(summary["first"]["/mag/a/vector"]["x_nt"].as_f64(), Some(first_x));
-    assert_eq!(summary["metadata"], serde_json::json!(["magcomp.model", "magcomp.quality"]));
-    assert_eq!(summary["attachments"], serde_json::json!(["model.json", "quality.json"]));
+    assert_eq!(
+        summary["metadata"],
+        serde_json::json!(["magcomp.model", "magcomp.quality"])
+    );
+    assert_eq!(
+        summary["attachments"],
+        serde_json::json!(["model.json", "quality.json"])
+    );
 }

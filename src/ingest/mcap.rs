@@ -120,7 +120,88 @@ pub fn read_mcap(path: &Path, names: &ColumnNames, alignment: &AlignmentOptions)
 
 type FileContents = (BTreeMap<u16, TopicPlan>, BTreeMap<u16, Decoded>, Vec<String>);
 
+/// Largest uncompressed chunk accepted, bytes.
+const MAX_CHUNK_BYTES: u64 = 1 << 30;
+
+/// Walks the top-level records and rejects chunks whose declared
+/// uncompressed size is implausible for their compressed size, before the
+/// mcap crate would try to allocate it (a flipped bit in a size field must
+/// be an error, not an out-of-memory abort).
+fn check_chunk_sizes(bytes: &[u8]) -> std::result::Result<(), String> {
+    const CHUNK: u8 = 0x06;
+    const FOOTER: u8 = 0x02;
+    let mut at = mcap::MAGIC.len();
+    let read_u64 = |at: usize| -> Option<u64> {
+        bytes
+            .get(at..at + 8)
+            .map(|b| u64::from_le_bytes(b.try_into().unwrap_or_default()))
+    };
+    while at + 9 <= bytes.len() {
+        let op = bytes[at];
+        let Some(length) = read_u64(at + 1) else { break };
+        let body = at + 9;
+        let end = (body as u64).checked_add(length).filter(|&e| e <= bytes.len() as u64);
+        let Some(end) = end else {
+            return Err(format!("a record at byte {at} runs past the end of the file"));
+        };
+        if op == CHUNK {
+            let uncompressed = read_u64(body + 16).unwrap_or(u64::MAX);
+            let limit = chunk_limit(length) as u64;
+            if uncompressed > limit {
+                return Err(format!(
+                    "the chunk at byte {at} declares {uncompressed} bytes uncompressed from {length} bytes"
+                ));
+            }
+        }
+        if op == FOOTER {
+            break;
+        }
+        at = end as usize;
+    }
+    Ok(())
+}
+
+/// The most bytes one record inside a chunk may declare.
+fn chunk_limit(compressed: u64) -> usize {
+    MAX_CHUNK_BYTES.min(compressed.saturating_mul(100).saturating_add(1 << 20)) as usize
+}
+
+/// Calls `each(channel, log_time, data)` for every message of one chunk
+/// record (`chunk` is the record, opcode included). Declared lengths above
+/// `limit` are errors, so damaged size fields cannot trigger huge
+/// allocations.
+fn chunk_messages(
+    chunk: &[u8],
+    limit: usize,
+    mut each: impl FnMut(u16, u64, &[u8]),
+) -> std::result::Result<(), String> {
+    use mcap::sans_io::{LinearReadEvent, LinearReader, LinearReaderOptions};
+    let options = LinearReaderOptions::default()
+        .with_skip_start_magic(true)
+        .with_skip_end_magic(true)
+        .with_record_length_limit(limit);
+    let mut reader = LinearReader::new_with_options(options);
+    let mut rest = chunk;
+    while let Some(event) = reader.next_event() {
+        match event.map_err(|e| e.to_string())? {
+            LinearReadEvent::ReadRequest(need) => {
+                let n = need.min(rest.len());
+                reader.insert(n).copy_from_slice(&rest[..n]);
+                reader.notify_read(n);
+                rest = &rest[n..];
+            }
+            LinearReadEvent::Record { opcode, data } => {
+                if let Ok(mcap::records::Record::Message { header, data }) = mcap::parse_record(opcode, data) {
+                    each(header.channel_id, header.log_time, &data);
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
 fn decode_file(bytes: &[u8], names: &ColumnNames) -> std::result::Result<FileContents, String> {
+    check_chunk_sizes(bytes)?;
     let summary = Summary::read(bytes).ok().flatten();
     let indexed = summary.as_ref().filter(|s| {
         !s.chunk_indexes.is_empty()
@@ -141,12 +222,13 @@ fn decode_file(bytes: &[u8], names: &ColumnNames) -> std::result::Result<FileCon
                 .chunk_indexes
                 .par_iter()
                 .map(|index| {
-                    let messages = summary.stream_chunk(bytes, index).map_err(|e| e.to_string())?;
+                    let start = index.chunk_start_offset as usize;
+                    let chunk = &bytes[start..start + index.chunk_length as usize];
+                    let limit = chunk_limit(index.chunk_length);
                     let mut part = BTreeMap::new();
-                    for message in messages {
-                        let message = message.map_err(|e| e.to_string())?;
-                        add_message(&plans, &mut part, message.channel.id, message.log_time, &message.data);
-                    }
+                    chunk_messages(chunk, limit, |id, log_time, data| {
+                        add_message(&plans, &mut part, id, log_time, data);
+                    })?;
                     Ok(part)
                 })
                 .collect();
@@ -164,9 +246,7 @@ fn decode_file(bytes: &[u8], names: &ColumnNames) -> std::result::Result<FileCon
             for message in mcap::MessageStream::new(bytes).map_err(|e| e.to_string())? {
                 let message = message.map_err(|e| e.to_string())?;
                 let id = message.channel.id;
-                plans
-                    .entry(id)
-                    .or_insert_with(|| plan_topic(&message.channel, names));
+                plans.entry(id).or_insert_with(|| plan_topic(&message.channel, names));
                 add_message(&plans, &mut part, id, message.log_time, &message.data);
             }
             Ok((plans, part, notes))

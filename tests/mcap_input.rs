@@ -1,0 +1,317 @@
+//! MCAP input: multi-rate alignment, JSON messages, every way of laying out
+//! the file, and damaged files.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use magcomp::ingest::{read_flight_log, IngestOptions};
+use magcomp::messages::{descriptor_set, timestamp, Attitude, Sample, ScalarMag, VectorMag};
+use prost::Message;
+
+/// Which encoding and layout a test file uses.
+#[derive(Clone, Copy)]
+struct Layout {
+    json: bool,
+    compression: Option<mcap::Compression>,
+    chunks: bool,
+    summary: bool,
+}
+
+const INDEXED: Layout = Layout {
+    json: false,
+    compression: Some(mcap::Compression::Zstd),
+    chunks: true,
+    summary: true,
+};
+
+/// True signals of the multi-rate flight.
+fn scalar(t: f64) -> f64 {
+    50_000.0 + 30.0 * (0.5 * t).sin()
+}
+fn flux_x(t: f64) -> f64 {
+    20_000.0 * (0.3 * t).cos()
+}
+fn current(t: f64) -> f64 {
+    3.0 + (0.2 * t).sin()
+}
+fn line_number(t: f64) -> f64 {
+    1000.0 + (t / 7.0).floor()
+}
+
+/// One message: topic, time (s), and its fields.
+type Record = (&'static str, f64, Vec<(&'static str, f64)>);
+
+/// Scalar 10 Hz from t = 100 s; fluxgate 50 Hz on its own clock (offset
+/// 7.3 ms) from 99 s; INS 50 Hz; current 2 Hz from 101 s with a gap
+/// 110–113 s; line number 1 Hz.
+fn records() -> Vec<Record> {
+    let mut records = Vec::new();
+    for k in 0..300 {
+        let t = 100.0 + k as f64 / 10.0;
+        records.push(("/mag/1/scalar", t, vec![("total_nt", scalar(t))]));
+    }
+    for k in 0..1600 {
+        let t = 99.0 + k as f64 / 50.0 + 0.0073;
+        let v = vec![("x_nt", flux_x(t)), ("y_nt", 1000.0), ("z_nt", 45_000.0)];
+        records.push(("/mag/a/vector", t, v));
+        let a = vec![("roll_deg", 2.0), ("pitch_deg", 1.0), ("yaw_deg", 90.0)];
+        records.push(("/ins/attitude", t, a));
+    }
+    for k in 0..60 {
+        let t = 101.0 + k as f64 / 2.0;
+        if !(110.0..113.0).contains(&t) {
+            records.push(("/aux/cur_a", t, vec![("value", current(t))]));
+        }
+    }
+    for k in 0..35 {
+        let t = 99.5 + k as f64;
+        records.push(("/aux/line", t, vec![("value", line_number(t))]));
+    }
+    records.sort_by(|a, b| a.1.total_cmp(&b.1));
+    records
+}
+
+fn encode(topic: &str, time_ns: u64, fields: &[(&str, f64)], json: bool) -> Vec<u8> {
+    if json {
+        let object: serde_json::Map<String, serde_json::Value> = fields
+            .iter()
+            .map(|(k, v)| (k.to_string(), serde_json::json!(v)))
+            .collect();
+        return serde_json::to_vec(&object).unwrap();
+    }
+    let get = |name: &str| fields.iter().find(|(k, _)| *k == name).map_or(0.0, |(_, v)| *v);
+    let stamp = Some(timestamp(time_ns));
+    match topic {
+        "/mag/1/scalar" => ScalarMag {
+            timestamp: stamp,
+            frame_id: "mag_1".into(),
+            total_nt: get("total_nt"),
+        }
+        .encode_to_vec(),
+        "/mag/a/vector" => VectorMag {
+            timestamp: stamp,
+            frame_id: "flux_a".into(),
+            x_nt: get("x_nt"),
+            y_nt: get("y_nt"),
+            z_nt: get("z_nt"),
+        }
+        .encode_to_vec(),
+        "/ins/attitude" => Attitude {
+            timestamp: stamp,
+            roll_deg: get("roll_deg"),
+            pitch_deg: get("pitch_deg"),
+            yaw_deg: get("yaw_deg"),
+        }
+        .encode_to_vec(),
+        _ => Sample {
+            timestamp: stamp,
+            value: get("value"),
+            unit: String::new(),
+        }
+        .encode_to_vec(),
+    }
+}
+
+fn schema_of(topic: &str) -> &'static str {
+    match topic {
+        "/mag/1/scalar" => "magcomp.ScalarMag",
+        "/mag/a/vector" => "magcomp.VectorMag",
+        "/ins/attitude" => "magcomp.Attitude",
+        _ => "magcomp.Sample",
+    }
+}
+
+fn write_file(path: &Path, layout: Layout) {
+    let file = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
+    let mut writer = mcap::WriteOptions::new()
+        .compression(layout.compression)
+        .use_chunks(layout.chunks)
+        .chunk_size(Some(16 * 1024))
+        .emit_summary_records(layout.summary)
+        .emit_summary_offsets(layout.summary)
+        .emit_chunk_indexes(layout.summary)
+        .emit_message_indexes(layout.summary)
+        .emit_statistics(layout.summary)
+        .create(file)
+        .unwrap();
+    let mut channels: BTreeMap<&str, u16> = BTreeMap::new();
+    for (sequence, (topic, t, fields)) in records().into_iter().enumerate() {
+        let channel = *channels.entry(topic).or_insert_with(|| {
+            let schema = match layout.json {
+                true => writer
+                    .add_schema(schema_of(topic), "jsonschema", b"{\"type\":\"object\"}")
+                    .unwrap(),
+                false => writer
+                    .add_schema(schema_of(topic), "protobuf", &descriptor_set(schema_of(topic)))
+                    .unwrap(),
+            };
+            let encoding = if layout.json { "json" } else { "protobuf" };
+            writer.add_channel(schema, topic, encoding, &BTreeMap::new()).unwrap()
+        });
+        let time_ns = (t * 1e9).round() as u64;
+        let header = mcap::records::MessageHeader {
+            channel_id: channel,
+            sequence: sequence as u32,
+            log_time: time_ns,
+            publish_time: time_ns,
+        };
+        writer
+            .write_to_known_channel(&header, &encode(topic, time_ns, &fields, layout.json))
+            .unwrap();
+    }
+    writer.finish().unwrap();
+}
+
+#[test]
+fn multi_rate_channels_align_within_the_interpolation_error() {
+    let folder = tempfile::tempdir().unwrap();
+    let path = folder.path().join("multirate.mcap");
+    write_file(&path, INDEXED);
+    let log = read_flight_log(&path, &IngestOptions::default()).unwrap();
+    assert_eq!(log.len(), 300, "the scalar magnetometer's timestamps are the time base");
+    let time = log.time_s();
+    for (t, v) in time.iter().zip(&log.channel("mag_1_uc").unwrap().values) {
+        assert_eq!(*v, scalar(*t), "the time-base channel is taken as recorded");
+    }
+    // Linear interpolation over a step h errs by at most h²/8·max|f''|:
+    // fluxgate h = 0.02 s, |f''| ≤ 20 000·0.3² → 0.09 nT; current h = 0.5 s,
+    // |f''| ≤ 0.2² → 0.00125 A.
+    let flux_bound = 0.02f64.powi(2) / 8.0 * 20_000.0 * 0.09;
+    let current_bound = 0.5f64.powi(2) / 8.0 * 0.04;
+    let flux = &log.channel("flux_a_x").unwrap().values;
+    let cur = &log.channel("cur_a").unwrap().values;
+    let line = &log.channel("line").unwrap().values;
+    let (mut flux_worst, mut current_worst) = (0.0f64, 0.0f64);
+    for (row, &t) in time.iter().enumerate() {
+        flux_worst = flux_worst.max((flux[row] - flux_x(t)).abs());
+        let before_first = t < 101.0;
+        let in_gap = t > 109.5 && t < 113.0;
+        match (before_first, in_gap) {
+            (true, _) => assert!(cur[row].is_nan(), "no extrapolation before the first sample, t = {t}"),
+            (_, true) => {
+                assert!(cur[row].is_nan(), "a 3.5 s gap stays missing, t = {t}");
+                assert!(log.row_flags()[row].contains("gap:cur_a"), "t = {t}");
+            }
+            _ => current_worst = current_worst.max((cur[row] - current(t)).abs()),
+        }
+        assert_eq!(
+            line[row],
+            line_number(t - 0.5).max(line_number(99.5)),
+            "line held, t = {t}"
+        );
+    }
+    assert!(flux_worst <= flux_bound, "fluxgate error {flux_worst} > {flux_bound}");
+    assert!(
+        current_worst <= current_bound,
+        "current error {current_worst} > {current_bound}"
+    );
+    let report = log.alignment().unwrap();
+    let method = |name: &str| report.channels.iter().find(|c| c.channel == name).unwrap().method;
+    assert_eq!(method("flux_a_x"), "linear");
+    assert_eq!(method("line"), "previous value");
+    assert_eq!(method("mag_1_uc"), "time base");
+}
+
+#[test]
+fn every_layout_and_encoding_reads_to_the_same_log() {
+    let folder = tempfile::tempdir().unwrap();
+    let reference = folder.path().join("reference.mcap");
+    write_file(&reference, INDEXED);
+    let expected = read_flight_log(&reference, &IngestOptions::default()).unwrap();
+    let layouts = [
+        (
+            "lz4",
+            Layout {
+                compression: Some(mcap::Compression::Lz4),
+                ..INDEXED
+            },
+        ),
+        (
+            "uncompressed",
+            Layout {
+                compression: None,
+                ..INDEXED
+            },
+        ),
+        (
+            "unchunked",
+            Layout {
+                chunks: false,
+                ..INDEXED
+            },
+        ),
+        (
+            "no summary",
+            Layout {
+                summary: false,
+                ..INDEXED
+            },
+        ),
+        ("json", Layout { json: true, ..INDEXED }),
+    ];
+    for (name, layout) in layouts {
+        let path = folder.path().join(format!("{}.mcap", name.replace(' ', "_")));
+        write_file(&path, layout);
+        let log = read_flight_log(&path, &IngestOptions::default()).unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert_eq!(log.time_s(), expected.time_s(), "{name}");
+        for channel in expected.channels() {
+            let other = log
+                .channel(&channel.name)
+                .unwrap_or_else(|| panic!("{name}: no {}", channel.name));
+            let same = channel
+                .values
+                .iter()
+                .zip(&other.values)
+                .all(|(a, b)| a.to_bits() == b.to_bits());
+            assert!(same, "{name}: {} differs", channel.name);
+        }
+    }
+}
+
+/// Small deterministic generator for damage positions.
+fn next(state: &mut u64) -> u64 {
+    *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    let mut z = *state;
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+#[test]
+fn damaged_files_give_errors_not_panics() {
+    let folder = tempfile::tempdir().unwrap();
+    let path = folder.path().join("good.mcap");
+    write_file(&path, INDEXED);
+    let good = std::fs::read(&path).unwrap();
+    let damaged = folder.path().join("damaged.mcap");
+    let options = IngestOptions::default();
+    let mut state = 7;
+    let mut cases: Vec<Vec<u8>> = vec![Vec::new(), good[..4].to_vec()];
+    cases.extend((1..40).map(|k| good[..good.len() * k / 40].to_vec()));
+    for _ in 0..120 {
+        let mut bytes = good.clone();
+        let flips = 1 + next(&mut state) % 8;
+        for _ in 0..flips {
+            let at = (next(&mut state) % bytes.len() as u64) as usize;
+            bytes[at] ^= 1 << (next(&mut state) % 8);
+        }
+        cases.push(bytes);
+    }
+    let mut errors = 0;
+    for bytes in &cases {
+        std::fs::write(&damaged, bytes).unwrap();
+        let outcome = std::panic::catch_unwind(|| read_flight_log(&damaged, &options));
+        match outcome {
+            Ok(Err(error)) => {
+                errors += 1;
+                assert!(
+                    error.to_string().contains("damaged.mcap"),
+                    "the error names the file: {error}"
+                );
+            }
+            Ok(Ok(log)) => assert!(log.len() <= 300),
+            Err(_) => panic!("reading a damaged MCAP panicked"),
+        }
+    }
+    assert!(errors >= 40, "empty and truncated files are errors ({errors} errors)");
+}
