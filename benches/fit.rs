@@ -6,6 +6,8 @@
 //! 2. A whole-file run: 200 000 rows × 100 columns with 5 scalar channels,
 //!    CSV in and CSV out, against the bare time the csv crate needs to read
 //!    and write the same file.
+//! 3. Format ingest: 1e6 protobuf messages from MCAP against the bare mcap +
+//!    prost decode, and CSV / XYZ against the bare csv crate parse.
 
 use std::path::Path;
 use std::time::Instant;
@@ -177,6 +179,124 @@ fn bench_whole_file(rows: usize) {
     );
 }
 
+/// A log of `rows` rows whose MCAP form holds 4 messages a row: scalar,
+/// vector, two auxiliary channels.
+fn format_log(rows: usize) -> FlightLog {
+    let (field, scalar) = synthetic_field(rows);
+    let time: Vec<f64> = (0..rows).map(|k| 1000.0 + k as f64 / 10.0).collect();
+    let mut channels = vec![Channel {
+        name: "mag_1_uc".into(),
+        role: ChannelRole::ScalarMagnetometer,
+        values: scalar,
+    }];
+    for (axis, values) in [VectorAxis::X, VectorAxis::Y, VectorAxis::Z].into_iter().zip(field) {
+        channels.push(Channel {
+            name: format!("flux_a_{}", format!("{axis:?}").to_lowercase()),
+            role: ChannelRole::VectorMagnetometer {
+                sensor: "flux_a".into(),
+                axis,
+            },
+            values,
+        });
+    }
+    for name in ["cur_a", "vol_b"] {
+        channels.push(Channel {
+            name: name.into(),
+            role: ChannelRole::Auxiliary,
+            values: (0..rows).map(|k| ((k * 7) % 101) as f64 * 0.01).collect(),
+        });
+    }
+    FlightLog::new("bench", "tt", time, channels).unwrap()
+}
+
+/// The mcap crate's message stream plus a prost decode of every message.
+fn bare_mcap_decode(path: &Path) -> usize {
+    use prost::Message;
+    let bytes = std::fs::read(path).unwrap();
+    let mut decoded = 0;
+    for message in mcap::MessageStream::new(&bytes).unwrap() {
+        let message = message.unwrap();
+        let ok = match message.channel.topic.as_str() {
+            "/mag/1/scalar" => magcomp::messages::ScalarMag::decode(&message.data[..]).is_ok(),
+            "/mag/a/vector" => magcomp::messages::VectorMag::decode(&message.data[..]).is_ok(),
+            _ => magcomp::messages::Sample::decode(&message.data[..]).is_ok(),
+        };
+        decoded += usize::from(ok);
+    }
+    decoded
+}
+
+fn bare_csv_parse(path: &Path, delimiter: u8) -> usize {
+    let mut reader = csv::ReaderBuilder::new()
+        .delimiter(delimiter)
+        .from_path(path)
+        .unwrap();
+    let mut record = csv::ByteRecord::new();
+    let mut fields = 0;
+    while reader.read_byte_record(&mut record).unwrap() {
+        fields += record.len();
+    }
+    fields
+}
+
+fn bench_formats(rows: usize) {
+    use magcomp::ingest::{read_flight_log, IngestOptions};
+    let folder = tempfile::tempdir().unwrap();
+    let log = format_log(rows);
+    let options = IngestOptions::default();
+    let mcap = folder.path().join("flight.mcap");
+    magcomp::output::write_flight_log(&log, &mcap).unwrap();
+    let messages = rows * 4;
+    let ours = median_seconds(3, || {
+        std::hint::black_box(read_flight_log(&mcap, &options).unwrap());
+    });
+    let bare = median_seconds(3, || {
+        assert_eq!(bare_mcap_decode(&mcap), messages);
+    });
+    println!(
+        "MCAP ingest, {messages} protobuf messages ({:.0} MB): magcomp {:.0} ms = {:.2} M messages/s (decode + align); bare mcap + prost decode {:.0} ms = {:.2} M/s; peak RSS so far {:.0} MB",
+        std::fs::metadata(&mcap).unwrap().len() as f64 / 1e6,
+        ours * 1e3,
+        messages as f64 / ours / 1e6,
+        bare * 1e3,
+        messages as f64 / bare / 1e6,
+        peak_rss_mb()
+    );
+    for (extension, delimiter) in [("csv", b','), ("xyz", b' ')] {
+        let path = folder.path().join(format!("flight.{extension}"));
+        magcomp::output::write_flight_log(&log, &path).unwrap();
+        let ours = median_seconds(3, || {
+            std::hint::black_box(read_flight_log(&path, &options).unwrap());
+        });
+        let bare = match extension {
+            // The XYZ form has comment lines before its header; the bare
+            // parse reads the same bytes after them.
+            "xyz" => {
+                let text = std::fs::read_to_string(&path).unwrap();
+                let body: String = text
+                    .lines()
+                    .filter(|l| !l.starts_with("/ magcomp"))
+                    .map(|l| format!("{}\n", l.trim_start_matches("/ ")))
+                    .collect();
+                let plain = folder.path().join("plain.txt");
+                std::fs::write(&plain, body).unwrap();
+                median_seconds(3, || {
+                    std::hint::black_box(bare_csv_parse(&plain, delimiter));
+                })
+            }
+            _ => median_seconds(3, || {
+                std::hint::black_box(bare_csv_parse(&path, delimiter));
+            }),
+        };
+        println!(
+            "{extension} ingest, {rows} rows × 7 columns: magcomp {:.0} ms, bare csv parse {:.0} ms, ratio {:.2}",
+            ours * 1e3,
+            bare * 1e3,
+            ours / bare
+        );
+    }
+}
+
 fn main() {
     if std::env::args().any(|a| a == "--list") {
         return;
@@ -194,5 +314,8 @@ fn main() {
     }
     if wanted("file") {
         bench_whole_file(200_000);
+    }
+    if wanted("formats") {
+        bench_formats(250_000);
     }
 }
