@@ -227,10 +227,7 @@ fn bare_mcap_decode(path: &Path) -> usize {
 }
 
 fn bare_csv_parse(path: &Path, delimiter: u8) -> usize {
-    let mut reader = csv::ReaderBuilder::new()
-        .delimiter(delimiter)
-        .from_path(path)
-        .unwrap();
+    let mut reader = csv::ReaderBuilder::new().delimiter(delimiter).from_path(path).unwrap();
     let mut record = csv::ByteRecord::new();
     let mut fields = 0;
     while reader.read_byte_record(&mut record).unwrap() {

@@ -52,8 +52,20 @@ pub fn read_header(path: &Path) -> Result<(Separator, Vec<String>)> {
 
 /// Reads a delimited-text flight log, assigning roles from `names`.
 pub fn read_csv(path: &Path, names: &ColumnNames) -> Result<FlightLog> {
+    read_csv_with(path, names, true)
+}
+
+/// [`read_csv`], with the parallel path allowed or not.
+fn read_csv_with(path: &Path, names: &ColumnNames, allow_parallel: bool) -> Result<FlightLog> {
     let (separator, header) = read_header(path)?;
     let mut builder = ColumnBuilder::new(path, header, names)?;
+    if let (Separator::Byte(delimiter), true) = (separator, allow_parallel) {
+        if let Some(parallel) = read_delimited_parallel(path, delimiter, &builder)? {
+            builder = parallel;
+            let offsets = std::mem::take(&mut builder.row_offsets);
+            return Ok(builder.finish(names)?.with_source_row_offsets(offsets));
+        }
+    }
     let file = File::open(path).map_err(|e| Error::io(path, "opening", e))?;
     match separator {
         Separator::Byte(delimiter) => read_delimited(path, file, delimiter, &mut builder)?,
@@ -87,6 +99,98 @@ fn read_delimited(path: &Path, file: File, delimiter: u8, builder: &mut ColumnBu
             Err(error) => return Err(csv_error(path, error)),
         }
     }
+}
+
+/// Smallest file worth splitting across threads, bytes.
+const PARALLEL_MIN_BYTES: usize = 4 << 20;
+
+/// Reads a large delimited file in parts, one per thread, split at line
+/// ends. Only for files without quotes (so a line end always ends a record).
+/// Returns `None` whenever the parts might disagree with a sequential read
+/// (a quote anywhere, any error, a column whose kind the parts decide
+/// differently, time not increasing across a part boundary); the caller
+/// then reads sequentially, which also gives the exact error.
+fn read_delimited_parallel<'a>(
+    path: &'a Path,
+    delimiter: u8,
+    template: &ColumnBuilder<'a>,
+) -> Result<Option<ColumnBuilder<'a>>> {
+    let parts_wanted = rayon::current_num_threads().max(1) * 4;
+    let size = std::fs::metadata(path)
+        .map_err(|e| Error::io(path, "reading", e))?
+        .len() as usize;
+    if size < PARALLEL_MIN_BYTES || parts_wanted < 2 {
+        return Ok(None);
+    }
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, "reading", e))?;
+    if bytes.contains(&b'"') {
+        return Ok(None);
+    }
+    let Some(header_end) = bytes.iter().position(|&b| b == b'\n').map(|p| p + 1) else {
+        return Ok(None);
+    };
+    let mut starts = vec![header_end];
+    for k in 1..parts_wanted {
+        let guess = header_end + (bytes.len() - header_end) * k / parts_wanted;
+        let Some(next) = bytes[guess..].iter().position(|&b| b == b'\n') else {
+            break;
+        };
+        let start = guess + next + 1;
+        if start > *starts.last().unwrap_or(&0) && start < bytes.len() {
+            starts.push(start);
+        }
+    }
+    let ends: Vec<usize> = starts
+        .iter()
+        .skip(1)
+        .copied()
+        .chain(std::iter::once(bytes.len()))
+        .collect();
+    let first_lines: Vec<u64> = {
+        let mut line = 2u64;
+        let mut previous = header_end;
+        starts
+            .iter()
+            .map(|&start| {
+                line += bytes[previous..start].iter().filter(|&&b| b == b'\n').count() as u64;
+                previous = start;
+                line
+            })
+            .collect()
+    };
+    use rayon::prelude::*;
+    let parts: Vec<Option<ColumnBuilder>> = starts
+        .par_iter()
+        .zip(&ends)
+        .zip(&first_lines)
+        .map(|((&start, &end), &first_line)| {
+            let mut part = template.empty_copy();
+            let mut reader = csv::ReaderBuilder::new()
+                .delimiter(delimiter)
+                .has_headers(false)
+                .from_reader(&bytes[start..end]);
+            let mut record = csv::ByteRecord::new();
+            loop {
+                match reader.read_byte_record(&mut record) {
+                    Ok(false) => return Some(part),
+                    Ok(true) => {
+                        let position = record.position()?;
+                        part.push_row(record.iter(), first_line + position.line() - 1).ok()?;
+                        part.row_offsets.push(start as u64 + position.byte());
+                    }
+                    Err(_) => return None,
+                }
+            }
+        })
+        .collect();
+    let mut merged = template.empty_copy();
+    for part in parts {
+        let Some(part) = part else { return Ok(None) };
+        if !merged.absorb(part) {
+            return Ok(None);
+        }
+    }
+    Ok(Some(merged))
 }
 
 fn read_whitespace(path: &Path, file: File, builder: &mut ColumnBuilder) -> Result<()> {
@@ -225,6 +329,50 @@ impl<'a> ColumnBuilder<'a> {
         Ok(())
     }
 
+    /// The same columns and kinds, with no rows.
+    fn empty_copy(&self) -> Self {
+        ColumnBuilder {
+            path: self.path,
+            names: self.names.clone(),
+            kinds: self.kinds.clone(),
+            values: vec![Vec::new(); self.names.len()],
+            time_index: self.time_index,
+            previous_time: f64::NEG_INFINITY,
+            row_offsets: Vec::new(),
+        }
+    }
+
+    /// Appends the rows of `later`, read from the next part of the file.
+    /// False when the result could differ from reading both parts in one
+    /// go: a column numeric in one part and text in a later one, or time
+    /// not increasing across the boundary.
+    fn absorb(&mut self, later: ColumnBuilder) -> bool {
+        let first_time = later.values[self.time_index].first().copied();
+        if first_time.is_some_and(|t| t <= self.previous_time) {
+            return false;
+        }
+        let rows = self.row_offsets.len();
+        for (column, (kind, values)) in later.kinds.into_iter().zip(later.values).enumerate() {
+            match (self.kinds[column], kind) {
+                (ColumnKind::Text, _) => {}
+                (ColumnKind::Numeric, ColumnKind::Text) => return false,
+                (ColumnKind::Undecided, ColumnKind::Text) => {
+                    self.kinds[column] = ColumnKind::Text;
+                    self.values[column] = Vec::new();
+                }
+                (ColumnKind::Undecided, ColumnKind::Numeric) => {
+                    self.kinds[column] = ColumnKind::Numeric;
+                    self.values[column].extend(values);
+                }
+                _ => self.values[column].extend(values),
+            }
+        }
+        self.previous_time = later.previous_time.max(self.previous_time);
+        self.row_offsets.extend(later.row_offsets);
+        debug_assert!(self.row_offsets.len() >= rows);
+        true
+    }
+
     fn check_row_time(&mut self, line: u64) -> Result<()> {
         let time = *self.values[self.time_index].last().unwrap_or(&f64::NAN);
         let previous = self.previous_time;
@@ -341,6 +489,71 @@ mod tests {
             let current = &log.channel("cur_strb").unwrap().values;
             assert!(current[0].is_nan() && current[1] == 1.5);
         }
+    }
+
+    /// A file big enough for the parallel path: `rows` rows, a text column
+    /// that turns numeric-looking late, and a column empty in its first half.
+    fn big_file(rows: usize, bad_row: Option<usize>) -> tempfile::NamedTempFile {
+        let mut text = String::from("tt,mag_1_uc,note,late,cur_a,flux_a_x,flux_a_y,flux_a_z\n");
+        for k in 0..rows {
+            let t = 1000.0 + k as f64 * 0.1;
+            let mag = if Some(k) == bad_row {
+                "5x1".to_string()
+            } else {
+                format!("{:.3}", 50_000.0 + (k % 997) as f64 * 0.013)
+            };
+            let note = if k < 10 { "leg".to_string() } else { format!("{k}") };
+            let late = if k < rows / 2 {
+                String::new()
+            } else {
+                format!("{}", k % 13)
+            };
+            text += &format!(
+                "{t:.1},{mag},{note},{late},{},{},{},{}\n",
+                (k % 7) as f64 * 0.5,
+                k % 101,
+                k % 103,
+                k % 107
+            );
+        }
+        write_temp(&text)
+    }
+
+    #[test]
+    fn parallel_read_equals_sequential_read() {
+        let file = big_file(160_000, None);
+        assert!(std::fs::metadata(file.path()).unwrap().len() as usize > PARALLEL_MIN_BYTES);
+        let names = ColumnNames::default();
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(3).build().unwrap();
+        let header = read_header(file.path()).unwrap().1;
+        let template = ColumnBuilder::new(file.path(), header, &names).unwrap();
+        let split = pool
+            .install(|| read_delimited_parallel(file.path(), b',', &template))
+            .unwrap();
+        assert!(split.is_some(), "this file takes the parallel path");
+        let parallel = pool.install(|| read_csv_with(file.path(), &names, true)).unwrap();
+        let sequential = read_csv_with(file.path(), &names, false).unwrap();
+        assert_eq!(parallel.time_s(), sequential.time_s());
+        assert_eq!(parallel.source_row_offsets(), sequential.source_row_offsets());
+        assert!(parallel.channel("note").is_none(), "a text column stays text");
+        assert_eq!(parallel.channels().len(), sequential.channels().len());
+        for (a, b) in parallel.channels().iter().zip(sequential.channels()) {
+            assert_eq!(a.name, b.name);
+            assert!(
+                a.values.iter().zip(&b.values).all(|(x, y)| x.to_bits() == y.to_bits()),
+                "{}",
+                a.name
+            );
+        }
+        let late = &parallel.channel("late").unwrap().values;
+        assert!(late[0].is_nan() && late[159_999] == (159_999 % 13) as f64);
+    }
+
+    #[test]
+    fn parallel_read_reports_the_same_error_line() {
+        let file = big_file(160_000, Some(150_000));
+        let text = read_csv(file.path(), &ColumnNames::default()).unwrap_err().to_string();
+        assert!(text.contains("line 150002") && text.contains("'5x1'"), "{text}");
     }
 
     #[test]
