@@ -86,7 +86,7 @@ fn output_column(path: &Path, column: &str) -> Vec<String> {
 }
 
 #[test]
-fn csv_and_xyz_ingest_to_the_same_log_and_compensate_identically() {
+fn every_format_ingests_to_the_same_log_and_compensates_identically() {
     let folder = tempfile::tempdir().unwrap();
     let (csv, windows) = small_flight(folder.path());
     let ingest = IngestOptions::default();
@@ -109,8 +109,12 @@ fn csv_and_xyz_ingest_to_the_same_log_and_compensate_identically() {
         .iter()
         .all(|c| c.rows_in_gaps == 0 && c.rows_outside == 0));
 
+    let hdf5 = folder.path().join("flight.h5");
+    write_flight_log(&from_csv, &hdf5).unwrap();
+    assert_same_log(&from_csv, &read_flight_log(&hdf5, &ingest).unwrap(), 0.0);
+
     let mut compensated = Vec::new();
-    for input in [&csv, &xyz, &mcap] {
+    for input in [&csv, &xyz, &mcap, &hdf5] {
         let job = FlightJob {
             input: input.clone(),
             vector: None,
@@ -145,6 +149,29 @@ fn csv_and_xyz_ingest_to_the_same_log_and_compensate_identically() {
         compensated[0] == compensated[2],
         "CSV and MCAP inputs compensate differently"
     );
+    assert!(
+        compensated[0] == compensated[3],
+        "CSV and HDF5 inputs compensate differently"
+    );
+}
+
+/// The shipped MagNav-layout fixture holds the first 2000 rows of the
+/// sample flight (made with `magcomp convert` from those rows).
+#[test]
+fn magnav_layout_fixture_reads_to_the_sample_flight_rows() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let ingest = IngestOptions::default();
+    let fixture = read_flight_log(&root.join("tests/fixtures/Flt_sample_train.h5"), &ingest).unwrap();
+    let sample = read_flight_log(&root.join("sample_flights/box_and_lines.csv"), &ingest).unwrap();
+    assert_eq!(fixture.len(), 2000);
+    assert_eq!(fixture.time_s(), &sample.time_s()[..2000]);
+    assert_eq!(fixture.channels().len(), sample.channels().len());
+    for channel in sample.channels() {
+        let stored = fixture.channel(&channel.name).unwrap();
+        assert_eq!(stored.role, channel.role, "{}", channel.name);
+        assert_eq!(stored.values, channel.values[..2000], "{}", channel.name);
+    }
+    assert_eq!(fixture.vector_sensors()[0].prefix, "flux_a");
 }
 
 #[test]
@@ -224,4 +251,54 @@ fn sgl_xyz_with_line_records_runs_through_the_cli() {
     let values = output_column(&out, "mag_1_c");
     assert_eq!(values.len(), log.len());
     assert!(values.iter().filter(|v| v.parse::<f64>().is_ok()).count() > log.len() * 99 / 100);
+}
+
+/// Small deterministic generator for damage positions.
+fn next(state: &mut u64) -> u64 {
+    *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    let mut z = *state;
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+#[test]
+fn damaged_xyz_and_hdf5_files_give_errors_not_panics() {
+    let folder = tempfile::tempdir().unwrap();
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let ingest = IngestOptions::default();
+    let log = read_flight_log(&root.join("tests/fixtures/Flt_sample_train.h5"), &ingest).unwrap();
+    for extension in ["xyz", "h5"] {
+        let good_path = folder.path().join(format!("good.{extension}"));
+        write_flight_log(&log, &good_path).unwrap();
+        let good = std::fs::read(&good_path).unwrap();
+        let damaged = folder.path().join(format!("damaged.{extension}"));
+        let mut state = 11;
+        let mut cases: Vec<Vec<u8>> = vec![Vec::new()];
+        cases.extend((1..25).map(|k| good[..good.len() * k / 25].to_vec()));
+        for _ in 0..60 {
+            let mut bytes = good.clone();
+            for _ in 0..1 + next(&mut state) % 6 {
+                let at = (next(&mut state) % bytes.len() as u64) as usize;
+                bytes[at] ^= 1 << (next(&mut state) % 8);
+            }
+            cases.push(bytes);
+        }
+        let mut errors = 0;
+        for bytes in &cases {
+            std::fs::write(&damaged, bytes).unwrap();
+            match std::panic::catch_unwind(|| read_flight_log(&damaged, &ingest)) {
+                Ok(Err(error)) => {
+                    errors += 1;
+                    assert!(
+                        error.to_string().contains("damaged"),
+                        "the error names the file: {error}"
+                    );
+                }
+                Ok(Ok(read)) => assert!(read.len() <= log.len()),
+                Err(_) => panic!("reading a damaged .{extension} panicked"),
+            }
+        }
+        assert!(errors >= 1, ".{extension}: the empty file is an error");
+    }
 }

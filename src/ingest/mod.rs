@@ -7,6 +7,8 @@
 pub mod align;
 pub mod columns;
 pub mod csv;
+#[cfg(feature = "hdf5")]
+pub mod hdf5;
 pub mod mcap;
 pub mod xyz;
 
@@ -79,7 +81,10 @@ pub fn read_flight_log(path: &Path, options: &IngestOptions) -> Result<FlightLog
         Format::DelimitedText => csv::read_csv(path, &options.columns),
         Format::Xyz => xyz::read_xyz(path, &options.columns),
         Format::Mcap => mcap::read_mcap(path, &options.columns, &options.alignment),
-        Format::Hdf5 => Err(unsupported(path, "hdf5")),
+        #[cfg(feature = "hdf5")]
+        Format::Hdf5 => hdf5::read_hdf5(path, &options.columns),
+        #[cfg(not(feature = "hdf5"))]
+        Format::Hdf5 => Err(unsupported(path, "hdf5 (this build has the 'hdf5' feature off)")),
     }
 }
 
@@ -88,7 +93,7 @@ fn unsupported(path: &Path, kind: &str) -> Error {
         path: path.to_path_buf(),
         message: format!(
             "this build reads delimited text flight logs (CSV with a header row; ',', ';', tab or \
-             whitespace separated), Geosoft XYZ and MCAP. The '{kind}' format is not readable here; export the \
+             whitespace separated), Geosoft XYZ, MCAP and HDF5 (MagNav layout). The '{kind}' format is not readable here; export the \
              flight as CSV with SGL field names (tt, mag_1_uc, flux_a_x, ...)."
         ),
     }

@@ -131,11 +131,14 @@ pub fn write_compensated(
 }
 
 /// Writes a flight log as it is, in the format `output`'s extension names:
-/// `.xyz` for Geosoft XYZ, anything else comma-separated text.
+/// `.xyz` Geosoft XYZ, `.mcap` MCAP, `.h5` HDF5 in the MagNav layout,
+/// anything else comma-separated text.
 pub fn write_flight_log(log: &FlightLog, output: &Path) -> Result<()> {
     match detect_output_format(output) {
         Format::Xyz => text::write_log_xyz(log, &[], output, None),
         Format::Mcap => mcap::write_mcap(log, output, None, &mcap::McapExtras::default()),
+        #[cfg(feature = "hdf5")]
+        Format::Hdf5 => crate::ingest::hdf5::write_hdf5(log, output),
         _ => text::write_log_csv(log, &[], output, None),
     }
 }

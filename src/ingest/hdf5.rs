@@ -1,0 +1,116 @@
+//! HDF5 flight logs in the MagNav challenge layout (pure Rust, `hdf5`
+//! feature).
+//!
+//! The SGL / MagNav challenge files (`Flt1002_train.h5` and the like) hold
+//! one one-dimensional dataset per field at the root, sampled at 10 Hz,
+//! named with the SGL field names (`tt`, `mag_1_uc`, `flux_b_x`,
+//! `ins_pitch`, …) plus a few scalars (`N`, `dt`). Every numeric dataset as
+//! long as the time dataset becomes a channel; others are skipped. Older
+//! files call the heading `ins_azim`; it maps to `ins_yaw`.
+
+use std::path::Path;
+
+use hdf5_pure::{DType, File, FileBuilder};
+
+use super::columns::ColumnNames;
+use crate::error::{Error, Result};
+use crate::flight_log::{Channel, FlightLog};
+use crate::output::write_atomic;
+
+/// Older MagNav files' names for CONTRACT names.
+const ALIASES: [(&str, &str); 1] = [("ins_azim", "ins_yaw")];
+
+fn corrupt(path: &Path, message: String) -> Error {
+    Error::UnsupportedFormat {
+        path: path.to_path_buf(),
+        message,
+    }
+}
+
+/// Reads an HDF5 flight log in the MagNav challenge layout.
+pub fn read_hdf5(path: &Path, names: &ColumnNames) -> Result<FlightLog> {
+    // A damaged file must give an error, whatever the reader does with it.
+    let read = std::panic::catch_unwind(|| read_datasets(path, &names.time));
+    let (time_s, datasets) = read.map_err(|_| {
+        corrupt(
+            path,
+            "the HDF5 file is corrupt (its structure could not be parsed)".into(),
+        )
+    })??;
+    let channels = datasets
+        .into_iter()
+        .filter_map(|(name, values)| {
+            let name = ALIASES
+                .iter()
+                .find(|(old, _)| *old == name)
+                .map_or(name, |(_, new)| new.to_string());
+            let role = names.role_of(&name)?;
+            Some(Channel { name, role, values })
+        })
+        .collect();
+    FlightLog::new(path, names.time.clone(), time_s, channels)
+}
+
+type Datasets = (Vec<f64>, Vec<(String, Vec<f64>)>);
+
+fn read_datasets(path: &Path, time_name: &str) -> Result<Datasets> {
+    let file = File::open(path).map_err(|e| corrupt(path, format!("not a readable HDF5 file: {e}")))?;
+    let mut names = file
+        .root()
+        .datasets()
+        .map_err(|e| corrupt(path, format!("cannot list the root datasets: {e}")))?;
+    names.sort();
+    let time_s = file
+        .dataset(time_name)
+        .and_then(|d| d.read_f64())
+        .map_err(|_| Error::MissingColumn {
+            path: path.to_path_buf(),
+            role: "time",
+            looked_for: format!("a root dataset '{time_name}'"),
+            hint: "MagNav challenge files keep time in 'tt'; name another in [columns] time = \"...\".".into(),
+        })?;
+    let mut datasets = Vec::new();
+    for name in names.into_iter().filter(|n| n != time_name) {
+        let Ok(dataset) = file.dataset(&name) else { continue };
+        let numeric = matches!(
+            dataset.dtype(),
+            Ok(DType::F32
+                | DType::F64
+                | DType::I8
+                | DType::I16
+                | DType::I32
+                | DType::I64
+                | DType::U8
+                | DType::U16
+                | DType::U32
+                | DType::U64)
+        );
+        let one_per_sample = dataset
+            .shape()
+            .is_ok_and(|s| s.len() == 1 && s[0] as usize == time_s.len());
+        if !(numeric && one_per_sample) {
+            continue;
+        }
+        let values = dataset
+            .read_f64()
+            .map_err(|e| corrupt(path, format!("dataset '{name}' cannot be read: {e}")))?;
+        datasets.push((name, values));
+    }
+    Ok((time_s, datasets))
+}
+
+/// Writes `log` in the MagNav challenge layout: one root dataset per
+/// channel and for time, plus `N` (samples) and `dt` (median interval, s).
+pub fn write_hdf5(log: &FlightLog, output: &Path) -> Result<()> {
+    let mut builder = FileBuilder::new();
+    builder.create_dataset(log.time_column()).with_f64_data(log.time_s());
+    for channel in log.channels() {
+        builder.create_dataset(&channel.name).with_f64_data(&channel.values);
+    }
+    builder.create_dataset("N").with_f64_data(&[log.len() as f64]);
+    builder.create_dataset("dt").with_f64_data(&[log.median_interval_s()]);
+    let bytes = builder
+        .finish()
+        .map_err(|e| Error::io(output, "encoding HDF5", std::io::Error::other(e.to_string())))?;
+    write_atomic(output, |w| std::io::Write::write_all(w, &bytes))
+}
