@@ -12,6 +12,10 @@
 //! time_base = "mag_1_uc"   # default: the first scalar magnetometer
 //! gap_tolerance_s = 0.5    # default: 2.5 of each channel's own interval
 //!
+//! [[topic]]            # ROS 2 MagneticField topics (rosbag2 MCAP)
+//! topic = "/imu/mag"
+//! vector = "flux_a"    # or: scalar = "mag_1_uc" for its magnitude
+//!
 //! [filter]
 //! band = "bandpass"    # bandpass | lowpass | highpass | none
 //! low_hz = 0.1
@@ -44,7 +48,7 @@ use crate::error::{Error, Result};
 use crate::filter::{EdgePadding, FilterBand};
 use crate::fit::{FilterSettings, FitOptions};
 use crate::ingest::align::AlignmentOptions;
-use crate::ingest::{ColumnNames, IngestOptions};
+use crate::ingest::{ColumnNames, IngestOptions, TopicMapping};
 use crate::solve::{Criterion, LambdaChoice, SolveOptions};
 use crate::tolles_lawson::{EddyTerms, InducedTerms, TermSet};
 use crate::windows::{read_detect_json, CalibrationWindow};
@@ -169,6 +173,9 @@ pub struct RawPipeline {
     pub columns: ColumnNames,
     /// Multi-rate alignment (MCAP inputs).
     pub alignment: AlignmentOptions,
+    /// What ROS 2 topics become.
+    #[serde(rename = "topic")]
+    pub topics: Vec<TopicMapping>,
     /// Band-pass settings.
     pub filter: RawFilter,
     /// Fit settings.
@@ -246,6 +253,7 @@ impl Pipeline {
             ingest: IngestOptions {
                 columns: raw.columns,
                 alignment: raw.alignment,
+                topics: raw.topics,
             },
             fit,
             level: raw.fit.level,

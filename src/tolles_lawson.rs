@@ -304,7 +304,7 @@ mod tests {
     #[test]
     fn permanent_terms_are_unit_direction_cosines() {
         let field = [vec![30_000.0, 0.0], vec![40_000.0, 0.0], vec![0.0, 50_000.0]];
-        let a = TermSet::default().design_matrix([&field[0], &field[1], &field[2]], &[0..2]);
+        let a = TermSet::default().design_matrix([&field[0], &field[1], &field[2]], std::slice::from_ref(&(0..2)));
         assert_eq!([a.columns[0][0], a.columns[1][0], a.columns[2][0]], [0.6, 0.8, 0.0]);
         // u_x B_y / s = 0.6 · 40 000 / 50 000
         assert!((a.columns[4][0] - 0.48).abs() < 1e-15);

@@ -39,7 +39,7 @@ fn design_matrix_matches_magnav_to_1e_12() {
     let Some(folder) = reference_folder() else { return };
     let log = read_flight_log(&folder.join("magnav_tl_segment.csv"), &IngestOptions::default()).unwrap();
     let sensor = choose_vector_sensor(&log, Some("flux_a")).unwrap();
-    let ours = TermSet::default().design_matrix(log.vector_components(&sensor), &[0..log.len()]);
+    let ours = TermSet::default().design_matrix(log.vector_components(&sensor), std::slice::from_ref(&(0..log.len())));
     let reference = read_matrix(&folder.join("magnav_tl_segment_A.csv"));
     assert_eq!(reference.len(), log.len());
     for (j, column) in ours.columns.iter().enumerate() {

@@ -28,6 +28,9 @@ pub struct Stream {
     pub source: String,
     /// Hold the previous value instead of interpolating.
     pub hold: bool,
+    /// Role given by the source (e.g. a configured ROS topic); `None` to
+    /// take it from the channel name.
+    pub role: Option<crate::flight_log::ChannelRole>,
     /// Sample times, nanoseconds.
     pub times_ns: Vec<u64>,
     /// Sample values.
@@ -228,6 +231,7 @@ mod tests {
             name: name.into(),
             source: format!("/test/{name}"),
             hold,
+            role: None,
             times_ns: times_s.iter().map(|t| (t * 1e9).round() as u64).collect(),
             values: values.to_vec(),
         }

@@ -10,6 +10,12 @@
 //! metadata), `/aux/<column>` → `<column>`. Numeric fields of any other
 //! topic become auxiliary channels named `<topic>_<field>`.
 //!
+//! ROS 2 recordings (rosbag2 MCAP, CDR messages) are read too:
+//! `sensor_msgs/msg/MagneticField` becomes a vector magnetometer (tesla →
+//! nT) or, mapped with `[[topic]] scalar = "mag_1_uc"`, a scalar one (its
+//! magnitude); `Imu` becomes `ins_roll|pitch|yaw` in the SGL convention;
+//! `NavSatFix` becomes `lat`, `lon`, `alt` (see [`ros`](super::ros)).
+//!
 //! The file is read through its summary and chunk index when it has them,
 //! chunks decoded in parallel and merged in file order; a file without a
 //! summary is scanned linearly. Channels then go onto one time base (see
@@ -22,10 +28,12 @@ use std::path::Path;
 use mcap::read::Summary;
 use rayon::prelude::*;
 
-use super::align::{align, AlignmentOptions, Stream};
+use super::align::{align, Stream};
 use super::columns::ColumnNames;
+use super::ros::{self, RosType};
+use super::{IngestOptions, TopicMapping};
 use crate::error::{Error, Result};
-use crate::flight_log::{Channel, ChannelRole, FlightLog};
+use crate::flight_log::{AttitudeAngle, Channel, ChannelRole, FlightLog, VectorAxis};
 use crate::messages::MessageLayout;
 
 /// Metadata key on a `/gps/fix` channel naming the height column.
@@ -36,6 +44,7 @@ pub const ALTITUDE_COLUMN_KEY: &str = "magcomp.altitude_column";
 enum Decoder {
     Protobuf(MessageLayout),
     Json,
+    Ros(RosType),
     Skip(String),
 }
 
@@ -99,7 +108,8 @@ impl Decoded {
 }
 
 /// Reads an MCAP flight log.
-pub fn read_mcap(path: &Path, names: &ColumnNames, alignment: &AlignmentOptions) -> Result<FlightLog> {
+pub fn read_mcap(path: &Path, options: &IngestOptions) -> Result<FlightLog> {
+    let names = &options.columns;
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, "reading", e))?;
     let corrupt = |message: String| Error::UnsupportedFormat {
         path: path.to_path_buf(),
@@ -115,7 +125,7 @@ pub fn read_mcap(path: &Path, names: &ColumnNames, alignment: &AlignmentOptions)
     let decoded = std::panic::catch_unwind(|| decode_file(&bytes, names))
         .map_err(|_| corrupt("the MCAP file is corrupt (its records could not be parsed)".into()))?
         .map_err(|e| corrupt(format!("the MCAP file is truncated or corrupt: {e}")))?;
-    build_log(path, names, alignment, decoded)
+    build_log(path, options, decoded)
 }
 
 type FileContents = (BTreeMap<u16, TopicPlan>, BTreeMap<u16, Decoded>, Vec<String>);
@@ -266,6 +276,13 @@ fn plan_topic(channel: &mcap::Channel, names: &ColumnNames) -> TopicPlan {
             }
         }
         ("json", _) => Decoder::Json,
+        ("cdr", Some(schema)) => match RosType::from_schema_name(&schema.name) {
+            Some(kind) => Decoder::Ros(kind),
+            None => Decoder::Skip(format!(
+                "ROS 2 type '{}' is not read (magcomp reads sensor_msgs MagneticField, Imu and NavSatFix)",
+                schema.name
+            )),
+        },
         (encoding, _) => Decoder::Skip(format!("message encoding '{encoding}' is not read")),
     };
     let altitude_column = channel
@@ -320,6 +337,7 @@ fn add_message(
         Decoder::Skip(_) => return,
         Decoder::Protobuf(layout) => decode_protobuf(layout, data, decoded),
         Decoder::Json => decode_json(data, decoded),
+        Decoder::Ros(kind) => decode_ros(*kind, data, decoded),
     };
     match result {
         Ok(()) => decoded.times_ns.push(log_time),
@@ -351,6 +369,19 @@ fn decode_protobuf(layout: &MessageLayout, data: &[u8], decoded: &mut Decoded) -
     Ok(())
 }
 
+fn decode_ros(kind: RosType, data: &[u8], decoded: &mut Decoded) -> std::result::Result<(), String> {
+    if decoded.fields.is_empty() {
+        decoded.fields = kind.fields().iter().map(|f| f.to_string()).collect();
+        decoded.values = vec![Vec::new(); decoded.fields.len()];
+    }
+    let mut values = [0.0; 3];
+    ros::decode(kind, data, &mut values)?;
+    for (column, value) in decoded.values.iter_mut().zip(values) {
+        column.push(value);
+    }
+    Ok(())
+}
+
 /// JSON messages: the numeric (and boolean) top-level fields, by name.
 fn decode_json(data: &[u8], decoded: &mut Decoded) -> std::result::Result<(), String> {
     let object: serde_json::Map<String, serde_json::Value> =
@@ -373,12 +404,91 @@ fn decode_json(data: &[u8], decoded: &mut Decoded) -> std::result::Result<(), St
     Ok(())
 }
 
-fn build_log(
-    path: &Path,
-    names: &ColumnNames,
-    alignment: &AlignmentOptions,
-    (plans, decoded, mut notes): FileContents,
-) -> Result<FlightLog> {
+/// `[topic]` with its path parts made into a name: `/imu/mag` → `imu_mag`.
+fn topic_stem(topic: &str) -> String {
+    topic
+        .trim_matches('/')
+        .chars()
+        .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
+        .collect()
+}
+
+/// The streams of a ROS 2 topic, with their roles.
+fn ros_streams(
+    kind: RosType,
+    topic: &str,
+    data: Decoded,
+    mapping: Option<&TopicMapping>,
+    attitude_taken: &mut bool,
+) -> Vec<Stream> {
+    let stream = |name: String, field: &str, role: Option<ChannelRole>, values: Vec<f64>| Stream {
+        name,
+        source: format!("{topic}:{field}"),
+        hold: false,
+        role,
+        times_ns: data.times_ns.clone(),
+        values,
+    };
+    let mut columns = data.values.clone().into_iter();
+    let mut next = || columns.next().unwrap_or_default();
+    match kind {
+        RosType::MagneticField => {
+            let [x, y, z] = [next(), next(), next()];
+            if let Some(scalar) = mapping.and_then(|m| m.scalar.clone()) {
+                let norm = (0..x.len())
+                    .map(|i| (x[i] * x[i] + y[i] * y[i] + z[i] * z[i]).sqrt())
+                    .collect();
+                return vec![stream(
+                    scalar,
+                    "|magnetic_field|",
+                    Some(ChannelRole::ScalarMagnetometer),
+                    norm,
+                )];
+            }
+            let prefix = mapping
+                .and_then(|m| m.vector.clone())
+                .unwrap_or_else(|| format!("flux_{}", topic_stem(topic)));
+            [
+                (VectorAxis::X, "x", x),
+                (VectorAxis::Y, "y", y),
+                (VectorAxis::Z, "z", z),
+            ]
+            .into_iter()
+            .map(|(axis, letter, values)| {
+                let role = ChannelRole::VectorMagnetometer {
+                    sensor: prefix.clone(),
+                    axis,
+                };
+                stream(format!("{prefix}_{letter}"), letter, Some(role), values)
+            })
+            .collect()
+        }
+        RosType::Imu => {
+            let first = !std::mem::replace(attitude_taken, true);
+            let angles = [
+                (AttitudeAngle::Roll, "roll", next()),
+                (AttitudeAngle::Pitch, "pitch", next()),
+                (AttitudeAngle::Yaw, "yaw", next()),
+            ];
+            angles
+                .into_iter()
+                .map(|(angle, word, values)| match first {
+                    true => stream(format!("ins_{word}"), word, Some(ChannelRole::Attitude(angle)), values),
+                    false => stream(format!("{}_{word}", topic_stem(topic)), word, None, values),
+                })
+                .collect()
+        }
+        RosType::NavSatFix => ["lat", "lon", "alt"]
+            .into_iter()
+            .zip(["latitude", "longitude", "altitude"])
+            .map(|(name, field)| stream(name.into(), field, None, next()))
+            .collect(),
+    }
+}
+
+fn build_log(path: &Path, options: &IngestOptions, (plans, decoded, mut notes): FileContents) -> Result<FlightLog> {
+    let (names, alignment) = (&options.columns, &options.alignment);
+    let mut attitude_taken = false;
     for plan in plans.values() {
         if let Decoder::Skip(why) = &plan.decoder {
             notes.push(format!("topic '{}' skipped: {why}", plan.topic));
@@ -399,6 +509,11 @@ fn build_log(
                 });
             }
         }
+        if let Decoder::Ros(kind) = plan.decoder {
+            let mapping = options.topics.iter().find(|m| m.topic == plan.topic);
+            streams.extend(ros_streams(kind, &plan.topic, data, mapping, &mut attitude_taken));
+            continue;
+        }
         let integer = |field: &str| match &plan.decoder {
             Decoder::Protobuf(layout) => layout
                 .names
@@ -414,6 +529,7 @@ fn build_log(
             let name = channel_name(&plan.topic, field, &plan.altitude_column);
             streams.push(Stream {
                 hold: integer(field) || name == names.line,
+                role: None,
                 name,
                 source: format!("{}:{field}", plan.topic),
                 times_ns: data.times_ns.clone(),
@@ -434,12 +550,12 @@ fn build_log(
         })?,
         None => streams
             .iter()
-            .position(|s| names.role_of(&s.name) == Some(ChannelRole::ScalarMagnetometer))
+            .position(|s| s.role.clone().or_else(|| names.role_of(&s.name)) == Some(ChannelRole::ScalarMagnetometer))
             .ok_or_else(|| Error::MissingColumn {
                 path: path.to_path_buf(),
                 role: "scalar magnetometer",
-                looked_for: "a /mag/<n>/scalar topic".into(),
-                hint: "Record the scalar magnetometers on /mag/<n>/scalar, or name the time-base channel in [alignment] time_base.".into(),
+                looked_for: "a /mag/<n>/scalar topic (or a ROS topic mapped with scalar = ...)".into(),
+                hint: "Record the scalar magnetometers on /mag/<n>/scalar, map a ROS MagneticField topic with [[topic]] scalar = \"mag_1_uc\", or name the time-base channel in [alignment] time_base.".into(),
             })?,
     };
     if streams[base].times_ns.is_empty() {
@@ -448,13 +564,15 @@ fn build_log(
             column: streams[base].name.clone(),
         });
     }
+    let roles: Vec<Option<ChannelRole>> = streams.iter().map(|s| s.role.clone()).collect();
     let mut aligned = align(streams, base, alignment);
     aligned.report.notes = notes;
     let channels: Vec<Channel> = aligned
         .channels
         .into_iter()
-        .filter_map(|(name, values)| {
-            let role = names.role_of(&name)?;
+        .zip(roles)
+        .filter_map(|((name, values), role)| {
+            let role = role.or_else(|| names.role_of(&name))?;
             Some(Channel { name, role, values })
         })
         .collect();

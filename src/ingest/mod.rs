@@ -10,6 +10,7 @@ pub mod csv;
 #[cfg(feature = "hdf5")]
 pub mod hdf5;
 pub mod mcap;
+pub mod ros;
 pub mod xyz;
 
 use std::io::Read;
@@ -27,6 +28,22 @@ pub struct IngestOptions {
     pub columns: ColumnNames,
     /// How multi-rate channels (MCAP) go onto one time base.
     pub alignment: align::AlignmentOptions,
+    /// What ROS 2 topics of an MCAP recording become (`[[topic]]`).
+    pub topics: Vec<TopicMapping>,
+}
+
+/// A `[[topic]]` entry: what a ROS 2 `sensor_msgs/msg/MagneticField` topic
+/// becomes. Without one, a MagneticField topic is a vector magnetometer
+/// named `flux_<topic>`.
+#[derive(Debug, Clone, PartialEq, Eq, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TopicMapping {
+    /// The topic, e.g. `/imu/mag`.
+    pub topic: String,
+    /// Vector magnetometer prefix: channels `<prefix>_x|y|z`, nT.
+    pub vector: Option<String>,
+    /// Scalar magnetometer channel name: the field's magnitude, nT.
+    pub scalar: Option<String>,
 }
 
 /// The file formats magcomp reads.
@@ -80,7 +97,7 @@ pub fn read_flight_log(path: &Path, options: &IngestOptions) -> Result<FlightLog
     match detect_format(path)? {
         Format::DelimitedText => csv::read_csv(path, &options.columns),
         Format::Xyz => xyz::read_xyz(path, &options.columns),
-        Format::Mcap => mcap::read_mcap(path, &options.columns, &options.alignment),
+        Format::Mcap => mcap::read_mcap(path, options),
         #[cfg(feature = "hdf5")]
         Format::Hdf5 => hdf5::read_hdf5(path, &options.columns),
         #[cfg(not(feature = "hdf5"))]
