@@ -25,11 +25,13 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use mcap::read::Summary;
+use std::borrow::Cow;
+
 use rayon::prelude::*;
 
 use super::align::{align, Stream};
 use super::columns::ColumnNames;
+use super::mcap_records::{self, ChannelRecord, Definitions, SchemaRecord};
 use super::ros::{self, RosType};
 use super::{IngestOptions, TopicMapping};
 use crate::error::{Error, Result};
@@ -130,144 +132,88 @@ pub fn read_mcap(path: &Path, options: &IngestOptions) -> Result<FlightLog> {
 
 type FileContents = (BTreeMap<u16, TopicPlan>, BTreeMap<u16, Decoded>, Vec<String>);
 
-/// Largest uncompressed chunk accepted, bytes.
-const MAX_CHUNK_BYTES: u64 = 1 << 30;
-
-/// Walks the top-level records and rejects chunks whose declared
-/// uncompressed size is implausible for their compressed size, before the
-/// mcap crate would try to allocate it (a flipped bit in a size field must
-/// be an error, not an out-of-memory abort).
-fn check_chunk_sizes(bytes: &[u8]) -> std::result::Result<(), String> {
-    const CHUNK: u8 = 0x06;
-    const FOOTER: u8 = 0x02;
-    let mut at = mcap::MAGIC.len();
-    let read_u64 = |at: usize| -> Option<u64> {
-        bytes
-            .get(at..at + 8)
-            .map(|b| u64::from_le_bytes(b.try_into().unwrap_or_default()))
-    };
-    while at + 9 <= bytes.len() {
-        let op = bytes[at];
-        let Some(length) = read_u64(at + 1) else { break };
-        let body = at + 9;
-        let end = (body as u64).checked_add(length).filter(|&e| e <= bytes.len() as u64);
-        let Some(end) = end else {
-            return Err(format!("a record at byte {at} runs past the end of the file"));
-        };
-        if op == CHUNK {
-            let uncompressed = read_u64(body + 16).unwrap_or(u64::MAX);
-            let limit = chunk_limit(length) as u64;
-            if uncompressed > limit {
-                return Err(format!(
-                    "the chunk at byte {at} declares {uncompressed} bytes uncompressed from {length} bytes"
-                ));
-            }
-        }
-        if op == FOOTER {
-            break;
-        }
-        at = end as usize;
-    }
-    Ok(())
-}
-
-/// The most bytes one record inside a chunk may declare.
-fn chunk_limit(compressed: u64) -> usize {
-    MAX_CHUNK_BYTES.min(compressed.saturating_mul(100).saturating_add(1 << 20)) as usize
-}
-
-/// Calls `each(channel, log_time, data)` for every message of one chunk
-/// record (`chunk` is the record, opcode included). Declared lengths above
-/// `limit` are errors, so damaged size fields cannot trigger huge
-/// allocations.
-fn chunk_messages(
-    chunk: &[u8],
-    limit: usize,
-    mut each: impl FnMut(u16, u64, &[u8]),
-) -> std::result::Result<(), String> {
-    use mcap::sans_io::{LinearReadEvent, LinearReader, LinearReaderOptions};
-    let options = LinearReaderOptions::default()
-        .with_skip_start_magic(true)
-        .with_skip_end_magic(true)
-        .with_record_length_limit(limit);
-    let mut reader = LinearReader::new_with_options(options);
-    let mut rest = chunk;
-    while let Some(event) = reader.next_event() {
-        match event.map_err(|e| e.to_string())? {
-            LinearReadEvent::ReadRequest(need) => {
-                let n = need.min(rest.len());
-                reader.insert(n).copy_from_slice(&rest[..n]);
-                reader.notify_read(n);
-                rest = &rest[n..];
-            }
-            LinearReadEvent::Record { opcode, data } => {
-                if let Ok(mcap::records::Record::Message { header, data }) = mcap::parse_record(opcode, data) {
-                    each(header.channel_id, header.log_time, &data);
-                }
-            }
-        }
-    }
-    Ok(())
-}
-
 fn decode_file(bytes: &[u8], names: &ColumnNames) -> std::result::Result<FileContents, String> {
-    check_chunk_sizes(bytes)?;
-    let summary = Summary::read(bytes).ok().flatten();
-    let indexed = summary.as_ref().filter(|s| {
-        !s.chunk_indexes.is_empty()
-            && s.chunk_indexes.iter().all(|c| {
-                c.chunk_start_offset
-                    .checked_add(c.chunk_length)
-                    .is_some_and(|end| end <= bytes.len() as u64 && c.chunk_length > 9)
-            })
-    });
-    let mut plans: BTreeMap<u16, TopicPlan> = BTreeMap::new();
-    let mut notes = Vec::new();
-    match indexed {
-        Some(summary) => {
-            for (id, channel) in &summary.channels {
-                plans.insert(*id, plan_topic(channel, names));
+    let section = mcap_records::data_section(bytes)?;
+    let mut notes = section.notes;
+    // Decompress every chunk (in parallel) and learn the schemas and
+    // channels they define; messages are decoded once all are known.
+    let opened: Vec<std::result::Result<(Cow<[u8]>, Definitions), String>> = section
+        .chunks
+        .par_iter()
+        .map(|body| {
+            let records = mcap_records::chunk_records(body)?;
+            let mut definitions = Definitions::default();
+            mcap_records::chunk_messages(&records, &mut definitions, |_| {})?;
+            Ok((records, definitions))
+        })
+        .collect();
+    let mut definitions = section.definitions;
+    let mut chunks = Vec::with_capacity(opened.len());
+    let mut damaged = 0;
+    for chunk in opened {
+        match chunk {
+            Ok((records, found)) => {
+                definitions.merge(found);
+                chunks.push(records);
             }
-            let parts: Vec<std::result::Result<BTreeMap<u16, Decoded>, String>> = summary
-                .chunk_indexes
-                .par_iter()
-                .map(|index| {
-                    let start = index.chunk_start_offset as usize;
-                    let chunk = &bytes[start..start + index.chunk_length as usize];
-                    let limit = chunk_limit(index.chunk_length);
-                    let mut part = BTreeMap::new();
-                    chunk_messages(chunk, limit, |id, log_time, data| {
-                        add_message(&plans, &mut part, id, log_time, data);
-                    })?;
-                    Ok(part)
-                })
-                .collect();
-            let mut merged: BTreeMap<u16, Decoded> = BTreeMap::new();
-            for part in parts {
-                for (id, decoded) in part? {
-                    merged.entry(id).or_default().append(decoded);
+            Err(e) => {
+                if damaged == 0 {
+                    notes.push(format!("a damaged chunk was left out: {e}"));
                 }
+                damaged += 1;
             }
-            Ok((plans, merged, notes))
-        }
-        None => {
-            notes.push("the file has no chunk index; it was read by a linear scan".to_string());
-            let mut part = BTreeMap::new();
-            for message in mcap::MessageStream::new(bytes).map_err(|e| e.to_string())? {
-                let message = message.map_err(|e| e.to_string())?;
-                let id = message.channel.id;
-                plans.entry(id).or_insert_with(|| plan_topic(&message.channel, names));
-                add_message(&plans, &mut part, id, message.log_time, &message.data);
-            }
-            Ok((plans, part, notes))
         }
     }
+    if damaged > 0 {
+        notes.push(format!(
+            "{damaged} of {} chunks were damaged and left out",
+            damaged + chunks.len()
+        ));
+        if chunks.is_empty() && section.messages.is_empty() {
+            return Err(format!("every chunk is damaged ({} of them)", damaged));
+        }
+    }
+    let plans: BTreeMap<u16, TopicPlan> = definitions
+        .channels
+        .iter()
+        .map(|(id, channel)| {
+            (
+                *id,
+                plan_topic(channel, definitions.schemas.get(&channel.schema_id), names),
+            )
+        })
+        .collect();
+    let parts: Vec<BTreeMap<u16, Decoded>> = chunks
+        .par_iter()
+        .map(|records| {
+            let mut part = BTreeMap::new();
+            let mut ignored = Definitions::default();
+            // Already walked once without error, so this cannot fail.
+            let _ = mcap_records::chunk_messages(records, &mut ignored, |m| {
+                add_message(&plans, &mut part, m.channel_id, m.log_time, m.data);
+            });
+            part
+        })
+        .collect();
+    let mut merged: BTreeMap<u16, Decoded> = BTreeMap::new();
+    for part in parts {
+        for (id, decoded) in part {
+            merged.entry(id).or_default().append(decoded);
+        }
+    }
+    let mut loose = BTreeMap::new();
+    for m in &section.messages {
+        add_message(&plans, &mut loose, m.channel_id, m.log_time, m.data);
+    }
+    for (id, decoded) in loose {
+        merged.entry(id).or_default().append(decoded);
+    }
+    Ok((plans, merged, notes))
 }
 
 /// Decides how to decode a channel and what its fields become.
-fn plan_topic(channel: &mcap::Channel, names: &ColumnNames) -> TopicPlan {
+fn plan_topic(channel: &ChannelRecord, schema: Option<&SchemaRecord>, names: &ColumnNames) -> TopicPlan {
     let topic = channel.topic.clone();
-    let schema = channel.schema.as_ref();
     let decoder = match (channel.message_encoding.as_str(), schema) {
         ("protobuf", Some(schema)) if schema.encoding == "protobuf" => {
             match MessageLayout::from_descriptor_set(&schema.data, &schema.name) {

@@ -10,6 +10,7 @@ pub mod csv;
 #[cfg(feature = "hdf5")]
 pub mod hdf5;
 pub mod mcap;
+mod mcap_records;
 pub mod ros;
 pub mod xyz;
 
