@@ -132,12 +132,15 @@ pub fn read_mcap(path: &Path, options: &IngestOptions) -> Result<FlightLog> {
 
 type FileContents = (BTreeMap<u16, TopicPlan>, BTreeMap<u16, Decoded>, Vec<String>);
 
+/// A decompressed chunk and the schemas and channels it defines.
+type OpenedChunk<'a> = (Cow<'a, [u8]>, Definitions);
+
 fn decode_file(bytes: &[u8], names: &ColumnNames) -> std::result::Result<FileContents, String> {
     let section = mcap_records::data_section(bytes)?;
     let mut notes = section.notes;
     // Decompress every chunk (in parallel) and learn the schemas and
     // channels they define; messages are decoded once all are known.
-    let opened: Vec<std::result::Result<(Cow<[u8]>, Definitions), String>> = section
+    let opened: Vec<std::result::Result<OpenedChunk, String>> = section
         .chunks
         .par_iter()
         .map(|body| {
