@@ -115,82 +115,149 @@ fn read_delimited_parallel<'a>(
     delimiter: u8,
     template: &ColumnBuilder<'a>,
 ) -> Result<Option<ColumnBuilder<'a>>> {
+    let io = |e| Error::io(path, "reading", e);
     let parts_wanted = rayon::current_num_threads().max(1) * 4;
-    let size = std::fs::metadata(path)
-        .map_err(|e| Error::io(path, "reading", e))?
-        .len() as usize;
-    if size < PARALLEL_MIN_BYTES || parts_wanted < 2 {
+    let size = std::fs::metadata(path).map_err(io)?.len();
+    if size < PARALLEL_MIN_BYTES as u64 || parts_wanted < 2 {
         return Ok(None);
     }
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, "reading", e))?;
-    if bytes.contains(&b'"') {
-        return Ok(None);
-    }
-    let Some(header_end) = bytes.iter().position(|&b| b == b'\n').map(|p| p + 1) else {
+    let mut file = File::open(path).map_err(io)?;
+    let mut head = vec![0u8; 1 << 16];
+    let read = read_up_to(&mut file, &mut head).map_err(io)?;
+    head.truncate(read);
+    let Some(header_end) = head.iter().position(|&b| b == b'\n').map(|p| p as u64 + 1) else {
         return Ok(None);
     };
+    if head.contains(&b'"') {
+        return Ok(None);
+    }
+    let sample_rows = head[header_end as usize..]
+        .iter()
+        .filter(|&&b| b == b'\n')
+        .count()
+        .max(1);
+    let bytes_per_row = (head.len() as u64 - header_end) as f64 / sample_rows as f64;
     let mut starts = vec![header_end];
-    for k in 1..parts_wanted {
-        let guess = header_end + (bytes.len() - header_end) * k / parts_wanted;
-        let Some(next) = bytes[guess..].iter().position(|&b| b == b'\n') else {
+    for k in 1..parts_wanted as u64 {
+        let guess = header_end + (size - header_end) * k / parts_wanted as u64;
+        let Some(start) = next_line_start(&mut file, guess).map_err(io)? else {
             break;
         };
-        let start = guess + next + 1;
-        if start > *starts.last().unwrap_or(&0) && start < bytes.len() {
+        if start > *starts.last().unwrap_or(&0) && start < size {
             starts.push(start);
         }
     }
-    let ends: Vec<usize> = starts
-        .iter()
-        .skip(1)
-        .copied()
-        .chain(std::iter::once(bytes.len()))
-        .collect();
-    let first_lines: Vec<u64> = {
-        let mut line = 2u64;
-        let mut previous = header_end;
-        starts
-            .iter()
-            .map(|&start| {
-                line += bytes[previous..start].iter().filter(|&&b| b == b'\n').count() as u64;
-                previous = start;
-                line
-            })
-            .collect()
-    };
+    let ends: Vec<u64> = starts.iter().skip(1).copied().chain(std::iter::once(size)).collect();
     use rayon::prelude::*;
     let parts: Vec<Option<ColumnBuilder>> = starts
         .par_iter()
         .zip(&ends)
-        .zip(&first_lines)
-        .map(|((&start, &end), &first_line)| {
-            let mut part = template.empty_copy();
-            let mut reader = csv::ReaderBuilder::new()
-                .delimiter(delimiter)
-                .has_headers(false)
-                .from_reader(&bytes[start..end]);
-            let mut record = csv::ByteRecord::new();
-            loop {
-                match reader.read_byte_record(&mut record) {
-                    Ok(false) => return Some(part),
-                    Ok(true) => {
-                        let position = record.position()?;
-                        part.push_row(record.iter(), first_line + position.line() - 1).ok()?;
-                        part.row_offsets.push(start as u64 + position.byte());
-                    }
-                    Err(_) => return None,
-                }
-            }
+        .map(|(&start, &end)| {
+            let rows = ((end - start) as f64 / bytes_per_row * 1.05) as usize + 16;
+            read_part(path, delimiter, template.empty_copy_with_capacity(rows), start, end).ok()?
         })
         .collect();
-    let mut merged = template.empty_copy();
+    let Some(parts) = parts.into_iter().collect::<Option<Vec<ColumnBuilder>>>() else {
+        return Ok(None);
+    };
+    let total: usize = parts.iter().map(|p| p.row_offsets.len()).sum();
+    let mut parts = parts.into_iter();
+    let Some(mut merged) = parts.next() else {
+        return Ok(None);
+    };
+    merged.reserve(total);
     for part in parts {
-        let Some(part) = part else { return Ok(None) };
         if !merged.absorb(part) {
             return Ok(None);
         }
     }
     Ok(Some(merged))
+}
+
+/// Reads as much of `buffer` as the file holds.
+fn read_up_to(file: &mut File, buffer: &mut [u8]) -> std::io::Result<usize> {
+    let mut filled = 0;
+    while filled < buffer.len() {
+        match file.read(&mut buffer[filled..])? {
+            0 => break,
+            n => filled += n,
+        }
+    }
+    Ok(filled)
+}
+
+/// The offset just after the first line end at or after `from`.
+fn next_line_start(file: &mut File, from: u64) -> std::io::Result<Option<u64>> {
+    use std::io::{Seek, SeekFrom};
+    file.seek(SeekFrom::Start(from))?;
+    let mut block = vec![0u8; 1 << 16];
+    let mut at = from;
+    loop {
+        let read = read_up_to(file, &mut block)?;
+        if read == 0 {
+            return Ok(None);
+        }
+        if let Some(p) = block[..read].iter().position(|&b| b == b'\n') {
+            return Ok(Some(at + p as u64 + 1));
+        }
+        at += read as u64;
+    }
+}
+
+/// A reader that notes whether a quote character passed through it.
+struct QuoteGuard<R> {
+    inner: R,
+    quoted: bool,
+}
+
+impl<R: Read> Read for QuoteGuard<R> {
+    fn read(&mut self, buffer: &mut [u8]) -> std::io::Result<usize> {
+        let read = self.inner.read(buffer)?;
+        self.quoted |= buffer[..read].contains(&b'"');
+        Ok(read)
+    }
+}
+
+/// Parses bytes `start..end` (whole lines) into `part`. `Ok(None)` when the
+/// part cannot be read on its own: it holds a quote, or a row fails (the
+/// sequential reader then reports the exact error). Line numbers inside a
+/// part are relative; they only matter for errors, which are re-read.
+fn read_part<'a>(
+    path: &'a Path,
+    delimiter: u8,
+    mut part: ColumnBuilder<'a>,
+    start: u64,
+    end: u64,
+) -> std::io::Result<Option<ColumnBuilder<'a>>> {
+    use std::io::{Seek, SeekFrom};
+    let mut file = File::open(path)?;
+    file.seek(SeekFrom::Start(start))?;
+    let guard = QuoteGuard {
+        inner: file.take(end - start),
+        quoted: false,
+    };
+    let mut reader = csv::ReaderBuilder::new()
+        .delimiter(delimiter)
+        .has_headers(false)
+        .buffer_capacity(1 << 17)
+        .from_reader(guard);
+    let mut record = csv::ByteRecord::new();
+    loop {
+        match reader.read_byte_record(&mut record) {
+            Ok(false) => break,
+            Ok(true) => {
+                let Some(position) = record.position() else {
+                    return Ok(None);
+                };
+                if part.push_row(record.iter(), position.line() + 1).is_err() {
+                    return Ok(None);
+                }
+                part.row_offsets.push(start + position.byte());
+            }
+            Err(_) => return Ok(None),
+        }
+    }
+    Ok((!reader.into_inner().quoted).then_some(part))
 }
 
 fn read_whitespace(path: &Path, file: File, builder: &mut ColumnBuilder) -> Result<()> {
@@ -329,17 +396,24 @@ impl<'a> ColumnBuilder<'a> {
         Ok(())
     }
 
-    /// The same columns and kinds, with no rows.
-    fn empty_copy(&self) -> Self {
+    /// The same columns and kinds, with no rows and room for `rows`.
+    fn empty_copy_with_capacity(&self, rows: usize) -> Self {
         ColumnBuilder {
             path: self.path,
             names: self.names.clone(),
             kinds: self.kinds.clone(),
-            values: vec![Vec::new(); self.names.len()],
+            values: (0..self.names.len()).map(|_| Vec::with_capacity(rows)).collect(),
             time_index: self.time_index,
             previous_time: f64::NEG_INFINITY,
-            row_offsets: Vec::new(),
+            row_offsets: Vec::with_capacity(rows),
         }
+    }
+
+    /// Makes room for `rows` rows in total.
+    fn reserve(&mut self, rows: usize) {
+        let more = rows.saturating_sub(self.row_offsets.len());
+        self.values.iter_mut().for_each(|v| v.reserve(more));
+        self.row_offsets.reserve(more);
     }
 
     /// Appends the rows of `later`, read from the next part of the file.
