@@ -102,7 +102,7 @@ fn read_delimited(path: &Path, file: File, delimiter: u8, builder: &mut ColumnBu
 }
 
 /// Smallest file worth splitting across threads, bytes.
-const PARALLEL_MIN_BYTES: usize = 4 << 20;
+pub(crate) const PARALLEL_MIN_BYTES: usize = 4 << 20;
 
 /// Reads a large delimited file in parts, one per thread, split at line
 /// ends. Only for files without quotes (so a line end always ends a record).
@@ -175,7 +175,7 @@ fn read_delimited_parallel<'a>(
 }
 
 /// Reads as much of `buffer` as the file holds.
-fn read_up_to(file: &mut File, buffer: &mut [u8]) -> std::io::Result<usize> {
+pub(crate) fn read_up_to(file: &mut File, buffer: &mut [u8]) -> std::io::Result<usize> {
     let mut filled = 0;
     while filled < buffer.len() {
         match file.read(&mut buffer[filled..])? {
@@ -187,7 +187,7 @@ fn read_up_to(file: &mut File, buffer: &mut [u8]) -> std::io::Result<usize> {
 }
 
 /// The offset just after the first line end at or after `from`.
-fn next_line_start(file: &mut File, from: u64) -> std::io::Result<Option<u64>> {
+pub(crate) fn next_line_start(file: &mut File, from: u64) -> std::io::Result<Option<u64>> {
     use std::io::{Seek, SeekFrom};
     file.seek(SeekFrom::Start(from))?;
     let mut block = vec![0u8; 1 << 16];
@@ -397,7 +397,7 @@ impl<'a> ColumnBuilder<'a> {
     }
 
     /// The same columns and kinds, with no rows and room for `rows`.
-    fn empty_copy_with_capacity(&self, rows: usize) -> Self {
+    pub(crate) fn empty_copy_with_capacity(&self, rows: usize) -> Self {
         ColumnBuilder {
             path: self.path,
             names: self.names.clone(),
@@ -409,8 +409,16 @@ impl<'a> ColumnBuilder<'a> {
         }
     }
 
+    /// Sets the first `rows` values of `column` to `value` (a line number
+    /// a part inherits from the part before it).
+    pub(crate) fn set_leading(&mut self, column: usize, rows: usize, value: f64) {
+        if let Some(values) = self.values.get_mut(column) {
+            values.iter_mut().take(rows).for_each(|v| *v = value);
+        }
+    }
+
     /// Makes room for `rows` rows in total.
-    fn reserve(&mut self, rows: usize) {
+    pub(crate) fn reserve(&mut self, rows: usize) {
         let more = rows.saturating_sub(self.row_offsets.len());
         self.values.iter_mut().for_each(|v| v.reserve(more));
         self.row_offsets.reserve(more);
@@ -420,7 +428,7 @@ impl<'a> ColumnBuilder<'a> {
     /// False when the result could differ from reading both parts in one
     /// go: a column numeric in one part and text in a later one, or time
     /// not increasing across the boundary.
-    fn absorb(&mut self, later: ColumnBuilder) -> bool {
+    pub(crate) fn absorb(&mut self, later: ColumnBuilder) -> bool {
         let first_time = later.values[self.time_index].first().copied();
         if first_time.is_some_and(|t| t <= self.previous_time) {
             return false;

@@ -17,7 +17,7 @@ use std::io::{BufRead, BufReader};
 use std::path::Path;
 
 use super::columns::{sgl_uppercase_alias, ColumnNames};
-use super::csv::ColumnBuilder;
+use super::csv::{next_line_start, ColumnBuilder, PARALLEL_MIN_BYTES};
 use crate::error::{Error, Result};
 use crate::flight_log::FlightLog;
 
@@ -56,6 +56,8 @@ pub(crate) struct Header {
     pub(crate) names: Vec<String>,
     /// Zero-based index of the header line in the file.
     pub(crate) line_index: usize,
+    /// Byte offset just after the header line.
+    pub(crate) body_start: u64,
     /// Whether the `line` column comes from line records (appended last).
     pub(crate) line_from_records: bool,
 }
@@ -63,20 +65,28 @@ pub(crate) struct Header {
 /// Finds the header among the comment lines before the first data row.
 pub(crate) fn find_header(path: &Path, names: &ColumnNames) -> Result<Header> {
     let file = File::open(path).map_err(|e| Error::io(path, "opening", e))?;
-    let mut comments: Vec<(usize, String)> = Vec::new();
+    let mut comments: Vec<(usize, String, u64)> = Vec::new();
     let mut saw_line_record = false;
-    for (index, line) in BufReader::new(file).lines().enumerate() {
-        let line = line.map_err(|e| Error::io(path, "reading", e))?;
+    let mut reader = BufReader::new(file);
+    let mut line = String::new();
+    let mut offset = 0u64;
+    for index in 0.. {
+        line.clear();
+        let read = reader.read_line(&mut line).map_err(|e| Error::io(path, "reading", e))?;
+        if read == 0 {
+            break;
+        }
+        offset += read as u64;
         match classify(&line) {
             XyzLine::Blank => {}
-            XyzLine::Comment(text) => comments.push((index, text.to_string())),
+            XyzLine::Comment(text) => comments.push((index, text.to_string(), offset)),
             XyzLine::LineRecord(_) => saw_line_record = true,
             XyzLine::Data => {
                 let fields = line.split_ascii_whitespace().count();
-                let (line_index, header) = comments
+                let (line_index, header, body_start) = comments
                     .iter()
                     .rev()
-                    .find(|(_, c)| c.split_ascii_whitespace().count() == fields)
+                    .find(|(_, c, _)| c.split_ascii_whitespace().count() == fields)
                     .ok_or_else(|| Error::UnsupportedFormat {
                         path: path.to_path_buf(),
                         message: format!(
@@ -95,6 +105,7 @@ pub(crate) fn find_header(path: &Path, names: &ColumnNames) -> Result<Header> {
                 return Ok(Header {
                     names: column_names,
                     line_index: *line_index,
+                    body_start: *body_start,
                     line_from_records,
                 });
             }
@@ -115,46 +126,165 @@ fn canonical_name(name: &str, names: &ColumnNames) -> String {
     sgl_uppercase_alias(name).unwrap_or_else(|| name.to_string())
 }
 
-/// Reads a Geosoft XYZ flight log.
+/// Reads a Geosoft XYZ flight log. Large files are read in parts in
+/// parallel, split at line ends; a part's rows before its first line record
+/// take the line number the previous part ended on.
 pub fn read_xyz(path: &Path, names: &ColumnNames) -> Result<FlightLog> {
     let header = find_header(path, names)?;
-    let mut builder = ColumnBuilder::new(path, header.names, names)?;
-    let file = File::open(path).map_err(|e| Error::io(path, "opening", e))?;
-    let mut reader = BufReader::with_capacity(1 << 20, file);
-    let mut text = String::new();
-    let mut line_number = 0u64;
-    let mut offset = 0u64;
-    let mut current_line = f64::NAN;
-    let mut line_cell = String::new();
+    let template = ColumnBuilder::new(path, header.names.clone(), names)?;
+    let size = std::fs::metadata(path)
+        .map_err(|e| Error::io(path, "reading", e))?
+        .len();
+    let mut builder = match read_parallel(path, &header, &template, size)? {
+        Some(builder) => builder,
+        None => {
+            let mut builder = template;
+            read_range(
+                path,
+                &header,
+                &mut builder,
+                header.body_start,
+                size,
+                header.line_index as u64 + 2,
+            )?;
+            builder
+        }
+    };
+    let offsets = std::mem::take(&mut builder.row_offsets);
+    Ok(builder.finish(names)?.with_source_row_offsets(offsets))
+}
+
+/// Where a part of the file left the line number.
+struct PartEnd {
+    /// Rows read before the part's first line record.
+    unresolved: usize,
+    /// The last line record's number, if the part had one.
+    last_line: Option<f64>,
+}
+
+/// Reads bytes `start..end` (whole lines) into `builder`; `first_line` is
+/// the line number of `start`, for errors.
+fn read_range(
+    path: &Path,
+    header: &Header,
+    builder: &mut ColumnBuilder,
+    start: u64,
+    end: u64,
+    first_line: u64,
+) -> Result<PartEnd> {
+    use std::io::{Read, Seek, SeekFrom};
+    let io = |e| Error::io(path, "reading", e);
+    let mut file = File::open(path).map_err(io)?;
+    file.seek(SeekFrom::Start(start)).map_err(io)?;
+    let mut reader = BufReader::with_capacity(1 << 18, file.take(end - start));
+    let mut text = Vec::new();
+    let (mut line_number, mut offset) = (first_line, start);
+    let mut current_line: Option<f64> = None;
+    let mut line_cell = Vec::new();
+    let mut unresolved = 0;
     loop {
         text.clear();
-        let read = reader.read_line(&mut text).map_err(|e| Error::io(path, "reading", e))?;
+        let read = reader.read_until(b'\n', &mut text).map_err(io)?;
         if read == 0 {
             break;
         }
-        line_number += 1;
-        let start = offset;
+        let row_start = offset;
         offset += read as u64;
-        match classify(&text) {
+        let this_line = line_number;
+        line_number += 1;
+        let Ok(line) = std::str::from_utf8(&text) else {
+            return Err(Error::MalformedRow {
+                path: path.to_path_buf(),
+                line: this_line,
+                message: "the line is not valid text (UTF-8)".into(),
+            });
+        };
+        match classify(line) {
             XyzLine::Blank | XyzLine::Comment(_) => {}
-            XyzLine::LineRecord(number) => current_line = number,
-            XyzLine::Data => {
-                let fields = text.split_ascii_whitespace().map(str::as_bytes);
-                if header.line_from_records {
-                    line_cell.clear();
-                    if current_line.is_finite() {
-                        line_cell.push_str(&current_line.to_string());
-                    }
-                    builder.push_row(fields.chain(std::iter::once(line_cell.as_bytes())), line_number)?;
-                } else {
-                    builder.push_row(fields, line_number)?;
+            XyzLine::LineRecord(number) => {
+                current_line = Some(number);
+                line_cell.clear();
+                if number.is_finite() {
+                    line_cell.extend_from_slice(ryu::Buffer::new().format(number).as_bytes());
                 }
-                builder.row_offsets.push(start);
+            }
+            XyzLine::Data => {
+                let fields = line.split_ascii_whitespace().map(str::as_bytes);
+                if header.line_from_records {
+                    unresolved += usize::from(current_line.is_none());
+                    builder.push_row(fields.chain(std::iter::once(line_cell.as_slice())), this_line)?;
+                } else {
+                    builder.push_row(fields, this_line)?;
+                }
+                builder.row_offsets.push(row_start);
             }
         }
     }
-    let offsets = std::mem::take(&mut builder.row_offsets);
-    Ok(builder.finish(names)?.with_source_row_offsets(offsets))
+    Ok(PartEnd {
+        unresolved,
+        last_line: current_line,
+    })
+}
+
+fn read_parallel<'a>(
+    path: &'a Path,
+    header: &Header,
+    template: &ColumnBuilder<'a>,
+    size: u64,
+) -> Result<Option<ColumnBuilder<'a>>> {
+    use rayon::prelude::*;
+    let parts_wanted = rayon::current_num_threads().max(1) as u64 * 4;
+    if size < PARALLEL_MIN_BYTES as u64 || parts_wanted < 2 {
+        return Ok(None);
+    }
+    let io = |e| Error::io(path, "reading", e);
+    let mut file = File::open(path).map_err(io)?;
+    let mut starts = vec![header.body_start];
+    for k in 1..parts_wanted {
+        let guess = header.body_start + (size - header.body_start) * k / parts_wanted;
+        let Some(start) = next_line_start(&mut file, guess).map_err(io)? else {
+            break;
+        };
+        if start > *starts.last().unwrap_or(&0) && start < size {
+            starts.push(start);
+        }
+    }
+    let ends: Vec<u64> = starts.iter().skip(1).copied().chain(std::iter::once(size)).collect();
+    let parts: Vec<Option<(ColumnBuilder, PartEnd)>> = starts
+        .par_iter()
+        .zip(&ends)
+        .map(|(&start, &end)| {
+            let mut part = template.empty_copy_with_capacity(((end - start) / 64) as usize);
+            // Errors are reported by the sequential reader, with exact lines.
+            let state = read_range(path, header, &mut part, start, end, 0).ok()?;
+            Some((part, state))
+        })
+        .collect();
+    let Some(parts) = parts.into_iter().collect::<Option<Vec<_>>>() else {
+        return Ok(None);
+    };
+    let total: usize = parts.iter().map(|(p, _)| p.row_offsets.len()).sum();
+    let line_column = header.line_from_records.then(|| header.names.len() - 1);
+    let mut carried: Option<f64> = None;
+    let mut merged: Option<ColumnBuilder> = None;
+    for (mut part, state) in parts {
+        if let (Some(column), Some(line)) = (line_column, carried) {
+            part.set_leading(column, state.unresolved, line);
+        }
+        carried = state.last_line.or(carried);
+        match &mut merged {
+            None => {
+                part.reserve(total);
+                merged = Some(part);
+            }
+            Some(merged) => {
+                if !merged.absorb(part) {
+                    return Ok(None);
+                }
+            }
+        }
+    }
+    Ok(merged)
 }
 
 /// True when the start of a file looks like Geosoft XYZ: its first non-blank
@@ -222,6 +352,51 @@ mod tests {
         let file = write_temp("/ TIME UNCOMPMAG1\n1 2 3\n");
         let text = read_xyz(file.path(), &ColumnNames::default()).unwrap_err().to_string();
         assert!(text.contains("3 column names"), "{text}");
+    }
+
+    #[test]
+    fn parallel_parts_inherit_the_line_number() {
+        let mut text = String::from("/ big export\n/ TIME UNCOMPMAG1 FLUXB_X FLUXB_Y FLUXB_Z CUR_STRB\n");
+        for k in 0..150_000 {
+            if k % 7_000 == 0 {
+                text += &format!("Line {}.01\n", 1000 + k / 7_000);
+            }
+            text += &format!(
+                "{:.1} {:.3} {}.125 {}.5 4{}000.25 {}\n",
+                100.0 + k as f64 * 0.1,
+                50_000.0 + (k % 997) as f64 * 0.01,
+                k % 11,
+                k % 13,
+                k % 17,
+                if k % 5 == 0 {
+                    "*".to_string()
+                } else {
+                    format!("{}", k % 3)
+                }
+            );
+        }
+        let file = write_temp(&text);
+        assert!(text.len() > PARALLEL_MIN_BYTES);
+        let names = ColumnNames::default();
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(3).build().unwrap();
+        let header = find_header(file.path(), &names).unwrap();
+        let template = ColumnBuilder::new(file.path(), header.names.clone(), &names).unwrap();
+        let size = text.len() as u64;
+        let parallel = pool
+            .install(|| read_parallel(file.path(), &header, &template, size))
+            .unwrap();
+        assert!(parallel.is_some(), "this file takes the parallel path");
+        let log = pool.install(|| read_xyz(file.path(), &names)).unwrap();
+        assert_eq!(log.len(), 150_000);
+        let line = &log.channel("line").unwrap().values;
+        for (k, value) in line.iter().enumerate() {
+            assert_eq!(*value, 1000.01 + (k / 7_000) as f64, "row {k}");
+        }
+        let mut sequential = ColumnBuilder::new(file.path(), header.names.clone(), &names).unwrap();
+        read_range(file.path(), &header, &mut sequential, header.body_start, size, 3).unwrap();
+        assert_eq!(sequential.row_offsets, log.source_row_offsets().unwrap());
+        let current = &log.channel("cur_strb").unwrap().values;
+        assert!(current[0].is_nan() && current[1] == 1.0);
     }
 
     #[test]
