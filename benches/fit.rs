@@ -1,8 +1,8 @@
 //! Speed and memory figures: `cargo bench --bench fit`.
 //!
-//! 1. Fit of one channel (design matrix + band-pass + PRESS over the λ grid
-//!    + TSVD check) at 1e5 and 1e6 calibration rows, median of several runs,
-//!    with the peak resident set size after each size.
+//! 1. Fit of one channel (design matrix, band-pass, PRESS over the λ grid
+//!    and the TSVD check) at 1e5 and 1e6 calibration rows, median of several
+//!    runs, with the peak resident set size after each size.
 //! 2. A whole-file run: 200 000 rows × 100 columns with 5 scalar channels,
 //!    CSV in and CSV out, against the bare time the csv crate needs to read
 //!    and write the same file.

@@ -202,9 +202,9 @@ fn sgl_xyz_with_line_records_runs_through_the_cli() {
     text += &names.join("  ");
     text += "\n";
     let mut current = f64::NAN;
-    for row in 0..log.len() {
-        if line[row] != current {
-            current = line[row];
+    for (row, &line_number) in line.iter().enumerate() {
+        if line_number != current {
+            current = line_number;
             text += &format!("Line {current}\n");
         }
         text += &format!("{}", log.time_s()[row]);
