@@ -262,7 +262,7 @@ fn bench_formats(rows: usize) {
     for (extension, delimiter) in [("csv", b','), ("xyz", b' ')] {
         let path = folder.path().join(format!("flight.{extension}"));
         magcomp::output::write_flight_log(&log, &path).unwrap();
-        let ours = median_seconds(3, || {
+        let ours = median_seconds(7, || {
             std::hint::black_box(read_flight_log(&path, &options).unwrap());
         });
         let bare = match extension {
@@ -277,11 +277,11 @@ fn bench_formats(rows: usize) {
                     .collect();
                 let plain = folder.path().join("plain.txt");
                 std::fs::write(&plain, body).unwrap();
-                median_seconds(3, || {
+                median_seconds(7, || {
                     std::hint::black_box(bare_csv_parse(&plain, delimiter));
                 })
             }
-            _ => median_seconds(3, || {
+            _ => median_seconds(7, || {
                 std::hint::black_box(bare_csv_parse(&path, delimiter));
             }),
         };
