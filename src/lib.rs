@@ -56,6 +56,7 @@ pub mod pipeline;
 pub mod quality;
 pub mod sample_flight;
 pub mod segments;
+pub mod simulate;
 pub mod solve;
 pub mod tolles_lawson;
 pub mod windows;

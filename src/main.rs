@@ -43,6 +43,18 @@ enum Command {
         #[arg(long)]
         config: Option<PathBuf>,
     },
+    /// Simulate a flight from a scenario: the recording (CSV, MCAP, XYZ or
+    /// HDF5 by extension), and beside it the truth and calibration windows.
+    Simulate {
+        /// The scenario file.
+        scenario: PathBuf,
+        /// Output flight; its extension picks the format.
+        #[arg(long)]
+        out: PathBuf,
+        /// Override the scenario's seed.
+        #[arg(long)]
+        seed: Option<u64>,
+    },
     /// Write a sample flight (box and survey lines) and its calibration windows.
     SampleFlight {
         /// Output CSV.
@@ -97,6 +109,7 @@ fn main() -> ExitCode {
         Command::Compensate(args) => compensate(args),
         Command::SampleFlight { out, windows, seed } => sample_flight(&out, &windows, seed),
         Command::Convert { flight, out, config } => convert(&flight, &out, config.as_deref()),
+        Command::Simulate { scenario, out, seed } => simulate(&scenario, &out, seed),
     };
     match outcome {
         Ok(()) => ExitCode::SUCCESS,
@@ -219,6 +232,29 @@ fn sample_flight(out: &Path, windows: &Path, seed: u64) -> anyhow::Result<()> {
         "wrote {} ({} rows) and {}",
         out.display(),
         flight.time_s.len(),
+        windows.display()
+    );
+    Ok(())
+}
+
+fn simulate(scenario: &Path, out: &Path, seed: Option<u64>) -> anyhow::Result<()> {
+    let mut scenario = magcomp::simulate::scenario::Scenario::load(scenario)?;
+    if let Some(seed) = seed {
+        scenario.raw.seed = seed;
+    }
+    let bar = spinner(format!("simulating {}", out.display()));
+    let flight = magcomp::simulate::simulate(&scenario);
+    bar.finish_and_clear();
+    let flight = flight?;
+    magcomp::output::write_flight_log(&flight.log, out)?;
+    let [truth, truth_csv, windows] = flight.truth.write_beside(out)?;
+    println!(
+        "wrote {} ({} rows, {} channels), {}, {} and {}",
+        out.display(),
+        flight.log.len(),
+        flight.log.channels().len(),
+        truth.display(),
+        truth_csv.display(),
         windows.display()
     );
     Ok(())

@@ -1,0 +1,395 @@
+//! The physics simulator: flights whose truth is known.
+//!
+//! `magcomp simulate SCENARIO.toml --out FLIGHT.csv|.mcap|.xyz|.h5` flies
+//! the scenario's plan ([`trajectory`]) at an internal rate, computes the
+//! fields at every sensor and records them as the instruments would
+//! ([`recording`]). It simulates fields, not Tolles-Lawson regressors, so a
+//! fit on its output is not trivially perfect:
+//!
+//! - the Earth's main field from IGRF-14 ([`igrf`]) at the aircraft's
+//!   latitude, longitude, height and date; buried dipoles evaluated exactly
+//!   at each sensor; a daily variation and pulsations that a base station
+//!   (`diurnal`) records with noise;
+//! - at each scalar sensor the aircraft adds $P + A\,B + E\,\dot B$ in body
+//!   axes; the sensor reads the *norm* $|B + B_{aircraft}|$, so the
+//!   second-order terms a linear model leaves out are there, as in flight;
+//! - the fluxgate sees the Earth's field and its own share of the
+//!   aircraft's, with noise;
+//! - current channels, the bus voltage and the trim tab are recorded;
+//! - every continuous channel is averaged from the internal rate to the
+//!   output rate, noised and quantised; scalar sensors drop out inside
+//!   their dead zone.
+//!
+//! [`scenario::Effect`]s add physics (sensor lag, coupling of any recorded
+//! channel, fluxgate calibration errors, an eddy time constant, strong
+//! pulsations) without any trace in the output's columns, names or
+//! metadata. The truth, the true Earth field at every sensor, the
+//! manoeuvres and the effects' parameters, goes to a separate truth file.
+//! A scenario and a seed give bit-identical output.
+
+pub mod igrf;
+pub mod physics;
+pub mod random;
+pub mod recording;
+pub mod scenario;
+pub mod trajectory;
+pub mod truth;
+
+use rayon::prelude::*;
+
+use crate::error::Result;
+use crate::flight_log::{Channel, FlightLog};
+use crate::ingest::ColumnNames;
+use physics::{add, norm, to_body, to_ned, AircraftField, Crust, ExternalField, FluxgateErrors, Vector};
+use random::Random;
+use recording::{auxiliary_channels, average_down, central_rate, delayed, first_order_lag, quantise};
+use scenario::{Effect, ScalarSensor, Scenario, SensorLocation, AUXILIARY_CHANNELS};
+use trajectory::{fly, FlightPath};
+pub use truth::{SensorTruth, Truth};
+
+/// Metres per degree of latitude (mean).
+const METRES_PER_DEGREE: f64 = 111_195.0;
+
+/// A simulated flight: what was recorded, and what was true.
+#[derive(Debug, Clone)]
+pub struct SimulatedFlight {
+    /// The recording, as a reader would return it.
+    pub log: FlightLog,
+    /// What the recording does not say.
+    pub truth: Truth,
+}
+
+/// Fields along the path that every sensor shares.
+struct Environment {
+    /// NED main + external field at the aircraft, per internal sample.
+    regional_nt: Vec<Vector>,
+    crust: Crust,
+    external: ExternalField,
+    main_unit: Vector,
+}
+
+/// Simulates `scenario` with its own seed.
+pub fn simulate(scenario: &Scenario) -> Result<SimulatedFlight> {
+    let raw = &scenario.raw;
+    let root = Random::new(raw.seed);
+    let path = fly(scenario, &mut root.fork("trajectory"));
+    let environment = environment(scenario, &path, &root);
+    let factor = raw.oversampling;
+    let outputs = path.poses.len() / factor;
+    let time_s: Vec<f64> = (0..outputs)
+        .map(|j| raw.start_time_s + j as f64 / raw.sample_rate_hz)
+        .collect();
+    let auxiliary = auxiliary_channels(&path, &mut root.fork("currents"));
+    let mut columns: Vec<(String, Vec<f64>)> = Vec::new();
+    let mut sensors = Vec::new();
+    for (index, sensor) in raw.scalar.iter().enumerate() {
+        let mut random = root.fork(&format!("scalar {index}"));
+        let (recorded, truth) = record_scalar(scenario, &path, &environment, &auxiliary, sensor, &mut random);
+        columns.push((sensor.name.clone(), recorded));
+        sensors.push(truth);
+    }
+    for (index, fluxgate) in raw.fluxgate.iter().enumerate() {
+        let mut random = root.fork(&format!("fluxgate {index}"));
+        columns.extend(record_fluxgate(scenario, &path, &environment, fluxgate, &mut random));
+    }
+    columns.extend(record_navigation(scenario, &path, &mut root.fork("navigation")));
+    columns.push(record_base_station(
+        scenario,
+        &path,
+        &environment,
+        &mut root.fork("base station"),
+    ));
+    let mut random = root.fork("auxiliary noise");
+    for (name, series) in AUXILIARY_CHANNELS.iter().zip(&auxiliary) {
+        let noise = if name.starts_with("cur_") { 0.01 } else { 0.005 };
+        let values = average_down(series, factor)
+            .into_iter()
+            .map(|v| quantise(v + noise * random.normal(), 3))
+            .collect();
+        columns.push((name.to_string(), values));
+    }
+    let external_nt: Vec<f64> = (0..outputs)
+        .map(|j| {
+            physics::dot(
+                environment.external.field_nt(j as f64 * factor as f64 * path.dt_s),
+                environment.main_unit,
+            )
+        })
+        .collect();
+    let log = flight_log(time_s.clone(), columns)?;
+    let truth = Truth::new(scenario, &path, time_s, sensors, external_nt);
+    Ok(SimulatedFlight { log, truth })
+}
+
+fn flight_log(time_s: Vec<f64>, columns: Vec<(String, Vec<f64>)>) -> Result<FlightLog> {
+    let names = ColumnNames::default();
+    let channels = columns
+        .into_iter()
+        .map(|(name, values)| Channel {
+            role: names
+                .role_of(&name)
+                .unwrap_or(crate::flight_log::ChannelRole::Auxiliary),
+            name,
+            values,
+        })
+        .collect();
+    FlightLog::new("simulated flight", "tt", time_s, channels)
+}
+
+/// Latitude, longitude (degrees) and height above the ellipsoid (m) of a
+/// pose, from its offsets north and east of the site.
+fn geodetic(scenario: &Scenario, northing_m: f64, easting_m: f64, height_agl_m: f64) -> (f64, f64, f64) {
+    let site = &scenario.raw.site;
+    let latitude = site.latitude_deg + northing_m / METRES_PER_DEGREE;
+    let longitude = site.longitude_deg + easting_m / (METRES_PER_DEGREE * site.latitude_deg.to_radians().cos());
+    (latitude, longitude, site.ground_msl_m + height_agl_m)
+}
+
+fn environment(scenario: &Scenario, path: &FlightPath, root: &Random) -> Environment {
+    let raw = &scenario.raw;
+    let model = igrf::Igrf::fourteenth();
+    let site_field = model.field(
+        raw.site.latitude_deg,
+        raw.site.longitude_deg,
+        raw.site.ground_msl_m,
+        scenario.year,
+    );
+    let main_unit = site_field.north_east_down_nt.map(|c| c / site_field.total_nt());
+    let mut external = ExternalField::draw(
+        &mut root.fork("external"),
+        raw.external.diurnal_nt,
+        raw.external.pulsation_nt,
+    );
+    for effect in &raw.effect {
+        if let Effect::Pulsations { amplitude_nt } = effect {
+            external.strengthen(&mut root.fork("strong pulsations"), *amplitude_nt);
+        }
+    }
+    let on_lines = path.poses.iter().filter(|p| p.line > 0.0);
+    let (mut north, mut east) = ([f64::MAX, f64::MIN], [f64::MAX, f64::MIN]);
+    for pose in on_lines.chain(path.poses.first()) {
+        north = [north[0].min(pose.northing_m), north[1].max(pose.northing_m)];
+        east = [east[0].min(pose.easting_m), east[1].max(pose.easting_m)];
+    }
+    let crust = Crust::scatter(
+        &mut root.fork("crust"),
+        raw.crust.dipole_count,
+        [north[0] - 1000.0, north[1] + 1000.0],
+        [east[0] - 1000.0, east[1] + 1000.0],
+        raw.crust.depth_m,
+        raw.crust.moment_a_m2,
+        main_unit,
+    );
+    // Secular variation over a flight is below 0.05 nT: one epoch serves.
+    let epoch = model.at_year(scenario.year + raw.start_time_s / 86_400.0 / 365.25);
+    let regional_nt = path
+        .poses
+        .par_iter()
+        .enumerate()
+        .map(|(k, pose)| {
+            let (latitude, longitude, height) = geodetic(scenario, pose.northing_m, pose.easting_m, pose.height_agl_m);
+            let main = epoch.field(latitude, longitude, height);
+            add(main.north_east_down_nt, external.field_nt(k as f64 * path.dt_s))
+        })
+        .collect();
+    Environment {
+        regional_nt,
+        crust,
+        external,
+        main_unit,
+    }
+}
+
+/// The Earth's field in body axes at a sensor `position_m` (forward,
+/// right, down of the aircraft's reference point), per internal sample.
+fn earth_field_at(path: &FlightPath, environment: &Environment, position_m: Vector) -> Vec<Vector> {
+    path.poses
+        .par_iter()
+        .zip(&environment.regional_nt)
+        .map(|(pose, regional)| {
+            let lever = to_ned(position_m, pose.roll_deg, pose.pitch_deg, pose.yaw_deg);
+            let at = [
+                pose.northing_m + lever[0],
+                pose.easting_m + lever[1],
+                lever[2] - pose.height_agl_m,
+            ];
+            let ned = add(*regional, environment.crust.field_nt(at));
+            to_body(ned, pose.roll_deg, pose.pitch_deg, pose.yaw_deg)
+        })
+        .collect()
+}
+
+/// Sizes of the aircraft field by sensor location: permanent (nT),
+/// induced (dimensionless) and eddy (s).
+fn field_sizes(location: SensorLocation) -> (f64, f64, f64) {
+    match location {
+        SensorLocation::Tail => (3.0, 6e-5, 4e-5),
+        SensorLocation::Wing => (25.0, 4e-4, 2e-4),
+        SensorLocation::Cabin => (250.0, 4e-3, 1e-3),
+    }
+}
+
+fn record_scalar(
+    scenario: &Scenario,
+    path: &FlightPath,
+    environment: &Environment,
+    auxiliary: &[Vec<f64>],
+    sensor: &ScalarSensor,
+    random: &mut Random,
+) -> (Vec<f64>, SensorTruth) {
+    let (permanent, induced, eddy) = field_sizes(sensor.location);
+    let scale = sensor.field_scale;
+    let aircraft = AircraftField::draw(random, permanent * scale, induced * scale, eddy * scale);
+    let earth = earth_field_at(path, environment, sensor.position_m);
+    let mut drive: [Vec<f64>; 3] =
+        [0, 1, 2].map(|i| central_rate(&earth.iter().map(|b| b[i]).collect::<Vec<_>>(), path.dt_s));
+    let mut lag_s = 0.0;
+    let mut couplings: Vec<(usize, Vector)> = Vec::new();
+    for effect in &scenario.raw.effect {
+        match effect {
+            Effect::EddyTimeConstant { channel, tau_s } if *channel == sensor.name => {
+                drive = drive.map(|rate| first_order_lag(&rate, path.dt_s, *tau_s));
+            }
+            Effect::SensorLag { channel, lag_s: lag } if *channel == sensor.name => lag_s += lag,
+            Effect::AuxCoupling {
+                channel,
+                source,
+                nt_per_unit,
+            } if *channel == sensor.name => {
+                let column = AUXILIARY_CHANNELS.iter().position(|c| c == source).unwrap_or(0);
+                couplings.push((column, *nt_per_unit));
+            }
+            _ => {}
+        }
+    }
+    let axis_norm = norm(sensor.dead_zone_axis).max(1e-12);
+    let dead_cos = sensor.dead_zone_deg.to_radians().cos();
+    let mut dead = vec![false; earth.len()];
+    let totals: Vec<f64> = earth
+        .iter()
+        .enumerate()
+        .map(|(k, b)| {
+            let mut own = aircraft.at(*b, [drive[0][k], drive[1][k], drive[2][k]]);
+            for (column, vector) in &couplings {
+                own = add(own, vector.map(|v| v * auxiliary[*column][k]));
+            }
+            let total = add(*b, own);
+            let cosine = physics::dot(total, sensor.dead_zone_axis) / (norm(total) * axis_norm);
+            dead[k] = sensor.dead_zone_deg > 0.0 && cosine.abs() > dead_cos;
+            norm(total)
+        })
+        .collect();
+    let totals = if lag_s != 0.0 {
+        delayed(&totals, path.dt_s, lag_s)
+    } else {
+        totals
+    };
+    let factor = scenario.raw.oversampling;
+    let recorded: Vec<f64> = average_down(&totals, factor)
+        .into_iter()
+        .enumerate()
+        .map(|(j, value)| {
+            let noisy = quantise(value + sensor.noise_nt * random.normal(), 3);
+            if dead[j * factor] {
+                f64::NAN
+            } else {
+                noisy
+            }
+        })
+        .collect();
+    let earth_total = average_down(&earth.iter().map(|b| norm(*b)).collect::<Vec<_>>(), factor);
+    let truth = SensorTruth {
+        channel: sensor.name.clone(),
+        location: sensor.location,
+        aircraft,
+        earth_total_nt: earth_total,
+    };
+    (recorded, truth)
+}
+
+fn record_fluxgate(
+    scenario: &Scenario,
+    path: &FlightPath,
+    environment: &Environment,
+    fluxgate: &scenario::Fluxgate,
+    random: &mut Random,
+) -> Vec<(String, Vec<f64>)> {
+    let own = AircraftField::draw(random, fluxgate.permanent_nt, fluxgate.induced, 0.0);
+    let errors = scenario
+        .raw
+        .effect
+        .iter()
+        .find_map(|effect| match effect {
+            Effect::VectorCalibration {
+                sensor,
+                scale,
+                offset_nt,
+                non_orthogonality_deg,
+            } if *sensor == fluxgate.name => Some(FluxgateErrors::new(*scale, *non_orthogonality_deg, *offset_nt)),
+            _ => None,
+        })
+        .unwrap_or_else(FluxgateErrors::none);
+    let earth = earth_field_at(path, environment, [1.0, 0.0, -0.3]);
+    let readings: Vec<Vector> = earth
+        .iter()
+        .map(|b| errors.read(add(*b, own.at(*b, [0.0; 3]))))
+        .collect();
+    ["x", "y", "z"]
+        .iter()
+        .enumerate()
+        .map(|(axis, suffix)| {
+            let series: Vec<f64> = readings.iter().map(|r| r[axis]).collect();
+            let values = average_down(&series, scenario.raw.oversampling)
+                .into_iter()
+                .map(|v| quantise(v + fluxgate.noise_nt * random.normal(), 2))
+                .collect();
+            (format!("{}_{suffix}", fluxgate.name), values)
+        })
+        .collect()
+}
+
+/// Attitude (INS, sampled at the output instants with 0.005° noise),
+/// position and line number.
+fn record_navigation(scenario: &Scenario, path: &FlightPath, random: &mut Random) -> Vec<(String, Vec<f64>)> {
+    let factor = scenario.raw.oversampling;
+    let names = ["ins_pitch", "ins_roll", "ins_yaw", "lat", "lon", "msl", "line"];
+    let mut columns: Vec<(String, Vec<f64>)> = names.iter().map(|n| (n.to_string(), Vec::new())).collect();
+    for pose in path.poses.iter().step_by(factor).take(path.poses.len() / factor) {
+        let (latitude, longitude, height) = geodetic(scenario, pose.northing_m, pose.easting_m, pose.height_agl_m);
+        let values = [
+            quantise(pose.pitch_deg + 0.005 * random.normal(), 4),
+            quantise(pose.roll_deg + 0.005 * random.normal(), 4),
+            quantise((pose.yaw_deg + 0.005 * random.normal()).rem_euclid(360.0), 4),
+            quantise(latitude, 7),
+            quantise(longitude, 7),
+            quantise(height, 1),
+            pose.line,
+        ];
+        for (column, value) in columns.iter_mut().zip(values) {
+            column.1.push(value);
+        }
+    }
+    columns
+}
+
+/// The base station: the external variation projected on the main field
+/// (what a ground total-field magnetometer records), with noise.
+fn record_base_station(
+    scenario: &Scenario,
+    path: &FlightPath,
+    environment: &Environment,
+    random: &mut Random,
+) -> (String, Vec<f64>) {
+    let factor = scenario.raw.oversampling;
+    let noise = scenario.raw.external.base_station_noise_nt;
+    let values = (0..path.poses.len() / factor)
+        .map(|j| {
+            let variation = environment.external.field_nt((j * factor) as f64 * path.dt_s);
+            quantise(
+                physics::dot(variation, environment.main_unit) + noise * random.normal(),
+                3,
+            )
+        })
+        .collect();
+    ("diurnal".into(), values)
+}

@@ -1,0 +1,620 @@
+//! SCENARIO.toml: what to fly, what the aircraft is made of, and which
+//! effects to conceal.
+//!
+//! Every table and field has a default, so an empty file is a valid
+//! scenario: a four-heading box at 3000 m and four survey lines at 300 m over
+//! eastern Ontario, a tail stinger and a cabin magnetometer, one fluxgate,
+//! the usual current channels, and no concealed effect.
+//!
+//! ```toml
+//! seed = 7
+//! date = "2026-06-15"       # IGRF epoch (UTC day)
+//! start_time_s = 46000.0    # seconds past midnight UTC
+//! sample_rate_hz = 10.0
+//! oversampling = 10         # internal rate = oversampling × sample rate
+//!
+//! [site]
+//! latitude_deg = 45.3
+//! longitude_deg = -75.7
+//! ground_msl_m = 80.0
+//!
+//! [calibration]
+//! headings_deg = [20.0, 110.0, 200.0, 290.0]
+//! altitude_m = 3000.0
+//! repeats = 1               # boxes flown
+//! cycles = [2, 4]           # per manoeuvre, drawn per manoeuvre
+//! period_s = [4.0, 8.0]
+//! pitch_deg = 5.0
+//! roll_deg = 10.0
+//! yaw_deg = 5.0
+//! omit = ["yaw@290"]        # manoeuvres the pilot forgets
+//! turbulence_deg = 0.05
+//!
+//! [survey]
+//! line_count = 4
+//! line_heading_deg = 0.0
+//! line_length_m = 9000.0
+//! line_spacing_m = 500.0
+//! altitude_m = 300.0
+//! turbulence_deg = 0.8
+//!
+//! [[scalar]]                # one per scalar magnetometer
+//! name = "mag_1_uc"
+//! location = "tail"         # tail | wing | cabin: sets the aircraft field's size
+//! noise_nt = 0.005
+//!
+//! [[effect]]                # concealed in the output, written to the truth file
+//! kind = "sensor_lag"
+//! channel = "mag_1_uc"
+//! lag_s = 0.15
+//! ```
+
+use std::path::Path;
+
+use serde::Deserialize;
+
+use crate::error::{Error, Result};
+use crate::simulate::igrf::decimal_year;
+
+/// A scenario, as written.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RawScenario {
+    /// Random seed; the same scenario and seed give the same bytes.
+    pub seed: u64,
+    /// UTC day of the flight, `YYYY-MM-DD`.
+    pub date: String,
+    /// First sample, seconds past midnight UTC.
+    pub start_time_s: f64,
+    /// Output sample rate, Hz.
+    pub sample_rate_hz: f64,
+    /// Internal samples per output sample (anti-alias averaging).
+    pub oversampling: usize,
+    /// Where the survey is.
+    pub site: Site,
+    /// The calibration box.
+    pub calibration: Calibration,
+    /// The survey lines.
+    pub survey: Survey,
+    /// The ground below.
+    pub crust: Crust,
+    /// Geomagnetic variation.
+    pub external: External,
+    /// Scalar magnetometers.
+    pub scalar: Vec<ScalarSensor>,
+    /// Fluxgate (vector) magnetometers.
+    pub fluxgate: Vec<Fluxgate>,
+    /// Concealed effects.
+    pub effect: Vec<Effect>,
+}
+
+impl Default for RawScenario {
+    fn default() -> Self {
+        RawScenario {
+            seed: 1,
+            date: "2026-06-15".into(),
+            start_time_s: 46_000.0,
+            sample_rate_hz: 10.0,
+            oversampling: 10,
+            site: Site::default(),
+            calibration: Calibration::default(),
+            survey: Survey::default(),
+            crust: Crust::default(),
+            external: External::default(),
+            scalar: vec![
+                ScalarSensor::new("mag_1_uc", SensorLocation::Tail, 0.005),
+                ScalarSensor::new("mag_2_uc", SensorLocation::Cabin, 0.01),
+            ],
+            fluxgate: vec![Fluxgate::default()],
+            effect: Vec::new(),
+        }
+    }
+}
+
+/// `[site]`: the survey area's origin.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Site {
+    /// Geodetic latitude of the first survey line's start, degrees.
+    pub latitude_deg: f64,
+    /// Longitude, degrees east.
+    pub longitude_deg: f64,
+    /// Ground height above mean sea level (≈ ellipsoid here), m.
+    pub ground_msl_m: f64,
+}
+
+impl Default for Site {
+    fn default() -> Self {
+        Site {
+            latitude_deg: 45.3,
+            longitude_deg: -75.7,
+            ground_msl_m: 80.0,
+        }
+    }
+}
+
+/// `[calibration]`: the FOM box and the pilot's habits.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Calibration {
+    /// Leg headings, degrees clockwise from north, in flying order.
+    pub headings_deg: Vec<f64>,
+    /// Height above ground, m.
+    pub altitude_m: f64,
+    /// How many times the box is flown.
+    pub repeats: usize,
+    /// Cycles per manoeuvre, drawn uniformly from this inclusive range.
+    pub cycles: [usize; 2],
+    /// Manoeuvre period range, s.
+    pub period_s: [f64; 2],
+    /// Pitch amplitude, degrees.
+    pub pitch_deg: f64,
+    /// Roll amplitude, degrees.
+    pub roll_deg: f64,
+    /// Yaw amplitude, degrees.
+    pub yaw_deg: f64,
+    /// Manoeuvres left out, as `kind@heading`, e.g. `yaw@290`.
+    pub omit: Vec<String>,
+    /// Standard deviation of attitude turbulence on the legs, degrees.
+    pub turbulence_deg: f64,
+    /// Ground speed, m/s.
+    pub speed_m_s: f64,
+}
+
+impl Default for Calibration {
+    fn default() -> Self {
+        Calibration {
+            headings_deg: vec![20.0, 110.0, 200.0, 290.0],
+            altitude_m: 3000.0,
+            repeats: 1,
+            cycles: [2, 4],
+            period_s: [4.0, 8.0],
+            pitch_deg: 5.0,
+            roll_deg: 10.0,
+            yaw_deg: 5.0,
+            omit: Vec::new(),
+            turbulence_deg: 0.05,
+            speed_m_s: 70.0,
+        }
+    }
+}
+
+/// `[survey]`: lines flown after the box.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Survey {
+    /// Number of lines; they alternate direction.
+    pub line_count: usize,
+    /// Heading of the first line, degrees.
+    pub line_heading_deg: f64,
+    /// Line length, m.
+    pub line_length_m: f64,
+    /// Distance between lines, m.
+    pub line_spacing_m: f64,
+    /// Height above ground, m.
+    pub altitude_m: f64,
+    /// Attitude turbulence, degrees (standard deviation).
+    pub turbulence_deg: f64,
+    /// Ground speed, m/s.
+    pub speed_m_s: f64,
+}
+
+impl Default for Survey {
+    fn default() -> Self {
+        Survey {
+            line_count: 4,
+            line_heading_deg: 0.0,
+            line_length_m: 9000.0,
+            line_spacing_m: 500.0,
+            altitude_m: 300.0,
+            turbulence_deg: 0.8,
+            speed_m_s: 60.0,
+        }
+    }
+}
+
+/// `[crust]`: buried dipoles under the survey area.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Crust {
+    /// Number of dipoles.
+    pub dipole_count: usize,
+    /// Depth range below ground, m.
+    pub depth_m: [f64; 2],
+    /// Typical moment, A·m².
+    pub moment_a_m2: f64,
+}
+
+impl Default for Crust {
+    fn default() -> Self {
+        Crust {
+            dipole_count: 8,
+            depth_m: [150.0, 800.0],
+            moment_a_m2: 1.5e8,
+        }
+    }
+}
+
+/// `[external]`: diurnal variation and pulsations.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct External {
+    /// Amplitude of the daily variation, nT.
+    pub diurnal_nt: f64,
+    /// RMS amplitude of Pc3–Pc5 pulsations (10–600 s), nT.
+    pub pulsation_nt: f64,
+    /// Base-station noise, nT.
+    pub base_station_noise_nt: f64,
+}
+
+impl Default for External {
+    fn default() -> Self {
+        External {
+            diurnal_nt: 15.0,
+            pulsation_nt: 0.3,
+            base_station_noise_nt: 0.02,
+        }
+    }
+}
+
+/// Where a scalar sensor sits, which sets its aircraft field's size.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SensorLocation {
+    /// Tail stinger, far from the airframe: a few nT.
+    Tail,
+    /// Wing-tip pod: tens of nT.
+    Wing,
+    /// Inside the cabin: hundreds of nT.
+    Cabin,
+}
+
+/// `[[scalar]]`: one scalar magnetometer.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ScalarSensor {
+    /// Column name, `mag_<n>_uc`.
+    pub name: String,
+    /// Where it sits.
+    pub location: SensorLocation,
+    /// White noise, nT (standard deviation at the internal rate).
+    #[serde(default = "default_scalar_noise")]
+    pub noise_nt: f64,
+    /// Multiplies the location's aircraft-field size.
+    #[serde(default = "one")]
+    pub field_scale: f64,
+    /// Sensor axis in body axes; the sensor drops out when the field lies
+    /// within `dead_zone_deg` of it (optically pumped dead zone).
+    #[serde(default = "default_dead_zone_axis")]
+    pub dead_zone_axis: [f64; 3],
+    /// Dead-zone half-angle, degrees; 0 for none.
+    #[serde(default)]
+    pub dead_zone_deg: f64,
+    /// Position in body axes (forward, right, down), m.
+    #[serde(default)]
+    pub position_m: [f64; 3],
+}
+
+fn default_scalar_noise() -> f64 {
+    0.005
+}
+
+fn one() -> f64 {
+    1.0
+}
+
+fn default_dead_zone_axis() -> [f64; 3] {
+    [0.0, 0.0, 1.0]
+}
+
+impl ScalarSensor {
+    fn new(name: &str, location: SensorLocation, noise_nt: f64) -> Self {
+        ScalarSensor {
+            name: name.into(),
+            location,
+            noise_nt,
+            field_scale: 1.0,
+            dead_zone_axis: default_dead_zone_axis(),
+            dead_zone_deg: 0.0,
+            position_m: match location {
+                SensorLocation::Tail => [-9.0, 0.0, -0.5],
+                SensorLocation::Wing => [-1.0, 7.0, 0.0],
+                SensorLocation::Cabin => [1.5, 0.3, 0.2],
+            },
+        }
+    }
+}
+
+/// `[[fluxgate]]`: one vector magnetometer.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Fluxgate {
+    /// Column prefix, `flux_<s>`.
+    pub name: String,
+    /// White noise per axis, nT.
+    pub noise_nt: f64,
+    /// Size of the aircraft's permanent field at the fluxgate, nT.
+    pub permanent_nt: f64,
+    /// Size of the induced coefficients at the fluxgate (dimensionless).
+    pub induced: f64,
+}
+
+impl Default for Fluxgate {
+    fn default() -> Self {
+        Fluxgate {
+            name: "flux_a".into(),
+            noise_nt: 0.5,
+            permanent_nt: 40.0,
+            induced: 2e-3,
+        }
+    }
+}
+
+/// `[[effect]]`: one physical effect the output does not reveal.
+#[derive(Debug, Clone, PartialEq, Deserialize, serde::Serialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum Effect {
+    /// The scalar channel reads the field `lag_s` late.
+    SensorLag {
+        /// Scalar channel.
+        channel: String,
+        /// Delay, s (positive: scalar late).
+        lag_s: f64,
+    },
+    /// A recorded channel's field reaches a scalar sensor: the sensor sees
+    /// `source × nt_per_unit` (body axes) added to the field.
+    AuxCoupling {
+        /// Scalar channel.
+        channel: String,
+        /// Recorded column that drives the field (current, trim tab, ...).
+        source: String,
+        /// Field per unit of the source at the sensor, body axes, nT/unit.
+        nt_per_unit: [f64; 3],
+    },
+    /// The fluxgate's own scale, offset and non-orthogonality errors.
+    VectorCalibration {
+        /// Fluxgate prefix.
+        sensor: String,
+        /// Scale factors per axis (1 = perfect).
+        scale: [f64; 3],
+        /// Offsets per axis, nT.
+        offset_nt: [f64; 3],
+        /// Non-orthogonality angles (xy, xz, yz), degrees.
+        non_orthogonality_deg: [f64; 3],
+    },
+    /// Eddy currents respond through a first-order lag of `tau_s`.
+    EddyTimeConstant {
+        /// Scalar channel.
+        channel: String,
+        /// Time constant, s.
+        tau_s: f64,
+    },
+    /// Strong geomagnetic pulsations, seen by the base station too.
+    Pulsations {
+        /// RMS amplitude, nT.
+        amplitude_nt: f64,
+    },
+}
+
+impl Effect {
+    /// The CONTRACT §3 name of the effect.
+    pub fn contract_name(&self) -> &'static str {
+        match self {
+            Effect::SensorLag { .. } => "sensor_lag",
+            Effect::AuxCoupling { .. } => "aux_coupling",
+            Effect::VectorCalibration { .. } => "vector_calibration",
+            Effect::EddyTimeConstant { .. } => "eddy_time_constant",
+            Effect::Pulsations { .. } => "external_field",
+        }
+    }
+}
+
+/// A checked scenario.
+#[derive(Debug, Clone)]
+pub struct Scenario {
+    /// The settings as written (all checked).
+    pub raw: RawScenario,
+    /// Decimal year of the flight (IGRF epoch).
+    pub year: f64,
+}
+
+/// The recorded auxiliary channels every simulated flight carries.
+pub const AUXILIARY_CHANNELS: [&str; 8] = [
+    "cur_strb", "cur_heat", "cur_com1", "cur_ail", "cur_fuel", "cur_fan", "vol_bus", "trim_tab",
+];
+
+impl Scenario {
+    /// Reads and checks a scenario file.
+    pub fn load(path: &Path) -> Result<Scenario> {
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, "reading", e))?;
+        let raw: RawScenario = toml::from_str(&text).map_err(|e| Error::Config {
+            source_name: path.display().to_string(),
+            message: e.to_string(),
+        })?;
+        Scenario::try_from(raw).map_err(|message| Error::Config {
+            source_name: path.display().to_string(),
+            message,
+        })
+    }
+}
+
+impl TryFrom<RawScenario> for Scenario {
+    type Error = String;
+
+    fn try_from(raw: RawScenario) -> std::result::Result<Self, String> {
+        let year = parse_date(&raw.date)?;
+        check_rates(&raw)?;
+        check_flight_plan(&raw)?;
+        check_sensors(&raw)?;
+        for effect in &raw.effect {
+            check_effect(&raw, effect)?;
+        }
+        Ok(Scenario { raw, year })
+    }
+}
+
+fn parse_date(date: &str) -> std::result::Result<f64, String> {
+    let parts: Vec<&str> = date.split('-').collect();
+    let bad = || format!("date = \"{date}\": write the UTC day as YYYY-MM-DD, between 1900 and 2030");
+    let [year, month, day] = parts.as_slice() else {
+        return Err(bad());
+    };
+    let (year, month, day) = (
+        year.parse::<i32>().map_err(|_| bad())?,
+        month.parse::<u32>().map_err(|_| bad())?,
+        day.parse::<u32>().map_err(|_| bad())?,
+    );
+    if !(1900..2030).contains(&year) || !(1..=12).contains(&month) || !(1..=31).contains(&day) {
+        return Err(bad());
+    }
+    Ok(decimal_year(year, month, day, 0.0))
+}
+
+fn check_rates(raw: &RawScenario) -> std::result::Result<(), String> {
+    if !(raw.sample_rate_hz > 0.0 && raw.sample_rate_hz <= 1000.0) {
+        return Err(format!(
+            "sample_rate_hz = {}: give a rate between 0 and 1000 Hz",
+            raw.sample_rate_hz
+        ));
+    }
+    if raw.oversampling == 0 || raw.oversampling > 100 {
+        return Err(format!(
+            "oversampling = {}: give 1 to 100 internal samples per output sample",
+            raw.oversampling
+        ));
+    }
+    if !raw.start_time_s.is_finite() {
+        return Err("start_time_s must be a finite number of seconds".into());
+    }
+    Ok(())
+}
+
+fn check_flight_plan(raw: &RawScenario) -> std::result::Result<(), String> {
+    let box_ = &raw.calibration;
+    if box_.headings_deg.is_empty() && box_.repeats > 0 {
+        return Err("[calibration] headings_deg is empty: give the box's leg headings, e.g. [0, 90, 180, 270]".into());
+    }
+    if box_.cycles[0] == 0 || box_.cycles[0] > box_.cycles[1] {
+        return Err(format!(
+            "[calibration] cycles = {:?}: give [fewest, most] with fewest ≥ 1",
+            box_.cycles
+        ));
+    }
+    if !(box_.period_s[0] > 0.5 && box_.period_s[0] <= box_.period_s[1]) {
+        return Err(format!(
+            "[calibration] period_s = {:?}: give [shortest, longest] above 0.5 s",
+            box_.period_s
+        ));
+    }
+    for omitted in &box_.omit {
+        parse_omission(omitted)?;
+    }
+    let speeds = [box_.speed_m_s, raw.survey.speed_m_s];
+    if speeds.iter().any(|s| !(*s > 1.0 && *s < 400.0)) {
+        return Err("speed_m_s must lie between 1 and 400 m/s".into());
+    }
+    if raw.survey.line_count > 0 && !(raw.survey.line_length_m > 0.0 && raw.survey.line_spacing_m > 0.0) {
+        return Err("[survey] line_length_m and line_spacing_m must be positive".into());
+    }
+    Ok(())
+}
+
+/// Parses `kind@heading` (e.g. `yaw@290`) into the kind and heading.
+pub fn parse_omission(text: &str) -> std::result::Result<(crate::windows::ManoeuvreKind, f64), String> {
+    use crate::windows::ManoeuvreKind;
+    let bad = || format!("[calibration] omit = \"{text}\": write kind@heading, e.g. \"yaw@290\"");
+    let (kind, heading) = text.split_once('@').ok_or_else(bad)?;
+    let kind = match kind.trim() {
+        "pitch" => ManoeuvreKind::Pitch,
+        "roll" => ManoeuvreKind::Roll,
+        "yaw" => ManoeuvreKind::Yaw,
+        _ => return Err(bad()),
+    };
+    Ok((kind, heading.trim().parse::<f64>().map_err(|_| bad())?))
+}
+
+fn check_sensors(raw: &RawScenario) -> std::result::Result<(), String> {
+    if raw.scalar.is_empty() || raw.fluxgate.is_empty() {
+        return Err("a scenario needs at least one [[scalar]] and one [[fluxgate]] sensor".into());
+    }
+    for sensor in &raw.scalar {
+        let well_named = sensor.name.starts_with("mag_") && sensor.name.ends_with("_uc");
+        if !(well_named && sensor.noise_nt >= 0.0 && sensor.field_scale >= 0.0) {
+            return Err(format!(
+                "[[scalar]] '{}': name it mag_<n>_uc and give non-negative noise_nt and field_scale",
+                sensor.name
+            ));
+        }
+    }
+    let mut names: Vec<&str> = raw.scalar.iter().map(|s| s.name.as_str()).collect();
+    names.extend(raw.fluxgate.iter().map(|f| f.name.as_str()));
+    names.sort_unstable();
+    if let Some(pair) = names.windows(2).find(|p| p[0] == p[1]) {
+        return Err(format!("sensor '{}' is listed twice", pair[0]));
+    }
+    if let Some(f) = raw.fluxgate.iter().find(|f| !f.name.starts_with("flux_")) {
+        return Err(format!("[[fluxgate]] '{}': name it flux_<s>, e.g. flux_a", f.name));
+    }
+    Ok(())
+}
+
+fn check_effect(raw: &RawScenario, effect: &Effect) -> std::result::Result<(), String> {
+    let has_scalar = |name: &str| raw.scalar.iter().any(|s| s.name == name);
+    let unknown_scalar = |name: &str| {
+        format!(
+            "[[effect]] {}: channel '{name}' is not one of the [[scalar]] sensors",
+            effect.contract_name()
+        )
+    };
+    match effect {
+        Effect::SensorLag { channel, lag_s } => {
+            if !has_scalar(channel) {
+                return Err(unknown_scalar(channel));
+            }
+            if lag_s.is_nan() || lag_s.abs() >= 2.0 {
+                return Err(format!("[[effect]] sensor_lag: lag_s = {lag_s} must lie within ±2 s"));
+            }
+        }
+        Effect::AuxCoupling { channel, source, .. } => {
+            if !has_scalar(channel) {
+                return Err(unknown_scalar(channel));
+            }
+            if !AUXILIARY_CHANNELS.contains(&source.as_str()) {
+                return Err(format!(
+                    "[[effect]] aux_coupling: source '{source}' is not a simulated channel; use one of {}",
+                    AUXILIARY_CHANNELS.join(", ")
+                ));
+            }
+        }
+        Effect::VectorCalibration { sensor, scale, .. } => {
+            if !raw.fluxgate.iter().any(|f| &f.name == sensor) {
+                return Err(format!(
+                    "[[effect]] vector_calibration: sensor '{sensor}' is not a [[fluxgate]]"
+                ));
+            }
+            if scale.iter().any(|s| !(*s > 0.5 && *s < 2.0)) {
+                return Err(format!(
+                    "[[effect]] vector_calibration: scale {scale:?} must lie between 0.5 and 2"
+                ));
+            }
+        }
+        Effect::EddyTimeConstant { channel, tau_s } => {
+            if !has_scalar(channel) {
+                return Err(unknown_scalar(channel));
+            }
+            if !(*tau_s > 0.0 && *tau_s < 10.0) {
+                return Err(format!(
+                    "[[effect]] eddy_time_constant: tau_s = {tau_s} must lie in (0, 10) s"
+                ));
+            }
+        }
+        Effect::Pulsations { amplitude_nt } => {
+            if !(*amplitude_nt >= 0.0 && *amplitude_nt < 1000.0) {
+                return Err(format!(
+                    "[[effect]] pulsations: amplitude_nt = {amplitude_nt} must lie in [0, 1000)"
+                ));
+            }
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,334 @@
+//! The flight path and attitude at the internal rate: calibration boxes
+//! with a pilot's manoeuvres, coordinated turns, a transit descent, then
+//! survey lines in alternating directions with turbulence.
+//!
+//! Attitude follows the SGL convention (CONTRACT §1): yaw clockwise from
+//! north, pitch nose up, roll right wing down, all in degrees. Positions
+//! are metres north and east of the flight's start, and height above ground.
+
+use std::f64::consts::PI;
+
+use crate::simulate::random::Random;
+use crate::simulate::scenario::{parse_omission, Scenario};
+use crate::windows::ManoeuvreKind;
+
+/// Where the aircraft is and how it is oriented at one internal sample.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Pose {
+    /// Roll, degrees, right wing down positive.
+    pub roll_deg: f64,
+    /// Pitch, degrees, nose up positive.
+    pub pitch_deg: f64,
+    /// Yaw (heading), degrees clockwise from north, unwrapped.
+    pub yaw_deg: f64,
+    /// Metres north of the start.
+    pub northing_m: f64,
+    /// Metres east of the start.
+    pub easting_m: f64,
+    /// Height above ground, m.
+    pub height_agl_m: f64,
+    /// Survey line number, 0 off the lines.
+    pub line: f64,
+}
+
+/// One manoeuvre as flown: the oscillation from its first to last sample.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FlownManoeuvre {
+    /// Pitch, roll or yaw.
+    pub kind: ManoeuvreKind,
+    /// Leg heading, degrees.
+    pub heading_deg: f64,
+    /// Start, s after the flight's start.
+    pub t_start_s: f64,
+    /// End, s after the flight's start.
+    pub t_end_s: f64,
+    /// Whole cycles flown.
+    pub cycles: usize,
+    /// Peak angle, degrees.
+    pub amplitude_deg: f64,
+    /// Period, s.
+    pub period_s: f64,
+}
+
+/// A stretch of the flight, in s after the start.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Stretch {
+    /// Start, s.
+    pub t_start_s: f64,
+    /// End, s.
+    pub t_end_s: f64,
+}
+
+/// The whole flight at the internal rate.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FlightPath {
+    /// Internal sample interval, s.
+    pub dt_s: f64,
+    /// One pose per internal sample.
+    pub poses: Vec<Pose>,
+    /// Manoeuvres in flying order.
+    pub manoeuvres: Vec<FlownManoeuvre>,
+    /// Each calibration box.
+    pub boxes: Vec<Stretch>,
+    /// Each survey line, with its number and heading.
+    pub lines: Vec<(f64, f64, Stretch)>,
+}
+
+/// Flies the scenario's plan.
+pub fn fly(scenario: &Scenario, random: &mut Random) -> FlightPath {
+    let raw = &scenario.raw;
+    let dt_s = 1.0 / (raw.sample_rate_hz * raw.oversampling as f64);
+    let mut pilot = Pilot {
+        dt_s,
+        random,
+        turbulence: [[0.0; 3]; 2],
+        pose: Pose {
+            height_agl_m: raw.calibration.altitude_m,
+            yaw_deg: raw.calibration.headings_deg.first().copied().unwrap_or(0.0),
+            ..Pose::default()
+        },
+        path: FlightPath {
+            dt_s,
+            poses: Vec::new(),
+            manoeuvres: Vec::new(),
+            boxes: Vec::new(),
+            lines: Vec::new(),
+        },
+    };
+    for _ in 0..raw.calibration.repeats {
+        pilot.fly_box(scenario);
+    }
+    if raw.survey.line_count > 0 {
+        pilot.transit(scenario);
+        pilot.fly_lines(scenario);
+    }
+    pilot.path
+}
+
+/// The pilot: appends poses to the path.
+struct Pilot<'r> {
+    dt_s: f64,
+    random: &'r mut Random,
+    /// Gust drive and the attitude's response to it, degrees (roll, pitch, yaw).
+    turbulence: [[f64; 3]; 2],
+    pose: Pose,
+    path: FlightPath,
+}
+
+impl Pilot<'_> {
+    fn now(&self) -> f64 {
+        self.path.poses.len() as f64 * self.dt_s
+    }
+
+    fn samples(&self, seconds: f64) -> usize {
+        (seconds / self.dt_s).round().max(1.0) as usize
+    }
+
+    /// Advances turbulence: a first-order Gauss-Markov gust (1.5 s
+    /// correlation, standard deviation `sigma_deg`) that the airframe
+    /// follows through its own 0.4 s first-order response, so attitude and
+    /// its rates stay smooth, as an aircraft's inertia keeps them.
+    fn gust(&mut self, sigma_deg: f64) {
+        let keep = (-self.dt_s / 1.5).exp();
+        let follow = (-self.dt_s / 0.4).exp();
+        let kick = (1.0 - keep * keep).sqrt() * sigma_deg;
+        let [drive, response] = &mut self.turbulence;
+        for (axis, share) in [1.0, 0.6, 0.4].iter().enumerate() {
+            drive[axis] = keep * drive[axis] + share * kick * self.random.normal();
+            response[axis] = follow * response[axis] + (1.0 - follow) * drive[axis];
+        }
+    }
+
+    /// Records the pose `offset` (roll, pitch, yaw deviation) away from the
+    /// nominal heading and moves the aircraft along its yaw at `speed`.
+    fn step(&mut self, heading_deg: f64, offset: [f64; 3], speed_m_s: f64) {
+        let gust = self.turbulence[1];
+        self.pose.roll_deg = offset[0] + gust[0];
+        self.pose.pitch_deg = offset[1] + gust[1];
+        self.pose.yaw_deg = heading_deg + offset[2] + gust[2];
+        let track = self.pose.yaw_deg.to_radians();
+        self.pose.northing_m += speed_m_s * self.dt_s * track.cos();
+        self.pose.easting_m += speed_m_s * self.dt_s * track.sin();
+        self.path.poses.push(self.pose);
+    }
+
+    fn level(&mut self, seconds: f64, heading_deg: f64, turbulence_deg: f64, speed_m_s: f64) {
+        for _ in 0..self.samples(seconds) {
+            self.gust(turbulence_deg);
+            self.step(heading_deg, [0.0; 3], speed_m_s);
+        }
+    }
+
+    /// A coordinated turn at `rate_deg_s` with the bank rolled in and out.
+    fn turn(&mut self, from_deg: f64, to_deg: f64, rate_deg_s: f64, speed_m_s: f64, turbulence_deg: f64) {
+        let change = (to_deg - from_deg + 540.0).rem_euclid(360.0) - 180.0;
+        let samples = self.samples(change.abs() / rate_deg_s);
+        let bank = (speed_m_s * rate_deg_s.to_radians() / 9.81)
+            .atan()
+            .to_degrees()
+            .clamp(10.0, 30.0);
+        for k in 0..samples {
+            let fraction = (k + 1) as f64 / samples as f64;
+            self.gust(turbulence_deg);
+            let roll = bank * change.signum() * (PI * fraction).sin().sqrt();
+            self.step(from_deg + change * fraction, [roll, 0.0, 0.0], speed_m_s);
+        }
+    }
+
+    fn manoeuvre(&mut self, scenario: &Scenario, kind: ManoeuvreKind, heading_deg: f64) {
+        let box_ = &scenario.raw.calibration;
+        let cycles = self.random.integer(box_.cycles[0], box_.cycles[1]);
+        let period_s = self.random.uniform(box_.period_s[0], box_.period_s[1]);
+        let nominal = match kind {
+            ManoeuvreKind::Pitch => box_.pitch_deg,
+            ManoeuvreKind::Roll => box_.roll_deg,
+            ManoeuvreKind::Yaw => box_.yaw_deg,
+        };
+        let amplitude_deg = nominal * self.random.uniform(0.8, 1.2);
+        let t_start_s = self.now();
+        for k in 0..self.samples(cycles as f64 * period_s) {
+            self.gust(box_.turbulence_deg);
+            let angle = amplitude_deg * (2.0 * PI * (k + 1) as f64 * self.dt_s / period_s).sin();
+            let offset = match kind {
+                ManoeuvreKind::Roll => [angle, 0.0, 0.0],
+                ManoeuvreKind::Pitch => [0.0, angle, 0.0],
+                ManoeuvreKind::Yaw => [0.0, 0.0, angle],
+            };
+            self.step(heading_deg, offset, box_.speed_m_s);
+        }
+        self.path.manoeuvres.push(FlownManoeuvre {
+            kind,
+            heading_deg,
+            t_start_s,
+            t_end_s: self.now() - self.dt_s,
+            cycles,
+            amplitude_deg,
+            period_s,
+        });
+    }
+
+    fn fly_box(&mut self, scenario: &Scenario) {
+        let box_ = &scenario.raw.calibration;
+        let omitted: Vec<(ManoeuvreKind, f64)> = box_.omit.iter().filter_map(|o| parse_omission(o).ok()).collect();
+        let start = self.now();
+        let headings = &box_.headings_deg;
+        for (leg, &heading) in headings.iter().enumerate() {
+            self.level(20.0, heading, box_.turbulence_deg, box_.speed_m_s);
+            for kind in [ManoeuvreKind::Pitch, ManoeuvreKind::Roll, ManoeuvreKind::Yaw] {
+                let skipped = omitted.iter().any(|(k, h)| *k == kind && (h - heading).abs() < 0.5);
+                if !skipped {
+                    self.manoeuvre(scenario, kind, heading);
+                    let pause = self.random.uniform(8.0, 14.0);
+                    self.level(pause, heading, box_.turbulence_deg, box_.speed_m_s);
+                }
+            }
+            let end = self.now();
+            let next = headings[(leg + 1) % headings.len()];
+            if leg + 1 == headings.len() {
+                self.path.boxes.push(Stretch {
+                    t_start_s: start,
+                    t_end_s: end,
+                });
+            }
+            self.turn(heading, next, 3.0, box_.speed_m_s, box_.turbulence_deg);
+        }
+    }
+
+    /// Turns towards the survey area, descends to survey height in a
+    /// straight glide, and turns onto the first line's heading.
+    fn transit(&mut self, scenario: &Scenario) {
+        let survey = &scenario.raw.survey;
+        let heading = self.pose.yaw_deg.rem_euclid(360.0);
+        let bearing = (survey.line_heading_deg + 90.0).rem_euclid(360.0);
+        self.turn(heading, bearing, 3.0, survey.speed_m_s, 0.1);
+        let from = self.pose.height_agl_m;
+        let seconds = ((from - survey.altitude_m).abs() / 5.0).max(60.0);
+        let samples = self.samples(seconds);
+        for k in 0..samples {
+            self.pose.height_agl_m = from + (survey.altitude_m - from) * (k + 1) as f64 / samples as f64;
+            self.gust(0.3);
+            self.step(bearing, [0.0; 3], survey.speed_m_s);
+        }
+        self.turn(bearing, survey.line_heading_deg, 3.0, survey.speed_m_s, 0.3);
+        self.level(20.0, survey.line_heading_deg, survey.turbulence_deg, survey.speed_m_s);
+    }
+
+    /// Lines in alternating directions, joined by 180° turns whose path is
+    /// a half circle one line spacing across, with a standard bank shown.
+    fn fly_lines(&mut self, scenario: &Scenario) {
+        let survey = &scenario.raw.survey;
+        for line in 0..survey.line_count {
+            let heading = (survey.line_heading_deg + 180.0 * (line % 2) as f64).rem_euclid(360.0);
+            let number = 1001.0 + line as f64;
+            let t_start_s = self.now();
+            self.pose.line = number;
+            for _ in 0..self.samples(survey.line_length_m / survey.speed_m_s) {
+                self.gust(survey.turbulence_deg);
+                self.step(heading, [0.0; 3], survey.speed_m_s);
+            }
+            self.path.lines.push((
+                number,
+                heading,
+                Stretch {
+                    t_start_s,
+                    t_end_s: self.now() - self.dt_s,
+                },
+            ));
+            self.pose.line = 0.0;
+            let turn_speed = PI * survey.line_spacing_m / 2.0 / 60.0;
+            let right = if line % 2 == 0 { 180.0 } else { -180.0 };
+            let target = heading + right - 1e-9 * right.signum();
+            self.turn(heading, target, 3.0, turn_speed, 0.3);
+            self.pose.yaw_deg = (heading + 180.0).rem_euclid(360.0);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::simulate::scenario::RawScenario;
+
+    fn scenario(edit: impl FnOnce(&mut RawScenario)) -> Scenario {
+        let mut raw = RawScenario::default();
+        edit(&mut raw);
+        Scenario::try_from(raw).unwrap()
+    }
+
+    #[test]
+    fn every_leg_carries_its_manoeuvres_within_the_pilot_ranges() {
+        let plan = scenario(|raw| raw.calibration.omit = vec!["yaw@290".into()]);
+        let path = fly(&plan, &mut Random::new(3));
+        assert_eq!(path.manoeuvres.len(), 11);
+        assert!(!path
+            .manoeuvres
+            .iter()
+            .any(|m| m.kind == ManoeuvreKind::Yaw && m.heading_deg == 290.0));
+        for m in &path.manoeuvres {
+            assert!((2..=4).contains(&m.cycles) && (4.0..8.0).contains(&m.period_s));
+            let flown = m.t_end_s - m.t_start_s + path.dt_s;
+            assert!((flown - m.cycles as f64 * m.period_s).abs() <= path.dt_s);
+        }
+        assert_eq!(path.boxes.len(), 1);
+    }
+
+    #[test]
+    fn survey_lines_are_parallel_one_spacing_apart() {
+        let plan = scenario(|_| {});
+        let path = fly(&plan, &mut Random::new(5));
+        assert_eq!(path.lines.len(), 4);
+        // Mean easting of each northbound/southbound line, m.
+        let eastings: Vec<f64> = path
+            .lines
+            .iter()
+            .map(|(_, _, s)| {
+                let rows = (s.t_start_s / path.dt_s) as usize..(s.t_end_s / path.dt_s) as usize;
+                path.poses[rows.clone()].iter().map(|p| p.easting_m).sum::<f64>() / rows.len() as f64
+            })
+            .collect();
+        for pair in eastings.windows(2) {
+            // Turbulent yaw (0.32° rms) drifts the track by a few tens of metres.
+            assert!(((pair[1] - pair[0]) - 500.0).abs() < 80.0, "{eastings:?}");
+        }
+    }
+}

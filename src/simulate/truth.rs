@@ -1,0 +1,249 @@
+//! The truth of a simulated flight, kept apart from the recording.
+//!
+//! `<flight>.truth.json` holds the manoeuvres as flown (DETECT.json shape
+//! plus cycles, amplitude and period), the boxes, the survey lines, the
+//! concealed effects with their parameters and each sensor's aircraft
+//! field. `<flight>.truth.csv` holds, per output sample, the true Earth
+//! field magnitude at every scalar sensor (`<channel>_earth_nt`) and the
+//! external variation along the main field (`external_nt`).
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use serde::Serialize;
+
+use crate::error::Result;
+use crate::output::{write_atomic, write_json};
+use crate::simulate::physics::AircraftField;
+use crate::simulate::scenario::{Effect, Scenario, SensorLocation};
+use crate::simulate::trajectory::FlightPath;
+use crate::windows::{CalibrationWindow, ManoeuvreKind};
+
+/// What one scalar sensor would have read without the aircraft.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SensorTruth {
+    /// Scalar channel.
+    pub channel: String,
+    /// Where it sits.
+    pub location: SensorLocation,
+    /// The aircraft's field at the sensor.
+    pub aircraft: AircraftField,
+    /// True Earth field magnitude at the sensor, nT, per output sample.
+    #[serde(skip)]
+    pub earth_total_nt: Vec<f64>,
+}
+
+/// One manoeuvre as flown, in the flight's time.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct TrueManoeuvre {
+    /// Pitch, roll or yaw.
+    pub kind: ManoeuvreKind,
+    /// Leg heading, degrees.
+    pub heading_deg: f64,
+    /// First sample of the oscillation.
+    pub t_start: f64,
+    /// Last sample of the oscillation.
+    pub t_end: f64,
+    /// Whole cycles flown.
+    pub cycles: usize,
+    /// Peak angle, degrees.
+    pub amplitude_deg: f64,
+    /// Period, s.
+    pub period_s: f64,
+}
+
+/// A stretch of flight time.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct TimeSpan {
+    /// Start, in the flight's time.
+    pub t_start: f64,
+    /// End, in the flight's time.
+    pub t_end: f64,
+}
+
+/// One survey line.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct TrueLine {
+    /// Line number, as in the `line` column.
+    pub line: f64,
+    /// Heading, degrees.
+    pub heading_deg: f64,
+    /// Start, in the flight's time.
+    pub t_start: f64,
+    /// End, in the flight's time.
+    pub t_end: f64,
+}
+
+/// Everything the recording conceals.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Truth {
+    /// The scenario's seed.
+    pub seed: u64,
+    /// Manoeuvres as flown.
+    pub manoeuvres: Vec<TrueManoeuvre>,
+    /// Calibration boxes.
+    pub boxes: Vec<TimeSpan>,
+    /// Survey lines.
+    pub lines: Vec<TrueLine>,
+    /// The concealed effects and their parameters.
+    pub effects: Vec<Effect>,
+    /// Per scalar sensor: its aircraft field (and, in the CSV, the Earth field).
+    pub sensors: Vec<SensorTruth>,
+    /// Output sample times.
+    #[serde(skip)]
+    pub time_s: Vec<f64>,
+    /// External variation along the main field, nT, per output sample.
+    #[serde(skip)]
+    pub external_nt: Vec<f64>,
+}
+
+impl Truth {
+    /// Collects the truth of a flown path.
+    pub fn new(
+        scenario: &Scenario,
+        path: &FlightPath,
+        time_s: Vec<f64>,
+        sensors: Vec<SensorTruth>,
+        external_nt: Vec<f64>,
+    ) -> Truth {
+        let t0 = scenario.raw.start_time_s;
+        // Times on the output grid, as the recording prints them.
+        let at = |seconds: f64| {
+            let ticks = (seconds * scenario.raw.sample_rate_hz * 1e6).round() / 1e6;
+            t0 + ticks / scenario.raw.sample_rate_hz
+        };
+        Truth {
+            seed: scenario.raw.seed,
+            manoeuvres: path
+                .manoeuvres
+                .iter()
+                .map(|m| TrueManoeuvre {
+                    kind: m.kind,
+                    heading_deg: m.heading_deg,
+                    t_start: at(m.t_start_s),
+                    t_end: at(m.t_end_s),
+                    cycles: m.cycles,
+                    amplitude_deg: m.amplitude_deg,
+                    period_s: m.period_s,
+                })
+                .collect(),
+            boxes: path
+                .boxes
+                .iter()
+                .map(|b| TimeSpan {
+                    t_start: at(b.t_start_s),
+                    t_end: at(b.t_end_s),
+                })
+                .collect(),
+            lines: path
+                .lines
+                .iter()
+                .map(|(line, heading_deg, s)| TrueLine {
+                    line: *line,
+                    heading_deg: *heading_deg,
+                    t_start: at(s.t_start_s),
+                    t_end: at(s.t_end_s),
+                })
+                .collect(),
+            effects: scenario.raw.effect.clone(),
+            sensors,
+            time_s,
+            external_nt,
+        }
+    }
+
+    /// Calibration windows for fitting: each manoeuvre with `margin_s` of
+    /// the level flight around it, labelled with kind and heading.
+    pub fn calibration_windows(&self, margin_s: f64) -> Vec<CalibrationWindow> {
+        self.manoeuvres
+            .iter()
+            .map(|m| CalibrationWindow {
+                t_start: m.t_start - margin_s,
+                t_end: m.t_end + margin_s,
+                label: String::new(),
+                kind: Some(m.kind),
+                heading_deg: Some(m.heading_deg),
+            })
+            .collect()
+    }
+
+    /// The true Earth field at `channel`'s sensor, per output sample.
+    pub fn earth_total_nt(&self, channel: &str) -> Option<&[f64]> {
+        self.sensors
+            .iter()
+            .find(|s| s.channel == channel)
+            .map(|s| s.earth_total_nt.as_slice())
+    }
+
+    /// Writes `<stem>.truth.json` and `<stem>.truth.csv` beside `flight`,
+    /// and `<stem>.windows.json` (DETECT.json shape, manoeuvres with 5 s
+    /// margins) for fitting. Returns the three paths.
+    pub fn write_beside(&self, flight: &Path) -> Result<[PathBuf; 3]> {
+        let stem = flight.with_extension("");
+        let json = stem.with_extension("truth.json");
+        let csv = stem.with_extension("truth.csv");
+        let windows = stem.with_extension("windows.json");
+        write_json(&json, "the simulation truth", self)?;
+        write_atomic(&csv, |out| self.write_csv(out))?;
+        write_json(&windows, "the calibration windows", &DetectShape::new(self))?;
+        Ok([json, csv, windows])
+    }
+
+    fn write_csv(&self, out: &mut impl Write) -> std::io::Result<()> {
+        let names: Vec<String> = self.sensors.iter().map(|s| format!("{}_earth_nt", s.channel)).collect();
+        writeln!(out, "tt,{},external_nt", names.join(","))?;
+        let mut number = ryu::Buffer::new();
+        for (row, t) in self.time_s.iter().enumerate() {
+            out.write_all(number.format(*t).as_bytes())?;
+            for sensor in &self.sensors {
+                write!(out, ",{:.4}", sensor.earth_total_nt[row])?;
+            }
+            writeln!(out, ",{:.4}", self.external_nt[row])?;
+        }
+        Ok(())
+    }
+}
+
+/// DETECT.json (CONTRACT §3) for the fit: manoeuvres with margins.
+#[derive(Serialize)]
+struct DetectShape {
+    manoeuvres: Vec<DetectEntry>,
+    boxes: Vec<TimeSpan>,
+}
+
+#[derive(Serialize)]
+struct DetectEntry {
+    kind: ManoeuvreKind,
+    heading_deg: f64,
+    t_start: f64,
+    t_end: f64,
+}
+
+impl DetectShape {
+    fn new(truth: &Truth) -> Self {
+        DetectShape {
+            manoeuvres: truth
+                .calibration_windows(5.0)
+                .into_iter()
+                .map(|w| DetectEntry {
+                    kind: w.kind.unwrap_or(ManoeuvreKind::Pitch),
+                    heading_deg: w.heading_deg.unwrap_or(0.0),
+                    t_start: w.t_start,
+                    t_end: w.t_end,
+                })
+                .collect(),
+            boxes: truth.boxes.clone(),
+        }
+    }
+}
+
+/// Standard deviation of (compensated − true Earth field) over the survey
+/// lines' rows where both are finite, nT: the survey-line error after one
+/// overall level shift. Line rows are those whose `line` value is non-zero.
+pub fn survey_line_error_nt(compensated: &[f64], truth: &[f64], line: &[f64]) -> f64 {
+    let errors: Vec<f64> = (0..compensated.len())
+        .filter(|&k| line[k] != 0.0 && line[k].is_finite() && compensated[k].is_finite())
+        .map(|k| compensated[k] - truth[k])
+        .collect();
+    crate::quality::standard_deviation(&errors)
+}
