@@ -1,0 +1,136 @@
+//! Replays every sample flight of pipeline.toml and fails on drift from
+//! `sample_flights/expected/<name>.json`.
+//!
+//! The figures: per channel the FOM before and after, the improvement
+//! ratio, the survey-line error against the simulation's truth (when a
+//! `<name>.truth.csv` sits beside the flight), and the fitted λ and method.
+//! `MAGCOMP_BLESS=1 cargo test --test sample_flights` rewrites the
+//! expected files (see sample_flights/regenerate.sh).
+//!
+//! Tolerances: the pipeline is deterministic, but the SVD and the filter
+//! may round differently on another CPU's SIMD path. Figures are sums over
+//! thousands of samples, so 1e-6 relative bounds that rounding by orders
+//! of magnitude while catching any change of method, data or physics; λ
+//! is a grid point and must match to 1e-9 relative.
+
+use std::path::{Path, PathBuf};
+
+use magcomp::compensate::compensate;
+use magcomp::config::Pipeline;
+use magcomp::fit::fit_channels;
+use magcomp::ingest::read_flight_log;
+use magcomp::pipeline::{choose_channels, choose_vector_sensor};
+use magcomp::quality::assess_quality;
+use magcomp::simulate::truth::survey_line_error_nt;
+use serde::{Deserialize, Serialize};
+
+#[derive(Debug, Serialize, Deserialize, PartialEq)]
+struct Expected {
+    flight: String,
+    channels: Vec<ChannelFigures>,
+}
+
+#[derive(Debug, Serialize, Deserialize, PartialEq)]
+struct ChannelFigures {
+    channel: String,
+    fom_before_nt: f64,
+    fom_after_nt: f64,
+    improvement_ratio: f64,
+    survey_line_error_nt: Option<f64>,
+    lambda: Option<f64>,
+    method: String,
+}
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// Column `name` of a truth CSV.
+fn truth_column(path: &Path, name: &str) -> Vec<f64> {
+    let mut reader = csv::Reader::from_path(path).unwrap();
+    let index = reader.headers().unwrap().iter().position(|h| h == name).unwrap();
+    reader
+        .records()
+        .map(|r| r.unwrap()[index].parse::<f64>().unwrap())
+        .collect()
+}
+
+fn replay(pipeline: &Pipeline, job: &magcomp::config::FlightJob) -> Expected {
+    let log = read_flight_log(&job.input, &pipeline.ingest).unwrap();
+    let sensor = choose_vector_sensor(&log, job.vector.as_deref()).unwrap();
+    let channels = choose_channels(&log, job.channels.as_deref()).unwrap();
+    let models = fit_channels(&log, &sensor, &channels, &job.windows, &pipeline.fit).unwrap();
+    let compensated = compensate(&log, &models, pipeline.level).unwrap();
+    let truth = job.input.with_extension("truth.csv");
+    let figures = models
+        .iter()
+        .zip(&compensated.channels)
+        .map(|(model, channel)| {
+            let quality = assess_quality(&log, model, channel);
+            let line_error = truth.exists().then(|| {
+                let earth = truth_column(&truth, &format!("{}_earth_nt", model.channel));
+                survey_line_error_nt(&channel.values, &earth, &log.channel("line").unwrap().values)
+            });
+            ChannelFigures {
+                channel: model.channel.clone(),
+                fom_before_nt: quality.fom_before_nt.unwrap_or(f64::NAN),
+                fom_after_nt: quality.fom_after_nt.unwrap_or(f64::NAN),
+                improvement_ratio: quality.improvement_ratio,
+                survey_line_error_nt: line_error,
+                lambda: model.solution.lambda,
+                method: format!("{:?}", model.solution.method),
+            }
+        })
+        .collect();
+    Expected {
+        flight: job.input.file_name().unwrap().to_string_lossy().into_owned(),
+        channels: figures,
+    }
+}
+
+fn close(name: &str, got: f64, want: f64, relative: f64) {
+    let scale = want.abs().max(1e-12);
+    assert!(
+        ((got - want) / scale).abs() <= relative,
+        "{name}: {got} drifted from the expected {want} (tolerance {relative:e} relative)"
+    );
+}
+
+#[test]
+fn every_sample_flight_replays_to_its_expected_figures() {
+    let pipeline = Pipeline::load(&root().join("pipeline.toml")).unwrap();
+    let bless = std::env::var_os("MAGCOMP_BLESS").is_some();
+    assert!(pipeline.flights.len() >= 7, "pipeline.toml lists every sample flight");
+    for job in &pipeline.flights {
+        let got = replay(&pipeline, job);
+        let stem = job.input.file_stem().unwrap().to_string_lossy().into_owned();
+        let path = root().join("sample_flights/expected").join(format!("{stem}.json"));
+        if bless {
+            std::fs::write(&path, serde_json::to_string_pretty(&got).unwrap() + "\n").unwrap();
+            continue;
+        }
+        let text = std::fs::read_to_string(&path).unwrap_or_else(|_| {
+            panic!(
+                "{}: no expected figures; run sample_flights/regenerate.sh",
+                path.display()
+            )
+        });
+        let want: Expected = serde_json::from_str(&text).unwrap();
+        assert_eq!(got.channels.len(), want.channels.len(), "{stem}: channels");
+        for (g, w) in got.channels.iter().zip(&want.channels) {
+            let name = |figure: &str| format!("{stem} {} {figure}", g.channel);
+            assert_eq!((&g.channel, &g.method), (&w.channel, &w.method), "{stem}");
+            close(&name("FOM before"), g.fom_before_nt, w.fom_before_nt, 1e-6);
+            close(&name("FOM after"), g.fom_after_nt, w.fom_after_nt, 1e-6);
+            close(&name("IR"), g.improvement_ratio, w.improvement_ratio, 1e-6);
+            match (g.survey_line_error_nt, w.survey_line_error_nt) {
+                (Some(a), Some(b)) => close(&name("survey-line error"), a, b, 1e-6),
+                (a, b) => assert_eq!(a.is_some(), b.is_some(), "{}", name("survey-line error")),
+            }
+            match (g.lambda, w.lambda) {
+                (Some(a), Some(b)) => close(&name("λ"), a, b, 1e-9),
+                (a, b) => assert_eq!(a.is_some(), b.is_some(), "{}", name("λ")),
+            }
+        }
+    }
+}
