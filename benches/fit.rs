@@ -315,4 +315,45 @@ fn main() {
     if wanted("formats") {
         bench_formats(250_000);
     }
+    if wanted("simulate") {
+        bench_simulate();
+    }
+}
+
+/// A two-hour flight at 10 Hz (box, then 19 lines of 18 km) with five
+/// scalar magnetometers, simulated at the 100 Hz internal rate.
+fn bench_simulate() {
+    use magcomp::simulate::scenario::{RawScenario, Scenario};
+    let text = r#"
+        [survey]
+        line_count = 19
+        line_length_m = 18000.0
+        [[scalar]]
+        name = "mag_1_uc"
+        location = "tail"
+        [[scalar]]
+        name = "mag_2_uc"
+        location = "cabin"
+        [[scalar]]
+        name = "mag_3_uc"
+        location = "cabin"
+        [[scalar]]
+        name = "mag_4_uc"
+        location = "wing"
+        [[scalar]]
+        name = "mag_5_uc"
+        location = "wing"
+    "#;
+    let raw: RawScenario = toml::from_str(text).unwrap();
+    let scenario = Scenario::try_from(raw).unwrap();
+    let mut rows = 0;
+    let seconds = median_seconds(3, || {
+        let flight = magcomp::simulate::simulate(&scenario).unwrap();
+        rows = flight.log.len();
+    });
+    println!(
+        "simulate: {rows} rows ({:.2} h at 10 Hz), 5 scalar magnetometers: {seconds:.2} s (median of 3); peak RSS {:.0} MB",
+        rows as f64 / 36_000.0,
+        peak_rss_mb()
+    );
 }

@@ -432,3 +432,45 @@ fn a_scenario_typo_names_the_field() {
     let message = Scenario::try_from(raw).unwrap_err();
     assert!(message.contains("mag_7_uc"), "{message}");
 }
+
+#[test]
+fn a_concealed_effect_leaves_no_trace_in_the_recording() {
+    let folder = tempfile::tempdir().unwrap();
+    let clean = fly(|_| {});
+    let concealed = fly(|raw| {
+        raw.effect.push(Effect::EddyTimeConstant {
+            channel: "mag_2_uc".into(),
+            tau_s: 0.5,
+        });
+        raw.effect.push(Effect::AuxCoupling {
+            channel: "mag_1_uc".into(),
+            source: "trim_tab".into(),
+            nt_per_unit: [1.0, 0.0, 0.0],
+        });
+    });
+    let names = |flight: &SimulatedFlight| flight.log.channels().iter().map(|c| c.name.clone()).collect::<Vec<_>>();
+    assert_eq!(names(&clean), names(&concealed));
+    for extension in ["csv", "mcap", "xyz"] {
+        let path = folder.path().join(format!("flight.{extension}"));
+        magcomp::output::write_flight_log(&concealed.log, &path).unwrap();
+        let bytes = String::from_utf8_lossy(&std::fs::read(&path).unwrap()).to_lowercase();
+        // Words of five letters or more: shorter ones turn up by chance in
+        // compressed MCAP chunks.
+        for word in [
+            "eddy_",
+            "tau_s",
+            "coupling",
+            "effect",
+            "truth",
+            "sensor_lag",
+            "nt_per_unit",
+        ] {
+            assert!(!bytes.contains(word), "{extension} output mentions '{word}'");
+        }
+    }
+    // The effects changed the recording, and the truth file names them.
+    assert_ne!(column(&clean.log, "mag_2_uc"), column(&concealed.log, "mag_2_uc"));
+    let written = concealed.truth.write_beside(&folder.path().join("flight.csv")).unwrap();
+    let truth = std::fs::read_to_string(&written[0]).unwrap();
+    assert!(truth.contains("eddy_time_constant") && truth.contains("trim_tab"));
+}
