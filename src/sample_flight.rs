@@ -30,6 +30,8 @@ use serde::Serialize;
 
 use crate::error::Result;
 use crate::output::{write_atomic, write_json};
+use crate::simulate::physics::{dipole_field_nt, Vector};
+use crate::simulate::random::Random;
 use crate::windows::{CalibrationWindow, ManoeuvreKind};
 
 /// What to fly.
@@ -91,31 +93,6 @@ pub struct SampleFlight {
     pub manoeuvres: Vec<CalibrationWindow>,
     /// Start and end of the box, s.
     pub calibration_box: (f64, f64),
-}
-
-/// Deterministic pseudo-random numbers (SplitMix64, Steele et al. 2014).
-struct Random(u64);
-
-impl Random {
-    fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-
-    /// Uniform in [low, high).
-    fn uniform(&mut self, low: f64, high: f64) -> f64 {
-        low + (high - low) * (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
-    }
-
-    /// Standard normal (Box-Muller).
-    fn normal(&mut self) -> f64 {
-        let u = self.uniform(f64::MIN_POSITIVE, 1.0);
-        let v = self.uniform(0.0, 1.0);
-        (-2.0 * u.ln()).sqrt() * (2.0 * PI * v).cos()
-    }
 }
 
 /// Attitude and flight state of one sample.
@@ -221,7 +198,7 @@ impl Timeline<'_> {
 /// Generates the sample flight for `spec` and `seed`; the same inputs give
 /// bit-identical output.
 pub fn generate(spec: &SampleFlightSpec, seed: u64) -> SampleFlight {
-    let mut random = Random(seed);
+    let mut random = Random::new(seed);
     let mut timeline = Timeline {
         spec,
         random: &mut random,
@@ -269,31 +246,9 @@ pub fn generate(spec: &SampleFlightSpec, seed: u64) -> SampleFlight {
     }
 }
 
-type Vector = [f64; 3];
-
-/// Rotates a north-east-down vector into body axes: $R^\top v$.
+/// Rotates a north-east-down vector into body axes at `state`'s attitude.
 fn to_body(v: Vector, state: &State) -> Vector {
-    let (phi, theta, psi) = (
-        state.roll_deg.to_radians(),
-        state.pitch_deg.to_radians(),
-        state.yaw_deg.to_radians(),
-    );
-    let (sf, cf, st, ct, sp, cp) = (phi.sin(), phi.cos(), theta.sin(), theta.cos(), psi.sin(), psi.cos());
-    let r = [
-        [ct * cp, sf * st * cp - cf * sp, cf * st * cp + sf * sp],
-        [ct * sp, sf * st * sp + cf * cp, cf * st * sp - sf * cp],
-        [-st, sf * ct, cf * ct],
-    ];
-    [0, 1, 2].map(|j| (0..3).map(|i| r[i][j] * v[i]).sum())
-}
-
-/// Field of a point dipole of moment `moment` (A·m²) at offset `r` (m,
-/// from dipole to observer), nT: $\frac{\mu_0}{4\pi} \frac{3(m\cdot\hat r)\hat r - m}{r^3}$.
-fn dipole_field_nt(moment: Vector, r: Vector) -> Vector {
-    let distance = (r[0] * r[0] + r[1] * r[1] + r[2] * r[2]).sqrt();
-    let unit = r.map(|c| c / distance);
-    let along: f64 = (0..3).map(|i| moment[i] * unit[i]).sum();
-    [0, 1, 2].map(|i| 1e-7 * (3.0 * along * unit[i] - moment[i]) / distance.powi(3) * 1e9)
+    crate::simulate::physics::to_body(v, state.roll_deg, state.pitch_deg, state.yaw_deg)
 }
 
 /// An aircraft's field model at one sensor: P (nT), A (dimensionless), E (s).
@@ -512,26 +467,6 @@ pub fn write(flight: &SampleFlight, csv_path: &Path, windows_path: &Path) -> Res
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn level_flight_north_sees_the_main_field_in_body_axes() {
-        let state = State::default();
-        assert_eq!(to_body([1.0, 2.0, 3.0], &state), [1.0, 2.0, 3.0]);
-        let east = State {
-            yaw_deg: 90.0,
-            ..State::default()
-        };
-        let b = to_body([1.0, 0.0, 0.0], &east);
-        // Heading east, north lies off the left wing: body y = -1.
-        assert!((b[0]).abs() < 1e-15 && (b[1] + 1.0).abs() < 1e-15);
-    }
-
-    #[test]
-    fn dipole_on_axis_follows_the_inverse_cube_law() {
-        // m = 1e8 A·m² along z, 1000 m below on the axis: B = μ0/4π · 2m/r³ = 20 nT.
-        let b = dipole_field_nt([0.0, 0.0, 1e8], [0.0, 0.0, 1000.0]);
-        assert!((b[2] - 20.0).abs() < 1e-9 && b[0].abs() < 1e-12);
-    }
 
     #[test]
     fn the_same_seed_gives_the_same_flight() {
