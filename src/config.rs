@@ -28,7 +28,7 @@
 //! terms = ["permanent", "induced", "eddy"]
 //! bt_scale_nt = 50000.0
 //! lambda = "press"     # or a number to fix it
-//! criterion = "press"  # press | blocked_press
+//! criterion = "blocked_press"  # blocked_press (leave one window out) | press
 //! level = "absolute"   # absolute | calibration_mean
 //!
 //! [output]
@@ -121,7 +121,7 @@ impl Default for RawFit {
             terms: ["permanent", "induced", "eddy"].map(String::from).to_vec(),
             bt_scale_nt: 50_000.0,
             lambda: RawLambda::Named("press".into()),
-            criterion: Criterion::Press,
+            criterion: Criterion::BlockedPress,
             grid_points: 61,
             tsvd_condition_limit: 1e10,
             level: LevelConvention::Absolute,

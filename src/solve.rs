@@ -75,7 +75,10 @@ impl Default for SolveOptions {
     fn default() -> Self {
         SolveOptions {
             lambda: LambdaChoice::Select,
-            criterion: Criterion::Press,
+            // Leave-one-window-out: band-passed samples are autocorrelated,
+            // so plain leave-one-out PRESS picks too little regularisation
+            // (see README, Method).
+            criterion: Criterion::BlockedPress,
             grid_points: 61,
             grid_decades: (-11.0, 1.0),
             tsvd_condition_limit: 1e10,

@@ -96,8 +96,9 @@ fn the_simulated_field_at_the_box_matches_igrf() {
     // the recorded attitude, sees IGRF plus the crust and the external
     // variation.
     let flight = fly(|raw| {
-        raw.fluxgate[0].permanent_nt = 0.0;
-        raw.fluxgate[0].induced = 0.0;
+        let fluxgate = &mut raw.fluxgate[0];
+        (fluxgate.permanent_nt, fluxgate.induced) = (0.0, 0.0);
+        (fluxgate.scale_error, fluxgate.non_orthogonality_deg, fluxgate.offset_nt) = (0.0, 0.0, 0.0);
     });
     let log = &flight.log;
     let rows = box_rows(&flight);
@@ -164,15 +165,17 @@ fn clean_flight_compensates_to_the_noise_floor_on_the_tail_only() {
     let (tail, cabin) = (figures[0], figures[1]);
     println!("tail: residual {:.4} nT, line error {:.4} nT", tail.0, tail.1);
     println!("cabin: residual {:.4} nT, line error {:.4} nT", cabin.0, cabin.1);
-    // The tail sensor's 5 pT noise and the fluxgate's 0.5 nT noise through
-    // the 3 nT-scale coefficients put the floor near 0.02 nT.
-    assert!(tail.1 < 0.05, "tail line error {}", tail.1);
-    // The cabin sensor sits in 250 nT of aircraft field: the scalar reads
-    // |B + b|, whose second-order part |b⊥|²/2|B| (~0.6 nT, varying with
+    // Noise floor: the truth is noise-free and the tail sensor records 5 pT
+    // of white noise, so the error cannot fall below 0.005 nT; the fluxgate's
+    // 0.1 nT noise through the few-nT coefficients adds well under that.
+    // Three times the sensor noise is "near the floor".
+    assert!(tail.1 < 0.015, "tail line error {}", tail.1);
+    // The cabin sensor sits in ~400 nT of aircraft field: the scalar reads
+    // |B + b|, whose second-order part |b⊥|²/2|B| (~1.5 nT, varying with
     // attitude and with the field's direction) is not linear in the
-    // Tolles-Lawson terms, and the 4e-3 induced tensor changes with the
-    // survey's heading mix: clearly worse than the tail.
-    assert!(cabin.1 > 2.0 * tail.1, "cabin {} vs tail {}", cabin.1, tail.1);
+    // Tolles-Lawson terms, so the box fit leaves a heading- and
+    // attitude-dependent error on the lines: clearly worse than the tail.
+    assert!(cabin.1 > 3.0 * tail.1, "cabin {} vs tail {}", cabin.1, tail.1);
 }
 
 fn replace_channel(log: &FlightLog, name: &str, values: Vec<f64>) -> FlightLog {

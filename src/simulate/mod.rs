@@ -40,12 +40,12 @@ use rayon::prelude::*;
 use crate::error::Result;
 use crate::flight_log::{Channel, FlightLog};
 use crate::ingest::ColumnNames;
-use physics::{add, norm, to_body, to_ned, AircraftField, Crust, ExternalField, FluxgateErrors, Vector};
+use physics::{add, norm, to_body, to_ned, AircraftField, Crust, ExternalField, FluxgateCalibration, Vector};
 use random::Random;
 use recording::{auxiliary_channels, average_down, central_rate, delayed, first_order_lag, quantise};
 use scenario::{Effect, ScalarSensor, Scenario, SensorLocation, AUXILIARY_CHANNELS};
 use trajectory::{fly, FlightPath};
-pub use truth::{SensorTruth, Truth};
+pub use truth::{FluxgateTruth, SensorTruth, Truth};
 
 /// Metres per degree of latitude (mean).
 const METRES_PER_DEGREE: f64 = 111_195.0;
@@ -88,9 +88,12 @@ pub fn simulate(scenario: &Scenario) -> Result<SimulatedFlight> {
         columns.push((sensor.name.clone(), recorded));
         sensors.push(truth);
     }
+    let mut fluxgates = Vec::new();
     for (index, fluxgate) in raw.fluxgate.iter().enumerate() {
         let mut random = root.fork(&format!("fluxgate {index}"));
-        columns.extend(record_fluxgate(scenario, &path, &environment, fluxgate, &mut random));
+        let (recorded, truth) = record_fluxgate(scenario, &path, &environment, fluxgate, &mut random);
+        columns.extend(recorded);
+        fluxgates.push(truth);
     }
     columns.extend(record_navigation(scenario, &path, &mut root.fork("navigation")));
     columns.push(record_base_station(
@@ -117,7 +120,7 @@ pub fn simulate(scenario: &Scenario) -> Result<SimulatedFlight> {
         })
         .collect();
     let log = flight_log(time_s.clone(), columns)?;
-    let truth = Truth::new(scenario, &path, time_s, sensors, external_nt);
+    let truth = Truth::new(scenario, &path, time_s, (sensors, fluxgates), external_nt);
     Ok(SimulatedFlight { log, truth })
 }
 
@@ -313,9 +316,16 @@ fn record_fluxgate(
     environment: &Environment,
     fluxgate: &scenario::Fluxgate,
     random: &mut Random,
-) -> Vec<(String, Vec<f64>)> {
+) -> (Vec<(String, Vec<f64>)>, FluxgateTruth) {
     let own = AircraftField::draw(random, fluxgate.permanent_nt, fluxgate.induced, 0.0);
-    let errors = scenario
+    let residual = FluxgateCalibration::draw(
+        random,
+        fluxgate.scale_error,
+        fluxgate.non_orthogonality_deg,
+        fluxgate.offset_nt,
+    );
+    // A vector_calibration effect replaces the small residual errors.
+    let calibration = scenario
         .raw
         .effect
         .iter()
@@ -325,27 +335,41 @@ fn record_fluxgate(
                 scale,
                 offset_nt,
                 non_orthogonality_deg,
-            } if *sensor == fluxgate.name => Some(FluxgateErrors::new(*scale, *non_orthogonality_deg, *offset_nt)),
+            } if *sensor == fluxgate.name => Some(FluxgateCalibration {
+                scale: *scale,
+                non_orthogonality_deg: *non_orthogonality_deg,
+                offset_nt: *offset_nt,
+            }),
             _ => None,
         })
-        .unwrap_or_else(FluxgateErrors::none);
+        .unwrap_or(residual);
+    let errors = calibration.errors();
     let earth = earth_field_at(path, environment, [1.0, 0.0, -0.3]);
+    let factor = scenario.raw.oversampling;
     let readings: Vec<Vector> = earth
         .iter()
         .map(|b| errors.read(add(*b, own.at(*b, [0.0; 3]))))
         .collect();
-    ["x", "y", "z"]
+    let columns = ["x", "y", "z"]
         .iter()
         .enumerate()
         .map(|(axis, suffix)| {
             let series: Vec<f64> = readings.iter().map(|r| r[axis]).collect();
-            let values = average_down(&series, scenario.raw.oversampling)
+            let values = average_down(&series, factor)
                 .into_iter()
                 .map(|v| quantise(v + fluxgate.noise_nt * random.normal(), 2))
                 .collect();
             (format!("{}_{suffix}", fluxgate.name), values)
         })
-        .collect()
+        .collect();
+    let earth_body_nt = [0, 1, 2].map(|axis| average_down(&earth.iter().map(|b| b[axis]).collect::<Vec<_>>(), factor));
+    let truth = FluxgateTruth {
+        sensor: fluxgate.name.clone(),
+        calibration,
+        aircraft: own,
+        earth_body_nt,
+    };
+    (columns, truth)
 }
 
 /// Attitude (INS, sampled at the output instants with 0.005° noise),

@@ -194,6 +194,33 @@ impl AircraftField {
     }
 }
 
+/// The parameters of a fluxgate's calibration errors.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct FluxgateCalibration {
+    /// Scale factor per axis (1 = perfect).
+    pub scale: Vector,
+    /// Non-orthogonality angles (xy, xz, yz), degrees.
+    pub non_orthogonality_deg: Vector,
+    /// Offset per axis, nT.
+    pub offset_nt: Vector,
+}
+
+impl FluxgateCalibration {
+    /// Draws residual errors of the given sizes.
+    pub fn draw(random: &mut Random, scale_error: f64, non_orthogonality_deg: f64, offset_nt: f64) -> Self {
+        FluxgateCalibration {
+            scale: random.vector(scale_error).map(|e| 1.0 + e),
+            non_orthogonality_deg: random.vector(non_orthogonality_deg),
+            offset_nt: random.vector(offset_nt),
+        }
+    }
+
+    /// The error model these parameters describe.
+    pub fn errors(&self) -> FluxgateErrors {
+        FluxgateErrors::new(self.scale, self.non_orthogonality_deg, self.offset_nt)
+    }
+}
+
 /// A fluxgate's scale, non-orthogonality and offset errors:
 /// $m = K\,b + o$ with K lower-triangular (Gebre-Egziabher et al. 2006).
 #[derive(Debug, Clone, PartialEq)]

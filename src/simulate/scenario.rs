@@ -337,15 +337,25 @@ pub struct Fluxgate {
     pub permanent_nt: f64,
     /// Size of the induced coefficients at the fluxgate (dimensionless).
     pub induced: f64,
+    /// Size of the residual scale-factor errors left by the factory
+    /// calibration (drawn per axis in ±this).
+    pub scale_error: f64,
+    /// Size of the residual non-orthogonality, degrees.
+    pub non_orthogonality_deg: f64,
+    /// Size of the residual offsets, nT.
+    pub offset_nt: f64,
 }
 
 impl Default for Fluxgate {
     fn default() -> Self {
         Fluxgate {
             name: "flux_a".into(),
-            noise_nt: 0.5,
+            noise_nt: 0.1,
             permanent_nt: 40.0,
             induced: 2e-3,
+            scale_error: 5e-4,
+            non_orthogonality_deg: 0.03,
+            offset_nt: 5.0,
         }
     }
 }

@@ -4,8 +4,9 @@
 //! plus cycles, amplitude and period), the boxes, the survey lines, the
 //! concealed effects with their parameters and each sensor's aircraft
 //! field. `<flight>.truth.csv` holds, per output sample, the true Earth
-//! field magnitude at every scalar sensor (`<channel>_earth_nt`) and the
-//! external variation along the main field (`external_nt`).
+//! field magnitude at every scalar sensor (`<channel>_earth_nt`), the true
+//! Earth field in body axes at every fluxgate (`<sensor>_earth_x/y/z`) and
+//! the external variation along the main field (`external_nt`).
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -14,7 +15,7 @@ use serde::Serialize;
 
 use crate::error::Result;
 use crate::output::{write_atomic, write_json};
-use crate::simulate::physics::AircraftField;
+use crate::simulate::physics::{AircraftField, FluxgateCalibration};
 use crate::simulate::scenario::{Effect, Scenario, SensorLocation};
 use crate::simulate::trajectory::FlightPath;
 use crate::windows::{CalibrationWindow, ManoeuvreKind};
@@ -31,6 +32,20 @@ pub struct SensorTruth {
     /// True Earth field magnitude at the sensor, nT, per output sample.
     #[serde(skip)]
     pub earth_total_nt: Vec<f64>,
+}
+
+/// What one fluxgate would have read without the aircraft or its own errors.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct FluxgateTruth {
+    /// Fluxgate prefix.
+    pub sensor: String,
+    /// Its calibration errors (the residual ones, or the concealed effect's).
+    pub calibration: FluxgateCalibration,
+    /// The aircraft's field at the fluxgate.
+    pub aircraft: AircraftField,
+    /// True Earth field in body axes at the fluxgate, nT, per output sample.
+    #[serde(skip)]
+    pub earth_body_nt: [Vec<f64>; 3],
 }
 
 /// One manoeuvre as flown, in the flight's time.
@@ -89,6 +104,9 @@ pub struct Truth {
     pub effects: Vec<Effect>,
     /// Per scalar sensor: its aircraft field (and, in the CSV, the Earth field).
     pub sensors: Vec<SensorTruth>,
+    /// Per fluxgate: its errors and aircraft field (and, in the CSV, the
+    /// Earth field in body axes).
+    pub fluxgates: Vec<FluxgateTruth>,
     /// Output sample times.
     #[serde(skip)]
     pub time_s: Vec<f64>,
@@ -103,7 +121,7 @@ impl Truth {
         scenario: &Scenario,
         path: &FlightPath,
         time_s: Vec<f64>,
-        sensors: Vec<SensorTruth>,
+        (sensors, fluxgates): (Vec<SensorTruth>, Vec<FluxgateTruth>),
         external_nt: Vec<f64>,
     ) -> Truth {
         let t0 = scenario.raw.start_time_s;
@@ -147,6 +165,7 @@ impl Truth {
                 .collect(),
             effects: scenario.raw.effect.clone(),
             sensors,
+            fluxgates,
             time_s,
             external_nt,
         }
@@ -190,13 +209,21 @@ impl Truth {
     }
 
     fn write_csv(&self, out: &mut impl Write) -> std::io::Result<()> {
-        let names: Vec<String> = self.sensors.iter().map(|s| format!("{}_earth_nt", s.channel)).collect();
+        let mut names: Vec<String> = self.sensors.iter().map(|s| format!("{}_earth_nt", s.channel)).collect();
+        for fluxgate in &self.fluxgates {
+            names.extend(["x", "y", "z"].map(|axis| format!("{}_earth_{axis}", fluxgate.sensor)));
+        }
         writeln!(out, "tt,{},external_nt", names.join(","))?;
         let mut number = ryu::Buffer::new();
         for (row, t) in self.time_s.iter().enumerate() {
             out.write_all(number.format(*t).as_bytes())?;
             for sensor in &self.sensors {
                 write!(out, ",{:.4}", sensor.earth_total_nt[row])?;
+            }
+            for fluxgate in &self.fluxgates {
+                for axis in &fluxgate.earth_body_nt {
+                    write!(out, ",{:.4}", axis[row])?;
+                }
             }
             writeln!(out, ",{:.4}", self.external_nt[row])?;
         }
