@@ -149,12 +149,7 @@ fn bench_whole_file(rows: usize) {
     let input = folder.path().join("wide.csv");
     write_wide_csv(&input, rows);
     let bare = median_seconds(3, || bare_csv_copy(&input, &folder.path().join("bare.csv")));
-    let pipeline = Pipeline::default();
-    let options = StageOptions {
-        ingest: pipeline.ingest,
-        fit: pipeline.fit,
-        level: pipeline.level,
-    };
+    let options = StageOptions::from(&Pipeline::default());
     let windows: Vec<CalibrationWindow> = (0..8)
         .map(|w| CalibrationWindow::new(w as f64 * 300.0, w as f64 * 300.0 + 120.0))
         .collect();

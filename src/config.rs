@@ -44,6 +44,7 @@ use std::path::{Path, PathBuf};
 use serde::Deserialize;
 
 use crate::compensate::LevelConvention;
+use crate::detect::DetectOptions;
 use crate::error::{Error, Result};
 use crate::filter::{EdgePadding, FilterBand};
 use crate::fit::{FilterSettings, FitOptions};
@@ -182,6 +183,8 @@ pub struct RawPipeline {
     pub fit: RawFit,
     /// Output settings.
     pub output: RawOutput,
+    /// Manoeuvre detection thresholds.
+    pub detect: DetectOptions,
     /// Flights to process.
     #[serde(rename = "flight")]
     pub flights: Vec<RawFlight>,
@@ -209,6 +212,8 @@ pub struct Pipeline {
     pub fit: FitOptions,
     /// DC level convention.
     pub level: LevelConvention,
+    /// Manoeuvre detection, used when a flight gives no windows.
+    pub detect: DetectOptions,
     /// Output folder.
     pub output_directory: PathBuf,
     /// Flights to process.
@@ -244,10 +249,12 @@ impl Pipeline {
             filter: filter_settings(&raw.filter).map_err(bad)?,
             solve: solve_options(&raw.fit).map_err(bad)?,
         };
+        check_detect(&raw.detect).map_err(bad)?;
+        let margin_s = raw.detect.window_margin_s;
         let flights = raw
             .flights
             .into_iter()
-            .map(|f| flight_job(f, base, source_name))
+            .map(|f| flight_job(f, base, source_name, margin_s))
             .collect::<Result<Vec<_>>>()?;
         Ok(Pipeline {
             ingest: IngestOptions {
@@ -257,16 +264,17 @@ impl Pipeline {
             },
             fit,
             level: raw.fit.level,
+            detect: raw.detect,
             output_directory: base.join(raw.output.directory),
             flights,
         })
     }
 }
 
-fn flight_job(raw: RawFlight, base: &Path, source_name: &str) -> Result<FlightJob> {
+fn flight_job(raw: RawFlight, base: &Path, source_name: &str, margin_s: f64) -> Result<FlightJob> {
     let mut windows = raw.windows;
     if let Some(file) = raw.windows_file {
-        windows.extend(read_detect_json(&base.join(file))?);
+        windows.extend(read_detect_json(&base.join(file), margin_s)?);
     }
     windows.iter().try_for_each(|w| w.validate(source_name))?;
     Ok(FlightJob {
@@ -275,6 +283,33 @@ fn flight_job(raw: RawFlight, base: &Path, source_name: &str) -> Result<FlightJo
         channels: raw.channels,
         windows,
     })
+}
+
+fn check_detect(raw: &DetectOptions) -> std::result::Result<(), String> {
+    let positive = [
+        ("heading_smoothing_s", raw.heading_smoothing_s),
+        ("straight_rate_deg_s", raw.straight_rate_deg_s),
+        ("min_leg_s", raw.min_leg_s),
+        ("heading_tolerance_deg", raw.heading_tolerance_deg),
+        ("envelope_s", raw.envelope_s),
+        ("turbulence_factor", raw.turbulence_factor),
+        ("max_half_cycle_spread", raw.max_half_cycle_spread),
+    ];
+    for (name, value) in positive {
+        if !(value.is_finite() && value > 0.0) {
+            return Err(format!("[detect] {name} = {value}: give a positive number"));
+        }
+    }
+    let amplitudes = raw.min_rms_deg.iter().chain(&raw.nominal_amplitude_deg);
+    if amplitudes
+        .chain([&raw.window_margin_s, &raw.join_gap_s])
+        .any(|v| !(v.is_finite() && *v >= 0.0))
+    {
+        return Err(
+            "[detect] min_rms_deg, nominal_amplitude_deg, window_margin_s and join_gap_s must be non-negative".into(),
+        );
+    }
+    Ok(())
 }
 
 fn parse_terms(names: &[String], bt_scale_nt: f64) -> std::result::Result<TermSet, String> {

@@ -33,7 +33,7 @@
 //! let log = read_flight_log(&csv, &IngestOptions::default())?;
 //! let sensor = choose_vector_sensor(&log, Some("flux_a"))?;
 //! let channels = vec!["mag_1_uc".to_string()];
-//! let models = fit_channels(&log, &sensor, &channels, &read_detect_json(&windows)?, &FitOptions::default())?;
+//! let models = fit_channels(&log, &sensor, &channels, &read_detect_json(&windows, 5.0)?, &FitOptions::default())?;
 //! let compensated = compensate(&log, &models, LevelConvention::Absolute)?;
 //! let quality = assess_quality(&log, &models[0], &compensated.channels[0]);
 //! assert_eq!(compensated.channels[0].values.len(), log.len());
@@ -44,6 +44,7 @@
 
 pub mod compensate;
 pub mod config;
+pub mod detect;
 pub mod error;
 pub mod filter;
 pub mod fit;

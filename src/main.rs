@@ -29,8 +29,20 @@ enum Command {
         #[arg(default_value = "pipeline.toml")]
         config: PathBuf,
     },
-    /// Fit on calibration windows and compensate every row of one flight.
+    /// Fit on calibration windows (detected unless given) and compensate
+    /// every row of one flight.
     Compensate(CompensateArgs),
+    /// Find the calibration boxes and their manoeuvres; write DETECT.json.
+    Detect {
+        /// The flight log.
+        flight: PathBuf,
+        /// DETECT.json to write.
+        #[arg(long)]
+        out: PathBuf,
+        /// Settings file for columns and [detect] thresholds (flights in it are ignored).
+        #[arg(long)]
+        config: Option<PathBuf>,
+    },
     /// Rewrite a flight log in another format (CSV, XYZ or MCAP, by the
     /// output's extension); MCAP inputs are aligned on one time base.
     Convert {
@@ -83,6 +95,7 @@ struct CompensateArgs {
     #[arg(long)]
     model: Option<PathBuf>,
     /// Calibration window T0:T1 in the file's time unit; repeat for several.
+    /// Without windows, the manoeuvres are detected in the flight.
     #[arg(long = "window")]
     windows: Vec<String>,
     /// DETECT.json file whose manoeuvres are the calibration windows.
@@ -107,6 +120,7 @@ fn main() -> ExitCode {
     let outcome = match cli.command {
         Command::Run { config } => run(&config),
         Command::Compensate(args) => compensate(args),
+        Command::Detect { flight, out, config } => detect(&flight, &out, config.as_deref()),
         Command::SampleFlight { out, windows, seed } => sample_flight(&out, &windows, seed),
         Command::Convert { flight, out, config } => convert(&flight, &out, config.as_deref()),
         Command::Simulate { scenario, out, seed } => simulate(&scenario, &out, seed),
@@ -132,11 +146,7 @@ fn spinner(message: String) -> ProgressBar {
 }
 
 fn stage_options(pipeline: &Pipeline) -> StageOptions {
-    StageOptions {
-        ingest: pipeline.ingest.clone(),
-        fit: pipeline.fit.clone(),
-        level: pipeline.level,
-    }
+    StageOptions::from(pipeline)
 }
 
 fn run(config: &Path) -> anyhow::Result<()> {
@@ -177,13 +187,11 @@ fn compensate(args: CompensateArgs) -> anyhow::Result<()> {
         .map(|w| CalibrationWindow::parse(w))
         .collect::<Result<Vec<_>, _>>()?;
     if let Some(file) = &args.windows_file {
-        windows.extend(magcomp::windows::read_detect_json(file)?);
+        windows.extend(magcomp::windows::read_detect_json(
+            file,
+            pipeline.detect.window_margin_s,
+        )?);
     }
-    anyhow::ensure!(
-        !windows.is_empty(),
-        "{}: no calibration windows given. Give them with --window T0:T1 (repeat for each manoeuvre) or --windows-file DETECT.json",
-        args.flight.display()
-    );
     let job = FlightJob {
         input: args.flight.clone(),
         vector: args.vector,
@@ -257,5 +265,32 @@ fn simulate(scenario: &Path, out: &Path, seed: Option<u64>) -> anyhow::Result<()
         truth_csv.display(),
         windows.display()
     );
+    Ok(())
+}
+
+fn detect(flight: &Path, out: &Path, config: Option<&Path>) -> anyhow::Result<()> {
+    let pipeline = match config {
+        Some(path) => Pipeline::load(path)?,
+        None => Pipeline::default(),
+    };
+    let log = magcomp::ingest::read_flight_log(flight, &pipeline.ingest)?;
+    let detection = magcomp::detect::detect_manoeuvres(&log, &pipeline.detect)?;
+    magcomp::output::write_json(out, "the detected manoeuvres", &detection)?;
+    for note in magcomp::pipeline::detection_notes(&detection) {
+        println!("  {note}");
+    }
+    for manoeuvre in &detection.manoeuvres {
+        println!(
+            "  {:<5} heading {:>5.1}: {:.1}–{:.1} s, {} cycles of {:.1} s, ±{:.1}°",
+            format!("{:?}", manoeuvre.kind).to_lowercase(),
+            manoeuvre.heading_deg,
+            manoeuvre.t_start,
+            manoeuvre.t_end,
+            manoeuvre.cycles,
+            manoeuvre.period_s,
+            manoeuvre.amplitude_deg
+        );
+    }
+    println!("wrote {}", out.display());
     Ok(())
 }

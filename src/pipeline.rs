@@ -6,6 +6,7 @@ use serde::Serialize;
 
 use crate::compensate::{compensate, LevelConvention};
 use crate::config::FlightJob;
+use crate::detect::{detect_manoeuvres, DetectOptions, Detection};
 use crate::error::{Error, Result};
 use crate::fit::{fit_channels, FitOptions, FittedTollesLawson};
 use crate::flight_log::{FlightLog, VectorSensor};
@@ -57,6 +58,9 @@ pub struct FlightResult {
     pub added_columns: Vec<String>,
     /// Remarks for the user (renamed outputs and the like).
     pub notes: Vec<String>,
+    /// The detected boxes and manoeuvres, when the flight gave no windows.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub detection: Option<Detection>,
     /// How multi-rate channels were placed on one time base (MCAP inputs).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub alignment: Option<AlignmentReport>,
@@ -76,6 +80,20 @@ pub struct StageOptions {
     pub fit: FitOptions,
     /// DC level convention.
     pub level: LevelConvention,
+    /// Manoeuvre detection, used when a flight gives no windows.
+    pub detect: DetectOptions,
+}
+
+impl From<&crate::config::Pipeline> for StageOptions {
+    /// The stage settings of a pipeline.toml.
+    fn from(pipeline: &crate::config::Pipeline) -> Self {
+        StageOptions {
+            ingest: pipeline.ingest.clone(),
+            fit: pipeline.fit.clone(),
+            level: pipeline.level,
+            detect: pipeline.detect.clone(),
+        }
+    }
 }
 
 /// Reads, fits, compensates and assesses one flight and writes its outputs.
@@ -83,7 +101,16 @@ pub fn process_flight(job: &FlightJob, options: &StageOptions, outputs: &FlightO
     let log = read_flight_log(&job.input, &options.ingest)?;
     let sensor = choose_vector_sensor(&log, job.vector.as_deref())?;
     let channels = choose_channels(&log, job.channels.as_deref())?;
-    let models = fit_channels(&log, &sensor, &channels, &job.windows, &options.fit)?;
+    let detected = job
+        .windows
+        .is_empty()
+        .then(|| detect_manoeuvres(&log, &options.detect))
+        .transpose()?;
+    let windows = match &detected {
+        Some(detection) => detection.calibration_windows(options.detect.window_margin_s),
+        None => job.windows.clone(),
+    };
+    let models = fit_channels(&log, &sensor, &channels, &windows, &options.fit)?;
     let compensation = compensate(&log, &models, options.level)?;
     let quality: Vec<ChannelQuality> = models
         .iter()
@@ -91,12 +118,16 @@ pub fn process_flight(job: &FlightJob, options: &StageOptions, outputs: &FlightO
         .map(|(model, channel)| assess_quality(&log, model, channel))
         .collect();
     let added_columns = added_column_names(&log, &outputs.compensated, &compensation)?;
-    let notes = renaming_notes(&channels, &added_columns);
+    let mut notes = renaming_notes(&channels, &added_columns);
+    if let Some(detection) = &detected {
+        notes.extend(detection_notes(detection));
+    }
     let result = FlightResult {
         flight: job.input.clone(),
         rows: log.len(),
         added_columns,
         notes,
+        detection: detected,
         alignment: log.alignment().cloned(),
         channels: quality,
         models,
@@ -152,6 +183,31 @@ impl<'a> ModelFile<'a> {
             models: &result.models,
         }
     }
+}
+
+/// What detection found, in a sentence per box and per lack.
+pub fn detection_notes(detection: &Detection) -> Vec<String> {
+    let mut notes = vec![format!(
+        "calibration windows detected: {} manoeuvres in {} box(es), attitude from {}",
+        detection.manoeuvres.len(),
+        detection.boxes.len(),
+        match detection.attitude_source {
+            crate::detect::AttitudeSource::Ins => "the INS",
+            crate::detect::AttitudeSource::Fluxgate => "the fluxgate",
+        }
+    )];
+    for (index, found) in detection.boxes.iter().enumerate() {
+        for missing in &found.missing {
+            notes.push(format!(
+                "box {} ({:.1}–{:.1}): {missing}",
+                index + 1,
+                found.t_start,
+                found.t_end
+            ));
+        }
+    }
+    notes.extend(detection.notes.iter().cloned());
+    notes
 }
 
 fn renaming_notes(channels: &[String], added: &[String]) -> Vec<String> {

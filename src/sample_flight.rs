@@ -89,7 +89,7 @@ pub struct SampleFlight {
     pub time_s: Vec<f64>,
     /// Columns in output order (SGL names).
     pub columns: Vec<(String, Vec<f64>)>,
-    /// The manoeuvre windows (with 5 s of level flight on each side).
+    /// The manoeuvre windows (the oscillations; a fit widens them).
     pub manoeuvres: Vec<CalibrationWindow>,
     /// Start and end of the box, s.
     pub calibration_box: (f64, f64),
@@ -151,7 +151,7 @@ impl Timeline<'_> {
         };
         let amplitude = nominal * self.random.uniform(0.8, 1.2);
         self.level(5.0, heading, altitude, 0.0, 0.05);
-        let t_start = self.now() - 5.0;
+        let t_start = self.now();
         let samples = (cycles * period * self.spec.sample_rate_hz).round() as usize;
         for k in 0..samples {
             let angle = amplitude * (2.0 * PI * k as f64 * self.dt() / period).sin();
@@ -167,10 +167,11 @@ impl Timeline<'_> {
             }
             self.states.push(state);
         }
+        let t_end = self.now() - self.dt();
         self.level(5.0, heading, altitude, 0.0, 0.05);
         self.manoeuvres.push(CalibrationWindow {
             t_start,
-            t_end: self.now() - self.dt(),
+            t_end,
             label: String::new(),
             kind: Some(kind),
             heading_deg: Some(heading),

@@ -123,8 +123,10 @@ struct DetectedManoeuvre {
     t_end: f64,
 }
 
-/// Reads the manoeuvres of a DETECT.json file as calibration windows.
-pub fn read_detect_json(path: &Path) -> Result<Vec<CalibrationWindow>> {
+/// Reads the manoeuvres of a DETECT.json file as calibration windows, each
+/// widened by `margin_s` of level flight on both sides (the fit's band-pass
+/// and trimming need it).
+pub fn read_detect_json(path: &Path, margin_s: f64) -> Result<Vec<CalibrationWindow>> {
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, "reading", e))?;
     let file: DetectFile = serde_json::from_str(&text).map_err(|e| Error::Config {
         source_name: path.display().to_string(),
@@ -134,8 +136,8 @@ pub fn read_detect_json(path: &Path) -> Result<Vec<CalibrationWindow>> {
         .manoeuvres
         .into_iter()
         .map(|m| CalibrationWindow {
-            t_start: m.t_start,
-            t_end: m.t_end,
+            t_start: m.t_start - margin_s,
+            t_end: m.t_end + margin_s,
             label: String::new(),
             kind: Some(m.kind),
             heading_deg: Some(m.heading_deg),

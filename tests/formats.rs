@@ -44,12 +44,7 @@ fn assert_same_log(a: &FlightLog, b: &FlightLog, tolerance: f64) {
 }
 
 fn options() -> StageOptions {
-    let pipeline = Pipeline::default();
-    StageOptions {
-        ingest: pipeline.ingest,
-        fit: pipeline.fit,
-        level: pipeline.level,
-    }
+    StageOptions::from(&Pipeline::default())
 }
 
 /// Compensated values of `column` from a CSV or XYZ output.
@@ -119,7 +114,7 @@ fn every_format_ingests_to_the_same_log_and_compensates_identically() {
             input: input.clone(),
             vector: None,
             channels: None,
-            windows: read_detect_json(&windows).unwrap(),
+            windows: read_detect_json(&windows, 5.0).unwrap(),
         };
         let outputs = FlightOutputs::in_directory(&folder.path().join("out"), input);
         process_flight(&job, &options(), &outputs).unwrap();
@@ -219,7 +214,7 @@ fn sgl_xyz_with_line_records_runs_through_the_cli() {
     let from_xyz = read_flight_log(&xyz, &IngestOptions::default()).unwrap();
     assert_same_log(&log, &from_xyz, 0.0);
 
-    let windows_arg: Vec<String> = read_detect_json(&windows)
+    let windows_arg: Vec<String> = read_detect_json(&windows, 5.0)
         .unwrap()
         .iter()
         .map(|w| format!("{}:{}", w.t_start, w.t_end))

@@ -22,12 +22,7 @@ fn small_flight(folder: &Path) -> (PathBuf, PathBuf) {
 }
 
 fn options() -> StageOptions {
-    let pipeline = Pipeline::default();
-    StageOptions {
-        ingest: pipeline.ingest,
-        fit: pipeline.fit,
-        level: pipeline.level,
-    }
+    StageOptions::from(&Pipeline::default())
 }
 
 fn run_with_threads(threads: usize, csv: &Path, windows: &Path, out: &Path) -> Vec<u8> {
@@ -35,7 +30,7 @@ fn run_with_threads(threads: usize, csv: &Path, windows: &Path, out: &Path) -> V
         input: csv.to_path_buf(),
         vector: None,
         channels: None,
-        windows: read_detect_json(windows).unwrap(),
+        windows: read_detect_json(windows, 5.0).unwrap(),
     };
     let outputs = FlightOutputs::in_directory(out, csv);
     let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();

@@ -195,8 +195,8 @@ impl Truth {
     }
 
     /// Writes `<stem>.truth.json` and `<stem>.truth.csv` beside `flight`,
-    /// and `<stem>.windows.json` (DETECT.json shape, manoeuvres with 5 s
-    /// margins) for fitting. Returns the three paths.
+    /// and `<stem>.windows.json` (DETECT.json shape: the manoeuvres as flown,
+    /// which a fit widens by its window margin). Returns the three paths.
     pub fn write_beside(&self, flight: &Path) -> Result<[PathBuf; 3]> {
         let stem = flight.with_extension("");
         let json = stem.with_extension("truth.json");
@@ -231,7 +231,7 @@ impl Truth {
     }
 }
 
-/// DETECT.json (CONTRACT §3) for the fit: manoeuvres with margins.
+/// DETECT.json (CONTRACT §3): the manoeuvres as flown.
 #[derive(Serialize)]
 struct DetectShape {
     manoeuvres: Vec<DetectEntry>,
@@ -250,7 +250,7 @@ impl DetectShape {
     fn new(truth: &Truth) -> Self {
         DetectShape {
             manoeuvres: truth
-                .calibration_windows(5.0)
+                .calibration_windows(0.0)
                 .into_iter()
                 .map(|w| DetectEntry {
                     kind: w.kind.unwrap_or(ManoeuvreKind::Pitch),

@@ -1,0 +1,774 @@
+//! Automatic detection of calibration boxes and their manoeuvres.
+//!
+//! A calibration box is a sequence of straight legs on different headings,
+//! each carrying pitch, roll and yaw oscillations. Detection works in four
+//! steps, every threshold in [`DetectOptions`]:
+//!
+//! 1. **Legs.** The heading is smoothed by a centred circular mean over
+//!    `heading_smoothing_s` (long enough to average a yaw manoeuvre away);
+//!    samples whose smoothed heading turns slower than `straight_rate_deg_s`
+//!    are straight. Straight runs on one heading, joined across short
+//!    interruptions, lasting at least `min_leg_s`, are legs.
+//! 2. **Activity.** On each leg, each axis's deviation from level flight
+//!    (pitch and roll from the leg's median, yaw from the smoothed heading,
+//!    so a wandering track does not count) gives a centred RMS envelope.
+//!    Where it exceeds both an absolute floor per axis and a multiple of the
+//!    leg's own turbulence level, the axis is active. Where two axes are
+//!    active together, the one larger against its nominal amplitude wins.
+//! 3. **Refinement.** Each active region is measured against a baseline
+//!    interpolated from the level flight on either side. The oscillation runs
+//!    from the zero crossing before its first strong half-cycle to the zero
+//!    crossing after its last. Half-cycles give the cycle count, period and
+//!    amplitude. A region with fewer than three strong half-cycles, or with
+//!    irregular half-cycles, is not a manoeuvre: it is dropped, never
+//!    reported as a fragment.
+//! 4. **Boxes.** Consecutive legs carrying manoeuvres form a box; a heading
+//!    flown again starts the next box. Each box reports which manoeuvres it
+//!    lacks ("no yaw on heading 290").
+//!
+//! Without INS attitude the fluxgate stands in: the magnetic heading from
+//! the horizontal field in body axes, and for each leg the small rotation
+//! $u_{ref} \times u$ of the field direction, whose direction tells which
+//! axis turned (a rotation about the field itself is invisible).
+
+use std::ops::Range;
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+use crate::flight_log::{AttitudeAngle, ChannelRole, FlightLog};
+use crate::windows::{CalibrationWindow, ManoeuvreKind};
+
+/// Detection thresholds (`[detect]` in pipeline.toml).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DetectOptions {
+    /// Window of the circular mean that smooths the heading, s.
+    pub heading_smoothing_s: f64,
+    /// Largest smoothed turn rate of a straight leg, degrees/s.
+    pub straight_rate_deg_s: f64,
+    /// Shortest leg, s.
+    pub min_leg_s: f64,
+    /// Straight runs this close in time and heading join into one leg (s, degrees).
+    pub join_gap_s: f64,
+    /// Heading difference that separates two legs, degrees.
+    pub heading_tolerance_deg: f64,
+    /// A leg's ends are cut where the heading leaves its centre by more than this, degrees.
+    pub turn_heading_deg: f64,
+    /// ... or where the bank exceeds this, degrees.
+    pub turn_bank_deg: f64,
+    /// Window of the RMS envelope, s.
+    pub envelope_s: f64,
+    /// Smallest RMS deviation of an active pitch, roll and yaw, degrees.
+    pub min_rms_deg: [f64; 3],
+    /// Activity must also exceed this multiple of the leg's turbulence level.
+    pub turbulence_factor: f64,
+    /// Nominal amplitudes of pitch, roll and yaw manoeuvres, degrees (to compare axes).
+    pub nominal_amplitude_deg: [f64; 3],
+    /// Active stretches closer than this join, s.
+    pub join_activity_s: f64,
+    /// Largest spread of half-cycle durations (standard deviation / mean).
+    pub max_half_cycle_spread: f64,
+    /// Longest pause between two legs of one box, s.
+    pub max_turn_s: f64,
+    /// Level flight kept on each side of a detected manoeuvre when it becomes
+    /// a calibration window, s.
+    pub window_margin_s: f64,
+}
+
+impl Default for DetectOptions {
+    fn default() -> Self {
+        DetectOptions {
+            heading_smoothing_s: 20.0,
+            straight_rate_deg_s: 1.0,
+            min_leg_s: 40.0,
+            join_gap_s: 15.0,
+            heading_tolerance_deg: 15.0,
+            turn_heading_deg: 9.0,
+            turn_bank_deg: 15.0,
+            envelope_s: 3.0,
+            min_rms_deg: [1.2, 2.5, 1.2],
+            turbulence_factor: 3.0,
+            nominal_amplitude_deg: [5.0, 10.0, 5.0],
+            join_activity_s: 2.0,
+            max_half_cycle_spread: 0.4,
+            max_turn_s: 300.0,
+            window_margin_s: 5.0,
+        }
+    }
+}
+
+/// Where the attitude came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum AttitudeSource {
+    /// INS roll, pitch and yaw.
+    Ins,
+    /// Fluxgate direction cosines (no INS in the file).
+    Fluxgate,
+}
+
+/// One detected manoeuvre (CONTRACT §3 fields, then measurements).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct DetectedManoeuvre {
+    /// Pitch, roll or yaw.
+    pub kind: ManoeuvreKind,
+    /// Heading of the leg, degrees (magnetic when from the fluxgate).
+    pub heading_deg: f64,
+    /// First sample of the oscillation.
+    pub t_start: f64,
+    /// Last sample of the oscillation.
+    pub t_end: f64,
+    /// Whole cycles.
+    pub cycles: f64,
+    /// Median peak deviation, degrees.
+    pub amplitude_deg: f64,
+    /// Mean period, s.
+    pub period_s: f64,
+}
+
+/// A straight leg.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Leg {
+    /// Heading, degrees.
+    pub heading_deg: f64,
+    /// Start time.
+    pub t_start: f64,
+    /// End time.
+    pub t_end: f64,
+    /// Rows of the flight.
+    #[serde(skip)]
+    pub rows: Range<usize>,
+}
+
+/// One calibration box.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct DetectedBox {
+    /// Start of its first leg.
+    pub t_start: f64,
+    /// End of its last leg.
+    pub t_end: f64,
+    /// Headings of its legs, in flying order.
+    pub headings_deg: Vec<f64>,
+    /// Manoeuvres expected but not found, e.g. "no yaw on heading 290".
+    pub missing: Vec<String>,
+}
+
+/// What detection found (DETECT.json).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Detection {
+    /// Manoeuvres in time order.
+    pub manoeuvres: Vec<DetectedManoeuvre>,
+    /// Calibration boxes.
+    pub boxes: Vec<DetectedBox>,
+    /// Where the attitude came from.
+    pub attitude_source: AttitudeSource,
+    /// Every straight leg, with or without manoeuvres.
+    pub legs: Vec<Leg>,
+    /// Remarks for the user.
+    pub notes: Vec<String>,
+}
+
+impl Detection {
+    /// The manoeuvres as calibration windows, each with `margin_s` of level
+    /// flight on both sides.
+    pub fn calibration_windows(&self, margin_s: f64) -> Vec<CalibrationWindow> {
+        self.manoeuvres
+            .iter()
+            .map(|m| CalibrationWindow {
+                t_start: m.t_start - margin_s,
+                t_end: m.t_end + margin_s,
+                label: String::new(),
+                kind: Some(m.kind),
+                heading_deg: Some(m.heading_deg),
+            })
+            .collect()
+    }
+}
+
+/// Per-sample attitude, degrees, NaN where unknown.
+struct Attitude {
+    /// Pitch, roll and yaw deviations usable for activity (for the fluxgate:
+    /// filled per leg).
+    angles: [Vec<f64>; 3],
+    heading_deg: Vec<f64>,
+    source: AttitudeSource,
+    /// Unit field direction in body axes (fluxgate fallback only).
+    field_unit: Option<Vec<[f64; 3]>>,
+}
+
+/// Finds the calibration boxes and manoeuvres of a flight.
+pub fn detect_manoeuvres(log: &FlightLog, options: &DetectOptions) -> Result<Detection> {
+    let mut attitude = read_attitude(log)?;
+    let dt = log.median_interval_s();
+    let smoothed = smooth_heading(&attitude.heading_deg, samples(options.heading_smoothing_s, dt));
+    let roll = (attitude.source == AttitudeSource::Ins).then_some(attitude.angles[1].as_slice());
+    let legs = find_legs(log, &attitude.heading_deg, &smoothed, roll, options);
+    let mut manoeuvres = Vec::new();
+    for leg in &legs {
+        if attitude.source == AttitudeSource::Fluxgate {
+            fill_fluxgate_angles(&mut attitude, leg);
+        }
+        manoeuvres.extend(leg_manoeuvres(log, &attitude, leg, options));
+    }
+    manoeuvres.sort_by(|a, b| a.t_start.total_cmp(&b.t_start));
+    let boxes = group_boxes(&legs, &manoeuvres, options);
+    let mut notes = Vec::new();
+    if attitude.source == AttitudeSource::Fluxgate {
+        notes.push("no INS attitude in the file: legs and manoeuvres come from the fluxgate's field direction; headings are magnetic".into());
+    }
+    if manoeuvres.is_empty() {
+        notes.push("no calibration manoeuvres found".into());
+    }
+    Ok(Detection {
+        manoeuvres,
+        boxes,
+        attitude_source: attitude.source,
+        legs,
+        notes,
+    })
+}
+
+fn samples(seconds: f64, dt: f64) -> usize {
+    (seconds / dt).round().max(1.0) as usize
+}
+
+fn read_attitude(log: &FlightLog) -> Result<Attitude> {
+    let angle = |wanted: AttitudeAngle| {
+        log.channels()
+            .iter()
+            .find(|c| c.role == ChannelRole::Attitude(wanted))
+            .filter(|c| c.values.iter().filter(|v| v.is_finite()).count() * 2 > c.values.len())
+            .map(|c| c.values.clone())
+    };
+    if let (Some(pitch), Some(roll), Some(yaw)) = (
+        angle(AttitudeAngle::Pitch),
+        angle(AttitudeAngle::Roll),
+        angle(AttitudeAngle::Yaw),
+    ) {
+        return Ok(Attitude {
+            angles: [pitch, roll, yaw.clone()],
+            heading_deg: yaw,
+            source: AttitudeSource::Ins,
+            field_unit: None,
+        });
+    }
+    let sensor = log.vector_sensors().into_iter().next().ok_or_else(|| Error::MissingColumn {
+        path: log.source().to_path_buf(),
+        role: "attitude (ins_pitch, ins_roll, ins_yaw) or a vector magnetometer",
+        looked_for: "ins_pitch, ins_roll, ins_yaw or flux_<s>_x/y/z".into(),
+        hint: "Detection needs the aircraft's attitude; map your columns in [columns] of pipeline.toml, or give the windows with --window.".into(),
+    })?;
+    let [x, y, z] = log.vector_components(&sensor);
+    let unit: Vec<[f64; 3]> = (0..log.len())
+        .map(|k| {
+            let norm = (x[k] * x[k] + y[k] * y[k] + z[k] * z[k]).sqrt();
+            [x[k] / norm, y[k] / norm, z[k] / norm]
+        })
+        .collect();
+    // Level flight: body x = H cos(D − ψ), y = H sin(D − ψ), so the
+    // magnetic heading is −atan2(y, x).
+    let heading_deg = (0..log.len())
+        .map(|k| (-y[k].atan2(x[k])).to_degrees().rem_euclid(360.0))
+        .collect();
+    let nan = vec![f64::NAN; log.len()];
+    Ok(Attitude {
+        angles: [nan.clone(), nan.clone(), nan],
+        heading_deg,
+        source: AttitudeSource::Fluxgate,
+        field_unit: Some(unit),
+    })
+}
+
+/// Difference of two headings wrapped into [-180, 180), degrees.
+fn heading_difference(a: f64, b: f64) -> f64 {
+    (a - b + 540.0).rem_euclid(360.0) - 180.0
+}
+
+/// Centred circular mean of the heading over `window` samples (NaN where
+/// the window holds no finite sample).
+fn smooth_heading(heading_deg: &[f64], window: usize) -> Vec<f64> {
+    let n = heading_deg.len();
+    let mut sums = vec![(0.0, 0.0, 0usize); n + 1];
+    for (k, h) in heading_deg.iter().enumerate() {
+        let (s, c) = if h.is_finite() {
+            h.to_radians().sin_cos()
+        } else {
+            (0.0, 0.0)
+        };
+        let previous = sums[k];
+        sums[k + 1] = (previous.0 + s, previous.1 + c, previous.2 + usize::from(h.is_finite()));
+    }
+    let half = window / 2;
+    (0..n)
+        .map(|k| {
+            let (a, b) = (k.saturating_sub(half), (k + half + 1).min(n));
+            let (s, c, count) = (sums[b].0 - sums[a].0, sums[b].1 - sums[a].1, sums[b].2 - sums[a].2);
+            if count == 0 {
+                f64::NAN
+            } else {
+                s.atan2(c).to_degrees().rem_euclid(360.0)
+            }
+        })
+        .collect()
+}
+
+/// Circular median-like centre of headings: the circular mean, refined by
+/// the median of the deviations from it.
+fn heading_centre(headings: impl Iterator<Item = f64> + Clone) -> f64 {
+    let (s, c) = headings
+        .clone()
+        .filter(|h| h.is_finite())
+        .fold((0.0, 0.0), |(s, c), h| {
+            (s + h.to_radians().sin(), c + h.to_radians().cos())
+        });
+    let mean = s.atan2(c).to_degrees();
+    let mut deviations: Vec<f64> = headings
+        .filter(|h| h.is_finite())
+        .map(|h| heading_difference(h, mean))
+        .collect();
+    (mean + median(&mut deviations).unwrap_or(0.0)).rem_euclid(360.0)
+}
+
+fn median(values: &mut [f64]) -> Option<f64> {
+    if values.is_empty() {
+        return None;
+    }
+    values.sort_by(f64::total_cmp);
+    let middle = values.len() / 2;
+    Some(if values.len() % 2 == 0 {
+        0.5 * (values[middle - 1] + values[middle])
+    } else {
+        values[middle]
+    })
+}
+
+fn find_legs(
+    log: &FlightLog,
+    heading: &[f64],
+    smoothed: &[f64],
+    roll: Option<&[f64]>,
+    options: &DetectOptions,
+) -> Vec<Leg> {
+    let time = log.time_s();
+    let dt = log.median_interval_s();
+    let reach = samples(5.0, dt);
+    let n = heading.len();
+    let straight: Vec<bool> = (0..n)
+        .map(|k| {
+            let (a, b) = (k.saturating_sub(reach), (k + reach).min(n - 1));
+            let rate = heading_difference(smoothed[b], smoothed[a]) / (time[b] - time[a]).max(dt);
+            rate.is_finite() && rate.abs() < options.straight_rate_deg_s
+        })
+        .collect();
+    let mut runs: Vec<Range<usize>> = Vec::new();
+    let mut k = 0;
+    while k < n {
+        if !straight[k] {
+            k += 1;
+            continue;
+        }
+        let start = k;
+        while k < n && straight[k] {
+            k += 1;
+        }
+        runs.push(start..k);
+    }
+    let centre = |r: &Range<usize>| heading_centre(heading[r.clone()].iter().copied());
+    let mut joined: Vec<Range<usize>> = Vec::new();
+    for run in runs {
+        if let Some(last) = joined.last_mut() {
+            let close = time[run.start] - time[last.end - 1] <= options.join_gap_s;
+            let same = heading_difference(centre(&run), centre(last)).abs() < options.heading_tolerance_deg;
+            if close && same {
+                last.end = run.end;
+                continue;
+            }
+        }
+        joined.push(run);
+    }
+    joined
+        .into_iter()
+        .map(|rows| trim_turns(rows, heading, roll, options))
+        .filter(|r| !r.is_empty() && time[r.end - 1] - time[r.start] >= options.min_leg_s)
+        .map(|rows| Leg {
+            heading_deg: (centre(&rows) * 10.0).round() / 10.0,
+            t_start: time[rows.start],
+            t_end: time[rows.end - 1],
+            rows,
+        })
+        .collect()
+}
+
+/// Cuts the ends of a straight run where the aircraft is already (or
+/// still) turning: heading off the run's centre by more than
+/// `turn_heading_deg`, or bank beyond `turn_bank_deg`. The smoothed heading
+/// that found the run lags a turn's start by a few seconds.
+fn trim_turns(rows: Range<usize>, heading: &[f64], roll: Option<&[f64]>, options: &DetectOptions) -> Range<usize> {
+    let centre = heading_centre(heading[rows.clone()].iter().copied());
+    let turning = |k: usize| {
+        let off = heading_difference(heading[k], centre).abs() > options.turn_heading_deg;
+        let banked = roll.is_some_and(|r| r[k].abs() > options.turn_bank_deg);
+        off || banked
+    };
+    let (mut start, mut end) = (rows.start, rows.end);
+    while start < end && turning(start) {
+        start += 1;
+    }
+    while end > start && turning(end - 1) {
+        end -= 1;
+    }
+    start..end
+}
+
+/// Fluxgate fallback: small rotations of the field direction from the
+/// leg's mean direction, projected on each body axis's visible part.
+fn fill_fluxgate_angles(attitude: &mut Attitude, leg: &Leg) {
+    let Some(unit) = &attitude.field_unit else { return };
+    let rows = leg.rows.clone();
+    let mut mean = [0.0; 3];
+    for u in unit[rows.clone()].iter().filter(|u| u[0].is_finite()) {
+        (0..3).for_each(|i| mean[i] += u[i]);
+    }
+    let norm = (mean[0] * mean[0] + mean[1] * mean[1] + mean[2] * mean[2]).sqrt();
+    let reference = mean.map(|m| m / norm);
+    // A rotation θ about body axis a moves u by −θ (a − (a·u)u) in u_ref × u.
+    let visible: [[f64; 3]; 3] = [1, 0, 2].map(|axis| {
+        let mut a = [0.0; 3];
+        a[axis] = 1.0;
+        let along = reference[axis];
+        [0, 1, 2].map(|i| a[i] - along * reference[i])
+    });
+    for k in rows {
+        let u = unit[k];
+        let cross = [
+            reference[1] * u[2] - reference[2] * u[1],
+            reference[2] * u[0] - reference[0] * u[2],
+            reference[0] * u[1] - reference[1] * u[0],
+        ];
+        for (axis, direction) in visible.iter().enumerate() {
+            let weight: f64 = direction.iter().map(|d| d * d).sum();
+            let projection: f64 = (0..3).map(|i| cross[i] * direction[i]).sum();
+            attitude.angles[axis][k] = -(projection / weight.max(1e-6)).to_degrees();
+        }
+    }
+}
+
+/// Deviation of `axis` from level flight over the leg's rows.
+/// The yaw's baseline is the heading smoothed within the leg only, so a
+/// wandering track is followed and the turns either side are not seen.
+fn deviation(attitude: &Attitude, window: usize, leg: &Leg, axis: usize) -> Vec<f64> {
+    let values = &attitude.angles[axis][leg.rows.clone()];
+    if axis == 2 && attitude.source == AttitudeSource::Ins {
+        let smoothed = smooth_heading(values, window);
+        return values
+            .iter()
+            .zip(&smoothed)
+            .map(|(h, s)| heading_difference(*h, *s))
+            .collect();
+    }
+    let mut finite: Vec<f64> = values.iter().copied().filter(|v| v.is_finite()).collect();
+    let level = median(&mut finite).unwrap_or(0.0);
+    values.iter().map(|v| v - level).collect()
+}
+
+/// Centred RMS over `window` samples, NaN samples skipped.
+fn rms_envelope(values: &[f64], window: usize) -> Vec<f64> {
+    let n = values.len();
+    let mut sums = vec![(0.0, 0usize); n + 1];
+    for (k, v) in values.iter().enumerate() {
+        let previous = sums[k];
+        sums[k + 1] = if v.is_finite() {
+            (previous.0 + v * v, previous.1 + 1)
+        } else {
+            previous
+        };
+    }
+    let half = window / 2;
+    (0..n)
+        .map(|k| {
+            let (a, b) = (k.saturating_sub(half), (k + half + 1).min(n));
+            let count = sums[b].1 - sums[a].1;
+            if count == 0 {
+                0.0
+            } else {
+                ((sums[b].0 - sums[a].0) / count as f64).sqrt()
+            }
+        })
+        .collect()
+}
+
+fn percentile(values: &[f64], fraction: f64) -> f64 {
+    let mut sorted: Vec<f64> = values.iter().copied().filter(|v| v.is_finite()).collect();
+    if sorted.is_empty() {
+        return 0.0;
+    }
+    sorted.sort_by(f64::total_cmp);
+    sorted[((sorted.len() - 1) as f64 * fraction).round() as usize]
+}
+
+/// Active stretches (leg-relative rows) of one axis, with their strength
+/// relative to the nominal amplitude.
+fn active_regions(envelope: &[f64], threshold: f64, join: usize, shortest: usize) -> Vec<Range<usize>> {
+    let mut regions: Vec<Range<usize>> = Vec::new();
+    for (k, e) in envelope.iter().enumerate() {
+        if *e <= threshold {
+            continue;
+        }
+        match regions.last_mut() {
+            Some(last) if k <= last.end + join => last.end = k + 1,
+            _ => regions.push(k..k + 1),
+        }
+    }
+    regions.retain(|r| r.len() >= shortest);
+    regions
+}
+
+fn leg_manoeuvres(log: &FlightLog, attitude: &Attitude, leg: &Leg, options: &DetectOptions) -> Vec<DetectedManoeuvre> {
+    let dt = log.median_interval_s();
+    let window = samples(options.envelope_s, dt);
+    let kinds = [ManoeuvreKind::Pitch, ManoeuvreKind::Roll, ManoeuvreKind::Yaw];
+    let mut candidates: Vec<(usize, Range<usize>, f64)> = Vec::new();
+    let mut deviations = Vec::new();
+    for axis in 0..3 {
+        let values = deviation(attitude, samples(options.heading_smoothing_s, dt), leg, axis);
+        let envelope = rms_envelope(&values, window);
+        let turbulence = percentile(&envelope, 0.1);
+        let threshold = options.min_rms_deg[axis].max(options.turbulence_factor * turbulence);
+        let join = samples(options.join_activity_s, dt);
+        for region in active_regions(&envelope, threshold, join, samples(2.0, dt)) {
+            let strength =
+                region.clone().map(|k| envelope[k]).fold(0.0, f64::max) / options.nominal_amplitude_deg[axis];
+            candidates.push((axis, region, strength));
+        }
+        deviations.push(values);
+    }
+    // Where axes overlap, the one strongest against its nominal amplitude wins.
+    let kept: Vec<&(usize, Range<usize>, f64)> = candidates
+        .iter()
+        .filter(|(axis, region, strength)| {
+            !candidates.iter().any(|(other, r, s)| {
+                other != axis
+                    && r.start < region.end
+                    && region.start < r.end
+                    && (*s > *strength || (*s == *strength && other < axis))
+            })
+        })
+        .collect();
+    kept.into_iter()
+        .filter_map(|(axis, region, _)| {
+            let found = measure(&deviations[*axis], region.clone(), dt);
+            if std::env::var_os("MAGCOMP_DEBUG_DETECT").is_some() {
+                eprintln!(
+                    "leg {} axis {axis} region {:?} t {:.1}-{:.1}: {:?}",
+                    leg.heading_deg,
+                    region,
+                    log.time_s()[leg.rows.start + region.start],
+                    log.time_s()[leg.rows.start + region.end - 1],
+                    found.as_ref().map(|f| (f.half_cycles.clone(), f.amplitude_deg))
+                );
+            }
+            let found = found?;
+            check_regular(&found, options)?;
+            let time = log.time_s();
+            let rows = leg.rows.start + found.start..leg.rows.start + found.end;
+            Some(DetectedManoeuvre {
+                kind: kinds[*axis],
+                heading_deg: leg.heading_deg,
+                t_start: time[rows.start],
+                t_end: time[rows.end - 1],
+                cycles: (found.half_cycles.len() as f64 / 2.0).round(),
+                amplitude_deg: found.amplitude_deg,
+                period_s: found.period_s,
+            })
+        })
+        .collect()
+}
+
+/// An oscillation measured in leg-relative rows.
+struct Oscillation {
+    start: usize,
+    end: usize,
+    /// Lengths of the strong half-cycles, samples.
+    half_cycles: Vec<usize>,
+    amplitude_deg: f64,
+    period_s: f64,
+}
+
+fn check_regular(found: &Oscillation, options: &DetectOptions) -> Option<()> {
+    if found.half_cycles.len() < 3 {
+        return None;
+    }
+    let lengths: Vec<f64> = found.half_cycles.iter().map(|&l| l as f64).collect();
+    let mean = lengths.iter().sum::<f64>() / lengths.len() as f64;
+    let spread = (lengths.iter().map(|l| (l - mean).powi(2)).sum::<f64>() / lengths.len() as f64).sqrt() / mean;
+    (spread <= options.max_half_cycle_spread).then_some(())
+}
+
+/// The median of the finite values in `range`, or `None`.
+fn level_in(values: &[f64], range: Range<usize>) -> Option<f64> {
+    let mut finite: Vec<f64> = values[range].iter().copied().filter(|v| v.is_finite()).collect();
+    median(&mut finite)
+}
+
+/// Measures the oscillation around an active region against a baseline
+/// interpolated between the level flight on either side.
+fn measure(values: &[f64], region: Range<usize>, dt: f64) -> Option<Oscillation> {
+    let n = values.len();
+    let pad = samples(4.0, dt);
+    let (outer_start, outer_end) = (region.start.saturating_sub(pad), (region.end + pad).min(n));
+    let before = level_in(
+        values,
+        region.start.saturating_sub(2 * pad)..region.start.saturating_sub(pad / 2).max(1),
+    );
+    let after = level_in(values, (region.end + pad / 2).min(n - 1)..(region.end + 2 * pad).min(n));
+    let (first, last) = match (before, after) {
+        (Some(a), Some(b)) => (a, b),
+        (Some(a), None) | (None, Some(a)) => (a, a),
+        (None, None) => (0.0, 0.0),
+    };
+    let span = (outer_end - outer_start).max(1) as f64;
+    let centred: Vec<f64> = (outer_start..outer_end)
+        .map(|k| values[k] - (first + (last - first) * (k - outer_start) as f64 / span))
+        .collect();
+    let peak = centred
+        .iter()
+        .filter(|v| v.is_finite())
+        .fold(0.0f64, |m, v| m.max(v.abs()));
+    if peak == 0.0 {
+        return None;
+    }
+    let strong = |v: f64| v.is_finite() && v.abs() >= 0.5 * peak;
+    let first_strong = centred.iter().position(|v| strong(*v))?;
+    let last_strong = centred.iter().rposition(|v| strong(*v))?;
+    // The oscillation leaves level flight where it first passes a tenth of
+    // its peak: level flight offset by turbulence never gets that far.
+    let edge = 0.1 * peak;
+    let beyond = |v: f64, like: f64| v.is_finite() && v.abs() > edge && (v > 0.0) == (like > 0.0);
+    let mut start = first_strong;
+    while start > 0 && beyond(centred[start - 1], centred[first_strong]) {
+        start -= 1;
+    }
+    let mut end = last_strong;
+    while end + 1 < centred.len() && beyond(centred[end + 1], centred[last_strong]) {
+        end += 1;
+    }
+    let (half_cycles, mut peaks) = half_cycles(&centred[start..=end], 0.5 * peak);
+    let amplitude_deg = median(&mut peaks)?;
+    let mean_half = half_cycles.iter().sum::<usize>() as f64 / half_cycles.len().max(1) as f64;
+    // A sine passes a tenth of its peak asin(0.1)/2π ≈ 1.6 % of a period
+    // after its zero crossing: step back to the crossings.
+    let lead = (0.016 * 2.0 * mean_half).round() as usize;
+    let (start, end) = (start.saturating_sub(lead), (end + lead).min(centred.len() - 1));
+    let duration_s = (end + 1 - start) as f64 * dt;
+    Some(Oscillation {
+        start: outer_start + start,
+        end: outer_start + end + 1,
+        period_s: duration_s / (half_cycles.len() as f64 / 2.0).max(0.5),
+        half_cycles,
+        amplitude_deg,
+    })
+}
+
+/// Lengths (samples) and peaks of the sign runs that reach `strong`.
+fn half_cycles(values: &[f64], strong: f64) -> (Vec<usize>, Vec<f64>) {
+    let (mut lengths, mut peaks) = (Vec::new(), Vec::new());
+    let mut k = 0;
+    while k < values.len() {
+        let positive = values[k] > 0.0;
+        let start = k;
+        let mut peak = 0.0f64;
+        while k < values.len() && (values[k] > 0.0) == positive {
+            peak = peak.max(values[k].abs());
+            k += 1;
+        }
+        if peak >= strong {
+            lengths.push(k - start);
+            peaks.push(peak);
+        }
+    }
+    (lengths, peaks)
+}
+
+fn group_boxes(legs: &[Leg], manoeuvres: &[DetectedManoeuvre], options: &DetectOptions) -> Vec<DetectedBox> {
+    let busy: Vec<&Leg> = legs
+        .iter()
+        .filter(|leg| {
+            manoeuvres
+                .iter()
+                .any(|m| m.t_start >= leg.t_start && m.t_end <= leg.t_end)
+        })
+        .collect();
+    let mut boxes: Vec<Vec<&Leg>> = Vec::new();
+    for leg in busy {
+        let joins = boxes.last().is_some_and(|current| {
+            let previous = current[current.len() - 1];
+            let repeated = current
+                .iter()
+                .any(|l| heading_difference(l.heading_deg, leg.heading_deg).abs() < options.heading_tolerance_deg);
+            leg.t_start - previous.t_end <= options.max_turn_s && !repeated
+        });
+        match boxes.last_mut() {
+            Some(current) if joins => current.push(leg),
+            _ => boxes.push(vec![leg]),
+        }
+    }
+    boxes
+        .into_iter()
+        .map(|legs| DetectedBox {
+            t_start: legs[0].t_start,
+            t_end: legs[legs.len() - 1].t_end,
+            headings_deg: legs.iter().map(|l| l.heading_deg).collect(),
+            missing: missing_manoeuvres(&legs, manoeuvres),
+        })
+        .collect()
+}
+
+fn missing_manoeuvres(legs: &[&Leg], manoeuvres: &[DetectedManoeuvre]) -> Vec<String> {
+    let mut missing = Vec::new();
+    for leg in legs {
+        for kind in [ManoeuvreKind::Pitch, ManoeuvreKind::Roll, ManoeuvreKind::Yaw] {
+            let found = manoeuvres
+                .iter()
+                .any(|m| m.kind == kind && m.t_start >= leg.t_start && m.t_end <= leg.t_end);
+            if !found {
+                missing.push(format!(
+                    "no {} on heading {}",
+                    format!("{kind:?}").to_lowercase(),
+                    leg.heading_deg.round()
+                ));
+            }
+        }
+    }
+    missing
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn headings_wrap_through_north() {
+        assert_eq!(heading_difference(350.0, 10.0), -20.0);
+        let centre = heading_centre([355.0, 359.0, 1.0, 5.0].into_iter());
+        assert!(heading_difference(centre, 0.0).abs() < 1e-9, "{centre}");
+    }
+
+    #[test]
+    fn a_clean_sine_measures_its_cycles_period_and_amplitude() {
+        // 3 cycles of 6 s at 10 Hz, amplitude 5°, with 10 s of level flight around.
+        let mut values = vec![0.0; 100];
+        values.extend((1..=180).map(|k| 5.0 * (2.0 * std::f64::consts::PI * k as f64 * 0.1 / 6.0).sin()));
+        values.extend(vec![0.0; 100]);
+        let found = measure(&values, 105..275, 0.1).unwrap();
+        assert_eq!(found.half_cycles.len(), 6);
+        assert!((found.amplitude_deg - 5.0).abs() < 0.01);
+        assert!((found.period_s - 6.0).abs() < 0.15, "{}", found.period_s);
+        assert!(
+            (found.start as i64 - 100).abs() <= 1 && (found.end as i64 - 280).abs() <= 1,
+            "{}..{}",
+            found.start,
+            found.end
+        );
+    }
+}
