@@ -300,13 +300,17 @@ fn check_detect(raw: &DetectOptions) -> std::result::Result<(), String> {
             return Err(format!("[detect] {name} = {value}: give a positive number"));
         }
     }
-    let amplitudes = raw.min_rms_deg.iter().chain(&raw.nominal_amplitude_deg);
+    let amplitudes = raw
+        .min_rms_deg
+        .iter()
+        .chain(&raw.nominal_amplitude_deg)
+        .chain(&raw.min_amplitude_deg);
     if amplitudes
         .chain([&raw.window_margin_s, &raw.join_gap_s])
         .any(|v| !(v.is_finite() && *v >= 0.0))
     {
         return Err(
-            "[detect] min_rms_deg, nominal_amplitude_deg, window_margin_s and join_gap_s must be non-negative".into(),
+            "[detect] min_rms_deg, nominal_amplitude_deg, min_amplitude_deg, window_margin_s and join_gap_s must be non-negative".into(),
         );
     }
     Ok(())

@@ -61,14 +61,23 @@ pub struct DetectOptions {
     pub envelope_s: f64,
     /// Smallest RMS deviation of an active pitch, roll and yaw, degrees.
     pub min_rms_deg: [f64; 3],
+    /// Smallest RMS rotation of the field direction that counts as active
+    /// when the fluxgate stands in for the INS, degrees.
+    pub fluxgate_min_rms_deg: f64,
     /// Activity must also exceed this multiple of the leg's turbulence level.
     pub turbulence_factor: f64,
     /// Nominal amplitudes of pitch, roll and yaw manoeuvres, degrees (to compare axes).
     pub nominal_amplitude_deg: [f64; 3],
+    /// Smallest peak of a pitch, roll and yaw manoeuvre, degrees.
+    pub min_amplitude_deg: [f64; 3],
     /// Active stretches closer than this join, s.
     pub join_activity_s: f64,
+    /// Fewest strong half-cycles of a manoeuvre (4: two cycles).
+    pub min_half_cycles: usize,
     /// Largest spread of half-cycle durations (standard deviation / mean).
     pub max_half_cycle_spread: f64,
+    /// Largest spread of half-cycle peaks (standard deviation / mean).
+    pub max_peak_spread: f64,
     /// Longest pause between two legs of one box, s.
     pub max_turn_s: f64,
     /// Level flight kept on each side of a detected manoeuvre when it becomes
@@ -88,10 +97,14 @@ impl Default for DetectOptions {
             turn_bank_deg: 15.0,
             envelope_s: 3.0,
             min_rms_deg: [1.2, 2.5, 1.2],
+            fluxgate_min_rms_deg: 0.5,
             turbulence_factor: 3.0,
             nominal_amplitude_deg: [5.0, 10.0, 5.0],
+            min_amplitude_deg: [2.0, 4.0, 2.0],
             join_activity_s: 2.0,
+            min_half_cycles: 4,
             max_half_cycle_spread: 0.4,
+            max_peak_spread: 0.3,
             max_turn_s: 300.0,
             window_margin_s: 5.0,
         }
@@ -199,16 +212,13 @@ struct Attitude {
 
 /// Finds the calibration boxes and manoeuvres of a flight.
 pub fn detect_manoeuvres(log: &FlightLog, options: &DetectOptions) -> Result<Detection> {
-    let mut attitude = read_attitude(log)?;
+    let attitude = read_attitude(log)?;
     let dt = log.median_interval_s();
     let smoothed = smooth_heading(&attitude.heading_deg, samples(options.heading_smoothing_s, dt));
     let roll = (attitude.source == AttitudeSource::Ins).then_some(attitude.angles[1].as_slice());
     let legs = find_legs(log, &attitude.heading_deg, &smoothed, roll, options);
     let mut manoeuvres = Vec::new();
     for leg in &legs {
-        if attitude.source == AttitudeSource::Fluxgate {
-            fill_fluxgate_angles(&mut attitude, leg);
-        }
         manoeuvres.extend(leg_manoeuvres(log, &attitude, leg, options));
     }
     manoeuvres.sort_by(|a, b| a.t_start.total_cmp(&b.t_start));
@@ -400,10 +410,10 @@ fn find_legs(
         .collect()
 }
 
-/// Cuts the ends of a straight run where the aircraft is already (or
-/// still) turning: heading off the run's centre by more than
+/// Moves the ends of a straight run to where the aircraft starts (or
+/// stops) turning: heading off the run's centre by more than
 /// `turn_heading_deg`, or bank beyond `turn_bank_deg`. The smoothed heading
-/// that found the run lags a turn's start by a few seconds.
+/// that found the run blurs a turn's start and end by a few seconds.
 fn trim_turns(rows: Range<usize>, heading: &[f64], roll: Option<&[f64]>, options: &DetectOptions) -> Range<usize> {
     let centre = heading_centre(heading[rows.clone()].iter().copied());
     let turning = |k: usize| {
@@ -418,40 +428,16 @@ fn trim_turns(rows: Range<usize>, heading: &[f64], roll: Option<&[f64]>, options
     while end > start && turning(end - 1) {
         end -= 1;
     }
+    // The smoothing also ends a run a few seconds before the turn starts:
+    // carry the leg on to the turn itself.
+    let steady = |k: usize| heading[k].is_finite() && !turning(k);
+    while start > 0 && start < end && steady(start - 1) {
+        start -= 1;
+    }
+    while end < heading.len() && end > start && steady(end) {
+        end += 1;
+    }
     start..end
-}
-
-/// Fluxgate fallback: small rotations of the field direction from the
-/// leg's mean direction, projected on each body axis's visible part.
-fn fill_fluxgate_angles(attitude: &mut Attitude, leg: &Leg) {
-    let Some(unit) = &attitude.field_unit else { return };
-    let rows = leg.rows.clone();
-    let mut mean = [0.0; 3];
-    for u in unit[rows.clone()].iter().filter(|u| u[0].is_finite()) {
-        (0..3).for_each(|i| mean[i] += u[i]);
-    }
-    let norm = (mean[0] * mean[0] + mean[1] * mean[1] + mean[2] * mean[2]).sqrt();
-    let reference = mean.map(|m| m / norm);
-    // A rotation θ about body axis a moves u by −θ (a − (a·u)u) in u_ref × u.
-    let visible: [[f64; 3]; 3] = [1, 0, 2].map(|axis| {
-        let mut a = [0.0; 3];
-        a[axis] = 1.0;
-        let along = reference[axis];
-        [0, 1, 2].map(|i| a[i] - along * reference[i])
-    });
-    for k in rows {
-        let u = unit[k];
-        let cross = [
-            reference[1] * u[2] - reference[2] * u[1],
-            reference[2] * u[0] - reference[0] * u[2],
-            reference[0] * u[1] - reference[1] * u[0],
-        ];
-        for (axis, direction) in visible.iter().enumerate() {
-            let weight: f64 = direction.iter().map(|d| d * d).sum();
-            let projection: f64 = (0..3).map(|i| cross[i] * direction[i]).sum();
-            attitude.angles[axis][k] = -(projection / weight.max(1e-6)).to_degrees();
-        }
-    }
 }
 
 /// Deviation of `axis` from level flight over the leg's rows.
@@ -470,6 +456,16 @@ fn deviation(attitude: &Attitude, window: usize, leg: &Leg, axis: usize) -> Vec<
     let mut finite: Vec<f64> = values.iter().copied().filter(|v| v.is_finite()).collect();
     let level = median(&mut finite).unwrap_or(0.0);
     values.iter().map(|v| v - level).collect()
+}
+
+/// What a yaw is measured on: the heading less the leg's heading. The
+/// measurement's baseline, drawn between the level flight either side,
+/// then follows a wandering track through the manoeuvre.
+fn heading_deviation(attitude: &Attitude, leg: &Leg) -> Vec<f64> {
+    attitude.heading_deg[leg.rows.clone()]
+        .iter()
+        .map(|h| heading_difference(*h, leg.heading_deg))
+        .collect()
 }
 
 /// Centred RMS over `window` samples, NaN samples skipped.
@@ -524,66 +520,190 @@ fn active_regions(envelope: &[f64], threshold: f64, join: usize, shortest: usize
     regions
 }
 
+/// An active stretch of a leg: the axis it belongs to, the leg-relative
+/// rows, its strength against the nominal amplitude and the attitude series
+/// (degrees) to measure it on.
+struct Candidate {
+    axis: usize,
+    region: Range<usize>,
+    strength: f64,
+    series: std::rc::Rc<Vec<f64>>,
+}
+
+fn ins_candidates(attitude: &Attitude, leg: &Leg, options: &DetectOptions, dt: f64) -> Vec<Candidate> {
+    let window = samples(options.envelope_s, dt);
+    let mut candidates = Vec::new();
+    for axis in 0..3 {
+        let activity = deviation(attitude, samples(options.heading_smoothing_s, dt), leg, axis);
+        let envelope = rms_envelope(&activity, window);
+        let threshold = options.min_rms_deg[axis].max(options.turbulence_factor * percentile(&envelope, 0.1));
+        let regions = active_regions(
+            &envelope,
+            threshold,
+            samples(options.join_activity_s, dt),
+            samples(2.0, dt),
+        );
+        let series = std::rc::Rc::new(if axis == 2 {
+            heading_deviation(attitude, leg)
+        } else {
+            activity
+        });
+        for region in regions {
+            let peak = region.clone().map(|k| envelope[k]).fold(0.0, f64::max);
+            candidates.push(Candidate {
+                axis,
+                region,
+                strength: peak / options.nominal_amplitude_deg[axis],
+                series: series.clone(),
+            });
+        }
+    }
+    candidates
+}
+
+fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+/// Principal direction of a cloud of 3-vectors (power iteration on the
+/// covariance, a fixed number of steps from a fixed start).
+fn principal_direction(points: &[[f64; 3]]) -> [f64; 3] {
+    let finite: Vec<&[f64; 3]> = points.iter().filter(|p| p.iter().all(|c| c.is_finite())).collect();
+    let count = finite.len().max(1) as f64;
+    let mean = [0, 1, 2].map(|i| finite.iter().map(|p| p[i]).sum::<f64>() / count);
+    let mut covariance = [[0.0; 3]; 3];
+    for p in &finite {
+        let centred = [0, 1, 2].map(|i| p[i] - mean[i]);
+        for i in 0..3 {
+            for j in 0..3 {
+                covariance[i][j] += centred[i] * centred[j];
+            }
+        }
+    }
+    let mut direction = [0.6, 0.5, 0.62];
+    for _ in 0..100 {
+        let next = covariance.map(|row| dot(row, direction));
+        let norm = dot(next, next).sqrt();
+        if norm == 0.0 {
+            break;
+        }
+        direction = next.map(|c| c / norm);
+    }
+    direction
+}
+
+/// Fluxgate fallback: the small rotation $u_{ref} \times u$ of the field
+/// direction from the leg's mean direction, in degrees. A rotation θ about
+/// body axis a gives $-θ\,(a - (a\cdot u)u)$: the direction of the
+/// rotation vector tells the axis, its size over $|a - (a\cdot u)u|$ the angle.
+fn fluxgate_candidates(unit: &[[f64; 3]], leg: &Leg, options: &DetectOptions, dt: f64) -> Vec<Candidate> {
+    let rows = leg.rows.clone();
+    // Level flight's direction: the component-wise median over the leg
+    // (manoeuvres swing both ways about it).
+    let median_of = |i: usize| {
+        let mut values: Vec<f64> = unit[rows.clone()]
+            .iter()
+            .map(|u| u[i])
+            .filter(|v| v.is_finite())
+            .collect();
+        median(&mut values).unwrap_or(0.0)
+    };
+    let level = [0, 1, 2].map(median_of);
+    let reference = level.map(|c| c / dot(level, level).sqrt());
+    let rotation: Vec<[f64; 3]> = unit[rows]
+        .iter()
+        .map(|u| cross(reference, *u).map(f64::to_degrees))
+        .collect();
+
+    // Pitch turns about body y, roll about x, yaw about z.
+    let visible = [1, 0, 2].map(|axis| {
+        let along = reference[axis];
+        [0, 1, 2].map(|i| f64::from(u8::from(i == axis)) - along * reference[i])
+    });
+    let size: Vec<f64> = rotation.iter().map(|w| dot(*w, *w).sqrt()).collect();
+    // The rotation seen of a yaw is a third of the yaw: a longer envelope
+    // keeps it above threshold through its zero crossings.
+    let envelope = rms_envelope(&size, samples(1.7 * options.envelope_s, dt));
+    let threshold = options
+        .fluxgate_min_rms_deg
+        .max(options.turbulence_factor * percentile(&envelope, 0.1));
+    active_regions(
+        &envelope,
+        threshold,
+        samples(options.join_activity_s, dt),
+        samples(2.0, dt),
+    )
+    .into_iter()
+    .map(|region| {
+        let direction = principal_direction(&rotation[region.clone()]);
+        let score = |v: &[f64; 3]| dot(direction, *v).abs() / dot(*v, *v).sqrt();
+        let axis = (0..3)
+            .max_by(|a, b| score(&visible[*a]).total_cmp(&score(&visible[*b])))
+            .unwrap_or(0);
+        let scale = dot(visible[axis], visible[axis]).sqrt().max(1e-3);
+        let series = rotation.iter().map(|w| dot(*w, direction) / scale).collect();
+        Candidate {
+            axis,
+            region,
+            strength: 1.0,
+            series: std::rc::Rc::new(series),
+        }
+    })
+    .collect()
+}
+
 fn leg_manoeuvres(log: &FlightLog, attitude: &Attitude, leg: &Leg, options: &DetectOptions) -> Vec<DetectedManoeuvre> {
     let dt = log.median_interval_s();
-    let window = samples(options.envelope_s, dt);
     let kinds = [ManoeuvreKind::Pitch, ManoeuvreKind::Roll, ManoeuvreKind::Yaw];
-    let mut candidates: Vec<(usize, Range<usize>, f64)> = Vec::new();
-    let mut deviations = Vec::new();
-    for axis in 0..3 {
-        let values = deviation(attitude, samples(options.heading_smoothing_s, dt), leg, axis);
-        let envelope = rms_envelope(&values, window);
-        let turbulence = percentile(&envelope, 0.1);
-        let threshold = options.min_rms_deg[axis].max(options.turbulence_factor * turbulence);
-        let join = samples(options.join_activity_s, dt);
-        for region in active_regions(&envelope, threshold, join, samples(2.0, dt)) {
-            let strength =
-                region.clone().map(|k| envelope[k]).fold(0.0, f64::max) / options.nominal_amplitude_deg[axis];
-            candidates.push((axis, region, strength));
-        }
-        deviations.push(values);
-    }
+    let candidates = match &attitude.field_unit {
+        Some(unit) => fluxgate_candidates(unit, leg, options, dt),
+        None => ins_candidates(attitude, leg, options, dt),
+    };
     // Where axes overlap, the one strongest against its nominal amplitude wins.
-    let kept: Vec<&(usize, Range<usize>, f64)> = candidates
+    let beaten = |c: &Candidate| {
+        candidates.iter().any(|o| {
+            o.axis != c.axis
+                && o.region.start < c.region.end
+                && c.region.start < o.region.end
+                && (o.strength > c.strength || (o.strength == c.strength && o.axis < c.axis))
+        })
+    };
+    candidates
         .iter()
-        .filter(|(axis, region, strength)| {
-            !candidates.iter().any(|(other, r, s)| {
-                other != axis
-                    && r.start < region.end
-                    && region.start < r.end
-                    && (*s > *strength || (*s == *strength && other < axis))
-            })
-        })
-        .collect();
-    kept.into_iter()
-        .filter_map(|(axis, region, _)| {
-            let found = measure(&deviations[*axis], region.clone(), dt);
-            if std::env::var_os("MAGCOMP_DEBUG_DETECT").is_some() {
-                eprintln!(
-                    "leg {} axis {axis} region {:?} t {:.1}-{:.1}: {:?}",
-                    leg.heading_deg,
-                    region,
-                    log.time_s()[leg.rows.start + region.start],
-                    log.time_s()[leg.rows.start + region.end - 1],
-                    found.as_ref().map(|f| (f.half_cycles.clone(), f.amplitude_deg))
-                );
-            }
-            let found = found?;
-            check_regular(&found, options)?;
-            let time = log.time_s();
-            let rows = leg.rows.start + found.start..leg.rows.start + found.end;
-            Some(DetectedManoeuvre {
-                kind: kinds[*axis],
-                heading_deg: leg.heading_deg,
-                t_start: time[rows.start],
-                t_end: time[rows.end - 1],
-                cycles: (found.half_cycles.len() as f64 / 2.0).round(),
-                amplitude_deg: found.amplitude_deg,
-                period_s: found.period_s,
-            })
-        })
+        .filter(|c| !beaten(c))
+        .filter_map(
+            |Candidate {
+                 axis, region, series, ..
+             }| {
+                let found = measure(series, region.clone(), dt)?;
+                check_regular(&found, options)?;
+                (found.amplitude_deg >= options.min_amplitude_deg[*axis]).then_some(())?;
+                let time = log.time_s();
+                let rows = leg.rows.start + found.start..leg.rows.start + found.end;
+                Some(DetectedManoeuvre {
+                    kind: kinds[*axis],
+                    heading_deg: leg.heading_deg,
+                    t_start: time[rows.start],
+                    t_end: time[rows.end - 1],
+                    cycles: (found.half_cycles.len() as f64 / 2.0).round(),
+                    amplitude_deg: found.amplitude_deg,
+                    period_s: found.period_s,
+                })
+            },
+        )
         .collect()
 }
+
+/// Fraction of the largest peak that makes a half-cycle count.
+const STRONG: f64 = 0.4;
 
 /// An oscillation measured in leg-relative rows.
 struct Oscillation {
@@ -591,24 +711,37 @@ struct Oscillation {
     end: usize,
     /// Lengths of the strong half-cycles, samples.
     half_cycles: Vec<usize>,
+    /// Their peak deviations, degrees.
+    peaks: Vec<f64>,
     amplitude_deg: f64,
     period_s: f64,
 }
 
+/// Standard deviation over mean.
+fn relative_spread(values: &[f64]) -> f64 {
+    let mean = values.iter().sum::<f64>() / values.len() as f64;
+    (values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / values.len() as f64).sqrt() / mean
+}
+
+/// A manoeuvre is a regular oscillation: enough strong half-cycles, of
+/// similar lengths and similar peaks. Turbulence seldom is.
 fn check_regular(found: &Oscillation, options: &DetectOptions) -> Option<()> {
-    if found.half_cycles.len() < 3 {
+    if found.half_cycles.len() < options.min_half_cycles {
         return None;
     }
     let lengths: Vec<f64> = found.half_cycles.iter().map(|&l| l as f64).collect();
-    let mean = lengths.iter().sum::<f64>() / lengths.len() as f64;
-    let spread = (lengths.iter().map(|l| (l - mean).powi(2)).sum::<f64>() / lengths.len() as f64).sqrt() / mean;
-    (spread <= options.max_half_cycle_spread).then_some(())
+    let regular = relative_spread(&lengths) <= options.max_half_cycle_spread
+        && relative_spread(&found.peaks) <= options.max_peak_spread;
+    regular.then_some(())
 }
 
-/// The median of the finite values in `range`, or `None`.
-fn level_in(values: &[f64], range: Range<usize>) -> Option<f64> {
+/// The median of the finite values in `range` and their scatter (1.4826 ×
+/// the median absolute deviation, a robust standard deviation), or `None`.
+fn level_in(values: &[f64], range: Range<usize>) -> Option<(f64, f64)> {
     let mut finite: Vec<f64> = values[range].iter().copied().filter(|v| v.is_finite()).collect();
-    median(&mut finite)
+    let level = median(&mut finite)?;
+    let mut deviations: Vec<f64> = finite.iter().map(|v| (v - level).abs()).collect();
+    Some((level, 1.4826 * median(&mut deviations)?))
 }
 
 /// Measures the oscillation around an active region against a baseline
@@ -616,17 +749,41 @@ fn level_in(values: &[f64], range: Range<usize>) -> Option<f64> {
 fn measure(values: &[f64], region: Range<usize>, dt: f64) -> Option<Oscillation> {
     let n = values.len();
     let pad = samples(4.0, dt);
-    let (outer_start, outer_end) = (region.start.saturating_sub(pad), (region.end + pad).min(n));
-    let before = level_in(
-        values,
-        region.start.saturating_sub(2 * pad)..region.start.saturating_sub(pad / 2).max(1),
-    );
-    let after = level_in(values, (region.end + pad / 2).min(n - 1)..(region.end + 2 * pad).min(n));
+    let outer = region.start.saturating_sub(pad)..(region.end + pad).min(n);
+    // First against the level flight a few seconds either side of the
+    // active stretch, then again against the level flight right next to
+    // the oscillation found, so a drifting heading is followed closely.
+    let before = region.start.saturating_sub(2 * pad)..region.start.saturating_sub(pad / 2).max(1);
+    let after = (region.end + pad / 2).min(n - 1)..(region.end + 2 * pad).min(n);
+    let rough = measure_between(values, outer.clone(), before, after, dt)?;
+    let near = samples(3.0, dt);
+    let gap = samples(0.3, dt);
+    let before = rough.start.saturating_sub(near)..rough.start.saturating_sub(gap).max(1);
+    let after = (rough.end + gap).min(n - 1)..(rough.end + near).min(n);
+    measure_between(values, outer, before, after, dt)
+}
+
+/// Measures the oscillation in `outer` against a baseline drawn between
+/// the medians of the level flight in `before` and `after`.
+fn measure_between(
+    values: &[f64],
+    outer: Range<usize>,
+    before: Range<usize>,
+    after: Range<usize>,
+    dt: f64,
+) -> Option<Oscillation> {
+    let (outer_start, outer_end) = (outer.start, outer.end);
+    let (before, after) = (level_in(values, before), level_in(values, after));
     let (first, last) = match (before, after) {
-        (Some(a), Some(b)) => (a, b),
-        (Some(a), None) | (None, Some(a)) => (a, a),
+        (Some((a, _)), Some((b, _))) => (a, b),
+        (Some((a, _)), None) | (None, Some((a, _))) => (a, a),
         (None, None) => (0.0, 0.0),
     };
+    let noise = before
+        .iter()
+        .chain(&after)
+        .map(|(_, spread)| *spread)
+        .fold(0.0, f64::max);
     let span = (outer_end - outer_start).max(1) as f64;
     let centred: Vec<f64> = (outer_start..outer_end)
         .map(|k| values[k] - (first + (last - first) * (k - outer_start) as f64 / span))
@@ -638,12 +795,15 @@ fn measure(values: &[f64], region: Range<usize>, dt: f64) -> Option<Oscillation>
     if peak == 0.0 {
         return None;
     }
-    let strong = |v: f64| v.is_finite() && v.abs() >= 0.5 * peak;
+    // A half-cycle is strong when it reaches 40 % of the largest: a
+    // wandering heading or turbulence can shift single peaks by a third.
+    let strong = |v: f64| v.is_finite() && v.abs() >= STRONG * peak;
     let first_strong = centred.iter().position(|v| strong(*v))?;
     let last_strong = centred.iter().rposition(|v| strong(*v))?;
     // The oscillation leaves level flight where it first passes a tenth of
-    // its peak: level flight offset by turbulence never gets that far.
-    let edge = 0.1 * peak;
+    // its peak, or three times the level flight's own scatter if that is
+    // larger: turbulence alone rarely gets that far.
+    let edge = (0.1 * peak).max(3.0 * noise).min(0.45 * peak);
     let beyond = |v: f64, like: f64| v.is_finite() && v.abs() > edge && (v > 0.0) == (like > 0.0);
     let mut start = first_strong;
     while start > 0 && beyond(centred[start - 1], centred[first_strong]) {
@@ -653,12 +813,12 @@ fn measure(values: &[f64], region: Range<usize>, dt: f64) -> Option<Oscillation>
     while end + 1 < centred.len() && beyond(centred[end + 1], centred[last_strong]) {
         end += 1;
     }
-    let (half_cycles, mut peaks) = half_cycles(&centred[start..=end], 0.5 * peak);
-    let amplitude_deg = median(&mut peaks)?;
+    let (half_cycles, peaks) = half_cycles(&centred[start..=end], STRONG * peak);
+    let amplitude_deg = median(&mut peaks.clone())?;
     let mean_half = half_cycles.iter().sum::<usize>() as f64 / half_cycles.len().max(1) as f64;
-    // A sine passes a tenth of its peak asin(0.1)/2π ≈ 1.6 % of a period
-    // after its zero crossing: step back to the crossings.
-    let lead = (0.016 * 2.0 * mean_half).round() as usize;
+    // A sine passes a fraction f of its peak asin(f)/2π of a period after
+    // its zero crossing: step back to the crossings.
+    let lead = ((edge / amplitude_deg).min(1.0).asin() / std::f64::consts::PI * mean_half).round() as usize;
     let (start, end) = (start.saturating_sub(lead), (end + lead).min(centred.len() - 1));
     let duration_s = (end + 1 - start) as f64 * dt;
     Some(Oscillation {
@@ -666,6 +826,7 @@ fn measure(values: &[f64], region: Range<usize>, dt: f64) -> Option<Oscillation>
         end: outer_start + end + 1,
         period_s: duration_s / (half_cycles.len() as f64 / 2.0).max(0.5),
         half_cycles,
+        peaks,
         amplitude_deg,
     })
 }

@@ -17,6 +17,7 @@ use std::path::{Path, PathBuf};
 
 use magcomp::compensate::compensate;
 use magcomp::config::Pipeline;
+use magcomp::detect::detect_manoeuvres;
 use magcomp::fit::fit_channels;
 use magcomp::ingest::read_flight_log;
 use magcomp::pipeline::{choose_channels, choose_vector_sensor};
@@ -59,7 +60,13 @@ fn replay(pipeline: &Pipeline, job: &magcomp::config::FlightJob) -> Expected {
     let log = read_flight_log(&job.input, &pipeline.ingest).unwrap();
     let sensor = choose_vector_sensor(&log, job.vector.as_deref()).unwrap();
     let channels = choose_channels(&log, job.channels.as_deref()).unwrap();
-    let models = fit_channels(&log, &sensor, &channels, &job.windows, &pipeline.fit).unwrap();
+    let windows = if job.windows.is_empty() {
+        let detection = detect_manoeuvres(&log, &pipeline.detect).unwrap();
+        detection.calibration_windows(pipeline.detect.window_margin_s)
+    } else {
+        job.windows.clone()
+    };
+    let models = fit_channels(&log, &sensor, &channels, &windows, &pipeline.fit).unwrap();
     let compensated = compensate(&log, &models, pipeline.level).unwrap();
     let truth = job.input.with_extension("truth.csv");
     let figures = models

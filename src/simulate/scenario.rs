@@ -157,6 +157,9 @@ pub struct Calibration {
     pub omit: Vec<String>,
     /// Standard deviation of attitude turbulence on the legs, degrees.
     pub turbulence_deg: f64,
+    /// Standard deviation of a slow (30 s) drift of the held heading on the
+    /// legs, degrees: a pilot who lets the track wander.
+    pub heading_wander_deg: f64,
     /// Ground speed, m/s.
     pub speed_m_s: f64,
 }
@@ -174,6 +177,7 @@ impl Default for Calibration {
             yaw_deg: 5.0,
             omit: Vec::new(),
             turbulence_deg: 0.05,
+            heading_wander_deg: 0.0,
             speed_m_s: 70.0,
         }
     }

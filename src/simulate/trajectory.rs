@@ -82,6 +82,7 @@ pub fn fly(scenario: &Scenario, random: &mut Random) -> FlightPath {
         dt_s,
         random,
         turbulence: [[0.0; 3]; 2],
+        wander: (0.0, 0.0),
         pose: Pose {
             height_agl_m: raw.calibration.altitude_m,
             yaw_deg: raw.calibration.headings_deg.first().copied().unwrap_or(0.0),
@@ -111,6 +112,8 @@ struct Pilot<'r> {
     random: &'r mut Random,
     /// Gust drive and the attitude's response to it, degrees (roll, pitch, yaw).
     turbulence: [[f64; 3]; 2],
+    /// Slow drift of a loosely held heading, degrees, and its size.
+    wander: (f64, f64),
     pose: Pose,
     path: FlightPath,
 }
@@ -132,6 +135,13 @@ impl Pilot<'_> {
         let keep = (-self.dt_s / 1.5).exp();
         let follow = (-self.dt_s / 0.4).exp();
         let kick = (1.0 - keep * keep).sqrt() * sigma_deg;
+        let (offset, size) = self.wander;
+        if size > 0.0 {
+            let drift = (-self.dt_s / 30.0).exp();
+            self.wander.0 = drift * offset + (1.0 - drift * drift).sqrt() * size * self.random.normal();
+        } else {
+            self.wander.0 = 0.0;
+        }
         let [drive, response] = &mut self.turbulence;
         for (axis, share) in [1.0, 0.6, 0.4].iter().enumerate() {
             drive[axis] = keep * drive[axis] + share * kick * self.random.normal();
@@ -145,7 +155,7 @@ impl Pilot<'_> {
         let gust = self.turbulence[1];
         self.pose.roll_deg = offset[0] + gust[0];
         self.pose.pitch_deg = offset[1] + gust[1];
-        self.pose.yaw_deg = heading_deg + offset[2] + gust[2];
+        self.pose.yaw_deg = heading_deg + offset[2] + gust[2] + self.wander.0;
         let track = self.pose.yaw_deg.to_radians();
         self.pose.northing_m += speed_m_s * self.dt_s * track.cos();
         self.pose.easting_m += speed_m_s * self.dt_s * track.sin();
@@ -209,6 +219,7 @@ impl Pilot<'_> {
 
     fn fly_box(&mut self, scenario: &Scenario) {
         let box_ = &scenario.raw.calibration;
+        self.wander.1 = box_.heading_wander_deg;
         let omitted: Vec<(ManoeuvreKind, f64)> = box_.omit.iter().filter_map(|o| parse_omission(o).ok()).collect();
         let start = self.now();
         let headings = &box_.headings_deg;
@@ -232,6 +243,7 @@ impl Pilot<'_> {
             }
             self.turn(heading, next, 3.0, box_.speed_m_s, box_.turbulence_deg);
         }
+        self.wander.1 = 0.0;
     }
 
     /// Turns towards the survey area, descends to survey height in a

@@ -1,0 +1,309 @@
+//! Manoeuvre detection against the simulator's truth: accuracy over many
+//! pilots, headings, turbulence levels and seeds, and each edge case of the
+//! detection issue on its own.
+
+use magcomp::detect::{detect_manoeuvres, AttitudeSource, DetectOptions, Detection};
+use magcomp::flight_log::{Channel, FlightLog};
+use magcomp::simulate::scenario::{RawScenario, Scenario};
+use magcomp::simulate::truth::TrueManoeuvre;
+use magcomp::simulate::{simulate, SimulatedFlight};
+use rayon::prelude::*;
+
+/// Intersection over union of two time windows on a 0.1 s grid.
+fn overlap(a: (f64, f64), b: (f64, f64)) -> f64 {
+    let dt = 0.1;
+    let inter = (a.1.min(b.1) - a.0.max(b.0) + dt).max(0.0);
+    let union = a.1.max(b.1) - a.0.min(b.0) + dt;
+    inter / union
+}
+
+/// How detection did against the truth.
+#[derive(Debug, Default)]
+struct Score {
+    truth: usize,
+    found: usize,
+    worst_iou: f64,
+    spurious: usize,
+    wrong_kind: usize,
+}
+
+/// Each true manoeuvre is found when a detected window of the same kind
+/// overlaps it with IoU ≥ 0.9; a detected window that matches no true
+/// manoeuvre at IoU ≥ 0.9 is spurious (a fragment counts as spurious).
+fn score(detection: &Detection, truth: &[TrueManoeuvre]) -> Score {
+    let mut result = Score {
+        truth: truth.len(),
+        worst_iou: 1.0,
+        ..Score::default()
+    };
+    for m in truth {
+        let best = detection
+            .manoeuvres
+            .iter()
+            .map(|d| (overlap((d.t_start, d.t_end), (m.t_start, m.t_end)), d.kind))
+            .max_by(|a, b| a.0.total_cmp(&b.0));
+        let (iou, kind) = best.unwrap_or((0.0, m.kind));
+        result.worst_iou = result.worst_iou.min(iou);
+        if iou >= 0.9 && kind == m.kind {
+            result.found += 1;
+        } else if iou >= 0.9 {
+            result.wrong_kind += 1;
+        }
+    }
+    result.spurious = detection
+        .manoeuvres
+        .iter()
+        .filter(|d| {
+            !truth
+                .iter()
+                .any(|m| overlap((d.t_start, d.t_end), (m.t_start, m.t_end)) >= 0.9)
+        })
+        .count();
+    result
+}
+
+fn fly(seed: u64, edit: impl FnOnce(&mut RawScenario)) -> SimulatedFlight {
+    let mut raw = RawScenario {
+        seed,
+        ..RawScenario::default()
+    };
+    raw.survey.line_count = 2;
+    raw.survey.line_length_m = 5000.0;
+    edit(&mut raw);
+    simulate(&Scenario::try_from(raw).unwrap()).unwrap()
+}
+
+fn detect(flight: &SimulatedFlight) -> Detection {
+    detect_manoeuvres(&flight.log, &DetectOptions::default()).unwrap()
+}
+
+fn assert_perfect(name: &str, flight: &SimulatedFlight, detection: &Detection) -> Score {
+    let result = score(detection, &flight.truth.manoeuvres);
+    assert_eq!(
+        (result.found, result.spurious, result.wrong_kind),
+        (result.truth, 0, 0),
+        "{name}: {result:?}\n{:#?}",
+        detection.manoeuvres
+    );
+    result
+}
+
+#[test]
+fn detection_finds_every_manoeuvre_across_pilots_headings_and_turbulence() {
+    // 48 flights: the seed draws the pilot's cycle counts, periods and
+    // amplitudes; headings, period ranges, turbulence and survey
+    // turbulence vary with the index.
+    let outcomes: Vec<(u64, Score)> = (0..48u64)
+        .into_par_iter()
+        .map(|index| {
+            let flight = fly(100 + index, |raw| {
+                let start = (index * 37 % 90) as f64;
+                raw.calibration.headings_deg = (0..4)
+                    .map(|k| (start + 90.0 * k as f64 + (index % 3) as f64 * 7.0 * k as f64) % 360.0)
+                    .collect();
+                raw.calibration.period_s = [[4.0, 8.0], [3.0, 6.0], [6.0, 10.0]][index as usize % 3];
+                raw.calibration.cycles = [[2, 4], [3, 3], [2, 2], [4, 4]][index as usize % 4];
+                raw.calibration.turbulence_deg = [0.05, 0.2, 0.4][index as usize % 3];
+                raw.calibration.heading_wander_deg = [0.0, 1.0][index as usize % 2];
+                raw.survey.turbulence_deg = [0.8, 1.5][index as usize % 2];
+            });
+            let detection = detect(&flight);
+            (index, score(&detection, &flight.truth.manoeuvres))
+        })
+        .collect();
+    let (mut truth, mut found, mut spurious, mut worst) = (0, 0, 0, 1.0f64);
+    for (index, result) in &outcomes {
+        println!("flight {index:2}: {result:?}");
+        truth += result.truth;
+        found += result.found;
+        spurious += result.spurious;
+        worst = worst.min(result.worst_iou);
+    }
+    println!("{found}/{truth} manoeuvres found at IoU ≥ 0.9, {spurious} spurious, worst IoU {worst:.3}");
+    assert_eq!((found, spurious), (truth, 0));
+    assert!(worst >= 0.9);
+}
+
+#[test]
+fn two_and_four_cycle_pilots() {
+    for cycles in [2, 4] {
+        let flight = fly(7, |raw| raw.calibration.cycles = [cycles, cycles]);
+        let detection = detect(&flight);
+        assert_perfect(&format!("{cycles} cycles"), &flight, &detection);
+        assert!(detection.manoeuvres.iter().all(|m| m.cycles == cycles as f64));
+    }
+}
+
+#[test]
+fn periods_from_three_to_ten_seconds() {
+    for period in [[3.0, 3.2], [9.5, 10.0]] {
+        let flight = fly(8, |raw| raw.calibration.period_s = period);
+        let detection = detect(&flight);
+        assert_perfect(&format!("period {period:?}"), &flight, &detection);
+        for (found, truth) in detection.manoeuvres.iter().zip(&flight.truth.manoeuvres) {
+            // The mean period over whole cycles, measured between crossings
+            // located to a sample (0.1 s) at each end.
+            assert!(
+                (found.period_s - truth.period_s).abs() < 0.2 / truth.cycles as f64 + 0.05,
+                "{found:?} vs {truth:?}"
+            );
+            assert!((found.amplitude_deg - truth.amplitude_deg).abs() < 0.05 * truth.amplitude_deg + 0.3);
+        }
+    }
+}
+
+#[test]
+fn headings_off_the_cardinal_points_are_reported_as_flown() {
+    let headings = vec![37.0, 127.0, 217.0, 307.0];
+    let flight = fly(9, |raw| raw.calibration.headings_deg = headings.clone());
+    let detection = detect(&flight);
+    assert_perfect("headings", &flight, &detection);
+    assert_eq!(detection.boxes.len(), 1);
+    for (found, flown) in detection.boxes[0].headings_deg.iter().zip(&headings) {
+        // Turbulence of 0.05° on the legs: the leg's heading to 0.5°.
+        assert!((found - flown).abs() < 0.5, "{found} vs {flown}");
+    }
+}
+
+#[test]
+fn a_box_flown_twice_is_two_boxes() {
+    let flight = fly(10, |raw| raw.calibration.repeats = 2);
+    let detection = detect(&flight);
+    assert_perfect("two boxes", &flight, &detection);
+    assert_eq!(detection.boxes.len(), 2);
+    for (found, truth) in detection.boxes.iter().zip(&flight.truth.boxes) {
+        assert!(overlap((found.t_start, found.t_end), (truth.t_start, truth.t_end)) > 0.9);
+    }
+}
+
+#[test]
+fn a_missing_manoeuvre_is_reported_not_invented() {
+    let flight = fly(11, |raw| {
+        raw.calibration.omit = vec!["yaw@290".into(), "pitch@110".into()]
+    });
+    let detection = detect(&flight);
+    assert_perfect("omitted", &flight, &detection);
+    assert_eq!(detection.manoeuvres.len(), 10);
+    assert_eq!(
+        detection.boxes[0].missing,
+        vec!["no pitch on heading 110", "no yaw on heading 290"]
+    );
+}
+
+#[test]
+fn a_wandering_track_and_heavy_turbulence() {
+    // A held heading drifting 1° rms (over ~30 s) under the manoeuvres,
+    // 0.5° of turbulence on the legs and 2° over the survey lines: all found.
+    let flight = fly(12, |raw| {
+        raw.calibration.heading_wander_deg = 1.0;
+        raw.calibration.turbulence_deg = 0.5;
+        raw.survey.turbulence_deg = 2.0;
+    });
+    assert_perfect("wander", &flight, &detect(&flight));
+    // Twice the drift: a 5° yaw can sink into it. What is lost is reported
+    // missing, never replaced by a fragment.
+    let flight = fly(12, |raw| {
+        raw.calibration.heading_wander_deg = 2.0;
+        raw.calibration.turbulence_deg = 0.6;
+        raw.survey.turbulence_deg = 2.0;
+    });
+    let detection = detect(&flight);
+    let result = score(&detection, &flight.truth.manoeuvres);
+    println!("heavy wander: {result:?}");
+    assert_eq!((result.spurious, result.wrong_kind), (0, 0));
+    let missing: usize = detection.boxes.iter().map(|b| b.missing.len()).sum();
+    assert_eq!(missing, result.truth - result.found);
+}
+
+/// The flight with `rows` of the INS set missing, or removed entirely.
+fn with_gap(log: &FlightLog, rows: std::ops::Range<usize>, remove: bool) -> FlightLog {
+    let keep = |k: &usize| !(remove && rows.contains(k));
+    let time: Vec<f64> = (0..log.len()).filter(keep).map(|k| log.time_s()[k]).collect();
+    let channels = log
+        .channels()
+        .iter()
+        .map(|c| Channel {
+            values: (0..log.len())
+                .filter(keep)
+                .map(|k| {
+                    if c.name.starts_with("ins_") && rows.contains(&k) {
+                        f64::NAN
+                    } else {
+                        c.values[k]
+                    }
+                })
+                .collect(),
+            ..c.clone()
+        })
+        .collect();
+    FlightLog::new(log.source(), log.time_column(), time, channels).unwrap()
+}
+
+#[test]
+fn gaps_and_dropouts_lose_at_most_the_manoeuvre_they_hit() {
+    let flight = fly(13, |_| {});
+    let truth = &flight.truth.manoeuvres;
+    let row = |t: f64| flight.log.time_s().partition_point(|&x| x < t);
+    // An INS dropout of 1 s inside the fourth manoeuvre, and 30 s of the
+    // recording missing in the level flight after the seventh.
+    let dropout = row(truth[3].t_start + 3.0)..row(truth[3].t_start + 4.0);
+    let pause = row(truth[6].t_end + 2.0)..row(truth[6].t_end + 5.0);
+    for (name, log) in [
+        ("dropout", with_gap(&flight.log, dropout, false)),
+        ("removed rows", with_gap(&flight.log, pause, true)),
+    ] {
+        let detection = detect_manoeuvres(&log, &DetectOptions::default()).unwrap();
+        let result = score(&detection, truth);
+        println!("{name}: {result:?}");
+        // Never a fragment or a wrong kind; the manoeuvre under the gap may be
+        // lost (and is then reported missing), no other.
+        assert_eq!((result.spurious, result.wrong_kind), (0, 0), "{name}");
+        assert!(result.found >= truth.len() - 1, "{name}: {result:?}");
+        let missing: usize = detection.boxes.iter().map(|b| b.missing.len()).sum();
+        assert_eq!(missing, truth.len() - result.found, "{name}");
+    }
+}
+
+#[test]
+fn without_an_ins_the_fluxgate_stands_in() {
+    let flight = fly(14, |_| {});
+    let log = &flight.log;
+    let channels: Vec<Channel> = log
+        .channels()
+        .iter()
+        .filter(|c| !c.name.starts_with("ins_"))
+        .cloned()
+        .collect();
+    let without = FlightLog::new(log.source(), log.time_column(), log.time_s().to_vec(), channels).unwrap();
+    let detection = detect_manoeuvres(&without, &DetectOptions::default()).unwrap();
+    assert_eq!(detection.attitude_source, AttitudeSource::Fluxgate);
+    assert!(detection.notes.iter().any(|n| n.contains("fluxgate")));
+    assert_perfect("fluxgate", &flight, &detection);
+    // Headings are magnetic: true heading minus the declination (about
+    // −13° at the default site), within 1.5° for the fluxgate's own field.
+    let declination = magcomp::simulate::igrf::Igrf::fourteenth()
+        .field(45.3, -75.7, 3080.0, 2026.45)
+        .declination_deg();
+    for (found, flown) in detection.boxes[0].headings_deg.iter().zip([20.0, 110.0, 200.0, 290.0]) {
+        let expected = (flown - declination) % 360.0;
+        assert!(
+            ((found - expected + 540.0) % 360.0 - 180.0).abs() < 1.5,
+            "{found} vs {expected}"
+        );
+    }
+}
+
+#[test]
+fn survey_lines_alone_give_no_manoeuvres() {
+    let flight = fly(15, |raw| {
+        raw.calibration.repeats = 0;
+        raw.survey.line_count = 4;
+        raw.survey.turbulence_deg = 2.0;
+    });
+    let detection = detect(&flight);
+    assert!(
+        detection.manoeuvres.is_empty() && detection.boxes.is_empty(),
+        "{:#?}",
+        detection.manoeuvres
+    );
+}
