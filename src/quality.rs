@@ -42,6 +42,102 @@ pub struct WindowQuality {
     pub peak_to_peak_after_nt: f64,
 }
 
+/// Peak-to-peak of one manoeuvre's band-passed signature, nT.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct FomCell {
+    /// Uncompensated.
+    pub before_nt: f64,
+    /// Compensated.
+    pub after_nt: f64,
+}
+
+/// One heading of the FOM table.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct FomRow {
+    /// Heading, degrees (the first window's).
+    pub heading_deg: f64,
+    /// Pitch manoeuvre.
+    pub pitch: Option<FomCell>,
+    /// Roll manoeuvre.
+    pub roll: Option<FomCell>,
+    /// Yaw manoeuvre.
+    pub yaw: Option<FomCell>,
+    /// RMS of the band-passed signal over every window on this heading, nT.
+    pub rms_before_nt: f64,
+    /// RMS of the band-passed residual over every window on this heading, nT.
+    pub rms_after_nt: f64,
+}
+
+impl FomRow {
+    fn cells(&self) -> impl Iterator<Item = &FomCell> {
+        [&self.pitch, &self.roll, &self.yaw].into_iter().flatten()
+    }
+}
+
+/// Headings closer than this share a row of the FOM table, degrees.
+const SAME_HEADING_DEG: f64 = 15.0;
+
+/// The classic FOM table (SEG dictionary, "figure of merit"): labelled
+/// windows grouped by heading, one cell per manoeuvre kind. When a
+/// manoeuvre was flown more than once (a second box), the first is the
+/// table's; the heading's RMS figures use them all. The FOM is the sum of
+/// the cells' peak-to-peaks.
+pub fn fom_table(windows: &[WindowQuality], fits: &[WindowFit]) -> Vec<FomRow> {
+    let mut rows: Vec<(FomRow, Vec<f64>, Vec<f64>)> = Vec::new();
+    for (quality, fit) in windows.iter().zip(fits) {
+        let (Some(kind), Some(heading)) = (quality.kind, quality.heading_deg) else {
+            continue;
+        };
+        let near =
+            |row: &FomRow| ((row.heading_deg - heading + 540.0).rem_euclid(360.0) - 180.0).abs() < SAME_HEADING_DEG;
+        let index = match rows.iter().position(|(row, _, _)| near(row)) {
+            Some(index) => index,
+            None => {
+                let row = FomRow {
+                    heading_deg: heading,
+                    pitch: None,
+                    roll: None,
+                    yaw: None,
+                    rms_before_nt: 0.0,
+                    rms_after_nt: 0.0,
+                };
+                rows.push((row, Vec::new(), Vec::new()));
+                rows.len() - 1
+            }
+        };
+        let (row, before, after) = &mut rows[index];
+        let cell = match kind {
+            ManoeuvreKind::Pitch => &mut row.pitch,
+            ManoeuvreKind::Roll => &mut row.roll,
+            ManoeuvreKind::Yaw => &mut row.yaw,
+        };
+        cell.get_or_insert(FomCell {
+            before_nt: quality.peak_to_peak_before_nt,
+            after_nt: quality.peak_to_peak_after_nt,
+        });
+        before.extend_from_slice(&fit.band_before_nt);
+        after.extend_from_slice(&fit.band_after_nt);
+    }
+    rows.into_iter()
+        .map(|(mut row, before, after)| {
+            (row.rms_before_nt, row.rms_after_nt) = (root_mean_square(&before), root_mean_square(&after));
+            row
+        })
+        .collect()
+}
+
+/// FOM before and after, and the number of manoeuvres summed, of a table.
+pub fn figure_of_merit(table: &[FomRow]) -> Option<(f64, f64, usize)> {
+    let cells: Vec<&FomCell> = table.iter().flat_map(FomRow::cells).collect();
+    (!cells.is_empty()).then(|| {
+        (
+            cells.iter().map(|c| c.before_nt).sum(),
+            cells.iter().map(|c| c.after_nt).sum(),
+            cells.len(),
+        )
+    })
+}
+
 /// Figures for one compensated channel.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct ChannelQuality {
@@ -57,12 +153,14 @@ pub struct ChannelQuality {
     pub noise_4th_difference_before_nt: f64,
     /// Fourth-difference noise of the compensated channel, nT RMS.
     pub noise_4th_difference_after_nt: f64,
-    /// FOM before compensation (sum of labelled windows' peak-to-peaks), nT.
+    /// FOM before compensation (sum of the FOM table's peak-to-peaks), nT.
     pub fom_before_nt: Option<f64>,
     /// FOM after compensation, nT.
     pub fom_after_nt: Option<f64>,
-    /// Number of labelled manoeuvre windows summed in the FOM.
+    /// Number of manoeuvres summed in the FOM (12 for a whole box).
     pub fom_manoeuvres: usize,
+    /// The classic FOM table: one row per heading, a cell per manoeuvre.
+    pub fom_table: Vec<FomRow>,
     /// Per-window figures.
     pub windows: Vec<WindowQuality>,
     /// Rows with no compensated value.
@@ -83,11 +181,8 @@ pub fn assess_quality(log: &FlightLog, model: &FittedTollesLawson, compensated: 
         .collect();
     let (band_std_before_nt, band_std_after_nt) = (standard_deviation(&before), standard_deviation(&after));
     let windows: Vec<WindowQuality> = model.windows.iter().map(window_quality).collect();
-    let labelled: Vec<&WindowQuality> = windows
-        .iter()
-        .filter(|w| w.kind.is_some() && w.heading_deg.is_some())
-        .collect();
-    let fom = |f: fn(&WindowQuality) -> f64| (!labelled.is_empty()).then(|| labelled.iter().map(|w| f(w)).sum());
+    let table = fom_table(&windows, &model.windows);
+    let fom = figure_of_merit(&table);
     let scalar = &log
         .channel(&model.channel)
         .map(|c| c.values.as_slice())
@@ -99,15 +194,17 @@ pub fn assess_quality(log: &FlightLog, model: &FittedTollesLawson, compensated: 
         improvement_ratio: band_std_before_nt / band_std_after_nt,
         noise_4th_difference_before_nt: fourth_difference_noise(scalar),
         noise_4th_difference_after_nt: fourth_difference_noise(&compensated.values),
-        fom_before_nt: fom(|w| w.peak_to_peak_before_nt),
-        fom_after_nt: fom(|w| w.peak_to_peak_after_nt),
-        fom_manoeuvres: labelled.len(),
+        fom_before_nt: fom.map(|f| f.0),
+        fom_after_nt: fom.map(|f| f.1),
+        fom_manoeuvres: fom.map_or(0, |f| f.2),
+        fom_table: table,
         windows,
         rows_missing: compensated.values.iter().filter(|v| !v.is_finite()).count(),
     }
 }
 
-fn window_quality(fit: &WindowFit) -> WindowQuality {
+/// Figures of one window's band-passed signal and residual.
+pub fn window_quality(fit: &WindowFit) -> WindowQuality {
     let w = &fit.window;
     WindowQuality {
         label: w.display_label(),
@@ -166,6 +263,66 @@ pub fn fourth_difference_noise(values: &[f64]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::windows::CalibrationWindow;
+
+    /// A window whose band-passed signature is a sine of peak-to-peak
+    /// `before` and whose residual is one of `after`.
+    fn sine_window(kind: ManoeuvreKind, heading_deg: f64, before: f64, after: f64) -> WindowFit {
+        let sine = |p2p: f64| {
+            (0..200)
+                .map(|k| 0.5 * p2p * (k as f64 * 0.1 * 2.0 * std::f64::consts::PI / 4.0).sin())
+                .collect()
+        };
+        WindowFit {
+            window: CalibrationWindow {
+                kind: Some(kind),
+                heading_deg: Some(heading_deg),
+                ..CalibrationWindow::new(0.0, 20.0)
+            },
+            stacked_rows: 0..200,
+            samples_used: 200,
+            samples_dropped: 0,
+            band_before_nt: sine(before),
+            band_after_nt: sine(after),
+        }
+    }
+
+    #[test]
+    fn the_fom_is_the_sum_of_the_twelve_peak_to_peaks() {
+        use ManoeuvreKind::*;
+        let mut fits = Vec::new();
+        let (mut before, mut after) = (0.0, 0.0);
+        for (h, heading) in [20.0, 110.0, 200.0, 290.0].iter().enumerate() {
+            for (k, kind) in [Pitch, Roll, Yaw].into_iter().enumerate() {
+                let (b, a) = (1.0 + h as f64 + 0.25 * k as f64, 0.1 * (1 + h + k) as f64);
+                fits.push(sine_window(kind, *heading, b, a));
+                (before, after) = (before + b, after + a);
+            }
+        }
+        // A second box: its windows join the headings' rows, not the sum.
+        fits.push(sine_window(Roll, 112.0, 50.0, 5.0));
+        let windows: Vec<WindowQuality> = fits.iter().map(window_quality).collect();
+        let table = fom_table(&windows, &fits);
+        assert_eq!(table.len(), 4);
+        let (fom_before, fom_after, count) = figure_of_merit(&table).unwrap();
+        // A 4 s sine sampled every 0.1 s hits its peaks exactly: the sum is exact
+        // to rounding.
+        assert_eq!(count, 12);
+        assert!(
+            (fom_before - before).abs() < 1e-12 && (fom_after - after).abs() < 1e-12,
+            "{fom_before} {fom_after}"
+        );
+        assert_eq!(table[1].roll.unwrap().before_nt, windows[4].peak_to_peak_before_nt);
+        // The heading's RMS covers all four of its windows (pitch 2, roll
+        // 2.25 and 50, yaw 2.5 nT peak-to-peak): whole periods of a sine of
+        // peak-to-peak p have RMS p/(2√2).
+        let expected = ((2f64.powi(2) + 2.25f64.powi(2) + 2.5f64.powi(2) + 50f64.powi(2)) / 4.0).sqrt() / 8f64.sqrt();
+        assert!(
+            (table[1].rms_before_nt - expected).abs() < 1e-9,
+            "{} vs {expected}",
+            table[1].rms_before_nt
+        );
+    }
 
     #[test]
     fn fourth_difference_of_a_cubic_is_zero_and_of_alternating_noise_is_one() {
