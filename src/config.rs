@@ -52,6 +52,7 @@ use crate::ingest::align::AlignmentOptions;
 use crate::ingest::{ColumnNames, IngestOptions, TopicMapping};
 use crate::solve::{Criterion, LambdaChoice, SolveOptions};
 use crate::tolles_lawson::{EddyTerms, InducedTerms, TermSet};
+use crate::transfer::TransferOptions;
 use crate::windows::{read_detect_json, CalibrationWindow};
 
 /// `[filter]` as written.
@@ -166,6 +167,14 @@ pub struct RawFlight {
     pub windows_file: Option<PathBuf>,
 }
 
+/// `[quality]` as written.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RawQuality {
+    /// Transfer check of the calibration.
+    pub transfer: TransferOptions,
+}
+
 /// pipeline.toml as written.
 #[derive(Debug, Clone, Default, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -185,6 +194,8 @@ pub struct RawPipeline {
     pub output: RawOutput,
     /// Manoeuvre detection thresholds.
     pub detect: DetectOptions,
+    /// Quality checks.
+    pub quality: RawQuality,
     /// Flights to process.
     #[serde(rename = "flight")]
     pub flights: Vec<RawFlight>,
@@ -214,6 +225,8 @@ pub struct Pipeline {
     pub level: LevelConvention,
     /// Manoeuvre detection, used when a flight gives no windows.
     pub detect: DetectOptions,
+    /// Transfer check of the calibration.
+    pub transfer: TransferOptions,
     /// Output folder.
     pub output_directory: PathBuf,
     /// Flights to process.
@@ -250,6 +263,12 @@ impl Pipeline {
             solve: solve_options(&raw.fit).map_err(bad)?,
         };
         check_detect(&raw.detect).map_err(bad)?;
+        let factor = raw.quality.transfer.warning_factor;
+        if !(factor.is_finite() && factor >= 1.0) {
+            return Err(bad(format!(
+                "[quality.transfer] warning_factor = {factor}: give a factor of 1 or more (2 is usual)"
+            )));
+        }
         let margin_s = raw.detect.window_margin_s;
         let flights = raw
             .flights
@@ -265,6 +284,7 @@ impl Pipeline {
             fit,
             level: raw.fit.level,
             detect: raw.detect,
+            transfer: raw.quality.transfer,
             output_directory: base.join(raw.output.directory),
             flights,
         })

@@ -126,6 +126,18 @@ pub fn fit_channels(
         .collect()
 }
 
+/// The band-passed, trimmed, stacked data of a set of windows.
+struct BandData {
+    /// Design columns.
+    columns: Vec<Vec<f64>>,
+    /// Scalar readings.
+    target: Vec<f64>,
+    /// How each window contributed (band-passed signal filled in).
+    windows: Vec<WindowFit>,
+    /// Sample rate the filter was designed for, Hz.
+    sample_rate_hz: f64,
+}
+
 /// Fits one scalar channel.
 pub fn fit_channel(
     log: &FlightLog,
@@ -134,6 +146,71 @@ pub fn fit_channel(
     windows: &[CalibrationWindow],
     options: &FitOptions,
 ) -> Result<FittedTollesLawson> {
+    let BandData {
+        columns,
+        target,
+        windows: mut fits,
+        sample_rate_hz,
+    } = band_data(log, sensor, channel, windows, options)?;
+    let folds: Vec<Range<usize>> = fits.iter().map(|f| f.stacked_rows.clone()).collect();
+    let solution = solve(columns, &target, &folds, &options.solve).map_err(|e| Error::Fit {
+        channel: channel.into(),
+        message: e.to_string(),
+    })?;
+    for fit in &mut fits {
+        fit.band_after_nt = fit
+            .stacked_rows
+            .clone()
+            .map(|i| target[i] - solution.fitted[i])
+            .collect();
+    }
+    Ok(FittedTollesLawson {
+        channel: channel.into(),
+        vector_sensor: sensor.prefix.clone(),
+        terms: options.terms,
+        term_names: options.terms.names(),
+        coefficients: solution.coefficients.clone(),
+        filter: options.filter,
+        sample_rate_hz,
+        solution,
+        windows: fits,
+    })
+}
+
+impl FittedTollesLawson {
+    /// The model's band-passed residual on `windows`, which it need not have
+    /// been fitted on: held-out figures for transfer checks and diagnosis.
+    pub fn held_out(
+        &self,
+        log: &FlightLog,
+        sensor: &VectorSensor,
+        windows: &[CalibrationWindow],
+        options: &FitOptions,
+    ) -> Result<Vec<WindowFit>> {
+        let data = band_data(log, sensor, &self.channel, windows, options)?;
+        let mut fits = data.windows;
+        for fit in &mut fits {
+            fit.band_after_nt = fit
+                .stacked_rows
+                .clone()
+                .map(|i| {
+                    let predicted: f64 = data.columns.iter().zip(&self.coefficients).map(|(c, b)| c[i] * b).sum();
+                    data.target[i] - predicted
+                })
+                .collect();
+        }
+        Ok(fits)
+    }
+}
+
+/// Band-passes and stacks `windows` of one channel.
+fn band_data(
+    log: &FlightLog,
+    sensor: &VectorSensor,
+    channel: &str,
+    windows: &[CalibrationWindow],
+    options: &FitOptions,
+) -> Result<BandData> {
     let scalar = &log
         .channel(channel)
         .ok_or_else(|| Error::MissingColumn {
@@ -175,29 +252,14 @@ pub fn fit_channel(
         });
         start += used;
     }
-    let folds: Vec<Range<usize>> = fits.iter().map(|f| f.stacked_rows.clone()).collect();
-    let solution = solve(columns, &target, &folds, &options.solve).map_err(|e| Error::Fit {
-        channel: channel.into(),
-        message: e.to_string(),
-    })?;
     for fit in &mut fits {
         fit.band_before_nt = target[fit.stacked_rows.clone()].to_vec();
-        fit.band_after_nt = fit
-            .stacked_rows
-            .clone()
-            .map(|i| target[i] - solution.fitted[i])
-            .collect();
     }
-    Ok(FittedTollesLawson {
-        channel: channel.into(),
-        vector_sensor: sensor.prefix.clone(),
-        terms: options.terms,
-        term_names: options.terms.names(),
-        coefficients: solution.coefficients.clone(),
-        filter: settings,
-        sample_rate_hz,
-        solution,
+    Ok(BandData {
+        columns,
+        target,
         windows: fits,
+        sample_rate_hz,
     })
 }
 

@@ -60,6 +60,7 @@ pub mod segments;
 pub mod simulate;
 pub mod solve;
 pub mod tolles_lawson;
+pub mod transfer;
 pub mod windows;
 
 pub use error::{Error, Result};

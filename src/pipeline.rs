@@ -15,6 +15,8 @@ use crate::ingest::{detect_format, read_flight_log, Format, IngestOptions};
 use crate::output::mcap::McapExtras;
 use crate::output::{added_column_names, write_atomic, write_compensated};
 use crate::quality::{assess_quality, ChannelQuality};
+use crate::transfer::{check_transfer, TransferOptions};
+use rayon::prelude::*;
 
 /// Where one flight's outputs go.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -82,6 +84,8 @@ pub struct StageOptions {
     pub level: LevelConvention,
     /// Manoeuvre detection, used when a flight gives no windows.
     pub detect: DetectOptions,
+    /// Transfer check of the calibration.
+    pub transfer: TransferOptions,
 }
 
 impl From<&crate::config::Pipeline> for StageOptions {
@@ -92,6 +96,7 @@ impl From<&crate::config::Pipeline> for StageOptions {
             fit: pipeline.fit.clone(),
             level: pipeline.level,
             detect: pipeline.detect.clone(),
+            transfer: pipeline.transfer.clone(),
         }
     }
 }
@@ -113,15 +118,20 @@ pub fn process_flight(job: &FlightJob, options: &StageOptions, outputs: &FlightO
     let models = fit_channels(&log, &sensor, &channels, &windows, &options.fit)?;
     let compensation = compensate(&log, &models, options.level)?;
     let quality: Vec<ChannelQuality> = models
-        .iter()
+        .par_iter()
         .zip(&compensation.channels)
-        .map(|(model, channel)| assess_quality(&log, model, channel))
-        .collect();
+        .map(|(model, channel)| {
+            let mut quality = assess_quality(&log, model, channel);
+            quality.transfer = check_transfer(&log, &sensor, model, &windows, &options.fit, &options.transfer)?;
+            Ok(quality)
+        })
+        .collect::<Result<_>>()?;
     let added_columns = added_column_names(&log, &outputs.compensated, &compensation)?;
     let mut notes = renaming_notes(&channels, &added_columns);
     if let Some(detection) = &detected {
         notes.extend(detection_notes(detection));
     }
+    notes.extend(quality.iter().filter_map(|q| q.transfer.as_ref()?.warning.clone()));
     let result = FlightResult {
         flight: job.input.clone(),
         rows: log.len(),
@@ -303,6 +313,16 @@ pub fn summary(result: &FlightResult) -> String {
             );
         }
         text += &format!("\n    {}\n", solution.reason);
+        if let Some(check) = &quality.transfer {
+            let how = match check.method {
+                crate::transfer::TransferMethod::SecondBox => "second box",
+                crate::transfer::TransferMethod::LeaveOneHeadingOut => "leave one heading out",
+            };
+            text += &format!(
+                "    held-out FOM ({how}): {:.2} nT against {:.2} nT in sample ({:.1}×)\n",
+                check.held_out_fom_nt, check.in_sample_fom_nt, check.ratio
+            );
+        }
     }
     for note in &result.notes {
         text += &format!("  note: {note}\n");

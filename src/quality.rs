@@ -161,6 +161,8 @@ pub struct ChannelQuality {
     pub fom_manoeuvres: usize,
     /// The classic FOM table: one row per heading, a cell per manoeuvre.
     pub fom_table: Vec<FomRow>,
+    /// In-sample against held-out FOM (second box, or leave one heading out).
+    pub transfer: Option<crate::transfer::TransferCheck>,
     /// Per-window figures.
     pub windows: Vec<WindowQuality>,
     /// Rows with no compensated value.
@@ -198,6 +200,7 @@ pub fn assess_quality(log: &FlightLog, model: &FittedTollesLawson, compensated: 
         fom_after_nt: fom.map(|f| f.1),
         fom_manoeuvres: fom.map_or(0, |f| f.2),
         fom_table: table,
+        transfer: None,
         windows,
         rows_missing: compensated.values.iter().filter(|v| !v.is_finite()).count(),
     }

@@ -1,0 +1,215 @@
+//! Does the calibration transfer? Coefficients often fit one box and fail
+//! the next, so the FOM is also measured on manoeuvres the fit did not see.
+//!
+//! - Two boxes or more: fit on the first box, measure the FOM of the second
+//!   (held out), and compare with the FOM of the second box fitted on
+//!   itself (in sample).
+//! - One box: leave one heading out: for each heading, fit on the other
+//!   headings and measure that heading's manoeuvres; the held-out FOM sums
+//!   those cells, the in-sample FOM is the ordinary fit's.
+//!
+//! A held-out FOM more than `warning_factor` times the in-sample one is a
+//! warning: the model explains the calibration it saw better than it will
+//! explain the survey.
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::Result;
+use crate::fit::{fit_channel, FitOptions, FittedTollesLawson, WindowFit};
+use crate::flight_log::{FlightLog, VectorSensor};
+use crate::quality::{figure_of_merit, fom_table, window_quality};
+use crate::windows::CalibrationWindow;
+
+/// `[quality]` settings of the transfer check.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TransferOptions {
+    /// Warn when the held-out FOM exceeds the in-sample FOM by this factor.
+    pub warning_factor: f64,
+}
+
+impl Default for TransferOptions {
+    fn default() -> Self {
+        TransferOptions { warning_factor: 2.0 }
+    }
+}
+
+/// How the held-out figures were obtained.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TransferMethod {
+    /// Fitted on the first box, measured on the second.
+    SecondBox,
+    /// Each heading measured with a fit on the other headings.
+    LeaveOneHeadingOut,
+}
+
+/// In-sample and held-out FOM of one channel.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct TransferCheck {
+    /// How the held-out figure was made.
+    pub method: TransferMethod,
+    /// Compensated FOM of the measured manoeuvres, fitted on them, nT.
+    pub in_sample_fom_nt: f64,
+    /// Compensated FOM of the same manoeuvres, fitted without them, nT.
+    pub held_out_fom_nt: f64,
+    /// Manoeuvres in each FOM.
+    pub manoeuvres: usize,
+    /// Held-out over in-sample.
+    pub ratio: f64,
+    /// Set when the ratio exceeds the warning factor.
+    pub warning: Option<String>,
+}
+
+/// Groups labelled windows into boxes: in time order, a heading flown
+/// again starts the next box.
+pub fn group_into_boxes(windows: &[CalibrationWindow]) -> Vec<Vec<CalibrationWindow>> {
+    let mut ordered: Vec<&CalibrationWindow> = windows.iter().filter(|w| w.heading_deg.is_some()).collect();
+    ordered.sort_by(|a, b| a.t_start.total_cmp(&b.t_start));
+    let mut boxes: Vec<Vec<CalibrationWindow>> = Vec::new();
+    let mut current_heading: Option<f64> = None;
+    for window in ordered {
+        let heading = window.heading_deg.unwrap_or(0.0);
+        let new_leg = current_heading.is_none_or(|h| angle_apart(h, heading) >= 15.0);
+        let repeated = new_leg
+            && boxes.last().is_some_and(|b| {
+                b.iter()
+                    .any(|w| angle_apart(w.heading_deg.unwrap_or(0.0), heading) < 15.0)
+            });
+        if boxes.is_empty() || repeated {
+            boxes.push(Vec::new());
+        }
+        current_heading = Some(heading);
+        if let Some(current) = boxes.last_mut() {
+            current.push(window.clone());
+        }
+    }
+    boxes
+}
+
+fn angle_apart(a: f64, b: f64) -> f64 {
+    ((a - b + 540.0).rem_euclid(360.0) - 180.0).abs()
+}
+
+/// The compensated FOM of a set of held-out or fitted windows.
+fn compensated_fom(fits: &[WindowFit]) -> Option<(f64, usize)> {
+    let qualities: Vec<_> = fits.iter().map(window_quality).collect();
+    figure_of_merit(&fom_table(&qualities, fits)).map(|(_, after, count)| (after, count))
+}
+
+/// Runs the transfer check of one channel on its labelled calibration
+/// windows; `None` when there are too few headings to leave one out.
+pub fn check_transfer(
+    log: &FlightLog,
+    sensor: &VectorSensor,
+    model: &FittedTollesLawson,
+    windows: &[CalibrationWindow],
+    options: &FitOptions,
+    transfer: &TransferOptions,
+) -> Result<Option<TransferCheck>> {
+    let boxes = group_into_boxes(windows);
+    let (method, in_sample, held_out) = match boxes.as_slice() {
+        [first, second, ..] => {
+            let trained = fit_channel(log, sensor, &model.channel, first, options)?;
+            let own = fit_channel(log, sensor, &model.channel, second, options)?;
+            let held = trained.held_out(log, sensor, second, options)?;
+            (
+                TransferMethod::SecondBox,
+                compensated_fom(&own.windows),
+                compensated_fom(&held),
+            )
+        }
+        [only] => {
+            let held = leave_one_heading_out(log, sensor, &model.channel, only, options)?;
+            let Some(held) = held else { return Ok(None) };
+            let own: Vec<WindowFit> = model
+                .windows
+                .iter()
+                .filter(|w| only.iter().any(|o| o.t_start == w.window.t_start))
+                .cloned()
+                .collect();
+            (
+                TransferMethod::LeaveOneHeadingOut,
+                compensated_fom(&own),
+                compensated_fom(&held),
+            )
+        }
+        [] => return Ok(None),
+    };
+    let (Some((in_sample_fom_nt, manoeuvres)), Some((held_out_fom_nt, _))) = (in_sample, held_out) else {
+        return Ok(None);
+    };
+    let ratio = held_out_fom_nt / in_sample_fom_nt;
+    let warning = (ratio > transfer.warning_factor).then(|| {
+        let what = match method {
+            TransferMethod::SecondBox => "fitted on the first box, the model gives the second box",
+            TransferMethod::LeaveOneHeadingOut => "fitted without each heading in turn, the model gives those headings",
+        };
+        format!(
+            "{}: {what} a FOM of {held_out_fom_nt:.2} nT against {in_sample_fom_nt:.2} nT fitted on them ({ratio:.1}×): the calibration may not transfer to the survey",
+            model.channel
+        )
+    });
+    Ok(Some(TransferCheck {
+        method,
+        in_sample_fom_nt,
+        held_out_fom_nt,
+        manoeuvres,
+        ratio,
+        warning,
+    }))
+}
+
+/// Each heading's windows measured with a fit on the other headings;
+/// `None` with fewer than three headings.
+fn leave_one_heading_out(
+    log: &FlightLog,
+    sensor: &VectorSensor,
+    channel: &str,
+    windows: &[CalibrationWindow],
+    options: &FitOptions,
+) -> Result<Option<Vec<WindowFit>>> {
+    let mut headings: Vec<f64> = Vec::new();
+    for window in windows {
+        let heading = window.heading_deg.unwrap_or(0.0);
+        if !headings.iter().any(|h| angle_apart(*h, heading) < 15.0) {
+            headings.push(heading);
+        }
+    }
+    if headings.len() < 3 {
+        return Ok(None);
+    }
+    let mut held = Vec::new();
+    for heading in headings {
+        let (out, rest): (Vec<CalibrationWindow>, Vec<CalibrationWindow>) = windows
+            .iter()
+            .cloned()
+            .partition(|w| angle_apart(w.heading_deg.unwrap_or(0.0), heading) < 15.0);
+        let model = fit_channel(log, sensor, channel, &rest, options)?;
+        held.extend(model.held_out(log, sensor, &out, options)?);
+    }
+    Ok(Some(held))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn window(t: f64, heading: f64) -> CalibrationWindow {
+        CalibrationWindow {
+            heading_deg: Some(heading),
+            ..CalibrationWindow::new(t, t + 10.0)
+        }
+    }
+
+    #[test]
+    fn a_heading_flown_again_starts_the_next_box() {
+        let windows: Vec<CalibrationWindow> = [0.0, 90.0, 180.0, 270.0, 0.0, 90.0]
+            .iter()
+            .enumerate()
+            .flat_map(|(leg, h)| (0..3).map(move |k| window(leg as f64 * 100.0 + k as f64 * 20.0, *h)))
+            .collect();
+        let boxes = group_into_boxes(&windows);
+        assert_eq!(boxes.iter().map(Vec::len).collect::<Vec<_>>(), vec![12, 6]);
+    }
+}
