@@ -49,6 +49,7 @@ pub mod error;
 pub mod filter;
 pub mod fit;
 pub mod flight_log;
+pub mod heading_error;
 pub mod ingest;
 pub mod linalg;
 pub mod messages;

@@ -313,6 +313,12 @@ pub fn summary(result: &FlightResult) -> String {
             );
         }
         text += &format!("\n    {}\n", solution.reason);
+        if let Some(error) = &quality.heading_error {
+            text += &format!(
+                "    heading error ({} matched samples on reciprocal lines): {:.3} → {:.3} nT\n",
+                error.pairs, error.before_nt, error.after_nt
+            );
+        }
         if let Some(check) = &quality.transfer {
             let how = match check.method {
                 crate::transfer::TransferMethod::SecondBox => "second box",

@@ -161,6 +161,9 @@ pub struct ChannelQuality {
     pub fom_manoeuvres: usize,
     /// The classic FOM table: one row per heading, a cell per manoeuvre.
     pub fom_table: Vec<FomRow>,
+    /// Level difference between opposite-direction survey lines over the
+    /// same ground, when there are such lines.
+    pub heading_error: Option<crate::heading_error::HeadingError>,
     /// In-sample against held-out FOM (second box, or leave one heading out).
     pub transfer: Option<crate::transfer::TransferCheck>,
     /// Per-window figures.
@@ -201,6 +204,7 @@ pub fn assess_quality(log: &FlightLog, model: &FittedTollesLawson, compensated: 
         fom_manoeuvres: fom.map_or(0, |f| f.2),
         fom_table: table,
         transfer: None,
+        heading_error: crate::heading_error::heading_error(log, scalar, &compensated.values, 25.0),
         windows,
         rows_missing: compensated.values.iter().filter(|v| !v.is_finite()).count(),
     }

@@ -69,3 +69,47 @@ fn leave_one_heading_out_flags_a_calibration_that_does_not_transfer() {
     assert!(check.ratio > 2.0 && check.warning.is_some(), "{check:?}");
     assert!(coupled.notes.iter().any(|n| n.contains("may not transfer")));
 }
+
+#[test]
+fn reciprocal_lines_measure_the_heading_error_before_and_after() {
+    // One line flown north then south over the same ground (a heading test).
+    let mut raw = RawScenario {
+        seed: 6,
+        ..RawScenario::default()
+    };
+    (
+        raw.survey.line_count,
+        raw.survey.line_spacing_m,
+        raw.survey.line_length_m,
+    ) = (2, 0.0, 6000.0);
+    let flight = magcomp::simulate::simulate(&Scenario::try_from(raw).unwrap()).unwrap();
+    let folder = tempfile::tempdir().unwrap();
+    let path = folder.path().join("flight.csv");
+    magcomp::output::write_flight_log(&flight.log, &path).unwrap();
+    let result = run(&path, &folder.path().join("out"));
+    for quality in &result.channels {
+        let error = quality.heading_error.as_ref().unwrap();
+        // The same pairing on the true Earth field: what differs between the
+        // passes without any aircraft (external variation in the minutes
+        // between them, and the few metres between matched samples).
+        let truth = flight.truth.earth_total_nt(&quality.channel).unwrap();
+        let log = magcomp::ingest::read_flight_log(&path, &Default::default()).unwrap();
+        let natural = magcomp::heading_error::heading_error(&log, truth, truth, 25.0).unwrap();
+        println!("{}: {error:?}, natural {:.3} nT", quality.channel, natural.after_nt);
+        assert!(error.pairs > 500);
+        // Compensated, the heading error is the natural one within 0.05 nT
+        // (the tail's noise floor and the fit's own error); uncompensated it
+        // is the aircraft's heading effect, several times larger.
+        assert!(
+            (error.after_nt - natural.after_nt).abs() < 0.05,
+            "{error:?} vs {natural:?}"
+        );
+        assert!((error.before_nt - natural.before_nt).abs() > 0.5, "{error:?}");
+    }
+    // Parallel lines a spacing apart never overlap: no figure.
+    let clean = run(
+        &PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("sample_flights/clean.csv"),
+        &folder.path().join("c"),
+    );
+    assert!(clean.channels.iter().all(|q| q.heading_error.is_none()));
+}

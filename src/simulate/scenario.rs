@@ -193,7 +193,8 @@ pub struct Survey {
     pub line_heading_deg: f64,
     /// Line length, m.
     pub line_length_m: f64,
-    /// Distance between lines, m.
+    /// Distance between lines, m; 0 reflies one line in both directions
+    /// (a heading test).
     pub line_spacing_m: f64,
     /// Height above ground, m.
     pub altitude_m: f64,
@@ -527,8 +528,8 @@ fn check_flight_plan(raw: &RawScenario) -> std::result::Result<(), String> {
     if speeds.iter().any(|s| !(*s > 1.0 && *s < 400.0)) {
         return Err("speed_m_s must lie between 1 and 400 m/s".into());
     }
-    if raw.survey.line_count > 0 && !(raw.survey.line_length_m > 0.0 && raw.survey.line_spacing_m > 0.0) {
-        return Err("[survey] line_length_m and line_spacing_m must be positive".into());
+    if raw.survey.line_count > 0 && !(raw.survey.line_length_m > 0.0 && raw.survey.line_spacing_m >= 0.0) {
+        return Err("[survey] line_length_m must be positive and line_spacing_m not negative (0 reflies the same line both ways)".into());
     }
     Ok(())
 }
