@@ -188,13 +188,7 @@ impl Detection {
     pub fn calibration_windows(&self, margin_s: f64) -> Vec<CalibrationWindow> {
         self.manoeuvres
             .iter()
-            .map(|m| CalibrationWindow {
-                t_start: m.t_start - margin_s,
-                t_end: m.t_end + margin_s,
-                label: String::new(),
-                kind: Some(m.kind),
-                heading_deg: Some(m.heading_deg),
-            })
+            .map(|m| CalibrationWindow::manoeuvre(m.kind, m.heading_deg, m.t_start, m.t_end, margin_s))
             .collect()
     }
 }

@@ -26,13 +26,11 @@ use std::f64::consts::PI;
 use std::io::Write;
 use std::path::Path;
 
-use serde::Serialize;
-
 use crate::error::Result;
-use crate::output::{write_atomic, write_json};
+use crate::output::write_atomic;
 use crate::simulate::physics::{dipole_field_nt, Vector};
 use crate::simulate::random::Random;
-use crate::windows::{CalibrationWindow, ManoeuvreKind};
+use crate::windows::{write_detect_json, CalibrationWindow, ManoeuvreKind};
 
 /// What to fly.
 #[derive(Debug, Clone, PartialEq)]
@@ -401,29 +399,6 @@ fn path_positions(spec: &SampleFlightSpec, states: &[State]) -> Vec<(f64, f64, f
         .collect()
 }
 
-/// The manoeuvre file, in DETECT.json shape (CONTRACT §3).
-#[derive(Serialize)]
-struct WindowFile<'a> {
-    manoeuvres: Vec<DetectEntry>,
-    boxes: [BoxEntry; 1],
-    #[serde(skip)]
-    _flight: &'a SampleFlight,
-}
-
-#[derive(Serialize)]
-struct DetectEntry {
-    kind: ManoeuvreKind,
-    heading_deg: f64,
-    t_start: f64,
-    t_end: f64,
-}
-
-#[derive(Serialize)]
-struct BoxEntry {
-    t_start: f64,
-    t_end: f64,
-}
-
 /// Writes the flight as CSV and its manoeuvre windows as DETECT.json.
 pub fn write(flight: &SampleFlight, csv_path: &Path, windows_path: &Path) -> Result<()> {
     write_atomic(csv_path, |w| {
@@ -445,24 +420,7 @@ pub fn write(flight: &SampleFlight, csv_path: &Path, windows_path: &Path) -> Res
         }
         Ok(())
     })?;
-    let file = WindowFile {
-        manoeuvres: flight
-            .manoeuvres
-            .iter()
-            .map(|m| DetectEntry {
-                kind: m.kind.unwrap_or(ManoeuvreKind::Pitch),
-                heading_deg: m.heading_deg.unwrap_or(0.0),
-                t_start: m.t_start,
-                t_end: m.t_end,
-            })
-            .collect(),
-        boxes: [BoxEntry {
-            t_start: flight.calibration_box.0,
-            t_end: flight.calibration_box.1,
-        }],
-        _flight: flight,
-    };
-    write_json(windows_path, "the manoeuvre windows", &file)
+    write_detect_json(windows_path, &flight.manoeuvres, &[flight.calibration_box])
 }
 
 #[cfg(test)]

@@ -64,6 +64,18 @@ impl CalibrationWindow {
         }
     }
 
+    /// A manoeuvre's window widened by `margin_s` of level flight on both
+    /// sides, labelled with its kind and heading.
+    pub fn manoeuvre(kind: ManoeuvreKind, heading_deg: f64, t_start: f64, t_end: f64, margin_s: f64) -> Self {
+        CalibrationWindow {
+            t_start: t_start - margin_s,
+            t_end: t_end + margin_s,
+            label: String::new(),
+            kind: Some(kind),
+            heading_deg: Some(heading_deg),
+        }
+    }
+
     /// Parses `T0:T1` as given to `--window`.
     pub fn parse(text: &str) -> Result<Self> {
         let bad = |message: String| Error::Config {
@@ -110,17 +122,48 @@ impl CalibrationWindow {
 }
 
 /// The manoeuvre list of a DETECT.json file (CONTRACT §3).
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, Serialize)]
 struct DetectFile {
     manoeuvres: Vec<DetectedManoeuvre>,
+    #[serde(default)]
+    boxes: Vec<BoxSpan>,
 }
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, Serialize)]
+struct BoxSpan {
+    t_start: f64,
+    t_end: f64,
+}
+
+#[derive(Debug, Deserialize, Serialize)]
 struct DetectedManoeuvre {
     kind: ManoeuvreKind,
     heading_deg: f64,
     t_start: f64,
     t_end: f64,
+}
+
+/// Writes labelled manoeuvre windows and boxes (start, end) as DETECT.json
+/// (CONTRACT §3); unlabelled windows are left out.
+pub fn write_detect_json(path: &Path, manoeuvres: &[CalibrationWindow], boxes: &[(f64, f64)]) -> Result<()> {
+    let file = DetectFile {
+        manoeuvres: manoeuvres
+            .iter()
+            .filter_map(|w| {
+                Some(DetectedManoeuvre {
+                    kind: w.kind?,
+                    heading_deg: w.heading_deg?,
+                    t_start: w.t_start,
+                    t_end: w.t_end,
+                })
+            })
+            .collect(),
+        boxes: boxes
+            .iter()
+            .map(|&(t_start, t_end)| BoxSpan { t_start, t_end })
+            .collect(),
+    };
+    crate::output::write_json(path, "the calibration windows", &file)
 }
 
 /// Reads the manoeuvres of a DETECT.json file as calibration windows, each
@@ -135,13 +178,7 @@ pub fn read_detect_json(path: &Path, margin_s: f64) -> Result<Vec<CalibrationWin
     let windows: Vec<CalibrationWindow> = file
         .manoeuvres
         .into_iter()
-        .map(|m| CalibrationWindow {
-            t_start: m.t_start - margin_s,
-            t_end: m.t_end + margin_s,
-            label: String::new(),
-            kind: Some(m.kind),
-            heading_deg: Some(m.heading_deg),
-        })
+        .map(|m| CalibrationWindow::manoeuvre(m.kind, m.heading_deg, m.t_start, m.t_end, margin_s))
         .collect();
     windows
         .iter()

@@ -18,7 +18,7 @@ use crate::output::{write_atomic, write_json};
 use crate::simulate::physics::{AircraftField, FluxgateCalibration};
 use crate::simulate::scenario::{Effect, Scenario, SensorLocation};
 use crate::simulate::trajectory::FlightPath;
-use crate::windows::{CalibrationWindow, ManoeuvreKind};
+use crate::windows::{write_detect_json, CalibrationWindow, ManoeuvreKind};
 
 /// What one scalar sensor would have read without the aircraft.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -176,13 +176,7 @@ impl Truth {
     pub fn calibration_windows(&self, margin_s: f64) -> Vec<CalibrationWindow> {
         self.manoeuvres
             .iter()
-            .map(|m| CalibrationWindow {
-                t_start: m.t_start - margin_s,
-                t_end: m.t_end + margin_s,
-                label: String::new(),
-                kind: Some(m.kind),
-                heading_deg: Some(m.heading_deg),
-            })
+            .map(|m| CalibrationWindow::manoeuvre(m.kind, m.heading_deg, m.t_start, m.t_end, margin_s))
             .collect()
     }
 
@@ -204,7 +198,8 @@ impl Truth {
         let windows = stem.with_extension("windows.json");
         write_json(&json, "the simulation truth", self)?;
         write_atomic(&csv, |out| self.write_csv(out))?;
-        write_json(&windows, "the calibration windows", &DetectShape::new(self))?;
+        let boxes: Vec<(f64, f64)> = self.boxes.iter().map(|b| (b.t_start, b.t_end)).collect();
+        write_detect_json(&windows, &self.calibration_windows(0.0), &boxes)?;
         Ok([json, csv, windows])
     }
 
@@ -228,39 +223,6 @@ impl Truth {
             writeln!(out, ",{:.4}", self.external_nt[row])?;
         }
         Ok(())
-    }
-}
-
-/// DETECT.json (CONTRACT §3): the manoeuvres as flown.
-#[derive(Serialize)]
-struct DetectShape {
-    manoeuvres: Vec<DetectEntry>,
-    boxes: Vec<TimeSpan>,
-}
-
-#[derive(Serialize)]
-struct DetectEntry {
-    kind: ManoeuvreKind,
-    heading_deg: f64,
-    t_start: f64,
-    t_end: f64,
-}
-
-impl DetectShape {
-    fn new(truth: &Truth) -> Self {
-        DetectShape {
-            manoeuvres: truth
-                .calibration_windows(0.0)
-                .into_iter()
-                .map(|w| DetectEntry {
-                    kind: w.kind.unwrap_or(ManoeuvreKind::Pitch),
-                    heading_deg: w.heading_deg.unwrap_or(0.0),
-                    t_start: w.t_start,
-                    t_end: w.t_end,
-                })
-                .collect(),
-            boxes: truth.boxes.clone(),
-        }
     }
 }
 
