@@ -168,11 +168,22 @@ pub struct RawFlight {
 }
 
 /// `[quality]` as written.
-#[derive(Debug, Clone, Default, Deserialize)]
+#[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct RawQuality {
     /// Transfer check of the calibration.
     pub transfer: TransferOptions,
+    /// FOM limit the report judges against, nT.
+    pub fom_limit_nt: f64,
+}
+
+impl Default for RawQuality {
+    fn default() -> Self {
+        RawQuality {
+            transfer: TransferOptions::default(),
+            fom_limit_nt: 1.5,
+        }
+    }
 }
 
 /// pipeline.toml as written.
@@ -227,6 +238,8 @@ pub struct Pipeline {
     pub detect: DetectOptions,
     /// Transfer check of the calibration.
     pub transfer: TransferOptions,
+    /// FOM limit the report judges against, nT.
+    pub fom_limit_nt: f64,
     /// Output folder.
     pub output_directory: PathBuf,
     /// Flights to process.
@@ -263,6 +276,12 @@ impl Pipeline {
             solve: solve_options(&raw.fit).map_err(bad)?,
         };
         check_detect(&raw.detect).map_err(bad)?;
+        if !(raw.quality.fom_limit_nt.is_finite() && raw.quality.fom_limit_nt > 0.0) {
+            return Err(bad(format!(
+                "[quality] fom_limit_nt = {}: give a positive number of nT (1.5 is usual)",
+                raw.quality.fom_limit_nt
+            )));
+        }
         let factor = raw.quality.transfer.warning_factor;
         if !(factor.is_finite() && factor >= 1.0) {
             return Err(bad(format!(
@@ -285,6 +304,7 @@ impl Pipeline {
             level: raw.fit.level,
             detect: raw.detect,
             transfer: raw.quality.transfer,
+            fom_limit_nt: raw.quality.fom_limit_nt,
             output_directory: base.join(raw.output.directory),
             flights,
         })

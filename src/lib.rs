@@ -56,6 +56,7 @@ pub mod messages;
 pub mod output;
 pub mod pipeline;
 pub mod quality;
+pub mod report;
 pub mod sample_flight;
 pub mod segments;
 pub mod simulate;

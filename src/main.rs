@@ -94,6 +94,9 @@ struct CompensateArgs {
     /// Model JSON to write.
     #[arg(long)]
     model: Option<PathBuf>,
+    /// HTML quality report to write (default: OUT's name with _report.html).
+    #[arg(long)]
+    html: Option<PathBuf>,
     /// Calibration window T0:T1 in the file's time unit; repeat for several.
     /// Without windows, the manoeuvres are detected in the flight.
     #[arg(long = "window")]
@@ -202,6 +205,13 @@ fn compensate(args: CompensateArgs) -> anyhow::Result<()> {
         compensated: args.out.clone(),
         model_json: args.model,
         quality_json: args.report,
+        report_html: Some(args.html.unwrap_or_else(|| {
+            let stem = args
+                .out
+                .file_stem()
+                .map_or("flight".into(), |s| s.to_string_lossy().into_owned());
+            args.out.with_file_name(format!("{stem}_report.html"))
+        })),
     };
     let bar = spinner(format!("compensating {}", args.flight.display()));
     let result = process_flight(&job, &stage_options(&pipeline), &outputs);

@@ -27,10 +27,13 @@ pub struct FlightOutputs {
     pub model_json: Option<PathBuf>,
     /// Quality JSON, if wanted.
     pub quality_json: Option<PathBuf>,
+    /// HTML quality report (and its figures as JSON beside it), if wanted.
+    pub report_html: Option<PathBuf>,
 }
 
 impl FlightOutputs {
-    /// `<dir>/<stem>_compensated.csv`, `_model.json` and `_quality.json`.
+    /// `<dir>/<stem>_compensated.csv`, `_model.json`, `_quality.json` and
+    /// `_report.html`.
     pub fn in_directory(directory: &Path, input: &Path) -> Self {
         let stem = input
             .file_stem()
@@ -45,6 +48,7 @@ impl FlightOutputs {
             compensated: directory.join(format!("{stem}_compensated.{extension}")),
             model_json: Some(directory.join(format!("{stem}_model.json"))),
             quality_json: Some(directory.join(format!("{stem}_quality.json"))),
+            report_html: Some(directory.join(format!("{stem}_report.html"))),
         }
     }
 }
@@ -86,6 +90,8 @@ pub struct StageOptions {
     pub detect: DetectOptions,
     /// Transfer check of the calibration.
     pub transfer: TransferOptions,
+    /// FOM limit the report judges against, nT.
+    pub fom_limit_nt: f64,
 }
 
 impl From<&crate::config::Pipeline> for StageOptions {
@@ -97,6 +103,7 @@ impl From<&crate::config::Pipeline> for StageOptions {
             level: pipeline.level,
             detect: pipeline.detect.clone(),
             transfer: pipeline.transfer.clone(),
+            fom_limit_nt: pipeline.fom_limit_nt,
         }
     }
 }
@@ -162,6 +169,9 @@ pub fn process_flight(job: &FlightJob, options: &StageOptions, outputs: &FlightO
         &result.added_columns,
         &extras,
     )?;
+    if let Some(path) = &outputs.report_html {
+        crate::report::write_report(path, &log, &result, &compensation, options.fom_limit_nt)?;
+    }
     for (path, text) in [(&outputs.model_json, model_text), (&outputs.quality_json, quality_text)] {
         if let Some(path) = path {
             write_atomic(path, |w| std::io::Write::write_all(w, text.as_bytes()))?;

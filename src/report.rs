@@ -1,0 +1,535 @@
+//! The HTML quality report: one self-contained file with SVG plots, from
+//! which a geophysicist can decide whether to accept the calibration.
+//!
+//! Sections: verdict per channel; attitude timeline with the calibration
+//! windows shaded; each manoeuvre's band-passed signal before and after;
+//! the FOM table with pass/fail against `fom_limit_nt`; the PRESS curve
+//! with the chosen λ and the singular values; the coefficients; the survey
+//! lines coloured by compensated anomaly; per-line noise. The same figures
+//! go to a JSON file beside it.
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use plotters::prelude::*;
+use serde::Serialize;
+
+use crate::compensate::Compensation;
+use crate::error::{Error, Result};
+use crate::fit::FittedTollesLawson;
+use crate::flight_log::{AttitudeAngle, ChannelRole, FlightLog};
+use crate::output::write_atomic;
+use crate::pipeline::FlightResult;
+use crate::quality::{fourth_difference_noise, ChannelQuality, FomCell};
+
+/// Plot size, pixels.
+const WIDE: (u32, u32) = (900, 260);
+const SMALL: (u32, u32) = (290, 150);
+
+/// Noise of one survey line.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct LineNoise {
+    /// Line number.
+    pub line: f64,
+    /// Fourth-difference noise before, nT RMS.
+    pub before_nt: f64,
+    /// Fourth-difference noise after, nT RMS.
+    pub after_nt: f64,
+}
+
+/// The report's figures per channel (also written as JSON).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ChannelFigures {
+    /// Scalar channel.
+    pub channel: String,
+    /// FOM after compensation, nT.
+    pub fom_after_nt: Option<f64>,
+    /// The FOM limit it is judged against, nT.
+    pub fom_limit_nt: f64,
+    /// FOM after within the limit.
+    pub fom_pass: Option<bool>,
+    /// Improvement ratio.
+    pub improvement_ratio: f64,
+    /// Per-line fourth-difference noise.
+    pub line_noise: Vec<LineNoise>,
+}
+
+/// Everything the report shows, as numbers.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ReportFigures {
+    /// Flight file.
+    pub flight: String,
+    /// Per channel.
+    pub channels: Vec<ChannelFigures>,
+}
+
+fn plot_error(e: impl std::fmt::Display) -> Error {
+    Error::Serialise {
+        path: Default::default(),
+        what: "a report plot",
+        message: e.to_string(),
+    }
+}
+
+/// Renders an SVG of `size` with `draw`.
+fn svg(
+    size: (u32, u32),
+    draw: impl FnOnce(&DrawingArea<SVGBackend, plotters::coord::Shift>) -> Result<()>,
+) -> Result<String> {
+    let mut text = String::new();
+    {
+        let root = SVGBackend::with_string(&mut text, size).into_drawing_area();
+        root.fill(&WHITE).map_err(plot_error)?;
+        draw(&root)?;
+        root.present().map_err(plot_error)?;
+    }
+    Ok(text)
+}
+
+/// Finite range of values, padded by 5 %, never empty.
+fn span(values: impl Iterator<Item = f64>) -> std::ops::Range<f64> {
+    let (low, high) = values
+        .filter(|v| v.is_finite())
+        .fold((f64::MAX, f64::MIN), |(l, h), v| (l.min(v), h.max(v)));
+    if low > high {
+        return 0.0..1.0;
+    }
+    let pad = ((high - low) * 0.05).max(1e-9);
+    low - pad..high + pad
+}
+
+fn attitude_timeline(log: &FlightLog, result: &FlightResult) -> Result<String> {
+    let time = log.time_s();
+    let series: Vec<(&str, &[f64], RGBColor)> = [
+        (AttitudeAngle::Roll, "roll", RED),
+        (AttitudeAngle::Pitch, "pitch", BLUE),
+    ]
+    .into_iter()
+    .filter_map(|(angle, name, colour)| {
+        let channel = log.channels().iter().find(|c| c.role == ChannelRole::Attitude(angle))?;
+        Some((name, channel.values.as_slice(), colour))
+    })
+    .collect();
+    let windows: Vec<(f64, f64)> = result
+        .models
+        .first()
+        .map(|m| m.windows.iter().map(|w| (w.window.t_start, w.window.t_end)).collect())
+        .unwrap_or_default();
+    svg(WIDE, |root| {
+        let x = span(time.iter().copied());
+        let y = span(series.iter().flat_map(|(_, v, _)| v.iter().copied()));
+        let mut chart = ChartBuilder::on(root)
+            .caption("Attitude, with the calibration windows shaded", ("sans-serif", 15))
+            .margin(8)
+            .x_label_area_size(30)
+            .y_label_area_size(45)
+            .build_cartesian_2d(x, y.clone())
+            .map_err(plot_error)?;
+        chart
+            .configure_mesh()
+            .x_desc("time, s")
+            .y_desc("degrees")
+            .draw()
+            .map_err(plot_error)?;
+        chart
+            .draw_series(
+                windows.iter().map(|&(a, b)| {
+                    Rectangle::new([(a, y.start), (b, y.end)], RGBColor(255, 200, 60).mix(0.35).filled())
+                }),
+            )
+            .map_err(plot_error)?;
+        for (name, values, colour) in &series {
+            let step = (values.len() / 4000).max(1);
+            let points = time
+                .iter()
+                .zip(values.iter())
+                .step_by(step)
+                .filter(|(_, v)| v.is_finite())
+                .map(|(t, v)| (*t, *v));
+            chart
+                .draw_series(LineSeries::new(points, colour))
+                .map_err(plot_error)?
+                .label(*name)
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], colour));
+        }
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.8))
+            .draw()
+            .map_err(plot_error)?;
+        Ok(())
+    })
+}
+
+/// One manoeuvre's band-passed signal before (grey) and after (blue).
+fn manoeuvre_plot(model: &FittedTollesLawson, index: usize) -> Result<String> {
+    let fit = &model.windows[index];
+    let label = fit.window.display_label();
+    let dt = 1.0 / model.sample_rate_hz;
+    svg(SMALL, |root| {
+        let n = fit.band_before_nt.len().max(1) as f64 * dt;
+        let y = span(fit.band_before_nt.iter().chain(&fit.band_after_nt).copied());
+        let mut chart = ChartBuilder::on(root)
+            .caption(&label, ("sans-serif", 12))
+            .margin(4)
+            .x_label_area_size(16)
+            .y_label_area_size(36)
+            .build_cartesian_2d(0.0..n, y)
+            .map_err(plot_error)?;
+        chart
+            .configure_mesh()
+            .disable_x_mesh()
+            .x_labels(3)
+            .y_labels(4)
+            .x_desc("s")
+            .y_desc("nT")
+            .draw()
+            .map_err(plot_error)?;
+        for (values, colour) in [
+            (&fit.band_before_nt, RGBColor(150, 150, 150)),
+            (&fit.band_after_nt, BLUE),
+        ] {
+            chart
+                .draw_series(LineSeries::new(
+                    values.iter().enumerate().map(|(k, v)| (k as f64 * dt, *v)),
+                    colour,
+                ))
+                .map_err(plot_error)?;
+        }
+        Ok(())
+    })
+}
+
+fn press_plot(model: &FittedTollesLawson) -> Result<String> {
+    let solution = &model.solution;
+    let curve: Vec<(f64, f64)> = solution
+        .ridge_curve
+        .iter()
+        .map(|p| (p.lambda.log10(), p.blocked_press.unwrap_or(p.press)))
+        .filter(|(l, p)| l.is_finite() && p.is_finite() && *p > 0.0)
+        .collect();
+    svg((440, 240), |root| {
+        let x = span(curve.iter().map(|p| p.0));
+        let y = span(curve.iter().map(|p| p.1.log10()));
+        let mut chart = ChartBuilder::on(root)
+            .caption("PRESS against log10 λ (chosen λ marked)", ("sans-serif", 13))
+            .margin(6)
+            .x_label_area_size(28)
+            .y_label_area_size(45)
+            .build_cartesian_2d(x, y.clone())
+            .map_err(plot_error)?;
+        chart
+            .configure_mesh()
+            .x_desc("log10 λ")
+            .y_desc("log10 PRESS, nT²")
+            .draw()
+            .map_err(plot_error)?;
+        chart
+            .draw_series(LineSeries::new(curve.iter().map(|(l, p)| (*l, p.log10())), BLUE))
+            .map_err(plot_error)?;
+        if let Some(lambda) = solution.lambda.filter(|l| *l > 0.0) {
+            let at = lambda.log10();
+            chart
+                .draw_series(std::iter::once(PathElement::new(vec![(at, y.start), (at, y.end)], RED)))
+                .map_err(plot_error)?;
+        }
+        Ok(())
+    })
+}
+
+fn singular_value_plot(model: &FittedTollesLawson) -> Result<String> {
+    let values: Vec<f64> = model
+        .solution
+        .singular_values
+        .iter()
+        .map(|s| s.max(1e-300).log10())
+        .collect();
+    svg((440, 240), |root| {
+        let y = span(values.iter().copied());
+        let mut chart = ChartBuilder::on(root)
+            .caption("Singular values (log10, scaled design)", ("sans-serif", 13))
+            .margin(6)
+            .x_label_area_size(28)
+            .y_label_area_size(40)
+            .build_cartesian_2d(0.5..values.len() as f64 + 0.5, y)
+            .map_err(plot_error)?;
+        chart.configure_mesh().x_desc("index").draw().map_err(plot_error)?;
+        chart
+            .draw_series(
+                values
+                    .iter()
+                    .enumerate()
+                    .map(|(k, v)| Circle::new(((k + 1) as f64, *v), 3, BLUE.filled())),
+            )
+            .map_err(plot_error)?;
+        Ok(())
+    })
+}
+
+/// Survey-line samples coloured by compensated anomaly (value less the
+/// lines' median), blue low to red high.
+fn line_map(log: &FlightLog, values: &[f64]) -> Result<Option<String>> {
+    let (Some(lat), Some(lon), Some(line)) = (
+        log.channel("lat"),
+        log.channel("lon"),
+        log.channels().iter().find(|c| c.role == ChannelRole::Line),
+    ) else {
+        return Ok(None);
+    };
+    let rows: Vec<usize> = (0..log.len())
+        .filter(|&k| {
+            line.values[k] != 0.0 && line.values[k].is_finite() && values[k].is_finite() && lat.values[k].is_finite()
+        })
+        .collect();
+    if rows.is_empty() {
+        return Ok(None);
+    }
+    let mut sorted: Vec<f64> = rows.iter().map(|&k| values[k]).collect();
+    sorted.sort_by(f64::total_cmp);
+    // The anomaly: the value less the lines' median; colours span its 2nd to
+    // 98th percentiles.
+    let level = sorted[sorted.len() / 2];
+    let (low, high) = (
+        sorted[sorted.len() / 50] - level,
+        sorted[sorted.len() - 1 - sorted.len() / 50] - level,
+    );
+    let colour = |v: f64| {
+        let f = ((v - low) / (high - low).max(1e-9)).clamp(0.0, 1.0);
+        RGBColor(
+            (255.0 * f) as u8,
+            (80.0 + 60.0 * (1.0 - (2.0 * f - 1.0).abs())) as u8,
+            (255.0 * (1.0 - f)) as u8,
+        )
+    };
+    let map = svg((520, 420), |root| {
+        let x = span(rows.iter().map(|&k| lon.values[k]));
+        let y = span(rows.iter().map(|&k| lat.values[k]));
+        let mut chart = ChartBuilder::on(root)
+            .caption(
+                format!("Survey lines, compensated anomaly {low:.1} (blue) to {high:.1} nT (red)"),
+                ("sans-serif", 13),
+            )
+            .margin(6)
+            .x_label_area_size(28)
+            .y_label_area_size(55)
+            .build_cartesian_2d(x, y)
+            .map_err(plot_error)?;
+        chart
+            .configure_mesh()
+            .x_desc("longitude, °")
+            .y_desc("latitude, °")
+            .draw()
+            .map_err(plot_error)?;
+        chart
+            .draw_series(
+                rows.iter()
+                    .map(|&k| Circle::new((lon.values[k], lat.values[k]), 2, colour(values[k] - level).filled())),
+            )
+            .map_err(plot_error)?;
+        Ok(())
+    })?;
+    Ok(Some(map))
+}
+
+/// Fourth-difference noise of each survey line, before and after.
+pub fn line_noise(log: &FlightLog, before: &[f64], after: &[f64]) -> Vec<LineNoise> {
+    let Some(line) = log.channels().iter().find(|c| c.role == ChannelRole::Line) else {
+        return Vec::new();
+    };
+    let mut lines: Vec<(f64, Vec<usize>)> = Vec::new();
+    for (k, number) in line.values.iter().enumerate() {
+        if !(number.is_finite() && *number != 0.0) {
+            continue;
+        }
+        match lines.last_mut() {
+            Some((last, rows)) if last == number => rows.push(k),
+            _ => lines.push((*number, vec![k])),
+        }
+    }
+    lines
+        .into_iter()
+        .map(|(number, rows)| {
+            let pick = |v: &[f64]| rows.iter().map(|&k| v[k]).collect::<Vec<f64>>();
+            LineNoise {
+                line: number,
+                before_nt: fourth_difference_noise(&pick(before)),
+                after_nt: fourth_difference_noise(&pick(after)),
+            }
+        })
+        .collect()
+}
+
+fn escape(text: &str) -> String {
+    text.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;")
+}
+
+fn cell(cell: &Option<FomCell>, limit_per_cell: f64) -> String {
+    match cell {
+        Some(c) => {
+            let class = if c.after_nt <= limit_per_cell { "pass" } else { "fail" };
+            format!(
+                "<td>{:.2}</td><td class=\"{class}\">{:.3}</td>",
+                c.before_nt, c.after_nt
+            )
+        }
+        None => "<td>–</td><td class=\"missing\">missing</td>".into(),
+    }
+}
+
+fn fom_section(quality: &ChannelQuality, limit_nt: f64) -> String {
+    let mut html = String::from(
+        "<table class=\"fom\"><tr><th>heading</th><th>pitch before</th><th>after</th><th>roll before</th><th>after</th><th>yaw before</th><th>after</th><th>RMS after</th></tr>",
+    );
+    // A cell passes when it is within its twelfth of the limit.
+    let per_cell = limit_nt / 12.0;
+    for row in &quality.fom_table {
+        let _ = write!(
+            html,
+            "<tr><td>{:.0}°</td>{}{}{}<td>{:.3}</td></tr>",
+            row.heading_deg,
+            cell(&row.pitch, per_cell),
+            cell(&row.roll, per_cell),
+            cell(&row.yaw, per_cell),
+            row.rms_after_nt
+        );
+    }
+    html += "</table>";
+    html
+}
+
+fn verdict(quality: &ChannelQuality, limit_nt: f64) -> String {
+    let mut lines = Vec::new();
+    match quality.fom_after_nt {
+        Some(fom) if fom <= limit_nt => lines.push(format!(
+            "<span class=\"pass\">PASS</span> FOM {:.2} → {fom:.2} nT over {} manoeuvres (limit {limit_nt} nT)",
+            quality.fom_before_nt.unwrap_or(f64::NAN),
+            quality.fom_manoeuvres
+        )),
+        Some(fom) => lines.push(format!(
+            "<span class=\"fail\">FAIL</span> FOM {:.2} → {fom:.2} nT over {} manoeuvres (limit {limit_nt} nT)",
+            quality.fom_before_nt.unwrap_or(f64::NAN),
+            quality.fom_manoeuvres
+        )),
+        None => lines.push("no labelled manoeuvres: no FOM".into()),
+    }
+    lines.push(format!(
+        "IR {:.1}; band std {:.3} → {:.3} nT; 4th-difference noise {:.4} → {:.4} nT",
+        quality.improvement_ratio,
+        quality.band_std_before_nt,
+        quality.band_std_after_nt,
+        quality.noise_4th_difference_before_nt,
+        quality.noise_4th_difference_after_nt
+    ));
+    if let Some(check) = &quality.transfer {
+        let class = if check.warning.is_some() { "fail" } else { "pass" };
+        lines.push(format!(
+            "<span class=\"{class}\">held-out FOM {:.2} nT</span> against {:.2} nT in sample ({:.1}×, {:?})",
+            check.held_out_fom_nt, check.in_sample_fom_nt, check.ratio, check.method
+        ));
+    }
+    if let Some(error) = &quality.heading_error {
+        lines.push(format!(
+            "heading error {:.3} → {:.3} nT over {} matched samples of reciprocal lines",
+            error.before_nt, error.after_nt, error.pairs
+        ));
+    }
+    lines.iter().map(|l| format!("<p>{l}</p>")).collect()
+}
+
+fn coefficient_table(model: &FittedTollesLawson) -> String {
+    let mut html = String::from("<table class=\"coefficients\"><tr><th>term</th><th>coefficient</th></tr>");
+    for (name, value) in model.term_names.iter().zip(&model.coefficients) {
+        let _ = write!(html, "<tr><td>{}</td><td>{value:.6e}</td></tr>", escape(name));
+    }
+    html + "</table>"
+}
+
+const STYLE: &str = "body{font-family:sans-serif;margin:2em;max-width:1000px}h2{border-bottom:1px solid #ccc}\
+table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #ddd;padding:3px 8px;text-align:right}\
+.pass{color:#176b1d;font-weight:bold}.fail{color:#b00020;font-weight:bold}.missing{color:#888}\
+.grid{display:flex;flex-wrap:wrap;gap:4px}figure{margin:0}";
+
+/// Writes the report to `path` and its figures as JSON beside it
+/// (`<path>.json` with the extension replaced).
+pub fn write_report(
+    path: &Path,
+    log: &FlightLog,
+    result: &FlightResult,
+    compensation: &Compensation,
+    fom_limit_nt: f64,
+) -> Result<ReportFigures> {
+    let mut html = format!(
+        "<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>magcomp report: {0}</title><style>{STYLE}</style></head><body><h1>Compensation report: {0}</h1>",
+        escape(&result.flight.display().to_string())
+    );
+    let _ = write!(html, "<p>{} rows.</p>", result.rows);
+    for note in &result.notes {
+        let _ = write!(html, "<p class=\"note\">{}</p>", escape(note));
+    }
+    html += &format!("<section id=\"timeline\">{}</section>", attitude_timeline(log, result)?);
+    let mut figures = Vec::new();
+    for ((quality, model), channel) in result.channels.iter().zip(&result.models).zip(&compensation.channels) {
+        let before = log
+            .channel(&model.channel)
+            .map(|c| c.values.as_slice())
+            .unwrap_or_default();
+        let noise = line_noise(log, before, &channel.values);
+        let _ = write!(
+            html,
+            "<section class=\"channel\" id=\"{0}\"><h2>{0}</h2>",
+            escape(&model.channel)
+        );
+        html += &verdict(quality, fom_limit_nt);
+        html += "<h3>FOM table (band-passed peak-to-peak, nT)</h3>";
+        html += &fom_section(quality, fom_limit_nt);
+        html += "<h3>Manoeuvres: before (grey) and after (blue), band-passed</h3><div class=\"grid\">";
+        for index in 0..model.windows.len() {
+            let _ = write!(
+                html,
+                "<figure class=\"manoeuvre\">{}</figure>",
+                manoeuvre_plot(model, index)?
+            );
+        }
+        html += "</div><h3>Regularisation</h3>";
+        let _ = write!(html, "<p>{}</p><div class=\"grid\">", escape(&model.solution.reason));
+        let _ = write!(html, "<figure class=\"press\">{}</figure>", press_plot(model)?);
+        let _ = write!(
+            html,
+            "<figure class=\"singular\">{}</figure></div>",
+            singular_value_plot(model)?
+        );
+        html += "<h3>Coefficients</h3>";
+        html += &coefficient_table(model);
+        if let Some(map) = line_map(log, &channel.values)? {
+            let _ = write!(html, "<h3>Survey lines</h3><figure class=\"map\">{map}</figure>");
+        }
+        if !noise.is_empty() {
+            html += "<h3>Per-line noise (4th difference, nT)</h3><table class=\"noise\"><tr><th>line</th><th>before</th><th>after</th></tr>";
+            for line in &noise {
+                let _ = write!(
+                    html,
+                    "<tr><td>{}</td><td>{:.4}</td><td>{:.4}</td></tr>",
+                    line.line, line.before_nt, line.after_nt
+                );
+            }
+            html += "</table>";
+        }
+        html += "</section>";
+        figures.push(ChannelFigures {
+            channel: model.channel.clone(),
+            fom_after_nt: quality.fom_after_nt,
+            fom_limit_nt,
+            fom_pass: quality.fom_after_nt.map(|f| f <= fom_limit_nt),
+            improvement_ratio: quality.improvement_ratio,
+            line_noise: noise,
+        });
+    }
+    html += "</body></html>\n";
+    write_atomic(path, |out| std::io::Write::write_all(out, html.as_bytes()))?;
+    let figures = ReportFigures {
+        flight: result.flight.display().to_string(),
+        channels: figures,
+    };
+    crate::output::write_json(&path.with_extension("json"), "the report figures", &figures)?;
+    Ok(figures)
+}

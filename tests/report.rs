@@ -1,0 +1,120 @@
+//! The HTML quality report: its content, its figures JSON, and (when
+//! `MAGCOMP_CHROMIUM` names a browser, as `.ci/run` sets it) that headless
+//! Chromium renders it with every plot and no script or page error.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use magcomp::config::{FlightJob, Pipeline};
+use magcomp::pipeline::{process_flight, FlightOutputs, StageOptions};
+
+fn report_of_clean_flight(folder: &Path) -> (PathBuf, magcomp::pipeline::FlightResult) {
+    let input = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("sample_flights/clean.csv");
+    let job = FlightJob {
+        input: input.clone(),
+        vector: None,
+        channels: None,
+        windows: Vec::new(),
+    };
+    let outputs = FlightOutputs::in_directory(folder, &input);
+    let result = process_flight(&job, &StageOptions::from(&Pipeline::default()), &outputs).unwrap();
+    (outputs.report_html.unwrap(), result)
+}
+
+#[test]
+fn the_report_holds_every_section_and_its_figures_match_the_quality() {
+    let folder = tempfile::tempdir().unwrap();
+    let (html_path, result) = report_of_clean_flight(folder.path());
+    let html = std::fs::read_to_string(&html_path).unwrap();
+    // One timeline, and per channel 12 manoeuvres, the PRESS curve, the
+    // singular values and the line map.
+    let per_channel = 12 + 3;
+    assert_eq!(html.matches("<svg").count(), 1 + per_channel * result.channels.len());
+    assert_eq!(html.matches("class=\"manoeuvre\"").count(), 12 * result.channels.len());
+    // Four headings in each FOM table, and a PASS for this clean flight
+    // (FOM 0.44 and 0.82 nT against the 1.5 nT limit).
+    assert_eq!(
+        html.matches("<td>20°</td>").count() + html.matches("<td>110°</td>").count(),
+        2 * result.channels.len()
+    );
+    assert_eq!(html.matches(">PASS<").count(), result.channels.len());
+    let figures: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(html_path.with_extension("json")).unwrap()).unwrap();
+    for (quality, channel) in result.channels.iter().zip(figures["channels"].as_array().unwrap()) {
+        assert_eq!(channel["fom_after_nt"].as_f64(), quality.fom_after_nt);
+        assert_eq!(channel["fom_pass"].as_bool(), Some(true));
+        let lines = channel["line_noise"].as_array().unwrap();
+        assert_eq!(lines.len(), 3);
+        for line in lines {
+            // Compensation does not add noise to the lines.
+            assert!(
+                line["after_nt"].as_f64().unwrap() <= 1.05 * line["before_nt"].as_f64().unwrap(),
+                "{line}"
+            );
+        }
+    }
+}
+
+#[test]
+fn headless_chromium_renders_the_report() {
+    let Some(browser) = std::env::var_os("MAGCOMP_CHROMIUM") else {
+        eprintln!("MAGCOMP_CHROMIUM is not set: the browser check is skipped (.ci/run sets it)");
+        return;
+    };
+    let folder = tempfile::tempdir().unwrap();
+    let (html_path, result) = report_of_clean_flight(folder.path());
+    let profile = folder.path().join("profile");
+    let screenshot = folder.path().join("report.png");
+    let common = [
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-quic",
+        "--no-first-run",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        "--enable-logging=stderr",
+        "--v=0",
+    ];
+    let url = format!("file://{}", html_path.display());
+    let output = Command::new(&browser)
+        .args(common)
+        .arg(format!("--user-data-dir={}", profile.display()))
+        .arg("--virtual-time-budget=2000")
+        .arg("--dump-dom")
+        .arg(&url)
+        .output()
+        .unwrap();
+    assert!(
+        output.status.success(),
+        "chromium failed: {}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    let dom = String::from_utf8_lossy(&output.stdout);
+    let log = String::from_utf8_lossy(&output.stderr);
+    // The page's own messages: any console error or uncaught exception.
+    let page_errors: Vec<&str> = log
+        .lines()
+        .filter(|l| l.contains("CONSOLE") || l.contains("Uncaught"))
+        .collect();
+    assert!(page_errors.is_empty(), "{page_errors:?}");
+    // The rendered document holds every plot.
+    assert_eq!(dom.matches("<svg").count(), 1 + 15 * result.channels.len());
+    assert!(dom.contains("id=\"timeline\"") && dom.contains("class=\"fom\""));
+    let status = Command::new(&browser)
+        .args(common)
+        .arg(format!("--user-data-dir={}", profile.display()))
+        .arg("--window-size=1100,2400")
+        .arg(format!("--screenshot={}", screenshot.display()))
+        .arg(&url)
+        .output()
+        .unwrap()
+        .status;
+    assert!(status.success());
+    let size = std::fs::metadata(&screenshot).unwrap().len();
+    assert!(size > 20_000, "screenshot of {size} bytes: the page rendered blank");
+    if let Some(keep) = std::env::var_os("MAGCOMP_KEEP_SCREENSHOT") {
+        std::fs::copy(&screenshot, keep).unwrap();
+    }
+}
