@@ -40,6 +40,20 @@ pub enum FilterBand {
     },
 }
 
+impl FilterBand {
+    /// Width of the pass band for data sampled at `sample_rate_hz`, Hz
+    /// (up to the Nyquist frequency).
+    pub fn bandwidth_hz(&self, sample_rate_hz: f64) -> f64 {
+        let nyquist = sample_rate_hz / 2.0;
+        match *self {
+            FilterBand::None => nyquist,
+            FilterBand::Bandpass { low_hz, high_hz } => high_hz.min(nyquist) - low_hz,
+            FilterBand::Lowpass { high_hz } => high_hz.min(nyquist),
+            FilterBand::Highpass { low_hz } => nyquist - low_hz,
+        }
+    }
+}
+
 /// How many samples the odd extension adds at each end.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]

@@ -98,6 +98,10 @@ pub struct FittedTollesLawson {
     pub sample_rate_hz: f64,
     /// Solver diagnostics: method, λ, PRESS curves, singular values.
     pub solution: Solution,
+    /// One-sigma uncertainty of each coefficient: the solver's white-noise
+    /// standard error times $\sqrt{f_s / 2B}$, because a residual of
+    /// bandwidth B holds only 2B independent samples a second (Nyquist).
+    pub coefficient_uncertainty: Vec<f64>,
     /// Per-window use of the data.
     pub windows: Vec<WindowFit>,
 }
@@ -164,7 +168,11 @@ pub fn fit_channel(
             .map(|i| target[i] - solution.fitted[i])
             .collect();
     }
+    let correlation = (sample_rate_hz / (2.0 * options.filter.band.bandwidth_hz(sample_rate_hz)))
+        .max(1.0)
+        .sqrt();
     Ok(FittedTollesLawson {
+        coefficient_uncertainty: solution.standard_errors.iter().map(|e| e * correlation).collect(),
         channel: channel.into(),
         vector_sensor: sensor.prefix.clone(),
         terms: options.terms,

@@ -437,9 +437,21 @@ fn verdict(quality: &ChannelQuality, limit_nt: f64) -> String {
 }
 
 fn coefficient_table(model: &FittedTollesLawson) -> String {
-    let mut html = String::from("<table class=\"coefficients\"><tr><th>term</th><th>coefficient</th></tr>");
-    for (name, value) in model.term_names.iter().zip(&model.coefficients) {
-        let _ = write!(html, "<tr><td>{}</td><td>{value:.6e}</td></tr>", escape(name));
+    let mut html = String::from(
+        "<table class=\"coefficients\"><tr><th>term</th><th>coefficient</th><th>± 1σ</th><th>|σ/coefficient|</th></tr>",
+    );
+    for ((name, value), sigma) in model
+        .term_names
+        .iter()
+        .zip(&model.coefficients)
+        .zip(&model.coefficient_uncertainty)
+    {
+        let _ = write!(
+            html,
+            "<tr><td>{}</td><td>{value:.6e}</td><td>{sigma:.2e}</td><td>{:.2}</td></tr>",
+            escape(name),
+            (sigma / value).abs()
+        );
     }
     html + "</table>"
 }

@@ -153,6 +153,11 @@ pub struct Solution {
     pub samples: usize,
     /// In-sample RMS residual of the chosen fit, nT.
     pub residual_rms: f64,
+    /// Standard errors of the coefficients for white residuals:
+    /// $\hat\sigma \sqrt{\sum_k v_{jk}^2 w_k^2/\sigma_k^2}$ with
+    /// $\hat\sigma^2 = \mathrm{RSS}/(n - \mathrm{dof})$ (the ridge estimator's
+    /// own variance; its bias is not included).
+    pub standard_errors: Vec<f64>,
     /// Fitted values $A\beta$ on the rows given, nT.
     #[serde(skip)]
     pub fitted: Vec<f64>,
@@ -646,15 +651,17 @@ fn choose(
         (None, Some(rank)) => (0..p).map(|k| f64::from(u8::from(k < rank))).collect(),
         (None, None) => unreachable!("a method always sets λ or rank"),
     };
+    let residual_ss = spectrum.residual_ss_outside
+        + (0..p)
+            .map(|k| ((1.0 - weights[k]) * spectrum.uty[k]).powi(2))
+            .sum::<f64>();
+    let effective_dof: f64 = weights.iter().sum();
+    let noise = (residual_ss / (samples as f64 - effective_dof).max(1.0)).sqrt();
     Ok(Solution {
         coefficients: coefficients(&spectrum, &weights),
-        residual_rms: ((spectrum.residual_ss_outside
-            + (0..p)
-                .map(|k| ((1.0 - weights[k]) * spectrum.uty[k]).powi(2))
-                .sum::<f64>())
-            / samples as f64)
-            .sqrt(),
-        effective_dof: weights.iter().sum(),
+        residual_rms: (residual_ss / samples as f64).sqrt(),
+        standard_errors: standard_errors(&spectrum, &weights, noise),
+        effective_dof,
         method,
         reason,
         lambda,
@@ -669,6 +676,26 @@ fn choose(
         samples,
         fitted: Vec::new(),
     })
+}
+
+/// $\hat\sigma \sqrt{\sum_k v_{jk}^2 (w_k/\sigma_k)^2}$ per coefficient.
+fn standard_errors(spectrum: &Spectrum, weights: &[f64], noise: f64) -> Vec<f64> {
+    let p = weights.len();
+    let gains: Vec<f64> = (0..p)
+        .map(|k| match weights[k] > 0.0 {
+            true => (weights[k] / spectrum.singular_values[k]).powi(2),
+            false => 0.0,
+        })
+        .collect();
+    (0..p)
+        .map(|j| {
+            noise
+                * (0..p)
+                    .map(|k| spectrum.v[(j, k)].powi(2) * gains[k])
+                    .sum::<f64>()
+                    .sqrt()
+        })
+        .collect()
 }
 
 /// $\beta = V \,\mathrm{diag}(w_k/\sigma_k)\, c$.

@@ -204,3 +204,56 @@ proptest! {
         }
     }
 }
+
+#[test]
+fn standard_errors_match_least_squares_theory_and_the_scatter_of_refits() {
+    // Least squares (λ = 0): SE_j = σ̂ √((AᵀA)⁻¹)_jj exactly, with
+    // σ̂² = RSS / (n − p). Over many noise draws, the scatter of each
+    // coefficient equals the true σ √((AᵀA)⁻¹)_jj.
+    let (rows, terms, sigma) = (300, 4, 0.5);
+    let columns = random_columns(11, rows, terms);
+    let truth = [1.0, -2.0, 0.5, 3.0];
+    let clean = predict(&columns, &truth);
+    let options = SolveOptions {
+        lambda: LambdaChoice::Fixed(0.0),
+        ..SolveOptions::default()
+    };
+    let all: Vec<usize> = (0..rows).collect();
+    let inverse_diagonal: Vec<f64> = (0..terms)
+        .map(|j| {
+            // ((AᵀA)⁻¹)_jj: solve (AᵀA) x = e_j (the normal equations serve
+            // as the reference here, never in magcomp).
+            let p = terms;
+            let gram = Mat::from_fn(p, p, |a, b| {
+                all.iter().map(|&i| columns[a][i] * columns[b][i]).sum::<f64>()
+            });
+            let unit = Mat::from_fn(p, 1, |a, _| f64::from(u8::from(a == j)));
+            faer::linalg::solvers::Solve::solve(&gram.partial_piv_lu(), unit.as_ref())[(j, 0)]
+        })
+        .collect();
+    let mut estimates: Vec<Vec<f64>> = vec![Vec::new(); terms];
+    for draw in 0..400u64 {
+        let noise = values(1_000_000 + draw * 7919, rows);
+        // Uniform on [-1, 1) has variance 1/3: scale to standard deviation σ.
+        let y: Vec<f64> = clean
+            .iter()
+            .zip(&noise)
+            .map(|(c, e)| c + sigma * 3f64.sqrt() * e)
+            .collect();
+        let solution = solve(columns.clone(), &y, &[], &options).unwrap();
+        let rss = solution.residual_rms.powi(2) * rows as f64;
+        let noise_hat = (rss / (rows - terms) as f64).sqrt();
+        for j in 0..terms {
+            let exact = noise_hat * inverse_diagonal[j].sqrt();
+            assert!((solution.standard_errors[j] - exact).abs() < 1e-9 * exact, "{j}");
+            estimates[j].push(solution.coefficients[j]);
+        }
+    }
+    for j in 0..terms {
+        let mean = estimates[j].iter().sum::<f64>() / 400.0;
+        let scatter = (estimates[j].iter().map(|b| (b - mean).powi(2)).sum::<f64>() / 399.0).sqrt();
+        let theory = sigma * inverse_diagonal[j].sqrt();
+        // 400 draws: the sample standard deviation is within ±3.5/√(2·400) ≈ 12 %.
+        assert!((scatter / theory - 1.0).abs() < 0.12, "{j}: {scatter} vs {theory}");
+    }
+}
