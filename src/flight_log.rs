@@ -171,6 +171,25 @@ impl FlightLog {
         &self.source
     }
 
+    /// The rows of each survey line: runs of one non-zero line number in
+    /// the line column, in flight order (empty without a line column).
+    pub fn survey_lines(&self) -> Vec<(f64, Vec<usize>)> {
+        let Some(line) = self.channels.iter().find(|c| c.role == ChannelRole::Line) else {
+            return Vec::new();
+        };
+        let mut lines: Vec<(f64, Vec<usize>)> = Vec::new();
+        for (row, number) in line.values.iter().enumerate() {
+            if !(number.is_finite() && *number != 0.0) {
+                continue;
+            }
+            match lines.last_mut() {
+                Some((last, rows)) if last == number => rows.push(row),
+                _ => lines.push((*number, vec![row])),
+            }
+        }
+        lines
+    }
+
     /// Name of the time column in the source.
     pub fn time_column(&self) -> &str {
         &self.time_column

@@ -12,7 +12,7 @@ use std::collections::HashMap;
 
 use serde::Serialize;
 
-use crate::flight_log::{ChannelRole, FlightLog};
+use crate::flight_log::FlightLog;
 
 /// Metres per degree of latitude (mean).
 const METRES_PER_DEGREE: f64 = 111_195.0;
@@ -57,21 +57,16 @@ fn local_positions(log: &FlightLog) -> Option<Vec<[f64; 2]>> {
 }
 
 fn survey_lines(log: &FlightLog, positions: &[[f64; 2]]) -> Vec<SurveyLine> {
-    let Some(line) = log.channels().iter().find(|c| c.role == ChannelRole::Line) else {
-        return Vec::new();
-    };
-    let mut lines: Vec<(f64, Vec<usize>)> = Vec::new();
-    for (row, number) in line.values.iter().enumerate() {
-        if !(number.is_finite() && *number != 0.0 && positions[row][0].is_finite()) {
-            continue;
-        }
-        match lines.last_mut() {
-            Some((last, rows)) if last == number => rows.push(row),
-            _ => lines.push((*number, vec![row])),
-        }
-    }
-    lines
+    log.survey_lines()
         .into_iter()
+        .map(|(number, rows)| {
+            (
+                number,
+                rows.into_iter()
+                    .filter(|&row| positions[row][0].is_finite())
+                    .collect::<Vec<_>>(),
+            )
+        })
         .filter(|(_, rows)| rows.len() >= 10)
         .map(|(_, rows)| {
             let (first, last) = (positions[rows[0]], positions[rows[rows.len() - 1]]);

@@ -333,20 +333,7 @@ fn line_map(log: &FlightLog, values: &[f64]) -> Result<Option<String>> {
 
 /// Fourth-difference noise of each survey line, before and after.
 pub fn line_noise(log: &FlightLog, before: &[f64], after: &[f64]) -> Vec<LineNoise> {
-    let Some(line) = log.channels().iter().find(|c| c.role == ChannelRole::Line) else {
-        return Vec::new();
-    };
-    let mut lines: Vec<(f64, Vec<usize>)> = Vec::new();
-    for (k, number) in line.values.iter().enumerate() {
-        if !(number.is_finite() && *number != 0.0) {
-            continue;
-        }
-        match lines.last_mut() {
-            Some((last, rows)) if last == number => rows.push(k),
-            _ => lines.push((*number, vec![k])),
-        }
-    }
-    lines
+    log.survey_lines()
         .into_iter()
         .map(|(number, rows)| {
             let pick = |v: &[f64]| rows.iter().map(|&k| v[k]).collect::<Vec<f64>>();
