@@ -150,12 +150,35 @@ pub fn fit_channel(
     windows: &[CalibrationWindow],
     options: &FitOptions,
 ) -> Result<FittedTollesLawson> {
+    fit_channel_with(log, sensor, channel, windows, options, &Regressors::default())
+}
+
+/// Regressors added to the Tolles-Lawson terms, one value per row of the
+/// flight (e.g. a current times a direction cosine): physics the 18 terms
+/// leave out. Filtered, trimmed and stacked exactly as the terms are.
+#[derive(Debug, Clone, Default)]
+pub struct Regressors<'a> {
+    /// Names, appended to the term names.
+    pub names: Vec<String>,
+    /// Columns, each as long as the flight.
+    pub columns: Vec<&'a [f64]>,
+}
+
+/// Fits one scalar channel on the Tolles-Lawson terms plus `extra`.
+pub fn fit_channel_with(
+    log: &FlightLog,
+    sensor: &VectorSensor,
+    channel: &str,
+    windows: &[CalibrationWindow],
+    options: &FitOptions,
+    extra: &Regressors,
+) -> Result<FittedTollesLawson> {
     let BandData {
         columns,
         target,
         windows: mut fits,
         sample_rate_hz,
-    } = band_data(log, sensor, channel, windows, options)?;
+    } = band_data(log, sensor, channel, windows, options, &extra.columns)?;
     let folds: Vec<Range<usize>> = fits.iter().map(|f| f.stacked_rows.clone()).collect();
     let solution = solve(columns, &target, &folds, &options.solve).map_err(|e| Error::Fit {
         channel: channel.into(),
@@ -176,7 +199,12 @@ pub fn fit_channel(
         channel: channel.into(),
         vector_sensor: sensor.prefix.clone(),
         terms: options.terms,
-        term_names: options.terms.names(),
+        term_names: options
+            .terms
+            .names()
+            .into_iter()
+            .chain(extra.names.iter().cloned())
+            .collect(),
         coefficients: solution.coefficients.clone(),
         filter: options.filter,
         sample_rate_hz,
@@ -195,7 +223,20 @@ impl FittedTollesLawson {
         windows: &[CalibrationWindow],
         options: &FitOptions,
     ) -> Result<Vec<WindowFit>> {
-        let data = band_data(log, sensor, &self.channel, windows, options)?;
+        self.held_out_with(log, sensor, windows, options, &Regressors::default())
+    }
+
+    /// [`Self::held_out`] for a model fitted with extra regressors, given
+    /// the same regressors.
+    pub fn held_out_with(
+        &self,
+        log: &FlightLog,
+        sensor: &VectorSensor,
+        windows: &[CalibrationWindow],
+        options: &FitOptions,
+        extra: &Regressors,
+    ) -> Result<Vec<WindowFit>> {
+        let data = band_data(log, sensor, &self.channel, windows, options, &extra.columns)?;
         let mut fits = data.windows;
         for fit in &mut fits {
             fit.band_after_nt = fit
@@ -218,6 +259,7 @@ fn band_data(
     channel: &str,
     windows: &[CalibrationWindow],
     options: &FitOptions,
+    extra: &[&[f64]],
 ) -> Result<BandData> {
     let scalar = &log
         .channel(channel)
@@ -239,13 +281,14 @@ fn band_data(
     let needed = filter.min_samples().max(2 * trim + 1);
     let plans: Vec<WindowPlan> = windows
         .iter()
-        .map(|window| WindowPlan::new(log, sensor, scalar, window, needed, trim))
+        .map(|window| WindowPlan::new(log, sensor, (scalar, extra), window, needed, trim))
         .collect::<Result<_>>()?;
     let field = log.vector_components(sensor);
-    let (columns, target) = stack_filtered(field, scalar, &plans, &filter, options).map_err(|e| Error::Fit {
-        channel: channel.into(),
-        message: e.to_string(),
-    })?;
+    let (columns, target) =
+        stack_filtered((field, extra), scalar, &plans, &filter, options).map_err(|e| Error::Fit {
+            channel: channel.into(),
+            message: e.to_string(),
+        })?;
     let mut fits: Vec<WindowFit> = Vec::with_capacity(plans.len());
     let mut start = 0;
     for plan in plans {
@@ -283,7 +326,7 @@ impl<'w> WindowPlan<'w> {
     fn new(
         log: &FlightLog,
         sensor: &VectorSensor,
-        scalar: &[f64],
+        (scalar, extra): (&[f64], &[&[f64]]),
         window: &'w CalibrationWindow,
         needed: usize,
         trim: usize,
@@ -292,7 +335,7 @@ impl<'w> WindowPlan<'w> {
         let rows = window.rows(log.time_s());
         let valid: Vec<bool> = rows
             .clone()
-            .map(|i| scalar[i].is_finite() && field.iter().all(|c| c[i].is_finite()))
+            .map(|i| scalar[i].is_finite() && field.iter().chain(extra).all(|c| c[i].is_finite()))
             .collect();
         let runs = valid_runs(
             &log.time_s()[rows.clone()],
@@ -332,7 +375,7 @@ type FilterTask<'a> = (Range<usize>, Range<usize>, Vec<&'a mut [f64]>);
 /// parallel. Each pass writes its own rows, so the result does not depend
 /// on the number of threads.
 fn stack_filtered(
-    field: [&[f64]; 3],
+    (field, extra): ([&[f64]; 3], &[&[f64]]),
     scalar: &[f64],
     plans: &[WindowPlan],
     filter: &ZeroPhaseFilter,
@@ -340,7 +383,7 @@ fn stack_filtered(
 ) -> std::result::Result<(Vec<Vec<f64>>, Vec<f64>), FilterError> {
     let trim = options.filter.trim_samples;
     let terms = options.terms;
-    let width = terms.len() + 1;
+    let width = terms.len() + extra.len() + 1;
     let total: usize = plans.iter().map(|p| p.used(trim)).sum();
     let mut stacked: Vec<Vec<f64>> = vec![vec![0.0; total]; width];
     let runs: Vec<Range<usize>> = plans.iter().flat_map(|p| p.runs.iter().cloned()).collect();
@@ -364,11 +407,17 @@ fn stack_filtered(
     }
     tasks.into_par_iter().try_for_each(|(run, group, mut outputs)| {
         let fill = |rows: &mut [[f64; LANES]]| {
+            let count = terms.len();
             let design = group.start..group.end.min(width - 1);
-            terms.fill_lanes(field, run.clone(), design.clone(), rows);
-            if group.end == width {
-                let lane = design.len();
-                for (row, &value) in rows.iter_mut().zip(&scalar[run.clone()]) {
+            let term_part = design.start.min(count)..design.end.min(count);
+            if !term_part.is_empty() {
+                terms.fill_lanes(field, run.clone(), term_part, rows);
+            }
+            let sources =
+                (design.start.max(count)..design.end).map(|column| (column - group.start, extra[column - count]));
+            let target = (group.end == width).then_some((design.len(), scalar));
+            for (lane, source) in sources.chain(target) {
+                for (row, &value) in rows.iter_mut().zip(&source[run.clone()]) {
                     row[lane] = value;
                 }
             }
