@@ -207,6 +207,8 @@ pub struct RawPipeline {
     pub detect: DetectOptions,
     /// Quality checks.
     pub quality: RawQuality,
+    /// Physics diagnosis.
+    pub diagnose: crate::diagnose::DiagnoseOptions,
     /// Flights to process.
     #[serde(rename = "flight")]
     pub flights: Vec<RawFlight>,
@@ -240,6 +242,8 @@ pub struct Pipeline {
     pub transfer: TransferOptions,
     /// FOM limit the report judges against, nT.
     pub fom_limit_nt: f64,
+    /// Physics diagnosis settings.
+    pub diagnose: crate::diagnose::DiagnoseOptions,
     /// Output folder.
     pub output_directory: PathBuf,
     /// Flights to process.
@@ -305,6 +309,7 @@ impl Pipeline {
             detect: raw.detect,
             transfer: raw.quality.transfer,
             fom_limit_nt: raw.quality.fom_limit_nt,
+            diagnose: raw.diagnose,
             output_directory: base.join(raw.output.directory),
             flights,
         })

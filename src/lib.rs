@@ -45,6 +45,7 @@
 pub mod compensate;
 pub mod config;
 pub mod detect;
+pub mod diagnose;
 pub mod error;
 pub mod filter;
 pub mod fit;

@@ -32,6 +32,18 @@ enum Command {
     /// Fit on calibration windows (detected unless given) and compensate
     /// every row of one flight.
     Compensate(CompensateArgs),
+    /// Find where the model and the recording disagree, name the physics
+    /// left out, model it and show the held-out fit; write DIAGNOSIS.json.
+    Diagnose {
+        /// The flight log.
+        flight: PathBuf,
+        /// DIAGNOSIS.json to write.
+        #[arg(long)]
+        out: PathBuf,
+        /// Settings file (flights in it are ignored).
+        #[arg(long)]
+        config: Option<PathBuf>,
+    },
     /// Find the calibration boxes and their manoeuvres; write DETECT.json.
     Detect {
         /// The flight log.
@@ -124,6 +136,7 @@ fn main() -> ExitCode {
         Command::Run { config } => run(&config),
         Command::Compensate(args) => compensate(args),
         Command::Detect { flight, out, config } => detect(&flight, &out, config.as_deref()),
+        Command::Diagnose { flight, out, config } => diagnose(&flight, &out, config.as_deref()),
         Command::SampleFlight { out, windows, seed } => sample_flight(&out, &windows, seed),
         Command::Convert { flight, out, config } => convert(&flight, &out, config.as_deref()),
         Command::Simulate { scenario, out, seed } => simulate(&scenario, &out, seed),
@@ -300,6 +313,51 @@ fn detect(flight: &Path, out: &Path, config: Option<&Path>) -> anyhow::Result<()
             manoeuvre.period_s,
             manoeuvre.amplitude_deg
         );
+    }
+    println!("wrote {}", out.display());
+    Ok(())
+}
+
+fn diagnose(flight: &Path, out: &Path, config: Option<&Path>) -> anyhow::Result<()> {
+    let pipeline = match config {
+        Some(path) => Pipeline::load(path)?,
+        None => Pipeline::default(),
+    };
+    let log = magcomp::ingest::read_flight_log(flight, &pipeline.ingest)?;
+    let job = FlightJob {
+        input: flight.to_path_buf(),
+        vector: None,
+        channels: None,
+        windows: Vec::new(),
+    };
+    let bar = spinner(format!("diagnosing {}", flight.display()));
+    let diagnosis = magcomp::pipeline::diagnose_flight(&log, &job, &stage_options(&pipeline), &pipeline.diagnose);
+    bar.finish_and_clear();
+    let diagnosis = diagnosis?;
+    magcomp::output::write_json(out, "the diagnosis", &diagnosis)?;
+    for channel in &diagnosis.channels {
+        println!(
+            "  {}: held-out RMS {:.4} nT with plain Tolles-Lawson, {:.4} nT with the findings",
+            channel.channel, channel.heldout_rms_baseline_nt, channel.heldout_rms_final_nt
+        );
+    }
+    if diagnosis.findings.is_empty() {
+        println!("  no finding: nothing in the library explains the residual better than plain Tolles-Lawson");
+    }
+    for finding in &diagnosis.findings {
+        println!(
+            "  {} on {}{}: held-out RMS {:.4} → {:.4} nT",
+            finding.effect,
+            finding.channel,
+            finding
+                .source
+                .as_ref()
+                .map(|s| format!(" from {s}"))
+                .unwrap_or_default(),
+            finding.heldout_rms_before_nt,
+            finding.heldout_rms_after_nt
+        );
+        println!("    {}", finding.explanation);
     }
     println!("wrote {}", out.display());
     Ok(())

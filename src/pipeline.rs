@@ -205,6 +205,23 @@ impl<'a> ModelFile<'a> {
     }
 }
 
+/// Diagnoses a flight: its windows (given, or detected), its vector
+/// sensor and channels, then [`crate::diagnose::diagnose`].
+pub fn diagnose_flight(
+    log: &FlightLog,
+    job: &FlightJob,
+    options: &StageOptions,
+    settings: &crate::diagnose::DiagnoseOptions,
+) -> Result<crate::diagnose::Diagnosis> {
+    let sensor = choose_vector_sensor(log, job.vector.as_deref())?;
+    let channels = choose_channels(log, job.channels.as_deref())?;
+    let windows = match job.windows.is_empty() {
+        true => detect_manoeuvres(log, &options.detect)?.calibration_windows(options.detect.window_margin_s),
+        false => job.windows.clone(),
+    };
+    crate::diagnose::diagnose(log, &sensor, &channels, &windows, &options.fit, settings)
+}
+
 /// What detection found, in a sentence per box and per lack.
 pub fn detection_notes(detection: &Detection) -> Vec<String> {
     let mut notes = vec![format!(
