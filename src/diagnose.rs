@@ -14,7 +14,13 @@
 //! - `aux_coupling`: a recorded channel c (every numeric auxiliary column)
 //!   drives a body-fixed field, seen by the scalar as
 //!   $c\,(k_x u_x + k_y u_y + k_z u_z)$: three regressors;
-//! - `external_field`: the base station's variation, one regressor.
+//! - `external_field`: the base station's variation, one regressor;
+//! - `eddy_time_constant`: eddy currents that respond through a first-order
+//!   lag τ: the nine eddy terms $u_i\,\dot B_j$ are replaced by
+//!   $u_i\,L_\tau[\dot B_j]$ with $\tau \dot y + y = x$, τ found on a grid
+//!   and refined by a parabola. A scalar lag delays everything the sensor
+//!   sees; an eddy time constant delays only the eddy part, so the two
+//!   compete on the held-out fit and the better one is named.
 //!
 //! Selection is greedy: the candidate that lowers the held-out RMS most is
 //! accepted when it lowers it by more than `min_improvement` (30 %), then
@@ -115,6 +121,7 @@ pub struct Diagnosis {
 #[derive(Debug, Clone, PartialEq)]
 enum Extension {
     Lag { lag_s: f64 },
+    Eddy { tau_s: f64 },
     Coupling { source: String },
     External { source: String },
 }
@@ -124,6 +131,7 @@ enum Extension {
 #[derive(Debug, Clone, Default)]
 struct Model {
     lag_s: f64,
+    eddy_tau_s: f64,
     extensions: Vec<Extension>,
 }
 
@@ -222,6 +230,17 @@ fn candidates(problem: &Problem, model: &Model, settings: &DiagnoseOptions) -> V
             list.push((Model { lag_s, ..model.clone() }, Extension::Lag { lag_s }));
         }
     }
+    if model.eddy_tau_s == 0.0 && problem.options.terms.eddy != crate::tolles_lawson::EddyTerms::None {
+        for tau_s in [0.1, 0.2, 0.3, 0.45, 0.6, 0.8, 1.1, 1.5] {
+            list.push((
+                Model {
+                    eddy_tau_s: tau_s,
+                    ..model.clone()
+                },
+                Extension::Eddy { tau_s },
+            ));
+        }
+    }
     for channel in problem.log.channels() {
         let extension = match &channel.role {
             ChannelRole::Auxiliary => Extension::Coupling {
@@ -279,6 +298,25 @@ fn with_lag(problem: &Problem, lag_s: f64) -> Result<FlightLog> {
 /// Regressor columns and names of the model's extensions.
 fn regressors(problem: &Problem, model: &Model) -> (Vec<String>, Vec<Vec<f64>>) {
     let (mut names, mut columns) = (Vec::new(), Vec::new());
+    // Lagged eddy terms first: the newest extension stays last.
+    if model.eddy_tau_s > 0.0 {
+        let dt = problem.log.median_interval_s();
+        let field = problem.log.vector_components(problem.sensor);
+        let scale = problem.options.terms.bt_scale_nt;
+        let lagged: Vec<Vec<f64>> = field.iter().map(|b| lagged_rate(b, dt, model.eddy_tau_s)).collect();
+        for (i, axis_i) in ["x", "y", "z"].iter().enumerate() {
+            for (j, axis_j) in ["x", "y", "z"].iter().enumerate() {
+                names.push(format!("eddy_lagged_{axis_i}{axis_j}"));
+                columns.push(
+                    problem.direction[i]
+                        .iter()
+                        .zip(&lagged[j])
+                        .map(|(u, d)| u * d / scale)
+                        .collect(),
+                );
+            }
+        }
+    }
     for extension in &model.extensions {
         match extension {
             Extension::Coupling { source } => {
@@ -303,10 +341,41 @@ fn regressors(problem: &Problem, model: &Model) -> (Vec<String>, Vec<Vec<f64>>) 
                 names.push(source.clone());
                 columns.push(values.values.clone());
             }
-            Extension::Lag { .. } => {}
+            Extension::Lag { .. } | Extension::Eddy { .. } => {}
         }
     }
     (names, columns)
+}
+
+/// Per-sample central difference of `values` passed through a first-order
+/// lag of `tau_s`, $y_k = \alpha y_{k-1} + (1-\alpha) x_k$ with
+/// $\alpha = e^{-\Delta t/\tau}$, restarted after every missing sample.
+fn lagged_rate(values: &[f64], dt: f64, tau_s: f64) -> Vec<f64> {
+    let rate = crate::tolles_lawson::central_difference(values);
+    let alpha = (-dt / tau_s).exp();
+    let mut state = f64::NAN;
+    rate.iter()
+        .map(|x| {
+            state = if !x.is_finite() {
+                f64::NAN
+            } else if state.is_finite() {
+                alpha * state + (1.0 - alpha) * x
+            } else {
+                *x
+            };
+            state
+        })
+        .collect()
+}
+
+/// Fit settings for a model: the nine TL eddy terms give way to their
+/// lagged versions when the model has an eddy time constant.
+fn fit_options(problem: &Problem, model: &Model) -> FitOptions {
+    let mut options = problem.options.clone();
+    if model.eddy_tau_s > 0.0 {
+        options.terms.eddy = crate::tolles_lawson::EddyTerms::None;
+    }
+    options
 }
 
 /// Leave-one-heading-out residuals of `model`.
@@ -323,6 +392,7 @@ fn held_out(problem: &Problem, model: &Model) -> Result<HeldOut> {
         names,
         columns: columns.iter().map(Vec::as_slice).collect(),
     };
+    let options = fit_options(problem, model);
     let mut headings: Vec<f64> = Vec::new();
     for window in problem.windows {
         let heading = window.heading_deg.unwrap_or(0.0);
@@ -338,8 +408,8 @@ fn held_out(problem: &Problem, model: &Model) -> Result<HeldOut> {
             .cloned()
             .partition(|w| apart(w.heading_deg.unwrap_or(0.0), heading) < 15.0);
         let training = if rest.is_empty() { &out } else { &rest };
-        let fitted = fit_channel_with(log, problem.sensor, problem.channel, training, problem.options, &extra)?;
-        windows.extend(fitted.held_out_with(log, problem.sensor, &out, problem.options, &extra)?);
+        let fitted = fit_channel_with(log, problem.sensor, problem.channel, training, &options, &extra)?;
+        windows.extend(fitted.held_out_with(log, problem.sensor, &out, &options, &extra)?);
     }
     let all: Vec<f64> = windows.iter().flat_map(|w| w.band_after_nt.iter().copied()).collect();
     Ok(HeldOut {
@@ -377,6 +447,42 @@ fn refine_lag(problem: &Problem, base: &Model, coarse_s: f64) -> Result<(f64, He
     score(lag)
 }
 
+/// Refines an eddy time constant on a finer grid around the coarse best
+/// (steps of a tenth of it), then a parabola.
+fn refine_tau(problem: &Problem, base: &Model, coarse_s: f64) -> Result<(f64, HeldOut)> {
+    let score = |tau_s: f64| {
+        held_out(
+            problem,
+            &Model {
+                eddy_tau_s: tau_s,
+                ..base.clone()
+            },
+        )
+        .map(|h| (tau_s, h))
+    };
+    let step = 0.1 * coarse_s;
+    let fine: Vec<(f64, HeldOut)> = (-4..=4)
+        .into_par_iter()
+        .map(|k| score(coarse_s + k as f64 * step))
+        .collect::<Result<_>>()?;
+    let best = (0..fine.len())
+        .min_by(|&a, &b| fine[a].1.rms_nt.total_cmp(&fine[b].1.rms_nt))
+        .unwrap_or(4);
+    let tau = if best > 0 && best + 1 < fine.len() {
+        let (a, b, c) = (fine[best - 1].1.rms_nt, fine[best].1.rms_nt, fine[best + 1].1.rms_nt);
+        let curvature = a - 2.0 * b + c;
+        let shift = if curvature > 0.0 {
+            0.5 * (a - c) / curvature
+        } else {
+            0.0
+        };
+        fine[best].0 + shift.clamp(-0.5, 0.5) * step
+    } else {
+        fine[best].0
+    };
+    score(tau)
+}
+
 /// Describes an accepted extension; a lag is refined first. Returns the
 /// finding with the model and held-out residuals it ends with.
 fn finding(
@@ -405,6 +511,22 @@ fn finding(
                 if refined.0 > 0.0 { "later than" } else { "earlier than" }
             );
             model.lag_s = refined.0;
+            result = refined.1;
+        }
+        Extension::Eddy { tau_s } => {
+            let base = Model {
+                eddy_tau_s: 0.0,
+                ..model.clone()
+            };
+            let refined = refine_tau(problem, &base, *tau_s)?;
+            parameters.insert("tau_s".to_string(), refined.0);
+            effect = "eddy_time_constant";
+            source = None;
+            explanation = format!(
+                "Eddy currents in the airframe near {} build up and decay with a time constant of about {:.2} s instead of following the field's rate of change at once: the eddy terms, lagged by it, explain the residual that plain Tolles-Lawson leaves in the faster manoeuvres.",
+                problem.channel, refined.0
+            );
+            model.eddy_tau_s = refined.0;
             result = refined.1;
         }
         Extension::Coupling { source: column } => {

@@ -101,3 +101,20 @@ fn strong_pulsations_are_traced_to_the_base_station() {
     assert!((tail.parameters["gain"] - 1.0).abs() < 0.1, "{:?}", tail.parameters);
     assert!(tail.heldout_rms_after_nt < 0.5 * tail.heldout_rms_before_nt);
 }
+
+#[test]
+fn an_eddy_time_constant_is_told_apart_from_a_lag() {
+    // concealed_c: mag_2_uc's eddy currents lag by τ = 0.4 s (and the
+    // fluxgate carries calibration errors, which are not yet in the
+    // library). A scalar lag would delay everything the sensor sees; the
+    // held-out fit prefers the lagged eddy terms.
+    let diagnosis = diagnose("concealed_c.csv");
+    let cabin: Vec<&magcomp::diagnose::Finding> =
+        diagnosis.findings.iter().filter(|f| f.channel == "mag_2_uc").collect();
+    assert_eq!(cabin[0].effect, "eddy_time_constant", "{cabin:#?}");
+    let tau = cabin[0].parameters["tau_s"];
+    assert!((tau - 0.4).abs() < 0.08, "τ {tau}");
+    assert!(cabin[0].heldout_rms_after_nt < 0.3 * cabin[0].heldout_rms_before_nt);
+    // And the lag flight is still a lag, not an eddy time constant.
+    assert_eq!(diagnose("concealed_a.csv").findings[0].effect, "sensor_lag");
+}
