@@ -106,6 +106,10 @@ pub struct ChannelDiagnosis {
     pub heldout_rms_baseline_nt: f64,
     /// With every accepted effect, held out, nT.
     pub heldout_rms_final_nt: f64,
+    /// The best candidate that fell short of the threshold, and its
+    /// held-out RMS: what the data hint at without proving.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub strongest_rejected: Option<String>,
 }
 
 /// DIAGNOSIS.json.
@@ -195,6 +199,7 @@ fn diagnose_channel(problem: &Problem, settings: &DiagnoseOptions) -> Result<(Ch
     let mut current = baseline.rms_nt;
     let mut current_windows = baseline.windows;
     let mut findings = Vec::new();
+    let mut strongest_rejected = None;
     while findings.len() < settings.max_findings {
         let candidates = candidates(problem, &model, settings);
         let scored: Vec<(Model, Extension, HeldOut)> = candidates
@@ -206,6 +211,12 @@ fn diagnose_channel(problem: &Problem, settings: &DiagnoseOptions) -> Result<(Ch
             break;
         };
         if result.rms_nt > current * (1.0 - settings.min_improvement) {
+            strongest_rejected = Some(format!(
+                "{}: held-out RMS {:.4} nT ({:+.1} %)",
+                describe(&extension),
+                result.rms_nt,
+                100.0 * (result.rms_nt / current - 1.0)
+            ));
             break;
         }
         let (found, next, result) = finding(problem, next, &extension, (current, &current_windows), result)?;
@@ -216,8 +227,18 @@ fn diagnose_channel(problem: &Problem, settings: &DiagnoseOptions) -> Result<(Ch
         channel: problem.channel.to_string(),
         heldout_rms_baseline_nt: baseline.rms_nt,
         heldout_rms_final_nt: current,
+        strongest_rejected,
     };
     Ok((summary, findings))
+}
+
+fn describe(extension: &Extension) -> String {
+    match extension {
+        Extension::Lag { lag_s } => format!("sensor_lag {lag_s:.2} s"),
+        Extension::Eddy { tau_s } => format!("eddy_time_constant {tau_s:.2} s"),
+        Extension::Coupling { source } => format!("aux_coupling from {source}"),
+        Extension::External { source } => format!("external_field from {source}"),
+    }
 }
 
 /// Every extension of `model` worth scoring.
@@ -243,7 +264,7 @@ fn candidates(problem: &Problem, model: &Model, settings: &DiagnoseOptions) -> V
     }
     for channel in problem.log.channels() {
         let extension = match &channel.role {
-            ChannelRole::Auxiliary => Extension::Coupling {
+            ChannelRole::Auxiliary if !is_magnetic_product(&channel.name) => Extension::Coupling {
                 source: channel.name.clone(),
             },
             ChannelRole::BaseStation => Extension::External {
@@ -259,6 +280,15 @@ fn candidates(problem: &Problem, model: &Model, settings: &DiagnoseOptions) -> V
         }
     }
     list
+}
+
+/// Columns that are themselves magnetometer products (SGL's compensated
+/// `mag_1_c`, `mag_1_c_d`, IGRF and diurnal corrections, fluxgate totals):
+/// they carry the Earth's field the scalar records, so as "sources" they
+/// would explain the target with itself.
+fn is_magnetic_product(name: &str) -> bool {
+    let name = name.to_ascii_lowercase();
+    name.starts_with("mag_") || name.starts_with("flux_") || name.contains("igrf") || name.contains("diurnal")
 }
 
 /// The scalar read `lag_s` earlier: value at t + lag by linear interpolation.
@@ -393,22 +423,9 @@ fn held_out(problem: &Problem, model: &Model) -> Result<HeldOut> {
         columns: columns.iter().map(Vec::as_slice).collect(),
     };
     let options = fit_options(problem, model);
-    let mut headings: Vec<f64> = Vec::new();
-    for window in problem.windows {
-        let heading = window.heading_deg.unwrap_or(0.0);
-        if !headings.iter().any(|h| apart(*h, heading) < 15.0) {
-            headings.push(heading);
-        }
-    }
     let mut windows = Vec::new();
-    for heading in headings {
-        let (out, rest): (Vec<CalibrationWindow>, Vec<CalibrationWindow>) = problem
-            .windows
-            .iter()
-            .cloned()
-            .partition(|w| apart(w.heading_deg.unwrap_or(0.0), heading) < 15.0);
-        let training = if rest.is_empty() { &out } else { &rest };
-        let fitted = fit_channel_with(log, problem.sensor, problem.channel, training, &options, &extra)?;
+    for (out, rest) in folds(problem.windows) {
+        let fitted = fit_channel_with(log, problem.sensor, problem.channel, &rest, &options, &extra)?;
         windows.extend(fitted.held_out_with(log, problem.sensor, &out, &options, &extra)?);
     }
     let all: Vec<f64> = windows.iter().flat_map(|w| w.band_after_nt.iter().copied()).collect();
@@ -416,6 +433,46 @@ fn held_out(problem: &Problem, model: &Model) -> Result<HeldOut> {
         rms_nt: root_mean_square(&all),
         windows,
     })
+}
+
+/// The held-out splits (held out, trained on): each heading with three
+/// headings or more (leave one heading out); otherwise each window with
+/// three windows or more; otherwise each quarter of every window.
+fn folds(windows: &[CalibrationWindow]) -> Vec<(Vec<CalibrationWindow>, Vec<CalibrationWindow>)> {
+    let mut headings: Vec<f64> = Vec::new();
+    for heading in windows.iter().filter_map(|w| w.heading_deg) {
+        if !headings.iter().any(|h| apart(*h, heading) < 15.0) {
+            headings.push(heading);
+        }
+    }
+    let split = |pieces: &[CalibrationWindow], is_out: &dyn Fn(usize, &CalibrationWindow) -> bool| {
+        let (out, rest): (Vec<_>, Vec<_>) = pieces.iter().enumerate().partition(|(k, w)| is_out(*k, w));
+        (
+            out.into_iter().map(|(_, w)| w.clone()).collect(),
+            rest.into_iter().map(|(_, w)| w.clone()).collect(),
+        )
+    };
+    if headings.len() >= 3 && windows.iter().all(|w| w.heading_deg.is_some()) {
+        return headings
+            .iter()
+            .map(|&h| split(windows, &|_, w| apart(w.heading_deg.unwrap_or(h), h) < 15.0))
+            .collect();
+    }
+    let pieces: Vec<CalibrationWindow> = if windows.len() >= 3 {
+        windows.to_vec()
+    } else {
+        windows
+            .iter()
+            .flat_map(|w| {
+                let quarter = (w.t_end - w.t_start) / 4.0;
+                (0..4).map(move |q| CalibrationWindow {
+                    label: format!("{} (quarter {})", w.display_label(), q + 1),
+                    ..CalibrationWindow::new(w.t_start + q as f64 * quarter, w.t_start + (q + 1) as f64 * quarter)
+                })
+            })
+            .collect()
+    };
+    (0..pieces.len()).map(|k| split(&pieces, &|j, _| j == k)).collect()
 }
 
 fn apart(a: f64, b: f64) -> f64 {

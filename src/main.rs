@@ -40,6 +40,9 @@ enum Command {
         /// DIAGNOSIS.json to write.
         #[arg(long)]
         out: PathBuf,
+        /// Calibration window T0:T1; repeat for several (default: detected).
+        #[arg(long = "window")]
+        windows: Vec<String>,
         /// Settings file (flights in it are ignored).
         #[arg(long)]
         config: Option<PathBuf>,
@@ -131,12 +134,26 @@ struct CompensateArgs {
 }
 
 fn main() -> ExitCode {
+    // Like other command-line tools, stop quietly when the reader of our
+    // output goes away (`magcomp detect ... | head`) instead of failing to
+    // print.
+    #[cfg(unix)]
+    // SAFETY: restoring the default action of SIGPIPE before any thread
+    // starts; no handler of ours is involved.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
     let cli = Cli::parse();
     let outcome = match cli.command {
         Command::Run { config } => run(&config),
         Command::Compensate(args) => compensate(args),
         Command::Detect { flight, out, config } => detect(&flight, &out, config.as_deref()),
-        Command::Diagnose { flight, out, config } => diagnose(&flight, &out, config.as_deref()),
+        Command::Diagnose {
+            flight,
+            out,
+            windows,
+            config,
+        } => diagnose(&flight, &out, &windows, config.as_deref()),
         Command::SampleFlight { out, windows, seed } => sample_flight(&out, &windows, seed),
         Command::Convert { flight, out, config } => convert(&flight, &out, config.as_deref()),
         Command::Simulate { scenario, out, seed } => simulate(&scenario, &out, seed),
@@ -318,7 +335,7 @@ fn detect(flight: &Path, out: &Path, config: Option<&Path>) -> anyhow::Result<()
     Ok(())
 }
 
-fn diagnose(flight: &Path, out: &Path, config: Option<&Path>) -> anyhow::Result<()> {
+fn diagnose(flight: &Path, out: &Path, windows: &[String], config: Option<&Path>) -> anyhow::Result<()> {
     let pipeline = match config {
         Some(path) => Pipeline::load(path)?,
         None => Pipeline::default(),
@@ -328,7 +345,10 @@ fn diagnose(flight: &Path, out: &Path, config: Option<&Path>) -> anyhow::Result<
         input: flight.to_path_buf(),
         vector: None,
         channels: None,
-        windows: Vec::new(),
+        windows: windows
+            .iter()
+            .map(|w| CalibrationWindow::parse(w))
+            .collect::<Result<_, _>>()?,
     };
     let bar = spinner(format!("diagnosing {}", flight.display()));
     let diagnosis = magcomp::pipeline::diagnose_flight(&log, &job, &stage_options(&pipeline), &pipeline.diagnose);
@@ -340,6 +360,9 @@ fn diagnose(flight: &Path, out: &Path, config: Option<&Path>) -> anyhow::Result<
             "  {}: held-out RMS {:.4} nT with plain Tolles-Lawson, {:.4} nT with the findings",
             channel.channel, channel.heldout_rms_baseline_nt, channel.heldout_rms_final_nt
         );
+        if let Some(hint) = &channel.strongest_rejected {
+            println!("    best candidate short of the threshold: {hint}");
+        }
     }
     if diagnosis.findings.is_empty() {
         println!("  no finding: nothing in the library explains the residual better than plain Tolles-Lawson");
