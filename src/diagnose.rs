@@ -408,20 +408,39 @@ fn fit_options(problem: &Problem, model: &Model) -> FitOptions {
     options
 }
 
-/// Leave-one-heading-out residuals of `model`.
+/// What a model fits on: the flight (with the scalar advanced when the
+/// model has a lag) and its regressor columns.
+struct Prepared {
+    lagged: Option<FlightLog>,
+    names: Vec<String>,
+    columns: Vec<Vec<f64>>,
+}
+
+impl Prepared {
+    fn new(problem: &Problem, model: &Model) -> Result<Self> {
+        let lagged = (model.lag_s != 0.0)
+            .then(|| with_lag(problem, model.lag_s))
+            .transpose()?;
+        let (names, columns) = regressors(problem, model);
+        Ok(Prepared { lagged, names, columns })
+    }
+
+    fn log<'a>(&'a self, problem: &'a Problem) -> &'a FlightLog {
+        self.lagged.as_ref().unwrap_or(problem.log)
+    }
+
+    fn regressors(&self) -> Regressors<'_> {
+        Regressors {
+            names: self.names.clone(),
+            columns: self.columns.iter().map(Vec::as_slice).collect(),
+        }
+    }
+}
+
+/// Held-out residuals of `model` (see [`folds`]).
 fn held_out(problem: &Problem, model: &Model) -> Result<HeldOut> {
-    let lagged;
-    let log = if model.lag_s != 0.0 {
-        lagged = with_lag(problem, model.lag_s)?;
-        &lagged
-    } else {
-        problem.log
-    };
-    let (names, columns) = regressors(problem, model);
-    let extra = Regressors {
-        names,
-        columns: columns.iter().map(Vec::as_slice).collect(),
-    };
+    let prepared = Prepared::new(problem, model)?;
+    let (log, extra) = (prepared.log(problem), prepared.regressors());
     let options = fit_options(problem, model);
     let mut windows = Vec::new();
     for (out, rest) in folds(problem.windows) {
@@ -627,18 +646,8 @@ fn finding(
 
 /// The last `count` extra coefficients of a fit of `model` on all windows.
 fn extension_coefficients(problem: &Problem, model: &Model, count: usize) -> Result<Vec<f64>> {
-    let lagged;
-    let log = if model.lag_s != 0.0 {
-        lagged = with_lag(problem, model.lag_s)?;
-        &lagged
-    } else {
-        problem.log
-    };
-    let (names, columns) = regressors(problem, model);
-    let extra = Regressors {
-        names,
-        columns: columns.iter().map(Vec::as_slice).collect(),
-    };
+    let prepared = Prepared::new(problem, model)?;
+    let (log, extra) = (prepared.log(problem), prepared.regressors());
     let fitted = fit_channel_with(
         log,
         problem.sensor,
