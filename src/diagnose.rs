@@ -498,53 +498,23 @@ fn apart(a: f64, b: f64) -> f64 {
     ((a - b + 540.0).rem_euclid(360.0) - 180.0).abs()
 }
 
-/// Refines a lag by a finer grid around the coarse best, then a parabola.
-fn refine_lag(problem: &Problem, base: &Model, coarse_s: f64) -> Result<(f64, HeldOut)> {
-    let score = |lag_s: f64| held_out(problem, &Model { lag_s, ..base.clone() }).map(|h| (lag_s, h));
-    let fine: Vec<(f64, HeldOut)> = (-5..=5)
+/// Refines a parameter found on a coarse grid: `steps` either side of
+/// `coarse` spaced `step` apart, then a parabola through the best three.
+/// `with` sets the parameter on the model.
+fn refine(
+    problem: &Problem,
+    (coarse, step, steps): (f64, f64, i32),
+    with: impl Fn(f64) -> Model + Sync,
+) -> Result<(f64, HeldOut)> {
+    let score = |value: f64| held_out(problem, &with(value)).map(|h| (value, h));
+    let fine: Vec<(f64, HeldOut)> = (-steps..=steps)
         .into_par_iter()
-        .map(|k| score(coarse_s + k as f64 * 0.01))
+        .map(|k| score(coarse + k as f64 * step))
         .collect::<Result<_>>()?;
     let best = (0..fine.len())
         .min_by(|&a, &b| fine[a].1.rms_nt.total_cmp(&fine[b].1.rms_nt))
-        .unwrap_or(5);
-    let lag = if best > 0 && best + 1 < fine.len() {
-        let (a, b, c) = (fine[best - 1].1.rms_nt, fine[best].1.rms_nt, fine[best + 1].1.rms_nt);
-        let curvature = a - 2.0 * b + c;
-        let shift = if curvature > 0.0 {
-            0.5 * (a - c) / curvature
-        } else {
-            0.0
-        };
-        fine[best].0 + shift.clamp(-0.5, 0.5) * 0.01
-    } else {
-        fine[best].0
-    };
-    score(lag)
-}
-
-/// Refines an eddy time constant on a finer grid around the coarse best
-/// (steps of a tenth of it), then a parabola.
-fn refine_tau(problem: &Problem, base: &Model, coarse_s: f64) -> Result<(f64, HeldOut)> {
-    let score = |tau_s: f64| {
-        held_out(
-            problem,
-            &Model {
-                eddy_tau_s: tau_s,
-                ..base.clone()
-            },
-        )
-        .map(|h| (tau_s, h))
-    };
-    let step = 0.1 * coarse_s;
-    let fine: Vec<(f64, HeldOut)> = (-4..=4)
-        .into_par_iter()
-        .map(|k| score(coarse_s + k as f64 * step))
-        .collect::<Result<_>>()?;
-    let best = (0..fine.len())
-        .min_by(|&a, &b| fine[a].1.rms_nt.total_cmp(&fine[b].1.rms_nt))
-        .unwrap_or(4);
-    let tau = if best > 0 && best + 1 < fine.len() {
+        .unwrap_or(steps as usize);
+    let value = if best > 0 && best + 1 < fine.len() {
         let (a, b, c) = (fine[best - 1].1.rms_nt, fine[best].1.rms_nt, fine[best + 1].1.rms_nt);
         let curvature = a - 2.0 * b + c;
         let shift = if curvature > 0.0 {
@@ -556,7 +526,7 @@ fn refine_tau(problem: &Problem, base: &Model, coarse_s: f64) -> Result<(f64, He
     } else {
         fine[best].0
     };
-    score(tau)
+    score(value)
 }
 
 /// Describes an accepted extension; a lag is refined first. Returns the
@@ -576,7 +546,8 @@ fn finding(
                 lag_s: 0.0,
                 ..model.clone()
             };
-            let refined = refine_lag(problem, &base, *lag_s)?;
+            // Steps of 0.01 s (a tenth of a sample at 10 Hz) around the 0.05 s grid point.
+            let refined = refine(problem, (*lag_s, 0.01, 5), |lag_s| Model { lag_s, ..base.clone() })?;
             parameters.insert("lag_s".to_string(), refined.0);
             effect = "sensor_lag";
             source = None;
@@ -594,7 +565,11 @@ fn finding(
                 eddy_tau_s: 0.0,
                 ..model.clone()
             };
-            let refined = refine_tau(problem, &base, *tau_s)?;
+            // Steps of a tenth of τ around the grid point.
+            let refined = refine(problem, (*tau_s, 0.1 * tau_s, 4), |eddy_tau_s| Model {
+                eddy_tau_s,
+                ..base.clone()
+            })?;
             parameters.insert("tau_s".to_string(), refined.0);
             effect = "eddy_time_constant";
             source = None;
