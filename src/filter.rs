@@ -10,6 +10,8 @@
 //! it against `sci_rs::signal::filter::sosfiltfilt_dyn` and scipy values.
 
 use sci_rs::signal::filter::design::{butter_dyn, DigitalFilter, FilterBandType, FilterOutputType, Sos};
+use std::ops::Range;
+
 use serde::{Deserialize, Serialize};
 
 /// Columns filtered together in one pass.
@@ -185,94 +187,179 @@ impl ZeroPhaseFilter {
         outputs: &mut [&mut [f64]],
         skip: usize,
     ) -> Result<(), FilterError> {
-        let pad = if self.sections.is_empty() { 0 } else { self.pad };
-        if samples == 0 && pad == 0 {
+        let mut rows = vec![[0.0; LANES]; samples];
+        fill(&mut rows);
+        self.apply_stream(samples, |range, out| out.copy_from_slice(&rows[range]), outputs, skip)
+    }
+
+    /// Filters up to [`LANES`] signals of `samples` samples, read in
+    /// chunks: `source(range, rows)` writes samples `range` into `rows`, one
+    /// signal per lane. Output lane `k` receives samples
+    /// `skip .. skip + outputs[k].len()` of the filtered signal.
+    ///
+    /// The forward pass writes straight into `outputs` and the backward
+    /// pass runs over them in place, so the working memory is a few
+    /// kilobytes whatever the signal length: only the samples past the
+    /// outputs and the odd extension are kept aside.
+    pub fn apply_stream(
+        &self,
+        samples: usize,
+        mut source: impl FnMut(Range<usize>, &mut [[f64; LANES]]),
+        outputs: &mut [&mut [f64]],
+        skip: usize,
+    ) -> Result<(), FilterError> {
+        let kept = outputs.first().map_or(0, |o| o.len());
+        let start = skip.min(samples);
+        let end = (start + kept).min(samples);
+        let mut chunk = [[0.0; LANES]; CHUNK_ROWS];
+        if self.sections.is_empty() {
+            for first in (start..end).step_by(CHUNK_ROWS) {
+                let range = first..(first + CHUNK_ROWS).min(end);
+                let rows = &mut chunk[..range.len()];
+                source(range.clone(), rows);
+                scatter(rows, outputs, range.start - start);
+            }
             return Ok(());
         }
+        let pad = self.pad;
         if samples <= pad {
             return Err(FilterError::TooShort { samples, needed: pad });
         }
-        let mut buffer = vec![[0.0; LANES]; samples + 2 * pad];
-        fill(&mut buffer[pad..pad + samples]);
-        if !self.sections.is_empty() {
-            extend_odd(&mut buffer, pad, samples);
-            self.both_passes(&mut buffer);
-        }
-        let interior = &buffer[pad + skip.min(samples)..pad + samples];
-        for (lane, output) in outputs.iter_mut().enumerate() {
-            for (o, b) in output.iter_mut().zip(interior) {
-                *o = b[lane];
+        // Odd extension about each end: 2·x₀ − x_{pad−k} before the signal,
+        // 2·x_{n−1} − x_{n−2−k} after it.
+        let mut head = vec![[0.0; LANES]; pad + 1];
+        source(0..pad + 1, &mut head);
+        let mut after = vec![[0.0; LANES]; samples - end + pad];
+        let mut tail = vec![[0.0; LANES]; pad + 1];
+        source(samples - pad - 1..samples, &mut tail);
+        let front: Vec<[f64; LANES]> = (0..pad).map(|k| odd(head[0], head[pad - k])).collect();
+        let back: Vec<[f64; LANES]> = (0..pad).map(|k| odd(tail[pad], tail[pad - 1 - k])).collect();
+        // Forward pass: extension, signal, extension.
+        let mut state = self.initial_state(&front[0]);
+        let mut front_rows = front;
+        self.run(&mut state, front_rows.iter_mut());
+        for first in (0..samples).step_by(CHUNK_ROWS) {
+            let range = first..(first + CHUNK_ROWS).min(samples);
+            let rows = &mut chunk[..range.len()];
+            source(range.clone(), rows);
+            self.run(&mut state, rows.iter_mut());
+            for (offset, row) in rows.iter().enumerate() {
+                let i = range.start + offset;
+                if i >= end {
+                    after[i - end] = *row;
+                }
             }
+            let keep = range.start.max(start)..range.end.min(end);
+            if !keep.is_empty() {
+                scatter(
+                    &rows[keep.start - range.start..keep.end - range.start],
+                    outputs,
+                    keep.start - start,
+                );
+            }
+        }
+        let mut back_rows = back;
+        self.run(&mut state, back_rows.iter_mut());
+        let after_len = after.len();
+        after[after_len - pad..].copy_from_slice(&back_rows);
+        // Backward pass from the far end of the extension to the first output.
+        let mut state = self.initial_state(&after[after_len - 1]);
+        self.run(&mut state, after.iter_mut().rev());
+        let mut done = end;
+        while done > start {
+            let first = done.saturating_sub(CHUNK_ROWS).max(start);
+            let rows = &mut chunk[..done - first];
+            gather(outputs, first - start, rows);
+            self.run(&mut state, rows.iter_mut().rev());
+            scatter(rows, outputs, first - start);
+            done = first;
         }
         Ok(())
     }
 
-    /// Forward then backward pass over the whole buffer, with AVX2 when the
-    /// processor has it. No fused multiply-add is used, so both paths give
-    /// the same bits.
-    fn both_passes(&self, buffer: &mut [[f64; LANES]]) {
+    /// Steady-state section states for a signal that has always been `x`.
+    fn initial_state(&self, x: &[f64; LANES]) -> Vec<[[f64; LANES]; 2]> {
+        self.step_state
+            .iter()
+            .map(|zi| [x.map(|v| zi[0] * v), x.map(|v| zi[1] * v)])
+            .collect()
+    }
+
+    /// Runs the sections over `rows` in the order given, in place, with
+    /// AVX-512 or AVX2 when the processor has them. Every path uses fused
+    /// multiply-adds in the same order, so they give the same bits.
+    fn run<'a>(&self, state: &mut [[[f64; LANES]; 2]], rows: impl Iterator<Item = &'a mut [f64; LANES]>) {
         #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx2") {
-            // SAFETY: the processor supports AVX2, checked just above.
-            unsafe { self.both_passes_avx2(buffer) };
-            return;
+        {
+            if std::arch::is_x86_feature_detected!("avx512f") && std::arch::is_x86_feature_detected!("fma") {
+                // SAFETY: the processor supports AVX-512F and FMA, checked just above.
+                unsafe { self.run_avx512(state, rows) };
+                return;
+            }
+            if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+                // SAFETY: the processor supports AVX2 and FMA, checked just above.
+                unsafe { self.run_avx2(state, rows) };
+                return;
+            }
         }
-        self.both_passes_portable(buffer);
+        self.run_portable(state, rows);
     }
 
     #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    unsafe fn both_passes_avx2(&self, buffer: &mut [[f64; LANES]]) {
-        self.both_passes_portable(buffer);
+    #[target_feature(enable = "avx512f,fma")]
+    unsafe fn run_avx512<'a>(&self, state: &mut [[[f64; LANES]; 2]], rows: impl Iterator<Item = &'a mut [f64; LANES]>) {
+        self.run_portable(state, rows);
     }
 
-    #[inline(always)]
-    fn both_passes_portable(&self, buffer: &mut [[f64; LANES]]) {
-        self.run_pass(buffer.iter_mut());
-        self.run_pass(buffer.iter_mut().rev());
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn run_avx2<'a>(&self, state: &mut [[[f64; LANES]; 2]], rows: impl Iterator<Item = &'a mut [f64; LANES]>) {
+        self.run_portable(state, rows);
     }
 
-    /// One causal pass in transposed direct form II, in place, in the order
-    /// the iterator gives, starting from the steady state of the first sample.
+    /// Transposed direct form II, section by section.
     #[inline(always)]
-    fn run_pass<'a>(&self, mut samples: impl Iterator<Item = &'a mut [f64; LANES]>) {
-        let Some(first) = samples.next() else { return };
-        let start = *first;
-        let mut state: Vec<[[f64; LANES]; 2]> = self
-            .step_state
-            .iter()
-            .map(|zi| [start.map(|x| zi[0] * x), start.map(|x| zi[1] * x)])
-            .collect();
-        self.step(first, &mut state);
-        for sample in samples {
-            self.step(sample, &mut state);
-        }
-    }
-
-    #[inline(always)]
-    fn step(&self, sample: &mut [f64; LANES], state: &mut [[[f64; LANES]; 2]]) {
-        let mut x = *sample;
-        for ([b0, b1, b2, a1, a2], [z0, z1]) in self.sections.iter().zip(state.iter_mut()) {
-            for lane in 0..LANES {
-                let y = b0 * x[lane] + z0[lane];
-                z0[lane] = b1 * x[lane] - a1 * y + z1[lane];
-                z1[lane] = b2 * x[lane] - a2 * y;
-                x[lane] = y;
+    fn run_portable<'a>(&self, state: &mut [[[f64; LANES]; 2]], rows: impl Iterator<Item = &'a mut [f64; LANES]>) {
+        for sample in rows {
+            let mut x = *sample;
+            for ([b0, b1, b2, a1, a2], [z0, z1]) in self.sections.iter().zip(state.iter_mut()) {
+                for lane in 0..LANES {
+                    let y = b0.mul_add(x[lane], z0[lane]);
+                    z0[lane] = (-a1).mul_add(y, b1.mul_add(x[lane], z1[lane]));
+                    z1[lane] = (-a2).mul_add(y, b2 * x[lane]);
+                    x[lane] = y;
+                }
             }
+            *sample = x;
         }
-        *sample = x;
     }
 }
 
-/// Odd extension about each end: the `pad` rows before `buffer[pad]` and
-/// after `buffer[pad + samples - 1]` mirror the interior through its end value.
-fn extend_odd(buffer: &mut [[f64; LANES]], pad: usize, samples: usize) {
-    let (first, last) = (buffer[pad], buffer[pad + samples - 1]);
-    for k in 0..pad {
-        let (inner_head, inner_tail) = (buffer[2 * pad - k], buffer[pad + samples - 2 - k]);
-        for lane in 0..LANES {
-            buffer[k][lane] = 2.0 * first[lane] - inner_head[lane];
-            buffer[pad + samples + k][lane] = 2.0 * last[lane] - inner_tail[lane];
+/// Rows per chunk of a streamed pass (32 KiB).
+const CHUNK_ROWS: usize = 512;
+
+/// $2a - b$ lane by lane.
+fn odd(a: [f64; LANES], b: [f64; LANES]) -> [f64; LANES] {
+    std::array::from_fn(|lane| 2.0 * a[lane] - b[lane])
+}
+
+/// Writes `rows` into `outputs` from row `at`, lane `k` to output `k`.
+fn scatter(rows: &[[f64; LANES]], outputs: &mut [&mut [f64]], at: usize) {
+    for (lane, output) in outputs.iter_mut().enumerate() {
+        for (o, row) in output[at..at + rows.len()].iter_mut().zip(rows) {
+            *o = row[lane];
+        }
+    }
+}
+
+/// Reads `rows` from `outputs` from row `at`; lanes without an output are zero.
+fn gather(outputs: &[&mut [f64]], at: usize, rows: &mut [[f64; LANES]]) {
+    for row in rows.iter_mut() {
+        *row = [0.0; LANES];
+    }
+    for (lane, output) in outputs.iter().enumerate() {
+        for (row, &o) in rows.iter_mut().zip(&output[at..]) {
+            row[lane] = o;
         }
     }
 }
@@ -365,6 +452,46 @@ mod tests {
         for (column, output) in columns.iter().zip(&outputs) {
             assert_eq!(&filter.apply(column).unwrap(), output);
         }
+    }
+
+    /// The processor-specific passes and the portable one agree to the bit.
+    #[test]
+    fn filter_paths_give_the_same_bits() {
+        let filter = bandpass();
+        let mut rows: Vec<[f64; LANES]> = (0..300)
+            .map(|k| std::array::from_fn(|lane| ((k * (lane + 2)) as f64 * 0.07).sin() * 50.0))
+            .collect();
+        let mut copy = rows.clone();
+        let mut state = filter.initial_state(&rows[0]);
+        let mut portable_state = state.clone();
+        filter.run(&mut state, rows.iter_mut());
+        filter.run_portable(&mut portable_state, copy.iter_mut());
+        let bits = |r: &[[f64; LANES]]| r.iter().flatten().map(|v| v.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&rows), bits(&copy));
+    }
+
+    /// Streaming in chunks, with trimming, equals filtering the whole signal.
+    #[test]
+    fn streamed_trimmed_output_equals_the_whole_signal() {
+        let filter = bandpass();
+        let signal: Vec<f64> = (0..1700)
+            .map(|k| (k as f64 * 0.13).sin() + (k as f64 * 0.002).cos() * 30.0)
+            .collect();
+        let whole = filter.apply(&signal).unwrap();
+        let mut kept = vec![0.0; 1700 - 2 * 37];
+        filter
+            .apply_stream(
+                signal.len(),
+                |range, rows| {
+                    for (row, &v) in rows.iter_mut().zip(&signal[range]) {
+                        *row = [v; LANES];
+                    }
+                },
+                &mut [&mut kept],
+                37,
+            )
+            .unwrap();
+        assert_eq!(&whole[37..1700 - 37], &kept[..]);
     }
 
     #[test]

@@ -406,23 +406,24 @@ fn stack_filtered(
         }
     }
     tasks.into_par_iter().try_for_each(|(run, group, mut outputs)| {
-        let fill = |rows: &mut [[f64; LANES]]| {
-            let count = terms.len();
-            let design = group.start..group.end.min(width - 1);
-            let term_part = design.start.min(count)..design.end.min(count);
+        let count = terms.len();
+        let design = group.start..group.end.min(width - 1);
+        let term_part = design.start.min(count)..design.end.min(count);
+        let source = |rows: Range<usize>, out: &mut [[f64; LANES]]| {
+            let rows = run.start + rows.start..run.start + rows.end;
             if !term_part.is_empty() {
-                terms.fill_lanes(field, run.clone(), term_part, rows);
+                terms.fill_lanes(field, run.clone(), rows.clone(), term_part.clone(), out);
             }
             let sources =
                 (design.start.max(count)..design.end).map(|column| (column - group.start, extra[column - count]));
             let target = (group.end == width).then_some((design.len(), scalar));
             for (lane, source) in sources.chain(target) {
-                for (row, &value) in rows.iter_mut().zip(&source[run.clone()]) {
+                for (row, &value) in out.iter_mut().zip(&source[rows.clone()]) {
                     row[lane] = value;
                 }
             }
         };
-        filter.apply_lanes(run.len(), fill, &mut outputs, trim)
+        filter.apply_stream(run.len(), source, &mut outputs, trim)
     })?;
     let target = stacked.pop().unwrap_or_default();
     Ok((stacked, target))

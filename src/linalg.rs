@@ -92,6 +92,16 @@ pub fn small_svd(a: MatRef<'_, f64>) -> Option<(Mat<f64>, Vec<f64>, Mat<f64>)> {
     Some((u, sigma, v))
 }
 
+/// The lower Cholesky factor L of a small symmetric matrix (`a = L Lᵀ`);
+/// `None` when `a` is not numerically positive definite.
+pub fn cholesky_lower(a: MatRef<'_, f64>) -> Option<Mat<f64>> {
+    let llt = a.llt(faer::Side::Lower).ok()?;
+    let lower = llt.L().to_owned();
+    let n = lower.nrows();
+    let positive = (0..n).all(|i| lower[(i, i)] > 0.0 && lower[(i, i)].is_finite());
+    positive.then_some(lower)
+}
+
 /// Solves the small symmetric positive semi-definite system `k x = b` by
 /// Cholesky; `None` when `k` is numerically singular.
 pub fn solve_spd(k: MatRef<'_, f64>, b: &[f64]) -> Option<Vec<f64>> {

@@ -22,20 +22,23 @@
 //! $(I - U_b W U_b^\top)^{-1} e_b$. The Woodbury identity turns this into a
 //! $p \times p$ solve that needs only $G_b = U_b^\top U_b$ and $U_b^\top y_b$.
 //!
-//! Numerics: the SVD comes from the R factor of a tall-skinny QR of the
-//! column-scaled matrix (never the normal equations), and $U$ is rebuilt
-//! block by block as $A_s D V \Sigma^{-1}$.
+//! Numerics: the SVD comes from an R factor of $A$ (never from solving the
+//! normal equations). R is obtained by CholeskyQR2 (Fukaya et al. 2014;
+//! Yamamoto et al. 2015): Cholesky of the column-scaled Gram matrix gives a
+//! first basis $U_1$, whose own Gram matrix, accumulated row block by row
+//! block, refines it to working precision. Ill-conditioned (scaled
+//! condition number above 10⁶) or rank-deficient designs use a Householder
+//! tall-skinny QR instead. $U$ is rebuilt block by block as $A V \Sigma^{-1}$,
+//! and the leave-one-out residuals of all candidates are formed in
+//! registers from it, never stored.
 
 use std::ops::Range;
 
-use faer::Mat;
+use faer::{Mat, MatRef};
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::linalg::{multiply, small_svd, solve_spd, tall_skinny_r};
-
-/// Rows per block when accumulating PRESS.
-const PRESS_BLOCK_ROWS: usize = 2048;
+use crate::linalg::{cholesky_lower, multiply, small_svd, solve_spd, tall_skinny_r};
 
 /// How λ is obtained.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -143,6 +146,8 @@ pub struct Solution {
     pub singular_values: Vec<f64>,
     /// σ₁/σₚ of the design matrix.
     pub condition_number: f64,
+    /// How the R factor behind the SVD was computed.
+    pub decomposition: Decomposition,
     /// σ₁/σₚ after scaling each column to unit norm.
     pub scaled_condition_number: f64,
     /// Ridge PRESS curve.
@@ -197,30 +202,46 @@ pub enum SolveError {
 struct Spectrum {
     singular_values: Vec<f64>,
     v: Mat<f64>,
-    /// $M = D V \Sigma^{-1}$, zero beyond the numerical rank; $U = A_s M$.
+    /// $M = V \Sigma^{-1}$, zero beyond the numerical rank; $U = A M$.
     to_u: Mat<f64>,
     uty: Vec<f64>,
-    residual_ss_outside: f64,
     rank: usize,
     scaled_condition_number: f64,
+    decomposition: Decomposition,
 }
 
+/// How the R factor of the design matrix was computed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Decomposition {
+    /// Cholesky of the column-scaled Gram matrix, refined once (CholeskyQR2).
+    CholeskyQr2,
+    /// Householder tall-skinny QR, for ill-conditioned or rank-deficient data.
+    Householder,
+}
+
+/// Above this condition number of the column-scaled matrix the Cholesky
+/// route is not taken: its first pass loses κ²·ε, and one refinement
+/// restores full accuracy only while κ²·ε ≪ 1 (Yamamoto et al. 2015).
+const CHOLESKY_CONDITION_LIMIT: f64 = 1e6;
+
 /// Fits `y ≈ A β` with ridge/TSVD. `columns` are the (filtered) design
-/// columns, consumed and scaled in place; `folds` partition the rows into
-/// calibration windows for the blocked PRESS.
+/// columns; `folds` partition the rows into calibration windows for the
+/// blocked PRESS.
 pub fn solve(
-    mut columns: Vec<Vec<f64>>,
+    columns: Vec<Vec<f64>>,
     y: &[f64],
     folds: &[Range<usize>],
     options: &SolveOptions,
 ) -> Result<Solution, SolveError> {
-    check_input(&columns, y)?;
-    let scales = scale_columns(&mut columns)?;
-    let spectrum = decompose(&columns, y, &scales)?;
+    check_shape(&columns, y)?;
+    let folds = usable_folds(folds, y.len());
+    let blocks = row_blocks(&folds, y.len());
+    let (spectrum, fold_statistics) = decompose(&columns, y, &blocks, folds.len().max(1))?;
     let grid = lambda_grid(&spectrum, options);
     let weights = candidate_weights(&spectrum, &grid);
-    let folds = usable_folds(folds, y.len());
-    let (press, blocked) = press_statistics(&columns, y, &spectrum, &weights, &folds);
+    let press = leave_one_out_press(&columns, y, &spectrum, &weights, &blocks);
+    let blocked = (!folds.is_empty()).then(|| blocked_press(&fold_statistics, &spectrum, &weights));
     let ridge_curve: Vec<RidgePoint> = (0..grid.len())
         .map(|l| RidgePoint {
             lambda: grid[l],
@@ -236,81 +257,303 @@ pub fn solve(
             blocked_press: blocked.as_ref().map(|b| b[grid.len() + r]),
         })
         .collect();
-    let mut solution = choose(spectrum, ridge_curve, tsvd_curve, options, y.len())?;
-    solution.fitted = fitted_values(&columns, &scales, &solution.coefficients);
+    let (mut solution, chosen_weights) = choose(&spectrum, ridge_curve, tsvd_curve, options, y.len())?;
+    solution.fitted = fitted_values(&columns, &solution.coefficients);
+    let residual_ss: f64 = y.iter().zip(&solution.fitted).map(|(y, f)| (y - f) * (y - f)).sum();
+    let samples = y.len() as f64;
+    let noise = (residual_ss / (samples - solution.effective_dof).max(1.0)).sqrt();
+    solution.residual_rms = (residual_ss / samples).sqrt();
+    solution.standard_errors = standard_errors(&spectrum, &chosen_weights, noise);
     Ok(solution)
 }
 
-/// $A\beta = A_s (D\beta)$ from the scaled columns.
-fn fitted_values(scaled: &[Vec<f64>], scales: &[f64], coefficients: &[f64]) -> Vec<f64> {
-    let mut fitted = vec![0.0; scaled.first().map_or(0, Vec::len)];
-    for ((column, scale), beta) in scaled.iter().zip(scales).zip(coefficients) {
-        let gain = scale * beta;
-        fitted.iter_mut().zip(column).for_each(|(f, a)| *f += a * gain);
-    }
+/// $A\beta$, column by column within row blocks, the blocks in parallel
+/// (each row's sum is the same whatever the thread count).
+fn fitted_values(columns: &[Vec<f64>], coefficients: &[f64]) -> Vec<f64> {
+    let mut fitted = vec![0.0; columns.first().map_or(0, Vec::len)];
+    fitted.par_chunks_mut(BLOCK_ROWS).enumerate().for_each(|(block, out)| {
+        let start = block * BLOCK_ROWS;
+        for (column, beta) in columns.iter().zip(coefficients) {
+            let values = &column[start..start + out.len()];
+            out.iter_mut().zip(values).for_each(|(f, a)| *f += a * beta);
+        }
+    });
     fitted
 }
 
-fn check_input(columns: &[Vec<f64>], y: &[f64]) -> Result<(), SolveError> {
+fn check_shape(columns: &[Vec<f64>], y: &[f64]) -> Result<(), SolveError> {
     let terms = columns.len();
     if y.len() <= terms {
         return Err(SolveError::TooFewSamples { rows: y.len(), terms });
     }
-    let values = columns.iter().map(Vec::as_slice).chain(std::iter::once(y));
-    for (column, values) in values.enumerate() {
-        if let Some(row) = values.iter().position(|v| !v.is_finite()) {
-            return Err(SolveError::NonFinite { column, row });
-        }
+    if let Some(row) = y.iter().position(|v| !v.is_finite()) {
+        return Err(SolveError::NonFinite { column: terms, row });
     }
     Ok(())
 }
 
-/// Scales each column to unit Euclidean norm; returns the norms $D$.
-fn scale_columns(columns: &mut [Vec<f64>]) -> Result<Vec<f64>, SolveError> {
-    let scales: Vec<f64> = columns
-        .iter_mut()
-        .map(|column| {
-            let norm = column.iter().map(|v| v * v).sum::<f64>().sqrt();
-            let scale = if norm > 0.0 { norm } else { 1.0 };
-            column.iter_mut().for_each(|v| *v /= scale);
-            scale
+/// The first non-finite design value, searched only once the Gram matrix
+/// has shown there is one.
+fn first_non_finite(columns: &[Vec<f64>]) -> SolveError {
+    columns
+        .iter()
+        .enumerate()
+        .find_map(|(column, values)| {
+            let row = values.iter().position(|v| !v.is_finite())?;
+            Some(SolveError::NonFinite { column, row })
         })
-        .collect();
-    if columns.iter().all(|c| c.iter().all(|&v| v == 0.0)) {
-        return Err(SolveError::ZeroMatrix);
-    }
-    Ok(scales)
+        // Finite values whose squares overflow.
+        .unwrap_or(SolveError::NonFinite { column: 0, row: 0 })
 }
 
-fn decompose(scaled: &[Vec<f64>], y: &[f64], scales: &[f64]) -> Result<Spectrum, SolveError> {
-    let p = scaled.len();
-    let mut views: Vec<&[f64]> = scaled.iter().map(Vec::as_slice).collect();
-    views.push(y);
-    let r_aug = tall_skinny_r(&views);
-    let r_scaled = r_aug.as_ref().get(..p, ..p);
-    let r = Mat::from_fn(p, p, |i, j| r_scaled[(i, j)] * scales[j]);
-    let (u_r, singular_values, v) = small_svd(r.as_ref()).ok_or(SolveError::SvdFailed)?;
-    let q_y: Vec<f64> = (0..p).map(|i| r_aug[(i, p)]).collect();
-    let uty: Vec<f64> = (0..p).map(|k| (0..p).map(|i| u_r[(i, k)] * q_y[i]).sum()).collect();
-    let tolerance = singular_values[0] * (y.len().max(p) as f64) * f64::EPSILON;
-    let rank = singular_values.iter().take_while(|&&s| s > tolerance).count();
-    let to_u = Mat::from_fn(p, p, |j, k| {
-        if k < rank {
-            scales[j] * v[(j, k)] / singular_values[k]
-        } else {
-            0.0
+/// Row blocks of at most [`BLOCK_ROWS`], never crossing a fold, each with
+/// the index of its fold (0 when there are no folds).
+fn row_blocks(folds: &[Range<usize>], rows: usize) -> Vec<(usize, Range<usize>)> {
+    let whole = std::slice::from_ref(&(0..rows)).to_vec();
+    let ranges: &[Range<usize>] = if folds.is_empty() { &whole } else { folds };
+    ranges
+        .iter()
+        .enumerate()
+        .flat_map(|(f, fold)| {
+            fold.clone()
+                .step_by(BLOCK_ROWS)
+                .map(move |start| (f, start..(start + BLOCK_ROWS).min(fold.end)))
+        })
+        .collect()
+}
+
+/// A reusable block of design rows, column-major, its row count rounded up
+/// to twice [`LANES`] with zeros below the data (zero rows add nothing to
+/// any sum).
+struct BlockBuffer {
+    rows: Mat<f64>,
+    basis: Mat<f64>,
+    y: Vec<f64>,
+}
+
+impl BlockBuffer {
+    fn new(p: usize) -> Self {
+        BlockBuffer {
+            rows: Mat::zeros(BLOCK_ROWS, p),
+            basis: Mat::zeros(BLOCK_ROWS, p),
+            y: vec![0.0; BLOCK_ROWS],
         }
+    }
+
+    /// Copies `range` of the columns (and of `y`) in; returns the padded row count.
+    fn load(&mut self, columns: &[Vec<f64>], y: &[f64], range: &Range<usize>) -> usize {
+        let used = range.len();
+        let padded = used.next_multiple_of(2 * LANES);
+        for (j, column) in columns.iter().enumerate() {
+            let target = self.rows.col_as_slice_mut(j);
+            target[..used].copy_from_slice(&column[range.clone()]);
+            target[used..padded].fill(0.0);
+        }
+        self.y[..used].copy_from_slice(&y[range.clone()]);
+        self.y[used..padded].fill(0.0);
+        padded
+    }
+
+    /// $U_b = A_b M$ for the loaded rows, into `self.basis`.
+    fn basis(&mut self, padded: usize, to_u: &Mat<f64>) {
+        let rows = self.rows.as_ref().get(..padded, ..);
+        multiply(self.basis.as_mut().get_mut(..padded, ..), rows, to_u.as_ref());
+    }
+}
+
+/// $A^\top A$, block by block in parallel, summed in block order.
+fn gram_matrix(columns: &[Vec<f64>], y: &[f64], blocks: &[(usize, Range<usize>)]) -> Mat<f64> {
+    let p = columns.len();
+    let partials: Vec<Mat<f64>> = blocks
+        .par_iter()
+        .map_init(
+            || BlockBuffer::new(p),
+            |buffer, (_, range)| {
+                let padded = buffer.load(columns, y, range);
+                let mut gram = Mat::zeros(p, p);
+                let rows = buffer.rows.as_ref().get(..padded, ..);
+                multiply(gram.as_mut(), rows.transpose(), rows);
+                gram
+            },
+        )
+        .collect();
+    let mut gram = Mat::zeros(p, p);
+    for partial in &partials {
+        gram += partial;
+    }
+    gram
+}
+
+/// Singular values and vectors of $A$ from an R factor ($A = QR$).
+struct Factor {
+    u_r: Mat<f64>,
+    singular_values: Vec<f64>,
+    v: Mat<f64>,
+    rank: usize,
+    /// $V\Sigma^{-1}$, zero beyond the rank.
+    to_u: Mat<f64>,
+}
+
+impl Factor {
+    fn of_r(r: MatRef<'_, f64>, rows: usize) -> Result<Self, SolveError> {
+        let p = r.ncols();
+        let (u_r, singular_values, v) = small_svd(r).ok_or(SolveError::SvdFailed)?;
+        let tolerance = singular_values[0] * (rows.max(p) as f64) * f64::EPSILON;
+        let rank = singular_values.iter().take_while(|&&s| s > tolerance).count();
+        let to_u = Mat::from_fn(p, p, |j, k| match k < rank {
+            true => v[(j, k)] / singular_values[k],
+            false => 0.0,
+        });
+        Ok(Factor {
+            u_r,
+            singular_values,
+            v,
+            rank,
+            to_u,
+        })
+    }
+}
+
+/// The SVD of the design matrix and the per-fold statistics of its left
+/// singular vectors, in three passes over the rows: the Gram matrix, then
+/// $U_1 = A M_1$ with its Gram matrix and $U_1^\top y$ per fold, from which
+/// a small refinement gives the final basis (CholeskyQR2: the second
+/// Cholesky factor of $U_1^\top U_1$ corrects the first to working
+/// precision). Ill-conditioned or rank-deficient designs take the
+/// Householder tall-skinny QR instead.
+fn decompose(
+    columns: &[Vec<f64>],
+    y: &[f64],
+    blocks: &[(usize, Range<usize>)],
+    fold_count: usize,
+) -> Result<(Spectrum, Vec<FoldStatistics>), SolveError> {
+    let p = columns.len();
+    let gram = gram_matrix(columns, y, blocks);
+    if !(0..p).all(|j| (0..p).all(|i| gram[(i, j)].is_finite())) {
+        return Err(first_non_finite(columns));
+    }
+    if (0..p).all(|j| gram[(j, j)] == 0.0) {
+        return Err(SolveError::ZeroMatrix);
+    }
+    let scales: Vec<f64> = (0..p)
+        .map(|j| match gram[(j, j)] > 0.0 {
+            true => gram[(j, j)].sqrt(),
+            false => 1.0,
+        })
+        .collect();
+    let scaled_gram = Mat::from_fn(p, p, |i, j| gram[(i, j)] / (scales[i] * scales[j]));
+    if let Some(refined) = cholesky_route(columns, y, blocks, fold_count, scaled_gram.as_ref(), &scales)? {
+        return Ok(refined);
+    }
+    let views: Vec<&[f64]> = columns.iter().map(Vec::as_slice).collect();
+    let r = tall_skinny_r(&views);
+    let factor = Factor::of_r(r.as_ref(), y.len())?;
+    let statistics = basis_statistics(columns, y, blocks, &factor.to_u, fold_count);
+    let total = FoldStatistics::total(&statistics, p);
+    let scaled_r = Mat::from_fn(p, p, |i, j| r[(i, j)] / scales[j]);
+    let spectrum = Spectrum {
+        scaled_condition_number: condition_number(scaled_r.as_ref())?,
+        singular_values: factor.singular_values,
+        v: factor.v,
+        to_u: factor.to_u,
+        uty: total.uty,
+        rank: factor.rank,
+        decomposition: Decomposition::Householder,
+    };
+    Ok((spectrum, statistics))
+}
+
+/// CholeskyQR2 when the scaled Gram matrix is safely positive definite;
+/// `None` sends the caller to Householder QR.
+fn cholesky_route(
+    columns: &[Vec<f64>],
+    y: &[f64],
+    blocks: &[(usize, Range<usize>)],
+    fold_count: usize,
+    scaled_gram: MatRef<'_, f64>,
+    scales: &[f64],
+) -> Result<Option<(Spectrum, Vec<FoldStatistics>)>, SolveError> {
+    let p = scales.len();
+    let Some(first_lower) = cholesky_lower(scaled_gram) else {
+        return Ok(None);
+    };
+    // R₁ of the scaled matrix, then of A itself.
+    let first_r = Mat::from_fn(p, p, |i, j| first_lower[(j, i)] * scales[j]);
+    let first = Factor::of_r(first_r.as_ref(), y.len())?;
+    let scaled_first_r = Mat::from_fn(p, p, |i, j| first_lower[(j, i)]);
+    if first.rank < p || condition_number(scaled_first_r.as_ref())? > CHOLESKY_CONDITION_LIMIT {
+        return Ok(None);
+    }
+    let first_statistics = basis_statistics(columns, y, blocks, &first.to_u, fold_count);
+    let first_total = FoldStatistics::total(&first_statistics, p);
+    // U₁ = Q L₂ᵀ with L₂ L₂ᵀ = U₁ᵀU₁, so A = U₁ Σ₁ V₁ᵀ = Q (L₂ᵀ Σ₁ V₁ᵀ).
+    let Some(second_lower) = cholesky_lower(first_total.gram.as_ref()) else {
+        return Ok(None);
+    };
+    let r = Mat::from_fn(p, p, |i, j| {
+        (i..p)
+            .map(|k| second_lower[(k, i)] * first.singular_values[k] * first.v[(j, k)])
+            .sum::<f64>()
     });
-    let scaled_sigma = small_svd(r_scaled).ok_or(SolveError::SvdFailed)?.1;
-    Ok(Spectrum {
-        residual_ss_outside: r_aug[(p, p)].powi(2),
-        scaled_condition_number: scaled_sigma[0] / scaled_sigma[p - 1],
-        singular_values,
-        v,
-        to_u,
+    let factor = Factor::of_r(r.as_ref(), y.len())?;
+    if factor.rank < p {
+        return Ok(None);
+    }
+    // U = Q U_R = U₁ T with T = L₂⁻ᵀ U_R.
+    let mut t = factor.u_r.clone();
+    faer::linalg::triangular_solve::solve_upper_triangular_in_place(
+        second_lower.as_ref().transpose(),
+        t.as_mut(),
+        faer::Par::Seq,
+    );
+    let statistics: Vec<FoldStatistics> = first_statistics.iter().map(|s| s.in_basis(&t)).collect();
+    let uty = first_total.in_basis(&t).uty;
+    let scaled_r = Mat::from_fn(p, p, |i, j| r[(i, j)] / scales[j]);
+    let spectrum = Spectrum {
+        scaled_condition_number: condition_number(scaled_r.as_ref())?,
+        singular_values: factor.singular_values,
+        v: factor.v,
+        to_u: factor.to_u,
         uty,
-        rank,
-    })
+        rank: factor.rank,
+        decomposition: Decomposition::CholeskyQr2,
+    };
+    Ok(Some((spectrum, statistics)))
+}
+
+/// σ₁/σₚ of a small matrix.
+fn condition_number(a: MatRef<'_, f64>) -> Result<f64, SolveError> {
+    let sigma = small_svd(a).ok_or(SolveError::SvdFailed)?.1;
+    Ok(sigma[0] / sigma[sigma.len() - 1])
+}
+
+/// Per-fold $U_b^\top U_b$, $U_b^\top y_b$ and $y_b^\top y_b$ with
+/// $U = A M$, summed in block order.
+fn basis_statistics(
+    columns: &[Vec<f64>],
+    y: &[f64],
+    blocks: &[(usize, Range<usize>)],
+    to_u: &Mat<f64>,
+    fold_count: usize,
+) -> Vec<FoldStatistics> {
+    let p = columns.len();
+    let partials: Vec<(usize, FoldStatistics)> = blocks
+        .par_iter()
+        .map_init(
+            || BlockBuffer::new(p),
+            |buffer, (fold, range)| {
+                let padded = buffer.load(columns, y, range);
+                buffer.basis(padded, to_u);
+                let u = buffer.basis.as_ref().get(..padded, ..);
+                (*fold, FoldStatistics::of_block(u, &buffer.y[..padded]))
+            },
+        )
+        .collect();
+    let mut folds: Vec<FoldStatistics> = (0..fold_count).map(|_| FoldStatistics::zeros(p)).collect();
+    for (fold, partial) in partials {
+        folds[fold].add(&partial);
+    }
+    folds
 }
 
 /// Log-spaced λ grid relative to σ₁².
@@ -362,148 +605,243 @@ struct FoldStatistics {
     yy: f64,
 }
 
-/// PRESS for every candidate, and the blocked PRESS when there are folds.
-///
-/// Row blocks are processed in parallel; their partial sums are added in
-/// block order, so the result does not depend on the number of threads.
-fn press_statistics(
-    scaled: &[Vec<f64>],
+/// Rows per block of the passes over the data.
+const BLOCK_ROWS: usize = 2048;
+
+/// Rows in one AVX-512 register of the PRESS kernel.
+const LANES: usize = 8;
+
+/// Candidates handled together by the PRESS kernel.
+const CANDIDATES: usize = 4;
+
+/// Leave-one-out PRESS of every candidate. Row blocks run in parallel and
+/// their sums are added in block order, so the result does not depend on
+/// the number of threads.
+fn leave_one_out_press(
+    columns: &[Vec<f64>],
     y: &[f64],
     spectrum: &Spectrum,
     weights: &[Vec<f64>],
-    folds: &[Range<usize>],
-) -> (Vec<f64>, Option<Vec<f64>>) {
-    let p = scaled.len();
+    blocks: &[(usize, Range<usize>)],
+) -> Vec<f64> {
+    let p = columns.len();
     let m = weights.len();
-    let weight_matrix = Mat::from_fn(p, m, |k, l| weights[l][k]);
-    let fitted_weights = Mat::from_fn(p, m, |k, l| weights[l][k] * spectrum.uty[k]);
-    let whole = std::slice::from_ref(&(0..y.len())).to_vec();
-    let ranges: &[Range<usize>] = if folds.is_empty() { &whole } else { folds };
-    let blocks: Vec<(usize, Range<usize>)> = ranges
-        .iter()
-        .enumerate()
-        .flat_map(|(f, fold)| {
-            fold.clone()
-                .step_by(PRESS_BLOCK_ROWS)
-                .map(move |start| (f, start..(start + PRESS_BLOCK_ROWS).min(fold.end)))
-        })
-        .collect();
-    let partials: Vec<BlockPress> = blocks
+    // Truncated-SVD candidates (the last `rank`) are cumulative sums, done apart.
+    let ridge = m - spectrum.rank;
+    // Candidate-major chunks of CANDIDATES, zero-padded: [chunk][k][c].
+    let chunks = ridge.div_ceil(CANDIDATES);
+    let pack = |value: &dyn Fn(usize, usize) -> f64| -> Vec<[f64; CANDIDATES]> {
+        (0..chunks * p)
+            .map(|index| {
+                let (chunk, k) = (index / p, index % p);
+                std::array::from_fn(|c| {
+                    let l = chunk * CANDIDATES + c;
+                    if l < ridge {
+                        value(l, k)
+                    } else {
+                        0.0
+                    }
+                })
+            })
+            .collect()
+    };
+    let leverage_weights = pack(&|l, k| weights[l][k]);
+    let fitted_weights = pack(&|l, k| weights[l][k] * spectrum.uty[k]);
+    let partials: Vec<Vec<(f64, f64)>> = blocks
         .par_iter()
-        .map(|(fold, rows)| {
-            let u = basis_block(scaled, &spectrum.to_u, rows.clone());
-            let y = &y[rows.clone()];
-            let (press, worst_leverage) = block_press(&u, y, &weight_matrix, &fitted_weights);
-            let statistics = (!folds.is_empty()).then(|| FoldStatistics::of_block(&u, y));
-            BlockPress {
-                fold: *fold,
-                press,
-                worst_leverage,
-                statistics,
-            }
-        })
+        .map_init(
+            || BlockBuffer::new(p),
+            |buffer, (_, range)| {
+                let padded = buffer.load(columns, y, range);
+                buffer.basis(padded, &spectrum.to_u);
+                let kernel = Kernel {
+                    leverage_weights: &leverage_weights,
+                    fitted_weights: &fitted_weights,
+                    ridge,
+                    uty: &spectrum.uty[..spectrum.rank],
+                };
+                kernel.block(&buffer.basis, padded, &buffer.y[..padded])
+            },
+        )
         .collect();
     let mut press = vec![0.0; m];
-    let mut worst_leverage = vec![0.0f64; m];
-    let mut fold_statistics: Vec<FoldStatistics> = (0..ranges.len()).map(|_| FoldStatistics::zeros(p)).collect();
+    let mut worst = vec![0.0f64; m];
     for partial in partials {
-        for l in 0..m {
-            press[l] += partial.press[l];
-            worst_leverage[l] = worst_leverage[l].max(partial.worst_leverage[l]);
-        }
-        if let Some(statistics) = partial.statistics {
-            fold_statistics[partial.fold].add(&statistics);
+        for (l, (sum, high)) in partial.into_iter().enumerate() {
+            press[l] += sum;
+            worst[l] = worst[l].max(high);
         }
     }
     // A sample with leverage 1 has no leave-one-out prediction.
-    for (total, worst) in press.iter_mut().zip(&worst_leverage) {
+    for (total, worst) in press.iter_mut().zip(&worst) {
         if *worst >= 1.0 - 1e-10 || worst.is_nan() {
             *total = f64::INFINITY;
         }
     }
-    let blocked = (!folds.is_empty()).then(|| blocked_press(&fold_statistics, spectrum, weights));
-    (press, blocked)
+    press
 }
 
-/// One row block's share of the PRESS statistics.
-struct BlockPress {
-    fold: usize,
-    press: Vec<f64>,
-    worst_leverage: Vec<f64>,
-    statistics: Option<FoldStatistics>,
+/// The leave-one-out sums of every candidate over row blocks.
+struct Kernel<'a> {
+    /// Ridge weights $W$, packed by [`leave_one_out_press`].
+    leverage_weights: &'a [[f64; CANDIDATES]],
+    /// Ridge weights times $U^\top y$.
+    fitted_weights: &'a [[f64; CANDIDATES]],
+    /// Number of ridge candidates.
+    ridge: usize,
+    /// $U^\top y$ up to the rank: truncated SVD of rank r fits
+    /// $\sum_{k<r} u_k c_k$ with leverage $\sum_{k<r} u_k^2$.
+    uty: &'a [f64],
 }
 
-/// Rows `rows` of $U = A_s M$.
-fn basis_block(scaled: &[Vec<f64>], to_u: &Mat<f64>, rows: Range<usize>) -> Mat<f64> {
-    let mut block = Mat::zeros(rows.len(), scaled.len());
-    for (j, column) in scaled.iter().enumerate() {
-        block.col_as_slice_mut(j).copy_from_slice(&column[rows.clone()]);
+impl Kernel<'_> {
+    /// Per candidate (ridge, then every rank), $\sum_i ((y_i - f_i)/(1 - h_i))^2$
+    /// and $\max_i h_i$ over the first `rows` rows of `basis`, with
+    /// $f = U F$ and $h = (U \circ U) W$ formed on the fly: the fitted
+    /// values and leverages never reach memory. AVX-512 or AVX2 when the
+    /// processor has them; every path uses fused multiply-adds in the same
+    /// order, so they give the same bits.
+    fn block(&self, basis: &Mat<f64>, rows: usize, y: &[f64]) -> Vec<(f64, f64)> {
+        let p = basis.ncols();
+        let columns: Vec<&[f64]> = (0..p).map(|k| &basis.col_as_slice(k)[..rows]).collect();
+        let mut out = Vec::with_capacity(self.ridge.next_multiple_of(CANDIDATES) + self.uty.len());
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::arch::is_x86_feature_detected!("avx512f") && std::arch::is_x86_feature_detected!("fma") {
+                // SAFETY: the processor supports AVX-512F and FMA, checked just above.
+                unsafe { self.run_avx512(&columns, y, &mut out) };
+                return out;
+            }
+            if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+                // SAFETY: the processor supports AVX2 and FMA, checked just above.
+                unsafe { self.run_avx2(&columns, y, &mut out) };
+                return out;
+            }
+        }
+        self.run(&columns, y, &mut out);
+        out
     }
-    let mut u = Mat::zeros(rows.len(), scaled.len());
-    multiply(u.as_mut(), block.as_ref(), to_u.as_ref());
-    u
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f,fma")]
+    unsafe fn run_avx512(&self, columns: &[&[f64]], y: &[f64], out: &mut Vec<(f64, f64)>) {
+        self.run(columns, y, out);
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn run_avx2(&self, columns: &[&[f64]], y: &[f64], out: &mut Vec<(f64, f64)>) {
+        self.run(columns, y, out);
+    }
+
+    #[inline(always)]
+    fn run(&self, columns: &[&[f64]], y: &[f64], out: &mut Vec<(f64, f64)>) {
+        loo_kernel(columns, y, self.leverage_weights, self.fitted_weights, out);
+        out.truncate(self.ridge);
+        rank_kernel(columns, y, self.uty, out);
+    }
 }
 
-/// Sum of squared leave-one-out residuals of every candidate over one row
-/// block, and the largest leverage met.
-fn block_press(u: &Mat<f64>, y: &[f64], weight_matrix: &Mat<f64>, fitted_weights: &Mat<f64>) -> (Vec<f64>, Vec<f64>) {
-    let (rows, m) = (u.nrows(), weight_matrix.ncols());
-    let mut squared = Mat::zeros(rows, u.ncols());
-    for k in 0..u.ncols() {
-        for (s, v) in squared.col_as_slice_mut(k).iter_mut().zip(u.col_as_slice(k)) {
-            *s = v * v;
+/// Leave-one-out sums of the truncated SVDs of every rank up to `uty.len()`.
+#[inline(always)]
+fn rank_kernel(columns: &[&[f64]], y: &[f64], uty: &[f64], out: &mut Vec<(f64, f64)>) {
+    let ranks = uty.len();
+    let mut sums = vec![[0.0; LANES]; ranks];
+    let mut worst = vec![[0.0f64; LANES]; ranks];
+    for start in (0..y.len()).step_by(LANES) {
+        let target: [f64; LANES] = y[start..start + LANES].try_into().unwrap_or([0.0; LANES]);
+        let mut leverage = [0.0; LANES];
+        let mut fitted = [0.0; LANES];
+        for r in 0..ranks {
+            let u: [f64; LANES] = columns[r][start..start + LANES].try_into().unwrap_or([0.0; LANES]);
+            for lane in 0..LANES {
+                leverage[lane] = u[lane].mul_add(u[lane], leverage[lane]);
+                fitted[lane] = u[lane].mul_add(uty[r], fitted[lane]);
+                let e = (target[lane] - fitted[lane]) / (1.0 - leverage[lane]);
+                sums[r][lane] = e.mul_add(e, sums[r][lane]);
+                let h = leverage[lane];
+                worst[r][lane] = if h > worst[r][lane] || h.is_nan() {
+                    h
+                } else {
+                    worst[r][lane]
+                };
+            }
         }
     }
-    let mut fitted = Mat::zeros(rows, m);
-    let mut leverage = Mat::zeros(rows, m);
-    multiply(fitted.as_mut(), u.as_ref(), fitted_weights.as_ref());
-    multiply(leverage.as_mut(), squared.as_ref(), weight_matrix.as_ref());
-    (0..m)
-        .map(|l| loo_sum_of_squares(y, fitted.col_as_slice(l), leverage.col_as_slice(l)))
-        .unzip()
-}
-
-/// $\sum_i ((y_i - f_i)/(1 - h_i))^2$ and $\max_i h_i$, branch-free so it
-/// vectorises; AVX2 when the processor has it (no fused multiply-add, so
-/// both paths give the same bits).
-fn loo_sum_of_squares(y: &[f64], fitted: &[f64], leverage: &[f64]) -> (f64, f64) {
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
-        // SAFETY: the processor supports AVX2, checked just above.
-        return unsafe { loo_sum_of_squares_avx2(y, fitted, leverage) };
+    for r in 0..ranks {
+        let sum = sums[r].iter().sum();
+        let high = worst[r]
+            .iter()
+            .fold(0.0f64, |a, &b| if b > a || b.is_nan() { b } else { a });
+        out.push((sum, high));
     }
-    loo_sum_of_squares_portable(y, fitted, leverage)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn loo_sum_of_squares_avx2(y: &[f64], fitted: &[f64], leverage: &[f64]) -> (f64, f64) {
-    loo_sum_of_squares_portable(y, fitted, leverage)
 }
 
 #[inline(always)]
-fn loo_sum_of_squares_portable(y: &[f64], fitted: &[f64], leverage: &[f64]) -> (f64, f64) {
-    const WIDTH: usize = 8;
-    let mut sums = [0.0; WIDTH];
-    let mut worst = [0.0f64; WIDTH];
-    let chunks = y.len() / WIDTH;
-    for c in 0..chunks {
-        let range = c * WIDTH..(c + 1) * WIDTH;
-        let (y, f, h) = (&y[range.clone()], &fitted[range.clone()], &leverage[range]);
-        for k in 0..WIDTH {
-            let e = (y[k] - f[k]) / (1.0 - h[k]);
-            sums[k] += e * e;
-            worst[k] = if h[k] > worst[k] { h[k] } else { worst[k] };
+fn loo_kernel(
+    columns: &[&[f64]],
+    y: &[f64],
+    leverage_weights: &[[f64; CANDIDATES]],
+    fitted_weights: &[[f64; CANDIDATES]],
+    out: &mut Vec<(f64, f64)>,
+) {
+    let p = columns.len();
+    let rows = y.len();
+    let lanes =
+        |values: &[f64], at: usize| -> [f64; LANES] { values[at..at + LANES].try_into().unwrap_or([0.0; LANES]) };
+    for (w_chunk, f_chunk) in leverage_weights.chunks_exact(p).zip(fitted_weights.chunks_exact(p)) {
+        let mut sums = [[0.0; LANES]; CANDIDATES];
+        let mut worst = [[0.0f64; LANES]; CANDIDATES];
+        // Residual and 1 − h of the previous group of rows: two groups share
+        // one division, ((e₁q₂)² + (e₂q₁)²) / (q₁q₂)².
+        let mut pending = [[0.0; LANES]; CANDIDATES];
+        let mut pending_q = [[1.0; LANES]; CANDIDATES];
+        for (group, start) in (0..rows).step_by(LANES).enumerate() {
+            let mut leverage = [[0.0; LANES]; CANDIDATES];
+            let mut fitted = [[0.0; LANES]; CANDIDATES];
+            for k in 0..p {
+                let u = lanes(columns[k], start);
+                let (w, f) = (w_chunk[k], f_chunk[k]);
+                for c in 0..CANDIDATES {
+                    for lane in 0..LANES {
+                        let squared = u[lane] * u[lane];
+                        leverage[c][lane] = squared.mul_add(w[c], leverage[c][lane]);
+                        fitted[c][lane] = u[lane].mul_add(f[c], fitted[c][lane]);
+                    }
+                }
+            }
+            let target = lanes(y, start);
+            let odd = group % 2 == 1;
+            for c in 0..CANDIDATES {
+                for lane in 0..LANES {
+                    let h = leverage[c][lane];
+                    let (e, q) = (target[lane] - fitted[c][lane], 1.0 - h);
+                    if odd {
+                        let first = pending[c][lane] * q;
+                        let second = e * pending_q[c][lane];
+                        let both = q * pending_q[c][lane];
+                        sums[c][lane] += first.mul_add(first, second * second) / (both * both);
+                    } else {
+                        pending[c][lane] = e;
+                        pending_q[c][lane] = q;
+                    }
+                    // NaN propagates: a NaN leverage marks the candidate.
+                    worst[c][lane] = if h > worst[c][lane] || h.is_nan() {
+                        h
+                    } else {
+                        worst[c][lane]
+                    };
+                }
+            }
+        }
+        for c in 0..CANDIDATES {
+            let sum = sums[c].iter().sum();
+            let high = worst[c]
+                .iter()
+                .fold(0.0f64, |a, &b| if b > a || b.is_nan() { b } else { a });
+            out.push((sum, high));
         }
     }
-    for i in chunks * WIDTH..y.len() {
-        let e = (y[i] - fitted[i]) / (1.0 - leverage[i]);
-        sums[0] += e * e;
-        worst[0] = worst[0].max(leverage[i]);
-    }
-    let sum = sums.iter().sum();
-    let worst = worst.iter().fold(0.0f64, |a, &b| a.max(b));
-    (sum, worst)
 }
 
 impl FoldStatistics {
@@ -515,12 +853,12 @@ impl FoldStatistics {
         }
     }
 
-    fn of_block(u: &Mat<f64>, y: &[f64]) -> Self {
+    fn of_block(u: MatRef<'_, f64>, y: &[f64]) -> Self {
         let p = u.ncols();
         let mut gram = Mat::zeros(p, p);
-        multiply(gram.as_mut(), u.transpose(), u.as_ref());
+        multiply(gram.as_mut(), u.transpose(), u);
         let uty = (0..p)
-            .map(|k| u.col_as_slice(k).iter().zip(y).map(|(a, b)| a * b).sum())
+            .map(|k| u.col(k).iter().zip(y).map(|(a, b)| a * b).sum())
             .collect();
         FoldStatistics {
             gram,
@@ -533,6 +871,26 @@ impl FoldStatistics {
         self.gram += &other.gram;
         self.uty.iter_mut().zip(&other.uty).for_each(|(a, b)| *a += b);
         self.yy += other.yy;
+    }
+
+    /// The sum over folds, in fold order.
+    fn total(folds: &[FoldStatistics], p: usize) -> FoldStatistics {
+        let mut total = FoldStatistics::zeros(p);
+        for fold in folds {
+            total.add(fold);
+        }
+        total
+    }
+
+    /// The same statistics for the basis $U T$.
+    fn in_basis(&self, t: &Mat<f64>) -> FoldStatistics {
+        let p = t.ncols();
+        let mut half = Mat::zeros(p, p);
+        multiply(half.as_mut(), self.gram.as_ref(), t.as_ref());
+        let mut gram = Mat::zeros(p, p);
+        multiply(gram.as_mut(), t.transpose(), half.as_ref());
+        let uty = (0..p).map(|k| (0..p).map(|i| t[(i, k)] * self.uty[i]).sum()).collect();
+        FoldStatistics { gram, uty, yy: self.yy }
     }
 }
 
@@ -588,13 +946,15 @@ fn criterion_value(press: f64, blocked: Option<f64>, criterion: Criterion) -> f6
     }
 }
 
+/// Picks the regulariser; returns the solution (residual figures still to
+/// fill in) and the spectral weights of the choice.
 fn choose(
-    spectrum: Spectrum,
+    spectrum: &Spectrum,
     ridge: Vec<RidgePoint>,
     tsvd: Vec<RankPoint>,
     options: &SolveOptions,
     samples: usize,
-) -> Result<Solution, SolveError> {
+) -> Result<(Solution, Vec<f64>), SolveError> {
     let p = spectrum.singular_values.len();
     let condition_number = spectrum.singular_values[0] / spectrum.singular_values[p - 1];
     let lambda_by_press = argmin(ridge.iter().map(|r| r.press))
@@ -647,20 +1007,15 @@ fn choose(
         }
     };
     let weights: Vec<f64> = match (lambda, rank) {
-        (Some(lambda), _) => candidate_weights(&spectrum, &[lambda]).remove(0),
+        (Some(lambda), _) => candidate_weights(spectrum, &[lambda]).remove(0),
         (None, Some(rank)) => (0..p).map(|k| f64::from(u8::from(k < rank))).collect(),
         (None, None) => unreachable!("a method always sets λ or rank"),
     };
-    let residual_ss = spectrum.residual_ss_outside
-        + (0..p)
-            .map(|k| ((1.0 - weights[k]) * spectrum.uty[k]).powi(2))
-            .sum::<f64>();
     let effective_dof: f64 = weights.iter().sum();
-    let noise = (residual_ss / (samples as f64 - effective_dof).max(1.0)).sqrt();
-    Ok(Solution {
-        coefficients: coefficients(&spectrum, &weights),
-        residual_rms: (residual_ss / samples as f64).sqrt(),
-        standard_errors: standard_errors(&spectrum, &weights, noise),
+    let solution = Solution {
+        coefficients: coefficients(spectrum, &weights),
+        residual_rms: f64::NAN,
+        standard_errors: Vec::new(),
         effective_dof,
         method,
         reason,
@@ -669,13 +1024,15 @@ fn choose(
         lambda_by_press,
         lambda_by_blocked_press,
         condition_number,
+        decomposition: spectrum.decomposition,
         scaled_condition_number: spectrum.scaled_condition_number,
-        singular_values: spectrum.singular_values,
+        singular_values: spectrum.singular_values.clone(),
         ridge_curve: ridge,
         tsvd_curve: tsvd,
         samples,
         fitted: Vec::new(),
-    })
+    };
+    Ok((solution, weights))
 }
 
 /// $\hat\sigma \sqrt{\sum_k v_{jk}^2 (w_k/\sigma_k)^2}$ per coefficient.
@@ -710,4 +1067,36 @@ fn coefficients(spectrum: &Spectrum, weights: &[f64]) -> Vec<f64> {
     (0..p)
         .map(|j| (0..p).map(|k| spectrum.v[(j, k)] * gains[k]).sum())
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The processor-specific kernels and the portable one agree to the bit
+    /// (on a processor without AVX2 both calls take the portable path).
+    #[test]
+    fn press_kernel_paths_give_the_same_bits() {
+        let (rows, p) = (48, 5);
+        let basis = Mat::from_fn(rows, p, |i, k| ((i * 7 + k * 3) as f64 * 0.37).sin() * 0.1);
+        let y: Vec<f64> = (0..rows).map(|i| (i as f64 * 0.21).cos()).collect();
+        let weights: Vec<[f64; CANDIDATES]> = (0..2 * p)
+            .map(|i| std::array::from_fn(|c| 1.0 / (1.0 + (i + c) as f64)))
+            .collect();
+        let fitted: Vec<[f64; CANDIDATES]> = weights.iter().map(|w| w.map(|v| v * 0.7)).collect();
+        let uty = [0.3, -0.2, 0.9, 0.1];
+        let kernel = Kernel {
+            leverage_weights: &weights,
+            fitted_weights: &fitted,
+            ridge: 7,
+            uty: &uty,
+        };
+        let dispatched = kernel.block(&basis, rows, &y);
+        let columns: Vec<&[f64]> = (0..p).map(|k| basis.col_as_slice(k)).collect();
+        let mut portable = Vec::new();
+        kernel.run(&columns, &y, &mut portable);
+        assert_eq!(dispatched.len(), 7 + uty.len());
+        let bits = |v: &[(f64, f64)]| v.iter().map(|(a, b)| (a.to_bits(), b.to_bits())).collect::<Vec<_>>();
+        assert_eq!(bits(&dispatched), bits(&portable));
+    }
 }

@@ -184,23 +184,25 @@ impl TermSet {
         }
     }
 
-    /// Writes the design columns with indices `columns` over the contiguous
-    /// run `run` into interleaved rows, one per sample: column
-    /// `columns.start + k` goes to lane `k`. This feeds the multi-lane
-    /// filter without materialising the columns.
+    /// Writes the design columns with indices `columns` for the samples
+    /// `rows` of the contiguous run `run` (absolute sample indices) into
+    /// interleaved rows, one per sample: column `columns.start + k` goes to
+    /// lane `k`. Derivatives are [`central_difference`]s within the run, so
+    /// any piece of a run gives the same values as the whole. This feeds the
+    /// multi-lane filter chunk by chunk without materialising the columns.
     pub fn fill_lanes<const L: usize>(
         &self,
         field_nt: [&[f64]; 3],
         run: Range<usize>,
+        rows: Range<usize>,
         columns: Range<usize>,
-        rows: &mut [[f64; L]],
+        out: &mut [[f64; L]],
     ) {
         let terms = self.terms();
         let terms = &terms[columns];
-        let derivative = field_nt.map(|b| central_difference(&b[run.clone()]));
-        for (offset, (row, out)) in run.zip(rows.iter_mut()).enumerate() {
-            let sample = Sample::new(field_nt, row, &derivative, offset);
-            for (lane, term) in out.iter_mut().zip(terms) {
+        for (row, lanes) in rows.zip(out.iter_mut()) {
+            let sample = Sample::within_run(field_nt, &run, row);
+            for (lane, term) in lanes.iter_mut().zip(terms) {
                 *lane = sample.term(*term, self.bt_scale_nt);
             }
         }
@@ -223,6 +225,25 @@ impl Sample {
             b,
             u: b.map(|component| component / total),
             db: [0, 1, 2].map(|j| derivative[j][offset]),
+        }
+    }
+
+    /// The sample `row` of the run `run`, with the derivative that
+    /// [`central_difference`] gives over the run.
+    #[inline]
+    fn within_run(field_nt: [&[f64]; 3], run: &Range<usize>, row: usize) -> Self {
+        let b = field_nt.map(|c| c[row]);
+        let total = (b[0] * b[0] + b[1] * b[1] + b[2] * b[2]).sqrt();
+        let db = field_nt.map(|c| match (run.len() < 2, row == run.start, row + 1 == run.end) {
+            (true, _, _) => 0.0,
+            (false, true, _) => c[row + 1] - c[row],
+            (false, _, true) => c[row] - c[row - 1],
+            (false, false, false) => (c[row + 1] - c[row - 1]) / 2.0,
+        });
+        Sample {
+            b,
+            u: b.map(|component| component / total),
+            db,
         }
     }
 

@@ -1,7 +1,7 @@
 //! Known-answer tests of the regularised solver.
 
 use faer::Mat;
-use magcomp::solve::{solve, Criterion, LambdaChoice, Method, SolveOptions};
+use magcomp::solve::{solve, Criterion, Decomposition, LambdaChoice, Method, SolveOptions};
 use proptest::prelude::*;
 
 /// Deterministic pseudo-random values in [-1, 1) (SplitMix64).
@@ -256,4 +256,82 @@ fn standard_errors_match_least_squares_theory_and_the_scatter_of_refits() {
         // 400 draws: the sample standard deviation is within ±3.5/√(2·400) ≈ 12 %.
         assert!((scatter / theory - 1.0).abs() < 0.12, "{j}: {scatter} vs {theory}");
     }
+}
+
+/// PRESS of the linear smoother with spectral weights `weights(σ)`, from
+/// faer's own thin SVD of the whole matrix: an independent route to the
+/// closed form.
+fn direct_press(columns: &[Vec<f64>], y: &[f64], weights: impl Fn(usize, &[f64]) -> f64) -> f64 {
+    let (rows, p) = (y.len(), columns.len());
+    let a = Mat::from_fn(rows, p, |i, j| columns[j][i]);
+    let svd = a.thin_svd().unwrap();
+    let (u, s) = (svd.U(), svd.S());
+    let sigma: Vec<f64> = (0..p).map(|k| s[k]).collect();
+    let w: Vec<f64> = (0..p).map(|k| weights(k, &sigma)).collect();
+    let c: Vec<f64> = (0..p).map(|k| (0..rows).map(|i| u[(i, k)] * y[i]).sum()).collect();
+    (0..rows)
+        .map(|i| {
+            let fitted: f64 = (0..p).map(|k| u[(i, k)] * w[k] * c[k]).sum();
+            let leverage: f64 = (0..p).map(|k| u[(i, k)].powi(2) * w[k]).sum();
+            ((y[i] - fitted) / (1.0 - leverage)).powi(2)
+        })
+        .sum()
+}
+
+fn noisy_target(columns: &[Vec<f64>], seed: u64, noise: f64) -> Vec<f64> {
+    let beta: Vec<f64> = (0..columns.len()).map(|k| 1.0 + 0.5 * k as f64).collect();
+    predict(columns, &beta)
+        .iter()
+        .zip(values(seed, columns[0].len()))
+        .map(|(v, n)| v + noise * n)
+        .collect()
+}
+
+/// Checks every ridge and truncated-SVD PRESS value against the direct
+/// formula, to `tolerance` relative.
+fn check_press_curves(columns: &[Vec<f64>], y: &[f64], tolerance: f64) -> Decomposition {
+    let solution = solve(columns.to_vec(), y, &[], &SolveOptions::default()).unwrap();
+    for point in solution.ridge_curve.iter().step_by(5) {
+        let expected = direct_press(columns, y, |k, s| s[k].powi(2) / (s[k].powi(2) + point.lambda));
+        let relative = (point.press - expected).abs() / expected;
+        assert!(
+            relative < tolerance,
+            "λ={}: {} vs {expected}",
+            point.lambda,
+            point.press
+        );
+    }
+    for point in &solution.tsvd_curve {
+        let expected = direct_press(columns, y, |k, _| f64::from(u8::from(k < point.rank)));
+        let relative = (point.press - expected).abs() / expected;
+        assert!(
+            relative < tolerance,
+            "rank {}: {} vs {expected}",
+            point.rank,
+            point.press
+        );
+    }
+    solution.decomposition
+}
+
+#[test]
+fn well_conditioned_design_takes_cholesky_qr_and_matches_the_direct_press() {
+    // 5000 rows: several row blocks of the kernels, and a ragged last one.
+    let columns = random_columns(51, 5003, 7);
+    let y = noisy_target(&columns, 52, 0.1);
+    assert_eq!(check_press_curves(&columns, &y, 1e-9), Decomposition::CholeskyQr2);
+}
+
+#[test]
+fn ill_conditioned_design_takes_householder_qr_and_matches_the_direct_press() {
+    let mut columns = random_columns(61, 3001, 6);
+    // Column 5 is columns 0 + 1 to 1e-7: scaled condition number ~1e7,
+    // beyond what the Cholesky route is trusted with.
+    let wobble = values(62, 3001);
+    columns[5] = (0..3001)
+        .map(|i| columns[0][i] + columns[1][i] + 1e-7 * wobble[i])
+        .collect();
+    let y = noisy_target(&columns, 63, 0.1);
+    // Both routes lose ~κ·ε in the small singular directions.
+    assert_eq!(check_press_curves(&columns, &y, 1e-7), Decomposition::Householder);
 }
