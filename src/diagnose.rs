@@ -239,19 +239,24 @@ fn diagnose_channel(problem: &Problem, settings: &DiagnoseOptions) -> Result<(Ch
             .take(CONTROL_CHECKS)
             .take_while(|(_, _, h)| h.rms_nt <= current * keep)
             .count();
-        let controlled: Vec<Option<f64>> = scored[..passing]
+        // Each side takes the second-order terms only where they help on
+        // held-out data (cubic terms can extrapolate badly to a heading
+        // left out).
+        let reference = current.min(control);
+        let controlled: Vec<f64> = scored[..passing]
             .par_iter()
-            .map(|(next, _, _)| held_out(problem, &next.with_second_order()).ok().map(|h| h.rms_nt))
+            .map(|(next, _, plain)| {
+                let with = held_out(problem, &next.with_second_order()).map_or(f64::INFINITY, |h| h.rms_nt);
+                plain.rms_nt.min(with)
+            })
             .collect();
-        let accepted = controlled
-            .iter()
-            .position(|rms| rms.is_some_and(|rms| rms <= control * keep));
+        let accepted = controlled.iter().position(|&rms| rms <= reference * keep);
         let Some(index) = accepted else {
             let (_, extension, result) = best;
             let why = match passing > 0 {
-                true => format!(
-                    "; explained as well by the second-order aircraft-field terms (held-out {control:.4} nT)"
-                ),
+                true => {
+                    format!("; explained as well by the second-order aircraft-field terms (held-out {reference:.4} nT)")
+                }
                 false => String::new(),
             };
             strongest_rejected = Some(format!(
