@@ -32,6 +32,13 @@
 //! flights such stand-ins gained up to 26 % (a servo current on a cabin
 //! sensor's second-order residual), while the concealed effects gained
 //! 59–94 %.
+//!
+//! Control: the best few candidates are also scored with ten cubic
+//! direction-cosine terms $u_i u_j u_k$ added (the second-order part of a
+//! large aircraft field, $|b_\perp|^2 / 2|B|$), against the current model
+//! with the same terms; each side keeps them only where they lower its
+//! held-out RMS. An effect is accepted only if it still pays then, so a
+//! channel standing in for the second-order residual is rejected.
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
