@@ -323,8 +323,7 @@ fn row_blocks(folds: &[Range<usize>], rows: usize) -> Vec<(usize, Range<usize>)>
 }
 
 /// A reusable block of design rows, column-major, its row count rounded up
-/// to twice [`LANES`] with zeros below the data (zero rows add nothing to
-/// any sum).
+/// to [`LANES`] with zeros below the data (zero rows add nothing to any sum).
 struct BlockBuffer {
     rows: Mat<f64>,
     basis: Mat<f64>,
@@ -343,7 +342,7 @@ impl BlockBuffer {
     /// Copies `range` of the columns (and of `y`) in; returns the padded row count.
     fn load(&mut self, columns: &[Vec<f64>], y: &[f64], range: &Range<usize>) -> usize {
         let used = range.len();
-        let padded = used.next_multiple_of(2 * LANES);
+        let padded = used.next_multiple_of(LANES);
         for (j, column) in columns.iter().enumerate() {
             let target = self.rows.col_as_slice_mut(j);
             target[..used].copy_from_slice(&column[range.clone()]);
@@ -749,32 +748,21 @@ fn rank_kernel(columns: &[&[f64]], y: &[f64], uty: &[f64], out: &mut Vec<(f64, f
     let mut sums = vec![[0.0; LANES]; ranks];
     let mut worst = vec![[0.0f64; LANES]; ranks];
     for start in (0..y.len()).step_by(LANES) {
-        let target: [f64; LANES] = y[start..start + LANES].try_into().unwrap_or([0.0; LANES]);
+        let target = lanes(y, start);
         let mut leverage = [0.0; LANES];
         let mut fitted = [0.0; LANES];
         for r in 0..ranks {
-            let u: [f64; LANES] = columns[r][start..start + LANES].try_into().unwrap_or([0.0; LANES]);
+            let u = lanes(columns[r], start);
             for lane in 0..LANES {
                 leverage[lane] = u[lane].mul_add(u[lane], leverage[lane]);
                 fitted[lane] = u[lane].mul_add(uty[r], fitted[lane]);
                 let e = (target[lane] - fitted[lane]) / (1.0 - leverage[lane]);
                 sums[r][lane] = e.mul_add(e, sums[r][lane]);
-                let h = leverage[lane];
-                worst[r][lane] = if h > worst[r][lane] || h.is_nan() {
-                    h
-                } else {
-                    worst[r][lane]
-                };
+                worst[r][lane] = nan_max(worst[r][lane], leverage[lane]);
             }
         }
     }
-    for r in 0..ranks {
-        let sum = sums[r].iter().sum();
-        let high = worst[r]
-            .iter()
-            .fold(0.0f64, |a, &b| if b > a || b.is_nan() { b } else { a });
-        out.push((sum, high));
-    }
+    out.extend(sums.iter().zip(&worst).map(|(s, w)| lane_totals(s, w)));
 }
 
 #[inline(always)]
@@ -786,17 +774,10 @@ fn loo_kernel(
     out: &mut Vec<(f64, f64)>,
 ) {
     let p = columns.len();
-    let rows = y.len();
-    let lanes =
-        |values: &[f64], at: usize| -> [f64; LANES] { values[at..at + LANES].try_into().unwrap_or([0.0; LANES]) };
     for (w_chunk, f_chunk) in leverage_weights.chunks_exact(p).zip(fitted_weights.chunks_exact(p)) {
         let mut sums = [[0.0; LANES]; CANDIDATES];
         let mut worst = [[0.0f64; LANES]; CANDIDATES];
-        // Residual and 1 − h of the previous group of rows: two groups share
-        // one division, ((e₁q₂)² + (e₂q₁)²) / (q₁q₂)².
-        let mut pending = [[0.0; LANES]; CANDIDATES];
-        let mut pending_q = [[1.0; LANES]; CANDIDATES];
-        for (group, start) in (0..rows).step_by(LANES).enumerate() {
+        for start in (0..y.len()).step_by(LANES) {
             let mut leverage = [[0.0; LANES]; CANDIDATES];
             let mut fitted = [[0.0; LANES]; CANDIDATES];
             for k in 0..p {
@@ -811,37 +792,39 @@ fn loo_kernel(
                 }
             }
             let target = lanes(y, start);
-            let odd = group % 2 == 1;
             for c in 0..CANDIDATES {
                 for lane in 0..LANES {
                     let h = leverage[c][lane];
-                    let (e, q) = (target[lane] - fitted[c][lane], 1.0 - h);
-                    if odd {
-                        let first = pending[c][lane] * q;
-                        let second = e * pending_q[c][lane];
-                        let both = q * pending_q[c][lane];
-                        sums[c][lane] += first.mul_add(first, second * second) / (both * both);
-                    } else {
-                        pending[c][lane] = e;
-                        pending_q[c][lane] = q;
-                    }
-                    // NaN propagates: a NaN leverage marks the candidate.
-                    worst[c][lane] = if h > worst[c][lane] || h.is_nan() {
-                        h
-                    } else {
-                        worst[c][lane]
-                    };
+                    let e = (target[lane] - fitted[c][lane]) / (1.0 - h);
+                    sums[c][lane] = e.mul_add(e, sums[c][lane]);
+                    worst[c][lane] = nan_max(worst[c][lane], h);
                 }
             }
         }
-        for c in 0..CANDIDATES {
-            let sum = sums[c].iter().sum();
-            let high = worst[c]
-                .iter()
-                .fold(0.0f64, |a, &b| if b > a || b.is_nan() { b } else { a });
-            out.push((sum, high));
-        }
+        out.extend(sums.iter().zip(&worst).map(|(s, w)| lane_totals(s, w)));
     }
+}
+
+/// Eight consecutive values from `at` (the block is padded to whole groups).
+#[inline(always)]
+fn lanes(values: &[f64], at: usize) -> [f64; LANES] {
+    values[at..at + LANES].try_into().unwrap_or([0.0; LANES])
+}
+
+/// The larger of the two, NaN winning: a NaN leverage marks its candidate.
+#[inline(always)]
+fn nan_max(a: f64, b: f64) -> f64 {
+    if b > a || b.is_nan() {
+        b
+    } else {
+        a
+    }
+}
+
+/// Sum of the lane sums and the largest lane leverage.
+#[inline(always)]
+fn lane_totals(sums: &[f64; LANES], worst: &[f64; LANES]) -> (f64, f64) {
+    (sums.iter().sum(), worst.iter().fold(0.0, |a, &b| nan_max(a, b)))
 }
 
 impl FoldStatistics {

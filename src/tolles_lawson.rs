@@ -175,9 +175,8 @@ impl TermSet {
     }
 
     fn fill_run(&self, terms: &[Term], field_nt: [&[f64]; 3], run: Range<usize>, columns: &mut [&mut [f64]]) {
-        let derivative = field_nt.map(|b| central_difference(&b[run.clone()]));
-        for (offset, row) in run.enumerate() {
-            let sample = Sample::new(field_nt, row, &derivative, offset);
+        for (offset, row) in run.clone().enumerate() {
+            let sample = Sample::within_run(field_nt, &run, row);
             for (column, term) in columns.iter_mut().zip(terms) {
                 column[offset] = sample.term(*term, self.bt_scale_nt);
             }
@@ -217,17 +216,6 @@ struct Sample {
 }
 
 impl Sample {
-    #[inline]
-    fn new(field_nt: [&[f64]; 3], row: usize, derivative: &[Vec<f64>; 3], offset: usize) -> Self {
-        let b = field_nt.map(|c| c[row]);
-        let total = (b[0] * b[0] + b[1] * b[1] + b[2] * b[2]).sqrt();
-        Sample {
-            b,
-            u: b.map(|component| component / total),
-            db: [0, 1, 2].map(|j| derivative[j][offset]),
-        }
-    }
-
     /// The sample `row` of the run `run`, with the derivative that
     /// [`central_difference`] gives over the run.
     #[inline]

@@ -267,7 +267,7 @@ fn campaign_names_each_effect_and_leaves_clean_flights_alone() {
                     )
                 })
                 .collect();
-            if named < case.truths.len() || std::env::var("CAMPAIGN_VERBOSE").is_ok() {
+            if named < case.truths.len() {
                 let found: Vec<String> = diagnosis
                     .findings
                     .iter()
