@@ -304,6 +304,10 @@ fn main() {
         bench_fit(100_000, 9);
         bench_fit(1_000_000, 3);
     }
+    // Many repeats of the small fit alone, for a profiler.
+    if only.iter().any(|o| o == "profile") {
+        bench_fit(100_000, 201);
+    }
     if wanted("file") {
         bench_whole_file(200_000);
     }

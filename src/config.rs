@@ -209,6 +209,8 @@ pub struct RawPipeline {
     pub quality: RawQuality,
     /// Physics diagnosis.
     pub diagnose: crate::diagnose::DiagnoseOptions,
+    /// Fluxgate calibration before the fit.
+    pub vector_calibration: crate::vector_calibration::VectorCalibrationOptions,
     /// Flights to process.
     #[serde(rename = "flight")]
     pub flights: Vec<RawFlight>,
@@ -244,6 +246,8 @@ pub struct Pipeline {
     pub fom_limit_nt: f64,
     /// Physics diagnosis settings.
     pub diagnose: crate::diagnose::DiagnoseOptions,
+    /// Fluxgate calibration before the fit.
+    pub vector_calibration: crate::vector_calibration::VectorCalibrationOptions,
     /// Output folder.
     pub output_directory: PathBuf,
     /// Flights to process.
@@ -292,6 +296,11 @@ impl Pipeline {
                 "[quality.transfer] warning_factor = {factor}: give a factor of 1 or more (2 is usual)"
             )));
         }
+        if raw.vector_calibration.max_iterations == 0 {
+            return Err(bad(
+                "[vector_calibration] max_iterations = 0: give at least 1 (100 is usual)".to_string(),
+            ));
+        }
         let margin_s = raw.detect.window_margin_s;
         let flights = raw
             .flights
@@ -310,6 +319,7 @@ impl Pipeline {
             transfer: raw.quality.transfer,
             fom_limit_nt: raw.quality.fom_limit_nt,
             diagnose: raw.diagnose,
+            vector_calibration: raw.vector_calibration,
             output_directory: base.join(raw.output.directory),
             flights,
         })

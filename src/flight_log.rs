@@ -124,6 +124,23 @@ impl FlightLog {
         })
     }
 
+    /// The same flight with one channel's values replaced (same length),
+    /// keeping the row flags, source offsets and alignment record.
+    pub fn with_values(&self, name: &str, values: Vec<f64>) -> Result<Self> {
+        if values.len() != self.time_s.len() {
+            return Err(Error::LengthMismatch {
+                column: name.to_string(),
+                found: values.len(),
+                expected: self.time_s.len(),
+            });
+        }
+        let mut log = self.clone();
+        if let Some(channel) = log.channels.iter_mut().find(|c| c.name == name) {
+            channel.values = values;
+        }
+        Ok(log)
+    }
+
     /// Attaches per-row flags raised while reading (e.g. `gap:cur_a` where
     /// a channel had a gap); ignored unless there is one per row.
     pub fn with_row_flags(mut self, flags: Vec<String>) -> Self {

@@ -64,6 +64,7 @@ pub mod simulate;
 pub mod solve;
 pub mod tolles_lawson;
 pub mod transfer;
+pub mod vector_calibration;
 pub mod windows;
 
 pub use error::{Error, Result};

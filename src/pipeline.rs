@@ -72,6 +72,9 @@ pub struct FlightResult {
     pub alignment: Option<AlignmentReport>,
     /// Quality figures per channel.
     pub channels: Vec<ChannelQuality>,
+    /// The fluxgate calibration the fit used (`[vector_calibration]`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub vector_calibration: Option<crate::vector_calibration::VectorCalibration>,
     /// The fitted models.
     #[serde(skip)]
     pub models: Vec<FittedTollesLawson>,
@@ -92,6 +95,8 @@ pub struct StageOptions {
     pub transfer: TransferOptions,
     /// FOM limit the report judges against, nT.
     pub fom_limit_nt: f64,
+    /// Fluxgate calibration before the fit.
+    pub vector_calibration: crate::vector_calibration::VectorCalibrationOptions,
 }
 
 impl From<&crate::config::Pipeline> for StageOptions {
@@ -104,37 +109,50 @@ impl From<&crate::config::Pipeline> for StageOptions {
             detect: pipeline.detect.clone(),
             transfer: pipeline.transfer.clone(),
             fom_limit_nt: pipeline.fom_limit_nt,
+            vector_calibration: pipeline.vector_calibration.clone(),
         }
     }
 }
 
 /// Reads, fits, compensates and assesses one flight and writes its outputs.
 pub fn process_flight(job: &FlightJob, options: &StageOptions, outputs: &FlightOutputs) -> Result<FlightResult> {
-    let log = read_flight_log(&job.input, &options.ingest)?;
-    let sensor = choose_vector_sensor(&log, job.vector.as_deref())?;
-    let channels = choose_channels(&log, job.channels.as_deref())?;
+    let raw_log = read_flight_log(&job.input, &options.ingest)?;
+    let sensor = choose_vector_sensor(&raw_log, job.vector.as_deref())?;
+    let channels = choose_channels(&raw_log, job.channels.as_deref())?;
     let detected = job
         .windows
         .is_empty()
-        .then(|| detect_manoeuvres(&log, &options.detect))
+        .then(|| detect_manoeuvres(&raw_log, &options.detect))
         .transpose()?;
     let windows = match &detected {
         Some(detection) => detection.calibration_windows(options.detect.window_margin_s),
         None => job.windows.clone(),
     };
-    let models = fit_channels(&log, &sensor, &channels, &windows, &options.fit)?;
-    let compensation = compensate(&log, &models, options.level)?;
+    // The fit (and everything after it) sees the calibrated fluxgate; the
+    // compensated file keeps the recorded columns.
+    let calibration = crate::vector_calibration::calibrate_stage(
+        &raw_log,
+        &sensor,
+        &channels,
+        &windows,
+        &options.vector_calibration,
+    )?;
+    let calibrated = calibration.as_ref().map(|c| c.apply(&raw_log, &sensor)).transpose()?;
+    let log = calibrated.as_ref().unwrap_or(&raw_log);
+    let models = fit_channels(log, &sensor, &channels, &windows, &options.fit)?;
+    let compensation = compensate(log, &models, options.level)?;
     let quality: Vec<ChannelQuality> = models
         .par_iter()
         .zip(&compensation.channels)
         .map(|(model, channel)| {
-            let mut quality = assess_quality(&log, model, channel);
-            quality.transfer = check_transfer(&log, &sensor, model, &windows, &options.fit, &options.transfer)?;
+            let mut quality = assess_quality(log, model, channel);
+            quality.transfer = check_transfer(log, &sensor, model, &windows, &options.fit, &options.transfer)?;
             Ok(quality)
         })
         .collect::<Result<_>>()?;
-    let added_columns = added_column_names(&log, &outputs.compensated, &compensation)?;
+    let added_columns = added_column_names(log, &outputs.compensated, &compensation)?;
     let mut notes = renaming_notes(&channels, &added_columns);
+    notes.extend(calibration.iter().map(|c| c.summary()));
     if let Some(detection) = &detected {
         notes.extend(detection_notes(detection));
     }
@@ -147,6 +165,7 @@ pub fn process_flight(job: &FlightJob, options: &StageOptions, outputs: &FlightO
         detection: detected,
         alignment: log.alignment().cloned(),
         channels: quality,
+        vector_calibration: calibration,
         models,
     };
     let model_text = to_json(
@@ -162,7 +181,7 @@ pub fn process_flight(job: &FlightJob, options: &StageOptions, outputs: &FlightO
         ],
     };
     write_compensated(
-        &log,
+        &raw_log,
         &options.ingest.columns,
         &outputs.compensated,
         &compensation,
@@ -170,7 +189,7 @@ pub fn process_flight(job: &FlightJob, options: &StageOptions, outputs: &FlightO
         &extras,
     )?;
     if let Some(path) = &outputs.report_html {
-        crate::report::write_report(path, &log, &result, &compensation, options.fom_limit_nt)?;
+        crate::report::write_report(path, &raw_log, &result, &compensation, options.fom_limit_nt)?;
     }
     for (path, text) in [(&outputs.model_json, model_text), (&outputs.quality_json, quality_text)] {
         if let Some(path) = path {
@@ -193,6 +212,8 @@ fn to_json<T: Serialize>(path: Option<&Path>, what: &'static str, value: &T) -> 
 #[derive(Serialize)]
 struct ModelFile<'a> {
     flight: &'a Path,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    vector_calibration: Option<&'a crate::vector_calibration::VectorCalibration>,
     models: &'a [FittedTollesLawson],
 }
 
@@ -200,6 +221,7 @@ impl<'a> ModelFile<'a> {
     fn new(result: &'a FlightResult) -> Self {
         ModelFile {
             flight: &result.flight,
+            vector_calibration: result.vector_calibration.as_ref(),
             models: &result.models,
         }
     }
