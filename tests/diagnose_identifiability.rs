@@ -1,0 +1,131 @@
+//! Effects that look alike stay distinct.
+//!
+//! - A current that follows the manoeuvres (the aileron servo draws
+//!   0.3 A + 0.06 A per °/s of roll rate) against the eddy terms, which
+//!   also follow the rates: a coupled servo is named as `aux_coupling`
+//!   from `cur_ail`, and a lagged eddy response as `eddy_time_constant`,
+//!   never the other way round.
+//! - A scalar lag against an eddy time constant: a lag delays everything
+//!   the sensor sees, an eddy time constant only the eddy part.
+//!
+//! Each flight has the campaign's tail, cabin and cabin sensors.
+
+use magcomp::config::{FlightJob, Pipeline};
+use magcomp::diagnose::Diagnosis;
+use magcomp::pipeline::{diagnose_flight, StageOptions};
+use magcomp::simulate::scenario::{RawScenario, Scenario};
+use magcomp::simulate::simulate;
+
+fn diagnose(seed: u64, effects: &str) -> Diagnosis {
+    let text = format!(
+        r#"
+        seed = {seed}
+        [survey]
+        line_count = 1
+        line_length_m = 2000.0
+        [[scalar]]
+        name = "mag_1_uc"
+        location = "tail"
+        [[scalar]]
+        name = "mag_2_uc"
+        location = "cabin"
+        [[scalar]]
+        name = "mag_3_uc"
+        location = "cabin"
+        {effects}
+        "#
+    );
+    let raw: RawScenario = toml::from_str(&text).unwrap();
+    let flight = simulate(&Scenario::try_from(raw).unwrap()).unwrap();
+    let pipeline = Pipeline::default();
+    let job = FlightJob {
+        input: "identifiability".into(),
+        vector: None,
+        channels: None,
+        windows: Vec::new(),
+    };
+    diagnose_flight(&flight.log, &job, &StageOptions::from(&pipeline), &pipeline.diagnose).unwrap()
+}
+
+/// (effect, source) of every finding on `channel`.
+fn named(diagnosis: &Diagnosis, channel: &str) -> Vec<(String, Option<String>)> {
+    diagnosis
+        .findings
+        .iter()
+        .filter(|f| f.channel == channel)
+        .map(|f| (f.effect.clone(), f.source.clone()))
+        .collect()
+}
+
+#[test]
+fn a_servo_current_is_not_taken_for_an_eddy_time_constant() {
+    for seed in [41, 42] {
+        let diagnosis = diagnose(
+            seed,
+            r#"
+            [[effect]]
+            kind = "aux_coupling"
+            channel = "mag_2_uc"
+            source = "cur_ail"
+            nt_per_unit = [3.0, -2.0, 2.5]
+            "#,
+        );
+        let cabin = named(&diagnosis, "mag_2_uc");
+        assert!(
+            cabin.contains(&("aux_coupling".into(), Some("cur_ail".into()))),
+            "seed {seed}: {cabin:?}"
+        );
+        assert!(
+            !cabin.iter().any(|(e, _)| e == "eddy_time_constant"),
+            "seed {seed}: {cabin:?}"
+        );
+    }
+}
+
+#[test]
+fn an_eddy_time_constant_is_not_taken_for_a_servo_current() {
+    for (seed, tau_s) in [(41, 0.5), (42, 0.3)] {
+        let diagnosis = diagnose(
+            seed,
+            &format!("[[effect]]\nkind = \"eddy_time_constant\"\nchannel = \"mag_2_uc\"\ntau_s = {tau_s}\n"),
+        );
+        let cabin: Vec<&magcomp::diagnose::Finding> =
+            diagnosis.findings.iter().filter(|f| f.channel == "mag_2_uc").collect();
+        assert_eq!(
+            cabin.first().map(|f| f.effect.as_str()),
+            Some("eddy_time_constant"),
+            "seed {seed}: {cabin:#?}"
+        );
+        let tau = cabin[0].parameters["tau_s"];
+        assert!((tau - tau_s).abs() < 0.2 * tau_s, "seed {seed}: τ {tau} for {tau_s}");
+        assert!(
+            !cabin.iter().any(|f| f.source.as_deref() == Some("cur_ail")),
+            "seed {seed}: {cabin:#?}"
+        );
+    }
+}
+
+#[test]
+fn a_lag_is_not_taken_for_an_eddy_time_constant_nor_the_reverse() {
+    // On the cabin sensor, whose large aircraft field makes both show (on
+    // this seed's cabin sensor a 0.2 s lag gains only 18 %, under the
+    // threshold: a matter of power, not of telling the two apart).
+    let lagged = diagnose(
+        43,
+        "[[effect]]\nkind = \"sensor_lag\"\nchannel = \"mag_2_uc\"\nlag_s = 0.2\n",
+    );
+    let cabin = named(&lagged, "mag_2_uc");
+    assert_eq!(cabin.first().map(|(e, _)| e.as_str()), Some("sensor_lag"), "{cabin:?}");
+    assert!(!cabin.iter().any(|(e, _)| e == "eddy_time_constant"), "{cabin:?}");
+    let eddy = diagnose(
+        43,
+        "[[effect]]\nkind = \"eddy_time_constant\"\nchannel = \"mag_2_uc\"\ntau_s = 0.6\n",
+    );
+    let cabin = named(&eddy, "mag_2_uc");
+    assert_eq!(
+        cabin.first().map(|(e, _)| e.as_str()),
+        Some("eddy_time_constant"),
+        "{cabin:?}"
+    );
+    assert!(!cabin.iter().any(|(e, _)| e == "sensor_lag"), "{cabin:?}");
+}
