@@ -71,6 +71,10 @@ pub struct WindowFit {
     pub samples_used: usize,
     /// Samples of the window left out (gaps, fragments too short to filter, trims).
     pub samples_dropped: usize,
+    /// Rows of the flight the used samples come from, run by run (trimmed),
+    /// in stacked order.
+    #[serde(skip)]
+    pub flight_rows: Vec<Range<usize>>,
     /// Band-passed uncompensated signal in the window, nT (trimmed runs).
     #[serde(skip)]
     pub band_before_nt: Vec<f64>,
@@ -298,6 +302,7 @@ fn band_data(
             stacked_rows: start..start + used,
             samples_used: used,
             samples_dropped: plan.rows - used,
+            flight_rows: plan.runs.iter().map(|r| r.start + trim..r.end - trim).collect(),
             band_before_nt: Vec::new(),
             band_after_nt: Vec::new(),
         });

@@ -224,3 +224,44 @@ fn a_clean_fluxgate_is_not_reported() {
     assert!(check.heldout_mismatch_after_nt < 1.0, "{check:?}");
     assert!(diagnosis.channels.iter().all(|c| c.fluxgate == "raw"));
 }
+
+#[test]
+fn an_effect_outside_the_library_is_reported_as_unexplained_where_it_happens() {
+    // concealed_b with its radio-current column removed: the radio's field
+    // still reaches the tail sensor, but nothing recorded can explain it.
+    let input = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("sample_flights/concealed_b.csv");
+    let pipeline = Pipeline::default();
+    let full = read_flight_log(&input, &pipeline.ingest).unwrap();
+    let radio = full.channel("cur_com1").unwrap().values.clone();
+    let channels = full
+        .channels()
+        .iter()
+        .filter(|c| c.name != "cur_com1")
+        .cloned()
+        .collect();
+    let log = magcomp::flight_log::FlightLog::new(full.source(), full.time_column(), full.time_s().to_vec(), channels)
+        .unwrap();
+    let job = FlightJob {
+        input,
+        vector: None,
+        channels: None,
+        windows: Vec::new(),
+    };
+    let diagnosis = diagnose_flight(&log, &job, &StageOptions::from(&pipeline), &pipeline.diagnose).unwrap();
+    let tail: Vec<&magcomp::diagnose::Finding> =
+        diagnosis.findings.iter().filter(|f| f.channel == "mag_1_uc").collect();
+    assert_eq!(tail.len(), 1, "{tail:#?}");
+    assert_eq!(tail[0].effect, "unexplained");
+    assert!(tail[0].located.len() >= 2, "{tail:#?}");
+    // Every located stretch holds a radio transmission switching on or off
+    // (within the filter's reach, 2 s either side).
+    let time = log.time_s();
+    for stretch in &tail[0].located {
+        let switches = (1..radio.len()).any(|i| {
+            (radio[i] - radio[i - 1]).abs() > 1.0 && time[i] >= stretch.t_start - 2.0 && time[i] <= stretch.t_end + 2.0
+        });
+        assert!(switches, "no radio switching near {stretch:?}");
+    }
+    // The clean flight and the flight with the column keep no such finding.
+    assert!(diagnose("clean.csv").findings.iter().all(|f| f.effect != "unexplained"));
+}
