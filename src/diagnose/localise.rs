@@ -322,3 +322,52 @@ fn coherence(
     found.truncate(COHERENCE_COLUMNS);
     found
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::windows::CalibrationWindow;
+
+    fn window_of(values: Vec<f64>) -> WindowFit {
+        WindowFit {
+            window: CalibrationWindow::new(0.0, values.len() as f64 / 10.0),
+            stacked_rows: 0..values.len(),
+            samples_used: values.len(),
+            samples_dropped: 0,
+            flight_rows: vec![0..values.len()],
+            band_before_nt: Vec::new(),
+            band_after_nt: values,
+        }
+    }
+
+    #[test]
+    fn band_rms_puts_a_sine_in_its_band() {
+        // 0.3 Hz, amplitude 2 nT, 200 samples at 10 Hz (a whole number of
+        // cycles): RMS √2 in 0.2–0.4 Hz, nothing in 0.5–0.9 Hz.
+        let sine: Vec<f64> = (0..200)
+            .map(|k| 2.0 * (std::f64::consts::TAU * 0.3 * k as f64 / 10.0).sin())
+            .collect();
+        let fits = [window_of(sine)];
+        assert!((band_rms(&fits, 10.0, 0.2, 0.4) - 2f64.sqrt()).abs() < 1e-9);
+        assert!(band_rms(&fits, 10.0, 0.5, 0.9) < 1e-9);
+    }
+
+    #[test]
+    fn sensor_noise_recovers_white_noise_under_a_smooth_signal() {
+        // σ = 0.05 nT of uniform noise (variance a²/3) on a slow sweep.
+        let mut state = 12345u64;
+        let values: Vec<f64> = (0..20_000)
+            .map(|k| {
+                state = state
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                let uniform = (state >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0;
+                50_000.0 + 30.0 * (k as f64 * 0.001).sin() + 0.05 * 3f64.sqrt() * uniform
+            })
+            .collect();
+        // The median-based estimate assumes Gaussian differences; the fourth
+        // difference of uniform noise is close to Gaussian (within 5 %).
+        let sigma = sensor_noise(&values);
+        assert!((sigma - 0.05).abs() < 0.05 * 0.05, "σ {sigma}");
+    }
+}

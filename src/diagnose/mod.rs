@@ -43,6 +43,11 @@
 //! sensor's second-order residual), while the concealed effects gained
 //! 59–94 %.
 //!
+//! What is left is localised ([`localise`]): per manoeuvre, per sub-band
+//! against the noise floor, in structured stretches, and by coherence with
+//! every auxiliary column; structured residual in two manoeuvres or more
+//! becomes an `unexplained` finding.
+//!
 //! Control: the best few candidates are also scored with ten cubic
 //! direction-cosine terms $u_i u_j u_k$ added (the second-order part of a
 //! large aircraft field, $|b_\perp|^2 / 2|B|$), against the current model
