@@ -289,7 +289,7 @@ mod tests {
             stacked_rows: 0..200,
             samples_used: 200,
             samples_dropped: 0,
-            flight_rows: vec![0..200],
+            flight_rows: std::iter::once(0..200).collect(),
             band_before_nt: sine(before),
             band_after_nt: sine(after),
         }

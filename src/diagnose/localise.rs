@@ -334,7 +334,7 @@ mod tests {
             stacked_rows: 0..values.len(),
             samples_used: values.len(),
             samples_dropped: 0,
-            flight_rows: vec![0..values.len()],
+            flight_rows: std::iter::once(0..values.len()).collect(),
             band_before_nt: Vec::new(),
             band_after_nt: values,
         }
