@@ -7,11 +7,10 @@
 
 use std::collections::BTreeMap;
 
-use magcomp::config::{FlightJob, Pipeline};
+mod common;
+
 use magcomp::diagnose::Diagnosis;
-use magcomp::pipeline::{diagnose_flight, StageOptions};
-use magcomp::simulate::scenario::{RawScenario, Scenario};
-use magcomp::simulate::simulate;
+use magcomp::simulate::scenario::Scenario;
 
 /// Seeds per effect.
 const SEEDS: u64 = 10;
@@ -168,38 +167,11 @@ impl Truth {
 }
 
 fn scenario(seed: u64, effects: &str) -> Scenario {
-    let text = format!(
-        r#"
-        seed = {seed}
-        [survey]
-        line_count = 1
-        line_length_m = 2000.0
-        [[scalar]]
-        name = "mag_1_uc"
-        location = "tail"
-        [[scalar]]
-        name = "mag_2_uc"
-        location = "cabin"
-        [[scalar]]
-        name = "mag_3_uc"
-        location = "wing"
-        {effects}
-        "#
-    );
-    let raw: RawScenario = toml::from_str(&text).unwrap();
-    Scenario::try_from(raw).unwrap()
+    common::three_sensor_scenario(seed, effects)
 }
 
 fn diagnose(scenario: &Scenario) -> Diagnosis {
-    let flight = simulate(scenario).unwrap();
-    let pipeline = Pipeline::default();
-    let job = FlightJob {
-        input: "campaign".into(),
-        vector: None,
-        channels: None,
-        windows: Vec::new(),
-    };
-    diagnose_flight(&flight.log, &job, &StageOptions::from(&pipeline), &pipeline.diagnose).unwrap()
+    common::diagnose_simulated(scenario)
 }
 
 /// One flight of the campaign: its row label and concealed effects.

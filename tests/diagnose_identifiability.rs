@@ -10,41 +10,12 @@
 //!
 //! Each flight has the campaign's tail, cabin and cabin sensors.
 
-use magcomp::config::{FlightJob, Pipeline};
+mod common;
+
 use magcomp::diagnose::Diagnosis;
-use magcomp::pipeline::{diagnose_flight, StageOptions};
-use magcomp::simulate::scenario::{RawScenario, Scenario};
-use magcomp::simulate::simulate;
 
 fn diagnose(seed: u64, effects: &str) -> Diagnosis {
-    let text = format!(
-        r#"
-        seed = {seed}
-        [survey]
-        line_count = 1
-        line_length_m = 2000.0
-        [[scalar]]
-        name = "mag_1_uc"
-        location = "tail"
-        [[scalar]]
-        name = "mag_2_uc"
-        location = "cabin"
-        [[scalar]]
-        name = "mag_3_uc"
-        location = "cabin"
-        {effects}
-        "#
-    );
-    let raw: RawScenario = toml::from_str(&text).unwrap();
-    let flight = simulate(&Scenario::try_from(raw).unwrap()).unwrap();
-    let pipeline = Pipeline::default();
-    let job = FlightJob {
-        input: "identifiability".into(),
-        vector: None,
-        channels: None,
-        windows: Vec::new(),
-    };
-    diagnose_flight(&flight.log, &job, &StageOptions::from(&pipeline), &pipeline.diagnose).unwrap()
+    common::diagnose_simulated(&common::three_sensor_scenario(seed, effects))
 }
 
 /// (effect, source) of every finding on `channel`.
