@@ -60,8 +60,28 @@ pub struct Compensation {
 }
 
 /// Compensates every row of every channel that has a model, in parallel
-/// over channels.
+/// over channels. A model whose scalar channel or vector sensor the flight
+/// lacks (a model fitted on another flight) is an error.
 pub fn compensate(log: &FlightLog, models: &[FittedTollesLawson], level: LevelConvention) -> Result<Compensation> {
+    for model in models {
+        let sensors = log.vector_sensors();
+        let missing = match (
+            log.channel(&model.channel),
+            sensors.iter().any(|s| s.prefix == model.vector_sensor),
+        ) {
+            (None, _) => Some(("scalar magnetometer", model.channel.clone())),
+            (_, false) => Some(("vector magnetometer", model.vector_sensor.clone())),
+            _ => None,
+        };
+        if let Some((role, name)) = missing {
+            return Err(crate::Error::MissingColumn {
+                path: log.source().to_path_buf(),
+                role,
+                looked_for: format!("'{name}', which the model of '{}' uses", model.channel),
+                hint: "Compensate with models fitted on this flight's own channels.".into(),
+            });
+        }
+    }
     let designs = shared_design_matrices(log, models);
     let channels: Vec<CompensatedChannel> = models
         .par_iter()
@@ -96,7 +116,7 @@ fn sensor_named(log: &FlightLog, prefix: &str) -> VectorSensor {
     log.vector_sensors()
         .into_iter()
         .find(|s| s.prefix == prefix)
-        .expect("a fitted model's vector sensor comes from the same flight log")
+        .expect("compensate checked that every model's vector sensor is in the flight log")
 }
 
 fn compensate_channel(
@@ -107,7 +127,7 @@ fn compensate_channel(
 ) -> CompensatedChannel {
     let scalar = &log
         .channel(&model.channel)
-        .expect("a fitted channel exists in its flight log")
+        .expect("compensate checked that every model's channel is in the flight log")
         .values;
     let interference: Vec<f64> = (0..log.len())
         .map(|row| design.predict_row(row, &model.coefficients))
@@ -159,7 +179,10 @@ fn row_flags(log: &FlightLog, models: &[FittedTollesLawson]) -> Vec<String> {
         }
     };
     for model in models {
-        let scalar = &log.channel(&model.channel).expect("fitted channel exists").values;
+        let scalar = &log
+            .channel(&model.channel)
+            .expect("compensate checked that every model's channel is in the flight log")
+            .values;
         let field = log.vector_components(&sensor_named(log, &model.vector_sensor));
         for row in 0..log.len() {
             if !scalar[row].is_finite() {

@@ -312,3 +312,36 @@ fn the_vector_calibration_stage_calibrates_the_fluxgate_before_the_fit() {
         );
     }
 }
+
+#[test]
+fn compensating_a_flight_without_the_models_channel_is_an_error() {
+    use magcomp::compensate::{compensate, LevelConvention};
+    use magcomp::fit::{fit_channels, FitOptions};
+    use magcomp::flight_log::FlightLog;
+    let folder = tempfile::tempdir().unwrap();
+    let (csv, windows) = small_flight(folder.path());
+    let log = magcomp::ingest::read_flight_log(&csv, &Default::default()).unwrap();
+    let sensor = magcomp::pipeline::choose_vector_sensor(&log, None).unwrap();
+    let models = fit_channels(
+        &log,
+        &sensor,
+        &["mag_1_uc".to_string()],
+        &read_detect_json(&windows, 5.0).unwrap(),
+        &FitOptions::default(),
+    )
+    .unwrap();
+    let channels = log
+        .channels()
+        .iter()
+        .filter(|c| c.name != "mag_1_uc")
+        .cloned()
+        .collect();
+    let other = FlightLog::new(log.source(), log.time_column(), log.time_s().to_vec(), channels).unwrap();
+    let error = compensate(&other, &models, LevelConvention::Absolute)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        error.contains("'mag_1_uc', which the model of 'mag_1_uc' uses"),
+        "{error}"
+    );
+}
