@@ -394,6 +394,28 @@ struct Factor {
 }
 
 impl Factor {
+    /// The spectrum this factor gives, with the condition number of the
+    /// unscaled design's R (`r` with its columns divided by `scales`).
+    fn spectrum(
+        self,
+        r: MatRef<'_, f64>,
+        scales: &[f64],
+        uty: Vec<f64>,
+        decomposition: Decomposition,
+    ) -> Result<Spectrum, SolveError> {
+        let p = r.ncols();
+        let scaled_r = Mat::from_fn(p, p, |i, j| r[(i, j)] / scales[j]);
+        Ok(Spectrum {
+            scaled_condition_number: condition_number(scaled_r.as_ref())?,
+            singular_values: self.singular_values,
+            v: self.v,
+            to_u: self.to_u,
+            uty,
+            rank: self.rank,
+            decomposition,
+        })
+    }
+
     fn of_r(r: MatRef<'_, f64>, rows: usize) -> Result<Self, SolveError> {
         let p = r.ncols();
         let (u_r, singular_values, v) = small_svd(r).ok_or(SolveError::SvdFailed)?;
@@ -449,16 +471,7 @@ fn decompose(
     let factor = Factor::of_r(r.as_ref(), y.len())?;
     let statistics = basis_statistics(columns, y, blocks, &factor.to_u, fold_count);
     let total = FoldStatistics::total(&statistics, p);
-    let scaled_r = Mat::from_fn(p, p, |i, j| r[(i, j)] / scales[j]);
-    let spectrum = Spectrum {
-        scaled_condition_number: condition_number(scaled_r.as_ref())?,
-        singular_values: factor.singular_values,
-        v: factor.v,
-        to_u: factor.to_u,
-        uty: total.uty,
-        rank: factor.rank,
-        decomposition: Decomposition::Householder,
-    };
+    let spectrum = factor.spectrum(r.as_ref(), &scales, total.uty, Decomposition::Householder)?;
     Ok((spectrum, statistics))
 }
 
@@ -507,16 +520,7 @@ fn cholesky_route(
     );
     let statistics: Vec<FoldStatistics> = first_statistics.iter().map(|s| s.in_basis(&t)).collect();
     let uty = first_total.in_basis(&t).uty;
-    let scaled_r = Mat::from_fn(p, p, |i, j| r[(i, j)] / scales[j]);
-    let spectrum = Spectrum {
-        scaled_condition_number: condition_number(scaled_r.as_ref())?,
-        singular_values: factor.singular_values,
-        v: factor.v,
-        to_u: factor.to_u,
-        uty,
-        rank: factor.rank,
-        decomposition: Decomposition::CholeskyQr2,
-    };
+    let spectrum = factor.spectrum(r.as_ref(), scales, uty, Decomposition::CholeskyQr2)?;
     Ok(Some((spectrum, statistics)))
 }
 
