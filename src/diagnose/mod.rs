@@ -142,7 +142,8 @@ pub struct ChannelDiagnosis {
     /// held-out RMS: what the data hint at without proving.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub strongest_rejected: Option<String>,
-    /// Plain Tolles-Lawson on the calibrated fluxgate, held out, nT.
+    /// Plain Tolles-Lawson on the calibrated fluxgate, held out, nT; only
+    /// when the flight has a `vector_calibration` finding.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub heldout_rms_calibrated_fluxgate_nt: Option<f64>,
     /// Which fluxgate reading the search used: `raw`, or `calibrated` when
@@ -230,7 +231,7 @@ struct Problem<'a> {
     windows: &'a [CalibrationWindow],
     options: &'a FitOptions,
     /// Unit field direction u_x, u_y, u_z per row.
-    direction: [Vec<f64>; 3],
+    direction: &'a [Vec<f64>; 3],
 }
 
 /// Diagnoses every channel on its calibration windows.
@@ -243,52 +244,41 @@ pub fn diagnose(
     settings: &DiagnoseOptions,
 ) -> Result<Diagnosis> {
     let fluxgate = check_fluxgate(log, sensor, channels, windows);
+    // The calibrated fluxgate is tried only once its finding stands.
     let calibrated = fluxgate
         .as_ref()
+        .filter(|check| mismatch_stands(check, settings))
         .map(|check| check.calibration.apply(log, sensor))
         .transpose()?;
     let raw_direction = directions(log, sensor);
     let calibrated_direction = calibrated.as_ref().map(|l| directions(l, sensor));
-    let problem = |log, direction: &[Vec<f64>; 3], channel| Problem {
-        log,
-        sensor,
-        channel,
-        windows,
-        options,
-        direction: direction.clone(),
-    };
-    // Plain Tolles-Lawson held out, on the raw and on the calibrated fluxgate.
-    let baselines: Vec<(HeldOut, Option<HeldOut>)> = channels
-        .par_iter()
-        .map(|channel| {
-            let raw = held_out(&problem(log, &raw_direction, channel), &Model::default())?;
-            let calibrated = match (&calibrated, &calibrated_direction) {
-                (Some(l), Some(d)) => held_out(&problem(l, d, channel), &Model::default()).ok(),
-                _ => None,
-            };
-            Ok((raw, calibrated))
-        })
-        .collect::<Result<_>>()?;
-    let fluxgate_found = fluxgate.as_ref().and_then(|check| {
-        let rms: Vec<(&str, f64, Option<f64>)> = channels
-            .iter()
-            .zip(&baselines)
-            .map(|(c, (raw, cal))| (c.as_str(), raw.rms_nt, cal.as_ref().map(|h| h.rms_nt)))
-            .collect();
-        fluxgate_finding(check, &rms, settings)
-    });
     let results: Vec<(ChannelDiagnosis, Vec<Finding>)> = channels
         .par_iter()
-        .zip(baselines)
-        .map(|(channel, (raw, alternative))| {
+        .map(|channel| {
+            let problem = |log, direction| Problem {
+                log,
+                sensor,
+                channel,
+                windows,
+                options,
+                direction,
+            };
+            let raw_problem = problem(log, &raw_direction);
+            let raw = held_out(&raw_problem, &Model::default())?;
             let raw_rms = raw.rms_nt;
-            let calibrated_rms = alternative.as_ref().map(|h| h.rms_nt);
-            // The calibrated fluxgate once its finding stands, where it fits better.
-            let (chosen, start, label) = match (alternative, &calibrated, &calibrated_direction) {
-                (Some(h), Some(l), Some(d)) if fluxgate_found.is_some() && h.rms_nt < raw_rms => {
-                    (problem(l, d, channel), h, "calibrated")
+            // Plain Tolles-Lawson on the calibrated fluxgate; the search
+            // starts from it where it fits better held out.
+            let alternative = match (&calibrated, &calibrated_direction) {
+                (Some(l), Some(d)) => {
+                    let p = problem(l, d);
+                    held_out(&p, &Model::default()).ok().map(|h| (p, h))
                 }
-                _ => (problem(log, &raw_direction, channel), raw, "raw"),
+                _ => None,
+            };
+            let calibrated_rms = alternative.as_ref().map(|(_, h)| h.rms_nt);
+            let (chosen, start, label) = match alternative {
+                Some((p, h)) if h.rms_nt < raw_rms => (p, h, "calibrated"),
+                _ => (raw_problem, raw, "raw"),
             };
             let (mut summary, found) = diagnose_channel(&chosen, start, settings)?;
             summary.heldout_rms_baseline_nt = raw_rms;
@@ -298,6 +288,10 @@ pub fn diagnose(
         })
         .collect::<Result<_>>()?;
     let (channel_results, findings): (Vec<_>, Vec<_>) = results.into_iter().unzip();
+    let fluxgate_found = fluxgate
+        .as_ref()
+        .filter(|_| calibrated.is_some())
+        .map(|check| fluxgate_finding(check, &channel_results));
     let findings = fluxgate_found
         .into_iter()
         .chain(findings.into_iter().flatten())
@@ -393,29 +387,31 @@ fn check_fluxgate(
     })
 }
 
-/// A `vector_calibration` finding when the fluxgate's magnitude misses the
-/// scalar total field by more than `vector_mismatch_nt` held out and the
-/// calibration removes most of it. `channels` holds each channel's
-/// held-out RMS on the raw and on the calibrated fluxgate, for the
-/// explanation. (A better Tolles-Lawson fit on the calibrated fluxgate is
-/// not evidence on its own: calibrating also removes the aircraft's own
-/// field at the fluxgate, which the simulator's campaign showed can lower
-/// a wing sensor's held-out RMS by a third with a fluxgate that has no
-/// error of its own.)
-fn fluxgate_finding(
-    check: &FluxgateCheck,
-    channels: &[(&str, f64, Option<f64>)],
-    settings: &DiagnoseOptions,
-) -> Option<Finding> {
-    let keep = 1.0 - settings.min_improvement;
-    let mismatch = check.heldout_mismatch_before_nt > settings.vector_mismatch_nt
-        && check.heldout_mismatch_after_nt < check.heldout_mismatch_before_nt * keep;
-    if !mismatch {
-        return None;
-    }
+/// Whether the fluxgate's magnitude misses the scalar total field by more
+/// than `vector_mismatch_nt` held out and the calibration removes most of
+/// it: the `vector_calibration` finding. (A better Tolles-Lawson fit on the
+/// calibrated fluxgate is not evidence on its own: calibrating also
+/// removes the aircraft's own field at the fluxgate, which the simulator's
+/// campaign showed can lower a wing sensor's held-out RMS by a third with
+/// a fluxgate that has no error of its own.)
+fn mismatch_stands(check: &FluxgateCheck, settings: &DiagnoseOptions) -> bool {
+    check.heldout_mismatch_before_nt > settings.vector_mismatch_nt
+        && check.heldout_mismatch_after_nt < check.heldout_mismatch_before_nt * (1.0 - settings.min_improvement)
+}
+
+/// The `vector_calibration` finding of a check that stands, naming the
+/// channels whose held-out fit the calibrated fluxgate improves.
+fn fluxgate_finding(check: &FluxgateCheck, channels: &[ChannelDiagnosis]) -> Finding {
     let helped: Vec<(&str, f64, f64)> = channels
         .iter()
-        .filter_map(|&(c, raw, calibrated)| calibrated.filter(|r| *r < raw).map(|r| (c, raw, r)))
+        .filter_map(|c| {
+            let calibrated = c.heldout_rms_calibrated_fluxgate_nt?;
+            (calibrated < c.heldout_rms_baseline_nt).then_some((
+                c.channel.as_str(),
+                c.heldout_rms_baseline_nt,
+                calibrated,
+            ))
+        })
         .collect();
     let c = &check.calibration;
     let mut parameters = std::collections::BTreeMap::new();
@@ -437,7 +433,7 @@ fn fluxgate_finding(
                 .join(", ")
         ),
     };
-    Some(Finding {
+    Finding {
         effect: "vector_calibration".into(),
         channel: c.sensor.clone(),
         source: Some(c.reference.clone()),
@@ -461,7 +457,7 @@ fn fluxgate_finding(
         located: check.located.clone(),
         heldout_rms_before_nt: check.heldout_mismatch_before_nt,
         heldout_rms_after_nt: check.heldout_mismatch_after_nt,
-    })
+    }
 }
 
 fn diagnose_channel(
@@ -533,7 +529,7 @@ fn diagnose_channel(
         problem.log,
         problem.channel,
         (&baseline_windows, &current_windows),
-        &problem.direction,
+        problem.direction,
         problem.options,
     );
     findings.extend(unexplained(problem.channel, current, &localisation));
@@ -737,7 +733,7 @@ fn regressors(problem: &Problem, model: &Model) -> (Vec<String>, Vec<Vec<f64>>) 
                 let mut finite: Vec<f64> = values.iter().copied().filter(|v| v.is_finite()).collect();
                 finite.sort_by(f64::total_cmp);
                 let level = finite.get(finite.len() / 2).copied().unwrap_or(0.0);
-                for (axis, u) in ["x", "y", "z"].iter().zip(&problem.direction) {
+                for (axis, u) in ["x", "y", "z"].iter().zip(problem.direction) {
                     names.push(format!("{source}_{axis}"));
                     columns.push(values.iter().zip(u).map(|(c, u)| (c - level) * u).collect());
                 }
