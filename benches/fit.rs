@@ -154,6 +154,7 @@ fn bench_whole_file(rows: usize) {
         .map(|w| CalibrationWindow::new(w as f64 * 300.0, w as f64 * 300.0 + 120.0))
         .collect();
     let job = FlightJob {
+        diagnosis: None,
         input: input.clone(),
         vector: None,
         channels: None,
@@ -346,6 +347,7 @@ fn bench_diagnose() {
     let log = FlightLog::new("bench", "tt", log.time_s().to_vec(), channels).unwrap();
     let pipeline = Pipeline::default();
     let job = magcomp::config::FlightJob {
+        diagnosis: None,
         input: "bench".into(),
         vector: None,
         channels: None,

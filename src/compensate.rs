@@ -11,12 +11,18 @@
 //! not its mean; the convention says which DC level the output keeps.
 //! A row whose scalar or vector sample is missing gets an empty value and a
 //! reason in the flags; no row is ever dropped.
+//!
+//! A model with an [`Augmentation`] (an accepted diagnosis) is evaluated on
+//! its own terms: the fluxgate calibrated, the extra regressors added to
+//! $A\beta$, and $m_{uc}$ read `lag_s` later when the sensor lags, so the
+//! compensated value at a row is the field at that row's time and place.
 
 use std::collections::BTreeMap;
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use crate::augment::Augmentation;
 use crate::error::Result;
 use crate::fit::FittedTollesLawson;
 use crate::flight_log::{FlightLog, VectorSensor};
@@ -85,9 +91,18 @@ pub fn compensate(log: &FlightLog, models: &[FittedTollesLawson], level: LevelCo
     let designs = shared_design_matrices(log, models);
     let channels: Vec<CompensatedChannel> = models
         .par_iter()
-        .map(|model| compensate_channel(log, model, &designs[&design_key(model)], level))
-        .collect();
-    let flags = row_flags(log, models);
+        .map(|model| match &model.augmentation {
+            None => {
+                let scalar = &log
+                    .channel(&model.channel)
+                    .expect("compensate checked that every model's channel is in the flight log")
+                    .values;
+                Ok(compensate_channel(log, model, scalar, (&designs[&design_key(model)], &[]), level))
+            }
+            Some(augmentation) => compensate_augmented(log, model, augmentation, level),
+        })
+        .collect::<Result<_>>()?;
+    let flags = row_flags(log, models, &channels);
     Ok(Compensation { channels, flags })
 }
 
@@ -97,19 +112,43 @@ fn design_key(model: &FittedTollesLawson) -> DesignKey {
     (model.vector_sensor.clone(), format!("{:?}", model.terms))
 }
 
-/// One full-flight design matrix per (vector sensor, term set).
+/// One full-flight design matrix per (vector sensor, term set) of the
+/// plain models.
 fn shared_design_matrices(log: &FlightLog, models: &[FittedTollesLawson]) -> BTreeMap<DesignKey, DesignMatrix> {
     let mut designs = BTreeMap::new();
-    for model in models {
-        designs.entry(design_key(model)).or_insert_with(|| {
-            let sensor = sensor_named(log, &model.vector_sensor);
-            let field = log.vector_components(&sensor);
-            let valid: Vec<bool> = (0..log.len()).map(|i| field.iter().all(|c| c[i].is_finite())).collect();
-            let runs = valid_runs(log.time_s(), &valid, 0..log.len(), log.median_interval_s());
-            model.terms.design_matrix(field, &runs)
-        });
+    for model in models.iter().filter(|m| m.augmentation.is_none()) {
+        designs
+            .entry(design_key(model))
+            .or_insert_with(|| design_matrix(log, &sensor_named(log, &model.vector_sensor), model));
     }
     designs
+}
+
+/// The model's Tolles-Lawson terms over the whole flight.
+fn design_matrix(log: &FlightLog, sensor: &VectorSensor, model: &FittedTollesLawson) -> DesignMatrix {
+    let field = log.vector_components(sensor);
+    let valid: Vec<bool> = (0..log.len()).map(|i| field.iter().all(|c| c[i].is_finite())).collect();
+    let runs = valid_runs(log.time_s(), &valid, 0..log.len(), log.median_interval_s());
+    model.terms.design_matrix(field, &runs)
+}
+
+/// An augmented model: its own flight (calibrated fluxgate, advanced
+/// scalar), terms and extra regressors.
+fn compensate_augmented(
+    log: &FlightLog,
+    model: &FittedTollesLawson,
+    augmentation: &Augmentation,
+    level: LevelConvention,
+) -> Result<CompensatedChannel> {
+    let sensor = sensor_named(log, &model.vector_sensor);
+    let prepared = augmentation.prepare(log, &sensor, &model.channel, model.terms.bt_scale_nt)?;
+    let design = design_matrix(&prepared.log, &sensor, model);
+    let scalar = &prepared
+        .log
+        .channel(&model.channel)
+        .expect("compensate checked that every model's channel is in the flight log")
+        .values;
+    Ok(compensate_channel(log, model, scalar, (&design, &prepared.columns), level))
 }
 
 fn sensor_named(log: &FlightLog, prefix: &str) -> VectorSensor {
@@ -119,18 +158,18 @@ fn sensor_named(log: &FlightLog, prefix: &str) -> VectorSensor {
         .expect("compensate checked that every model's vector sensor is in the flight log")
 }
 
+/// `scalar` less the interference of the terms in `design` and the extra
+/// columns, whose coefficients follow the terms'.
 fn compensate_channel(
     log: &FlightLog,
     model: &FittedTollesLawson,
-    design: &DesignMatrix,
+    scalar: &[f64],
+    (design, extra): (&DesignMatrix, &[Vec<f64>]),
     level: LevelConvention,
 ) -> CompensatedChannel {
-    let scalar = &log
-        .channel(&model.channel)
-        .expect("compensate checked that every model's channel is in the flight log")
-        .values;
+    let (terms, added) = model.coefficients.split_at(design.columns.len().min(model.coefficients.len()));
     let interference: Vec<f64> = (0..log.len())
-        .map(|row| design.predict_row(row, &model.coefficients))
+        .map(|row| design.predict_row(row, terms) + extra.iter().zip(added).map(|(c, b)| c[row] * b).sum::<f64>())
         .collect();
     let level_offset_nt = match level {
         LevelConvention::Absolute => 0.0,
@@ -164,8 +203,10 @@ fn calibration_mean(log: &FlightLog, model: &FittedTollesLawson, interference: &
     }
 }
 
-/// Reasons a row's outputs are missing, `;`-separated, in model order.
-fn row_flags(log: &FlightLog, models: &[FittedTollesLawson]) -> Vec<String> {
+/// Reasons a row's outputs are missing, `;`-separated, in model order:
+/// a missing scalar or vector sample, a missing source column of an
+/// augmented model, or a lag that reads the scalar beyond its record.
+fn row_flags(log: &FlightLog, models: &[FittedTollesLawson], channels: &[CompensatedChannel]) -> Vec<String> {
     let mut flags = match log.row_flags().len() == log.len() {
         true => log.row_flags().to_vec(),
         false => vec![String::new(); log.len()],
@@ -178,18 +219,37 @@ fn row_flags(log: &FlightLog, models: &[FittedTollesLawson]) -> Vec<String> {
             flags[row].push_str(&reason);
         }
     };
-    for model in models {
+    for (model, compensated) in models.iter().zip(channels) {
         let scalar = &log
             .channel(&model.channel)
             .expect("compensate checked that every model's channel is in the flight log")
             .values;
         let field = log.vector_components(&sensor_named(log, &model.vector_sensor));
+        let sources: Vec<(&str, &[f64])> = model
+            .augmentation
+            .iter()
+            .flat_map(|a| &a.sources)
+            .filter_map(|s| Some((s.column(), log.channel(s.column())?.values.as_slice())))
+            .collect();
         for row in 0..log.len() {
+            let mut explained = false;
             if !scalar[row].is_finite() {
                 push(row, format!("missing_scalar:{}", model.channel));
+                explained = true;
             }
             if field.iter().any(|c| !c[row].is_finite()) {
                 push(row, format!("missing_vector:{}", model.vector_sensor));
+                explained = true;
+            }
+            for (column, values) in &sources {
+                if !values[row].is_finite() {
+                    push(row, format!("missing_source:{column}"));
+                    explained = true;
+                }
+            }
+            if !explained && !compensated.values[row].is_finite() {
+                let lagged = model.augmentation.as_ref().is_some_and(|a| a.lag_s != 0.0);
+                push(row, format!("{}:{}", if lagged { "lag_outside_record" } else { "model_undefined" }, model.channel));
             }
         }
     }

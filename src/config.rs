@@ -165,6 +165,9 @@ pub struct RawFlight {
     /// A DETECT.json file whose manoeuvres are the calibration windows.
     #[serde(default)]
     pub windows_file: Option<PathBuf>,
+    /// A DIAGNOSIS.json whose models to fit and compensate with.
+    #[serde(default)]
+    pub diagnosis: Option<PathBuf>,
 }
 
 /// `[quality]` as written.
@@ -227,6 +230,9 @@ pub struct FlightJob {
     pub channels: Option<Vec<String>>,
     /// Calibration windows.
     pub windows: Vec<CalibrationWindow>,
+    /// A DIAGNOSIS.json to accept: each channel it lists is fitted and
+    /// compensated with the model it found.
+    pub diagnosis: Option<PathBuf>,
 }
 
 /// A validated pipeline.
@@ -337,6 +343,7 @@ fn flight_job(raw: RawFlight, base: &Path, source_name: &str, margin_s: f64) -> 
         vector: raw.vector,
         channels: raw.channels,
         windows,
+        diagnosis: raw.diagnosis.map(|d| base.join(d)),
     })
 }
 

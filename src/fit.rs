@@ -108,6 +108,10 @@ pub struct FittedTollesLawson {
     pub coefficient_uncertainty: Vec<f64>,
     /// Per-window use of the data.
     pub windows: Vec<WindowFit>,
+    /// Physics added to the Tolles-Lawson terms (an accepted diagnosis);
+    /// its extra coefficients follow the terms'.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub augmentation: Option<crate::augment::Augmentation>,
 }
 
 /// Fits every channel in `channels` against `sensor`, in parallel over
@@ -214,6 +218,7 @@ pub fn fit_channel_with(
         sample_rate_hz,
         solution,
         windows: fits,
+        augmentation: None,
     })
 }
 

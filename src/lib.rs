@@ -42,6 +42,7 @@
 //! ```
 #![deny(missing_docs)]
 
+pub mod augment;
 pub mod compensate;
 pub mod config;
 pub mod detect;

@@ -131,6 +131,14 @@ struct CompensateArgs {
     /// Settings file for columns, filter and fit (flights in it are ignored).
     #[arg(long)]
     config: Option<PathBuf>,
+    /// Accept a DIAGNOSIS.json: fit and compensate each channel it lists
+    /// with the model its findings make.
+    #[arg(long, conflicts_with = "augment")]
+    diagnosis: Option<PathBuf>,
+    /// Diagnose the flight first and compensate with the models found;
+    /// the diagnosis is written beside OUT (_diagnosis.json).
+    #[arg(long)]
+    augment: bool,
 }
 
 fn main() -> ExitCode {
@@ -225,23 +233,27 @@ fn compensate(args: CompensateArgs) -> anyhow::Result<()> {
             pipeline.detect.window_margin_s,
         )?);
     }
+    pipeline.diagnose.apply |= args.augment;
     let job = FlightJob {
+        diagnosis: args.diagnosis.clone(),
         input: args.flight.clone(),
         vector: args.vector,
         channels: args.channels,
         windows,
     };
+    let beside_out = |suffix: &str| {
+        let stem = args
+            .out
+            .file_stem()
+            .map_or("flight".into(), |s| s.to_string_lossy().into_owned());
+        args.out.with_file_name(format!("{stem}{suffix}"))
+    };
     let outputs = FlightOutputs {
+        diagnosis_json: Some(beside_out("_diagnosis.json")),
         compensated: args.out.clone(),
         model_json: args.model,
         quality_json: args.report,
-        report_html: Some(args.html.unwrap_or_else(|| {
-            let stem = args
-                .out
-                .file_stem()
-                .map_or("flight".into(), |s| s.to_string_lossy().into_owned());
-            args.out.with_file_name(format!("{stem}_report.html"))
-        })),
+        report_html: Some(args.html.clone().unwrap_or_else(|| beside_out("_report.html"))),
     };
     let bar = spinner(format!("compensating {}", args.flight.display()));
     let result = process_flight(&job, &stage_options(&pipeline), &outputs);
@@ -342,6 +354,7 @@ fn diagnose(flight: &Path, out: &Path, windows: &[String], config: Option<&Path>
     };
     let log = magcomp::ingest::read_flight_log(flight, &pipeline.ingest)?;
     let job = FlightJob {
+        diagnosis: None,
         input: flight.to_path_buf(),
         vector: None,
         channels: None,

@@ -1,14 +1,16 @@
 //! One flight through every stage: read, fit, compensate, assess, write.
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
+use crate::augment::Augmentation;
 use crate::compensate::{compensate, LevelConvention};
 use crate::config::FlightJob;
 use crate::detect::{detect_manoeuvres, DetectOptions, Detection};
 use crate::error::{Error, Result};
-use crate::fit::{fit_channels, FitOptions, FittedTollesLawson};
+use crate::fit::{FitOptions, FittedTollesLawson};
 use crate::flight_log::{FlightLog, VectorSensor};
 use crate::ingest::align::AlignmentReport;
 use crate::ingest::{detect_format, read_flight_log, Format, IngestOptions};
@@ -29,6 +31,8 @@ pub struct FlightOutputs {
     pub quality_json: Option<PathBuf>,
     /// HTML quality report (and its figures as JSON beside it), if wanted.
     pub report_html: Option<PathBuf>,
+    /// DIAGNOSIS.json of the diagnosis made when `[diagnose] apply` is on.
+    pub diagnosis_json: Option<PathBuf>,
 }
 
 impl FlightOutputs {
@@ -49,6 +53,7 @@ impl FlightOutputs {
             model_json: Some(directory.join(format!("{stem}_model.json"))),
             quality_json: Some(directory.join(format!("{stem}_quality.json"))),
             report_html: Some(directory.join(format!("{stem}_report.html"))),
+            diagnosis_json: Some(directory.join(format!("{stem}_diagnosis.json"))),
         }
     }
 }
@@ -75,6 +80,10 @@ pub struct FlightResult {
     /// The fluxgate calibration the fit used (`[vector_calibration]`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub vector_calibration: Option<crate::vector_calibration::VectorCalibration>,
+    /// The diagnosis made before the fit (`[diagnose] apply`); its
+    /// DIAGNOSIS.json is written beside the other outputs.
+    #[serde(skip)]
+    pub diagnosis: Option<crate::diagnose::Diagnosis>,
     /// The fitted models.
     #[serde(skip)]
     pub models: Vec<FittedTollesLawson>,
@@ -97,6 +106,8 @@ pub struct StageOptions {
     pub fom_limit_nt: f64,
     /// Fluxgate calibration before the fit.
     pub vector_calibration: crate::vector_calibration::VectorCalibrationOptions,
+    /// Physics diagnosis, and whether the fit takes its models.
+    pub diagnose: crate::diagnose::DiagnoseOptions,
 }
 
 impl From<&crate::config::Pipeline> for StageOptions {
@@ -110,6 +121,7 @@ impl From<&crate::config::Pipeline> for StageOptions {
             transfer: pipeline.transfer.clone(),
             fom_limit_nt: pipeline.fom_limit_nt,
             vector_calibration: pipeline.vector_calibration.clone(),
+            diagnose: pipeline.diagnose.clone(),
         }
     }
 }
@@ -139,7 +151,11 @@ pub fn process_flight(job: &FlightJob, options: &StageOptions, outputs: &FlightO
     )?;
     let calibrated = calibration.as_ref().map(|c| c.apply(&raw_log, &sensor)).transpose()?;
     let log = calibrated.as_ref().unwrap_or(&raw_log);
-    let models = fit_channels(log, &sensor, &channels, &windows, &options.fit)?;
+    let (plan, diagnosis) = augmentation_plan(job, log, &sensor, &channels, &windows, options, calibration.is_some())?;
+    if let (Some(diagnosis), Some(path)) = (&diagnosis, &outputs.diagnosis_json) {
+        crate::output::write_json(path, "the diagnosis", diagnosis)?;
+    }
+    let models = crate::augment::fit_channels(log, &sensor, &channels, &windows, &options.fit, &plan)?;
     let compensation = compensate(log, &models, options.level)?;
     let quality: Vec<ChannelQuality> = models
         .par_iter()
@@ -153,6 +169,10 @@ pub fn process_flight(job: &FlightJob, options: &StageOptions, outputs: &FlightO
     let added_columns = added_column_names(log, &outputs.compensated, &compensation)?;
     let mut notes = renaming_notes(&channels, &added_columns);
     notes.extend(calibration.iter().map(|c| c.summary()));
+    notes.extend(models.iter().filter_map(|m| {
+        let augmentation = m.augmentation.as_ref()?;
+        Some(format!("{}: fitted and compensated with the diagnosed model: {}", m.channel, augmentation.describe()))
+    }));
     if let Some(detection) = &detected {
         notes.extend(detection_notes(detection));
     }
@@ -166,6 +186,7 @@ pub fn process_flight(job: &FlightJob, options: &StageOptions, outputs: &FlightO
         alignment: log.alignment().cloned(),
         channels: quality,
         vector_calibration: calibration,
+        diagnosis,
         models,
     };
     let model_text = to_json(
@@ -225,6 +246,37 @@ impl<'a> ModelFile<'a> {
             models: &result.models,
         }
     }
+}
+
+/// The diagnosed model of each channel to fit with: from the flight's
+/// DIAGNOSIS.json, or from a diagnosis made now (`[diagnose] apply`, then
+/// returned too); empty otherwise. A saved diagnosis that calibrates the
+/// fluxgate while the `[vector_calibration]` stage already has is refused.
+fn augmentation_plan(
+    job: &FlightJob,
+    log: &FlightLog,
+    sensor: &VectorSensor,
+    channels: &[String],
+    windows: &[crate::windows::CalibrationWindow],
+    options: &StageOptions,
+    stage_calibrated: bool,
+) -> Result<(BTreeMap<String, Augmentation>, Option<crate::diagnose::Diagnosis>)> {
+    if let Some(path) = &job.diagnosis {
+        let models = crate::diagnose::read_models(path)?;
+        if stage_calibrated && models.values().any(|m| m.vector_calibration.is_some()) {
+            return Err(Error::Config {
+                source_name: path.display().to_string(),
+                message: "the diagnosis calibrates the fluxgate and so does the [vector_calibration] stage; turn the stage off (enabled = false) or diagnose the calibrated flight".into(),
+            });
+        }
+        return Ok((models, None));
+    }
+    if !options.diagnose.apply {
+        return Ok((BTreeMap::new(), None));
+    }
+    let diagnosis = crate::diagnose::diagnose(log, sensor, channels, windows, &options.fit, &options.diagnose)?;
+    let models = diagnosis.models();
+    Ok((models, Some(diagnosis)))
 }
 
 /// Diagnoses a flight: its windows (given, or detected), its vector

@@ -15,7 +15,8 @@
 use serde::{Deserialize, Serialize};
 
 use crate::error::Result;
-use crate::fit::{fit_channel, FitOptions, FittedTollesLawson, WindowFit};
+use crate::augment::{fit, held_out};
+use crate::fit::{FitOptions, FittedTollesLawson, WindowFit};
 use crate::flight_log::{FlightLog, VectorSensor};
 use crate::quality::{figure_of_merit, fom_table, window_quality};
 use crate::windows::CalibrationWindow;
@@ -110,9 +111,10 @@ pub fn check_transfer(
     let boxes = group_into_boxes(windows);
     let (method, in_sample, held_out) = match boxes.as_slice() {
         [first, second, ..] => {
-            let trained = fit_channel(log, sensor, &model.channel, first, options)?;
-            let own = fit_channel(log, sensor, &model.channel, second, options)?;
-            let held = trained.held_out(log, sensor, second, options)?;
+            let augmentation = model.augmentation.as_ref();
+            let trained = fit(log, sensor, &model.channel, first, options, augmentation)?;
+            let own = fit(log, sensor, &model.channel, second, options, augmentation)?;
+            let held = held_out(&trained, log, sensor, second, options)?;
             (
                 TransferMethod::SecondBox,
                 compensated_fom(&own.windows),
@@ -120,7 +122,7 @@ pub fn check_transfer(
             )
         }
         [only] => {
-            let held = leave_one_heading_out(log, sensor, &model.channel, only, options)?;
+            let held = leave_one_heading_out(log, sensor, model, only, options)?;
             let Some(held) = held else { return Ok(None) };
             let own: Vec<WindowFit> = model
                 .windows
@@ -160,12 +162,13 @@ pub fn check_transfer(
     }))
 }
 
-/// Each heading's windows measured with a fit on the other headings;
-/// `None` with fewer than three headings.
+/// Each heading's windows measured with a fit of `model`'s kind (plain
+/// or augmented) on the other headings; `None` with fewer than three
+/// headings.
 fn leave_one_heading_out(
     log: &FlightLog,
     sensor: &VectorSensor,
-    channel: &str,
+    model: &FittedTollesLawson,
     windows: &[CalibrationWindow],
     options: &FitOptions,
 ) -> Result<Option<Vec<WindowFit>>> {
@@ -185,8 +188,8 @@ fn leave_one_heading_out(
             .iter()
             .cloned()
             .partition(|w| angle_apart(w.heading_deg.unwrap_or(0.0), heading) < 15.0);
-        let model = fit_channel(log, sensor, channel, &rest, options)?;
-        held.extend(model.held_out(log, sensor, &out, options)?);
+        let trained = fit(log, sensor, &model.channel, &rest, options, model.augmentation.as_ref())?;
+        held.extend(held_out(&trained, log, sensor, &out, options)?);
     }
     Ok(Some(held))
 }

@@ -69,7 +69,7 @@ impl Default for VectorCalibrationOptions {
 
 /// A fitted calibration: $\hat b = C(m - o)$, and the error model
 /// $m = K b + o$ it implies.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct VectorCalibration {
     /// Vector magnetometer prefix.
     pub sensor: String,

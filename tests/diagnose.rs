@@ -16,6 +16,7 @@ fn diagnose(name: &str) -> Diagnosis {
     let pipeline = Pipeline::default();
     let log = read_flight_log(&input, &pipeline.ingest).unwrap();
     let job = FlightJob {
+        diagnosis: None,
         input,
         vector: None,
         channels: None,
@@ -242,6 +243,7 @@ fn an_effect_outside_the_library_is_reported_as_unexplained_where_it_happens() {
     let log = magcomp::flight_log::FlightLog::new(full.source(), full.time_column(), full.time_s().to_vec(), channels)
         .unwrap();
     let job = FlightJob {
+        diagnosis: None,
         input,
         vector: None,
         channels: None,

@@ -111,6 +111,7 @@ fn every_format_ingests_to_the_same_log_and_compensates_identically() {
     let mut compensated = Vec::new();
     for input in [&csv, &xyz, &mcap, &hdf5] {
         let job = FlightJob {
+            diagnosis: None,
             input: input.clone(),
             vector: None,
             channels: None,

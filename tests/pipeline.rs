@@ -27,6 +27,7 @@ fn options() -> StageOptions {
 
 fn run_with_threads(threads: usize, csv: &Path, windows: &Path, out: &Path) -> Vec<u8> {
     let job = FlightJob {
+        diagnosis: None,
         input: csv.to_path_buf(),
         vector: None,
         channels: None,
@@ -263,6 +264,7 @@ fn the_vector_calibration_stage_calibrates_the_fluxgate_before_the_fit() {
     let folder = tempfile::tempdir().unwrap();
     let input = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("sample_flights/concealed_c.csv");
     let job = FlightJob {
+        diagnosis: None,
         input: input.clone(),
         vector: None,
         channels: None,

@@ -10,6 +10,7 @@ use magcomp::transfer::TransferMethod;
 
 fn run(input: &Path, out: &Path) -> FlightResult {
     let job = FlightJob {
+        diagnosis: None,
         input: input.to_path_buf(),
         vector: None,
         channels: None,

@@ -11,6 +11,7 @@ use magcomp::pipeline::{process_flight, FlightOutputs, StageOptions};
 fn report_of_clean_flight(folder: &Path) -> (PathBuf, magcomp::pipeline::FlightResult) {
     let input = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("sample_flights/clean.csv");
     let job = FlightJob {
+        diagnosis: None,
         input: input.clone(),
         vector: None,
         channels: None,

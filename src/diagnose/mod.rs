@@ -60,9 +60,13 @@ pub mod localise;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use std::borrow::Cow;
+use std::collections::BTreeMap;
+
+use crate::augment::{column_level, field_directions, Augmentation, Prepared, SourceTerm};
 use crate::error::Result;
-use crate::fit::{fit_channel_with, FitOptions, Regressors, WindowFit};
-use crate::flight_log::{Channel, ChannelRole, FlightLog, VectorSensor};
+use crate::fit::{fit_channel_with, FitOptions, WindowFit};
+use crate::flight_log::{ChannelRole, FlightLog, VectorSensor};
 use crate::quality::root_mean_square;
 use crate::vector_calibration::{calibrate, calibrate_best, VectorCalibration};
 use crate::windows::CalibrationWindow;
@@ -80,6 +84,9 @@ pub struct DiagnoseOptions {
     /// Held-out RMS of $|B_{fluxgate}| - F$ above which the fluxgate's
     /// calibration is reported, nT.
     pub vector_mismatch_nt: f64,
+    /// `run` and `compensate` diagnose each flight first and fit and
+    /// compensate every channel with the model its findings make.
+    pub apply: bool,
 }
 
 impl Default for DiagnoseOptions {
@@ -89,6 +96,7 @@ impl Default for DiagnoseOptions {
             max_lag_s: 0.5,
             max_findings: 3,
             vector_mismatch_nt: 200.0,
+            apply: false,
         }
     }
 }
@@ -149,6 +157,9 @@ pub struct ChannelDiagnosis {
     /// Which fluxgate reading the search used: `raw`, or `calibrated` when
     /// that fitted better on held-out data.
     pub fluxgate: &'static str,
+    /// The model the findings make: what `compensate --diagnosis` and the
+    /// pipeline's `[diagnose] apply` fit and compensate with.
+    pub model: Augmentation,
     /// Where the held-out residual is: per manoeuvre, per sub-band against
     /// the noise floor, structured stretches, coherent columns.
     #[serde(flatten)]
@@ -166,6 +177,33 @@ pub struct Diagnosis {
     /// the held-out mismatch before and after.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub fluxgate: Option<FluxgateCheck>,
+}
+
+impl Diagnosis {
+    /// Each channel's diagnosed model.
+    pub fn models(&self) -> BTreeMap<String, Augmentation> {
+        self.channels.iter().map(|c| (c.channel.clone(), c.model.clone())).collect()
+    }
+}
+
+/// The diagnosed model of each channel in a DIAGNOSIS.json.
+pub fn read_models(path: &std::path::Path) -> Result<BTreeMap<String, Augmentation>> {
+    #[derive(Deserialize)]
+    struct File {
+        channels: Vec<Entry>,
+    }
+    #[derive(Deserialize)]
+    struct Entry {
+        channel: String,
+        #[serde(default)]
+        model: Augmentation,
+    }
+    let text = std::fs::read_to_string(path).map_err(|e| crate::Error::io(path, "reading", e))?;
+    let file: File = serde_json::from_str(&text).map_err(|e| crate::Error::Config {
+        source_name: path.display().to_string(),
+        message: format!("not a DIAGNOSIS.json as `magcomp diagnose` writes it ({e}); diagnose the flight again"),
+    })?;
+    Ok(file.channels.into_iter().map(|e| (e.channel, e.model)).collect())
 }
 
 /// The fluxgate's magnitude against the quietest scalar channel.
@@ -191,24 +229,16 @@ enum Extension {
     External { source: String },
 }
 
-/// What the current model is: a lag applied to the scalar and a set of
-/// regressor extensions.
-#[derive(Debug, Clone, Default)]
-struct Model {
-    lag_s: f64,
-    eddy_tau_s: f64,
-    /// Cubic direction-cosine terms: the control every effect must beat.
-    second_order: bool,
-    extensions: Vec<Extension>,
-}
+/// The model under test: plain Tolles-Lawson with the physics accepted
+/// so far.
+type Model = Augmentation;
 
-impl Model {
-    /// The same model with the second-order aircraft-field terms.
-    fn with_second_order(&self) -> Model {
-        Model {
-            second_order: true,
-            ..self.clone()
-        }
+/// The same model with the second-order aircraft-field terms: the control
+/// every effect must beat.
+fn with_second_order(model: &Model) -> Model {
+    Model {
+        second_order: true,
+        ..model.clone()
     }
 }
 
@@ -232,6 +262,9 @@ struct Problem<'a> {
     options: &'a FitOptions,
     /// Unit field direction u_x, u_y, u_z per row.
     direction: &'a [Vec<f64>; 3],
+    /// The candidate source columns (auxiliary and base station, mostly
+    /// recorded) and the level each is taken about.
+    levels: &'a BTreeMap<String, f64>,
 }
 
 /// Diagnoses every channel on its calibration windows.
@@ -250,8 +283,9 @@ pub fn diagnose(
         .filter(|check| mismatch_stands(check, settings))
         .map(|check| check.calibration.apply(log, sensor))
         .transpose()?;
-    let raw_direction = directions(log, sensor);
-    let calibrated_direction = calibrated.as_ref().map(|l| directions(l, sensor));
+    let raw_direction = field_directions(log, sensor);
+    let levels = source_levels(log);
+    let calibrated_direction = calibrated.as_ref().map(|l| field_directions(l, sensor));
     let results: Vec<(ChannelDiagnosis, Vec<Finding>)> = channels
         .par_iter()
         .map(|channel| {
@@ -262,6 +296,7 @@ pub fn diagnose(
                 windows,
                 options,
                 direction,
+                levels: &levels,
             };
             let raw_problem = problem(log, &raw_direction);
             let raw = held_out(&raw_problem, &Model::default())?;
@@ -284,6 +319,9 @@ pub fn diagnose(
             summary.heldout_rms_baseline_nt = raw_rms;
             summary.heldout_rms_calibrated_fluxgate_nt = calibrated_rms;
             summary.fluxgate = label;
+            if label == "calibrated" {
+                summary.model.vector_calibration = fluxgate.as_ref().map(|check| check.calibration.clone());
+            }
             Ok((summary, found))
         })
         .collect::<Result<_>>()?;
@@ -300,16 +338,6 @@ pub fn diagnose(
         channels: channel_results,
         findings,
         fluxgate,
-    })
-}
-
-/// Unit field direction per row.
-fn directions(log: &FlightLog, sensor: &VectorSensor) -> [Vec<f64>; 3] {
-    let field = log.vector_components(sensor);
-    [0, 1, 2].map(|i| {
-        (0..log.len())
-            .map(|k| field[i][k] / (field[0][k].powi(2) + field[1][k].powi(2) + field[2][k].powi(2)).sqrt())
-            .collect()
     })
 }
 
@@ -466,7 +494,7 @@ fn diagnose_channel(
     settings: &DiagnoseOptions,
 ) -> Result<(ChannelDiagnosis, Vec<Finding>)> {
     let mut model = Model::default();
-    let second_order = held_out(problem, &model.with_second_order())?.rms_nt;
+    let second_order = held_out(problem, &with_second_order(&model))?.rms_nt;
     let mut control = second_order;
     let mut current = baseline.rms_nt;
     let baseline_windows = baseline.windows.clone();
@@ -498,7 +526,7 @@ fn diagnose_channel(
         let controlled: Vec<f64> = scored[..passing]
             .par_iter()
             .map(|(next, _, plain)| {
-                let with = held_out(problem, &next.with_second_order()).map_or(f64::INFINITY, |h| h.rms_nt);
+                let with = held_out(problem, &with_second_order(next)).map_or(f64::INFINITY, |h| h.rms_nt);
                 plain.rms_nt.min(with)
             })
             .collect();
@@ -522,7 +550,7 @@ fn diagnose_channel(
         let (next, extension, result) = scored.swap_remove(index);
         let (found, next, result) = finding(problem, next, &extension, (current, &current_windows), result)?;
         findings.push(found);
-        control = held_out(problem, &next.with_second_order())?.rms_nt;
+        control = held_out(problem, &with_second_order(&next))?.rms_nt;
         (model, current, current_windows) = (next, result.rms_nt, result.windows);
     }
     let localisation = localise::localise(
@@ -541,6 +569,7 @@ fn diagnose_channel(
         strongest_rejected,
         heldout_rms_calibrated_fluxgate_nt: None,
         fluxgate: "raw",
+        model,
         localisation,
     };
     Ok((summary, findings))
@@ -629,23 +658,43 @@ fn candidates(problem: &Problem, model: &Model, settings: &DiagnoseOptions) -> V
         }
     }
     for channel in problem.log.channels() {
-        let extension = match &channel.role {
-            ChannelRole::Auxiliary if !is_magnetic_product(&channel.name) => Extension::Coupling {
-                source: channel.name.clone(),
-            },
-            ChannelRole::BaseStation => Extension::External {
-                source: channel.name.clone(),
-            },
-            _ => continue,
+        let Some(&level) = problem.levels.get(&channel.name) else {
+            continue;
         };
-        let usable = channel.values.iter().filter(|v| v.is_finite()).count() * 2 > channel.values.len();
-        if usable && !model.extensions.contains(&extension) {
+        let column = channel.name.clone();
+        let (extension, term) = match &channel.role {
+            ChannelRole::BaseStation => (
+                Extension::External { source: column.clone() },
+                SourceTerm::ExternalField { column, level },
+            ),
+            _ => (
+                Extension::Coupling { source: column.clone() },
+                SourceTerm::AuxCoupling { column, level },
+            ),
+        };
+        if !model.sources.iter().any(|s| s.column() == channel.name) {
             let mut next = model.clone();
-            next.extensions.push(extension.clone());
+            next.sources.push(term);
             list.push((next, extension));
         }
     }
     list
+}
+
+/// Every column that may drive a source term, with its median: auxiliary
+/// columns that are not magnetometer products and base-station columns,
+/// recorded on more than half the rows.
+fn source_levels(log: &FlightLog) -> BTreeMap<String, f64> {
+    log.channels()
+        .iter()
+        .filter(|c| match c.role {
+            ChannelRole::Auxiliary => !is_magnetic_product(&c.name),
+            ChannelRole::BaseStation => true,
+            _ => false,
+        })
+        .filter(|c| c.values.iter().filter(|v| v.is_finite()).count() * 2 > c.values.len())
+        .map(|c| (c.name.clone(), column_level(&c.values)))
+        .collect()
 }
 
 /// Columns that are themselves magnetometer products (SGL's compensated
@@ -657,170 +706,22 @@ fn is_magnetic_product(name: &str) -> bool {
     name.starts_with("mag_") || name.starts_with("flux_") || name.contains("igrf") || name.contains("diurnal")
 }
 
-/// The scalar read `lag_s` earlier: value at t + lag by linear interpolation.
-fn advanced(values: &[f64], time_s: &[f64], lag_s: f64) -> Vec<f64> {
-    time_s
-        .iter()
-        .map(|&t| {
-            let at = t + lag_s;
-            let upper = time_s.partition_point(|&x| x < at);
-            if upper == 0 || upper >= time_s.len() {
-                return f64::NAN;
-            }
-            let (t0, t1) = (time_s[upper - 1], time_s[upper]);
-            let weight = (at - t0) / (t1 - t0);
-            values[upper - 1] + weight * (values[upper] - values[upper - 1])
-        })
-        .collect()
-}
-
-/// The flight with the channel's scalar read `lag_s` earlier.
-fn with_lag(problem: &Problem, lag_s: f64) -> Result<FlightLog> {
-    let log = problem.log;
-    let channels = log
-        .channels()
-        .iter()
-        .map(|c| match c.name == problem.channel {
-            true => Channel {
-                values: advanced(&c.values, log.time_s(), lag_s),
-                ..c.clone()
-            },
-            false => c.clone(),
-        })
-        .collect();
-    FlightLog::new(log.source(), log.time_column(), log.time_s().to_vec(), channels)
-}
-
-/// Regressor columns and names of the model's extensions.
-fn regressors(problem: &Problem, model: &Model) -> (Vec<String>, Vec<Vec<f64>>) {
-    let (mut names, mut columns) = (Vec::new(), Vec::new());
-    if model.second_order {
-        for (i, j, k) in cubic_monomials() {
-            let axes = ["x", "y", "z"];
-            names.push(format!("second_order_u{}{}{}", axes[i], axes[j], axes[k]));
-            let u = &problem.direction;
-            columns.push((0..problem.log.len()).map(|r| u[i][r] * u[j][r] * u[k][r]).collect());
-        }
-    }
-    // Lagged eddy terms next: the newest extension stays last.
-    if model.eddy_tau_s > 0.0 {
-        let dt = problem.log.median_interval_s();
-        let field = problem.log.vector_components(problem.sensor);
-        let scale = problem.options.terms.bt_scale_nt;
-        let lagged: Vec<Vec<f64>> = field.iter().map(|b| lagged_rate(b, dt, model.eddy_tau_s)).collect();
-        for (i, axis_i) in ["x", "y", "z"].iter().enumerate() {
-            for (j, axis_j) in ["x", "y", "z"].iter().enumerate() {
-                names.push(format!("eddy_lagged_{axis_i}{axis_j}"));
-                columns.push(
-                    problem.direction[i]
-                        .iter()
-                        .zip(&lagged[j])
-                        .map(|(u, d)| u * d / scale)
-                        .collect(),
-                );
-            }
-        }
-    }
-    for extension in &model.extensions {
-        match extension {
-            Extension::Coupling { source } => {
-                let Some(values) = problem.log.channel(source).map(|c| &c.values) else {
-                    continue;
-                };
-                // About its median: the steady part of the field is the
-                // permanent terms' already, and a near-constant column would
-                // otherwise duplicate them.
-                let mut finite: Vec<f64> = values.iter().copied().filter(|v| v.is_finite()).collect();
-                finite.sort_by(f64::total_cmp);
-                let level = finite.get(finite.len() / 2).copied().unwrap_or(0.0);
-                for (axis, u) in ["x", "y", "z"].iter().zip(problem.direction) {
-                    names.push(format!("{source}_{axis}"));
-                    columns.push(values.iter().zip(u).map(|(c, u)| (c - level) * u).collect());
-                }
-            }
-            Extension::External { source } => {
-                let Some(values) = problem.log.channel(source) else {
-                    continue;
-                };
-                names.push(source.clone());
-                columns.push(values.values.clone());
-            }
-            Extension::Lag { .. } | Extension::Eddy { .. } => {}
-        }
-    }
-    (names, columns)
-}
-
-/// The ten cubic monomials $u_i u_j u_k$, $i \le j \le k$.
-fn cubic_monomials() -> impl Iterator<Item = (usize, usize, usize)> {
-    (0..3).flat_map(|i| (i..3).flat_map(move |j| (j..3).map(move |k| (i, j, k))))
-}
-
-/// Per-sample central difference of `values` passed through a first-order
-/// lag of `tau_s`, $y_k = \alpha y_{k-1} + (1-\alpha) x_k$ with
-/// $\alpha = e^{-\Delta t/\tau}$, restarted after every missing sample.
-fn lagged_rate(values: &[f64], dt: f64, tau_s: f64) -> Vec<f64> {
-    let rate = crate::tolles_lawson::central_difference(values);
-    let alpha = (-dt / tau_s).exp();
-    let mut state = f64::NAN;
-    rate.iter()
-        .map(|x| {
-            state = if !x.is_finite() {
-                f64::NAN
-            } else if state.is_finite() {
-                alpha * state + (1.0 - alpha) * x
-            } else {
-                *x
-            };
-            state
-        })
-        .collect()
-}
-
-/// Fit settings for a model: the nine TL eddy terms give way to their
-/// lagged versions when the model has an eddy time constant.
-fn fit_options(problem: &Problem, model: &Model) -> FitOptions {
-    let mut options = problem.options.clone();
-    if model.eddy_tau_s > 0.0 {
-        options.terms.eddy = crate::tolles_lawson::EddyTerms::None;
-    }
-    options
-}
-
-/// What a model fits on: the flight (with the scalar advanced when the
-/// model has a lag) and its regressor columns.
-struct Prepared {
-    lagged: Option<FlightLog>,
-    names: Vec<String>,
-    columns: Vec<Vec<f64>>,
-}
-
-impl Prepared {
-    fn new(problem: &Problem, model: &Model) -> Result<Self> {
-        let lagged = (model.lag_s != 0.0)
-            .then(|| with_lag(problem, model.lag_s))
-            .transpose()?;
-        let (names, columns) = regressors(problem, model);
-        Ok(Prepared { lagged, names, columns })
-    }
-
-    fn log<'a>(&'a self, problem: &'a Problem) -> &'a FlightLog {
-        self.lagged.as_ref().unwrap_or(problem.log)
-    }
-
-    fn regressors(&self) -> Regressors<'_> {
-        Regressors {
-            names: self.names.clone(),
-            columns: self.columns.iter().map(Vec::as_slice).collect(),
-        }
-    }
+/// The flight and extra regressors `model` fits on.
+fn prepare<'a>(problem: &Problem<'a>, model: &Model) -> Result<Prepared<'a>> {
+    model.prepare_calibrated(
+        Cow::Borrowed(problem.log),
+        problem.sensor,
+        problem.channel,
+        problem.direction,
+        problem.options.terms.bt_scale_nt,
+    )
 }
 
 /// Held-out residuals of `model` (see [`folds`]).
 fn held_out(problem: &Problem, model: &Model) -> Result<HeldOut> {
-    let prepared = Prepared::new(problem, model)?;
-    let (log, extra) = (prepared.log(problem), prepared.regressors());
-    let options = fit_options(problem, model);
+    let prepared = prepare(problem, model)?;
+    let (log, extra) = (prepared.log.as_ref(), prepared.regressors());
+    let options = model.fit_options(problem.options);
     let mut windows = Vec::new();
     for (out, rest) in folds(problem.windows) {
         let fitted = fit_channel_with(log, problem.sensor, problem.channel, &rest, &options, &extra)?;
@@ -1000,15 +901,14 @@ fn finding(
 
 /// The last `count` extra coefficients of a fit of `model` on all windows.
 fn extension_coefficients(problem: &Problem, model: &Model, count: usize) -> Result<Vec<f64>> {
-    let prepared = Prepared::new(problem, model)?;
-    let (log, extra) = (prepared.log(problem), prepared.regressors());
+    let prepared = prepare(problem, model)?;
     let fitted = fit_channel_with(
-        log,
+        &prepared.log,
         problem.sensor,
         problem.channel,
         problem.windows,
-        problem.options,
-        &extra,
+        &model.fit_options(problem.options),
+        &prepared.regressors(),
     )?;
     Ok(fitted.coefficients[fitted.coefficients.len() - count..].to_vec())
 }

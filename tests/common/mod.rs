@@ -38,6 +38,7 @@ pub fn diagnose_simulated(scenario: &Scenario) -> Diagnosis {
     let flight = simulate(scenario).unwrap();
     let pipeline = Pipeline::default();
     let job = FlightJob {
+        diagnosis: None,
         input: "simulated".into(),
         vector: None,
         channels: None,
