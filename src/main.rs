@@ -396,5 +396,12 @@ fn diagnose(flight: &Path, out: &Path, windows: &[String], config: Option<&Path>
         println!("    {}", finding.explanation);
     }
     println!("wrote {}", out.display());
+    if diagnosis.channels.iter().any(|c| !c.model.is_plain()) {
+        println!(
+            "to compensate with these models: magcomp compensate {} --out OUT.csv --diagnosis {}",
+            flight.display(),
+            out.display()
+        );
+    }
     Ok(())
 }
