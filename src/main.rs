@@ -72,15 +72,35 @@ enum Command {
     },
     /// Simulate a flight from a scenario: the recording (CSV, MCAP, XYZ or
     /// HDF5 by extension), and beside it the truth and calibration windows.
+    ///
+    /// With --replay, fly a recorded flight again instead: each scalar
+    /// sensor re-simulated from the recorded fluxgate and auxiliary
+    /// columns with plain Tolles-Lawson and with the diagnosed model, and
+    /// how closely each reproduces the recording.
     Simulate {
         /// The scenario file.
-        scenario: PathBuf,
+        #[arg(required_unless_present = "replay")]
+        scenario: Option<PathBuf>,
         /// Output flight; its extension picks the format.
         #[arg(long)]
         out: PathBuf,
         /// Override the scenario's seed.
-        #[arg(long)]
+        #[arg(long, conflicts_with = "replay")]
         seed: Option<u64>,
+        /// A recorded flight to replay.
+        #[arg(long, conflicts_with = "scenario")]
+        replay: Option<PathBuf>,
+        /// The DIAGNOSIS.json whose models to replay with (default:
+        /// diagnose the flight now).
+        #[arg(long, requires = "replay")]
+        diagnosis: Option<PathBuf>,
+        /// Calibration window T0:T1 of the replayed flight; repeat for
+        /// several (default: detected).
+        #[arg(long = "window", requires = "replay")]
+        windows: Vec<String>,
+        /// Settings file (flights in it are ignored).
+        #[arg(long, requires = "replay")]
+        config: Option<PathBuf>,
     },
     /// Write a sample flight (box and survey lines) and its calibration windows.
     SampleFlight {
@@ -164,7 +184,19 @@ fn main() -> ExitCode {
         } => diagnose(&flight, &out, &windows, config.as_deref()),
         Command::SampleFlight { out, windows, seed } => sample_flight(&out, &windows, seed),
         Command::Convert { flight, out, config } => convert(&flight, &out, config.as_deref()),
-        Command::Simulate { scenario, out, seed } => simulate(&scenario, &out, seed),
+        Command::Simulate {
+            scenario,
+            out,
+            seed,
+            replay,
+            diagnosis,
+            windows,
+            config,
+        } => match (scenario, replay) {
+            (_, Some(flight)) => replay_flight(&flight, &out, diagnosis.as_deref(), &windows, config.as_deref()),
+            (Some(scenario), None) => simulate(&scenario, &out, seed),
+            (None, None) => Err(anyhow::anyhow!("give a SCENARIO.toml to simulate, or --replay FLIGHT")),
+        },
     };
     match outcome {
         Ok(()) => ExitCode::SUCCESS,
@@ -294,6 +326,60 @@ fn sample_flight(out: &Path, windows: &Path, seed: u64) -> anyhow::Result<()> {
         flight.time_s.len(),
         windows.display()
     );
+    Ok(())
+}
+
+/// `simulate --replay`: the recorded flight flown again with plain
+/// Tolles-Lawson and with the diagnosed models.
+fn replay_flight(
+    flight: &Path,
+    out: &Path,
+    diagnosis: Option<&Path>,
+    windows: &[String],
+    config: Option<&Path>,
+) -> anyhow::Result<()> {
+    let pipeline = match config {
+        Some(path) => Pipeline::load(path)?,
+        None => Pipeline::default(),
+    };
+    let log = magcomp::ingest::read_flight_log(flight, &pipeline.ingest)?;
+    let sensor = magcomp::pipeline::choose_vector_sensor(&log, None)?;
+    let channels = magcomp::pipeline::choose_channels(&log, None)?;
+    let mut windows = windows
+        .iter()
+        .map(|w| CalibrationWindow::parse(w))
+        .collect::<Result<Vec<_>, _>>()?;
+    if windows.is_empty() {
+        windows = magcomp::detect::detect_manoeuvres(&log, &pipeline.detect)?
+            .calibration_windows(pipeline.detect.window_margin_s);
+    }
+    let bar = spinner(format!("replaying {}", flight.display()));
+    let plan = match diagnosis {
+        Some(path) => magcomp::diagnose::read_models(path),
+        None => magcomp::diagnose::diagnose(&log, &sensor, &channels, &windows, &pipeline.fit, &pipeline.diagnose)
+            .map(|d| d.models()),
+    };
+    let replayed = plan.and_then(|plan| {
+        magcomp::simulate::replay::replay(&log, &sensor, &channels, &windows, &pipeline.fit, &plan)
+    });
+    bar.finish_and_clear();
+    let replayed = replayed?;
+    magcomp::output::write_flight_log(&replayed.log, out)?;
+    let stem = out.file_stem().map_or("flight".into(), |s| s.to_string_lossy().into_owned());
+    let report = out.with_file_name(format!("{stem}_replay.json"));
+    magcomp::output::write_json(&report, "the replay figures", &replayed.channels)?;
+    for channel in &replayed.channels {
+        println!(
+            "  {}: recording − replay in band, over the calibration manoeuvres {:.4} nT with plain Tolles-Lawson, {:.4} nT with {}; elsewhere {:.4} → {:.4} nT",
+            channel.channel,
+            channel.calibration_rms_plain_nt,
+            channel.calibration_rms_diagnosed_nt,
+            channel.model,
+            channel.elsewhere_rms_plain_nt,
+            channel.elsewhere_rms_diagnosed_nt
+        );
+    }
+    println!("wrote {} and {}", out.display(), report.display());
     Ok(())
 }
 

@@ -31,6 +31,7 @@ pub mod igrf;
 pub mod physics;
 pub mod random;
 pub mod recording;
+pub mod replay;
 pub mod scenario;
 pub mod trajectory;
 pub mod truth;
