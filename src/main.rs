@@ -40,6 +40,9 @@ enum Command {
         /// DIAGNOSIS.json to write.
         #[arg(long)]
         out: PathBuf,
+        /// HTML page of the findings and residuals (default: OUT with .html).
+        #[arg(long)]
+        html: Option<PathBuf>,
         /// Calibration window T0:T1; repeat for several (default: detected).
         #[arg(long = "window")]
         windows: Vec<String>,
@@ -179,9 +182,13 @@ fn main() -> ExitCode {
         Command::Diagnose {
             flight,
             out,
+            html,
             windows,
             config,
-        } => diagnose(&flight, &out, &windows, config.as_deref()),
+        } => {
+            let html = html.unwrap_or_else(|| out.with_extension("html"));
+            diagnose(&flight, (&out, &html), &windows, config.as_deref())
+        }
         Command::SampleFlight { out, windows, seed } => sample_flight(&out, &windows, seed),
         Command::Convert { flight, out, config } => convert(&flight, &out, config.as_deref()),
         Command::Simulate {
@@ -433,7 +440,7 @@ fn detect(flight: &Path, out: &Path, config: Option<&Path>) -> anyhow::Result<()
     Ok(())
 }
 
-fn diagnose(flight: &Path, out: &Path, windows: &[String], config: Option<&Path>) -> anyhow::Result<()> {
+fn diagnose(flight: &Path, (out, html): (&Path, &Path), windows: &[String], config: Option<&Path>) -> anyhow::Result<()> {
     let pipeline = match config {
         Some(path) => Pipeline::load(path)?,
         None => Pipeline::default(),
@@ -454,6 +461,7 @@ fn diagnose(flight: &Path, out: &Path, windows: &[String], config: Option<&Path>
     bar.finish_and_clear();
     let diagnosis = diagnosis?;
     magcomp::output::write_json(out, "the diagnosis", &diagnosis)?;
+    magcomp::report::write_diagnosis_report(html, flight, &diagnosis)?;
     for channel in &diagnosis.channels {
         println!(
             "  {}: held-out RMS {:.4} nT with plain Tolles-Lawson, {:.4} nT with the findings",
@@ -481,7 +489,7 @@ fn diagnose(flight: &Path, out: &Path, windows: &[String], config: Option<&Path>
         );
         println!("    {}", finding.explanation);
     }
-    println!("wrote {}", out.display());
+    println!("wrote {} and {}", out.display(), html.display());
     if diagnosis.channels.iter().any(|c| !c.model.is_plain()) {
         println!(
             "to compensate with these models: magcomp compensate {} --out OUT.csv --diagnosis {}",

@@ -5,8 +5,10 @@
 //! windows shaded; each manoeuvre's band-passed signal before and after;
 //! the FOM table with pass/fail against `fom_limit_nt`; the PRESS curve
 //! with the chosen λ and the singular values; the coefficients; the survey
-//! lines coloured by compensated anomaly; per-line noise. The same figures
-//! go to a JSON file beside it.
+//! lines coloured by compensated anomaly; per-line noise; and, when the
+//! flight was diagnosed, the findings and each manoeuvre's held-out
+//! residual before and after them with the located stretches shaded. The
+//! same figures go to a JSON file beside it.
 
 use std::fmt::Write as _;
 use std::path::Path;
@@ -15,6 +17,8 @@ use plotters::prelude::*;
 use serde::Serialize;
 
 use crate::compensate::Compensation;
+use crate::diagnose::localise::ResidualTrace;
+use crate::diagnose::{Diagnosis, Located};
 use crate::error::{Error, Result};
 use crate::fit::FittedTollesLawson;
 use crate::flight_log::{AttitudeAngle, ChannelRole, FlightLog};
@@ -443,10 +447,141 @@ fn coefficient_table(model: &FittedTollesLawson) -> String {
     html + "</table>"
 }
 
+/// The stretches of `located` that overlap `[t0, t1]`, clipped to it.
+fn overlapping(located: &[&Located], (t0, t1): (f64, f64)) -> Vec<(f64, f64)> {
+    located
+        .iter()
+        .filter(|l| l.t_end > t0 && l.t_start < t1)
+        .map(|l| (l.t_start.max(t0), l.t_end.min(t1)))
+        .collect()
+}
+
+/// One manoeuvre's held-out residual before (grey) and after (red) the
+/// findings, with the located stretches shaded.
+fn residual_plot(trace: &ResidualTrace, marked: &[(f64, f64)]) -> Result<String> {
+    svg(SMALL, |root| {
+        let x = span(trace.before.iter().chain(&trace.after).map(|p| p.0));
+        let y = span(trace.before.iter().chain(&trace.after).map(|p| p.1));
+        let mut chart = ChartBuilder::on(root)
+            .caption(&trace.label, ("sans-serif", 12))
+            .margin(4)
+            .x_label_area_size(16)
+            .y_label_area_size(36)
+            .build_cartesian_2d(x, y.clone())
+            .map_err(plot_error)?;
+        chart
+            .configure_mesh()
+            .disable_x_mesh()
+            .x_labels(3)
+            .y_labels(4)
+            .y_desc("nT")
+            .draw()
+            .map_err(plot_error)?;
+        chart
+            .draw_series(marked.iter().map(|&(a, b)| {
+                Rectangle::new([(a, y.start), (b, y.end)], RGBColor(255, 200, 60).mix(0.35).filled())
+            }))
+            .map_err(plot_error)?;
+        for (points, colour) in [(&trace.before, RGBColor(150, 150, 150)), (&trace.after, RED)] {
+            // A gap in the samples breaks the line.
+            let mut pieces: Vec<Vec<(f64, f64)>> = Vec::new();
+            for pair in points.iter() {
+                match pieces.last_mut() {
+                    Some(piece) if piece.last().is_some_and(|p| pair.0 - p.0 < 1.0) => piece.push(*pair),
+                    _ => pieces.push(vec![*pair]),
+                }
+            }
+            for piece in pieces {
+                chart.draw_series(LineSeries::new(piece, colour)).map_err(plot_error)?;
+            }
+        }
+        Ok(())
+    })
+}
+
+/// The diagnosis: what was found, and per channel each manoeuvre's
+/// held-out residual before and after, with the windows the findings
+/// improved most and the structured stretches shaded.
+pub fn diagnosis_section(diagnosis: &Diagnosis) -> Result<String> {
+    let mut html = String::from("<section id=\"diagnosis\"><h2>Diagnosis: physics the model left out</h2>");
+    if diagnosis.findings.is_empty() {
+        html += "<p>No finding: nothing in the library explains the held-out residual better than plain Tolles-Lawson.</p>";
+    } else {
+        html += "<table class=\"findings\"><tr><th>effect</th><th>channel</th><th>source</th><th>parameters</th><th>held-out RMS, nT</th><th>what it means</th></tr>";
+        for finding in &diagnosis.findings {
+            let parameters: Vec<String> = finding.parameters.iter().map(|(k, v)| format!("{k} = {v:.4}")).collect();
+            let _ = write!(
+                html,
+                "<tr class=\"finding\"><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.4} → {:.4}</td><td style=\"text-align:left\">{}</td></tr>",
+                escape(&finding.effect),
+                escape(&finding.channel),
+                escape(finding.source.as_deref().unwrap_or("")),
+                escape(&parameters.join(", ")),
+                finding.heldout_rms_before_nt,
+                finding.heldout_rms_after_nt,
+                escape(&finding.explanation)
+            );
+        }
+        html += "</table>";
+    }
+    for channel in &diagnosis.channels {
+        let located: Vec<&Located> = diagnosis
+            .findings
+            .iter()
+            .filter(|f| f.channel == channel.channel)
+            .flat_map(|f| &f.located)
+            .chain(&channel.localisation.structured)
+            .collect();
+        let _ = write!(
+            html,
+            "<h3>{}: held-out residual per manoeuvre, plain Tolles-Lawson (grey) and with the findings (red)</h3><p>Held-out RMS {:.4} → {:.4} nT ({}); in-band sensor noise {:.4} nT. Shaded: where the findings helped most and where the residual is structured.</p>",
+            escape(&channel.channel),
+            channel.heldout_rms_baseline_nt,
+            channel.heldout_rms_final_nt,
+            escape(&channel.model.describe()),
+            channel.localisation.noise_floor_nt
+        );
+        html += "<table class=\"diagnosis-windows\"><tr><th>manoeuvre</th><th>held-out RMS before, nT</th><th>after, nT</th></tr>";
+        for window in &channel.localisation.windows {
+            let _ = write!(
+                html,
+                "<tr><td>{}</td><td>{:.4}</td><td>{:.4}</td></tr>",
+                escape(&window.label),
+                window.heldout_rms_baseline_nt,
+                window.heldout_rms_final_nt
+            );
+        }
+        html += "</table><div class=\"grid\">";
+        for (trace, window) in channel.localisation.traces.iter().zip(&channel.localisation.windows) {
+            let marked = overlapping(&located, (window.t_start, window.t_end));
+            let attribute: Vec<String> = marked.iter().map(|(a, b)| format!("{a:.2}:{b:.2}")).collect();
+            let _ = write!(
+                html,
+                "<figure class=\"diagnosis-manoeuvre\" data-label=\"{}\" data-marked=\"{}\">{}</figure>",
+                escape(&trace.label),
+                attribute.join(" "),
+                residual_plot(trace, &marked)?
+            );
+        }
+        html += "</div>";
+    }
+    Ok(html + "</section>")
+}
+
 const STYLE: &str = "body{font-family:sans-serif;margin:2em;max-width:1000px}h2{border-bottom:1px solid #ccc}\
 table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #ddd;padding:3px 8px;text-align:right}\
 .pass{color:#176b1d;font-weight:bold}.fail{color:#b00020;font-weight:bold}.missing{color:#888}\
 .grid{display:flex;flex-wrap:wrap;gap:4px}figure{margin:0}";
+
+/// Writes a page with the diagnosis section alone (`magcomp diagnose`).
+pub fn write_diagnosis_report(path: &Path, flight: &Path, diagnosis: &Diagnosis) -> Result<()> {
+    let html = format!(
+        "<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>magcomp diagnosis: {0}</title><style>{STYLE}</style></head><body><h1>Diagnosis: {0}</h1>{1}</body></html>\n",
+        escape(&flight.display().to_string()),
+        diagnosis_section(diagnosis)?
+    );
+    write_atomic(path, |out| std::io::Write::write_all(out, html.as_bytes()))
+}
 
 /// Writes the report to `path` and its figures as JSON beside it
 /// (`<path>.json` with the extension replaced).
@@ -522,6 +657,9 @@ pub fn write_report(
             improvement_ratio: quality.improvement_ratio,
             line_noise: noise,
         });
+    }
+    if let Some(diagnosis) = &result.diagnosis {
+        html += &diagnosis_section(diagnosis)?;
     }
     html += "</body></html>\n";
     write_atomic(path, |out| std::io::Write::write_all(out, html.as_bytes()))?;

@@ -119,3 +119,51 @@ fn headless_chromium_renders_the_report() {
         std::fs::copy(&screenshot, keep).unwrap();
     }
 }
+
+#[test]
+fn a_diagnosed_flight_reports_its_findings_and_marks_where_they_helped() {
+    // concealed_a with `[diagnose] apply`: the cabin sensor's lag.
+    let folder = tempfile::tempdir().unwrap();
+    let input = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("sample_flights/concealed_a.csv");
+    let job = FlightJob {
+        diagnosis: None,
+        input: input.clone(),
+        vector: None,
+        channels: None,
+        windows: Vec::new(),
+    };
+    let mut options = StageOptions::from(&Pipeline::default());
+    options.diagnose.apply = true;
+    let outputs = FlightOutputs::in_directory(folder.path(), &input);
+    let result = process_flight(&job, &options, &outputs).unwrap();
+    let diagnosis = result.diagnosis.as_ref().unwrap();
+    let html = std::fs::read_to_string(outputs.report_html.unwrap()).unwrap();
+    assert!(html.contains("id=\"diagnosis\""));
+    assert_eq!(html.matches("class=\"finding\"").count(), diagnosis.findings.len());
+    assert_eq!(diagnosis.findings.len(), 1);
+    // Every manoeuvre of every channel plotted, on top of the usual plots.
+    let manoeuvres = 12 * result.channels.len();
+    assert_eq!(html.matches("class=\"diagnosis-manoeuvre\"").count(), manoeuvres);
+    assert_eq!(html.matches("<svg").count(), 1 + 15 * result.channels.len() + manoeuvres);
+    // Each window the lag helped most is shaded in its manoeuvre's plot.
+    let finding = &diagnosis.findings[0];
+    assert_eq!(finding.located.len(), 3);
+    for located in &finding.located {
+        let marker = format!(
+            "data-label=\"{}\" data-marked=\"{:.2}:{:.2}",
+            located.label, located.t_start, located.t_end
+        );
+        let at = html.find("id=\"diagnosis\"").unwrap();
+        assert!(html[at..].contains(&marker), "{marker} not in the report");
+    }
+    // The per-manoeuvre table quotes the diagnosis.
+    let cabin = diagnosis.channels.iter().find(|c| c.channel == "mag_2_uc").unwrap();
+    for window in &cabin.localisation.windows {
+        let row = format!(
+            "<tr><td>{}</td><td>{:.4}</td><td>{:.4}</td></tr>",
+            window.label, window.heldout_rms_baseline_nt, window.heldout_rms_final_nt
+        );
+        assert!(html.contains(&row), "{row}");
+        assert!(window.heldout_rms_final_nt < window.heldout_rms_baseline_nt);
+    }
+}

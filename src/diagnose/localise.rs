@@ -77,6 +77,18 @@ pub struct Coherence {
     pub r_squared: f64,
 }
 
+/// One manoeuvre's held-out band-passed residual as a time series, before
+/// and after the findings (the report plots it; not in DIAGNOSIS.json).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct ResidualTrace {
+    /// Manoeuvre and heading.
+    pub label: String,
+    /// (flight time, nT) with plain Tolles-Lawson.
+    pub before: Vec<(f64, f64)>,
+    /// (flight time, nT) with the findings.
+    pub after: Vec<(f64, f64)>,
+}
+
 /// Everything [`localise`] finds for one channel.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Localisation {
@@ -92,6 +104,9 @@ pub struct Localisation {
     pub structured_energy_share: f64,
     /// The most coherent columns, best first.
     pub coherence: Vec<Coherence>,
+    /// Per manoeuvre, the residual itself.
+    #[serde(skip)]
+    pub traces: Vec<ResidualTrace>,
 }
 
 /// Localises the held-out residual of `channel`: `baseline` and `last` are
@@ -131,7 +146,23 @@ pub fn localise(
         .collect();
     let (structured, structured_energy_share) = structured_blocks(log, last, fs, noise_in(high - low));
     let coherence = coherence(log, last, direction, options, fs);
+    let series = |fit: &WindowFit| -> Vec<(f64, f64)> {
+        sample_rows(fit)
+            .map(|row| log.time_s()[row])
+            .zip(fit.band_after_nt.iter().copied())
+            .collect()
+    };
+    let traces = baseline
+        .iter()
+        .zip(last)
+        .map(|(b, a)| ResidualTrace {
+            label: a.window.display_label(),
+            before: series(b),
+            after: series(a),
+        })
+        .collect();
     Localisation {
+        traces,
         noise_floor_nt: noise_in(high - low),
         windows,
         spectrum,
