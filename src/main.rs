@@ -471,6 +471,9 @@ fn diagnose(flight: &Path, (out, html): (&Path, &Path), windows: &[String], conf
             println!("    best candidate short of the threshold: {hint}");
         }
     }
+    for note in &diagnosis.notes {
+        println!("  note: {note}");
+    }
     if diagnosis.findings.is_empty() {
         println!("  no finding: nothing in the library explains the residual better than plain Tolles-Lawson");
     }

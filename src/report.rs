@@ -504,6 +504,9 @@ fn residual_plot(trace: &ResidualTrace, marked: &[(f64, f64)]) -> Result<String>
 /// improved most and the structured stretches shaded.
 pub fn diagnosis_section(diagnosis: &Diagnosis) -> Result<String> {
     let mut html = String::from("<section id=\"diagnosis\"><h2>Diagnosis: physics the model left out</h2>");
+    for note in &diagnosis.notes {
+        let _ = write!(html, "<p class=\"note\">{}</p>", escape(note));
+    }
     if diagnosis.findings.is_empty() {
         html += "<p>No finding: nothing in the library explains the held-out residual better than plain Tolles-Lawson.</p>";
     } else {

@@ -95,6 +95,12 @@ pub struct VectorCalibration {
     /// Condition number of the final Jacobian (columns scaled to unit
     /// norm): how well the flight's attitudes pin the nine parameters.
     pub condition_number: f64,
+    /// One-sigma uncertainty of the nine parameters: C's six entries
+    /// (row by row, lower triangle) and the three offsets (nT), from the
+    /// Jacobian and the residual, whose samples are counted as
+    /// independent only as far as its lag-one autocorrelation allows.
+    #[serde(default)]
+    pub uncertainty: [f64; 9],
 }
 
 /// Fewest rows a calibration needs.
@@ -103,6 +109,16 @@ const MIN_SAMPLES: usize = 100;
 /// Above this Jacobian condition number the attitudes flown do not pin
 /// the nine parameters.
 const CONDITION_LIMIT: f64 = 1e8;
+
+/// Largest one-sigma uncertainty of an entry of C for a usable calibration
+/// (1 % of scale, about 0.6° of angle). A calibration box pins them to
+/// 1e-3 or better (the simulator's flights: 2e-5 to 1.2e-3); 100 s of
+/// straight survey flight leaves them at 0.2–1.
+const MAX_MATRIX_UNCERTAINTY: f64 = 0.01;
+
+/// Largest one-sigma uncertainty of an offset for a usable calibration, nT
+/// (1 % of the Earth's field; the simulator's boxes: 0.2–65 nT).
+const MAX_OFFSET_UNCERTAINTY_NT: f64 = 500.0;
 
 /// Fits the calibration of `sensor` against scalar channel `reference` on
 /// `rows` of the flight (every row when empty).
@@ -160,6 +176,21 @@ pub fn calibrate(
             "the flight's attitudes do not determine the fluxgate calibration (condition number {condition_number:.1e}); calibrate on a flight with turns through all headings and pitch and roll manoeuvres"
         )));
     }
+    let uncertainty = parameter_uncertainty(&m, &f, &fitted).map(|u| {
+        let mut u = u;
+        for o in &mut u[6..] {
+            *o *= unit;
+        }
+        u
+    });
+    let uncertainty = uncertainty.unwrap_or([f64::INFINITY; 9]);
+    let worst_matrix = uncertainty[..6].iter().fold(0.0f64, |a, &b| a.max(b));
+    let worst_offset = uncertainty[6..].iter().fold(0.0f64, |a, &b| a.max(b));
+    if !(worst_matrix <= MAX_MATRIX_UNCERTAINTY && worst_offset <= MAX_OFFSET_UNCERTAINTY_NT) {
+        return Err(fail(format!(
+            "the flight's attitudes do not pin the fluxgate calibration: its correction is uncertain by up to ±{worst_matrix:.3} and its offsets by up to ±{worst_offset:.0} nT (one sigma; at most ±{MAX_MATRIX_UNCERTAINTY} and ±{MAX_OFFSET_UNCERTAINTY_NT} nT are usable); calibrate on a flight with turns through all headings and pitch and roll manoeuvres"
+        )));
+    }
     let before: Vec<f64> = m.iter().zip(&f).map(|(v, f)| (norm(*v) - f) * unit).collect();
     let mean = before.iter().sum::<f64>() / before.len() as f64;
     let mismatch_rms_before_nt = rms(before.iter().map(|v| v - mean));
@@ -178,6 +209,7 @@ pub fn calibrate(
         mismatch_rms_before_nt,
         mismatch_rms_after_nt,
         condition_number,
+        uncertainty,
     })
 }
 
@@ -503,6 +535,32 @@ fn levenberg_marquardt(m: &[[f64; 3]], f: &[f64], start: Parameters, max_iterati
     (p, max_iterations)
 }
 
+/// One-sigma uncertainty of the parameters at `p`: the diagonal of
+/// $\sigma^2 (J^\top J)^{-1}$, σ² the residual variance, inflated by
+/// $n / n_{eff}$ with $n_{eff} = n (1 - \rho)/(1 + \rho)$ for the
+/// residual's lag-one autocorrelation ρ (the aircraft's own field and the
+/// crust leave slowly varying, not white, residuals). `None` when
+/// $J^\top J$ is singular.
+fn parameter_uncertainty(m: &[[f64; 3]], f: &[f64], p: &Parameters) -> Option<[f64; 9]> {
+    let (jtj, _, cost) = normal_equations(m, f, p);
+    let residuals: Vec<f64> = m.iter().zip(f).map(|(v, f)| p.residual(v, *f)).collect();
+    let n = residuals.len() as f64;
+    let mean = residuals.iter().sum::<f64>() / n;
+    let variance = residuals.iter().map(|r| (r - mean).powi(2)).sum::<f64>();
+    let lagged: f64 = residuals.windows(2).map(|w| (w[0] - mean) * (w[1] - mean)).sum();
+    let rho = (lagged / variance.max(f64::MIN_POSITIVE)).clamp(0.0, 0.999);
+    let effective = (n * (1.0 - rho) / (1.0 + rho)).max(10.0);
+    let sigma2 = cost / (n - 9.0).max(1.0) * n / effective;
+    let k = Mat::from_fn(9, 9, |i, j| jtj[i][j]);
+    let mut out = [0.0; 9];
+    for (i, value) in out.iter_mut().enumerate() {
+        let unit: Vec<f64> = (0..9).map(|j| if i == j { 1.0 } else { 0.0 }).collect();
+        let column = solve_spd(k.as_ref(), &unit)?;
+        *value = (sigma2 * column[i]).max(0.0).sqrt();
+    }
+    Some(out)
+}
+
 /// Condition number of the Jacobian at `p`, its columns scaled to unit
 /// norm (the square root of that of the scaled $J^\top J$).
 fn jacobian_condition(m: &[[f64; 3]], p: &Parameters) -> f64 {
@@ -608,6 +666,28 @@ mod tests {
     }
 
     #[test]
+    fn a_short_straight_segment_does_not_pin_the_calibration() {
+        // 100 s of survey flight: a few degrees of roll, pitch and heading,
+        // and a scalar with 0.3 nT of irregular disturbance (crust, aircraft).
+        let earth = [19_000.0, -1_500.0, 47_000.0];
+        let fields: Vec<[f64; 3]> = (0..1000)
+            .map(|k| {
+                let t = k as f64 * 0.1;
+                crate::simulate::physics::to_body(earth, 3.0 * (t * 0.4).sin(), 1.5 * (t * 0.25).cos(), 2.0 * (t * 0.05).sin())
+            })
+            .collect();
+        let (mut log, sensor) = log_of(&fields);
+        let disturbed: Vec<f64> = fields
+            .iter()
+            .enumerate()
+            .map(|(k, b)| norm(*b) + 0.3 * ((k as f64 * 0.7).sin() + (k as f64 * 1.9).cos()))
+            .collect();
+        log = log.with_values("mag_1_uc", disturbed).unwrap();
+        let error = calibrate(&log, &sensor, "mag_1_uc", &[], 100).unwrap_err().to_string();
+        assert!(error.contains("do not pin the fluxgate calibration"), "{error}");
+    }
+
+    #[test]
     fn calibrated_flight_reads_the_scalar_total_field() {
         let earth = [19_000.0, -1_500.0, 47_000.0];
         let fields: Vec<[f64; 3]> = (0..2000)
@@ -624,6 +704,9 @@ mod tests {
             assert!((calibration.offset_nt[axis] - 30.0).abs() < 1e-5, "{calibration:?}");
             assert!(calibration.non_orthogonality_deg[axis].abs() < 1e-7, "{calibration:?}");
         }
+        // Exact readings over every heading: the parameters are pinned.
+        assert!(calibration.uncertainty[..6].iter().all(|u| *u < 1e-6), "{calibration:?}");
+        assert!(calibration.uncertainty[6..].iter().all(|u| *u < 1e-2), "{calibration:?}");
         let calibrated = calibration.apply(&log, &sensor).unwrap();
         let field = calibrated.vector_components(&sensor);
         for (k, b) in fields.iter().enumerate() {

@@ -115,3 +115,41 @@ fn compensation_matches_magnav_with_scipy_padding() {
     eprintln!("std(magcomp − MagNav.jl) with scipy padding: {std:.4} nT");
     assert!(std < 0.1, "{std}");
 }
+
+/// The real segment is 100 s of straight survey flight, not a calibration
+/// box: one window, held out by quarters. Diagnosis must not invent
+/// physics there. Measured: held-out RMS 0.080 nT with plain
+/// Tolles-Lawson; the best candidate, a 0.30 s sensor lag, lowers it by
+/// 24.5 % (short of the 30 % threshold, and at the edge of the ±0.5 s
+/// search on data that holds no manoeuvre to time it by); the fluxgate
+/// calibration is left unchecked, its correction uncertain by ±0.6.
+#[test]
+fn diagnosis_of_the_real_segment_finds_nothing_it_cannot_support() {
+    let Some(folder) = reference_folder() else { return };
+    let log = read_flight_log(&folder.join("magnav_tl_segment.csv"), &IngestOptions::default()).unwrap();
+    let sensor = choose_vector_sensor(&log, Some("flux_a")).unwrap();
+    let window = CalibrationWindow::new(log.time_s()[0], log.time_s()[log.len() - 1]);
+    let options = FitOptions::default();
+    let diagnosis = magcomp::diagnose::diagnose(
+        &log,
+        &sensor,
+        &["mag_1_uc".to_string()],
+        &[window],
+        &options,
+        &magcomp::diagnose::DiagnoseOptions::default(),
+    )
+    .unwrap();
+    assert!(diagnosis.findings.is_empty(), "{:#?}", diagnosis.findings);
+    let channel = &diagnosis.channels[0];
+    assert!(
+        (0.05..0.12).contains(&channel.heldout_rms_baseline_nt),
+        "{}",
+        channel.heldout_rms_baseline_nt
+    );
+    assert!(diagnosis.fluxgate.is_none());
+    assert!(
+        diagnosis.notes.iter().any(|n| n.contains("do not pin the fluxgate calibration")),
+        "{:?}",
+        diagnosis.notes
+    );
+}

@@ -177,6 +177,9 @@ pub struct Diagnosis {
     /// the held-out mismatch before and after.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub fluxgate: Option<FluxgateCheck>,
+    /// What could not be checked, and checks that found nothing, in words.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub notes: Vec<String>,
 }
 
 impl Diagnosis {
@@ -276,7 +279,10 @@ pub fn diagnose(
     options: &FitOptions,
     settings: &DiagnoseOptions,
 ) -> Result<Diagnosis> {
-    let fluxgate = check_fluxgate(log, sensor, channels, windows);
+    let (fluxgate, mut notes) = match check_fluxgate(log, sensor, channels, windows) {
+        Ok(check) => (Some(check), Vec::new()),
+        Err(why) => (None, vec![format!("fluxgate calibration not checked: {why}")]),
+    };
     // The calibrated fluxgate is tried only once its finding stands.
     let calibrated = fluxgate
         .as_ref()
@@ -334,10 +340,21 @@ pub fn diagnose(
         .into_iter()
         .chain(findings.into_iter().flatten())
         .collect();
+    if let Some(check) = fluxgate.as_ref().filter(|_| calibrated.is_none()) {
+        notes.push(format!(
+            "{}'s magnitude against {}: held-out mismatch {:.1} nT raw, {:.1} nT calibrated; below the {:.0} nT a finding needs, or not removed by the calibration",
+            check.calibration.sensor,
+            check.calibration.reference,
+            check.heldout_mismatch_before_nt,
+            check.heldout_mismatch_after_nt,
+            settings.vector_mismatch_nt
+        ));
+    }
     Ok(Diagnosis {
         channels: channel_results,
         findings,
         fluxgate,
+        notes,
     })
 }
 
@@ -351,11 +368,14 @@ fn check_fluxgate(
     sensor: &VectorSensor,
     channels: &[String],
     windows: &[CalibrationWindow],
-) -> Option<FluxgateCheck> {
+) -> std::result::Result<FluxgateCheck, String> {
     const ITERATIONS: usize = 100;
-    let calibration = calibrate_best(log, sensor, channels, &[], ITERATIONS).ok()?;
+    let calibration = calibrate_best(log, sensor, channels, &[], ITERATIONS).map_err(|e| e.to_string())?;
     let field = log.vector_components(sensor);
-    let scalar = &log.channel(&calibration.reference)?.values;
+    let scalar = &log
+        .channel(&calibration.reference)
+        .ok_or_else(|| format!("the reference '{}' is not in the flight", calibration.reference))?
+        .values;
     let time = log.time_s();
     let (mut before, mut after) = (Vec::new(), Vec::new());
     let mut per_window: Vec<(f64, &CalibrationWindow)> = Vec::new();
@@ -405,9 +425,9 @@ fn check_fluxgate(
         }
     }
     if before.is_empty() {
-        return None;
+        return Err("no heading's windows could be held out from a calibration on the rest of the flight".into());
     }
-    Some(FluxgateCheck {
+    Ok(FluxgateCheck {
         calibration,
         heldout_mismatch_before_nt: root_mean_square(&before),
         heldout_mismatch_after_nt: root_mean_square(&after),
