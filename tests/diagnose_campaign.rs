@@ -3,7 +3,8 @@
 //! angle and offset errors), pairs of effects, and clean flights. Every flight carries a tail, a cabin and a wing
 //! sensor (the cabin and wing ones with the large aircraft fields whose
 //! second-order residual tempts stand-ins). Prints the confusion table
-//! (`cargo test --release --test diagnose_campaign -- --nocapture`).
+//! (`MAGCOMP_CAMPAIGN_SEEDS=10 cargo test --release --test
+//! diagnose_campaign -- --nocapture`).
 
 use std::collections::BTreeMap;
 
@@ -12,8 +13,15 @@ mod common;
 use magcomp::diagnose::Diagnosis;
 use magcomp::simulate::scenario::Scenario;
 
-/// Seeds per effect.
-const SEEDS: u64 = 10;
+/// Seeds per effect: 5 in `cargo test` (35 flights, about two minutes on
+/// two cores), `MAGCOMP_CAMPAIGN_SEEDS=10` for the full campaign the issue
+/// notes report.
+fn seeds() -> u64 {
+    std::env::var("MAGCOMP_CAMPAIGN_SEEDS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(5)
+}
 
 /// Deterministic draws in [0, 1) (SplitMix64).
 struct Draw(u64);
@@ -188,7 +196,7 @@ const SOURCES: [&str; 5] = ["cur_strb", "cur_heat", "cur_com1", "cur_fan", "trim
 
 fn cases() -> Vec<Case> {
     let mut cases = Vec::new();
-    for k in 0..SEEDS {
+    for k in 0..seeds() {
         let mut draw = Draw(1000 + k);
         // A lag shows only where the aircraft field changes fast: the cabin
         // and wing sensors (the tail sees a few nT).
@@ -396,15 +404,30 @@ fn campaign_names_each_effect_and_leaves_clean_flights_alone() {
     // named on all ten flights with every scale factor within 4e-3, and
     // never on another flight; the two misses are the trim-tab stand-in
     // again. These floors keep what works from regressing.
-    let floors = [
-        ("clean", 8),
-        ("sensor_lag", 7),
-        ("aux_coupling", 5),
-        ("eddy_time_constant", 4),
-        ("external_field", 6),
-        ("lag + coupling", 5),
-        ("vector_calibration", 8),
-    ];
+    // With five seeds (seeds 500–504, the default) the same flights give:
+    // clean 5, lag 5, coupling 4, eddy 3 (the trim-tab stand-in on seeds
+    // 501 and 503), pulsations 3, the pair 3, fluxgate 5.
+    let floors = match seeds() {
+        10 => [
+            ("clean", 8),
+            ("sensor_lag", 7),
+            ("aux_coupling", 5),
+            ("eddy_time_constant", 4),
+            ("external_field", 6),
+            ("lag + coupling", 5),
+            ("vector_calibration", 8),
+        ],
+        5 => [
+            ("clean", 5),
+            ("sensor_lag", 5),
+            ("aux_coupling", 4),
+            ("eddy_time_constant", 3),
+            ("external_field", 3),
+            ("lag + coupling", 3),
+            ("vector_calibration", 5),
+        ],
+        other => panic!("MAGCOMP_CAMPAIGN_SEEDS={other}: floors are measured for 5 and 10 seeds"),
+    };
     for (row, floor) in floors {
         let (right, all) = totals[row];
         assert!(
