@@ -10,8 +10,14 @@
 //! - an eddy time constant τ: the nine eddy terms $u_i \dot B_j$ give way
 //!   to $u_i\,L_\tau[\dot B_j]$, with $L_\tau$ the first-order lag
 //!   $\tau \dot y + y = x$;
-//! - the ten cubic direction-cosine terms $u_i u_j u_k$ (the second-order
-//!   part of a large aircraft field);
+//! - the total field's second-order term: a scalar magnetometer reads
+//!   $|B + F|$, which Tolles-Lawson writes as $|B| + u \cdot F$. With a
+//!   large aircraft field F (hundreds of nT in a cabin) the part across B
+//!   adds $|F_\perp|^2 / 2|B|$, a few tenths of a nT that varies with
+//!   attitude as no first-order term does. The term takes F = P + M B from
+//!   the fitted permanent and induced coefficients, so it adds no
+//!   parameter: the scalar less the term of one fit is fitted again, twice
+//!   ([`SECOND_ORDER_PASSES`]);
 //! - source terms, in the order they were accepted: an auxiliary column c
 //!   driving a body-fixed field, seen as $(c - \bar c)(k_x u_x + k_y u_y +
 //!   k_z u_z)$, or a base-station column regressed on, $g\,(c - \bar c)$.
@@ -29,7 +35,8 @@ use serde::{Deserialize, Serialize};
 use crate::error::{Error, Result};
 use crate::fit::{fit_channel_with, FitOptions, FittedTollesLawson, Regressors, WindowFit};
 use crate::flight_log::{FlightLog, VectorSensor};
-use crate::tolles_lawson::EddyTerms;
+use crate::solve::Criterion;
+use crate::tolles_lawson::{EddyTerms, TermSet};
 use crate::vector_calibration::VectorCalibration;
 use crate::windows::CalibrationWindow;
 
@@ -76,10 +83,15 @@ pub struct Augmentation {
     pub lag_s: f64,
     /// Eddy time constant, s; 0 keeps the instantaneous eddy terms.
     pub eddy_tau_s: f64,
-    /// The ten cubic direction-cosine terms.
+    /// The total field's second-order term, from the fitted aircraft field.
     pub second_order: bool,
     /// Source terms, in the order they were accepted.
     pub sources: Vec<SourceTerm>,
+    /// The statistic that picks λ, when the diagnosis found the other one
+    /// predicts held-out headings better than the pipeline's `[solve]`
+    /// choice; `None` keeps that choice.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub lambda_criterion: Option<Criterion>,
 }
 
 /// What an augmented model is fitted on and predicts from.
@@ -111,11 +123,15 @@ impl Augmentation {
     }
 
     /// Fit settings: the nine instantaneous eddy terms give way to their
-    /// lagged versions when the model has an eddy time constant.
+    /// lagged versions when the model has an eddy time constant, and λ is
+    /// picked by the model's criterion when it has one.
     pub fn fit_options(&self, options: &FitOptions) -> FitOptions {
         let mut options = options.clone();
         if self.eddy_tau_s > 0.0 {
             options.terms.eddy = EddyTerms::None;
+        }
+        if let Some(criterion) = self.lambda_criterion {
+            options.solve.criterion = criterion;
         }
         options
     }
@@ -149,14 +165,7 @@ impl Augmentation {
         bt_scale_nt: f64,
     ) -> Result<Prepared<'a>> {
         let (mut names, mut columns) = (Vec::new(), Vec::new());
-        if self.second_order {
-            for (i, j, k) in cubic_monomials() {
-                let axes = ["x", "y", "z"];
-                names.push(format!("second_order_u{}{}{}", axes[i], axes[j], axes[k]));
-                columns.push((0..log.len()).map(|r| direction[i][r] * direction[j][r] * direction[k][r]).collect());
-            }
-        }
-        // Lagged eddy terms next: the newest source term stays last.
+        // Lagged eddy terms first: the newest source term stays last.
         if self.eddy_tau_s > 0.0 {
             let dt = log.median_interval_s();
             let field = log.vector_components(sensor);
@@ -164,7 +173,13 @@ impl Augmentation {
             for (i, axis_i) in ["x", "y", "z"].iter().enumerate() {
                 for (j, axis_j) in ["x", "y", "z"].iter().enumerate() {
                     names.push(format!("eddy_lagged_{axis_i}{axis_j}"));
-                    columns.push(direction[i].iter().zip(&lagged[j]).map(|(u, d)| u * d / bt_scale_nt).collect());
+                    columns.push(
+                        direction[i]
+                            .iter()
+                            .zip(&lagged[j])
+                            .map(|(u, d)| u * d / bt_scale_nt)
+                            .collect(),
+                    );
                 }
             }
         }
@@ -218,7 +233,7 @@ impl Augmentation {
         options: &FitOptions,
     ) -> Result<FittedTollesLawson> {
         let prepared = self.prepare(log, sensor, channel, options.terms.bt_scale_nt)?;
-        let mut fitted = fit_channel_with(
+        let mut fitted = self.fit_prepared(
             &prepared.log,
             sensor,
             channel,
@@ -228,6 +243,67 @@ impl Augmentation {
         )?;
         fitted.augmentation = (!self.is_plain()).then(|| self.clone());
         Ok(fitted)
+    }
+
+    /// Fits a prepared flight (`options` from [`Self::fit_options`]),
+    /// refitting on the scalar less the second-order term when the model
+    /// has it.
+    pub(crate) fn fit_prepared(
+        &self,
+        log: &FlightLog,
+        sensor: &VectorSensor,
+        channel: &str,
+        windows: &[CalibrationWindow],
+        options: &FitOptions,
+        extra: &Regressors,
+    ) -> Result<FittedTollesLawson> {
+        let mut fitted = fit_channel_with(log, sensor, channel, windows, options, extra)?;
+        if self.second_order {
+            for _ in 0..SECOND_ORDER_PASSES {
+                let corrected = self.corrected(log, sensor, &fitted)?;
+                fitted = fit_channel_with(&corrected, sensor, channel, windows, options, extra)?;
+            }
+        }
+        Ok(fitted)
+    }
+
+    /// The band-passed residual on `windows` of a model fitted on a
+    /// prepared flight.
+    pub(crate) fn held_out_prepared(
+        &self,
+        fitted: &FittedTollesLawson,
+        log: &FlightLog,
+        sensor: &VectorSensor,
+        windows: &[CalibrationWindow],
+        options: &FitOptions,
+        extra: &Regressors,
+    ) -> Result<Vec<WindowFit>> {
+        let corrected = self.corrected(log, sensor, fitted)?;
+        fitted.held_out_with(&corrected, sensor, windows, options, extra)
+    }
+
+    /// A prepared flight with `fitted`'s channel less the second-order term
+    /// of its aircraft field (unchanged without the term).
+    pub(crate) fn corrected<'a>(
+        &self,
+        log: &'a FlightLog,
+        sensor: &VectorSensor,
+        fitted: &FittedTollesLawson,
+    ) -> Result<Cow<'a, FlightLog>> {
+        if !self.second_order {
+            return Ok(Cow::Borrowed(log));
+        }
+        let term = second_order_term(log.vector_components(sensor), &fitted.terms, &fitted.coefficients);
+        let Some(scalar) = log.channel(&fitted.channel) else {
+            return Err(Error::MissingColumn {
+                path: log.source().to_path_buf(),
+                role: "scalar magnetometer",
+                looked_for: format!("'{}'", fitted.channel),
+                hint: "Name a scalar channel the flight records.".into(),
+            });
+        };
+        let values = scalar.values.iter().zip(&term).map(|(s, q)| s - q).collect();
+        Ok(Cow::Owned(log.with_values(&fitted.channel, values)?))
     }
 
     /// One line for people: what the model adds.
@@ -243,7 +319,10 @@ impl Augmentation {
             parts.push(format!("eddy τ {:.2} s", self.eddy_tau_s));
         }
         if self.second_order {
-            parts.push("second-order terms".into());
+            parts.push("second-order term".into());
+        }
+        if let Some(criterion) = self.lambda_criterion {
+            parts.push(format!("λ by {}", criterion.describe()));
         }
         for source in &self.sources {
             parts.push(match source {
@@ -271,7 +350,8 @@ pub fn held_out(
         None => model.held_out(log, sensor, windows, options),
         Some(augmentation) => {
             let prepared = augmentation.prepare(log, sensor, &model.channel, options.terms.bt_scale_nt)?;
-            model.held_out_with(
+            augmentation.held_out_prepared(
+                model,
                 &prepared.log,
                 sensor,
                 windows,
@@ -339,9 +419,34 @@ pub fn column_level(values: &[f64]) -> f64 {
     *finite.select_nth_unstable_by(middle, f64::total_cmp).1
 }
 
-/// The ten cubic monomials $u_i u_j u_k$, $i \le j \le k$.
-fn cubic_monomials() -> impl Iterator<Item = (usize, usize, usize)> {
-    (0..3).flat_map(|i| (i..3).flat_map(move |j| (j..3).map(move |k| (i, j, k))))
+/// Refits on the scalar less the second-order term after the first fit.
+/// The term is a few tenths of a nT against hundreds in the first-order
+/// fit, so the aircraft field it is computed from changes by about a part
+/// in a thousand a pass: two passes leave it converged.
+pub const SECOND_ORDER_PASSES: usize = 2;
+
+/// What the total field adds to the first-order projection, per row:
+/// $|B + F| - |B| - u \cdot F$ with $F = P + M B$ from the permanent and
+/// induced coefficients of `terms` ([`TermSet::aircraft_field`]) and B the
+/// vector magnetometer's field. The eddy field (a few nT) is left out: its
+/// part across B is a thousandth of a nT. `NaN` where B is.
+pub fn second_order_term(field: [&[f64]; 3], terms: &TermSet, coefficients: &[f64]) -> Vec<f64> {
+    let (permanent, tensor) = terms.aircraft_field(coefficients);
+    (0..field[0].len())
+        .map(|k| {
+            let b = [field[0][k], field[1][k], field[2][k]];
+            let total = (b[0] * b[0] + b[1] * b[1] + b[2] * b[2]).sqrt();
+            let f: [f64; 3] =
+                [0, 1, 2].map(|i| permanent[i] + tensor[i][0] * b[0] + tensor[i][1] * b[1] + tensor[i][2] * b[2]);
+            let along = (b[0] * f[0] + b[1] * f[1] + b[2] * f[2]) / total;
+            let across_squared = (f[0] * f[0] + f[1] * f[1] + f[2] * f[2] - along * along).max(0.0);
+            // |B + F| − |B| − u·F, written to keep precision: with
+            // a = |B| + u·F, |B + F| = √(a² + |F⊥|²), and √(a² + c) − a =
+            // c / (√(a² + c) + a).
+            let a = total + along;
+            across_squared / ((a * a + across_squared).sqrt() + a)
+        })
+        .collect()
 }
 
 /// The scalar read `lag_s` earlier: value at t + lag by linear
@@ -413,12 +518,59 @@ mod tests {
             let ratio = (1.0 - lagged[k + 1]) / (1.0 - lagged[k]);
             assert!((ratio - alpha).abs() < 1e-9, "{k}: {ratio}");
         }
-        assert!(lagged[9].abs() < 1e-12 && lagged[20] > 0.8 && lagged[20] < 0.9, "{}", lagged[20]);
+        assert!(
+            lagged[9].abs() < 1e-12 && lagged[20] > 0.8 && lagged[20] < 0.9,
+            "{}",
+            lagged[20]
+        );
     }
 
     #[test]
     fn column_level_is_the_median_of_finite_values() {
         assert_eq!(column_level(&[5.0, f64::NAN, 1.0, 3.0]), 3.0);
         assert_eq!(column_level(&[f64::NAN]), 0.0);
+    }
+
+    #[test]
+    fn second_order_term_is_what_the_total_field_adds_to_the_projection() {
+        // A cabin-sized aircraft field: P of 600 nT, a soft-iron tensor of
+        // 1e-2, in a 52 000 nT field seen at three attitudes.
+        let permanent = [420.0, -310.0, 280.0];
+        let tensor = [[0.012, -0.004, 0.003], [-0.004, -0.008, 0.006], [0.003, 0.006, 0.010]];
+        let terms = TermSet::default();
+        let s = terms.bt_scale_nt;
+        let mut coefficients = permanent.to_vec();
+        for (i, j) in [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)] {
+            coefficients.push(if i == j {
+                tensor[i][i] * s
+            } else {
+                2.0 * tensor[i][j] * s
+            });
+        }
+        coefficients.extend([0.0; 9]);
+        let fields = [
+            [18_000.0, -2_000.0, 48_700.0],
+            [-15_500.0, 9_000.0, 48_000.0],
+            [3_000.0, 21_000.0, 47_400.0],
+        ];
+        let field: [Vec<f64>; 3] = [0, 1, 2].map(|i| fields.iter().map(|b| b[i]).collect());
+        let term = second_order_term([&field[0], &field[1], &field[2]], &terms, &coefficients);
+        let design = terms.design_matrix([&field[0], &field[1], &field[2]], std::slice::from_ref(&(0..3)));
+        for (k, b) in fields.iter().enumerate() {
+            let f: Vec<f64> = (0..3)
+                .map(|i| permanent[i] + (0..3).map(|j| tensor[i][j] * b[j]).sum::<f64>())
+                .collect();
+            let norm = |v: [f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+            let total = norm(*b);
+            let projection: f64 = (0..3).map(|i| b[i] * f[i]).sum::<f64>() / total;
+            // The coefficients reproduce the first-order interference u·F…
+            assert!((design.predict_row(k, &coefficients) - projection).abs() < 1e-9);
+            // …and the term is the rest of |B + F| − |B| (1e-9 nT: the
+            // direct difference loses digits the term keeps).
+            let exact = norm([b[0] + f[0], b[1] + f[1], b[2] + f[2]]) - total - projection;
+            assert!((term[k] - exact).abs() < 1e-8, "{k}: {} vs {exact}", term[k]);
+            // About |F⊥|²/2|B|: tenths of a nT to a few nT here.
+            assert!(exact > 0.05 && exact < 20.0, "{exact}");
+        }
     }
 }

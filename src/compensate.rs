@@ -22,7 +22,7 @@ use std::collections::BTreeMap;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::augment::Augmentation;
+use crate::augment::{second_order_term, Augmentation};
 use crate::error::Result;
 use crate::fit::FittedTollesLawson;
 use crate::flight_log::{FlightLog, VectorSensor};
@@ -97,7 +97,13 @@ pub fn compensate(log: &FlightLog, models: &[FittedTollesLawson], level: LevelCo
                     .channel(&model.channel)
                     .expect("compensate checked that every model's channel is in the flight log")
                     .values;
-                Ok(compensate_channel(log, model, scalar, (&designs[&design_key(model)], &[]), level))
+                Ok(compensate_channel(
+                    log,
+                    model,
+                    scalar,
+                    (&designs[&design_key(model)], &[]),
+                    level,
+                ))
             }
             Some(augmentation) => compensate_augmented(log, model, augmentation, level),
         })
@@ -148,7 +154,22 @@ fn compensate_augmented(
         .channel(&model.channel)
         .expect("compensate checked that every model's channel is in the flight log")
         .values;
-    Ok(compensate_channel(log, model, scalar, (&design, &prepared.columns), level))
+    let mut compensated = compensate_channel(log, model, scalar, (&design, &prepared.columns), level);
+    if augmentation.second_order {
+        // The second-order term is interference like the rest; the level
+        // convention's offset is taken again with it included.
+        let term = second_order_term(
+            prepared.log.vector_components(&sensor),
+            &model.terms,
+            &model.coefficients,
+        );
+        let mut interference = compensated.interference_nt;
+        for (h, q) in interference.iter_mut().zip(&term) {
+            *h += q;
+        }
+        compensated = level_compensated(log, model, scalar, interference, level);
+    }
+    Ok(compensated)
 }
 
 fn sensor_named(log: &FlightLog, prefix: &str) -> VectorSensor {
@@ -167,10 +188,23 @@ fn compensate_channel(
     (design, extra): (&DesignMatrix, &[Vec<f64>]),
     level: LevelConvention,
 ) -> CompensatedChannel {
-    let (terms, added) = model.coefficients.split_at(design.columns.len().min(model.coefficients.len()));
+    let (terms, added) = model
+        .coefficients
+        .split_at(design.columns.len().min(model.coefficients.len()));
     let interference: Vec<f64> = (0..log.len())
         .map(|row| design.predict_row(row, terms) + extra.iter().zip(added).map(|(c, b)| c[row] * b).sum::<f64>())
         .collect();
+    level_compensated(log, model, scalar, interference, level)
+}
+
+/// `scalar` less `interference`, levelled by `level`.
+fn level_compensated(
+    log: &FlightLog,
+    model: &FittedTollesLawson,
+    scalar: &[f64],
+    interference: Vec<f64>,
+    level: LevelConvention,
+) -> CompensatedChannel {
     let level_offset_nt = match level {
         LevelConvention::Absolute => 0.0,
         LevelConvention::CalibrationMean => calibration_mean(log, model, &interference),
@@ -249,7 +283,18 @@ fn row_flags(log: &FlightLog, models: &[FittedTollesLawson], channels: &[Compens
             }
             if !explained && !compensated.values[row].is_finite() {
                 let lagged = model.augmentation.as_ref().is_some_and(|a| a.lag_s != 0.0);
-                push(row, format!("{}:{}", if lagged { "lag_outside_record" } else { "model_undefined" }, model.channel));
+                push(
+                    row,
+                    format!(
+                        "{}:{}",
+                        if lagged {
+                            "lag_outside_record"
+                        } else {
+                            "model_undefined"
+                        },
+                        model.channel
+                    ),
+                );
             }
         }
     }

@@ -59,6 +59,24 @@ pub enum Criterion {
     BlockedPress,
 }
 
+impl Criterion {
+    /// Its name in reports.
+    pub fn describe(self) -> &'static str {
+        match self {
+            Criterion::Press => "PRESS",
+            Criterion::BlockedPress => "blocked PRESS",
+        }
+    }
+
+    /// The other criterion.
+    pub fn other(self) -> Self {
+        match self {
+            Criterion::Press => Criterion::BlockedPress,
+            Criterion::BlockedPress => Criterion::Press,
+        }
+    }
+}
+
 /// Options of the regularised solve.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SolveOptions {
@@ -963,10 +981,7 @@ fn choose(
             .map(|r| criterion_value(r.press, r.blocked_press, criterion)),
     )
     .unwrap_or(spectrum.rank.saturating_sub(1));
-    let name = match criterion {
-        Criterion::Press => "PRESS",
-        Criterion::BlockedPress => "blocked PRESS",
-    };
+    let name = criterion.describe();
     let (method, lambda, rank, reason) = match options.lambda {
         LambdaChoice::Fixed(lambda) => (
             Method::Ridge,

@@ -147,6 +147,31 @@ impl TermSet {
         self.terms().into_iter().map(Term::name).collect()
     }
 
+    /// The aircraft's field as a vector, $P + M B$, from fitted
+    /// coefficients whose first [`Self::len`] entries are these terms:
+    /// P (nT) from the permanent terms and the symmetric soft-iron tensor M
+    /// from the induced ones ($a_{ij} = (M_{ij} + M_{ji}) s$ off the
+    /// diagonal). Terms the set leaves out count as zero. The first-order
+    /// model sees only $u \cdot (P + M B)$, so M is known up to a multiple
+    /// of the identity, which adds a field along B and leaves the part
+    /// across B (what the second-order term depends on) unchanged.
+    pub fn aircraft_field(&self, coefficients: &[f64]) -> ([f64; 3], [[f64; 3]; 3]) {
+        let mut permanent = [0.0; 3];
+        let mut tensor = [[0.0; 3]; 3];
+        for (term, &c) in self.terms().into_iter().zip(coefficients) {
+            match term {
+                Term::Permanent(i) => permanent[i] = c,
+                Term::Induced(i, j) if i == j => tensor[i][i] = c / self.bt_scale_nt,
+                Term::Induced(i, j) => {
+                    tensor[i][j] = c / (2.0 * self.bt_scale_nt);
+                    tensor[j][i] = tensor[i][j];
+                }
+                _ => {}
+            }
+        }
+        (permanent, tensor)
+    }
+
     /// Builds the design matrix for the vector field `field_nt` (x, y, z
     /// components, nT) over `runs`, the contiguous runs of valid samples.
     /// Rows outside every run are `NaN`.
