@@ -366,13 +366,14 @@ fn replay_flight(
         None => magcomp::diagnose::diagnose(&log, &sensor, &channels, &windows, &pipeline.fit, &pipeline.diagnose)
             .map(|d| d.models()),
     };
-    let replayed = plan.and_then(|plan| {
-        magcomp::simulate::replay::replay(&log, &sensor, &channels, &windows, &pipeline.fit, &plan)
-    });
+    let replayed = plan
+        .and_then(|plan| magcomp::simulate::replay::replay(&log, &sensor, &channels, &windows, &pipeline.fit, &plan));
     bar.finish_and_clear();
     let replayed = replayed?;
     magcomp::output::write_flight_log(&replayed.log, out)?;
-    let stem = out.file_stem().map_or("flight".into(), |s| s.to_string_lossy().into_owned());
+    let stem = out
+        .file_stem()
+        .map_or("flight".into(), |s| s.to_string_lossy().into_owned());
     let report = out.with_file_name(format!("{stem}_replay.json"));
     magcomp::output::write_json(&report, "the replay figures", &replayed.channels)?;
     for channel in &replayed.channels {
@@ -440,7 +441,12 @@ fn detect(flight: &Path, out: &Path, config: Option<&Path>) -> anyhow::Result<()
     Ok(())
 }
 
-fn diagnose(flight: &Path, (out, html): (&Path, &Path), windows: &[String], config: Option<&Path>) -> anyhow::Result<()> {
+fn diagnose(
+    flight: &Path,
+    (out, html): (&Path, &Path),
+    windows: &[String],
+    config: Option<&Path>,
+) -> anyhow::Result<()> {
     let pipeline = match config {
         Some(path) => Pipeline::load(path)?,
         None => Pipeline::default(),

@@ -171,7 +171,11 @@ pub fn process_flight(job: &FlightJob, options: &StageOptions, outputs: &FlightO
     notes.extend(calibration.iter().map(|c| c.summary()));
     notes.extend(models.iter().filter_map(|m| {
         let augmentation = m.augmentation.as_ref()?;
-        Some(format!("{}: fitted and compensated with the diagnosed model: {}", m.channel, augmentation.describe()))
+        Some(format!(
+            "{}: fitted and compensated with the diagnosed model: {}",
+            m.channel,
+            augmentation.describe()
+        ))
     }));
     if let Some(detection) = &detected {
         notes.extend(detection_notes(detection));

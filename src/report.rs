@@ -478,9 +478,11 @@ fn residual_plot(trace: &ResidualTrace, marked: &[(f64, f64)]) -> Result<String>
             .draw()
             .map_err(plot_error)?;
         chart
-            .draw_series(marked.iter().map(|&(a, b)| {
-                Rectangle::new([(a, y.start), (b, y.end)], RGBColor(255, 200, 60).mix(0.35).filled())
-            }))
+            .draw_series(
+                marked.iter().map(|&(a, b)| {
+                    Rectangle::new([(a, y.start), (b, y.end)], RGBColor(255, 200, 60).mix(0.35).filled())
+                }),
+            )
             .map_err(plot_error)?;
         for (points, colour) in [(&trace.before, RGBColor(150, 150, 150)), (&trace.after, RED)] {
             // A gap in the samples breaks the line.
@@ -508,11 +510,16 @@ pub fn diagnosis_section(diagnosis: &Diagnosis) -> Result<String> {
         let _ = write!(html, "<p class=\"note\">{}</p>", escape(note));
     }
     if diagnosis.findings.is_empty() {
-        html += "<p>No finding: nothing in the library explains the held-out residual better than plain Tolles-Lawson.</p>";
+        html +=
+            "<p>No finding: nothing in the library explains the held-out residual better than plain Tolles-Lawson.</p>";
     } else {
         html += "<table class=\"findings\"><tr><th>effect</th><th>channel</th><th>source</th><th>parameters</th><th>held-out RMS, nT</th><th>what it means</th></tr>";
         for finding in &diagnosis.findings {
-            let parameters: Vec<String> = finding.parameters.iter().map(|(k, v)| format!("{k} = {v:.4}")).collect();
+            let parameters: Vec<String> = finding
+                .parameters
+                .iter()
+                .map(|(k, v)| format!("{k} = {v:.4}"))
+                .collect();
             let _ = write!(
                 html,
                 "<tr class=\"finding\"><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.4} → {:.4}</td><td style=\"text-align:left\">{}</td></tr>",

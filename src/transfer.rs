@@ -14,8 +14,8 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::error::Result;
 use crate::augment::{fit, held_out};
+use crate::error::Result;
 use crate::fit::{FitOptions, FittedTollesLawson, WindowFit};
 use crate::flight_log::{FlightLog, VectorSensor};
 use crate::quality::{figure_of_merit, fom_table, window_quality};

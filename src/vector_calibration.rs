@@ -673,7 +673,12 @@ mod tests {
         let fields: Vec<[f64; 3]> = (0..1000)
             .map(|k| {
                 let t = k as f64 * 0.1;
-                crate::simulate::physics::to_body(earth, 3.0 * (t * 0.4).sin(), 1.5 * (t * 0.25).cos(), 2.0 * (t * 0.05).sin())
+                crate::simulate::physics::to_body(
+                    earth,
+                    3.0 * (t * 0.4).sin(),
+                    1.5 * (t * 0.25).cos(),
+                    2.0 * (t * 0.05).sin(),
+                )
             })
             .collect();
         let (mut log, sensor) = log_of(&fields);
@@ -705,8 +710,14 @@ mod tests {
             assert!(calibration.non_orthogonality_deg[axis].abs() < 1e-7, "{calibration:?}");
         }
         // Exact readings over every heading: the parameters are pinned.
-        assert!(calibration.uncertainty[..6].iter().all(|u| *u < 1e-6), "{calibration:?}");
-        assert!(calibration.uncertainty[6..].iter().all(|u| *u < 1e-2), "{calibration:?}");
+        assert!(
+            calibration.uncertainty[..6].iter().all(|u| *u < 1e-6),
+            "{calibration:?}"
+        );
+        assert!(
+            calibration.uncertainty[6..].iter().all(|u| *u < 1e-2),
+            "{calibration:?}"
+        );
         let calibrated = calibration.apply(&log, &sensor).unwrap();
         let field = calibrated.vector_components(&sensor);
         for (k, b) in fields.iter().enumerate() {

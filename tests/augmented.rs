@@ -10,7 +10,9 @@ use magcomp::config::{FlightJob, Pipeline};
 use magcomp::pipeline::{process_flight, FlightOutputs, FlightResult, StageOptions};
 
 fn sample(name: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("sample_flights").join(name)
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("sample_flights")
+        .join(name)
 }
 
 fn job(input: PathBuf, diagnosis: Option<PathBuf>) -> FlightJob {
@@ -36,8 +38,13 @@ fn csv_column(path: &Path, name: &str) -> Vec<String> {
     let text = std::fs::read_to_string(path).unwrap();
     let mut lines = text.lines();
     let header: Vec<&str> = lines.next().unwrap().split(',').collect();
-    let index = header.iter().position(|h| *h == name).unwrap_or_else(|| panic!("no {name}"));
-    lines.map(|l| l.split(',').nth(index).unwrap_or("").to_string()).collect()
+    let index = header
+        .iter()
+        .position(|h| *h == name)
+        .unwrap_or_else(|| panic!("no {name}"));
+    lines
+        .map(|l| l.split(',').nth(index).unwrap_or("").to_string())
+        .collect()
 }
 
 fn numbers(cells: &[String]) -> Vec<f64> {
@@ -70,7 +77,10 @@ fn a_diagnosed_lag_compensates_closer_to_the_truth_than_plain_tolles_lawson() {
     let tail = augmented.models.iter().find(|m| m.channel == "mag_1_uc").unwrap();
     assert!(tail.augmentation.is_none());
     assert!(augmented_out.diagnosis_json.as_ref().unwrap().exists());
-    assert!(augmented.notes.iter().any(|n| n.contains("mag_2_uc: fitted and compensated with the diagnosed model")));
+    assert!(augmented
+        .notes
+        .iter()
+        .any(|n| n.contains("mag_2_uc: fitted and compensated with the diagnosed model")));
 
     // Against the Earth's field at the sensor, over the calibration
     // manoeuvres (where the interference changes fastest) and the whole
@@ -78,16 +88,29 @@ fn a_diagnosed_lag_compensates_closer_to_the_truth_than_plain_tolles_lawson() {
     let earth = truth_column(&sample("concealed_a.truth.csv"), "mag_2_uc_earth_nt");
     let time = numbers(&csv_column(&input, "tt"));
     let windows = &model.windows;
-    let in_windows = |i: usize| windows.iter().any(|w| time[i] >= w.window.t_start && time[i] <= w.window.t_end);
+    let in_windows = |i: usize| {
+        windows
+            .iter()
+            .any(|w| time[i] >= w.window.t_start && time[i] <= w.window.t_end)
+    };
     let before = numbers(&csv_column(&plain_out.compensated, "mag_2_c"));
     let after = numbers(&csv_column(&augmented_out.compensated, "mag_2_c"));
-    let (manoeuvres_before, manoeuvres_after) = (error_rms(&before, &earth, in_windows), error_rms(&after, &earth, in_windows));
+    let (manoeuvres_before, manoeuvres_after) = (
+        error_rms(&before, &earth, in_windows),
+        error_rms(&after, &earth, in_windows),
+    );
     assert!(
         manoeuvres_after < 0.15 * manoeuvres_before,
         "manoeuvres: {manoeuvres_before:.4} → {manoeuvres_after:.4} nT"
     );
-    let (all_before, all_after) = (error_rms(&before, &earth, |_| true), error_rms(&after, &earth, |_| true));
-    assert!(all_after < 0.2 * all_before, "flight: {all_before:.4} → {all_after:.4} nT");
+    let (all_before, all_after) = (
+        error_rms(&before, &earth, |_| true),
+        error_rms(&after, &earth, |_| true),
+    );
+    assert!(
+        all_after < 0.2 * all_before,
+        "flight: {all_before:.4} → {all_after:.4} nT"
+    );
     // The tail sensor's channel is the same either way.
     assert_eq!(
         csv_column(&plain_out.compensated, "mag_1_c"),
@@ -102,7 +125,11 @@ fn a_diagnosed_lag_compensates_closer_to_the_truth_than_plain_tolles_lawson() {
     assert!(!missing.is_empty() && missing.len() <= 2, "{missing:?}");
     for i in missing {
         assert!(time.len() - i <= 2, "row {i} of {}", time.len());
-        assert!(flags[i].contains("lag_outside_record:mag_2_uc"), "row {i}: {}", flags[i]);
+        assert!(
+            flags[i].contains("lag_outside_record:mag_2_uc"),
+            "row {i}: {}",
+            flags[i]
+        );
     }
 
     // Accepting the saved diagnosis gives the same outputs, byte for byte.

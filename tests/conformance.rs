@@ -148,7 +148,10 @@ fn diagnosis_of_the_real_segment_finds_nothing_it_cannot_support() {
     );
     assert!(diagnosis.fluxgate.is_none());
     assert!(
-        diagnosis.notes.iter().any(|n| n.contains("do not pin the fluxgate calibration")),
+        diagnosis
+            .notes
+            .iter()
+            .any(|n| n.contains("do not pin the fluxgate calibration")),
         "{:?}",
         diagnosis.notes
     );

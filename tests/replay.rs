@@ -12,7 +12,9 @@ use magcomp::pipeline::{choose_channels, choose_vector_sensor};
 use magcomp::simulate::replay::{replay, Replay, ReplayedChannel};
 
 fn replayed(name: &str) -> Replay {
-    let input = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("sample_flights").join(name);
+    let input = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("sample_flights")
+        .join(name);
     let pipeline = Pipeline::default();
     let log = read_flight_log(&input, &pipeline.ingest).unwrap();
     let sensor = choose_vector_sensor(&log, None).unwrap();
@@ -39,7 +41,10 @@ fn a_clean_flight_replays_to_the_sensor_noise_with_plain_tolles_lawson() {
     for c in &replay.channels {
         assert_eq!(c.model, "plain Tolles-Lawson");
         assert_eq!(c.calibration_rms_plain_nt, c.calibration_rms_diagnosed_nt);
-        assert!(c.calibration_rms_plain_nt < 0.015 && c.elsewhere_rms_plain_nt < 0.015, "{c:?}");
+        assert!(
+            c.calibration_rms_plain_nt < 0.015 && c.elsewhere_rms_plain_nt < 0.015,
+            "{c:?}"
+        );
     }
 }
 
@@ -51,8 +56,14 @@ fn the_diagnosed_lag_reproduces_the_recording_better_than_plain_tolles_lawson() 
     let replay = replayed("concealed_a.csv");
     let cabin = channel(&replay, "mag_2_uc");
     assert!(cabin.model.starts_with("sensor lag 0.1"), "{cabin:?}");
-    assert!(cabin.calibration_rms_diagnosed_nt < 0.35 * cabin.calibration_rms_plain_nt, "{cabin:?}");
-    assert!(cabin.elsewhere_rms_diagnosed_nt < 0.2 * cabin.elsewhere_rms_plain_nt, "{cabin:?}");
+    assert!(
+        cabin.calibration_rms_diagnosed_nt < 0.35 * cabin.calibration_rms_plain_nt,
+        "{cabin:?}"
+    );
+    assert!(
+        cabin.elsewhere_rms_diagnosed_nt < 0.2 * cabin.elsewhere_rms_plain_nt,
+        "{cabin:?}"
+    );
     let tail = channel(&replay, "mag_1_uc");
     assert_eq!(tail.elsewhere_rms_plain_nt, tail.elsewhere_rms_diagnosed_nt);
 }
@@ -67,7 +78,10 @@ fn replaying_the_recorded_currents_reproduces_their_fields() {
     for (name, source) in [("mag_1_uc", "cur_com1"), ("mag_2_uc", "trim_tab")] {
         let c = channel(&replay, name);
         assert!(c.model.contains(source), "{c:?}");
-        assert!(c.calibration_rms_diagnosed_nt < 0.25 * c.calibration_rms_plain_nt, "{c:?}");
+        assert!(
+            c.calibration_rms_diagnosed_nt < 0.25 * c.calibration_rms_plain_nt,
+            "{c:?}"
+        );
         assert!(c.elsewhere_rms_diagnosed_nt < 0.6 * c.elsewhere_rms_plain_nt, "{c:?}");
     }
 }

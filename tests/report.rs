@@ -144,7 +144,10 @@ fn a_diagnosed_flight_reports_its_findings_and_marks_where_they_helped() {
     // Every manoeuvre of every channel plotted, on top of the usual plots.
     let manoeuvres = 12 * result.channels.len();
     assert_eq!(html.matches("class=\"diagnosis-manoeuvre\"").count(), manoeuvres);
-    assert_eq!(html.matches("<svg").count(), 1 + 15 * result.channels.len() + manoeuvres);
+    assert_eq!(
+        html.matches("<svg").count(),
+        1 + 15 * result.channels.len() + manoeuvres
+    );
     // Each window the lag helped most is shaded in its manoeuvre's plot.
     let finding = &diagnosis.findings[0];
     assert_eq!(finding.located.len(), 3);

@@ -127,7 +127,13 @@ fn replay_channel(log: &FlightLog, model: &FittedTollesLawson, options: &FitOpti
         FilterBand::Lowpass { .. } | FilterBand::None => 0.0,
     };
     let earth = match below_band > 0.0 {
-        true => filtered_runs(log, &channel.values, FilterBand::Lowpass { high_hz: below_band }, options, 0)?,
+        true => filtered_runs(
+            log,
+            &channel.values,
+            FilterBand::Lowpass { high_hz: below_band },
+            options,
+            0,
+        )?,
         false => channel.values.clone(),
     };
     let aligned: Vec<f64> = earth.iter().zip(&channel.interference_nt).map(|(e, h)| e + h).collect();
@@ -148,7 +154,13 @@ fn mismatch(
     options: &FitOptions,
 ) -> Result<(f64, f64)> {
     let difference: Vec<f64> = recorded.iter().zip(replayed).map(|(r, s)| r - s).collect();
-    let band = filtered_runs(log, &difference, options.filter.band, options, options.filter.trim_samples)?;
+    let band = filtered_runs(
+        log,
+        &difference,
+        options.filter.band,
+        options,
+        options.filter.trim_samples,
+    )?;
     let mut in_windows = vec![false; log.len()];
     for window in windows {
         in_windows[window.rows(log.time_s())].fill(true);
@@ -175,12 +187,11 @@ fn filtered_runs(
 ) -> Result<Vec<f64>> {
     let settings = options.filter;
     let rate_hz = 1.0 / log.median_interval_s();
-    let filter = ZeroPhaseFilter::butterworth(band, settings.poles, rate_hz, settings.padding).map_err(|e| {
-        Error::Config {
+    let filter =
+        ZeroPhaseFilter::butterworth(band, settings.poles, rate_hz, settings.padding).map_err(|e| Error::Config {
             source_name: "[filter]".into(),
             message: e.to_string(),
-        }
-    })?;
+        })?;
     let valid: Vec<bool> = values.iter().map(|v| v.is_finite()).collect();
     let mut out = vec![f64::NAN; values.len()];
     for run in valid_runs(log.time_s(), &valid, 0..log.len(), log.median_interval_s()) {
