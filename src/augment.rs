@@ -208,15 +208,7 @@ impl Augmentation {
         let log = match self.lag_s {
             0.0 => log,
             lag_s => {
-                let Some(scalar) = log.channel(channel) else {
-                    return Err(Error::MissingColumn {
-                        path: log.source().to_path_buf(),
-                        role: "scalar magnetometer",
-                        looked_for: format!("'{channel}'"),
-                        hint: "Name a scalar channel the flight records.".into(),
-                    });
-                };
-                let values = advanced(&scalar.values, log.time_s(), lag_s);
+                let values = advanced(scalar_values(&log, channel)?, log.time_s(), lag_s);
                 Cow::Owned(log.with_values(channel, values)?)
             }
         };
@@ -294,15 +286,8 @@ impl Augmentation {
             return Ok(Cow::Borrowed(log));
         }
         let term = second_order_term(log.vector_components(sensor), &fitted.terms, &fitted.coefficients);
-        let Some(scalar) = log.channel(&fitted.channel) else {
-            return Err(Error::MissingColumn {
-                path: log.source().to_path_buf(),
-                role: "scalar magnetometer",
-                looked_for: format!("'{}'", fitted.channel),
-                hint: "Name a scalar channel the flight records.".into(),
-            });
-        };
-        let values = scalar.values.iter().zip(&term).map(|(s, q)| s - q).collect();
+        let scalar = scalar_values(log, &fitted.channel)?;
+        let values = scalar.iter().zip(&term).map(|(s, q)| s - q).collect();
         Ok(Cow::Owned(log.with_values(&fitted.channel, values)?))
     }
 
@@ -417,6 +402,20 @@ pub fn column_level(values: &[f64]) -> f64 {
     }
     let middle = finite.len() / 2;
     *finite.select_nth_unstable_by(middle, f64::total_cmp).1
+}
+
+/// The record of scalar `channel`; an error naming it when the flight
+/// lacks it.
+fn scalar_values<'a>(log: &'a FlightLog, channel: &str) -> Result<&'a [f64]> {
+    match log.channel(channel) {
+        Some(scalar) => Ok(&scalar.values),
+        None => Err(Error::MissingColumn {
+            path: log.source().to_path_buf(),
+            role: "scalar magnetometer",
+            looked_for: format!("'{channel}'"),
+            hint: "Name a scalar channel the flight records.".into(),
+        }),
+    }
 }
 
 /// Refits on the scalar less the second-order term after the first fit.
