@@ -309,6 +309,9 @@ fn main() {
     if only.iter().any(|o| o == "profile") {
         bench_fit(100_000, 201);
     }
+    if only.iter().any(|o| o == "profile-large") {
+        bench_fit(1_000_000, 21);
+    }
     if wanted("file") {
         bench_whole_file(200_000);
     }

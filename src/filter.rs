@@ -189,36 +189,38 @@ impl ZeroPhaseFilter {
     ) -> Result<(), FilterError> {
         let mut rows = vec![[0.0; LANES]; samples];
         fill(&mut rows);
-        self.apply_stream(samples, |range, out| out.copy_from_slice(&rows[range]), outputs, skip)
+        let kept = outputs.first().map_or(0, |o| o.len());
+        let mut panel = vec![[0.0; LANES]; kept.min(samples.saturating_sub(skip))];
+        self.apply_panel(
+            samples,
+            |range, out| out.copy_from_slice(&rows[range]),
+            &mut [&mut panel],
+            skip,
+        )?;
+        scatter(&panel, outputs, 0);
+        Ok(())
     }
 
-    /// Filters up to [`LANES`] signals of `samples` samples, read in
-    /// chunks: `source(range, rows)` writes samples `range` into `rows`, one
-    /// signal per lane. Output lane `k` receives samples
-    /// `skip .. skip + outputs[k].len()` of the filtered signal.
+    /// Filters up to [`LANES`] signals of `samples` samples, one per lane,
+    /// into `output`: `source(range, rows)` writes samples `range` into
+    /// `rows`, and the segments of `output`, taken in order, receive samples
+    /// `skip ..` of the filtered signal (as many as they hold, up to the end).
     ///
-    /// The forward pass writes straight into `outputs` and the backward
-    /// pass runs over them in place, so the working memory is a few
-    /// kilobytes whatever the signal length: only the samples past the
-    /// outputs and the odd extension are kept aside.
-    pub fn apply_stream(
+    /// The output rows are filled and filtered in place, forward then
+    /// backward, so the only working memory besides them is the samples past
+    /// the output and the odd extension at each end.
+    pub fn apply_panel(
         &self,
         samples: usize,
         mut source: impl FnMut(Range<usize>, &mut [[f64; LANES]]),
-        outputs: &mut [&mut [f64]],
+        output: &mut [&mut [[f64; LANES]]],
         skip: usize,
     ) -> Result<(), FilterError> {
-        let kept = outputs.first().map_or(0, |o| o.len());
         let start = skip.min(samples);
-        let end = (start + kept).min(samples);
-        let mut chunk = [[0.0; LANES]; CHUNK_ROWS];
+        let held: usize = output.iter().map(|segment| segment.len()).sum();
+        let end = (start + held).min(samples);
         if self.sections.is_empty() {
-            for first in (start..end).step_by(CHUNK_ROWS) {
-                let range = first..(first + CHUNK_ROWS).min(end);
-                let rows = &mut chunk[..range.len()];
-                source(range.clone(), rows);
-                scatter(rows, outputs, range.start - start);
-            }
+            for_each_chunk(output, start, end, |range, rows| source(range, rows));
             return Ok(());
         }
         let pad = self.pad;
@@ -229,50 +231,44 @@ impl ZeroPhaseFilter {
         // 2·x_{n−1} − x_{n−2−k} after it.
         let mut head = vec![[0.0; LANES]; pad + 1];
         source(0..pad + 1, &mut head);
-        let mut after = vec![[0.0; LANES]; samples - end + pad];
         let mut tail = vec![[0.0; LANES]; pad + 1];
         source(samples - pad - 1..samples, &mut tail);
-        let front: Vec<[f64; LANES]> = (0..pad).map(|k| odd(head[0], head[pad - k])).collect();
+        let mut front: Vec<[f64; LANES]> = (0..pad).map(|k| odd(head[0], head[pad - k])).collect();
         let back: Vec<[f64; LANES]> = (0..pad).map(|k| odd(tail[pad], tail[pad - 1 - k])).collect();
-        // Forward pass: extension, signal, extension.
+        // Forward pass: extension, the samples before the output, the
+        // output in place, the samples after it, extension.
         let mut state = self.initial_state(&front[0]);
-        let mut front_rows = front;
-        self.run(&mut state, front_rows.iter_mut());
-        for first in (0..samples).step_by(CHUNK_ROWS) {
-            let range = first..(first + CHUNK_ROWS).min(samples);
+        self.run(&mut state, front.iter_mut());
+        let mut chunk = [[0.0; LANES]; CHUNK_ROWS];
+        for first in (0..start).step_by(CHUNK_ROWS) {
+            let range = first..(first + CHUNK_ROWS).min(start);
             let rows = &mut chunk[..range.len()];
-            source(range.clone(), rows);
+            source(range, rows);
             self.run(&mut state, rows.iter_mut());
-            for (offset, row) in rows.iter().enumerate() {
-                let i = range.start + offset;
-                if i >= end {
-                    after[i - end] = *row;
-                }
-            }
-            let keep = range.start.max(start)..range.end.min(end);
-            if !keep.is_empty() {
-                scatter(
-                    &rows[keep.start - range.start..keep.end - range.start],
-                    outputs,
-                    keep.start - start,
-                );
-            }
         }
-        let mut back_rows = back;
-        self.run(&mut state, back_rows.iter_mut());
-        let after_len = after.len();
-        after[after_len - pad..].copy_from_slice(&back_rows);
+        for_each_chunk(output, start, end, |range, rows| {
+            source(range, rows);
+            self.run(&mut state, rows.iter_mut());
+        });
+        let past = samples - end;
+        let mut after = vec![[0.0; LANES]; past + pad];
+        source(end..samples, &mut after[..past]);
+        after[past..].copy_from_slice(&back);
+        self.run(&mut state, after.iter_mut());
         // Backward pass from the far end of the extension to the first output.
-        let mut state = self.initial_state(&after[after_len - 1]);
+        let mut state = self.initial_state(&after[past + pad - 1]);
         self.run(&mut state, after.iter_mut().rev());
-        let mut done = end;
-        while done > start {
-            let first = done.saturating_sub(CHUNK_ROWS).max(start);
-            let rows = &mut chunk[..done - first];
-            gather(outputs, first - start, rows);
-            self.run(&mut state, rows.iter_mut().rev());
-            scatter(rows, outputs, first - start);
-            done = first;
+        let mut remaining = end - start;
+        let used: Vec<usize> = output
+            .iter()
+            .map(|segment| {
+                let take = segment.len().min(remaining);
+                remaining -= take;
+                take
+            })
+            .collect();
+        for (segment, used) in output.iter_mut().zip(used).rev() {
+            self.run(&mut state, segment[..used].iter_mut().rev());
         }
         Ok(())
     }
@@ -317,9 +313,25 @@ impl ZeroPhaseFilter {
         self.run_portable(state, rows);
     }
 
-    /// Transposed direct form II, section by section.
+    /// Transposed direct form II, section by section. The usual section
+    /// counts run with their states held in registers across samples
+    /// (the same operations in the same order as the general loop).
     #[inline(always)]
     fn run_portable<'a>(&self, state: &mut [[[f64; LANES]; 2]], rows: impl Iterator<Item = &'a mut [f64; LANES]>) {
+        match self.sections.len() {
+            1 => run_sections::<1>(&self.sections, state, rows),
+            2 => run_sections::<2>(&self.sections, state, rows),
+            3 => run_sections::<3>(&self.sections, state, rows),
+            4 => run_sections::<4>(&self.sections, state, rows),
+            5 => run_sections::<5>(&self.sections, state, rows),
+            6 => run_sections::<6>(&self.sections, state, rows),
+            _ => self.run_any(state, rows),
+        }
+    }
+
+    /// [`Self::run_portable`] for any number of sections.
+    #[inline(always)]
+    fn run_any<'a>(&self, state: &mut [[[f64; LANES]; 2]], rows: impl Iterator<Item = &'a mut [f64; LANES]>) {
         for sample in rows {
             let mut x = *sample;
             for ([b0, b1, b2, a1, a2], [z0, z1]) in self.sections.iter().zip(state.iter_mut()) {
@@ -335,8 +347,53 @@ impl ZeroPhaseFilter {
     }
 }
 
+/// `N` sections over `rows`, their coefficients and states copied into
+/// locals so they stay in registers from one sample to the next.
+#[inline(always)]
+fn run_sections<'a, const N: usize>(
+    sections: &[[f64; 5]],
+    state: &mut [[[f64; LANES]; 2]],
+    rows: impl Iterator<Item = &'a mut [f64; LANES]>,
+) {
+    let coefficients: [[f64; 5]; N] = std::array::from_fn(|s| sections[s]);
+    let mut z: [[[f64; LANES]; 2]; N] = std::array::from_fn(|s| state[s]);
+    for sample in rows {
+        let mut x = *sample;
+        for s in 0..N {
+            let [b0, b1, b2, a1, a2] = coefficients[s];
+            let [z0, z1] = &mut z[s];
+            for lane in 0..LANES {
+                let y = b0.mul_add(x[lane], z0[lane]);
+                z0[lane] = (-a1).mul_add(y, b1.mul_add(x[lane], z1[lane]));
+                z1[lane] = (-a2).mul_add(y, b2 * x[lane]);
+                x[lane] = y;
+            }
+        }
+        *sample = x;
+    }
+    state[..N].copy_from_slice(&z);
+}
+
 /// Rows per chunk of a streamed pass (32 KiB).
 const CHUNK_ROWS: usize = 512;
+
+/// Calls `each(samples, rows)` over the segments of `output` in chunks of
+/// at most [`CHUNK_ROWS`], for samples `start..end` in order.
+fn for_each_chunk(
+    output: &mut [&mut [[f64; LANES]]],
+    start: usize,
+    end: usize,
+    mut each: impl FnMut(Range<usize>, &mut [[f64; LANES]]),
+) {
+    let mut first = start;
+    for segment in output.iter_mut() {
+        let used = segment.len().min(end - first);
+        for rows in segment[..used].chunks_mut(CHUNK_ROWS) {
+            each(first..first + rows.len(), rows);
+            first += rows.len();
+        }
+    }
+}
 
 /// $2a - b$ lane by lane.
 fn odd(a: [f64; LANES], b: [f64; LANES]) -> [f64; LANES] {
@@ -348,18 +405,6 @@ fn scatter(rows: &[[f64; LANES]], outputs: &mut [&mut [f64]], at: usize) {
     for (lane, output) in outputs.iter_mut().enumerate() {
         for (o, row) in output[at..at + rows.len()].iter_mut().zip(rows) {
             *o = row[lane];
-        }
-    }
-}
-
-/// Reads `rows` from `outputs` from row `at`; lanes without an output are zero.
-fn gather(outputs: &[&mut [f64]], at: usize, rows: &mut [[f64; LANES]]) {
-    for row in rows.iter_mut() {
-        *row = [0.0; LANES];
-    }
-    for (lane, output) in outputs.iter().enumerate() {
-        for (row, &o) in rows.iter_mut().zip(&output[at..]) {
-            row[lane] = o;
         }
     }
 }
@@ -454,7 +499,8 @@ mod tests {
         }
     }
 
-    /// The processor-specific passes and the portable one agree to the bit.
+    /// The processor-specific passes, the portable one and the general
+    /// section loop agree to the bit.
     #[test]
     fn filter_paths_give_the_same_bits() {
         let filter = bandpass();
@@ -462,15 +508,21 @@ mod tests {
             .map(|k| std::array::from_fn(|lane| ((k * (lane + 2)) as f64 * 0.07).sin() * 50.0))
             .collect();
         let mut copy = rows.clone();
+        let mut general = rows.clone();
         let mut state = filter.initial_state(&rows[0]);
         let mut portable_state = state.clone();
+        let mut general_state = state.clone();
         filter.run(&mut state, rows.iter_mut());
         filter.run_portable(&mut portable_state, copy.iter_mut());
+        filter.run_any(&mut general_state, general.iter_mut());
         let bits = |r: &[[f64; LANES]]| r.iter().flatten().map(|v| v.to_bits()).collect::<Vec<_>>();
         assert_eq!(bits(&rows), bits(&copy));
+        // The register-held sections equal the general loop, states included.
+        assert_eq!(bits(&rows), bits(&general));
+        assert_eq!(state, general_state);
     }
 
-    /// Streaming in chunks, with trimming, equals filtering the whole signal.
+    /// Filtering in place, with trimming, equals filtering the whole signal.
     #[test]
     fn streamed_trimmed_output_equals_the_whole_signal() {
         let filter = bandpass();
@@ -478,20 +530,24 @@ mod tests {
             .map(|k| (k as f64 * 0.13).sin() + (k as f64 * 0.002).cos() * 30.0)
             .collect();
         let whole = filter.apply(&signal).unwrap();
-        let mut kept = vec![0.0; 1700 - 2 * 37];
+        let mut kept = vec![[0.0; LANES]; 1700 - 2 * 37];
+        let (first, second) = kept.split_at_mut(500);
         filter
-            .apply_stream(
+            .apply_panel(
                 signal.len(),
                 |range, rows| {
                     for (row, &v) in rows.iter_mut().zip(&signal[range]) {
                         *row = [v; LANES];
                     }
                 },
-                &mut [&mut kept],
+                &mut [first, second],
                 37,
             )
             .unwrap();
-        assert_eq!(&whole[37..1700 - 37], &kept[..]);
+        for lane in 0..LANES {
+            let column: Vec<f64> = kept.iter().map(|row| row[lane]).collect();
+            assert_eq!(&whole[37..1700 - 37], &column[..]);
+        }
     }
 
     #[test]

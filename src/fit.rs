@@ -16,7 +16,8 @@ use crate::error::{Error, Result};
 use crate::filter::{EdgePadding, FilterBand, FilterError, ZeroPhaseFilter, LANES};
 use crate::flight_log::{FlightLog, VectorSensor};
 use crate::segments::valid_runs;
-use crate::solve::{solve, Solution, SolveOptions};
+use crate::solve::{solve_stacked, Solution, SolveOptions};
+use crate::stacked::{Stacked, StackedBuilder};
 use crate::tolles_lawson::TermSet;
 use crate::windows::CalibrationWindow;
 
@@ -140,10 +141,8 @@ pub fn fit_channels(
 
 /// The band-passed, trimmed, stacked data of a set of windows.
 struct BandData {
-    /// Design columns.
-    columns: Vec<Vec<f64>>,
-    /// Scalar readings.
-    target: Vec<f64>,
+    /// Design columns and scalar readings.
+    stacked: Stacked,
     /// How each window contributed (band-passed signal filled in).
     windows: Vec<WindowFit>,
     /// Sample rate the filter was designed for, Hz.
@@ -182,22 +181,21 @@ pub fn fit_channel_with(
     extra: &Regressors,
 ) -> Result<FittedTollesLawson> {
     let BandData {
-        columns,
-        target,
+        stacked,
         windows: mut fits,
         sample_rate_hz,
     } = band_data(log, sensor, channel, windows, options, &extra.columns)?;
-    let folds: Vec<Range<usize>> = fits.iter().map(|f| f.stacked_rows.clone()).collect();
-    let solution = solve(columns, &target, &folds, &options.solve).map_err(|e| Error::Fit {
+    let solution = solve_stacked(&stacked, &options.solve).map_err(|e| Error::Fit {
         channel: channel.into(),
         message: e.to_string(),
     })?;
     for fit in &mut fits {
-        fit.band_after_nt = fit
-            .stacked_rows
-            .clone()
-            .map(|i| target[i] - solution.fitted[i])
-            .collect();
+        fit.band_after_nt = (fit
+            .band_before_nt
+            .iter()
+            .zip(&solution.fitted[fit.stacked_rows.clone()]))
+        .map(|(y, f)| y - f)
+        .collect();
     }
     let correlation = (sample_rate_hz / (2.0 * options.filter.band.bandwidth_hz(sample_rate_hz)))
         .max(1.0)
@@ -247,14 +245,10 @@ impl FittedTollesLawson {
     ) -> Result<Vec<WindowFit>> {
         let data = band_data(log, sensor, &self.channel, windows, options, &extra.columns)?;
         let mut fits = data.windows;
+        let predicted = data.stacked.predict(&self.coefficients);
         for fit in &mut fits {
-            fit.band_after_nt = fit
-                .stacked_rows
-                .clone()
-                .map(|i| {
-                    let predicted: f64 = data.columns.iter().zip(&self.coefficients).map(|(c, b)| c[i] * b).sum();
-                    data.target[i] - predicted
-                })
+            fit.band_after_nt = (fit.band_before_nt.iter().zip(&predicted[fit.stacked_rows.clone()]))
+                .map(|(y, f)| y - f)
                 .collect();
         }
         Ok(fits)
@@ -293,11 +287,10 @@ fn band_data(
         .map(|window| WindowPlan::new(log, sensor, (scalar, extra), window, needed, trim))
         .collect::<Result<_>>()?;
     let field = log.vector_components(sensor);
-    let (columns, target) =
-        stack_filtered((field, extra), scalar, &plans, &filter, options).map_err(|e| Error::Fit {
-            channel: channel.into(),
-            message: e.to_string(),
-        })?;
+    let stacked = stack_filtered((field, extra), scalar, &plans, &filter, options).map_err(|e| Error::Fit {
+        channel: channel.into(),
+        message: e.to_string(),
+    })?;
     let mut fits: Vec<WindowFit> = Vec::with_capacity(plans.len());
     let mut start = 0;
     for plan in plans {
@@ -314,11 +307,10 @@ fn band_data(
         start += used;
     }
     for fit in &mut fits {
-        fit.band_before_nt = target[fit.stacked_rows.clone()].to_vec();
+        fit.band_before_nt = stacked.column_range(stacked.columns(), fit.stacked_rows.clone());
     }
     Ok(BandData {
-        columns,
-        target,
+        stacked,
         windows: fits,
         sample_rate_hz,
     })
@@ -376,67 +368,64 @@ impl<'w> WindowPlan<'w> {
     }
 }
 
-/// Rows of the flight, stacked columns (design, then target) and the
-/// stacked rows those columns receive.
-type FilterTask<'a> = (Range<usize>, Range<usize>, Vec<&'a mut [f64]>);
+/// Rows of the flight, the panel filled and the panel rows it receives.
+type FilterTask<'a> = (Range<usize>, usize, Vec<&'a mut [[f64; LANES]]>);
 
 /// Builds the stacked, filtered, trimmed design columns and target: every
-/// run of every window, [`LANES`] columns per filter pass, the passes in
-/// parallel. Each pass writes its own rows, so the result does not depend
-/// on the number of threads.
+/// run of every window, one panel of [`LANES`] columns per filter pass, the
+/// passes in parallel. Each pass fills and filters its own panel rows in
+/// place, so the result does not depend on the number of threads.
 fn stack_filtered(
     (field, extra): ([&[f64]; 3], &[&[f64]]),
     scalar: &[f64],
     plans: &[WindowPlan],
     filter: &ZeroPhaseFilter,
     options: &FitOptions,
-) -> std::result::Result<(Vec<Vec<f64>>, Vec<f64>), FilterError> {
+) -> std::result::Result<Stacked, FilterError> {
     let trim = options.filter.trim_samples;
     let terms = options.terms;
-    let width = terms.len() + extra.len() + 1;
-    let total: usize = plans.iter().map(|p| p.used(trim)).sum();
-    let mut stacked: Vec<Vec<f64>> = vec![vec![0.0; total]; width];
+    let count = terms.len();
+    let design = count + extra.len();
+    let fold_lengths: Vec<usize> = plans.iter().map(|p| p.used(trim)).collect();
+    let mut builder = StackedBuilder::zeros(&fold_lengths, design);
     let runs: Vec<Range<usize>> = plans.iter().flat_map(|p| p.runs.iter().cloned()).collect();
-    // One task per (run, group of LANES columns), each owning its output rows.
-    let mut tasks: Vec<FilterTask> = Vec::new();
-    let mut rests: Vec<&mut [f64]> = stacked.iter_mut().map(Vec::as_mut_slice).collect();
+    let mut stacked_rows = Vec::with_capacity(runs.len());
+    let mut start = 0;
     for run in &runs {
-        let keep = run.len() - 2 * trim;
-        let mut pieces: Vec<&mut [f64]> = Vec::with_capacity(width);
-        for rest in &mut rests {
-            let (piece, tail) = std::mem::take(rest).split_at_mut(keep);
-            pieces.push(piece);
-            *rest = tail;
-        }
-        let mut pieces = pieces.into_iter();
-        for first in (0..width).step_by(LANES) {
-            let group = first..(first + LANES).min(width);
-            let outputs: Vec<&mut [f64]> = pieces.by_ref().take(group.len()).collect();
-            tasks.push((run.clone(), group, outputs));
+        stacked_rows.push(start..start + run.len() - 2 * trim);
+        start += run.len() - 2 * trim;
+    }
+    // One task per (run, panel), each owning its panel rows.
+    let mut tasks: Vec<FilterTask> = Vec::new();
+    for (panel, per_run) in builder.segments_mut(&stacked_rows).into_iter().enumerate() {
+        for (run, segments) in runs.iter().zip(per_run) {
+            tasks.push((run.clone(), panel, segments));
         }
     }
-    tasks.into_par_iter().try_for_each(|(run, group, mut outputs)| {
-        let count = terms.len();
-        let design = group.start..group.end.min(width - 1);
-        let term_part = design.start.min(count)..design.end.min(count);
+    tasks.into_par_iter().try_for_each(|(run, panel, mut output)| {
+        let group = panel * LANES..(panel + 1) * LANES;
+        let term_part = group.start.min(count)..group.end.min(count);
+        let sources: Vec<(usize, &[f64])> = (group.start.max(count)..group.end.min(design))
+            .map(|column| (column - group.start, extra[column - count]))
+            .chain(group.contains(&design).then_some((design - group.start, scalar)))
+            .collect();
         let source = |rows: Range<usize>, out: &mut [[f64; LANES]]| {
             let rows = run.start + rows.start..run.start + rows.end;
+            if term_part.len() < LANES {
+                out.iter_mut().for_each(|row| *row = [0.0; LANES]);
+            }
             if !term_part.is_empty() {
                 terms.fill_lanes(field, run.clone(), rows.clone(), term_part.clone(), out);
             }
-            let sources =
-                (design.start.max(count)..design.end).map(|column| (column - group.start, extra[column - count]));
-            let target = (group.end == width).then_some((design.len(), scalar));
-            for (lane, source) in sources.chain(target) {
+            for &(lane, source) in &sources {
                 for (row, &value) in out.iter_mut().zip(&source[rows.clone()]) {
                     row[lane] = value;
                 }
             }
         };
-        filter.apply_stream(run.len(), source, &mut outputs, trim)
+        filter.apply_panel(run.len(), source, &mut output, trim)
     })?;
-    let target = stacked.pop().unwrap_or_default();
-    Ok((stacked, target))
+    Ok(builder.finish())
 }
 
 fn too_short(window: &CalibrationWindow, problem: String) -> Error {

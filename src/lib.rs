@@ -63,6 +63,7 @@ pub mod sample_flight;
 pub mod segments;
 pub mod simulate;
 pub mod solve;
+pub mod stacked;
 pub mod tolles_lawson;
 pub mod transfer;
 pub mod vector_calibration;

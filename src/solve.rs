@@ -39,6 +39,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::linalg::{cholesky_lower, multiply, small_svd, solve_spd, tall_skinny_r};
+use crate::stacked::{Block, Stacked, BLOCK_ROWS};
 
 /// How λ is obtained.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -252,14 +253,30 @@ pub fn solve(
     folds: &[Range<usize>],
     options: &SolveOptions,
 ) -> Result<Solution, SolveError> {
-    check_shape(&columns, y)?;
-    let folds = usable_folds(folds, y.len());
-    let blocks = row_blocks(&folds, y.len());
-    let (spectrum, fold_statistics) = decompose(&columns, y, &blocks, folds.len().max(1))?;
+    if y.len() <= columns.len() {
+        return Err(SolveError::TooFewSamples {
+            rows: y.len(),
+            terms: columns.len(),
+        });
+    }
+    let lengths: Vec<usize> = match usable_folds(folds, y.len()) {
+        folds if folds.is_empty() => vec![y.len()],
+        folds => folds.iter().map(Range::len).collect(),
+    };
+    solve_stacked(&Stacked::from_columns(&columns, y, &lengths), options)
+}
+
+/// [`solve`] for a design already stacked with its target; its folds
+/// (when there are at least two) are those of the blocked PRESS.
+pub fn solve_stacked(design: &Stacked, options: &SolveOptions) -> Result<Solution, SolveError> {
+    check_shape(design)?;
+    let rows = design.rows();
+    let fold_count = design.folds().len();
+    let (spectrum, fold_statistics) = decompose(design, fold_count)?;
     let grid = lambda_grid(&spectrum, options);
     let weights = candidate_weights(&spectrum, &grid);
-    let press = leave_one_out_press(&columns, y, &spectrum, &weights, &blocks);
-    let blocked = (!folds.is_empty()).then(|| blocked_press(&fold_statistics, &spectrum, &weights));
+    let press = leave_one_out_press(design, &spectrum, &weights);
+    let blocked = (fold_count >= 2).then(|| blocked_press(&fold_statistics, &spectrum, &weights));
     let ridge_curve: Vec<RidgePoint> = (0..grid.len())
         .map(|l| RidgePoint {
             lambda: grid[l],
@@ -275,36 +292,27 @@ pub fn solve(
             blocked_press: blocked.as_ref().map(|b| b[grid.len() + r]),
         })
         .collect();
-    let (mut solution, chosen_weights) = choose(&spectrum, ridge_curve, tsvd_curve, options, y.len())?;
-    solution.fitted = fitted_values(&columns, &solution.coefficients);
-    let residual_ss: f64 = y.iter().zip(&solution.fitted).map(|(y, f)| (y - f) * (y - f)).sum();
-    let samples = y.len() as f64;
+    let (mut solution, chosen_weights) = choose(&spectrum, ridge_curve, tsvd_curve, options, rows)?;
+    solution.fitted = design.predict(&solution.coefficients);
+    let residual_ss: f64 = (design.target().iter().zip(&solution.fitted))
+        .map(|(y, f)| (y - f) * (y - f))
+        .sum();
+    let samples = rows as f64;
     let noise = (residual_ss / (samples - solution.effective_dof).max(1.0)).sqrt();
     solution.residual_rms = (residual_ss / samples).sqrt();
     solution.standard_errors = standard_errors(&spectrum, &chosen_weights, noise);
     Ok(solution)
 }
 
-/// $A\beta$, column by column within row blocks, the blocks in parallel
-/// (each row's sum is the same whatever the thread count).
-fn fitted_values(columns: &[Vec<f64>], coefficients: &[f64]) -> Vec<f64> {
-    let mut fitted = vec![0.0; columns.first().map_or(0, Vec::len)];
-    fitted.par_chunks_mut(BLOCK_ROWS).enumerate().for_each(|(block, out)| {
-        let start = block * BLOCK_ROWS;
-        for (column, beta) in columns.iter().zip(coefficients) {
-            let values = &column[start..start + out.len()];
-            out.iter_mut().zip(values).for_each(|(f, a)| *f += a * beta);
-        }
-    });
-    fitted
-}
-
-fn check_shape(columns: &[Vec<f64>], y: &[f64]) -> Result<(), SolveError> {
-    let terms = columns.len();
-    if y.len() <= terms {
-        return Err(SolveError::TooFewSamples { rows: y.len(), terms });
+fn check_shape(design: &Stacked) -> Result<(), SolveError> {
+    let terms = design.columns();
+    if design.rows() <= terms {
+        return Err(SolveError::TooFewSamples {
+            rows: design.rows(),
+            terms,
+        });
     }
-    if let Some(row) = y.iter().position(|v| !v.is_finite()) {
+    if let Some(row) = design.target().iter().position(|v| !v.is_finite()) {
         return Err(SolveError::NonFinite { column: terms, row });
     }
     Ok(())
@@ -312,87 +320,53 @@ fn check_shape(columns: &[Vec<f64>], y: &[f64]) -> Result<(), SolveError> {
 
 /// The first non-finite design value, searched only once the Gram matrix
 /// has shown there is one.
-fn first_non_finite(columns: &[Vec<f64>]) -> SolveError {
-    columns
-        .iter()
-        .enumerate()
-        .find_map(|(column, values)| {
-            let row = values.iter().position(|v| !v.is_finite())?;
+fn first_non_finite(design: &Stacked) -> SolveError {
+    (0..design.columns())
+        .find_map(|column| {
+            let row = design.column(column).iter().position(|v| !v.is_finite())?;
             Some(SolveError::NonFinite { column, row })
         })
         // Finite values whose squares overflow.
         .unwrap_or(SolveError::NonFinite { column: 0, row: 0 })
 }
 
-/// Row blocks of at most [`BLOCK_ROWS`], never crossing a fold, each with
-/// the index of its fold (0 when there are no folds).
-fn row_blocks(folds: &[Range<usize>], rows: usize) -> Vec<(usize, Range<usize>)> {
-    let whole = std::slice::from_ref(&(0..rows)).to_vec();
-    let ranges: &[Range<usize>] = if folds.is_empty() { &whole } else { folds };
-    ranges
-        .iter()
-        .enumerate()
-        .flat_map(|(f, fold)| {
-            fold.clone()
-                .step_by(BLOCK_ROWS)
-                .map(move |start| (f, start..(start + BLOCK_ROWS).min(fold.end)))
-        })
-        .collect()
-}
-
-/// A reusable block of design rows, column-major, its row count rounded up
-/// to [`LANES`] with zeros below the data (zero rows add nothing to any sum).
+/// A reusable block of the basis $U = A M$, column-major, and of the
+/// target, their row count rounded up to [`LANES`] with zeros below the data
+/// (zero rows add nothing to any sum).
 struct BlockBuffer {
-    rows: Mat<f64>,
     basis: Mat<f64>,
-    y: Vec<f64>,
 }
 
 impl BlockBuffer {
     fn new(p: usize) -> Self {
         BlockBuffer {
-            rows: Mat::zeros(BLOCK_ROWS, p),
             basis: Mat::zeros(BLOCK_ROWS, p),
-            y: vec![0.0; BLOCK_ROWS],
         }
     }
 
-    /// Copies `range` of the columns (and of `y`) in; returns the padded row count.
-    fn load(&mut self, columns: &[Vec<f64>], y: &[f64], range: &Range<usize>) -> usize {
-        let used = range.len();
-        let padded = used.next_multiple_of(LANES);
-        for (j, column) in columns.iter().enumerate() {
-            let target = self.rows.col_as_slice_mut(j);
-            target[..used].copy_from_slice(&column[range.clone()]);
-            target[used..padded].fill(0.0);
-        }
-        self.y[..used].copy_from_slice(&y[range.clone()]);
-        self.y[used..padded].fill(0.0);
-        padded
-    }
-
-    /// $U_b = A_b M$ for the loaded rows, into `self.basis`.
-    fn basis(&mut self, padded: usize, to_u: &Mat<f64>) {
-        let rows = self.rows.as_ref().get(..padded, ..);
-        multiply(self.basis.as_mut().get_mut(..padded, ..), rows, to_u.as_ref());
+    /// $U_b = A_b M$ for `block`, padding rows included (zero, as the
+    /// block's are); returns the block's target with its padding.
+    fn load<'d>(&mut self, design: &'d Stacked, block: &Block, to_u: &Mat<f64>) -> &'d [f64] {
+        let p = design.columns();
+        let view = design.block_view(block);
+        let basis = self.basis.as_mut().get_mut(..view.nrows(), ..);
+        multiply(basis, view.get(.., ..p), to_u.as_ref());
+        design.block_target(block)
     }
 }
 
 /// $A^\top A$, block by block in parallel, summed in block order.
-fn gram_matrix(columns: &[Vec<f64>], y: &[f64], blocks: &[(usize, Range<usize>)]) -> Mat<f64> {
-    let p = columns.len();
-    let partials: Vec<Mat<f64>> = blocks
+fn gram_matrix(design: &Stacked) -> Mat<f64> {
+    let p = design.columns();
+    let partials: Vec<Mat<f64>> = design
+        .blocks()
         .par_iter()
-        .map_init(
-            || BlockBuffer::new(p),
-            |buffer, (_, range)| {
-                let padded = buffer.load(columns, y, range);
-                let mut gram = Mat::zeros(p, p);
-                let rows = buffer.rows.as_ref().get(..padded, ..);
-                multiply(gram.as_mut(), rows.transpose(), rows);
-                gram
-            },
-        )
+        .map(|block| {
+            let rows = design.block_view(block).get(.., ..p);
+            let mut gram = Mat::zeros(p, p);
+            multiply(gram.as_mut(), rows.transpose(), rows);
+            gram
+        })
         .collect();
     let mut gram = Mat::zeros(p, p);
     for partial in &partials {
@@ -460,16 +434,11 @@ impl Factor {
 /// Cholesky factor of $U_1^\top U_1$ corrects the first to working
 /// precision). Ill-conditioned or rank-deficient designs take the
 /// Householder tall-skinny QR instead.
-fn decompose(
-    columns: &[Vec<f64>],
-    y: &[f64],
-    blocks: &[(usize, Range<usize>)],
-    fold_count: usize,
-) -> Result<(Spectrum, Vec<FoldStatistics>), SolveError> {
-    let p = columns.len();
-    let gram = gram_matrix(columns, y, blocks);
+fn decompose(design: &Stacked, fold_count: usize) -> Result<(Spectrum, Vec<FoldStatistics>), SolveError> {
+    let p = design.columns();
+    let gram = gram_matrix(design);
     if !(0..p).all(|j| (0..p).all(|i| gram[(i, j)].is_finite())) {
-        return Err(first_non_finite(columns));
+        return Err(first_non_finite(design));
     }
     if (0..p).all(|j| gram[(j, j)] == 0.0) {
         return Err(SolveError::ZeroMatrix);
@@ -481,13 +450,15 @@ fn decompose(
         })
         .collect();
     let scaled_gram = Mat::from_fn(p, p, |i, j| gram[(i, j)] / (scales[i] * scales[j]));
-    if let Some(refined) = cholesky_route(columns, y, blocks, fold_count, scaled_gram.as_ref(), &scales)? {
+    if let Some(refined) = cholesky_route(design, fold_count, scaled_gram.as_ref(), &scales)? {
         return Ok(refined);
     }
+    let columns: Vec<Vec<f64>> = (0..p).map(|j| design.column(j)).collect();
     let views: Vec<&[f64]> = columns.iter().map(Vec::as_slice).collect();
     let r = tall_skinny_r(&views);
-    let factor = Factor::of_r(r.as_ref(), y.len())?;
-    let statistics = basis_statistics(columns, y, blocks, &factor.to_u, fold_count);
+    drop(columns);
+    let factor = Factor::of_r(r.as_ref(), design.rows())?;
+    let statistics = basis_statistics(design, &factor.to_u, fold_count);
     let total = FoldStatistics::total(&statistics, p);
     let spectrum = factor.spectrum(r.as_ref(), &scales, total.uty, Decomposition::Householder)?;
     Ok((spectrum, statistics))
@@ -496,9 +467,7 @@ fn decompose(
 /// CholeskyQR2 when the scaled Gram matrix is safely positive definite;
 /// `None` sends the caller to Householder QR.
 fn cholesky_route(
-    columns: &[Vec<f64>],
-    y: &[f64],
-    blocks: &[(usize, Range<usize>)],
+    design: &Stacked,
     fold_count: usize,
     scaled_gram: MatRef<'_, f64>,
     scales: &[f64],
@@ -509,12 +478,12 @@ fn cholesky_route(
     };
     // R₁ of the scaled matrix, then of A itself.
     let first_r = Mat::from_fn(p, p, |i, j| first_lower[(j, i)] * scales[j]);
-    let first = Factor::of_r(first_r.as_ref(), y.len())?;
+    let first = Factor::of_r(first_r.as_ref(), design.rows())?;
     let scaled_first_r = Mat::from_fn(p, p, |i, j| first_lower[(j, i)]);
     if first.rank < p || condition_number(scaled_first_r.as_ref())? > CHOLESKY_CONDITION_LIMIT {
         return Ok(None);
     }
-    let first_statistics = basis_statistics(columns, y, blocks, &first.to_u, fold_count);
+    let first_statistics = basis_statistics(design, &first.to_u, fold_count);
     let first_total = FoldStatistics::total(&first_statistics, p);
     // U₁ = Q L₂ᵀ with L₂ L₂ᵀ = U₁ᵀU₁, so A = U₁ Σ₁ V₁ᵀ = Q (L₂ᵀ Σ₁ V₁ᵀ).
     let Some(second_lower) = cholesky_lower(first_total.gram.as_ref()) else {
@@ -525,7 +494,7 @@ fn cholesky_route(
             .map(|k| second_lower[(k, i)] * first.singular_values[k] * first.v[(j, k)])
             .sum::<f64>()
     });
-    let factor = Factor::of_r(r.as_ref(), y.len())?;
+    let factor = Factor::of_r(r.as_ref(), design.rows())?;
     if factor.rank < p {
         return Ok(None);
     }
@@ -550,23 +519,17 @@ fn condition_number(a: MatRef<'_, f64>) -> Result<f64, SolveError> {
 
 /// Per-fold $U_b^\top U_b$, $U_b^\top y_b$ and $y_b^\top y_b$ with
 /// $U = A M$, summed in block order.
-fn basis_statistics(
-    columns: &[Vec<f64>],
-    y: &[f64],
-    blocks: &[(usize, Range<usize>)],
-    to_u: &Mat<f64>,
-    fold_count: usize,
-) -> Vec<FoldStatistics> {
-    let p = columns.len();
-    let partials: Vec<(usize, FoldStatistics)> = blocks
+fn basis_statistics(design: &Stacked, to_u: &Mat<f64>, fold_count: usize) -> Vec<FoldStatistics> {
+    let p = design.columns();
+    let partials: Vec<(usize, FoldStatistics)> = design
+        .blocks()
         .par_iter()
         .map_init(
             || BlockBuffer::new(p),
-            |buffer, (fold, range)| {
-                let padded = buffer.load(columns, y, range);
-                buffer.basis(padded, to_u);
-                let u = buffer.basis.as_ref().get(..padded, ..);
-                (*fold, FoldStatistics::of_block(u, &buffer.y[..padded]))
+            |buffer, block| {
+                let y = buffer.load(design, block, to_u);
+                let u = buffer.basis.as_ref().get(..y.len(), ..);
+                (block.fold, FoldStatistics::of_block(u, y))
             },
         )
         .collect();
@@ -626,9 +589,6 @@ struct FoldStatistics {
     yy: f64,
 }
 
-/// Rows per block of the passes over the data.
-const BLOCK_ROWS: usize = 2048;
-
 /// Rows in one AVX-512 register of the PRESS kernel.
 const LANES: usize = 8;
 
@@ -638,14 +598,8 @@ const CANDIDATES: usize = 4;
 /// Leave-one-out PRESS of every candidate. Row blocks run in parallel and
 /// their sums are added in block order, so the result does not depend on
 /// the number of threads.
-fn leave_one_out_press(
-    columns: &[Vec<f64>],
-    y: &[f64],
-    spectrum: &Spectrum,
-    weights: &[Vec<f64>],
-    blocks: &[(usize, Range<usize>)],
-) -> Vec<f64> {
-    let p = columns.len();
+fn leave_one_out_press(design: &Stacked, spectrum: &Spectrum, weights: &[Vec<f64>]) -> Vec<f64> {
+    let p = design.columns();
     let m = weights.len();
     // Truncated-SVD candidates (the last `rank`) are cumulative sums, done apart.
     let ridge = m - spectrum.rank;
@@ -668,20 +622,20 @@ fn leave_one_out_press(
     };
     let leverage_weights = pack(&|l, k| weights[l][k]);
     let fitted_weights = pack(&|l, k| weights[l][k] * spectrum.uty[k]);
-    let partials: Vec<Vec<(f64, f64)>> = blocks
+    let partials: Vec<Vec<(f64, f64)>> = design
+        .blocks()
         .par_iter()
         .map_init(
             || BlockBuffer::new(p),
-            |buffer, (_, range)| {
-                let padded = buffer.load(columns, y, range);
-                buffer.basis(padded, &spectrum.to_u);
+            |buffer, block| {
+                let y = buffer.load(design, block, &spectrum.to_u);
                 let kernel = Kernel {
                     leverage_weights: &leverage_weights,
                     fitted_weights: &fitted_weights,
                     ridge,
                     uty: &spectrum.uty[..spectrum.rank],
                 };
-                kernel.block(&buffer.basis, padded, &buffer.y[..padded])
+                kernel.block(&buffer.basis, y.len(), y)
             },
         )
         .collect();

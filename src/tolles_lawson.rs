@@ -90,6 +90,17 @@ enum Term {
 }
 
 impl Term {
+    /// The two entries of [`Sample::factors`] whose product is this term.
+    fn factors(self) -> (usize, usize) {
+        match self {
+            Term::Permanent(i) => (i, 9),
+            Term::Induced(i, j) => (i, 3 + j),
+            Term::Eddy(i, j) => (i, 6 + j),
+            Term::FieldDerivative(j) => (6 + j, 9),
+            Term::Bias => (9, 9),
+        }
+    }
+
     fn name(self) -> String {
         match self {
             Term::Permanent(i) => format!("perm_{}", AXES[i]),
@@ -201,9 +212,10 @@ impl TermSet {
 
     fn fill_run(&self, terms: &[Term], field_nt: [&[f64]; 3], run: Range<usize>, columns: &mut [&mut [f64]]) {
         for (offset, row) in run.clone().enumerate() {
-            let sample = Sample::within_run(field_nt, &run, row);
+            let factors = Sample::within_run(field_nt, &run, row).factors(self.bt_scale_nt);
             for (column, term) in columns.iter_mut().zip(terms) {
-                column[offset] = sample.term(*term, self.bt_scale_nt);
+                let (a, b) = term.factors();
+                column[offset] = factors[a] * factors[b];
             }
         }
     }
@@ -222,12 +234,11 @@ impl TermSet {
         columns: Range<usize>,
         out: &mut [[f64; L]],
     ) {
-        let terms = self.terms();
-        let terms = &terms[columns];
+        let plan: Vec<(usize, usize)> = self.terms()[columns].iter().map(|term| term.factors()).collect();
         for (row, lanes) in rows.zip(out.iter_mut()) {
-            let sample = Sample::within_run(field_nt, &run, row);
-            for (lane, term) in lanes.iter_mut().zip(terms) {
-                *lane = sample.term(*term, self.bt_scale_nt);
+            let factors = Sample::within_run(field_nt, &run, row).factors(self.bt_scale_nt);
+            for (lane, &(a, b)) in lanes.iter_mut().zip(&plan) {
+                *lane = factors[a] * factors[b];
             }
         }
     }
@@ -245,30 +256,44 @@ impl Sample {
     /// [`central_difference`] gives over the run.
     #[inline]
     fn within_run(field_nt: [&[f64]; 3], run: &Range<usize>, row: usize) -> Self {
-        let b = field_nt.map(|c| c[row]);
+        let b = [field_nt[0][row], field_nt[1][row], field_nt[2][row]];
         let total = (b[0] * b[0] + b[1] * b[1] + b[2] * b[2]).sqrt();
-        let db = field_nt.map(|c| match (run.len() < 2, row == run.start, row + 1 == run.end) {
+        let difference = |c: &[f64]| match (run.len() < 2, row == run.start, row + 1 == run.end) {
             (true, _, _) => 0.0,
             (false, true, _) => c[row + 1] - c[row],
             (false, _, true) => c[row] - c[row - 1],
             (false, false, false) => (c[row + 1] - c[row - 1]) / 2.0,
-        });
+        };
         Sample {
             b,
-            u: b.map(|component| component / total),
-            db,
+            u: [b[0] / total, b[1] / total, b[2] / total],
+            db: [
+                difference(field_nt[0]),
+                difference(field_nt[1]),
+                difference(field_nt[2]),
+            ],
         }
     }
 
+    /// $[u_x, u_y, u_z, B_x/s, B_y/s, B_z/s, \dot B_x/s, \dot B_y/s, \dot B_z/s, 1]$
+    /// for the scale s: every term is the product of two of them.
     #[inline]
-    fn term(&self, term: Term, scale: f64) -> f64 {
-        match term {
-            Term::Permanent(i) => self.u[i],
-            Term::Induced(i, j) => self.u[i] * self.b[j] / scale,
-            Term::Eddy(i, j) => self.u[i] * self.db[j] / scale,
-            Term::FieldDerivative(j) => self.db[j] / scale,
-            Term::Bias => 1.0,
-        }
+    fn factors(&self, scale: f64) -> [f64; 10] {
+        let [u0, u1, u2] = self.u;
+        let [b0, b1, b2] = self.b;
+        let [d0, d1, d2] = self.db;
+        [
+            u0,
+            u1,
+            u2,
+            b0 / scale,
+            b1 / scale,
+            b2 / scale,
+            d0 / scale,
+            d1 / scale,
+            d2 / scale,
+            1.0,
+        ]
     }
 }
 

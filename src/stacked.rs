@@ -1,0 +1,367 @@
+//! The stacked, band-passed design matrix and target of one fit.
+//!
+//! The rows are cut into blocks of at most [`BLOCK_ROWS`] that never cross
+//! a fold (calibration window), and each block is stored column-major with
+//! its row count rounded up to [`LANES`] (zero rows below the data), so the
+//! solver reads every block as a matrix without copying it. Column `p`
+//! after the `p` design columns is the target; columns past it are zero.
+//!
+//! The filter fills the store first as panels of [`LANES`] columns written
+//! row by row ([`StackedBuilder`]): a zero-phase pass runs eight columns per
+//! vector instruction in place. [`StackedBuilder::finish`] then transposes
+//! each block's panels in place, which turns them into the block's columns.
+
+use std::ops::Range;
+
+use faer::MatRef;
+use rayon::prelude::*;
+
+use crate::filter::LANES;
+
+/// Rows per block of the passes over the rows.
+pub const BLOCK_ROWS: usize = 2048;
+
+/// One block of rows.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Block {
+    /// Fold (calibration window) the rows belong to.
+    pub fold: usize,
+    /// Rows of the stacked matrix.
+    pub rows: Range<usize>,
+    /// Start of the block's storage.
+    offset: usize,
+    /// Stored rows: `rows.len()` rounded up to [`LANES`].
+    stride: usize,
+}
+
+/// The block layout shared by the builder and the finished store.
+#[derive(Debug, Clone, PartialEq)]
+struct Layout {
+    columns: usize,
+    panels: usize,
+    rows: usize,
+    folds: Vec<Range<usize>>,
+    blocks: Vec<Block>,
+}
+
+impl Layout {
+    fn new(fold_lengths: &[usize], columns: usize) -> (Self, usize) {
+        let panels = (columns + 1).div_ceil(LANES);
+        let mut folds = Vec::with_capacity(fold_lengths.len());
+        let mut blocks = Vec::new();
+        let (mut row, mut offset) = (0, 0);
+        for (fold, &length) in fold_lengths.iter().enumerate() {
+            folds.push(row..row + length);
+            for start in (row..row + length).step_by(BLOCK_ROWS) {
+                let rows = start..(start + BLOCK_ROWS).min(row + length);
+                let stride = rows.len().next_multiple_of(LANES);
+                blocks.push(Block {
+                    fold,
+                    rows,
+                    offset,
+                    stride,
+                });
+                offset += stride * panels * LANES;
+            }
+            row += length;
+        }
+        let layout = Layout {
+            columns,
+            panels,
+            rows: row,
+            folds,
+            blocks,
+        };
+        (layout, offset)
+    }
+
+    /// The block holding `row`.
+    fn block_of(&self, row: usize) -> &Block {
+        let index = self.blocks.partition_point(|b| b.rows.end <= row);
+        &self.blocks[index]
+    }
+}
+
+/// The store while the filter fills it: each block's panels row by row.
+#[derive(Debug)]
+pub struct StackedBuilder {
+    data: Vec<[f64; LANES]>,
+    layout: Layout,
+}
+
+impl StackedBuilder {
+    /// Zero rows of `columns` design columns and the target, for folds of
+    /// the given lengths, stacked in order.
+    pub fn zeros(fold_lengths: &[usize], columns: usize) -> Self {
+        let (layout, size) = Layout::new(fold_lengths, columns);
+        StackedBuilder {
+            data: vec![[0.0; LANES]; size / LANES],
+            layout,
+        }
+    }
+
+    /// Number of panels of [`LANES`] columns.
+    pub fn panel_count(&self) -> usize {
+        self.layout.panels
+    }
+
+    /// For every panel and every range of `ranges` (disjoint, increasing
+    /// stacked rows), the panel rows of that range as consecutive segments
+    /// (one per block it spans): `[panel][range][segment]`.
+    pub fn segments_mut(&mut self, ranges: &[Range<usize>]) -> Vec<Vec<Vec<&mut [[f64; LANES]]>>> {
+        let layout = &self.layout;
+        let panels = layout.panels;
+        let mut out: Vec<Vec<Vec<&mut [[f64; LANES]]>>> = (0..panels)
+            .map(|_| ranges.iter().map(|_| Vec::new()).collect())
+            .collect();
+        let mut rest: &mut [[f64; LANES]] = &mut self.data;
+        for block in &layout.blocks {
+            let (storage, tail) = std::mem::take(&mut rest).split_at_mut(block.stride * panels);
+            rest = tail;
+            for (panel, region) in storage.chunks_exact_mut(block.stride).enumerate() {
+                let mut rows = &mut region[..block.rows.len()];
+                let mut at = block.rows.start;
+                for (index, range) in ranges.iter().enumerate() {
+                    let start = range.start.max(at);
+                    let end = range.end.min(block.rows.end);
+                    if start >= end {
+                        continue;
+                    }
+                    let (_, from) = std::mem::take(&mut rows).split_at_mut(start - at);
+                    let (piece, after) = from.split_at_mut(end - start);
+                    out[panel][index].push(piece);
+                    rows = after;
+                    at = end;
+                }
+            }
+        }
+        out
+    }
+
+    /// The finished store: every block's panels transposed in place into
+    /// the block's columns, blocks in parallel.
+    pub fn finish(mut self) -> Stacked {
+        let layout = &self.layout;
+        let mut pieces: Vec<(&Block, &mut [[f64; LANES]])> = Vec::with_capacity(layout.blocks.len());
+        let mut rest: &mut [[f64; LANES]] = &mut self.data;
+        for block in &layout.blocks {
+            let (storage, tail) = std::mem::take(&mut rest).split_at_mut(block.stride * layout.panels);
+            pieces.push((block, storage));
+            rest = tail;
+        }
+        pieces.into_par_iter().for_each(|(block, storage)| {
+            let mut scratch = vec![[0.0; LANES]; block.stride];
+            for region in storage.chunks_exact_mut(block.stride) {
+                scratch.copy_from_slice(region);
+                transpose_panel(&scratch, region.as_flattened_mut(), block.stride);
+            }
+        });
+        Stacked {
+            data: self.data,
+            layout: self.layout,
+        }
+    }
+}
+
+/// `rows` rows of [`LANES`] values into [`LANES`] columns of `rows` values.
+fn transpose_panel(from: &[[f64; LANES]], to: &mut [f64], rows: usize) {
+    for (lane, column) in to.chunks_exact_mut(rows).enumerate() {
+        for (value, row) in column.iter_mut().zip(from) {
+            *value = row[lane];
+        }
+    }
+}
+
+/// Design columns and target in column-major row blocks.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Stacked {
+    data: Vec<[f64; LANES]>,
+    layout: Layout,
+}
+
+impl Stacked {
+    /// From design columns and a target of equal lengths, with the folds
+    /// given as consecutive lengths (their sum the number of rows).
+    pub fn from_columns(columns: &[Vec<f64>], target: &[f64], fold_lengths: &[usize]) -> Self {
+        let (layout, size) = Layout::new(fold_lengths, columns.len());
+        let mut data = vec![[0.0; LANES]; size / LANES];
+        let flat = data.as_flattened_mut();
+        for block in &layout.blocks {
+            for (j, values) in columns.iter().map(Vec::as_slice).chain([target]).enumerate() {
+                let start = block.offset + j * block.stride;
+                flat[start..start + block.rows.len()].copy_from_slice(&values[block.rows.clone()]);
+            }
+        }
+        Stacked { data, layout }
+    }
+
+    /// Number of rows.
+    pub fn rows(&self) -> usize {
+        self.layout.rows
+    }
+
+    /// Number of design columns (the target not counted).
+    pub fn columns(&self) -> usize {
+        self.layout.columns
+    }
+
+    /// The folds, consecutive ranges of rows.
+    pub fn folds(&self) -> &[Range<usize>] {
+        &self.layout.folds
+    }
+
+    /// The row blocks, in order.
+    pub fn blocks(&self) -> &[Block] {
+        &self.layout.blocks
+    }
+
+    /// A block's design columns and target (the last column) with its zero
+    /// padding rows: `stride × (columns + 1)`.
+    pub fn block_view(&self, block: &Block) -> MatRef<'_, f64> {
+        let width = self.layout.columns + 1;
+        let storage = &self.data.as_flattened()[block.offset..block.offset + block.stride * width];
+        MatRef::from_column_major_slice(storage, block.stride, width)
+    }
+
+    /// A block's target with its zero padding rows.
+    pub fn block_target(&self, block: &Block) -> &[f64] {
+        let start = block.offset + self.layout.columns * block.stride;
+        &self.data.as_flattened()[start..start + block.stride]
+    }
+
+    /// Value of design column `column` (or the target, `column == columns`) at `row`.
+    pub fn value(&self, row: usize, column: usize) -> f64 {
+        let block = self.layout.block_of(row);
+        self.data.as_flattened()[block.offset + column * block.stride + (row - block.rows.start)]
+    }
+
+    /// One design column, or the target for `column == columns`.
+    pub fn column(&self, column: usize) -> Vec<f64> {
+        self.column_range(column, 0..self.rows())
+    }
+
+    /// Rows `range` of one column.
+    pub fn column_range(&self, column: usize, range: Range<usize>) -> Vec<f64> {
+        let mut out = Vec::with_capacity(range.len());
+        for block in &self.layout.blocks {
+            let start = range.start.max(block.rows.start);
+            let end = range.end.min(block.rows.end);
+            if start < end {
+                let base = block.offset + column * block.stride - block.rows.start;
+                out.extend_from_slice(&self.data.as_flattened()[base + start..base + end]);
+            }
+        }
+        out
+    }
+
+    /// The target.
+    pub fn target(&self) -> Vec<f64> {
+        self.column(self.columns())
+    }
+
+    /// $A\beta$ for the design columns, blocks in parallel, each row's sum
+    /// in column order (the same whatever the thread count).
+    pub fn predict(&self, coefficients: &[f64]) -> Vec<f64> {
+        let mut fitted = vec![0.0; self.rows()];
+        let mut pieces: Vec<(&Block, &mut [f64])> = Vec::with_capacity(self.layout.blocks.len());
+        let mut rest: &mut [f64] = &mut fitted;
+        for block in &self.layout.blocks {
+            let (piece, tail) = std::mem::take(&mut rest).split_at_mut(block.rows.len());
+            pieces.push((block, piece));
+            rest = tail;
+        }
+        pieces.into_par_iter().for_each(|(block, out)| {
+            for (j, beta) in coefficients.iter().enumerate().take(self.columns()) {
+                let start = block.offset + j * block.stride;
+                let values = &self.data.as_flattened()[start..start + out.len()];
+                out.iter_mut().zip(values).for_each(|(f, a)| *f += a * beta);
+            }
+        });
+        fitted
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn example(rows: usize) -> (Vec<Vec<f64>>, Vec<f64>) {
+        let columns: Vec<Vec<f64>> = (0..11)
+            .map(|j| (0..rows).map(|i| (i * (j + 1)) as f64 * 0.25 - j as f64).collect())
+            .collect();
+        let target = (0..rows).map(|i| i as f64 * 3.0).collect();
+        (columns, target)
+    }
+
+    #[test]
+    fn columns_come_back_as_given() {
+        let (columns, target) = example(5000);
+        let stacked = Stacked::from_columns(&columns, &target, &[1000, 4000]);
+        assert_eq!((stacked.rows(), stacked.columns()), (5000, 11));
+        // Blocks never cross a fold: 1000 | 2048 + 1952.
+        let ranges: Vec<Range<usize>> = stacked.blocks().iter().map(|b| b.rows.clone()).collect();
+        assert_eq!(ranges, vec![0..1000, 1000..3048, 3048..5000]);
+        for (j, column) in columns.iter().enumerate() {
+            assert_eq!(&stacked.column(j), column);
+        }
+        assert_eq!(stacked.target(), target);
+        assert_eq!(stacked.column_range(3, 990..1010), columns[3][990..1010].to_vec());
+        assert_eq!(stacked.value(3047, 9), columns[9][3047]);
+        let view = stacked.block_view(&stacked.blocks()[2]);
+        assert_eq!((view.nrows(), view.ncols()), (1952, 12));
+        assert_eq!(view[(5, 11)], target[3053]);
+        assert_eq!(stacked.block_target(&stacked.blocks()[2])[5], target[3053]);
+    }
+
+    #[test]
+    fn padding_rows_are_zero() {
+        let (columns, target) = example(13);
+        let stacked = Stacked::from_columns(&columns, &target, &[13]);
+        let view = stacked.block_view(&stacked.blocks()[0]);
+        assert_eq!(view.nrows(), 16);
+        assert!((13..16).all(|i| (0..12).all(|j| view[(i, j)] == 0.0)));
+    }
+
+    /// Filling panels row by row and finishing gives the same store as
+    /// building it from columns.
+    #[test]
+    fn built_panels_equal_the_columns() {
+        let (columns, target) = example(4500);
+        let folds = [300, 4200];
+        let mut builder = StackedBuilder::zeros(&folds, columns.len());
+        let ranges = [0..300, 300..2000, 2000..4500];
+        let mut segments = builder.segments_mut(&ranges);
+        for (panel, per_range) in segments.iter_mut().enumerate() {
+            for (range, pieces) in ranges.iter().zip(per_range.iter_mut()) {
+                let mut row = range.start;
+                for piece in pieces.iter_mut() {
+                    for lanes in piece.iter_mut() {
+                        for (lane, value) in lanes.iter_mut().enumerate() {
+                            let j = panel * LANES + lane;
+                            *value = match j {
+                                j if j < columns.len() => columns[j][row],
+                                j if j == columns.len() => target[row],
+                                _ => 0.0,
+                            };
+                        }
+                        row += 1;
+                    }
+                }
+                assert_eq!(row, range.end);
+            }
+        }
+        assert_eq!(builder.finish(), Stacked::from_columns(&columns, &target, &folds));
+    }
+
+    #[test]
+    fn predict_is_the_weighted_sum_of_the_design_columns() {
+        let (columns, target) = example(3000);
+        let stacked = Stacked::from_columns(&columns, &target, &[3000]);
+        let beta: Vec<f64> = (0..11).map(|j| 0.5 - j as f64 * 0.125).collect();
+        let fitted = stacked.predict(&beta);
+        for (i, &f) in fitted.iter().enumerate() {
+            let expected: f64 = columns.iter().zip(&beta).map(|(c, b)| c[i] * b).sum();
+            assert!((f - expected).abs() <= 1e-12 * expected.abs().max(1.0), "row {i}");
+        }
+    }
+}
