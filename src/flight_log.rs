@@ -88,6 +88,8 @@ pub struct FlightLog {
     source: PathBuf,
     time_column: String,
     time_s: Vec<f64>,
+    /// Median sample interval, s (computed once: time never changes).
+    median_interval_s: f64,
     channels: Vec<Channel>,
     source_row_offsets: Option<Vec<u64>>,
     row_flags: Vec<String>,
@@ -116,6 +118,7 @@ impl FlightLog {
         Ok(FlightLog {
             source,
             time_column,
+            median_interval_s: median_step(&time_s),
             time_s,
             channels,
             source_row_offsets: None,
@@ -272,13 +275,18 @@ impl FlightLog {
 
     /// The median sample interval, seconds (0 for fewer than two samples).
     pub fn median_interval_s(&self) -> f64 {
-        let mut steps: Vec<f64> = self.time_s.windows(2).map(|w| w[1] - w[0]).collect();
-        if steps.is_empty() {
-            return 0.0;
-        }
-        let middle = steps.len() / 2;
-        *steps.select_nth_unstable_by(middle, f64::total_cmp).1
+        self.median_interval_s
     }
+}
+
+/// Median of the steps between consecutive times; 0 with fewer than two.
+fn median_step(time_s: &[f64]) -> f64 {
+    let mut steps: Vec<f64> = time_s.windows(2).map(|w| w[1] - w[0]).collect();
+    if steps.is_empty() {
+        return 0.0;
+    }
+    let middle = steps.len() / 2;
+    *steps.select_nth_unstable_by(middle, f64::total_cmp).1
 }
 
 /// Checks that `time_s` is finite and strictly increasing; `locate` turns a
