@@ -237,7 +237,9 @@ impl ZeroPhaseFilter {
         let back: Vec<[f64; LANES]> = (0..pad).map(|k| odd(tail[pad], tail[pad - 1 - k])).collect();
         // Forward pass: extension, the samples before the output, the
         // output in place, the samples after it, extension.
-        let mut state = self.initial_state(&front[0]);
+        // Without an extension the steady state is scaled by the first
+        // sample itself (scipy with padlen = 0).
+        let mut state = self.initial_state(front.first().unwrap_or(&head[0]));
         self.run(&mut state, front.iter_mut());
         let mut chunk = [[0.0; LANES]; CHUNK_ROWS];
         for first in (0..start).step_by(CHUNK_ROWS) {
@@ -255,9 +257,6 @@ impl ZeroPhaseFilter {
         source(end..samples, &mut after[..past]);
         after[past..].copy_from_slice(&back);
         self.run(&mut state, after.iter_mut());
-        // Backward pass from the far end of the extension to the first output.
-        let mut state = self.initial_state(&after[past + pad - 1]);
-        self.run(&mut state, after.iter_mut().rev());
         let mut remaining = end - start;
         let used: Vec<usize> = output
             .iter()
@@ -267,6 +266,19 @@ impl ZeroPhaseFilter {
                 take
             })
             .collect();
+        // Backward pass from the far end of the extension (or of the
+        // output, when nothing follows it) to the first output.
+        let last_output = output
+            .iter()
+            .zip(&used)
+            .rev()
+            .find(|(_, &u)| u > 0)
+            .map(|(s, &u)| s[u - 1]);
+        let Some(last) = after.last().copied().or(last_output) else {
+            return Ok(());
+        };
+        let mut state = self.initial_state(&last);
+        self.run(&mut state, after.iter_mut().rev());
         for (segment, used) in output.iter_mut().zip(used).rev() {
             self.run(&mut state, segment[..used].iter_mut().rev());
         }
@@ -548,6 +560,40 @@ mod tests {
             let column: Vec<f64> = kept.iter().map(|row| row[lane]).collect();
             assert_eq!(&whole[37..1700 - 37], &column[..]);
         }
+    }
+
+    /// Without edge extension (scipy's padlen = 0) each pass starts from
+    /// the steady state of its own first sample.
+    #[test]
+    fn no_edge_extension_starts_from_the_end_samples() {
+        let band = FilterBand::Bandpass {
+            low_hz: 0.1,
+            high_hz: 0.9,
+        };
+        let filter = ZeroPhaseFilter::butterworth(band, 4, 10.0, EdgePadding::None).unwrap();
+        let signal: Vec<f64> = (0..300).map(|k| (k as f64 * 0.21).sin() * 20.0 + 5.0).collect();
+        let mut rows: Vec<[f64; LANES]> = signal.iter().map(|&v| [v; LANES]).collect();
+        let mut state = filter.initial_state(&rows[0]);
+        filter.run_any(&mut state, rows.iter_mut());
+        let mut state = filter.initial_state(&rows[rows.len() - 1]);
+        filter.run_any(&mut state, rows.iter_mut().rev());
+        let expected: Vec<f64> = rows.iter().map(|r| r[0]).collect();
+        assert_eq!(filter.apply(&signal).unwrap(), expected);
+        // Trimmed as in a fit: the kept samples are the same values.
+        let mut kept = vec![[0.0; LANES]; 300 - 2 * 20];
+        filter
+            .apply_panel(
+                300,
+                |range, out| out.copy_from_slice(&rows_of(&signal[range])),
+                &mut [&mut kept],
+                20,
+            )
+            .unwrap();
+        assert!(kept.iter().zip(&expected[20..280]).all(|(k, e)| k[3] == *e));
+    }
+
+    fn rows_of(values: &[f64]) -> Vec<[f64; LANES]> {
+        values.iter().map(|&v| [v; LANES]).collect()
     }
 
     #[test]
