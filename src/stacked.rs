@@ -114,10 +114,7 @@ impl StackedBuilder {
         let mut out: Vec<Vec<Vec<&mut [[f64; LANES]]>>> = (0..panels)
             .map(|_| ranges.iter().map(|_| Vec::new()).collect())
             .collect();
-        let mut rest: &mut [[f64; LANES]] = &mut self.data;
-        for block in &layout.blocks {
-            let (storage, tail) = std::mem::take(&mut rest).split_at_mut(block.stride * panels);
-            rest = tail;
+        for (block, storage) in per_block(&layout.blocks, &mut self.data, |b| b.stride * panels) {
             for (panel, region) in storage.chunks_exact_mut(block.stride).enumerate() {
                 let mut rows = &mut region[..block.rows.len()];
                 let mut at = block.rows.start;
@@ -141,26 +138,37 @@ impl StackedBuilder {
     /// The finished store: every block's panels transposed in place into
     /// the block's columns, blocks in parallel.
     pub fn finish(mut self) -> Stacked {
-        let layout = &self.layout;
-        let mut pieces: Vec<(&Block, &mut [[f64; LANES]])> = Vec::with_capacity(layout.blocks.len());
-        let mut rest: &mut [[f64; LANES]] = &mut self.data;
-        for block in &layout.blocks {
-            let (storage, tail) = std::mem::take(&mut rest).split_at_mut(block.stride * layout.panels);
-            pieces.push((block, storage));
-            rest = tail;
-        }
-        pieces.into_par_iter().for_each(|(block, storage)| {
-            let mut scratch = vec![[0.0; LANES]; block.stride];
-            for region in storage.chunks_exact_mut(block.stride) {
-                scratch.copy_from_slice(region);
-                transpose_panel(&scratch, region.as_flattened_mut(), block.stride);
-            }
-        });
+        let panels = self.layout.panels;
+        per_block(&self.layout.blocks, &mut self.data, |b| b.stride * panels)
+            .into_par_iter()
+            .for_each(|(block, storage)| {
+                let mut scratch = vec![[0.0; LANES]; block.stride];
+                for region in storage.chunks_exact_mut(block.stride) {
+                    scratch.copy_from_slice(region);
+                    transpose_panel(&scratch, region.as_flattened_mut(), block.stride);
+                }
+            });
         Stacked {
             data: self.data,
             layout: self.layout,
         }
     }
+}
+
+/// `data` cut into consecutive pieces, `size(block)` items for each block.
+fn per_block<'b, 'd, T>(
+    blocks: &'b [Block],
+    data: &'d mut [T],
+    size: impl Fn(&Block) -> usize,
+) -> Vec<(&'b Block, &'d mut [T])> {
+    let mut pieces = Vec::with_capacity(blocks.len());
+    let mut rest = data;
+    for block in blocks {
+        let (piece, tail) = rest.split_at_mut(size(block));
+        pieces.push((block, piece));
+        rest = tail;
+    }
+    pieces
 }
 
 /// `rows` rows of [`LANES`] values into [`LANES`] columns of `rows` values.
@@ -263,20 +271,15 @@ impl Stacked {
     /// in column order (the same whatever the thread count).
     pub fn predict(&self, coefficients: &[f64]) -> Vec<f64> {
         let mut fitted = vec![0.0; self.rows()];
-        let mut pieces: Vec<(&Block, &mut [f64])> = Vec::with_capacity(self.layout.blocks.len());
-        let mut rest: &mut [f64] = &mut fitted;
-        for block in &self.layout.blocks {
-            let (piece, tail) = std::mem::take(&mut rest).split_at_mut(block.rows.len());
-            pieces.push((block, piece));
-            rest = tail;
-        }
-        pieces.into_par_iter().for_each(|(block, out)| {
-            for (j, beta) in coefficients.iter().enumerate().take(self.columns()) {
-                let start = block.offset + j * block.stride;
-                let values = &self.data.as_flattened()[start..start + out.len()];
-                out.iter_mut().zip(values).for_each(|(f, a)| *f += a * beta);
-            }
-        });
+        per_block(&self.layout.blocks, &mut fitted, |b| b.rows.len())
+            .into_par_iter()
+            .for_each(|(block, out)| {
+                for (j, beta) in coefficients.iter().enumerate().take(self.columns()) {
+                    let start = block.offset + j * block.stride;
+                    let values = &self.data.as_flattened()[start..start + out.len()];
+                    out.iter_mut().zip(values).for_each(|(f, a)| *f += a * beta);
+                }
+            });
         fitted
     }
 }
