@@ -124,7 +124,7 @@ impl Default for RawFit {
             bt_scale_nt: 50_000.0,
             lambda: RawLambda::Named("press".into()),
             criterion: Criterion::BlockedPress,
-            grid_points: 61,
+            grid_points: 50,
             tsvd_condition_limit: 1e10,
             level: LevelConvention::Absolute,
         }

@@ -101,7 +101,7 @@ impl Default for SolveOptions {
             // so plain leave-one-out PRESS picks too little regularisation
             // (see README, Method).
             criterion: Criterion::BlockedPress,
-            grid_points: 61,
+            grid_points: 50,
             grid_decades: (-11.0, 1.0),
             tsvd_condition_limit: 1e10,
         }
