@@ -335,10 +335,12 @@ impl<'w> WindowPlan<'w> {
     ) -> Result<Self> {
         let field = log.vector_components(sensor);
         let rows = window.rows(log.time_s());
-        let valid: Vec<bool> = rows
-            .clone()
-            .map(|i| scalar[i].is_finite() && field.iter().chain(extra).all(|c| c[i].is_finite()))
-            .collect();
+        let mut valid: Vec<bool> = scalar[rows.clone()].iter().map(|v| v.is_finite()).collect();
+        for column in field.iter().chain(extra) {
+            for (ok, value) in valid.iter_mut().zip(&column[rows.clone()]) {
+                *ok &= value.is_finite();
+            }
+        }
         let runs = valid_runs(
             &log.time_s()[rows.clone()],
             &valid,

@@ -729,13 +729,16 @@ fn rank_kernel(columns: &[&[f64]], y: &[f64], uty: &[f64], out: &mut Vec<(f64, f
         let mut fitted = [0.0; LANES];
         for r in 0..ranks {
             let u = lanes(columns[r], start);
+            // Whole-register copies of the rank's sums, so the lanes vectorise.
+            let (mut sum, mut high) = (sums[r], worst[r]);
             for lane in 0..LANES {
                 leverage[lane] = u[lane].mul_add(u[lane], leverage[lane]);
                 fitted[lane] = u[lane].mul_add(uty[r], fitted[lane]);
                 let e = (target[lane] - fitted[lane]) / (1.0 - leverage[lane]);
-                sums[r][lane] = e.mul_add(e, sums[r][lane]);
-                worst[r][lane] = nan_max(worst[r][lane], leverage[lane]);
+                sum[lane] = e.mul_add(e, sum[lane]);
+                high[lane] = nan_max(high[lane], leverage[lane]);
             }
+            (sums[r], worst[r]) = (sum, high);
         }
     }
     out.extend(sums.iter().zip(&worst).map(|(s, w)| lane_totals(s, w)));
@@ -816,9 +819,10 @@ impl FoldStatistics {
         let p = u.ncols();
         let mut gram = Mat::zeros(p, p);
         multiply(gram.as_mut(), u.transpose(), u);
-        let uty = (0..p)
-            .map(|k| u.col(k).iter().zip(y).map(|(a, b)| a * b).sum())
-            .collect();
+        let mut uty = Mat::zeros(p, 1);
+        let y_column = MatRef::from_column_major_slice(y, y.len(), 1);
+        multiply(uty.as_mut(), u.transpose(), y_column);
+        let uty = (0..p).map(|k| uty[(k, 0)]).collect();
         FoldStatistics {
             gram,
             uty,

@@ -94,10 +94,11 @@ impl StackedBuilder {
     /// the given lengths, stacked in order.
     pub fn zeros(fold_lengths: &[usize], columns: usize) -> Self {
         let (layout, size) = Layout::new(fold_lengths, columns);
-        StackedBuilder {
-            data: vec![[0.0; LANES]; size / LANES],
-            layout,
-        }
+        // Zeroed by both threads: on memory the allocator reuses, a
+        // zeroed allocation is a single-threaded memset of the whole store.
+        let mut data = Vec::with_capacity(size / LANES);
+        data.par_extend(rayon::iter::repeat_n([0.0; LANES], size / LANES));
+        StackedBuilder { data, layout }
     }
 
     /// Number of panels of [`LANES`] columns.
