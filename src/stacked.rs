@@ -142,11 +142,11 @@ impl StackedBuilder {
         let panels = self.layout.panels;
         per_block(&self.layout.blocks, &mut self.data, |b| b.stride * panels)
             .into_par_iter()
-            .for_each(|(block, storage)| {
-                let mut scratch = vec![[0.0; LANES]; block.stride];
+            .for_each_init(Vec::new, |scratch, (block, storage)| {
                 for region in storage.chunks_exact_mut(block.stride) {
-                    scratch.copy_from_slice(region);
-                    transpose_panel(&scratch, region.as_flattened_mut(), block.stride);
+                    scratch.clear();
+                    scratch.extend_from_slice(region);
+                    transpose_panel(scratch, region.as_flattened_mut(), block.stride);
                 }
             });
         Stacked {
@@ -174,9 +174,12 @@ fn per_block<'b, 'd, T>(
 
 /// `rows` rows of [`LANES`] values into [`LANES`] columns of `rows` values.
 fn transpose_panel(from: &[[f64; LANES]], to: &mut [f64], rows: usize) {
-    for (lane, column) in to.chunks_exact_mut(rows).enumerate() {
-        for (value, row) in column.iter_mut().zip(from) {
-            *value = row[lane];
+    // Tile by tile of LANES rows (`rows` is a whole number of tiles), so a
+    // tile's reads and each column's writes are one cache line each.
+    for (t, tile) in from.chunks_exact(LANES).enumerate() {
+        for lane in 0..LANES {
+            let column: [f64; LANES] = std::array::from_fn(|r| tile[r][lane]);
+            to[lane * rows + t * LANES..][..LANES].copy_from_slice(&column);
         }
     }
 }
