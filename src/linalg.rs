@@ -17,6 +17,30 @@ pub fn multiply(dst: MatMut<'_, f64>, lhs: MatRef<'_, f64>, rhs: MatRef<'_, f64>
     faer::linalg::matmul::matmul(dst, Accum::Replace, lhs, rhs, 1.0, Par::Seq);
 }
 
+/// `aᵀa` on one thread: the lower triangle computed, the upper mirrored.
+pub fn gram(a: MatRef<'_, f64>) -> Mat<f64> {
+    use faer::linalg::matmul::triangular::{matmul, BlockStructure};
+    let p = a.ncols();
+    let mut gram = Mat::zeros(p, p);
+    matmul(
+        gram.as_mut(),
+        BlockStructure::TriangularLower,
+        Accum::Replace,
+        a.transpose(),
+        BlockStructure::Rectangular,
+        a,
+        BlockStructure::Rectangular,
+        1.0,
+        Par::Seq,
+    );
+    for j in 0..p {
+        for i in 0..j {
+            gram[(i, j)] = gram[(j, i)];
+        }
+    }
+    gram
+}
+
 /// Householder QR of `a` in place; returns the upper-triangular factor
 /// (`min(rows, cols) × cols`).
 fn qr_r_factor(mut a: Mat<f64>) -> Mat<f64> {
@@ -115,6 +139,20 @@ pub fn solve_spd(k: MatRef<'_, f64>, b: &[f64]) -> Option<Vec<f64>> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn gram_is_symmetric_and_equals_the_full_product() {
+        let a = Mat::from_fn(300, 7, |i, j| ((i * (j + 2)) as f64 * 0.31).sin() * (1.0 + j as f64));
+        let mut full = Mat::zeros(7, 7);
+        multiply(full.as_mut(), a.transpose(), a.as_ref());
+        let ours = gram(a.as_ref());
+        for i in 0..7 {
+            for j in 0..7 {
+                assert_eq!(ours[(i, j)], ours[(j, i)]);
+                assert!((ours[(i, j)] - full[(i, j)]).abs() <= 1e-12 * full[(i, i)].max(full[(j, j)]));
+            }
+        }
+    }
 
     #[test]
     fn tall_skinny_r_matches_gram_matrix() {

@@ -38,7 +38,7 @@ use faer::{Mat, MatRef};
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::linalg::{cholesky_lower, multiply, small_svd, solve_spd, tall_skinny_r};
+use crate::linalg::{cholesky_lower, gram, multiply, small_svd, solve_spd, tall_skinny_r};
 use crate::stacked::{Block, Stacked, BLOCK_ROWS};
 
 /// How λ is obtained.
@@ -361,12 +361,7 @@ fn gram_matrix(design: &Stacked) -> Mat<f64> {
     let partials: Vec<Mat<f64>> = design
         .blocks()
         .par_iter()
-        .map(|block| {
-            let rows = design.block_view(block).get(.., ..p);
-            let mut gram = Mat::zeros(p, p);
-            multiply(gram.as_mut(), rows.transpose(), rows);
-            gram
-        })
+        .map(|block| gram(design.block_view(block).get(.., ..p)))
         .collect();
     let mut gram = Mat::zeros(p, p);
     for partial in &partials {
@@ -817,8 +812,7 @@ impl FoldStatistics {
 
     fn of_block(u: MatRef<'_, f64>, y: &[f64]) -> Self {
         let p = u.ncols();
-        let mut gram = Mat::zeros(p, p);
-        multiply(gram.as_mut(), u.transpose(), u);
+        let gram = gram(u);
         let mut uty = Mat::zeros(p, 1);
         let y_column = MatRef::from_column_major_slice(y, y.len(), 1);
         multiply(uty.as_mut(), u.transpose(), y_column);
