@@ -21,6 +21,10 @@ use crate::filter::LANES;
 /// Rows per block of the passes over the rows.
 pub const BLOCK_ROWS: usize = 2048;
 
+/// Above this size (glibc's largest mmap threshold) an allocation is
+/// always fresh pages from the operating system.
+const FRESH_PAGES_BYTES: usize = 32 << 20;
+
 /// One block of rows.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Block {
@@ -94,10 +98,18 @@ impl StackedBuilder {
     /// the given lengths, stacked in order.
     pub fn zeros(fold_lengths: &[usize], columns: usize) -> Self {
         let (layout, size) = Layout::new(fold_lengths, columns);
-        // Zeroed by both threads: on memory the allocator reuses, a
-        // zeroed allocation is a single-threaded memset of the whole store.
-        let mut data = Vec::with_capacity(size / LANES);
-        data.par_extend(rayon::iter::repeat_n([0.0; LANES], size / LANES));
+        // A large store comes straight from the operating system as zero
+        // pages, first touched by the filter's threads. A smaller one may be
+        // memory the allocator reuses, where a zeroed allocation is a
+        // single-threaded memset, so both threads zero it.
+        let rows = size / LANES;
+        let data = if size * std::mem::size_of::<f64>() > FRESH_PAGES_BYTES {
+            vec![[0.0; LANES]; rows]
+        } else {
+            let mut data = Vec::with_capacity(rows);
+            data.par_extend(rayon::iter::repeat_n([0.0; LANES], rows));
+            data
+        };
         StackedBuilder { data, layout }
     }
 
