@@ -355,21 +355,6 @@ impl BlockBuffer {
     }
 }
 
-/// $A^\top A$, block by block in parallel, summed in block order.
-fn gram_matrix(design: &Stacked) -> Mat<f64> {
-    let p = design.columns();
-    let partials: Vec<Mat<f64>> = design
-        .blocks()
-        .par_iter()
-        .map(|block| gram(design.block_view(block).get(.., ..p)))
-        .collect();
-    let mut gram = Mat::zeros(p, p);
-    for partial in &partials {
-        gram += partial;
-    }
-    gram
-}
-
 /// Singular values and vectors of $A$ from an R factor ($A = QR$).
 struct Factor {
     u_r: Mat<f64>,
@@ -431,7 +416,7 @@ impl Factor {
 /// Householder tall-skinny QR instead.
 fn decompose(design: &Stacked, fold_count: usize) -> Result<(Spectrum, Vec<FoldStatistics>), SolveError> {
     let p = design.columns();
-    let gram = gram_matrix(design);
+    let gram = design.gram();
     if !(0..p).all(|j| (0..p).all(|i| gram[(i, j)].is_finite())) {
         return Err(first_non_finite(design));
     }

@@ -13,10 +13,11 @@
 
 use std::ops::Range;
 
-use faer::MatRef;
+use faer::{Mat, MatRef};
 use rayon::prelude::*;
 
 use crate::filter::LANES;
+use crate::linalg::gram;
 
 /// Rows per block of the passes over the rows.
 pub const BLOCK_ROWS: usize = 2048;
@@ -149,21 +150,31 @@ impl StackedBuilder {
     }
 
     /// The finished store: every block's panels transposed in place into
-    /// the block's columns, blocks in parallel.
+    /// the block's columns, and the block's Gram matrix taken while it is
+    /// still in cache, blocks in parallel.
     pub fn finish(mut self) -> Stacked {
-        let panels = self.layout.panels;
-        per_block(&self.layout.blocks, &mut self.data, |b| b.stride * panels)
+        let (panels, columns) = (self.layout.panels, self.layout.columns);
+        let grams = per_block(&self.layout.blocks, &mut self.data, |b| b.stride * panels)
             .into_par_iter()
-            .for_each_init(Vec::new, |scratch, (block, storage)| {
+            .map_init(Vec::new, |scratch, (block, storage)| {
                 for region in storage.chunks_exact_mut(block.stride) {
                     scratch.clear();
                     scratch.extend_from_slice(region);
                     transpose_panel(scratch, region.as_flattened_mut(), block.stride);
                 }
-            });
+                let width = columns + 1;
+                let view = MatRef::from_column_major_slice(
+                    &storage.as_flattened()[..block.stride * width],
+                    block.stride,
+                    width,
+                );
+                gram(view.get(.., ..columns))
+            })
+            .collect();
         Stacked {
             data: self.data,
             layout: self.layout,
+            grams,
         }
     }
 }
@@ -201,6 +212,8 @@ fn transpose_panel(from: &[[f64; LANES]], to: &mut [f64], rows: usize) {
 pub struct Stacked {
     data: Vec<[f64; LANES]>,
     layout: Layout,
+    /// $A_b^\top A_b$ of every block's design columns.
+    grams: Vec<Mat<f64>>,
 }
 
 impl Stacked {
@@ -216,7 +229,27 @@ impl Stacked {
                 flat[start..start + block.rows.len()].copy_from_slice(&values[block.rows.clone()]);
             }
         }
-        Stacked { data, layout }
+        let mut stacked = Stacked {
+            data,
+            layout,
+            grams: Vec::new(),
+        };
+        let p = stacked.columns();
+        stacked.grams = (stacked.blocks().par_iter())
+            .map(|block| gram(stacked.block_view(block).get(.., ..p)))
+            .collect();
+        stacked
+    }
+
+    /// $A^\top A$ of the design columns: the blocks' Gram matrices summed in
+    /// block order.
+    pub fn gram(&self) -> Mat<f64> {
+        let p = self.columns();
+        let mut total = Mat::zeros(p, p);
+        for block in &self.grams {
+            total += block;
+        }
+        total
     }
 
     /// Number of rows.
@@ -370,6 +403,22 @@ mod tests {
             }
         }
         assert_eq!(builder.finish(), Stacked::from_columns(&columns, &target, &folds));
+    }
+
+    #[test]
+    fn gram_is_the_design_columns_products() {
+        let (columns, target) = example(5000);
+        let stacked = Stacked::from_columns(&columns, &target, &[1000, 4000]);
+        let gram = stacked.gram();
+        for (i, a) in columns.iter().enumerate() {
+            for (j, b) in columns.iter().enumerate() {
+                let expected: f64 = a.iter().zip(b).map(|(x, y)| x * y).sum();
+                assert!(
+                    (gram[(i, j)] - expected).abs() <= 1e-12 * expected.abs().max(1.0),
+                    "{i},{j}"
+                );
+            }
+        }
     }
 
     #[test]
