@@ -235,10 +235,26 @@ impl TermSet {
         out: &mut [[f64; L]],
     ) {
         let plan: Vec<(usize, usize)> = self.terms()[columns].iter().map(|term| term.factors()).collect();
+        let mut groups = [false; 3];
+        for &(a, b) in &plan {
+            for factor in [a, b] {
+                if let Some(group) = groups.get_mut(factor / 3) {
+                    *group = true;
+                }
+            }
+        }
         let mut factors = [[0.0; FACTOR_ROWS]; 10];
+        factors[9] = [1.0; FACTOR_ROWS];
         for (first, out) in rows.clone().step_by(FACTOR_ROWS).zip(out.chunks_mut(FACTOR_ROWS)) {
             let count = out.len().min(rows.end - first);
-            factor_rows(field_nt, &run, first..first + count, self.bt_scale_nt, &mut factors);
+            factor_rows(
+                field_nt,
+                &run,
+                first..first + count,
+                self.bt_scale_nt,
+                groups,
+                &mut factors,
+            );
             for (lane, &(a, b)) in plan.iter().enumerate() {
                 for (k, row) in out[..count].iter_mut().enumerate() {
                     row[lane] = factors[a][k] * factors[b][k];
@@ -253,20 +269,29 @@ const FACTOR_ROWS: usize = 64;
 
 /// [`Sample::factors`] of the samples `rows` (at most [`FACTOR_ROWS`]) of
 /// the run `run`, one array per factor: the same operations, so the same
-/// bits, laid out so that the square roots and divisions vectorise.
+/// bits, laid out so that the square roots and divisions vectorise. Only
+/// the groups marked in `groups` (direction cosines, field, derivative)
+/// are written; the constant factor 9 is left to the caller.
 fn factor_rows(
     field_nt: [&[f64]; 3],
     run: &Range<usize>,
     rows: Range<usize>,
     scale: f64,
+    groups: [bool; 3],
     factors: &mut [[f64; FACTOR_ROWS]; 10],
 ) {
     let count = rows.len();
+    let per_nt = 1.0 / scale;
     for axis in 0..3 {
         let c = field_nt[axis];
-        let b = &c[rows.clone()];
-        for k in 0..count {
-            factors[3 + axis][k] = b[k] / scale;
+        if groups[1] {
+            let b = &c[rows.clone()];
+            for k in 0..count {
+                factors[3 + axis][k] = b[k] * per_nt;
+            }
+        }
+        if !groups[2] {
+            continue;
         }
         // Central differences inside the run, one-sided at its ends.
         let interior = rows.start.max(run.start + 1)..rows.end.min(run.end.saturating_sub(1));
@@ -283,8 +308,11 @@ fn factor_rows(
             factors[6 + axis][i - rows.start] = difference;
         }
         for k in 0..count {
-            factors[6 + axis][k] /= scale;
+            factors[6 + axis][k] *= per_nt;
         }
+    }
+    if !groups[0] {
+        return;
     }
     let (x, y, z) = (
         &field_nt[0][rows.clone()],
@@ -296,7 +324,6 @@ fn factor_rows(
         factors[0][k] = x[k] / total;
         factors[1][k] = y[k] / total;
         factors[2][k] = z[k] / total;
-        factors[9][k] = 1.0;
     }
 }
 
@@ -338,16 +365,17 @@ impl Sample {
         let [u0, u1, u2] = self.u;
         let [b0, b1, b2] = self.b;
         let [d0, d1, d2] = self.db;
+        let per_nt = 1.0 / scale;
         [
             u0,
             u1,
             u2,
-            b0 / scale,
-            b1 / scale,
-            b2 / scale,
-            d0 / scale,
-            d1 / scale,
-            d2 / scale,
+            b0 * per_nt,
+            b1 * per_nt,
+            b2 * per_nt,
+            d0 * per_nt,
+            d1 * per_nt,
+            d2 * per_nt,
             1.0,
         ]
     }
