@@ -17,7 +17,7 @@ use faer::{Mat, MatRef};
 use rayon::prelude::*;
 
 use crate::filter::LANES;
-use crate::linalg::gram;
+use crate::linalg::{gram, multiply};
 
 /// Rows per block of the passes over the rows.
 pub const BLOCK_ROWS: usize = 2048;
@@ -319,15 +319,15 @@ impl Stacked {
     /// $A\beta$ for the design columns, blocks in parallel, each row's sum
     /// in column order (the same whatever the thread count).
     pub fn predict(&self, coefficients: &[f64]) -> Vec<f64> {
+        let p = self.columns();
+        let beta = MatRef::from_column_major_slice(&coefficients[..p], p, 1);
         let mut fitted = vec![0.0; self.rows()];
         per_block(&self.layout.blocks, &mut fitted, |b| b.rows.len())
             .into_par_iter()
             .for_each(|(block, out)| {
-                for (j, beta) in coefficients.iter().enumerate().take(self.columns()) {
-                    let start = block.offset + j * block.stride;
-                    let values = &self.data.as_flattened()[start..start + out.len()];
-                    out.iter_mut().zip(values).for_each(|(f, a)| *f += a * beta);
-                }
+                let rows = out.len();
+                let view = self.block_view(block).get(..rows, ..p);
+                multiply(faer::MatMut::from_column_major_slice_mut(out, rows, 1), view, beta);
             });
         fitted
     }
