@@ -335,12 +335,28 @@ fn first_non_finite(design: &Stacked) -> SolveError {
 /// (zero rows add nothing to any sum).
 struct BlockBuffer {
     basis: Mat<f64>,
+    /// The basis squared entry by entry (filled by [`Self::square`]).
+    squares: Mat<f64>,
 }
 
 impl BlockBuffer {
     fn new(p: usize) -> Self {
         BlockBuffer {
             basis: Mat::zeros(BLOCK_ROWS, p),
+            squares: Mat::zeros(0, 0),
+        }
+    }
+
+    /// Squares the first `rows` rows of the loaded basis into `squares`.
+    fn square(&mut self, rows: usize) {
+        let p = self.basis.ncols();
+        if self.squares.ncols() != p {
+            self.squares = Mat::zeros(BLOCK_ROWS, p);
+        }
+        for k in 0..p {
+            let from = &self.basis.col_as_slice(k)[..rows];
+            let to = &mut self.squares.col_as_slice_mut(k)[..rows];
+            to.iter_mut().zip(from).for_each(|(s, &u)| *s = u * u);
         }
     }
 
@@ -609,13 +625,14 @@ fn leave_one_out_press(design: &Stacked, spectrum: &Spectrum, weights: &[Vec<f64
             || BlockBuffer::new(p),
             |buffer, block| {
                 let y = buffer.load(design, block, &spectrum.to_u);
+                buffer.square(y.len());
                 let kernel = Kernel {
                     leverage_weights: &leverage_weights,
                     fitted_weights: &fitted_weights,
                     ridge,
                     uty: &spectrum.uty[..spectrum.rank],
                 };
-                kernel.block(&buffer.basis, y.len(), y)
+                kernel.block(&buffer.basis, &buffer.squares, y.len(), y)
             },
         )
         .collect();
@@ -656,42 +673,44 @@ impl Kernel<'_> {
     /// values and leverages never reach memory. AVX-512 or AVX2 when the
     /// processor has them; every path uses fused multiply-adds in the same
     /// order, so they give the same bits.
-    fn block(&self, basis: &Mat<f64>, rows: usize, y: &[f64]) -> Vec<(f64, f64)> {
+    fn block(&self, basis: &Mat<f64>, squares: &Mat<f64>, rows: usize, y: &[f64]) -> Vec<(f64, f64)> {
         let p = basis.ncols();
         let columns: Vec<&[f64]> = (0..p).map(|k| &basis.col_as_slice(k)[..rows]).collect();
+        let squared: Vec<&[f64]> = (0..p).map(|k| &squares.col_as_slice(k)[..rows]).collect();
+        let columns = [columns.as_slice(), squared.as_slice()];
         let mut out = Vec::with_capacity(self.ridge.next_multiple_of(CANDIDATES) + self.uty.len());
         #[cfg(target_arch = "x86_64")]
         {
             if std::arch::is_x86_feature_detected!("avx512f") && std::arch::is_x86_feature_detected!("fma") {
                 // SAFETY: the processor supports AVX-512F and FMA, checked just above.
-                unsafe { self.run_avx512(&columns, y, &mut out) };
+                unsafe { self.run_avx512(columns, y, &mut out) };
                 return out;
             }
             if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
                 // SAFETY: the processor supports AVX2 and FMA, checked just above.
-                unsafe { self.run_avx2(&columns, y, &mut out) };
+                unsafe { self.run_avx2(columns, y, &mut out) };
                 return out;
             }
         }
-        self.run(&columns, y, &mut out);
+        self.run(columns, y, &mut out);
         out
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx512f,fma")]
-    unsafe fn run_avx512(&self, columns: &[&[f64]], y: &[f64], out: &mut Vec<(f64, f64)>) {
+    unsafe fn run_avx512(&self, columns: [&[&[f64]]; 2], y: &[f64], out: &mut Vec<(f64, f64)>) {
         self.run(columns, y, out);
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,fma")]
-    unsafe fn run_avx2(&self, columns: &[&[f64]], y: &[f64], out: &mut Vec<(f64, f64)>) {
+    unsafe fn run_avx2(&self, columns: [&[&[f64]]; 2], y: &[f64], out: &mut Vec<(f64, f64)>) {
         self.run(columns, y, out);
     }
 
     #[inline(always)]
-    fn run(&self, columns: &[&[f64]], y: &[f64], out: &mut Vec<(f64, f64)>) {
-        loo_kernel(columns, y, self.leverage_weights, self.fitted_weights, out);
+    fn run(&self, [columns, squares]: [&[&[f64]]; 2], y: &[f64], out: &mut Vec<(f64, f64)>) {
+        loo_kernel([columns, squares], y, self.leverage_weights, self.fitted_weights, out);
         out.truncate(self.ridge);
         rank_kernel(columns, y, self.uty, out);
     }
@@ -726,7 +745,7 @@ fn rank_kernel(columns: &[&[f64]], y: &[f64], uty: &[f64], out: &mut Vec<(f64, f
 
 #[inline(always)]
 fn loo_kernel(
-    columns: &[&[f64]],
+    [columns, squares]: [&[&[f64]]; 2],
     y: &[f64],
     leverage_weights: &[[f64; CANDIDATES]],
     fitted_weights: &[[f64; CANDIDATES]],
@@ -741,11 +760,11 @@ fn loo_kernel(
             let mut fitted = [[0.0; LANES]; CANDIDATES];
             for k in 0..p {
                 let u = lanes(columns[k], start);
+                let squared = lanes(squares[k], start);
                 let (w, f) = (w_chunk[k], f_chunk[k]);
                 for c in 0..CANDIDATES {
                     for lane in 0..LANES {
-                        let squared = u[lane] * u[lane];
-                        leverage[c][lane] = squared.mul_add(w[c], leverage[c][lane]);
+                        leverage[c][lane] = squared[lane].mul_add(w[c], leverage[c][lane]);
                         fitted[c][lane] = u[lane].mul_add(f[c], fitted[c][lane]);
                     }
                 }
@@ -1030,10 +1049,12 @@ mod tests {
             ridge: 7,
             uty: &uty,
         };
-        let dispatched = kernel.block(&basis, rows, &y);
+        let squares = Mat::from_fn(rows, p, |i, k| basis[(i, k)] * basis[(i, k)]);
+        let dispatched = kernel.block(&basis, &squares, rows, &y);
         let columns: Vec<&[f64]> = (0..p).map(|k| basis.col_as_slice(k)).collect();
+        let squared: Vec<&[f64]> = (0..p).map(|k| squares.col_as_slice(k)).collect();
         let mut portable = Vec::new();
-        kernel.run(&columns, &y, &mut portable);
+        kernel.run([&columns, &squared], &y, &mut portable);
         assert_eq!(dispatched.len(), 7 + uty.len());
         let bits = |v: &[(f64, f64)]| v.iter().map(|(a, b)| (a.to_bits(), b.to_bits())).collect::<Vec<_>>();
         assert_eq!(bits(&dispatched), bits(&portable));
