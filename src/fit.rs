@@ -389,7 +389,7 @@ fn stack_filtered(
     let count = terms.len();
     let design = count + extra.len();
     let fold_lengths: Vec<usize> = plans.iter().map(|p| p.used(trim)).collect();
-    let mut builder = StackedBuilder::zeros(&fold_lengths, design);
+    let mut builder = StackedBuilder::new(&fold_lengths, design);
     let runs: Vec<Range<usize>> = plans.iter().flat_map(|p| p.runs.iter().cloned()).collect();
     let mut stacked_rows = Vec::with_capacity(runs.len());
     let mut start = 0;

@@ -156,6 +156,8 @@ pub fn process_flight(job: &FlightJob, options: &StageOptions, outputs: &FlightO
         crate::output::write_json(path, "the diagnosis", diagnosis)?;
     }
     let models = crate::augment::fit_channels(log, &sensor, &channels, &windows, &options.fit, &plan)?;
+    // The fits' recycled stores are not needed while compensating.
+    crate::stacked::release_spare_stores();
     let compensation = compensate(log, &models, options.level)?;
     let quality: Vec<ChannelQuality> = models
         .par_iter()

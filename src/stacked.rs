@@ -12,6 +12,7 @@
 //! each block's panels in place, which turns them into the block's columns.
 
 use std::ops::Range;
+use std::sync::Mutex;
 
 use faer::{Mat, MatRef};
 use rayon::prelude::*;
@@ -95,15 +96,28 @@ pub struct StackedBuilder {
 }
 
 impl StackedBuilder {
-    /// Zero rows of `columns` design columns and the target, for folds of
-    /// the given lengths, stacked in order.
-    pub fn zeros(fold_lengths: &[usize], columns: usize) -> Self {
+    /// A store for `columns` design columns and the target, for folds of
+    /// the given lengths, stacked in order. The padding rows are zero; the
+    /// caller writes every other row of every panel (through
+    /// [`Self::segments_mut`]), because the store may be a recycled one.
+    pub fn new(fold_lengths: &[usize], columns: usize) -> Self {
         let (layout, size) = Layout::new(fold_lengths, columns);
+        let rows = size / LANES;
+        if let Some(mut data) = take_spare(rows) {
+            data.truncate(rows);
+            data.resize(rows, [0.0; LANES]);
+            for block in &layout.blocks {
+                for panel in 0..layout.panels {
+                    let start = block.offset / LANES + panel * block.stride;
+                    data[start + block.rows.len()..start + block.stride].fill([0.0; LANES]);
+                }
+            }
+            return StackedBuilder { data, layout };
+        }
         // A large store comes straight from the operating system as zero
         // pages, first touched by the filter's threads. A smaller one may be
         // memory the allocator reuses, where a zeroed allocation is a
         // single-threaded memset, so both threads zero it.
-        let rows = size / LANES;
         let data = if size * std::mem::size_of::<f64>() > FRESH_PAGES_BYTES {
             let data = vec![[0.0; LANES]; rows];
             advise_huge_pages(&data);
@@ -177,6 +191,47 @@ impl StackedBuilder {
             data: self.data,
             layout: self.layout,
             grams,
+        }
+    }
+}
+
+/// Stores of dropped [`Stacked`]s, kept for the next [`StackedBuilder`]:
+/// repeated fits (a diagnosis makes hundreds) then neither fault in fresh
+/// pages nor zero memory. At most [`SPARE_STORES`] are kept, the largest;
+/// [`release_spare_stores`] frees them.
+static SPARES: Mutex<Vec<Vec<[f64; LANES]>>> = Mutex::new(Vec::new());
+
+/// Spare stores kept: one per thread of this machine's fits.
+const SPARE_STORES: usize = 2;
+
+/// The smallest spare store that holds `rows` rows.
+fn take_spare(rows: usize) -> Option<Vec<[f64; LANES]>> {
+    let mut spares = SPARES.lock().ok()?;
+    let best = (spares.iter().enumerate())
+        .filter(|(_, spare)| spare.capacity() >= rows)
+        .min_by_key(|(_, spare)| spare.capacity())
+        .map(|(index, _)| index)?;
+    Some(spares.swap_remove(best))
+}
+
+/// Frees the spare stores, e.g. once the fits are done and the memory is
+/// wanted for compensation.
+pub fn release_spare_stores() {
+    if let Ok(mut spares) = SPARES.lock() {
+        spares.clear();
+    }
+}
+
+impl Drop for Stacked {
+    fn drop(&mut self) {
+        let data = std::mem::take(&mut self.data);
+        let Ok(mut spares) = SPARES.lock() else { return };
+        if spares.len() < SPARE_STORES {
+            spares.push(data);
+        } else if let Some(smallest) = spares.iter_mut().min_by_key(|spare| spare.capacity()) {
+            if smallest.capacity() < data.capacity() {
+                *smallest = data;
+            }
         }
     }
 }
@@ -408,7 +463,7 @@ mod tests {
     fn built_panels_equal_the_columns() {
         let (columns, target) = example(4500);
         let folds = [300, 4200];
-        let mut builder = StackedBuilder::zeros(&folds, columns.len());
+        let mut builder = StackedBuilder::new(&folds, columns.len());
         let ranges = [0..300, 300..2000, 2000..4500];
         let mut segments = builder.segments_mut(&ranges);
         for (panel, per_range) in segments.iter_mut().enumerate() {
@@ -431,6 +486,33 @@ mod tests {
             }
         }
         assert_eq!(builder.finish(), Stacked::from_columns(&columns, &target, &folds));
+    }
+
+    /// A recycled store holds the last fit's values; once the builder has
+    /// written every row, none of them is left, padding included.
+    #[test]
+    fn recycled_store_leaves_nothing_behind() {
+        let (columns, target) = example(700);
+        let folds = [200, 500];
+        for _ in 0..3 {
+            // A dropped store of NaN, just larger than the one built next,
+            // becomes the best-fitting spare.
+            let stale: Vec<Vec<f64>> = vec![vec![f64::NAN; 713]; columns.len()];
+            drop(Stacked::from_columns(&stale, &[f64::NAN; 713], &[713]));
+            let mut builder = StackedBuilder::new(&folds, columns.len());
+            for (panel, pieces) in builder.segments_mut(&[0..700]).iter_mut().enumerate() {
+                let mut row = 0;
+                for lanes in pieces[0].iter_mut().flat_map(|piece| piece.iter_mut()) {
+                    *lanes = std::array::from_fn(|lane| match panel * LANES + lane {
+                        j if j < columns.len() => columns[j][row],
+                        j if j == columns.len() => target[row],
+                        _ => 0.0,
+                    });
+                    row += 1;
+                }
+            }
+            assert_eq!(builder.finish(), Stacked::from_columns(&columns, &target, &folds));
+        }
     }
 
     #[test]

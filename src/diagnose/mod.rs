@@ -369,6 +369,8 @@ pub fn diagnose(
             Ok((summary, found))
         })
         .collect::<Result<_>>()?;
+    // Hundreds of fits are done; their recycled stores are not needed.
+    crate::stacked::release_spare_stores();
     let (channel_results, findings): (Vec<_>, Vec<_>) = results.into_iter().unzip();
     for c in &channel_results {
         if let (true, Some(other)) = (
