@@ -119,9 +119,7 @@ impl StackedBuilder {
         // memory the allocator reuses, where a zeroed allocation is a
         // single-threaded memset, so both threads zero it.
         let data = if size * std::mem::size_of::<f64>() > FRESH_PAGES_BYTES {
-            let data = vec![[0.0; LANES]; rows];
-            advise_huge_pages(&data);
-            data
+            vec![[0.0; LANES]; rows]
         } else {
             let mut data = Vec::with_capacity(rows);
             data.par_extend(rayon::iter::repeat_n([0.0; LANES], rows));
@@ -234,32 +232,6 @@ impl Drop for Stacked {
             }
         }
     }
-}
-
-/// Asks the operating system to back `data`, fresh and not yet touched,
-/// with huge pages: a store of 1e6 rows is ~190 MB, and first-touching it
-/// in 4 KiB pages costs ~47,000 page faults, more than the filtering
-/// itself. Only advice: where transparent huge pages are off, nothing
-/// changes.
-fn advise_huge_pages(data: &[[f64; LANES]]) {
-    #[cfg(target_os = "linux")]
-    {
-        const HUGE_PAGE: usize = 2 << 20;
-        let start = data.as_ptr() as usize;
-        let end = start + std::mem::size_of_val(data);
-        let first = start.next_multiple_of(HUGE_PAGE);
-        let last = end - end % HUGE_PAGE;
-        if last > first {
-            // SAFETY: madvise only gives the kernel advice about how to back
-            // pages of this process's own mapping ([first, last) lies inside
-            // the allocation of `data`); it never changes their contents.
-            unsafe {
-                libc::madvise(first as *mut libc::c_void, last - first, libc::MADV_HUGEPAGE);
-            }
-        }
-    }
-    #[cfg(not(target_os = "linux"))]
-    let _ = data;
 }
 
 /// `data` cut into consecutive pieces, `size(block)` items for each block.
