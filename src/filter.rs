@@ -396,19 +396,21 @@ impl ZeroPhaseFilter {
     #[inline(always)]
     fn run_portable<'a>(&self, state: &mut [[[f64; LANES]; 2]], rows: impl Iterator<Item = &'a mut [f64; LANES]>) {
         let s = &self.sections;
+        let general = (None, general_section);
+        let bandpass = |gain| (Some(gain), bandpass_section);
         match (self.form, s.len()) {
-            (Form::General, 1) => run_sections::<1>(s, state, rows),
-            (Form::General, 2) => run_sections::<2>(s, state, rows),
-            (Form::General, 3) => run_sections::<3>(s, state, rows),
-            (Form::General, 4) => run_sections::<4>(s, state, rows),
-            (Form::General, 5) => run_sections::<5>(s, state, rows),
-            (Form::General, 6) => run_sections::<6>(s, state, rows),
-            (Form::Bandpass { gain }, 1) => run_bandpass::<1>(gain, s, state, rows),
-            (Form::Bandpass { gain }, 2) => run_bandpass::<2>(gain, s, state, rows),
-            (Form::Bandpass { gain }, 3) => run_bandpass::<3>(gain, s, state, rows),
-            (Form::Bandpass { gain }, 4) => run_bandpass::<4>(gain, s, state, rows),
-            (Form::Bandpass { gain }, 5) => run_bandpass::<5>(gain, s, state, rows),
-            (Form::Bandpass { gain }, 6) => run_bandpass::<6>(gain, s, state, rows),
+            (Form::General, 1) => run_sections::<1>(general, s, state, rows),
+            (Form::General, 2) => run_sections::<2>(general, s, state, rows),
+            (Form::General, 3) => run_sections::<3>(general, s, state, rows),
+            (Form::General, 4) => run_sections::<4>(general, s, state, rows),
+            (Form::General, 5) => run_sections::<5>(general, s, state, rows),
+            (Form::General, 6) => run_sections::<6>(general, s, state, rows),
+            (Form::Bandpass { gain }, 1) => run_sections::<1>(bandpass(gain), s, state, rows),
+            (Form::Bandpass { gain }, 2) => run_sections::<2>(bandpass(gain), s, state, rows),
+            (Form::Bandpass { gain }, 3) => run_sections::<3>(bandpass(gain), s, state, rows),
+            (Form::Bandpass { gain }, 4) => run_sections::<4>(bandpass(gain), s, state, rows),
+            (Form::Bandpass { gain }, 5) => run_sections::<5>(bandpass(gain), s, state, rows),
+            (Form::Bandpass { gain }, 6) => run_sections::<6>(bandpass(gain), s, state, rows),
             _ => self.run_any(state, rows),
         }
     }
@@ -454,9 +456,12 @@ fn bandpass_section([_, _, _, a1, a2]: [f64; 5], x: f64, z0: &mut f64, z1: &mut 
 }
 
 /// `N` sections over `rows`, their coefficients and states copied into
-/// locals so they stay in registers from one sample to the next.
+/// locals so they stay in registers from one sample to the next; each
+/// sample is first multiplied by `gain`, when there is one, and passed
+/// through `section` ([`general_section`] or [`bandpass_section`]).
 #[inline(always)]
 fn run_sections<'a, const N: usize>(
+    (gain, section): (Option<f64>, impl Fn([f64; 5], f64, &mut f64, &mut f64) -> f64),
     sections: &[[f64; 5]],
     state: &mut [[[f64; LANES]; 2]],
     rows: impl Iterator<Item = &'a mut [f64; LANES]>,
@@ -464,34 +469,14 @@ fn run_sections<'a, const N: usize>(
     let coefficients: [[f64; 5]; N] = std::array::from_fn(|s| sections[s]);
     let mut z: [[[f64; LANES]; 2]; N] = std::array::from_fn(|s| state[s]);
     for sample in rows {
-        let mut x = *sample;
+        let mut x = match gain {
+            Some(gain) => sample.map(|v| gain * v),
+            None => *sample,
+        };
         for s in 0..N {
             let [z0, z1] = &mut z[s];
             for lane in 0..LANES {
-                x[lane] = general_section(coefficients[s], x[lane], &mut z0[lane], &mut z1[lane]);
-            }
-        }
-        *sample = x;
-    }
-    state[..N].copy_from_slice(&z);
-}
-
-/// [`run_sections`] in [`Form::Bandpass`].
-#[inline(always)]
-fn run_bandpass<'a, const N: usize>(
-    gain: f64,
-    sections: &[[f64; 5]],
-    state: &mut [[[f64; LANES]; 2]],
-    rows: impl Iterator<Item = &'a mut [f64; LANES]>,
-) {
-    let coefficients: [[f64; 5]; N] = std::array::from_fn(|s| sections[s]);
-    let mut z: [[[f64; LANES]; 2]; N] = std::array::from_fn(|s| state[s]);
-    for sample in rows {
-        let mut x = sample.map(|v| gain * v);
-        for s in 0..N {
-            let [z0, z1] = &mut z[s];
-            for lane in 0..LANES {
-                x[lane] = bandpass_section(coefficients[s], x[lane], &mut z0[lane], &mut z1[lane]);
+                x[lane] = section(coefficients[s], x[lane], &mut z0[lane], &mut z1[lane]);
             }
         }
         *sample = x;
