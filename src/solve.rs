@@ -335,28 +335,34 @@ fn first_non_finite(design: &Stacked) -> SolveError {
 /// (zero rows add nothing to any sum).
 struct BlockBuffer {
     basis: Mat<f64>,
-    /// The basis squared entry by entry (filled by [`Self::square`]).
-    squares: Mat<f64>,
+    /// The loaded basis in groups of [`LANES`] rows, group by group: entry
+    /// `g·p + k` holds column k's values in group g and their squares
+    /// (filled by [`Self::group`]), so the PRESS kernel reads one stream.
+    groups: Vec<Group>,
 }
+
+/// [`LANES`] values of a basis column and their squares.
+type Group = [[f64; LANES]; 2];
 
 impl BlockBuffer {
     fn new(p: usize) -> Self {
         BlockBuffer {
             basis: Mat::zeros(BLOCK_ROWS, p),
-            squares: Mat::zeros(0, 0),
+            groups: Vec::new(),
         }
     }
 
-    /// Squares the first `rows` rows of the loaded basis into `squares`.
-    fn square(&mut self, rows: usize) {
+    /// Regroups the first `rows` rows (a whole number of groups) of the
+    /// loaded basis into `groups`.
+    fn group(&mut self, rows: usize) {
         let p = self.basis.ncols();
-        if self.squares.ncols() != p {
-            self.squares = Mat::zeros(BLOCK_ROWS, p);
-        }
+        self.groups.clear();
+        self.groups.resize(rows / LANES * p, [[0.0; LANES]; 2]);
         for k in 0..p {
-            let from = &self.basis.col_as_slice(k)[..rows];
-            let to = &mut self.squares.col_as_slice_mut(k)[..rows];
-            to.iter_mut().zip(from).for_each(|(s, &u)| *s = u * u);
+            let (column, _) = self.basis.col_as_slice(k)[..rows].as_chunks::<LANES>();
+            for (g, values) in column.iter().enumerate() {
+                self.groups[g * p + k] = [*values, values.map(|u| u * u)];
+            }
         }
     }
 
@@ -618,39 +624,53 @@ fn leave_one_out_press(design: &Stacked, spectrum: &Spectrum, weights: &[Vec<f64
     };
     let leverage_weights = pack(&|l, k| weights[l][k]);
     let fitted_weights = pack(&|l, k| weights[l][k] * spectrum.uty[k]);
-    let partials: Vec<Vec<(f64, f64)>> = design
-        .blocks()
-        .par_iter()
-        .map_init(
-            || BlockBuffer::new(p),
-            |buffer, block| {
-                let y = buffer.load(design, block, &spectrum.to_u);
-                buffer.square(y.len());
-                let kernel = Kernel {
-                    leverage_weights: &leverage_weights,
-                    fitted_weights: &fitted_weights,
-                    ridge,
-                    uty: &spectrum.uty[..spectrum.rank],
-                };
-                kernel.block(&buffer.basis, &buffer.squares, y.len(), y)
-            },
-        )
-        .collect();
-    let mut press = vec![0.0; m];
-    let mut worst = vec![0.0f64; m];
-    for partial in partials {
-        for (l, (sum, high)) in partial.into_iter().enumerate() {
-            press[l] += sum;
-            worst[l] = worst[l].max(high);
+    let run = |track_all: bool| {
+        let partials: Vec<Vec<(f64, f64)>> = design
+            .blocks()
+            .par_iter()
+            .map_init(
+                || BlockBuffer::new(p),
+                |buffer, block| {
+                    let y = buffer.load(design, block, &spectrum.to_u);
+                    buffer.group(y.len());
+                    let kernel = Kernel {
+                        leverage_weights: &leverage_weights,
+                        fitted_weights: &fitted_weights,
+                        ridge,
+                        track_all,
+                        uty: &spectrum.uty[..spectrum.rank],
+                    };
+                    kernel.block(&buffer.groups, p, y)
+                },
+            )
+            .collect();
+        let mut press = vec![0.0; m];
+        let mut worst = vec![0.0f64; m];
+        for partial in partials {
+            for (l, (sum, high)) in partial.into_iter().enumerate() {
+                press[l] += sum;
+                worst[l] = nan_max(worst[l], high);
+            }
         }
+        (press, worst)
+    };
+    let (mut press, mut worst) = run(false);
+    if ridge > 0 && too_high(worst[0]) {
+        // Some leverage reaches 1 at the smallest λ: find at which others.
+        (press, worst) = run(true);
     }
     // A sample with leverage 1 has no leave-one-out prediction.
     for (total, worst) in press.iter_mut().zip(&worst) {
-        if *worst >= 1.0 - 1e-10 || worst.is_nan() {
+        if too_high(*worst) {
             *total = f64::INFINITY;
         }
     }
     press
+}
+
+/// A largest leverage at which a sample has no leave-one-out prediction.
+fn too_high(leverage: f64) -> bool {
+    leverage >= 1.0 - 1e-10 || leverage.is_nan()
 }
 
 /// The leave-one-out sums of every candidate over row blocks.
@@ -661,6 +681,9 @@ struct Kernel<'a> {
     fitted_weights: &'a [[f64; CANDIDATES]],
     /// Number of ridge candidates.
     ridge: usize,
+    /// Track the largest leverage of every ridge candidate, not only of
+    /// the smallest λs (see [`loo_kernel`]).
+    track_all: bool,
     /// $U^\top y$ up to the rank: truncated SVD of rank r fits
     /// $\sum_{k<r} u_k c_k$ with leverage $\sum_{k<r} u_k^2$.
     uty: &'a [f64],
@@ -668,100 +691,100 @@ struct Kernel<'a> {
 
 impl Kernel<'_> {
     /// Per candidate (ridge, then every rank), $\sum_i ((y_i - f_i)/(1 - h_i))^2$
-    /// and $\max_i h_i$ over the first `rows` rows of `basis`, with
-    /// $f = U F$ and $h = (U \circ U) W$ formed on the fly: the fitted
-    /// values and leverages never reach memory. AVX-512 or AVX2 when the
-    /// processor has them; every path uses fused multiply-adds in the same
-    /// order, so they give the same bits.
-    fn block(&self, basis: &Mat<f64>, squares: &Mat<f64>, rows: usize, y: &[f64]) -> Vec<(f64, f64)> {
-        let p = basis.ncols();
-        let columns: Vec<&[f64]> = (0..p).map(|k| &basis.col_as_slice(k)[..rows]).collect();
-        let squared: Vec<&[f64]> = (0..p).map(|k| &squares.col_as_slice(k)[..rows]).collect();
-        let columns = [columns.as_slice(), squared.as_slice()];
+    /// and $\max_i h_i$ over the rows of `groups` ([`BlockBuffer::group`],
+    /// `p` columns) and `y`, with $f = U F$ and $h = (U \circ U) W$ formed on
+    /// the fly: the fitted values and leverages never reach memory. AVX-512
+    /// or AVX2 when the processor has them; every path uses fused
+    /// multiply-adds in the same order, so they give the same bits.
+    fn block(&self, groups: &[Group], p: usize, y: &[f64]) -> Vec<(f64, f64)> {
+        let (targets, _) = y.as_chunks::<LANES>();
         let mut out = Vec::with_capacity(self.ridge.next_multiple_of(CANDIDATES) + self.uty.len());
         #[cfg(target_arch = "x86_64")]
         {
             if std::arch::is_x86_feature_detected!("avx512f") && std::arch::is_x86_feature_detected!("fma") {
                 // SAFETY: the processor supports AVX-512F and FMA, checked just above.
-                unsafe { self.run_avx512(columns, y, &mut out) };
+                unsafe { self.run_avx512(groups, p, targets, &mut out) };
                 return out;
             }
             if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
                 // SAFETY: the processor supports AVX2 and FMA, checked just above.
-                unsafe { self.run_avx2(columns, y, &mut out) };
+                unsafe { self.run_avx2(groups, p, targets, &mut out) };
                 return out;
             }
         }
-        self.run(columns, y, &mut out);
+        self.run(groups, p, targets, &mut out);
         out
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx512f,fma")]
-    unsafe fn run_avx512(&self, columns: [&[&[f64]]; 2], y: &[f64], out: &mut Vec<(f64, f64)>) {
-        self.run(columns, y, out);
+    unsafe fn run_avx512(&self, groups: &[Group], p: usize, y: &[[f64; LANES]], out: &mut Vec<(f64, f64)>) {
+        self.run(groups, p, y, out);
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,fma")]
-    unsafe fn run_avx2(&self, columns: [&[&[f64]]; 2], y: &[f64], out: &mut Vec<(f64, f64)>) {
-        self.run(columns, y, out);
+    unsafe fn run_avx2(&self, groups: &[Group], p: usize, y: &[[f64; LANES]], out: &mut Vec<(f64, f64)>) {
+        self.run(groups, p, y, out);
     }
 
     #[inline(always)]
-    fn run(&self, [columns, squares]: [&[&[f64]]; 2], y: &[f64], out: &mut Vec<(f64, f64)>) {
-        loo_kernel([columns, squares], y, self.leverage_weights, self.fitted_weights, out);
+    fn run(&self, groups: &[Group], p: usize, y: &[[f64; LANES]], out: &mut Vec<(f64, f64)>) {
+        match self.track_all {
+            true => loo_kernel::<true>(groups, p, y, [self.leverage_weights, self.fitted_weights], out),
+            false => loo_kernel::<false>(groups, p, y, [self.leverage_weights, self.fitted_weights], out),
+        }
         out.truncate(self.ridge);
-        rank_kernel(columns, y, self.uty, out);
+        rank_kernel(groups, p, y, self.uty, out);
     }
 }
 
 /// Leave-one-out sums of the truncated SVDs of every rank up to `uty.len()`.
 #[inline(always)]
-fn rank_kernel(columns: &[&[f64]], y: &[f64], uty: &[f64], out: &mut Vec<(f64, f64)>) {
+fn rank_kernel(groups: &[Group], p: usize, y: &[[f64; LANES]], uty: &[f64], out: &mut Vec<(f64, f64)>) {
     let ranks = uty.len();
     let mut sums = vec![[0.0; LANES]; ranks];
     let mut worst = vec![[0.0f64; LANES]; ranks];
-    for start in (0..y.len()).step_by(LANES) {
-        let target = lanes(y, start);
+    for (group, target) in groups.chunks_exact(p).zip(y) {
         let mut leverage = [0.0; LANES];
         let mut fitted = [0.0; LANES];
-        for r in 0..ranks {
-            let u = lanes(columns[r], start);
+        for ((([u, _], c), sum), high) in group.iter().zip(uty).zip(&mut sums).zip(&mut worst) {
             // Whole-register copies of the rank's sums, so the lanes vectorise.
-            let (mut sum, mut high) = (sums[r], worst[r]);
+            let (mut s, mut h) = (*sum, *high);
             for lane in 0..LANES {
                 leverage[lane] = u[lane].mul_add(u[lane], leverage[lane]);
-                fitted[lane] = u[lane].mul_add(uty[r], fitted[lane]);
+                fitted[lane] = u[lane].mul_add(*c, fitted[lane]);
                 let e = (target[lane] - fitted[lane]) / (1.0 - leverage[lane]);
-                sum[lane] = e.mul_add(e, sum[lane]);
-                high[lane] = nan_max(high[lane], leverage[lane]);
+                s[lane] = e.mul_add(e, s[lane]);
+                h[lane] = nan_max(h[lane], leverage[lane]);
             }
-            (sums[r], worst[r]) = (sum, high);
+            (*sum, *high) = (s, h);
         }
     }
     out.extend(sums.iter().zip(&worst).map(|(s, w)| lane_totals(s, w)));
 }
 
+/// The ridge candidates' sums. The largest leverage is tracked only for
+/// the first chunk of candidates, the smallest λ, unless `TRACK_ALL`: a
+/// leverage $\sum_k u_k^2 \sigma_k^2/(\sigma_k^2 + \lambda)$ only falls as λ
+/// grows, so when no leverage reaches 1 at the smallest λ none does at any.
 #[inline(always)]
-fn loo_kernel(
-    [columns, squares]: [&[&[f64]]; 2],
-    y: &[f64],
-    leverage_weights: &[[f64; CANDIDATES]],
-    fitted_weights: &[[f64; CANDIDATES]],
+fn loo_kernel<const TRACK_ALL: bool>(
+    groups: &[Group],
+    p: usize,
+    y: &[[f64; LANES]],
+    [leverage_weights, fitted_weights]: [&[[f64; CANDIDATES]]; 2],
     out: &mut Vec<(f64, f64)>,
 ) {
-    let p = columns.len();
-    for (w_chunk, f_chunk) in leverage_weights.chunks_exact(p).zip(fitted_weights.chunks_exact(p)) {
+    let chunks = leverage_weights.chunks_exact(p).zip(fitted_weights.chunks_exact(p));
+    for (chunk, (w_chunk, f_chunk)) in chunks.enumerate() {
+        let track = TRACK_ALL || chunk == 0;
         let mut sums = [[0.0; LANES]; CANDIDATES];
         let mut worst = [[0.0f64; LANES]; CANDIDATES];
-        for start in (0..y.len()).step_by(LANES) {
+        for (group, target) in groups.chunks_exact(p).zip(y) {
             let mut leverage = [[0.0; LANES]; CANDIDATES];
             let mut fitted = [[0.0; LANES]; CANDIDATES];
-            for k in 0..p {
-                let u = lanes(columns[k], start);
-                let squared = lanes(squares[k], start);
-                let (w, f) = (w_chunk[k], f_chunk[k]);
+            for (([u, squared], w), f) in group.iter().zip(w_chunk).zip(f_chunk) {
                 for c in 0..CANDIDATES {
                     for lane in 0..LANES {
                         leverage[c][lane] = squared[lane].mul_add(w[c], leverage[c][lane]);
@@ -769,24 +792,19 @@ fn loo_kernel(
                     }
                 }
             }
-            let target = lanes(y, start);
             for c in 0..CANDIDATES {
                 for lane in 0..LANES {
                     let h = leverage[c][lane];
                     let e = (target[lane] - fitted[c][lane]) / (1.0 - h);
                     sums[c][lane] = e.mul_add(e, sums[c][lane]);
-                    worst[c][lane] = nan_max(worst[c][lane], h);
+                    if track {
+                        worst[c][lane] = nan_max(worst[c][lane], h);
+                    }
                 }
             }
         }
         out.extend(sums.iter().zip(&worst).map(|(s, w)| lane_totals(s, w)));
     }
-}
-
-/// Eight consecutive values from `at` (the block is padded to whole groups).
-#[inline(always)]
-fn lanes(values: &[f64], at: usize) -> [f64; LANES] {
-    values[at..at + LANES].try_into().unwrap_or([0.0; LANES])
 }
 
 /// The larger of the two, NaN winning: a NaN leverage marks its candidate.
@@ -1047,14 +1065,17 @@ mod tests {
             leverage_weights: &weights,
             fitted_weights: &fitted,
             ridge: 7,
+            track_all: true,
             uty: &uty,
         };
-        let squares = Mat::from_fn(rows, p, |i, k| basis[(i, k)] * basis[(i, k)]);
-        let dispatched = kernel.block(&basis, &squares, rows, &y);
-        let columns: Vec<&[f64]> = (0..p).map(|k| basis.col_as_slice(k)).collect();
-        let squared: Vec<&[f64]> = (0..p).map(|k| squares.col_as_slice(k)).collect();
+        let mut buffer = BlockBuffer {
+            basis,
+            groups: Vec::new(),
+        };
+        buffer.group(rows);
+        let dispatched = kernel.block(&buffer.groups, p, &y);
         let mut portable = Vec::new();
-        kernel.run([&columns, &squared], &y, &mut portable);
+        kernel.run(&buffer.groups, p, y.as_chunks::<LANES>().0, &mut portable);
         assert_eq!(dispatched.len(), 7 + uty.len());
         let bits = |v: &[(f64, f64)]| v.iter().map(|(a, b)| (a.to_bits(), b.to_bits())).collect::<Vec<_>>();
         assert_eq!(bits(&dispatched), bits(&portable));
