@@ -335,3 +335,44 @@ fn ill_conditioned_design_takes_householder_qr_and_matches_the_direct_press() {
     // Both routes lose ~κ·ε in the small singular directions.
     assert_eq!(check_press_curves(&columns, &y, 1e-7), Decomposition::Householder);
 }
+
+/// A sample that alone carries a column has leverage 1 when λ is tiny: no
+/// leave-one-out prediction there, so those candidates get an infinite
+/// PRESS; from some λ on the leverage falls below 1 and PRESS is finite
+/// again, and at the top of the grid equals brute-force leave-one-out. The
+/// fine grid puts the leverage-1 candidates past the first four, which the
+/// PRESS pass only checks after the smallest λ has shown leverage 1.
+#[test]
+fn leverage_one_sample_gives_infinite_press_at_small_lambda_only() {
+    let rows = 40;
+    let mut columns = random_columns(21, rows, 4);
+    columns.push((0..rows).map(|i| if i == 17 { 3.0 } else { 0.0 }).collect());
+    let noise = values(77, rows);
+    let y: Vec<f64> = predict(&columns, &[1.0, -2.0, 0.5, 3.0, 4.0])
+        .iter()
+        .zip(&noise)
+        .map(|(v, n)| v + 0.3 * n)
+        .collect();
+    let options = SolveOptions {
+        grid_points: 200,
+        ..SolveOptions::default()
+    };
+    let solution = solve(columns.clone(), &y, &[], &options).unwrap();
+    let curve = &solution.ridge_curve;
+    let infinite = curve.iter().take_while(|point| point.press.is_infinite()).count();
+    assert!(
+        infinite > 4 && infinite < curve.len() / 2,
+        "{infinite} of {} infinite",
+        curve.len()
+    );
+    assert!(curve[infinite..].iter().all(|point| point.press.is_finite()));
+    let top = &curve[curve.len() - 1];
+    let mut press = 0.0;
+    for left_out in 0..rows {
+        let kept: Vec<usize> = (0..rows).filter(|&i| i != left_out).collect();
+        let beta = brute_ridge(&columns, &y, &kept, top.lambda);
+        let prediction: f64 = columns.iter().zip(&beta).map(|(c, b)| c[left_out] * b).sum();
+        press += (y[left_out] - prediction).powi(2);
+    }
+    assert!((top.press - press).abs() < 1e-9 * press, "{} vs {press}", top.press);
+}
