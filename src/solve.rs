@@ -294,7 +294,7 @@ pub fn solve_stacked(design: &Stacked, options: &SolveOptions) -> Result<Solutio
         .collect();
     let (mut solution, chosen_weights) = choose(&spectrum, ridge_curve, tsvd_curve, options, rows)?;
     solution.fitted = design.predict(&solution.coefficients);
-    let residual_ss: f64 = (design.target().iter().zip(&solution.fitted))
+    let residual_ss: f64 = (design.target_pieces().flatten().zip(&solution.fitted))
         .map(|(y, f)| (y - f) * (y - f))
         .sum();
     let samples = rows as f64;
@@ -312,7 +312,7 @@ fn check_shape(design: &Stacked) -> Result<(), SolveError> {
             terms,
         });
     }
-    if let Some(row) = design.target().iter().position(|v| !v.is_finite()) {
+    if let Some(row) = design.target_pieces().flatten().position(|v| !v.is_finite()) {
         return Err(SolveError::NonFinite { column: terms, row });
     }
     Ok(())

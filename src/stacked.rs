@@ -371,6 +371,11 @@ impl Stacked {
         self.column(self.columns())
     }
 
+    /// The target block by block, in row order, without copying it.
+    pub fn target_pieces(&self) -> impl Iterator<Item = &[f64]> {
+        (self.layout.blocks.iter()).map(|block| &self.block_target(block)[..block.rows.len()])
+    }
+
     /// $A\beta$ for the design columns, blocks in parallel, each row's sum
     /// in column order (the same whatever the thread count).
     pub fn predict(&self, coefficients: &[f64]) -> Vec<f64> {
@@ -418,6 +423,15 @@ mod tests {
         assert_eq!((view.nrows(), view.ncols()), (1952, 12));
         assert_eq!(view[(5, 11)], target[3053]);
         assert_eq!(stacked.block_target(&stacked.blocks()[2])[5], target[3053]);
+    }
+
+    #[test]
+    fn target_pieces_are_the_target_in_order() {
+        let (columns, target) = example(5000);
+        let stacked = Stacked::from_columns(&columns, &target, &[1000, 13, 3987]);
+        let pieces: Vec<f64> = stacked.target_pieces().flatten().copied().collect();
+        assert_eq!(pieces, target);
+        assert_eq!(stacked.target(), target);
     }
 
     #[test]
