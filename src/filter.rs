@@ -584,14 +584,15 @@ mod tests {
             .unwrap()
             .apply(&signal)
             .unwrap();
-        let worst = ours
-            .iter()
-            .zip(&expected)
-            .map(|(a, b)| (a - b).abs())
-            .fold(0.0, f64::max);
+        let worst = worst_difference(&ours, &expected);
         // Same arithmetic in a different association order: agreement to a
         // few ulps of the ~1000-unit signal.
         assert!(worst < 1e-9, "worst difference {worst}");
+    }
+
+    /// The largest absolute difference between two signals.
+    fn worst_difference(a: &[f64], b: &[f64]) -> f64 {
+        a.iter().zip(b).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max)
     }
 
     /// The band-pass's one-addition sections give the designed sections'
@@ -622,11 +623,7 @@ mod tests {
             assert!(matches!(filter.form, Form::Bandpass { .. }), "{poles} poles");
             assert_eq!(designed.form, Form::General);
             let (ours, reference) = (filter.apply(&signal).unwrap(), designed.apply(&signal).unwrap());
-            let worst = ours
-                .iter()
-                .zip(&reference)
-                .map(|(a, b)| (a - b).abs())
-                .fold(0.0, f64::max);
+            let worst = worst_difference(&ours, &reference);
             // Rounding of a 52,000 nT record: a few ulps of the input.
             assert!(worst < 1e-8, "{poles} poles: worst difference {worst} nT");
             let amplitude = reference.iter().map(|v| v.abs()).fold(0.0, f64::max);

@@ -39,6 +39,28 @@ fn brute_ridge(columns: &[Vec<f64>], y: &[f64], rows: &[usize], lambda: f64) -> 
     (0..p).map(|a| solution[(a, 0)]).collect()
 }
 
+/// Leave-one-out PRESS of ridge at `lambda`, one refit per left-out row.
+fn brute_press(columns: &[Vec<f64>], y: &[f64], lambda: f64) -> f64 {
+    let rows = y.len();
+    (0..rows)
+        .map(|left_out| {
+            let kept: Vec<usize> = (0..rows).filter(|&i| i != left_out).collect();
+            let beta = brute_ridge(columns, y, &kept, lambda);
+            let prediction: f64 = columns.iter().zip(&beta).map(|(c, b)| c[left_out] * b).sum();
+            (y[left_out] - prediction).powi(2)
+        })
+        .sum()
+}
+
+/// The columns' combination by `beta` plus 0.3 × `noise`.
+fn with_noise(columns: &[Vec<f64>], beta: &[f64], noise: &[f64]) -> Vec<f64> {
+    predict(columns, beta)
+        .iter()
+        .zip(noise)
+        .map(|(v, n)| v + 0.3 * n)
+        .collect()
+}
+
 #[test]
 fn noiseless_data_recovers_the_coefficients() {
     let columns = random_columns(3, 400, 18);
@@ -74,20 +96,10 @@ fn closed_form_press_equals_brute_force_leave_one_out() {
     let (rows, terms) = (40, 5);
     let columns = random_columns(11, rows, terms);
     let noise = values(99, rows);
-    let y: Vec<f64> = predict(&columns, &[1.0, -2.0, 0.5, 3.0, 0.0])
-        .iter()
-        .zip(&noise)
-        .map(|(v, n)| v + 0.3 * n)
-        .collect();
+    let y = with_noise(&columns, &[1.0, -2.0, 0.5, 3.0, 0.0], &noise);
     let solution = solve(columns.clone(), &y, &[], &SolveOptions::default()).unwrap();
     for point in solution.ridge_curve.iter().step_by(7) {
-        let mut press = 0.0;
-        for left_out in 0..rows {
-            let kept: Vec<usize> = (0..rows).filter(|&i| i != left_out).collect();
-            let beta = brute_ridge(&columns, &y, &kept, point.lambda);
-            let prediction: f64 = columns.iter().zip(&beta).map(|(c, b)| c[left_out] * b).sum();
-            press += (y[left_out] - prediction).powi(2);
-        }
+        let press = brute_press(&columns, &y, point.lambda);
         let relative = (point.press - press).abs() / press;
         assert!(
             relative < 1e-9,
@@ -348,11 +360,7 @@ fn leverage_one_sample_gives_infinite_press_at_small_lambda_only() {
     let mut columns = random_columns(21, rows, 4);
     columns.push((0..rows).map(|i| if i == 17 { 3.0 } else { 0.0 }).collect());
     let noise = values(77, rows);
-    let y: Vec<f64> = predict(&columns, &[1.0, -2.0, 0.5, 3.0, 4.0])
-        .iter()
-        .zip(&noise)
-        .map(|(v, n)| v + 0.3 * n)
-        .collect();
+    let y = with_noise(&columns, &[1.0, -2.0, 0.5, 3.0, 4.0], &noise);
     let options = SolveOptions {
         grid_points: 200,
         ..SolveOptions::default()
@@ -367,12 +375,6 @@ fn leverage_one_sample_gives_infinite_press_at_small_lambda_only() {
     );
     assert!(curve[infinite..].iter().all(|point| point.press.is_finite()));
     let top = &curve[curve.len() - 1];
-    let mut press = 0.0;
-    for left_out in 0..rows {
-        let kept: Vec<usize> = (0..rows).filter(|&i| i != left_out).collect();
-        let beta = brute_ridge(&columns, &y, &kept, top.lambda);
-        let prediction: f64 = columns.iter().zip(&beta).map(|(c, b)| c[left_out] * b).sum();
-        press += (y[left_out] - prediction).powi(2);
-    }
+    let press = brute_press(&columns, &y, top.lambda);
     assert!((top.press - press).abs() < 1e-9 * press, "{} vs {press}", top.press);
 }
