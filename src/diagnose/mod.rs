@@ -617,8 +617,8 @@ fn diagnose_channel(
 ) -> Result<(ChannelDiagnosis, Vec<Finding>)> {
     let search_criterion = start.lambda_criterion.unwrap_or(problem.options.solve.criterion);
     let mut model = start;
-    let second_order = held_out(problem, &with_second_order(&model))?.rms_nt;
-    let mut control = second_order;
+    let mut control = held_out(problem, &with_second_order(&model))?;
+    let second_order = control.rms_nt;
     let mut current = baseline.rms_nt;
     let baseline_windows = baseline.windows.clone();
     let mut current_windows = baseline.windows;
@@ -671,7 +671,7 @@ fn diagnose_channel(
             .count();
         // Each side takes the second-order term only where it helps on
         // held-out data (it is only as good as the fitted aircraft field).
-        let reference = current.min(control);
+        let reference = current.min(control.rms_nt);
         let controlled: Vec<f64> = scored[..passing]
             .par_iter()
             .map(|(next, _, plain)| {
@@ -708,7 +708,7 @@ fn diagnose_channel(
             _ => (next, result),
         };
         findings.push(found);
-        control = held_out(problem, &with_second_order(&next))?.rms_nt;
+        control = held_out(problem, &with_second_order(&next))?;
         (model, current, current_windows) = (next, result.rms_nt, result.windows);
     }
     let localisation = localise::localise(
@@ -718,7 +718,27 @@ fn diagnose_channel(
         problem.direction,
         problem.options,
     );
-    findings.extend(unexplained(problem.channel, current, &localisation));
+    // What the total field's second-order term explains is physics the
+    // library knows, not `unexplained`: judge what is left after it where
+    // it lowers the held-out RMS (on the simulator's clean flights it took
+    // a cabin sensor's structured residual from 0.054 to 0.014 nT).
+    let explained = match control.rms_nt < current {
+        true => Some((
+            control.rms_nt,
+            localise::localise(
+                problem.log,
+                problem.channel,
+                (&baseline_windows, &control.windows),
+                problem.direction,
+                problem.options,
+            ),
+        )),
+        false => None,
+    };
+    let (left_rms, left) = explained
+        .as_ref()
+        .map_or((current, &localisation), |(rms, l)| (*rms, l));
+    findings.extend(unexplained(problem.channel, left_rms, left));
     let summary = ChannelDiagnosis {
         channel: problem.channel.to_string(),
         heldout_rms_baseline_nt: baseline.rms_nt,
