@@ -290,3 +290,18 @@ fn an_effect_outside_the_library_is_reported_as_unexplained_where_it_happens() {
     // The clean flight and the flight with the column keep no such finding.
     assert!(diagnose("clean.csv").findings.iter().all(|f| f.effect != "unexplained"));
 }
+
+#[test]
+fn a_diagnosis_does_not_depend_on_the_thread_count() {
+    // Candidates and channels are scored in parallel; every choice is made
+    // from the scores in a fixed order, so one thread and three give the
+    // same DIAGNOSIS.json to the byte (concealed_c: an eddy τ and a
+    // fluxgate calibration, the most candidates of any sample flight).
+    let in_pool = |threads| {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        serde_json::to_string(&pool.install(|| diagnose("concealed_c.csv"))).unwrap()
+    };
+    let single = in_pool(1);
+    assert!(single.contains("eddy_time_constant"), "{single}");
+    assert_eq!(single, in_pool(3));
+}
