@@ -418,6 +418,40 @@ pub fn diagnose(
     })
 }
 
+/// The held-out in-band RMS of `model` on `channel`, nT, scored as the
+/// diagnosis scores its candidates (each heading predicted by a fit on the
+/// others): how a model of the user's own, or the truth of a simulated
+/// flight, compares with the diagnosed one.
+pub fn heldout_rms(
+    log: &FlightLog,
+    sensor: &VectorSensor,
+    channel: &str,
+    windows: &[CalibrationWindow],
+    options: &FitOptions,
+    model: &Augmentation,
+) -> Result<f64> {
+    let calibrated = match &model.vector_calibration {
+        Some(calibration) => Cow::Owned(calibration.apply(log, sensor)?),
+        None => Cow::Borrowed(log),
+    };
+    let direction = field_directions(&calibrated, sensor);
+    let levels = source_levels(&calibrated);
+    let problem = Problem {
+        log: &calibrated,
+        sensor,
+        channel,
+        windows,
+        options,
+        direction: &direction,
+        levels: &levels,
+    };
+    let uncalibrated = Model {
+        vector_calibration: None,
+        ..model.clone()
+    };
+    Ok(held_out(&problem, &uncalibrated)?.rms_nt)
+}
+
 /// Calibrates the fluxgate against every scalar channel and keeps the
 /// reference that leaves the smallest residual (the one with the least
 /// aircraft interference of its own), then measures the mismatch held out:
