@@ -35,7 +35,33 @@ pub fn three_sensor_scenario(seed: u64, effects: &str) -> Scenario {
 
 /// Simulates `scenario` and diagnoses it on its detected box.
 pub fn diagnose_simulated(scenario: &Scenario) -> Diagnosis {
-    let flight = simulate(scenario).unwrap();
+    diagnose_log(&simulate(scenario).unwrap().log)
+}
+
+/// `log` with `count` slow auxiliary columns that nothing magnetic
+/// follows (temperatures, pressures, settings): sines of periods 2π·40 s,
+/// 2π·57 s, 2π·74 s, … with a faint 2π·3.1 s ripple.
+pub fn with_unrelated_columns(log: &magcomp::flight_log::FlightLog, count: usize) -> magcomp::flight_log::FlightLog {
+    use magcomp::flight_log::{Channel, ChannelRole, FlightLog};
+    let mut channels = log.channels().to_vec();
+    for extra in 0..count {
+        let period = 40.0 + 17.0 * extra as f64;
+        let values = log
+            .time_s()
+            .iter()
+            .map(|t| (t / period).sin() + 0.1 * (t / 3.1).cos())
+            .collect();
+        channels.push(Channel {
+            name: format!("aux_{extra:02}"),
+            role: ChannelRole::Auxiliary,
+            values,
+        });
+    }
+    FlightLog::new(log.source(), log.time_column(), log.time_s().to_vec(), channels).unwrap()
+}
+
+/// Diagnoses `log` on its detected box with the default settings.
+pub fn diagnose_log(log: &magcomp::flight_log::FlightLog) -> Diagnosis {
     let pipeline = Pipeline::default();
     let job = FlightJob {
         diagnosis: None,
@@ -44,5 +70,5 @@ pub fn diagnose_simulated(scenario: &Scenario) -> Diagnosis {
         channels: None,
         windows: Vec::new(),
     };
-    diagnose_flight(&flight.log, &job, &StageOptions::from(&pipeline), &pipeline.diagnose).unwrap()
+    diagnose_flight(log, &job, &StageOptions::from(&pipeline), &pipeline.diagnose).unwrap()
 }
