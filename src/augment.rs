@@ -52,6 +52,15 @@ pub enum SourceTerm {
         /// $\bar c$, in the column's unit.
         level: f64,
     },
+    /// The field of eddy currents that a changing column (a current)
+    /// induces in nearby conductors, body-fixed and proportional to its
+    /// rate of change: three regressors $\dot c\, u_i$, with $\dot c$ the
+    /// central difference over the recorded times. It refines an
+    /// [`SourceTerm::AuxCoupling`] of the same column.
+    AuxCouplingRate {
+        /// The column.
+        column: String,
+    },
     /// Geomagnetic variation recorded by a base station: one regressor
     /// $c - \bar c$.
     ExternalField {
@@ -66,7 +75,9 @@ impl SourceTerm {
     /// The column the term reads.
     pub fn column(&self) -> &str {
         match self {
-            SourceTerm::AuxCoupling { column, .. } | SourceTerm::ExternalField { column, .. } => column,
+            SourceTerm::AuxCoupling { column, .. }
+            | SourceTerm::AuxCouplingRate { column }
+            | SourceTerm::ExternalField { column, .. } => column,
         }
     }
 }
@@ -199,6 +210,13 @@ impl Augmentation {
                         columns.push(values.iter().zip(u).map(|(c, u)| (c - level) * u).collect());
                     }
                 }
+                SourceTerm::AuxCouplingRate { column } => {
+                    let rate = rate_of_change(values, log.time_s());
+                    for (axis, u) in ["x", "y", "z"].iter().zip(direction) {
+                        names.push(format!("{column}_rate_{axis}"));
+                        columns.push(rate.iter().zip(u).map(|(r, u)| r * u).collect());
+                    }
+                }
                 SourceTerm::ExternalField { column, level } => {
                     names.push(column.clone());
                     columns.push(values.iter().map(|c| c - level).collect());
@@ -312,6 +330,7 @@ impl Augmentation {
         for source in &self.sources {
             parts.push(match source {
                 SourceTerm::AuxCoupling { column, .. } => format!("coupling to {column}"),
+                SourceTerm::AuxCouplingRate { column } => format!("coupling to the rate of {column}"),
                 SourceTerm::ExternalField { column, .. } => format!("base station {column}"),
             });
         }
@@ -380,6 +399,22 @@ pub fn fit_channels(
         .map(|channel| {
             let augmentation = plan.get(channel).filter(|a| !a.is_plain());
             fit(log, sensor, channel, windows, options, augmentation)
+        })
+        .collect()
+}
+
+/// Rate of change of a column per second: the central difference
+/// $(c_{k+1} - c_{k-1})/(t_{k+1} - t_{k-1})$, one-sided at the ends; a
+/// missing neighbour gives a missing rate.
+pub fn rate_of_change(values: &[f64], time_s: &[f64]) -> Vec<f64> {
+    let n = values.len();
+    (0..n)
+        .map(|k| {
+            let (a, b) = (k.saturating_sub(1), (k + 1).min(n.saturating_sub(1)));
+            match a == b {
+                true => 0.0,
+                false => (values[b] - values[a]) / (time_s[b] - time_s[a]),
+            }
         })
         .collect()
 }

@@ -19,6 +19,7 @@ fn a_coupled_current_is_recovered_as_its_body_frame_vector() {
         channel: "mag_1_uc".into(),
         source: "cur_ail".into(),
         nt_per_unit: coupling,
+        nt_per_unit_per_s: [0.0; 3],
     });
     let flight = simulate(&Scenario::try_from(raw).unwrap()).unwrap();
     let log = &flight.log;

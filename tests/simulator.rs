@@ -249,6 +249,7 @@ fn a_coupled_current_shows_and_subtracting_its_true_field_restores_the_fit() {
             channel: "mag_1_uc".into(),
             source: "cur_ail".into(),
             nt_per_unit: coupling,
+            nt_per_unit_per_s: [0.0; 3],
         })
     });
     let with_effect = plain_tolles_lawson(&flight, &flight.log)[0].0;
@@ -449,6 +450,7 @@ fn a_concealed_effect_leaves_no_trace_in_the_recording() {
             channel: "mag_1_uc".into(),
             source: "trim_tab".into(),
             nt_per_unit: [1.0, 0.0, 0.0],
+            nt_per_unit_per_s: [0.0; 3],
         });
     });
     let names = |flight: &SimulatedFlight| flight.log.channels().iter().map(|c| c.name.clone()).collect::<Vec<_>>();

@@ -13,7 +13,11 @@
 //!   best three points;
 //! - `aux_coupling`: a recorded channel c (every numeric auxiliary column)
 //!   drives a body-fixed field, seen by the scalar as
-//!   $c\,(k_x u_x + k_y u_y + k_z u_z)$: three regressors;
+//!   $c\,(k_x u_x + k_y u_y + k_z u_z)$: three regressors; optionally
+//!   with $\dot c\,(\dot k_x u_x + \dot k_y u_y + \dot k_z u_z)$ too, the
+//!   field of eddy currents a changing current induces nearby (scanned
+//!   with each column, and offered again for a column already coupled;
+//!   the rate must earn its place by the threshold);
 //! - `external_field`: the base station's variation, one regressor;
 //! - `eddy_time_constant`: eddy currents that respond through a first-order
 //!   lag τ: the nine eddy terms $u_i\,\dot B_j$ are replaced by
@@ -251,10 +255,26 @@ pub struct FluxgateCheck {
 /// A model extension under test.
 #[derive(Debug, Clone, PartialEq)]
 enum Extension {
-    Lag { lag_s: f64 },
-    Eddy { tau_s: f64 },
-    Coupling { source: String },
-    External { source: String },
+    Lag {
+        lag_s: f64,
+    },
+    Eddy {
+        tau_s: f64,
+    },
+    Coupling {
+        source: String,
+    },
+    /// The rate of change of a column already coupled.
+    CouplingRate {
+        source: String,
+    },
+    /// A column and its rate of change together.
+    CouplingWithRate {
+        source: String,
+    },
+    External {
+        source: String,
+    },
 }
 
 /// The model under test: plain Tolles-Lawson with the physics accepted
@@ -667,6 +687,7 @@ fn diagnose_channel(
             .into_par_iter()
             .filter_map(|(next, extension)| held_out(problem, &next).ok().map(|h| (next, extension, h)))
             .collect();
+        drop_unearned_rates(&mut scored, keep);
         scored.sort_by(|a, b| a.2.rms_nt.total_cmp(&b.2.rms_nt));
         // A lag or an eddy τ changes the model's own regressors (the
         // scalar shifted, the eddy terms lagged), so the λ criterion that
@@ -686,7 +707,10 @@ fn diagnose_channel(
             .map(|(next, extension, plain)| match extension {
                 Extension::Lag { .. } | Extension::Eddy { .. } => flip_criterion(problem, next)
                     .filter(|(_, h)| h.rms_nt < plain.rms_nt && h.rms_nt <= current_other * keep),
-                Extension::Coupling { .. } | Extension::External { .. } => None,
+                Extension::Coupling { .. }
+                | Extension::CouplingRate { .. }
+                | Extension::CouplingWithRate { .. }
+                | Extension::External { .. } => None,
             })
             .collect();
         for (entry, flip) in scored.iter_mut().zip(flips) {
@@ -796,6 +820,24 @@ fn diagnose_channel(
     Ok((summary, findings))
 }
 
+/// Drops every candidate of a column with its rate whose rate does not
+/// earn its place: it must lower the held-out RMS of the column alone by
+/// the same threshold as any other effect, so that a coupling is not
+/// described with a rate it does not need.
+fn drop_unearned_rates(scored: &mut Vec<(Model, Extension, HeldOut)>, keep: f64) {
+    let alone: BTreeMap<String, f64> = scored
+        .iter()
+        .filter_map(|(_, extension, h)| match extension {
+            Extension::Coupling { source } => Some((source.clone(), h.rms_nt)),
+            _ => None,
+        })
+        .collect();
+    scored.retain(|(_, extension, h)| match extension {
+        Extension::CouplingWithRate { source } => alone.get(source).is_none_or(|rms| h.rms_nt <= keep * rms),
+        _ => true,
+    });
+}
+
 /// Circular time shifts of the source columns a source finding must beat.
 const SOURCE_SHIFTS: usize = 9;
 
@@ -813,20 +855,31 @@ const SOURCE_SHIFTS: usize = 9;
 /// field that changes with heading and can fit a cabin sensor's residual
 /// by chance; with 22 slow unrelated columns added, the threshold alone
 /// named one on 2 of 24 clean flights. A current that causes the residual
-/// loses it when shifted. Other effects always pass.
+/// loses it when shifted. The shifted candidates are of the tested one's
+/// form (a column alone, or with its rate: with its rate, a shifted pure
+/// sinusoid such as a fan's ripple takes any phase), and the tested
+/// column's own shifted copy is left out at a shift that realigns it
+/// (correlation above 0.5 with the original over the calibration
+/// windows, as a periodic column is about every half-period). Other
+/// effects always pass.
 fn beats_shifted_sources(problem: &Problem, model: &Model, extension: &Extension, rms_nt: f64) -> bool {
-    if matches!(extension, Extension::Lag { .. } | Extension::Eddy { .. }) {
-        return true;
-    }
+    let (tested, with_rate) = match extension {
+        // A rate refines a coupling whose timing already stood this test.
+        Extension::Lag { .. } | Extension::Eddy { .. } | Extension::CouplingRate { .. } => return true,
+        Extension::Coupling { source } | Extension::External { source } => (source, false),
+        Extension::CouplingWithRate { source } => (source, true),
+    };
     let scanned: Vec<&String> = (problem.levels.keys())
         .filter(|column| !model.sources.iter().any(|s| s.column() == column.as_str()))
         .collect();
     let rows = problem.log.len();
+    let in_windows = window_rows(problem.log.time_s(), problem.windows);
     (1..=SOURCE_SHIFTS).all(|k| {
+        let shift = k * rows / (SOURCE_SHIFTS + 1);
         let channels = problem.log.channels().iter().map(|channel| {
             let mut channel = channel.clone();
             if scanned.contains(&&channel.name) {
-                channel.values.rotate_right(k * rows / (SOURCE_SHIFTS + 1));
+                channel.values.rotate_right(shift);
             }
             channel
         });
@@ -838,14 +891,54 @@ fn beats_shifted_sources(problem: &Problem, model: &Model, extension: &Extension
         ) else {
             return true;
         };
+        // A periodic column (a fan's ripple) shifted by about a whole
+        // number of half-periods is itself again, not a surrogate.
+        let realigned = match (problem.log.channel(tested), log.channel(tested)) {
+            (Some(original), Some(moved)) => correlation(&original.values, &moved.values, &in_windows).abs() > 0.5,
+            _ => false,
+        };
         let shifted = Problem { log: &log, ..*problem };
         let best = candidates(&shifted, model, &DiagnoseOptions::default())
             .into_par_iter()
-            .filter(|(_, e)| matches!(e, Extension::Coupling { .. } | Extension::External { .. }))
+            .filter(|(_, e)| match e {
+                Extension::Coupling { source } => !with_rate && !(realigned && source == tested),
+                Extension::CouplingWithRate { source } => with_rate && !(realigned && source == tested),
+                Extension::External { source } => !(realigned && source == tested),
+                _ => false,
+            })
             .filter_map(|(next, _)| held_out(&shifted, &next).ok().map(|h| h.rms_nt))
             .reduce(|| f64::INFINITY, f64::min);
         rms_nt < best
     })
+}
+
+/// The rows whose times fall in any of `windows`.
+fn window_rows(time_s: &[f64], windows: &[CalibrationWindow]) -> Vec<usize> {
+    (0..time_s.len())
+        .filter(|&k| windows.iter().any(|w| (w.t_start..=w.t_end).contains(&time_s[k])))
+        .collect()
+}
+
+/// Pearson correlation of `a` and `b` over `rows` where both are finite
+/// (0 when either is constant there).
+fn correlation(a: &[f64], b: &[f64], rows: &[usize]) -> f64 {
+    let pairs: Vec<(f64, f64)> = (rows.iter())
+        .map(|&k| (a[k], b[k]))
+        .filter(|(x, y)| x.is_finite() && y.is_finite())
+        .collect();
+    let count = pairs.len().max(1) as f64;
+    let (mean_a, mean_b) = pairs.iter().fold((0.0, 0.0), |(sa, sb), (x, y)| (sa + x, sb + y));
+    let (mean_a, mean_b) = (mean_a / count, mean_b / count);
+    let (mut ab, mut aa, mut bb) = (0.0, 0.0, 0.0);
+    for (x, y) in &pairs {
+        ab += (x - mean_a) * (y - mean_b);
+        aa += (x - mean_a).powi(2);
+        bb += (y - mean_b).powi(2);
+    }
+    match aa > 0.0 && bb > 0.0 {
+        true => ab / (aa * bb).sqrt(),
+        false => 0.0,
+    }
 }
 
 /// Least share of the final residual's energy in structured stretches for
@@ -905,6 +998,8 @@ fn describe(extension: &Extension) -> String {
         Extension::Lag { lag_s } => format!("sensor_lag {lag_s:.2} s"),
         Extension::Eddy { tau_s } => format!("eddy_time_constant {tau_s:.2} s"),
         Extension::Coupling { source } => format!("aux_coupling from {source}"),
+        Extension::CouplingRate { source } => format!("aux_coupling from the rate of {source}"),
+        Extension::CouplingWithRate { source } => format!("aux_coupling from {source} and its rate"),
         Extension::External { source } => format!("external_field from {source}"),
     }
 }
@@ -948,7 +1043,27 @@ fn candidates(problem: &Problem, model: &Model, settings: &DiagnoseOptions) -> V
         if !model.sources.iter().any(|s| s.column() == channel.name) {
             let mut next = model.clone();
             next.sources.push(term);
+            if let Extension::Coupling { source } = &extension {
+                let mut with_rate = next.clone();
+                with_rate
+                    .sources
+                    .push(SourceTerm::AuxCouplingRate { column: source.clone() });
+                list.push((with_rate, Extension::CouplingWithRate { source: source.clone() }));
+            }
             list.push((next, extension));
+        }
+    }
+    // A coupled column's rate of change: the eddy currents a changing
+    // current induces near the sensor.
+    for source in &model.sources {
+        let SourceTerm::AuxCoupling { column, .. } = source else {
+            continue;
+        };
+        let refined = SourceTerm::AuxCouplingRate { column: column.clone() };
+        if !model.sources.contains(&refined) {
+            let mut next = model.clone();
+            next.sources.push(refined);
+            list.push((next, Extension::CouplingRate { source: column.clone() }));
         }
     }
     list
@@ -1133,20 +1248,31 @@ fn finding(
             model.eddy_tau_s = refined.0;
             result = refined.1;
         }
-        Extension::Coupling { source: column } => {
-            let coefficients = extension_coefficients(problem, &model, 3)?;
-            for (axis, k) in ["k_x_nt_per_unit", "k_y_nt_per_unit", "k_z_nt_per_unit"]
-                .iter()
-                .zip(&coefficients)
-            {
-                parameters.insert(axis.to_string(), *k);
+        Extension::Coupling { source: column }
+        | Extension::CouplingRate { source: column }
+        | Extension::CouplingWithRate { source: column } => {
+            let direct = !matches!(extension, Extension::CouplingRate { .. });
+            let rate = !matches!(extension, Extension::Coupling { .. });
+            let coefficients = extension_coefficients(problem, &model, 3 * (direct as usize + rate as usize))?;
+            let (k, kdot) = coefficients.split_at(if direct { 3 } else { 0 });
+            let mut parts = Vec::new();
+            if direct {
+                insert_vector(&mut parameters, "k_{}_nt_per_unit", k);
+                parts.push(format!(
+                    "the field of whatever '{column}' measures reaches {}: a body-fixed field proportional to it ({:.3}, {:.3}, {:.3} nT per unit along x, y, z), which the scalar sees through the direction cosines",
+                    problem.channel, k[0], k[1], k[2]
+                ));
+            }
+            if rate {
+                insert_vector(&mut parameters, "kdot_{}_nt_s_per_unit", kdot);
+                parts.push(format!(
+                    "'{column}' acts through its rate of change too: a field proportional to d{column}/dt ({:.3}, {:.3}, {:.3} nT per unit/s along x, y, z), as from eddy currents a changing current induces in conductors near {}",
+                    kdot[0], kdot[1], kdot[2], problem.channel
+                ));
             }
             effect = "aux_coupling";
             source = Some(column.clone());
-            explanation = format!(
-                "The field of whatever '{column}' measures reaches {}: a body-fixed field proportional to it ({:.3}, {:.3}, {:.3} nT per unit along x, y, z), which the scalar sees through the direction cosines.",
-                problem.channel, coefficients[0], coefficients[1], coefficients[2]
-            );
+            explanation = capitalised(&parts.join("; ")) + ".";
         }
         Extension::External { source: column } => {
             let coefficients = extension_coefficients(problem, &model, 1)?;
@@ -1170,6 +1296,22 @@ fn finding(
         heldout_rms_after_nt: result.rms_nt,
     };
     Ok((found, model, result))
+}
+
+/// Puts a body-axis vector into `parameters` under `pattern` with `{}`
+/// replaced by x, y and z.
+fn insert_vector(parameters: &mut BTreeMap<String, f64>, pattern: &str, vector: &[f64]) {
+    for (axis, value) in ["x", "y", "z"].iter().zip(vector) {
+        parameters.insert(pattern.replace("{}", axis), *value);
+    }
+}
+
+/// `text` with its first letter in upper case.
+fn capitalised(text: &str) -> String {
+    let mut letters = text.chars();
+    letters
+        .next()
+        .map_or_else(String::new, |first| first.to_uppercase().chain(letters).collect())
 }
 
 /// The last `count` extra coefficients of a fit of `model` on all windows.

@@ -249,6 +249,7 @@ fn record_scalar(
         [0, 1, 2].map(|i| central_rate(&earth.iter().map(|b| b[i]).collect::<Vec<_>>(), path.dt_s));
     let mut lag_s = 0.0;
     let mut couplings: Vec<(usize, Vector)> = Vec::new();
+    let mut rate_couplings: Vec<(Vec<f64>, Vector)> = Vec::new();
     for effect in &scenario.raw.effect {
         match effect {
             Effect::EddyTimeConstant { channel, tau_s } if *channel == sensor.name => {
@@ -259,9 +260,13 @@ fn record_scalar(
                 channel,
                 source,
                 nt_per_unit,
+                nt_per_unit_per_s,
             } if *channel == sensor.name => {
                 let column = AUXILIARY_CHANNELS.iter().position(|c| c == source).unwrap_or(0);
                 couplings.push((column, *nt_per_unit));
+                if nt_per_unit_per_s.iter().any(|v| *v != 0.0) {
+                    rate_couplings.push((central_rate(&auxiliary[column], path.dt_s), *nt_per_unit_per_s));
+                }
             }
             _ => {}
         }
@@ -276,6 +281,9 @@ fn record_scalar(
             let mut own = aircraft.at(*b, [drive[0][k], drive[1][k], drive[2][k]]);
             for (column, vector) in &couplings {
                 own = add(own, vector.map(|v| v * auxiliary[*column][k]));
+            }
+            for (rate, vector) in &rate_couplings {
+                own = add(own, vector.map(|v| v * rate[k]));
             }
             let total = add(*b, own);
             let cosine = physics::dot(total, sensor.dead_zone_axis) / (norm(total) * axis_norm);

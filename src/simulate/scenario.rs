@@ -365,6 +365,10 @@ impl Default for Fluxgate {
     }
 }
 
+fn is_zero_vector(vector: &[f64; 3]) -> bool {
+    vector.iter().all(|v| *v == 0.0)
+}
+
 /// `[[effect]]`: one physical effect the output does not reveal.
 #[derive(Debug, Clone, PartialEq, Deserialize, serde::Serialize)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
@@ -377,7 +381,8 @@ pub enum Effect {
         lag_s: f64,
     },
     /// A recorded channel's field reaches a scalar sensor: the sensor sees
-    /// `source × nt_per_unit` (body axes) added to the field.
+    /// `source × nt_per_unit + d(source)/dt × nt_per_unit_per_s` (body
+    /// axes) added to the field.
     AuxCoupling {
         /// Scalar channel.
         channel: String,
@@ -385,6 +390,11 @@ pub enum Effect {
         source: String,
         /// Field per unit of the source at the sensor, body axes, nT/unit.
         nt_per_unit: [f64; 3],
+        /// Field per unit/s of the source's rate of change (eddy currents
+        /// it induces in nearby conductors), body axes, nT·s/unit; zero by
+        /// default.
+        #[serde(default, skip_serializing_if = "is_zero_vector")]
+        nt_per_unit_per_s: [f64; 3],
     },
     /// The fluxgate's own scale, offset and non-orthogonality errors.
     VectorCalibration {
