@@ -18,6 +18,11 @@ use magcomp::flight_log::{Channel, ChannelRole, FlightLog, VectorAxis};
 use magcomp::pipeline::{choose_vector_sensor, process_flight, FlightOutputs, StageOptions};
 use magcomp::windows::CalibrationWindow;
 
+/// The diagnosis tests' flight helpers (the unrelated columns).
+#[allow(dead_code)]
+#[path = "../tests/common/mod.rs"]
+mod common;
+
 /// Peak resident set size so far, MB (Linux `VmHWM`).
 fn peak_rss_mb() -> f64 {
     let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
@@ -344,25 +349,9 @@ fn main() {
 /// The two-hour, five-magnetometer flight of `bench_simulate`, with 22
 /// more auxiliary columns (30 in all), diagnosed on its detected box.
 fn bench_diagnose() {
-    use magcomp::flight_log::{Channel, ChannelRole, FlightLog};
     let flight = two_hour_flight();
-    let log = &flight.log;
-    let mut channels = log.channels().to_vec();
-    for extra in 0..22 {
-        // Slow, smooth channels (temperatures, pressures, settings).
-        let period = 40.0 + 17.0 * extra as f64;
-        let values = log
-            .time_s()
-            .iter()
-            .map(|t| (t / period).sin() + 0.1 * (t / 3.1).cos())
-            .collect();
-        channels.push(Channel {
-            name: format!("aux_{extra:02}"),
-            role: ChannelRole::Auxiliary,
-            values,
-        });
-    }
-    let log = FlightLog::new("bench", "tt", log.time_s().to_vec(), channels).unwrap();
+    // Slow, smooth channels (temperatures, pressures, settings).
+    let log = common::with_unrelated_columns(&flight.log, 22);
     let pipeline = Pipeline::default();
     let job = magcomp::config::FlightJob {
         diagnosis: None,
