@@ -19,7 +19,6 @@ use magcomp::pipeline::{choose_vector_sensor, process_flight, FlightOutputs, Sta
 use magcomp::windows::CalibrationWindow;
 
 /// The diagnosis tests' flight helpers (the unrelated columns).
-#[allow(dead_code)]
 #[path = "../tests/common/mod.rs"]
 mod common;
 

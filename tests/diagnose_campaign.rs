@@ -10,6 +10,7 @@ use std::collections::BTreeMap;
 
 mod common;
 
+use magcomp::augment::{column_level, Augmentation, SourceTerm};
 use magcomp::diagnose::Diagnosis;
 use magcomp::simulate::scenario::Scenario;
 
@@ -178,8 +179,48 @@ fn scenario(seed: u64, effects: &str) -> Scenario {
     common::three_sensor_scenario(seed, effects)
 }
 
-fn diagnose(scenario: &Scenario) -> Diagnosis {
-    common::diagnose_simulated(scenario)
+/// The concealed effect modelled by hand with its true parameters, on
+/// the channel it is on (the fluxgate's has none).
+fn by_hand(truth: &Truth, log: &magcomp::flight_log::FlightLog) -> Option<(String, Augmentation)> {
+    let level = |column: &str| column_level(&log.channel(column).unwrap().values);
+    let (channel, model) = match truth {
+        Truth::Lag { channel, lag_s } => (
+            channel.clone(),
+            Augmentation {
+                lag_s: *lag_s,
+                ..Default::default()
+            },
+        ),
+        Truth::Eddy { channel, tau_s } => (
+            channel.clone(),
+            Augmentation {
+                eddy_tau_s: *tau_s,
+                ..Default::default()
+            },
+        ),
+        Truth::Coupling { channel, source } => (
+            channel.clone(),
+            Augmentation {
+                sources: vec![SourceTerm::AuxCoupling {
+                    column: source.clone(),
+                    level: level(source),
+                }],
+                ..Default::default()
+            },
+        ),
+        Truth::Pulsations => (
+            "mag_1_uc".to_string(),
+            Augmentation {
+                sources: vec![SourceTerm::ExternalField {
+                    column: "diurnal".into(),
+                    level: level("diurnal"),
+                }],
+                ..Default::default()
+            },
+        ),
+        Truth::Fluxgate { .. } => return None,
+    };
+    Some((channel, model))
 }
 
 /// One flight of the campaign: its row label and concealed effects.
@@ -271,6 +312,8 @@ fn cases() -> Vec<Case> {
 /// Outcome of one flight.
 struct Outcome {
     row: &'static str,
+    /// Per named effect, the channel's held-out RMS over the truth's.
+    against_truth: Vec<f64>,
     /// Every concealed effect named with its parameter.
     named: usize,
     expected: usize,
@@ -288,7 +331,24 @@ fn campaign_names_each_effect_and_leaves_clean_flights_alone() {
         .map(|case| {
             let mut draw = Draw(7000 + case.seed);
             let effects: String = case.truths.iter().map(|t| t.toml(&mut draw)).collect();
-            let diagnosis = diagnose(&scenario(case.seed, &effects));
+            let log = magcomp::simulate::simulate(&scenario(case.seed, &effects)).unwrap().log;
+            let diagnosis = common::diagnose_log(&log);
+            // Each named effect against the truth modelled by hand: the
+            // diagnosed channel's held-out RMS over the true effect's.
+            let against_truth: Vec<f64> = case
+                .truths
+                .iter()
+                .filter(|t| t.named_in(&diagnosis))
+                .filter_map(|t| by_hand(t, &log))
+                .map(|(channel, model)| {
+                    let summary = diagnosis.channels.iter().find(|c| c.channel == channel).unwrap();
+                    let model = Augmentation {
+                        vector_calibration: summary.model.vector_calibration.clone(),
+                        ..model
+                    };
+                    summary.heldout_rms_final_nt / common::heldout_rms(&log, &channel, &model)
+                })
+                .collect();
             let named = case.truths.iter().filter(|t| t.named_in(&diagnosis)).count();
             let spurious = diagnosis
                 .findings
@@ -345,6 +405,7 @@ fn campaign_names_each_effect_and_leaves_clean_flights_alone() {
             }
             Outcome {
                 row: case.row,
+                against_truth,
                 named,
                 expected: case.truths.len(),
                 spurious,
@@ -391,6 +452,8 @@ fn campaign_names_each_effect_and_leaves_clean_flights_alone() {
             })
             .collect();
         println!("| {row} | {} | {right} | {} |", rows.len(), counts.join(" | "));
+        let ratios: Vec<f64> = rows.iter().flat_map(|o| o.against_truth.iter().copied()).collect();
+        println!("held-out RMS over the truth's by hand, {row}: {ratios:.3?}");
     }
     let spurious: Vec<&String> = outcomes.iter().flat_map(|o| &o.spurious).collect();
     println!("spurious findings: {spurious:#?}");
@@ -437,6 +500,19 @@ fn campaign_names_each_effect_and_leaves_clean_flights_alone() {
         ],
         other => panic!("MAGCOMP_CAMPAIGN_SEEDS={other}: floors are measured for 5 and 10 seeds"),
     };
+    // Named effects hold out about as well as the truth modelled by hand:
+    // the channel's held-out RMS (with every finding, λ as the pipeline
+    // picks it) over that of the concealed effect with its true
+    // parameters. Measured over the 51 effects named in the ten-seed
+    // campaign: 0.53–1.14, below 1 where the diagnosis also named the
+    // base station on the same channel or its fitted parameter suits the
+    // held-out headings better; above 1 by the parameters' errors within
+    // their tolerances (lag ±0.03 s, τ ±20 %). The bound is 1.2.
+    let worst = outcomes
+        .iter()
+        .flat_map(|o| o.against_truth.iter().map(move |r| (r, o.row)))
+        .fold((0.0f64, ""), |(w, row), (r, o)| if *r > w { (*r, o) } else { (w, row) });
+    assert!(worst.0 <= 1.2, "{}: held out {:.2} times the truth's", worst.1, worst.0);
     for (row, floor) in floors {
         let (right, all) = totals[row];
         assert!(

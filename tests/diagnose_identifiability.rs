@@ -120,12 +120,17 @@ fn a_short_eddy_time_constant_on_the_wing_is_not_taken_for_a_lag() {
 }
 
 #[test]
-fn the_second_order_residual_of_a_clean_cabin_sensor_is_not_unexplained() {
+fn the_residual_a_clean_cabin_sensor_leaves_is_not_unexplained() {
     // On these clean flights the cabin sensor's first-order fit leaves
-    // structured residual in several manoeuvres (0.041 and 0.054 nT held
-    // out), which the total field's second-order term takes to 0.033 and
-    // 0.014 nT: physics the library knows, not an `unexplained` finding.
-    for seed in [517, 521] {
+    // structured residual in several manoeuvres (0.041, 0.054 and
+    // 0.089 nT held out), which the total field's second-order term takes
+    // to 0.033, 0.014 and 0.046 nT: physics the library knows, not an
+    // `unexplained` finding. On seed 511 what is left after it sits in the
+    // rolls of two headings, each predicted by a fit that never saw its
+    // heading (0.22 and 0.15 nT held out before the term); a fit on every
+    // heading leaves no such structure, so it is the held-out fit's
+    // extrapolation, not missing physics.
+    for seed in [511, 517, 521] {
         let diagnosis = diagnose(seed, "");
         let cabin = diagnosis.channels.iter().find(|c| c.channel == "mag_2_uc").unwrap();
         assert!(

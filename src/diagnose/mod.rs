@@ -787,23 +787,34 @@ fn diagnose_channel(
     // library knows, not `unexplained`: judge what is left after it where
     // it lowers the held-out RMS (on the simulator's clean flights it took
     // a cabin sensor's structured residual from 0.054 to 0.014 nT).
-    let explained = match control.rms_nt < current {
-        true => Some((
-            control.rms_nt,
-            localise::localise(
-                problem.log,
-                problem.channel,
-                (&baseline_windows, &control.windows),
-                problem.direction,
-                problem.options,
-            ),
-        )),
-        false => None,
+    let localise_windows = |windows: &[WindowFit]| {
+        localise::localise(
+            problem.log,
+            problem.channel,
+            (&baseline_windows, windows),
+            problem.direction,
+            problem.options,
+        )
     };
+    let with_control = control.rms_nt < current;
+    let explained = with_control.then(|| (control.rms_nt, localise_windows(&control.windows)));
     let (left_rms, left) = explained
         .as_ref()
         .map_or((current, &localisation), |(rms, l)| (*rms, l));
-    findings.extend(unexplained(problem.channel, left_rms, left));
+    // Missing physics leaves its structure whether or not a heading is
+    // held out; what a fit on every heading removes was the held-out
+    // fit's extrapolation to the heading it never saw.
+    let left_in_sample = || -> Result<bool> {
+        let model = match with_control {
+            true => with_second_order(&model),
+            false => model.clone(),
+        };
+        let fitted = in_sample(problem, &model)?;
+        Ok(is_structured(fitted.rms_nt, &localise_windows(&fitted.windows)))
+    };
+    if is_structured(left_rms, left) && left_in_sample()? {
+        findings.extend(unexplained(problem.channel, left_rms, left));
+    }
     let summary = ChannelDiagnosis {
         channel: problem.channel.to_string(),
         heldout_rms_baseline_nt: baseline.rms_nt,
@@ -945,8 +956,9 @@ fn correlation(a: &[f64], b: &[f64], rows: &[usize]) -> f64 {
 /// an `unexplained` finding.
 const UNEXPLAINED_SHARE: f64 = 0.5;
 
-/// An `unexplained` finding when what is left after the search is
-/// structured: at least half its energy in stretches that stand out
+/// An `unexplained` finding when what is left after the search (and the
+/// second-order term, where it helps) is structured, held out and in
+/// sample alike: at least half its energy in stretches that stand out
 /// ([`localise::STRUCTURE_FACTOR`]), in two manoeuvres or more, and the
 /// held-out RMS three times the in-band noise floor. One stretch alone is
 /// not enough: leaving a heading out can extrapolate badly over one
@@ -954,10 +966,7 @@ const UNEXPLAINED_SHARE: f64 = 0.5;
 /// holding 38–57 % of a channel's residual with nothing concealed there),
 /// while an unrecorded current that switches shows wherever it switched.
 fn unexplained(channel: &str, rms_nt: f64, found: &localise::Localisation) -> Option<Finding> {
-    let labels: std::collections::BTreeSet<&str> = found.structured.iter().map(|l| l.label.as_str()).collect();
-    let structured =
-        found.structured_energy_share >= UNEXPLAINED_SHARE && labels.len() >= 2 && rms_nt > 3.0 * found.noise_floor_nt;
-    if !structured {
+    if !is_structured(rms_nt, found) {
         return None;
     }
     let columns = found
@@ -991,6 +1000,12 @@ fn unexplained(channel: &str, rms_nt: f64, found: &localise::Localisation) -> Op
         heldout_rms_before_nt: rms_nt,
         heldout_rms_after_nt: rms_nt,
     })
+}
+
+/// Whether a residual of `rms_nt` is structured as [`unexplained`] asks.
+fn is_structured(rms_nt: f64, found: &localise::Localisation) -> bool {
+    let labels: std::collections::BTreeSet<&str> = found.structured.iter().map(|l| l.label.as_str()).collect();
+    found.structured_energy_share >= UNEXPLAINED_SHARE && labels.len() >= 2 && rms_nt > 3.0 * found.noise_floor_nt
 }
 
 fn describe(extension: &Extension) -> String {
@@ -1107,11 +1122,31 @@ fn prepare<'a>(problem: &Problem<'a>, model: &Model) -> Result<Prepared<'a>> {
 
 /// Held-out residuals of `model` (see [`folds`]).
 fn held_out(problem: &Problem, model: &Model) -> Result<HeldOut> {
+    residuals(problem, model, folds(problem.windows))
+}
+
+/// In-sample residuals of `model`: fitted on every window, and each
+/// window's residual from that fit.
+fn in_sample(problem: &Problem, model: &Model) -> Result<HeldOut> {
+    residuals(
+        problem,
+        model,
+        vec![(problem.windows.to_vec(), problem.windows.to_vec())],
+    )
+}
+
+/// The residuals of `model` on each split's first windows, fitted on its
+/// second.
+fn residuals(
+    problem: &Problem,
+    model: &Model,
+    splits: Vec<(Vec<CalibrationWindow>, Vec<CalibrationWindow>)>,
+) -> Result<HeldOut> {
     let prepared = prepare(problem, model)?;
     let (log, extra) = (prepared.log.as_ref(), prepared.regressors());
     let options = model.fit_options(problem.options);
     let mut windows = Vec::new();
-    for (out, rest) in folds(problem.windows) {
+    for (out, rest) in splits {
         let fitted = model.fit_prepared(log, problem.sensor, problem.channel, &rest, &options, &extra)?;
         windows.extend(model.held_out_prepared(&fitted, log, problem.sensor, &out, &options, &extra)?);
     }

@@ -1,6 +1,9 @@
 //! Shared by the diagnosis tests: a simulated flight with the tail, cabin
 //! and wing sensors, diagnosed with the default settings.
 
+// Each test binary uses its own share of these helpers.
+#![allow(dead_code)]
+
 use magcomp::config::{FlightJob, Pipeline};
 use magcomp::diagnose::Diagnosis;
 use magcomp::pipeline::{diagnose_flight, StageOptions};
@@ -71,4 +74,16 @@ pub fn diagnose_log(log: &magcomp::flight_log::FlightLog) -> Diagnosis {
         windows: Vec::new(),
     };
     diagnose_flight(log, &job, &StageOptions::from(&pipeline), &pipeline.diagnose).unwrap()
+}
+
+/// The held-out RMS of `model` on `channel`, scored as the diagnosis
+/// scores its candidates, on `log`'s detected box.
+pub fn heldout_rms(log: &magcomp::flight_log::FlightLog, channel: &str, model: &magcomp::augment::Augmentation) -> f64 {
+    let pipeline = Pipeline::default();
+    let options = StageOptions::from(&pipeline);
+    let windows = magcomp::detect::detect_manoeuvres(log, &options.detect)
+        .unwrap()
+        .calibration_windows(options.detect.window_margin_s);
+    let sensor = magcomp::pipeline::choose_vector_sensor(log, None).unwrap();
+    magcomp::diagnose::heldout_rms(log, &sensor, channel, &windows, &options.fit, model).unwrap()
 }
