@@ -911,11 +911,14 @@ fn beats_shifted_sources(problem: &Problem, model: &Model, extension: &Extension
         let shifted = Problem { log: &log, ..*problem };
         let best = candidates(&shifted, model, &DiagnoseOptions::default())
             .into_par_iter()
-            .filter(|(_, e)| match e {
-                Extension::Coupling { source } => !with_rate && !(realigned && source == tested),
-                Extension::CouplingWithRate { source } => with_rate && !(realigned && source == tested),
-                Extension::External { source } => !(realigned && source == tested),
-                _ => false,
+            .filter(|(_, e)| {
+                let itself_again = |source: &String| realigned && source == tested;
+                match e {
+                    Extension::Coupling { source } => !with_rate && !itself_again(source),
+                    Extension::CouplingWithRate { source } => with_rate && !itself_again(source),
+                    Extension::External { source } => !itself_again(source),
+                    _ => false,
+                }
             })
             .filter_map(|(next, _)| held_out(&shifted, &next).ok().map(|h| h.rms_nt))
             .reduce(|| f64::INFINITY, f64::min);
