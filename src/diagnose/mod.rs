@@ -812,8 +812,10 @@ fn diagnose_channel(
         let fitted = in_sample(problem, &model)?;
         Ok(is_structured(fitted.rms_nt, &localise_windows(&fitted.windows)))
     };
-    if is_structured(left_rms, left) && left_in_sample()? {
-        findings.extend(unexplained(problem.channel, left_rms, left));
+    if let Some(found) = unexplained(problem.channel, left_rms, left) {
+        if left_in_sample()? {
+            findings.push(found);
+        }
     }
     let summary = ChannelDiagnosis {
         channel: problem.channel.to_string(),
