@@ -174,6 +174,7 @@ fn bench_whole_file(rows: usize) {
         .collect();
     let job = FlightJob {
         diagnosis: None,
+        force_diagnosis: false,
         input: input.clone(),
         vector: None,
         channels: None,
@@ -354,6 +355,7 @@ fn bench_diagnose() {
     let pipeline = Pipeline::default();
     let job = magcomp::config::FlightJob {
         diagnosis: None,
+        force_diagnosis: false,
         input: "bench".into(),
         vector: None,
         channels: None,

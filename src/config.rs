@@ -233,6 +233,23 @@ pub struct FlightJob {
     /// A DIAGNOSIS.json to accept: each channel it lists is fitted and
     /// compensated with the model it found.
     pub diagnosis: Option<PathBuf>,
+    /// Apply `diagnosis` even when it was made on another flight (`--force`).
+    pub force_diagnosis: bool,
+}
+
+impl FlightJob {
+    /// A flight with every choice left to the pipeline: detected windows,
+    /// every scalar channel, the first fluxgate, no saved diagnosis.
+    pub fn new(input: impl Into<PathBuf>) -> Self {
+        FlightJob {
+            input: input.into(),
+            vector: None,
+            channels: None,
+            windows: Vec::new(),
+            diagnosis: None,
+            force_diagnosis: false,
+        }
+    }
 }
 
 /// A validated pipeline.
@@ -344,6 +361,7 @@ fn flight_job(raw: RawFlight, base: &Path, source_name: &str, margin_s: f64) -> 
         channels: raw.channels,
         windows,
         diagnosis: raw.diagnosis.map(|d| base.join(d)),
+        force_diagnosis: false,
     })
 }
 

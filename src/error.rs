@@ -127,6 +127,35 @@ pub enum Error {
         message: String,
     },
 
+    /// The calibration data cannot support what was asked of it: too few
+    /// windows, headings or samples to hold any of them out.
+    #[error("{path}: {task} needs calibration manoeuvres to hold out, and {problem}. {hint}")]
+    NotEnoughCalibration {
+        /// The flight concerned.
+        path: PathBuf,
+        /// What could not be done ("the diagnosis").
+        task: &'static str,
+        /// What the flight lacks.
+        problem: String,
+        /// What to do.
+        hint: String,
+    },
+
+    /// A saved result belongs to another flight than the one it is applied to.
+    #[error("{path}: {what} was made on {made_on}, not on {applied_to} ({difference}). Diagnose this flight with `magcomp diagnose`, or pass --force to apply it anyway.")]
+    OtherFlight {
+        /// The saved file.
+        path: PathBuf,
+        /// What the file holds ("this diagnosis").
+        what: &'static str,
+        /// The flight it was made on.
+        made_on: String,
+        /// The flight it was to be applied to.
+        applied_to: String,
+        /// What differs (rows, time span, content hash).
+        difference: String,
+    },
+
     /// The format of an input file is not supported.
     #[error("{path}: {message}")]
     UnsupportedFormat {

@@ -50,6 +50,7 @@ pub mod diagnose;
 pub mod error;
 pub mod filter;
 pub mod fit;
+pub mod flight_identity;
 pub mod flight_log;
 pub mod heading_error;
 pub mod ingest;

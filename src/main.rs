@@ -9,6 +9,7 @@ use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 
 use magcomp::config::{FlightJob, Pipeline};
+use magcomp::diagnose::ApplyDiagnosis;
 use magcomp::pipeline::{process_flight, summary, FlightOutputs, StageOptions};
 use magcomp::solve::LambdaChoice;
 use magcomp::windows::CalibrationWindow;
@@ -28,6 +29,14 @@ enum Command {
         /// The pipeline file.
         #[arg(default_value = "pipeline.toml")]
         config: PathBuf,
+        /// Fit plain Tolles-Lawson only: no diagnosis is made or applied
+        /// (overrides [diagnose] apply).
+        #[arg(long)]
+        plain: bool,
+        /// Apply each [[flight]]'s saved diagnosis even when it was made on
+        /// another flight.
+        #[arg(long)]
+        force: bool,
     },
     /// Fit on calibration windows (detected unless given) and compensate
     /// every row of one flight.
@@ -158,10 +167,19 @@ struct CompensateArgs {
     /// with the model its findings make.
     #[arg(long, conflicts_with = "augment")]
     diagnosis: Option<PathBuf>,
-    /// Diagnose the flight first and compensate with the models found;
-    /// the diagnosis is written beside OUT (_diagnosis.json).
-    #[arg(long)]
+    /// Diagnose the flight first and compensate with the models found,
+    /// and fail when it cannot be diagnosed ([diagnose] apply = "always");
+    /// the diagnosis is written beside OUT (_diagnosis.json). By default
+    /// ("auto") the flight is diagnosed too, and compensated plain when
+    /// it cannot be.
+    #[arg(long, conflicts_with = "plain")]
     augment: bool,
+    /// Fit plain Tolles-Lawson only: no diagnosis is made or applied.
+    #[arg(long, conflicts_with = "diagnosis")]
+    plain: bool,
+    /// Apply --diagnosis even when it was made on another flight.
+    #[arg(long, requires = "diagnosis")]
+    force: bool,
 }
 
 fn main() -> ExitCode {
@@ -176,7 +194,7 @@ fn main() -> ExitCode {
     }
     let cli = Cli::parse();
     let outcome = match cli.command {
-        Command::Run { config } => run(&config),
+        Command::Run { config, plain, force } => run(&config, plain, force),
         Command::Compensate(args) => compensate(args),
         Command::Detect { flight, out, config } => detect(&flight, &out, config.as_deref()),
         Command::Diagnose {
@@ -229,8 +247,14 @@ fn stage_options(pipeline: &Pipeline) -> StageOptions {
     StageOptions::from(pipeline)
 }
 
-fn run(config: &Path) -> anyhow::Result<()> {
-    let pipeline = Pipeline::load(config)?;
+fn run(config: &Path, plain: bool, force: bool) -> anyhow::Result<()> {
+    let mut pipeline = Pipeline::load(config)?;
+    if plain {
+        pipeline.diagnose.apply = ApplyDiagnosis::Never;
+    }
+    for job in &mut pipeline.flights {
+        job.force_diagnosis = force;
+    }
     anyhow::ensure!(
         !pipeline.flights.is_empty(),
         "{}: no [[flight]] entries; add one with input = \"path/to/flight.csv\"",
@@ -272,9 +296,15 @@ fn compensate(args: CompensateArgs) -> anyhow::Result<()> {
             pipeline.detect.window_margin_s,
         )?);
     }
-    pipeline.diagnose.apply |= args.augment;
+    if args.augment {
+        pipeline.diagnose.apply = ApplyDiagnosis::Always;
+    }
+    if args.plain {
+        pipeline.diagnose.apply = ApplyDiagnosis::Never;
+    }
     let job = FlightJob {
         diagnosis: args.diagnosis.clone(),
+        force_diagnosis: args.force,
         input: args.flight.clone(),
         vector: args.vector,
         channels: args.channels,
@@ -362,7 +392,14 @@ fn replay_flight(
     }
     let bar = spinner(format!("replaying {}", flight.display()));
     let plan = match diagnosis {
-        Some(path) => magcomp::diagnose::read_models(path),
+        Some(path) => magcomp::diagnose::read_saved(path)
+            .and_then(|saved| saved.models_for(path, &log, false))
+            .map(|(models, remark)| {
+                if let Some(remark) = remark {
+                    println!("  warning: {remark}");
+                }
+                models
+            }),
         None => magcomp::diagnose::diagnose(&log, &sensor, &channels, &windows, &pipeline.fit, &pipeline.diagnose)
             .map(|d| d.models()),
     };
@@ -425,6 +462,9 @@ fn detect(flight: &Path, out: &Path, config: Option<&Path>) -> anyhow::Result<()
     for note in magcomp::pipeline::detection_notes(&detection) {
         println!("  {note}");
     }
+    for warning in magcomp::pipeline::detection_warnings(&detection) {
+        println!("  warning: {warning}");
+    }
     for manoeuvre in &detection.manoeuvres {
         println!(
             "  {:<5} heading {:>5.1}: {:.1}–{:.1} s, {} cycles of {:.1} s, ±{:.1}°",
@@ -454,6 +494,7 @@ fn diagnose(
     let log = magcomp::ingest::read_flight_log(flight, &pipeline.ingest)?;
     let job = FlightJob {
         diagnosis: None,
+        force_diagnosis: false,
         input: flight.to_path_buf(),
         vector: None,
         channels: None,

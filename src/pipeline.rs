@@ -80,6 +80,14 @@ pub struct FlightResult {
     /// The fluxgate calibration the fit used (`[vector_calibration]`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub vector_calibration: Option<crate::vector_calibration::VectorCalibration>,
+    /// Whether the diagnosis was applied (`[diagnose] apply`, `--plain`).
+    pub diagnosis_mode: crate::diagnose::ApplyDiagnosis,
+    /// The diagnosed findings the fit applied, each with what it bought
+    /// held out.
+    pub applied_findings: Vec<AppliedFinding>,
+    /// What the quality gate found wrong, each with the next step; also on
+    /// stdout and in the report.
+    pub warnings: Vec<String>,
     /// The diagnosis made before the fit (`[diagnose] apply`); its
     /// DIAGNOSIS.json is written beside the other outputs.
     #[serde(skip)]
@@ -87,6 +95,71 @@ pub struct FlightResult {
     /// The fitted models.
     #[serde(skip)]
     pub models: Vec<FittedTollesLawson>,
+}
+
+/// A diagnosed effect the fit of a channel applied.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct AppliedFinding {
+    /// Scalar channel.
+    pub channel: String,
+    /// CONTRACT §3 effect name.
+    pub effect: String,
+    /// The column that drives it, when one does.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub source: Option<String>,
+    /// Held-out in-band RMS before the effect was modelled, nT.
+    pub heldout_rms_before_nt: f64,
+    /// Held-out in-band RMS with it, nT.
+    pub heldout_rms_after_nt: f64,
+}
+
+impl AppliedFinding {
+    /// "sensor_lag on mag_1_uc: held-out RMS 0.108 → 0.032 nT (−70 % against plain Tolles-Lawson's 0.108 nT)".
+    pub fn describe(&self) -> String {
+        format!(
+            "{} on {}{}: held-out RMS {:.4} → {:.4} nT ({:+.0} % against the model before it)",
+            self.effect,
+            self.channel,
+            self.source.as_ref().map(|s| format!(" from {s}")).unwrap_or_default(),
+            self.heldout_rms_before_nt,
+            self.heldout_rms_after_nt,
+            100.0 * (self.heldout_rms_after_nt / self.heldout_rms_before_nt - 1.0)
+        )
+    }
+}
+
+/// The findings of `diagnosis` that change the model of a channel whose
+/// diagnosed model is not plain (an `unexplained` finding changes none).
+fn applied_findings(diagnosis: &crate::diagnose::Diagnosis) -> Vec<AppliedFinding> {
+    let changed = |channel: &str| {
+        diagnosis
+            .channels
+            .iter()
+            .any(|c| c.channel == channel && !c.model.is_plain())
+    };
+    let calibrated_channels: Vec<&str> = diagnosis
+        .channels
+        .iter()
+        .filter(|c| c.model.vector_calibration.is_some())
+        .map(|c| c.channel.as_str())
+        .collect();
+    diagnosis
+        .findings
+        .iter()
+        .filter(|f| f.effect != "unexplained")
+        .filter(|f| f.effect == "vector_calibration" || changed(&f.channel))
+        .filter(|f| f.effect != "vector_calibration" || !calibrated_channels.is_empty())
+        .map(|f| AppliedFinding {
+            channel: match f.effect.as_str() {
+                "vector_calibration" => format!("{} (for {})", f.channel, calibrated_channels.join(", ")),
+                _ => f.channel.clone(),
+            },
+            effect: f.effect.clone(),
+            source: f.source.clone(),
+            heldout_rms_before_nt: f.heldout_rms_before_nt,
+            heldout_rms_after_nt: f.heldout_rms_after_nt,
+        })
+        .collect()
 }
 
 /// Settings shared by every flight of a run.
@@ -151,7 +224,19 @@ pub fn process_flight(job: &FlightJob, options: &StageOptions, outputs: &FlightO
     )?;
     let calibrated = calibration.as_ref().map(|c| c.apply(&raw_log, &sensor)).transpose()?;
     let log = calibrated.as_ref().unwrap_or(&raw_log);
-    let (plan, diagnosis) = augmentation_plan(job, log, &sensor, &channels, &windows, options, calibration.is_some())?;
+    let AugmentationPlan {
+        models: plan,
+        diagnosis,
+        mut warnings,
+    } = augmentation_plan(
+        job,
+        (&raw_log, log),
+        &sensor,
+        &channels,
+        &windows,
+        options,
+        calibration.is_some(),
+    )?;
     if let (Some(diagnosis), Some(path)) = (&diagnosis, &outputs.diagnosis_json) {
         crate::output::write_json(path, "the diagnosis", diagnosis)?;
     }
@@ -181,8 +266,13 @@ pub fn process_flight(job: &FlightJob, options: &StageOptions, outputs: &FlightO
     }));
     if let Some(detection) = &detected {
         notes.extend(detection_notes(detection));
+        warnings.extend(detection_warnings(detection));
     }
-    notes.extend(quality.iter().filter_map(|q| q.transfer.as_ref()?.warning.clone()));
+    let next_step = next_step(options.diagnose.apply, job.diagnosis.is_some(), diagnosis.is_some());
+    for q in &quality {
+        warnings.extend(crate::quality::quality_warnings(q, options.fom_limit_nt, next_step));
+    }
+    let applied_findings = diagnosis.as_ref().map(applied_findings).unwrap_or_default();
     let result = FlightResult {
         flight: job.input.clone(),
         rows: log.len(),
@@ -192,6 +282,12 @@ pub fn process_flight(job: &FlightJob, options: &StageOptions, outputs: &FlightO
         alignment: log.alignment().cloned(),
         channels: quality,
         vector_calibration: calibration,
+        diagnosis_mode: match job.diagnosis {
+            Some(_) => crate::diagnose::ApplyDiagnosis::Always,
+            None => options.diagnose.apply,
+        },
+        applied_findings,
+        warnings,
         diagnosis,
         models,
     };
@@ -254,35 +350,100 @@ impl<'a> ModelFile<'a> {
     }
 }
 
+/// What the fit takes from a diagnosis.
+struct AugmentationPlan {
+    /// Each channel's diagnosed model (plain when absent).
+    models: BTreeMap<String, Augmentation>,
+    /// The diagnosis made now, if one was.
+    diagnosis: Option<crate::diagnose::Diagnosis>,
+    /// What the user must know: a diagnosis that could not be made or
+    /// checked.
+    warnings: Vec<String>,
+}
+
 /// The diagnosed model of each channel to fit with: from the flight's
-/// DIAGNOSIS.json, or from a diagnosis made now (`[diagnose] apply`, then
-/// returned too); empty otherwise. A saved diagnosis that calibrates the
-/// fluxgate while the `[vector_calibration]` stage already has is refused.
+/// DIAGNOSIS.json (refused when made on another flight, unless forced), or
+/// from a diagnosis made now (`[diagnose] apply`, then returned too); empty
+/// otherwise. A saved diagnosis that calibrates the fluxgate while the
+/// `[vector_calibration]` stage already has is refused. `logs` are the
+/// flight as read and as fitted (fluxgate calibrated by the stage).
 fn augmentation_plan(
     job: &FlightJob,
-    log: &FlightLog,
+    (raw_log, log): (&FlightLog, &FlightLog),
     sensor: &VectorSensor,
     channels: &[String],
     windows: &[crate::windows::CalibrationWindow],
     options: &StageOptions,
     stage_calibrated: bool,
-) -> Result<(BTreeMap<String, Augmentation>, Option<crate::diagnose::Diagnosis>)> {
+) -> Result<AugmentationPlan> {
+    use crate::diagnose::ApplyDiagnosis;
     if let Some(path) = &job.diagnosis {
-        let models = crate::diagnose::read_models(path)?;
+        let (models, remark) = crate::diagnose::read_saved(path)?.models_for(path, raw_log, job.force_diagnosis)?;
         if stage_calibrated && models.values().any(|m| m.vector_calibration.is_some()) {
             return Err(Error::Config {
                 source_name: path.display().to_string(),
                 message: "the diagnosis calibrates the fluxgate and so does the [vector_calibration] stage; turn the stage off (enabled = false) or diagnose the calibrated flight".into(),
             });
         }
-        return Ok((models, None));
+        return Ok(AugmentationPlan {
+            models,
+            diagnosis: None,
+            warnings: remark.into_iter().collect(),
+        });
     }
-    if !options.diagnose.apply {
-        return Ok((BTreeMap::new(), None));
+    let plain = |warnings| AugmentationPlan {
+        models: BTreeMap::new(),
+        diagnosis: None,
+        warnings,
+    };
+    if options.diagnose.apply == ApplyDiagnosis::Never {
+        return Ok(plain(Vec::new()));
     }
-    let diagnosis = crate::diagnose::diagnose(log, sensor, channels, windows, &options.fit, &options.diagnose)?;
-    let models = diagnosis.models();
-    Ok((models, Some(diagnosis)))
+    match crate::diagnose::diagnose(log, sensor, channels, windows, &options.fit, &options.diagnose) {
+        Ok(mut diagnosis) => {
+            diagnosis.flight = Some(crate::flight_identity::FlightIdentity::of(raw_log)?);
+            Ok(AugmentationPlan {
+                models: diagnosis.models(),
+                diagnosis: Some(diagnosis),
+                warnings: Vec::new(),
+            })
+        }
+        Err(error @ Error::NotEnoughCalibration { .. }) if options.diagnose.apply == ApplyDiagnosis::Auto => {
+            Ok(plain(vec![format!(
+                "not diagnosed, so compensated with plain Tolles-Lawson: {error}"
+            )]))
+        }
+        Err(error) => Err(error),
+    }
+}
+
+/// What a user can do about a failed quality check, given how the flight
+/// was fitted.
+fn next_step(apply: crate::diagnose::ApplyDiagnosis, saved: bool, diagnosed: bool) -> &'static str {
+    match (saved || diagnosed, apply) {
+        (true, _) => "Look at the report's worst manoeuvres and the diagnosis's unexplained residual; refly the box if a manoeuvre is poor.",
+        (false, crate::diagnose::ApplyDiagnosis::Never) => "Fit with the diagnosis (drop --plain, or [diagnose] apply = \"auto\") to model the physics plain Tolles-Lawson leaves out, or run `magcomp diagnose` to see it.",
+        (false, _) => "The flight could not be diagnosed; fly a complete box (four headings, each with pitch, roll and yaw) to let the diagnosis model what plain Tolles-Lawson leaves out.",
+    }
+}
+
+/// Warnings from detection: every incomplete box.
+pub fn detection_warnings(detection: &Detection) -> Vec<String> {
+    detection
+        .boxes
+        .iter()
+        .enumerate()
+        .filter(|(_, b)| !b.missing.is_empty())
+        .map(|(index, b)| {
+            format!(
+                "box {} ({:.1}–{:.1}) is incomplete: {}; its FOM sums fewer than 12 manoeuvres",
+                index + 1,
+                b.t_start,
+                b.t_end,
+                b.missing.join(", ")
+            )
+        })
+        .collect()
 }
 
 /// Diagnoses a flight: its windows (given, or detected), its vector
@@ -299,7 +460,9 @@ pub fn diagnose_flight(
         true => detect_manoeuvres(log, &options.detect)?.calibration_windows(options.detect.window_margin_s),
         false => job.windows.clone(),
     };
-    crate::diagnose::diagnose(log, &sensor, &channels, &windows, &options.fit, settings)
+    let mut diagnosis = crate::diagnose::diagnose(log, &sensor, &channels, &windows, &options.fit, settings)?;
+    diagnosis.flight = Some(crate::flight_identity::FlightIdentity::of(log)?);
+    Ok(diagnosis)
 }
 
 /// What detection found, in a sentence per box and per lack.
@@ -313,16 +476,6 @@ pub fn detection_notes(detection: &Detection) -> Vec<String> {
             crate::detect::AttitudeSource::Fluxgate => "the fluxgate",
         }
     )];
-    for (index, found) in detection.boxes.iter().enumerate() {
-        for missing in &found.missing {
-            notes.push(format!(
-                "box {} ({:.1}–{:.1}): {missing}",
-                index + 1,
-                found.t_start,
-                found.t_end
-            ));
-        }
-    }
     notes.extend(detection.notes.iter().cloned());
     notes
 }
@@ -437,8 +590,22 @@ pub fn summary(result: &FlightResult) -> String {
             );
         }
     }
+    text += &match (result.diagnosis_mode, result.applied_findings.is_empty()) {
+        (crate::diagnose::ApplyDiagnosis::Never, _) => "  diagnosis: not applied (plain Tolles-Lawson)\n".to_string(),
+        (_, true) if result.diagnosis.is_some() => {
+            "  diagnosis: no finding changes the model; plain Tolles-Lawson\n".to_string()
+        }
+        (_, true) => String::new(),
+        (_, false) => "  diagnosis applied:\n".to_string(),
+    };
+    for applied in &result.applied_findings {
+        text += &format!("    {}\n", applied.describe());
+    }
     for note in &result.notes {
         text += &format!("  note: {note}\n");
+    }
+    for warning in &result.warnings {
+        text += &format!("  warning: {warning}\n");
     }
     text
 }

@@ -153,6 +153,13 @@ pub struct ChannelQuality {
     pub noise_4th_difference_before_nt: f64,
     /// Fourth-difference noise of the compensated channel, nT RMS.
     pub noise_4th_difference_after_nt: f64,
+    /// Fourth-difference noise over the survey lines only (rows of a
+    /// non-zero line number), uncompensated, nT RMS; absent without lines.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub survey_noise_4th_difference_before_nt: Option<f64>,
+    /// The same, compensated, nT RMS.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub survey_noise_4th_difference_after_nt: Option<f64>,
     /// FOM before compensation (sum of the FOM table's peak-to-peaks), nT.
     pub fom_before_nt: Option<f64>,
     /// FOM after compensation, nT.
@@ -199,6 +206,8 @@ pub fn assess_quality(log: &FlightLog, model: &FittedTollesLawson, compensated: 
         improvement_ratio: band_std_before_nt / band_std_after_nt,
         noise_4th_difference_before_nt: fourth_difference_noise(scalar),
         noise_4th_difference_after_nt: fourth_difference_noise(&compensated.values),
+        survey_noise_4th_difference_before_nt: survey_line_noise(log, scalar),
+        survey_noise_4th_difference_after_nt: survey_line_noise(log, &compensated.values),
         fom_before_nt: fom.map(|f| f.0),
         fom_after_nt: fom.map(|f| f.1),
         fom_manoeuvres: fom.map_or(0, |f| f.2),
@@ -256,14 +265,79 @@ pub fn peak_to_peak(values: &[f64]) -> f64 {
     }
 }
 
-/// RMS of $(x_{-2} - 4x_{-1} + 6x_0 - 4x_{+1} + x_{+2})/16$ over every run
-/// of five consecutive finite samples; 0 when there is none.
-pub fn fourth_difference_noise(values: &[f64]) -> f64 {
-    let differences: Vec<f64> = values
+/// Compensation may raise the survey lines' fourth-difference noise by this
+/// factor before it is a warning: the fluxgate's own noise enters through
+/// the direction cosines, and on a tail sensor with a few nT of aircraft
+/// field that alone can add a few per cent.
+pub const NOISE_RISE_WARNING: f64 = 1.25;
+
+/// The quality gate of one channel: a warning, with the next step, when
+/// the FOM fails its limit, when compensation raised the survey lines'
+/// fourth-difference noise or the level difference between reciprocal
+/// lines, or when the held-out FOM is far above the in-sample one.
+/// `next_step` ends each warning: what the user can do about it.
+pub fn quality_warnings(quality: &ChannelQuality, fom_limit_nt: f64, next_step: &str) -> Vec<String> {
+    let channel = &quality.channel;
+    let mut warnings = Vec::new();
+    if let Some(after) = quality.fom_after_nt.filter(|after| *after > fom_limit_nt) {
+        warnings.push(format!(
+            "{channel}: FOM {after:.2} nT after compensation ({} of 12 manoeuvres), above the {fom_limit_nt:.2} nT limit ([quality] fom_limit_nt). {next_step}",
+            quality.fom_manoeuvres
+        ));
+    }
+    if let (Some(before), Some(after)) = (
+        quality.survey_noise_4th_difference_before_nt,
+        quality.survey_noise_4th_difference_after_nt,
+    ) {
+        if after > NOISE_RISE_WARNING * before {
+            warnings.push(format!(
+                "{channel}: compensation raised the survey lines' fourth-difference noise from {before:.4} to {after:.4} nT ({:.2}×): the model adds more than it removes there. {next_step}",
+                after / before
+            ));
+        }
+    }
+    if let Some(error) = &quality.heading_error {
+        if error.after_nt.abs() > error.before_nt.abs().max(0.05) * NOISE_RISE_WARNING {
+            warnings.push(format!(
+                "{channel}: compensation raised the level difference between reciprocal survey lines (heading error) from {:.3} to {:.3} nT over {} matched samples. {next_step}",
+                error.before_nt, error.after_nt, error.pairs
+            ));
+        }
+    }
+    if let Some(check) = &quality.transfer {
+        if let Some(warning) = &check.warning {
+            warnings.push(format!("{warning}. {next_step}"));
+        }
+    }
+    warnings
+}
+
+/// Fourth-difference noise over the survey lines: the RMS of the fourth
+/// differences of every line's consecutive rows, pooled; `None` without
+/// survey lines.
+pub fn survey_line_noise(log: &FlightLog, values: &[f64]) -> Option<f64> {
+    let mut differences = Vec::new();
+    for (_, rows) in log.survey_lines() {
+        for run in rows.chunk_by(|a, b| *b == a + 1) {
+            differences.extend(fourth_differences(&values[run[0]..=run[run.len() - 1]]));
+        }
+    }
+    (!differences.is_empty()).then(|| root_mean_square(&differences))
+}
+
+/// $(x_{-2} - 4x_{-1} + 6x_0 - 4x_{+1} + x_{+2})/16$ over every run of five
+/// consecutive finite samples.
+fn fourth_differences(values: &[f64]) -> impl Iterator<Item = f64> + '_ {
+    values
         .windows(5)
         .filter(|w| w.iter().all(|v| v.is_finite()))
         .map(|w| (w[0] - 4.0 * w[1] + 6.0 * w[2] - 4.0 * w[3] + w[4]) / 16.0)
-        .collect();
+}
+
+/// RMS of $(x_{-2} - 4x_{-1} + 6x_0 - 4x_{+1} + x_{+2})/16$ over every run
+/// of five consecutive finite samples; 0 when there is none.
+pub fn fourth_difference_noise(values: &[f64]) -> f64 {
+    let differences: Vec<f64> = fourth_differences(values).collect();
     root_mean_square(&differences)
 }
 

@@ -22,12 +22,16 @@ fn job(input: PathBuf, diagnosis: Option<PathBuf>) -> FlightJob {
         channels: None,
         windows: Vec::new(),
         diagnosis,
+        force_diagnosis: false,
     }
 }
 
 fn run(job: &FlightJob, apply: bool, out: &Path) -> (FlightResult, FlightOutputs) {
     let mut options = StageOptions::from(&Pipeline::default());
-    options.diagnose.apply = apply;
+    options.diagnose.apply = match apply {
+        true => magcomp::diagnose::ApplyDiagnosis::Always,
+        false => magcomp::diagnose::ApplyDiagnosis::Never,
+    };
     let outputs = FlightOutputs::in_directory(out, &job.input);
     let result = process_flight(job, &options, &outputs).unwrap();
     (result, outputs)

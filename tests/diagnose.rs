@@ -17,6 +17,7 @@ fn diagnose(name: &str) -> Diagnosis {
     let log = read_flight_log(&input, &pipeline.ingest).unwrap();
     let job = FlightJob {
         diagnosis: None,
+        force_diagnosis: false,
         input,
         vector: None,
         channels: None,
@@ -267,6 +268,7 @@ fn an_effect_outside_the_library_is_reported_as_unexplained_where_it_happens() {
         .unwrap();
     let job = FlightJob {
         diagnosis: None,
+        force_diagnosis: false,
         input,
         vector: None,
         channels: None,

@@ -112,6 +112,7 @@ fn every_format_ingests_to_the_same_log_and_compensates_identically() {
     for input in [&csv, &xyz, &mcap, &hdf5] {
         let job = FlightJob {
             diagnosis: None,
+            force_diagnosis: false,
             input: input.clone(),
             vector: None,
             channels: None,

@@ -28,6 +28,7 @@ fn options() -> StageOptions {
 fn run_with_threads(threads: usize, csv: &Path, windows: &Path, out: &Path) -> Vec<u8> {
     let job = FlightJob {
         diagnosis: None,
+        force_diagnosis: false,
         input: csv.to_path_buf(),
         vector: None,
         channels: None,
@@ -265,6 +266,7 @@ fn the_vector_calibration_stage_calibrates_the_fluxgate_before_the_fit() {
     let input = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("sample_flights/concealed_c.csv");
     let job = FlightJob {
         diagnosis: None,
+        force_diagnosis: false,
         input: input.clone(),
         vector: None,
         channels: None,

@@ -11,6 +11,7 @@ use magcomp::transfer::TransferMethod;
 fn run(input: &Path, out: &Path) -> FlightResult {
     let job = FlightJob {
         diagnosis: None,
+        force_diagnosis: false,
         input: input.to_path_buf(),
         vector: None,
         channels: None,

@@ -12,6 +12,7 @@ fn report_of_clean_flight(folder: &Path) -> (PathBuf, magcomp::pipeline::FlightR
     let input = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("sample_flights/clean.csv");
     let job = FlightJob {
         diagnosis: None,
+        force_diagnosis: false,
         input: input.clone(),
         vector: None,
         channels: None,
@@ -127,13 +128,14 @@ fn a_diagnosed_flight_reports_its_findings_and_marks_where_they_helped() {
     let input = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("sample_flights/concealed_a.csv");
     let job = FlightJob {
         diagnosis: None,
+        force_diagnosis: false,
         input: input.clone(),
         vector: None,
         channels: None,
         windows: Vec::new(),
     };
     let mut options = StageOptions::from(&Pipeline::default());
-    options.diagnose.apply = true;
+    options.diagnose.apply = magcomp::diagnose::ApplyDiagnosis::Always;
     let outputs = FlightOutputs::in_directory(folder.path(), &input);
     let result = process_flight(&job, &options, &outputs).unwrap();
     let diagnosis = result.diagnosis.as_ref().unwrap();

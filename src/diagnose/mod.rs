@@ -100,9 +100,53 @@ pub struct DiagnoseOptions {
     /// Held-out RMS of $|B_{fluxgate}| - F$ above which the fluxgate's
     /// calibration is reported, nT.
     pub vector_mismatch_nt: f64,
-    /// `run` and `compensate` diagnose each flight first and fit and
-    /// compensate every channel with the model its findings make.
-    pub apply: bool,
+    /// Whether `run` and `compensate` diagnose each flight first and fit
+    /// and compensate every channel with the model its findings make.
+    pub apply: ApplyDiagnosis,
+}
+
+/// `[diagnose] apply`: whether `run` and `compensate` use the diagnosis.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case", try_from = "ApplySetting")]
+pub enum ApplyDiagnosis {
+    /// Diagnose every flight and fit with the findings that pass the
+    /// held-out test and the permutation guard; a flight whose calibration
+    /// cannot be diagnosed is compensated with plain Tolles-Lawson, with a
+    /// warning saying why (the default).
+    Auto,
+    /// Plain Tolles-Lawson only (`--plain`).
+    Never,
+    /// Diagnose every flight and fit with its findings; a flight that
+    /// cannot be diagnosed is an error.
+    Always,
+}
+
+/// `apply` as written: `"auto"`, `"never"`, `"always"`, or the booleans of
+/// earlier versions (`true` = `"always"`, `false` = `"never"`).
+#[derive(Deserialize)]
+#[serde(untagged)]
+enum ApplySetting {
+    Flag(bool),
+    Word(String),
+}
+
+impl TryFrom<ApplySetting> for ApplyDiagnosis {
+    type Error = String;
+
+    fn try_from(setting: ApplySetting) -> std::result::Result<Self, String> {
+        match setting {
+            ApplySetting::Flag(true) => Ok(ApplyDiagnosis::Always),
+            ApplySetting::Flag(false) => Ok(ApplyDiagnosis::Never),
+            ApplySetting::Word(word) => match word.as_str() {
+                "auto" => Ok(ApplyDiagnosis::Auto),
+                "never" => Ok(ApplyDiagnosis::Never),
+                "always" => Ok(ApplyDiagnosis::Always),
+                other => Err(format!(
+                    "[diagnose] apply = \"{other}\": use \"auto\" (the default), \"never\" or \"always\""
+                )),
+            },
+        }
+    }
 }
 
 impl Default for DiagnoseOptions {
@@ -112,7 +156,7 @@ impl Default for DiagnoseOptions {
             max_lag_s: 0.5,
             max_findings: 3,
             vector_mismatch_nt: 200.0,
-            apply: false,
+            apply: ApplyDiagnosis::Auto,
         }
     }
 }
@@ -195,6 +239,9 @@ pub struct ChannelDiagnosis {
 /// DIAGNOSIS.json.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Diagnosis {
+    /// The flight diagnosed: a saved diagnosis is applied to it alone.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub flight: Option<crate::flight_identity::FlightIdentity>,
     /// Per channel.
     pub channels: Vec<ChannelDiagnosis>,
     /// Accepted effects.
@@ -218,10 +265,65 @@ impl Diagnosis {
     }
 }
 
-/// The diagnosed model of each channel in a DIAGNOSIS.json.
-pub fn read_models(path: &std::path::Path) -> Result<BTreeMap<String, Augmentation>> {
+/// A DIAGNOSIS.json as read back: the flight it was made on and each
+/// channel's diagnosed model.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SavedDiagnosis {
+    /// The flight diagnosed (absent in files of older versions).
+    pub flight: Option<crate::flight_identity::FlightIdentity>,
+    /// Each channel's diagnosed model.
+    pub models: BTreeMap<String, Augmentation>,
+}
+
+impl SavedDiagnosis {
+    /// The models, after checking that the diagnosis was made on `log`:
+    /// a diagnosis of another flight is an error unless `force`. Also
+    /// returns a remark for the user when the check could not be made or
+    /// was overridden.
+    pub fn models_for(
+        self,
+        path: &std::path::Path,
+        log: &FlightLog,
+        force: bool,
+    ) -> Result<(BTreeMap<String, Augmentation>, Option<String>)> {
+        let Some(made_on) = &self.flight else {
+            let remark = format!(
+                "{} does not record the flight it was made on (an older magcomp wrote it), so it was applied to {} without checking that it belongs to it",
+                path.display(),
+                log.source().display()
+            );
+            return Ok((self.models, Some(remark)));
+        };
+        let applied_to = crate::flight_identity::FlightIdentity::of(log)?;
+        let Some(difference) = made_on.difference(&applied_to) else {
+            return Ok((self.models, None));
+        };
+        if !force {
+            return Err(crate::Error::OtherFlight {
+                path: path.to_path_buf(),
+                what: "this diagnosis",
+                made_on: made_on.describe(),
+                applied_to: applied_to.describe(),
+                difference,
+            });
+        }
+        let remark = format!(
+            "{} was made on {}, not on {} ({difference}); applied anyway because of --force",
+            path.display(),
+            made_on.describe(),
+            applied_to.describe()
+        );
+        Ok((self.models, Some(remark)))
+    }
+}
+
+/// The diagnosed model of each channel in a DIAGNOSIS.json, with the
+/// flight it was made on.
+pub fn read_saved(path: &std::path::Path) -> Result<SavedDiagnosis> {
     #[derive(Deserialize)]
     struct File {
+        #[serde(default)]
+        flight: Option<crate::flight_identity::FlightIdentity>,
         channels: Vec<Entry>,
     }
     #[derive(Deserialize)]
@@ -235,7 +337,10 @@ pub fn read_models(path: &std::path::Path) -> Result<BTreeMap<String, Augmentati
         source_name: path.display().to_string(),
         message: format!("not a DIAGNOSIS.json as `magcomp diagnose` writes it ({e}); diagnose the flight again"),
     })?;
-    Ok(file.channels.into_iter().map(|e| (e.channel, e.model)).collect())
+    Ok(SavedDiagnosis {
+        flight: file.flight,
+        models: file.channels.into_iter().map(|e| (e.channel, e.model)).collect(),
+    })
 }
 
 /// The fluxgate's magnitude against the quietest scalar channel.
@@ -302,6 +407,36 @@ const CRITERION_CHECKS: usize = 8;
 struct HeldOut {
     rms_nt: f64,
     windows: Vec<WindowFit>,
+    /// Samples the RMS is measured on.
+    samples: usize,
+    /// The most coefficients of any of its fits.
+    terms: usize,
+    /// The fewest samples any of its fits was made on.
+    fewest_training_samples: usize,
+}
+
+impl HeldOut {
+    /// Why this held-out figure cannot serve as a baseline, if it cannot:
+    /// zero or non-finite, measured on fewer samples than the model has
+    /// terms, or from a fit on fewer samples than terms.
+    fn unusable(&self) -> Option<String> {
+        if !self.rms_nt.is_finite() || self.rms_nt <= 0.0 {
+            return Some(format!("the held-out RMS is {} nT", self.rms_nt));
+        }
+        if self.samples < self.terms {
+            return Some(format!(
+                "the held-out residual has {} samples, fewer than the model's {} terms",
+                self.samples, self.terms
+            ));
+        }
+        if self.fewest_training_samples <= self.terms {
+            return Some(format!(
+                "a fold was fitted on {} samples, no more than the model's {} terms",
+                self.fewest_training_samples, self.terms
+            ));
+        }
+        None
+    }
 }
 
 /// The data one channel's diagnosis works on.
@@ -327,10 +462,15 @@ pub fn diagnose(
     options: &FitOptions,
     settings: &DiagnoseOptions,
 ) -> Result<Diagnosis> {
+    let hold_out = HoldOut::of(windows);
+    if let Some(problem) = hold_out.insufficient() {
+        return Err(not_enough_calibration(log, problem));
+    }
     let (fluxgate, mut notes) = match check_fluxgate(log, sensor, channels, windows) {
         Ok(check) => (Some(check), Vec::new()),
         Err(why) => (None, vec![format!("fluxgate calibration not checked: {why}")]),
     };
+    notes.extend(hold_out.caveat());
     // The calibrated fluxgate is tried only once its finding stands.
     let calibrated = fluxgate
         .as_ref()
@@ -340,7 +480,8 @@ pub fn diagnose(
     let raw_direction = field_directions(log, sensor);
     let levels = source_levels(log);
     let calibrated_direction = calibrated.as_ref().map(|l| field_directions(l, sensor));
-    let results: Vec<(ChannelDiagnosis, Vec<Finding>)> = channels
+    #[allow(clippy::type_complexity)]
+    let results: Vec<std::result::Result<(ChannelDiagnosis, Vec<Finding>), String>> = channels
         .par_iter()
         .map(|channel| {
             let problem = |log, direction| Problem {
@@ -354,6 +495,11 @@ pub fn diagnose(
             };
             let raw_problem = problem(log, &raw_direction);
             let raw = held_out(&raw_problem, &Model::default())?;
+            if let Some(why) = raw.unusable() {
+                return Ok(Err(format!(
+                    "{channel}: not diagnosed: {why}, so no effect can be measured against it"
+                )));
+            }
             let raw_rms = raw.rms_nt;
             // λ by the other criterion: the search starts from whichever
             // predicts the held-out headings better (see `criterion_trial`).
@@ -391,9 +537,16 @@ pub fn diagnose(
             if label == "calibrated" {
                 summary.model.vector_calibration = fluxgate.as_ref().map(|check| check.calibration.clone());
             }
-            Ok((summary, found))
+            Ok(Ok((summary, found)))
         })
         .collect::<Result<_>>()?;
+    let (results, untestable): (Vec<_>, Vec<_>) = results.into_iter().partition(|r| r.is_ok());
+    let untestable: Vec<String> = untestable.into_iter().filter_map(|r| r.err()).collect();
+    if results.is_empty() {
+        return Err(not_enough_calibration(log, untestable.join("; ")));
+    }
+    notes.extend(untestable);
+    let results: Vec<(ChannelDiagnosis, Vec<Finding>)> = results.into_iter().filter_map(|r| r.ok()).collect();
     // Hundreds of fits are done; their recycled stores are not needed.
     crate::stacked::release_spare_stores();
     let (channel_results, findings): (Vec<_>, Vec<_>) = results.into_iter().unzip();
@@ -433,6 +586,7 @@ pub fn diagnose(
         ));
     }
     Ok(Diagnosis {
+        flight: None,
         channels: channel_results,
         findings,
         fluxgate,
@@ -686,6 +840,9 @@ fn diagnose_channel(
         let mut scored: Vec<(Model, Extension, HeldOut)> = candidates
             .into_par_iter()
             .filter_map(|(next, extension)| held_out(problem, &next).ok().map(|h| (next, extension, h)))
+            // A candidate with more terms than its folds have samples
+            // measures nothing.
+            .filter(|(_, _, h)| h.unusable().is_none())
             .collect();
         drop_unearned_rates(&mut scored, keep);
         scored.sort_by(|a, b| a.2.rms_nt.total_cmp(&b.2.rms_nt));
@@ -1151,27 +1308,111 @@ fn residuals(
     let (log, extra) = (prepared.log.as_ref(), prepared.regressors());
     let options = model.fit_options(problem.options);
     let mut windows = Vec::new();
+    let (mut terms, mut fewest_training_samples) = (0, usize::MAX);
     for (out, rest) in splits {
         let fitted = model.fit_prepared(log, problem.sensor, problem.channel, &rest, &options, &extra)?;
+        terms = terms.max(fitted.coefficients.len());
+        fewest_training_samples = fewest_training_samples.min(fitted.solution.samples);
         windows.extend(model.held_out_prepared(&fitted, log, problem.sensor, &out, &options, &extra)?);
     }
     let all: Vec<f64> = windows.iter().flat_map(|w| w.band_after_nt.iter().copied()).collect();
     Ok(HeldOut {
         rms_nt: root_mean_square(&all),
         windows,
+        samples: all.len(),
+        terms,
+        fewest_training_samples,
     })
 }
 
-/// The held-out splits (held out, trained on): each heading with three
-/// headings or more (leave one heading out); otherwise each window with
-/// three windows or more; otherwise each quarter of every window.
-fn folds(windows: &[CalibrationWindow]) -> Vec<(Vec<CalibrationWindow>, Vec<CalibrationWindow>)> {
+/// How the calibration windows are held out.
+#[derive(Debug, Clone, PartialEq)]
+enum HoldOut {
+    /// No window at all.
+    Nothing,
+    /// Windows of a box (each with its heading) on fewer than three headings.
+    TooFewHeadings(Vec<f64>),
+    /// Leave one heading out, over these headings.
+    ByHeading(Vec<f64>),
+    /// Leave one window out (windows without headings, three or more).
+    ByWindow(usize),
+    /// Leave one quarter of a window out (one or two windows without headings).
+    ByQuarter(usize),
+}
+
+impl HoldOut {
+    /// How `windows` can be held out. Windows that all carry a heading come
+    /// from a box (detected, or a DETECT.json): they are held out by
+    /// heading or not at all. Windows given by time alone are held out as
+    /// well as their number allows.
+    fn of(windows: &[CalibrationWindow]) -> Self {
+        let headings = distinct_headings(windows);
+        let boxed = windows.iter().all(|w| w.heading_deg.is_some());
+        match windows.len() {
+            0 => HoldOut::Nothing,
+            _ if boxed && headings.len() >= 3 => HoldOut::ByHeading(headings),
+            _ if boxed => HoldOut::TooFewHeadings(headings),
+            n if n >= 3 => HoldOut::ByWindow(n),
+            n => HoldOut::ByQuarter(n),
+        }
+    }
+
+    /// What makes the windows unfit for a diagnosis, in words.
+    fn insufficient(&self) -> Option<String> {
+        match self {
+            HoldOut::Nothing => Some("it has no calibration windows: no manoeuvres were detected and none were given".into()),
+            HoldOut::TooFewHeadings(headings) => Some(format!(
+                "its calibration manoeuvres are on {} heading{} ({}), too few to hold one out (leave-one-heading-out needs three)",
+                headings.len(),
+                if headings.len() == 1 { "" } else { "s" },
+                headings.iter().map(|h| format!("{h:.0}°")).collect::<Vec<_>>().join(", ")
+            )),
+            _ => None,
+        }
+    }
+
+    /// What a diagnosis held out this way cannot test, in words.
+    fn caveat(&self) -> Option<String> {
+        match self {
+            HoldOut::ByWindow(n) => Some(format!(
+                "held out window by window ({n} windows given by time, without headings), not heading by heading: the figures test what those windows share, and an effect that changes with heading is tested only as far as they differ"
+            )),
+            HoldOut::ByQuarter(n) => Some(format!(
+                "held out by quarters of {n} window{} given by time: each quarter is predicted from the rest of its own window, so the figures test consistency within the windows, not transfer to other headings or manoeuvres",
+                if *n == 1 { "" } else { "s" }
+            )),
+            _ => None,
+        }
+    }
+}
+
+/// The flight's error for a diagnosis its calibration cannot support.
+fn not_enough_calibration(log: &FlightLog, problem: String) -> crate::Error {
+    crate::Error::NotEnoughCalibration {
+        path: log.source().to_path_buf(),
+        task: "the diagnosis",
+        problem,
+        hint: "Nothing was diagnosed. Fly (or give) a calibration box with manoeuvres on at least three headings (`magcomp detect FLIGHT --out DETECT.json` shows what detection found and what is missing), or name the windows to test with --window T0:T1; the diagnosis then reports what those windows can test.".into(),
+    }
+}
+
+/// The headings of `windows`, one per group within 15° of each other, in
+/// order of first appearance.
+fn distinct_headings(windows: &[CalibrationWindow]) -> Vec<f64> {
     let mut headings: Vec<f64> = Vec::new();
     for heading in windows.iter().filter_map(|w| w.heading_deg) {
         if !headings.iter().any(|h| apart(*h, heading) < 15.0) {
             headings.push(heading);
         }
     }
+    headings
+}
+
+/// The held-out splits (held out, trained on): each heading with three
+/// headings or more (leave one heading out); otherwise each window with
+/// three windows or more; otherwise each quarter of every window.
+fn folds(windows: &[CalibrationWindow]) -> Vec<(Vec<CalibrationWindow>, Vec<CalibrationWindow>)> {
+    let headings = distinct_headings(windows);
     let split = |pieces: &[CalibrationWindow], is_out: &dyn Fn(usize, &CalibrationWindow) -> bool| {
         let (out, rest): (Vec<_>, Vec<_>) = pieces.iter().enumerate().partition(|(k, w)| is_out(*k, w));
         (

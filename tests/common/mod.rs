@@ -68,6 +68,7 @@ pub fn diagnose_log(log: &magcomp::flight_log::FlightLog) -> Diagnosis {
     let pipeline = Pipeline::default();
     let job = FlightJob {
         diagnosis: None,
+        force_diagnosis: false,
         input: "simulated".into(),
         vector: None,
         channels: None,

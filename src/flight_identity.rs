@@ -1,0 +1,161 @@
+//! Which flight a saved result was made on: file name, rows, time span and
+//! a SHA-256 content hash (DIAGNOSIS.json's `flight`, CONTRACT §3).
+//!
+//! A diagnosis holds per-channel physics (a sensor's lag, a current's
+//! coupling) of one aircraft on one day. Applied to another flight it
+//! compensates with physics that flight may not have, so a saved diagnosis
+//! records its flight and is refused on any other.
+
+use std::io::Read;
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+use sha2::{Digest, Sha256};
+
+use crate::error::{Error, Result};
+use crate::flight_log::FlightLog;
+
+/// What was hashed for [`FlightIdentity::sha256`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum HashedContent {
+    /// The input file's bytes (what `sha256sum FLIGHT` prints).
+    File,
+    /// The flight log as read (column names, times and values), for a log
+    /// that did not come from a file.
+    Log,
+}
+
+/// The flight a result was made on.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FlightIdentity {
+    /// The input's file name, without its folder.
+    pub file: String,
+    /// Rows of the flight log.
+    pub rows: usize,
+    /// First time, in the file's time unit.
+    pub t_start: f64,
+    /// Last time.
+    pub t_end: f64,
+    /// SHA-256, lowercase hex.
+    pub sha256: String,
+    /// What the hash covers.
+    #[serde(default = "file_content")]
+    pub hashed: HashedContent,
+}
+
+fn file_content() -> HashedContent {
+    HashedContent::File
+}
+
+impl FlightIdentity {
+    /// The identity of `log`: its source file hashed when the file can be
+    /// read, otherwise the log's own content.
+    pub fn of(log: &FlightLog) -> Result<Self> {
+        let source = log.source();
+        let (sha256, hashed) = match source.is_file() {
+            true => (hash_file(source)?, HashedContent::File),
+            false => (hash_log(log), HashedContent::Log),
+        };
+        let time = log.time_s();
+        Ok(FlightIdentity {
+            file: source
+                .file_name()
+                .map_or_else(|| source.display().to_string(), |n| n.to_string_lossy().into_owned()),
+            rows: log.len(),
+            t_start: time.first().copied().unwrap_or(f64::NAN),
+            t_end: time.last().copied().unwrap_or(f64::NAN),
+            sha256,
+            hashed,
+        })
+    }
+
+    /// How `other` differs from this flight, in words; `None` when they
+    /// are the same flight (same hash of the same kind of content).
+    pub fn difference(&self, other: &FlightIdentity) -> Option<String> {
+        if self.hashed == other.hashed && self.sha256 == other.sha256 {
+            return None;
+        }
+        let mut differences = Vec::new();
+        if self.rows != other.rows {
+            differences.push(format!("{} rows against {}", self.rows, other.rows));
+        }
+        if self.t_start.to_bits() != other.t_start.to_bits() || self.t_end.to_bits() != other.t_end.to_bits() {
+            differences.push(format!(
+                "times {}–{} against {}–{}",
+                self.t_start, self.t_end, other.t_start, other.t_end
+            ));
+        }
+        differences.push(format!(
+            "content hash {} against {}",
+            short(&self.sha256),
+            short(&other.sha256)
+        ));
+        Some(differences.join(", "))
+    }
+
+    /// "name (rows, t_start–t_end)".
+    pub fn describe(&self) -> String {
+        format!("{} ({} rows, {}–{})", self.file, self.rows, self.t_start, self.t_end)
+    }
+}
+
+fn short(hash: &str) -> &str {
+    &hash[..hash.len().min(12)]
+}
+
+fn hex(digest: &[u8]) -> String {
+    digest.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// SHA-256 of a file's bytes, read in 1 MiB blocks.
+fn hash_file(path: &Path) -> Result<String> {
+    let mut file = std::fs::File::open(path).map_err(|e| Error::io(path, "reading (to hash)", e))?;
+    let mut hasher = Sha256::new();
+    let mut block = vec![0u8; 1 << 20];
+    loop {
+        let read = file
+            .read(&mut block)
+            .map_err(|e| Error::io(path, "reading (to hash)", e))?;
+        if read == 0 {
+            break;
+        }
+        hasher.update(&block[..read]);
+    }
+    Ok(hex(&hasher.finalize()))
+}
+
+/// SHA-256 of the log's column names, times and values (IEEE-754 bits,
+/// little-endian), for a log with no file behind it.
+fn hash_log(log: &FlightLog) -> String {
+    let mut hasher = Sha256::new();
+    hasher.update(log.time_column().as_bytes());
+    for t in log.time_s() {
+        hasher.update(t.to_le_bytes());
+    }
+    for channel in log.channels() {
+        hasher.update([0]);
+        hasher.update(channel.name.as_bytes());
+        for v in &channel.values {
+            hasher.update(v.to_le_bytes());
+        }
+    }
+    hex(&hasher.finalize())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_hash_of_a_file_is_the_standard_sha256() {
+        // FIPS 180-2 test vector: SHA-256("abc").
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("abc.txt");
+        std::fs::write(&path, "abc").unwrap();
+        assert_eq!(
+            hash_file(&path).unwrap(),
+            "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad"
+        );
+    }
+}
