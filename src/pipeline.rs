@@ -114,8 +114,17 @@ pub struct AppliedFinding {
 }
 
 impl AppliedFinding {
-    /// "sensor_lag on mag_1_uc: held-out RMS 0.108 → 0.032 nT (−70 % against plain Tolles-Lawson's 0.108 nT)".
+    /// "sensor_lag on mag_1_uc: held-out RMS 0.1080 → 0.0320 nT (−70 % against the model before it)".
     pub fn describe(&self) -> String {
+        if self.effect == "vector_calibration" {
+            return format!(
+                "vector_calibration of {}: magnitude against {}, held out, {:.1} → {:.1} nT",
+                self.channel,
+                self.source.as_deref().unwrap_or("the scalar"),
+                self.heldout_rms_before_nt,
+                self.heldout_rms_after_nt
+            );
+        }
         format!(
             "{} on {}{}: held-out RMS {:.4} → {:.4} nT ({:+.0} % against the model before it)",
             self.effect,
@@ -408,11 +417,11 @@ fn augmentation_plan(
                 warnings: Vec::new(),
             })
         }
-        Err(error @ Error::NotEnoughCalibration { .. }) if options.diagnose.apply == ApplyDiagnosis::Auto => {
-            Ok(plain(vec![format!(
-                "not diagnosed, so compensated with plain Tolles-Lawson: {error}"
-            )]))
-        }
+        // Under "auto" a flight that cannot be diagnosed is fitted plain,
+        // loudly; the plain fit then reports any fault of the data itself.
+        Err(error) if options.diagnose.apply == ApplyDiagnosis::Auto => Ok(plain(vec![format!(
+            "not diagnosed, so compensated with plain Tolles-Lawson: {error}"
+        )])),
         Err(error) => Err(error),
     }
 }

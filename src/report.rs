@@ -581,7 +581,8 @@ pub fn diagnosis_section(diagnosis: &Diagnosis) -> Result<String> {
 const STYLE: &str = "body{font-family:sans-serif;margin:2em;max-width:1000px}h2{border-bottom:1px solid #ccc}\
 table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #ddd;padding:3px 8px;text-align:right}\
 .pass{color:#176b1d;font-weight:bold}.fail{color:#b00020;font-weight:bold}.missing{color:#888}\
-.grid{display:flex;flex-wrap:wrap;gap:4px}figure{margin:0}";
+.grid{display:flex;flex-wrap:wrap;gap:4px}figure{margin:0}\
+.warning{background:#fff3cd;border-left:4px solid #b00020;padding:4px 8px}";
 
 /// Writes a page with the diagnosis section alone (`magcomp diagnose`).
 pub fn write_diagnosis_report(path: &Path, flight: &Path, diagnosis: &Diagnosis) -> Result<()> {
@@ -591,6 +592,32 @@ pub fn write_diagnosis_report(path: &Path, flight: &Path, diagnosis: &Diagnosis)
         diagnosis_section(diagnosis)?
     );
     write_atomic(path, |out| std::io::Write::write_all(out, html.as_bytes()))
+}
+
+/// Which diagnosed findings the fit applied and what each bought held out.
+fn applied_findings_section(result: &FlightResult) -> String {
+    use crate::diagnose::ApplyDiagnosis;
+    let mut html = String::from("<section id=\"applied\"><h2>Model</h2>");
+    if result.diagnosis_mode == ApplyDiagnosis::Never {
+        html += "<p>Plain Tolles-Lawson: no diagnosis applied (<code>--plain</code> or <code>[diagnose] apply = \"never\"</code>).</p>";
+    } else if result.applied_findings.is_empty() {
+        html += "<p>Plain Tolles-Lawson: no diagnosed finding changes the model.</p>";
+    } else {
+        html += "<table><tr><th>channel</th><th>effect</th><th>source</th><th>held-out RMS before, nT</th><th>with it, nT</th></tr>";
+        for applied in &result.applied_findings {
+            let _ = write!(
+                html,
+                "<tr class=\"applied\"><td>{}</td><td>{}</td><td>{}</td><td>{:.4}</td><td>{:.4}</td></tr>",
+                escape(&applied.channel),
+                escape(&applied.effect),
+                escape(applied.source.as_deref().unwrap_or("")),
+                applied.heldout_rms_before_nt,
+                applied.heldout_rms_after_nt
+            );
+        }
+        html += "</table>";
+    }
+    html + "</section>"
 }
 
 /// Writes the report to `path` and its figures as JSON beside it
@@ -607,6 +634,10 @@ pub fn write_report(
         escape(&result.flight.display().to_string())
     );
     let _ = write!(html, "<p>{} rows.</p>", result.rows);
+    for warning in &result.warnings {
+        let _ = write!(html, "<p class=\"warning\">Warning: {}</p>", escape(warning));
+    }
+    html += &applied_findings_section(result);
     for note in &result.notes {
         let _ = write!(html, "<p class=\"note\">{}</p>", escape(note));
     }

@@ -1,0 +1,263 @@
+//! The physics path is right or loudly uncertain: a diagnosis without
+//! calibration to hold out refuses to guess, a saved diagnosis is applied
+//! to its own flight only, and the default compensation applies what the
+//! diagnosis proves and says so.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use magcomp::config::{FlightJob, Pipeline};
+use magcomp::diagnose::ApplyDiagnosis;
+use magcomp::pipeline::{process_flight, FlightOutputs, StageOptions};
+use magcomp::simulate::scenario::{RawScenario, Scenario};
+use magcomp::windows::CalibrationWindow;
+use magcomp::Error;
+
+fn sample(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("sample_flights")
+        .join(name)
+}
+
+fn magcomp(args: &[&str]) -> (i32, String, String) {
+    let output = Command::new(env!("CARGO_BIN_EXE_magcomp")).args(args).output().unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr).into_owned();
+    assert!(!stderr.contains("panicked"), "magcomp panicked: {stderr}");
+    (
+        output.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&output.stdout).into_owned(),
+        stderr,
+    )
+}
+
+/// A simulated flight written to `folder/name`.
+fn simulated(folder: &Path, name: &str, edit: impl FnOnce(&mut RawScenario)) -> PathBuf {
+    let mut raw = RawScenario {
+        seed: 21,
+        ..RawScenario::default()
+    };
+    raw.survey.line_count = 1;
+    raw.survey.line_length_m = 3000.0;
+    edit(&mut raw);
+    let flight = magcomp::simulate::simulate(&Scenario::try_from(raw).unwrap()).unwrap();
+    let path = folder.join(name);
+    magcomp::output::write_flight_log(&flight.log, &path).unwrap();
+    path
+}
+
+/// `magcomp diagnose` on flights with nothing to hold out: a survey-only
+/// flight, a one-row file and (when `../shared/reference/` is present) the
+/// real 100 s survey segment. Each exits non-zero with the paragraph that
+/// says why, and writes no DIAGNOSIS.json. Before, each exited 0 with a
+/// lag and an eddy τ measured against a held-out RMS of 0 nT.
+#[test]
+fn a_diagnosis_without_calibration_manoeuvres_is_refused() {
+    let folder = tempfile::tempdir().unwrap();
+    let survey_only = simulated(folder.path(), "survey.csv", |raw| {
+        raw.calibration.repeats = 0;
+        raw.survey.line_count = 2;
+    });
+    let text = std::fs::read_to_string(sample("clean.csv")).unwrap();
+    let one_row = folder.path().join("one_row.csv");
+    std::fs::write(&one_row, text.lines().take(2).collect::<Vec<_>>().join("\n")).unwrap();
+    let mut flights = vec![survey_only, one_row];
+    let reference = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/reference/magnav_tl_segment.csv");
+    match reference.exists() {
+        true => flights.push(reference),
+        false => println!("../shared/reference/ is absent: the real segment is not tried"),
+    }
+    for flight in flights {
+        let out = folder.path().join("DIAGNOSIS.json");
+        let (code, stdout, stderr) = magcomp(&["diagnose", flight.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+        println!("{}: exit {code}\n{stderr}", flight.display());
+        assert_ne!(code, 0, "{}: {stdout}", flight.display());
+        assert!(stderr.contains("no calibration windows"), "{stderr}");
+        assert!(stderr.contains("--window"), "the error names the way out: {stderr}");
+        assert!(!out.exists());
+    }
+}
+
+/// A box flown on two headings only cannot hold a heading out: refused,
+/// with the headings named.
+#[test]
+fn a_box_on_two_headings_is_not_diagnosed() {
+    let folder = tempfile::tempdir().unwrap();
+    let flight = simulated(folder.path(), "two.csv", |raw| {
+        raw.calibration.headings_deg = vec![20.0, 110.0];
+    });
+    let log = magcomp::ingest::read_flight_log(&flight, &Default::default()).unwrap();
+    let pipeline = Pipeline::default();
+    let error = magcomp::pipeline::diagnose_flight(
+        &log,
+        &FlightJob::new(&flight),
+        &StageOptions::from(&pipeline),
+        &pipeline.diagnose,
+    )
+    .unwrap_err();
+    let text = error.to_string();
+    assert!(matches!(error, Error::NotEnoughCalibration { .. }), "{text}");
+    assert!(text.contains("2 headings (20°, 110°)"), "{text}");
+}
+
+/// Windows given by time are tested as far as they can be, and the
+/// diagnosis says what that leaves untested.
+#[test]
+fn windows_given_by_time_are_tested_with_a_caveat() {
+    let log = magcomp::ingest::read_flight_log(&sample("clean.csv"), &Default::default()).unwrap();
+    let windows: Vec<CalibrationWindow> = magcomp::windows::read_detect_json(&sample("clean.windows.json"), 5.0)
+        .unwrap()
+        .into_iter()
+        .map(|w| CalibrationWindow::new(w.t_start, w.t_end))
+        .collect();
+    let pipeline = Pipeline::default();
+    let job = FlightJob {
+        windows,
+        ..FlightJob::new(sample("clean.csv"))
+    };
+    let diagnosis =
+        magcomp::pipeline::diagnose_flight(&log, &job, &StageOptions::from(&pipeline), &pipeline.diagnose).unwrap();
+    assert!(
+        diagnosis.notes.iter().any(|n| n.contains("held out window by window")),
+        "{:?}",
+        diagnosis.notes
+    );
+    for channel in &diagnosis.channels {
+        assert!(channel.heldout_rms_baseline_nt > 0.0 && channel.heldout_rms_baseline_nt.is_finite());
+    }
+}
+
+/// DIAGNOSIS.json records its flight; applied to another flight it is
+/// refused, with --force it is applied with a warning, and on its own
+/// flight it is applied silently.
+#[test]
+fn a_diagnosis_is_applied_to_its_own_flight_only() {
+    let folder = tempfile::tempdir().unwrap();
+    let f = |name: &str| folder.path().join(name).to_str().unwrap().to_string();
+    let own = sample("concealed_a.csv");
+    let other = sample("clean.csv");
+    let (code, _, stderr) = magcomp(&["diagnose", own.to_str().unwrap(), "--out", &f("a.json")]);
+    assert_eq!(code, 0, "{stderr}");
+    let saved: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(f("a.json")).unwrap()).unwrap();
+    assert_eq!(saved["flight"]["file"], "concealed_a.csv");
+    assert_eq!(saved["flight"]["rows"], 16140);
+    // The file's own SHA-256, as `sha256sum` prints it.
+    assert_eq!(saved["flight"]["sha256"].as_str().unwrap().len(), 64);
+
+    let (code, _, stderr) = magcomp(&[
+        "compensate",
+        other.to_str().unwrap(),
+        "--out",
+        &f("other.csv"),
+        "--diagnosis",
+        &f("a.json"),
+    ]);
+    assert_ne!(code, 0);
+    assert!(
+        stderr.contains("was made on concealed_a.csv")
+            && stderr.contains("not on clean.csv")
+            && stderr.contains("--force"),
+        "{stderr}"
+    );
+    assert!(!Path::new(&f("other.csv")).exists());
+
+    let (code, stdout, stderr) = magcomp(&[
+        "compensate",
+        other.to_str().unwrap(),
+        "--out",
+        &f("forced.csv"),
+        "--diagnosis",
+        &f("a.json"),
+        "--force",
+    ]);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(
+        stdout.contains("warning:") && stdout.contains("applied anyway because of --force"),
+        "{stdout}"
+    );
+
+    let (code, stdout, stderr) = magcomp(&[
+        "compensate",
+        own.to_str().unwrap(),
+        "--out",
+        &f("own.csv"),
+        "--diagnosis",
+        &f("a.json"),
+    ]);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(!stdout.contains("warning: "), "{stdout}");
+}
+
+/// By default a flight is diagnosed and fitted with what the diagnosis
+/// proves; stdout and the quality JSON say which findings were applied and
+/// what each bought. `--plain` fits plain Tolles-Lawson and says so.
+#[test]
+fn the_default_compensation_applies_the_diagnosis_and_says_so() {
+    let folder = tempfile::tempdir().unwrap();
+    let f = |name: &str| folder.path().join(name).to_str().unwrap().to_string();
+    let input = sample("concealed_a.csv");
+    let (code, stdout, stderr) = magcomp(&[
+        "compensate",
+        input.to_str().unwrap(),
+        "--out",
+        &f("auto.csv"),
+        "--report",
+        &f("auto.json"),
+    ]);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(
+        stdout.contains("diagnosis applied:") && stdout.contains("sensor_lag on mag_2_uc"),
+        "{stdout}"
+    );
+    let quality: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(f("auto.json")).unwrap()).unwrap();
+    assert_eq!(quality["diagnosis_mode"], "auto");
+    let applied = quality["applied_findings"].as_array().unwrap();
+    assert_eq!(applied.len(), 1);
+    assert_eq!(applied[0]["effect"], "sensor_lag");
+    let (before, after) = (
+        applied[0]["heldout_rms_before_nt"].as_f64().unwrap(),
+        applied[0]["heldout_rms_after_nt"].as_f64().unwrap(),
+    );
+    // The figures printed are the JSON's.
+    assert!(stdout.contains(&format!("{before:.4} → {after:.4} nT")), "{stdout}");
+    assert!(after < 0.5 * before);
+
+    let (code, stdout, _) = magcomp(&[
+        "compensate",
+        input.to_str().unwrap(),
+        "--out",
+        &f("plain.csv"),
+        "--plain",
+    ]);
+    assert_eq!(code, 0);
+    assert!(
+        stdout.contains("diagnosis: not applied (plain Tolles-Lawson)"),
+        "{stdout}"
+    );
+    // The lag plain Tolles-Lawson leaves fails the FOM limit, loudly.
+    assert!(stdout.contains("warning: mag_2_uc: FOM"), "{stdout}");
+}
+
+/// Under "auto" a flight that cannot be diagnosed is compensated plain,
+/// with a warning that says why; under "always" it is an error.
+#[test]
+fn a_flight_that_cannot_be_diagnosed_is_compensated_plain_with_a_warning() {
+    let folder = tempfile::tempdir().unwrap();
+    let flight = simulated(folder.path(), "two.csv", |raw| {
+        raw.calibration.headings_deg = vec![20.0, 110.0];
+    });
+    let outputs = FlightOutputs::in_directory(&folder.path().join("out"), &flight);
+    let mut options = StageOptions::from(&Pipeline::default());
+    let result = process_flight(&FlightJob::new(&flight), &options, &outputs).unwrap();
+    assert!(result.diagnosis.is_none() && result.applied_findings.is_empty());
+    assert!(
+        result
+            .warnings
+            .iter()
+            .any(|w| w.starts_with("not diagnosed, so compensated with plain Tolles-Lawson")),
+        "{:?}",
+        result.warnings
+    );
+    options.diagnose.apply = ApplyDiagnosis::Always;
+    let error = process_flight(&FlightJob::new(&flight), &options, &outputs).unwrap_err();
+    assert!(matches!(error, Error::NotEnoughCalibration { .. }), "{error}");
+}
