@@ -374,6 +374,8 @@ fn check_detect(raw: &DetectOptions) -> std::result::Result<(), String> {
         ("envelope_s", raw.envelope_s),
         ("turbulence_factor", raw.turbulence_factor),
         ("max_half_cycle_spread", raw.max_half_cycle_spread),
+        ("leg_run_on_s", raw.leg_run_on_s),
+        ("max_turn_s", raw.max_turn_s),
     ];
     for (name, value) in positive {
         if !(value.is_finite() && value > 0.0) {

@@ -80,6 +80,11 @@ pub struct DetectOptions {
     pub max_peak_spread: f64,
     /// Longest pause between two legs of one box, s.
     pub max_turn_s: f64,
+    /// A leg that runs on straight for longer than this before its first
+    /// or after its last manoeuvre (a climb before it, a descent or a
+    /// survey line on the same heading after it) is cut this far from the
+    /// manoeuvre; the rest becomes a leg of its own, s.
+    pub leg_run_on_s: f64,
     /// Level flight kept on each side of a detected manoeuvre when it becomes
     /// a calibration window, s.
     pub window_margin_s: f64,
@@ -106,6 +111,7 @@ impl Default for DetectOptions {
             max_half_cycle_spread: 0.4,
             max_peak_spread: 0.3,
             max_turn_s: 300.0,
+            leg_run_on_s: 30.0,
             window_margin_s: 5.0,
         }
     }
@@ -210,10 +216,12 @@ pub fn detect_manoeuvres(log: &FlightLog, options: &DetectOptions) -> Result<Det
     let dt = log.median_interval_s();
     let smoothed = smooth_heading(&attitude.heading_deg, samples(options.heading_smoothing_s, dt));
     let roll = (attitude.source == AttitudeSource::Ins).then_some(attitude.angles[1].as_slice());
-    let legs = find_legs(log, &attitude.heading_deg, &smoothed, roll, options);
+    let mut legs = Vec::new();
     let mut manoeuvres = Vec::new();
-    for leg in &legs {
-        manoeuvres.extend(leg_manoeuvres(log, &attitude, leg, options));
+    for leg in find_legs(log, &attitude.heading_deg, &smoothed, roll, options) {
+        let found = leg_manoeuvres(log, &attitude, &leg, options);
+        legs.extend(cut_run_on(log.time_s(), leg, &found, options.leg_run_on_s));
+        manoeuvres.extend(found);
     }
     manoeuvres.sort_by(|a, b| a.t_start.total_cmp(&b.t_start));
     let boxes = group_boxes(&legs, &manoeuvres, options);
@@ -393,10 +401,42 @@ fn find_legs(
     }
     joined
         .into_iter()
-        .map(|rows| trim_turns(rows, heading, roll, options))
+        .map(|rows| trim_turns(rows, heading, roll, options, samples(0.5, dt)))
         .filter(|r| !r.is_empty() && time[r.end - 1] - time[r.start] >= options.min_leg_s)
         .map(|rows| Leg {
-            heading_deg: (centre(&rows) * 10.0).round() / 10.0,
+            heading_deg: ((centre(&rows) * 10.0).round() / 10.0).rem_euclid(360.0),
+            t_start: time[rows.start],
+            t_end: time[rows.end - 1],
+            rows,
+        })
+        .collect()
+}
+
+/// A leg with manoeuvres that runs on straight for more than `run_on_s`
+/// beyond them, cut `run_on_s` from its first and last manoeuvre: the
+/// calibration leg, and the stretches before and after it as legs of
+/// their own (without manoeuvres, so no box counts them).
+fn cut_run_on(time: &[f64], leg: Leg, found: &[DetectedManoeuvre], run_on_s: f64) -> Vec<Leg> {
+    let (Some(first), Some(last)) = (
+        found.iter().map(|m| m.t_start).min_by(f64::total_cmp),
+        found.iter().map(|m| m.t_end).max_by(f64::total_cmp),
+    ) else {
+        return vec![leg];
+    };
+    let row = |t: f64| time.partition_point(|&x| x < t);
+    let start = match first - leg.t_start > run_on_s {
+        true => row(first - run_on_s).max(leg.rows.start),
+        false => leg.rows.start,
+    };
+    let end = match leg.t_end - last > run_on_s {
+        true => row(last + run_on_s).min(leg.rows.end),
+        false => leg.rows.end,
+    };
+    [leg.rows.start..start, start..end, end..leg.rows.end]
+        .into_iter()
+        .filter(|rows| !rows.is_empty())
+        .map(|rows| Leg {
+            heading_deg: leg.heading_deg,
             t_start: time[rows.start],
             t_end: time[rows.end - 1],
             rows,
@@ -408,7 +448,13 @@ fn find_legs(
 /// stops) turning: heading off the run's centre by more than
 /// `turn_heading_deg`, or bank beyond `turn_bank_deg`. The smoothed heading
 /// that found the run blurs a turn's start and end by a few seconds.
-fn trim_turns(rows: Range<usize>, heading: &[f64], roll: Option<&[f64]>, options: &DetectOptions) -> Range<usize> {
+fn trim_turns(
+    rows: Range<usize>,
+    heading: &[f64],
+    roll: Option<&[f64]>,
+    options: &DetectOptions,
+    step: usize,
+) -> Range<usize> {
     let centre = heading_centre(heading[rows.clone()].iter().copied());
     let turning = |k: usize| {
         let off = heading_difference(heading[k], centre).abs() > options.turn_heading_deg;
@@ -431,12 +477,37 @@ fn trim_turns(rows: Range<usize>, heading: &[f64], roll: Option<&[f64]>, options
     while end < heading.len() && end > start && steady(end) {
         end += 1;
     }
+    // A turn is under way before its heading is `turn_heading_deg` off:
+    // back to where the heading began to move monotonically into it (and,
+    // at the start, on to where it stopped coming out of the previous
+    // one), so the leg's level flight holds none of it.
+    let deviation = |k: usize| heading_difference(heading[k], centre);
+    let moving = |later: usize, earlier: usize, sign: f64| {
+        let (a, b) = (deviation(later) * sign, deviation(earlier) * sign);
+        a.is_finite() && b.is_finite() && a > b
+    };
+    if end < heading.len() && end > start + step {
+        let sign = deviation(end).signum();
+        while end > start + step && moving(end - 1, end - 1 - step, sign) {
+            end -= 1;
+        }
+    }
+    if start > 0 && start + step < end {
+        let sign = deviation(start - 1).signum();
+        while start + step < end && moving(start, start + step, sign) {
+            start += 1;
+        }
+    }
     start..end
 }
 
-/// Deviation of `axis` from level flight over the leg's rows.
-/// The yaw's baseline is the heading smoothed within the leg only, so a
-/// wandering track is followed and the turns either side are not seen.
+/// Deviation of `axis` from level flight over the leg's rows, for the
+/// activity envelope. The baseline is the angle smoothed within the leg
+/// over `window` samples (a circular mean for the yaw), long enough to
+/// average a manoeuvre's cycles away: a wandering track, a climb or a
+/// descent on the leg's heading (a steady pitch of a few degrees for
+/// minutes) are followed and do not count as activity, and the turns
+/// either side are not seen.
 fn deviation(attitude: &Attitude, window: usize, leg: &Leg, axis: usize) -> Vec<f64> {
     let values = &attitude.angles[axis][leg.rows.clone()];
     if axis == 2 && attitude.source == AttitudeSource::Ins {
@@ -447,9 +518,42 @@ fn deviation(attitude: &Attitude, window: usize, leg: &Leg, axis: usize) -> Vec<
             .map(|(h, s)| heading_difference(*h, *s))
             .collect();
     }
+    let smoothed = centred_mean(values, window);
+    values.iter().zip(&smoothed).map(|(v, s)| v - s).collect()
+}
+
+/// Deviation of `axis` from the leg's median, the series a manoeuvre is
+/// measured on ([`measure`] draws its own baseline between the level
+/// flight either side).
+fn offset_from_median(attitude: &Attitude, leg: &Leg, axis: usize) -> Vec<f64> {
+    let values = &attitude.angles[axis][leg.rows.clone()];
     let mut finite: Vec<f64> = values.iter().copied().filter(|v| v.is_finite()).collect();
     let level = median(&mut finite).unwrap_or(0.0);
     values.iter().map(|v| v - level).collect()
+}
+
+/// Centred mean over `window` samples, NaN samples skipped (NaN where the
+/// window holds none).
+fn centred_mean(values: &[f64], window: usize) -> Vec<f64> {
+    let n = values.len();
+    let mut sums = vec![(0.0, 0usize); n + 1];
+    for (k, v) in values.iter().enumerate() {
+        let previous = sums[k];
+        sums[k + 1] = match v.is_finite() {
+            true => (previous.0 + v, previous.1 + 1),
+            false => previous,
+        };
+    }
+    let half = window / 2;
+    (0..n)
+        .map(|k| {
+            let (a, b) = (k.saturating_sub(half), (k + half + 1).min(n));
+            match sums[b].1 - sums[a].1 {
+                0 => f64::NAN,
+                count => (sums[b].0 - sums[a].0) / count as f64,
+            }
+        })
+        .collect()
 }
 
 /// What a yaw is measured on: the heading less the leg's heading. The
@@ -540,7 +644,7 @@ fn ins_candidates(attitude: &Attitude, leg: &Leg, options: &DetectOptions, dt: f
         let series = std::rc::Rc::new(if axis == 2 {
             heading_deviation(attitude, leg)
         } else {
-            activity
+            offset_from_median(attitude, leg, axis)
         });
         for region in regions {
             let peak = region.clone().map(|k| envelope[k]).fold(0.0, f64::max);
@@ -767,7 +871,13 @@ fn measure_between(
     dt: f64,
 ) -> Option<Oscillation> {
     let (outer_start, outer_end) = (outer.start, outer.end);
-    let (before, after) = (level_in(values, before), level_in(values, after));
+    // Level flight cut short by the leg's end (a turn, a climb) is no
+    // level to draw the baseline to: a second of it at least.
+    let level = |range: Range<usize>| match range.len() >= samples(1.0, dt) {
+        true => level_in(values, range),
+        false => None,
+    };
+    let (before, after) = (level(before), level(after));
     let (first, last) = match (before, after) {
         (Some((a, _)), Some((b, _))) => (a, b),
         (Some((a, _)), None) | (None, Some((a, _))) => (a, a),
@@ -807,7 +917,9 @@ fn measure_between(
     while end + 1 < centred.len() && beyond(centred[end + 1], centred[last_strong]) {
         end += 1;
     }
-    let (half_cycles, peaks) = half_cycles(&centred[start..=end], STRONG * peak);
+    let runs = half_cycles(&centred[start..=end], STRONG * peak);
+    let half_cycles: Vec<usize> = runs.iter().map(|r| r.end - r.start).collect();
+    let peaks: Vec<f64> = runs.iter().map(|r| r.peak).collect();
     let amplitude_deg = median(&mut peaks.clone())?;
     let mean_half = half_cycles.iter().sum::<usize>() as f64 / half_cycles.len().max(1) as f64;
     // A sine passes a fraction f of its peak asin(f)/2π of a period after
@@ -825,9 +937,17 @@ fn measure_between(
     })
 }
 
-/// Lengths (samples) and peaks of the sign runs that reach `strong`.
-fn half_cycles(values: &[f64], strong: f64) -> (Vec<usize>, Vec<f64>) {
-    let (mut lengths, mut peaks) = (Vec::new(), Vec::new());
+/// One sign run of an oscillation: its samples and its peak deviation.
+#[derive(Debug, Clone, PartialEq)]
+struct HalfCycle {
+    start: usize,
+    end: usize,
+    peak: f64,
+}
+
+/// The sign runs of `values` that reach `strong`.
+fn half_cycles(values: &[f64], strong: f64) -> Vec<HalfCycle> {
+    let mut runs = Vec::new();
     let mut k = 0;
     while k < values.len() {
         let positive = values[k] > 0.0;
@@ -838,11 +958,10 @@ fn half_cycles(values: &[f64], strong: f64) -> (Vec<usize>, Vec<f64>) {
             k += 1;
         }
         if peak >= strong {
-            lengths.push(k - start);
-            peaks.push(peak);
+            runs.push(HalfCycle { start, end: k, peak });
         }
     }
-    (lengths, peaks)
+    runs
 }
 
 fn group_boxes(legs: &[Leg], manoeuvres: &[DetectedManoeuvre], options: &DetectOptions) -> Vec<DetectedBox> {
@@ -874,8 +993,33 @@ fn group_boxes(legs: &[Leg], manoeuvres: &[DetectedManoeuvre], options: &DetectO
             t_start: legs[0].t_start,
             t_end: legs[legs.len() - 1].t_end,
             headings_deg: legs.iter().map(|l| l.heading_deg).collect(),
-            missing: missing_manoeuvres(&legs, manoeuvres),
+            missing: missing_headings(&legs, options.heading_tolerance_deg)
+                .into_iter()
+                .chain(missing_manoeuvres(&legs, manoeuvres))
+                .collect(),
         })
+        .collect()
+}
+
+/// The headings of a four-heading box that no leg was flown on, e.g.
+/// "no leg near 270°". The box's headings are taken 90° apart from the
+/// circular mean of its legs' headings modulo 90° (the angle of the mean
+/// of $e^{4ih}$, divided by four), so any one leg's heading error and any
+/// flying order count alike.
+fn missing_headings(legs: &[&Leg], tolerance_deg: f64) -> Vec<String> {
+    let (sin, cos) = legs.iter().fold((0.0, 0.0), |(s, c), leg| {
+        let angle = 4.0 * leg.heading_deg.to_radians();
+        (s + angle.sin(), c + angle.cos())
+    });
+    let base = sin.atan2(cos).to_degrees() / 4.0;
+    (0..4)
+        .map(|k| (base + 90.0 * k as f64).rem_euclid(360.0))
+        .filter(|expected| {
+            !legs
+                .iter()
+                .any(|leg| heading_difference(leg.heading_deg, *expected).abs() < tolerance_deg)
+        })
+        .map(|expected| format!("no leg near {:.0}°", expected.round().rem_euclid(360.0)))
         .collect()
 }
 

@@ -577,7 +577,7 @@ pub fn summary(result: &FlightResult) -> String {
         );
         if let (Some(before), Some(after)) = (quality.fom_before_nt, quality.fom_after_nt) {
             text += &format!(
-                "; FOM {before:.2} → {after:.2} nT ({} manoeuvres)",
+                "; FOM {before:.2} → {after:.2} nT ({} of 12 manoeuvres)",
                 quality.fom_manoeuvres
             );
         }

@@ -392,12 +392,12 @@ fn verdict(quality: &ChannelQuality, limit_nt: f64) -> String {
     let mut lines = Vec::new();
     match quality.fom_after_nt {
         Some(fom) if fom <= limit_nt => lines.push(format!(
-            "<span class=\"pass\">PASS</span> FOM {:.2} → {fom:.2} nT over {} manoeuvres (limit {limit_nt} nT)",
+            "<span class=\"pass\">PASS</span> FOM {:.2} → {fom:.2} nT over {} of 12 manoeuvres (limit {limit_nt} nT)",
             quality.fom_before_nt.unwrap_or(f64::NAN),
             quality.fom_manoeuvres
         )),
         Some(fom) => lines.push(format!(
-            "<span class=\"fail\">FAIL</span> FOM {:.2} → {fom:.2} nT over {} manoeuvres (limit {limit_nt} nT)",
+            "<span class=\"fail\">FAIL</span> FOM {:.2} → {fom:.2} nT over {} of 12 manoeuvres (limit {limit_nt} nT)",
             quality.fom_before_nt.unwrap_or(f64::NAN),
             quality.fom_manoeuvres
         )),

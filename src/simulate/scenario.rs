@@ -162,6 +162,36 @@ pub struct Calibration {
     pub heading_wander_deg: f64,
     /// Ground speed, m/s.
     pub speed_m_s: f64,
+    /// Where the boxes are flown: before the survey lines, between two
+    /// halves of them, or after them.
+    pub position: BoxPosition,
+    /// The last leg runs on into the survey: after its manoeuvres the
+    /// aircraft holds the heading, descends straight to survey height and
+    /// flies the next survey line on that same heading, with no turn.
+    pub continue_into_survey: bool,
+    /// The first leg follows a straight climb to box height on its own
+    /// heading (from survey height, or from the ground at the start).
+    pub climb_before: bool,
+    /// Turns between legs go the long way round (a clover leaf: 270° for a
+    /// 90° change of heading).
+    pub clover_leaf: bool,
+    /// Level flight on each leg before its first manoeuvre, s (drawn per leg).
+    pub lead_in_s: [f64; 2],
+    /// Level flight after each manoeuvre, s (drawn per manoeuvre).
+    pub pause_s: [f64; 2],
+}
+
+/// Where the calibration boxes sit in the flight.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, serde::Serialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum BoxPosition {
+    /// Before the survey lines.
+    #[default]
+    Start,
+    /// Between the first half of the survey lines and the rest.
+    Middle,
+    /// After the survey lines.
+    End,
 }
 
 impl Default for Calibration {
@@ -179,6 +209,12 @@ impl Default for Calibration {
             turbulence_deg: 0.05,
             heading_wander_deg: 0.0,
             speed_m_s: 70.0,
+            position: BoxPosition::Start,
+            continue_into_survey: false,
+            climb_before: false,
+            clover_leaf: false,
+            lead_in_s: [20.0, 20.0],
+            pause_s: [8.0, 14.0],
         }
     }
 }
@@ -533,6 +569,13 @@ fn check_flight_plan(raw: &RawScenario) -> std::result::Result<(), String> {
     }
     for omitted in &box_.omit {
         parse_omission(omitted)?;
+    }
+    for (name, range) in [("lead_in_s", box_.lead_in_s), ("pause_s", box_.pause_s)] {
+        if !(range[0] >= 0.0 && range[0] <= range[1] && range[1] < 3600.0) {
+            return Err(format!(
+                "[calibration] {name} = {range:?}: give [shortest, longest] in seconds, 0 ≤ shortest ≤ longest"
+            ));
+        }
     }
     let speeds = [box_.speed_m_s, raw.survey.speed_m_s];
     if speeds.iter().any(|s| !(*s > 1.0 && *s < 400.0)) {

@@ -9,7 +9,7 @@
 use std::f64::consts::PI;
 
 use crate::simulate::random::Random;
-use crate::simulate::scenario::{parse_omission, Scenario};
+use crate::simulate::scenario::{parse_omission, BoxPosition, Scenario};
 use crate::windows::ManoeuvreKind;
 
 /// Where the aircraft is and how it is oriented at one internal sample.
@@ -74,18 +74,35 @@ pub struct FlightPath {
     pub lines: Vec<(f64, f64, Stretch)>,
 }
 
-/// Flies the scenario's plan.
+/// Flies the scenario's plan: the boxes before, between or after the
+/// survey lines (`[calibration] position`), each joined to the next stage
+/// by a transit, or the last leg running straight on into a line.
 pub fn fly(scenario: &Scenario, random: &mut Random) -> FlightPath {
     let raw = &scenario.raw;
+    let box_ = &raw.calibration;
+    let survey = &raw.survey;
     let dt_s = 1.0 / (raw.sample_rate_hz * raw.oversampling as f64);
+    let lines = survey.line_count;
+    let lines_before = match (box_.position, box_.repeats) {
+        (_, 0) | (BoxPosition::Start, _) => 0,
+        (BoxPosition::Middle, _) => lines / 2,
+        (BoxPosition::End, _) => lines,
+    };
+    let starts_in_box = lines_before == 0 && box_.repeats > 0 && !box_.climb_before;
     let mut pilot = Pilot {
         dt_s,
         random,
         turbulence: [[0.0; 3]; 2],
         wander: (0.0, 0.0),
         pose: Pose {
-            height_agl_m: raw.calibration.altitude_m,
-            yaw_deg: raw.calibration.headings_deg.first().copied().unwrap_or(0.0),
+            height_agl_m: match starts_in_box {
+                true => box_.altitude_m,
+                false => survey.altitude_m,
+            },
+            yaw_deg: match lines_before {
+                0 => box_.headings_deg.first().copied().unwrap_or(0.0),
+                _ => survey.line_heading_deg,
+            },
             ..Pose::default()
         },
         path: FlightPath {
@@ -96,12 +113,32 @@ pub fn fly(scenario: &Scenario, random: &mut Random) -> FlightPath {
             lines: Vec::new(),
         },
     };
-    for _ in 0..raw.calibration.repeats {
-        pilot.fly_box(scenario);
+    if lines_before > 0 {
+        pilot.fly_lines(scenario, 0..lines_before, survey.line_heading_deg);
     }
-    if raw.survey.line_count > 0 {
-        pilot.transit(scenario);
-        pilot.fly_lines(scenario);
+    if box_.repeats > 0 && pilot.pose.height_agl_m != box_.altitude_m {
+        pilot.climb_to_box(scenario);
+    }
+    let continues = box_.continue_into_survey && lines_before < lines && box_.repeats > 0;
+    for repeat in 0..box_.repeats {
+        pilot.fly_box(scenario, !(continues && repeat + 1 == box_.repeats));
+    }
+    if lines_before < lines {
+        let heading = pilot.pose.yaw_deg.rem_euclid(360.0);
+        match continues {
+            // Straight on: down to survey height and onto the next line
+            // with no turn, so the line's heading is the leg's.
+            true => {
+                pilot.change_height(survey.altitude_m, heading, survey.speed_m_s, 0.3);
+                let base = (heading - 180.0 * (lines_before % 2) as f64).rem_euclid(360.0);
+                pilot.fly_lines(scenario, lines_before..lines, base);
+            }
+            false => {
+                let next = (survey.line_heading_deg + 180.0 * (lines_before % 2) as f64).rem_euclid(360.0);
+                pilot.transit(scenario, next);
+                pilot.fly_lines(scenario, lines_before..lines, survey.line_heading_deg);
+            }
+        }
     }
     pilot.path
 }
@@ -169,9 +206,15 @@ impl Pilot<'_> {
         }
     }
 
-    /// A coordinated turn at `rate_deg_s` with the bank rolled in and out.
+    /// A coordinated turn at `rate_deg_s` with the bank rolled in and out,
+    /// the shorter way round.
     fn turn(&mut self, from_deg: f64, to_deg: f64, rate_deg_s: f64, speed_m_s: f64, turbulence_deg: f64) {
         let change = (to_deg - from_deg + 540.0).rem_euclid(360.0) - 180.0;
+        self.turn_by(from_deg, change, rate_deg_s, speed_m_s, turbulence_deg);
+    }
+
+    /// A coordinated turn through `change` degrees (positive: right).
+    fn turn_by(&mut self, from_deg: f64, change: f64, rate_deg_s: f64, speed_m_s: f64, turbulence_deg: f64) {
         let samples = self.samples(change.abs() / rate_deg_s);
         let bank = (speed_m_s * rate_deg_s.to_radians() / 9.81)
             .atan()
@@ -217,60 +260,120 @@ impl Pilot<'_> {
         });
     }
 
-    fn fly_box(&mut self, scenario: &Scenario) {
+    /// A draw from `range`, or its value when it is a single one (no draw,
+    /// so fixed settings leave the random sequence of other draws alone).
+    fn draw(&mut self, range: [f64; 2]) -> f64 {
+        match range[0] == range[1] {
+            true => range[0],
+            false => self.random.uniform(range[0], range[1]),
+        }
+    }
+
+    /// One box: on each leg a lead-in, then pitch, roll and yaw each
+    /// followed by a pause, then the turn to the next leg (the long way
+    /// round for a clover leaf). The turn after the last leg back to the
+    /// first heading is flown when `turn_back`.
+    fn fly_box(&mut self, scenario: &Scenario, turn_back: bool) {
         let box_ = &scenario.raw.calibration;
         self.wander.1 = box_.heading_wander_deg;
         let omitted: Vec<(ManoeuvreKind, f64)> = box_.omit.iter().filter_map(|o| parse_omission(o).ok()).collect();
         let start = self.now();
         let headings = &box_.headings_deg;
         for (leg, &heading) in headings.iter().enumerate() {
-            self.level(20.0, heading, box_.turbulence_deg, box_.speed_m_s);
+            let lead_in = self.draw(box_.lead_in_s);
+            self.level(lead_in, heading, box_.turbulence_deg, box_.speed_m_s);
             for kind in [ManoeuvreKind::Pitch, ManoeuvreKind::Roll, ManoeuvreKind::Yaw] {
                 let skipped = omitted.iter().any(|(k, h)| *k == kind && (h - heading).abs() < 0.5);
                 if !skipped {
                     self.manoeuvre(scenario, kind, heading);
-                    let pause = self.random.uniform(8.0, 14.0);
+                    let pause = self.draw(box_.pause_s);
                     self.level(pause, heading, box_.turbulence_deg, box_.speed_m_s);
                 }
             }
             let end = self.now();
             let next = headings[(leg + 1) % headings.len()];
-            if leg + 1 == headings.len() {
+            let last = leg + 1 == headings.len();
+            if last {
                 self.path.boxes.push(Stretch {
                     t_start_s: start,
                     t_end_s: end,
                 });
             }
-            self.turn(heading, next, 3.0, box_.speed_m_s, box_.turbulence_deg);
+            if !last || turn_back {
+                let change = (next - heading + 540.0).rem_euclid(360.0) - 180.0;
+                let change = match box_.clover_leaf && change != 0.0 {
+                    true => change - 360.0 * change.signum(),
+                    false => change,
+                };
+                self.turn_by(heading, change, 3.0, box_.speed_m_s, box_.turbulence_deg);
+            }
         }
         self.wander.1 = 0.0;
     }
 
+    /// Climbs (or descends) straight on `heading_deg` to `to_m` above
+    /// ground at 5 m/s, or over 60 s if that is slower. The nose follows
+    /// the flight-path angle asin(v_z / v), eased in and out over 4 s as a
+    /// pilot pitches up into a climb and levels off.
+    fn change_height(&mut self, to_m: f64, heading_deg: f64, speed_m_s: f64, turbulence_deg: f64) {
+        let from = self.pose.height_agl_m;
+        let seconds = ((from - to_m).abs() / 5.0).max(60.0);
+        let samples = self.samples(seconds);
+        let path_angle_deg = ((to_m - from) / seconds / speed_m_s)
+            .clamp(-1.0, 1.0)
+            .asin()
+            .to_degrees();
+        let ease = self.samples(4.0) as f64;
+        for k in 0..samples {
+            self.pose.height_agl_m = from + (to_m - from) * (k + 1) as f64 / samples as f64;
+            let edge = (k.min(samples - 1 - k) as f64 / ease).min(1.0);
+            let pitch = path_angle_deg * (0.5 - 0.5 * (PI * edge).cos());
+            self.gust(turbulence_deg);
+            self.step(heading_deg, [0.0, pitch, 0.0], speed_m_s);
+        }
+    }
+
+    /// From the survey (or the start) to the box: a straight climb on the
+    /// first leg's heading when `climb_before`, otherwise a climb on a
+    /// heading across it and a turn onto the first leg.
+    fn climb_to_box(&mut self, scenario: &Scenario) {
+        let box_ = &scenario.raw.calibration;
+        let first = box_.headings_deg.first().copied().unwrap_or(0.0);
+        let heading = self.pose.yaw_deg.rem_euclid(360.0);
+        match box_.climb_before {
+            true => {
+                self.turn(heading, first, 3.0, box_.speed_m_s, 0.3);
+                self.change_height(box_.altitude_m, first, box_.speed_m_s, 0.3);
+            }
+            false => {
+                let across = (first + 90.0).rem_euclid(360.0);
+                self.turn(heading, across, 3.0, box_.speed_m_s, 0.3);
+                self.change_height(box_.altitude_m, across, box_.speed_m_s, 0.3);
+                self.turn(across, first, 3.0, box_.speed_m_s, 0.3);
+            }
+        }
+    }
+
     /// Turns towards the survey area, descends to survey height in a
-    /// straight glide, and turns onto the first line's heading.
-    fn transit(&mut self, scenario: &Scenario) {
+    /// straight glide, and turns onto the next line's heading.
+    fn transit(&mut self, scenario: &Scenario, line_heading_deg: f64) {
         let survey = &scenario.raw.survey;
         let heading = self.pose.yaw_deg.rem_euclid(360.0);
         let bearing = (survey.line_heading_deg + 90.0).rem_euclid(360.0);
         self.turn(heading, bearing, 3.0, survey.speed_m_s, 0.1);
-        let from = self.pose.height_agl_m;
-        let seconds = ((from - survey.altitude_m).abs() / 5.0).max(60.0);
-        let samples = self.samples(seconds);
-        for k in 0..samples {
-            self.pose.height_agl_m = from + (survey.altitude_m - from) * (k + 1) as f64 / samples as f64;
-            self.gust(0.3);
-            self.step(bearing, [0.0; 3], survey.speed_m_s);
-        }
-        self.turn(bearing, survey.line_heading_deg, 3.0, survey.speed_m_s, 0.3);
-        self.level(20.0, survey.line_heading_deg, survey.turbulence_deg, survey.speed_m_s);
+        self.change_height(survey.altitude_m, bearing, survey.speed_m_s, 0.3);
+        self.turn(bearing, line_heading_deg, 3.0, survey.speed_m_s, 0.3);
+        self.level(20.0, line_heading_deg, survey.turbulence_deg, survey.speed_m_s);
     }
 
-    /// Lines in alternating directions, joined by 180° turns whose path is
-    /// a half circle one line spacing across, with a standard bank shown.
-    fn fly_lines(&mut self, scenario: &Scenario) {
+    /// Lines `lines` of the survey in alternating directions, line k on
+    /// `base_heading_deg` when k is even and on its reciprocal when odd,
+    /// joined by 180° turns whose path is a half circle one line spacing
+    /// across, with a standard bank shown.
+    fn fly_lines(&mut self, scenario: &Scenario, lines: std::ops::Range<usize>, base_heading_deg: f64) {
         let survey = &scenario.raw.survey;
-        for line in 0..survey.line_count {
-            let heading = (survey.line_heading_deg + 180.0 * (line % 2) as f64).rem_euclid(360.0);
+        for line in lines {
+            let heading = (base_heading_deg + 180.0 * (line % 2) as f64).rem_euclid(360.0);
             let number = 1001.0 + line as f64;
             let t_start_s = self.now();
             self.pose.line = number;
