@@ -307,3 +307,40 @@ fn survey_lines_alone_give_no_manoeuvres() {
         detection.manoeuvres
     );
 }
+
+#[test]
+fn a_last_leg_that_runs_on_into_the_survey_keeps_its_manoeuvres() {
+    // Headings 90, 180, 270, 0; after the last manoeuvre on heading 0 the
+    // aircraft holds the heading, descends and flies the first survey line
+    // on it. Before, leg, descent and line made one 750 s "leg" whose
+    // median pitch was the descent's, and its three manoeuvres were lost.
+    let flight = fly(4, |raw| {
+        raw.calibration.headings_deg = vec![90.0, 180.0, 270.0, 0.0];
+        raw.calibration.continue_into_survey = true;
+        raw.survey.line_length_m = 6000.0;
+    });
+    let detection = detect(&flight);
+    assert_perfect("runs on", &flight, &detection);
+    assert_eq!(detection.boxes.len(), 1);
+    let found = &detection.boxes[0];
+    assert!(found.missing.is_empty(), "{:?}", found.missing);
+    assert_eq!(found.headings_deg.len(), 4);
+    // The box ends where the manoeuvring stops (within the 30 s the leg
+    // is allowed to run on, plus the pause after the last yaw), not at
+    // the end of the survey line.
+    let truth = &flight.truth.boxes[0];
+    assert!(
+        (found.t_end - truth.t_end).abs() < 30.0,
+        "{} vs {}",
+        found.t_end,
+        truth.t_end
+    );
+}
+
+#[test]
+fn a_box_without_a_heading_names_it() {
+    let flight = fly(4, |raw| raw.calibration.headings_deg = vec![90.0, 180.0, 270.0]);
+    let detection = detect(&flight);
+    assert_perfect("three headings", &flight, &detection);
+    assert_eq!(detection.boxes[0].missing, vec!["no leg near 0°"]);
+}
