@@ -511,8 +511,11 @@ fn diagnose(
     magcomp::report::write_diagnosis_report(html, flight, &diagnosis)?;
     for channel in &diagnosis.channels {
         println!(
-            "  {}: held-out RMS {:.4} nT with plain Tolles-Lawson, {:.4} nT with the findings",
-            channel.channel, channel.heldout_rms_baseline_nt, channel.heldout_rms_final_nt
+            "  {}: held-out RMS {:.4} nT with plain Tolles-Lawson, {:.4} nT with the findings and λ by {} as compensation picks it",
+            channel.channel,
+            channel.heldout_rms_baseline_nt,
+            channel.heldout_rms_final_nt,
+            pipeline.fit.solve.criterion.describe()
         );
         if let Some(hint) = &channel.strongest_rejected {
             println!("    best candidate short of the threshold: {hint}");
