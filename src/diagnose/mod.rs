@@ -84,7 +84,7 @@ use crate::fit::{fit_channel_with, FitOptions, WindowFit};
 use crate::flight_log::{ChannelRole, FlightLog, VectorSensor};
 use crate::quality::root_mean_square;
 use crate::solve::{Criterion, LambdaChoice};
-use crate::vector_calibration::{calibrate, calibrate_best, VectorCalibration};
+use crate::vector_calibration::{calibrate, VectorCalibration};
 use crate::windows::CalibrationWindow;
 
 /// `[diagnose]` settings.
@@ -355,6 +355,13 @@ pub struct FluxgateCheck {
     pub heldout_mismatch_after_nt: f64,
     /// The three windows where the uncalibrated mismatch is largest.
     pub located: Vec<Located>,
+    /// The reference's own aircraft field over the calibration windows
+    /// (standard deviation of plain Tolles-Lawson's predicted
+    /// interference), nT.
+    pub reference_interference_nt: f64,
+    /// The held-out mismatch a finding needs: `vector_mismatch_nt` plus
+    /// three times the reference's own aircraft field, nT.
+    pub threshold_nt: f64,
 }
 
 /// A model extension under test.
@@ -466,7 +473,16 @@ pub fn diagnose(
     if let Some(problem) = hold_out.insufficient() {
         return Err(not_enough_calibration(log, problem));
     }
-    let (fluxgate, mut notes) = match check_fluxgate(log, sensor, channels, windows) {
+    // The fluxgate is judged against the scalar channel with the least
+    // aircraft field of its own, and the threshold grows with what is
+    // left: a cabin sensor's hundreds of nT would otherwise count as
+    // fluxgate offsets.
+    let checked = quietest_reference(log, sensor, channels, windows, options)
+        .map_err(|e| e.to_string())
+        .and_then(|(reference, interference_nt)| {
+            check_fluxgate(log, sensor, &reference, windows, interference_nt, settings)
+        });
+    let (fluxgate, mut notes) = match checked {
         Ok(check) => (Some(check), Vec::new()),
         Err(why) => (None, vec![format!("fluxgate calibration not checked: {why}")]),
     };
@@ -577,11 +593,13 @@ pub fn diagnose(
         .collect();
     if let Some(check) = fluxgate.as_ref().filter(|_| calibrated.is_none()) {
         notes.push(format!(
-            "{}'s magnitude against {}: held-out mismatch {:.1} nT raw, {:.1} nT calibrated; below the {:.0} nT a finding needs, or not removed by the calibration",
+            "{}'s magnitude against {} (the scalar with the least aircraft field, {:.1} nT over the manoeuvres): held-out mismatch {:.1} nT raw, {:.1} nT calibrated; below the {:.0} nT a finding needs ({:.0} nT and three times that field), or not removed by the calibration",
             check.calibration.sensor,
             check.calibration.reference,
+            check.reference_interference_nt,
             check.heldout_mismatch_before_nt,
             check.heldout_mismatch_after_nt,
+            check.threshold_nt,
             settings.vector_mismatch_nt
         ));
     }
@@ -628,19 +646,60 @@ pub fn heldout_rms(
     Ok(held_out(&problem, &uncalibrated)?.rms_nt)
 }
 
-/// Calibrates the fluxgate against every scalar channel and keeps the
-/// reference that leaves the smallest residual (the one with the least
-/// aircraft interference of its own), then measures the mismatch held out:
-/// each heading's calibration windows against a calibration fitted on the
-/// rest of the flight. `None` when the flight cannot pin a calibration.
-fn check_fluxgate(
+/// The scalar channel with the least aircraft field of its own, and that
+/// field's size: the standard deviation over the calibration windows of
+/// the interference plain Tolles-Lawson fitted on them predicts, nT.
+fn quietest_reference(
     log: &FlightLog,
     sensor: &VectorSensor,
     channels: &[String],
     windows: &[CalibrationWindow],
+    options: &FitOptions,
+) -> Result<(String, f64)> {
+    let models = crate::fit::fit_channels(log, sensor, channels, windows, options)?;
+    let compensation = crate::compensate::compensate(log, &models, crate::compensate::LevelConvention::Absolute)?;
+    let rows = window_rows(log.time_s(), windows);
+    let mut quietest: Option<(String, f64)> = None;
+    for (channel, compensated) in channels.iter().zip(&compensation.channels) {
+        let Some(raw) = log.channel(channel) else { continue };
+        let interference: Vec<f64> = rows
+            .iter()
+            .map(|&k| raw.values[k] - compensated.values[k])
+            .filter(|v| v.is_finite())
+            .collect();
+        let size = crate::quality::standard_deviation(&interference);
+        if quietest.as_ref().is_none_or(|(_, best)| size < *best) {
+            quietest = Some((channel.clone(), size));
+        }
+    }
+    quietest.ok_or_else(|| crate::Error::Fit {
+        channel: sensor.prefix.clone(),
+        message: "no scalar channel to judge the fluxgate against".into(),
+    })
+}
+
+/// The mismatch a `vector_calibration` finding needs, nT:
+/// `vector_mismatch_nt` plus three times the reference's own aircraft
+/// field, which the fluxgate calibration would otherwise take for offsets
+/// and scale errors of the fluxgate.
+fn mismatch_threshold(settings: &DiagnoseOptions, reference_interference_nt: f64) -> f64 {
+    settings.vector_mismatch_nt + 3.0 * reference_interference_nt
+}
+
+/// Calibrates the fluxgate against `reference` and measures the mismatch
+/// held out: each heading's calibration windows against a calibration
+/// fitted on the rest of the flight. `None` when the flight cannot pin a
+/// calibration.
+fn check_fluxgate(
+    log: &FlightLog,
+    sensor: &VectorSensor,
+    reference: &str,
+    windows: &[CalibrationWindow],
+    reference_interference_nt: f64,
+    settings: &DiagnoseOptions,
 ) -> std::result::Result<FluxgateCheck, String> {
     const ITERATIONS: usize = 100;
-    let calibration = calibrate_best(log, sensor, channels, &[], ITERATIONS).map_err(|e| e.to_string())?;
+    let calibration = calibrate(log, sensor, reference, &[], ITERATIONS).map_err(|e| e.to_string())?;
     let field = log.vector_components(sensor);
     let scalar = &log
         .channel(&calibration.reference)
@@ -701,6 +760,8 @@ fn check_fluxgate(
         calibration,
         heldout_mismatch_before_nt: root_mean_square(&before),
         heldout_mismatch_after_nt: root_mean_square(&after),
+        reference_interference_nt,
+        threshold_nt: mismatch_threshold(settings, reference_interference_nt),
         located,
     })
 }
@@ -713,7 +774,7 @@ fn check_fluxgate(
 /// campaign showed can lower a wing sensor's held-out RMS by a third with
 /// a fluxgate that has no error of its own.)
 fn mismatch_stands(check: &FluxgateCheck, settings: &DiagnoseOptions) -> bool {
-    check.heldout_mismatch_before_nt > settings.vector_mismatch_nt
+    check.heldout_mismatch_before_nt > check.threshold_nt
         && check.heldout_mismatch_after_nt < check.heldout_mismatch_before_nt * (1.0 - settings.min_improvement)
 }
 
