@@ -517,6 +517,15 @@ fn diagnose(
             channel.heldout_rms_final_nt,
             pipeline.fit.solve.criterion.describe()
         );
+        if let (true, Some(start)) = (
+            channel.search_criterion != pipeline.fit.solve.criterion,
+            channel.heldout_rms_other_criterion_nt,
+        ) {
+            println!(
+                "    the search started from plain Tolles-Lawson with λ by {} ({start:.4} nT held out); its findings' figures are measured from there",
+                channel.search_criterion.describe()
+            );
+        }
         if let Some(hint) = &channel.strongest_rejected {
             println!("    best candidate short of the threshold: {hint}");
         }
