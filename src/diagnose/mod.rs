@@ -26,14 +26,16 @@
 //!   sees; an eddy time constant delays only the eddy part, so the two
 //!   compete on the held-out fit and the better one is named;
 //! - `vector_calibration` (per flight, not per channel): the fluxgate's
-//!   scale, non-orthogonality and offsets from $|m|$ against the scalar
-//!   total field ([`crate::vector_calibration`]), held out by heading
-//!   (each heading's windows against a calibration fitted on the rest of
-//!   the flight). Reported when that mismatch exceeds `vector_mismatch_nt`
-//!   (200 nT, 0.4 % of the Earth's field; the factory residuals and the
-//!   aircraft's field at the fluxgate give 40–90 nT on the simulator's
-//!   clean and concealed flights, a 1 % scale error several hundred) and
-//!   the calibration removes most of it. Each channel's search then starts
+//!   scale, non-orthogonality and offsets from $|m|$ against the total
+//!   field of the scalar with the least aircraft field of its own
+//!   ([`crate::vector_calibration`]), held out by heading (each heading's
+//!   windows against a calibration fitted on the rest of the flight).
+//!   Reported when that mismatch exceeds `vector_mismatch_nt` (200 nT,
+//!   0.4 % of the Earth's field: the factory residuals and the aircraft's
+//!   field at the fluxgate itself give tens of nT, a 1 % scale error
+//!   several hundred) plus three times the reference's own aircraft field
+//!   (which a calibration against it would take for fluxgate offsets and
+//!   scale errors), and the calibration removes most of it. Each channel's search then starts
 //!   from whichever fluxgate reading fits it better held out.
 //!
 //! Selection is greedy: the candidate that lowers the held-out RMS most is
