@@ -154,7 +154,21 @@ fn compensate_augmented(
         .channel(&model.channel)
         .expect("compensate checked that every model's channel is in the flight log")
         .values;
-    let mut compensated = compensate_channel(log, model, scalar, (&design, &prepared.columns), level);
+    // A base-station term is fitted (so geomagnetic variation in the
+    // calibration band does not bias the aircraft's coefficients) but not
+    // subtracted: it is the Earth's field, which the compensated channel
+    // keeps; removing it is the survey's diurnal correction, a step of
+    // its own.
+    let aircraft_columns: Vec<Vec<f64>> = prepared
+        .columns
+        .iter()
+        .zip(geomagnetic_columns(augmentation, prepared.columns.len()))
+        .map(|(column, geomagnetic)| match geomagnetic {
+            true => vec![0.0; column.len()],
+            false => column.clone(),
+        })
+        .collect();
+    let mut compensated = compensate_channel(log, model, scalar, (&design, &aircraft_columns), level);
     if augmentation.second_order {
         // The second-order term is interference like the rest; the level
         // convention's offset is taken again with it included.
@@ -170,6 +184,25 @@ fn compensate_augmented(
         compensated = level_compensated(log, model, scalar, interference, level);
     }
     Ok(compensated)
+}
+
+/// Per extra column of `augmentation`'s sources, in their order, whether
+/// it is the base station's geomagnetic variation (an `ExternalField`
+/// source, one column; couplings and their rates have three each).
+fn geomagnetic_columns(augmentation: &Augmentation, count: usize) -> Vec<bool> {
+    use crate::augment::SourceTerm;
+    let mask: Vec<bool> = augmentation
+        .sources
+        .iter()
+        .flat_map(|source| match source {
+            SourceTerm::ExternalField { .. } => vec![true],
+            SourceTerm::AuxCoupling { .. } | SourceTerm::AuxCouplingRate { .. } => vec![false; 3],
+        })
+        .collect();
+    match mask.len() == count {
+        true => mask,
+        false => vec![false; count],
+    }
 }
 
 fn sensor_named(log: &FlightLog, prefix: &str) -> VectorSensor {

