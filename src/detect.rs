@@ -566,29 +566,13 @@ fn heading_deviation(attitude: &Attitude, leg: &Leg) -> Vec<f64> {
         .collect()
 }
 
-/// Centred RMS over `window` samples, NaN samples skipped.
+/// Centred RMS over `window` samples, NaN samples skipped (0 where the
+/// window holds none).
 fn rms_envelope(values: &[f64], window: usize) -> Vec<f64> {
-    let n = values.len();
-    let mut sums = vec![(0.0, 0usize); n + 1];
-    for (k, v) in values.iter().enumerate() {
-        let previous = sums[k];
-        sums[k + 1] = if v.is_finite() {
-            (previous.0 + v * v, previous.1 + 1)
-        } else {
-            previous
-        };
-    }
-    let half = window / 2;
-    (0..n)
-        .map(|k| {
-            let (a, b) = (k.saturating_sub(half), (k + half + 1).min(n));
-            let count = sums[b].1 - sums[a].1;
-            if count == 0 {
-                0.0
-            } else {
-                ((sums[b].0 - sums[a].0) / count as f64).sqrt()
-            }
-        })
+    let squares: Vec<f64> = values.iter().map(|v| v * v).collect();
+    centred_mean(&squares, window)
+        .into_iter()
+        .map(|mean| if mean.is_nan() { 0.0 } else { mean.sqrt() })
         .collect()
 }
 
