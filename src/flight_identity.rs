@@ -148,14 +148,15 @@ mod tests {
     use super::*;
 
     #[test]
-    fn the_hash_of_a_file_is_the_standard_sha256() {
+    fn the_hash_of_a_file_is_the_standard_sha256() -> std::result::Result<(), Box<dyn std::error::Error>> {
         // FIPS 180-2 test vector: SHA-256("abc").
-        let dir = tempfile::tempdir().unwrap();
+        let dir = tempfile::tempdir()?;
         let path = dir.path().join("abc.txt");
-        std::fs::write(&path, "abc").unwrap();
+        std::fs::write(&path, "abc")?;
         assert_eq!(
-            hash_file(&path).unwrap(),
+            hash_file(&path)?,
             "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad"
         );
+        Ok(())
     }
 }
