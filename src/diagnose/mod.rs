@@ -1331,7 +1331,11 @@ fn source_levels(log: &FlightLog) -> BTreeMap<String, f64> {
 /// would explain the target with itself.
 fn is_magnetic_product(name: &str) -> bool {
     let name = name.to_ascii_lowercase();
-    name.starts_with("mag_") || name.starts_with("flux_") || name.contains("igrf") || name.contains("diurnal")
+    name.starts_with("mag_")
+        || name.starts_with("flux_")
+        || name.starts_with("ogs_mag")
+        || name.contains("igrf")
+        || name.contains("diurnal")
 }
 
 /// The flight and extra regressors `model` fits on.

@@ -130,57 +130,155 @@ impl ColumnNames {
     }
 }
 
-/// The CONTRACT name of an uppercase SGL Geosoft field name, as used in the
-/// XYZ deliveries of the MagNav challenge data: `TIME` → `tt`, `LINE` →
-/// `line`, `UNCOMPMAG1` → `mag_1_uc`, `FLUXB_X` → `flux_b_x`, `FLUXB_TOT` →
-/// `flux_b_t`, `PITCH`/`ROLL`/`AZIMUTH` → `ins_pitch`/`ins_roll`/`ins_yaw`,
-/// `LAT`/`LONG` → `lat`/`lon`, `DIURNAL` → `diurnal`; any other all-uppercase
-/// name (`CUR_STRB`) is lowercased. `None` for names that are not uppercase.
+/// SGL field names whose lowercase name is not derived by a rule, with the
+/// name the same field has in the SGL HDF5 files and MagNav.jl. Sources: the
+/// field list of the SGL 2020 XYZ deliveries (`readmes/Data-readme.txt` of
+/// early MagNav.jl versions) against MagNav.jl's
+/// `readmes/sgl_2020_fields_readme.txt`, which lists the same fields in the
+/// same order.
+const SGL_IRREGULAR_NAMES: &[(&str, &str)] = &[
+    ("TIME", "tt"),
+    ("FLT", "flight"),
+    ("MSL-Z", "msl"),
+    ("LONG", "lon"),
+    // The XYZ attitude is the INS solution ("INS computed aircraft pitch").
+    ("PITCH", "ins_pitch"),
+    ("ROLL", "ins_roll"),
+    ("AZIMUTH", "ins_yaw"),
+    // Early MagNav.jl HDF5 files called the same field `ins_azim`.
+    ("INS_AZIM", "ins_yaw"),
+    ("OGS_HGT", "ogs_alt"),
+    ("INS_HGT", "ins_alt"),
+    ("INS_VEL_N", "ins_vn"),
+    ("INS_VEL_W", "ins_vw"),
+    ("INS_VEL_V", "ins_vu"),
+    ("PITCHRT", "pitch_rate"),
+    ("ROLLRT", "roll_rate"),
+    ("YAWRT", "yaw_rate"),
+    ("LONG_ACC", "lgtl_acc"),
+    ("LAT_ACC", "ltrl_acc"),
+    ("NORM_ACC", "nrml_acc"),
+    ("TRUE_AS", "tas"),
+    ("TOT_P", "total_p"),
+    ("CUR_ACHi", "cur_ac_hi"),
+    ("CUR_ACLo", "cur_ac_lo"),
+    ("CUR_IHTR", "cur_heat"),
+    ("V_SERVO", "vol_srvo"),
+];
+
+/// The CONTRACT name of a field name as SGL spells it in Geosoft XYZ
+/// deliveries (the MagNav challenge data): the lowercase name the same field
+/// has in the SGL HDF5 files and MagNav.jl. The first rule that applies wins:
+///
+/// 1. A table of irregular names: `TIME` → `tt`, `FLT` → `flight`, `MSL-Z` →
+///    `msl`, `LONG` → `lon`, `PITCH`/`ROLL`/`AZIMUTH` (the INS attitude) →
+///    `ins_pitch`/`ins_roll`/`ins_yaw`, `OGS_HGT` → `ogs_alt`, `INS_VEL_N` →
+///    `ins_vn`, `PITCHRT` → `pitch_rate`, `LONG_ACC` → `lgtl_acc`, `TRUE_AS`
+///    → `tas`, `CUR_ACHi` → `cur_ac_hi`, `CUR_IHTR` → `cur_heat`, `V_SERVO`
+///    → `vol_srvo`, …
+/// 2. Scalar magnetometers `<KIND>MAG<n>`: `UNCOMPMAG<n>` → `mag_<n>_uc`,
+///    `COMPMAG<n>` → `mag_<n>_c`, `LAGMAG<n>` → `mag_<n>_lag`, `DCMAG<n>` →
+///    `mag_<n>_dc`, `IGRFMAG<n>` → `mag_<n>_igrf`.
+/// 3. Fluxgates `FLUX<s>_<axis>`: `FLUXB_X` → `flux_b_x`, `FLUXD_TOT` (or
+///    `FLUXD_T`) → `flux_d_t`.
+/// 4. Currents and voltages `CUR_<sensor>`, `V_<sensor>` or `VOL_<sensor>`
+///    → `cur_<sensor>` / `vol_<sensor>`, lowercased, with `_` before a
+///    number that follows a letter and before a trailing lowercase polarity
+///    `p`/`n`: `CUR_COM1` → `cur_com_1`, `V_BAT2` → `vol_bat_2`, `V_RESp` →
+///    `vol_res_p`, `CUR_STRB` → `cur_strb`.
+/// 5. Any other name in uppercase ASCII letters, digits, `_` and `-` is
+///    lowercased with `-` → `_`: `UTM-X` → `utm_x`, `DIURNAL` → `diurnal`,
+///    `INS_ACC_X` → `ins_acc_x`.
+///
+/// `None` for every other name (lowercase or mixed case such as `mag_1_uc`
+/// or `Cur_Strb`, non-ASCII, no letter at all): the reader keeps it as
+/// written.
 pub fn sgl_uppercase_alias(name: &str) -> Option<String> {
-    let is_upper = name.bytes().any(|b| b.is_ascii_uppercase())
+    if let Some((_, contract)) = SGL_IRREGULAR_NAMES.iter().find(|(sgl, _)| *sgl == name) {
+        return Some((*contract).to_string());
+    }
+    sgl_magnetometer_alias(name)
+        .or_else(|| sgl_fluxgate_alias(name))
+        .or_else(|| sgl_electrical_alias(name))
+        .or_else(|| is_sgl_uppercase(name).then(|| name.to_ascii_lowercase().replace('-', "_")))
+}
+
+/// Uppercase ASCII letters, digits, `_` and `-`, with at least one letter.
+fn is_sgl_uppercase(name: &str) -> bool {
+    name.bytes().any(|b| b.is_ascii_uppercase())
         && name
             .bytes()
-            .all(|b| b.is_ascii_uppercase() || b.is_ascii_digit() || b == b'_');
-    if !is_upper {
+            .all(|b| b.is_ascii_uppercase() || b.is_ascii_digit() || b == b'_' || b == b'-')
+}
+
+/// One or more ASCII digits.
+fn is_number(text: &str) -> bool {
+    !text.is_empty() && text.bytes().all(|b| b.is_ascii_digit())
+}
+
+/// `UNCOMPMAG1` → `mag_1_uc`, `COMPMAG1` → `mag_1_c`, `LAGMAG1` →
+/// `mag_1_lag`, `DCMAG1` → `mag_1_dc`, `IGRFMAG1` → `mag_1_igrf`.
+fn sgl_magnetometer_alias(name: &str) -> Option<String> {
+    let (kind, number) = name.split_once("MAG")?;
+    let suffix = match kind {
+        "UNCOMP" => "uc",
+        "COMP" => "c",
+        "LAG" => "lag",
+        "DC" => "dc",
+        "IGRF" => "igrf",
+        _ => return None,
+    };
+    is_number(number).then(|| format!("mag_{number}_{suffix}"))
+}
+
+/// `FLUXB_X` → `flux_b_x`; `FLUXB_TOT` and `FLUXB_T` → `flux_b_t`.
+fn sgl_fluxgate_alias(name: &str) -> Option<String> {
+    let (letter, component) = name.strip_prefix("FLUX")?.split_once('_')?;
+    let component = match component {
+        "X" => "x",
+        "Y" => "y",
+        "Z" => "z",
+        "TOT" | "T" => "t",
+        _ => return None,
+    };
+    let is_letter = letter.len() == 1 && letter.bytes().all(|b| b.is_ascii_uppercase());
+    is_letter.then(|| format!("flux_{}_{component}", letter.to_ascii_lowercase()))
+}
+
+/// `CUR_COM1` → `cur_com_1`, `V_BAT2` and `VOL_BAT2` → `vol_bat_2`, `V_RESp`
+/// → `vol_res_p`: the sensor name lowercased, with `_` before a trailing
+/// number that follows a letter and before a trailing polarity `p`/`n`.
+fn sgl_electrical_alias(name: &str) -> Option<String> {
+    let (prefix, sensor) = [("CUR_", "cur"), ("VOL_", "vol"), ("V_", "vol")]
+        .iter()
+        .find_map(|(sgl, contract)| Some((*contract, name.strip_prefix(sgl)?)))?;
+    let (stem, polarity) = match sensor.strip_suffix(['p', 'n']) {
+        Some(stem) => (stem, &sensor[stem.len()..]),
+        None => (sensor, ""),
+    };
+    let starts_with_letter = stem.bytes().next().is_some_and(|b| b.is_ascii_uppercase());
+    if !starts_with_letter || !is_sgl_uppercase(stem) || stem.contains('-') {
         return None;
     }
-    let fixed = match name {
-        "TIME" => Some("tt"),
-        "PITCH" => Some("ins_pitch"),
-        "ROLL" => Some("ins_roll"),
-        "AZIMUTH" => Some("ins_yaw"),
-        "LONG" => Some("lon"),
-        _ => None,
-    };
-    if let Some(fixed) = fixed {
-        return Some(fixed.into());
+    let digits_from = stem.trim_end_matches(|c: char| c.is_ascii_digit()).len();
+    let (word, number) = stem.split_at(digits_from);
+    let mut contract = format!("{prefix}_{}", word.to_ascii_lowercase());
+    if !number.is_empty() && word.bytes().last().is_some_and(|b| b.is_ascii_uppercase()) {
+        contract.push('_');
     }
-    if let Some(n) = name
-        .strip_prefix("UNCOMPMAG")
-        .filter(|n| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()))
-    {
-        return Some(format!("mag_{n}_uc"));
+    contract.push_str(number);
+    if !polarity.is_empty() {
+        contract.push('_');
+        contract.push_str(polarity);
     }
-    if let Some(rest) = name.strip_prefix("FLUX") {
-        if let Some((letter, component)) = rest.split_once('_') {
-            let component = match component {
-                "X" | "Y" | "Z" => component.to_ascii_lowercase(),
-                "TOT" => "t".into(),
-                _ => String::new(),
-            };
-            if letter.len() == 1 && !component.is_empty() {
-                return Some(format!("flux_{}_{component}", letter.to_ascii_lowercase()));
-            }
-        }
-    }
-    Some(name.to_ascii_lowercase())
+    Some(contract)
 }
 
 /// `mag_<n>_uc` with n one or more digits.
 fn is_sgl_scalar(name: &str) -> bool {
     name.strip_prefix("mag_")
         .and_then(|rest| rest.strip_suffix("_uc"))
-        .is_some_and(|n| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()))
+        .is_some_and(is_number)
 }
 
 /// `flux_<s>_x|y|z|t` with s one lowercase letter.
@@ -232,23 +330,262 @@ mod tests {
         assert_eq!(names.role_of("diurnal"), Some(ChannelRole::BaseStation));
     }
 
+    /// Every field of the SGL 2020 XYZ deliveries (MagNav.jl
+    /// `readmes/Data-readme.txt`, in file order) beside the name the same
+    /// field has in the SGL 2020 HDF5 files (`readmes/sgl_2020_fields_readme.txt`,
+    /// same order), plus Flux A and Mag 6 of the later flights.
+    const SGL_2020_XYZ_TO_HDF5: &[(&str, &str)] = &[
+        ("LINE", "line"),
+        ("FLT", "flight"),
+        ("YEAR", "year"),
+        ("DOY", "doy"),
+        ("TIME", "tt"),
+        ("UTM-X", "utm_x"),
+        ("UTM-Y", "utm_y"),
+        ("UTM-Z", "utm_z"),
+        ("MSL-Z", "msl"),
+        ("LAT", "lat"),
+        ("LONG", "lon"),
+        ("BARO", "baro"),
+        ("RADAR", "radar"),
+        ("TOPO", "topo"),
+        ("DEM", "dem"),
+        ("DRAPE", "drape"),
+        ("PITCH", "ins_pitch"),
+        ("ROLL", "ins_roll"),
+        ("AZIMUTH", "ins_yaw"),
+        ("DIURNAL", "diurnal"),
+        ("COMPMAG1", "mag_1_c"),
+        ("LAGMAG1", "mag_1_lag"),
+        ("DCMAG1", "mag_1_dc"),
+        ("IGRFMAG1", "mag_1_igrf"),
+        ("UNCOMPMAG1", "mag_1_uc"),
+        ("UNCOMPMAG2", "mag_2_uc"),
+        ("UNCOMPMAG3", "mag_3_uc"),
+        ("UNCOMPMAG4", "mag_4_uc"),
+        ("UNCOMPMAG5", "mag_5_uc"),
+        ("UNCOMPMAG6", "mag_6_uc"),
+        ("FLUXA_X", "flux_a_x"),
+        ("FLUXA_Y", "flux_a_y"),
+        ("FLUXA_Z", "flux_a_z"),
+        ("FLUXA_TOT", "flux_a_t"),
+        ("FLUXB_X", "flux_b_x"),
+        ("FLUXB_Y", "flux_b_y"),
+        ("FLUXB_Z", "flux_b_z"),
+        ("FLUXB_TOT", "flux_b_t"),
+        ("FLUXC_X", "flux_c_x"),
+        ("FLUXC_Y", "flux_c_y"),
+        ("FLUXC_Z", "flux_c_z"),
+        ("FLUXC_TOT", "flux_c_t"),
+        ("FLUXD_X", "flux_d_x"),
+        ("FLUXD_Y", "flux_d_y"),
+        ("FLUXD_Z", "flux_d_z"),
+        ("FLUXD_TOT", "flux_d_t"),
+        ("OGS_MAG", "ogs_mag"),
+        ("OGS_HGT", "ogs_alt"),
+        ("INS_ACC_X", "ins_acc_x"),
+        ("INS_ACC_Y", "ins_acc_y"),
+        ("INS_ACC_Z", "ins_acc_z"),
+        ("INS_WANDER", "ins_wander"),
+        ("INS_LAT", "ins_lat"),
+        ("INS_LON", "ins_lon"),
+        ("INS_HGT", "ins_alt"),
+        ("INS_VEL_N", "ins_vn"),
+        ("INS_VEL_W", "ins_vw"),
+        ("INS_VEL_V", "ins_vu"),
+        ("PITCHRT", "pitch_rate"),
+        ("ROLLRT", "roll_rate"),
+        ("YAWRT", "yaw_rate"),
+        ("LONG_ACC", "lgtl_acc"),
+        ("LAT_ACC", "ltrl_acc"),
+        ("NORM_ACC", "nrml_acc"),
+        ("TRUE_AS", "tas"),
+        ("PITOT_P", "pitot_p"),
+        ("STATIC_P", "static_p"),
+        ("TOT_P", "total_p"),
+        ("CUR_COM1", "cur_com_1"),
+        ("CUR_ACHi", "cur_ac_hi"),
+        ("CUR_ACLo", "cur_ac_lo"),
+        ("CUR_TANK", "cur_tank"),
+        ("CUR_FLAP", "cur_flap"),
+        ("CUR_STRB", "cur_strb"),
+        ("CUR_SRVO_O", "cur_srvo_o"),
+        ("CUR_SRVO_M", "cur_srvo_m"),
+        ("CUR_SRVO_I", "cur_srvo_i"),
+        ("CUR_IHTR", "cur_heat"),
+        ("CUR_ACPWR", "cur_acpwr"),
+        ("CUR_OUTPWR", "cur_outpwr"),
+        ("CUR_BAT1", "cur_bat_1"),
+        ("CUR_BAT2", "cur_bat_2"),
+        ("V_ACPWR", "vol_acpwr"),
+        ("V_OUTPWR", "vol_outpwr"),
+        ("V_BAT1", "vol_bat_1"),
+        ("V_BAT2", "vol_bat_2"),
+        ("V_RESp", "vol_res_p"),
+        ("V_RESn", "vol_res_n"),
+        ("V_BACKp", "vol_back_p"),
+        ("V_BACKn", "vol_back_n"),
+        ("V_GYRO1", "vol_gyro_1"),
+        ("V_GYRO2", "vol_gyro_2"),
+        ("V_ACCp", "vol_acc_p"),
+        ("V_ACCn", "vol_acc_n"),
+        ("V_BLOCK", "vol_block"),
+        ("V_BACK", "vol_back"),
+        ("V_SERVO", "vol_srvo"),
+        ("V_CABT", "vol_cabt"),
+        ("V_FAN", "vol_fan"),
+        // Later flights and numbering beyond the 2020 list.
+        ("COMPMAG2", "mag_2_c"),
+        ("COMPMAG5", "mag_5_c"),
+        ("DCMAG3", "mag_3_dc"),
+        ("IGRFMAG4", "mag_4_igrf"),
+        ("UNCOMPMAG12", "mag_12_uc"),
+        ("FLUXB_T", "flux_b_t"),
+    ];
+
     #[test]
-    fn uppercase_sgl_names_map_to_contract_names() {
+    fn sgl_xyz_field_names_map_to_the_hdf5_names() {
+        for &(upper, lower) in SGL_2020_XYZ_TO_HDF5 {
+            assert_eq!(sgl_uppercase_alias(upper).as_deref(), Some(lower), "{upper}");
+        }
+    }
+
+    /// Spellings that are not in the SGL 2020 XYZ list but that users write
+    /// for the same fields: the generic rules give the HDF5 name.
+    #[test]
+    fn other_uppercase_spellings_follow_the_rules() {
         let cases = [
-            ("TIME", "tt"),
-            ("LINE", "line"),
-            ("UNCOMPMAG1", "mag_1_uc"),
-            ("FLUXB_X", "flux_b_x"),
-            ("FLUXD_TOT", "flux_d_t"),
-            ("AZIMUTH", "ins_yaw"),
-            ("CUR_STRB", "cur_strb"),
-            ("LONG", "lon"),
+            ("COMPMAG3", "mag_3_c"),
+            ("COMPMAG4", "mag_4_c"),
+            ("DCMAG2", "mag_2_dc"),
+            ("IGRF", "igrf"),
+            ("FLIGHT", "flight"),
+            ("LON", "lon"),
+            ("MSL", "msl"),
+            ("WGS-Z", "wgs_z"),
+            ("CUR_HEAT", "cur_heat"),
+            ("CUR_BAT_1", "cur_bat_1"),
+            ("VOL_BAT1", "vol_bat_1"),
+            ("VOL_BAT2", "vol_bat_2"),
+            ("VOL_BLOCK", "vol_block"),
+            ("VOL_BACK", "vol_back"),
+            ("VOL_SRVO", "vol_srvo"),
+            ("VOL_CABT", "vol_cabt"),
+            ("VOL_FAN", "vol_fan"),
+            ("VOL_BUS", "vol_bus"),
+            ("INS_PITCH", "ins_pitch"),
+            ("INS_ROLL", "ins_roll"),
+            ("INS_AZIM", "ins_yaw"),
+            ("INS_ALT", "ins_alt"),
+            ("INS_VN", "ins_vn"),
+            ("INS_VE", "ins_ve"),
+            ("INS_VW", "ins_vw"),
+            ("INS_VU", "ins_vu"),
+            ("OGS_ALT", "ogs_alt"),
+            ("TEMP_2", "temp_2"),
+            ("X-1", "x_1"),
         ];
         for (upper, lower) in cases {
             assert_eq!(sgl_uppercase_alias(upper).as_deref(), Some(lower), "{upper}");
         }
-        assert_eq!(sgl_uppercase_alias("mag_1_uc"), None);
-        assert_eq!(sgl_uppercase_alias("Cur_Strb"), None);
+    }
+
+    /// Near misses of the patterns fall through to plain lowercasing
+    /// instead of producing a wrong CONTRACT name.
+    #[test]
+    fn near_misses_of_the_patterns_are_only_lowercased() {
+        let cases = [
+            ("UNCOMPMAG", "uncompmag"),
+            ("COMPMAGX", "compmagx"),
+            ("MAG1", "mag1"),
+            ("TOTALMAG1", "totalmag1"),
+            ("FLUXBB_X", "fluxbb_x"),
+            ("FLUXB_W", "fluxb_w"),
+            ("FLUX_X", "flux_x"),
+            ("CUR_", "cur_"),
+            ("V_", "v_"),
+            ("V_1", "v_1"),
+            ("FOO1", "foo1"),
+        ];
+        for (upper, lower) in cases {
+            assert_eq!(sgl_uppercase_alias(upper).as_deref(), Some(lower), "{upper}");
+        }
+    }
+
+    #[test]
+    fn names_that_are_not_uppercase_are_kept_as_written() {
+        for name in [
+            "", "-", "_", "_1", "1", "Ä", "MAGÄ1", "CUR_Ä", "V_RESÄ", "CUR_p", "mag_1_uc", "Cur_Strb", "flux_b_x",
+            "cur_ACHi", "Time",
+        ] {
+            assert_eq!(sgl_uppercase_alias(name), None, "{name:?}");
+        }
+    }
+
+    #[test]
+    fn uppercase_sgl_names_get_their_roles() {
+        let names = ColumnNames::default();
+        let role = |upper: &str| names.role_of(&sgl_uppercase_alias(upper).unwrap());
+        let vector = |sensor: &str, axis| {
+            Some(ChannelRole::VectorMagnetometer {
+                sensor: sensor.into(),
+                axis,
+            })
+        };
+        assert_eq!(role("TIME"), None);
+        assert_eq!(role("LINE"), Some(ChannelRole::Line));
+        assert_eq!(role("UNCOMPMAG3"), Some(ChannelRole::ScalarMagnetometer));
+        for vendor_product in ["COMPMAG1", "LAGMAG1", "DCMAG1", "IGRFMAG1"] {
+            assert_eq!(role(vendor_product), Some(ChannelRole::Auxiliary), "{vendor_product}");
+        }
+        assert_eq!(role("FLUXC_X"), vector("flux_c", VectorAxis::X));
+        assert_eq!(role("FLUXC_Y"), vector("flux_c", VectorAxis::Y));
+        assert_eq!(role("FLUXB_Z"), vector("flux_b", VectorAxis::Z));
+        assert_eq!(
+            role("FLUXD_TOT"),
+            Some(ChannelRole::VectorTotal {
+                sensor: "flux_d".into()
+            })
+        );
+        assert_eq!(role("PITCH"), Some(ChannelRole::Attitude(AttitudeAngle::Pitch)));
+        assert_eq!(role("ROLL"), Some(ChannelRole::Attitude(AttitudeAngle::Roll)));
+        assert_eq!(role("AZIMUTH"), Some(ChannelRole::Attitude(AttitudeAngle::Yaw)));
+        for position in ["LAT", "LONG", "UTM-Z", "MSL-Z"] {
+            assert_eq!(role(position), Some(ChannelRole::Position), "{position}");
+        }
+        assert_eq!(role("DIURNAL"), Some(ChannelRole::BaseStation));
+        for auxiliary in [
+            "CUR_ACHi",
+            "CUR_COM1",
+            "V_BAT1",
+            "V_RESp",
+            "INS_ACC_X",
+            "PITCHRT",
+            "OGS_MAG",
+        ] {
+            assert_eq!(role(auxiliary), Some(ChannelRole::Auxiliary), "{auxiliary}");
+        }
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::test_runner::Config {
+            cases: 2000,
+            rng_seed: proptest::test_runner::RngSeed::Fixed(7),
+            ..proptest::test_runner::Config::default()
+        })]
+
+        /// Any name, ASCII or not, maps without panicking, and a mapped name
+        /// is a lowercase SGL-style name.
+        #[test]
+        fn any_name_maps_to_a_lowercase_name_or_none(name in "[A-Za-z0-9_Ää-]{0,12}|\\PC{0,8}") {
+            if let Some(alias) = sgl_uppercase_alias(&name) {
+                proptest::prop_assert!(!alias.is_empty());
+                proptest::prop_assert!(
+                    alias.bytes().all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'_'),
+                    "{name:?} -> {alias:?}"
+                );
+            }
+        }
     }
 
     #[test]
