@@ -165,6 +165,17 @@ pub enum Error {
         message: String,
     },
 
+    /// An output cannot be written where it was asked for.
+    #[error("{path}: {problem}. {hint}")]
+    Output {
+        /// The destination.
+        path: PathBuf,
+        /// What is wrong with it.
+        problem: String,
+        /// What to do.
+        hint: String,
+    },
+
     /// Serialising an output failed.
     #[error("{path}: could not serialise {what}: {message}")]
     Serialise {

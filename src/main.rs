@@ -4,12 +4,12 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Duration;
 
-use anyhow::Context;
 use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 
 use magcomp::config::{FlightJob, Pipeline};
 use magcomp::diagnose::ApplyDiagnosis;
+use magcomp::output::{prepare, Destination, OutputKind, OutputSet};
 use magcomp::pipeline::{process_flight, summary, FlightOutputs, StageOptions};
 use magcomp::solve::LambdaChoice;
 use magcomp::windows::CalibrationWindow;
@@ -233,6 +233,20 @@ fn main() -> ExitCode {
     }
 }
 
+/// `<stem of path><suffix>` in `path`'s folder.
+fn beside(path: &Path, suffix: &str) -> PathBuf {
+    let stem = path
+        .file_stem()
+        .map_or("flight".into(), |s| s.to_string_lossy().into_owned());
+    path.with_file_name(format!("{stem}{suffix}"))
+}
+
+fn print_notes(notes: &[String]) {
+    for note in notes {
+        println!("  note: {note}");
+    }
+}
+
 fn spinner(message: String) -> ProgressBar {
     let bar = ProgressBar::new_spinner().with_message(message);
     bar.set_style(
@@ -261,16 +275,86 @@ fn run(config: &Path, plain: bool, force: bool) -> anyhow::Result<()> {
         config.display()
     );
     let options = stage_options(&pipeline);
+    let mut statuses = Vec::new();
     for job in &pipeline.flights {
         let outputs = FlightOutputs::in_directory(&pipeline.output_directory, &job.input);
         let bar = spinner(format!("compensating {}", job.input.display()));
-        let result = process_flight(job, &options, &outputs);
+        let result = prepare_flight_outputs(job, &outputs).and_then(|()| process_flight(job, &options, &outputs));
         bar.finish_and_clear();
-        let result = result.with_context(|| format!("processing {}", job.input.display()))?;
-        print!("{}", summary(&result));
-        println!("  wrote {}", outputs.compensated.display());
+        let status = match result {
+            Ok(result) => {
+                print!("{}", summary(&result));
+                println!("  wrote {}", outputs.compensated.display());
+                FlightStatus::done(&job.input, &result)
+            }
+            Err(error) => {
+                eprintln!("magcomp: error: processing {}: {error}", job.input.display());
+                FlightStatus::failed(&job.input, &error)
+            }
+        };
+        statuses.push(status);
     }
+    print!("{}", status_table(&statuses));
+    let failed = statuses.iter().filter(|s| s.failed).count();
+    anyhow::ensure!(
+        failed == 0,
+        "{}: {failed} of {} flights failed; each error is printed above, and the other flights' outputs were written",
+        config.display(),
+        statuses.len()
+    );
     Ok(())
+}
+
+/// Checks a flight's outputs before its work and prints the folders made
+/// for them (`process_flight` checks again, finding them there).
+fn prepare_flight_outputs(job: &FlightJob, outputs: &FlightOutputs) -> magcomp::error::Result<()> {
+    let inputs: Vec<&Path> = std::iter::once(job.input.as_path()).chain(job.diagnosis.as_deref()).collect();
+    print_notes(&prepare(&inputs, &outputs.destinations())?);
+    Ok(())
+}
+
+/// How one flight of a run ended, for the table at the end.
+struct FlightStatus {
+    flight: String,
+    failed: bool,
+    outcome: String,
+}
+
+impl FlightStatus {
+    fn done(flight: &Path, result: &magcomp::pipeline::FlightResult) -> Self {
+        let warnings = result.warnings.len();
+        FlightStatus {
+            flight: flight.display().to_string(),
+            failed: false,
+            outcome: match warnings {
+                0 => format!("ok, {} rows", result.rows),
+                n => format!("ok with {n} warning{}, {} rows", if n == 1 { "" } else { "s" }, result.rows),
+            },
+        }
+    }
+
+    fn failed(flight: &Path, error: &magcomp::error::Error) -> Self {
+        let text = error.to_string();
+        let first: String = text.chars().take(100).collect();
+        FlightStatus {
+            flight: flight.display().to_string(),
+            failed: true,
+            outcome: match first.len() < text.len() {
+                true => format!("FAILED: {first}…"),
+                false => format!("FAILED: {first}"),
+            },
+        }
+    }
+}
+
+/// The run's per-flight status table.
+fn status_table(statuses: &[FlightStatus]) -> String {
+    let width = statuses.iter().map(|s| s.flight.chars().count()).max().unwrap_or(0).max(6);
+    let mut table = format!("\n{:<width$}  status\n", "flight");
+    for status in statuses {
+        table += &format!("{:<width$}  {}\n", status.flight, status.outcome);
+    }
+    table
 }
 
 fn compensate(args: CompensateArgs) -> anyhow::Result<()> {
@@ -310,13 +394,7 @@ fn compensate(args: CompensateArgs) -> anyhow::Result<()> {
         channels: args.channels,
         windows,
     };
-    let beside_out = |suffix: &str| {
-        let stem = args
-            .out
-            .file_stem()
-            .map_or("flight".into(), |s| s.to_string_lossy().into_owned());
-        args.out.with_file_name(format!("{stem}{suffix}"))
-    };
+    let beside_out = |suffix: &str| beside(&args.out, suffix);
     let outputs = FlightOutputs {
         diagnosis_json: Some(beside_out("_diagnosis.json")),
         compensated: args.out.clone(),
@@ -324,6 +402,9 @@ fn compensate(args: CompensateArgs) -> anyhow::Result<()> {
         quality_json: args.report,
         report_html: Some(args.html.clone().unwrap_or_else(|| beside_out("_report.html"))),
     };
+    let other_inputs: Vec<&Path> = [&args.windows_file, &args.config].into_iter().flatten().map(PathBuf::as_path).collect();
+    magcomp::output::destination::refuse_inputs(&other_inputs, &outputs.destinations())?;
+    prepare_flight_outputs(&job, &outputs)?;
     let bar = spinner(format!("compensating {}", args.flight.display()));
     let result = process_flight(&job, &stage_options(&pipeline), &outputs);
     bar.finish_and_clear();
@@ -337,6 +418,8 @@ fn convert(flight: &Path, out: &Path, config: Option<&Path>) -> anyhow::Result<(
         Some(path) => Pipeline::load(path)?,
         None => Pipeline::default(),
     };
+    let inputs: Vec<&Path> = std::iter::once(flight).chain(config).collect();
+    print_notes(&prepare(&inputs, &[Destination::new(out, OutputKind::Flight, "--out")])?);
     let log = magcomp::ingest::read_flight_log(flight, &pipeline.ingest)?;
     magcomp::output::write_flight_log(&log, out)?;
     println!(
@@ -355,6 +438,13 @@ fn convert(flight: &Path, out: &Path, config: Option<&Path>) -> anyhow::Result<(
 }
 
 fn sample_flight(out: &Path, windows: &Path, seed: u64) -> anyhow::Result<()> {
+    print_notes(&prepare(
+        &[],
+        &[
+            Destination::new(out, OutputKind::Csv, "--out"),
+            Destination::new(windows, OutputKind::Json, "--windows"),
+        ],
+    )?);
     let flight = magcomp::sample_flight::generate(&magcomp::sample_flight::SampleFlightSpec::default(), seed);
     magcomp::sample_flight::write(&flight, out, windows)?;
     println!(
@@ -379,6 +469,15 @@ fn replay_flight(
         Some(path) => Pipeline::load(path)?,
         None => Pipeline::default(),
     };
+    let report = beside(out, "_replay.json");
+    let inputs: Vec<&Path> = [Some(flight), diagnosis, config].into_iter().flatten().collect();
+    print_notes(&prepare(
+        &inputs,
+        &[
+            Destination::new(out, OutputKind::Flight, "--out"),
+            Destination::new(&report, OutputKind::Json, "the replay figures beside --out"),
+        ],
+    )?);
     let log = magcomp::ingest::read_flight_log(flight, &pipeline.ingest)?;
     let sensor = magcomp::pipeline::choose_vector_sensor(&log, None)?;
     let channels = magcomp::pipeline::choose_channels(&log, None)?;
@@ -407,12 +506,10 @@ fn replay_flight(
         .and_then(|plan| magcomp::simulate::replay::replay(&log, &sensor, &channels, &windows, &pipeline.fit, &plan));
     bar.finish_and_clear();
     let replayed = replayed?;
-    magcomp::output::write_flight_log(&replayed.log, out)?;
-    let stem = out
-        .file_stem()
-        .map_or("flight".into(), |s| s.to_string_lossy().into_owned());
-    let report = out.with_file_name(format!("{stem}_replay.json"));
-    magcomp::output::write_json(&report, "the replay figures", &replayed.channels)?;
+    let mut set = OutputSet::new();
+    set.add(magcomp::output::stage_flight_log(&replayed.log, out)?);
+    set.add(magcomp::output::stage_json(&report, "the replay figures", &replayed.channels)?);
+    set.commit()?;
     for channel in &replayed.channels {
         println!(
             "  {}: recording − replay in band, over the calibration manoeuvres {:.4} nT with plain Tolles-Lawson, {:.4} nT with {}; elsewhere {:.4} → {:.4} nT",
@@ -428,17 +525,31 @@ fn replay_flight(
     Ok(())
 }
 
-fn simulate(scenario: &Path, out: &Path, seed: Option<u64>) -> anyhow::Result<()> {
-    let mut scenario = magcomp::simulate::scenario::Scenario::load(scenario)?;
+fn simulate(scenario_path: &Path, out: &Path, seed: Option<u64>) -> anyhow::Result<()> {
+    let mut scenario = magcomp::simulate::scenario::Scenario::load(scenario_path)?;
     if let Some(seed) = seed {
         scenario.raw.seed = seed;
     }
+    let [truth, truth_csv, windows] = magcomp::simulate::truth::Truth::paths_beside(out);
+    print_notes(&prepare(
+        &[scenario_path],
+        &[
+            Destination::new(out, OutputKind::Flight, "--out"),
+            Destination::new(&truth, OutputKind::Json, "the truth JSON beside --out"),
+            Destination::new(&truth_csv, OutputKind::Csv, "the truth CSV beside --out"),
+            Destination::new(&windows, OutputKind::Json, "the windows JSON beside --out"),
+        ],
+    )?);
     let bar = spinner(format!("simulating {}", out.display()));
     let flight = magcomp::simulate::simulate(&scenario);
     bar.finish_and_clear();
     let flight = flight?;
-    magcomp::output::write_flight_log(&flight.log, out)?;
-    let [truth, truth_csv, windows] = flight.truth.write_beside(out)?;
+    let mut set = OutputSet::new();
+    set.add(magcomp::output::stage_flight_log(&flight.log, out)?);
+    for staged in flight.truth.stage_beside(out)? {
+        set.add(staged);
+    }
+    set.commit()?;
     println!(
         "wrote {} ({} rows, {} channels), {}, {} and {}",
         out.display(),
@@ -456,6 +567,8 @@ fn detect(flight: &Path, out: &Path, config: Option<&Path>) -> anyhow::Result<()
         Some(path) => Pipeline::load(path)?,
         None => Pipeline::default(),
     };
+    let inputs: Vec<&Path> = std::iter::once(flight).chain(config).collect();
+    print_notes(&prepare(&inputs, &[Destination::new(out, OutputKind::Json, "--out")])?);
     let log = magcomp::ingest::read_flight_log(flight, &pipeline.ingest)?;
     let detection = magcomp::detect::detect_manoeuvres(&log, &pipeline.detect)?;
     magcomp::output::write_json(out, "the detected manoeuvres", &detection)?;
@@ -491,6 +604,14 @@ fn diagnose(
         Some(path) => Pipeline::load(path)?,
         None => Pipeline::default(),
     };
+    let inputs: Vec<&Path> = std::iter::once(flight).chain(config).collect();
+    print_notes(&prepare(
+        &inputs,
+        &[
+            Destination::new(out, OutputKind::Json, "--out"),
+            Destination::new(html, OutputKind::Html, "--html"),
+        ],
+    )?);
     let log = magcomp::ingest::read_flight_log(flight, &pipeline.ingest)?;
     let job = FlightJob {
         diagnosis: None,
@@ -507,8 +628,10 @@ fn diagnose(
     let diagnosis = magcomp::pipeline::diagnose_flight(&log, &job, &stage_options(&pipeline), &pipeline.diagnose);
     bar.finish_and_clear();
     let diagnosis = diagnosis?;
-    magcomp::output::write_json(out, "the diagnosis", &diagnosis)?;
-    magcomp::report::write_diagnosis_report(html, flight, &diagnosis)?;
+    let mut set = OutputSet::new();
+    set.add(magcomp::output::stage_json(out, "the diagnosis", &diagnosis)?);
+    set.add_last(magcomp::report::stage_diagnosis_report(html, flight, &diagnosis)?);
+    set.commit()?;
     for channel in &diagnosis.channels {
         println!(
             "  {}: held-out RMS {:.4} nT with plain Tolles-Lawson, {:.4} nT with the findings and λ by {} as compensation picks it",

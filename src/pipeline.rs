@@ -15,7 +15,7 @@ use crate::flight_log::{FlightLog, VectorSensor};
 use crate::ingest::align::AlignmentReport;
 use crate::ingest::{detect_format, read_flight_log, Format, IngestOptions};
 use crate::output::mcap::McapExtras;
-use crate::output::{added_column_names, write_atomic, write_compensated};
+use crate::output::{added_column_names, stage, stage_compensated, Destination, OutputKind, OutputSet};
 use crate::quality::{assess_quality, ChannelQuality};
 use crate::transfer::{check_transfer, TransferOptions};
 use rayon::prelude::*;
@@ -55,6 +55,34 @@ impl FlightOutputs {
             report_html: Some(directory.join(format!("{stem}_report.html"))),
             diagnosis_json: Some(directory.join(format!("{stem}_diagnosis.json"))),
         }
+    }
+
+    /// Every file these outputs write, each with what it is.
+    pub fn destinations(&self) -> Vec<Destination> {
+        let mut destinations = vec![Destination::new(
+            &self.compensated,
+            OutputKind::Flight,
+            "the compensated flight",
+        )];
+        let optional = [
+            (&self.model_json, OutputKind::Json, "the model JSON"),
+            (&self.quality_json, OutputKind::Json, "the quality JSON"),
+            (&self.diagnosis_json, OutputKind::Json, "the diagnosis JSON"),
+            (&self.report_html, OutputKind::Html, "the HTML report"),
+        ];
+        for (path, kind, named_by) in optional {
+            if let Some(path) = path {
+                destinations.push(Destination::new(path, kind, named_by));
+            }
+        }
+        if let Some(path) = &self.report_html {
+            destinations.push(Destination::new(
+                crate::report::figures_path(path),
+                OutputKind::Json,
+                "the HTML report's figures JSON",
+            ));
+        }
+        destinations
     }
 }
 
@@ -209,7 +237,17 @@ impl From<&crate::config::Pipeline> for StageOptions {
 }
 
 /// Reads, fits, compensates and assesses one flight and writes its outputs.
+///
+/// The outputs are checked before any work ([`crate::output::prepare`]) and
+/// committed together at the end, the report last: a flight that fails
+/// leaves the previous run's files as they were.
 pub fn process_flight(job: &FlightJob, options: &StageOptions, outputs: &FlightOutputs) -> Result<FlightResult> {
+    let inputs: Vec<&Path> = std::iter::once(job.input.as_path())
+        .chain(job.diagnosis.as_deref())
+        .collect();
+    // Folders created here are not noted in the outputs: a caller that
+    // tells its user calls `prepare` first.
+    crate::output::prepare(&inputs, &outputs.destinations())?;
     let raw_log = read_flight_log(&job.input, &options.ingest)?;
     let sensor = choose_vector_sensor(&raw_log, job.vector.as_deref())?;
     let channels = choose_channels(&raw_log, job.channels.as_deref())?;
@@ -246,8 +284,9 @@ pub fn process_flight(job: &FlightJob, options: &StageOptions, outputs: &FlightO
         options,
         calibration.is_some(),
     )?;
+    let mut written = OutputSet::new();
     if let (Some(diagnosis), Some(path)) = (&diagnosis, &outputs.diagnosis_json) {
-        crate::output::write_json(path, "the diagnosis", diagnosis)?;
+        written.add(crate::output::stage_json(path, "the diagnosis", diagnosis)?);
     }
     let models = crate::augment::fit_channels(log, &sensor, &channels, &windows, &options.fit, &plan)?;
     // The fits' recycled stores are not needed while compensating.
@@ -312,22 +351,25 @@ pub fn process_flight(job: &FlightJob, options: &StageOptions, outputs: &FlightO
             ("quality".into(), quality_text.clone()),
         ],
     };
-    write_compensated(
+    written.add(stage_compensated(
         &raw_log,
         &options.ingest.columns,
         &outputs.compensated,
         &compensation,
         &result.added_columns,
         &extras,
-    )?;
-    if let Some(path) = &outputs.report_html {
-        crate::report::write_report(path, &raw_log, &result, &compensation, options.fom_limit_nt)?;
-    }
+    )?);
     for (path, text) in [(&outputs.model_json, model_text), (&outputs.quality_json, quality_text)] {
         if let Some(path) = path {
-            write_atomic(path, |w| std::io::Write::write_all(w, text.as_bytes()))?;
+            written.add(stage(path, |w| std::io::Write::write_all(w, text.as_bytes()))?);
         }
     }
+    if let Some(path) = &outputs.report_html {
+        let report = crate::report::stage_report(path, &raw_log, &result, &compensation, options.fom_limit_nt)?;
+        written.add(report.figures_json);
+        written.add_last(report.page);
+    }
+    written.commit()?;
     Ok(result)
 }
 

@@ -22,7 +22,7 @@ use crate::diagnose::{Diagnosis, Located};
 use crate::error::{Error, Result};
 use crate::fit::FittedTollesLawson;
 use crate::flight_log::{AttitudeAngle, ChannelRole, FlightLog};
-use crate::output::write_atomic;
+use crate::output::{stage, stage_json, Staged};
 use crate::pipeline::FlightResult;
 use crate::quality::{fourth_difference_noise, ChannelQuality, FomCell};
 
@@ -584,14 +584,14 @@ table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #ddd;padding:
 .grid{display:flex;flex-wrap:wrap;gap:4px}figure{margin:0}\
 .warning{background:#fff3cd;border-left:4px solid #b00020;padding:4px 8px}";
 
-/// Writes a page with the diagnosis section alone (`magcomp diagnose`).
-pub fn write_diagnosis_report(path: &Path, flight: &Path, diagnosis: &Diagnosis) -> Result<()> {
+/// Stages a page with the diagnosis section alone (`magcomp diagnose`).
+pub fn stage_diagnosis_report(path: &Path, flight: &Path, diagnosis: &Diagnosis) -> Result<Staged> {
     let html = format!(
         "<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>magcomp diagnosis: {0}</title><style>{STYLE}</style></head><body><h1>Diagnosis: {0}</h1>{1}</body></html>\n",
         escape(&flight.display().to_string()),
         diagnosis_section(diagnosis)?
     );
-    write_atomic(path, |out| std::io::Write::write_all(out, html.as_bytes()))
+    stage(path, |out| std::io::Write::write_all(out, html.as_bytes()))
 }
 
 /// Which diagnosed findings the fit applied and what each bought held out.
@@ -620,15 +620,31 @@ fn applied_findings_section(result: &FlightResult) -> String {
     html + "</section>"
 }
 
-/// Writes the report to `path` and its figures as JSON beside it
-/// (`<path>.json` with the extension replaced).
-pub fn write_report(
+/// The report's page and its figures as JSON beside it (`<path>` with the
+/// extension `.json`), staged for `path`.
+pub struct StagedReport {
+    /// The figures the page shows.
+    pub figures: ReportFigures,
+    /// The HTML page.
+    pub page: Staged,
+    /// The figures as JSON.
+    pub figures_json: Staged,
+}
+
+/// The path of the report's figures JSON beside the page at `path`.
+pub fn figures_path(path: &Path) -> std::path::PathBuf {
+    path.with_extension("json")
+}
+
+/// Stages the report for `path` and its figures as JSON beside it
+/// ([`figures_path`]).
+pub fn stage_report(
     path: &Path,
     log: &FlightLog,
     result: &FlightResult,
     compensation: &Compensation,
     fom_limit_nt: f64,
-) -> Result<ReportFigures> {
+) -> Result<StagedReport> {
     let mut html = format!(
         "<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>magcomp report: {0}</title><style>{STYLE}</style></head><body><h1>Compensation report: {0}</h1>",
         escape(&result.flight.display().to_string())
@@ -703,11 +719,15 @@ pub fn write_report(
         html += &diagnosis_section(diagnosis)?;
     }
     html += "</body></html>\n";
-    write_atomic(path, |out| std::io::Write::write_all(out, html.as_bytes()))?;
+    let page = stage(path, |out| std::io::Write::write_all(out, html.as_bytes()))?;
     let figures = ReportFigures {
         flight: result.flight.display().to_string(),
         channels: figures,
     };
-    crate::output::write_json(&path.with_extension("json"), "the report figures", &figures)?;
-    Ok(figures)
+    let figures_json = stage_json(&figures_path(path), "the report figures", &figures)?;
+    Ok(StagedReport {
+        figures,
+        page,
+        figures_json,
+    })
 }

@@ -27,10 +27,10 @@ use std::io::Write;
 use std::path::Path;
 
 use crate::error::Result;
-use crate::output::write_atomic;
+use crate::output::{stage, OutputSet};
 use crate::simulate::physics::{dipole_field_nt, Vector};
 use crate::simulate::random::Random;
-use crate::windows::{write_detect_json, CalibrationWindow, ManoeuvreKind};
+use crate::windows::{stage_detect_json, CalibrationWindow, ManoeuvreKind};
 
 /// What to fly.
 #[derive(Debug, Clone, PartialEq)]
@@ -401,7 +401,7 @@ fn path_positions(spec: &SampleFlightSpec, states: &[State]) -> Vec<(f64, f64, f
 
 /// Writes the flight as CSV and its manoeuvre windows as DETECT.json.
 pub fn write(flight: &SampleFlight, csv_path: &Path, windows_path: &Path) -> Result<()> {
-    write_atomic(csv_path, |w| {
+    let csv = stage(csv_path, |w| {
         let names: Vec<&str> = flight.columns.iter().map(|(n, _)| n.as_str()).collect();
         writeln!(w, "tt,{}", names.join(","))?;
         for (k, t) in flight.time_s.iter().enumerate() {
@@ -420,7 +420,11 @@ pub fn write(flight: &SampleFlight, csv_path: &Path, windows_path: &Path) -> Res
         }
         Ok(())
     })?;
-    write_detect_json(windows_path, &flight.manoeuvres, &[flight.calibration_box])
+    let windows = stage_detect_json(windows_path, &flight.manoeuvres, &[flight.calibration_box])?;
+    let mut set = OutputSet::new();
+    set.add(csv);
+    set.add(windows);
+    set.commit().map(drop)
 }
 
 #[cfg(test)]

@@ -146,6 +146,15 @@ struct DetectedManoeuvre {
 /// Writes labelled manoeuvre windows and boxes (start, end) as DETECT.json
 /// (CONTRACT §3); unlabelled windows are left out.
 pub fn write_detect_json(path: &Path, manoeuvres: &[CalibrationWindow], boxes: &[(f64, f64)]) -> Result<()> {
+    stage_detect_json(path, manoeuvres, boxes)?.commit().map(drop)
+}
+
+/// Stages DETECT.json for `path` (see [`write_detect_json`]).
+pub fn stage_detect_json(
+    path: &Path,
+    manoeuvres: &[CalibrationWindow],
+    boxes: &[(f64, f64)],
+) -> Result<crate::output::Staged> {
     let file = DetectFile {
         manoeuvres: manoeuvres
             .iter()
@@ -163,7 +172,7 @@ pub fn write_detect_json(path: &Path, manoeuvres: &[CalibrationWindow], boxes: &
             .map(|&(t_start, t_end)| BoxSpan { t_start, t_end })
             .collect(),
     };
-    crate::output::write_json(path, "the calibration windows", &file)
+    crate::output::stage_json(path, "the calibration windows", &file)
 }
 
 /// Reads the manoeuvres of a DETECT.json file as calibration windows, each

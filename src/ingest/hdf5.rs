@@ -15,7 +15,8 @@ use hdf5_pure::{DType, File, FileBuilder};
 use super::columns::ColumnNames;
 use crate::error::{Error, Result};
 use crate::flight_log::{Channel, FlightLog};
-use crate::output::write_atomic;
+use crate::compensate::Compensation;
+use crate::output::{stage, Staged};
 
 /// Older MagNav files' names for CONTRACT names.
 const ALIASES: [(&str, &str); 1] = [("ins_azim", "ins_yaw")];
@@ -99,18 +100,34 @@ fn read_datasets(path: &Path, time_name: &str) -> Result<Datasets> {
     Ok((time_s, datasets))
 }
 
-/// Writes `log` in the MagNav challenge layout: one root dataset per
-/// channel and for time, plus `N` (samples) and `dt` (median interval, s).
-pub fn write_hdf5(log: &FlightLog, output: &Path) -> Result<()> {
+/// Stages `log` in the MagNav challenge layout for `output`: one root
+/// dataset per channel and for time, plus `N` (samples) and `dt` (median
+/// interval, s). With a compensation, each compensated channel follows
+/// under its `added` name (NaN where missing), then the flags as strings.
+pub fn stage_hdf5(
+    log: &FlightLog,
+    added: &[String],
+    output: &Path,
+    compensation: Option<&Compensation>,
+) -> Result<Staged> {
     let mut builder = FileBuilder::new();
     builder.create_dataset(log.time_column()).with_f64_data(log.time_s());
     for channel in log.channels() {
         builder.create_dataset(&channel.name).with_f64_data(&channel.values);
+    }
+    if let Some(compensation) = compensation {
+        for (name, channel) in added.iter().zip(&compensation.channels) {
+            builder.create_dataset(name).with_f64_data(&channel.values);
+        }
+        if let Some(flags) = added.get(compensation.channels.len()) {
+            let texts: Vec<&str> = compensation.flags.iter().map(String::as_str).collect();
+            builder.create_dataset(flags).with_vlen_strings(&texts);
+        }
     }
     builder.create_dataset("N").with_f64_data(&[log.len() as f64]);
     builder.create_dataset("dt").with_f64_data(&[log.median_interval_s()]);
     let bytes = builder
         .finish()
         .map_err(|e| Error::io(output, "encoding HDF5", std::io::Error::other(e.to_string())))?;
-    write_atomic(output, |w| std::io::Write::write_all(w, &bytes))
+    stage(output, |w| std::io::Write::write_all(w, &bytes))
 }

@@ -24,7 +24,7 @@ use std::path::Path;
 
 use prost::Message;
 
-use super::write_atomic;
+use super::{stage, Staged};
 use crate::compensate::Compensation;
 use crate::error::{Error, Result};
 use crate::flight_log::{AttitudeAngle, ChannelRole, FlightLog};
@@ -46,27 +46,27 @@ struct Topic<'a> {
     encode: Box<dyn Fn(usize, u64) -> Option<Vec<u8>> + 'a>,
 }
 
-/// Writes `log` (and the compensated channels, if any) to `output`.
-pub fn write_mcap(
+/// Stages `log` (and the compensated channels, if any) as MCAP for `output`.
+pub fn stage_mcap(
     log: &FlightLog,
     output: &Path,
     compensation: Option<&Compensation>,
     extras: &McapExtras,
-) -> Result<()> {
+) -> Result<Staged> {
     let times = log_times_ns(log)?;
     let topics = plan_topics(log, compensation);
     let mut failure: Option<mcap::McapError> = None;
-    write_atomic(output, |file| {
+    let staged = stage(output, |file| {
         let result = write_records(file, &times, &topics, extras);
         result.map_err(|e| {
             let text = e.to_string();
             failure = Some(e);
             std::io::Error::other(text)
         })
-    })?;
+    });
     match failure {
         Some(e) => Err(Error::io(output, "writing MCAP", std::io::Error::other(e.to_string()))),
-        None => Ok(()),
+        None => staged,
     }
 }
 

@@ -12,8 +12,11 @@ use std::path::Path;
 
 use serde::Serialize;
 
+pub mod destination;
 pub mod mcap;
 pub mod text;
+
+pub use destination::{prepare, stage, Destination, OutputKind, OutputSet, Staged};
 
 use crate::compensate::Compensation;
 use crate::error::{Error, Result};
@@ -21,52 +24,25 @@ use crate::flight_log::FlightLog;
 use crate::ingest::csv::{delimited_reader, read_header, Separator};
 use crate::ingest::{detect_format, ColumnNames, Format};
 
-/// Writes `path` atomically: `write` fills a temporary file in the same
-/// folder, which then replaces `path`.
+/// Writes one file atomically: staged beside `path` (whose folder must
+/// exist), then renamed over it.
 pub fn write_atomic(path: &Path, write: impl FnOnce(&mut BufWriter<&mut File>) -> std::io::Result<()>) -> Result<()> {
-    let folder = path
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    std::fs::create_dir_all(folder).map_err(|e| Error::io(folder, "creating the folder", e))?;
-    let mut temporary = tempfile::Builder::new()
-        .prefix(".magcomp-")
-        .suffix(".tmp")
-        .tempfile_in(folder)
-        .map_err(|e| Error::io(folder, "creating a temporary file in", e))?;
-    {
-        let mut writer = BufWriter::with_capacity(1 << 20, temporary.as_file_mut());
-        write(&mut writer)
-            .and_then(|_| writer.flush())
-            .map_err(|e| Error::io(path, "writing", e))?;
-    }
-    readable_by_all(temporary.as_file()).map_err(|e| Error::io(path, "setting permissions of", e))?;
-    temporary
-        .persist(path)
-        .map_err(|e| Error::io(path, "renaming into", e.error))?;
-    Ok(())
-}
-
-/// Temporary files are private (0600); outputs get the usual 0644.
-#[cfg(unix)]
-fn readable_by_all(file: &File) -> std::io::Result<()> {
-    use std::os::unix::fs::PermissionsExt;
-    file.set_permissions(std::fs::Permissions::from_mode(0o644))
-}
-
-#[cfg(not(unix))]
-fn readable_by_all(_file: &File) -> std::io::Result<()> {
-    Ok(())
+    stage(path, write)?.commit().map(drop)
 }
 
 /// Writes `value` as pretty JSON, atomically.
 pub fn write_json<T: Serialize>(path: &Path, what: &'static str, value: &T) -> Result<()> {
+    stage_json(path, what, value)?.commit().map(drop)
+}
+
+/// Stages `value` as pretty JSON for `path`.
+pub fn stage_json<T: Serialize>(path: &Path, what: &'static str, value: &T) -> Result<Staged> {
     let text = serde_json::to_string_pretty(value).map_err(|e| Error::Serialise {
         path: path.to_path_buf(),
         what,
         message: e.to_string(),
     })?;
-    write_atomic(path, |w| w.write_all(text.as_bytes()))
+    stage(path, |w| w.write_all(text.as_bytes()))
 }
 
 /// The name of magcomp's output column for `channel`: `mag_<n>_c` for
@@ -106,40 +82,48 @@ pub fn added_column_names(log: &FlightLog, output: &Path, compensation: &Compens
     Ok(new_column_names(&existing, compensation))
 }
 
-/// Writes the compensated flight to `output` in the format its extension
+/// Stages the compensated flight for `output` in the format its extension
 /// names: `.xyz` Geosoft XYZ, `.mcap` MCAP (with `extras` stored in it),
-/// anything else comma-separated text. Every input row is written, with the
-/// `added` columns (from [`added_column_names`]).
-pub fn write_compensated(
+/// `.h5` HDF5, anything else comma-separated text. Every input row is
+/// written, with the `added` columns (from [`added_column_names`]).
+pub fn stage_compensated(
     log: &FlightLog,
     names: &ColumnNames,
     output: &Path,
     compensation: &Compensation,
     added: &[String],
     extras: &mcap::McapExtras,
-) -> Result<()> {
+) -> Result<Staged> {
     let input_format = detect_format(log.source()).ok();
     match (detect_output_format(output), input_format) {
-        (Format::Mcap, _) => mcap::write_mcap(log, output, Some(compensation), extras),
-        (Format::Xyz, Some(Format::Xyz)) => text::copy_xyz(log, names, added, output, compensation),
-        (Format::Xyz, _) => text::write_log_xyz(log, added, output, Some(compensation)),
+        (Format::Mcap, _) => mcap::stage_mcap(log, output, Some(compensation), extras),
+        (Format::Xyz, Some(Format::Xyz)) => text::stage_xyz_copy(log, names, added, output, compensation),
+        (Format::Xyz, _) => text::stage_log_xyz(log, added, output, Some(compensation)),
+        #[cfg(feature = "hdf5")]
+        (Format::Hdf5, _) => crate::ingest::hdf5::stage_hdf5(log, added, output, Some(compensation)),
         (_, Some(Format::DelimitedText)) => {
-            write_compensated_csv(log.source(), log.source_row_offsets(), output, compensation, added)
+            stage_compensated_csv(log.source(), log.source_row_offsets(), output, compensation, added)
         }
-        _ => text::write_log_csv(log, added, output, Some(compensation)),
+        _ => text::stage_log_csv(log, added, output, Some(compensation)),
     }
 }
 
-/// Writes a flight log as it is, in the format `output`'s extension names:
+/// Writes a flight log as it is, in the format `output`'s extension names
+/// (see [`stage_flight_log`]).
+pub fn write_flight_log(log: &FlightLog, output: &Path) -> Result<()> {
+    stage_flight_log(log, output)?.commit().map(drop)
+}
+
+/// Stages a flight log as it is, in the format `output`'s extension names:
 /// `.xyz` Geosoft XYZ, `.mcap` MCAP, `.h5` HDF5 in the MagNav layout,
 /// anything else comma-separated text.
-pub fn write_flight_log(log: &FlightLog, output: &Path) -> Result<()> {
+pub fn stage_flight_log(log: &FlightLog, output: &Path) -> Result<Staged> {
     match detect_output_format(output) {
-        Format::Xyz => text::write_log_xyz(log, &[], output, None),
-        Format::Mcap => mcap::write_mcap(log, output, None, &mcap::McapExtras::default()),
+        Format::Xyz => text::stage_log_xyz(log, &[], output, None),
+        Format::Mcap => mcap::stage_mcap(log, output, None, &mcap::McapExtras::default()),
         #[cfg(feature = "hdf5")]
-        Format::Hdf5 => crate::ingest::hdf5::write_hdf5(log, output),
-        _ => text::write_log_csv(log, &[], output, None),
+        Format::Hdf5 => crate::ingest::hdf5::stage_hdf5(log, &[], output, None),
+        _ => text::stage_log_csv(log, &[], output, None),
     }
 }
 
@@ -171,31 +155,29 @@ fn new_column_names(existing: &[String], compensation: &Compensation) -> Vec<Str
     added
 }
 
-/// Writes the compensated CSV: every input row and column, then one column
-/// per compensated channel and the flags column. Returns the added column
-/// names.
+/// Stages the compensated CSV: every input row and column, then one column
+/// per compensated channel and the flags column.
 ///
 /// A comma-separated input whose row offsets are known (`row_offsets`, from
 /// the reader) is copied byte for byte, each row's text followed by the new
 /// cells; other inputs are re-read and written as comma-separated records.
-pub fn write_compensated_csv(
+pub fn stage_compensated_csv(
     input: &Path,
     row_offsets: Option<&[u64]>,
     output: &Path,
     compensation: &Compensation,
     added: &[String],
-) -> Result<()> {
+) -> Result<Staged> {
     let (separator, header) = read_header(input)?;
     let rows = compensation.flags.len();
     if let (Separator::Byte(b','), Some(offsets)) = (separator, row_offsets) {
         if offsets.len() == rows {
-            write_atomic(output, |writer| {
+            return stage(output, |writer| {
                 copy_verbatim(input, offsets, added, writer, &mut ExtraColumns::new(compensation))
-            })?;
-            return Ok(());
+            });
         }
     }
-    write_atomic(output, |writer| {
+    stage(output, |writer| {
         let mut csv = csv::Writer::from_writer(writer);
         csv.write_record(header.iter().chain(added))?;
         let mut extra = ExtraColumns::new(compensation);

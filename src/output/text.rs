@@ -10,26 +10,26 @@
 use std::io::{BufRead, BufReader, Write};
 use std::path::Path;
 
-use super::{write_atomic, write_cell, ExtraColumns};
+use super::{stage, write_cell, ExtraColumns, Staged};
 use crate::compensate::Compensation;
 use crate::error::Result;
 use crate::flight_log::{ChannelRole, FlightLog};
 use crate::ingest::xyz::{classify, find_header, XyzLine};
 use crate::ingest::ColumnNames;
 
-/// Copies an XYZ input, appending the added columns. `names` are the column
+/// Stages a copy of an XYZ input with the added columns appended. `names` are the column
 /// names the input was read with.
-pub fn copy_xyz(
+pub fn stage_xyz_copy(
     log: &FlightLog,
     names: &ColumnNames,
     added: &[String],
     output: &Path,
     compensation: &Compensation,
-) -> Result<()> {
+) -> Result<Staged> {
     let input = log.source();
     let header = find_header(input, names)?;
     let rows = compensation.flags.len();
-    write_atomic(output, |out| {
+    stage(output, |out| {
         let reader = BufReader::with_capacity(1 << 20, std::fs::File::open(input)?);
         let mut extra = ExtraColumns::new(compensation);
         for (index, line) in reader.lines().enumerate() {
@@ -56,16 +56,16 @@ pub fn copy_xyz(
     })
 }
 
-/// Writes the flight log and the added columns as Geosoft XYZ: a `/` header
+/// Stages the flight log and the added columns as Geosoft XYZ: a `/` header
 /// line, a `Line` record whenever the line channel changes, `*` for nulls.
-pub fn write_log_xyz(
+pub fn stage_log_xyz(
     log: &FlightLog,
     added: &[String],
     output: &Path,
     compensation: Option<&Compensation>,
-) -> Result<()> {
+) -> Result<Staged> {
     let line_channel = log.channels().iter().position(|c| c.role == ChannelRole::Line);
-    write_atomic(output, |out| {
+    stage(output, |out| {
         let names: Vec<&str> = std::iter::once(log.time_column())
             .chain(log.channels().iter().map(|c| c.name.as_str()))
             .chain(added.iter().map(String::as_str))
@@ -102,14 +102,14 @@ pub fn write_log_xyz(
     })
 }
 
-/// Writes the flight log and the added columns as comma-separated text.
-pub fn write_log_csv(
+/// Stages the flight log and the added columns as comma-separated text.
+pub fn stage_log_csv(
     log: &FlightLog,
     added: &[String],
     output: &Path,
     compensation: Option<&Compensation>,
-) -> Result<()> {
-    write_atomic(output, |out| {
+) -> Result<Staged> {
+    stage(output, |out| {
         let names = std::iter::once(log.time_column())
             .chain(log.channels().iter().map(|c| c.name.as_str()))
             .chain(added.iter().map(String::as_str));

@@ -14,11 +14,11 @@ use std::path::{Path, PathBuf};
 use serde::Serialize;
 
 use crate::error::Result;
-use crate::output::{write_atomic, write_json};
+use crate::output::{stage, stage_json, OutputSet, Staged};
 use crate::simulate::physics::{AircraftField, FluxgateCalibration};
 use crate::simulate::scenario::{Effect, Scenario, SensorLocation};
 use crate::simulate::trajectory::FlightPath;
-use crate::windows::{write_detect_json, CalibrationWindow, ManoeuvreKind};
+use crate::windows::{stage_detect_json, CalibrationWindow, ManoeuvreKind};
 
 /// What one scalar sensor would have read without the aircraft.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -188,19 +188,34 @@ impl Truth {
             .map(|s| s.earth_total_nt.as_slice())
     }
 
+    /// The paths of `<stem>.truth.json`, `<stem>.truth.csv` and
+    /// `<stem>.windows.json` beside `flight`.
+    pub fn paths_beside(flight: &Path) -> [PathBuf; 3] {
+        let stem = flight.with_extension("");
+        ["truth.json", "truth.csv", "windows.json"].map(|suffix| stem.with_extension(suffix))
+    }
+
     /// Writes `<stem>.truth.json` and `<stem>.truth.csv` beside `flight`,
     /// and `<stem>.windows.json` (DETECT.json shape: the manoeuvres as flown,
     /// which a fit widens by its window margin). Returns the three paths.
     pub fn write_beside(&self, flight: &Path) -> Result<[PathBuf; 3]> {
-        let stem = flight.with_extension("");
-        let json = stem.with_extension("truth.json");
-        let csv = stem.with_extension("truth.csv");
-        let windows = stem.with_extension("windows.json");
-        write_json(&json, "the simulation truth", self)?;
-        write_atomic(&csv, |out| self.write_csv(out))?;
+        let mut set = OutputSet::new();
+        for staged in self.stage_beside(flight)? {
+            set.add(staged);
+        }
+        set.commit()?;
+        Ok(Self::paths_beside(flight))
+    }
+
+    /// Stages the three files of [`Truth::write_beside`].
+    pub fn stage_beside(&self, flight: &Path) -> Result<[Staged; 3]> {
+        let [json, csv, windows] = Self::paths_beside(flight);
         let boxes: Vec<(f64, f64)> = self.boxes.iter().map(|b| (b.t_start, b.t_end)).collect();
-        write_detect_json(&windows, &self.calibration_windows(0.0), &boxes)?;
-        Ok([json, csv, windows])
+        Ok([
+            stage_json(&json, "the simulation truth", self)?,
+            stage(&csv, |out| self.write_csv(out))?,
+            stage_detect_json(&windows, &self.calibration_windows(0.0), &boxes)?,
+        ])
     }
 
     fn write_csv(&self, out: &mut impl Write) -> std::io::Result<()> {
