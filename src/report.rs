@@ -90,16 +90,55 @@ fn svg(
     Ok(text)
 }
 
-/// Finite range of values, padded by 5 %, never empty.
+/// The axis range of `values`: from the 0.5th to the 99.5th percentile of
+/// the finite values, so that a few wild samples neither flatten a plot nor
+/// push its axis past the float range (where the axis labelling never
+/// ends), padded by 5 %, never empty. Values beyond it are clipped.
 fn span(values: impl Iterator<Item = f64>) -> std::ops::Range<f64> {
-    let (low, high) = values
-        .filter(|v| v.is_finite())
-        .fold((f64::MAX, f64::MIN), |(l, h), v| (l.min(v), h.max(v)));
-    if low > high {
+    /// Axis ends beyond this are clamped: the axis width stays finite.
+    const FARTHEST: f64 = 1e300;
+    let mut finite: Vec<f64> = values.filter(|v| v.is_finite()).collect();
+    if finite.is_empty() {
         return 0.0..1.0;
     }
-    let pad = ((high - low) * 0.05).max(1e-9);
+    let trimmed = finite.len() / 200;
+    let last = finite.len() - 1 - trimmed;
+    let low = *finite.select_nth_unstable_by(trimmed, f64::total_cmp).1;
+    let high = *finite.select_nth_unstable_by(last, f64::total_cmp).1;
+    let (low, high) = (low.clamp(-FARTHEST, FARTHEST), high.clamp(-FARTHEST, FARTHEST));
+    let magnitude = low.abs().max(high.abs());
+    let pad = ((high - low) * 0.05).max(magnitude * 1e-9).max(1e-12);
     low - pad..high + pad
+}
+
+/// Points a line plot draws at most: about two per pixel column.
+const MOST_LINE_POINTS: usize = 2000;
+
+/// `points` (in order of x) reduced for display to the first, the lowest
+/// and the highest of each of `MOST_LINE_POINTS / 3` runs, in order, so
+/// that every spike still shows; fewer points are kept as they are.
+/// Non-finite points are dropped.
+fn decimated(points: impl Iterator<Item = (f64, f64)>) -> Vec<(f64, f64)> {
+    let points: Vec<(f64, f64)> = points.filter(|(x, y)| x.is_finite() && y.is_finite()).collect();
+    if points.len() <= MOST_LINE_POINTS {
+        return points;
+    }
+    let run = points.len().div_ceil(MOST_LINE_POINTS / 3);
+    let mut kept = Vec::with_capacity(MOST_LINE_POINTS);
+    for chunk in points.chunks(run) {
+        let lowest = chunk.iter().enumerate().min_by(|a, b| a.1 .1.total_cmp(&b.1 .1)).map(|(k, _)| k);
+        let highest = chunk.iter().enumerate().max_by(|a, b| a.1 .1.total_cmp(&b.1 .1)).map(|(k, _)| k);
+        let mut chosen = [Some(0), lowest, highest];
+        chosen.sort();
+        let mut previous = None;
+        for k in chosen.into_iter().flatten() {
+            if previous != Some(k) {
+                kept.push(chunk[k]);
+                previous = Some(k);
+            }
+        }
+    }
+    kept
 }
 
 fn attitude_timeline(log: &FlightLog, result: &FlightResult) -> Result<String> {
@@ -143,13 +182,7 @@ fn attitude_timeline(log: &FlightLog, result: &FlightResult) -> Result<String> {
             )
             .map_err(plot_error)?;
         for (name, values, colour) in &series {
-            let step = (values.len() / 4000).max(1);
-            let points = time
-                .iter()
-                .zip(values.iter())
-                .step_by(step)
-                .filter(|(_, v)| v.is_finite())
-                .map(|(t, v)| (*t, *v));
+            let points = decimated(time.iter().copied().zip(values.iter().copied()));
             chart
                 .draw_series(LineSeries::new(points, colour))
                 .map_err(plot_error)?
@@ -195,7 +228,7 @@ fn manoeuvre_plot(model: &FittedTollesLawson, index: usize) -> Result<String> {
         ] {
             chart
                 .draw_series(LineSeries::new(
-                    values.iter().enumerate().map(|(k, v)| (k as f64 * dt, *v)),
+                    decimated(values.iter().enumerate().map(|(k, v)| (k as f64 * dt, *v))),
                     colour,
                 ))
                 .map_err(plot_error)?;
@@ -282,7 +315,11 @@ fn line_map(log: &FlightLog, values: &[f64]) -> Result<Option<String>> {
     };
     let rows: Vec<usize> = (0..log.len())
         .filter(|&k| {
-            line.values[k] != 0.0 && line.values[k].is_finite() && values[k].is_finite() && lat.values[k].is_finite()
+            line.values[k] != 0.0
+                && line.values[k].is_finite()
+                && values[k].is_finite()
+                && lat.values[k].is_finite()
+                && lon.values[k].is_finite()
         })
         .collect();
     if rows.is_empty() {
@@ -305,9 +342,11 @@ fn line_map(log: &FlightLog, values: &[f64]) -> Result<Option<String>> {
             (255.0 * (1.0 - f)) as u8,
         )
     };
-    let map = svg((520, 420), |root| {
-        let x = span(rows.iter().map(|&k| lon.values[k]));
-        let y = span(rows.iter().map(|&k| lat.values[k]));
+    let size = (520, 420);
+    let x = span(rows.iter().map(|&k| lon.values[k]));
+    let y = span(rows.iter().map(|&k| lat.values[k]));
+    let drawn = one_per_cell(&rows, (&lon.values, &lat.values), (&x, &y), (size.0 / 2, size.1 / 2));
+    let map = svg(size, |root| {
         let mut chart = ChartBuilder::on(root)
             .caption(
                 format!("Survey lines, compensated anomaly {low:.1} (blue) to {high:.1} nT (red)"),
@@ -316,7 +355,7 @@ fn line_map(log: &FlightLog, values: &[f64]) -> Result<Option<String>> {
             .margin(6)
             .x_label_area_size(28)
             .y_label_area_size(55)
-            .build_cartesian_2d(x, y)
+            .build_cartesian_2d(x.clone(), y.clone())
             .map_err(plot_error)?;
         chart
             .configure_mesh()
@@ -326,13 +365,37 @@ fn line_map(log: &FlightLog, values: &[f64]) -> Result<Option<String>> {
             .map_err(plot_error)?;
         chart
             .draw_series(
-                rows.iter()
+                drawn
+                    .iter()
                     .map(|&k| Circle::new((lon.values[k], lat.values[k]), 2, colour(values[k] - level).filled())),
             )
             .map_err(plot_error)?;
         Ok(())
     })?;
     Ok(Some(map))
+}
+
+/// The `rows` a map of `cells` (columns, rows) over the ranges draws: the
+/// first row in each cell, so a survey of any length is a few thousand
+/// points; rows outside the ranges are left out.
+fn one_per_cell(
+    rows: &[usize],
+    (easting, northing): (&[f64], &[f64]),
+    (x, y): (&std::ops::Range<f64>, &std::ops::Range<f64>),
+    cells: (u32, u32),
+) -> Vec<usize> {
+    let cell = |value: f64, range: &std::ops::Range<f64>, count: u32| {
+        let fraction = (value - range.start) / (range.end - range.start);
+        (0.0..1.0).contains(&fraction).then(|| (fraction * count as f64) as u32)
+    };
+    let mut taken = std::collections::HashSet::new();
+    rows.iter()
+        .copied()
+        .filter(|&k| match (cell(easting[k], x, cells.0), cell(northing[k], y, cells.1)) {
+            (Some(column), Some(row)) => taken.insert((column, row)),
+            _ => false,
+        })
+        .collect()
 }
 
 /// Fourth-difference noise of each survey line, before and after.
@@ -494,7 +557,9 @@ fn residual_plot(trace: &ResidualTrace, marked: &[(f64, f64)]) -> Result<String>
                 }
             }
             for piece in pieces {
-                chart.draw_series(LineSeries::new(piece, colour)).map_err(plot_error)?;
+                chart
+                    .draw_series(LineSeries::new(decimated(piece.into_iter()), colour))
+                    .map_err(plot_error)?;
             }
         }
         Ok(())
@@ -730,4 +795,91 @@ pub fn stage_report(
         page,
         figures_json,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Draws a line chart over `x` × `y` with its axis labels, as every
+    /// report plot does; fails instead of hanging.
+    fn draws_within_a_second(x: std::ops::Range<f64>, y: std::ops::Range<f64>) -> bool {
+        let (sender, receiver) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let drawn = svg((300, 200), |root| {
+                let mut chart = ChartBuilder::on(root)
+                    .x_label_area_size(20)
+                    .y_label_area_size(40)
+                    .build_cartesian_2d(x.clone(), y.clone())
+                    .map_err(plot_error)?;
+                chart.configure_mesh().draw().map_err(plot_error)?;
+                chart
+                    .draw_series(LineSeries::new([(x.start, y.start), (x.end, y.end)], BLUE))
+                    .map_err(plot_error)?;
+                Ok(())
+            });
+            let _ = sender.send(drawn.is_ok());
+        });
+        receiver.recv_timeout(std::time::Duration::from_secs(1)).unwrap_or(false)
+    }
+
+    #[test]
+    fn an_axis_is_finite_and_drawn_whatever_the_values() {
+        let normal: Vec<f64> = (0..1000).map(|k| 53_000.0 + (k as f64 * 0.1).sin()).collect();
+        let cases: Vec<Vec<f64>> = vec![
+            vec![-1.5e308, 1.5e308],
+            [normal.clone(), vec![-1.5e308, 1.5e308]].concat(),
+            vec![f64::MAX, f64::MIN, f64::NAN, f64::INFINITY],
+            vec![53_000.0; 10],
+            vec![4.9e-324, 0.0, -4.9e-324],
+            vec![f64::NAN],
+            vec![],
+        ];
+        for values in cases {
+            let range = span(values.iter().copied());
+            assert!(range.start.is_finite() && range.end.is_finite(), "{values:?}: {range:?}");
+            assert!(range.end > range.start && (range.end - range.start).is_finite(), "{range:?}");
+            assert!(draws_within_a_second(0.0..1.0, range.clone()), "{values:?}: {range:?} hangs");
+        }
+        // Two wild samples among a thousand do not flatten the plot: the
+        // axis spans the sine's ±1 nT and its 5 % pad, not ±1.5e308.
+        let range = span([normal, vec![-1.5e308, 1.5e308]].concat().into_iter());
+        assert!(range.start > 53_000.0 - 1.2 && range.end < 53_000.0 + 1.2, "{range:?}");
+    }
+
+    #[test]
+    fn a_long_series_is_decimated_and_keeps_its_spikes() {
+        let mut series: Vec<(f64, f64)> = (0..100_000).map(|k| (k as f64 * 0.1, (k as f64 * 0.01).sin())).collect();
+        series[54_321].1 = 40.0;
+        series[7_777].1 = -30.0;
+        let kept = decimated(series.iter().copied());
+        assert!(kept.len() <= MOST_LINE_POINTS, "{}", kept.len());
+        assert!(kept.contains(&series[54_321]) && kept.contains(&series[7_777]));
+        assert!(kept.windows(2).all(|pair| pair[0].0 < pair[1].0), "kept in order");
+        assert_eq!(kept[0], series[0]);
+        let short: Vec<(f64, f64)> = series[..500].to_vec();
+        assert_eq!(decimated(short.iter().copied()), short);
+    }
+
+    #[test]
+    fn a_map_draws_one_sample_per_cell() {
+        // Ten lines of 20,000 samples across a 0.1° square.
+        let mut easting = Vec::new();
+        let mut northing = Vec::new();
+        for line in 0..10 {
+            for k in 0..20_000 {
+                easting.push(-75.7 + 0.1 * k as f64 / 20_000.0);
+                northing.push(45.3 + 0.01 * line as f64);
+            }
+        }
+        let rows: Vec<usize> = (0..easting.len()).collect();
+        let x = span(easting.iter().copied());
+        let y = span(northing.iter().copied());
+        let drawn = one_per_cell(&rows, (&easting, &northing), (&x, &y), (260, 210));
+        assert!(drawn.len() <= 10 * 260, "{} points", drawn.len());
+        for line in 0..10 {
+            let on_line = drawn.iter().filter(|&&k| k / 20_000 == line).count();
+            assert!(on_line >= 240, "line {line} keeps {on_line} points");
+        }
+    }
 }
