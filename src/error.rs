@@ -14,7 +14,7 @@ pub type Result<T> = std::result::Result<T, Error>;
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
     /// A file could not be opened, read or written.
-    #[error("{path}: {action} failed: {source}. Check that the path exists and is accessible.")]
+    #[error("{path}: {action} failed: {source}. {}", io_hint(.source))]
     Io {
         /// The file concerned.
         path: PathBuf,
@@ -36,7 +36,7 @@ pub enum Error {
     },
 
     /// A cell in a numeric column holds something that is not a number.
-    #[error("{path}, line {line}, column '{column}': '{value}' is not a number. Correct the cell, or leave it empty (or write NaN or *) to mark the sample missing.")]
+    #[error("{path}, line {line}, column '{}': '{}' is not a number. Correct the cell, or leave it empty (or write NaN or *) to mark the sample missing.", Excerpt(.column), Excerpt(.value))]
     MalformedNumber {
         /// The file concerned.
         path: PathBuf,
@@ -58,6 +58,15 @@ pub enum Error {
         /// Time column name.
         column: String,
         /// What is wrong with it.
+        problem: String,
+    },
+
+    /// A file holds no data to work on.
+    #[error("{path}: {problem}. Check that the export or copy of the flight finished; magcomp needs the recorded rows.")]
+    NoData {
+        /// The file concerned.
+        path: PathBuf,
+        /// What is missing.
         problem: String,
     },
 
@@ -95,7 +104,7 @@ pub enum Error {
     },
 
     /// A calibration window is unusable.
-    #[error("calibration window '{label}' ({t_start} to {t_end} s): {problem}. {hint}")]
+    #[error("calibration window '{label}' ({} to {} s): {problem}. {hint}", Number(*.t_start), Number(*.t_end))]
     BadWindow {
         /// Window label.
         label: String,
@@ -116,6 +125,17 @@ pub enum Error {
         source_name: String,
         /// What is wrong and how to fix it.
         message: String,
+    },
+
+    /// The band-pass filter cannot be designed for a flight's sample rate.
+    #[error("{path}: the band-pass filter cannot be designed: {source}. {hint}")]
+    FilterDesign {
+        /// The flight.
+        path: PathBuf,
+        /// Why the design failed.
+        source: crate::filter::FilterError,
+        /// What to do.
+        hint: String,
     },
 
     /// The fit could not be computed.
@@ -188,6 +208,18 @@ pub enum Error {
     },
 }
 
+/// What to do about an operating-system error, by its kind.
+fn io_hint(error: &std::io::Error) -> &'static str {
+    use std::io::ErrorKind;
+    match error.kind() {
+        ErrorKind::NotFound => "Check that the path exists.",
+        ErrorKind::PermissionDenied => "Check the permissions of the file and its folder.",
+        ErrorKind::UnexpectedEof => "The file ends early; check that it was copied or exported completely.",
+        ErrorKind::InvalidData => "The file is not what its name says, or it is damaged.",
+        _ => "Check the file, its folder and the disk (space, permissions, a network drive that went away).",
+    }
+}
+
 impl Error {
     /// Builds an [`Error::Io`] for `path`.
     pub fn io(path: impl Into<PathBuf>, action: &'static str, source: std::io::Error) -> Self {
@@ -196,5 +228,54 @@ impl Error {
             action,
             source,
         }
+    }
+}
+
+/// A number as an error message shows it: plain decimals for everyday
+/// magnitudes, scientific notation beyond them (so 1e308 is not 309 digits).
+#[derive(Debug, Clone, Copy)]
+pub struct Number(pub f64);
+
+impl std::fmt::Display for Number {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let magnitude = self.0.abs();
+        match magnitude == 0.0 || !magnitude.is_finite() || (1e-4..1e15).contains(&magnitude) {
+            true => write!(f, "{}", self.0),
+            false => write!(f, "{:e}", self.0),
+        }
+    }
+}
+
+/// Text quoted in an error message, cut to its first 60 characters with
+/// the length of the whole when longer (a 2 MB cell is not echoed).
+#[derive(Debug, Clone, Copy)]
+pub struct Excerpt<'a>(pub &'a str);
+
+impl std::fmt::Display for Excerpt<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        const SHOWN: usize = 60;
+        match self.0.char_indices().nth(SHOWN) {
+            None => f.write_str(self.0),
+            Some((end, _)) => write!(f, "{}… ({} bytes in all)", &self.0[..end], self.0.len()),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn numbers_and_quoted_text_stay_short() {
+        assert_eq!(Number(1e308).to_string(), "1e308");
+        assert_eq!(Number(-4.9e-324).to_string(), "-5e-324");
+        assert_eq!(Number(46012.3).to_string(), "46012.3");
+        assert_eq!(Number(0.0).to_string(), "0");
+        assert_eq!(Number(f64::NAN).to_string(), "NaN");
+        let cell = "9".repeat(2_000_000);
+        let quoted = Excerpt(&cell).to_string();
+        assert!(quoted.len() < 100 && quoted.ends_with("(2000000 bytes in all)"), "{quoted}");
+        assert_eq!(Excerpt("5x1").to_string(), "5x1");
+        assert_eq!(Excerpt(&"é".repeat(61)).to_string(), format!("{}… (122 bytes in all)", "é".repeat(60)));
     }
 }

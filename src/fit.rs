@@ -12,7 +12,7 @@ use std::ops::Range;
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::error::{Error, Result};
+use crate::error::{Error, Number, Result};
 use crate::filter::{EdgePadding, FilterBand, FilterError, ZeroPhaseFilter, LANES};
 use crate::flight_log::{FlightLog, VectorSensor};
 use crate::segments::valid_runs;
@@ -273,13 +273,9 @@ fn band_data(
             hint: "Check --channels or [columns] scalar in pipeline.toml.".into(),
         })?
         .values;
-    let sample_rate_hz = 1.0 / log.median_interval_s();
     let settings = options.filter;
-    let filter = ZeroPhaseFilter::butterworth(settings.band, settings.poles, sample_rate_hz, settings.padding)
-        .map_err(|e| Error::Config {
-            source_name: "[filter]".into(),
-            message: e.to_string(),
-        })?;
+    let filter = design_filter(log, &settings)?;
+    let sample_rate_hz = 1.0 / log.median_interval_s();
     let trim = settings.trim_samples;
     let needed = filter.min_samples().max(2 * trim + 1);
     let plans: Vec<WindowPlan> = windows
@@ -335,6 +331,9 @@ impl<'w> WindowPlan<'w> {
     ) -> Result<Self> {
         let field = log.vector_components(sensor);
         let rows = window.rows(log.time_s());
+        if rows.is_empty() {
+            return Err(outside_the_flight(log, window));
+        }
         let mut valid: Vec<bool> = scalar[rows.clone()].iter().map(|v| v.is_finite()).collect();
         for column in field.iter().chain(extra) {
             for (ok, value) in valid.iter_mut().zip(&column[rows.clone()]) {
@@ -428,6 +427,51 @@ fn stack_filtered(
         filter.apply_panel(run.len(), source, &mut output, trim)
     })?;
     Ok(builder.finish())
+}
+
+/// The fit's band-pass filter for `log`'s sample rate (the reciprocal of
+/// its median sample interval).
+pub fn design_filter(log: &FlightLog, settings: &FilterSettings) -> Result<ZeroPhaseFilter> {
+    let interval_s = log.median_interval_s();
+    ZeroPhaseFilter::butterworth(settings.band, settings.poles, 1.0 / interval_s, settings.padding).map_err(|source| {
+        let hint = match log.len() {
+            0 | 1 => format!(
+                "The flight has {} row(s); a fit needs minutes of flight at a steady rate, with a calibration box.",
+                log.len()
+            ),
+            _ => format!(
+                "The flight is sampled every {} s ({} Hz); set [filter] low_hz and high_hz below half that rate, or resample the flight.",
+                Number(interval_s),
+                Number(1.0 / interval_s)
+            ),
+        };
+        Error::FilterDesign {
+            path: log.source().to_path_buf(),
+            source,
+            hint,
+        }
+    })
+}
+
+/// A window with no row of the flight: most often windows of another
+/// flight, or in another time unit.
+fn outside_the_flight(log: &FlightLog, window: &CalibrationWindow) -> Error {
+    let time = log.time_s();
+    let span = match (time.first(), time.last()) {
+        (Some(first), Some(last)) => format!("{} to {} s", Number(*first), Number(*last)),
+        _ => "no time at all".into(),
+    };
+    Error::BadWindow {
+        label: window.display_label(),
+        t_start: window.t_start,
+        t_end: window.t_end,
+        problem: format!(
+            "it holds no row of {}, whose time column '{}' runs {span}",
+            log.source().display(),
+            log.time_column()
+        ),
+        hint: "Windows are in the flight's own time unit: check that the windows (--window, --windows-file or [[flight]] windows) were made for this flight.".into(),
+    }
 }
 
 fn too_short(window: &CalibrationWindow, problem: String) -> Error {

@@ -304,7 +304,10 @@ pub fn check_time(source: &Path, column: &str, time_s: &[f64], locate: impl Fn(u
         }
         if index > 0 && t <= time_s[index - 1] {
             let previous = time_s[index - 1];
-            return Err(bad(index, format!("goes from {previous} to {t}")));
+            return Err(bad(
+                index,
+                format!("goes from {} to {}", crate::error::Number(previous), crate::error::Number(t)),
+            ));
         }
     }
     Ok(())

@@ -152,7 +152,7 @@ struct CompensateArgs {
     #[arg(long)]
     windows_file: Option<PathBuf>,
     /// Fix the ridge parameter instead of choosing it by PRESS.
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     lambda: Option<f64>,
     /// Vector magnetometer prefix, e.g. flux_a.
     #[arg(long)]
@@ -226,11 +226,27 @@ fn main() -> ExitCode {
     match outcome {
         Ok(()) => ExitCode::SUCCESS,
         Err(error) => {
-            let chain: Vec<String> = error.chain().map(|e| e.to_string()).collect();
-            eprintln!("magcomp: error: {}", chain.join(": "));
+            eprintln!("magcomp: error: {}", error_paragraph(&error));
             ExitCode::FAILURE
         }
     }
+}
+
+/// An error and its causes as one paragraph; a cause whose text the
+/// paragraph already holds (our errors quote their sources) is not repeated.
+fn error_paragraph(error: &anyhow::Error) -> String {
+    let mut paragraph = String::new();
+    for cause in error.chain() {
+        let text = cause.to_string();
+        if paragraph.contains(&text) {
+            continue;
+        }
+        if !paragraph.is_empty() {
+            paragraph += ": ";
+        }
+        paragraph += &text;
+    }
+    paragraph
 }
 
 /// `<stem of path><suffix>` in `path`'s folder.
@@ -365,7 +381,7 @@ fn compensate(args: CompensateArgs) -> anyhow::Result<()> {
     if let Some(lambda) = args.lambda {
         anyhow::ensure!(
             lambda.is_finite() && lambda >= 0.0,
-            "--lambda {lambda}: λ must be a non-negative number"
+            "--lambda {lambda}: λ must be a non-negative number (0 for no regularisation); leave --lambda out to choose λ by PRESS"
         );
         pipeline.fit.solve.lambda = LambdaChoice::Fixed(lambda);
     }

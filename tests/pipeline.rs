@@ -159,7 +159,34 @@ fn bad_input_gives_the_documented_error_not_a_panic() {
         "tt,mag_1_uc\n0,1\n0.1,2\n",
         &["vector magnetometer", "--vector"],
     );
-    assert_fails_with(f, "empty.csv", "", &["time", "'tt'"]);
+    assert_fails_with(f, "empty.csv", "", &["empty.csv", "the file is empty (0 bytes)"]);
+    assert_fails_with(f, "header_only.csv", header, &["header_only.csv", "header line but no data rows"]);
+    assert_fails_with(
+        f,
+        "one_row.csv",
+        &format!("{header}0,1,2,3,4\n"),
+        &["one_row.csv", "1 row(s)", "two samples at distinct times"],
+    );
+    assert_fails_with(
+        f,
+        "elsewhere.csv",
+        &format!("{header}500,1,2,3,4\n500.1,1,2,3,4\n"),
+        &["elsewhere.csv", "holds no row", "runs 500 to 500.1 s", "made for this flight"],
+    );
+    assert_fails_with(
+        f,
+        "carriage_returns.csv",
+        &format!("{header}0,1,2,3,4\n0.1,1,2,3,4\n").replace('\n', "\r"),
+        &["carriage_returns.csv", "carriage return alone", "tr '\\r' '\\n'"],
+    );
+    assert_fails_with(
+        f,
+        "huge_cell.csv",
+        &format!("{header}0,1,2,3,4
+0.1,1,2,{},4
+", "x".repeat(2_000_000)),
+        &["line 3", "'flux_a_y'", "(2000000 bytes in all)"],
+    );
     assert_fails_with(
         f,
         "short_window.csv",

@@ -13,7 +13,7 @@ use std::io::{BufRead, BufReader, Read};
 use std::path::Path;
 
 use super::columns::ColumnNames;
-use crate::error::{Error, Result};
+use crate::error::{Error, Number, Result};
 use crate::flight_log::{Channel, FlightLog};
 
 /// How the fields of a row are separated.
@@ -40,7 +40,7 @@ pub fn read_header(path: &Path) -> Result<(Separator, Vec<String>)> {
     let mut line = String::new();
     BufReader::new(file)
         .read_line(&mut line)
-        .map_err(|e| Error::io(path, "reading the header of", e))?;
+        .map_err(|e| Error::io(path, "reading the header", e))?;
     let line = line.trim_start_matches('\u{feff}').trim_end_matches(['\r', '\n']);
     let separator = sniff_separator(line);
     let names = match separator {
@@ -336,11 +336,12 @@ impl<'a> ColumnBuilder<'a> {
                 looked_for: format!("'{}'", roles.time),
                 hint: "Name the time column in [columns] time = \"...\" in pipeline.toml.".into(),
             })?;
-        if let Some(duplicate) = names.iter().enumerate().find(|(i, n)| names[..*i].contains(n)) {
+        let mut seen = std::collections::HashSet::with_capacity(names.len());
+        if let Some(duplicate) = names.iter().find(|n| !seen.insert(n.as_str())) {
             return Err(Error::MalformedRow {
                 path: path.to_path_buf(),
                 line: 1,
-                message: format!("column '{}' appears twice in the header", duplicate.1),
+                message: format!("column '{}' appears twice in the header", crate::error::Excerpt(duplicate)),
             });
         }
         let kinds = names
@@ -461,7 +462,7 @@ impl<'a> ColumnBuilder<'a> {
         let problem = if !time.is_finite() {
             "is missing or not finite".to_string()
         } else if time <= previous {
-            format!("goes from {previous} to {time}")
+            format!("goes from {} to {}", Number(previous), Number(time))
         } else {
             self.previous_time = time;
             return Ok(());
@@ -494,10 +495,9 @@ impl<'a> ColumnBuilder<'a> {
     pub(crate) fn finish(self, roles: &ColumnNames) -> Result<FlightLog> {
         let rows = self.values[self.time_index].len();
         if rows == 0 {
-            return Err(Error::MalformedRow {
+            return Err(Error::NoData {
                 path: self.path.to_path_buf(),
-                line: 2,
-                message: "the file has a header but no data rows".into(),
+                problem: "the file has a header line but no data rows".into(),
             });
         }
         let mut time_s = Vec::new();

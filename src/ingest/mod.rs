@@ -85,6 +85,7 @@ pub fn detect_format(path: &Path) -> Result<Format> {
     if head.starts_with(b"\x89HDF\r\n\x1a\n") {
         return Ok(Format::Hdf5);
     }
+    let head = head.strip_prefix(b"\xef\xbb\xbf").unwrap_or(head);
     let looks_textual = !head.is_empty() && head.iter().all(|b| b.is_ascii_graphic() || b.is_ascii_whitespace());
     match (looks_textual, xyz::looks_like_xyz(head)) {
         (true, true) => Ok(Format::Xyz),
@@ -95,7 +96,12 @@ pub fn detect_format(path: &Path) -> Result<Format> {
 
 /// Reads the flight log at `path`, choosing the reader by extension or content.
 pub fn read_flight_log(path: &Path, options: &IngestOptions) -> Result<FlightLog> {
-    match detect_format(path)? {
+    let format = detect_format(path)?;
+    check_not_empty(path)?;
+    if matches!(format, Format::DelimitedText | Format::Xyz) {
+        check_line_ends(path)?;
+    }
+    match format {
         Format::DelimitedText => csv::read_csv(path, &options.columns),
         Format::Xyz => xyz::read_xyz(path, &options.columns),
         Format::Mcap => mcap::read_mcap(path, options),
@@ -103,6 +109,37 @@ pub fn read_flight_log(path: &Path, options: &IngestOptions) -> Result<FlightLog
         Format::Hdf5 => hdf5::read_hdf5(path, &options.columns),
         #[cfg(not(feature = "hdf5"))]
         Format::Hdf5 => Err(unsupported(path, "hdf5 (this build has the 'hdf5' feature off)")),
+    }
+}
+
+/// Refuses a file of no bytes at all with a message that says so.
+fn check_not_empty(path: &Path) -> Result<()> {
+    let size = std::fs::metadata(path).map_err(|e| Error::io(path, "opening", e))?.len();
+    match size {
+        0 => Err(Error::NoData {
+            path: path.to_path_buf(),
+            problem: "the file is empty (0 bytes)".into(),
+        }),
+        _ => Ok(()),
+    }
+}
+
+/// Refuses text whose lines end in a carriage return alone (classic Mac OS
+/// line ends): the readers split lines at line feeds, and would see one
+/// line. CRLF and LF are both read.
+fn check_line_ends(path: &Path) -> Result<()> {
+    let mut head = vec![0u8; 1 << 16];
+    let mut file = std::fs::File::open(path).map_err(|e| Error::io(path, "opening", e))?;
+    let read = file.read(&mut head).map_err(|e| Error::io(path, "reading", e))?;
+    let head = &head[..read];
+    match head.contains(&b'\r') && !head.contains(&b'\n') {
+        true => Err(Error::UnsupportedFormat {
+            path: path.to_path_buf(),
+            message: "its lines end in a carriage return alone (classic Mac OS line ends), which magcomp does not read. \
+                      Convert them to line feeds, e.g. `tr '\\r' '\\n' < FILE > FIXED`, and read the converted file"
+                .into(),
+        }),
+        false => Ok(()),
     }
 }
 

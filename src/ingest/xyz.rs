@@ -32,7 +32,8 @@ pub(crate) enum XyzLine<'a> {
 }
 
 pub(crate) fn classify(line: &str) -> XyzLine<'_> {
-    let trimmed = line.trim();
+    // A byte-order mark may open the file (editors on Windows write one).
+    let trimmed = line.trim_start_matches('\u{feff}').trim();
     if trimmed.is_empty() {
         return XyzLine::Blank;
     }
@@ -111,10 +112,9 @@ pub(crate) fn find_header(path: &Path, names: &ColumnNames) -> Result<Header> {
             }
         }
     }
-    Err(Error::MalformedRow {
+    Err(Error::NoData {
         path: path.to_path_buf(),
-        line: 1,
-        message: "the XYZ file has no data rows".into(),
+        problem: "the XYZ file has no data rows".into(),
     })
 }
 

@@ -364,7 +364,7 @@ impl Staged {
         let path = self.path;
         self.temporary
             .persist(&path)
-            .map_err(|e| Error::io(&path, "renaming into", e.error))?;
+            .map_err(|e| Error::io(&path, "renaming the finished file into place", e.error))?;
         Ok(path)
     }
 }
@@ -382,14 +382,14 @@ pub fn stage(path: &Path, write: impl FnOnce(&mut BufWriter<&mut File>) -> std::
         ));
     }
     remove_stale_temporaries(&folder);
-    let mut temporary = temporary_in(&folder).map_err(|e| Error::io(&folder, "creating a temporary file in", e))?;
+    let mut temporary = temporary_in(&folder).map_err(|e| Error::io(&folder, "creating a temporary file in the folder", e))?;
     {
         let mut writer = BufWriter::with_capacity(1 << 20, temporary.as_file_mut());
         write(&mut writer)
             .and_then(|_| std::io::Write::flush(&mut writer))
             .map_err(|e| Error::io(path, "writing", e))?;
     }
-    readable_by_all(temporary.as_file()).map_err(|e| Error::io(path, "setting permissions of", e))?;
+    readable_by_all(temporary.as_file()).map_err(|e| Error::io(path, "setting the permissions", e))?;
     Ok(Staged {
         temporary,
         path: path.to_path_buf(),

@@ -81,7 +81,8 @@ fn log_times_ns(log: &FlightLog) -> Result<Vec<u64>> {
                 location: format!("sample {row}"),
                 column: log.time_column().to_string(),
                 problem: format!(
-                    "is {t} s; MCAP log times are nanoseconds from 0, so negative times cannot be written"
+                    "is {} s; MCAP log times are nanoseconds from 0, so negative times cannot be written",
+                    crate::error::Number(t)
                 ),
             }),
         })

@@ -30,8 +30,8 @@ use serde::Serialize;
 
 use crate::augment::{advanced, fit, Augmentation};
 use crate::compensate::{compensate, LevelConvention};
-use crate::error::{Error, Result};
-use crate::filter::{FilterBand, ZeroPhaseFilter};
+use crate::error::Result;
+use crate::filter::FilterBand;
 use crate::fit::{FitOptions, FittedTollesLawson};
 use crate::flight_log::{FlightLog, VectorSensor};
 use crate::quality::root_mean_square;
@@ -185,13 +185,8 @@ fn filtered_runs(
     options: &FitOptions,
     trim: usize,
 ) -> Result<Vec<f64>> {
-    let settings = options.filter;
-    let rate_hz = 1.0 / log.median_interval_s();
-    let filter =
-        ZeroPhaseFilter::butterworth(band, settings.poles, rate_hz, settings.padding).map_err(|e| Error::Config {
-            source_name: "[filter]".into(),
-            message: e.to_string(),
-        })?;
+    let settings = crate::fit::FilterSettings { band, ..options.filter };
+    let filter = crate::fit::design_filter(log, &settings)?;
     let valid: Vec<bool> = values.iter().map(|v| v.is_finite()).collect();
     let mut out = vec![f64::NAN; values.len()];
     for run in valid_runs(log.time_s(), &valid, 0..log.len(), log.median_interval_s()) {
