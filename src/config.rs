@@ -319,10 +319,19 @@ impl Pipeline {
                 "[quality.transfer] warning_factor = {factor}: give a factor of 1 or more (2 is usual)"
             )));
         }
-        if raw.vector_calibration.max_iterations == 0 {
-            return Err(bad(
-                "[vector_calibration] max_iterations = 0: give at least 1 (100 is usual)".to_string(),
-            ));
+        if !(1..=100_000).contains(&raw.vector_calibration.max_iterations) {
+            return Err(bad(format!(
+                "[vector_calibration] max_iterations = {}: give 1 to 100000 (100 is usual)",
+                raw.vector_calibration.max_iterations
+            )));
+        }
+        check_diagnose(&raw.diagnose).map_err(bad)?;
+        if let Some(tolerance) = raw.alignment.gap_tolerance_s {
+            if !(tolerance.is_finite() && tolerance > 0.0) {
+                return Err(bad(format!(
+                    "[alignment] gap_tolerance_s = {tolerance}: give a positive number of seconds"
+                )));
+            }
         }
         let margin_s = raw.detect.window_margin_s;
         let flights = raw
@@ -363,6 +372,38 @@ fn flight_job(raw: RawFlight, base: &Path, source_name: &str, margin_s: f64) -> 
         diagnosis: raw.diagnosis.map(|d| base.join(d)),
         force_diagnosis: false,
     })
+}
+
+/// Largest λ grid: ample for any selection, and a bound on the memory the
+/// grid's curves take.
+const MOST_GRID_POINTS: usize = 10_000;
+
+/// Most samples trimmed at each end of a filtered run.
+const MOST_TRIM_SAMPLES: usize = 100_000;
+
+fn check_diagnose(raw: &crate::diagnose::DiagnoseOptions) -> std::result::Result<(), String> {
+    if !(raw.min_improvement.is_finite() && raw.min_improvement > 0.0 && raw.min_improvement < 1.0) {
+        return Err(format!(
+            "[diagnose] min_improvement = {}: give a fraction between 0 and 1 (0.3 is usual: a 30 % lower held-out RMS)",
+            raw.min_improvement
+        ));
+    }
+    if !(raw.max_lag_s.is_finite() && raw.max_lag_s > 0.0 && raw.max_lag_s <= 60.0) {
+        return Err(format!(
+            "[diagnose] max_lag_s = {}: give a positive number of seconds up to 60",
+            raw.max_lag_s
+        ));
+    }
+    if !(1..=100).contains(&raw.max_findings) {
+        return Err(format!("[diagnose] max_findings = {}: give 1 to 100", raw.max_findings));
+    }
+    if !(raw.vector_mismatch_nt.is_finite() && raw.vector_mismatch_nt > 0.0) {
+        return Err(format!(
+            "[diagnose] vector_mismatch_nt = {}: give a positive number of nT",
+            raw.vector_mismatch_nt
+        ));
+    }
+    Ok(())
 }
 
 fn check_detect(raw: &DetectOptions) -> std::result::Result<(), String> {
@@ -452,6 +493,27 @@ fn filter_settings(raw: &RawFilter) -> std::result::Result<FilterSettings, Strin
     if !(1..=12).contains(&raw.poles) {
         return Err(format!("[filter] poles = {}: use 1 to 12 (4 is usual)", raw.poles));
     }
+    let corners: &[(&str, f64)] = match band {
+        FilterBand::Bandpass { .. } => &[("low_hz", raw.low_hz), ("high_hz", raw.high_hz)],
+        FilterBand::Lowpass { .. } => &[("high_hz", raw.high_hz)],
+        FilterBand::Highpass { .. } => &[("low_hz", raw.low_hz)],
+        FilterBand::None => &[],
+    };
+    if let Some((name, value)) = corners.iter().find(|(_, v)| !(v.is_finite() && *v > 0.0)) {
+        return Err(format!("[filter] {name} = {value}: give a positive frequency in Hz"));
+    }
+    if matches!(band, FilterBand::Bandpass { .. }) && raw.low_hz >= raw.high_hz {
+        return Err(format!(
+            "[filter] low_hz = {} is not below high_hz = {}: the pass band runs from low_hz up to high_hz",
+            raw.low_hz, raw.high_hz
+        ));
+    }
+    if raw.trim_samples > MOST_TRIM_SAMPLES {
+        return Err(format!(
+            "[filter] trim_samples = {}: give at most {MOST_TRIM_SAMPLES} (20 is usual)",
+            raw.trim_samples
+        ));
+    }
     Ok(FilterSettings {
         band,
         poles: raw.poles,
@@ -471,10 +533,16 @@ fn solve_options(raw: &RawFit) -> std::result::Result<SolveOptions, String> {
         RawLambda::Fixed(value) if value.is_finite() && *value >= 0.0 => LambdaChoice::Fixed(*value),
         RawLambda::Fixed(value) => return Err(format!("[fit] lambda = {value}: λ must be a non-negative number")),
     };
-    if raw.grid_points < 50 {
+    if !(50..=MOST_GRID_POINTS).contains(&raw.grid_points) {
         return Err(format!(
-            "[fit] grid_points = {}: use at least 50 λ values",
+            "[fit] grid_points = {}: use 50 to {MOST_GRID_POINTS} λ values (50 is usual)",
             raw.grid_points
+        ));
+    }
+    if !(raw.tsvd_condition_limit.is_finite() && raw.tsvd_condition_limit > 1.0) {
+        return Err(format!(
+            "[fit] tsvd_condition_limit = {}: give a condition number above 1 (1e10 is usual)",
+            raw.tsvd_condition_limit
         ));
     }
     Ok(SolveOptions {
@@ -530,5 +598,22 @@ mod tests {
         assert!(parse("[fit]\nterms = [\"permanant\"]\n").is_err());
         assert!(parse("[filter]\nband = \"bandstop\"\n").is_err());
         assert!(parse("[fit]\ngrid_points = 10\n").is_err());
+        for bad in [
+            "[fit]\ngrid_points = 100000000\n",
+            "[fit]\ntsvd_condition_limit = 0.5\n",
+            "[filter]\nlow_hz = 0.9\nhigh_hz = 0.1\n",
+            "[filter]\nhigh_hz = -1.0\n",
+            "[filter]\ntrim_samples = 100000000\n",
+            "[diagnose]\nmin_improvement = 1.5\n",
+            "[diagnose]\nmax_lag_s = 1e9\n",
+            "[diagnose]\nmax_findings = 0\n",
+            "[vector_calibration]\nmax_iterations = 1000000000\n",
+            "[alignment]\ngap_tolerance_s = -1.0\n",
+        ] {
+            let error = parse(bad).unwrap_err().to_string();
+            let key = bad.lines().nth(1).and_then(|l| l.split(" =").next()).unwrap_or_default();
+            let section = bad.lines().next().unwrap_or_default();
+            assert!(error.contains(section) && error.contains(key), "{bad:?}: {error}");
+        }
     }
 }
