@@ -132,31 +132,31 @@ fn bad_input_gives_the_documented_error_not_a_panic() {
     assert_fails_with(
         f,
         "ragged.csv",
-        &format!("{header}0,1,2,3,4\n0.1,1,2,3\n"),
+        &format!("{header}0,50000,20000,5000,45000\n0.1,50000,20000,5000\n"),
         &["line 3", "4 fields", "header has 5"],
     );
     assert_fails_with(
         f,
         "text.csv",
-        &format!("{header}0,1,2,3,4\n0.1,1,2,abc,4\n"),
+        &format!("{header}0,50000,20000,5000,45000\n0.1,50000,20000,abc,45000\n"),
         &["line 3", "'flux_a_y'", "'abc'"],
     );
     assert_fails_with(
         f,
         "backwards.csv",
-        &format!("{header}0,1,2,3,4\n0.2,1,2,3,4\n0.1,1,2,3,4\n"),
+        &format!("{header}0,50000,20000,5000,45000\n0.2,50000,20000,5000,45000\n0.1,50000,20000,5000,45000\n"),
         &["line 4", "'tt'", "0.2 to 0.1"],
     );
     assert_fails_with(
         f,
         "all_missing.csv",
-        &format!("{header}0,,2,3,4\n0.1,*,2,3,4\n"),
+        &format!("{header}0,,20000,5000,45000\n0.1,*,20000,5000,45000\n"),
         &["'mag_1_uc'", "no valid sample"],
     );
     assert_fails_with(
         f,
         "no_fluxgate.csv",
-        "tt,mag_1_uc\n0,1\n0.1,2\n",
+        "tt,mag_1_uc\n0,50000\n0.1,50001\n",
         &["vector magnetometer", "--vector"],
     );
     assert_fails_with(f, "empty.csv", "", &["empty.csv", "the file is empty (0 bytes)"]);
@@ -164,25 +164,25 @@ fn bad_input_gives_the_documented_error_not_a_panic() {
     assert_fails_with(
         f,
         "one_row.csv",
-        &format!("{header}0,1,2,3,4\n"),
+        &format!("{header}0,50000,20000,5000,45000\n"),
         &["one_row.csv", "1 row(s)", "two samples at distinct times"],
     );
     assert_fails_with(
         f,
         "elsewhere.csv",
-        &format!("{header}500,1,2,3,4\n500.1,1,2,3,4\n"),
+        &format!("{header}500,50000,20000,5000,45000\n500.1,50000,20000,5000,45000\n"),
         &["elsewhere.csv", "holds no row", "runs 500 to 500.1 s", "made for this flight"],
     );
     assert_fails_with(
         f,
         "carriage_returns.csv",
-        &format!("{header}0,1,2,3,4\n0.1,1,2,3,4\n").replace('\n', "\r"),
+        &format!("{header}0,50000,20000,5000,45000\n0.1,50000,20000,5000,45000\n").replace('\n', "\r"),
         &["carriage_returns.csv", "carriage return alone", "tr '\\r' '\\n'"],
     );
     assert_fails_with(
         f,
         "huge_cell.csv",
-        &format!("{header}0,1,2,3,4
+        &format!("{header}0,50000,20000,5000,45000
 0.1,1,2,{},4
 ", "x".repeat(2_000_000)),
         &["line 3", "'flux_a_y'", "(2000000 bytes in all)"],
@@ -190,7 +190,7 @@ fn bad_input_gives_the_documented_error_not_a_panic() {
     assert_fails_with(
         f,
         "short_window.csv",
-        &format!("{header}0,1,2,3,4\n0.1,1,2,3,4\n0.2,1,2,3,4\n"),
+        &format!("{header}0,50000,20000,5000,45000\n0.1,50000,20000,5000,45000\n0.2,50000,20000,5000,45000\n"),
         &[
             "calibration window",
             "longest run of valid samples has 3",

@@ -1,0 +1,427 @@
+//! Screening the samples before any stage uses them.
+//!
+//! A reading no instrument on a survey aircraft can make is masked: set
+//! missing in the flight log the stages work on, with its row flagged
+//! `<reason>:<column>`. The fit then leaves it out as it leaves out any
+//! missing sample (a calibration window's run is split around it and the
+//! fit still runs), the compensation leaves its row empty with the reason,
+//! and no filter or derivative carries it into the neighbouring rows. The
+//! recorded value itself is kept in every output's copy of the input.
+//!
+//! What is masked, by the channel's role:
+//! - a scalar magnetometer outside 1,000–100,000 nT (the Earth's field is
+//!   22,000–67,000 nT at the surface), a base station beyond ±100,000 nT,
+//!   or in either an isolated spike: a sample that leaves both neighbours
+//!   by more than the field can change in one sample interval while they
+//!   agree with each other;
+//! - a fluxgate whose magnitude is under 1,000 nT (a zero or subnormal
+//!   reading: the sensor reported nothing; all three axes), a component
+//!   beyond ±100,000 nT, or an isolated spike in one axis (that axis, which
+//!   makes the row's vector missing);
+//! - pitch beyond ±90°, roll beyond ±180°, heading beyond ±3,600° (ten
+//!   turns, for headings recorded unwrapped);
+//! - latitude beyond ±90°, longitude beyond ±360°, other positions (heights,
+//!   grid coordinates) beyond ±10,000 km;
+//! - an auxiliary column beyond ±1e12 (no current, voltage or counter reads
+//!   that; the value is a damaged cell).
+//!
+//! A missing or non-finite sample is not screened: it is already missing.
+
+use std::collections::BTreeMap;
+
+use serde::Serialize;
+
+use crate::error::Result;
+use crate::flight_log::{AttitudeAngle, ChannelRole, FlightLog};
+
+/// Lowest and highest total field a scalar magnetometer can read, nT.
+pub const TOTAL_FIELD_RANGE_NT: (f64, f64) = (1_000.0, 100_000.0);
+
+/// Largest fluxgate component, nT.
+pub const MOST_VECTOR_COMPONENT_NT: f64 = 100_000.0;
+
+/// Smallest fluxgate magnitude, nT: below it the sensor read nothing.
+pub const LEAST_VECTOR_MAGNITUDE_NT: f64 = 1_000.0;
+
+/// Fastest a total field can change, nT/s: a 10 nT/m gradient at 150 m/s,
+/// with a margin for the aircraft's own field in a fast roll.
+pub const FASTEST_TOTAL_FIELD_NT_S: f64 = 10_000.0;
+
+/// Fastest a fluxgate component can change, nT/s: the Earth's field
+/// turning at 4 rad/s.
+pub const FASTEST_COMPONENT_NT_S: f64 = 200_000.0;
+
+/// Largest auxiliary value: beyond it a cell is damaged, not measured.
+pub const MOST_AUXILIARY: f64 = 1e12;
+
+/// Why a sample was masked.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum MaskReason {
+    /// Outside what the instrument can read.
+    OutOfRange,
+    /// A fluxgate reading of (near) zero magnitude.
+    ZeroVector,
+    /// One sample far from both neighbours, which agree.
+    Spike,
+}
+
+impl MaskReason {
+    /// The flag written in the row's `flags` cell, before `:<column>`.
+    pub fn flag(self) -> &'static str {
+        match self {
+            MaskReason::OutOfRange => "out_of_range",
+            MaskReason::ZeroVector => "zero_vector",
+            MaskReason::Spike => "spike",
+        }
+    }
+
+    fn describe(self) -> &'static str {
+        match self {
+            MaskReason::OutOfRange => "values beyond what the instrument can read",
+            MaskReason::ZeroVector => "fluxgate readings under 1,000 nT in magnitude: the sensor read nothing",
+            MaskReason::Spike => "isolated spikes, further from both neighbours than the field can change in one sample",
+        }
+    }
+}
+
+/// The masked samples of one column for one reason.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct MaskedSamples {
+    /// Column name.
+    pub column: String,
+    /// Why.
+    pub reason: MaskReason,
+    /// How many samples.
+    pub samples: usize,
+    /// Time of the first, in the file's time unit.
+    pub first_time_s: f64,
+    /// The first masked value as recorded.
+    pub first_value: f64,
+}
+
+impl MaskedSamples {
+    /// "masked 2 samples of flux_a_x (…), the first at 46012.3 s (1e308);
+    /// their rows are flagged out_of_range:flux_a_x".
+    pub fn describe(&self) -> String {
+        format!(
+            "masked {} sample{} of {} ({}), the first at {} s ({}); every stage treats {} as missing, and {} flagged {}:{}",
+            self.samples,
+            if self.samples == 1 { "" } else { "s" },
+            self.column,
+            self.reason.describe(),
+            crate::error::Number(self.first_time_s),
+            crate::error::Number(self.first_value),
+            if self.samples == 1 { "it" } else { "them" },
+            if self.samples == 1 { "its row is" } else { "their rows are" },
+            self.reason.flag(),
+            self.column
+        )
+    }
+}
+
+/// What screening masked, column by column.
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct Screening {
+    /// Per column and reason, in column order.
+    pub masked: Vec<MaskedSamples>,
+}
+
+impl Screening {
+    /// Whether nothing was masked.
+    pub fn is_clean(&self) -> bool {
+        self.masked.is_empty()
+    }
+
+    /// One sentence per column and reason, for stdout and the report.
+    pub fn warnings(&self) -> Vec<String> {
+        self.masked.iter().map(MaskedSamples::describe).collect()
+    }
+}
+
+/// A screened flight: the log the stages work on and what was masked.
+#[derive(Debug, Clone)]
+pub struct Screened {
+    /// The log with the masked samples missing; `None` when nothing was
+    /// masked (the input log is used as it is).
+    pub log: Option<FlightLog>,
+    /// What was masked.
+    pub screening: Screening,
+}
+
+impl Screened {
+    /// The log to work on: the screened one, or `input` when it was clean.
+    pub fn log_or<'a>(&'a self, input: &'a FlightLog) -> &'a FlightLog {
+        self.log.as_ref().unwrap_or(input)
+    }
+}
+
+/// Masks the samples of `log` no instrument can record (see the module
+/// documentation) and flags their rows.
+pub fn screen_samples(log: &FlightLog) -> Result<Screened> {
+    let mut masks: BTreeMap<usize, Vec<(usize, MaskReason)>> = BTreeMap::new();
+    let interval_s = log.median_interval_s();
+    for (index, channel) in log.channels().iter().enumerate() {
+        let found = screen_channel(&channel.name, &channel.role, &channel.values, interval_s);
+        if !found.is_empty() {
+            masks.entry(index).or_default().extend(found);
+        }
+    }
+    for sensor in log.vector_sensors() {
+        let [x, y, z] = sensor.axes.map(|axis| log.channels()[axis].values.as_slice());
+        for row in 0..log.len() {
+            let reason = vector_reason([x[row], y[row], z[row]]);
+            let Some((reason, culprit)) = reason else { continue };
+            // One bad axis makes the whole reading missing downstream.
+            for (k, axis) in sensor.axes.iter().enumerate() {
+                if culprit.is_none_or(|c| c == k) {
+                    masks.entry(*axis).or_default().push((row, reason));
+                }
+            }
+        }
+    }
+    if masks.is_empty() {
+        return Ok(Screened {
+            log: None,
+            screening: Screening::default(),
+        });
+    }
+    apply_masks(log, masks)
+}
+
+/// The samples of one channel to mask for its own values alone.
+fn screen_channel(name: &str, role: &ChannelRole, values: &[f64], interval_s: f64) -> Vec<(usize, MaskReason)> {
+    let range = |low: f64, high: f64| -> Vec<(usize, MaskReason)> {
+        values
+            .iter()
+            .enumerate()
+            .filter(|(_, v)| v.is_finite() && !(low..=high).contains(*v))
+            .map(|(row, _)| (row, MaskReason::OutOfRange))
+            .collect()
+    };
+    match role {
+        ChannelRole::ScalarMagnetometer | ChannelRole::BaseStation => {
+            // A base station records the variation or the total field.
+            let (low, high) = match role {
+                ChannelRole::BaseStation => (-TOTAL_FIELD_RANGE_NT.1, TOTAL_FIELD_RANGE_NT.1),
+                _ => TOTAL_FIELD_RANGE_NT,
+            };
+            let mut found = range(low, high);
+            let jump_nt = (FASTEST_TOTAL_FIELD_NT_S * interval_s).max(100.0);
+            found.extend(spikes(values, jump_nt, &found));
+            found
+        }
+        ChannelRole::VectorTotal { .. } => range(0.0, MOST_VECTOR_COMPONENT_NT * 3f64.sqrt()),
+        ChannelRole::VectorMagnetometer { .. } => {
+            let jump_nt = (FASTEST_COMPONENT_NT_S * interval_s).max(1_000.0);
+            spikes(values, jump_nt, &[])
+        }
+        ChannelRole::Attitude(AttitudeAngle::Pitch) => range(-90.0, 90.0),
+        ChannelRole::Attitude(AttitudeAngle::Roll) => range(-180.0, 180.0),
+        ChannelRole::Attitude(AttitudeAngle::Yaw) => range(-3_600.0, 3_600.0),
+        ChannelRole::Position => {
+            let lowercase = name.to_ascii_lowercase();
+            if lowercase.starts_with("lat") {
+                range(-90.0, 90.0)
+            } else if lowercase.starts_with("lon") {
+                range(-360.0, 360.0)
+            } else {
+                range(-1e7, 1e7)
+            }
+        }
+        _ => range(-MOST_AUXILIARY, MOST_AUXILIARY),
+    }
+}
+
+/// Why a fluxgate row is masked, and which axis is to blame (`None`: the
+/// whole reading).
+fn vector_reason(components: [f64; 3]) -> Option<(MaskReason, Option<usize>)> {
+    if let Some(k) = components.iter().position(|c| c.is_finite() && c.abs() > MOST_VECTOR_COMPONENT_NT) {
+        return Some((MaskReason::OutOfRange, Some(k)));
+    }
+    if components.iter().all(|c| c.is_finite()) {
+        let magnitude = components.iter().map(|c| c * c).sum::<f64>().sqrt();
+        if magnitude < LEAST_VECTOR_MAGNITUDE_NT {
+            return Some((MaskReason::ZeroVector, None));
+        }
+    }
+    None
+}
+
+/// Rows holding an isolated spike: a finite sample further than `jump`
+/// from both its finite neighbours, which are within `jump / 2` of each
+/// other. Rows already in `masked` are not neighbours.
+fn spikes(values: &[f64], jump: f64, masked: &[(usize, MaskReason)]) -> Vec<(usize, MaskReason)> {
+    let excluded: std::collections::HashSet<usize> = masked.iter().map(|(row, _)| *row).collect();
+    let usable = |row: usize| values[row].is_finite() && !excluded.contains(&row);
+    (1..values.len().saturating_sub(1))
+        .filter(|&row| usable(row) && usable(row - 1) && usable(row + 1))
+        .filter(|&row| {
+            let (before, here, after) = (values[row - 1], values[row], values[row + 1]);
+            (here - before).abs() > jump && (here - after).abs() > jump && (after - before).abs() < jump / 2.0
+        })
+        .map(|row| (row, MaskReason::Spike))
+        .collect()
+}
+
+/// The log with the masked samples set missing and their rows flagged.
+fn apply_masks(log: &FlightLog, masks: BTreeMap<usize, Vec<(usize, MaskReason)>>) -> Result<Screened> {
+    let mut flags = match log.row_flags().len() == log.len() {
+        true => log.row_flags().to_vec(),
+        false => vec![String::new(); log.len()],
+    };
+    let mut masked_log = log.clone();
+    let mut summary = Vec::new();
+    for (index, mut rows) in masks {
+        rows.sort();
+        rows.dedup_by_key(|(row, _)| *row);
+        let channel = &log.channels()[index];
+        let mut values = channel.values.clone();
+        let mut by_reason: BTreeMap<MaskReason, Vec<usize>> = BTreeMap::new();
+        for (row, reason) in rows {
+            values[row] = f64::NAN;
+            by_reason.entry(reason).or_default().push(row);
+            let flag = format!("{}:{}", reason.flag(), channel.name);
+            if !flags[row].split(';').any(|f| f == flag) {
+                if !flags[row].is_empty() {
+                    flags[row].push(';');
+                }
+                flags[row].push_str(&flag);
+            }
+        }
+        for (reason, rows) in by_reason {
+            summary.push(MaskedSamples {
+                column: channel.name.clone(),
+                reason,
+                samples: rows.len(),
+                first_time_s: log.time_s()[rows[0]],
+                first_value: channel.values[rows[0]],
+            });
+        }
+        masked_log = masked_log.with_values(&channel.name, values)?;
+    }
+    Ok(Screened {
+        log: Some(masked_log.with_row_flags(flags)),
+        screening: Screening { masked: summary },
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::flight_log::Channel;
+
+    fn flight(scalar: Vec<f64>, fluxgate: [Vec<f64>; 3], roll: Vec<f64>) -> FlightLog {
+        let rows = scalar.len();
+        let time: Vec<f64> = (0..rows).map(|k| 100.0 + 0.1 * k as f64).collect();
+        let [x, y, z] = fluxgate;
+        let channels = vec![
+            Channel {
+                name: "mag_1_uc".into(),
+                role: ChannelRole::ScalarMagnetometer,
+                values: scalar,
+            },
+            Channel {
+                name: "flux_a_x".into(),
+                role: ChannelRole::VectorMagnetometer {
+                    sensor: "flux_a".into(),
+                    axis: crate::flight_log::VectorAxis::X,
+                },
+                values: x,
+            },
+            Channel {
+                name: "flux_a_y".into(),
+                role: ChannelRole::VectorMagnetometer {
+                    sensor: "flux_a".into(),
+                    axis: crate::flight_log::VectorAxis::Y,
+                },
+                values: y,
+            },
+            Channel {
+                name: "flux_a_z".into(),
+                role: ChannelRole::VectorMagnetometer {
+                    sensor: "flux_a".into(),
+                    axis: crate::flight_log::VectorAxis::Z,
+                },
+                values: z,
+            },
+            Channel {
+                name: "ins_roll".into(),
+                role: ChannelRole::Attitude(AttitudeAngle::Roll),
+                values: roll,
+            },
+        ];
+        FlightLog::new("flight.csv", "tt", time, channels).unwrap()
+    }
+
+    fn steady(rows: usize) -> FlightLog {
+        let scalar: Vec<f64> = (0..rows).map(|k| 53_000.0 + (k as f64 * 0.3).sin()).collect();
+        let x: Vec<f64> = (0..rows).map(|k| 18_000.0 + 300.0 * (k as f64 * 0.05).sin()).collect();
+        flight(scalar, [x, vec![-9_000.0; rows], vec![49_000.0; rows]], vec![2.0; rows])
+    }
+
+    #[test]
+    fn a_clean_flight_is_left_as_it_is() {
+        let screened = screen_samples(&steady(500)).unwrap();
+        assert!(screened.log.is_none() && screened.screening.is_clean());
+    }
+
+    #[test]
+    fn impossible_readings_are_masked_and_flagged_and_nothing_else() {
+        let log = steady(500);
+        let mut scalar = log.channel("mag_1_uc").unwrap().values.clone();
+        scalar[10] = 1e308;
+        scalar[20] = 4.9e-324;
+        scalar[30] = 60_000.0; // a spike of 7,000 nT in 0.1 s
+        let mut x = log.channel("flux_a_x").unwrap().values.clone();
+        let mut y = log.channel("flux_a_y").unwrap().values.clone();
+        let mut z = log.channel("flux_a_z").unwrap().values.clone();
+        for row in 100..110 {
+            (x[row], y[row], z[row]) = (0.0, 0.0, 0.0);
+        }
+        x[200] = -1.5e308;
+        let mut roll = vec![2.0; 500];
+        roll[300] = 1.5e308;
+        let bad = flight(scalar.clone(), [x, y, z], roll);
+        let screened = screen_samples(&bad).unwrap();
+        let masked = screened.log.as_ref().unwrap();
+        let missing = |name: &str| -> Vec<usize> {
+            let values = &masked.channel(name).unwrap().values;
+            (0..values.len()).filter(|&k| values[k].is_nan()).collect()
+        };
+        assert_eq!(missing("mag_1_uc"), [10, 20, 30]);
+        let zero_rows: Vec<usize> = (100..110).collect();
+        assert_eq!(missing("flux_a_x"), [zero_rows.clone(), vec![200]].concat());
+        for axis in ["flux_a_y", "flux_a_z"] {
+            assert_eq!(missing(axis), zero_rows, "{axis}");
+        }
+        assert_eq!(missing("ins_roll"), [300]);
+        let flags = masked.row_flags();
+        assert_eq!(flags[10], "out_of_range:mag_1_uc");
+        assert_eq!(flags[30], "spike:mag_1_uc");
+        assert!(flags[105].contains("zero_vector:flux_a_x") && flags[105].contains("zero_vector:flux_a_z"));
+        assert!(flags[200].contains("out_of_range:flux_a_x"));
+        assert_eq!(flags[300], "out_of_range:ins_roll");
+        let flagged = flags.iter().filter(|f| !f.is_empty()).count();
+        assert_eq!(flagged, 3 + zero_rows.len() + 1 + 1, "only the bad rows are flagged");
+        // Every other sample is as recorded.
+        let kept = &masked.channel("mag_1_uc").unwrap().values;
+        assert!((0..500).filter(|k| ![10, 20, 30].contains(k)).all(|k| kept[k] == scalar[k]));
+        let warnings = screened.screening.warnings();
+        assert!(warnings.iter().any(|w| w.contains("masked 10 samples of flux_a_x") && w.contains("110 s")), "{warnings:?}");
+        assert!(warnings.iter().any(|w| w.contains("(1e308)")), "{warnings:?}");
+    }
+
+    #[test]
+    fn a_fast_but_real_change_is_not_a_spike() {
+        // A step of 800 nT (a sensor crossing a strong anomaly, or the
+        // aircraft's field in a roll) that stays is not masked.
+        let mut log = steady(200);
+        let mut scalar = log.channel("mag_1_uc").unwrap().values.clone();
+        for value in &mut scalar[100..] {
+            *value += 800.0;
+        }
+        log = log.with_values("mag_1_uc", scalar).unwrap();
+        assert!(screen_samples(&log).unwrap().screening.is_clean());
+    }
+}
