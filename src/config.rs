@@ -344,6 +344,7 @@ impl Pipeline {
                 columns: raw.columns,
                 alignment: raw.alignment,
                 topics: raw.topics,
+                date: None,
             },
             fit,
             level: raw.fit.level,

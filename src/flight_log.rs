@@ -94,6 +94,7 @@ pub struct FlightLog {
     source_row_offsets: Option<Vec<u64>>,
     row_flags: Vec<String>,
     alignment: Option<AlignmentReport>,
+    date: Option<crate::flight_date::FlightDate>,
 }
 
 impl FlightLog {
@@ -124,6 +125,7 @@ impl FlightLog {
             source_row_offsets: None,
             row_flags: Vec::new(),
             alignment: None,
+            date: None,
         })
     }
 
@@ -156,6 +158,18 @@ impl FlightLog {
     /// Per-row flags raised while reading; empty when there are none.
     pub fn row_flags(&self) -> &[String] {
         &self.row_flags
+    }
+
+    /// Records the day the flight was flown (UTC).
+    pub fn with_date(mut self, date: Option<crate::flight_date::FlightDate>) -> Self {
+        self.date = date;
+        self
+    }
+
+    /// The day the flight was flown, when known: its time column is then
+    /// seconds of that day.
+    pub fn date(&self) -> Option<crate::flight_date::FlightDate> {
+        self.date
     }
 
     /// Records how multi-rate channels were placed on the time base.

@@ -81,6 +81,10 @@ enum Command {
         /// Settings file for columns and alignment (flights in it are ignored).
         #[arg(long)]
         config: Option<PathBuf>,
+        /// The day the flight was flown, YYYY-MM-DD (UTC), over what the
+        /// file says; MCAP output's log times count from its midnight.
+        #[arg(long, value_parser = parse_date)]
+        date: Option<magcomp::flight_date::FlightDate>,
     },
     /// Simulate a flight from a scenario: the recording (CSV, MCAP, XYZ or
     /// HDF5 by extension), and beside it the truth and calibration windows.
@@ -180,6 +184,16 @@ struct CompensateArgs {
     /// Apply --diagnosis even when it was made on another flight.
     #[arg(long, requires = "diagnosis")]
     force: bool,
+    /// The day the flight was flown, YYYY-MM-DD (UTC), over what the file
+    /// says; MCAP output's log times count from its midnight.
+    #[arg(long, value_parser = parse_date)]
+    date: Option<magcomp::flight_date::FlightDate>,
+}
+
+/// `--date`: a day as YYYY-MM-DD.
+fn parse_date(text: &str) -> Result<magcomp::flight_date::FlightDate, String> {
+    magcomp::flight_date::FlightDate::parse(text)
+        .ok_or_else(|| format!("'{text}' is not a day; write it as YYYY-MM-DD, e.g. 2020-06-20"))
 }
 
 fn main() -> ExitCode {
@@ -208,7 +222,12 @@ fn main() -> ExitCode {
             diagnose(&flight, (&out, &html), &windows, config.as_deref())
         }
         Command::SampleFlight { out, windows, seed } => sample_flight(&out, &windows, seed),
-        Command::Convert { flight, out, config } => convert(&flight, &out, config.as_deref()),
+        Command::Convert {
+            flight,
+            out,
+            config,
+            date,
+        } => convert(&flight, &out, config.as_deref(), date),
         Command::Simulate {
             scenario,
             out,
@@ -247,6 +266,17 @@ fn error_paragraph(error: &anyhow::Error) -> String {
         paragraph += &text;
     }
     paragraph
+}
+
+/// Reads a flight and screens its samples, printing what was masked.
+fn read_screened(flight: &Path, pipeline: &Pipeline) -> magcomp::error::Result<magcomp::flight_log::FlightLog> {
+    let recorded = magcomp::ingest::read_flight_log(flight, &pipeline.ingest)?;
+    let screened = magcomp::screen::screen_samples(&recorded)?;
+    let reading = recorded.alignment().map(|a| a.warnings.clone()).unwrap_or_default();
+    for warning in reading.iter().chain(&screened.screening.warnings()) {
+        println!("  warning: {warning}");
+    }
+    Ok(screened.log.unwrap_or(recorded))
 }
 
 /// `<stem of path><suffix>` in `path`'s folder.
@@ -402,6 +432,7 @@ fn compensate(args: CompensateArgs) -> anyhow::Result<()> {
     if args.plain {
         pipeline.diagnose.apply = ApplyDiagnosis::Never;
     }
+    pipeline.ingest.date = args.date.or(pipeline.ingest.date);
     let job = FlightJob {
         diagnosis: args.diagnosis.clone(),
         force_diagnosis: args.force,
@@ -429,15 +460,24 @@ fn compensate(args: CompensateArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn convert(flight: &Path, out: &Path, config: Option<&Path>) -> anyhow::Result<()> {
-    let pipeline = match config {
+fn convert(
+    flight: &Path,
+    out: &Path,
+    config: Option<&Path>,
+    date: Option<magcomp::flight_date::FlightDate>,
+) -> anyhow::Result<()> {
+    let mut pipeline = match config {
         Some(path) => Pipeline::load(path)?,
         None => Pipeline::default(),
     };
+    pipeline.ingest.date = date.or(pipeline.ingest.date);
     let inputs: Vec<&Path> = std::iter::once(flight).chain(config).collect();
     print_notes(&prepare(&inputs, &[Destination::new(out, OutputKind::Flight, "--out")])?);
     let log = magcomp::ingest::read_flight_log(flight, &pipeline.ingest)?;
     magcomp::output::write_flight_log(&log, out)?;
+    if let Some(warning) = magcomp::output::mcap::undated_warning(&log, out) {
+        println!("  warning: {warning}");
+    }
     println!(
         "wrote {} ({} rows, {} channels)",
         out.display(),
@@ -448,6 +488,9 @@ fn convert(flight: &Path, out: &Path, config: Option<&Path>) -> anyhow::Result<(
         println!("  time base: {} ({} rows)", report.time_base, report.rows);
         for note in &report.notes {
             println!("  note: {note}");
+        }
+        for warning in &report.warnings {
+            println!("  warning: {warning}");
         }
     }
     Ok(())
@@ -494,7 +537,7 @@ fn replay_flight(
             Destination::new(&report, OutputKind::Json, "the replay figures beside --out"),
         ],
     )?);
-    let log = magcomp::ingest::read_flight_log(flight, &pipeline.ingest)?;
+    let log = read_screened(flight, &pipeline)?;
     let sensor = magcomp::pipeline::choose_vector_sensor(&log, None)?;
     let channels = magcomp::pipeline::choose_channels(&log, None)?;
     let mut windows = windows
@@ -585,7 +628,7 @@ fn detect(flight: &Path, out: &Path, config: Option<&Path>) -> anyhow::Result<()
     };
     let inputs: Vec<&Path> = std::iter::once(flight).chain(config).collect();
     print_notes(&prepare(&inputs, &[Destination::new(out, OutputKind::Json, "--out")])?);
-    let log = magcomp::ingest::read_flight_log(flight, &pipeline.ingest)?;
+    let log = read_screened(flight, &pipeline)?;
     let detection = magcomp::detect::detect_manoeuvres(&log, &pipeline.detect)?;
     magcomp::output::write_json(out, "the detected manoeuvres", &detection)?;
     for note in magcomp::pipeline::detection_notes(&detection) {
@@ -628,7 +671,7 @@ fn diagnose(
             Destination::new(html, OutputKind::Html, "--html"),
         ],
     )?);
-    let log = magcomp::ingest::read_flight_log(flight, &pipeline.ingest)?;
+    let log = read_screened(flight, &pipeline)?;
     let job = FlightJob {
         diagnosis: None,
         force_diagnosis: false,

@@ -248,13 +248,17 @@ pub fn process_flight(job: &FlightJob, options: &StageOptions, outputs: &FlightO
     // Folders created here are not noted in the outputs: a caller that
     // tells its user calls `prepare` first.
     crate::output::prepare(&inputs, &outputs.destinations())?;
-    let raw_log = read_flight_log(&job.input, &options.ingest)?;
-    let sensor = choose_vector_sensor(&raw_log, job.vector.as_deref())?;
-    let channels = choose_channels(&raw_log, job.channels.as_deref())?;
+    let recorded = read_flight_log(&job.input, &options.ingest)?;
+    // Every stage works on the screened samples; the output copies the
+    // recorded ones.
+    let screened = crate::screen::screen_samples(&recorded)?;
+    let raw_log = screened.log_or(&recorded);
+    let sensor = choose_vector_sensor(raw_log, job.vector.as_deref())?;
+    let channels = choose_channels(raw_log, job.channels.as_deref())?;
     let detected = job
         .windows
         .is_empty()
-        .then(|| detect_manoeuvres(&raw_log, &options.detect))
+        .then(|| detect_manoeuvres(raw_log, &options.detect))
         .transpose()?;
     let windows = match &detected {
         Some(detection) => detection.calibration_windows(options.detect.window_margin_s),
@@ -263,27 +267,30 @@ pub fn process_flight(job: &FlightJob, options: &StageOptions, outputs: &FlightO
     // The fit (and everything after it) sees the calibrated fluxgate; the
     // compensated file keeps the recorded columns.
     let calibration = crate::vector_calibration::calibrate_stage(
-        &raw_log,
+        raw_log,
         &sensor,
         &channels,
         &windows,
         &options.vector_calibration,
     )?;
-    let calibrated = calibration.as_ref().map(|c| c.apply(&raw_log, &sensor)).transpose()?;
-    let log = calibrated.as_ref().unwrap_or(&raw_log);
+    let calibrated = calibration.as_ref().map(|c| c.apply(raw_log, &sensor)).transpose()?;
+    let log = calibrated.as_ref().unwrap_or(raw_log);
     let AugmentationPlan {
         models: plan,
         diagnosis,
         mut warnings,
     } = augmentation_plan(
         job,
-        (&raw_log, log),
+        (raw_log, log),
         &sensor,
         &channels,
         &windows,
         options,
         calibration.is_some(),
     )?;
+    let reading = recorded.alignment().map(|a| a.warnings.clone()).unwrap_or_default();
+    warnings.splice(0..0, reading.into_iter().chain(screened.screening.warnings()));
+    warnings.extend(crate::output::mcap::undated_warning(&recorded, &outputs.compensated));
     let mut written = OutputSet::new();
     if let (Some(diagnosis), Some(path)) = (&diagnosis, &outputs.diagnosis_json) {
         written.add(crate::output::stage_json(path, "the diagnosis", diagnosis)?);
@@ -352,7 +359,7 @@ pub fn process_flight(job: &FlightJob, options: &StageOptions, outputs: &FlightO
         ],
     };
     written.add(stage_compensated(
-        &raw_log,
+        &recorded,
         &options.ingest.columns,
         &outputs.compensated,
         &compensation,
@@ -365,7 +372,7 @@ pub fn process_flight(job: &FlightJob, options: &StageOptions, outputs: &FlightO
         }
     }
     if let Some(path) = &outputs.report_html {
-        let report = crate::report::stage_report(path, &raw_log, &result, &compensation, options.fom_limit_nt)?;
+        let report = crate::report::stage_report(path, raw_log, &result, &compensation, options.fom_limit_nt)?;
         written.add(report.figures_json);
         written.add_last(report.page);
     }

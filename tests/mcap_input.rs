@@ -122,6 +122,10 @@ fn schema_of(topic: &str) -> &'static str {
 }
 
 fn write_file(path: &Path, layout: Layout) {
+    write_records(path, layout, records());
+}
+
+fn write_records(path: &Path, layout: Layout, records: Vec<Record>) {
     let file = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
     let mut writer = mcap::WriteOptions::new()
         .compression(layout.compression)
@@ -135,7 +139,7 @@ fn write_file(path: &Path, layout: Layout) {
         .create(file)
         .unwrap();
     let mut channels: BTreeMap<&str, u16> = BTreeMap::new();
-    for (sequence, (topic, t, fields)) in records().into_iter().enumerate() {
+    for (sequence, (topic, t, fields)) in records.into_iter().enumerate() {
         let channel = *channels.entry(topic).or_insert_with(|| {
             let schema = match layout.json {
                 true => writer
@@ -309,10 +313,10 @@ fn damaged_files_give_errors_not_panics() {
             Ok(log) if log.len() == 300 => {}
             Ok(log) => {
                 assert!(log.len() < 300);
-                let notes = &log.alignment().unwrap().notes;
+                let warnings = &log.alignment().unwrap().warnings;
                 assert!(
-                    notes.iter().any(|n| n.contains("cut short")),
-                    "cut at {k}/40: {notes:?}"
+                    warnings.iter().any(|n| n.contains("cut short")),
+                    "cut at {k}/40: {warnings:?}"
                 );
                 partial += 1;
             }
@@ -334,4 +338,100 @@ fn damaged_files_give_errors_not_panics() {
             assert!(log.len() <= 300);
         }
     }
+}
+
+/// A turn through north: the heading at `t` s, 0–360°.
+fn heading_through_north(t: f64) -> f64 {
+    (350.0 + 2.0 * (t - 100.0)).rem_euclid(360.0)
+}
+
+#[test]
+fn heading_across_north_is_interpolated_on_the_circle() {
+    // Attitude 30 ms off the magnetometer, turning 2°/s through north.
+    let mut records: Vec<Record> = Vec::new();
+    for k in 0..100 {
+        let t = 100.0 + k as f64 / 10.0;
+        records.push(("/mag/1/scalar", t, vec![("total_nt", scalar(t))]));
+        let t = t + 0.03;
+        let a = vec![("roll_deg", 0.0), ("pitch_deg", 0.0), ("yaw_deg", heading_through_north(t))];
+        records.push(("/ins/attitude", t, a));
+    }
+    records.sort_by(|a, b| a.1.total_cmp(&b.1));
+    let folder = tempfile::tempdir().unwrap();
+    let path = folder.path().join("north.mcap");
+    write_records(&path, INDEXED, records);
+    let log = read_flight_log(&path, &IngestOptions::default()).unwrap();
+    let yaw = &log.channel("ins_yaw").unwrap().values;
+    let mut compared = 0;
+    for (t, value) in log.time_s().iter().zip(yaw).filter(|(_, v)| v.is_finite()) {
+        let truth = heading_through_north(*t);
+        let error = (value - truth + 180.0).rem_euclid(360.0) - 180.0;
+        assert!(error.abs() < 1e-6, "t = {t}: yaw {value}°, truth {truth}°");
+        assert!((0.0..360.0).contains(value), "t = {t}: yaw {value}° leaves 0–360°");
+        compared += 1;
+    }
+    assert!(compared >= 98, "{compared} rows compared");
+}
+
+#[test]
+fn repeated_log_times_are_dropped_flagged_or_refused() {
+    let base: Vec<Record> = (0..50)
+        .map(|k| {
+            let t = 100.0 + k as f64 / 10.0;
+            ("/mag/1/scalar", t, vec![("total_nt", scalar(t))])
+        })
+        .collect();
+    let folder = tempfile::tempdir().unwrap();
+
+    // A current logged twice at one time with one value, then with two.
+    let mut records = base.clone();
+    for (t, value) in [(101.0, 3.0), (101.0, 3.0), (102.0, 4.0), (102.0, 7.0), (103.0, 5.0)] {
+        records.push(("/aux/cur_a", t, vec![("value", value)]));
+    }
+    records.sort_by(|a, b| a.1.total_cmp(&b.1));
+    let path = folder.path().join("current.mcap");
+    write_records(&path, INDEXED, records);
+    let log = read_flight_log(&path, &IngestOptions::default()).unwrap();
+    assert_eq!(log.len(), 50, "no magnetometer row is merged");
+    let current = &log.channel("cur_a").unwrap().values;
+    let row = |t: f64| log.time_s().iter().position(|&s| (s - t).abs() < 1e-6).unwrap();
+    assert_eq!(current[row(101.0)], 3.0, "an exact repeat is one sample");
+    assert!(current[row(102.0)].is_nan() && current[row(101.5)].is_nan(), "disagreeing samples are not used");
+    assert_eq!(log.row_flags()[row(102.0)], "duplicate_time:cur_a");
+    let warnings = &log.alignment().unwrap().warnings;
+    assert!(warnings.iter().any(|w| w.contains("1 times carry samples that disagree")), "{warnings:?}");
+
+    // The magnetometer itself twice at one time with two values: an error.
+    let mut records = base;
+    records.push(("/mag/1/scalar", 101.0, vec![("total_nt", 51_000.0)]));
+    records.sort_by(|a, b| a.1.total_cmp(&b.1));
+    let path = folder.path().join("scalar.mcap");
+    write_records(&path, INDEXED, records);
+    let error = read_flight_log(&path, &IngestOptions::default()).unwrap_err().to_string();
+    assert!(error.contains("scalar.mcap") && error.contains("/mag/1/scalar") && error.contains("101 s"), "{error}");
+}
+
+#[test]
+fn log_times_are_absolute_and_read_back_as_times_of_day() {
+    let folder = tempfile::tempdir().unwrap();
+    let path = folder.path().join("multirate.mcap");
+    write_file(&path, INDEXED);
+    let date = magcomp::flight_date::FlightDate::parse("2020-06-20").unwrap();
+    let options = IngestOptions {
+        date: Some(date),
+        ..IngestOptions::default()
+    };
+    let log = read_flight_log(&path, &options).unwrap();
+    assert_eq!(log.date(), Some(date));
+    let written = folder.path().join("dated.mcap");
+    magcomp::output::write_flight_log(&log, &written).unwrap();
+    let bytes = std::fs::read(&written).unwrap();
+    let first = mcap::MessageStream::new(&bytes).unwrap().next().unwrap().unwrap();
+    let midnight_ns = 1_592_611_200_000_000_000u64;
+    assert_eq!(first.log_time, midnight_ns + 100_000_000_000, "2020-06-20 00:01:40 UTC");
+    assert_eq!(first.channel.metadata.get("magcomp.date").map(String::as_str), Some("2020-06-20"));
+    let back = read_flight_log(&written, &IngestOptions::default()).unwrap();
+    assert_eq!(back.date(), Some(date));
+    assert_eq!(back.time_s(), log.time_s(), "the time column is seconds of the day again");
+    assert_eq!(back.channel("mag_1_uc").unwrap().values, log.channel("mag_1_uc").unwrap().values);
 }

@@ -6,7 +6,8 @@
 //! otherwise the one named in `[alignment] time_base`. Every other channel
 //! is evaluated at those times:
 //! - continuous channels by linear interpolation between the two samples
-//!   that bracket the time;
+//!   that bracket the time; angles (attitude, heading) on the circle, so a
+//!   heading between 359° and 1° is 0°, not 180°;
 //! - counters and line numbers (integer fields, the line channel) by the
 //!   previous value;
 //! - when the bracketing samples are further apart than the gap tolerance
@@ -14,6 +15,11 @@
 //!   missing and gets a `gap:<channel>` flag;
 //! - before a channel's first sample or after its last the row stays
 //!   missing: nothing is extrapolated.
+//!
+//! - samples of one channel at the same time: exact repeats are dropped
+//!   and counted; samples that disagree leave the rows that would use
+//!   them missing, flagged `duplicate_time:<channel>`, and on the time
+//!   base itself they are an error ([`ConflictingTimes`]).
 //!
 //! What was done to each channel is recorded in an [`AlignmentReport`].
 
@@ -28,6 +34,8 @@ pub struct Stream {
     pub source: String,
     /// Hold the previous value instead of interpolating.
     pub hold: bool,
+    /// An angle in degrees: interpolated on the circle.
+    pub angle: bool,
     /// Role given by the source (e.g. a configured ROS topic); `None` to
     /// take it from the channel name.
     pub role: Option<crate::flight_log::ChannelRole>,
@@ -68,6 +76,13 @@ pub struct ResampledChannel {
     pub rows_in_gaps: usize,
     /// Rows left missing because they are outside the channel's span.
     pub rows_outside: usize,
+    /// Samples dropped because they repeat an earlier one exactly (time
+    /// and value).
+    pub repeats_dropped: usize,
+    /// Times at which the channel has samples that disagree.
+    pub conflicting_times: usize,
+    /// Rows left missing because they would use such a sample.
+    pub rows_conflicting: usize,
 }
 
 /// What alignment did.
@@ -81,9 +96,26 @@ pub struct AlignmentReport {
     pub duplicate_times_dropped: usize,
     /// Every channel, in output order.
     pub channels: Vec<ResampledChannel>,
-    /// Remarks from reading: topics skipped and why, messages that failed
-    /// to decode, how the file was read.
+    /// Remarks from reading: topics skipped and why, how the file was read.
     pub notes: Vec<String>,
+    /// What was lost or left missing while reading and aligning: a file
+    /// cut short, damaged chunks, messages that failed to decode, repeated
+    /// or disagreeing timestamps. Printed and shown in the report.
+    pub warnings: Vec<String>,
+}
+
+/// Samples of the time-base channel at one time that disagree: which row
+/// the time stands for cannot be decided.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ConflictingTimes {
+    /// The time-base channel.
+    pub channel: String,
+    /// Its topic and field.
+    pub source: String,
+    /// How many times carry disagreeing samples.
+    pub times: usize,
+    /// The first such time, seconds.
+    pub first_time_s: f64,
 }
 
 /// Channels on one time base.
@@ -100,34 +132,56 @@ pub struct Aligned {
 }
 
 /// Aligns `streams` on the timestamps of stream `base` (an index).
-pub fn align(mut streams: Vec<Stream>, base: usize, options: &AlignmentOptions) -> Aligned {
+pub fn align(mut streams: Vec<Stream>, base: usize, options: &AlignmentOptions) -> Result<Aligned, ConflictingTimes> {
     streams.iter_mut().for_each(sort_by_time);
-    let (base_times, duplicates) = {
-        let mut times = streams[base].times_ns.clone();
-        let before = times.len();
-        times.dedup();
-        let after = times.len();
-        (times, before - after)
-    };
+    let repeats: Vec<Repeats> = streams.iter_mut().map(collapse_repeats).collect();
+    if let Some(&first) = repeats[base].conflicts.first() {
+        return Err(ConflictingTimes {
+            channel: streams[base].name.clone(),
+            source: streams[base].source.clone(),
+            times: repeats[base].conflicts.len(),
+            first_time_s: streams[base].times_ns[first] as f64 / 1e9,
+        });
+    }
+    let base_times = streams[base].times_ns.clone();
     let time_s: Vec<f64> = base_times.iter().map(|&t| t as f64 / 1e9).collect();
     let mut row_flags = vec![String::new(); base_times.len()];
     let mut channels = Vec::with_capacity(streams.len());
     let mut report = Vec::with_capacity(streams.len());
-    for (index, stream) in streams.into_iter().enumerate() {
+    let mut warnings = Vec::new();
+    for (index, (stream, repeats)) in streams.into_iter().zip(repeats).enumerate() {
         let interval_s = median_interval_ns(&stream.times_ns) / 1e9;
         let tolerance_s = options.gap_tolerance_s.unwrap_or(2.5 * interval_s);
-        let method = match (index == base, stream.hold) {
-            (true, _) => "time base",
-            (false, true) => "previous value",
-            (false, false) => "linear",
+        let method = match (index == base, stream.hold, stream.angle) {
+            (true, _, _) => "time base",
+            (false, true, _) => "previous value",
+            (false, false, true) => "linear on the circle",
+            (false, false, false) => "linear",
         };
-        let resampled = resample(&stream, &base_times, (tolerance_s * 1e9) as u64);
-        for &row in &resampled.gap_rows {
-            let flag = format!("gap:{}", stream.name);
-            if !row_flags[row].is_empty() {
-                row_flags[row].push(';');
+        let resampled = resample(&stream, &repeats.conflicting, &base_times, (tolerance_s * 1e9) as u64);
+        for (rows, flag) in [(&resampled.gap_rows, "gap"), (&resampled.conflict_rows, "duplicate_time")] {
+            for &row in rows {
+                if !row_flags[row].is_empty() {
+                    row_flags[row].push(';');
+                }
+                row_flags[row].push_str(&format!("{flag}:{}", stream.name));
             }
-            row_flags[row].push_str(&flag);
+        }
+        if repeats.dropped > 0 {
+            warnings.push(format!(
+                "{}: {} samples repeat an earlier one exactly (same time, same value) and were dropped",
+                stream.source, repeats.dropped
+            ));
+        }
+        if !repeats.conflicts.is_empty() {
+            warnings.push(format!(
+                "{}: {} times carry samples that disagree (the first at {} s); the {} rows that would use them are left missing and flagged duplicate_time:{}",
+                stream.source,
+                repeats.conflicts.len(),
+                crate::error::Number(stream.times_ns[repeats.conflicts[0]] as f64 / 1e9),
+                resampled.conflict_rows.len(),
+                stream.name
+            ));
         }
         report.push(ResampledChannel {
             channel: stream.name.clone(),
@@ -138,22 +192,72 @@ pub fn align(mut streams: Vec<Stream>, base: usize, options: &AlignmentOptions) 
             gap_tolerance_s: tolerance_s,
             rows_in_gaps: resampled.gap_rows.len(),
             rows_outside: resampled.outside,
+            repeats_dropped: repeats.dropped,
+            conflicting_times: repeats.conflicts.len(),
+            rows_conflicting: resampled.conflict_rows.len(),
         });
         channels.push((stream.name, resampled.values));
     }
     let time_base = report[base].channel.clone();
-    Aligned {
+    Ok(Aligned {
         report: AlignmentReport {
             time_base,
             rows: time_s.len(),
-            duplicate_times_dropped: duplicates,
+            duplicate_times_dropped: report[base].repeats_dropped,
             channels: report,
             notes: Vec::new(),
+            warnings,
         },
         time_s,
         channels,
         row_flags,
+    })
+}
+
+/// What [`collapse_repeats`] found in one stream.
+struct Repeats {
+    /// Samples dropped as exact repeats.
+    dropped: usize,
+    /// Indices (after collapsing) of times whose samples disagreed.
+    conflicts: Vec<usize>,
+    /// Per sample (after collapsing): whether its time had disagreeing
+    /// samples (its value is then NaN).
+    conflicting: Vec<bool>,
+}
+
+/// Collapses samples of a time-sorted stream that share a time into one:
+/// exact repeats to the value they repeat, disagreeing ones to NaN.
+fn collapse_repeats(stream: &mut Stream) -> Repeats {
+    let mut repeats = Repeats {
+        dropped: 0,
+        conflicts: Vec::new(),
+        conflicting: Vec::with_capacity(stream.times_ns.len()),
+    };
+    if stream.times_ns.windows(2).all(|w| w[0] < w[1]) {
+        repeats.conflicting = vec![false; stream.times_ns.len()];
+        return repeats;
     }
+    let same = |a: f64, b: f64| a == b || (a.is_nan() && b.is_nan());
+    let (mut times, mut values) = (Vec::new(), Vec::new());
+    let mut start = 0;
+    while start < stream.times_ns.len() {
+        let time = stream.times_ns[start];
+        let end = start + stream.times_ns[start..].iter().take_while(|&&t| t == time).count();
+        let group = &stream.values[start..end];
+        let agree = group.iter().all(|&v| same(v, group[0]));
+        if agree {
+            repeats.dropped += end - start - 1;
+        } else {
+            repeats.conflicts.push(times.len());
+        }
+        times.push(time);
+        values.push(if agree { group[0] } else { f64::NAN });
+        repeats.conflicting.push(!agree);
+        start = end;
+    }
+    stream.times_ns = times;
+    stream.values = values;
+    repeats
 }
 
 fn sort_by_time(stream: &mut Stream) {
@@ -178,15 +282,18 @@ fn median_interval_ns(times: &[u64]) -> f64 {
 struct Resampled {
     values: Vec<f64>,
     gap_rows: Vec<usize>,
+    conflict_rows: Vec<usize>,
     outside: usize,
 }
 
-/// Evaluates `stream` at the sorted `base` times.
-fn resample(stream: &Stream, base: &[u64], tolerance_ns: u64) -> Resampled {
+/// Evaluates `stream` at the sorted `base` times; `conflicting` marks its
+/// samples whose time carried disagreeing values.
+fn resample(stream: &Stream, conflicting: &[bool], base: &[u64], tolerance_ns: u64) -> Resampled {
     let (times, values) = (&stream.times_ns, &stream.values);
     let mut out = Resampled {
         values: vec![f64::NAN; base.len()],
         gap_rows: Vec::new(),
+        conflict_rows: Vec::new(),
         outside: 0,
     };
     let (Some(&first), Some(&last)) = (times.first(), times.last()) else {
@@ -203,6 +310,9 @@ fn resample(stream: &Stream, base: &[u64], tolerance_ns: u64) -> Resampled {
             j += 1;
         }
         if times[j] == t {
+            if conflicting[j] {
+                out.conflict_rows.push(row);
+            }
             out.values[row] = values[j];
             continue;
         }
@@ -211,15 +321,36 @@ fn resample(stream: &Stream, base: &[u64], tolerance_ns: u64) -> Resampled {
             out.gap_rows.push(row);
             continue;
         }
-        out.values[row] = match stream.hold {
-            true => values[j],
-            false => {
-                let fraction = (t - ta) as f64 / (tb - ta) as f64;
-                values[j] + fraction * (values[j + 1] - values[j])
-            }
+        let used_conflict = conflicting[j] || (!stream.hold && conflicting[j + 1]);
+        if used_conflict {
+            out.conflict_rows.push(row);
+            continue;
+        }
+        let fraction = (t - ta) as f64 / (tb - ta) as f64;
+        out.values[row] = match (stream.hold, stream.angle) {
+            (true, _) => values[j],
+            (false, true) => angle_between(values[j], values[j + 1], fraction),
+            (false, false) => values[j] + fraction * (values[j + 1] - values[j]),
         };
     }
     out
+}
+
+/// The angle `fraction` of the way from `a` to `b` degrees, the short way
+/// round the circle. Angles less than half a turn apart (and unwrapped
+/// headings) are interpolated as they are; across north the result is
+/// given in the convention of the two ends: 0–360° when both are
+/// non-negative, −180–180° otherwise.
+fn angle_between(a: f64, b: f64, fraction: f64) -> f64 {
+    if (b - a).abs() <= 180.0 {
+        return a + fraction * (b - a);
+    }
+    let step = (b - a + 180.0).rem_euclid(360.0) - 180.0;
+    let angle = a + fraction * step;
+    match a >= 0.0 && b >= 0.0 {
+        true => angle.rem_euclid(360.0),
+        false => (angle + 180.0).rem_euclid(360.0) - 180.0,
+    }
 }
 
 #[cfg(test)]
@@ -231,6 +362,7 @@ mod tests {
             name: name.into(),
             source: format!("/test/{name}"),
             hold,
+            angle: false,
             role: None,
             times_ns: times_s.iter().map(|t| (t * 1e9).round() as u64).collect(),
             values: values.to_vec(),
@@ -242,7 +374,7 @@ mod tests {
         let base = stream("mag_1_uc", false, &[1.0, 1.1, 1.2, 1.3, 1.4, 1.5], &[0.0; 6]);
         let slope = stream("flux_a_x", false, &[1.05, 1.15, 1.25, 1.35], &[10.0, 20.0, 30.0, 40.0]);
         let line = stream("line", true, &[0.0, 1.22], &[7.0, 8.0]);
-        let aligned = align(vec![base, slope, line], 0, &AlignmentOptions::default());
+        let aligned = align(vec![base, slope, line], 0, &AlignmentOptions::default()).unwrap();
         let x = &aligned.channels[1].1;
         assert!(
             x[0].is_nan() && x[4].is_nan() && x[5].is_nan(),
@@ -261,7 +393,7 @@ mod tests {
     fn gaps_stay_missing_and_are_flagged() {
         let base = stream("mag_1_uc", false, &[0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6], &[0.0; 7]);
         let current = stream("cur_a", false, &[0.0, 0.1, 0.2, 0.55, 0.6], &[1.0, 1.0, 1.0, 2.0, 2.0]);
-        let aligned = align(vec![base, current], 0, &AlignmentOptions::default());
+        let aligned = align(vec![base, current], 0, &AlignmentOptions::default()).unwrap();
         let values = &aligned.channels[1].1;
         assert!(values[3].is_nan() && values[4].is_nan() && values[5].is_nan());
         assert_eq!(aligned.row_flags[4], "gap:cur_a");
@@ -277,7 +409,49 @@ mod tests {
             ],
             0,
             &loose,
-        );
+        )
+        .unwrap();
         assert!((aligned.channels[1].1[1] - 3.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn heading_is_interpolated_on_the_circle() {
+        let base = stream("mag_1_uc", false, &[0.0, 0.1, 0.2, 0.3], &[0.0; 4]);
+        let mut yaw = stream("ins_yaw", false, &[0.0, 0.2, 0.4], &[358.0, 4.0, 10.0]);
+        yaw.angle = true;
+        let mut signed = stream("heading", false, &[0.0, 0.2], &[-179.0, 177.0]);
+        signed.angle = true;
+        let aligned = align(vec![base, yaw, signed], 0, &AlignmentOptions::default()).unwrap();
+        let yaw = &aligned.channels[1].1;
+        assert!((yaw[1] - 1.0).abs() < 1e-9, "{yaw:?}");
+        assert!((yaw[3] - 7.0).abs() < 1e-9, "{yaw:?}");
+        let signed = &aligned.channels[2].1;
+        assert!((signed[1] - 179.0).abs() < 1e-9, "{signed:?}");
+        assert_eq!(aligned.report.channels[1].method, "linear on the circle");
+        assert!((angle_between(350.0, 10.0, 0.75) - 5.0).abs() < 1e-12);
+        assert!((angle_between(725.0, 735.0, 0.5) - 730.0).abs() < 1e-12, "unwrapped headings stay unwrapped");
+    }
+
+    #[test]
+    fn repeated_times_are_dropped_or_flagged_never_merged() {
+        let base = stream("mag_1_uc", false, &[0.0, 0.1, 0.2, 0.3, 0.4], &[1.0; 5]);
+        let current = stream(
+            "cur_a",
+            false,
+            &[0.0, 0.1, 0.1, 0.2, 0.3, 0.3, 0.4],
+            &[1.0, 2.0, 2.0, 3.0, 4.0, 9.0, 5.0],
+        );
+        let aligned = align(vec![base, current], 0, &AlignmentOptions::default()).unwrap();
+        let values = &aligned.channels[1].1;
+        assert_eq!(values[..3], [1.0, 2.0, 3.0], "an exact repeat is dropped");
+        assert!(values[3].is_nan(), "disagreeing samples leave the row missing");
+        assert_eq!(aligned.row_flags[3], "duplicate_time:cur_a");
+        let channel = &aligned.report.channels[1];
+        assert_eq!((channel.repeats_dropped, channel.conflicting_times, channel.rows_conflicting), (1, 1, 1));
+        assert_eq!(aligned.report.warnings.len(), 2, "{:?}", aligned.report.warnings);
+
+        let base = stream("mag_1_uc", false, &[0.0, 0.1, 0.1, 0.2], &[1.0, 2.0, 3.0, 4.0]);
+        let error = align(vec![base], 0, &AlignmentOptions::default()).unwrap_err();
+        assert_eq!((error.times, error.first_time_s), (1, 0.1));
     }
 }

@@ -35,11 +35,17 @@ use super::mcap_records::{self, ChannelRecord, Definitions, SchemaRecord};
 use super::ros::{self, RosType};
 use super::{IngestOptions, TopicMapping};
 use crate::error::{Error, Result};
+use crate::flight_date::FlightDate;
 use crate::flight_log::{AttitudeAngle, Channel, ChannelRole, FlightLog, VectorAxis};
 use crate::messages::MessageLayout;
 
 /// Metadata key on a `/gps/fix` channel naming the height column.
 pub const ALTITUDE_COLUMN_KEY: &str = "magcomp.altitude_column";
+
+/// Channel metadata key of the flight's day (`YYYY-MM-DD`, UTC): the
+/// log times are that day's midnight plus the time column, which the
+/// reader restores as seconds of the day.
+pub const DATE_KEY: &str = "magcomp.date";
 
 /// How one MCAP channel's messages are decoded.
 #[derive(Debug, Clone)]
@@ -56,6 +62,8 @@ struct TopicPlan {
     topic: String,
     decoder: Decoder,
     altitude_column: String,
+    /// The flight's day, when the channel's metadata gives it.
+    date: Option<FlightDate>,
 }
 
 /// Decoded samples of one MCAP channel in one part of the file.
@@ -130,14 +138,17 @@ pub fn read_mcap(path: &Path, options: &IngestOptions) -> Result<FlightLog> {
     build_log(path, options, decoded)
 }
 
-type FileContents = (BTreeMap<u16, TopicPlan>, BTreeMap<u16, Decoded>, Vec<String>);
+/// The topics' plans, their decoded messages, remarks on how the file was
+/// read, and what was lost reading it (a file cut short, damaged chunks).
+type FileContents = (BTreeMap<u16, TopicPlan>, BTreeMap<u16, Decoded>, Vec<String>, Vec<String>);
 
 /// A decompressed chunk and the schemas and channels it defines.
 type OpenedChunk<'a> = (Cow<'a, [u8]>, Definitions);
 
 fn decode_file(bytes: &[u8], names: &ColumnNames) -> std::result::Result<FileContents, String> {
     let section = mcap_records::data_section(bytes)?;
-    let mut notes = section.notes;
+    let notes = section.notes;
+    let mut losses = section.losses;
     // Decompress every chunk (in parallel) and learn the schemas and
     // channels they define; messages are decoded once all are known.
     let opened: Vec<std::result::Result<OpenedChunk, String>> = section
@@ -161,14 +172,14 @@ fn decode_file(bytes: &[u8], names: &ColumnNames) -> std::result::Result<FileCon
             }
             Err(e) => {
                 if damaged == 0 {
-                    notes.push(format!("a damaged chunk was left out: {e}"));
+                    losses.push(format!("a damaged chunk was left out: {e}"));
                 }
                 damaged += 1;
             }
         }
     }
     if damaged > 0 {
-        notes.push(format!(
+        losses.push(format!(
             "{damaged} of {} chunks were damaged and left out",
             damaged + chunks.len()
         ));
@@ -211,7 +222,7 @@ fn decode_file(bytes: &[u8], names: &ColumnNames) -> std::result::Result<FileCon
     for (id, decoded) in loose {
         merged.entry(id).or_default().append(decoded);
     }
-    Ok((plans, merged, notes))
+    Ok((plans, merged, notes, losses))
 }
 
 /// Decides how to decode a channel and what its fields become.
@@ -244,6 +255,7 @@ fn plan_topic(channel: &ChannelRecord, schema: Option<&SchemaRecord>, names: &Co
         topic,
         decoder,
         altitude_column,
+        date: channel.metadata.get(DATE_KEY).and_then(|d| FlightDate::parse(d)),
     }
 }
 
@@ -374,6 +386,7 @@ fn ros_streams(
         name,
         source: format!("{topic}:{field}"),
         hold: false,
+        angle: false,
         role,
         times_ns: data.times_ns.clone(),
         values,
@@ -435,7 +448,7 @@ fn ros_streams(
     }
 }
 
-fn build_log(path: &Path, options: &IngestOptions, (plans, decoded, mut notes): FileContents) -> Result<FlightLog> {
+fn build_log(path: &Path, options: &IngestOptions, (plans, decoded, mut notes, mut losses): FileContents) -> Result<FlightLog> {
     let (names, alignment) = (&options.columns, &options.alignment);
     let mut attitude_taken = false;
     for plan in plans.values() {
@@ -447,7 +460,7 @@ fn build_log(path: &Path, options: &IngestOptions, (plans, decoded, mut notes): 
     for (id, data) in decoded {
         let plan = &plans[&id];
         if let Some(error) = &data.first_error {
-            notes.push(format!(
+            losses.push(format!(
                 "topic '{}': {} messages could not be decoded and were left out (first: {error})",
                 plan.topic, data.errors
             ));
@@ -478,6 +491,7 @@ fn build_log(path: &Path, options: &IngestOptions, (plans, decoded, mut notes): 
             let name = channel_name(&plan.topic, field, &plan.altitude_column);
             streams.push(Stream {
                 hold: integer(field) || name == names.line,
+                angle: false,
                 role: None,
                 name,
                 source: format!("{}:{field}", plan.topic),
@@ -513,9 +527,24 @@ fn build_log(path: &Path, options: &IngestOptions, (plans, decoded, mut notes): 
             column: streams[base].name.clone(),
         });
     }
+    let date = time_of_day(&plans, &mut streams);
     let roles: Vec<Option<ChannelRole>> = streams.iter().map(|s| s.role.clone()).collect();
-    let mut aligned = align(streams, base, alignment);
+    for (stream, role) in streams.iter_mut().zip(&roles) {
+        let role = role.clone().or_else(|| names.role_of(&stream.name));
+        stream.angle = matches!(role, Some(ChannelRole::Attitude(_)));
+    }
+    let mut aligned = align(streams, base, alignment).map_err(|conflict| Error::BadTime {
+        path: path.to_path_buf(),
+        location: format!("topic {}", conflict.source),
+        column: conflict.channel.clone(),
+        problem: format!(
+            "has {} time(s) at which messages disagree, the first at {} s, so which row the time stands for cannot be decided",
+            conflict.times,
+            crate::error::Number(conflict.first_time_s)
+        ),
+    })?;
     aligned.report.notes = notes;
+    aligned.report.warnings.splice(0..0, losses);
     let channels: Vec<Channel> = aligned
         .channels
         .into_iter()
@@ -527,5 +556,22 @@ fn build_log(path: &Path, options: &IngestOptions, (plans, decoded, mut notes): 
         .collect();
     Ok(FlightLog::new(path, names.time.clone(), aligned.time_s, channels)?
         .with_row_flags(aligned.row_flags)
-        .with_alignment(aligned.report))
+        .with_alignment(aligned.report)
+        .with_date(date))
+}
+
+/// The flight's day from the channels' metadata, with every stream's times
+/// made times of that day; `None`, times untouched, when no channel gives
+/// a day or a message is older than its midnight.
+fn time_of_day(plans: &BTreeMap<u16, TopicPlan>, streams: &mut [Stream]) -> Option<FlightDate> {
+    let date = plans.values().find_map(|p| p.date)?;
+    let midnight = u64::try_from(date.midnight_unix_ns()).ok()?;
+    let after_midnight = streams.iter().all(|s| s.times_ns.iter().all(|&t| t >= midnight));
+    if !after_midnight {
+        return None;
+    }
+    for stream in streams {
+        stream.times_ns.iter_mut().for_each(|t| *t -= midnight);
+    }
+    Some(date)
 }

@@ -240,6 +240,8 @@ pub struct DataSection<'a> {
     pub definitions: Definitions,
     /// How the file was read and what was wrong with it.
     pub notes: Vec<String>,
+    /// What could not be read (a file cut short).
+    pub losses: Vec<String>,
 }
 
 /// Finds the chunks of an MCAP file: through the summary's chunk index when
@@ -274,8 +276,8 @@ pub fn data_section(bytes: &[u8]) -> Result<DataSection<'_>, String> {
         if section.chunks.is_empty() && section.messages.is_empty() {
             return Err(format!("the file is cut short at byte {stopped}, before any message"));
         }
-        section.notes.push(format!(
-            "the file is cut short at byte {stopped} of {}; the records before that were read",
+        section.losses.push(format!(
+            "the file is cut short at byte {stopped} of {}; the records before that were read, the rest is lost",
             bytes.len()
         ));
     }

@@ -31,6 +31,8 @@ pub struct IngestOptions {
     pub alignment: align::AlignmentOptions,
     /// What ROS 2 topics of an MCAP recording become (`[[topic]]`).
     pub topics: Vec<TopicMapping>,
+    /// The day the flight was flown (`--date`), over what the file says.
+    pub date: Option<crate::flight_date::FlightDate>,
 }
 
 /// A `[[topic]]` entry: what a ROS 2 `sensor_msgs/msg/MagneticField` topic
@@ -101,7 +103,7 @@ pub fn read_flight_log(path: &Path, options: &IngestOptions) -> Result<FlightLog
     if matches!(format, Format::DelimitedText | Format::Xyz) {
         check_line_ends(path)?;
     }
-    match format {
+    let log = match format {
         Format::DelimitedText => csv::read_csv(path, &options.columns),
         Format::Xyz => xyz::read_xyz(path, &options.columns),
         Format::Mcap => mcap::read_mcap(path, options),
@@ -109,7 +111,19 @@ pub fn read_flight_log(path: &Path, options: &IngestOptions) -> Result<FlightLog
         Format::Hdf5 => hdf5::read_hdf5(path, &options.columns),
         #[cfg(not(feature = "hdf5"))]
         Format::Hdf5 => Err(unsupported(path, "hdf5 (this build has the 'hdf5' feature off)")),
-    }
+    }?;
+    let date = options.date.or(log.date()).or_else(|| date_from_columns(&log));
+    Ok(log.with_date(date))
+}
+
+/// The flight's day from SGL's `year` and `doy` (day of year) columns: the
+/// first row where both hold a valid day.
+fn date_from_columns(log: &FlightLog) -> Option<crate::flight_date::FlightDate> {
+    let (year, doy) = (log.channel("year")?, log.channel("doy")?);
+    year.values.iter().zip(&doy.values).find_map(|(&year, &day)| {
+        let whole = |v: f64| (v.is_finite() && v.fract() == 0.0 && v >= 1.0 && v < 1e4).then_some(v as u32);
+        crate::flight_date::FlightDate::from_day_of_year(whole(year)? as i32, whole(day)?)
+    })
 }
 
 /// Refuses a file of no bytes at all with a message that says so.

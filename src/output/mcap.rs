@@ -28,7 +28,8 @@ use super::{stage, Staged};
 use crate::compensate::Compensation;
 use crate::error::{Error, Result};
 use crate::flight_log::{AttitudeAngle, ChannelRole, FlightLog};
-use crate::ingest::mcap::ALTITUDE_COLUMN_KEY;
+use crate::flight_date::SECONDS_PER_DAY;
+use crate::ingest::mcap::{ALTITUDE_COLUMN_KEY, DATE_KEY};
 use crate::messages::{descriptor_set, timestamp, Attitude, LocationFix, Sample, ScalarMag, VectorMag};
 
 /// JSON documents stored with the data.
@@ -53,8 +54,14 @@ pub fn stage_mcap(
     compensation: Option<&Compensation>,
     extras: &McapExtras,
 ) -> Result<Staged> {
-    let times = log_times_ns(log)?;
-    let topics = plan_topics(log, compensation);
+    let midnight_ns = midnight_of_flight_ns(log);
+    let times = log_times_ns(log, midnight_ns.unwrap_or(0))?;
+    let mut topics = plan_topics(log, compensation);
+    if let (Some(date), Some(_)) = (log.date(), midnight_ns) {
+        for topic in &mut topics {
+            topic.metadata.insert(DATE_KEY.to_string(), date.to_string());
+        }
+    }
     let mut failure: Option<mcap::McapError> = None;
     let staged = stage(output, |file| {
         let result = write_records(file, &times, &topics, extras);
@@ -70,12 +77,37 @@ pub fn stage_mcap(
     }
 }
 
-fn log_times_ns(log: &FlightLog) -> Result<Vec<u64>> {
+/// Nanoseconds from 1970-01-01 to the midnight the time column counts
+/// from: the flight's day when it is known and the times are seconds of a
+/// day (under two days, for flights past midnight); otherwise `None`, and
+/// the time column is written as it is.
+pub fn midnight_of_flight_ns(log: &FlightLog) -> Option<u64> {
+    let date = log.date()?;
+    let time = log.time_s();
+    let time_of_day = time.first().is_some_and(|&t| t >= 0.0) && time.last().is_some_and(|&t| t < 2.0 * SECONDS_PER_DAY);
+    time_of_day.then(|| u64::try_from(date.midnight_unix_ns()).ok()).flatten()
+}
+
+/// The warning for an MCAP `output` of `log` whose log times cannot be
+/// absolute (the flight's day is unknown); `None` for other outputs.
+pub fn undated_warning(log: &FlightLog, output: &Path) -> Option<String> {
+    let mcap = crate::output::detect_output_format(output) == crate::ingest::Format::Mcap;
+    let absolute = log.time_s().first().is_some_and(|&t| t >= 2.0 * SECONDS_PER_DAY);
+    (mcap && !absolute && midnight_of_flight_ns(log).is_none()).then(|| {
+        format!(
+            "{}: the flight's day is unknown (no year and doy columns, no --date), so its MCAP log times count '{}' from 1970-01-01; give the day with --date YYYY-MM-DD",
+            output.display(),
+            log.time_column()
+        )
+    })
+}
+
+fn log_times_ns(log: &FlightLog, midnight_ns: u64) -> Result<Vec<u64>> {
     log.time_s()
         .iter()
         .enumerate()
-        .map(|(row, &t)| match t >= 0.0 && t * 1e9 < u64::MAX as f64 {
-            true => Ok((t * 1e9).round() as u64),
+        .map(|(row, &t)| match t >= 0.0 && t * 1e9 + (midnight_ns as f64) < u64::MAX as f64 {
+            true => Ok((t * 1e9).round() as u64 + midnight_ns),
             false => Err(Error::BadTime {
                 path: log.source().to_path_buf(),
                 location: format!("sample {row}"),

@@ -120,7 +120,8 @@ pub fn simulate(scenario: &Scenario) -> Result<SimulatedFlight> {
             )
         })
         .collect();
-    let log = flight_log(time_s.clone(), columns)?;
+    let date = crate::flight_date::FlightDate::parse(&scenario.raw.date);
+    let log = flight_log(time_s.clone(), columns)?.with_date(date);
     let truth = Truth::new(scenario, &path, time_s, (sensors, fluxgates), external_nt);
     Ok(SimulatedFlight { log, truth })
 }
