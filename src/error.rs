@@ -254,9 +254,21 @@ pub struct Excerpt<'a>(pub &'a str);
 impl std::fmt::Display for Excerpt<'_> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         const SHOWN: usize = 60;
-        match self.0.char_indices().nth(SHOWN) {
-            None => f.write_str(self.0),
-            Some((end, _)) => write!(f, "{}… ({} bytes in all)", &self.0[..end], self.0.len()),
+        let (shown, whole) = match self.0.char_indices().nth(SHOWN) {
+            None => (self.0, true),
+            Some((end, _)) => (&self.0[..end], false),
+        };
+        // Control characters (a flipped byte) are shown escaped, not sent
+        // to the terminal.
+        for c in shown.chars() {
+            match c.is_control() {
+                true => write!(f, "{}", c.escape_default())?,
+                false => write!(f, "{c}")?,
+            }
+        }
+        match whole {
+            true => Ok(()),
+            false => write!(f, "… ({} bytes in all)", self.0.len()),
         }
     }
 }
@@ -276,6 +288,7 @@ mod tests {
         let quoted = Excerpt(&cell).to_string();
         assert!(quoted.len() < 100 && quoted.ends_with("(2000000 bytes in all)"), "{quoted}");
         assert_eq!(Excerpt("5x1").to_string(), "5x1");
+        assert_eq!(Excerpt("16519\u{15}581").to_string(), "16519\\u{15}581");
         assert_eq!(Excerpt(&"é".repeat(61)).to_string(), format!("{}… (122 bytes in all)", "é".repeat(60)));
     }
 }

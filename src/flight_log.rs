@@ -95,6 +95,7 @@ pub struct FlightLog {
     row_flags: Vec<String>,
     alignment: Option<AlignmentReport>,
     date: Option<crate::flight_date::FlightDate>,
+    reading_warnings: Vec<String>,
 }
 
 impl FlightLog {
@@ -126,6 +127,7 @@ impl FlightLog {
             row_flags: Vec::new(),
             alignment: None,
             date: None,
+            reading_warnings: Vec::new(),
         })
     }
 
@@ -158,6 +160,19 @@ impl FlightLog {
     /// Per-row flags raised while reading; empty when there are none.
     pub fn row_flags(&self) -> &[String] {
         &self.row_flags
+    }
+
+    /// Records what the reader could not read or had to leave out.
+    pub fn with_reading_warnings(mut self, warnings: Vec<String>) -> Self {
+        self.reading_warnings = warnings;
+        self
+    }
+
+    /// What the reader could not read or had to leave out (a file cut
+    /// short, a dataset of another length, repeated times): each a line
+    /// for stdout and the report.
+    pub fn reading_warnings(&self) -> &[String] {
+        &self.reading_warnings
     }
 
     /// Records the day the flight was flown (UTC).

@@ -272,7 +272,7 @@ fn error_paragraph(error: &anyhow::Error) -> String {
 fn read_screened(flight: &Path, pipeline: &Pipeline) -> magcomp::error::Result<magcomp::flight_log::FlightLog> {
     let recorded = magcomp::ingest::read_flight_log(flight, &pipeline.ingest)?;
     let screened = magcomp::screen::screen_samples(&recorded)?;
-    let reading = recorded.alignment().map(|a| a.warnings.clone()).unwrap_or_default();
+    let reading = recorded.reading_warnings().to_vec();
     for warning in reading.iter().chain(&screened.screening.warnings()) {
         println!("  warning: {warning}");
     }

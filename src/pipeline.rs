@@ -288,7 +288,7 @@ pub fn process_flight(job: &FlightJob, options: &StageOptions, outputs: &FlightO
         options,
         calibration.is_some(),
     )?;
-    let reading = recorded.alignment().map(|a| a.warnings.clone()).unwrap_or_default();
+    let reading = recorded.reading_warnings().to_vec();
     warnings.splice(0..0, reading.into_iter().chain(screened.screening.warnings()));
     warnings.extend(crate::output::mcap::undated_warning(&recorded, &outputs.compensated));
     let mut written = OutputSet::new();

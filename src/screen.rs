@@ -15,9 +15,10 @@
 //!   by more than the field can change in one sample interval while they
 //!   agree with each other;
 //! - a fluxgate whose magnitude is under 1,000 nT (a zero or subnormal
-//!   reading: the sensor reported nothing; all three axes), a component
-//!   beyond ±100,000 nT, or an isolated spike in one axis (that axis, which
-//!   makes the row's vector missing);
+//!   reading: the sensor reported nothing; all three axes), an axis reading
+//!   zero between neighbours 500 nT or more from zero (a dropout), a
+//!   component beyond ±100,000 nT, or an isolated spike in one axis (that
+//!   axis, which makes the row's vector missing);
 //! - pitch beyond ±90°, roll beyond ±180°, heading beyond ±3,600° (ten
 //!   turns, for headings recorded unwrapped);
 //! - latitude beyond ±90°, longitude beyond ±360°, other positions (heights,
@@ -48,8 +49,15 @@ pub const LEAST_VECTOR_MAGNITUDE_NT: f64 = 1_000.0;
 pub const FASTEST_TOTAL_FIELD_NT_S: f64 = 10_000.0;
 
 /// Fastest a fluxgate component can change, nT/s: the Earth's field
-/// turning at 4 rad/s.
-pub const FASTEST_COMPONENT_NT_S: f64 = 200_000.0;
+/// turning at 1 rad/s (57°/s, twice a steep survey aircraft's roll rate).
+pub const FASTEST_COMPONENT_NT_S: f64 = 50_000.0;
+
+/// Below this a fluxgate axis reads nothing (a zero or subnormal dropout).
+const DROPOUT_NT: f64 = 1e-300;
+
+/// A dropout is masked when both neighbours are at least this far from
+/// zero, nT: the axis was not crossing zero.
+const DROPOUT_NEIGHBOUR_NT: f64 = 500.0;
 
 /// Largest auxiliary value: beyond it a cell is damaged, not measured.
 pub const MOST_AUXILIARY: f64 = 1e12;
@@ -64,6 +72,8 @@ pub enum MaskReason {
     ZeroVector,
     /// One sample far from both neighbours, which agree.
     Spike,
+    /// A fluxgate axis reading zero between neighbours far from zero.
+    Dropout,
 }
 
 impl MaskReason {
@@ -73,6 +83,7 @@ impl MaskReason {
             MaskReason::OutOfRange => "out_of_range",
             MaskReason::ZeroVector => "zero_vector",
             MaskReason::Spike => "spike",
+            MaskReason::Dropout => "dropout",
         }
     }
 
@@ -81,6 +92,7 @@ impl MaskReason {
             MaskReason::OutOfRange => "values beyond what the instrument can read",
             MaskReason::ZeroVector => "fluxgate readings under 1,000 nT in magnitude: the sensor read nothing",
             MaskReason::Spike => "isolated spikes, further from both neighbours than the field can change in one sample",
+            MaskReason::Dropout => "an axis reading zero between neighbours 500 nT or more from zero: a dropout",
         }
     }
 }
@@ -214,7 +226,9 @@ fn screen_channel(name: &str, role: &ChannelRole, values: &[f64], interval_s: f6
         ChannelRole::VectorTotal { .. } => range(0.0, MOST_VECTOR_COMPONENT_NT * 3f64.sqrt()),
         ChannelRole::VectorMagnetometer { .. } => {
             let jump_nt = (FASTEST_COMPONENT_NT_S * interval_s).max(1_000.0);
-            spikes(values, jump_nt, &[])
+            let mut found = dropouts(values);
+            found.extend(spikes(values, jump_nt, &found));
+            found
         }
         ChannelRole::Attitude(AttitudeAngle::Pitch) => range(-90.0, 90.0),
         ChannelRole::Attitude(AttitudeAngle::Roll) => range(-180.0, 180.0),
@@ -246,6 +260,16 @@ fn vector_reason(components: [f64; 3]) -> Option<(MaskReason, Option<usize>)> {
         }
     }
     None
+}
+
+/// Rows where a fluxgate axis reads zero (or a subnormal) between two
+/// neighbours well away from zero: a dropout, not a zero crossing.
+fn dropouts(values: &[f64]) -> Vec<(usize, MaskReason)> {
+    let away = |v: f64| v.is_finite() && v.abs() >= DROPOUT_NEIGHBOUR_NT;
+    (1..values.len().saturating_sub(1))
+        .filter(|&row| values[row].abs() < DROPOUT_NT && away(values[row - 1]) && away(values[row + 1]))
+        .map(|row| (row, MaskReason::Dropout))
+        .collect()
 }
 
 /// Rows holding an isolated spike: a finite sample further than `jump`
@@ -380,6 +404,8 @@ mod tests {
             (x[row], y[row], z[row]) = (0.0, 0.0, 0.0);
         }
         x[200] = -1.5e308;
+        x[250] = 0.0; // a dropout of one axis
+        y[260] = 4.9e-324;
         let mut roll = vec![2.0; 500];
         roll[300] = 1.5e308;
         let bad = flight(scalar.clone(), [x, y, z], roll);
@@ -391,10 +417,9 @@ mod tests {
         };
         assert_eq!(missing("mag_1_uc"), [10, 20, 30]);
         let zero_rows: Vec<usize> = (100..110).collect();
-        assert_eq!(missing("flux_a_x"), [zero_rows.clone(), vec![200]].concat());
-        for axis in ["flux_a_y", "flux_a_z"] {
-            assert_eq!(missing(axis), zero_rows, "{axis}");
-        }
+        assert_eq!(missing("flux_a_x"), [zero_rows.clone(), vec![200, 250]].concat());
+        assert_eq!(missing("flux_a_y"), [zero_rows.clone(), vec![260]].concat());
+        assert_eq!(missing("flux_a_z"), zero_rows);
         assert_eq!(missing("ins_roll"), [300]);
         let flags = masked.row_flags();
         assert_eq!(flags[10], "out_of_range:mag_1_uc");
@@ -403,7 +428,9 @@ mod tests {
         assert!(flags[200].contains("out_of_range:flux_a_x"));
         assert_eq!(flags[300], "out_of_range:ins_roll");
         let flagged = flags.iter().filter(|f| !f.is_empty()).count();
-        assert_eq!(flagged, 3 + zero_rows.len() + 1 + 1, "only the bad rows are flagged");
+        assert_eq!(flagged, 3 + zero_rows.len() + 1 + 2 + 1, "only the bad rows are flagged");
+        assert_eq!(flags[250], "dropout:flux_a_x");
+        assert_eq!(flags[260], "dropout:flux_a_y");
         // Every other sample is as recorded.
         let kept = &masked.channel("mag_1_uc").unwrap().values;
         assert!((0..500).filter(|k| ![10, 20, 30].contains(k)).all(|k| kept[k] == scalar[k]));

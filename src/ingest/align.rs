@@ -16,10 +16,11 @@
 //! - before a channel's first sample or after its last the row stays
 //!   missing: nothing is extrapolated.
 //!
-//! - samples of one channel at the same time: exact repeats are dropped
-//!   and counted; samples that disagree leave the rows that would use
-//!   them missing, flagged `duplicate_time:<channel>`, and on the time
-//!   base itself they are an error ([`ConflictingTimes`]).
+//! - samples of one channel at the same time: exact repeats are kept once
+//!   and the rows that use them flagged `duplicate_time:<channel>`;
+//!   samples that disagree leave the rows that would use them missing,
+//!   flagged the same way, and on the time base itself they are an error
+//!   ([`ConflictingTimes`]).
 //!
 //! What was done to each channel is recorded in an [`AlignmentReport`].
 
@@ -158,8 +159,12 @@ pub fn align(mut streams: Vec<Stream>, base: usize, options: &AlignmentOptions) 
             (false, false, true) => "linear on the circle",
             (false, false, false) => "linear",
         };
-        let resampled = resample(&stream, &repeats.conflicting, &base_times, (tolerance_s * 1e9) as u64);
-        for (rows, flag) in [(&resampled.gap_rows, "gap"), (&resampled.conflict_rows, "duplicate_time")] {
+        let resampled = resample(&stream, &repeats, &base_times, (tolerance_s * 1e9) as u64);
+        for (rows, flag) in [
+            (&resampled.gap_rows, "gap"),
+            (&resampled.conflict_rows, "duplicate_time"),
+            (&resampled.repeat_rows, "duplicate_time"),
+        ] {
             for &row in rows {
                 if !row_flags[row].is_empty() {
                     row_flags[row].push(';');
@@ -169,8 +174,11 @@ pub fn align(mut streams: Vec<Stream>, base: usize, options: &AlignmentOptions) 
         }
         if repeats.dropped > 0 {
             warnings.push(format!(
-                "{}: {} samples repeat an earlier one exactly (same time, same value) and were dropped",
-                stream.source, repeats.dropped
+                "{}: {} samples repeat an earlier one exactly (same time, same value) and were read once; the {} rows that use them are flagged duplicate_time:{}",
+                stream.source,
+                repeats.dropped,
+                resampled.repeat_rows.len(),
+                stream.name
             ));
         }
         if !repeats.conflicts.is_empty() {
@@ -223,6 +231,8 @@ struct Repeats {
     /// Per sample (after collapsing): whether its time had disagreeing
     /// samples (its value is then NaN).
     conflicting: Vec<bool>,
+    /// Per sample (after collapsing): whether it was repeated exactly.
+    repeated: Vec<bool>,
 }
 
 /// Collapses samples of a time-sorted stream that share a time into one:
@@ -232,9 +242,11 @@ fn collapse_repeats(stream: &mut Stream) -> Repeats {
         dropped: 0,
         conflicts: Vec::new(),
         conflicting: Vec::with_capacity(stream.times_ns.len()),
+        repeated: Vec::with_capacity(stream.times_ns.len()),
     };
     if stream.times_ns.windows(2).all(|w| w[0] < w[1]) {
         repeats.conflicting = vec![false; stream.times_ns.len()];
+        repeats.repeated = vec![false; stream.times_ns.len()];
         return repeats;
     }
     let same = |a: f64, b: f64| a == b || (a.is_nan() && b.is_nan());
@@ -253,6 +265,7 @@ fn collapse_repeats(stream: &mut Stream) -> Repeats {
         times.push(time);
         values.push(if agree { group[0] } else { f64::NAN });
         repeats.conflicting.push(!agree);
+        repeats.repeated.push(agree && end - start > 1);
         start = end;
     }
     stream.times_ns = times;
@@ -283,17 +296,20 @@ struct Resampled {
     values: Vec<f64>,
     gap_rows: Vec<usize>,
     conflict_rows: Vec<usize>,
+    repeat_rows: Vec<usize>,
     outside: usize,
 }
 
-/// Evaluates `stream` at the sorted `base` times; `conflicting` marks its
-/// samples whose time carried disagreeing values.
-fn resample(stream: &Stream, conflicting: &[bool], base: &[u64], tolerance_ns: u64) -> Resampled {
+/// Evaluates `stream` at the sorted `base` times; `repeats` marks its
+/// samples whose time carried repeated or disagreeing values.
+fn resample(stream: &Stream, repeats: &Repeats, base: &[u64], tolerance_ns: u64) -> Resampled {
     let (times, values) = (&stream.times_ns, &stream.values);
+    let (conflicting, repeated) = (&repeats.conflicting, &repeats.repeated);
     let mut out = Resampled {
         values: vec![f64::NAN; base.len()],
         gap_rows: Vec::new(),
         conflict_rows: Vec::new(),
+        repeat_rows: Vec::new(),
         outside: 0,
     };
     let (Some(&first), Some(&last)) = (times.first(), times.last()) else {
@@ -312,6 +328,8 @@ fn resample(stream: &Stream, conflicting: &[bool], base: &[u64], tolerance_ns: u
         if times[j] == t {
             if conflicting[j] {
                 out.conflict_rows.push(row);
+            } else if repeated[j] {
+                out.repeat_rows.push(row);
             }
             out.values[row] = values[j];
             continue;
@@ -325,6 +343,9 @@ fn resample(stream: &Stream, conflicting: &[bool], base: &[u64], tolerance_ns: u
         if used_conflict {
             out.conflict_rows.push(row);
             continue;
+        }
+        if repeated[j] || (!stream.hold && repeated[j + 1]) {
+            out.repeat_rows.push(row);
         }
         let fraction = (t - ta) as f64 / (tb - ta) as f64;
         out.values[row] = match (stream.hold, stream.angle) {
@@ -443,7 +464,8 @@ mod tests {
         );
         let aligned = align(vec![base, current], 0, &AlignmentOptions::default()).unwrap();
         let values = &aligned.channels[1].1;
-        assert_eq!(values[..3], [1.0, 2.0, 3.0], "an exact repeat is dropped");
+        assert_eq!(values[..3], [1.0, 2.0, 3.0], "an exact repeat is read once");
+        assert_eq!(aligned.row_flags[1], "duplicate_time:cur_a", "and its row flagged");
         assert!(values[3].is_nan(), "disagreeing samples leave the row missing");
         assert_eq!(aligned.row_flags[3], "duplicate_time:cur_a");
         let channel = &aligned.report.channels[1];

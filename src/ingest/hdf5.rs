@@ -32,7 +32,7 @@ fn corrupt(path: &Path, message: String) -> Error {
 pub fn read_hdf5(path: &Path, names: &ColumnNames) -> Result<FlightLog> {
     // A damaged file must give an error, whatever the reader does with it.
     let read = std::panic::catch_unwind(|| read_datasets(path, &names.time));
-    let (time_s, datasets) = read.map_err(|_| {
+    let (time_s, datasets, warnings) = read.map_err(|_| {
         corrupt(
             path,
             "the HDF5 file is corrupt (its structure could not be parsed)".into(),
@@ -49,10 +49,11 @@ pub fn read_hdf5(path: &Path, names: &ColumnNames) -> Result<FlightLog> {
             Some(Channel { name, role, values })
         })
         .collect();
-    FlightLog::new(path, names.time.clone(), time_s, channels)
+    Ok(FlightLog::new(path, names.time.clone(), time_s, channels)?.with_reading_warnings(warnings))
 }
 
-type Datasets = (Vec<f64>, Vec<(String, Vec<f64>)>);
+/// The time dataset, the channels' datasets, and what was not read.
+type Datasets = (Vec<f64>, Vec<(String, Vec<f64>)>, Vec<String>);
 
 fn read_datasets(path: &Path, time_name: &str) -> Result<Datasets> {
     let file = File::open(path).map_err(|e| corrupt(path, format!("not a readable HDF5 file: {e}")))?;
@@ -70,9 +71,19 @@ fn read_datasets(path: &Path, time_name: &str) -> Result<Datasets> {
             looked_for: format!("a root dataset '{time_name}'"),
             hint: "MagNav challenge files keep time in 'tt'; name another in [columns] time = \"...\".".into(),
         })?;
-    let mut datasets = Vec::new();
+    if time_s.is_empty() {
+        return Err(Error::NoData {
+            path: path.to_path_buf(),
+            problem: format!("the time dataset '{time_name}' is empty"),
+        });
+    }
+    let mut series = Vec::new();
+    let mut not_read: Vec<String> = Vec::new();
     for name in names.into_iter().filter(|n| n != time_name) {
-        let Ok(dataset) = file.dataset(&name) else { continue };
+        let Ok(dataset) = file.dataset(&name) else {
+            not_read.push(format!("'{name}' (unreadable)"));
+            continue;
+        };
         let numeric = matches!(
             dataset.dtype(),
             Ok(DType::F32
@@ -86,18 +97,75 @@ fn read_datasets(path: &Path, time_name: &str) -> Result<Datasets> {
                 | DType::U32
                 | DType::U64)
         );
-        let one_per_sample = dataset
-            .shape()
-            .is_ok_and(|s| s.len() == 1 && s[0] as usize == time_s.len());
-        if !(numeric && one_per_sample) {
+        let shape = dataset.shape().unwrap_or_default();
+        let samples = shape.iter().product::<u64>() as usize;
+        // Single values (MagNav's N and dt) describe the file, not a sample.
+        if samples <= 1 {
             continue;
         }
-        let values = dataset
-            .read_f64()
-            .map_err(|e| corrupt(path, format!("dataset '{name}' cannot be read: {e}")))?;
+        if !numeric || shape.len() != 1 {
+            not_read.push(format!(
+                "'{name}' ({})",
+                if numeric { "not one value per sample" } else { "not numbers" }
+            ));
+            continue;
+        }
+        series.push((name, samples));
+    }
+    check_time_length(path, time_name, time_s.len(), &series)?;
+    let mut datasets = Vec::new();
+    for (name, samples) in series {
+        if samples != time_s.len() {
+            not_read.push(format!("'{name}' ({samples} samples, not {})", time_s.len()));
+            continue;
+        }
+        let values = file
+            .dataset(&name)
+            .and_then(|d| d.read_f64())
+            .map_err(|e| {
+                corrupt(
+                    path,
+                    format!("dataset '{name}' cannot be read ({e}); the file is damaged or cut short: copy it again from its source"),
+                )
+            })?;
         datasets.push((name, values));
     }
-    Ok((time_s, datasets))
+    let warnings = match not_read.is_empty() {
+        true => Vec::new(),
+        false => vec![format!(
+            "{}: {} dataset(s) not read, as they are not one number per '{time_name}' sample: {}",
+            path.display(),
+            not_read.len(),
+            not_read.join(", ")
+        )],
+    };
+    Ok((time_s, datasets, warnings))
+}
+
+/// Refuses a time dataset whose length most of the file's series do not
+/// share: the time, not the data, is then what is damaged, and reading
+/// would drop every channel.
+fn check_time_length(path: &Path, time_name: &str, time_samples: usize, series: &[(String, usize)]) -> Result<()> {
+    let mut counts: std::collections::BTreeMap<usize, usize> = std::collections::BTreeMap::new();
+    for (_, samples) in series {
+        *counts.entry(*samples).or_default() += 1;
+    }
+    let Some((&common, &count)) = counts.iter().max_by_key(|(length, count)| (**count, std::cmp::Reverse(**length))) else {
+        return Ok(());
+    };
+    let matching = counts.get(&time_samples).copied().unwrap_or(0);
+    if common == time_samples || count <= matching {
+        return Ok(());
+    }
+    Err(corrupt(
+        path,
+        format!(
+            "the time dataset '{time_name}' has {time_samples} samples, but {count} of the {} data datasets have {common}: \
+             the time does not belong to the data, and reading it would drop every channel. Repair '{time_name}' (or name \
+             the right time dataset in [columns] time = \"...\")",
+            series.len()
+        ),
+    ))
 }
 
 /// Stages `log` in the MagNav challenge layout for `output`: one root

@@ -556,6 +556,7 @@ fn build_log(path: &Path, options: &IngestOptions, (plans, decoded, mut notes, m
         .collect();
     Ok(FlightLog::new(path, names.time.clone(), aligned.time_s, channels)?
         .with_row_flags(aligned.row_flags)
+        .with_reading_warnings(aligned.report.warnings.clone())
         .with_alignment(aligned.report)
         .with_date(date))
 }
