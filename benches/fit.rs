@@ -178,6 +178,7 @@ fn bench_whole_file(rows: usize) {
     let job = FlightJob {
         diagnosis: None,
         force_diagnosis: false,
+        date: None,
         input: input.clone(),
         vector: None,
         channels: None,
@@ -392,6 +393,7 @@ fn bench_diagnose() {
     let job = magcomp::config::FlightJob {
         diagnosis: None,
         force_diagnosis: false,
+        date: None,
         input: "bench".into(),
         vector: None,
         channels: None,

@@ -168,6 +168,10 @@ pub struct RawFlight {
     /// A DIAGNOSIS.json whose models to fit and compensate with.
     #[serde(default)]
     pub diagnosis: Option<PathBuf>,
+    /// The day the flight was flown, `YYYY-MM-DD` (UTC), over what the file
+    /// says (MCAP output's log times count from its midnight).
+    #[serde(default)]
+    pub date: Option<String>,
 }
 
 /// `[quality]` as written.
@@ -235,6 +239,8 @@ pub struct FlightJob {
     pub diagnosis: Option<PathBuf>,
     /// Apply `diagnosis` even when it was made on another flight (`--force`).
     pub force_diagnosis: bool,
+    /// The day the flight was flown, over what the file says.
+    pub date: Option<crate::flight_date::FlightDate>,
 }
 
 impl FlightJob {
@@ -248,6 +254,7 @@ impl FlightJob {
             windows: Vec::new(),
             diagnosis: None,
             force_diagnosis: false,
+            date: None,
         }
     }
 }
@@ -365,6 +372,18 @@ fn flight_job(raw: RawFlight, base: &Path, source_name: &str, margin_s: f64) -> 
         windows.extend(read_detect_json(&base.join(file), margin_s)?);
     }
     windows.iter().try_for_each(|w| w.validate(source_name))?;
+    let date = raw
+        .date
+        .map(|text| {
+            crate::flight_date::FlightDate::parse(&text).ok_or_else(|| Error::Config {
+                source_name: source_name.into(),
+                message: format!(
+                    "[[flight]] input = {:?}: date = {text:?} is not a day; write it as YYYY-MM-DD, e.g. \"2020-06-20\"",
+                    raw.input
+                ),
+            })
+        })
+        .transpose()?;
     Ok(FlightJob {
         input: base.join(raw.input),
         vector: raw.vector,
@@ -372,6 +391,7 @@ fn flight_job(raw: RawFlight, base: &Path, source_name: &str, margin_s: f64) -> 
         windows,
         diagnosis: raw.diagnosis.map(|d| base.join(d)),
         force_diagnosis: false,
+        date,
     })
 }
 
@@ -565,6 +585,14 @@ mod tests {
             message: e.to_string(),
         })?;
         Pipeline::from_raw(raw, Path::new("/data"), "test")
+    }
+
+    #[test]
+    fn a_flight_date_is_a_real_day() {
+        let pipeline = parse("[[flight]]\ninput = \"f.mcap\"\ndate = \"2020-06-20\"\n").unwrap();
+        assert_eq!(pipeline.flights[0].date.map(|d| d.to_string()).as_deref(), Some("2020-06-20"));
+        let error = parse("[[flight]]\ninput = \"f.mcap\"\ndate = \"2020-02-30\"\n").unwrap_err().to_string();
+        assert!(error.contains("\"2020-02-30\" is not a day") && error.contains("YYYY-MM-DD"), "{error}");
     }
 
     #[test]

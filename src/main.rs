@@ -436,6 +436,7 @@ fn compensate(args: CompensateArgs) -> anyhow::Result<()> {
     let job = FlightJob {
         diagnosis: args.diagnosis.clone(),
         force_diagnosis: args.force,
+        date: None,
         input: args.flight.clone(),
         vector: args.vector,
         channels: args.channels,
@@ -675,6 +676,7 @@ fn diagnose(
     let job = FlightJob {
         diagnosis: None,
         force_diagnosis: false,
+        date: None,
         input: flight.to_path_buf(),
         vector: None,
         channels: None,

@@ -248,7 +248,11 @@ pub fn process_flight(job: &FlightJob, options: &StageOptions, outputs: &FlightO
     // Folders created here are not noted in the outputs: a caller that
     // tells its user calls `prepare` first.
     crate::output::prepare(&inputs, &outputs.destinations())?;
-    let recorded = read_flight_log(&job.input, &options.ingest)?;
+    let ingest = crate::ingest::IngestOptions {
+        date: job.date.or(options.ingest.date),
+        ..options.ingest.clone()
+    };
+    let recorded = read_flight_log(&job.input, &ingest)?;
     // Every stage works on the screened samples; the output copies the
     // recorded ones.
     let screened = crate::screen::screen_samples(&recorded)?;

@@ -23,6 +23,7 @@ fn job(input: PathBuf, diagnosis: Option<PathBuf>) -> FlightJob {
         windows: Vec::new(),
         diagnosis,
         force_diagnosis: false,
+        date: None,
     }
 }
 

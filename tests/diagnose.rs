@@ -18,6 +18,7 @@ fn diagnose(name: &str) -> Diagnosis {
     let job = FlightJob {
         diagnosis: None,
         force_diagnosis: false,
+        date: None,
         input,
         vector: None,
         channels: None,
@@ -269,6 +270,7 @@ fn an_effect_outside_the_library_is_reported_as_unexplained_where_it_happens() {
     let job = FlightJob {
         diagnosis: None,
         force_diagnosis: false,
+        date: None,
         input,
         vector: None,
         channels: None,

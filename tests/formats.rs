@@ -113,6 +113,7 @@ fn every_format_ingests_to_the_same_log_and_compensates_identically() {
         let job = FlightJob {
             diagnosis: None,
             force_diagnosis: false,
+            date: None,
             input: input.clone(),
             vector: None,
             channels: None,

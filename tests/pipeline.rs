@@ -29,6 +29,7 @@ fn run_with_threads(threads: usize, csv: &Path, windows: &Path, out: &Path) -> V
     let job = FlightJob {
         diagnosis: None,
         force_diagnosis: false,
+        date: None,
         input: csv.to_path_buf(),
         vector: None,
         channels: None,
@@ -294,6 +295,7 @@ fn the_vector_calibration_stage_calibrates_the_fluxgate_before_the_fit() {
     let job = FlightJob {
         diagnosis: None,
         force_diagnosis: false,
+        date: None,
         input: input.clone(),
         vector: None,
         channels: None,

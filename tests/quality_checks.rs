@@ -23,6 +23,7 @@ fn run_with(input: &Path, out: &Path, options: StageOptions) -> FlightResult {
     let job = FlightJob {
         diagnosis: None,
         force_diagnosis: false,
+        date: None,
         input: input.to_path_buf(),
         vector: None,
         channels: None,

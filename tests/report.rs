@@ -13,6 +13,7 @@ fn report_of_clean_flight(folder: &Path) -> (PathBuf, magcomp::pipeline::FlightR
     let job = FlightJob {
         diagnosis: None,
         force_diagnosis: false,
+        date: None,
         input: input.clone(),
         vector: None,
         channels: None,
@@ -132,6 +133,7 @@ fn a_diagnosed_flight_reports_its_findings_and_marks_where_they_helped() {
     let job = FlightJob {
         diagnosis: None,
         force_diagnosis: false,
+        date: None,
         input: input.clone(),
         vector: None,
         channels: None,

@@ -69,6 +69,7 @@ pub fn diagnose_log(log: &magcomp::flight_log::FlightLog) -> Diagnosis {
     let job = FlightJob {
         diagnosis: None,
         force_diagnosis: false,
+        date: None,
         input: "simulated".into(),
         vector: None,
         channels: None,
