@@ -1,12 +1,13 @@
-//! Any bytes given to the mcap reader give a flight log or an error, never a
-//! panic or an abort.
+//! Any bytes given as a .mcap flight go through every stage (reading,
+//! screening, detection, the fit, compensation and the report) to a result
+//! or an error, never a panic or an abort.
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
 
+#[path = "harness.rs"]
+mod harness;
+
 fuzz_target!(|data: &[u8]| {
-    let folder = tempfile::tempdir().unwrap();
-    let path = folder.path().join("input.mcap");
-    std::fs::write(&path, data).unwrap();
-    let _ = magcomp::ingest::read_flight_log(&path, &magcomp::ingest::IngestOptions::default());
+    harness::exercise(data, "mcap");
 });
