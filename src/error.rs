@@ -139,8 +139,10 @@ pub enum Error {
     },
 
     /// The fit could not be computed.
-    #[error("fitting channel '{channel}': {message}")]
+    #[error("{path}: fitting channel '{channel}': {message}")]
     Fit {
+        /// The flight.
+        path: PathBuf,
         /// Scalar channel being fitted.
         channel: String,
         /// What went wrong and what to try.

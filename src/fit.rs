@@ -186,6 +186,7 @@ pub fn fit_channel_with(
         sample_rate_hz,
     } = band_data(log, sensor, channel, windows, options, &extra.columns)?;
     let solution = solve_stacked(&stacked, &options.solve).map_err(|e| Error::Fit {
+        path: log.source().to_path_buf(),
         channel: channel.into(),
         message: e.to_string(),
     })?;
@@ -284,6 +285,7 @@ fn band_data(
         .collect::<Result<_>>()?;
     let field = log.vector_components(sensor);
     let stacked = stack_filtered((field, extra), scalar, &plans, &filter, options).map_err(|e| Error::Fit {
+        path: log.source().to_path_buf(),
         channel: channel.into(),
         message: e.to_string(),
     })?;

@@ -111,6 +111,23 @@ fn span(values: impl Iterator<Item = f64>) -> std::ops::Range<f64> {
     low - pad..high + pad
 }
 
+/// `value` brought within one axis width of `range`: a point off the plot
+/// stays off it, but its pixel coordinate stays small (plotters adds pixel
+/// coordinates as 32-bit integers, which 1e308 would overflow).
+fn near(range: &std::ops::Range<f64>, value: f64) -> f64 {
+    let width = range.end - range.start;
+    value.clamp(range.start - width, range.end + width)
+}
+
+/// `points` with both coordinates [`near`] the plot's ranges.
+fn on_canvas(
+    points: impl IntoIterator<Item = (f64, f64)>,
+    x: &std::ops::Range<f64>,
+    y: &std::ops::Range<f64>,
+) -> Vec<(f64, f64)> {
+    points.into_iter().map(|(a, b)| (near(x, a), near(y, b))).collect()
+}
+
 /// Points a line plot draws at most: about two per pixel column.
 const MOST_LINE_POINTS: usize = 2000;
 
@@ -166,7 +183,7 @@ fn attitude_timeline(log: &FlightLog, result: &FlightResult) -> Result<String> {
             .margin(8)
             .x_label_area_size(30)
             .y_label_area_size(45)
-            .build_cartesian_2d(x, y.clone())
+            .build_cartesian_2d(x.clone(), y.clone())
             .map_err(plot_error)?;
         chart
             .configure_mesh()
@@ -177,12 +194,13 @@ fn attitude_timeline(log: &FlightLog, result: &FlightResult) -> Result<String> {
         chart
             .draw_series(
                 windows.iter().map(|&(a, b)| {
+                    let (a, b) = (near(&x, a), near(&x, b));
                     Rectangle::new([(a, y.start), (b, y.end)], RGBColor(255, 200, 60).mix(0.35).filled())
                 }),
             )
             .map_err(plot_error)?;
         for (name, values, colour) in &series {
-            let points = decimated(time.iter().copied().zip(values.iter().copied()));
+            let points = on_canvas(decimated(time.iter().copied().zip(values.iter().copied())), &x, &y);
             chart
                 .draw_series(LineSeries::new(points, colour))
                 .map_err(plot_error)?
@@ -211,7 +229,7 @@ fn manoeuvre_plot(model: &FittedTollesLawson, index: usize) -> Result<String> {
             .margin(4)
             .x_label_area_size(16)
             .y_label_area_size(36)
-            .build_cartesian_2d(0.0..n, y)
+            .build_cartesian_2d(0.0..n, y.clone())
             .map_err(plot_error)?;
         chart
             .configure_mesh()
@@ -228,7 +246,11 @@ fn manoeuvre_plot(model: &FittedTollesLawson, index: usize) -> Result<String> {
         ] {
             chart
                 .draw_series(LineSeries::new(
-                    decimated(values.iter().enumerate().map(|(k, v)| (k as f64 * dt, *v))),
+                    on_canvas(
+                        decimated(values.iter().enumerate().map(|(k, v)| (k as f64 * dt, *v))),
+                        &(0.0..n),
+                        &y,
+                    ),
                     colour,
                 ))
                 .map_err(plot_error)?;
@@ -253,7 +275,7 @@ fn press_plot(model: &FittedTollesLawson) -> Result<String> {
             .margin(6)
             .x_label_area_size(28)
             .y_label_area_size(45)
-            .build_cartesian_2d(x, y.clone())
+            .build_cartesian_2d(x.clone(), y.clone())
             .map_err(plot_error)?;
         chart
             .configure_mesh()
@@ -262,10 +284,13 @@ fn press_plot(model: &FittedTollesLawson) -> Result<String> {
             .draw()
             .map_err(plot_error)?;
         chart
-            .draw_series(LineSeries::new(curve.iter().map(|(l, p)| (*l, p.log10())), BLUE))
+            .draw_series(LineSeries::new(
+                on_canvas(curve.iter().map(|(l, p)| (*l, p.log10())), &x, &y),
+                BLUE,
+            ))
             .map_err(plot_error)?;
         if let Some(lambda) = solution.lambda.filter(|l| *l > 0.0) {
-            let at = lambda.log10();
+            let at = near(&x, lambda.log10());
             chart
                 .draw_series(std::iter::once(PathElement::new(vec![(at, y.start), (at, y.end)], RED)))
                 .map_err(plot_error)?;
@@ -288,7 +313,7 @@ fn singular_value_plot(model: &FittedTollesLawson) -> Result<String> {
             .margin(6)
             .x_label_area_size(28)
             .y_label_area_size(40)
-            .build_cartesian_2d(0.5..values.len() as f64 + 0.5, y)
+            .build_cartesian_2d(0.5..values.len() as f64 + 0.5, y.clone())
             .map_err(plot_error)?;
         chart.configure_mesh().x_desc("index").draw().map_err(plot_error)?;
         chart
@@ -296,7 +321,7 @@ fn singular_value_plot(model: &FittedTollesLawson) -> Result<String> {
                 values
                     .iter()
                     .enumerate()
-                    .map(|(k, v)| Circle::new(((k + 1) as f64, *v), 3, BLUE.filled())),
+                    .map(|(k, v)| Circle::new(((k + 1) as f64, near(&y, *v)), 3, BLUE.filled())),
             )
             .map_err(plot_error)?;
         Ok(())
@@ -530,7 +555,7 @@ fn residual_plot(trace: &ResidualTrace, marked: &[(f64, f64)]) -> Result<String>
             .margin(4)
             .x_label_area_size(16)
             .y_label_area_size(36)
-            .build_cartesian_2d(x, y.clone())
+            .build_cartesian_2d(x.clone(), y.clone())
             .map_err(plot_error)?;
         chart
             .configure_mesh()
@@ -543,6 +568,7 @@ fn residual_plot(trace: &ResidualTrace, marked: &[(f64, f64)]) -> Result<String>
         chart
             .draw_series(
                 marked.iter().map(|&(a, b)| {
+                    let (a, b) = (near(&x, a), near(&x, b));
                     Rectangle::new([(a, y.start), (b, y.end)], RGBColor(255, 200, 60).mix(0.35).filled())
                 }),
             )
@@ -558,7 +584,7 @@ fn residual_plot(trace: &ResidualTrace, marked: &[(f64, f64)]) -> Result<String>
             }
             for piece in pieces {
                 chart
-                    .draw_series(LineSeries::new(decimated(piece.into_iter()), colour))
+                    .draw_series(LineSeries::new(on_canvas(decimated(piece.into_iter()), &x, &y), colour))
                     .map_err(plot_error)?;
             }
         }
@@ -813,9 +839,9 @@ mod tests {
                     .build_cartesian_2d(x.clone(), y.clone())
                     .map_err(plot_error)?;
                 chart.configure_mesh().draw().map_err(plot_error)?;
-                chart
-                    .draw_series(LineSeries::new([(x.start, y.start), (x.end, y.end)], BLUE))
-                    .map_err(plot_error)?;
+                // A point far off the plot, as a 1e308 sample would be.
+                let points = on_canvas([(x.start, y.start), (x.end, 1e308), (-1e308, y.end)], &x, &y);
+                chart.draw_series(LineSeries::new(points, BLUE)).map_err(plot_error)?;
                 Ok(())
             });
             let _ = sender.send(drawn.is_ok());

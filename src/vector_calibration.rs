@@ -130,6 +130,7 @@ pub fn calibrate(
     max_iterations: usize,
 ) -> Result<VectorCalibration> {
     let fail = |message: String| Error::Fit {
+        path: log.source().to_path_buf(),
         channel: sensor.prefix.clone(),
         message,
     };
@@ -283,6 +284,7 @@ pub fn calibrate_best(
         None => match results.into_iter().next() {
             Some(Err(error)) => Err(error),
             _ => Err(Error::Fit {
+                path: log.source().to_path_buf(),
                 channel: sensor.prefix.clone(),
                 message: "no scalar channel to calibrate the fluxgate against".into(),
             }),
