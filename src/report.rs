@@ -413,11 +413,14 @@ fn one_per_cell(
         let fraction = (value - range.start) / (range.end - range.start);
         (0.0..1.0).contains(&fraction).then(|| (fraction * count as f64) as u32)
     };
-    let mut taken = std::collections::HashSet::new();
+    let mut taken = vec![false; cells.0 as usize * cells.1 as usize];
     rows.iter()
         .copied()
         .filter(|&k| match (cell(easting[k], x, cells.0), cell(northing[k], y, cells.1)) {
-            (Some(column), Some(row)) => taken.insert((column, row)),
+            (Some(column), Some(row)) => {
+                let index = row as usize * cells.0 as usize + column as usize;
+                !std::mem::replace(&mut taken[index], true)
+            }
             _ => false,
         })
         .collect()

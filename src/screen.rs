@@ -171,14 +171,19 @@ impl Screened {
 /// Masks the samples of `log` no instrument can record (see the module
 /// documentation) and flags their rows.
 pub fn screen_samples(log: &FlightLog) -> Result<Screened> {
-    let mut masks: BTreeMap<usize, Vec<(usize, MaskReason)>> = BTreeMap::new();
+    use rayon::prelude::*;
     let interval_s = log.median_interval_s();
-    for (index, channel) in log.channels().iter().enumerate() {
-        let found = screen_channel(&channel.name, &channel.role, &channel.values, interval_s);
-        if !found.is_empty() {
-            masks.entry(index).or_default().extend(found);
-        }
-    }
+    // Channel by channel in parallel; collected in channel order.
+    let found: Vec<Vec<(usize, MaskReason)>> = log
+        .channels()
+        .par_iter()
+        .map(|channel| screen_channel(&channel.name, &channel.role, &channel.values, interval_s))
+        .collect();
+    let mut masks: BTreeMap<usize, Vec<(usize, MaskReason)>> = found
+        .into_iter()
+        .enumerate()
+        .filter(|(_, rows)| !rows.is_empty())
+        .collect();
     for sensor in log.vector_sensors() {
         let [x, y, z] = sensor.axes.map(|axis| log.channels()[axis].values.as_slice());
         for row in 0..log.len() {
