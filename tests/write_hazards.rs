@@ -230,3 +230,26 @@ fn run_processes_every_flight_and_reports_each() {
     assert!(table.iter().any(|l| l.starts_with("broken.csv") && l.contains("FAILED")), "{text}");
     assert!(table.iter().any(|l| l.starts_with("flight.csv") && l.contains("ok")), "{text}");
 }
+
+#[cfg(unix)]
+#[test]
+fn a_read_only_report_folder_stops_the_run_before_anything_is_written() {
+    use std::os::unix::fs::PermissionsExt;
+    // SAFETY: geteuid only reads the process's user id.
+    if unsafe { libc::geteuid() } == 0 {
+        println!(
+            "running as root, whom folder permissions do not stop: this case is covered by \
+             a_failed_run_leaves_the_previous_outputs_and_no_temporary_files (a report folder that is a file)"
+        );
+        return;
+    }
+    let folder = tempfile::tempdir().unwrap();
+    small_flight(folder.path());
+    let dir = folder.path();
+    std::fs::create_dir(dir.join("locked")).unwrap();
+    std::fs::set_permissions(dir.join("locked"), std::fs::Permissions::from_mode(0o555)).unwrap();
+    let (ok, text) = magcomp(dir, &["compensate", "flight.csv", "--out", "o.csv", "--html", "locked/r.html", "--plain"]);
+    std::fs::set_permissions(dir.join("locked"), std::fs::Permissions::from_mode(0o755)).unwrap();
+    assert!(!ok && text.contains("cannot be written"), "{text}");
+    assert!(!dir.join("o.csv").exists(), "the CSV is not written when the report cannot be");
+}
