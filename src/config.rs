@@ -590,9 +590,17 @@ mod tests {
     #[test]
     fn a_flight_date_is_a_real_day() {
         let pipeline = parse("[[flight]]\ninput = \"f.mcap\"\ndate = \"2020-06-20\"\n").unwrap();
-        assert_eq!(pipeline.flights[0].date.map(|d| d.to_string()).as_deref(), Some("2020-06-20"));
-        let error = parse("[[flight]]\ninput = \"f.mcap\"\ndate = \"2020-02-30\"\n").unwrap_err().to_string();
-        assert!(error.contains("\"2020-02-30\" is not a day") && error.contains("YYYY-MM-DD"), "{error}");
+        assert_eq!(
+            pipeline.flights[0].date.map(|d| d.to_string()).as_deref(),
+            Some("2020-06-20")
+        );
+        let error = parse("[[flight]]\ninput = \"f.mcap\"\ndate = \"2020-02-30\"\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            error.contains("\"2020-02-30\" is not a day") && error.contains("YYYY-MM-DD"),
+            "{error}"
+        );
     }
 
     #[test]
@@ -640,7 +648,11 @@ mod tests {
             "[alignment]\ngap_tolerance_s = -1.0\n",
         ] {
             let error = parse(bad).unwrap_err().to_string();
-            let key = bad.lines().nth(1).and_then(|l| l.split(" =").next()).unwrap_or_default();
+            let key = bad
+                .lines()
+                .nth(1)
+                .and_then(|l| l.split(" =").next())
+                .unwrap_or_default();
             let section = bad.lines().next().unwrap_or_default();
             assert!(error.contains(section) && error.contains(key), "{bad:?}: {error}");
         }

@@ -62,7 +62,9 @@ pub enum Error {
     },
 
     /// A file holds no data to work on.
-    #[error("{path}: {problem}. Check that the export or copy of the flight finished; magcomp needs the recorded rows.")]
+    #[error(
+        "{path}: {problem}. Check that the export or copy of the flight finished; magcomp needs the recorded rows."
+    )]
     NoData {
         /// The file concerned.
         path: PathBuf,
@@ -288,9 +290,15 @@ mod tests {
         assert_eq!(Number(f64::NAN).to_string(), "NaN");
         let cell = "9".repeat(2_000_000);
         let quoted = Excerpt(&cell).to_string();
-        assert!(quoted.len() < 100 && quoted.ends_with("(2000000 bytes in all)"), "{quoted}");
+        assert!(
+            quoted.len() < 100 && quoted.ends_with("(2000000 bytes in all)"),
+            "{quoted}"
+        );
         assert_eq!(Excerpt("5x1").to_string(), "5x1");
         assert_eq!(Excerpt("16519\u{15}581").to_string(), "16519\\u{15}581");
-        assert_eq!(Excerpt(&"é".repeat(61)).to_string(), format!("{}… (122 bytes in all)", "é".repeat(60)));
+        assert_eq!(
+            Excerpt(&"é".repeat(61)).to_string(),
+            format!("{}… (122 bytes in all)", "é".repeat(60))
+        );
     }
 }

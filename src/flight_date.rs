@@ -76,7 +76,11 @@ impl FlightDate {
         let day_of_year = day_of_era - (365 * year_of_era + year_of_era / 4 - year_of_era / 100);
         let month_index = (5 * day_of_year + 2) / 153;
         let day = (day_of_year - (153 * month_index + 2) / 5 + 1) as u32;
-        let month = if month_index < 10 { month_index + 3 } else { month_index - 9 } as u32;
+        let month = if month_index < 10 {
+            month_index + 3
+        } else {
+            month_index - 9
+        } as u32;
         let year = (year_of_era + era * 400 + i64::from(month <= 2)) as i32;
         FlightDate { year, month, day }
     }
@@ -128,6 +132,11 @@ mod tests {
             assert_eq!(FlightDate::parse(bad), None, "{bad}");
         }
         assert_eq!(FlightDate::from_day_of_year(2021, 366), None);
-        assert_eq!(FlightDate::from_day_of_year(2020, 366).map(|d| d.to_string()).as_deref(), Some("2020-12-31"));
+        assert_eq!(
+            FlightDate::from_day_of_year(2020, 366)
+                .map(|d| d.to_string())
+                .as_deref(),
+            Some("2020-12-31")
+        );
     }
 }

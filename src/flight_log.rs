@@ -335,7 +335,11 @@ pub fn check_time(source: &Path, column: &str, time_s: &[f64], locate: impl Fn(u
             let previous = time_s[index - 1];
             return Err(bad(
                 index,
-                format!("goes from {} to {}", crate::error::Number(previous), crate::error::Number(t)),
+                format!(
+                    "goes from {} to {}",
+                    crate::error::Number(previous),
+                    crate::error::Number(t)
+                ),
             ));
         }
     }

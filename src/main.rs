@@ -272,8 +272,7 @@ fn error_paragraph(error: &anyhow::Error) -> String {
 fn read_screened(flight: &Path, pipeline: &Pipeline) -> magcomp::error::Result<magcomp::flight_log::FlightLog> {
     let recorded = magcomp::ingest::read_flight_log(flight, &pipeline.ingest)?;
     let screened = magcomp::screen::screen_samples(&recorded)?;
-    let reading = recorded.reading_warnings().to_vec();
-    for warning in reading.iter().chain(&screened.screening.warnings()) {
+    for warning in screened.warnings(&recorded) {
         println!("  warning: {warning}");
     }
     Ok(screened.log.unwrap_or(recorded))
@@ -354,7 +353,9 @@ fn run(config: &Path, plain: bool, force: bool) -> anyhow::Result<()> {
 /// Checks a flight's outputs before its work and prints the folders made
 /// for them (`process_flight` checks again, finding them there).
 fn prepare_flight_outputs(job: &FlightJob, outputs: &FlightOutputs) -> magcomp::error::Result<()> {
-    let inputs: Vec<&Path> = std::iter::once(job.input.as_path()).chain(job.diagnosis.as_deref()).collect();
+    let inputs: Vec<&Path> = std::iter::once(job.input.as_path())
+        .chain(job.diagnosis.as_deref())
+        .collect();
     print_notes(&prepare(&inputs, &outputs.destinations())?);
     Ok(())
 }
@@ -374,7 +375,11 @@ impl FlightStatus {
             failed: false,
             outcome: match warnings {
                 0 => format!("ok, {} rows", result.rows),
-                n => format!("ok with {n} warning{}, {} rows", if n == 1 { "" } else { "s" }, result.rows),
+                n => format!(
+                    "ok with {n} warning{}, {} rows",
+                    if n == 1 { "" } else { "s" },
+                    result.rows
+                ),
             },
         }
     }
@@ -395,7 +400,12 @@ impl FlightStatus {
 
 /// The run's per-flight status table.
 fn status_table(statuses: &[FlightStatus]) -> String {
-    let width = statuses.iter().map(|s| s.flight.chars().count()).max().unwrap_or(0).max(6);
+    let width = statuses
+        .iter()
+        .map(|s| s.flight.chars().count())
+        .max()
+        .unwrap_or(0)
+        .max(6);
     let mut table = format!("\n{:<width$}  status\n", "flight");
     for status in statuses {
         table += &format!("{:<width$}  {}\n", status.flight, status.outcome);
@@ -450,7 +460,11 @@ fn compensate(args: CompensateArgs) -> anyhow::Result<()> {
         quality_json: args.report,
         report_html: Some(args.html.clone().unwrap_or_else(|| beside_out("_report.html"))),
     };
-    let other_inputs: Vec<&Path> = [&args.windows_file, &args.config].into_iter().flatten().map(PathBuf::as_path).collect();
+    let other_inputs: Vec<&Path> = [&args.windows_file, &args.config]
+        .into_iter()
+        .flatten()
+        .map(PathBuf::as_path)
+        .collect();
     magcomp::output::destination::refuse_inputs(&other_inputs, &outputs.destinations())?;
     prepare_flight_outputs(&job, &outputs)?;
     let bar = spinner(format!("compensating {}", args.flight.display()));
@@ -473,7 +487,10 @@ fn convert(
     };
     pipeline.ingest.date = date.or(pipeline.ingest.date);
     let inputs: Vec<&Path> = std::iter::once(flight).chain(config).collect();
-    print_notes(&prepare(&inputs, &[Destination::new(out, OutputKind::Flight, "--out")])?);
+    print_notes(&prepare(
+        &inputs,
+        &[Destination::new(out, OutputKind::Flight, "--out")],
+    )?);
     let log = magcomp::ingest::read_flight_log(flight, &pipeline.ingest)?;
     magcomp::output::write_flight_log(&log, out)?;
     if let Some(warning) = magcomp::output::mcap::undated_warning(&log, out) {
@@ -568,7 +585,11 @@ fn replay_flight(
     let replayed = replayed?;
     let mut set = OutputSet::new();
     set.add(magcomp::output::stage_flight_log(&replayed.log, out)?);
-    set.add(magcomp::output::stage_json(&report, "the replay figures", &replayed.channels)?);
+    set.add(magcomp::output::stage_json(
+        &report,
+        "the replay figures",
+        &replayed.channels,
+    )?);
     set.commit()?;
     for channel in &replayed.channels {
         println!(

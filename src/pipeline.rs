@@ -270,13 +270,8 @@ pub fn process_flight(job: &FlightJob, options: &StageOptions, outputs: &FlightO
     };
     // The fit (and everything after it) sees the calibrated fluxgate; the
     // compensated file keeps the recorded columns.
-    let calibration = crate::vector_calibration::calibrate_stage(
-        raw_log,
-        &sensor,
-        &channels,
-        &windows,
-        &options.vector_calibration,
-    )?;
+    let calibration =
+        crate::vector_calibration::calibrate_stage(raw_log, &sensor, &channels, &windows, &options.vector_calibration)?;
     let calibrated = calibration.as_ref().map(|c| c.apply(raw_log, &sensor)).transpose()?;
     let log = calibrated.as_ref().unwrap_or(raw_log);
     let AugmentationPlan {
@@ -292,8 +287,7 @@ pub fn process_flight(job: &FlightJob, options: &StageOptions, outputs: &FlightO
         options,
         calibration.is_some(),
     )?;
-    let reading = recorded.reading_warnings().to_vec();
-    warnings.splice(0..0, reading.into_iter().chain(screened.screening.warnings()));
+    warnings.splice(0..0, screened.warnings(&recorded));
     warnings.extend(crate::output::mcap::undated_warning(&recorded, &outputs.compensated));
     let mut written = OutputSet::new();
     if let (Some(diagnosis), Some(path)) = (&diagnosis, &outputs.diagnosis_json) {

@@ -143,8 +143,16 @@ fn decimated(points: impl Iterator<Item = (f64, f64)>) -> Vec<(f64, f64)> {
     let run = points.len().div_ceil(MOST_LINE_POINTS / 3);
     let mut kept = Vec::with_capacity(MOST_LINE_POINTS);
     for chunk in points.chunks(run) {
-        let lowest = chunk.iter().enumerate().min_by(|a, b| a.1 .1.total_cmp(&b.1 .1)).map(|(k, _)| k);
-        let highest = chunk.iter().enumerate().max_by(|a, b| a.1 .1.total_cmp(&b.1 .1)).map(|(k, _)| k);
+        let lowest = chunk
+            .iter()
+            .enumerate()
+            .min_by(|a, b| a.1 .1.total_cmp(&b.1 .1))
+            .map(|(k, _)| k);
+        let highest = chunk
+            .iter()
+            .enumerate()
+            .max_by(|a, b| a.1 .1.total_cmp(&b.1 .1))
+            .map(|(k, _)| k);
         let mut chosen = [Some(0), lowest, highest];
         chosen.sort();
         let mut previous = None;
@@ -192,12 +200,10 @@ fn attitude_timeline(log: &FlightLog, result: &FlightResult) -> Result<String> {
             .draw()
             .map_err(plot_error)?;
         chart
-            .draw_series(
-                windows.iter().map(|&(a, b)| {
-                    let (a, b) = (near(&x, a), near(&x, b));
-                    Rectangle::new([(a, y.start), (b, y.end)], RGBColor(255, 200, 60).mix(0.35).filled())
-                }),
-            )
+            .draw_series(windows.iter().map(|&(a, b)| {
+                let (a, b) = (near(&x, a), near(&x, b));
+                Rectangle::new([(a, y.start), (b, y.end)], RGBColor(255, 200, 60).mix(0.35).filled())
+            }))
             .map_err(plot_error)?;
         for (name, values, colour) in &series {
             let points = on_canvas(decimated(time.iter().copied().zip(values.iter().copied())), &x, &y);
@@ -416,13 +422,15 @@ fn one_per_cell(
     let mut taken = vec![false; cells.0 as usize * cells.1 as usize];
     rows.iter()
         .copied()
-        .filter(|&k| match (cell(easting[k], x, cells.0), cell(northing[k], y, cells.1)) {
-            (Some(column), Some(row)) => {
-                let index = row as usize * cells.0 as usize + column as usize;
-                !std::mem::replace(&mut taken[index], true)
-            }
-            _ => false,
-        })
+        .filter(
+            |&k| match (cell(easting[k], x, cells.0), cell(northing[k], y, cells.1)) {
+                (Some(column), Some(row)) => {
+                    let index = row as usize * cells.0 as usize + column as usize;
+                    !std::mem::replace(&mut taken[index], true)
+                }
+                _ => false,
+            },
+        )
         .collect()
 }
 
@@ -569,12 +577,10 @@ fn residual_plot(trace: &ResidualTrace, marked: &[(f64, f64)]) -> Result<String>
             .draw()
             .map_err(plot_error)?;
         chart
-            .draw_series(
-                marked.iter().map(|&(a, b)| {
-                    let (a, b) = (near(&x, a), near(&x, b));
-                    Rectangle::new([(a, y.start), (b, y.end)], RGBColor(255, 200, 60).mix(0.35).filled())
-                }),
-            )
+            .draw_series(marked.iter().map(|&(a, b)| {
+                let (a, b) = (near(&x, a), near(&x, b));
+                Rectangle::new([(a, y.start), (b, y.end)], RGBColor(255, 200, 60).mix(0.35).filled())
+            }))
             .map_err(plot_error)?;
         for (points, colour) in [(&trace.before, RGBColor(150, 150, 150)), (&trace.after, RED)] {
             // A gap in the samples breaks the line.
@@ -849,7 +855,9 @@ mod tests {
             });
             let _ = sender.send(drawn.is_ok());
         });
-        receiver.recv_timeout(std::time::Duration::from_secs(1)).unwrap_or(false)
+        receiver
+            .recv_timeout(std::time::Duration::from_secs(1))
+            .unwrap_or(false)
     }
 
     #[test]
@@ -866,9 +874,18 @@ mod tests {
         ];
         for values in cases {
             let range = span(values.iter().copied());
-            assert!(range.start.is_finite() && range.end.is_finite(), "{values:?}: {range:?}");
-            assert!(range.end > range.start && (range.end - range.start).is_finite(), "{range:?}");
-            assert!(draws_within_a_second(0.0..1.0, range.clone()), "{values:?}: {range:?} hangs");
+            assert!(
+                range.start.is_finite() && range.end.is_finite(),
+                "{values:?}: {range:?}"
+            );
+            assert!(
+                range.end > range.start && (range.end - range.start).is_finite(),
+                "{range:?}"
+            );
+            assert!(
+                draws_within_a_second(0.0..1.0, range.clone()),
+                "{values:?}: {range:?} hangs"
+            );
         }
         // Two wild samples among a thousand do not flatten the plot: the
         // axis spans the sine's ±1 nT and its 5 % pad, not ±1.5e308.
@@ -878,7 +895,9 @@ mod tests {
 
     #[test]
     fn a_long_series_is_decimated_and_keeps_its_spikes() {
-        let mut series: Vec<(f64, f64)> = (0..100_000).map(|k| (k as f64 * 0.1, (k as f64 * 0.01).sin())).collect();
+        let mut series: Vec<(f64, f64)> = (0..100_000)
+            .map(|k| (k as f64 * 0.1, (k as f64 * 0.01).sin()))
+            .collect();
         series[54_321].1 = 40.0;
         series[7_777].1 = -30.0;
         let kept = decimated(series.iter().copied());

@@ -91,7 +91,9 @@ impl MaskReason {
         match self {
             MaskReason::OutOfRange => "values beyond what the instrument can read",
             MaskReason::ZeroVector => "fluxgate readings under 1,000 nT in magnitude: the sensor read nothing",
-            MaskReason::Spike => "isolated spikes, further from both neighbours than the field can change in one sample",
+            MaskReason::Spike => {
+                "isolated spikes, further from both neighbours than the field can change in one sample"
+            }
             MaskReason::Dropout => "an axis reading zero between neighbours 500 nT or more from zero: a dropout",
         }
     }
@@ -162,6 +164,13 @@ pub struct Screened {
 }
 
 impl Screened {
+    /// What reading `recorded` lost and what screening masked, one line
+    /// each, for stdout and the report.
+    pub fn warnings(&self, recorded: &FlightLog) -> Vec<String> {
+        let reading = recorded.reading_warnings().iter().cloned();
+        reading.chain(self.screening.warnings()).collect()
+    }
+
     /// The log to work on: the screened one, or `input` when it was clean.
     pub fn log_or<'a>(&'a self, input: &'a FlightLog) -> &'a FlightLog {
         self.log.as_ref().unwrap_or(input)
@@ -255,7 +264,10 @@ fn screen_channel(name: &str, role: &ChannelRole, values: &[f64], interval_s: f6
 /// Why a fluxgate row is masked, and which axis is to blame (`None`: the
 /// whole reading).
 fn vector_reason(components: [f64; 3]) -> Option<(MaskReason, Option<usize>)> {
-    if let Some(k) = components.iter().position(|c| c.is_finite() && c.abs() > MOST_VECTOR_COMPONENT_NT) {
+    if let Some(k) = components
+        .iter()
+        .position(|c| c.is_finite() && c.abs() > MOST_VECTOR_COMPONENT_NT)
+    {
         return Some((MaskReason::OutOfRange, Some(k)));
     }
     if components.iter().all(|c| c.is_finite()) {
@@ -433,14 +445,25 @@ mod tests {
         assert!(flags[200].contains("out_of_range:flux_a_x"));
         assert_eq!(flags[300], "out_of_range:ins_roll");
         let flagged = flags.iter().filter(|f| !f.is_empty()).count();
-        assert_eq!(flagged, 3 + zero_rows.len() + 1 + 2 + 1, "only the bad rows are flagged");
+        assert_eq!(
+            flagged,
+            3 + zero_rows.len() + 1 + 2 + 1,
+            "only the bad rows are flagged"
+        );
         assert_eq!(flags[250], "dropout:flux_a_x");
         assert_eq!(flags[260], "dropout:flux_a_y");
         // Every other sample is as recorded.
         let kept = &masked.channel("mag_1_uc").unwrap().values;
-        assert!((0..500).filter(|k| ![10, 20, 30].contains(k)).all(|k| kept[k] == scalar[k]));
+        assert!((0..500)
+            .filter(|k| ![10, 20, 30].contains(k))
+            .all(|k| kept[k] == scalar[k]));
         let warnings = screened.screening.warnings();
-        assert!(warnings.iter().any(|w| w.contains("masked 10 samples of flux_a_x") && w.contains("110 s")), "{warnings:?}");
+        assert!(
+            warnings
+                .iter()
+                .any(|w| w.contains("masked 10 samples of flux_a_x") && w.contains("110 s")),
+            "{warnings:?}"
+        );
         assert!(warnings.iter().any(|w| w.contains("(1e308)")), "{warnings:?}");
     }
 

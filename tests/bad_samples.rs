@@ -117,7 +117,10 @@ fn impossible_samples_are_masked_flagged_and_do_not_spread() {
     let scalar_row = survey + 200;
     let spike_row = survey + 300;
     flight.set(scalar_row, "mag_1_uc", "1e308");
-    let spiked: f64 = flight.rows[spike_row][flight.column("mag_1_uc")].parse::<f64>().unwrap() + 5_000.0;
+    let spiked: f64 = flight.rows[spike_row][flight.column("mag_1_uc")]
+        .parse::<f64>()
+        .unwrap()
+        + 5_000.0;
     flight.set(spike_row, "mag_1_uc", &spiked.to_string());
     let bad_path = folder.path().join("bad.csv");
     flight.write(&bad_path);
@@ -125,23 +128,39 @@ fn impossible_samples_are_masked_flagged_and_do_not_spread() {
     // The fit runs, and the warnings say what was masked.
     let (header, bad, warnings) = compensate(&bad_path, &flight.windows, &folder.path().join("bad_out"));
     let joined = warnings.join("\n");
-    assert!(joined.contains("masked 1 sample of flux_a_x (values beyond"), "{joined}");
+    assert!(
+        joined.contains("masked 1 sample of flux_a_x (values beyond"),
+        "{joined}"
+    );
     assert!(joined.contains("zero_vector:flux_a_y"), "{joined}");
-    assert!(joined.contains("out_of_range:mag_1_uc") && joined.contains("spike:mag_1_uc"), "{joined}");
+    assert!(
+        joined.contains("out_of_range:mag_1_uc") && joined.contains("spike:mag_1_uc"),
+        "{joined}"
+    );
     assert_eq!(bad.len(), clean.len(), "every row is written");
 
     let column = |name: &str| header.iter().position(|h| h == name).unwrap();
     let (flags, mag_1, mag_2) = (column("flags"), column("mag_1_c"), column("mag_2_c"));
     let vector_rows: Vec<usize> = in_windows.iter().copied().chain(zero_block.iter().copied()).collect();
     for &row in &vector_rows {
-        assert!(bad[row][flags].contains("missing_vector:flux_a"), "row {row}: {}", bad[row][flags]);
-        assert!(bad[row][mag_1].is_empty() && bad[row][mag_2].is_empty(), "row {row} has no vector");
+        assert!(
+            bad[row][flags].contains("missing_vector:flux_a"),
+            "row {row}: {}",
+            bad[row][flags]
+        );
+        assert!(
+            bad[row][mag_1].is_empty() && bad[row][mag_2].is_empty(),
+            "row {row} has no vector"
+        );
     }
     assert!(bad[in_windows[0]][flags].contains("out_of_range:flux_a_x"));
     assert!(bad[in_windows[2]][flags].contains("zero_vector:flux_a_z"));
     assert!(bad[scalar_row][flags].contains("out_of_range:mag_1_uc") && bad[scalar_row][mag_1].is_empty());
     assert!(bad[spike_row][flags].contains("spike:mag_1_uc") && bad[spike_row][mag_1].is_empty());
-    assert!(!bad[scalar_row][mag_2].is_empty(), "mag_2 is compensated where only mag_1 is bad");
+    assert!(
+        !bad[scalar_row][mag_2].is_empty(),
+        "mag_2 is compensated where only mag_1 is bad"
+    );
 
     // Every other row matches the clean flight's compensation, up to one
     // level per channel: the band-passed fit fixes the variation of the
@@ -180,7 +199,15 @@ fn impossible_samples_are_masked_flagged_and_do_not_spread() {
             header[channel],
             magnitudes[magnitudes.len() * 99 / 100]
         );
-        assert!(largest < 0.1, "{}: a masked sample spread to row {worst}: {largest} nT", header[channel]);
-        assert!(magnitudes[magnitudes.len() * 99 / 100] < 0.03, "{}: the fit moved", header[channel]);
+        assert!(
+            largest < 0.1,
+            "{}: a masked sample spread to row {worst}: {largest} nT",
+            header[channel]
+        );
+        assert!(
+            magnitudes[magnitudes.len() * 99 / 100] < 0.03,
+            "{}: the fit moved",
+            header[channel]
+        );
     }
 }

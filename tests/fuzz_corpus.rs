@@ -11,7 +11,12 @@ mod harness;
 #[test]
 fn every_kept_fuzz_input_runs_through_every_stage_without_a_panic() {
     let corpus = Path::new(env!("CARGO_MANIFEST_DIR")).join("fuzz/corpus");
-    let targets = [("ingest_csv", "csv"), ("ingest_xyz", "xyz"), ("ingest_mcap", "mcap"), ("ingest_hdf5", "h5")];
+    let targets = [
+        ("ingest_csv", "csv"),
+        ("ingest_xyz", "xyz"),
+        ("ingest_mcap", "mcap"),
+        ("ingest_hdf5", "h5"),
+    ];
     let mut replayed = 0;
     for (target, extension) in targets {
         let folder = corpus.join(target);
@@ -26,11 +31,19 @@ fn every_kept_fuzz_input_runs_through_every_stage_without_a_panic() {
             println!("{target}: {} ({} bytes)", file.display(), bytes.len());
             let started = std::time::Instant::now();
             let finished = harness::exercise(&bytes, extension);
-            println!("  {} in {:.2} s", if finished { "compensated" } else { "refused" }, started.elapsed().as_secs_f64());
+            println!(
+                "  {} in {:.2} s",
+                if finished { "compensated" } else { "refused" },
+                started.elapsed().as_secs_f64()
+            );
             // The seeds are valid flights: they must reach the report, or
             // the targets would fuzz the readers alone.
             let seed = file.file_stem().is_some_and(|stem| stem == "seed");
-            assert!(!seed || finished, "{}: the seed flight did not reach the report", file.display());
+            assert!(
+                !seed || finished,
+                "{}: the seed flight did not reach the report",
+                file.display()
+            );
             replayed += 1;
         }
     }

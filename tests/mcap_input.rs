@@ -353,7 +353,11 @@ fn heading_across_north_is_interpolated_on_the_circle() {
         let t = 100.0 + k as f64 / 10.0;
         records.push(("/mag/1/scalar", t, vec![("total_nt", scalar(t))]));
         let t = t + 0.03;
-        let a = vec![("roll_deg", 0.0), ("pitch_deg", 0.0), ("yaw_deg", heading_through_north(t))];
+        let a = vec![
+            ("roll_deg", 0.0),
+            ("pitch_deg", 0.0),
+            ("yaw_deg", heading_through_north(t)),
+        ];
         records.push(("/ins/attitude", t, a));
     }
     records.sort_by(|a, b| a.1.total_cmp(&b.1));
@@ -396,10 +400,18 @@ fn repeated_log_times_are_dropped_flagged_or_refused() {
     let current = &log.channel("cur_a").unwrap().values;
     let row = |t: f64| log.time_s().iter().position(|&s| (s - t).abs() < 1e-6).unwrap();
     assert_eq!(current[row(101.0)], 3.0, "an exact repeat is one sample");
-    assert!(current[row(102.0)].is_nan() && current[row(101.5)].is_nan(), "disagreeing samples are not used");
+    assert!(
+        current[row(102.0)].is_nan() && current[row(101.5)].is_nan(),
+        "disagreeing samples are not used"
+    );
     assert_eq!(log.row_flags()[row(102.0)], "duplicate_time:cur_a");
     let warnings = &log.alignment().unwrap().warnings;
-    assert!(warnings.iter().any(|w| w.contains("1 times carry samples that disagree")), "{warnings:?}");
+    assert!(
+        warnings
+            .iter()
+            .any(|w| w.contains("1 times carry samples that disagree")),
+        "{warnings:?}"
+    );
 
     // The magnetometer itself twice at one time with two values: an error.
     let mut records = base;
@@ -407,8 +419,13 @@ fn repeated_log_times_are_dropped_flagged_or_refused() {
     records.sort_by(|a, b| a.1.total_cmp(&b.1));
     let path = folder.path().join("scalar.mcap");
     write_records(&path, INDEXED, records);
-    let error = read_flight_log(&path, &IngestOptions::default()).unwrap_err().to_string();
-    assert!(error.contains("scalar.mcap") && error.contains("/mag/1/scalar") && error.contains("101 s"), "{error}");
+    let error = read_flight_log(&path, &IngestOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        error.contains("scalar.mcap") && error.contains("/mag/1/scalar") && error.contains("101 s"),
+        "{error}"
+    );
 }
 
 #[test]
@@ -429,9 +446,19 @@ fn log_times_are_absolute_and_read_back_as_times_of_day() {
     let first = mcap::MessageStream::new(&bytes).unwrap().next().unwrap().unwrap();
     let midnight_ns = 1_592_611_200_000_000_000u64;
     assert_eq!(first.log_time, midnight_ns + 100_000_000_000, "2020-06-20 00:01:40 UTC");
-    assert_eq!(first.channel.metadata.get("magcomp.date").map(String::as_str), Some("2020-06-20"));
+    assert_eq!(
+        first.channel.metadata.get("magcomp.date").map(String::as_str),
+        Some("2020-06-20")
+    );
     let back = read_flight_log(&written, &IngestOptions::default()).unwrap();
     assert_eq!(back.date(), Some(date));
-    assert_eq!(back.time_s(), log.time_s(), "the time column is seconds of the day again");
-    assert_eq!(back.channel("mag_1_uc").unwrap().values, log.channel("mag_1_uc").unwrap().values);
+    assert_eq!(
+        back.time_s(),
+        log.time_s(),
+        "the time column is seconds of the day again"
+    );
+    assert_eq!(
+        back.channel("mag_1_uc").unwrap().values,
+        log.channel("mag_1_uc").unwrap().values
+    );
 }

@@ -161,7 +161,12 @@ fn bad_input_gives_the_documented_error_not_a_panic() {
         &["vector magnetometer", "--vector"],
     );
     assert_fails_with(f, "empty.csv", "", &["empty.csv", "the file is empty (0 bytes)"]);
-    assert_fails_with(f, "header_only.csv", header, &["header_only.csv", "header line but no data rows"]);
+    assert_fails_with(
+        f,
+        "header_only.csv",
+        header,
+        &["header_only.csv", "header line but no data rows"],
+    );
     assert_fails_with(
         f,
         "one_row.csv",
@@ -172,7 +177,12 @@ fn bad_input_gives_the_documented_error_not_a_panic() {
         f,
         "elsewhere.csv",
         &format!("{header}500,50000,20000,5000,45000\n500.1,50000,20000,5000,45000\n"),
-        &["elsewhere.csv", "holds no row", "runs 500 to 500.1 s", "made for this flight"],
+        &[
+            "elsewhere.csv",
+            "holds no row",
+            "runs 500 to 500.1 s",
+            "made for this flight",
+        ],
     );
     assert_fails_with(
         f,
@@ -183,9 +193,12 @@ fn bad_input_gives_the_documented_error_not_a_panic() {
     assert_fails_with(
         f,
         "huge_cell.csv",
-        &format!("{header}0,50000,20000,5000,45000
+        &format!(
+            "{header}0,50000,20000,5000,45000
 0.1,1,2,{},4
-", "x".repeat(2_000_000)),
+",
+            "x".repeat(2_000_000)
+        ),
         &["line 3", "'flux_a_y'", "(2000000 bytes in all)"],
     );
     assert_fails_with(

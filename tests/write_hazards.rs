@@ -51,7 +51,10 @@ fn assert_refused(folder: &Path, args: &[&str], named: &str) {
     let (ok, text) = magcomp(folder, args);
     assert!(!ok, "magcomp {args:?} succeeded:\n{text}");
     assert!(text.contains(named), "magcomp {args:?} does not name {named}:\n{text}");
-    assert!(text.contains("nothing was written") || text.contains("never writes over"), "{text}");
+    assert!(
+        text.contains("nothing was written") || text.contains("never writes over"),
+        "{text}"
+    );
     for (name, bytes) in before {
         assert_eq!(std::fs::read(folder.join(&name)).unwrap(), bytes, "{name} changed");
     }
@@ -63,18 +66,42 @@ fn the_input_is_never_written_over() {
     small_flight(folder.path());
     let dir = folder.path();
     assert_refused(dir, &["compensate", "flight.csv", "--out", "flight.csv"], "flight.csv");
-    assert_refused(dir, &["compensate", "flight.csv", "--out", "./flight.csv"], "flight.csv");
+    assert_refused(
+        dir,
+        &["compensate", "flight.csv", "--out", "./flight.csv"],
+        "flight.csv",
+    );
     assert_refused(dir, &["convert", "flight.csv", "--out", "flight.csv"], "flight.csv");
     std::fs::hard_link(dir.join("flight.csv"), dir.join("alias.csv")).unwrap();
     assert_refused(dir, &["compensate", "flight.csv", "--out", "alias.csv"], "alias.csv");
     assert_refused(
         dir,
-        &["compensate", "flight.csv", "--out", "o.csv", "--windows-file", "flight.windows.json", "--model", "flight.windows.json"],
+        &[
+            "compensate",
+            "flight.csv",
+            "--out",
+            "o.csv",
+            "--windows-file",
+            "flight.windows.json",
+            "--model",
+            "flight.windows.json",
+        ],
         "flight.windows.json",
     );
     // A settings file that happens to end in .json is an input too.
     std::fs::write(dir.join("settings.json"), "[detect]\nmin_leg_s = 40.0\n").unwrap();
-    assert_refused(dir, &["detect", "flight.csv", "--out", "settings.json", "--config", "settings.json"], "same file");
+    assert_refused(
+        dir,
+        &[
+            "detect",
+            "flight.csv",
+            "--out",
+            "settings.json",
+            "--config",
+            "settings.json",
+        ],
+        "same file",
+    );
 }
 
 #[test]
@@ -84,16 +111,38 @@ fn two_outputs_on_one_path_are_refused() {
     let dir = folder.path();
     assert_refused(
         dir,
-        &["compensate", "flight.csv", "--out", "o.csv", "--model", "m.json", "--report", "m.json"],
+        &[
+            "compensate",
+            "flight.csv",
+            "--out",
+            "o.csv",
+            "--model",
+            "m.json",
+            "--report",
+            "m.json",
+        ],
         "name the same file",
     );
     // The report's figures go beside the page, as r.json.
     assert_refused(
         dir,
-        &["compensate", "flight.csv", "--out", "o.csv", "--html", "r.html", "--report", "r.json"],
+        &[
+            "compensate",
+            "flight.csv",
+            "--out",
+            "o.csv",
+            "--html",
+            "r.html",
+            "--report",
+            "r.json",
+        ],
         "name the same file",
     );
-    assert_refused(dir, &["diagnose", "flight.csv", "--out", "d.json", "--html", "d.json"], "d.json");
+    assert_refused(
+        dir,
+        &["diagnose", "flight.csv", "--out", "d.json", "--html", "d.json"],
+        "d.json",
+    );
 }
 
 #[test]
@@ -107,10 +156,22 @@ fn the_format_follows_the_extension_or_nothing_is_written() {
     }
     assert_refused(dir, &["convert", "flight.csv", "--out", "o.parquet"], "o.parquet");
     assert_refused(dir, &["detect", "flight.csv", "--out", "d.csv"], "only as .json");
-    assert_refused(dir, &["compensate", "flight.csv", "--out", "o.csv", "--html", "r.pdf"], "r.pdf");
-    assert_refused(dir, &["compensate", "flight.csv", "--out", "o.csv", "--report", "q.csv"], "q.csv");
+    assert_refused(
+        dir,
+        &["compensate", "flight.csv", "--out", "o.csv", "--html", "r.pdf"],
+        "r.pdf",
+    );
+    assert_refused(
+        dir,
+        &["compensate", "flight.csv", "--out", "o.csv", "--report", "q.csv"],
+        "q.csv",
+    );
     let scenario = Path::new(env!("CARGO_MANIFEST_DIR")).join("sample_flights/scenarios/clean.toml");
-    assert_refused(dir, &["simulate", scenario.to_str().unwrap(), "--out", "s.parquet"], "s.parquet");
+    assert_refused(
+        dir,
+        &["simulate", scenario.to_str().unwrap(), "--out", "s.parquet"],
+        "s.parquet",
+    );
 
     // HDF5 output is HDF5: the signature, and the compensated column read back.
     let (ok, text) = magcomp(dir, &["compensate", "flight.csv", "--out", "o.h5", "--plain"]);
@@ -132,18 +193,26 @@ fn links_fifos_and_devices_are_never_written() {
     std::fs::write(dir.join("target.csv"), "kept\n").unwrap();
     std::os::unix::fs::symlink(dir.join("target.csv"), dir.join("link.csv")).unwrap();
     assert_refused(dir, &["compensate", "flight.csv", "--out", "link.csv"], "symbolic link");
-    assert!(std::fs::symlink_metadata(dir.join("link.csv")).unwrap().file_type().is_symlink());
+    assert!(std::fs::symlink_metadata(dir.join("link.csv"))
+        .unwrap()
+        .file_type()
+        .is_symlink());
     let fifo = dir.join("fifo.csv");
     let made = Command::new("mkfifo").arg(&fifo).status();
     match made {
         Ok(status) if status.success() => {
             assert_refused(dir, &["compensate", "flight.csv", "--out", "fifo.csv"], "FIFO");
         }
-        _ => println!("mkfifo is not available: the FIFO case was not run (the device case below covers special files)"),
+        _ => {
+            println!("mkfifo is not available: the FIFO case was not run (the device case below covers special files)")
+        }
     }
     let (ok, text) = magcomp(dir, &["detect", "flight.csv", "--out", "/dev/full"]);
     assert!(!ok && text.contains("/dev/full"), "{text}");
-    assert!(!std::fs::metadata("/dev/full").unwrap().is_file(), "/dev/full is still a device");
+    assert!(
+        !std::fs::metadata("/dev/full").unwrap().is_file(),
+        "/dev/full is still a device"
+    );
 }
 
 #[test]
@@ -161,7 +230,15 @@ fn a_failed_run_leaves_the_previous_outputs_and_no_temporary_files() {
     let folder = tempfile::tempdir().unwrap();
     small_flight(folder.path());
     let dir = folder.path();
-    let args = ["compensate", "flight.csv", "--out", "out/o.csv", "--model", "out/m.json", "--plain"];
+    let args = [
+        "compensate",
+        "flight.csv",
+        "--out",
+        "out/o.csv",
+        "--model",
+        "out/m.json",
+        "--plain",
+    ];
     let (ok, text) = magcomp(dir, &args);
     assert!(ok, "{text}");
     let before = names_in(&dir.join("out"));
@@ -177,7 +254,11 @@ fn a_failed_run_leaves_the_previous_outputs_and_no_temporary_files() {
     assert!(!ok, "{text}");
     assert!(text.contains("blocked"), "{text}");
     assert_eq!(std::fs::read(dir.join("out/o.csv")).unwrap(), csv);
-    assert_eq!(names_in(&dir.join("out")), before, "the stale temporary file is removed, nothing else changes");
+    assert_eq!(
+        names_in(&dir.join("out")),
+        before,
+        "the stale temporary file is removed, nothing else changes"
+    );
 }
 
 #[test]
@@ -202,12 +283,18 @@ fn a_killed_run_never_pairs_a_new_report_with_old_data() {
         let _ = child.wait();
         let new_report = modified("o_report.html") != report_before;
         let new_csv = modified("o.csv") != csv_before;
-        assert!(!new_report || new_csv, "killed after {delay_ms} ms: a new report beside the old data");
+        assert!(
+            !new_report || new_csv,
+            "killed after {delay_ms} ms: a new report beside the old data"
+        );
     }
     let (ok, text) = magcomp(dir, &args);
     assert!(ok, "{text}");
     let litter: Vec<String> = names_in(dir).into_iter().filter(|n| n.ends_with(".tmp")).collect();
-    assert!(litter.is_empty(), "temporary files left after a complete run: {litter:?}");
+    assert!(
+        litter.is_empty(),
+        "temporary files left after a complete run: {litter:?}"
+    );
 }
 
 #[test]
@@ -224,11 +311,22 @@ fn run_processes_every_flight_and_reports_each() {
     .unwrap();
     let (ok, text) = magcomp(dir, &["run", "pipeline.toml"]);
     assert!(!ok, "a run with a failing flight exits non-zero:\n{text}");
-    assert!(dir.join("out/flight_compensated.csv").is_file(), "the second flight is processed:\n{text}");
+    assert!(
+        dir.join("out/flight_compensated.csv").is_file(),
+        "the second flight is processed:\n{text}"
+    );
     assert!(text.contains("1 of 2 flights failed"), "{text}");
     let table: Vec<&str> = text.lines().skip_while(|l| !l.starts_with("flight ")).collect();
-    assert!(table.iter().any(|l| l.starts_with("broken.csv") && l.contains("FAILED")), "{text}");
-    assert!(table.iter().any(|l| l.starts_with("flight.csv") && l.contains("ok")), "{text}");
+    assert!(
+        table
+            .iter()
+            .any(|l| l.starts_with("broken.csv") && l.contains("FAILED")),
+        "{text}"
+    );
+    assert!(
+        table.iter().any(|l| l.starts_with("flight.csv") && l.contains("ok")),
+        "{text}"
+    );
 }
 
 #[cfg(unix)]
@@ -248,8 +346,22 @@ fn a_read_only_report_folder_stops_the_run_before_anything_is_written() {
     let dir = folder.path();
     std::fs::create_dir(dir.join("locked")).unwrap();
     std::fs::set_permissions(dir.join("locked"), std::fs::Permissions::from_mode(0o555)).unwrap();
-    let (ok, text) = magcomp(dir, &["compensate", "flight.csv", "--out", "o.csv", "--html", "locked/r.html", "--plain"]);
+    let (ok, text) = magcomp(
+        dir,
+        &[
+            "compensate",
+            "flight.csv",
+            "--out",
+            "o.csv",
+            "--html",
+            "locked/r.html",
+            "--plain",
+        ],
+    );
     std::fs::set_permissions(dir.join("locked"), std::fs::Permissions::from_mode(0o755)).unwrap();
     assert!(!ok && text.contains("cannot be written"), "{text}");
-    assert!(!dir.join("o.csv").exists(), "the CSV is not written when the report cannot be");
+    assert!(
+        !dir.join("o.csv").exists(),
+        "the CSV is not written when the report cannot be"
+    );
 }

@@ -450,7 +450,10 @@ mod tests {
         assert!((signed[1] - 179.0).abs() < 1e-9, "{signed:?}");
         assert_eq!(aligned.report.channels[1].method, "linear on the circle");
         assert!((angle_between(350.0, 10.0, 0.75) - 5.0).abs() < 1e-12);
-        assert!((angle_between(725.0, 735.0, 0.5) - 730.0).abs() < 1e-12, "unwrapped headings stay unwrapped");
+        assert!(
+            (angle_between(725.0, 735.0, 0.5) - 730.0).abs() < 1e-12,
+            "unwrapped headings stay unwrapped"
+        );
     }
 
     #[test]
@@ -469,7 +472,14 @@ mod tests {
         assert!(values[3].is_nan(), "disagreeing samples leave the row missing");
         assert_eq!(aligned.row_flags[3], "duplicate_time:cur_a");
         let channel = &aligned.report.channels[1];
-        assert_eq!((channel.repeats_dropped, channel.conflicting_times, channel.rows_conflicting), (1, 1, 1));
+        assert_eq!(
+            (
+                channel.repeats_dropped,
+                channel.conflicting_times,
+                channel.rows_conflicting
+            ),
+            (1, 1, 1)
+        );
         assert_eq!(aligned.report.warnings.len(), 2, "{:?}", aligned.report.warnings);
 
         let base = stream("mag_1_uc", false, &[0.0, 0.1, 0.1, 0.2], &[1.0, 2.0, 3.0, 4.0]);

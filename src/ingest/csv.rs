@@ -341,7 +341,10 @@ impl<'a> ColumnBuilder<'a> {
             return Err(Error::MalformedRow {
                 path: path.to_path_buf(),
                 line: 1,
-                message: format!("column '{}' appears twice in the header", crate::error::Excerpt(duplicate)),
+                message: format!(
+                    "column '{}' appears twice in the header",
+                    crate::error::Excerpt(duplicate)
+                ),
             });
         }
         let kinds = names

@@ -13,9 +13,9 @@ use std::path::Path;
 use hdf5_pure::{DType, File, FileBuilder};
 
 use super::columns::ColumnNames;
+use crate::compensate::Compensation;
 use crate::error::{Error, Result};
 use crate::flight_log::{Channel, FlightLog};
-use crate::compensate::Compensation;
 use crate::output::{stage, Staged};
 
 /// Older MagNav files' names for CONTRACT names.
@@ -106,7 +106,11 @@ fn read_datasets(path: &Path, time_name: &str) -> Result<Datasets> {
         if !numeric || shape.len() != 1 {
             not_read.push(format!(
                 "'{name}' ({})",
-                if numeric { "not one value per sample" } else { "not numbers" }
+                if numeric {
+                    "not one value per sample"
+                } else {
+                    "not numbers"
+                }
             ));
             continue;
         }
@@ -150,7 +154,10 @@ fn check_time_length(path: &Path, time_name: &str, time_samples: usize, series: 
     for (_, samples) in series {
         *counts.entry(*samples).or_default() += 1;
     }
-    let Some((&common, &count)) = counts.iter().max_by_key(|(length, count)| (**count, std::cmp::Reverse(**length))) else {
+    let Some((&common, &count)) = counts
+        .iter()
+        .max_by_key(|(length, count)| (**count, std::cmp::Reverse(**length)))
+    else {
         return Ok(());
     };
     let matching = counts.get(&time_samples).copied().unwrap_or(0);

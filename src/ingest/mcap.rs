@@ -140,7 +140,12 @@ pub fn read_mcap(path: &Path, options: &IngestOptions) -> Result<FlightLog> {
 
 /// The topics' plans, their decoded messages, remarks on how the file was
 /// read, and what was lost reading it (a file cut short, damaged chunks).
-type FileContents = (BTreeMap<u16, TopicPlan>, BTreeMap<u16, Decoded>, Vec<String>, Vec<String>);
+type FileContents = (
+    BTreeMap<u16, TopicPlan>,
+    BTreeMap<u16, Decoded>,
+    Vec<String>,
+    Vec<String>,
+);
 
 /// A decompressed chunk and the schemas and channels it defines.
 type OpenedChunk<'a> = (Cow<'a, [u8]>, Definitions);
@@ -448,7 +453,11 @@ fn ros_streams(
     }
 }
 
-fn build_log(path: &Path, options: &IngestOptions, (plans, decoded, mut notes, mut losses): FileContents) -> Result<FlightLog> {
+fn build_log(
+    path: &Path,
+    options: &IngestOptions,
+    (plans, decoded, mut notes, mut losses): FileContents,
+) -> Result<FlightLog> {
     let (names, alignment) = (&options.columns, &options.alignment);
     let mut attitude_taken = false;
     for plan in plans.values() {

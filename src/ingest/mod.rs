@@ -128,7 +128,9 @@ fn date_from_columns(log: &FlightLog) -> Option<crate::flight_date::FlightDate> 
 
 /// Refuses a file of no bytes at all with a message that says so.
 fn check_not_empty(path: &Path) -> Result<()> {
-    let size = std::fs::metadata(path).map_err(|e| Error::io(path, "opening", e))?.len();
+    let size = std::fs::metadata(path)
+        .map_err(|e| Error::io(path, "opening", e))?
+        .len();
     match size {
         0 => Err(Error::NoData {
             path: path.to_path_buf(),
@@ -149,9 +151,10 @@ fn check_line_ends(path: &Path) -> Result<()> {
     match head.contains(&b'\r') && !head.contains(&b'\n') {
         true => Err(Error::UnsupportedFormat {
             path: path.to_path_buf(),
-            message: "its lines end in a carriage return alone (classic Mac OS line ends), which magcomp does not read. \
+            message:
+                "its lines end in a carriage return alone (classic Mac OS line ends), which magcomp does not read. \
                       Convert them to line feeds, e.g. `tr '\\r' '\\n' < FILE > FIXED`, and read the converted file"
-                .into(),
+                    .into(),
         }),
         false => Ok(()),
     }

@@ -17,7 +17,9 @@
 //! - a folder that cannot be written.
 //!
 //! A missing folder is created and the user told so. Temporary files left
-//! by a process that no longer runs are removed.
+//! by a process that no longer runs are removed from each destination's
+//! folder, once per command (a campaign's output folder may hold
+//! thousands of files; it is not listed again for every output).
 
 use std::collections::HashMap;
 use std::fs::File;
@@ -381,8 +383,8 @@ pub fn stage(path: &Path, write: impl FnOnce(&mut BufWriter<&mut File>) -> std::
             "Create it first; nothing was written.",
         ));
     }
-    remove_stale_temporaries(&folder);
-    let mut temporary = temporary_in(&folder).map_err(|e| Error::io(&folder, "creating a temporary file in the folder", e))?;
+    let mut temporary =
+        temporary_in(&folder).map_err(|e| Error::io(&folder, "creating a temporary file in the folder", e))?;
     {
         let mut writer = BufWriter::with_capacity(1 << 20, temporary.as_file_mut());
         write(&mut writer)
@@ -498,7 +500,10 @@ mod tests {
         std::fs::write(&target, "kept").unwrap();
         let link = folder.path().join("link.csv");
         std::os::unix::fs::symlink(&target, &link).unwrap();
-        assert!(prepare(&[], &[flight(&link)]).unwrap_err().to_string().contains("symbolic link"));
+        assert!(prepare(&[], &[flight(&link)])
+            .unwrap_err()
+            .to_string()
+            .contains("symbolic link"));
         let device = Path::new("/dev/null");
         assert!(check_not_special(device).unwrap_err().to_string().contains("device"));
         assert!(stage(&link, |_| Ok(())).is_err());

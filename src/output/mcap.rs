@@ -27,8 +27,8 @@ use prost::Message;
 use super::{stage, Staged};
 use crate::compensate::Compensation;
 use crate::error::{Error, Result};
-use crate::flight_log::{AttitudeAngle, ChannelRole, FlightLog};
 use crate::flight_date::SECONDS_PER_DAY;
+use crate::flight_log::{AttitudeAngle, ChannelRole, FlightLog};
 use crate::ingest::mcap::{ALTITUDE_COLUMN_KEY, DATE_KEY};
 use crate::messages::{descriptor_set, timestamp, Attitude, LocationFix, Sample, ScalarMag, VectorMag};
 
@@ -84,8 +84,11 @@ pub fn stage_mcap(
 pub fn midnight_of_flight_ns(log: &FlightLog) -> Option<u64> {
     let date = log.date()?;
     let time = log.time_s();
-    let time_of_day = time.first().is_some_and(|&t| t >= 0.0) && time.last().is_some_and(|&t| t < 2.0 * SECONDS_PER_DAY);
-    time_of_day.then(|| u64::try_from(date.midnight_unix_ns()).ok()).flatten()
+    let time_of_day =
+        time.first().is_some_and(|&t| t >= 0.0) && time.last().is_some_and(|&t| t < 2.0 * SECONDS_PER_DAY);
+    time_of_day
+        .then(|| u64::try_from(date.midnight_unix_ns()).ok())
+        .flatten()
 }
 
 /// The warning for an MCAP `output` of `log` whose log times cannot be
@@ -106,18 +109,20 @@ fn log_times_ns(log: &FlightLog, midnight_ns: u64) -> Result<Vec<u64>> {
     log.time_s()
         .iter()
         .enumerate()
-        .map(|(row, &t)| match t >= 0.0 && t * 1e9 + (midnight_ns as f64) < u64::MAX as f64 {
-            true => Ok((t * 1e9).round() as u64 + midnight_ns),
-            false => Err(Error::BadTime {
-                path: log.source().to_path_buf(),
-                location: format!("sample {row}"),
-                column: log.time_column().to_string(),
-                problem: format!(
-                    "is {} s; MCAP log times are nanoseconds from 0, so negative times cannot be written",
-                    crate::error::Number(t)
-                ),
-            }),
-        })
+        .map(
+            |(row, &t)| match t >= 0.0 && t * 1e9 + (midnight_ns as f64) < u64::MAX as f64 {
+                true => Ok((t * 1e9).round() as u64 + midnight_ns),
+                false => Err(Error::BadTime {
+                    path: log.source().to_path_buf(),
+                    location: format!("sample {row}"),
+                    column: log.time_column().to_string(),
+                    problem: format!(
+                        "is {} s; MCAP log times are nanoseconds from 0, so negative times cannot be written",
+                        crate::error::Number(t)
+                    ),
+                }),
+            },
+        )
         .collect()
 }
 
