@@ -298,6 +298,7 @@ fn row_flags(log: &FlightLog, models: &[FittedTollesLawson], channels: &[Compens
             .flat_map(|a| &a.sources)
             .filter_map(|s| Some((s.column(), log.channel(s.column())?.values.as_slice())))
             .collect();
+        let derivatives = model.terms.eddy != crate::tolles_lawson::EddyTerms::None || model.terms.field_derivative;
         for row in 0..log.len() {
             let mut explained = false;
             if !scalar[row].is_finite() {
@@ -313,6 +314,13 @@ fn row_flags(log: &FlightLog, models: &[FittedTollesLawson], channels: &[Compens
                     push(row, format!("missing_source:{column}"));
                     explained = true;
                 }
+            }
+            // Beside a missing vector sample the eddy terms' time
+            // derivative is one-sided: the value stands, less accurately.
+            let valid = |r: usize| field.iter().all(|c| c[r].is_finite());
+            let beside_gap = (row > 0 && !valid(row - 1)) || (row + 1 < log.len() && !valid(row + 1));
+            if !explained && derivatives && beside_gap && compensated.values[row].is_finite() {
+                push(row, format!("beside_gap:{}", model.vector_sensor));
             }
             if !explained && !compensated.values[row].is_finite() {
                 let lagged = model.augmentation.as_ref().is_some_and(|a| a.lag_s != 0.0);

@@ -110,7 +110,9 @@ fn span(values: impl Iterator<Item = f64>) -> std::ops::Range<f64> {
     let last = finite.len() - 1 - trimmed;
     let bulk_low = *finite.select_nth_unstable_by(trimmed, f64::total_cmp).1;
     let bulk_high = *finite.select_nth_unstable_by(last, f64::total_cmp).1;
-    let (lowest, highest) = finite.iter().fold((f64::MAX, f64::MIN), |(l, h), &v| (l.min(v), h.max(v)));
+    let (lowest, highest) = finite
+        .iter()
+        .fold((f64::MAX, f64::MIN), |(l, h), &v| (l.min(v), h.max(v)));
     let bulk = bulk_high - bulk_low;
     let tame = (highest - lowest).is_finite() && highest - lowest <= WIDEST_TAILS * bulk.max(f64::MIN_POSITIVE);
     let (low, high) = match tame || bulk == 0.0 && highest - lowest < FARTHEST {

@@ -89,8 +89,16 @@ fn compensate(input: &Path, windows: &Path, out: &Path) -> (Vec<String>, Vec<Vec
 
 #[test]
 fn impossible_samples_are_masked_flagged_and_do_not_spread() {
+    // Three flights drawn with different seeds (noise, attitude, survey).
+    for seed in [11, 23, 37] {
+        println!("seed {seed}");
+        masked_samples_do_not_spread(seed);
+    }
+}
+
+fn masked_samples_do_not_spread(seed: u64) {
     let folder = tempfile::tempdir().unwrap();
-    let mut flight = Flight::new(folder.path(), 11);
+    let mut flight = Flight::new(folder.path(), seed);
     let windows = flight.window_rows();
     let clean_path = folder.path().join("clean.csv");
     let (_, clean, _) = compensate(&clean_path, &flight.windows, &folder.path().join("clean_out"));
@@ -163,50 +171,67 @@ fn impossible_samples_are_masked_flagged_and_do_not_spread() {
     );
 
     // Every other row matches the clean flight's compensation, up to one
-    // level per channel: the band-passed fit fixes the variation of the
-    // interference, not its mean (README, "Level"), and dropping samples
-    // from the fit moves the level of a sensor with a large permanent field.
-    // Masking drops 3 of the fit's ~3,000 samples and splits three runs
-    // (each split trims 20 samples at both new ends), which moves the
-    // coefficients (all rows: under 0.03 nT at the 99th percentile,
-    // measured 0.021) and makes the eddy terms' time derivative one-sided
-    // at the new run ends (the rows next to a masked one: under 0.1 nT,
-    // measured 0.067); an unmasked 1e308 failed the fit, and a block of
+    // level per channel and the refit: masking drops 3 of the fit's ~3,000
+    // samples and splits three runs (each split trims 20 samples at both
+    // new ends). Before masking, a 1e308 failed the fit and a block of
     // zeros moved its neighbours by tens of nT.
     let bad_rows: Vec<usize> = vector_rows.iter().copied().chain([scalar_row, spike_row]).collect();
-    let kept: Vec<usize> = (0..clean.len()).filter(|r| !bad_rows.contains(r)).collect();
+    // Beside a masked fluxgate reading the eddy terms' derivative is
+    // one-sided: those rows keep a value and say so.
+    let beside: Vec<usize> = vector_rows
+        .iter()
+        .flat_map(|&r| [r - 1, r + 1])
+        .filter(|r| !bad_rows.contains(r))
+        .collect();
+    for row in &beside {
+        assert_eq!(bad[*row][flags], "beside_gap:flux_a", "row {row}");
+        assert!(
+            !bad[*row][mag_1].is_empty() && !bad[*row][mag_2].is_empty(),
+            "row {row} keeps its value"
+        );
+    }
+    let kept: Vec<usize> = (0..clean.len())
+        .filter(|r| !bad_rows.contains(r) && !beside.contains(r))
+        .collect();
     for row in &kept {
         assert!(bad[*row][flags].is_empty(), "row {row} flagged {}", bad[*row][flags]);
     }
+    // A masked sample must not spread: the rows near one (within 100
+    // rows) change no more than the rows far from all of them, which move
+    // only because the fit lost a few samples (twice as much, plus
+    // 0.01 nT). That refit moves the far rows' anomaly by at most 0.15 nT
+    // on these seeds (bound 0.25 nT). The level it moves is printed: the
+    // band-passed fit fixes a sensor's variation, not its mean (`[fit]
+    // level`, README "Method"), and a cabin sensor's level moves by up to
+    // 250 nT on these seeds.
+    let near = |row: usize| bad_rows.iter().any(|b| b.abs_diff(row) <= 100);
     for channel in [mag_1, mag_2] {
         let value = |rows: &[Vec<String>], row: usize| rows[row][channel].parse::<f64>().unwrap();
-        let mut changes: Vec<f64> = kept.iter().map(|&r| value(&bad, r) - value(&clean, r)).collect();
-        let mut sorted = changes.clone();
+        let changes: Vec<(usize, f64)> = kept.iter().map(|&r| (r, value(&bad, r) - value(&clean, r))).collect();
+        let mut sorted: Vec<f64> = changes.iter().map(|(_, c)| *c).collect();
         sorted.sort_by(f64::total_cmp);
         let level = sorted[sorted.len() / 2];
-        changes.iter_mut().for_each(|c| *c -= level);
-        let (worst, largest) = changes
-            .iter()
-            .enumerate()
-            .map(|(k, c)| (kept[k], c.abs()))
-            .max_by(|a, b| a.1.total_cmp(&b.1))
-            .unwrap();
-        let nearest = bad_rows.iter().map(|b| b.abs_diff(worst)).min().unwrap_or(0);
-        let mut magnitudes: Vec<f64> = changes.iter().map(|c| c.abs()).collect();
-        magnitudes.sort_by(f64::total_cmp);
+        let largest = |close: bool| {
+            changes
+                .iter()
+                .filter(|(row, _)| near(*row) == close)
+                .map(|(row, c)| (*row, (c - level).abs()))
+                .max_by(|a, b| a.1.total_cmp(&b.1))
+                .unwrap()
+        };
+        let ((near_row, near_change), (far_row, far_change)) = (largest(true), largest(false));
         println!(
-            "{}: level moved {level:.3} nT; largest other change {largest:.4} nT at row {worst} ({nearest} rows from a masked one), 99th percentile {:.4} nT",
-            header[channel],
-            magnitudes[magnitudes.len() * 99 / 100]
-        );
-        assert!(
-            largest < 0.1,
-            "{}: a masked sample spread to row {worst}: {largest} nT",
+            "{}: level moved {level:.3} nT; largest change near a masked row {near_change:.4} nT (row {near_row}), far from them {far_change:.4} nT (row {far_row})",
             header[channel]
         );
         assert!(
-            magnitudes[magnitudes.len() * 99 / 100] < 0.03,
-            "{}: the fit moved",
+            near_change <= 2.0 * far_change + 0.01,
+            "{}: a masked sample spread to row {near_row}: {near_change} nT against {far_change} nT elsewhere",
+            header[channel]
+        );
+        assert!(
+            far_change < 0.25,
+            "{}: the refit moved row {far_row} by {far_change} nT",
             header[channel]
         );
     }

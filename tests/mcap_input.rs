@@ -461,4 +461,18 @@ fn log_times_are_absolute_and_read_back_as_times_of_day() {
         back.channel("mag_1_uc").unwrap().values,
         log.channel("mag_1_uc").unwrap().values
     );
+    // Another day given over the recorded one is used, and said.
+    let other = IngestOptions {
+        date: magcomp::flight_date::FlightDate::parse("2021-01-01"),
+        ..IngestOptions::default()
+    };
+    let overridden = read_flight_log(&written, &other).unwrap();
+    assert_eq!(overridden.date(), other.date);
+    let warnings = overridden.reading_warnings();
+    assert!(
+        warnings
+            .iter()
+            .any(|w| w.contains("2021-01-01") && w.contains("(2020-06-20)")),
+        "{warnings:?}"
+    );
 }

@@ -536,7 +536,7 @@ fn build_log(
             column: streams[base].name.clone(),
         });
     }
-    let date = time_of_day(&plans, &mut streams);
+    let date = time_of_day(&plans, &mut streams, &mut losses);
     let roles: Vec<Option<ChannelRole>> = streams.iter().map(|s| s.role.clone()).collect();
     for (stream, role) in streams.iter_mut().zip(&roles) {
         let role = role.clone().or_else(|| names.role_of(&stream.name));
@@ -572,12 +572,21 @@ fn build_log(
 
 /// The flight's day from the channels' metadata, with every stream's times
 /// made times of that day; `None`, times untouched, when no channel gives
-/// a day or a message is older than its midnight.
-fn time_of_day(plans: &BTreeMap<u16, TopicPlan>, streams: &mut [Stream]) -> Option<FlightDate> {
+/// a day, or (with a line in `losses`) when a message is older than its
+/// midnight.
+fn time_of_day(
+    plans: &BTreeMap<u16, TopicPlan>,
+    streams: &mut [Stream],
+    losses: &mut Vec<String>,
+) -> Option<FlightDate> {
     let date = plans.values().find_map(|p| p.date)?;
     let midnight = u64::try_from(date.midnight_unix_ns()).ok()?;
     let after_midnight = streams.iter().all(|s| s.times_ns.iter().all(|&t| t >= midnight));
     if !after_midnight {
+        losses.push(format!(
+            "the channels give the day {date} ({DATE_KEY}), but some messages are older than its midnight; \
+             the log times are read as they are (seconds since 1970-01-01), not as times of that day"
+        ));
         return None;
     }
     for stream in streams {

@@ -112,8 +112,17 @@ pub fn read_flight_log(path: &Path, options: &IngestOptions) -> Result<FlightLog
         #[cfg(not(feature = "hdf5"))]
         Format::Hdf5 => Err(unsupported(path, "hdf5 (this build has the 'hdf5' feature off)")),
     }?;
-    let date = options.date.or(log.date()).or_else(|| date_from_columns(&log));
-    Ok(log.with_date(date))
+    let recorded = log.date().or_else(|| date_from_columns(&log));
+    let mut warnings = log.reading_warnings().to_vec();
+    if let (Some(given), Some(recorded)) = (options.date, recorded) {
+        if given != recorded {
+            warnings.push(format!(
+                "{}: the day given ({given}, --date or [[flight]] date) is used over the day the file records ({recorded})",
+                path.display()
+            ));
+        }
+    }
+    Ok(log.with_date(options.date.or(recorded)).with_reading_warnings(warnings))
 }
 
 /// The flight's day from SGL's `year` and `doy` (day of year) columns: the
