@@ -144,6 +144,13 @@ pub struct DetectedManoeuvre {
     pub amplitude_deg: f64,
     /// Mean period, s.
     pub period_s: f64,
+    /// The other kind this manoeuvre may be. With the fluxgate alone, two
+    /// rotations turn the field direction alike when the field lies near
+    /// the plane of their axes (pitch and yaw on east and west headings,
+    /// roll and yaw on north and south, at high inclination): there they
+    /// are told apart by their size only, and the name is uncertain.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub could_be: Option<ManoeuvreKind>,
 }
 
 /// A straight leg.
@@ -219,8 +226,47 @@ pub fn detect_manoeuvres(log: &FlightLog, options: &DetectOptions) -> Result<Det
     let mut legs = Vec::new();
     let mut manoeuvres = Vec::new();
     for leg in find_legs(log, &attitude.heading_deg, &smoothed, roll, options) {
-        let found = leg_manoeuvres(log, &attitude, &leg, options);
-        legs.extend(cut_run_on(log.time_s(), leg, &found, options.leg_run_on_s));
+        let mut found = leg_manoeuvres(log, &attitude, &leg, options);
+        let leg_rows = leg.rows.clone();
+        let pieces = cut_run_on(log.time_s(), &attitude.heading_deg, leg, &found, options.leg_run_on_s);
+        // Once a climb or a line is cut off, the manoeuvres are looked for
+        // again on the calibration piece alone, whose level flight is now
+        // the only reference (the fluxgate's leans with a climbing nose).
+        // The piece is widened by one manoeuvre and its pause (60 s), for
+        // one the first look missed beside a climb.
+        if pieces.len() > 1 && attitude.source == AttitudeSource::Fluxgate {
+            if let Some(piece) = pieces
+                .iter()
+                .find(|p| found.iter().any(|m| m.t_start >= p.t_start && m.t_end <= p.t_end))
+            {
+                let time = log.time_s();
+                let reach = samples(60.0, log.median_interval_s());
+                let rows = piece.rows.start.saturating_sub(reach).max(leg_rows.start)
+                    ..(piece.rows.end + reach).min(leg_rows.end);
+                let widened = Leg {
+                    heading_deg: piece.heading_deg,
+                    t_start: time[rows.start],
+                    t_end: time[rows.end - 1],
+                    rows,
+                };
+                let again = leg_manoeuvres(log, &attitude, &widened, options);
+                if again.len() > found.len() {
+                    found = again;
+                }
+            }
+        }
+        // A manoeuvre's heading is its piece's: a climb or a line cut off
+        // the leg no longer pulls it (the fluxgate's magnetic heading
+        // leans with the nose).
+        for manoeuvre in &mut found {
+            if let Some(piece) = pieces
+                .iter()
+                .find(|p| manoeuvre.t_start >= p.t_start && manoeuvre.t_end <= p.t_end)
+            {
+                manoeuvre.heading_deg = piece.heading_deg;
+            }
+        }
+        legs.extend(pieces);
         manoeuvres.extend(found);
     }
     manoeuvres.sort_by(|a, b| a.t_start.total_cmp(&b.t_start));
@@ -416,7 +462,7 @@ fn find_legs(
 /// beyond them, cut `run_on_s` from its first and last manoeuvre: the
 /// calibration leg, and the stretches before and after it as legs of
 /// their own (without manoeuvres, so no box counts them).
-fn cut_run_on(time: &[f64], leg: Leg, found: &[DetectedManoeuvre], run_on_s: f64) -> Vec<Leg> {
+fn cut_run_on(time: &[f64], heading: &[f64], leg: Leg, found: &[DetectedManoeuvre], run_on_s: f64) -> Vec<Leg> {
     let (Some(first), Some(last)) = (
         found.iter().map(|m| m.t_start).min_by(f64::total_cmp),
         found.iter().map(|m| m.t_end).max_by(f64::total_cmp),
@@ -432,11 +478,15 @@ fn cut_run_on(time: &[f64], leg: Leg, found: &[DetectedManoeuvre], run_on_s: f64
         true => row(last + run_on_s).min(leg.rows.end),
         false => leg.rows.end,
     };
+    if start == leg.rows.start && end == leg.rows.end {
+        return vec![leg];
+    }
     [leg.rows.start..start, start..end, end..leg.rows.end]
         .into_iter()
         .filter(|rows| !rows.is_empty())
         .map(|rows| Leg {
-            heading_deg: leg.heading_deg,
+            heading_deg: ((heading_centre(heading[rows.clone()].iter().copied()) * 10.0).round() / 10.0)
+                .rem_euclid(360.0),
             t_start: time[rows.start],
             t_end: time[rows.end - 1],
             rows,
@@ -607,6 +657,8 @@ fn active_regions(envelope: &[f64], threshold: f64, join: usize, shortest: usize
 /// (degrees) to measure it on.
 struct Candidate {
     axis: usize,
+    /// The other axis it may be (fluxgate fallback, axes alike).
+    could_be: Option<usize>,
     region: Range<usize>,
     strength: f64,
     series: std::rc::Rc<Vec<f64>>,
@@ -634,6 +686,7 @@ fn ins_candidates(attitude: &Attitude, leg: &Leg, options: &DetectOptions, dt: f
             let peak = region.clone().map(|k| envelope[k]).fold(0.0, f64::max);
             candidates.push(Candidate {
                 axis,
+                could_be: None,
                 region,
                 strength: peak / options.nominal_amplitude_deg[axis],
                 series: series.clone(),
@@ -717,7 +770,7 @@ fn fluxgate_candidates(unit: &[[f64; 3]], leg: &Leg, options: &DetectOptions, dt
     let threshold = options
         .fluxgate_min_rms_deg
         .max(options.turbulence_factor * percentile(&envelope, 0.1));
-    active_regions(
+    let mut candidates: Vec<Candidate> = active_regions(
         &envelope,
         threshold,
         samples(options.join_activity_s, dt),
@@ -727,19 +780,80 @@ fn fluxgate_candidates(unit: &[[f64; 3]], leg: &Leg, options: &DetectOptions, dt
     .map(|region| {
         let direction = principal_direction(&rotation[region.clone()]);
         let score = |v: &[f64; 3]| dot(direction, *v).abs() / dot(*v, *v).sqrt();
-        let axis = (0..3)
-            .max_by(|a, b| score(&visible[*a]).total_cmp(&score(&visible[*b])))
-            .unwrap_or(0);
-        let scale = dot(visible[axis], visible[axis]).sqrt().max(1e-3);
-        let series = rotation.iter().map(|w| dot(*w, direction) / scale).collect();
+        let scores = [0, 1, 2].map(|axis| score(&visible[axis]));
+        let best = (0..3).max_by(|a, b| scores[*a].total_cmp(&scores[*b])).unwrap_or(0);
+        // Axes whose rotations lie along the same line as the best one's:
+        // the direction cannot choose among them, the size (against each
+        // axis's nominal amplitude) does, and the name is flagged.
+        let alike: Vec<usize> = (0..3)
+            .filter(|axis| *axis == best || scores[*axis] >= AXES_ALIKE)
+            .collect();
+        let size = region.clone().map(|k| envelope[k]).fold(0.0, f64::max);
+        let mut by_size = alike.clone();
+        by_size.sort_by(|a, b| {
+            size_misfit(size, &visible[*a], options.nominal_amplitude_deg[*a]).total_cmp(&size_misfit(
+                size,
+                &visible[*b],
+                options.nominal_amplitude_deg[*b],
+            ))
+        });
         Candidate {
-            axis,
+            axis: by_size[0],
+            could_be: by_size.get(1).copied(),
             region,
-            strength: 1.0,
-            series: std::rc::Rc::new(series),
+            strength: size,
+            series: std::rc::Rc::new(Vec::new()),
         }
     })
-    .collect()
+    .collect();
+    // A leg flies one manoeuvre about each axis: two uncertain ones between
+    // the same two axes are told apart by size, the larger rotation on the
+    // axis that turns the field more for its nominal amplitude.
+    let expected = |axis: usize| dot(visible[axis], visible[axis]).sqrt() * options.nominal_amplitude_deg[axis];
+    let pair = |c: &Candidate| c.could_be.map(|other| (c.axis.min(other), c.axis.max(other)));
+    for (a, b) in [(0, 1), (0, 2), (1, 2)] {
+        let members: Vec<usize> = (0..candidates.len())
+            .filter(|i| pair(&candidates[*i]) == Some((a, b)))
+            .collect();
+        let [first, second] = members[..] else {
+            continue;
+        };
+        let (larger, smaller) = match candidates[first].strength >= candidates[second].strength {
+            true => (first, second),
+            false => (second, first),
+        };
+        let (big, small) = match expected(a) >= expected(b) {
+            true => (a, b),
+            false => (b, a),
+        };
+        for (index, axis, other) in [(larger, big, small), (smaller, small, big)] {
+            candidates[index].axis = axis;
+            candidates[index].could_be = Some(other);
+        }
+    }
+    for candidate in &mut candidates {
+        let direction = principal_direction(&rotation[candidate.region.clone()]);
+        let scale = dot(visible[candidate.axis], visible[candidate.axis]).sqrt().max(1e-3);
+        candidate.series = std::rc::Rc::new(rotation.iter().map(|w| dot(*w, direction) / scale).collect());
+        candidate.strength = 1.0;
+    }
+    candidates
+}
+
+/// Two axes are alike to the fluxgate when the rotation's direction lies
+/// this close to both (the cosine of the angle to each axis's visible
+/// rotation): within about 18°. Pitch and yaw are alike where the field
+/// lies near the plane of the lateral and vertical axes (east and west
+/// headings at high inclination), roll and yaw near the plane of the
+/// longitudinal and vertical axes (north and south).
+const AXES_ALIKE: f64 = 0.95;
+
+/// How far a rotation of RMS `size` degrees is from what the nominal
+/// amplitude about an axis with visible rotation `visible` would give, as
+/// the absolute log ratio.
+fn size_misfit(size: f64, visible: &[f64; 3], nominal_deg: f64) -> f64 {
+    let turned = dot(*visible, *visible).sqrt().max(1e-3) * nominal_deg / std::f64::consts::SQRT_2;
+    (size.max(1e-12) / turned).ln().abs()
 }
 
 fn leg_manoeuvres(log: &FlightLog, attitude: &Attitude, leg: &Leg, options: &DetectOptions) -> Vec<DetectedManoeuvre> {
@@ -763,7 +877,11 @@ fn leg_manoeuvres(log: &FlightLog, attitude: &Attitude, leg: &Leg, options: &Det
         .filter(|c| !beaten(c))
         .filter_map(
             |Candidate {
-                 axis, region, series, ..
+                 axis,
+                 could_be,
+                 region,
+                 series,
+                 ..
              }| {
                 let found = measure(series, region.clone(), dt)?;
                 check_regular(&found, options)?;
@@ -778,6 +896,7 @@ fn leg_manoeuvres(log: &FlightLog, attitude: &Attitude, leg: &Leg, options: &Det
                     cycles: (found.half_cycles.len() as f64 / 2.0).round(),
                     amplitude_deg: found.amplitude_deg,
                     period_s: found.period_s,
+                    could_be: could_be.map(|other| kinds[other]),
                 })
             },
         )
@@ -1007,23 +1126,94 @@ fn missing_headings(legs: &[&Leg], tolerance_deg: f64) -> Vec<String> {
         .collect()
 }
 
+fn kind_name(kind: ManoeuvreKind) -> String {
+    format!("{kind:?}").to_lowercase()
+}
+
+/// The pairs of kinds the fluxgate could not tell apart among `manoeuvres`,
+/// each in pitch, roll, yaw order, once.
+fn alike_pairs(manoeuvres: &[&DetectedManoeuvre]) -> Vec<(ManoeuvreKind, ManoeuvreKind)> {
+    let order = |kind: ManoeuvreKind| {
+        [ManoeuvreKind::Pitch, ManoeuvreKind::Roll, ManoeuvreKind::Yaw]
+            .iter()
+            .position(|k| *k == kind)
+    };
+    let mut pairs: Vec<(ManoeuvreKind, ManoeuvreKind)> = manoeuvres
+        .iter()
+        .filter_map(|m| {
+            let other = m.could_be?;
+            Some(match order(m.kind) < order(other) {
+                true => (m.kind, other),
+                false => (other, m.kind),
+            })
+        })
+        .collect();
+    pairs.sort_by_key(|(a, b)| (order(*a), order(*b)));
+    pairs.dedup();
+    pairs
+}
+
+/// The manoeuvres a box's legs lack, e.g. "no yaw on heading 290". On a
+/// leg where the fluxgate could not tell two kinds apart, they are counted
+/// together: "one of pitch and yaw missing on heading 90" when only one of
+/// the two was found.
 fn missing_manoeuvres(legs: &[&Leg], manoeuvres: &[DetectedManoeuvre]) -> Vec<String> {
     let mut missing = Vec::new();
     for leg in legs {
+        let on_leg: Vec<&DetectedManoeuvre> = manoeuvres
+            .iter()
+            .filter(|m| m.t_start >= leg.t_start && m.t_end <= leg.t_end)
+            .collect();
+        let heading = leg.heading_deg.round();
+        let pairs = alike_pairs(&on_leg);
         for kind in [ManoeuvreKind::Pitch, ManoeuvreKind::Roll, ManoeuvreKind::Yaw] {
-            let found = manoeuvres
-                .iter()
-                .any(|m| m.kind == kind && m.t_start >= leg.t_start && m.t_end <= leg.t_end);
-            if !found {
+            let paired = pairs.iter().any(|(a, b)| *a == kind || *b == kind);
+            if !paired && !on_leg.iter().any(|m| m.kind == kind) {
+                missing.push(format!("no {} on heading {heading}", kind_name(kind)));
+            }
+        }
+        for (a, b) in pairs {
+            if on_leg.iter().filter(|m| m.kind == a || m.kind == b).count() < 2 {
                 missing.push(format!(
-                    "no {} on heading {}",
-                    format!("{kind:?}").to_lowercase(),
-                    leg.heading_deg.round()
+                    "one of {} and {} missing on heading {heading}",
+                    kind_name(a),
+                    kind_name(b)
                 ));
             }
         }
     }
     missing
+}
+
+/// One sentence per leg whose manoeuvres the fluxgate could not tell apart.
+pub fn uncertain_kinds(detection: &Detection) -> Vec<String> {
+    detection
+        .legs
+        .iter()
+        .filter_map(|leg| {
+            let uncertain: Vec<&DetectedManoeuvre> = detection
+                .manoeuvres
+                .iter()
+                .filter(|m| m.could_be.is_some() && m.t_start >= leg.t_start && m.t_end <= leg.t_end)
+                .collect();
+            let kinds: Vec<String> = alike_pairs(&uncertain)
+                .into_iter()
+                .map(|(a, b)| format!("a {} and a {}", kind_name(a), kind_name(b)))
+                .collect();
+            let named: Vec<String> = uncertain
+                .iter()
+                .map(|m| format!("{:.1}–{:.1} s as {}", m.t_start, m.t_end, kind_name(m.kind)))
+                .collect();
+            (!named.is_empty()).then(|| {
+                format!(
+                    "heading {:.0}° (magnetic): with the fluxgate alone {} turn the field direction alike on this heading, so the manoeuvre(s) at {} are named by size only; check them against the flight notes, or give the windows with --window",
+                    leg.heading_deg,
+                    kinds.join(", and "),
+                    named.join(" and ")
+                )
+            })
+        })
+        .collect()
 }
 
 #[cfg(test)]

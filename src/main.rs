@@ -661,14 +661,18 @@ fn detect(flight: &Path, out: &Path, config: Option<&Path>) -> anyhow::Result<()
     }
     for manoeuvre in &detection.manoeuvres {
         println!(
-            "  {:<5} heading {:>5.1}: {:.1}–{:.1} s, {} cycles of {:.1} s, ±{:.1}°",
+            "  {:<5} heading {:>5.1}: {:.1}–{:.1} s, {} cycles of {:.1} s, ±{:.1}°{}",
             format!("{:?}", manoeuvre.kind).to_lowercase(),
             manoeuvre.heading_deg,
             manoeuvre.t_start,
             manoeuvre.t_end,
             manoeuvre.cycles,
             manoeuvre.period_s,
-            manoeuvre.amplitude_deg
+            manoeuvre.amplitude_deg,
+            manoeuvre
+                .could_be
+                .map(|other| format!(" (or a {}: uncertain)", format!("{other:?}").to_lowercase()))
+                .unwrap_or_default()
         );
     }
     println!("wrote {}", out.display());

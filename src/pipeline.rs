@@ -483,9 +483,10 @@ fn next_step(apply: crate::diagnose::ApplyDiagnosis, saved: bool, diagnosed: boo
     }
 }
 
-/// Warnings from detection: every incomplete box.
+/// Warnings from detection: every incomplete box, and every leg whose
+/// pitch and yaw the fluxgate could not tell apart.
 pub fn detection_warnings(detection: &Detection) -> Vec<String> {
-    detection
+    let mut warnings: Vec<String> = detection
         .boxes
         .iter()
         .enumerate()
@@ -499,7 +500,9 @@ pub fn detection_warnings(detection: &Detection) -> Vec<String> {
                 b.missing.join(", ")
             )
         })
-        .collect()
+        .collect();
+    warnings.extend(crate::detect::uncertain_kinds(detection));
+    warnings
 }
 
 /// Diagnoses a flight: its windows (given, or detected), its vector

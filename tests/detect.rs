@@ -7,6 +7,7 @@ use magcomp::flight_log::{Channel, FlightLog};
 use magcomp::simulate::scenario::{RawScenario, Scenario};
 use magcomp::simulate::truth::TrueManoeuvre;
 use magcomp::simulate::{simulate, SimulatedFlight};
+use magcomp::windows::ManoeuvreKind;
 use rayon::prelude::*;
 
 /// Intersection over union of two time windows on a 0.1 s grid.
@@ -343,4 +344,76 @@ fn a_box_without_a_heading_names_it() {
     let detection = detect(&flight);
     assert_perfect("three headings", &flight, &detection);
     assert_eq!(detection.boxes[0].missing, vec!["no leg near 0°"]);
+}
+
+/// On magnetic headings 0, 90, 180 and 270 the fluxgate sees a pitch and
+/// a yaw alike on the east and west legs, and a roll and a yaw alike on
+/// the north and south ones (the field then lies in the plane of the two
+/// axes). Every manoeuvre must be found under its own name or under the
+/// name the detector flags it could be, those legs must carry the flag,
+/// and the warning must say so; with the INS nothing is flagged.
+#[test]
+fn the_fluxgate_flags_the_kinds_it_cannot_tell_apart() {
+    let declination = magcomp::simulate::igrf::Igrf::fourteenth()
+        .field(45.3, -75.7, 3080.0, 2026.45)
+        .declination_deg();
+    for seed in [3, 8, 21] {
+        let flight = fly(seed, |raw| {
+            raw.calibration.headings_deg = [0.0, 90.0, 180.0, 270.0]
+                .iter()
+                .map(|h| (h + declination).rem_euclid(360.0))
+                .collect();
+        });
+        let with_ins = detect(&flight);
+        assert!(with_ins.manoeuvres.iter().all(|m| m.could_be.is_none()), "seed {seed}");
+        let log = &flight.log;
+        let channels: Vec<Channel> = log
+            .channels()
+            .iter()
+            .filter(|c| !c.name.starts_with("ins_"))
+            .cloned()
+            .collect();
+        let without = FlightLog::new(log.source(), log.time_column(), log.time_s().to_vec(), channels).unwrap();
+        let detection = detect_manoeuvres(&without, &DetectOptions::default()).unwrap();
+        for m in &flight.truth.manoeuvres {
+            let matched = detection.manoeuvres.iter().any(|d| {
+                (d.kind == m.kind || d.could_be == Some(m.kind))
+                    && overlap((d.t_start, d.t_end), (m.t_start, m.t_end)) >= 0.9
+            });
+            assert!(matched, "seed {seed}: {m:?} not found\n{:#?}", detection.manoeuvres);
+        }
+        assert_eq!(detection.manoeuvres.len(), flight.truth.manoeuvres.len(), "seed {seed}");
+        let flagged = |heading: f64, pair: [ManoeuvreKind; 2]| {
+            detection.manoeuvres.iter().any(|d| {
+                ((d.heading_deg - heading + 540.0) % 360.0 - 180.0).abs() < 15.0
+                    && d.could_be
+                        .is_some_and(|other| pair.contains(&d.kind) && pair.contains(&other))
+            })
+        };
+        for heading in [90.0, 270.0] {
+            assert!(
+                flagged(heading, [ManoeuvreKind::Pitch, ManoeuvreKind::Yaw]),
+                "seed {seed}, {heading}"
+            );
+        }
+        for heading in [0.0, 180.0] {
+            assert!(
+                flagged(heading, [ManoeuvreKind::Roll, ManoeuvreKind::Yaw]),
+                "seed {seed}, {heading}"
+            );
+        }
+        let warnings = magcomp::pipeline::detection_warnings(&detection);
+        assert!(
+            warnings
+                .iter()
+                .any(|w| w.contains("a pitch and a yaw turn the field direction alike")),
+            "seed {seed}: {warnings:?}"
+        );
+        assert!(
+            warnings
+                .iter()
+                .any(|w| w.contains("a roll and a yaw turn the field direction alike")),
+            "seed {seed}: {warnings:?}"
+        );
+    }
 }

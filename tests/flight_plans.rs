@@ -25,7 +25,14 @@
 //! 2. **Every incomplete box is named**: each detected box lists exactly
 //!    the headings and manoeuvres its plan left out, the headings within
 //!    5° of where the four-heading pattern puts them (and within the
-//!    declination for magnetic headings from the fluxgate).
+//!    declination for magnetic headings from the fluxgate). A manoeuvre
+//!    left out of a leg the box names missing ("no leg near 270°") is named.
+//! 3. **No silent fault, with INS attitude or the fluxgate alone.** With
+//!    the fluxgate alone two rotations can turn the field direction alike
+//!    (pitch and yaw on east and west headings, roll and yaw on north and
+//!    south): the detector then names the manoeuvre by its size and flags
+//!    the other kind it could be (`could_be`). A manoeuvre found under the
+//!    flagged name counts as found, as a fault of accuracy.
 
 use magcomp::detect::{detect_manoeuvres, DetectOptions, Detection};
 use magcomp::flight_log::FlightLog;
@@ -166,16 +173,33 @@ fn judge(plan: &Plan, detection: &Detection, truth: &[TrueManoeuvre], dt: f64, d
         .flat_map(|b| b.missing.iter().filter_map(|text| parse_missing(text)))
         .collect();
     let kind_name = |kind: magcomp::windows::ManoeuvreKind| format!("{kind:?}").to_lowercase();
+    // A name the detector flagged as uncertain (`could_be`) counts as found,
+    // but as a fault of accuracy, never as silent.
+    let names =
+        |k: &str, kind: magcomp::windows::ManoeuvreKind| k == "leg" || k.split('|').any(|part| part == kind_name(kind));
     for m in truth {
-        let best = detection
-            .manoeuvres
-            .iter()
-            .filter(|d| d.kind == m.kind)
-            .map(|d| overlap((d.t_start, d.t_end), (m.t_start, m.t_end), dt))
-            .fold(0.0, f64::max);
+        let best_of = |flagged: bool| {
+            detection
+                .manoeuvres
+                .iter()
+                .filter(|d| match flagged {
+                    false => d.kind == m.kind,
+                    true => d.could_be == Some(m.kind),
+                })
+                .map(|d| overlap((d.t_start, d.t_end), (m.t_start, m.t_end), dt))
+                .fold(0.0, f64::max)
+        };
+        let (best, flagged) = (best_of(false), best_of(true));
+        if best < 0.5 && flagged >= 0.5 {
+            faults.accuracy.push(format!(
+                "{:?} at {:.0}° ({:.1}–{:.1}) named the other kind, flagged uncertain",
+                m.kind, m.heading_deg, m.t_start, m.t_end
+            ));
+            continue;
+        }
         let said_missing = named
             .iter()
-            .any(|(k, h)| (*k == kind_name(m.kind) || k == "leg") && near(*h, reported(m.heading_deg)));
+            .any(|(k, h)| names(k, m.kind) && near(*h, reported(m.heading_deg)));
         let what = format!(
             "{:?} at {:.0}° ({:.1}–{:.1})",
             m.kind, m.heading_deg, m.t_start, m.t_end
@@ -188,9 +212,10 @@ fn judge(plan: &Plan, detection: &Detection, truth: &[TrueManoeuvre], dt: f64, d
         }
     }
     for d in &detection.manoeuvres {
-        let flown = truth
-            .iter()
-            .any(|m| m.kind == d.kind && overlap((d.t_start, d.t_end), (m.t_start, m.t_end), dt) >= 0.5);
+        let flown = truth.iter().any(|m| {
+            (m.kind == d.kind || d.could_be == Some(m.kind))
+                && overlap((d.t_start, d.t_end), (m.t_start, m.t_end), dt) >= 0.5
+        });
         if !flown {
             faults.silent.push(format!(
                 "{:?} detected at {:.1}–{:.1}, where none was flown",
@@ -215,7 +240,11 @@ fn judge(plan: &Plan, detection: &Detection, truth: &[TrueManoeuvre], dt: f64, d
         let named: Vec<(String, f64)> = found.missing.iter().filter_map(|text| parse_missing(text)).collect();
         let unnamed: Vec<&(String, f64)> = expected
             .iter()
-            .filter(|(k, h)| !named.iter().any(|(nk, nh)| nk == k && near(*nh, *h)))
+            .filter(|(k, h)| {
+                !named
+                    .iter()
+                    .any(|(nk, nh)| (nk == k || nk == "leg" || nk.split('|').any(|part| part == k)) && near(*nh, *h))
+            })
             .collect();
         if named.len() != found.missing.len() || !unnamed.is_empty() {
             faults
@@ -226,10 +255,17 @@ fn judge(plan: &Plan, detection: &Detection, truth: &[TrueManoeuvre], dt: f64, d
     faults
 }
 
-/// ("leg", 270) from "no leg near 270°"; ("yaw", 290) from "no yaw on heading 290".
+/// ("leg", 270) from "no leg near 270°"; ("yaw", 290) from "no yaw on
+/// heading 290"; ("pitch|yaw", 90) from "one of pitch and yaw missing on
+/// heading 90" (the fluxgate could not tell the two apart).
 fn parse_missing(text: &str) -> Option<(String, f64)> {
     if let Some(rest) = text.strip_prefix("no leg near ") {
         return Some(("leg".into(), rest.trim_end_matches('°').parse().ok()?));
+    }
+    if let Some(rest) = text.strip_prefix("one of ") {
+        let (kinds, heading) = rest.split_once(" missing on heading ")?;
+        let (a, b) = kinds.split_once(" and ")?;
+        return Some((format!("{a}|{b}"), heading.parse().ok()?));
     }
     let rest = text.strip_prefix("no ")?;
     let (kind, heading) = rest.split_once(" on heading ")?;
@@ -237,24 +273,26 @@ fn parse_missing(text: &str) -> Option<(String, f64)> {
 }
 
 /// Flights allowed an accuracy fault (a manoeuvre found below the IoU
-/// bound, or lost and named missing), of 240: the figure measured when
-/// this campaign was written (27: 4 with INS attitude, 23 with the
-/// fluxgate alone), so that detection can only get better.
-const ACCURACY_FAULTS_ALLOWED: usize = 27;
-
-/// Flights allowed a silent fault: none with INS attitude. With the
-/// fluxgate alone a pitch and a yaw can turn the field direction alike,
-/// and 5 of the flights here then name a manoeuvre with the other's kind;
-/// that is the figure measured when this campaign was written, an open
-/// fault of the fluxgate fallback, held here so it can only get better.
-const FLUXGATE_SILENT_FAULTS_ALLOWED: usize = 5;
+/// bound, lost and named missing, or named the other of two kinds the
+/// fluxgate flagged it could be), of 240: the figure measured (14: 4 with
+/// INS attitude, 10 with the fluxgate alone), so that detection can only
+/// get better. It was 27 when the campaign was written; looking again on
+/// the calibration piece of a leg cut from a climb or a line brought it
+/// to 14. Plans 1000..1240, never tuned on, give 12.
+const ACCURACY_FAULTS_ALLOWED: usize = 14;
 
 #[test]
 fn detection_on_random_flight_plans() {
     let declination = magcomp::simulate::igrf::Igrf::fourteenth()
         .field(45.3, -75.7, 3080.0, 2026.45)
         .declination_deg();
-    let outcomes: Vec<(u64, Plan, Faults)> = (0..FLIGHTS)
+    // `MAGCOMP_PLAN_FIRST=N` draws plans N.. instead, to look beyond the
+    // campaign's own (the floors below hold for plans 0..240).
+    let first: u64 = std::env::var("MAGCOMP_PLAN_FIRST")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(0);
+    let outcomes: Vec<(u64, Plan, Faults)> = (first..first + FLIGHTS)
         .into_par_iter()
         .map(|seed| {
             let plan = random_plan(seed);
@@ -299,9 +337,9 @@ fn detection_on_random_flight_plans() {
         silent_ins, 0,
         "with INS attitude a manoeuvre, a window or a lack went unreported"
     );
-    assert!(
-        silent <= FLUXGATE_SILENT_FAULTS_ALLOWED,
-        "{silent} flights with a silent fault"
+    assert_eq!(
+        silent, 0,
+        "with the fluxgate alone a manoeuvre, a window or a lack went unreported"
     );
     assert!(
         inaccurate <= ACCURACY_FAULTS_ALLOWED,
