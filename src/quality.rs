@@ -172,7 +172,7 @@ pub struct ChannelQuality {
     /// same ground, when there are such lines.
     pub heading_error: Option<crate::heading_error::HeadingError>,
     /// In-sample against held-out FOM (second box, or leave one heading out).
-    pub transfer: Option<crate::transfer::TransferCheck>,
+    pub transfer: Option<TransferCheck>,
     /// Per-window figures.
     pub windows: Vec<WindowQuality>,
     /// Rows with no compensated value.
@@ -339,6 +339,33 @@ fn fourth_differences(values: &[f64]) -> impl Iterator<Item = f64> + '_ {
 pub fn fourth_difference_noise(values: &[f64]) -> f64 {
     let differences: Vec<f64> = fourth_differences(values).collect();
     root_mean_square(&differences)
+}
+
+/// How the held-out figures were obtained.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TransferMethod {
+    /// Fitted on the first box, measured on the second.
+    SecondBox,
+    /// Each heading measured with a fit on the other headings.
+    LeaveOneHeadingOut,
+}
+
+/// In-sample and held-out FOM of one channel.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct TransferCheck {
+    /// How the held-out figure was made.
+    pub method: TransferMethod,
+    /// Compensated FOM of the measured manoeuvres, fitted on them, nT.
+    pub in_sample_fom_nt: f64,
+    /// Compensated FOM of the same manoeuvres, fitted without them, nT.
+    pub held_out_fom_nt: f64,
+    /// Manoeuvres in each FOM.
+    pub manoeuvres: usize,
+    /// Held-out over in-sample.
+    pub ratio: f64,
+    /// Set when the ratio exceeds the warning factor.
+    pub warning: Option<String>,
 }
 
 #[cfg(test)]

@@ -19,6 +19,7 @@ use crate::error::Result;
 use crate::fit::{FitOptions, FittedTollesLawson, WindowFit};
 use crate::flight_log::{FlightLog, VectorSensor};
 use crate::quality::{figure_of_merit, fom_table, window_quality};
+pub use crate::quality::{TransferCheck, TransferMethod};
 use crate::windows::CalibrationWindow;
 
 /// `[quality]` settings of the transfer check.
@@ -33,33 +34,6 @@ impl Default for TransferOptions {
     fn default() -> Self {
         TransferOptions { warning_factor: 2.0 }
     }
-}
-
-/// How the held-out figures were obtained.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum TransferMethod {
-    /// Fitted on the first box, measured on the second.
-    SecondBox,
-    /// Each heading measured with a fit on the other headings.
-    LeaveOneHeadingOut,
-}
-
-/// In-sample and held-out FOM of one channel.
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct TransferCheck {
-    /// How the held-out figure was made.
-    pub method: TransferMethod,
-    /// Compensated FOM of the measured manoeuvres, fitted on them, nT.
-    pub in_sample_fom_nt: f64,
-    /// Compensated FOM of the same manoeuvres, fitted without them, nT.
-    pub held_out_fom_nt: f64,
-    /// Manoeuvres in each FOM.
-    pub manoeuvres: usize,
-    /// Held-out over in-sample.
-    pub ratio: f64,
-    /// Set when the ratio exceeds the warning factor.
-    pub warning: Option<String>,
 }
 
 /// Groups labelled windows into boxes: in time order, a heading flown

@@ -24,7 +24,8 @@
 //!
 //! What was done to each channel is recorded in an [`AlignmentReport`].
 
-use serde::{Deserialize, Serialize};
+pub use crate::flight_log::{AlignmentReport, ResampledChannel};
+use serde::Deserialize;
 
 /// One recorded series before alignment.
 #[derive(Debug, Clone)]
@@ -56,53 +57,6 @@ pub struct AlignmentOptions {
     /// Longest interval, seconds, across which a channel is interpolated;
     /// default 2.5 of the channel's own median sample interval.
     pub gap_tolerance_s: Option<f64>,
-}
-
-/// How one channel was placed on the time base.
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct ResampledChannel {
-    /// Channel name.
-    pub channel: String,
-    /// Topic and field it came from.
-    pub source: String,
-    /// Samples recorded.
-    pub samples: usize,
-    /// Median recorded rate, Hz.
-    pub rate_hz: f64,
-    /// `time base`, `linear` or `previous value`.
-    pub method: &'static str,
-    /// Gap tolerance used, seconds.
-    pub gap_tolerance_s: f64,
-    /// Rows left missing because they fall in a gap.
-    pub rows_in_gaps: usize,
-    /// Rows left missing because they are outside the channel's span.
-    pub rows_outside: usize,
-    /// Samples dropped because they repeat an earlier one exactly (time
-    /// and value).
-    pub repeats_dropped: usize,
-    /// Times at which the channel has samples that disagree.
-    pub conflicting_times: usize,
-    /// Rows left missing because they would use such a sample.
-    pub rows_conflicting: usize,
-}
-
-/// What alignment did.
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct AlignmentReport {
-    /// Channel whose timestamps are the time base.
-    pub time_base: String,
-    /// Rows of the time base.
-    pub rows: usize,
-    /// Duplicate time-base timestamps dropped.
-    pub duplicate_times_dropped: usize,
-    /// Every channel, in output order.
-    pub channels: Vec<ResampledChannel>,
-    /// Remarks from reading: topics skipped and why, how the file was read.
-    pub notes: Vec<String>,
-    /// What was lost or left missing while reading and aligning: a file
-    /// cut short, damaged chunks, messages that failed to decode, repeated
-    /// or disagreeing timestamps. Printed and shown in the report.
-    pub warnings: Vec<String>,
 }
 
 /// Samples of the time-base channel at one time that disagree: which row
