@@ -15,6 +15,10 @@
 //! read_flight_log → calibration windows → fit_channels → compensate → assess_quality
 //! ```
 //!
+//! Interface names (CSV columns, the command line, the JSON files, MCAP
+//! topics) are fixed by the interface contract, `docs/CONTRACT.md`; a
+//! reference "CONTRACT §n" in these docs is to its section n.
+//!
 //! ## Example
 //!
 //! Make a small sample flight, fit its tail magnetometer on the box

@@ -237,3 +237,24 @@ fn the_module_graph_has_no_cycle_beyond_the_known_ones() {
         "import cycles changed: new or grown {new:?}; gone or shrunk (strike them from KNOWN_CYCLES) {gone:?}"
     );
 }
+
+/// The interface contract the code refers to ("CONTRACT §n") is in the
+/// repository, kept in step with the shared copy beside it.
+#[test]
+fn the_contract_in_the_repository_is_the_shared_one() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let ours = std::fs::read_to_string(root.join("docs/CONTRACT.md")).expect("docs/CONTRACT.md is in the repository");
+    assert!(ours.contains("DETECT.json") && ours.contains("DIAGNOSIS.json"));
+    let shared = root.join("../shared/CONTRACT.md");
+    match std::fs::read_to_string(&shared) {
+        Ok(theirs) => assert!(
+            ours == theirs,
+            "docs/CONTRACT.md differs from {}: copy the shared one over it and check the code against the change",
+            shared.display()
+        ),
+        Err(_) => println!(
+            "{} is absent: docs/CONTRACT.md not compared with the shared copy",
+            shared.display()
+        ),
+    }
+}

@@ -7,7 +7,7 @@
 //! backwards and equal times, huge cells, poisoned samples (±1e308, the
 //! smallest subnormal, 0, NaN, empty) inside and outside the calibration
 //! box, empty, header-only and one-row files, and a CSV header of 200,000
-//! columns. For every run the contract (shared/CONTRACT.md §2 and §3) asks:
+//! columns. For every run the contract (docs/CONTRACT.md §2 and §3) asks:
 //!
 //! - no panic (no `panicked` on stderr, no death by a signal) and no hang
 //!   (each run is killed after [`RUN_TIME_LIMIT`]);
