@@ -37,6 +37,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 use crate::flight_log::{AttitudeAngle, ChannelRole, FlightLog};
+use crate::holdout::heading_difference;
 use crate::windows::{CalibrationWindow, ManoeuvreKind};
 
 /// Detection thresholds (`[detect]` in pipeline.toml).
@@ -336,11 +337,6 @@ fn read_attitude(log: &FlightLog) -> Result<Attitude> {
         source: AttitudeSource::Fluxgate,
         field_unit: Some(unit),
     })
-}
-
-/// Difference of two headings wrapped into [-180, 180), degrees.
-fn heading_difference(a: f64, b: f64) -> f64 {
-    (a - b + 540.0).rem_euclid(360.0) - 180.0
 }
 
 /// Centred circular mean of the heading over `window` samples (NaN where

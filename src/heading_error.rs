@@ -79,10 +79,6 @@ fn survey_lines(log: &FlightLog, positions: &[[f64; 2]]) -> Vec<SurveyLine> {
         .collect()
 }
 
-fn apart(a: f64, b: f64) -> f64 {
-    ((a - b + 540.0).rem_euclid(360.0) - 180.0).abs()
-}
-
 /// The heading error of `before` (uncompensated) and `after`
 /// (compensated), or `None` when no opposite-direction lines overlap.
 pub fn heading_error(log: &FlightLog, before: &[f64], after: &[f64], match_distance_m: f64) -> Option<HeadingError> {
@@ -92,10 +88,10 @@ pub fn heading_error(log: &FlightLog, before: &[f64], after: &[f64], match_dista
     let (forward, back): (Vec<&SurveyLine>, Vec<&SurveyLine>) = lines
         .iter()
         .filter(|l| {
-            apart(l.track_deg, direction_deg) < OPPOSITE_WITHIN_DEG
-                || apart(l.track_deg, direction_deg + 180.0) < OPPOSITE_WITHIN_DEG
+            crate::holdout::angle_apart(l.track_deg, direction_deg) < OPPOSITE_WITHIN_DEG
+                || crate::holdout::angle_apart(l.track_deg, direction_deg + 180.0) < OPPOSITE_WITHIN_DEG
         })
-        .partition(|l| apart(l.track_deg, direction_deg) < OPPOSITE_WITHIN_DEG);
+        .partition(|l| crate::holdout::angle_apart(l.track_deg, direction_deg) < OPPOSITE_WITHIN_DEG);
     // The opposite direction's samples on a grid of cells one match
     // distance wide: a match lies in the 3 × 3 cells around a sample.
     let cell = |p: [f64; 2]| {

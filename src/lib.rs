@@ -58,6 +58,7 @@ pub mod flight_date;
 pub mod flight_identity;
 pub mod flight_log;
 pub mod heading_error;
+pub mod holdout;
 pub mod ingest;
 pub mod linalg;
 pub mod messages;

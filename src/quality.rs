@@ -74,9 +74,6 @@ impl FomRow {
     }
 }
 
-/// Headings closer than this share a row of the FOM table, degrees.
-const SAME_HEADING_DEG: f64 = 15.0;
-
 /// The classic FOM table (SEG dictionary, "figure of merit"): labelled
 /// windows grouped by heading, one cell per manoeuvre kind. When a
 /// manoeuvre was flown more than once (a second box), the first is the
@@ -88,8 +85,7 @@ pub fn fom_table(windows: &[WindowQuality], fits: &[WindowFit]) -> Vec<FomRow> {
         let (Some(kind), Some(heading)) = (quality.kind, quality.heading_deg) else {
             continue;
         };
-        let near =
-            |row: &FomRow| ((row.heading_deg - heading + 540.0).rem_euclid(360.0) - 180.0).abs() < SAME_HEADING_DEG;
+        let near = |row: &FomRow| crate::holdout::same_heading(row.heading_deg, heading);
         let index = match rows.iter().position(|(row, _, _)| near(row)) {
             Some(index) => index,
             None => {

@@ -18,6 +18,7 @@ use crate::augment::{fit, held_out};
 use crate::error::Result;
 use crate::fit::{FitOptions, FittedTollesLawson, WindowFit};
 use crate::flight_log::{FlightLog, VectorSensor};
+use crate::holdout::{heading_splits, same_heading};
 use crate::quality::{figure_of_merit, fom_table, window_quality};
 pub use crate::quality::{TransferCheck, TransferMethod};
 use crate::windows::CalibrationWindow;
@@ -45,12 +46,11 @@ pub fn group_into_boxes(windows: &[CalibrationWindow]) -> Vec<Vec<CalibrationWin
     let mut current_heading: Option<f64> = None;
     for window in ordered {
         let heading = window.heading_deg.unwrap_or(0.0);
-        let new_leg = current_heading.is_none_or(|h| angle_apart(h, heading) >= 15.0);
+        let new_leg = current_heading.is_none_or(|h| !same_heading(h, heading));
         let repeated = new_leg
-            && boxes.last().is_some_and(|b| {
-                b.iter()
-                    .any(|w| angle_apart(w.heading_deg.unwrap_or(0.0), heading) < 15.0)
-            });
+            && boxes
+                .last()
+                .is_some_and(|b| b.iter().any(|w| same_heading(w.heading_deg.unwrap_or(0.0), heading)));
         if boxes.is_empty() || repeated {
             boxes.push(Vec::new());
         }
@@ -60,10 +60,6 @@ pub fn group_into_boxes(windows: &[CalibrationWindow]) -> Vec<Vec<CalibrationWin
         }
     }
     boxes
-}
-
-fn angle_apart(a: f64, b: f64) -> f64 {
-    ((a - b + 540.0).rem_euclid(360.0) - 180.0).abs()
 }
 
 /// The compensated FOM of a set of held-out or fitted windows.
@@ -146,22 +142,11 @@ fn leave_one_heading_out(
     windows: &[CalibrationWindow],
     options: &FitOptions,
 ) -> Result<Option<Vec<WindowFit>>> {
-    let mut headings: Vec<f64> = Vec::new();
-    for window in windows {
-        let heading = window.heading_deg.unwrap_or(0.0);
-        if !headings.iter().any(|h| angle_apart(*h, heading) < 15.0) {
-            headings.push(heading);
-        }
-    }
-    if headings.len() < 3 {
+    let Some(splits) = heading_splits(windows) else {
         return Ok(None);
-    }
+    };
     let mut held = Vec::new();
-    for heading in headings {
-        let (out, rest): (Vec<CalibrationWindow>, Vec<CalibrationWindow>) = windows
-            .iter()
-            .cloned()
-            .partition(|w| angle_apart(w.heading_deg.unwrap_or(0.0), heading) < 15.0);
+    for (out, rest) in splits {
         let trained = fit(log, sensor, &model.channel, &rest, options, model.augmentation.as_ref())?;
         held.extend(held_out(&trained, log, sensor, &out, options)?);
     }

@@ -84,6 +84,7 @@ use crate::augment::{column_level, field_directions, Augmentation, Prepared, Sou
 use crate::error::Result;
 use crate::fit::{fit_channel_with, FitOptions, WindowFit};
 use crate::flight_log::{ChannelRole, FlightLog, VectorSensor};
+use crate::holdout::{distinct_headings, heading_splits};
 use crate::quality::root_mean_square;
 use crate::solve::{Criterion, LambdaChoice};
 use crate::vector_calibration::{calibrate, VectorCalibration};
@@ -1464,23 +1465,13 @@ fn not_enough_calibration(log: &FlightLog, problem: String) -> crate::Error {
     }
 }
 
-/// The headings of `windows`, one per group within 15° of each other, in
-/// order of first appearance.
-fn distinct_headings(windows: &[CalibrationWindow]) -> Vec<f64> {
-    let mut headings: Vec<f64> = Vec::new();
-    for heading in windows.iter().filter_map(|w| w.heading_deg) {
-        if !headings.iter().any(|h| apart(*h, heading) < 15.0) {
-            headings.push(heading);
-        }
-    }
-    headings
-}
-
 /// The held-out splits (held out, trained on): each heading with three
 /// headings or more (leave one heading out); otherwise each window with
 /// three windows or more; otherwise each quarter of every window.
 fn folds(windows: &[CalibrationWindow]) -> Vec<(Vec<CalibrationWindow>, Vec<CalibrationWindow>)> {
-    let headings = distinct_headings(windows);
+    if let Some(splits) = heading_splits(windows) {
+        return splits;
+    }
     let split = |pieces: &[CalibrationWindow], is_out: &dyn Fn(usize, &CalibrationWindow) -> bool| {
         let (out, rest): (Vec<_>, Vec<_>) = pieces.iter().enumerate().partition(|(k, w)| is_out(*k, w));
         (
@@ -1488,12 +1479,6 @@ fn folds(windows: &[CalibrationWindow]) -> Vec<(Vec<CalibrationWindow>, Vec<Cali
             rest.into_iter().map(|(_, w)| w.clone()).collect(),
         )
     };
-    if headings.len() >= 3 && windows.iter().all(|w| w.heading_deg.is_some()) {
-        return headings
-            .iter()
-            .map(|&h| split(windows, &|_, w| apart(w.heading_deg.unwrap_or(h), h) < 15.0))
-            .collect();
-    }
     let pieces: Vec<CalibrationWindow> = if windows.len() >= 3 {
         windows.to_vec()
     } else {
@@ -1509,10 +1494,6 @@ fn folds(windows: &[CalibrationWindow]) -> Vec<(Vec<CalibrationWindow>, Vec<Cali
             .collect()
     };
     (0..pieces.len()).map(|k| split(&pieces, &|j, _| j == k)).collect()
-}
-
-fn apart(a: f64, b: f64) -> f64 {
-    ((a - b + 540.0).rem_euclid(360.0) - 180.0).abs()
 }
 
 /// Refines a parameter found on a coarse grid: `steps` either side of
