@@ -141,14 +141,14 @@ pub enum Error {
     },
 
     /// The fit could not be computed.
-    #[error("{path}: fitting channel '{channel}': {message}")]
+    #[error("{path}: fitting channel '{channel}': {source}")]
     Fit {
         /// The flight.
         path: PathBuf,
-        /// Scalar channel being fitted.
+        /// Scalar channel (or fluxgate) being fitted.
         channel: String,
-        /// What went wrong and what to try.
-        message: String,
+        /// Why.
+        source: FitFailure,
     },
 
     /// The calibration data cannot support what was asked of it: too few
@@ -210,6 +210,21 @@ pub enum Error {
         /// The serialiser's message.
         message: String,
     },
+}
+
+/// Why a fit failed: the solver's or the filter's own error, or a
+/// sentence where neither applies.
+#[derive(Debug, thiserror::Error)]
+pub enum FitFailure {
+    /// The regression could not be solved.
+    #[error(transparent)]
+    Solve(#[from] crate::solve::SolveError),
+    /// The calibration data could not be filtered.
+    #[error(transparent)]
+    Filter(#[from] crate::filter::FilterError),
+    /// Anything else, in words.
+    #[error("{0}")]
+    Other(String),
 }
 
 /// What to do about an operating-system error, by its kind.

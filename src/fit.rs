@@ -188,7 +188,7 @@ pub fn fit_channel_with(
     let solution = solve_stacked(&stacked, &options.solve).map_err(|e| Error::Fit {
         path: log.source().to_path_buf(),
         channel: channel.into(),
-        message: e.to_string(),
+        source: e.into(),
     })?;
     for fit in &mut fits {
         fit.band_after_nt = (fit
@@ -287,7 +287,7 @@ fn band_data(
     let stacked = stack_filtered((field, extra), scalar, &plans, &filter, options).map_err(|e| Error::Fit {
         path: log.source().to_path_buf(),
         channel: channel.into(),
-        message: e.to_string(),
+        source: e.into(),
     })?;
     let mut fits: Vec<WindowFit> = Vec::with_capacity(plans.len());
     let mut start = 0;

@@ -132,7 +132,7 @@ pub fn calibrate(
     let fail = |message: String| Error::Fit {
         path: log.source().to_path_buf(),
         channel: sensor.prefix.clone(),
-        message,
+        source: crate::error::FitFailure::Other(message),
     };
     let scalar = &log
         .channel(reference)
@@ -286,7 +286,7 @@ pub fn calibrate_best(
             _ => Err(Error::Fit {
                 path: log.source().to_path_buf(),
                 channel: sensor.prefix.clone(),
-                message: "no scalar channel to calibrate the fluxgate against".into(),
+                source: crate::error::FitFailure::Other("no scalar channel to calibrate the fluxgate against".into()),
             }),
         },
     }

@@ -678,7 +678,7 @@ fn quietest_reference(
     quietest.ok_or_else(|| crate::Error::Fit {
         path: log.source().to_path_buf(),
         channel: sensor.prefix.clone(),
-        message: "no scalar channel to judge the fluxgate against".into(),
+        source: crate::error::FitFailure::Other("no scalar channel to judge the fluxgate against".into()),
     })
 }
 
