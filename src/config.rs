@@ -302,6 +302,15 @@ impl Pipeline {
         Pipeline::from_raw(raw, base, &path.display().to_string())
     }
 
+    /// The settings of `path` when given, otherwise the defaults (a
+    /// command run without `--config`).
+    pub fn load_or_default(path: Option<&Path>) -> Result<Self> {
+        match path {
+            Some(path) => Pipeline::load(path),
+            None => Ok(Pipeline::default()),
+        }
+    }
+
     /// Validates `raw`, resolving relative paths against `base`.
     pub fn from_raw(raw: RawPipeline, base: &Path, source_name: &str) -> Result<Self> {
         let bad = |message: String| Error::Config {

@@ -414,10 +414,7 @@ fn status_table(statuses: &[FlightStatus]) -> String {
 }
 
 fn compensate(args: CompensateArgs) -> anyhow::Result<()> {
-    let mut pipeline = match &args.config {
-        Some(path) => Pipeline::load(path)?,
-        None => Pipeline::default(),
-    };
+    let mut pipeline = Pipeline::load_or_default(args.config.as_deref())?;
     if let Some(lambda) = args.lambda {
         anyhow::ensure!(
             lambda.is_finite() && lambda >= 0.0,
@@ -481,10 +478,7 @@ fn convert(
     config: Option<&Path>,
     date: Option<magcomp::flight_date::FlightDate>,
 ) -> anyhow::Result<()> {
-    let mut pipeline = match config {
-        Some(path) => Pipeline::load(path)?,
-        None => Pipeline::default(),
-    };
+    let mut pipeline = Pipeline::load_or_default(config)?;
     pipeline.ingest.date = date.or(pipeline.ingest.date);
     let inputs: Vec<&Path> = std::iter::once(flight).chain(config).collect();
     print_notes(&prepare(
@@ -542,10 +536,7 @@ fn replay_flight(
     windows: &[String],
     config: Option<&Path>,
 ) -> anyhow::Result<()> {
-    let pipeline = match config {
-        Some(path) => Pipeline::load(path)?,
-        None => Pipeline::default(),
-    };
+    let pipeline = Pipeline::load_or_default(config)?;
     let report = beside(out, "_replay.json");
     let inputs: Vec<&Path> = [Some(flight), diagnosis, config].into_iter().flatten().collect();
     print_notes(&prepare(
@@ -644,10 +635,7 @@ fn simulate(scenario_path: &Path, out: &Path, seed: Option<u64>) -> anyhow::Resu
 }
 
 fn detect(flight: &Path, out: &Path, config: Option<&Path>) -> anyhow::Result<()> {
-    let pipeline = match config {
-        Some(path) => Pipeline::load(path)?,
-        None => Pipeline::default(),
-    };
+    let pipeline = Pipeline::load_or_default(config)?;
     let inputs: Vec<&Path> = std::iter::once(flight).chain(config).collect();
     print_notes(&prepare(&inputs, &[Destination::new(out, OutputKind::Json, "--out")])?);
     let log = read_screened(flight, &pipeline)?;
@@ -685,10 +673,7 @@ fn diagnose(
     windows: &[String],
     config: Option<&Path>,
 ) -> anyhow::Result<()> {
-    let pipeline = match config {
-        Some(path) => Pipeline::load(path)?,
-        None => Pipeline::default(),
-    };
+    let pipeline = Pipeline::load_or_default(config)?;
     let inputs: Vec<&Path> = std::iter::once(flight).chain(config).collect();
     print_notes(&prepare(
         &inputs,

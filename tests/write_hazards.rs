@@ -226,6 +226,27 @@ fn a_missing_folder_is_created_and_said() {
 }
 
 #[test]
+fn a_missing_input_makes_no_folder() {
+    let folder = tempfile::tempdir().unwrap();
+    for args in [
+        &["compensate", "absent.csv", "--out", "new/o.csv"][..],
+        &["detect", "absent.csv", "--out", "new/d.json"][..],
+        &["diagnose", "absent.csv", "--out", "new/d.json"][..],
+    ] {
+        let (ok, text) = magcomp(folder.path(), args);
+        assert!(!ok, "{args:?}: {text}");
+        assert!(
+            text.contains("absent.csv") && text.contains("Check that the path exists"),
+            "{args:?}: {text}"
+        );
+        assert!(
+            !folder.path().join("new").exists(),
+            "{args:?} made the output folder: {text}"
+        );
+    }
+}
+
+#[test]
 fn a_failed_run_leaves_the_previous_outputs_and_no_temporary_files() {
     let folder = tempfile::tempdir().unwrap();
     small_flight(folder.path());

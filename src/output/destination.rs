@@ -100,6 +100,10 @@ fn refuse(path: &Path, problem: impl Into<String>, hint: impl Into<String>) -> E
 /// other, before any work is done; creates missing folders. Returns a
 /// sentence for each folder created, for the user.
 pub fn prepare(inputs: &[&Path], outputs: &[Destination]) -> Result<Vec<String>> {
+    // A missing input stops the command before any folder is made.
+    for input in inputs {
+        std::fs::metadata(input).map_err(|e| Error::io(input, "opening", e))?;
+    }
     for output in outputs {
         check_extension(output)?;
         check_not_special(&output.path)?;
