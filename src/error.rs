@@ -129,6 +129,26 @@ pub enum Error {
         message: String,
     },
 
+    /// A file given as one of magcomp's own JSON files is not one.
+    #[error("{path}: not {expected}: {problem}. {hint}")]
+    NotOurFile {
+        /// The file.
+        path: PathBuf,
+        /// What it was given as ("a DETECT.json manoeuvre list").
+        expected: &'static str,
+        /// What the reader found wrong.
+        problem: String,
+        /// What to do.
+        hint: &'static str,
+    },
+
+    /// A fit was asked for without any calibration window.
+    #[error("{path}: no calibration windows to fit on: give them with --window T0:T1, in pipeline.toml, or as a DETECT.json file")]
+    NoCalibrationWindows {
+        /// The flight.
+        path: PathBuf,
+    },
+
     /// The band-pass filter cannot be designed for a flight's sample rate.
     #[error("{path}: the band-pass filter cannot be designed: {source}. {hint}")]
     FilterDesign {

@@ -126,11 +126,8 @@ pub fn fit_channels(
     options: &FitOptions,
 ) -> Result<Vec<FittedTollesLawson>> {
     if windows.is_empty() {
-        return Err(Error::Config {
-            source_name: log.source().display().to_string(),
-            message:
-                "no calibration windows: give them with --window T0:T1, in pipeline.toml, or as a DETECT.json file"
-                    .into(),
+        return Err(Error::NoCalibrationWindows {
+            path: log.source().to_path_buf(),
         });
     }
     channels

@@ -180,9 +180,11 @@ pub fn stage_detect_json(
 /// and trimming need it).
 pub fn read_detect_json(path: &Path, margin_s: f64) -> Result<Vec<CalibrationWindow>> {
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, "reading", e))?;
-    let file: DetectFile = serde_json::from_str(&text).map_err(|e| Error::Config {
-        source_name: path.display().to_string(),
-        message: format!("not a DETECT.json manoeuvre list: {e}"),
+    let file: DetectFile = serde_json::from_str(&text).map_err(|e| Error::NotOurFile {
+        path: path.to_path_buf(),
+        expected: "a DETECT.json manoeuvre list",
+        problem: e.to_string(),
+        hint: "Give the file `magcomp detect FLIGHT --out DETECT.json` writes, or a JSON object with a \"manoeuvres\" list of kind, heading_deg, t_start and t_end.",
     })?;
     let windows: Vec<CalibrationWindow> = file
         .manoeuvres

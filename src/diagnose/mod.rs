@@ -336,9 +336,11 @@ pub fn read_saved(path: &std::path::Path) -> Result<SavedDiagnosis> {
         model: Augmentation,
     }
     let text = std::fs::read_to_string(path).map_err(|e| crate::Error::io(path, "reading", e))?;
-    let file: File = serde_json::from_str(&text).map_err(|e| crate::Error::Config {
-        source_name: path.display().to_string(),
-        message: format!("not a DIAGNOSIS.json as `magcomp diagnose` writes it ({e}); diagnose the flight again"),
+    let file: File = serde_json::from_str(&text).map_err(|e| crate::Error::NotOurFile {
+        path: path.to_path_buf(),
+        expected: "a DIAGNOSIS.json as `magcomp diagnose` writes it",
+        problem: e.to_string(),
+        hint: "Diagnose the flight again.",
     })?;
     Ok(SavedDiagnosis {
         flight: file.flight,
