@@ -33,6 +33,7 @@
 
 use std::ops::Range;
 
+use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
@@ -215,7 +216,7 @@ struct Attitude {
     heading_deg: Vec<f64>,
     source: AttitudeSource,
     /// Unit field direction in body axes (fluxgate fallback only).
-    field_unit: Option<Vec<[f64; 3]>>,
+    field_unit: Option<Vec<Vector3<f64>>>,
 }
 
 /// Finds the calibration boxes and manoeuvres of a flight.
@@ -319,10 +320,10 @@ fn read_attitude(log: &FlightLog) -> Result<Attitude> {
         hint: "Detection needs the aircraft's attitude; map your columns in [columns] of pipeline.toml, or give the windows with --window.".into(),
     })?;
     let [x, y, z] = log.vector_components(&sensor);
-    let unit: Vec<[f64; 3]> = (0..log.len())
+    let unit: Vec<Vector3<f64>> = (0..log.len())
         .map(|k| {
-            let norm = (x[k] * x[k] + y[k] * y[k] + z[k] * z[k]).sqrt();
-            [x[k] / norm, y[k] / norm, z[k] / norm]
+            let field = Vector3::new(x[k], y[k], z[k]);
+            field / field.norm()
         })
         .collect();
     // Level flight: body x = H cos(D − ψ), y = H sin(D − ψ), so the
@@ -692,50 +693,32 @@ fn ins_candidates(attitude: &Attitude, leg: &Leg, options: &DetectOptions, dt: f
     candidates
 }
 
-fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-/// Principal direction of a cloud of 3-vectors (power iteration on the
-/// covariance, a fixed number of steps from a fixed start).
-fn principal_direction(points: &[[f64; 3]]) -> [f64; 3] {
-    let finite: Vec<&[f64; 3]> = points.iter().filter(|p| p.iter().all(|c| c.is_finite())).collect();
+/// Principal direction of a cloud of 3-vectors: the eigenvector of the
+/// largest eigenvalue of their covariance, signed to lean towards
+/// (0.6, 0.5, 0.62) so the same cloud always gives the same vector.
+fn principal_direction(points: &[Vector3<f64>]) -> Vector3<f64> {
+    let finite: Vec<&Vector3<f64>> = points.iter().filter(|p| p.iter().all(|c| c.is_finite())).collect();
     let count = finite.len().max(1) as f64;
-    let mean = [0, 1, 2].map(|i| finite.iter().map(|p| p[i]).sum::<f64>() / count);
-    let mut covariance = [[0.0; 3]; 3];
-    for p in &finite {
-        let centred = [0, 1, 2].map(|i| p[i] - mean[i]);
-        for i in 0..3 {
-            for j in 0..3 {
-                covariance[i][j] += centred[i] * centred[j];
-            }
-        }
+    let mean = finite.iter().fold(Vector3::zeros(), |sum, p| sum + *p) / count;
+    let covariance = finite.iter().fold(Matrix3::zeros(), |sum, p| {
+        let centred = *p - mean;
+        sum + centred * centred.transpose()
+    });
+    let eigen = SymmetricEigen::new(covariance);
+    let largest = eigen.eigenvalues.imax();
+    let direction: Vector3<f64> = eigen.eigenvectors.column(largest).into_owned();
+    if direction.dot(&Vector3::new(0.6, 0.5, 0.62)) < 0.0 {
+        -direction
+    } else {
+        direction
     }
-    let mut direction = [0.6, 0.5, 0.62];
-    for _ in 0..100 {
-        let next = covariance.map(|row| dot(row, direction));
-        let norm = dot(next, next).sqrt();
-        if norm == 0.0 {
-            break;
-        }
-        direction = next.map(|c| c / norm);
-    }
-    direction
 }
 
 /// Fluxgate fallback: the small rotation $u_{ref} \times u$ of the field
 /// direction from the leg's mean direction, in degrees. A rotation θ about
 /// body axis a gives $-θ\,(a - (a\cdot u)u)$: the direction of the
 /// rotation vector tells the axis, its size over $|a - (a\cdot u)u|$ the angle.
-fn fluxgate_candidates(unit: &[[f64; 3]], leg: &Leg, options: &DetectOptions, dt: f64) -> Vec<Candidate> {
+fn fluxgate_candidates(unit: &[Vector3<f64>], leg: &Leg, options: &DetectOptions, dt: f64) -> Vec<Candidate> {
     let rows = leg.rows.clone();
     // Level flight's direction: the component-wise median over the leg
     // (manoeuvres swing both ways about it).
@@ -747,19 +730,16 @@ fn fluxgate_candidates(unit: &[[f64; 3]], leg: &Leg, options: &DetectOptions, dt
             .collect();
         median(&mut values).unwrap_or(0.0)
     };
-    let level = [0, 1, 2].map(median_of);
-    let reference = level.map(|c| c / dot(level, level).sqrt());
-    let rotation: Vec<[f64; 3]> = unit[rows]
+    let level = Vector3::new(median_of(0), median_of(1), median_of(2));
+    let reference = level / level.norm();
+    let rotation: Vec<Vector3<f64>> = unit[rows]
         .iter()
-        .map(|u| cross(reference, *u).map(f64::to_degrees))
+        .map(|u| reference.cross(u).map(f64::to_degrees))
         .collect();
 
     // Pitch turns about body y, roll about x, yaw about z.
-    let visible = [1, 0, 2].map(|axis| {
-        let along = reference[axis];
-        [0, 1, 2].map(|i| f64::from(u8::from(i == axis)) - along * reference[i])
-    });
-    let size: Vec<f64> = rotation.iter().map(|w| dot(*w, *w).sqrt()).collect();
+    let visible = [Vector3::y(), Vector3::x(), Vector3::z()].map(|axis| axis - reference * axis.dot(&reference));
+    let size: Vec<f64> = rotation.iter().map(|w| w.norm()).collect();
     // The rotation seen of a yaw is a third of the yaw: a longer envelope
     // keeps it above threshold through its zero crossings.
     let envelope = rms_envelope(&size, samples(1.7 * options.envelope_s, dt));
@@ -775,7 +755,7 @@ fn fluxgate_candidates(unit: &[[f64; 3]], leg: &Leg, options: &DetectOptions, dt
     .into_iter()
     .map(|region| {
         let direction = principal_direction(&rotation[region.clone()]);
-        let score = |v: &[f64; 3]| dot(direction, *v).abs() / dot(*v, *v).sqrt();
+        let score = |v: &Vector3<f64>| direction.dot(v).abs() / v.norm();
         let scores = [0, 1, 2].map(|axis| score(&visible[axis]));
         let best = (0..3).max_by(|a, b| scores[*a].total_cmp(&scores[*b])).unwrap_or(0);
         // Axes whose rotations lie along the same line as the best one's:
@@ -805,7 +785,7 @@ fn fluxgate_candidates(unit: &[[f64; 3]], leg: &Leg, options: &DetectOptions, dt
     // A leg flies one manoeuvre about each axis: two uncertain ones between
     // the same two axes are told apart by size, the larger rotation on the
     // axis that turns the field more for its nominal amplitude.
-    let expected = |axis: usize| dot(visible[axis], visible[axis]).sqrt() * options.nominal_amplitude_deg[axis];
+    let expected = |axis: usize| visible[axis].norm() * options.nominal_amplitude_deg[axis];
     let pair = |c: &Candidate| c.could_be.map(|other| (c.axis.min(other), c.axis.max(other)));
     for (a, b) in [(0, 1), (0, 2), (1, 2)] {
         let members: Vec<usize> = (0..candidates.len())
@@ -829,8 +809,8 @@ fn fluxgate_candidates(unit: &[[f64; 3]], leg: &Leg, options: &DetectOptions, dt
     }
     for candidate in &mut candidates {
         let direction = principal_direction(&rotation[candidate.region.clone()]);
-        let scale = dot(visible[candidate.axis], visible[candidate.axis]).sqrt().max(1e-3);
-        candidate.series = std::rc::Rc::new(rotation.iter().map(|w| dot(*w, direction) / scale).collect());
+        let scale = visible[candidate.axis].norm().max(1e-3);
+        candidate.series = std::rc::Rc::new(rotation.iter().map(|w| w.dot(&direction) / scale).collect());
         candidate.strength = 1.0;
     }
     candidates
@@ -847,8 +827,8 @@ const AXES_ALIKE: f64 = 0.95;
 /// How far a rotation of RMS `size` degrees is from what the nominal
 /// amplitude about an axis with visible rotation `visible` would give, as
 /// the absolute log ratio.
-fn size_misfit(size: f64, visible: &[f64; 3], nominal_deg: f64) -> f64 {
-    let turned = dot(*visible, *visible).sqrt().max(1e-3) * nominal_deg / std::f64::consts::SQRT_2;
+fn size_misfit(size: f64, visible: &Vector3<f64>, nominal_deg: f64) -> f64 {
+    let turned = visible.norm().max(1e-3) * nominal_deg / std::f64::consts::SQRT_2;
     (size.max(1e-12) / turned).ln().abs()
 }
 
