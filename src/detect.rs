@@ -746,7 +746,7 @@ fn fluxgate_candidates(unit: &[Vector3<f64>], leg: &Leg, options: &DetectOptions
     let threshold = options
         .fluxgate_min_rms_deg
         .max(options.turbulence_factor * percentile(&envelope, 0.1));
-    let mut candidates: Vec<Candidate> = active_regions(
+    let (mut candidates, directions): (Vec<Candidate>, Vec<Vector3<f64>>) = active_regions(
         &envelope,
         threshold,
         samples(options.join_activity_s, dt),
@@ -773,15 +773,16 @@ fn fluxgate_candidates(unit: &[Vector3<f64>], leg: &Leg, options: &DetectOptions
                 options.nominal_amplitude_deg[*b],
             ))
         });
-        Candidate {
+        let candidate = Candidate {
             axis: by_size[0],
             could_be: by_size.get(1).copied(),
             region,
             strength: size,
             series: std::rc::Rc::new(Vec::new()),
-        }
+        };
+        (candidate, direction)
     })
-    .collect();
+    .unzip();
     // A leg flies one manoeuvre about each axis: two uncertain ones between
     // the same two axes are told apart by size, the larger rotation on the
     // axis that turns the field more for its nominal amplitude.
@@ -807,10 +808,9 @@ fn fluxgate_candidates(unit: &[Vector3<f64>], leg: &Leg, options: &DetectOptions
             candidates[index].could_be = Some(other);
         }
     }
-    for candidate in &mut candidates {
-        let direction = principal_direction(&rotation[candidate.region.clone()]);
+    for (candidate, direction) in candidates.iter_mut().zip(&directions) {
         let scale = visible[candidate.axis].norm().max(1e-3);
-        candidate.series = std::rc::Rc::new(rotation.iter().map(|w| w.dot(&direction) / scale).collect());
+        candidate.series = std::rc::Rc::new(rotation.iter().map(|w| w.dot(direction) / scale).collect());
         candidate.strength = 1.0;
     }
     candidates

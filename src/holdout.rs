@@ -64,10 +64,12 @@ pub fn heading_splits(windows: &[CalibrationWindow]) -> Option<Vec<(Vec<Calibrat
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
-    fn window(t: f64, heading: f64) -> CalibrationWindow {
+    /// A 10 s window from `t` on `heading` (for the unit tests here and
+    /// in the modules that hold out by heading).
+    pub(crate) fn window(t: f64, heading: f64) -> CalibrationWindow {
         CalibrationWindow {
             heading_deg: Some(heading),
             ..CalibrationWindow::new(t, t + 10.0)

@@ -156,13 +156,7 @@ fn leave_one_heading_out(
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn window(t: f64, heading: f64) -> CalibrationWindow {
-        CalibrationWindow {
-            heading_deg: Some(heading),
-            ..CalibrationWindow::new(t, t + 10.0)
-        }
-    }
+    use crate::holdout::tests::window;
 
     #[test]
     fn a_heading_flown_again_starts_the_next_box() {

@@ -36,7 +36,11 @@ const KNOWN_CYCLES: &[&[&str]] = &[
 /// `text` without `//` comments (doc comments included) and without its
 /// unit-test module.
 fn code_of(text: &str) -> String {
-    let text = match text.find("#[cfg(test)]\nmod tests") {
+    let test_module = ["#[cfg(test)]\nmod tests", "#[cfg(test)]\npub(crate) mod tests"]
+        .iter()
+        .filter_map(|start| text.find(start))
+        .min();
+    let text = match test_module {
         Some(at) => &text[..at],
         None => text,
     };
@@ -195,10 +199,12 @@ fn grouped_and_inline_paths_are_edges_and_comments_are_not() {
          /// [`crate::quality`] in a doc link\n\
          let x = crate::windows::CalibrationWindow::new(0.0, 1.0);\n\
          let url = \"https://example.org\"; crate::screen::run();\n\
-         #[cfg(test)]\nmod tests { use crate::simulate::simulate; }\n",
+         #[cfg(test)]\npub(crate) mod tests { use crate::simulate::simulate; }\n",
     );
     let used: Vec<String> = modules_used(&code).into_iter().collect();
     assert_eq!(used, ["error", "fit", "screen", "windows"]);
+    let plain = code_of("use crate::fit::X;\n#[cfg(test)]\nmod tests { use crate::simulate::simulate; }\n");
+    assert_eq!(modules_used(&plain).into_iter().collect::<Vec<_>>(), ["fit"]);
 }
 
 #[test]

@@ -265,18 +265,21 @@ fn gaps_and_dropouts_lose_at_most_the_manoeuvre_they_hit() {
     }
 }
 
-#[test]
-fn without_an_ins_the_fluxgate_stands_in() {
-    let flight = fly(14, |_| {});
-    let log = &flight.log;
+/// `log` without its INS columns: attitude from the fluxgate alone.
+fn without_ins(log: &FlightLog) -> FlightLog {
     let channels: Vec<Channel> = log
         .channels()
         .iter()
         .filter(|c| !c.name.starts_with("ins_"))
         .cloned()
         .collect();
-    let without = FlightLog::new(log.source(), log.time_column(), log.time_s().to_vec(), channels).unwrap();
-    let detection = detect_manoeuvres(&without, &DetectOptions::default()).unwrap();
+    FlightLog::new(log.source(), log.time_column(), log.time_s().to_vec(), channels).unwrap()
+}
+
+#[test]
+fn without_an_ins_the_fluxgate_stands_in() {
+    let flight = fly(14, |_| {});
+    let detection = detect_manoeuvres(&without_ins(&flight.log), &DetectOptions::default()).unwrap();
     assert_eq!(detection.attitude_source, AttitudeSource::Fluxgate);
     assert!(detection.notes.iter().any(|n| n.contains("fluxgate")));
     assert_perfect("fluxgate", &flight, &detection);
@@ -366,15 +369,7 @@ fn the_fluxgate_flags_the_kinds_it_cannot_tell_apart() {
         });
         let with_ins = detect(&flight);
         assert!(with_ins.manoeuvres.iter().all(|m| m.could_be.is_none()), "seed {seed}");
-        let log = &flight.log;
-        let channels: Vec<Channel> = log
-            .channels()
-            .iter()
-            .filter(|c| !c.name.starts_with("ins_"))
-            .cloned()
-            .collect();
-        let without = FlightLog::new(log.source(), log.time_column(), log.time_s().to_vec(), channels).unwrap();
-        let detection = detect_manoeuvres(&without, &DetectOptions::default()).unwrap();
+        let detection = detect_manoeuvres(&without_ins(&flight.log), &DetectOptions::default()).unwrap();
         for m in &flight.truth.manoeuvres {
             let matched = detection.manoeuvres.iter().any(|d| {
                 (d.kind == m.kind || d.could_be == Some(m.kind))
