@@ -13,8 +13,8 @@ use std::path::Path;
 use std::time::Instant;
 
 use magcomp::config::{FlightJob, Pipeline};
-use magcomp::fit::{fit_channel, FitOptions};
 use magcomp::flight_log::{Channel, ChannelRole, FlightLog, VectorAxis};
+use magcomp::model::{fit, FitOptions, ModelSpec};
 use magcomp::pipeline::{choose_vector_sensor, process_flight, FlightOutputs, StageOptions};
 use magcomp::windows::CalibrationWindow;
 
@@ -108,7 +108,15 @@ fn bench_fit(rows: usize, repeats: usize) {
     let window = CalibrationWindow::new(0.0, log.time_s()[rows - 1]);
     let options = FitOptions::default();
     let fit = || {
-        let model = fit_channel(&log, &sensor, "mag_1_uc", std::slice::from_ref(&window), &options).unwrap();
+        let model = fit(
+            &log,
+            &sensor,
+            "mag_1_uc",
+            std::slice::from_ref(&window),
+            &ModelSpec::default(),
+            &options,
+        )
+        .unwrap();
         std::hint::black_box(model);
     };
     // The first fit finds no recycled store and takes fresh memory; the

@@ -12,22 +12,17 @@
 //! A row whose scalar or vector sample is missing gets an empty value and a
 //! reason in the flags; no row is ever dropped.
 //!
-//! A model with an [`Augmentation`] (an accepted diagnosis) is evaluated on
-//! its own terms: the fluxgate calibrated, the extra regressors added to
+//! A model with extensions (an accepted diagnosis) is evaluated on its own
+//! terms: the fluxgate calibrated, the extension columns added to
 //! $A\beta$, and $m_{uc}$ read `lag_s` later when the sensor lags, so the
 //! compensated value at a row is the field at that row's time and place.
-
-use std::collections::BTreeMap;
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::augment::{second_order_term, Augmentation};
 use crate::error::Result;
-use crate::fit::FittedTollesLawson;
-use crate::flight_log::{FlightLog, VectorSensor};
-use crate::segments::valid_runs;
-use crate::tolles_lawson::DesignMatrix;
+use crate::flight_log::FlightLog;
+use crate::model::{FittedModel, SharedDesign};
 
 /// Which DC level the compensated channel keeps.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -66,174 +61,33 @@ pub struct Compensation {
 }
 
 /// Compensates every row of every channel that has a model, in parallel
-/// over channels. A model whose scalar channel or vector sensor the flight
-/// lacks (a model fitted on another flight) is an error.
-pub fn compensate(log: &FlightLog, models: &[FittedTollesLawson], level: LevelConvention) -> Result<Compensation> {
-    for model in models {
-        let sensors = log.vector_sensors();
-        let missing = match (
-            log.channel(&model.channel),
-            sensors.iter().any(|s| s.prefix == model.vector_sensor),
-        ) {
-            (None, _) => Some(("scalar magnetometer", model.channel.clone())),
-            (_, false) => Some(("vector magnetometer", model.vector_sensor.clone())),
-            _ => None,
-        };
-        if let Some((role, name)) = missing {
-            return Err(crate::Error::MissingColumn {
-                path: log.source().to_path_buf(),
-                role,
-                looked_for: format!("'{name}', which the model of '{}' uses", model.channel),
-                hint: "Compensate with models fitted on this flight's own channels.".into(),
-            });
-        }
-    }
-    let designs = shared_design_matrices(log, models);
+/// over channels: $m_c = m_{uc} - (A\beta - \delta)$ with $A\beta$ the
+/// model's prediction ([`FittedModel::predict`]). A model whose scalar
+/// channel or vector sensor the flight lacks (a model fitted on another
+/// flight) is an error.
+pub fn compensate(log: &FlightLog, models: &[FittedModel], level: LevelConvention) -> Result<Compensation> {
+    let shared = SharedDesign::of_models(log, models);
     let channels: Vec<CompensatedChannel> = models
         .par_iter()
-        .map(|model| match &model.augmentation {
-            None => {
-                let scalar = &log
-                    .channel(&model.channel)
-                    .expect("compensate checked that every model's channel is in the flight log")
-                    .values;
-                Ok(compensate_channel(
-                    log,
-                    model,
-                    scalar,
-                    (&designs[&design_key(model)], &[]),
-                    level,
-                ))
-            }
-            Some(augmentation) => compensate_augmented(log, model, augmentation, level),
+        .map(|model| {
+            let prediction = model.predict_with(log, &shared)?;
+            Ok(level_compensated(
+                log,
+                model,
+                &prediction.scalar_nt,
+                prediction.interference_nt,
+                level,
+            ))
         })
         .collect::<Result<_>>()?;
     let flags = row_flags(log, models, &channels);
     Ok(Compensation { channels, flags })
 }
 
-type DesignKey = (String, String);
-
-fn design_key(model: &FittedTollesLawson) -> DesignKey {
-    (model.vector_sensor.clone(), format!("{:?}", model.terms))
-}
-
-/// One full-flight design matrix per (vector sensor, term set) of the
-/// plain models.
-fn shared_design_matrices(log: &FlightLog, models: &[FittedTollesLawson]) -> BTreeMap<DesignKey, DesignMatrix> {
-    let mut designs = BTreeMap::new();
-    for model in models.iter().filter(|m| m.augmentation.is_none()) {
-        designs
-            .entry(design_key(model))
-            .or_insert_with(|| design_matrix(log, &sensor_named(log, &model.vector_sensor), model));
-    }
-    designs
-}
-
-/// The model's Tolles-Lawson terms over the whole flight.
-fn design_matrix(log: &FlightLog, sensor: &VectorSensor, model: &FittedTollesLawson) -> DesignMatrix {
-    let field = log.vector_components(sensor);
-    let valid: Vec<bool> = (0..log.len()).map(|i| field.iter().all(|c| c[i].is_finite())).collect();
-    let runs = valid_runs(log.time_s(), &valid, 0..log.len(), log.median_interval_s());
-    model.terms.design_matrix(field, &runs)
-}
-
-/// An augmented model: its own flight (calibrated fluxgate, advanced
-/// scalar), terms and extra regressors.
-fn compensate_augmented(
-    log: &FlightLog,
-    model: &FittedTollesLawson,
-    augmentation: &Augmentation,
-    level: LevelConvention,
-) -> Result<CompensatedChannel> {
-    let sensor = sensor_named(log, &model.vector_sensor);
-    let prepared = augmentation.prepare(log, &sensor, &model.channel, model.terms.bt_scale_nt)?;
-    let design = design_matrix(&prepared.log, &sensor, model);
-    let scalar = &prepared
-        .log
-        .channel(&model.channel)
-        .expect("compensate checked that every model's channel is in the flight log")
-        .values;
-    // A base-station term is fitted (so geomagnetic variation in the
-    // calibration band does not bias the aircraft's coefficients) but not
-    // subtracted: it is the Earth's field, which the compensated channel
-    // keeps; removing it is the survey's diurnal correction, a step of
-    // its own.
-    let aircraft_columns: Vec<Vec<f64>> = prepared
-        .columns
-        .iter()
-        .zip(geomagnetic_columns(augmentation, prepared.columns.len()))
-        .map(|(column, geomagnetic)| match geomagnetic {
-            true => vec![0.0; column.len()],
-            false => column.clone(),
-        })
-        .collect();
-    let mut compensated = compensate_channel(log, model, scalar, (&design, &aircraft_columns), level);
-    if augmentation.second_order {
-        // The second-order term is interference like the rest; the level
-        // convention's offset is taken again with it included.
-        let term = second_order_term(
-            prepared.log.vector_components(&sensor),
-            &model.terms,
-            &model.coefficients,
-        );
-        let mut interference = compensated.interference_nt;
-        for (h, q) in interference.iter_mut().zip(&term) {
-            *h += q;
-        }
-        compensated = level_compensated(log, model, scalar, interference, level);
-    }
-    Ok(compensated)
-}
-
-/// Per extra column of `augmentation`'s sources, in their order, whether
-/// it is the base station's geomagnetic variation (an `ExternalField`
-/// source, one column; couplings and their rates have three each).
-fn geomagnetic_columns(augmentation: &Augmentation, count: usize) -> Vec<bool> {
-    use crate::augment::SourceTerm;
-    let mask: Vec<bool> = augmentation
-        .sources
-        .iter()
-        .flat_map(|source| match source {
-            SourceTerm::ExternalField { .. } => vec![true],
-            SourceTerm::AuxCoupling { .. } | SourceTerm::AuxCouplingRate { .. } => vec![false; 3],
-        })
-        .collect();
-    match mask.len() == count {
-        true => mask,
-        false => vec![false; count],
-    }
-}
-
-fn sensor_named(log: &FlightLog, prefix: &str) -> VectorSensor {
-    log.vector_sensors()
-        .into_iter()
-        .find(|s| s.prefix == prefix)
-        .expect("compensate checked that every model's vector sensor is in the flight log")
-}
-
-/// `scalar` less the interference of the terms in `design` and the extra
-/// columns, whose coefficients follow the terms'.
-fn compensate_channel(
-    log: &FlightLog,
-    model: &FittedTollesLawson,
-    scalar: &[f64],
-    (design, extra): (&DesignMatrix, &[Vec<f64>]),
-    level: LevelConvention,
-) -> CompensatedChannel {
-    let (terms, added) = model
-        .coefficients
-        .split_at(design.columns.len().min(model.coefficients.len()));
-    let interference: Vec<f64> = (0..log.len())
-        .map(|row| design.predict_row(row, terms) + extra.iter().zip(added).map(|(c, b)| c[row] * b).sum::<f64>())
-        .collect();
-    level_compensated(log, model, scalar, interference, level)
-}
-
 /// `scalar` less `interference`, levelled by `level`.
 fn level_compensated(
     log: &FlightLog,
-    model: &FittedTollesLawson,
+    model: &FittedModel,
     scalar: &[f64],
     interference: Vec<f64>,
     level: LevelConvention,
@@ -256,7 +110,7 @@ fn level_compensated(
 }
 
 /// Mean of the finite interference over the calibration windows' rows.
-fn calibration_mean(log: &FlightLog, model: &FittedTollesLawson, interference: &[f64]) -> f64 {
+fn calibration_mean(log: &FlightLog, model: &FittedModel, interference: &[f64]) -> f64 {
     let (sum, count) = model
         .windows
         .iter()
@@ -273,7 +127,7 @@ fn calibration_mean(log: &FlightLog, model: &FittedTollesLawson, interference: &
 /// Reasons a row's outputs are missing, `;`-separated, in model order:
 /// a missing scalar or vector sample, a missing source column of an
 /// augmented model, or a lag that reads the scalar beyond its record.
-fn row_flags(log: &FlightLog, models: &[FittedTollesLawson], channels: &[CompensatedChannel]) -> Vec<String> {
+fn row_flags(log: &FlightLog, models: &[FittedModel], channels: &[CompensatedChannel]) -> Vec<String> {
     let mut flags = match log.row_flags().len() == log.len() {
         true => log.row_flags().to_vec(),
         false => vec![String::new(); log.len()],
@@ -289,16 +143,21 @@ fn row_flags(log: &FlightLog, models: &[FittedTollesLawson], channels: &[Compens
     for (model, compensated) in models.iter().zip(channels) {
         let scalar = &log
             .channel(&model.channel)
-            .expect("compensate checked that every model's channel is in the flight log")
+            .expect("the prediction checked that every model's channel is in the flight log")
             .values;
-        let field = log.vector_components(&sensor_named(log, &model.vector_sensor));
-        let sources: Vec<(&str, &[f64])> = model
-            .augmentation
-            .iter()
-            .flat_map(|a| &a.sources)
+        let Some(sensor) = log
+            .vector_sensors()
+            .into_iter()
+            .find(|s| s.prefix == model.vector_sensor)
+        else {
+            continue;
+        };
+        let field = log.vector_components(&sensor);
+        let sources: Vec<(&str, &[f64])> = (model.spec.extensions.sources.iter())
             .filter_map(|s| Some((s.column(), log.channel(s.column())?.values.as_slice())))
             .collect();
-        let derivatives = model.terms.eddy != crate::tolles_lawson::EddyTerms::None || model.terms.field_derivative;
+        let terms = model.spec.fitted_terms();
+        let derivatives = terms.eddy != crate::tolles_lawson::EddyTerms::None || terms.field_derivative;
         for row in 0..log.len() {
             let mut explained = false;
             if !scalar[row].is_finite() {
@@ -323,7 +182,7 @@ fn row_flags(log: &FlightLog, models: &[FittedTollesLawson], channels: &[Compens
                 push(row, format!("beside_gap:{}", model.vector_sensor));
             }
             if !explained && !compensated.values[row].is_finite() {
-                let lagged = model.augmentation.as_ref().is_some_and(|a| a.lag_s != 0.0);
+                let lagged = model.spec.extensions.lag_s != 0.0;
                 push(
                     row,
                     format!(

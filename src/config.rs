@@ -47,9 +47,9 @@ use crate::compensate::LevelConvention;
 use crate::detect::DetectOptions;
 use crate::error::{Error, Result};
 use crate::filter::{EdgePadding, FilterBand};
-use crate::fit::{FilterSettings, FitOptions};
 use crate::ingest::align::AlignmentOptions;
 use crate::ingest::{ColumnNames, IngestOptions, TopicMapping};
+use crate::model::{FilterSettings, FitOptions};
 use crate::solve::{Criterion, LambdaChoice, SolveOptions};
 use crate::tolles_lawson::{EddyTerms, InducedTerms, TermSet};
 use crate::transfer::TransferOptions;
@@ -264,7 +264,9 @@ impl FlightJob {
 pub struct Pipeline {
     /// Reading options.
     pub ingest: IngestOptions,
-    /// Fit options.
+    /// Tolles-Lawson terms of every model (`[fit] terms`).
+    pub terms: TermSet,
+    /// How models are fitted: band-pass and solve.
     pub fit: FitOptions,
     /// DC level convention.
     pub level: LevelConvention,
@@ -317,8 +319,8 @@ impl Pipeline {
             source_name: source_name.into(),
             message,
         };
+        let terms = parse_terms(&raw.fit.terms, raw.fit.bt_scale_nt).map_err(bad)?;
         let fit = FitOptions {
-            terms: parse_terms(&raw.fit.terms, raw.fit.bt_scale_nt).map_err(bad)?,
             filter: filter_settings(&raw.filter).map_err(bad)?,
             solve: solve_options(&raw.fit).map_err(bad)?,
         };
@@ -362,6 +364,7 @@ impl Pipeline {
                 topics: raw.topics,
                 date: None,
             },
+            terms,
             fit,
             level: raw.fit.level,
             detect: raw.detect,
@@ -621,7 +624,7 @@ mod tests {
     #[test]
     fn defaults_are_the_classic_magnav_settings() {
         let pipeline = parse("").unwrap();
-        assert_eq!(pipeline.fit.terms.len(), 18);
+        assert_eq!(pipeline.terms.len(), 18);
         assert_eq!(pipeline.fit.filter, FilterSettings::default());
         assert_eq!(pipeline.fit.solve.lambda, LambdaChoice::Select);
     }
@@ -632,7 +635,7 @@ mod tests {
                     [[flight]]\ninput = \"f.csv\"\nwindows = [{t_start = 1.0, t_end = 9.0, kind = \"roll\", heading_deg = 90.0}]\n";
         let pipeline = parse(text).unwrap();
         assert_eq!(pipeline.fit.solve.lambda, LambdaChoice::Fixed(0.001));
-        assert_eq!(pipeline.fit.terms.len(), 16);
+        assert_eq!(pipeline.terms.len(), 16);
         assert_eq!(pipeline.flights[0].input, Path::new("/data/f.csv"));
         assert_eq!(pipeline.flights[0].windows[0].display_label(), "roll, heading 90");
     }

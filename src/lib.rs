@@ -12,7 +12,7 @@
 //! The stages, each a module with a typed input and output:
 //!
 //! ```text
-//! read_flight_log → calibration windows → fit_channels → compensate → assess_quality
+//! read_flight_log → calibration windows → model::fit → compensate → assess_quality
 //! ```
 //!
 //! Interface names (CSV columns, the command line, the JSON files, MCAP
@@ -25,7 +25,7 @@
 //! manoeuvres and compensate every row:
 //!
 //! ```
-//! use magcomp::{compensate::{compensate, LevelConvention}, fit::{fit_channels, FitOptions}};
+//! use magcomp::{compensate::{compensate, LevelConvention}, model::{fit, FitOptions, ModelSpec}};
 //! use magcomp::{ingest::{read_flight_log, IngestOptions}, pipeline::choose_vector_sensor};
 //! use magcomp::{quality::assess_quality, sample_flight, windows::read_detect_json};
 //!
@@ -36,8 +36,9 @@
 //!
 //! let log = read_flight_log(&csv, &IngestOptions::default())?;
 //! let sensor = choose_vector_sensor(&log, Some("flux_a"))?;
-//! let channels = vec!["mag_1_uc".to_string()];
-//! let models = fit_channels(&log, &sensor, &channels, &read_detect_json(&windows, 5.0)?, &FitOptions::default())?;
+//! let windows = read_detect_json(&windows, 5.0)?;
+//! let model = fit(&log, &sensor, "mag_1_uc", &windows, &ModelSpec::default(), &FitOptions::default())?;
+//! let models = vec![model];
 //! let compensated = compensate(&log, &models, LevelConvention::Absolute)?;
 //! let quality = assess_quality(&log, &models[0], &compensated.channels[0]);
 //! assert_eq!(compensated.channels[0].values.len(), log.len());
@@ -46,14 +47,12 @@
 //! ```
 #![deny(missing_docs)]
 
-pub mod augment;
 pub mod compensate;
 pub mod config;
 pub mod detect;
 pub mod diagnose;
 pub mod error;
 pub mod filter;
-pub mod fit;
 pub mod flight_date;
 pub mod flight_identity;
 pub mod flight_log;
@@ -62,6 +61,7 @@ pub mod holdout;
 pub mod ingest;
 pub mod linalg;
 pub mod messages;
+pub mod model;
 pub mod output;
 pub mod pipeline;
 pub mod quality;

@@ -567,11 +567,28 @@ fn replay_flight(
                 }
                 models
             }),
-        None => magcomp::diagnose::diagnose(&log, &sensor, &channels, &windows, &pipeline.fit, &pipeline.diagnose)
-            .map(|d| d.models()),
+        None => magcomp::diagnose::diagnose(
+            &log,
+            &sensor,
+            &channels,
+            &windows,
+            &pipeline.terms,
+            &pipeline.fit,
+            &pipeline.diagnose,
+        )
+        .map(|d| d.models()),
     };
-    let replayed = plan
-        .and_then(|plan| magcomp::simulate::replay::replay(&log, &sensor, &channels, &windows, &pipeline.fit, &plan));
+    let replayed = plan.and_then(|plan| {
+        magcomp::simulate::replay::replay(
+            &log,
+            &sensor,
+            &channels,
+            &windows,
+            &pipeline.terms,
+            &pipeline.fit,
+            &plan,
+        )
+    });
     bar.finish_and_clear();
     let replayed = replayed?;
     let mut set = OutputSet::new();

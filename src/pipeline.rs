@@ -5,18 +5,18 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-use crate::augment::Augmentation;
 use crate::compensate::{compensate, LevelConvention};
 use crate::config::FlightJob;
 use crate::detect::{detect_manoeuvres, DetectOptions, Detection};
 use crate::error::{Error, Result};
-use crate::fit::{FitOptions, FittedTollesLawson};
 use crate::flight_log::{FlightLog, VectorSensor};
 use crate::ingest::align::AlignmentReport;
 use crate::ingest::{detect_format, read_flight_log, Format, IngestOptions};
+use crate::model::{fit, Extensions, FitOptions, FittedModel, ModelSpec};
 use crate::output::mcap::McapExtras;
 use crate::output::{added_column_names, stage, stage_compensated, Destination, OutputKind, OutputSet};
 use crate::quality::{assess_quality, ChannelQuality};
+use crate::tolles_lawson::TermSet;
 use crate::transfer::{check_transfer, TransferOptions};
 use rayon::prelude::*;
 
@@ -122,7 +122,7 @@ pub struct FlightResult {
     pub diagnosis: Option<crate::diagnose::Diagnosis>,
     /// The fitted models.
     #[serde(skip)]
-    pub models: Vec<FittedTollesLawson>,
+    pub models: Vec<FittedModel>,
 }
 
 /// A diagnosed effect the fit of a channel applied.
@@ -204,7 +204,9 @@ fn applied_findings(diagnosis: &crate::diagnose::Diagnosis) -> Vec<AppliedFindin
 pub struct StageOptions {
     /// Reading options.
     pub ingest: IngestOptions,
-    /// Fit options.
+    /// Tolles-Lawson terms of every model.
+    pub terms: TermSet,
+    /// How models are fitted.
     pub fit: FitOptions,
     /// DC level convention.
     pub level: LevelConvention,
@@ -225,6 +227,7 @@ impl From<&crate::config::Pipeline> for StageOptions {
     fn from(pipeline: &crate::config::Pipeline) -> Self {
         StageOptions {
             ingest: pipeline.ingest.clone(),
+            terms: pipeline.terms,
             fit: pipeline.fit.clone(),
             level: pipeline.level,
             detect: pipeline.detect.clone(),
@@ -274,7 +277,7 @@ pub fn process_flight(job: &FlightJob, options: &StageOptions, outputs: &FlightO
         crate::vector_calibration::calibrate_stage(raw_log, &sensor, &channels, &windows, &options.vector_calibration)?;
     let calibrated = calibration.as_ref().map(|c| c.apply(raw_log, &sensor)).transpose()?;
     let log = calibrated.as_ref().unwrap_or(raw_log);
-    let AugmentationPlan {
+    let ExtensionsPlan {
         models: plan,
         diagnosis,
         mut warnings,
@@ -293,7 +296,13 @@ pub fn process_flight(job: &FlightJob, options: &StageOptions, outputs: &FlightO
     if let (Some(diagnosis), Some(path)) = (&diagnosis, &outputs.diagnosis_json) {
         written.add(crate::output::stage_json(path, "the diagnosis", diagnosis)?);
     }
-    let models = crate::augment::fit_channels(log, &sensor, &channels, &windows, &options.fit, &plan)?;
+    let models: Vec<FittedModel> = channels
+        .par_iter()
+        .map(|channel| {
+            let spec = ModelSpec::of_channel(options.terms, &plan, channel);
+            fit(log, &sensor, channel, &windows, &spec, &options.fit)
+        })
+        .collect::<Result<_>>()?;
     // The fits' recycled stores are not needed while compensating.
     crate::stacked::release_spare_stores();
     let compensation = compensate(log, &models, options.level)?;
@@ -310,12 +319,13 @@ pub fn process_flight(job: &FlightJob, options: &StageOptions, outputs: &FlightO
     let mut notes = renaming_notes(&channels, &added_columns);
     notes.extend(calibration.iter().map(|c| c.summary()));
     notes.extend(models.iter().filter_map(|m| {
-        let augmentation = m.augmentation.as_ref()?;
-        Some(format!(
-            "{}: fitted and compensated with the diagnosed model: {}",
-            m.channel,
-            augmentation.describe()
-        ))
+        (!m.spec.is_plain()).then(|| {
+            format!(
+                "{}: fitted and compensated with the diagnosed model: {}",
+                m.channel,
+                m.spec.describe()
+            )
+        })
     }));
     if let Some(detection) = &detected {
         notes.extend(detection_notes(detection));
@@ -393,7 +403,7 @@ struct ModelFile<'a> {
     flight: &'a Path,
     #[serde(skip_serializing_if = "Option::is_none")]
     vector_calibration: Option<&'a crate::vector_calibration::VectorCalibration>,
-    models: &'a [FittedTollesLawson],
+    models: &'a [FittedModel],
 }
 
 impl<'a> ModelFile<'a> {
@@ -407,9 +417,9 @@ impl<'a> ModelFile<'a> {
 }
 
 /// What the fit takes from a diagnosis.
-struct AugmentationPlan {
+struct ExtensionsPlan {
     /// Each channel's diagnosed model (plain when absent).
-    models: BTreeMap<String, Augmentation>,
+    models: BTreeMap<String, Extensions>,
     /// The diagnosis made now, if one was.
     diagnosis: Option<crate::diagnose::Diagnosis>,
     /// What the user must know: a diagnosis that could not be made or
@@ -431,7 +441,7 @@ fn augmentation_plan(
     windows: &[crate::windows::CalibrationWindow],
     options: &StageOptions,
     stage_calibrated: bool,
-) -> Result<AugmentationPlan> {
+) -> Result<ExtensionsPlan> {
     use crate::diagnose::ApplyDiagnosis;
     if let Some(path) = &job.diagnosis {
         let (models, remark) = crate::diagnose::read_saved(path)?.models_for(path, raw_log, job.force_diagnosis)?;
@@ -441,13 +451,13 @@ fn augmentation_plan(
                 message: "the diagnosis calibrates the fluxgate and so does the [vector_calibration] stage; turn the stage off (enabled = false) or diagnose the calibrated flight".into(),
             });
         }
-        return Ok(AugmentationPlan {
+        return Ok(ExtensionsPlan {
             models,
             diagnosis: None,
             warnings: remark.into_iter().collect(),
         });
     }
-    let plain = |warnings| AugmentationPlan {
+    let plain = |warnings| ExtensionsPlan {
         models: BTreeMap::new(),
         diagnosis: None,
         warnings,
@@ -455,10 +465,18 @@ fn augmentation_plan(
     if options.diagnose.apply == ApplyDiagnosis::Never {
         return Ok(plain(Vec::new()));
     }
-    match crate::diagnose::diagnose(log, sensor, channels, windows, &options.fit, &options.diagnose) {
+    match crate::diagnose::diagnose(
+        log,
+        sensor,
+        channels,
+        windows,
+        &options.terms,
+        &options.fit,
+        &options.diagnose,
+    ) {
         Ok(mut diagnosis) => {
             diagnosis.flight = Some(crate::flight_identity::FlightIdentity::of(raw_log)?);
-            Ok(AugmentationPlan {
+            Ok(ExtensionsPlan {
                 models: diagnosis.models(),
                 diagnosis: Some(diagnosis),
                 warnings: Vec::new(),
@@ -519,7 +537,15 @@ pub fn diagnose_flight(
         true => detect_manoeuvres(log, &options.detect)?.calibration_windows(options.detect.window_margin_s),
         false => job.windows.clone(),
     };
-    let mut diagnosis = crate::diagnose::diagnose(log, &sensor, &channels, &windows, &options.fit, settings)?;
+    let mut diagnosis = crate::diagnose::diagnose(
+        log,
+        &sensor,
+        &channels,
+        &windows,
+        &options.terms,
+        &options.fit,
+        settings,
+    )?;
     diagnosis.flight = Some(crate::flight_identity::FlightIdentity::of(log)?);
     Ok(diagnosis)
 }

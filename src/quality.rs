@@ -13,8 +13,8 @@
 use serde::Serialize;
 
 use crate::compensate::CompensatedChannel;
-use crate::fit::{FittedTollesLawson, WindowFit};
 use crate::flight_log::FlightLog;
+use crate::model::{FittedModel, WindowFit};
 use crate::windows::ManoeuvreKind;
 
 /// Figures for one calibration window.
@@ -176,7 +176,7 @@ pub struct ChannelQuality {
 }
 
 /// Quality figures of one channel's fit and compensation.
-pub fn assess_quality(log: &FlightLog, model: &FittedTollesLawson, compensated: &CompensatedChannel) -> ChannelQuality {
+pub fn assess_quality(log: &FlightLog, model: &FittedModel, compensated: &CompensatedChannel) -> ChannelQuality {
     let before: Vec<f64> = model
         .windows
         .iter()

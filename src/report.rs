@@ -20,8 +20,8 @@ use crate::compensate::Compensation;
 use crate::diagnose::localise::ResidualTrace;
 use crate::diagnose::{Diagnosis, Located};
 use crate::error::{Error, Result};
-use crate::fit::FittedTollesLawson;
 use crate::flight_log::{AttitudeAngle, ChannelRole, FlightLog};
+use crate::model::FittedModel;
 use crate::output::{stage, stage_json, Staged};
 use crate::pipeline::FlightResult;
 use crate::quality::{fourth_difference_noise, ChannelQuality, FomCell};
@@ -237,7 +237,7 @@ fn attitude_timeline(log: &FlightLog, result: &FlightResult) -> Result<String> {
 }
 
 /// One manoeuvre's band-passed signal before (grey) and after (blue).
-fn manoeuvre_plot(model: &FittedTollesLawson, index: usize) -> Result<String> {
+fn manoeuvre_plot(model: &FittedModel, index: usize) -> Result<String> {
     let fit = &model.windows[index];
     let label = fit.window.display_label();
     let dt = 1.0 / model.sample_rate_hz;
@@ -279,7 +279,7 @@ fn manoeuvre_plot(model: &FittedTollesLawson, index: usize) -> Result<String> {
     })
 }
 
-fn press_plot(model: &FittedTollesLawson) -> Result<String> {
+fn press_plot(model: &FittedModel) -> Result<String> {
     let solution = &model.solution;
     let curve: Vec<(f64, f64)> = solution
         .ridge_curve
@@ -319,7 +319,7 @@ fn press_plot(model: &FittedTollesLawson) -> Result<String> {
     })
 }
 
-fn singular_value_plot(model: &FittedTollesLawson) -> Result<String> {
+fn singular_value_plot(model: &FittedModel) -> Result<String> {
     let values: Vec<f64> = model
         .solution
         .singular_values
@@ -540,7 +540,7 @@ fn verdict(quality: &ChannelQuality, limit_nt: f64) -> String {
     lines.iter().map(|l| format!("<p>{l}</p>")).collect()
 }
 
-fn coefficient_table(model: &FittedTollesLawson) -> String {
+fn coefficient_table(model: &FittedModel) -> String {
     let mut html = String::from(
         "<table class=\"coefficients\"><tr><th>term</th><th>coefficient</th><th>± 1σ</th><th>|σ/coefficient|</th></tr>",
     );

@@ -27,10 +27,11 @@ use std::io::Write;
 use std::path::Path;
 
 use crate::error::Result;
+use crate::output::stage_detect_json;
 use crate::output::{stage, OutputSet};
 use crate::simulate::physics::{dipole_field_nt, Vector};
 use crate::simulate::random::Random;
-use crate::windows::{stage_detect_json, CalibrationWindow, ManoeuvreKind};
+use crate::windows::{CalibrationWindow, ManoeuvreKind};
 
 /// What to fly.
 #[derive(Debug, Clone, PartialEq)]

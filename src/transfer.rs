@@ -14,11 +14,10 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::augment::{fit, held_out};
 use crate::error::Result;
-use crate::fit::{FitOptions, FittedTollesLawson, WindowFit};
 use crate::flight_log::{FlightLog, VectorSensor};
 use crate::holdout::{heading_splits, same_heading};
+use crate::model::{fit, FitOptions, FittedModel, WindowFit};
 use crate::quality::{figure_of_merit, fom_table, window_quality};
 pub use crate::quality::{TransferCheck, TransferMethod};
 use crate::windows::CalibrationWindow;
@@ -73,7 +72,7 @@ fn compensated_fom(fits: &[WindowFit]) -> Option<(f64, usize)> {
 pub fn check_transfer(
     log: &FlightLog,
     sensor: &VectorSensor,
-    model: &FittedTollesLawson,
+    model: &FittedModel,
     windows: &[CalibrationWindow],
     options: &FitOptions,
     transfer: &TransferOptions,
@@ -81,10 +80,9 @@ pub fn check_transfer(
     let boxes = group_into_boxes(windows);
     let (method, in_sample, held_out) = match boxes.as_slice() {
         [first, second, ..] => {
-            let augmentation = model.augmentation.as_ref();
-            let trained = fit(log, sensor, &model.channel, first, options, augmentation)?;
-            let own = fit(log, sensor, &model.channel, second, options, augmentation)?;
-            let held = held_out(&trained, log, sensor, second, options)?;
+            let trained = fit(log, sensor, &model.channel, first, &model.spec, options)?;
+            let own = fit(log, sensor, &model.channel, second, &model.spec, options)?;
+            let held = trained.held_out(log, sensor, second, options)?;
             (
                 TransferMethod::SecondBox,
                 compensated_fom(&own.windows),
@@ -138,7 +136,7 @@ pub fn check_transfer(
 fn leave_one_heading_out(
     log: &FlightLog,
     sensor: &VectorSensor,
-    model: &FittedTollesLawson,
+    model: &FittedModel,
     windows: &[CalibrationWindow],
     options: &FitOptions,
 ) -> Result<Option<Vec<WindowFit>>> {
@@ -147,8 +145,8 @@ fn leave_one_heading_out(
     };
     let mut held = Vec::new();
     for (out, rest) in splits {
-        let trained = fit(log, sensor, &model.channel, &rest, options, model.augmentation.as_ref())?;
-        held.extend(held_out(&trained, log, sensor, &out, options)?);
+        let trained = fit(log, sensor, &model.channel, &rest, &model.spec, options)?;
+        held.extend(trained.held_out(log, sensor, &out, options)?);
     }
     Ok(Some(held))
 }

@@ -123,7 +123,7 @@ impl CalibrationWindow {
 
 /// The manoeuvre list of a DETECT.json file (CONTRACT §3).
 #[derive(Debug, Deserialize, Serialize)]
-struct DetectFile {
+pub struct DetectFile {
     manoeuvres: Vec<DetectedManoeuvre>,
     #[serde(default)]
     boxes: Vec<BoxSpan>,
@@ -143,36 +143,28 @@ struct DetectedManoeuvre {
     t_end: f64,
 }
 
-/// Writes labelled manoeuvre windows and boxes (start, end) as DETECT.json
-/// (CONTRACT §3); unlabelled windows are left out.
-pub fn write_detect_json(path: &Path, manoeuvres: &[CalibrationWindow], boxes: &[(f64, f64)]) -> Result<()> {
-    stage_detect_json(path, manoeuvres, boxes)?.commit().map(drop)
-}
-
-/// Stages DETECT.json for `path` (see [`write_detect_json`]).
-pub fn stage_detect_json(
-    path: &Path,
-    manoeuvres: &[CalibrationWindow],
-    boxes: &[(f64, f64)],
-) -> Result<crate::output::Staged> {
-    let file = DetectFile {
-        manoeuvres: manoeuvres
-            .iter()
-            .filter_map(|w| {
-                Some(DetectedManoeuvre {
-                    kind: w.kind?,
-                    heading_deg: w.heading_deg?,
-                    t_start: w.t_start,
-                    t_end: w.t_end,
+impl DetectFile {
+    /// DETECT.json (CONTRACT §3) of labelled manoeuvre windows and boxes
+    /// (start, end); unlabelled windows are left out.
+    pub fn new(manoeuvres: &[CalibrationWindow], boxes: &[(f64, f64)]) -> Self {
+        DetectFile {
+            manoeuvres: manoeuvres
+                .iter()
+                .filter_map(|w| {
+                    Some(DetectedManoeuvre {
+                        kind: w.kind?,
+                        heading_deg: w.heading_deg?,
+                        t_start: w.t_start,
+                        t_end: w.t_end,
+                    })
                 })
-            })
-            .collect(),
-        boxes: boxes
-            .iter()
-            .map(|&(t_start, t_end)| BoxSpan { t_start, t_end })
-            .collect(),
-    };
-    crate::output::stage_json(path, "the calibration windows", &file)
+                .collect(),
+            boxes: boxes
+                .iter()
+                .map(|&(t_start, t_end)| BoxSpan { t_start, t_end })
+                .collect(),
+        }
+    }
 }
 
 /// Reads the manoeuvres of a DETECT.json file as calibration windows, each

@@ -73,14 +73,15 @@ fn a_diagnosed_lag_compensates_closer_to_the_truth_than_plain_tolles_lawson() {
     let input = sample("concealed_a.csv");
     let (plain, plain_out) = run(&job(input.clone(), None), false, &folder.path().join("plain"));
     let (augmented, augmented_out) = run(&job(input.clone(), None), true, &folder.path().join("augmented"));
-    assert!(plain.diagnosis.is_none() && plain.models.iter().all(|m| m.augmentation.is_none()));
+    assert!(plain.diagnosis.is_none() && plain.models.iter().all(|m| m.spec.is_plain()));
 
     // The lag is the model mag_2_uc is fitted with; the tail sensor stays plain.
     let model = augmented.models.iter().find(|m| m.channel == "mag_2_uc").unwrap();
-    let lag = model.augmentation.as_ref().expect("mag_2_uc augmented").lag_s;
+    assert!(!model.spec.is_plain(), "mag_2_uc augmented");
+    let lag = model.spec.extensions.lag_s;
     assert!((lag - 0.15).abs() < 0.03, "lag {lag}");
     let tail = augmented.models.iter().find(|m| m.channel == "mag_1_uc").unwrap();
-    assert!(tail.augmentation.is_none());
+    assert!(tail.spec.is_plain());
     assert!(augmented_out.diagnosis_json.as_ref().unwrap().exists());
     assert!(augmented
         .notes

@@ -8,8 +8,8 @@ use std::path::{Path, PathBuf};
 
 use magcomp::compensate::{compensate, LevelConvention};
 use magcomp::filter::{EdgePadding, FilterBand};
-use magcomp::fit::{fit_channel, FilterSettings, FitOptions};
 use magcomp::ingest::{read_flight_log, IngestOptions};
+use magcomp::model::{fit, FilterSettings, FitOptions, ModelSpec};
 use magcomp::pipeline::choose_vector_sensor;
 use magcomp::quality::standard_deviation;
 use magcomp::solve::{LambdaChoice, SolveOptions};
@@ -66,7 +66,6 @@ fn compensated_difference_std(padding: EdgePadding) -> Option<f64> {
     let log = read_flight_log(&folder.join("magnav_tl_segment.csv"), &IngestOptions::default()).unwrap();
     let sensor = choose_vector_sensor(&log, Some("flux_a")).unwrap();
     let options = FitOptions {
-        terms: TermSet::default(),
         filter: FilterSettings {
             band: FilterBand::Bandpass {
                 low_hz: 0.1,
@@ -82,7 +81,8 @@ fn compensated_difference_std(padding: EdgePadding) -> Option<f64> {
         },
     };
     let window = CalibrationWindow::new(log.time_s()[0], log.time_s()[log.len() - 1]);
-    let model = fit_channel(&log, &sensor, "mag_1_uc", &[window], &options).unwrap();
+    let spec = ModelSpec::plain(TermSet::default());
+    let model = fit(&log, &sensor, "mag_1_uc", &[window], &spec, &options).unwrap();
     let ours = compensate(&log, &[model], LevelConvention::Absolute).unwrap();
     let reference = &log.channel("mag_1_c").unwrap().values;
     let difference: Vec<f64> = ours.channels[0]
@@ -135,6 +135,7 @@ fn diagnosis_of_the_real_segment_finds_nothing_it_cannot_support() {
         &sensor,
         &["mag_1_uc".to_string()],
         &[window],
+        &TermSet::default(),
         &options,
         &magcomp::diagnose::DiagnoseOptions::default(),
     )

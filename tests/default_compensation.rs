@@ -72,12 +72,27 @@ fn errors(seed: u64, effect: &str) -> BTreeMap<String, (f64, f64)> {
     let windows = detect_manoeuvres(log, &pipeline.detect)
         .unwrap()
         .calibration_windows(pipeline.detect.window_margin_s);
-    let plan = diagnose(log, &sensor, &channels, &windows, &pipeline.fit, &pipeline.diagnose)
-        .unwrap()
-        .models();
+    let plan = diagnose(
+        log,
+        &sensor,
+        &channels,
+        &windows,
+        &pipeline.terms,
+        &pipeline.fit,
+        &pipeline.diagnose,
+    )
+    .unwrap()
+    .models();
     let line = &log.channel("line").unwrap().values;
-    let error_with = |plan: &BTreeMap<String, magcomp::augment::Augmentation>| {
-        let models = magcomp::augment::fit_channels(log, &sensor, &channels, &windows, &pipeline.fit, plan).unwrap();
+    let error_with = |plan: &BTreeMap<String, magcomp::model::Extensions>| {
+        let models = channels
+            .iter()
+            .map(|channel| {
+                let spec = magcomp::model::ModelSpec::of_channel(pipeline.terms, plan, channel);
+                magcomp::model::fit(log, &sensor, channel, &windows, &spec, &pipeline.fit)
+            })
+            .collect::<Result<Vec<_>, _>>()
+            .unwrap();
         let compensated = magcomp::compensate::compensate(log, &models, pipeline.level).unwrap();
         compensated
             .channels

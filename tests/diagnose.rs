@@ -317,7 +317,7 @@ fn a_diagnosis_does_not_depend_on_the_thread_count() {
 fn diagnosed_and_by_hand(
     name: &str,
     channel: &str,
-    truth: impl Fn(&magcomp::flight_log::FlightLog) -> magcomp::augment::Augmentation,
+    truth: impl Fn(&magcomp::flight_log::FlightLog) -> magcomp::model::Extensions,
 ) -> [f64; 3] {
     use magcomp::pipeline::choose_vector_sensor;
     let diagnosis = diagnose(name);
@@ -332,33 +332,41 @@ fn diagnosed_and_by_hand(
         .calibration_windows(options.detect.window_margin_s);
     let sensor = choose_vector_sensor(&log, None).unwrap();
     let summary = diagnosis.channels.iter().find(|c| c.channel == channel).unwrap();
-    let hand = magcomp::augment::Augmentation {
+    let hand = magcomp::model::Extensions {
         vector_calibration: summary.model.vector_calibration.clone(),
         ..truth(&log)
     };
-    let by_hand = magcomp::diagnose::heldout_rms(&log, &sensor, channel, &windows, &options.fit, &hand).unwrap();
+    let by_hand = magcomp::diagnose::heldout_rms(
+        &log,
+        &sensor,
+        channel,
+        &windows,
+        &magcomp::model::ModelSpec::new(options.terms, hand),
+        &options.fit,
+    )
+    .unwrap();
     [summary.heldout_rms_baseline_nt, summary.heldout_rms_final_nt, by_hand]
 }
 
 #[test]
 fn a_diagnosed_model_holds_out_about_as_well_as_the_truth_modelled_by_hand() {
-    use magcomp::augment::{column_level, Augmentation, SourceTerm};
+    use magcomp::model::{column_level, Extensions, SourceTerm};
     let coupling = |column: &'static str| {
-        move |log: &magcomp::flight_log::FlightLog| Augmentation {
+        move |log: &magcomp::flight_log::FlightLog| Extensions {
             sources: vec![SourceTerm::AuxCoupling {
                 column: column.into(),
                 level: column_level(&log.channel(column).unwrap().values),
             }],
-            ..Augmentation::default()
+            ..Extensions::default()
         }
     };
     let cases: Vec<(&str, &str, [f64; 3])> = vec![
         (
             "concealed_a.csv",
             "mag_2_uc",
-            diagnosed_and_by_hand("concealed_a.csv", "mag_2_uc", |_| Augmentation {
+            diagnosed_and_by_hand("concealed_a.csv", "mag_2_uc", |_| Extensions {
                 lag_s: 0.15,
-                ..Augmentation::default()
+                ..Extensions::default()
             }),
         ),
         (
@@ -374,9 +382,9 @@ fn a_diagnosed_model_holds_out_about_as_well_as_the_truth_modelled_by_hand() {
         (
             "concealed_c.csv",
             "mag_2_uc",
-            diagnosed_and_by_hand("concealed_c.csv", "mag_2_uc", |_| Augmentation {
+            diagnosed_and_by_hand("concealed_c.csv", "mag_2_uc", |_| Extensions {
                 eddy_tau_s: 0.4,
-                ..Augmentation::default()
+                ..Extensions::default()
             }),
         ),
     ];

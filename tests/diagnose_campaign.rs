@@ -10,8 +10,8 @@ use std::collections::BTreeMap;
 
 mod common;
 
-use magcomp::augment::{column_level, Augmentation, SourceTerm};
 use magcomp::diagnose::Diagnosis;
+use magcomp::model::{column_level, Extensions, SourceTerm};
 use magcomp::simulate::scenario::Scenario;
 
 /// Seeds per effect: 5 in `cargo test` (35 flights, about two minutes on
@@ -181,26 +181,26 @@ fn scenario(seed: u64, effects: &str) -> Scenario {
 
 /// The concealed effect modelled by hand with its true parameters, on
 /// the channel it is on (the fluxgate's has none).
-fn by_hand(truth: &Truth, log: &magcomp::flight_log::FlightLog) -> Option<(String, Augmentation)> {
+fn by_hand(truth: &Truth, log: &magcomp::flight_log::FlightLog) -> Option<(String, Extensions)> {
     let level = |column: &str| column_level(&log.channel(column).unwrap().values);
     let (channel, model) = match truth {
         Truth::Lag { channel, lag_s } => (
             channel.clone(),
-            Augmentation {
+            Extensions {
                 lag_s: *lag_s,
                 ..Default::default()
             },
         ),
         Truth::Eddy { channel, tau_s } => (
             channel.clone(),
-            Augmentation {
+            Extensions {
                 eddy_tau_s: *tau_s,
                 ..Default::default()
             },
         ),
         Truth::Coupling { channel, source } => (
             channel.clone(),
-            Augmentation {
+            Extensions {
                 sources: vec![SourceTerm::AuxCoupling {
                     column: source.clone(),
                     level: level(source),
@@ -210,7 +210,7 @@ fn by_hand(truth: &Truth, log: &magcomp::flight_log::FlightLog) -> Option<(Strin
         ),
         Truth::Pulsations => (
             "mag_1_uc".to_string(),
-            Augmentation {
+            Extensions {
                 sources: vec![SourceTerm::ExternalField {
                     column: "diurnal".into(),
                     level: level("diurnal"),
@@ -342,7 +342,7 @@ fn campaign_names_each_effect_and_leaves_clean_flights_alone() {
                 .filter_map(|t| by_hand(t, &log))
                 .map(|(channel, model)| {
                     let summary = diagnosis.channels.iter().find(|c| c.channel == channel).unwrap();
-                    let model = Augmentation {
+                    let model = Extensions {
                         vector_calibration: summary.model.vector_calibration.clone(),
                         ..model
                     };

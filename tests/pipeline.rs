@@ -362,20 +362,22 @@ fn the_vector_calibration_stage_calibrates_the_fluxgate_before_the_fit() {
 #[test]
 fn compensating_a_flight_without_the_models_channel_is_an_error() {
     use magcomp::compensate::{compensate, LevelConvention};
-    use magcomp::fit::{fit_channels, FitOptions};
     use magcomp::flight_log::FlightLog;
+    use magcomp::model::{fit, FitOptions, ModelSpec};
     let folder = tempfile::tempdir().unwrap();
     let (csv, windows) = small_flight(folder.path());
     let log = magcomp::ingest::read_flight_log(&csv, &Default::default()).unwrap();
     let sensor = magcomp::pipeline::choose_vector_sensor(&log, None).unwrap();
-    let models = fit_channels(
+    let model = fit(
         &log,
         &sensor,
-        &["mag_1_uc".to_string()],
+        "mag_1_uc",
         &read_detect_json(&windows, 5.0).unwrap(),
+        &ModelSpec::default(),
         &FitOptions::default(),
     )
     .unwrap();
+    let models = vec![model];
     let channels = log
         .channels()
         .iter()

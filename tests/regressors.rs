@@ -1,11 +1,12 @@
-//! Extra regressors beside the Tolles-Lawson terms: a coupled current's
+//! Extension columns beside the Tolles-Lawson terms: a coupled current's
 //! field recovered as a body-frame vector.
 
-use magcomp::fit::{fit_channel, fit_channel_with, FitOptions, Regressors};
+use magcomp::model::{fit, Extensions, FitOptions, FittedModel, ModelSpec, SourceTerm};
 use magcomp::pipeline::choose_vector_sensor;
 use magcomp::quality::standard_deviation;
 use magcomp::simulate::scenario::{Effect, RawScenario, Scenario};
 use magcomp::simulate::simulate;
+use magcomp::tolles_lawson::TermSet;
 
 #[test]
 fn a_coupled_current_is_recovered_as_its_body_frame_vector() {
@@ -24,31 +25,25 @@ fn a_coupled_current_is_recovered_as_its_body_frame_vector() {
     let flight = simulate(&Scenario::try_from(raw).unwrap()).unwrap();
     let log = &flight.log;
     let sensor = choose_vector_sensor(log, Some("flux_a")).unwrap();
-    let field = log.vector_components(&sensor);
-    let current = &log.channel("cur_ail").unwrap().values;
     // I·u_i: the wire's field fixed in the body frame, seen along the Earth
-    // field's direction by the scalar sensor.
-    let columns: Vec<Vec<f64>> = (0..3)
-        .map(|i| {
-            (0..log.len())
-                .map(|k| {
-                    let magnitude = (field[0][k].powi(2) + field[1][k].powi(2) + field[2][k].powi(2)).sqrt();
-                    current[k] * field[i][k] / magnitude
-                })
-                .collect()
-        })
-        .collect();
-    let extra = Regressors {
-        names: ["cur_ail_x", "cur_ail_y", "cur_ail_z"].map(String::from).to_vec(),
-        columns: columns.iter().map(Vec::as_slice).collect(),
-    };
+    // field's direction by the scalar sensor (taken about a level of 0 A).
+    let coupled = ModelSpec::new(
+        TermSet::default(),
+        Extensions {
+            sources: vec![SourceTerm::AuxCoupling {
+                column: "cur_ail".into(),
+                level: 0.0,
+            }],
+            ..Extensions::default()
+        },
+    );
     let windows = flight.truth.calibration_windows(5.0);
     let options = FitOptions::default();
-    let plain = fit_channel(log, &sensor, "mag_1_uc", &windows, &options).unwrap();
-    let extended = fit_channel_with(log, &sensor, "mag_1_uc", &windows, &options, &extra).unwrap();
+    let plain = fit(log, &sensor, "mag_1_uc", &windows, &ModelSpec::default(), &options).unwrap();
+    let extended = fit(log, &sensor, "mag_1_uc", &windows, &coupled, &options).unwrap();
     assert_eq!(extended.term_names.len(), 21);
     assert_eq!(&extended.term_names[18..], &["cur_ail_x", "cur_ail_y", "cur_ail_z"]);
-    let residual = |m: &magcomp::fit::FittedTollesLawson| {
+    let residual = |m: &FittedModel| {
         standard_deviation(
             &m.windows
                 .iter()
@@ -69,10 +64,8 @@ fn a_coupled_current_is_recovered_as_its_body_frame_vector() {
         assert!((found - true_value).abs() < 0.1 * 1.55, "{found} vs {true_value}");
     }
     assert!(residual(&extended) < 0.02 && residual(&plain) > 3.0 * residual(&extended));
-    // Held out with the same regressors, the model predicts what it fitted.
-    let held = extended
-        .held_out_with(log, &sensor, &windows, &options, &extra)
-        .unwrap();
+    // Held out on its own windows, the model predicts what it fitted.
+    let held = extended.held_out(log, &sensor, &windows, &options).unwrap();
     for (a, b) in held.iter().zip(&extended.windows) {
         for (x, y) in a.band_after_nt.iter().zip(&b.band_after_nt) {
             assert!((x - y).abs() < 1e-9);

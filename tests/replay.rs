@@ -22,8 +22,26 @@ fn replayed(name: &str) -> Replay {
     let windows = detect_manoeuvres(&log, &pipeline.detect)
         .unwrap()
         .calibration_windows(pipeline.detect.window_margin_s);
-    let diagnosis = diagnose(&log, &sensor, &channels, &windows, &pipeline.fit, &pipeline.diagnose).unwrap();
-    let replay = replay(&log, &sensor, &channels, &windows, &pipeline.fit, &diagnosis.models()).unwrap();
+    let diagnosis = diagnose(
+        &log,
+        &sensor,
+        &channels,
+        &windows,
+        &pipeline.terms,
+        &pipeline.fit,
+        &pipeline.diagnose,
+    )
+    .unwrap();
+    let replay = replay(
+        &log,
+        &sensor,
+        &channels,
+        &windows,
+        &pipeline.terms,
+        &pipeline.fit,
+        &diagnosis.models(),
+    )
+    .unwrap();
     assert_eq!(replay.log.len(), log.len());
     replay
 }

@@ -20,8 +20,8 @@ use std::path::{Path, PathBuf};
 use magcomp::compensate::compensate;
 use magcomp::config::Pipeline;
 use magcomp::detect::detect_manoeuvres;
-use magcomp::fit::fit_channels;
 use magcomp::ingest::read_flight_log;
+use magcomp::model::{fit, ModelSpec};
 use magcomp::pipeline::{choose_channels, choose_vector_sensor};
 use magcomp::quality::assess_quality;
 use magcomp::simulate::truth::survey_line_error_nt;
@@ -78,12 +78,32 @@ fn replay(pipeline: &Pipeline, job: &magcomp::config::FlightJob) -> Expected {
     } else {
         job.windows.clone()
     };
-    let models = fit_channels(&log, &sensor, &channels, &windows, &pipeline.fit).unwrap();
+    let plain = ModelSpec::plain(pipeline.terms);
+    let models = channels
+        .iter()
+        .map(|channel| fit(&log, &sensor, channel, &windows, &plain, &pipeline.fit))
+        .collect::<Result<Vec<_>, _>>()
+        .unwrap();
     let compensated = compensate(&log, &models, pipeline.level).unwrap();
-    let diagnosis =
-        magcomp::diagnose::diagnose(&log, &sensor, &channels, &windows, &pipeline.fit, &pipeline.diagnose).unwrap();
-    let diagnosed =
-        magcomp::augment::fit_channels(&log, &sensor, &channels, &windows, &pipeline.fit, &diagnosis.models()).unwrap();
+    let diagnosis = magcomp::diagnose::diagnose(
+        &log,
+        &sensor,
+        &channels,
+        &windows,
+        &pipeline.terms,
+        &pipeline.fit,
+        &pipeline.diagnose,
+    )
+    .unwrap();
+    let plan = diagnosis.models();
+    let diagnosed = channels
+        .iter()
+        .map(|channel| {
+            let spec = ModelSpec::of_channel(pipeline.terms, &plan, channel);
+            fit(&log, &sensor, channel, &windows, &spec, &pipeline.fit)
+        })
+        .collect::<Result<Vec<_>, _>>()
+        .unwrap();
     let diagnosed_compensated = compensate(&log, &diagnosed, pipeline.level).unwrap();
     let truth = job.input.with_extension("truth.csv");
     let line_error = |channel: &str, values: &[f64]| {

@@ -6,8 +6,8 @@ use std::ops::Range;
 
 use magcomp::compensate::{compensate, LevelConvention};
 use magcomp::filter::{EdgePadding, FilterBand, ZeroPhaseFilter};
-use magcomp::fit::{fit_channels, FitOptions};
 use magcomp::flight_log::{Channel, FlightLog};
+use magcomp::model::{fit, FitOptions, ModelSpec};
 use magcomp::pipeline::choose_vector_sensor;
 use magcomp::quality::standard_deviation;
 use magcomp::simulate::igrf::Igrf;
@@ -144,7 +144,20 @@ fn plain_tolles_lawson(flight: &SimulatedFlight, log: &FlightLog) -> Vec<(f64, f
     let sensor = choose_vector_sensor(log, Some("flux_a")).unwrap();
     let channels: Vec<String> = log.scalar_channels().iter().map(|s| s.to_string()).collect();
     let windows = flight.truth.calibration_windows(5.0);
-    let models = fit_channels(log, &sensor, &channels, &windows, &FitOptions::default()).unwrap();
+    let models = channels
+        .iter()
+        .map(|channel| {
+            fit(
+                log,
+                &sensor,
+                channel,
+                &windows,
+                &ModelSpec::default(),
+                &FitOptions::default(),
+            )
+        })
+        .collect::<Result<Vec<_>, _>>()
+        .unwrap();
     let compensated = compensate(log, &models, LevelConvention::Absolute).unwrap();
     models
         .iter()

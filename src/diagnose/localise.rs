@@ -23,9 +23,9 @@ use std::ops::Range;
 use serde::Serialize;
 
 use crate::filter::ZeroPhaseFilter;
-use crate::fit::{FitOptions, WindowFit};
 use crate::flight_log::{ChannelRole, FlightLog};
 use crate::linalg::solve_spd;
+use crate::model::{FitOptions, WindowFit};
 use crate::quality::root_mean_square;
 
 use super::Located;

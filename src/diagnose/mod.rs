@@ -80,13 +80,16 @@ use serde::{Deserialize, Serialize};
 use std::borrow::Cow;
 use std::collections::BTreeMap;
 
-use crate::augment::{column_level, field_directions, Augmentation, Prepared, SourceTerm};
 use crate::error::Result;
-use crate::fit::{fit_channel_with, FitOptions, WindowFit};
 use crate::flight_log::{ChannelRole, FlightLog, VectorSensor};
 use crate::holdout::{distinct_headings, heading_splits};
+use crate::model::{
+    column_level, field_directions, fit, Extensions, FitOptions, FittedModel, ModelSpec, Prepared, SourceTerm,
+    WindowFit,
+};
 use crate::quality::root_mean_square;
 use crate::solve::{Criterion, LambdaChoice};
+use crate::tolles_lawson::TermSet;
 use crate::vector_calibration::{calibrate, VectorCalibration};
 use crate::windows::CalibrationWindow;
 
@@ -232,7 +235,7 @@ pub struct ChannelDiagnosis {
     pub fluxgate: &'static str,
     /// The model the findings make: what `compensate --diagnosis` and the
     /// pipeline's `[diagnose] apply` fit and compensate with.
-    pub model: Augmentation,
+    pub model: Extensions,
     /// Where the held-out residual is: per manoeuvre, per sub-band against
     /// the noise floor, structured stretches, coherent columns.
     #[serde(flatten)]
@@ -260,7 +263,7 @@ pub struct Diagnosis {
 
 impl Diagnosis {
     /// Each channel's diagnosed model.
-    pub fn models(&self) -> BTreeMap<String, Augmentation> {
+    pub fn models(&self) -> BTreeMap<String, Extensions> {
         self.channels
             .iter()
             .map(|c| (c.channel.clone(), c.model.clone()))
@@ -275,7 +278,7 @@ pub struct SavedDiagnosis {
     /// The flight diagnosed (absent in files of older versions).
     pub flight: Option<crate::flight_identity::FlightIdentity>,
     /// Each channel's diagnosed model.
-    pub models: BTreeMap<String, Augmentation>,
+    pub models: BTreeMap<String, Extensions>,
 }
 
 impl SavedDiagnosis {
@@ -288,7 +291,7 @@ impl SavedDiagnosis {
         path: &std::path::Path,
         log: &FlightLog,
         force: bool,
-    ) -> Result<(BTreeMap<String, Augmentation>, Option<String>)> {
+    ) -> Result<(BTreeMap<String, Extensions>, Option<String>)> {
         let Some(made_on) = &self.flight else {
             let remark = format!(
                 "{} does not record the flight it was made on (an older magcomp wrote it), so it was applied to {} without checking that it belongs to it",
@@ -333,7 +336,7 @@ pub fn read_saved(path: &std::path::Path) -> Result<SavedDiagnosis> {
     struct Entry {
         channel: String,
         #[serde(default)]
-        model: Augmentation,
+        model: Extensions,
     }
     let text = std::fs::read_to_string(path).map_err(|e| crate::Error::io(path, "reading", e))?;
     let file: File = serde_json::from_str(&text).map_err(|e| crate::Error::NotOurFile {
@@ -396,7 +399,7 @@ enum Extension {
 
 /// The model under test: plain Tolles-Lawson with the physics accepted
 /// so far.
-type Model = Augmentation;
+type Model = Extensions;
 
 /// The same model with the total field's second-order term: the control
 /// every effect must beat.
@@ -457,6 +460,8 @@ struct Problem<'a> {
     sensor: &'a VectorSensor,
     channel: &'a str,
     windows: &'a [CalibrationWindow],
+    /// The Tolles-Lawson terms every model under test has.
+    terms: TermSet,
     options: &'a FitOptions,
     /// Unit field direction u_x, u_y, u_z per row.
     direction: &'a [Vec<f64>; 3],
@@ -465,12 +470,14 @@ struct Problem<'a> {
     levels: &'a BTreeMap<String, f64>,
 }
 
-/// Diagnoses every channel on its calibration windows.
+/// Diagnoses every channel on its calibration windows, starting from
+/// plain Tolles-Lawson on `terms`.
 pub fn diagnose(
     log: &FlightLog,
     sensor: &VectorSensor,
     channels: &[String],
     windows: &[CalibrationWindow],
+    terms: &TermSet,
     options: &FitOptions,
     settings: &DiagnoseOptions,
 ) -> Result<Diagnosis> {
@@ -482,7 +489,7 @@ pub fn diagnose(
     // aircraft field of its own, and the threshold grows with what is
     // left: a cabin sensor's hundreds of nT would otherwise count as
     // fluxgate offsets.
-    let checked = quietest_reference(log, sensor, channels, windows, options)
+    let checked = quietest_reference(log, sensor, channels, windows, (terms, options))
         .map_err(|e| e.to_string())
         .and_then(|(reference, interference_nt)| {
             check_fluxgate(log, sensor, &reference, windows, interference_nt, settings)
@@ -510,6 +517,7 @@ pub fn diagnose(
                 sensor,
                 channel,
                 windows,
+                terms: *terms,
                 options,
                 direction,
                 levels: &levels,
@@ -617,7 +625,7 @@ pub fn diagnose(
     })
 }
 
-/// The held-out in-band RMS of `model` on `channel`, nT, scored as the
+/// The held-out in-band RMS of `spec` on `channel`, nT, scored as the
 /// diagnosis scores its candidates (each heading predicted by a fit on the
 /// others): how a model of the user's own, or the truth of a simulated
 /// flight, compares with the diagnosed one.
@@ -626,9 +634,10 @@ pub fn heldout_rms(
     sensor: &VectorSensor,
     channel: &str,
     windows: &[CalibrationWindow],
+    spec: &ModelSpec,
     options: &FitOptions,
-    model: &Augmentation,
 ) -> Result<f64> {
+    let model = &spec.extensions;
     let calibrated = match &model.vector_calibration {
         Some(calibration) => Cow::Owned(calibration.apply(log, sensor)?),
         None => Cow::Borrowed(log),
@@ -640,6 +649,7 @@ pub fn heldout_rms(
         sensor,
         channel,
         windows,
+        terms: spec.terms,
         options,
         direction: &direction,
         levels: &levels,
@@ -659,9 +669,13 @@ fn quietest_reference(
     sensor: &VectorSensor,
     channels: &[String],
     windows: &[CalibrationWindow],
-    options: &FitOptions,
+    (terms, options): (&TermSet, &FitOptions),
 ) -> Result<(String, f64)> {
-    let models = crate::fit::fit_channels(log, sensor, channels, windows, options)?;
+    let plain = ModelSpec::plain(*terms);
+    let models: Vec<FittedModel> = channels
+        .par_iter()
+        .map(|channel| fit(log, sensor, channel, windows, &plain, options))
+        .collect::<Result<_>>()?;
     let compensation = crate::compensate::compensate(log, &models, crate::compensate::LevelConvention::Absolute)?;
     let rows = window_rows(log.time_s(), windows);
     let mut quietest: Option<(String, f64)> = None;
@@ -1258,7 +1272,7 @@ fn candidates(problem: &Problem, model: &Model, settings: &DiagnoseOptions) -> V
             list.push((Model { lag_s, ..model.clone() }, Extension::Lag { lag_s }));
         }
     }
-    if model.eddy_tau_s == 0.0 && problem.options.terms.eddy != crate::tolles_lawson::EddyTerms::None {
+    if model.eddy_tau_s == 0.0 && problem.terms.eddy != crate::tolles_lawson::EddyTerms::None {
         for tau_s in [0.1, 0.2, 0.3, 0.45, 0.6, 0.8, 1.1, 1.5] {
             list.push((
                 Model {
@@ -1342,14 +1356,22 @@ fn is_magnetic_product(name: &str) -> bool {
         || name.contains("diurnal")
 }
 
-/// The flight and extra regressors `model` fits on.
-fn prepare<'a>(problem: &Problem<'a>, model: &Model) -> Result<Prepared<'a>> {
-    model.prepare_calibrated(
+impl Problem<'_> {
+    /// The full model of `extensions` on the problem's terms.
+    fn spec(&self, extensions: &Model) -> ModelSpec {
+        ModelSpec::new(self.terms, extensions.clone())
+    }
+}
+
+/// The flight and extension columns `spec` fits on: the problem's flight
+/// is already calibrated as the model wants it.
+fn prepare<'a>(problem: &Problem<'a>, spec: &'a ModelSpec) -> Result<Prepared<'a>> {
+    Prepared::with_directions(
         Cow::Borrowed(problem.log),
         problem.sensor,
         problem.channel,
+        spec,
         problem.direction,
-        problem.options.terms.bt_scale_nt,
     )
 }
 
@@ -1375,16 +1397,15 @@ fn residuals(
     model: &Model,
     splits: Vec<(Vec<CalibrationWindow>, Vec<CalibrationWindow>)>,
 ) -> Result<HeldOut> {
-    let prepared = prepare(problem, model)?;
-    let (log, extra) = (prepared.log.as_ref(), prepared.regressors());
-    let options = model.fit_options(problem.options);
+    let spec = problem.spec(model);
+    let prepared = prepare(problem, &spec)?;
     let mut windows = Vec::new();
     let (mut terms, mut fewest_training_samples) = (0, usize::MAX);
     for (out, rest) in splits {
-        let fitted = model.fit_prepared(log, problem.sensor, problem.channel, &rest, &options, &extra)?;
+        let fitted = prepared.fit(&rest, problem.options)?;
         terms = terms.max(fitted.coefficients.len());
         fewest_training_samples = fewest_training_samples.min(fitted.solution.samples);
-        windows.extend(model.held_out_prepared(&fitted, log, problem.sensor, &out, &options, &extra)?);
+        windows.extend(prepared.held_out(&fitted, &out, problem.options)?);
     }
     let all: Vec<f64> = windows.iter().flat_map(|w| w.band_after_nt.iter().copied()).collect();
     Ok(HeldOut {
@@ -1648,15 +1669,8 @@ fn capitalised(text: &str) -> String {
 
 /// The last `count` extra coefficients of a fit of `model` on all windows.
 fn extension_coefficients(problem: &Problem, model: &Model, count: usize) -> Result<Vec<f64>> {
-    let prepared = prepare(problem, model)?;
-    let fitted = fit_channel_with(
-        &prepared.log,
-        problem.sensor,
-        problem.channel,
-        problem.windows,
-        &model.fit_options(problem.options),
-        &prepared.regressors(),
-    )?;
+    let spec = problem.spec(model);
+    let fitted = prepare(problem, &spec)?.fit(problem.windows, problem.options)?;
     Ok(fitted.coefficients[fitted.coefficients.len() - count..].to_vec())
 }
 

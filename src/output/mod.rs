@@ -35,6 +35,17 @@ pub fn write_json<T: Serialize>(path: &Path, what: &'static str, value: &T) -> R
     stage_json(path, what, value)?.commit().map(drop)
 }
 
+/// Stages DETECT.json (CONTRACT §3) of labelled manoeuvre windows and
+/// boxes (start, end) for `path`; unlabelled windows are left out.
+pub fn stage_detect_json(
+    path: &Path,
+    manoeuvres: &[crate::windows::CalibrationWindow],
+    boxes: &[(f64, f64)],
+) -> Result<Staged> {
+    let file = crate::windows::DetectFile::new(manoeuvres, boxes);
+    stage_json(path, "the calibration windows", &file)
+}
+
 /// Stages `value` as pretty JSON for `path`.
 pub fn stage_json<T: Serialize>(path: &Path, what: &'static str, value: &T) -> Result<Staged> {
     let text = serde_json::to_string_pretty(value).map_err(|e| Error::Serialise {

@@ -28,14 +28,14 @@ use std::collections::BTreeMap;
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::augment::{advanced, fit, Augmentation};
 use crate::compensate::{compensate, LevelConvention};
 use crate::error::Result;
 use crate::filter::FilterBand;
-use crate::fit::{FitOptions, FittedTollesLawson};
 use crate::flight_log::{FlightLog, VectorSensor};
+use crate::model::{advanced, fit, Extensions, FitOptions, FittedModel, ModelSpec};
 use crate::quality::root_mean_square;
 use crate::segments::valid_runs;
+use crate::tolles_lawson::TermSet;
 use crate::windows::CalibrationWindow;
 
 /// How well one channel's replays reproduce its recording.
@@ -67,24 +67,25 @@ pub struct Replay {
     pub channels: Vec<ReplayedChannel>,
 }
 
-/// Replays `channels` of `log` with plain Tolles-Lawson and with their
-/// models in `plan`, all fitted on `windows`.
+/// Replays `channels` of `log` with plain Tolles-Lawson on `terms` and
+/// with their extensions in `plan`, all fitted on `windows`.
 pub fn replay(
     log: &FlightLog,
     sensor: &VectorSensor,
     channels: &[String],
     windows: &[CalibrationWindow],
+    terms: &TermSet,
     options: &FitOptions,
-    plan: &BTreeMap<String, Augmentation>,
+    plan: &BTreeMap<String, Extensions>,
 ) -> Result<Replay> {
     let results: Vec<(ReplayedChannel, Vec<f64>)> = channels
         .par_iter()
         .map(|channel| {
-            let plain = fit(log, sensor, channel, windows, options, None)?;
-            let augmentation = plan.get(channel).filter(|a| !a.is_plain());
-            let diagnosed = match augmentation {
-                Some(a) => fit(log, sensor, channel, windows, options, Some(a))?,
-                None => plain.clone(),
+            let plain = fit(log, sensor, channel, windows, &ModelSpec::plain(*terms), options)?;
+            let spec = ModelSpec::of_channel(*terms, plan, channel);
+            let diagnosed = match spec.is_plain() {
+                false => fit(log, sensor, channel, windows, &spec, options)?,
+                true => plain.clone(),
             };
             let recorded = &log
                 .channel(channel)
@@ -97,7 +98,7 @@ pub fn replay(
                 mismatch(log, recorded, &diagnosed_replay, windows, options)?;
             let summary = ReplayedChannel {
                 channel: channel.clone(),
-                model: augmentation.map_or_else(|| "plain Tolles-Lawson".into(), Augmentation::describe),
+                model: spec.describe(),
                 calibration_rms_plain_nt: calibration_plain,
                 calibration_rms_diagnosed_nt: calibration_diagnosed,
                 elsewhere_rms_plain_nt: elsewhere_plain,
@@ -119,7 +120,7 @@ pub fn replay(
 /// What the sensor would have recorded with `model`'s aircraft: the
 /// Earth's field (the compensated channel below the fitting band) plus the
 /// model's field, read `lag_s` late.
-fn replay_channel(log: &FlightLog, model: &FittedTollesLawson, options: &FitOptions) -> Result<Vec<f64>> {
+fn replay_channel(log: &FlightLog, model: &FittedModel, options: &FitOptions) -> Result<Vec<f64>> {
     let compensated = compensate(log, std::slice::from_ref(model), LevelConvention::Absolute)?;
     let channel = &compensated.channels[0];
     let below_band = match options.filter.band {
@@ -137,7 +138,7 @@ fn replay_channel(log: &FlightLog, model: &FittedTollesLawson, options: &FitOpti
         false => channel.values.clone(),
     };
     let aligned: Vec<f64> = earth.iter().zip(&channel.interference_nt).map(|(e, h)| e + h).collect();
-    let lag_s = model.augmentation.as_ref().map_or(0.0, |a| a.lag_s);
+    let lag_s = model.spec.extensions.lag_s;
     Ok(match lag_s {
         0.0 => aligned,
         lag_s => advanced(&aligned, log.time_s(), -lag_s),
@@ -185,8 +186,8 @@ fn filtered_runs(
     options: &FitOptions,
     trim: usize,
 ) -> Result<Vec<f64>> {
-    let settings = crate::fit::FilterSettings { band, ..options.filter };
-    let filter = crate::fit::design_filter(log, &settings)?;
+    let settings = crate::model::FilterSettings { band, ..options.filter };
+    let filter = crate::model::design_filter(log, &settings)?;
     let valid: Vec<bool> = values.iter().map(|v| v.is_finite()).collect();
     let mut out = vec![f64::NAN; values.len()];
     for run in valid_runs(log.time_s(), &valid, 0..log.len(), log.median_interval_s()) {

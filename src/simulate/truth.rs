@@ -14,11 +14,12 @@ use std::path::{Path, PathBuf};
 use serde::Serialize;
 
 use crate::error::Result;
+use crate::output::stage_detect_json;
 use crate::output::{stage, stage_json, OutputSet, Staged};
 use crate::simulate::physics::{AircraftField, FluxgateCalibration};
 use crate::simulate::scenario::{Effect, Scenario, SensorLocation};
 use crate::simulate::trajectory::FlightPath;
-use crate::windows::{stage_detect_json, CalibrationWindow, ManoeuvreKind};
+use crate::windows::{CalibrationWindow, ManoeuvreKind};
 
 /// What one scalar sensor would have read without the aircraft.
 #[derive(Debug, Clone, PartialEq, Serialize)]

@@ -80,12 +80,13 @@ pub fn diagnose_log(log: &magcomp::flight_log::FlightLog) -> Diagnosis {
 
 /// The held-out RMS of `model` on `channel`, scored as the diagnosis
 /// scores its candidates, on `log`'s detected box.
-pub fn heldout_rms(log: &magcomp::flight_log::FlightLog, channel: &str, model: &magcomp::augment::Augmentation) -> f64 {
+pub fn heldout_rms(log: &magcomp::flight_log::FlightLog, channel: &str, model: &magcomp::model::Extensions) -> f64 {
     let pipeline = Pipeline::default();
     let options = StageOptions::from(&pipeline);
     let windows = magcomp::detect::detect_manoeuvres(log, &options.detect)
         .unwrap()
         .calibration_windows(options.detect.window_margin_s);
     let sensor = magcomp::pipeline::choose_vector_sensor(log, None).unwrap();
-    magcomp::diagnose::heldout_rms(log, &sensor, channel, &windows, &options.fit, model).unwrap()
+    let spec = magcomp::model::ModelSpec::new(options.terms, model.clone());
+    magcomp::diagnose::heldout_rms(log, &sensor, channel, &windows, &spec, &options.fit).unwrap()
 }

@@ -1,8 +1,8 @@
-//! The Tolles-Lawson model extended with physics its 18 terms leave out:
-//! what `diagnose` finds, and what the fit, compensation and transfer
-//! check use once a diagnosis is accepted.
+//! Physics the 18 Tolles-Lawson terms leave out: what `diagnose` finds,
+//! and what a [`super::ModelSpec`] adds to its terms once a diagnosis is
+//! accepted.
 //!
-//! An [`Augmentation`] of one scalar channel is
+//! The [`Extensions`] of one scalar channel are
 //! - a fluxgate calibration the channel is fitted on ($\hat b = C(m - o)$);
 //! - a sensor lag: the scalar reads the field `lag_s` late, so its record
 //!   is read `lag_s` earlier (linear interpolation) before the fit and
@@ -25,20 +25,12 @@
 //!   fitted on: the steady part of a body-fixed field is the permanent
 //!   terms' already.
 
-use std::borrow::Cow;
-use std::collections::BTreeMap;
-
-use rayon::prelude::*;
-
 use serde::{Deserialize, Serialize};
 
-use crate::error::{Error, Result};
-use crate::fit::{fit_channel_with, FitOptions, FittedTollesLawson, Regressors, WindowFit};
 use crate::flight_log::{FlightLog, VectorSensor};
 use crate::solve::Criterion;
-use crate::tolles_lawson::{EddyTerms, TermSet};
+use crate::tolles_lawson::TermSet;
 use crate::vector_calibration::VectorCalibration;
-use crate::windows::CalibrationWindow;
 
 /// A recorded column whose variation enters the model.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -86,7 +78,7 @@ impl SourceTerm {
 /// plain Tolles-Lawson.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
-pub struct Augmentation {
+pub struct Extensions {
     /// Fluxgate calibration applied before the terms are built.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub vector_calibration: Option<VectorCalibration>,
@@ -105,208 +97,10 @@ pub struct Augmentation {
     pub lambda_criterion: Option<Criterion>,
 }
 
-/// What an augmented model is fitted on and predicts from.
-#[derive(Debug, Clone)]
-pub struct Prepared<'a> {
-    /// The flight with the fluxgate calibrated and the scalar advanced by
-    /// the lag (borrowed when neither applies).
-    pub log: Cow<'a, FlightLog>,
-    /// Names of the extra regressors.
-    pub names: Vec<String>,
-    /// Extra regressor columns, one value per row.
-    pub columns: Vec<Vec<f64>>,
-}
-
-impl Prepared<'_> {
-    /// The extra regressors as the fit takes them.
-    pub fn regressors(&self) -> Regressors<'_> {
-        Regressors {
-            names: self.names.clone(),
-            columns: self.columns.iter().map(Vec::as_slice).collect(),
-        }
-    }
-}
-
-impl Augmentation {
+impl Extensions {
     /// Plain Tolles-Lawson: nothing added.
     pub fn is_plain(&self) -> bool {
-        self == &Augmentation::default()
-    }
-
-    /// Fit settings: the nine instantaneous eddy terms give way to their
-    /// lagged versions when the model has an eddy time constant, and λ is
-    /// picked by the model's criterion when it has one.
-    pub fn fit_options(&self, options: &FitOptions) -> FitOptions {
-        let mut options = options.clone();
-        if self.eddy_tau_s > 0.0 {
-            options.terms.eddy = EddyTerms::None;
-        }
-        if let Some(criterion) = self.lambda_criterion {
-            options.solve.criterion = criterion;
-        }
-        options
-    }
-
-    /// The flight and extra regressors of `channel`: calibrates the
-    /// fluxgate, advances the scalar, builds the columns. A source column
-    /// the flight lacks is an error.
-    pub fn prepare<'a>(
-        &self,
-        log: &'a FlightLog,
-        sensor: &VectorSensor,
-        channel: &str,
-        bt_scale_nt: f64,
-    ) -> Result<Prepared<'a>> {
-        let calibrated = match &self.vector_calibration {
-            Some(calibration) => Cow::Owned(calibration.apply(log, sensor)?),
-            None => Cow::Borrowed(log),
-        };
-        let direction = field_directions(&calibrated, sensor);
-        self.prepare_calibrated(calibrated, sensor, channel, &direction, bt_scale_nt)
-    }
-
-    /// [`Self::prepare`] on a flight whose fluxgate is already what the
-    /// model uses, with its field directions.
-    pub(crate) fn prepare_calibrated<'a>(
-        &self,
-        log: Cow<'a, FlightLog>,
-        sensor: &VectorSensor,
-        channel: &str,
-        direction: &[Vec<f64>; 3],
-        bt_scale_nt: f64,
-    ) -> Result<Prepared<'a>> {
-        let (mut names, mut columns) = (Vec::new(), Vec::new());
-        // Lagged eddy terms first: the newest source term stays last.
-        if self.eddy_tau_s > 0.0 {
-            let dt = log.median_interval_s();
-            let field = log.vector_components(sensor);
-            let lagged: Vec<Vec<f64>> = field.iter().map(|b| lagged_rate(b, dt, self.eddy_tau_s)).collect();
-            for (i, axis_i) in ["x", "y", "z"].iter().enumerate() {
-                for (j, axis_j) in ["x", "y", "z"].iter().enumerate() {
-                    names.push(format!("eddy_lagged_{axis_i}{axis_j}"));
-                    columns.push(
-                        direction[i]
-                            .iter()
-                            .zip(&lagged[j])
-                            .map(|(u, d)| u * d / bt_scale_nt)
-                            .collect(),
-                    );
-                }
-            }
-        }
-        for source in &self.sources {
-            let Some(values) = log.channel(source.column()).map(|c| &c.values) else {
-                return Err(Error::MissingColumn {
-                    path: log.source().to_path_buf(),
-                    role: "model source column",
-                    looked_for: format!("'{}', which the model of '{channel}' uses", source.column()),
-                    hint: "Compensate with a diagnosis made on a flight that records the same columns.".into(),
-                });
-            };
-            match source {
-                SourceTerm::AuxCoupling { column, level } => {
-                    for (axis, u) in ["x", "y", "z"].iter().zip(direction) {
-                        names.push(format!("{column}_{axis}"));
-                        columns.push(values.iter().zip(u).map(|(c, u)| (c - level) * u).collect());
-                    }
-                }
-                SourceTerm::AuxCouplingRate { column } => {
-                    let rate = rate_of_change(values, log.time_s());
-                    for (axis, u) in ["x", "y", "z"].iter().zip(direction) {
-                        names.push(format!("{column}_rate_{axis}"));
-                        columns.push(rate.iter().zip(u).map(|(r, u)| r * u).collect());
-                    }
-                }
-                SourceTerm::ExternalField { column, level } => {
-                    names.push(column.clone());
-                    columns.push(values.iter().map(|c| c - level).collect());
-                }
-            }
-        }
-        let log = match self.lag_s {
-            0.0 => log,
-            lag_s => {
-                let values = advanced(scalar_values(&log, channel)?, log.time_s(), lag_s);
-                Cow::Owned(log.with_values(channel, values)?)
-            }
-        };
-        Ok(Prepared { log, names, columns })
-    }
-
-    /// Fits `channel` with this augmentation on `windows`.
-    pub fn fit(
-        &self,
-        log: &FlightLog,
-        sensor: &VectorSensor,
-        channel: &str,
-        windows: &[CalibrationWindow],
-        options: &FitOptions,
-    ) -> Result<FittedTollesLawson> {
-        let prepared = self.prepare(log, sensor, channel, options.terms.bt_scale_nt)?;
-        let mut fitted = self.fit_prepared(
-            &prepared.log,
-            sensor,
-            channel,
-            windows,
-            &self.fit_options(options),
-            &prepared.regressors(),
-        )?;
-        fitted.augmentation = (!self.is_plain()).then(|| self.clone());
-        Ok(fitted)
-    }
-
-    /// Fits a prepared flight (`options` from [`Self::fit_options`]),
-    /// refitting on the scalar less the second-order term when the model
-    /// has it.
-    pub(crate) fn fit_prepared(
-        &self,
-        log: &FlightLog,
-        sensor: &VectorSensor,
-        channel: &str,
-        windows: &[CalibrationWindow],
-        options: &FitOptions,
-        extra: &Regressors,
-    ) -> Result<FittedTollesLawson> {
-        let mut fitted = fit_channel_with(log, sensor, channel, windows, options, extra)?;
-        if self.second_order {
-            for _ in 0..SECOND_ORDER_PASSES {
-                let corrected = self.corrected(log, sensor, &fitted)?;
-                fitted = fit_channel_with(&corrected, sensor, channel, windows, options, extra)?;
-            }
-        }
-        Ok(fitted)
-    }
-
-    /// The band-passed residual on `windows` of a model fitted on a
-    /// prepared flight.
-    pub(crate) fn held_out_prepared(
-        &self,
-        fitted: &FittedTollesLawson,
-        log: &FlightLog,
-        sensor: &VectorSensor,
-        windows: &[CalibrationWindow],
-        options: &FitOptions,
-        extra: &Regressors,
-    ) -> Result<Vec<WindowFit>> {
-        let corrected = self.corrected(log, sensor, fitted)?;
-        fitted.held_out_with(&corrected, sensor, windows, options, extra)
-    }
-
-    /// A prepared flight with `fitted`'s channel less the second-order term
-    /// of its aircraft field (unchanged without the term).
-    pub(crate) fn corrected<'a>(
-        &self,
-        log: &'a FlightLog,
-        sensor: &VectorSensor,
-        fitted: &FittedTollesLawson,
-    ) -> Result<Cow<'a, FlightLog>> {
-        if !self.second_order {
-            return Ok(Cow::Borrowed(log));
-        }
-        let term = second_order_term(log.vector_components(sensor), &fitted.terms, &fitted.coefficients);
-        let scalar = scalar_values(log, &fitted.channel)?;
-        let values = scalar.iter().zip(&term).map(|(s, q)| s - q).collect();
-        Ok(Cow::Owned(log.with_values(&fitted.channel, values)?))
+        self == &Extensions::default()
     }
 
     /// One line for people: what the model adds.
@@ -339,68 +133,6 @@ impl Augmentation {
             false => parts.join(", "),
         }
     }
-}
-
-/// The band-passed residual of a fitted model (augmented or not) on
-/// `windows`, which it need not have been fitted on.
-pub fn held_out(
-    model: &FittedTollesLawson,
-    log: &FlightLog,
-    sensor: &VectorSensor,
-    windows: &[CalibrationWindow],
-    options: &FitOptions,
-) -> Result<Vec<WindowFit>> {
-    match &model.augmentation {
-        None => model.held_out(log, sensor, windows, options),
-        Some(augmentation) => {
-            let prepared = augmentation.prepare(log, sensor, &model.channel, options.terms.bt_scale_nt)?;
-            augmentation.held_out_prepared(
-                model,
-                &prepared.log,
-                sensor,
-                windows,
-                &augmentation.fit_options(options),
-                &prepared.regressors(),
-            )
-        }
-    }
-}
-
-/// Fits `channel` with `augmentation`, or plain Tolles-Lawson without one.
-pub fn fit(
-    log: &FlightLog,
-    sensor: &VectorSensor,
-    channel: &str,
-    windows: &[CalibrationWindow],
-    options: &FitOptions,
-    augmentation: Option<&Augmentation>,
-) -> Result<FittedTollesLawson> {
-    match augmentation {
-        Some(augmentation) => augmentation.fit(log, sensor, channel, windows, options),
-        None => crate::fit::fit_channel(log, sensor, channel, windows, options),
-    }
-}
-
-/// Fits every channel in `channels`, each with its model in `plan` (plain
-/// Tolles-Lawson when it has none), in parallel over channels.
-pub fn fit_channels(
-    log: &FlightLog,
-    sensor: &VectorSensor,
-    channels: &[String],
-    windows: &[CalibrationWindow],
-    options: &FitOptions,
-    plan: &BTreeMap<String, Augmentation>,
-) -> Result<Vec<FittedTollesLawson>> {
-    if plan.is_empty() || windows.is_empty() {
-        return crate::fit::fit_channels(log, sensor, channels, windows, options);
-    }
-    channels
-        .par_iter()
-        .map(|channel| {
-            let augmentation = plan.get(channel).filter(|a| !a.is_plain());
-            fit(log, sensor, channel, windows, options, augmentation)
-        })
-        .collect()
 }
 
 /// Rate of change of a column per second: the central difference
@@ -437,20 +169,6 @@ pub fn column_level(values: &[f64]) -> f64 {
     }
     let middle = finite.len() / 2;
     *finite.select_nth_unstable_by(middle, f64::total_cmp).1
-}
-
-/// The record of scalar `channel`; an error naming it when the flight
-/// lacks it.
-fn scalar_values<'a>(log: &'a FlightLog, channel: &str) -> Result<&'a [f64]> {
-    match log.channel(channel) {
-        Some(scalar) => Ok(&scalar.values),
-        None => Err(Error::MissingColumn {
-            path: log.source().to_path_buf(),
-            role: "scalar magnetometer",
-            looked_for: format!("'{channel}'"),
-            hint: "Name a scalar channel the flight records.".into(),
-        }),
-    }
 }
 
 /// Refits on the scalar less the second-order term after the first fit.
@@ -512,7 +230,7 @@ pub fn advanced(values: &[f64], time_s: &[f64], lag_s: f64) -> Vec<f64> {
 /// Its mean delay is τ, as the continuous lag's is. The simpler
 /// $y_k = \alpha y_{k-1} + (1-\alpha) x_k$ delays by only $\tau - \Delta t/2$, so a
 /// τ fitted with it comes out half a sample (0.05 s at 10 Hz) too long.
-fn lagged_rate(values: &[f64], dt: f64, tau_s: f64) -> Vec<f64> {
+pub(crate) fn lagged_rate(values: &[f64], dt: f64, tau_s: f64) -> Vec<f64> {
     let rate = crate::tolles_lawson::central_difference(values);
     let alpha = (-dt / tau_s).exp();
     let ratio = tau_s / dt;

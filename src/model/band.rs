@@ -1,11 +1,10 @@
-//! Fitting the Tolles-Lawson model of each scalar channel.
+//! The data a model is fitted on: band-passed, trimmed and stacked.
 //!
 //! For every calibration window, the rows where both the scalar channel and
 //! the vector magnetometer are valid are split into contiguous runs (never
 //! across a gap). Each run's design columns and scalar readings are
 //! band-passed on their own, `trim_samples` are dropped at each end, and
-//! the runs are stacked. The regularised solve then picks λ by PRESS, each
-//! window being one fold of the blocked PRESS.
+//! the runs are stacked, one fold of the blocked PRESS per window.
 
 use std::ops::Range;
 
@@ -16,7 +15,7 @@ use crate::error::{Error, Number, Result};
 use crate::filter::{EdgePadding, FilterBand, FilterError, ZeroPhaseFilter, LANES};
 use crate::flight_log::{FlightLog, VectorSensor};
 use crate::segments::valid_runs;
-use crate::solve::{solve_stacked, Solution, SolveOptions};
+use crate::solve::SolveOptions;
 use crate::stacked::{Stacked, StackedBuilder};
 use crate::tolles_lawson::TermSet;
 use crate::windows::CalibrationWindow;
@@ -49,11 +48,10 @@ impl Default for FilterSettings {
     }
 }
 
-/// Everything the fit stage needs besides the data.
+/// How a model is fitted, whatever its terms: the band-pass and the
+/// regularised solve.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct FitOptions {
-    /// Tolles-Lawson terms.
-    pub terms: TermSet,
     /// Band-pass before fitting.
     pub filter: FilterSettings,
     /// Regularised solve.
@@ -84,182 +82,25 @@ pub struct WindowFit {
     pub band_after_nt: Vec<f64>,
 }
 
-/// A fitted model of one scalar channel; it predicts the interference.
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct FittedTollesLawson {
-    /// Scalar channel the model compensates.
-    pub channel: String,
-    /// Vector magnetometer prefix the terms are built from.
-    pub vector_sensor: String,
-    /// Term selection and scale.
-    pub terms: TermSet,
-    /// Term names, one per coefficient.
-    pub term_names: Vec<String>,
-    /// Coefficients, nT per unit term.
-    pub coefficients: Vec<f64>,
-    /// Filter applied before fitting.
-    pub filter: FilterSettings,
-    /// Sample rate used to design the filter, Hz.
-    pub sample_rate_hz: f64,
-    /// Solver diagnostics: method, λ, PRESS curves, singular values.
-    pub solution: Solution,
-    /// One-sigma uncertainty of each coefficient: the solver's white-noise
-    /// standard error times $\sqrt{f_s / 2B}$, because a residual of
-    /// bandwidth B holds only 2B independent samples a second (Nyquist).
-    pub coefficient_uncertainty: Vec<f64>,
-    /// Per-window use of the data.
-    pub windows: Vec<WindowFit>,
-    /// Physics added to the Tolles-Lawson terms (an accepted diagnosis);
-    /// its extra coefficients follow the terms'.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub augmentation: Option<crate::augment::Augmentation>,
-}
-
-/// Fits every channel in `channels` against `sensor`, in parallel over
-/// channels. Results are in `channels` order and independent of the number
-/// of threads.
-pub fn fit_channels(
-    log: &FlightLog,
-    sensor: &VectorSensor,
-    channels: &[String],
-    windows: &[CalibrationWindow],
-    options: &FitOptions,
-) -> Result<Vec<FittedTollesLawson>> {
-    if windows.is_empty() {
-        return Err(Error::NoCalibrationWindows {
-            path: log.source().to_path_buf(),
-        });
-    }
-    channels
-        .par_iter()
-        .map(|channel| fit_channel(log, sensor, channel, windows, options))
-        .collect()
-}
-
 /// The band-passed, trimmed, stacked data of a set of windows.
-struct BandData {
+pub(crate) struct BandData {
     /// Design columns and scalar readings.
-    stacked: Stacked,
+    pub stacked: Stacked,
     /// How each window contributed (band-passed signal filled in).
-    windows: Vec<WindowFit>,
+    pub windows: Vec<WindowFit>,
     /// Sample rate the filter was designed for, Hz.
-    sample_rate_hz: f64,
+    pub sample_rate_hz: f64,
 }
 
-/// Fits one scalar channel.
-pub fn fit_channel(
+/// Band-passes and stacks `windows` of one channel: the columns of
+/// `terms`, then `extra` (one value per row of the flight each), then the
+/// scalar record.
+pub(crate) fn band_data(
     log: &FlightLog,
     sensor: &VectorSensor,
     channel: &str,
     windows: &[CalibrationWindow],
-    options: &FitOptions,
-) -> Result<FittedTollesLawson> {
-    fit_channel_with(log, sensor, channel, windows, options, &Regressors::default())
-}
-
-/// Regressors added to the Tolles-Lawson terms, one value per row of the
-/// flight (e.g. a current times a direction cosine): physics the 18 terms
-/// leave out. Filtered, trimmed and stacked exactly as the terms are.
-#[derive(Debug, Clone, Default)]
-pub struct Regressors<'a> {
-    /// Names, appended to the term names.
-    pub names: Vec<String>,
-    /// Columns, each as long as the flight.
-    pub columns: Vec<&'a [f64]>,
-}
-
-/// Fits one scalar channel on the Tolles-Lawson terms plus `extra`.
-pub fn fit_channel_with(
-    log: &FlightLog,
-    sensor: &VectorSensor,
-    channel: &str,
-    windows: &[CalibrationWindow],
-    options: &FitOptions,
-    extra: &Regressors,
-) -> Result<FittedTollesLawson> {
-    let BandData {
-        stacked,
-        windows: mut fits,
-        sample_rate_hz,
-    } = band_data(log, sensor, channel, windows, options, &extra.columns)?;
-    let solution = solve_stacked(&stacked, &options.solve).map_err(|e| Error::Fit {
-        path: log.source().to_path_buf(),
-        channel: channel.into(),
-        source: e.into(),
-    })?;
-    for fit in &mut fits {
-        fit.band_after_nt = (fit
-            .band_before_nt
-            .iter()
-            .zip(&solution.fitted[fit.stacked_rows.clone()]))
-        .map(|(y, f)| y - f)
-        .collect();
-    }
-    let correlation = (sample_rate_hz / (2.0 * options.filter.band.bandwidth_hz(sample_rate_hz)))
-        .max(1.0)
-        .sqrt();
-    Ok(FittedTollesLawson {
-        coefficient_uncertainty: solution.standard_errors.iter().map(|e| e * correlation).collect(),
-        channel: channel.into(),
-        vector_sensor: sensor.prefix.clone(),
-        terms: options.terms,
-        term_names: options
-            .terms
-            .names()
-            .into_iter()
-            .chain(extra.names.iter().cloned())
-            .collect(),
-        coefficients: solution.coefficients.clone(),
-        filter: options.filter,
-        sample_rate_hz,
-        solution,
-        windows: fits,
-        augmentation: None,
-    })
-}
-
-impl FittedTollesLawson {
-    /// The model's band-passed residual on `windows`, which it need not have
-    /// been fitted on: held-out figures for transfer checks and diagnosis.
-    pub fn held_out(
-        &self,
-        log: &FlightLog,
-        sensor: &VectorSensor,
-        windows: &[CalibrationWindow],
-        options: &FitOptions,
-    ) -> Result<Vec<WindowFit>> {
-        self.held_out_with(log, sensor, windows, options, &Regressors::default())
-    }
-
-    /// [`Self::held_out`] for a model fitted with extra regressors, given
-    /// the same regressors.
-    pub fn held_out_with(
-        &self,
-        log: &FlightLog,
-        sensor: &VectorSensor,
-        windows: &[CalibrationWindow],
-        options: &FitOptions,
-        extra: &Regressors,
-    ) -> Result<Vec<WindowFit>> {
-        let data = band_data(log, sensor, &self.channel, windows, options, &extra.columns)?;
-        let mut fits = data.windows;
-        let predicted = data.stacked.predict(&self.coefficients);
-        for fit in &mut fits {
-            fit.band_after_nt = (fit.band_before_nt.iter().zip(&predicted[fit.stacked_rows.clone()]))
-                .map(|(y, f)| y - f)
-                .collect();
-        }
-        Ok(fits)
-    }
-}
-
-/// Band-passes and stacks `windows` of one channel.
-fn band_data(
-    log: &FlightLog,
-    sensor: &VectorSensor,
-    channel: &str,
-    windows: &[CalibrationWindow],
-    options: &FitOptions,
+    (terms, settings): (TermSet, &FilterSettings),
     extra: &[&[f64]],
 ) -> Result<BandData> {
     let scalar = &log
@@ -271,8 +112,7 @@ fn band_data(
             hint: "Check --channels or [columns] scalar in pipeline.toml.".into(),
         })?
         .values;
-    let settings = options.filter;
-    let filter = design_filter(log, &settings)?;
+    let filter = design_filter(log, settings)?;
     let sample_rate_hz = 1.0 / log.median_interval_s();
     let trim = settings.trim_samples;
     let needed = filter.min_samples().max(2 * trim + 1);
@@ -281,7 +121,7 @@ fn band_data(
         .map(|window| WindowPlan::new(log, sensor, (scalar, extra), window, needed, trim))
         .collect::<Result<_>>()?;
     let field = log.vector_components(sensor);
-    let stacked = stack_filtered((field, extra), scalar, &plans, &filter, options).map_err(|e| Error::Fit {
+    let stacked = stack_filtered((field, extra), scalar, &plans, &filter, (terms, trim)).map_err(|e| Error::Fit {
         path: log.source().to_path_buf(),
         channel: channel.into(),
         source: e.into(),
@@ -380,10 +220,8 @@ fn stack_filtered(
     scalar: &[f64],
     plans: &[WindowPlan],
     filter: &ZeroPhaseFilter,
-    options: &FitOptions,
+    (terms, trim): (TermSet, usize),
 ) -> std::result::Result<Stacked, FilterError> {
-    let trim = options.filter.trim_samples;
-    let terms = options.terms;
     let count = terms.len();
     let design = count + extra.len();
     let fold_lengths: Vec<usize> = plans.iter().map(|p| p.used(trim)).collect();

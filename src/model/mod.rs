@@ -1,0 +1,306 @@
+//! The model of one scalar channel's aircraft interference, and its one
+//! fit path.
+//!
+//! A [`ModelSpec`] says what is fitted: the Tolles-Lawson terms
+//! ([`TermSet`]) and the physics a diagnosis adds to them ([`Extensions`]:
+//! fluxgate calibration, sensor lag, eddy time constant, the total field's
+//! second-order term, source columns). Plain Tolles-Lawson is
+//! [`ModelSpec::default`], or [`ModelSpec::plain`] with other terms.
+//!
+//! [`fit`] fits a spec on calibration windows. For every window, the rows
+//! where the scalar, the vector magnetometer and every extension column
+//! are valid are split into contiguous runs; each run's design columns and
+//! scalar are band-passed on their own and trimmed, and the runs stacked
+//! ([`band`]). The regularised solve ([`crate::solve`]) picks λ by PRESS,
+//! each window one fold of the blocked PRESS:
+//!
+//! $$ \hat\beta = \arg\min_\beta \|y - A\beta\|^2 + \lambda \|\beta\|^2 $$
+//!
+//! with A the band-passed terms and extension columns and y the
+//! band-passed scalar (nT). With the second-order term the scalar less the
+//! term of one fit is fitted again, [`SECOND_ORDER_PASSES`] times.
+//!
+//! The [`FittedModel`] predicts the interference $A\beta$ on every row of a
+//! flight with the same columns ([`FittedModel::predict`]): compensation
+//! subtracts it. It also gives its band-passed residual on windows it was
+//! not fitted on ([`FittedModel::held_out`]): the transfer check and the
+//! diagnosis score models by it. Diagnosis, transfer check, replay and
+//! compensation all go through these three functions.
+
+pub mod band;
+pub mod extensions;
+mod prepared;
+
+use std::borrow::Cow;
+use std::collections::BTreeMap;
+
+use serde::Serialize;
+
+use crate::error::{Error, Result};
+use crate::flight_log::{FlightLog, VectorSensor};
+use crate::segments::valid_runs;
+use crate::solve::{Solution, SolveOptions};
+use crate::tolles_lawson::{DesignMatrix, EddyTerms, TermSet};
+use crate::windows::CalibrationWindow;
+
+pub use band::{design_filter, FilterSettings, FitOptions, WindowFit};
+pub use extensions::{
+    advanced, column_level, field_directions, rate_of_change, second_order_term, Extensions, SourceTerm,
+    SECOND_ORDER_PASSES,
+};
+pub(crate) use prepared::Prepared;
+
+/// What is fitted for one scalar channel: the Tolles-Lawson terms and the
+/// physics added to them.
+#[derive(Debug, Clone, PartialEq, Default, Serialize)]
+pub struct ModelSpec {
+    /// Tolles-Lawson terms (`[fit] terms`).
+    pub terms: TermSet,
+    /// Physics added to the terms (a diagnosis); default: none.
+    #[serde(skip_serializing_if = "Extensions::is_plain")]
+    pub extensions: Extensions,
+}
+
+impl ModelSpec {
+    /// Plain Tolles-Lawson on `terms`.
+    pub fn plain(terms: TermSet) -> Self {
+        ModelSpec {
+            terms,
+            extensions: Extensions::default(),
+        }
+    }
+
+    /// `terms` with `extensions`.
+    pub fn new(terms: TermSet, extensions: Extensions) -> Self {
+        ModelSpec { terms, extensions }
+    }
+
+    /// The model of `channel`: `terms` with the channel's extensions in
+    /// `plan`, plain Tolles-Lawson where the plan has none.
+    pub fn of_channel(terms: TermSet, plan: &BTreeMap<String, Extensions>, channel: &str) -> Self {
+        ModelSpec::new(terms, plan.get(channel).cloned().unwrap_or_default())
+    }
+
+    /// Plain Tolles-Lawson: nothing added to the terms.
+    pub fn is_plain(&self) -> bool {
+        self.extensions.is_plain()
+    }
+
+    /// The Tolles-Lawson terms fitted: with an eddy time constant, the nine
+    /// instantaneous eddy terms give way to their lagged versions, which
+    /// are extension columns.
+    pub fn fitted_terms(&self) -> TermSet {
+        let mut terms = self.terms;
+        if self.extensions.eddy_tau_s > 0.0 {
+            terms.eddy = EddyTerms::None;
+        }
+        terms
+    }
+
+    /// The solve settings: `solve` with λ picked by the model's own
+    /// criterion when it has one.
+    pub fn solve_options(&self, solve: &SolveOptions) -> SolveOptions {
+        let mut solve = solve.clone();
+        if let Some(criterion) = self.extensions.lambda_criterion {
+            solve.criterion = criterion;
+        }
+        solve
+    }
+
+    /// One line for people: what the model adds to Tolles-Lawson.
+    pub fn describe(&self) -> String {
+        self.extensions.describe()
+    }
+}
+
+/// A fitted model of one scalar channel; it predicts the interference.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct FittedModel {
+    /// Scalar channel the model compensates.
+    pub channel: String,
+    /// Vector magnetometer prefix the terms are built from.
+    pub vector_sensor: String,
+    /// What was fitted.
+    pub spec: ModelSpec,
+    /// Term names, one per coefficient: the fitted terms, then the
+    /// extension columns.
+    pub term_names: Vec<String>,
+    /// Coefficients, nT per unit term.
+    pub coefficients: Vec<f64>,
+    /// Filter applied before fitting.
+    pub filter: FilterSettings,
+    /// Sample rate used to design the filter, Hz.
+    pub sample_rate_hz: f64,
+    /// Solver diagnostics: method, λ, PRESS curves, singular values.
+    pub solution: Solution,
+    /// One-sigma uncertainty of each coefficient: the solver's white-noise
+    /// standard error times $\sqrt{f_s / 2B}$, because a residual of
+    /// bandwidth B holds only 2B independent samples a second (Nyquist).
+    pub coefficient_uncertainty: Vec<f64>,
+    /// Per-window use of the data.
+    pub windows: Vec<WindowFit>,
+}
+
+/// Fits `spec` to scalar `channel` on `windows`, the terms built from
+/// `sensor`. The one fit of every model kind.
+pub fn fit(
+    log: &FlightLog,
+    sensor: &VectorSensor,
+    channel: &str,
+    windows: &[CalibrationWindow],
+    spec: &ModelSpec,
+    options: &FitOptions,
+) -> Result<FittedModel> {
+    Prepared::new(log, sensor, channel, spec)?.fit(windows, options)
+}
+
+/// A model's prediction over a whole flight.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Prediction<'a> {
+    /// The scalar as the model reads it: the record, read `lag_s` earlier
+    /// when the sensor lags, nT.
+    pub scalar_nt: Cow<'a, [f64]>,
+    /// The aircraft's interference $A\beta$ on every row, nT (`NaN` where
+    /// an input is missing). A base-station term is fitted but not part
+    /// of it (see [`FittedModel::predict`]).
+    pub interference_nt: Vec<f64>,
+}
+
+impl FittedModel {
+    /// The band-passed residual of the model on `windows`, which it need
+    /// not have been fitted on: held-out figures for the transfer check
+    /// and the diagnosis.
+    pub fn held_out(
+        &self,
+        log: &FlightLog,
+        sensor: &VectorSensor,
+        windows: &[CalibrationWindow],
+        options: &FitOptions,
+    ) -> Result<Vec<WindowFit>> {
+        Prepared::new(log, sensor, &self.channel, &self.spec)?.held_out(self, windows, options)
+    }
+
+    /// The interference on every row of `log`, with the terms' time
+    /// derivatives taken inside contiguous runs of valid vector samples.
+    /// A base-station term is fitted (so geomagnetic variation in the
+    /// calibration band does not bias the aircraft's coefficients) but not
+    /// predicted: it is the Earth's field, which the compensated channel
+    /// keeps. A flight that lacks the model's channel, vector sensor or
+    /// source columns (a model fitted on another flight) is an error.
+    pub fn predict<'a>(&self, log: &'a FlightLog) -> Result<Prediction<'a>> {
+        self.predict_with(log, &[])
+    }
+
+    /// [`Self::predict`], taking the terms from `shared` when it holds
+    /// this model's (vector sensor, fitted terms) and the model does not
+    /// recalibrate the fluxgate.
+    pub(crate) fn predict_with<'a>(&self, log: &'a FlightLog, shared: &[SharedDesign]) -> Result<Prediction<'a>> {
+        let sensor = self.sensor_in(log)?;
+        let prepared = Prepared::new(log, &sensor, &self.channel, &self.spec)?;
+        let scalar_nt = match self.spec.extensions.lag_s {
+            0.0 => Cow::Borrowed(prepared::scalar_values(log, &self.channel)?),
+            _ => Cow::Owned(prepared::scalar_values(&prepared.log, &self.channel)?.to_vec()),
+        };
+        let terms = self.spec.fitted_terms();
+        let reusable = self.spec.extensions.vector_calibration.is_none();
+        let built;
+        let design = match shared
+            .iter()
+            .find(|s| reusable && s.sensor == self.vector_sensor && s.terms == terms)
+        {
+            Some(s) => &s.design,
+            None => {
+                built = design_matrix(&prepared.log, &sensor, &terms);
+                &built
+            }
+        };
+        let (term_part, extra_part) = self
+            .coefficients
+            .split_at(design.columns.len().min(self.coefficients.len()));
+        let aircraft: Vec<(&[f64], f64)> = (prepared.extra.iter().zip(extra_part))
+            .filter(|(c, _)| !c.geomagnetic)
+            .map(|(c, b)| (c.values.as_slice(), *b))
+            .collect();
+        let mut interference_nt: Vec<f64> = (0..log.len())
+            .map(|row| design.predict_row(row, term_part) + aircraft.iter().map(|(c, b)| c[row] * b).sum::<f64>())
+            .collect();
+        if self.spec.extensions.second_order {
+            let term = second_order_term(prepared.log.vector_components(&sensor), &terms, &self.coefficients);
+            for (h, q) in interference_nt.iter_mut().zip(&term) {
+                *h += q;
+            }
+        }
+        Ok(Prediction {
+            scalar_nt,
+            interference_nt,
+        })
+    }
+
+    /// The model's vector sensor in `log`; an error when `log` lacks it
+    /// or the scalar channel.
+    fn sensor_in(&self, log: &FlightLog) -> Result<VectorSensor> {
+        let sensor = log
+            .vector_sensors()
+            .into_iter()
+            .find(|s| s.prefix == self.vector_sensor);
+        let missing = match (log.channel(&self.channel), &sensor) {
+            (None, _) => ("scalar magnetometer", &self.channel),
+            (_, None) => ("vector magnetometer", &self.vector_sensor),
+            (Some(_), Some(sensor)) => return Ok(sensor.clone()),
+        };
+        Err(Error::MissingColumn {
+            path: log.source().to_path_buf(),
+            role: missing.0,
+            looked_for: format!("'{}', which the model of '{}' uses", missing.1, self.channel),
+            hint: "Compensate with models fitted on this flight's own channels.".into(),
+        })
+    }
+}
+
+/// The Tolles-Lawson columns of one (vector sensor, terms) over a whole
+/// flight, built once for every model that uses them.
+#[derive(Debug, Clone)]
+pub(crate) struct SharedDesign {
+    sensor: String,
+    terms: TermSet,
+    design: DesignMatrix,
+}
+
+impl SharedDesign {
+    /// One design per distinct (vector sensor, fitted terms) of the
+    /// models that read the recorded fluxgate.
+    pub fn of_models(log: &FlightLog, models: &[FittedModel]) -> Vec<SharedDesign> {
+        let mut shared: Vec<SharedDesign> = Vec::new();
+        for model in models.iter().filter(|m| m.spec.extensions.vector_calibration.is_none()) {
+            let terms = model.spec.fitted_terms();
+            if shared
+                .iter()
+                .any(|s| s.sensor == model.vector_sensor && s.terms == terms)
+            {
+                continue;
+            }
+            let Some(sensor) = log
+                .vector_sensors()
+                .into_iter()
+                .find(|s| s.prefix == model.vector_sensor)
+            else {
+                continue;
+            };
+            shared.push(SharedDesign {
+                design: design_matrix(log, &sensor, &terms),
+                sensor: model.vector_sensor.clone(),
+                terms,
+            });
+        }
+        shared
+    }
+}
+
+/// `terms` over the whole flight, derivatives taken inside runs of valid
+/// vector samples.
+fn design_matrix(log: &FlightLog, sensor: &VectorSensor, terms: &TermSet) -> DesignMatrix {
+    let field = log.vector_components(sensor);
+    let valid: Vec<bool> = (0..log.len()).map(|i| field.iter().all(|c| c[i].is_finite())).collect();
+    let runs = valid_runs(log.time_s(), &valid, 0..log.len(), log.median_interval_s());
+    terms.design_matrix(field, &runs)
+}

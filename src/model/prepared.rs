@@ -1,0 +1,278 @@
+//! A flight made ready for one channel's model: the fluxgate calibrated,
+//! the scalar read `lag_s` earlier, and the extension columns built. The
+//! fit, the held-out residual and the prediction all start here, so they
+//! see the same data.
+
+use std::borrow::Cow;
+
+use crate::error::{Error, Result};
+use crate::flight_log::{FlightLog, VectorSensor};
+use crate::solve::solve_stacked;
+use crate::windows::CalibrationWindow;
+
+use super::band::{band_data, BandData, FitOptions, WindowFit};
+use super::extensions::{advanced, field_directions, lagged_rate, rate_of_change, second_order_term, SourceTerm};
+use super::{FittedModel, ModelSpec, SECOND_ORDER_PASSES};
+
+/// One extension column: a regressor beside the Tolles-Lawson terms.
+#[derive(Debug, Clone)]
+pub(crate) struct ExtraColumn {
+    /// Name, appended to the term names.
+    pub name: String,
+    /// One value per row of the flight.
+    pub values: Vec<f64>,
+    /// The Earth's field, not the aircraft's: a base-station column. It
+    /// is fitted, so geomagnetic variation in the band does not bias the
+    /// aircraft's coefficients, but not subtracted: the compensated
+    /// channel keeps the Earth's field, and removing its variation is the
+    /// survey's diurnal correction, a step of its own.
+    pub geomagnetic: bool,
+}
+
+/// What a model of one channel is fitted on and predicts from.
+#[derive(Debug, Clone)]
+pub(crate) struct Prepared<'a> {
+    /// The flight with the fluxgate calibrated and the scalar advanced by
+    /// the lag (borrowed when neither applies).
+    pub log: Cow<'a, FlightLog>,
+    /// The vector magnetometer the terms are built from.
+    pub sensor: &'a VectorSensor,
+    /// The scalar channel.
+    pub channel: &'a str,
+    /// The model.
+    pub spec: &'a ModelSpec,
+    /// Extension columns, in the order their coefficients follow the terms'.
+    pub extra: Vec<ExtraColumn>,
+}
+
+impl<'a> Prepared<'a> {
+    /// Calibrates the fluxgate, advances the scalar and builds the
+    /// extension columns of `spec`. A source column the flight lacks is an
+    /// error.
+    pub fn new(log: &'a FlightLog, sensor: &'a VectorSensor, channel: &'a str, spec: &'a ModelSpec) -> Result<Self> {
+        let calibrated = match &spec.extensions.vector_calibration {
+            Some(calibration) => Cow::Owned(calibration.apply(log, sensor)?),
+            None => Cow::Borrowed(log),
+        };
+        let direction = field_directions(&calibrated, sensor);
+        Self::with_directions(calibrated, sensor, channel, spec, &direction)
+    }
+
+    /// [`Self::new`] on a flight whose fluxgate is already what the model
+    /// uses (the spec's calibration is not applied again), with its unit
+    /// field directions.
+    pub fn with_directions(
+        log: Cow<'a, FlightLog>,
+        sensor: &'a VectorSensor,
+        channel: &'a str,
+        spec: &'a ModelSpec,
+        direction: &[Vec<f64>; 3],
+    ) -> Result<Self> {
+        let extensions = &spec.extensions;
+        let scale = spec.terms.bt_scale_nt;
+        let mut extra = Vec::new();
+        let mut push = |name: String, values: Vec<f64>, geomagnetic: bool| {
+            extra.push(ExtraColumn {
+                name,
+                values,
+                geomagnetic,
+            })
+        };
+        // Lagged eddy terms first: the newest source term stays last.
+        if extensions.eddy_tau_s > 0.0 {
+            let dt = log.median_interval_s();
+            let field = log.vector_components(sensor);
+            let lagged: Vec<Vec<f64>> = field
+                .iter()
+                .map(|b| lagged_rate(b, dt, extensions.eddy_tau_s))
+                .collect();
+            for (i, axis_i) in ["x", "y", "z"].iter().enumerate() {
+                for (j, axis_j) in ["x", "y", "z"].iter().enumerate() {
+                    let values = direction[i]
+                        .iter()
+                        .zip(&lagged[j])
+                        .map(|(u, d)| u * d / scale)
+                        .collect();
+                    push(format!("eddy_lagged_{axis_i}{axis_j}"), values, false);
+                }
+            }
+        }
+        for source in &extensions.sources {
+            let Some(values) = log.channel(source.column()).map(|c| &c.values) else {
+                return Err(Error::MissingColumn {
+                    path: log.source().to_path_buf(),
+                    role: "model source column",
+                    looked_for: format!("'{}', which the model of '{channel}' uses", source.column()),
+                    hint: "Compensate with a diagnosis made on a flight that records the same columns.".into(),
+                });
+            };
+            match source {
+                SourceTerm::AuxCoupling { column, level } => {
+                    for (axis, u) in ["x", "y", "z"].iter().zip(direction) {
+                        let coupled = values.iter().zip(u).map(|(c, u)| (c - level) * u).collect();
+                        push(format!("{column}_{axis}"), coupled, false);
+                    }
+                }
+                SourceTerm::AuxCouplingRate { column } => {
+                    let rate = rate_of_change(values, log.time_s());
+                    for (axis, u) in ["x", "y", "z"].iter().zip(direction) {
+                        push(
+                            format!("{column}_rate_{axis}"),
+                            rate.iter().zip(u).map(|(r, u)| r * u).collect(),
+                            false,
+                        );
+                    }
+                }
+                SourceTerm::ExternalField { column, level } => {
+                    push(column.clone(), values.iter().map(|c| c - level).collect(), true);
+                }
+            }
+        }
+        let log = match extensions.lag_s {
+            0.0 => log,
+            lag_s => {
+                let values = advanced(scalar_values(&log, channel)?, log.time_s(), lag_s);
+                Cow::Owned(log.with_values(channel, values)?)
+            }
+        };
+        Ok(Prepared {
+            log,
+            sensor,
+            channel,
+            spec,
+            extra,
+        })
+    }
+
+    /// The extension columns as the band data takes them.
+    fn extra_columns(&self) -> Vec<&[f64]> {
+        self.extra.iter().map(|c| c.values.as_slice()).collect()
+    }
+
+    /// Fits the model on `windows`, refitting on the scalar less the
+    /// second-order term when the model has it.
+    pub fn fit(&self, windows: &[CalibrationWindow], options: &FitOptions) -> Result<FittedModel> {
+        if windows.is_empty() {
+            return Err(Error::NoCalibrationWindows {
+                path: self.log.source().to_path_buf(),
+            });
+        }
+        let mut fitted = self.fit_once(&self.log, windows, options)?;
+        if self.spec.extensions.second_order {
+            for _ in 0..SECOND_ORDER_PASSES {
+                let corrected = self.corrected(&fitted)?;
+                fitted = self.fit_once(&corrected, windows, options)?;
+            }
+        }
+        Ok(fitted)
+    }
+
+    /// One regularised fit of the terms and extension columns on `log`
+    /// (the prepared flight, or it less the second-order term).
+    fn fit_once(&self, log: &FlightLog, windows: &[CalibrationWindow], options: &FitOptions) -> Result<FittedModel> {
+        let terms = self.spec.fitted_terms();
+        let BandData {
+            stacked,
+            windows: mut fits,
+            sample_rate_hz,
+        } = band_data(
+            log,
+            self.sensor,
+            self.channel,
+            windows,
+            (terms, &options.filter),
+            &self.extra_columns(),
+        )?;
+        let solve = self.spec.solve_options(&options.solve);
+        let solution = solve_stacked(&stacked, &solve).map_err(|e| Error::Fit {
+            path: log.source().to_path_buf(),
+            channel: self.channel.into(),
+            source: e.into(),
+        })?;
+        for fit in &mut fits {
+            fit.band_after_nt = (fit.band_before_nt.iter())
+                .zip(&solution.fitted[fit.stacked_rows.clone()])
+                .map(|(y, f)| y - f)
+                .collect();
+        }
+        // A residual of bandwidth B holds only 2B independent samples a
+        // second (Nyquist): the white-noise standard errors are scaled by
+        // √(f_s / 2B).
+        let correlation = (sample_rate_hz / (2.0 * options.filter.band.bandwidth_hz(sample_rate_hz)))
+            .max(1.0)
+            .sqrt();
+        Ok(FittedModel {
+            coefficient_uncertainty: solution.standard_errors.iter().map(|e| e * correlation).collect(),
+            channel: self.channel.into(),
+            vector_sensor: self.sensor.prefix.clone(),
+            spec: self.spec.clone(),
+            term_names: terms
+                .names()
+                .into_iter()
+                .chain(self.extra.iter().map(|c| c.name.clone()))
+                .collect(),
+            coefficients: solution.coefficients.clone(),
+            filter: options.filter,
+            sample_rate_hz,
+            solution,
+            windows: fits,
+        })
+    }
+
+    /// The band-passed residual of `fitted` (a model of this spec) on
+    /// `windows`, which it need not have been fitted on.
+    pub fn held_out(
+        &self,
+        fitted: &FittedModel,
+        windows: &[CalibrationWindow],
+        options: &FitOptions,
+    ) -> Result<Vec<WindowFit>> {
+        let corrected = self.corrected(fitted)?;
+        let data = band_data(
+            &corrected,
+            self.sensor,
+            self.channel,
+            windows,
+            (self.spec.fitted_terms(), &options.filter),
+            &self.extra_columns(),
+        )?;
+        let mut fits = data.windows;
+        let predicted = data.stacked.predict(&fitted.coefficients);
+        for fit in &mut fits {
+            fit.band_after_nt = (fit.band_before_nt.iter().zip(&predicted[fit.stacked_rows.clone()]))
+                .map(|(y, f)| y - f)
+                .collect();
+        }
+        Ok(fits)
+    }
+
+    /// The prepared flight with the channel less the second-order term of
+    /// `fitted`'s aircraft field (unchanged without the term).
+    fn corrected(&self, fitted: &FittedModel) -> Result<Cow<'_, FlightLog>> {
+        if !self.spec.extensions.second_order {
+            return Ok(Cow::Borrowed(self.log.as_ref()));
+        }
+        let term = second_order_term(
+            self.log.vector_components(self.sensor),
+            &self.spec.fitted_terms(),
+            &fitted.coefficients,
+        );
+        let scalar = scalar_values(&self.log, self.channel)?;
+        let values = scalar.iter().zip(&term).map(|(s, q)| s - q).collect();
+        Ok(Cow::Owned(self.log.with_values(self.channel, values)?))
+    }
+}
+
+/// The record of scalar `channel`; an error naming it when the flight
+/// lacks it.
+pub(crate) fn scalar_values<'a>(log: &'a FlightLog, channel: &str) -> Result<&'a [f64]> {
+    match log.channel(channel) {
+        Some(scalar) => Ok(&scalar.values),
+        None => Err(Error::MissingColumn {
+            path: log.source().to_path_buf(),
+            role: "scalar magnetometer",
+            looked_for: format!("'{channel}'"),
+            hint: "Name a scalar channel the flight records.".into(),
+        }),
+    }
+}
