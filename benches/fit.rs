@@ -15,7 +15,8 @@ use std::time::Instant;
 use magcomp::config::{FlightJob, Pipeline};
 use magcomp::flight_log::{Channel, ChannelRole, FlightLog, VectorAxis};
 use magcomp::model::{fit, FitOptions, ModelSpec};
-use magcomp::pipeline::{choose_vector_sensor, process_flight, FlightOutputs, StageOptions};
+use magcomp::pipeline::{choose_vector_sensor, StageOptions};
+use magcomp::sink::{process_flight, FlightOutputs};
 use magcomp::windows::CalibrationWindow;
 
 /// The diagnosis tests' flight helpers (the unrelated columns).
@@ -119,9 +120,9 @@ fn bench_fit(rows: usize, repeats: usize) {
         .unwrap();
         std::hint::black_box(model);
     };
-    // The first fit finds no recycled store and takes fresh memory; the
-    // repeats show a fit in a run of fits (channels, diagnosis candidates).
-    magcomp::stacked::release_spare_stores();
+    // Every call of `fit` takes fresh memory for its stacked data (the
+    // fits of one diagnosis or one transfer check share theirs); the first
+    // run also pays for the process's first touch of it.
     let first = sorted_seconds(1, fit)[0];
     let times = sorted_seconds(repeats, fit);
     // The fastest run shows the cost with the least interference from
@@ -265,12 +266,12 @@ fn bare_csv_parse(path: &Path, delimiter: u8) -> usize {
 }
 
 fn bench_formats(rows: usize) {
-    use magcomp::ingest::{read_flight_log, IngestOptions};
+    use magcomp::formats::{read_flight_log, IngestOptions};
     let folder = tempfile::tempdir().unwrap();
     let log = format_log(rows);
     let options = IngestOptions::default();
     let mcap = folder.path().join("flight.mcap");
-    magcomp::output::write_flight_log(&log, &mcap).unwrap();
+    magcomp::formats::write_flight_log(&log, &mcap).unwrap();
     let messages = rows * 4;
     let ours = median_seconds(3, || {
         std::hint::black_box(read_flight_log(&mcap, &options).unwrap());
@@ -289,7 +290,7 @@ fn bench_formats(rows: usize) {
     );
     for (extension, delimiter) in [("csv", b','), ("xyz", b' ')] {
         let path = folder.path().join(format!("flight.{extension}"));
-        magcomp::output::write_flight_log(&log, &path).unwrap();
+        magcomp::formats::write_flight_log(&log, &path).unwrap();
         let ours = median_seconds(7, || {
             std::hint::black_box(read_flight_log(&path, &options).unwrap());
         });
@@ -369,7 +370,7 @@ fn bench_run_default() {
     let log = common::with_unrelated_columns(&flight.log, 22);
     let folder = tempfile::tempdir().unwrap();
     let input = folder.path().join("two_hours.csv");
-    magcomp::output::write_flight_log(&log, &input).unwrap();
+    magcomp::formats::write_flight_log(&log, &input).unwrap();
     let job = FlightJob::new(&input);
     for apply in [
         magcomp::diagnose::ApplyDiagnosis::Never,

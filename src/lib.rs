@@ -15,6 +15,30 @@
 //! read_flight_log → calibration windows → model::fit → compensate → assess_quality
 //! ```
 //!
+//! ## Layout
+//!
+//! - [`formats`]: every file format, one module each that both reads and
+//!   writes it (CSV, Geosoft XYZ, MCAP, HDF5), and atomic, staged writes.
+//! - [`screen`], [`detect`], [`windows`]: the samples no instrument can
+//!   record, the calibration box and its manoeuvres, calibration windows.
+//! - [`model`]: one model type. A [`model::ModelSpec`] (Tolles-Lawson terms
+//!   and the physics a diagnosis adds) is fitted by [`model::fit`] into a
+//!   [`model::FittedModel`] that predicts the interference and its held-out
+//!   residual; [`compensate`] subtracts the prediction.
+//! - Numerics: [`tolles_lawson`] (the terms), [`filter`] (zero-phase
+//!   band-pass), [`stacked`] and [`solve`] (ridge by PRESS, truncated SVD),
+//!   [`segments`].
+//! - [`diagnose`]: the physics the model leaves out, found, named and
+//!   scored held out; [`holdout`] is the leave-one-heading-out rule it
+//!   shares with [`transfer`] and [`quality`].
+//! - [`pipeline`]: one flight through every stage, writing nothing
+//!   ([`pipeline::run`] → [`pipeline::FlightRun`]); [`sink`] writes what a
+//!   run produced, and [`report`] is the HTML page.
+//! - [`simulate`]: flights with known truth, for tests and for users.
+//!
+//! No module imports another that imports it back (`tests/architecture.rs`
+//! checks).
+//!
 //! Interface names (CSV columns, the command line, the JSON files, MCAP
 //! topics) are fixed by the interface contract, `docs/CONTRACT.md`; a
 //! reference "CONTRACT §n" in these docs is to its section n.
@@ -56,13 +80,12 @@ pub mod filter;
 pub mod flight_date;
 pub mod flight_identity;
 pub mod flight_log;
+pub mod formats;
 pub mod heading_error;
 pub mod holdout;
-pub mod ingest;
 pub mod linalg;
 pub mod messages;
 pub mod model;
-pub mod output;
 pub mod pipeline;
 pub mod quality;
 pub mod report;
@@ -70,6 +93,7 @@ pub mod sample_flight;
 pub mod screen;
 pub mod segments;
 pub mod simulate;
+pub mod sink;
 pub mod solve;
 pub mod stacked;
 pub mod tolles_lawson;

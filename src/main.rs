@@ -9,8 +9,9 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use magcomp::config::{FlightJob, Pipeline};
 use magcomp::diagnose::ApplyDiagnosis;
-use magcomp::output::{prepare, Destination, OutputKind, OutputSet};
-use magcomp::pipeline::{process_flight, summary, FlightOutputs, StageOptions};
+use magcomp::formats::{prepare, Destination, OutputKind, OutputSet};
+use magcomp::pipeline::{summary, StageOptions};
+use magcomp::sink::{process_flight, FlightOutputs};
 use magcomp::solve::LambdaChoice;
 use magcomp::windows::CalibrationWindow;
 
@@ -270,7 +271,7 @@ fn error_paragraph(error: &anyhow::Error) -> String {
 
 /// Reads a flight and screens its samples, printing what was masked.
 fn read_screened(flight: &Path, pipeline: &Pipeline) -> magcomp::error::Result<magcomp::flight_log::FlightLog> {
-    let recorded = magcomp::ingest::read_flight_log(flight, &pipeline.ingest)?;
+    let recorded = magcomp::formats::read_flight_log(flight, &pipeline.ingest)?;
     let screened = magcomp::screen::screen_samples(&recorded)?;
     for warning in screened.warnings(&recorded) {
         println!("  warning: {warning}");
@@ -462,7 +463,7 @@ fn compensate(args: CompensateArgs) -> anyhow::Result<()> {
         .flatten()
         .map(PathBuf::as_path)
         .collect();
-    magcomp::output::destination::refuse_inputs(&other_inputs, &outputs.destinations())?;
+    magcomp::formats::destination::refuse_inputs(&other_inputs, &outputs.destinations())?;
     prepare_flight_outputs(&job, &outputs)?;
     let bar = spinner(format!("compensating {}", args.flight.display()));
     let result = process_flight(&job, &stage_options(&pipeline), &outputs);
@@ -485,9 +486,9 @@ fn convert(
         &inputs,
         &[Destination::new(out, OutputKind::Flight, "--out")],
     )?);
-    let log = magcomp::ingest::read_flight_log(flight, &pipeline.ingest)?;
-    magcomp::output::write_flight_log(&log, out)?;
-    if let Some(warning) = magcomp::output::mcap::undated_warning(&log, out) {
+    let log = magcomp::formats::read_flight_log(flight, &pipeline.ingest)?;
+    magcomp::formats::write_flight_log(&log, out)?;
+    if let Some(warning) = magcomp::formats::mcap::undated_warning(&log, out) {
         println!("  warning: {warning}");
     }
     println!(
@@ -592,8 +593,8 @@ fn replay_flight(
     bar.finish_and_clear();
     let replayed = replayed?;
     let mut set = OutputSet::new();
-    set.add(magcomp::output::stage_flight_log(&replayed.log, out)?);
-    set.add(magcomp::output::stage_json(
+    set.add(magcomp::formats::stage_flight_log(&replayed.log, out)?);
+    set.add(magcomp::formats::stage_json(
         &report,
         "the replay figures",
         &replayed.channels,
@@ -634,7 +635,7 @@ fn simulate(scenario_path: &Path, out: &Path, seed: Option<u64>) -> anyhow::Resu
     bar.finish_and_clear();
     let flight = flight?;
     let mut set = OutputSet::new();
-    set.add(magcomp::output::stage_flight_log(&flight.log, out)?);
+    set.add(magcomp::formats::stage_flight_log(&flight.log, out)?);
     for staged in flight.truth.stage_beside(out)? {
         set.add(staged);
     }
@@ -657,7 +658,7 @@ fn detect(flight: &Path, out: &Path, config: Option<&Path>) -> anyhow::Result<()
     print_notes(&prepare(&inputs, &[Destination::new(out, OutputKind::Json, "--out")])?);
     let log = read_screened(flight, &pipeline)?;
     let detection = magcomp::detect::detect_manoeuvres(&log, &pipeline.detect)?;
-    magcomp::output::write_json(out, "the detected manoeuvres", &detection)?;
+    magcomp::formats::write_json(out, "the detected manoeuvres", &detection)?;
     for note in magcomp::pipeline::detection_notes(&detection) {
         println!("  {note}");
     }
@@ -717,7 +718,7 @@ fn diagnose(
     bar.finish_and_clear();
     let diagnosis = diagnosis?;
     let mut set = OutputSet::new();
-    set.add(magcomp::output::stage_json(out, "the diagnosis", &diagnosis)?);
+    set.add(magcomp::formats::stage_json(out, "the diagnosis", &diagnosis)?);
     set.add_last(magcomp::report::stage_diagnosis_report(html, flight, &diagnosis)?);
     set.commit()?;
     for channel in &diagnosis.channels {

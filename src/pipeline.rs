@@ -1,4 +1,6 @@
-//! One flight through every stage: read, fit, compensate, assess, write.
+//! One flight through every stage: read, screen, detect, diagnose, fit,
+//! compensate, assess. [`run`] writes nothing; [`crate::sink`] writes what
+//! it produced.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -10,81 +12,14 @@ use crate::config::FlightJob;
 use crate::detect::{detect_manoeuvres, DetectOptions, Detection};
 use crate::error::{Error, Result};
 use crate::flight_log::{FlightLog, VectorSensor};
-use crate::ingest::align::AlignmentReport;
-use crate::ingest::{detect_format, read_flight_log, Format, IngestOptions};
+use crate::formats::added_column_names;
+use crate::formats::align::AlignmentReport;
+use crate::formats::{read_flight_log, IngestOptions};
 use crate::model::{fit, Extensions, FitOptions, FittedModel, ModelSpec};
-use crate::output::mcap::McapExtras;
-use crate::output::{added_column_names, stage, stage_compensated, Destination, OutputKind, OutputSet};
 use crate::quality::{assess_quality, ChannelQuality};
 use crate::tolles_lawson::TermSet;
 use crate::transfer::{check_transfer, TransferOptions};
 use rayon::prelude::*;
-
-/// Where one flight's outputs go.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct FlightOutputs {
-    /// Compensated flight (CSV, or XYZ / MCAP for such inputs).
-    pub compensated: PathBuf,
-    /// Model JSON, if wanted.
-    pub model_json: Option<PathBuf>,
-    /// Quality JSON, if wanted.
-    pub quality_json: Option<PathBuf>,
-    /// HTML quality report (and its figures as JSON beside it), if wanted.
-    pub report_html: Option<PathBuf>,
-    /// DIAGNOSIS.json of the diagnosis made when `[diagnose] apply` is on.
-    pub diagnosis_json: Option<PathBuf>,
-}
-
-impl FlightOutputs {
-    /// `<dir>/<stem>_compensated.csv`, `_model.json`, `_quality.json` and
-    /// `_report.html`.
-    pub fn in_directory(directory: &Path, input: &Path) -> Self {
-        let stem = input
-            .file_stem()
-            .map_or("flight".into(), |s| s.to_string_lossy().into_owned());
-        // Geosoft and MCAP users get their format back; everything else CSV.
-        let extension = match detect_format(input) {
-            Ok(Format::Xyz) => "xyz",
-            Ok(Format::Mcap) => "mcap",
-            _ => "csv",
-        };
-        FlightOutputs {
-            compensated: directory.join(format!("{stem}_compensated.{extension}")),
-            model_json: Some(directory.join(format!("{stem}_model.json"))),
-            quality_json: Some(directory.join(format!("{stem}_quality.json"))),
-            report_html: Some(directory.join(format!("{stem}_report.html"))),
-            diagnosis_json: Some(directory.join(format!("{stem}_diagnosis.json"))),
-        }
-    }
-
-    /// Every file these outputs write, each with what it is.
-    pub fn destinations(&self) -> Vec<Destination> {
-        let mut destinations = vec![Destination::new(
-            &self.compensated,
-            OutputKind::Flight,
-            "the compensated flight",
-        )];
-        let optional = [
-            (&self.model_json, OutputKind::Json, "the model JSON"),
-            (&self.quality_json, OutputKind::Json, "the quality JSON"),
-            (&self.diagnosis_json, OutputKind::Json, "the diagnosis JSON"),
-            (&self.report_html, OutputKind::Html, "the HTML report"),
-        ];
-        for (path, kind, named_by) in optional {
-            if let Some(path) = path {
-                destinations.push(Destination::new(path, kind, named_by));
-            }
-        }
-        if let Some(path) = &self.report_html {
-            destinations.push(Destination::new(
-                crate::report::figures_path(path),
-                OutputKind::Json,
-                "the HTML report's figures JSON",
-            ));
-        }
-        destinations
-    }
-}
 
 /// What processing one flight produced.
 #[derive(Debug, Clone, Serialize)]
@@ -239,19 +174,33 @@ impl From<&crate::config::Pipeline> for StageOptions {
     }
 }
 
-/// Reads, fits, compensates and assesses one flight and writes its outputs.
-///
-/// The outputs are checked before any work ([`crate::output::prepare`]) and
-/// committed together at the end, the report last: a flight that fails
-/// leaves the previous run's files as they were.
-pub fn process_flight(job: &FlightJob, options: &StageOptions, outputs: &FlightOutputs) -> Result<FlightResult> {
-    let inputs: Vec<&Path> = std::iter::once(job.input.as_path())
-        .chain(job.diagnosis.as_deref())
-        .collect();
-    // Folders created here are not noted in the outputs: a caller that
-    // tells its user calls `prepare` first.
-    crate::output::prepare(&inputs, &outputs.destinations())?;
-    let ingest = crate::ingest::IngestOptions {
+/// One flight through every stage: what [`run`] produced, for the sinks
+/// ([`crate::sink`]) to write.
+#[derive(Debug, Clone)]
+pub struct FlightRun {
+    /// The flight as recorded: the compensated output copies it.
+    pub recorded: FlightLog,
+    /// The samples no instrument can record, masked: what every stage
+    /// worked on.
+    pub screened: crate::screen::Screened,
+    /// The compensated channels and row flags.
+    pub compensation: crate::compensate::Compensation,
+    /// Quality figures, notes, warnings, models and diagnosis.
+    pub result: FlightResult,
+}
+
+impl FlightRun {
+    /// The log the stages worked on (the screened samples).
+    pub fn log(&self) -> &FlightLog {
+        self.screened.log_or(&self.recorded)
+    }
+}
+
+/// Reads, fits, compensates and assesses one flight; writes nothing.
+/// `compensated` is where the compensated flight will go: its format
+/// names the columns magcomp adds.
+pub fn run(job: &FlightJob, options: &StageOptions, compensated: &Path) -> Result<FlightRun> {
+    let ingest = crate::formats::IngestOptions {
         date: job.date.or(options.ingest.date),
         ..options.ingest.clone()
     };
@@ -291,11 +240,7 @@ pub fn process_flight(job: &FlightJob, options: &StageOptions, outputs: &FlightO
         calibration.is_some(),
     )?;
     warnings.splice(0..0, screened.warnings(&recorded));
-    warnings.extend(crate::output::mcap::undated_warning(&recorded, &outputs.compensated));
-    let mut written = OutputSet::new();
-    if let (Some(diagnosis), Some(path)) = (&diagnosis, &outputs.diagnosis_json) {
-        written.add(crate::output::stage_json(path, "the diagnosis", diagnosis)?);
-    }
+    warnings.extend(crate::formats::mcap::undated_warning(&recorded, compensated));
     let models: Vec<FittedModel> = channels
         .par_iter()
         .map(|channel| {
@@ -303,8 +248,6 @@ pub fn process_flight(job: &FlightJob, options: &StageOptions, outputs: &FlightO
             fit(log, &sensor, channel, &windows, &spec, &options.fit)
         })
         .collect::<Result<_>>()?;
-    // The fits' recycled stores are not needed while compensating.
-    crate::stacked::release_spare_stores();
     let compensation = compensate(log, &models, options.level)?;
     let quality: Vec<ChannelQuality> = models
         .par_iter()
@@ -315,7 +258,7 @@ pub fn process_flight(job: &FlightJob, options: &StageOptions, outputs: &FlightO
             Ok(quality)
         })
         .collect::<Result<_>>()?;
-    let added_columns = added_column_names(log, &outputs.compensated, &compensation)?;
+    let added_columns = added_column_names(log, compensated, &compensation)?;
     let mut notes = renaming_notes(&channels, &added_columns);
     notes.extend(calibration.iter().map(|c| c.summary()));
     notes.extend(models.iter().filter_map(|m| {
@@ -354,66 +297,12 @@ pub fn process_flight(job: &FlightJob, options: &StageOptions, outputs: &FlightO
         diagnosis,
         models,
     };
-    let model_text = to_json(
-        outputs.model_json.as_deref(),
-        "the fitted models",
-        &ModelFile::new(&result),
-    )?;
-    let quality_text = to_json(outputs.quality_json.as_deref(), "the quality figures", &result)?;
-    let extras = McapExtras {
-        documents: vec![
-            ("model".into(), model_text.clone()),
-            ("quality".into(), quality_text.clone()),
-        ],
-    };
-    written.add(stage_compensated(
-        &recorded,
-        &options.ingest.columns,
-        &outputs.compensated,
-        &compensation,
-        &result.added_columns,
-        &extras,
-    )?);
-    for (path, text) in [(&outputs.model_json, model_text), (&outputs.quality_json, quality_text)] {
-        if let Some(path) = path {
-            written.add(stage(path, |w| std::io::Write::write_all(w, text.as_bytes()))?);
-        }
-    }
-    if let Some(path) = &outputs.report_html {
-        let report = crate::report::stage_report(path, raw_log, &result, &compensation, options.fom_limit_nt)?;
-        written.add(report.figures_json);
-        written.add_last(report.page);
-    }
-    written.commit()?;
-    Ok(result)
-}
-
-/// Pretty JSON text of `value`; `path` only names the file in an error.
-fn to_json<T: Serialize>(path: Option<&Path>, what: &'static str, value: &T) -> Result<String> {
-    serde_json::to_string_pretty(value).map_err(|e| Error::Serialise {
-        path: path.map(Path::to_path_buf).unwrap_or_default(),
-        what,
-        message: e.to_string(),
+    Ok(FlightRun {
+        recorded,
+        screened,
+        compensation,
+        result,
     })
-}
-
-/// The model JSON: the flight and its fitted models.
-#[derive(Serialize)]
-struct ModelFile<'a> {
-    flight: &'a Path,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    vector_calibration: Option<&'a crate::vector_calibration::VectorCalibration>,
-    models: &'a [FittedModel],
-}
-
-impl<'a> ModelFile<'a> {
-    fn new(result: &'a FlightResult) -> Self {
-        ModelFile {
-            flight: &result.flight,
-            vector_calibration: result.vector_calibration.as_ref(),
-            models: &result.models,
-        }
-    }
 }
 
 /// What the fit takes from a diagnosis.

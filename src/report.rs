@@ -16,14 +16,13 @@ use std::path::Path;
 use plotters::prelude::*;
 use serde::Serialize;
 
-use crate::compensate::Compensation;
 use crate::diagnose::localise::ResidualTrace;
 use crate::diagnose::{Diagnosis, Located};
 use crate::error::{Error, Result};
 use crate::flight_log::{AttitudeAngle, ChannelRole, FlightLog};
+use crate::formats::{stage, stage_json, Staged};
 use crate::model::FittedModel;
-use crate::output::{stage, stage_json, Staged};
-use crate::pipeline::FlightResult;
+use crate::pipeline::{FlightResult, FlightRun};
 use crate::quality::{fourth_difference_noise, ChannelQuality, FomCell};
 
 /// Plot size, pixels.
@@ -752,13 +751,8 @@ pub fn figures_path(path: &Path) -> std::path::PathBuf {
 
 /// Stages the report for `path` and its figures as JSON beside it
 /// ([`figures_path`]).
-pub fn stage_report(
-    path: &Path,
-    log: &FlightLog,
-    result: &FlightResult,
-    compensation: &Compensation,
-    fom_limit_nt: f64,
-) -> Result<StagedReport> {
+pub fn stage_report(path: &Path, flight: &FlightRun, fom_limit_nt: f64) -> Result<StagedReport> {
+    let (log, result, compensation) = (flight.log(), &flight.result, &flight.compensation);
     let mut html = format!(
         "<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>magcomp report: {0}</title><style>{STYLE}</style></head><body><h1>Compensation report: {0}</h1>",
         escape(&result.flight.display().to_string())

@@ -27,8 +27,8 @@ use std::io::Write;
 use std::path::Path;
 
 use crate::error::Result;
-use crate::output::stage_detect_json;
-use crate::output::{stage, OutputSet};
+use crate::formats::stage_detect_json;
+use crate::formats::{stage, OutputSet};
 use crate::simulate::physics::{dipole_field_nt, Vector};
 use crate::simulate::random::Random;
 use crate::windows::{CalibrationWindow, ManoeuvreKind};

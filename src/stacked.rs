@@ -97,13 +97,14 @@ pub struct StackedBuilder {
 
 impl StackedBuilder {
     /// A store for `columns` design columns and the target, for folds of
-    /// the given lengths, stacked in order. The padding rows are zero; the
-    /// caller writes every other row of every panel (through
-    /// [`Self::segments_mut`]), because the store may be a recycled one.
-    pub fn new(fold_lengths: &[usize], columns: usize) -> Self {
+    /// the given lengths, stacked in order, taken from `stores` when it
+    /// holds one large enough. The padding rows are zero; the caller writes
+    /// every other row of every panel (through [`Self::segments_mut`]),
+    /// because the store may be a recycled one.
+    pub fn new(fold_lengths: &[usize], columns: usize, stores: &StorePool) -> Self {
         let (layout, size) = Layout::new(fold_lengths, columns);
         let rows = size / LANES;
-        if let Some(mut data) = take_spare(rows) {
+        if let Some(mut data) = stores.take(rows) {
             data.truncate(rows);
             data.resize(rows, [0.0; LANES]);
             for block in &layout.blocks {
@@ -193,37 +194,41 @@ impl StackedBuilder {
     }
 }
 
-/// Stores of dropped [`Stacked`]s, kept for the next [`StackedBuilder`]:
-/// repeated fits (a diagnosis makes hundreds) then neither fault in fresh
-/// pages nor zero memory. At most [`SPARE_STORES`] are kept, the largest;
-/// [`release_spare_stores`] frees them.
-static SPARES: Mutex<Vec<Vec<[f64; LANES]>>> = Mutex::new(Vec::new());
+/// Stores of finished fits, kept for the next [`StackedBuilder`]: repeated
+/// fits (a diagnosis makes hundreds) then neither fault in fresh pages nor
+/// zero memory. The caller owns the pool and hands it to every fit that may
+/// share it, across threads; [`StorePool::recycle`] returns a finished
+/// store to it, and dropping the pool frees them all. It keeps at most
+/// [`SPARE_STORES`], the largest.
+#[derive(Debug, Default)]
+pub struct StorePool {
+    spares: Mutex<Vec<Vec<[f64; LANES]>>>,
+}
 
-/// Spare stores kept: one per thread of this machine's fits.
+/// Spare stores a pool keeps: one per thread of this machine's fits.
 const SPARE_STORES: usize = 2;
 
-/// The smallest spare store that holds `rows` rows.
-fn take_spare(rows: usize) -> Option<Vec<[f64; LANES]>> {
-    let mut spares = SPARES.lock().ok()?;
-    let best = (spares.iter().enumerate())
-        .filter(|(_, spare)| spare.capacity() >= rows)
-        .min_by_key(|(_, spare)| spare.capacity())
-        .map(|(index, _)| index)?;
-    Some(spares.swap_remove(best))
-}
-
-/// Frees the spare stores, e.g. once the fits are done and the memory is
-/// wanted for compensation.
-pub fn release_spare_stores() {
-    if let Ok(mut spares) = SPARES.lock() {
-        spares.clear();
+impl StorePool {
+    /// An empty pool.
+    pub fn new() -> Self {
+        StorePool::default()
     }
-}
 
-impl Drop for Stacked {
-    fn drop(&mut self) {
-        let data = std::mem::take(&mut self.data);
-        let Ok(mut spares) = SPARES.lock() else { return };
+    /// The smallest spare store that holds `rows` rows.
+    fn take(&self, rows: usize) -> Option<Vec<[f64; LANES]>> {
+        let mut spares = self.spares.lock().ok()?;
+        let best = (spares.iter().enumerate())
+            .filter(|(_, spare)| spare.capacity() >= rows)
+            .min_by_key(|(_, spare)| spare.capacity())
+            .map(|(index, _)| index)?;
+        Some(spares.swap_remove(best))
+    }
+
+    /// Keeps the store of a finished fit for the next builder, in place of
+    /// the smallest spare when the pool is full.
+    pub fn recycle(&self, stacked: Stacked) {
+        let data = stacked.data;
+        let Ok(mut spares) = self.spares.lock() else { return };
         if spares.len() < SPARE_STORES {
             spares.push(data);
         } else if let Some(smallest) = spares.iter_mut().min_by_key(|spare| spare.capacity()) {
@@ -449,7 +454,7 @@ mod tests {
     fn built_panels_equal_the_columns() {
         let (columns, target) = example(4500);
         let folds = [300, 4200];
-        let mut builder = StackedBuilder::new(&folds, columns.len());
+        let mut builder = StackedBuilder::new(&folds, columns.len(), &StorePool::new());
         let ranges = [0..300, 300..2000, 2000..4500];
         let mut segments = builder.segments_mut(&ranges);
         for (panel, per_range) in segments.iter_mut().enumerate() {
@@ -481,11 +486,12 @@ mod tests {
         let (columns, target) = example(700);
         let folds = [200, 500];
         for _ in 0..3 {
-            // A dropped store of NaN, just larger than the one built next,
+            // A recycled store of NaN, just larger than the one built next,
             // becomes the best-fitting spare.
+            let stores = StorePool::new();
             let stale: Vec<Vec<f64>> = vec![vec![f64::NAN; 713]; columns.len()];
-            drop(Stacked::from_columns(&stale, &[f64::NAN; 713], &[713]));
-            let mut builder = StackedBuilder::new(&folds, columns.len());
+            stores.recycle(Stacked::from_columns(&stale, &[f64::NAN; 713], &[713]));
+            let mut builder = StackedBuilder::new(&folds, columns.len(), &stores);
             for (panel, pieces) in builder.segments_mut(&[0..700]).iter_mut().enumerate() {
                 let mut row = 0;
                 for lanes in pieces[0].iter_mut().flat_map(|piece| piece.iter_mut()) {

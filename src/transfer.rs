@@ -17,9 +17,10 @@ use serde::{Deserialize, Serialize};
 use crate::error::Result;
 use crate::flight_log::{FlightLog, VectorSensor};
 use crate::holdout::{heading_splits, same_heading};
-use crate::model::{fit, FitOptions, FittedModel, WindowFit};
+use crate::model::{FitOptions, FittedModel, Prepared, WindowFit};
 use crate::quality::{figure_of_merit, fom_table, window_quality};
 pub use crate::quality::{TransferCheck, TransferMethod};
+use crate::stacked::StorePool;
 use crate::windows::CalibrationWindow;
 
 /// `[quality]` settings of the transfer check.
@@ -78,11 +79,15 @@ pub fn check_transfer(
     transfer: &TransferOptions,
 ) -> Result<Option<TransferCheck>> {
     let boxes = group_into_boxes(windows);
+    // Every fit of the check is of the model's kind on the same prepared
+    // flight, and shares its stores.
+    let prepared = Prepared::new(log, sensor, &model.channel, &model.spec)?;
+    let stores = StorePool::new();
     let (method, in_sample, held_out) = match boxes.as_slice() {
         [first, second, ..] => {
-            let trained = fit(log, sensor, &model.channel, first, &model.spec, options)?;
-            let own = fit(log, sensor, &model.channel, second, &model.spec, options)?;
-            let held = trained.held_out(log, sensor, second, options)?;
+            let trained = prepared.fit(first, options, &stores)?;
+            let own = prepared.fit(second, options, &stores)?;
+            let held = prepared.held_out(&trained, second, options, &stores)?;
             (
                 TransferMethod::SecondBox,
                 compensated_fom(&own.windows),
@@ -90,7 +95,7 @@ pub fn check_transfer(
             )
         }
         [only] => {
-            let held = leave_one_heading_out(log, sensor, model, only, options)?;
+            let held = leave_one_heading_out(&prepared, only, options, &stores)?;
             let Some(held) = held else { return Ok(None) };
             let own: Vec<WindowFit> = model
                 .windows
@@ -134,19 +139,18 @@ pub fn check_transfer(
 /// or augmented) on the other headings; `None` with fewer than three
 /// headings.
 fn leave_one_heading_out(
-    log: &FlightLog,
-    sensor: &VectorSensor,
-    model: &FittedModel,
+    prepared: &Prepared,
     windows: &[CalibrationWindow],
     options: &FitOptions,
+    stores: &StorePool,
 ) -> Result<Option<Vec<WindowFit>>> {
     let Some(splits) = heading_splits(windows) else {
         return Ok(None);
     };
     let mut held = Vec::new();
     for (out, rest) in splits {
-        let trained = fit(log, sensor, &model.channel, &rest, &model.spec, options)?;
-        held.extend(trained.held_out(log, sensor, &out, options)?);
+        let trained = prepared.fit(&rest, options, stores)?;
+        held.extend(prepared.held_out(&trained, &out, options, stores)?);
     }
     Ok(Some(held))
 }

@@ -16,13 +16,10 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 
-/// The import cycles of `src/` today, each as its modules in name order.
-const KNOWN_CYCLES: &[&[&str]] = &[
-    // Reading and writing a format live apart, and use each other.
-    &["ingest", "output"],
-    // The orchestrator writes the report, the report reads its result.
-    &["pipeline", "report"],
-];
+/// The import cycles of `src/` today, each as its modules in name order:
+/// none since the model, format and sink redesign. A cycle that comes back
+/// fails the test.
+const KNOWN_CYCLES: &[&[&str]] = &[];
 
 /// `text` without `//` comments (doc comments included) and without its
 /// unit-test module.

@@ -7,7 +7,8 @@
 use std::path::{Path, PathBuf};
 
 use magcomp::config::{FlightJob, Pipeline};
-use magcomp::pipeline::{process_flight, FlightOutputs, FlightResult, StageOptions};
+use magcomp::pipeline::{FlightResult, StageOptions};
+use magcomp::sink::{process_flight, FlightOutputs};
 
 fn sample(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))

@@ -38,8 +38,8 @@ use std::time::{Duration, Instant};
 
 use magcomp::config::Pipeline;
 use magcomp::flight_log::{Channel, FlightLog};
-use magcomp::ingest::read_flight_log;
-use magcomp::output::write_flight_log;
+use magcomp::formats::read_flight_log;
+use magcomp::formats::write_flight_log;
 use magcomp::sample_flight::{generate, write, SampleFlightSpec};
 
 /// Seed of the flight and of every random choice in the corpus.

@@ -6,8 +6,9 @@ use std::path::{Path, PathBuf};
 
 use magcomp::config::{FlightJob, Pipeline};
 use magcomp::diagnose::ApplyDiagnosis;
-use magcomp::pipeline::{process_flight, FlightOutputs, StageOptions};
+use magcomp::pipeline::StageOptions;
 use magcomp::sample_flight::{generate, write, SampleFlightSpec};
+use magcomp::sink::{process_flight, FlightOutputs};
 use magcomp::windows::read_detect_json;
 
 /// The sample flight as rows of cells, with its calibration windows.

@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use magcomp::compensate::{compensate, LevelConvention};
 use magcomp::filter::{EdgePadding, FilterBand};
-use magcomp::ingest::{read_flight_log, IngestOptions};
+use magcomp::formats::{read_flight_log, IngestOptions};
 use magcomp::model::{fit, FilterSettings, FitOptions, ModelSpec};
 use magcomp::pipeline::choose_vector_sensor;
 use magcomp::quality::standard_deviation;

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 
 use magcomp::config::{FlightJob, Pipeline};
 use magcomp::diagnose::Diagnosis;
-use magcomp::ingest::read_flight_log;
+use magcomp::formats::read_flight_log;
 use magcomp::pipeline::{diagnose_flight, StageOptions};
 
 fn diagnose(name: &str) -> Diagnosis {

@@ -392,7 +392,7 @@ fn one_plan() {
         false => flight.log.clone(),
     };
     let path = std::env::temp_dir().join(format!("plan_{seed}.csv"));
-    magcomp::output::write_flight_log(&log, &path).unwrap();
+    magcomp::formats::write_flight_log(&log, &path).unwrap();
     println!("wrote {}", path.display());
     for m in &flight.truth.manoeuvres {
         println!(

@@ -5,10 +5,11 @@ use std::path::{Path, PathBuf};
 
 use magcomp::config::{FlightJob, Pipeline};
 use magcomp::flight_log::FlightLog;
-use magcomp::ingest::{read_flight_log, IngestOptions};
-use magcomp::output::write_flight_log;
-use magcomp::pipeline::{process_flight, FlightOutputs, StageOptions};
+use magcomp::formats::write_flight_log;
+use magcomp::formats::{read_flight_log, IngestOptions};
+use magcomp::pipeline::StageOptions;
 use magcomp::sample_flight::{generate, write, SampleFlightSpec};
+use magcomp::sink::{process_flight, FlightOutputs};
 use magcomp::windows::read_detect_json;
 
 fn small_flight(folder: &Path) -> (PathBuf, PathBuf) {

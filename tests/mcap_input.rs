@@ -4,7 +4,7 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use magcomp::ingest::{read_flight_log, IngestOptions};
+use magcomp::formats::{read_flight_log, IngestOptions};
 use magcomp::messages::{descriptor_set, timestamp, Attitude, Sample, ScalarMag, VectorMag};
 use prost::Message;
 
@@ -441,7 +441,7 @@ fn log_times_are_absolute_and_read_back_as_times_of_day() {
     let log = read_flight_log(&path, &options).unwrap();
     assert_eq!(log.date(), Some(date));
     let written = folder.path().join("dated.mcap");
-    magcomp::output::write_flight_log(&log, &written).unwrap();
+    magcomp::formats::write_flight_log(&log, &written).unwrap();
     let bytes = std::fs::read(&written).unwrap();
     let first = mcap::MessageStream::new(&bytes).unwrap().next().unwrap().unwrap();
     let midnight_ns = 1_592_611_200_000_000_000u64;

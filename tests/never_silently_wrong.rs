@@ -8,8 +8,9 @@ use std::process::Command;
 
 use magcomp::config::{FlightJob, Pipeline};
 use magcomp::diagnose::ApplyDiagnosis;
-use magcomp::pipeline::{process_flight, FlightOutputs, StageOptions};
+use magcomp::pipeline::StageOptions;
 use magcomp::simulate::scenario::{RawScenario, Scenario};
+use magcomp::sink::{process_flight, FlightOutputs};
 use magcomp::windows::CalibrationWindow;
 use magcomp::Error;
 
@@ -41,7 +42,7 @@ fn simulated(folder: &Path, name: &str, edit: impl FnOnce(&mut RawScenario)) -> 
     edit(&mut raw);
     let flight = magcomp::simulate::simulate(&Scenario::try_from(raw).unwrap()).unwrap();
     let path = folder.join(name);
-    magcomp::output::write_flight_log(&flight.log, &path).unwrap();
+    magcomp::formats::write_flight_log(&flight.log, &path).unwrap();
     path
 }
 
@@ -85,7 +86,7 @@ fn a_box_on_two_headings_is_not_diagnosed() {
     let flight = simulated(folder.path(), "two.csv", |raw| {
         raw.calibration.headings_deg = vec![20.0, 110.0];
     });
-    let log = magcomp::ingest::read_flight_log(&flight, &Default::default()).unwrap();
+    let log = magcomp::formats::read_flight_log(&flight, &Default::default()).unwrap();
     let pipeline = Pipeline::default();
     let error = magcomp::pipeline::diagnose_flight(
         &log,
@@ -103,7 +104,7 @@ fn a_box_on_two_headings_is_not_diagnosed() {
 /// diagnosis says what that leaves untested.
 #[test]
 fn windows_given_by_time_are_tested_with_a_caveat() {
-    let log = magcomp::ingest::read_flight_log(&sample("clean.csv"), &Default::default()).unwrap();
+    let log = magcomp::formats::read_flight_log(&sample("clean.csv"), &Default::default()).unwrap();
     let windows: Vec<CalibrationWindow> = magcomp::windows::read_detect_json(&sample("clean.windows.json"), 5.0)
         .unwrap()
         .into_iter()

@@ -9,7 +9,7 @@
 use std::path::Path;
 use std::process::Command;
 
-use magcomp::ingest::{read_flight_log, IngestOptions};
+use magcomp::formats::{read_flight_log, IngestOptions};
 use magcomp::sample_flight::{generate, write, SampleFlightSpec};
 
 fn python() -> Option<String> {

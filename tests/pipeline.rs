@@ -5,8 +5,9 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use magcomp::config::{FlightJob, Pipeline};
-use magcomp::pipeline::{process_flight, FlightOutputs, StageOptions};
+use magcomp::pipeline::StageOptions;
 use magcomp::sample_flight::{generate, write, SampleFlightSpec};
+use magcomp::sink::{process_flight, FlightOutputs};
 use magcomp::windows::read_detect_json;
 
 fn small_flight(folder: &Path) -> (PathBuf, PathBuf) {
@@ -366,7 +367,7 @@ fn compensating_a_flight_without_the_models_channel_is_an_error() {
     use magcomp::model::{fit, FitOptions, ModelSpec};
     let folder = tempfile::tempdir().unwrap();
     let (csv, windows) = small_flight(folder.path());
-    let log = magcomp::ingest::read_flight_log(&csv, &Default::default()).unwrap();
+    let log = magcomp::formats::read_flight_log(&csv, &Default::default()).unwrap();
     let sensor = magcomp::pipeline::choose_vector_sensor(&log, None).unwrap();
     let model = fit(
         &log,

@@ -4,8 +4,9 @@
 use std::path::{Path, PathBuf};
 
 use magcomp::config::{FlightJob, Pipeline};
-use magcomp::pipeline::{process_flight, FlightOutputs, FlightResult, StageOptions};
+use magcomp::pipeline::{FlightResult, StageOptions};
 use magcomp::simulate::scenario::{RawScenario, Scenario};
+use magcomp::sink::{process_flight, FlightOutputs};
 use magcomp::transfer::TransferMethod;
 
 fn run(input: &Path, out: &Path) -> FlightResult {
@@ -42,7 +43,7 @@ fn simulated(folder: &Path, edit: impl FnOnce(&mut RawScenario)) -> PathBuf {
     edit(&mut raw);
     let flight = magcomp::simulate::simulate(&Scenario::try_from(raw).unwrap()).unwrap();
     let path = folder.join("flight.csv");
-    magcomp::output::write_flight_log(&flight.log, &path).unwrap();
+    magcomp::formats::write_flight_log(&flight.log, &path).unwrap();
     path
 }
 
@@ -106,7 +107,7 @@ fn reciprocal_lines_measure_the_heading_error_before_and_after() {
     let flight = magcomp::simulate::simulate(&Scenario::try_from(raw).unwrap()).unwrap();
     let folder = tempfile::tempdir().unwrap();
     let path = folder.path().join("flight.csv");
-    magcomp::output::write_flight_log(&flight.log, &path).unwrap();
+    magcomp::formats::write_flight_log(&flight.log, &path).unwrap();
     let result = run(&path, &folder.path().join("out"));
     for quality in &result.channels {
         let error = quality.heading_error.as_ref().unwrap();
@@ -114,7 +115,7 @@ fn reciprocal_lines_measure_the_heading_error_before_and_after() {
         // passes without any aircraft (external variation in the minutes
         // between them, and the few metres between matched samples).
         let truth = flight.truth.earth_total_nt(&quality.channel).unwrap();
-        let log = magcomp::ingest::read_flight_log(&path, &Default::default()).unwrap();
+        let log = magcomp::formats::read_flight_log(&path, &Default::default()).unwrap();
         let natural = magcomp::heading_error::heading_error(&log, truth, truth, 25.0).unwrap();
         println!("{}: {error:?}, natural {:.3} nT", quality.channel, natural.after_nt);
         assert!(error.pairs > 500);

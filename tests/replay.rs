@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use magcomp::config::Pipeline;
 use magcomp::detect::detect_manoeuvres;
 use magcomp::diagnose::diagnose;
-use magcomp::ingest::read_flight_log;
+use magcomp::formats::read_flight_log;
 use magcomp::pipeline::{choose_channels, choose_vector_sensor};
 use magcomp::simulate::replay::{replay, Replay, ReplayedChannel};
 

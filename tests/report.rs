@@ -6,7 +6,8 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use magcomp::config::{FlightJob, Pipeline};
-use magcomp::pipeline::{process_flight, FlightOutputs, StageOptions};
+use magcomp::pipeline::StageOptions;
+use magcomp::sink::{process_flight, FlightOutputs};
 
 fn report_of_clean_flight(folder: &Path) -> (PathBuf, magcomp::pipeline::FlightResult) {
     let input = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("sample_flights/clean.csv");

@@ -8,7 +8,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 use std::process::Command;
 
-use magcomp::ingest::{read_flight_log, IngestOptions, TopicMapping};
+use magcomp::formats::{read_flight_log, IngestOptions, TopicMapping};
 
 const HEADER_MSG: &str = "================================================================================\nMSG: std_msgs/Header\nbuiltin_interfaces/Time stamp\nstring frame_id\n================================================================================\nMSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n";
 const VECTOR3_MSG: &str = "================================================================================\nMSG: geometry_msgs/Vector3\nfloat64 x\nfloat64 y\nfloat64 z\n";

@@ -20,7 +20,7 @@ use std::path::{Path, PathBuf};
 use magcomp::compensate::compensate;
 use magcomp::config::Pipeline;
 use magcomp::detect::detect_manoeuvres;
-use magcomp::ingest::read_flight_log;
+use magcomp::formats::read_flight_log;
 use magcomp::model::{fit, ModelSpec};
 use magcomp::pipeline::{choose_channels, choose_vector_sensor};
 use magcomp::quality::assess_quality;

@@ -470,7 +470,7 @@ fn a_concealed_effect_leaves_no_trace_in_the_recording() {
     assert_eq!(names(&clean), names(&concealed));
     for extension in ["csv", "mcap", "xyz"] {
         let path = folder.path().join(format!("flight.{extension}"));
-        magcomp::output::write_flight_log(&concealed.log, &path).unwrap();
+        magcomp::formats::write_flight_log(&concealed.log, &path).unwrap();
         let bytes = String::from_utf8_lossy(&std::fs::read(&path).unwrap()).to_lowercase();
         // Words of five letters or more: shorter ones turn up by chance in
         // compressed MCAP chunks.

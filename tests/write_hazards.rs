@@ -178,8 +178,8 @@ fn the_format_follows_the_extension_or_nothing_is_written() {
     assert!(ok, "{text}");
     let bytes = std::fs::read(dir.join("o.h5")).unwrap();
     assert_eq!(&bytes[..8], b"\x89HDF\r\n\x1a\n", "o.h5 is not HDF5");
-    let log = magcomp::ingest::read_flight_log(&dir.join("o.h5"), &Default::default()).unwrap();
-    let csv = magcomp::ingest::read_flight_log(&dir.join("flight.csv"), &Default::default()).unwrap();
+    let log = magcomp::formats::read_flight_log(&dir.join("o.h5"), &Default::default()).unwrap();
+    let csv = magcomp::formats::read_flight_log(&dir.join("flight.csv"), &Default::default()).unwrap();
     assert_eq!(log.len(), csv.len());
     assert!(log.channel("mag_1_c").is_some(), "the compensated channel is in o.h5");
 }

@@ -12,8 +12,9 @@ use std::path::Path;
 
 use magcomp::config::{FlightJob, Pipeline};
 use magcomp::diagnose::ApplyDiagnosis;
-use magcomp::ingest::read_flight_log;
-use magcomp::pipeline::{process_flight, FlightOutputs, StageOptions};
+use magcomp::formats::read_flight_log;
+use magcomp::pipeline::StageOptions;
+use magcomp::sink::{process_flight, FlightOutputs};
 use magcomp::windows::CalibrationWindow;
 
 /// Runs the bytes of a `.<extension>` flight file through every stage;

@@ -60,7 +60,7 @@
 //! field's second-order term added (a large aircraft field's part across
 //! the Earth's, $|F_\perp|^2 / 2|B|$, computed from the fitted permanent
 //! and induced coefficients, so it adds no parameter; see
-//! [`crate::augment`]), against the current model with the same term;
+//! [`crate::model`]), against the current model with the same term;
 //! each side keeps it only where it lowers its held-out RMS. An effect is
 //! accepted only if it still pays then, so a channel standing in for the
 //! second-order residual is rejected. On the simulator's cabin sensors
@@ -89,6 +89,7 @@ use crate::model::{
 };
 use crate::quality::root_mean_square;
 use crate::solve::{Criterion, LambdaChoice};
+use crate::stacked::StorePool;
 use crate::tolles_lawson::TermSet;
 use crate::vector_calibration::{calibrate, VectorCalibration};
 use crate::windows::CalibrationWindow;
@@ -468,6 +469,8 @@ struct Problem<'a> {
     /// The candidate source columns (auxiliary and base station, mostly
     /// recorded) and the level each is taken about.
     levels: &'a BTreeMap<String, f64>,
+    /// Stores of finished fits, shared by every fit of the diagnosis.
+    stores: &'a StorePool,
 }
 
 /// Diagnoses every channel on its calibration windows, starting from
@@ -505,6 +508,7 @@ pub fn diagnose(
         .filter(|check| mismatch_stands(check, settings))
         .map(|check| check.calibration.apply(log, sensor))
         .transpose()?;
+    let stores = StorePool::new();
     let raw_direction = field_directions(log, sensor);
     let levels = source_levels(log);
     let calibrated_direction = calibrated.as_ref().map(|l| field_directions(l, sensor));
@@ -521,6 +525,7 @@ pub fn diagnose(
                 options,
                 direction,
                 levels: &levels,
+                stores: &stores,
             };
             let raw_problem = problem(log, &raw_direction);
             let raw = held_out(&raw_problem, &Model::default())?;
@@ -576,8 +581,6 @@ pub fn diagnose(
     }
     notes.extend(untestable);
     let results: Vec<(ChannelDiagnosis, Vec<Finding>)> = results.into_iter().filter_map(|r| r.ok()).collect();
-    // Hundreds of fits are done; their recycled stores are not needed.
-    crate::stacked::release_spare_stores();
     let (channel_results, findings): (Vec<_>, Vec<_>) = results.into_iter().unzip();
     for c in &channel_results {
         if let (true, Some(other)) = (
@@ -653,6 +656,7 @@ pub fn heldout_rms(
         options,
         direction: &direction,
         levels: &levels,
+        stores: &StorePool::new(),
     };
     let uncalibrated = Model {
         vector_calibration: None,
@@ -1402,10 +1406,10 @@ fn residuals(
     let mut windows = Vec::new();
     let (mut terms, mut fewest_training_samples) = (0, usize::MAX);
     for (out, rest) in splits {
-        let fitted = prepared.fit(&rest, problem.options)?;
+        let fitted = prepared.fit(&rest, problem.options, problem.stores)?;
         terms = terms.max(fitted.coefficients.len());
         fewest_training_samples = fewest_training_samples.min(fitted.solution.samples);
-        windows.extend(prepared.held_out(&fitted, &out, problem.options)?);
+        windows.extend(prepared.held_out(&fitted, &out, problem.options, problem.stores)?);
     }
     let all: Vec<f64> = windows.iter().flat_map(|w| w.band_after_nt.iter().copied()).collect();
     Ok(HeldOut {
@@ -1670,7 +1674,7 @@ fn capitalised(text: &str) -> String {
 /// The last `count` extra coefficients of a fit of `model` on all windows.
 fn extension_coefficients(problem: &Problem, model: &Model, count: usize) -> Result<Vec<f64>> {
     let spec = problem.spec(model);
-    let fitted = prepare(problem, &spec)?.fit(problem.windows, problem.options)?;
+    let fitted = prepare(problem, &spec)?.fit(problem.windows, problem.options, problem.stores)?;
     Ok(fitted.coefficients[fitted.coefficients.len() - count..].to_vec())
 }
 

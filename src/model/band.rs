@@ -16,7 +16,7 @@ use crate::filter::{EdgePadding, FilterBand, FilterError, ZeroPhaseFilter, LANES
 use crate::flight_log::{FlightLog, VectorSensor};
 use crate::segments::valid_runs;
 use crate::solve::SolveOptions;
-use crate::stacked::{Stacked, StackedBuilder};
+use crate::stacked::{Stacked, StackedBuilder, StorePool};
 use crate::tolles_lawson::TermSet;
 use crate::windows::CalibrationWindow;
 
@@ -102,6 +102,7 @@ pub(crate) fn band_data(
     windows: &[CalibrationWindow],
     (terms, settings): (TermSet, &FilterSettings),
     extra: &[&[f64]],
+    stores: &StorePool,
 ) -> Result<BandData> {
     let scalar = &log
         .channel(channel)
@@ -121,11 +122,12 @@ pub(crate) fn band_data(
         .map(|window| WindowPlan::new(log, sensor, (scalar, extra), window, needed, trim))
         .collect::<Result<_>>()?;
     let field = log.vector_components(sensor);
-    let stacked = stack_filtered((field, extra), scalar, &plans, &filter, (terms, trim)).map_err(|e| Error::Fit {
-        path: log.source().to_path_buf(),
-        channel: channel.into(),
-        source: e.into(),
-    })?;
+    let stacked =
+        stack_filtered((field, extra), scalar, &plans, &filter, (terms, trim), stores).map_err(|e| Error::Fit {
+            path: log.source().to_path_buf(),
+            channel: channel.into(),
+            source: e.into(),
+        })?;
     let mut fits: Vec<WindowFit> = Vec::with_capacity(plans.len());
     let mut start = 0;
     for plan in plans {
@@ -221,11 +223,12 @@ fn stack_filtered(
     plans: &[WindowPlan],
     filter: &ZeroPhaseFilter,
     (terms, trim): (TermSet, usize),
+    stores: &StorePool,
 ) -> std::result::Result<Stacked, FilterError> {
     let count = terms.len();
     let design = count + extra.len();
     let fold_lengths: Vec<usize> = plans.iter().map(|p| p.used(trim)).collect();
-    let mut builder = StackedBuilder::new(&fold_lengths, design);
+    let mut builder = StackedBuilder::new(&fold_lengths, design, stores);
     let runs: Vec<Range<usize>> = plans.iter().flat_map(|p| p.runs.iter().cloned()).collect();
     let mut stacked_rows = Vec::with_capacity(runs.len());
     let mut start = 0;

@@ -40,6 +40,7 @@ use crate::error::{Error, Result};
 use crate::flight_log::{FlightLog, VectorSensor};
 use crate::segments::valid_runs;
 use crate::solve::{Solution, SolveOptions};
+use crate::stacked::StorePool;
 use crate::tolles_lawson::{DesignMatrix, EddyTerms, TermSet};
 use crate::windows::CalibrationWindow;
 
@@ -151,7 +152,7 @@ pub fn fit(
     spec: &ModelSpec,
     options: &FitOptions,
 ) -> Result<FittedModel> {
-    Prepared::new(log, sensor, channel, spec)?.fit(windows, options)
+    Prepared::new(log, sensor, channel, spec)?.fit(windows, options, &StorePool::new())
 }
 
 /// A model's prediction over a whole flight.
@@ -177,7 +178,7 @@ impl FittedModel {
         windows: &[CalibrationWindow],
         options: &FitOptions,
     ) -> Result<Vec<WindowFit>> {
-        Prepared::new(log, sensor, &self.channel, &self.spec)?.held_out(self, windows, options)
+        Prepared::new(log, sensor, &self.channel, &self.spec)?.held_out(self, windows, options, &StorePool::new())
     }
 
     /// The interference on every row of `log`, with the terms' time

@@ -8,6 +8,7 @@ use std::borrow::Cow;
 use crate::error::{Error, Result};
 use crate::flight_log::{FlightLog, VectorSensor};
 use crate::solve::solve_stacked;
+use crate::stacked::StorePool;
 use crate::windows::CalibrationWindow;
 
 use super::band::{band_data, BandData, FitOptions, WindowFit};
@@ -150,18 +151,19 @@ impl<'a> Prepared<'a> {
     }
 
     /// Fits the model on `windows`, refitting on the scalar less the
-    /// second-order term when the model has it.
-    pub fn fit(&self, windows: &[CalibrationWindow], options: &FitOptions) -> Result<FittedModel> {
+    /// second-order term when the model has it; the stacked data's stores
+    /// come from and go back to `stores`.
+    pub fn fit(&self, windows: &[CalibrationWindow], options: &FitOptions, stores: &StorePool) -> Result<FittedModel> {
         if windows.is_empty() {
             return Err(Error::NoCalibrationWindows {
                 path: self.log.source().to_path_buf(),
             });
         }
-        let mut fitted = self.fit_once(&self.log, windows, options)?;
+        let mut fitted = self.fit_once(&self.log, windows, options, stores)?;
         if self.spec.extensions.second_order {
             for _ in 0..SECOND_ORDER_PASSES {
                 let corrected = self.corrected(&fitted)?;
-                fitted = self.fit_once(&corrected, windows, options)?;
+                fitted = self.fit_once(&corrected, windows, options, stores)?;
             }
         }
         Ok(fitted)
@@ -169,7 +171,13 @@ impl<'a> Prepared<'a> {
 
     /// One regularised fit of the terms and extension columns on `log`
     /// (the prepared flight, or it less the second-order term).
-    fn fit_once(&self, log: &FlightLog, windows: &[CalibrationWindow], options: &FitOptions) -> Result<FittedModel> {
+    fn fit_once(
+        &self,
+        log: &FlightLog,
+        windows: &[CalibrationWindow],
+        options: &FitOptions,
+        stores: &StorePool,
+    ) -> Result<FittedModel> {
         let terms = self.spec.fitted_terms();
         let BandData {
             stacked,
@@ -182,9 +190,12 @@ impl<'a> Prepared<'a> {
             windows,
             (terms, &options.filter),
             &self.extra_columns(),
+            stores,
         )?;
         let solve = self.spec.solve_options(&options.solve);
-        let solution = solve_stacked(&stacked, &solve).map_err(|e| Error::Fit {
+        let solution = solve_stacked(&stacked, &solve);
+        stores.recycle(stacked);
+        let solution = solution.map_err(|e| Error::Fit {
             path: log.source().to_path_buf(),
             channel: self.channel.into(),
             source: e.into(),
@@ -226,6 +237,7 @@ impl<'a> Prepared<'a> {
         fitted: &FittedModel,
         windows: &[CalibrationWindow],
         options: &FitOptions,
+        stores: &StorePool,
     ) -> Result<Vec<WindowFit>> {
         let corrected = self.corrected(fitted)?;
         let data = band_data(
@@ -235,9 +247,11 @@ impl<'a> Prepared<'a> {
             windows,
             (self.spec.fitted_terms(), &options.filter),
             &self.extra_columns(),
+            stores,
         )?;
         let mut fits = data.windows;
         let predicted = data.stacked.predict(&fitted.coefficients);
+        stores.recycle(data.stacked);
         for fit in &mut fits {
             fit.band_after_nt = (fit.band_before_nt.iter().zip(&predicted[fit.stacked_rows.clone()]))
                 .map(|(y, f)| y - f)

@@ -40,7 +40,7 @@ use rayon::prelude::*;
 
 use crate::error::Result;
 use crate::flight_log::{Channel, FlightLog};
-use crate::ingest::ColumnNames;
+use crate::formats::ColumnNames;
 use physics::{add, norm, to_body, to_ned, AircraftField, Crust, ExternalField, FluxgateCalibration, Vector};
 use random::Random;
 use recording::{auxiliary_channels, average_down, central_rate, delayed, first_order_lag, quantise};

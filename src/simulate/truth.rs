@@ -14,8 +14,8 @@ use std::path::{Path, PathBuf};
 use serde::Serialize;
 
 use crate::error::Result;
-use crate::output::stage_detect_json;
-use crate::output::{stage, stage_json, OutputSet, Staged};
+use crate::formats::stage_detect_json;
+use crate::formats::{stage, stage_json, OutputSet, Staged};
 use crate::simulate::physics::{AircraftField, FluxgateCalibration};
 use crate::simulate::scenario::{Effect, Scenario, SensorLocation};
 use crate::simulate::trajectory::FlightPath;

@@ -29,9 +29,14 @@ use std::borrow::Cow;
 
 use rayon::prelude::*;
 
+mod records;
+pub mod write;
+
+pub use write::{midnight_of_flight_ns, stage_mcap, undated_warning, McapExtras};
+
+use self::records::{ChannelRecord, Definitions, SchemaRecord};
 use super::align::{align, Stream};
 use super::columns::ColumnNames;
-use super::mcap_records::{self, ChannelRecord, Definitions, SchemaRecord};
 use super::ros::{self, RosType};
 use super::{IngestOptions, TopicMapping};
 use crate::error::{Error, Result};
@@ -151,7 +156,7 @@ type FileContents = (
 type OpenedChunk<'a> = (Cow<'a, [u8]>, Definitions);
 
 fn decode_file(bytes: &[u8], names: &ColumnNames) -> std::result::Result<FileContents, String> {
-    let section = mcap_records::data_section(bytes)?;
+    let section = records::data_section(bytes)?;
     let notes = section.notes;
     let mut losses = section.losses;
     // Decompress every chunk (in parallel) and learn the schemas and
@@ -160,9 +165,9 @@ fn decode_file(bytes: &[u8], names: &ColumnNames) -> std::result::Result<FileCon
         .chunks
         .par_iter()
         .map(|body| {
-            let records = mcap_records::chunk_records(body)?;
+            let records = records::chunk_records(body)?;
             let mut definitions = Definitions::default();
-            mcap_records::chunk_messages(&records, &mut definitions, |_| {})?;
+            records::chunk_messages(&records, &mut definitions, |_| {})?;
             Ok((records, definitions))
         })
         .collect();
@@ -208,7 +213,7 @@ fn decode_file(bytes: &[u8], names: &ColumnNames) -> std::result::Result<FileCon
             let mut part = BTreeMap::new();
             let mut ignored = Definitions::default();
             // Already walked once without error, so this cannot fail.
-            let _ = mcap_records::chunk_messages(records, &mut ignored, |m| {
+            let _ = records::chunk_messages(records, &mut ignored, |m| {
                 add_message(&plans, &mut part, m.channel_id, m.log_time, m.data);
             });
             part

@@ -24,12 +24,12 @@ use std::path::Path;
 
 use prost::Message;
 
-use super::{stage, Staged};
+use super::{ALTITUDE_COLUMN_KEY, DATE_KEY};
 use crate::compensate::Compensation;
 use crate::error::{Error, Result};
 use crate::flight_date::SECONDS_PER_DAY;
 use crate::flight_log::{AttitudeAngle, ChannelRole, FlightLog};
-use crate::ingest::mcap::{ALTITUDE_COLUMN_KEY, DATE_KEY};
+use crate::formats::destination::{stage, Staged};
 use crate::messages::{descriptor_set, timestamp, Attitude, LocationFix, Sample, ScalarMag, VectorMag};
 
 /// JSON documents stored with the data.
@@ -94,7 +94,7 @@ pub fn midnight_of_flight_ns(log: &FlightLog) -> Option<u64> {
 /// The warning for an MCAP `output` of `log` whose log times cannot be
 /// absolute (the flight's day is unknown); `None` for other outputs.
 pub fn undated_warning(log: &FlightLog, output: &Path) -> Option<String> {
-    let mcap = crate::output::detect_output_format(output) == crate::ingest::Format::Mcap;
+    let mcap = crate::formats::detect_output_format(output) == crate::formats::Format::Mcap;
     let absolute = log.time_s().first().is_some_and(|&t| t >= 2.0 * SECONDS_PER_DAY);
     (mcap && !absolute && midnight_of_flight_ns(log).is_none()).then(|| {
         format!(

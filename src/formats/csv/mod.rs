@@ -12,6 +12,10 @@ use std::fs::File;
 use std::io::{BufRead, BufReader, Read};
 use std::path::Path;
 
+mod write;
+
+pub use write::{stage_compensated_csv, stage_log_csv};
+
 use super::columns::ColumnNames;
 use crate::error::{Error, Number, Result};
 use crate::flight_log::{Channel, FlightLog};

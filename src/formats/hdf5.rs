@@ -13,10 +13,10 @@ use std::path::Path;
 use hdf5_pure::{DType, File, FileBuilder};
 
 use super::columns::ColumnNames;
+use super::destination::{stage, Staged};
 use crate::compensate::Compensation;
 use crate::error::{Error, Result};
 use crate::flight_log::{Channel, FlightLog};
-use crate::output::{stage, Staged};
 
 /// Older MagNav files' names for CONTRACT names.
 const ALIASES: [(&str, &str); 1] = [("ins_azim", "ins_yaw")];

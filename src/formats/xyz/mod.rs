@@ -16,6 +16,10 @@ use std::fs::File;
 use std::io::{BufRead, BufReader};
 use std::path::Path;
 
+mod write;
+
+pub use write::{stage_log_xyz, stage_xyz_copy};
+
 use super::columns::{sgl_uppercase_alias, ColumnNames};
 use super::csv::{next_line_start, ColumnBuilder, PARALLEL_MIN_BYTES};
 use crate::error::{Error, Result};

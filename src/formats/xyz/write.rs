@@ -1,5 +1,4 @@
-//! Compensated output for inputs that are not comma-separated text, and
-//! Geosoft XYZ output.
+//! Writing Geosoft XYZ.
 //!
 //! An XYZ input written as XYZ is copied line by line: comments, line
 //! records and data rows stay as they were, the header line gains the new
@@ -10,12 +9,13 @@
 use std::io::{BufRead, BufReader, Write};
 use std::path::Path;
 
-use super::{stage, write_cell, ExtraColumns, Staged};
+use super::{classify, find_header, XyzLine};
 use crate::compensate::Compensation;
 use crate::error::Result;
 use crate::flight_log::{ChannelRole, FlightLog};
-use crate::ingest::xyz::{classify, find_header, XyzLine};
-use crate::ingest::ColumnNames;
+use crate::formats::destination::{stage, Staged};
+use crate::formats::write::ExtraColumns;
+use crate::formats::ColumnNames;
 
 /// Stages a copy of an XYZ input with the added columns appended. `names` are the column
 /// names the input was read with.
@@ -45,13 +45,13 @@ pub fn stage_xyz_copy(
                     extra.write_xyz_cells(out)?;
                     out.write_all(b"\n")?;
                 }
-                XyzLine::Data => return Err(super::row_count_changed(rows)),
+                XyzLine::Data => return Err(crate::formats::write::row_count_changed(rows)),
                 _ => writeln!(out, "{text}")?,
             }
         }
         match extra.row == rows {
             true => Ok(()),
-            false => Err(super::row_count_changed(rows)),
+            false => Err(crate::formats::write::row_count_changed(rows)),
         }
     })
 }
@@ -95,44 +95,6 @@ pub fn stage_log_xyz(
             }
             if let Some(extra) = &mut extra {
                 extra.write_xyz_cells(out)?;
-            }
-            out.write_all(b"\n")?;
-        }
-        Ok(())
-    })
-}
-
-/// Stages the flight log and the added columns as comma-separated text.
-pub fn stage_log_csv(
-    log: &FlightLog,
-    added: &[String],
-    output: &Path,
-    compensation: Option<&Compensation>,
-) -> Result<Staged> {
-    stage(output, |out| {
-        let names = std::iter::once(log.time_column())
-            .chain(log.channels().iter().map(|c| c.name.as_str()))
-            .chain(added.iter().map(String::as_str));
-        for (k, name) in names.enumerate() {
-            if k > 0 {
-                out.write_all(b",")?;
-            }
-            write_cell(out, name.as_bytes())?;
-        }
-        out.write_all(b"\n")?;
-        let mut extra = compensation.map(ExtraColumns::new);
-        let mut number = ryu::Buffer::new();
-        for row in 0..log.len() {
-            out.write_all(number.format(log.time_s()[row]).as_bytes())?;
-            for channel in log.channels() {
-                let value = channel.values[row];
-                out.write_all(b",")?;
-                if value.is_finite() {
-                    out.write_all(number.format(value).as_bytes())?;
-                }
-            }
-            if let Some(extra) = &mut extra {
-                extra.write_cells(out)?;
             }
             out.write_all(b"\n")?;
         }

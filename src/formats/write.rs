@@ -1,28 +1,23 @@
-//! Writing compensated data, models and quality figures.
+//! Writing: the compensated flight in the format its output path names,
+//! a flight log as it is, and the JSON files.
 //!
-//! Every file is written to a temporary file in the destination folder and
-//! renamed into place, so a reader never sees a half-written output. The
-//! compensated CSV copies every input row and column unchanged (re-reading
-//! the input, so text columns and number formatting survive) and appends
+//! Every file is staged in the destination folder and renamed into place
+//! ([`super::destination`]), so a reader never sees a half-written output.
+//! The compensated output keeps every input row and column and appends
 //! magcomp's columns (CONTRACT §3).
 
 use std::fs::File;
-use std::io::{BufRead, BufReader, BufWriter, Read, Write};
+use std::io::{BufWriter, Write};
 use std::path::Path;
 
 use serde::Serialize;
 
-pub mod destination;
-pub mod mcap;
-pub mod text;
-
-pub use destination::{prepare, stage, Destination, OutputKind, OutputSet, Staged};
-
+use super::csv::read_header;
+use super::destination::{stage, Staged};
+use super::{csv, detect_format, mcap, xyz, ColumnNames, Format};
 use crate::compensate::Compensation;
 use crate::error::{Error, Result};
 use crate::flight_log::FlightLog;
-use crate::ingest::csv::{delimited_reader, read_header, Separator};
-use crate::ingest::{detect_format, ColumnNames, Format};
 
 /// Writes one file atomically: staged beside `path` (whose folder must
 /// exist), then renamed over it.
@@ -108,14 +103,14 @@ pub fn stage_compensated(
     let input_format = detect_format(log.source()).ok();
     match (detect_output_format(output), input_format) {
         (Format::Mcap, _) => mcap::stage_mcap(log, output, Some(compensation), extras),
-        (Format::Xyz, Some(Format::Xyz)) => text::stage_xyz_copy(log, names, added, output, compensation),
-        (Format::Xyz, _) => text::stage_log_xyz(log, added, output, Some(compensation)),
+        (Format::Xyz, Some(Format::Xyz)) => xyz::stage_xyz_copy(log, names, added, output, compensation),
+        (Format::Xyz, _) => xyz::stage_log_xyz(log, added, output, Some(compensation)),
         #[cfg(feature = "hdf5")]
-        (Format::Hdf5, _) => crate::ingest::hdf5::stage_hdf5(log, added, output, Some(compensation)),
+        (Format::Hdf5, _) => super::hdf5::stage_hdf5(log, added, output, Some(compensation)),
         (_, Some(Format::DelimitedText)) => {
-            stage_compensated_csv(log.source(), log.source_row_offsets(), output, compensation, added)
+            csv::stage_compensated_csv(log.source(), log.source_row_offsets(), output, compensation, added)
         }
-        _ => text::stage_log_csv(log, added, output, Some(compensation)),
+        _ => csv::stage_log_csv(log, added, output, Some(compensation)),
     }
 }
 
@@ -130,11 +125,11 @@ pub fn write_flight_log(log: &FlightLog, output: &Path) -> Result<()> {
 /// anything else comma-separated text.
 pub fn stage_flight_log(log: &FlightLog, output: &Path) -> Result<Staged> {
     match detect_output_format(output) {
-        Format::Xyz => text::stage_log_xyz(log, &[], output, None),
+        Format::Xyz => xyz::stage_log_xyz(log, &[], output, None),
         Format::Mcap => mcap::stage_mcap(log, output, None, &mcap::McapExtras::default()),
         #[cfg(feature = "hdf5")]
-        Format::Hdf5 => crate::ingest::hdf5::stage_hdf5(log, &[], output, None),
-        _ => text::stage_log_csv(log, &[], output, None),
+        Format::Hdf5 => super::hdf5::stage_hdf5(log, &[], output, None),
+        _ => csv::stage_log_csv(log, &[], output, None),
     }
 }
 
@@ -166,49 +161,16 @@ fn new_column_names(existing: &[String], compensation: &Compensation) -> Vec<Str
     added
 }
 
-/// Stages the compensated CSV: every input row and column, then one column
-/// per compensated channel and the flags column.
-///
-/// A comma-separated input whose row offsets are known (`row_offsets`, from
-/// the reader) is copied byte for byte, each row's text followed by the new
-/// cells; other inputs are re-read and written as comma-separated records.
-pub fn stage_compensated_csv(
-    input: &Path,
-    row_offsets: Option<&[u64]>,
-    output: &Path,
-    compensation: &Compensation,
-    added: &[String],
-) -> Result<Staged> {
-    let (separator, header) = read_header(input)?;
-    let rows = compensation.flags.len();
-    if let (Separator::Byte(b','), Some(offsets)) = (separator, row_offsets) {
-        if offsets.len() == rows {
-            return stage(output, |writer| {
-                copy_verbatim(input, offsets, added, writer, &mut ExtraColumns::new(compensation))
-            });
-        }
-    }
-    stage(output, |writer| {
-        let mut csv = csv::Writer::from_writer(writer);
-        csv.write_record(header.iter().chain(added))?;
-        let mut extra = ExtraColumns::new(compensation);
-        match separator {
-            Separator::Byte(delimiter) => copy_delimited(input, delimiter, &mut csv, &mut extra, rows)?,
-            Separator::Whitespace => copy_whitespace(input, &mut csv, &mut extra, rows)?,
-        }
-        csv.flush()
-    })
-}
-
 /// Formats magcomp's cells for one row at a time.
-struct ExtraColumns<'a> {
+pub(crate) struct ExtraColumns<'a> {
     compensation: &'a Compensation,
-    row: usize,
+    /// The next row to write.
+    pub(crate) row: usize,
     buffer: number_text::Buffer,
 }
 
 impl<'a> ExtraColumns<'a> {
-    fn new(compensation: &'a Compensation) -> Self {
+    pub(crate) fn new(compensation: &'a Compensation) -> Self {
         ExtraColumns {
             compensation,
             row: 0,
@@ -216,7 +178,7 @@ impl<'a> ExtraColumns<'a> {
         }
     }
 
-    fn append_to(&mut self, record: &mut csv::ByteRecord) {
+    pub(crate) fn append_to(&mut self, record: &mut ::csv::ByteRecord) {
         for channel in &self.compensation.channels {
             record.push_field(self.buffer.format(channel.values[self.row]));
         }
@@ -226,7 +188,7 @@ impl<'a> ExtraColumns<'a> {
 
     /// Writes ` value` per channel (`*` for a null) and ` flags` for the
     /// next row of an XYZ file.
-    fn write_xyz_cells<W: Write>(&mut self, out: &mut W) -> std::io::Result<()> {
+    pub(crate) fn write_xyz_cells<W: Write>(&mut self, out: &mut W) -> std::io::Result<()> {
         for channel in &self.compensation.channels {
             out.write_all(b" ")?;
             let value = channel.values[self.row];
@@ -244,7 +206,7 @@ impl<'a> ExtraColumns<'a> {
     }
 
     /// Writes `,value` per channel and `,flags` for the next row.
-    fn write_cells<W: Write>(&mut self, out: &mut W) -> std::io::Result<()> {
+    pub(crate) fn write_cells<W: Write>(&mut self, out: &mut W) -> std::io::Result<()> {
         for channel in &self.compensation.channels {
             out.write_all(b",")?;
             out.write_all(self.buffer.format(channel.values[self.row]))?;
@@ -256,63 +218,9 @@ impl<'a> ExtraColumns<'a> {
     }
 }
 
-/// Copies the header and every row of a comma-separated `input` verbatim
-/// (without its line terminator), appending the added cells to each.
-fn copy_verbatim<W: Write>(
-    input: &Path,
-    offsets: &[u64],
-    added: &[String],
-    out: &mut W,
-    extra: &mut ExtraColumns,
-) -> std::io::Result<()> {
-    let mut file = BufReader::with_capacity(1 << 20, File::open(input)?);
-    let mut text = Vec::new();
-    let header_length = offsets.first().copied().unwrap_or(0);
-    read_span(&mut file, Some(header_length), &mut text)?;
-    out.write_all(without_terminator(&text))?;
-    for name in added {
-        out.write_all(b",")?;
-        write_cell(out, name.as_bytes())?;
-    }
-    out.write_all(b"\n")?;
-    for (i, start) in offsets.iter().enumerate() {
-        let length = offsets.get(i + 1).map(|next| next - start);
-        read_span(&mut file, length, &mut text)?;
-        out.write_all(without_terminator(&text))?;
-        extra.write_cells(out)?;
-        out.write_all(b"\n")?;
-    }
-    Ok(())
-}
-
-/// Reads the next `length` bytes, or up to the end when `None`.
-fn read_span(file: &mut impl Read, length: Option<u64>, text: &mut Vec<u8>) -> std::io::Result<()> {
-    text.clear();
-    match length {
-        Some(length) => {
-            text.resize(length as usize, 0);
-            file.read_exact(text).map_err(|e| match e.kind() {
-                std::io::ErrorKind::UnexpectedEof => {
-                    std::io::Error::other("the input is shorter than when it was read; was it modified during the run?")
-                }
-                _ => e,
-            })
-        }
-        None => file.read_to_end(text).map(|_| ()),
-    }
-}
-
-/// A record's text without the line terminators (and blank lines) around it.
-fn without_terminator(text: &[u8]) -> &[u8] {
-    let is_text = |b: &u8| *b != b'\n' && *b != b'\r';
-    let start = text.iter().position(is_text).unwrap_or(text.len());
-    let end = text.iter().rposition(is_text).map_or(start, |p| p + 1);
-    &text[start..end]
-}
-
 /// Writes one comma-separated cell, quoted when it holds a comma, a quote
 /// or a line break.
-fn write_cell<W: Write>(out: &mut W, cell: &[u8]) -> std::io::Result<()> {
+pub(crate) fn write_cell<W: Write>(out: &mut W, cell: &[u8]) -> std::io::Result<()> {
     if !cell.iter().any(|b| matches!(b, b',' | b'"' | b'\n' | b'\r')) {
         return out.write_all(cell);
     }
@@ -326,65 +234,14 @@ fn write_cell<W: Write>(out: &mut W, cell: &[u8]) -> std::io::Result<()> {
     out.write_all(b"\"")
 }
 
-fn row_count_changed(rows: usize) -> std::io::Error {
+pub(crate) fn row_count_changed(rows: usize) -> std::io::Error {
     std::io::Error::other(format!(
         "the input no longer has the {rows} data rows it had when it was read; was it modified during the run?"
     ))
 }
 
-fn copy_delimited<W: Write>(
-    input: &Path,
-    delimiter: u8,
-    csv: &mut csv::Writer<W>,
-    extra: &mut ExtraColumns,
-    rows: usize,
-) -> std::io::Result<()> {
-    let mut reader = delimited_reader(BufReader::with_capacity(1 << 20, File::open(input)?), delimiter);
-    let mut record = csv::ByteRecord::new();
-    while reader.read_byte_record(&mut record)? {
-        if extra.row >= rows {
-            return Err(row_count_changed(rows));
-        }
-        extra.append_to(&mut record);
-        csv.write_byte_record(&record)?;
-    }
-    match extra.row == rows {
-        true => Ok(()),
-        false => Err(row_count_changed(rows)),
-    }
-}
-
-fn copy_whitespace<W: Write>(
-    input: &Path,
-    csv: &mut csv::Writer<W>,
-    extra: &mut ExtraColumns,
-    rows: usize,
-) -> std::io::Result<()> {
-    let reader = BufReader::with_capacity(1 << 20, File::open(input)?);
-    let mut record = csv::ByteRecord::new();
-    for line in reader.split(b'\n').skip(1) {
-        let line = line?;
-        if line.iter().all(u8::is_ascii_whitespace) {
-            continue;
-        }
-        if extra.row >= rows {
-            return Err(row_count_changed(rows));
-        }
-        record.clear();
-        line.split(u8::is_ascii_whitespace)
-            .filter(|f| !f.is_empty())
-            .for_each(|f| record.push_field(f));
-        extra.append_to(&mut record);
-        csv.write_byte_record(&record)?;
-    }
-    match extra.row == rows {
-        true => Ok(()),
-        false => Err(row_count_changed(rows)),
-    }
-}
-
 /// Shortest round-trip text of an `f64` (Rust's `Display`), reusing one buffer.
-mod number_text {
+pub(crate) mod number_text {
     use std::io::Write;
 
     /// A reusable text buffer.

@@ -1,18 +1,34 @@
-//! Reading flight logs into a [`FlightLog`](crate::flight_log::FlightLog).
+//! The file formats: reading a flight log into a
+//! [`FlightLog`](crate::flight_log::FlightLog) and writing it back with
+//! magcomp's columns, one module per format that does both.
 //!
-//! The format is chosen from the file extension, with a look at the content
-//! as a fallback. Delimited text (CSV, `;`, tab, whitespace-aligned) is read
-//! here; every reader produces the same flight-log model.
+//! - [`csv`]: delimited text (CSV, `;`, tab, whitespace-aligned);
+//! - [`xyz`]: Geosoft XYZ;
+//! - [`mcap`]: MCAP recordings (protobuf, JSON and ROS 2 messages), with
+//!   [`align`] putting multi-rate topics onto one time base;
+//! - `hdf5`: the MagNav.jl HDF5 layout.
+//!
+//! The input format is chosen from the file extension, with a look at the
+//! content as a fallback; the output format from the output path's
+//! extension ([`write`]). Every output is staged and renamed into place
+//! ([`destination`]), never over an input.
 
 pub mod align;
 pub mod columns;
 pub mod csv;
+pub mod destination;
 #[cfg(feature = "hdf5")]
 pub mod hdf5;
 pub mod mcap;
-mod mcap_records;
 pub mod ros;
+pub mod write;
 pub mod xyz;
+
+pub use destination::{prepare, stage, Destination, OutputKind, OutputSet, Staged};
+pub use write::{
+    added_column_names, detect_output_format, flags_column_name, output_column_name, stage_compensated,
+    stage_detect_json, stage_flight_log, stage_json, write_atomic, write_flight_log, write_json,
+};
 
 use std::io::Read;
 use std::path::Path;

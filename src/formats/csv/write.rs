@@ -1,0 +1,195 @@
+//! Writing comma-separated text: the compensated copy of a CSV input, and
+//! any flight log as CSV.
+//!
+//! A comma-separated input whose row offsets are known is copied byte for
+//! byte, so text columns and number formatting survive, each row followed
+//! by magcomp's cells (CONTRACT §3).
+
+use std::fs::File;
+use std::io::{BufRead, BufReader, Read, Write};
+use std::path::Path;
+
+use crate::compensate::Compensation;
+use crate::error::Result;
+use crate::flight_log::FlightLog;
+use crate::formats::destination::{stage, Staged};
+use crate::formats::write::{row_count_changed, write_cell, ExtraColumns};
+
+use super::{delimited_reader, read_header, Separator};
+
+/// Stages the compensated CSV: every input row and column, then one column
+/// per compensated channel and the flags column.
+///
+/// A comma-separated input whose row offsets are known (`row_offsets`, from
+/// the reader) is copied byte for byte, each row's text followed by the new
+/// cells; other inputs are re-read and written as comma-separated records.
+pub fn stage_compensated_csv(
+    input: &Path,
+    row_offsets: Option<&[u64]>,
+    output: &Path,
+    compensation: &Compensation,
+    added: &[String],
+) -> Result<Staged> {
+    let (separator, header) = read_header(input)?;
+    let rows = compensation.flags.len();
+    if let (Separator::Byte(b','), Some(offsets)) = (separator, row_offsets) {
+        if offsets.len() == rows {
+            return stage(output, |writer| {
+                copy_verbatim(input, offsets, added, writer, &mut ExtraColumns::new(compensation))
+            });
+        }
+    }
+    stage(output, |writer| {
+        let mut csv = csv::Writer::from_writer(writer);
+        csv.write_record(header.iter().chain(added))?;
+        let mut extra = ExtraColumns::new(compensation);
+        match separator {
+            Separator::Byte(delimiter) => copy_delimited(input, delimiter, &mut csv, &mut extra, rows)?,
+            Separator::Whitespace => copy_whitespace(input, &mut csv, &mut extra, rows)?,
+        }
+        csv.flush()
+    })
+}
+
+/// Copies the header and every row of a comma-separated `input` verbatim
+/// (without its line terminator), appending the added cells to each.
+fn copy_verbatim<W: Write>(
+    input: &Path,
+    offsets: &[u64],
+    added: &[String],
+    out: &mut W,
+    extra: &mut ExtraColumns,
+) -> std::io::Result<()> {
+    let mut file = BufReader::with_capacity(1 << 20, File::open(input)?);
+    let mut text = Vec::new();
+    let header_length = offsets.first().copied().unwrap_or(0);
+    read_span(&mut file, Some(header_length), &mut text)?;
+    out.write_all(without_terminator(&text))?;
+    for name in added {
+        out.write_all(b",")?;
+        write_cell(out, name.as_bytes())?;
+    }
+    out.write_all(b"\n")?;
+    for (i, start) in offsets.iter().enumerate() {
+        let length = offsets.get(i + 1).map(|next| next - start);
+        read_span(&mut file, length, &mut text)?;
+        out.write_all(without_terminator(&text))?;
+        extra.write_cells(out)?;
+        out.write_all(b"\n")?;
+    }
+    Ok(())
+}
+
+/// Reads the next `length` bytes, or up to the end when `None`.
+fn read_span(file: &mut impl Read, length: Option<u64>, text: &mut Vec<u8>) -> std::io::Result<()> {
+    text.clear();
+    match length {
+        Some(length) => {
+            text.resize(length as usize, 0);
+            file.read_exact(text).map_err(|e| match e.kind() {
+                std::io::ErrorKind::UnexpectedEof => {
+                    std::io::Error::other("the input is shorter than when it was read; was it modified during the run?")
+                }
+                _ => e,
+            })
+        }
+        None => file.read_to_end(text).map(|_| ()),
+    }
+}
+
+/// A record's text without the line terminators (and blank lines) around it.
+fn without_terminator(text: &[u8]) -> &[u8] {
+    let is_text = |b: &u8| *b != b'\n' && *b != b'\r';
+    let start = text.iter().position(is_text).unwrap_or(text.len());
+    let end = text.iter().rposition(is_text).map_or(start, |p| p + 1);
+    &text[start..end]
+}
+
+fn copy_delimited<W: Write>(
+    input: &Path,
+    delimiter: u8,
+    csv: &mut csv::Writer<W>,
+    extra: &mut ExtraColumns,
+    rows: usize,
+) -> std::io::Result<()> {
+    let mut reader = delimited_reader(BufReader::with_capacity(1 << 20, File::open(input)?), delimiter);
+    let mut record = csv::ByteRecord::new();
+    while reader.read_byte_record(&mut record)? {
+        if extra.row >= rows {
+            return Err(row_count_changed(rows));
+        }
+        extra.append_to(&mut record);
+        csv.write_byte_record(&record)?;
+    }
+    match extra.row == rows {
+        true => Ok(()),
+        false => Err(row_count_changed(rows)),
+    }
+}
+
+fn copy_whitespace<W: Write>(
+    input: &Path,
+    csv: &mut csv::Writer<W>,
+    extra: &mut ExtraColumns,
+    rows: usize,
+) -> std::io::Result<()> {
+    let reader = BufReader::with_capacity(1 << 20, File::open(input)?);
+    let mut record = csv::ByteRecord::new();
+    for line in reader.split(b'\n').skip(1) {
+        let line = line?;
+        if line.iter().all(u8::is_ascii_whitespace) {
+            continue;
+        }
+        if extra.row >= rows {
+            return Err(row_count_changed(rows));
+        }
+        record.clear();
+        line.split(u8::is_ascii_whitespace)
+            .filter(|f| !f.is_empty())
+            .for_each(|f| record.push_field(f));
+        extra.append_to(&mut record);
+        csv.write_byte_record(&record)?;
+    }
+    match extra.row == rows {
+        true => Ok(()),
+        false => Err(row_count_changed(rows)),
+    }
+}
+
+/// Stages the flight log and the added columns as comma-separated text.
+pub fn stage_log_csv(
+    log: &FlightLog,
+    added: &[String],
+    output: &Path,
+    compensation: Option<&Compensation>,
+) -> Result<Staged> {
+    stage(output, |out| {
+        let names = std::iter::once(log.time_column())
+            .chain(log.channels().iter().map(|c| c.name.as_str()))
+            .chain(added.iter().map(String::as_str));
+        for (k, name) in names.enumerate() {
+            if k > 0 {
+                out.write_all(b",")?;
+            }
+            write_cell(out, name.as_bytes())?;
+        }
+        out.write_all(b"\n")?;
+        let mut extra = compensation.map(ExtraColumns::new);
+        let mut number = ryu::Buffer::new();
+        for row in 0..log.len() {
+            out.write_all(number.format(log.time_s()[row]).as_bytes())?;
+            for channel in log.channels() {
+                let value = channel.values[row];
+                out.write_all(b",")?;
+                if value.is_finite() {
+                    out.write_all(number.format(value).as_bytes())?;
+                }
+            }
+            if let Some(extra) = &mut extra {
+                extra.write_cells(out)?;
+            }
+            out.write_all(b"\n")?;
+        }
+        Ok(())
+    })
+}

@@ -1,0 +1,167 @@
+//! Where a flight's results go: the compensated flight, the model and
+//! quality JSON, DIAGNOSIS.json and the HTML report, written from a
+//! [`FlightRun`] after every stage has run.
+//!
+//! The outputs are checked before any work ([`crate::formats::prepare`])
+//! and committed together at the end, the report last: a flight that fails
+//! leaves the previous run's files as they were.
+
+use std::path::{Path, PathBuf};
+
+use serde::Serialize;
+
+use crate::config::FlightJob;
+use crate::error::{Error, Result};
+use crate::formats::mcap::McapExtras;
+use crate::formats::{detect_format, stage, stage_compensated, Destination, Format, OutputKind, OutputSet};
+use crate::model::FittedModel;
+use crate::pipeline::{run, FlightResult, FlightRun, StageOptions};
+
+/// Where one flight's outputs go.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct FlightOutputs {
+    /// Compensated flight (CSV, or XYZ / MCAP for such inputs).
+    pub compensated: PathBuf,
+    /// Model JSON, if wanted.
+    pub model_json: Option<PathBuf>,
+    /// Quality JSON, if wanted.
+    pub quality_json: Option<PathBuf>,
+    /// HTML quality report (and its figures as JSON beside it), if wanted.
+    pub report_html: Option<PathBuf>,
+    /// DIAGNOSIS.json of the diagnosis made when `[diagnose] apply` is on.
+    pub diagnosis_json: Option<PathBuf>,
+}
+
+impl FlightOutputs {
+    /// `<dir>/<stem>_compensated.csv`, `_model.json`, `_quality.json` and
+    /// `_report.html`.
+    pub fn in_directory(directory: &Path, input: &Path) -> Self {
+        let stem = input
+            .file_stem()
+            .map_or("flight".into(), |s| s.to_string_lossy().into_owned());
+        // Geosoft and MCAP users get their format back; everything else CSV.
+        let extension = match detect_format(input) {
+            Ok(Format::Xyz) => "xyz",
+            Ok(Format::Mcap) => "mcap",
+            _ => "csv",
+        };
+        FlightOutputs {
+            compensated: directory.join(format!("{stem}_compensated.{extension}")),
+            model_json: Some(directory.join(format!("{stem}_model.json"))),
+            quality_json: Some(directory.join(format!("{stem}_quality.json"))),
+            report_html: Some(directory.join(format!("{stem}_report.html"))),
+            diagnosis_json: Some(directory.join(format!("{stem}_diagnosis.json"))),
+        }
+    }
+
+    /// Every file these outputs write, each with what it is.
+    pub fn destinations(&self) -> Vec<Destination> {
+        let mut destinations = vec![Destination::new(
+            &self.compensated,
+            OutputKind::Flight,
+            "the compensated flight",
+        )];
+        let optional = [
+            (&self.model_json, OutputKind::Json, "the model JSON"),
+            (&self.quality_json, OutputKind::Json, "the quality JSON"),
+            (&self.diagnosis_json, OutputKind::Json, "the diagnosis JSON"),
+            (&self.report_html, OutputKind::Html, "the HTML report"),
+        ];
+        for (path, kind, named_by) in optional {
+            if let Some(path) = path {
+                destinations.push(Destination::new(path, kind, named_by));
+            }
+        }
+        if let Some(path) = &self.report_html {
+            destinations.push(Destination::new(
+                crate::report::figures_path(path),
+                OutputKind::Json,
+                "the HTML report's figures JSON",
+            ));
+        }
+        destinations
+    }
+}
+
+/// Reads, fits, compensates and assesses one flight ([`run`]) and writes
+/// its outputs ([`write`]).
+pub fn process_flight(job: &FlightJob, options: &StageOptions, outputs: &FlightOutputs) -> Result<FlightResult> {
+    let inputs: Vec<&Path> = std::iter::once(job.input.as_path())
+        .chain(job.diagnosis.as_deref())
+        .collect();
+    // Folders created here are not noted in the outputs: a caller that
+    // tells its user calls `prepare` first.
+    crate::formats::prepare(&inputs, &outputs.destinations())?;
+    let flight = run(job, options, &outputs.compensated)?;
+    write(&flight, options, outputs)?;
+    Ok(flight.result)
+}
+
+/// Writes every output of `flight`, all committed together, the report
+/// last.
+pub fn write(flight: &FlightRun, options: &StageOptions, outputs: &FlightOutputs) -> Result<()> {
+    let result = &flight.result;
+    let mut written = OutputSet::new();
+    if let (Some(diagnosis), Some(path)) = (&result.diagnosis, &outputs.diagnosis_json) {
+        written.add(crate::formats::stage_json(path, "the diagnosis", diagnosis)?);
+    }
+    let model_text = to_json(
+        outputs.model_json.as_deref(),
+        "the fitted models",
+        &ModelFile::new(result),
+    )?;
+    let quality_text = to_json(outputs.quality_json.as_deref(), "the quality figures", result)?;
+    let extras = McapExtras {
+        documents: vec![
+            ("model".into(), model_text.clone()),
+            ("quality".into(), quality_text.clone()),
+        ],
+    };
+    written.add(stage_compensated(
+        &flight.recorded,
+        &options.ingest.columns,
+        &outputs.compensated,
+        &flight.compensation,
+        &result.added_columns,
+        &extras,
+    )?);
+    for (path, text) in [(&outputs.model_json, model_text), (&outputs.quality_json, quality_text)] {
+        if let Some(path) = path {
+            written.add(stage(path, |w| std::io::Write::write_all(w, text.as_bytes()))?);
+        }
+    }
+    if let Some(path) = &outputs.report_html {
+        let report = crate::report::stage_report(path, flight, options.fom_limit_nt)?;
+        written.add(report.figures_json);
+        written.add_last(report.page);
+    }
+    written.commit().map(drop)
+}
+
+/// Pretty JSON text of `value`; `path` only names the file in an error.
+fn to_json<T: Serialize>(path: Option<&Path>, what: &'static str, value: &T) -> Result<String> {
+    serde_json::to_string_pretty(value).map_err(|e| Error::Serialise {
+        path: path.map(Path::to_path_buf).unwrap_or_default(),
+        what,
+        message: e.to_string(),
+    })
+}
+
+/// The model JSON: the flight and its fitted models.
+#[derive(Serialize)]
+struct ModelFile<'a> {
+    flight: &'a Path,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    vector_calibration: Option<&'a crate::vector_calibration::VectorCalibration>,
+    models: &'a [FittedModel],
+}
+
+impl<'a> ModelFile<'a> {
+    fn new(result: &'a FlightResult) -> Self {
+        ModelFile {
+            flight: &result.flight,
+            vector_calibration: result.vector_calibration.as_ref(),
+            models: &result.models,
+        }
+    }
+}
