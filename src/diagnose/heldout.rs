@@ -1,0 +1,204 @@
+//! Held-out residuals: each heading's windows predicted by a fit on the
+//! others (see [`folds`]), the figure every candidate is scored by.
+
+use super::*;
+
+/// Held-out residuals of a model: per window, predicted by a fit without
+/// that window's heading.
+pub(super) struct HeldOut {
+    pub(super) rms_nt: f64,
+    pub(super) windows: Vec<WindowFit>,
+    /// Samples the RMS is measured on.
+    pub(super) samples: usize,
+    /// The most coefficients of any of its fits.
+    pub(super) terms: usize,
+    /// The fewest samples any of its fits was made on.
+    pub(super) fewest_training_samples: usize,
+}
+
+impl HeldOut {
+    /// Why this held-out figure cannot serve as a baseline, if it cannot:
+    /// zero or non-finite, measured on fewer samples than the model has
+    /// terms, or from a fit on fewer samples than terms.
+    pub(super) fn unusable(&self) -> Option<String> {
+        if !self.rms_nt.is_finite() || self.rms_nt <= 0.0 {
+            return Some(format!("the held-out RMS is {} nT", self.rms_nt));
+        }
+        if self.samples < self.terms {
+            return Some(format!(
+                "the held-out residual has {} samples, fewer than the model's {} terms",
+                self.samples, self.terms
+            ));
+        }
+        if self.fewest_training_samples <= self.terms {
+            return Some(format!(
+                "a fold was fitted on {} samples, no more than the model's {} terms",
+                self.fewest_training_samples, self.terms
+            ));
+        }
+        None
+    }
+}
+
+impl Problem<'_> {
+    /// The full model of `extensions` on the problem's terms.
+    pub(super) fn spec(&self, extensions: &Model) -> ModelSpec {
+        ModelSpec::new(self.terms, extensions.clone())
+    }
+}
+
+/// The flight and extension columns `spec` fits on: the problem's flight
+/// is already calibrated as the model wants it.
+pub(super) fn prepare<'a>(problem: &Problem<'a>, spec: &'a ModelSpec) -> Result<Prepared<'a>> {
+    Prepared::with_directions(
+        Cow::Borrowed(problem.log),
+        problem.sensor,
+        problem.channel,
+        spec,
+        problem.direction,
+    )
+}
+
+/// Held-out residuals of `model` (see [`folds`]).
+pub(super) fn held_out(problem: &Problem, model: &Model) -> Result<HeldOut> {
+    residuals(problem, model, folds(problem.windows))
+}
+
+/// In-sample residuals of `model`: fitted on every window, and each
+/// window's residual from that fit.
+pub(super) fn in_sample(problem: &Problem, model: &Model) -> Result<HeldOut> {
+    residuals(
+        problem,
+        model,
+        vec![(problem.windows.to_vec(), problem.windows.to_vec())],
+    )
+}
+
+/// The residuals of `model` on each split's first windows, fitted on its
+/// second.
+pub(super) fn residuals(
+    problem: &Problem,
+    model: &Model,
+    splits: Vec<(Vec<CalibrationWindow>, Vec<CalibrationWindow>)>,
+) -> Result<HeldOut> {
+    let spec = problem.spec(model);
+    let prepared = prepare(problem, &spec)?;
+    let mut windows = Vec::new();
+    let (mut terms, mut fewest_training_samples) = (0, usize::MAX);
+    for (out, rest) in splits {
+        let fitted = prepared.fit(&rest, problem.options, problem.stores)?;
+        terms = terms.max(fitted.coefficients.len());
+        fewest_training_samples = fewest_training_samples.min(fitted.solution.samples);
+        windows.extend(prepared.held_out(&fitted, &out, problem.options, problem.stores)?);
+    }
+    let all: Vec<f64> = windows.iter().flat_map(|w| w.band_after_nt.iter().copied()).collect();
+    Ok(HeldOut {
+        rms_nt: root_mean_square(&all),
+        windows,
+        samples: all.len(),
+        terms,
+        fewest_training_samples,
+    })
+}
+
+/// How the calibration windows are held out.
+#[derive(Debug, Clone, PartialEq)]
+pub(super) enum HoldOut {
+    /// No window at all.
+    Nothing,
+    /// Windows of a box (each with its heading) on fewer than three headings.
+    TooFewHeadings(Vec<f64>),
+    /// Leave one heading out, over these headings.
+    ByHeading(Vec<f64>),
+    /// Leave one window out (windows without headings, three or more).
+    ByWindow(usize),
+    /// Leave one quarter of a window out (one or two windows without headings).
+    ByQuarter(usize),
+}
+
+impl HoldOut {
+    /// How `windows` can be held out. Windows that all carry a heading come
+    /// from a box (detected, or a DETECT.json): they are held out by
+    /// heading or not at all. Windows given by time alone are held out as
+    /// well as their number allows.
+    pub(super) fn of(windows: &[CalibrationWindow]) -> Self {
+        let headings = distinct_headings(windows);
+        let boxed = windows.iter().all(|w| w.heading_deg.is_some());
+        match windows.len() {
+            0 => HoldOut::Nothing,
+            _ if boxed && headings.len() >= 3 => HoldOut::ByHeading(headings),
+            _ if boxed => HoldOut::TooFewHeadings(headings),
+            n if n >= 3 => HoldOut::ByWindow(n),
+            n => HoldOut::ByQuarter(n),
+        }
+    }
+
+    /// What makes the windows unfit for a diagnosis, in words.
+    pub(super) fn insufficient(&self) -> Option<String> {
+        match self {
+            HoldOut::Nothing => Some("it has no calibration windows: no manoeuvres were detected and none were given".into()),
+            HoldOut::TooFewHeadings(headings) => Some(format!(
+                "its calibration manoeuvres are on {} heading{} ({}), too few to hold one out (leave-one-heading-out needs three)",
+                headings.len(),
+                if headings.len() == 1 { "" } else { "s" },
+                headings.iter().map(|h| format!("{h:.0}°")).collect::<Vec<_>>().join(", ")
+            )),
+            _ => None,
+        }
+    }
+
+    /// What a diagnosis held out this way cannot test, in words.
+    pub(super) fn caveat(&self) -> Option<String> {
+        match self {
+            HoldOut::ByWindow(n) => Some(format!(
+                "held out window by window ({n} windows given by time, without headings), not heading by heading: the figures test what those windows share, and an effect that changes with heading is tested only as far as they differ"
+            )),
+            HoldOut::ByQuarter(n) => Some(format!(
+                "held out by quarters of {n} window{} given by time: each quarter is predicted from the rest of its own window, so the figures test consistency within the windows, not transfer to other headings or manoeuvres",
+                if *n == 1 { "" } else { "s" }
+            )),
+            _ => None,
+        }
+    }
+}
+
+/// The flight's error for a diagnosis its calibration cannot support.
+pub(super) fn not_enough_calibration(log: &FlightLog, problem: String) -> crate::Error {
+    crate::Error::NotEnoughCalibration {
+        path: log.source().to_path_buf(),
+        task: "the diagnosis",
+        problem,
+        hint: "Nothing was diagnosed. Fly (or give) a calibration box with manoeuvres on at least three headings (`magcomp detect FLIGHT --out DETECT.json` shows what detection found and what is missing), or name the windows to test with --window T0:T1; the diagnosis then reports what those windows can test.".into(),
+    }
+}
+
+/// The held-out splits (held out, trained on): each heading with three
+/// headings or more (leave one heading out); otherwise each window with
+/// three windows or more; otherwise each quarter of every window.
+pub(super) fn folds(windows: &[CalibrationWindow]) -> Vec<(Vec<CalibrationWindow>, Vec<CalibrationWindow>)> {
+    if let Some(splits) = heading_splits(windows) {
+        return splits;
+    }
+    let split = |pieces: &[CalibrationWindow], is_out: &dyn Fn(usize, &CalibrationWindow) -> bool| {
+        let (out, rest): (Vec<_>, Vec<_>) = pieces.iter().enumerate().partition(|(k, w)| is_out(*k, w));
+        (
+            out.into_iter().map(|(_, w)| w.clone()).collect(),
+            rest.into_iter().map(|(_, w)| w.clone()).collect(),
+        )
+    };
+    let pieces: Vec<CalibrationWindow> = if windows.len() >= 3 {
+        windows.to_vec()
+    } else {
+        windows
+            .iter()
+            .flat_map(|w| {
+                let quarter = (w.t_end - w.t_start) / 4.0;
+                (0..4).map(move |q| CalibrationWindow {
+                    label: format!("{} (quarter {})", w.display_label(), q + 1),
+                    ..CalibrationWindow::new(w.t_start + q as f64 * quarter, w.t_start + (q + 1) as f64 * quarter)
+                })
+            })
+            .collect()
+    };
+    (0..pieces.len()).map(|k| split(&pieces, &|j, _| j == k)).collect()
+}
