@@ -21,6 +21,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::error::Result;
+use crate::flags::{FlagKind, RowFlags};
 use crate::flight_log::FlightLog;
 use crate::model::{FittedModel, SharedDesign};
 
@@ -56,8 +57,8 @@ pub struct CompensatedChannel {
 pub struct Compensation {
     /// One entry per fitted model, in model order.
     pub channels: Vec<CompensatedChannel>,
-    /// Per row: empty when fine, else `;`-separated reasons.
-    pub flags: Vec<String>,
+    /// Per row: why its outputs are missing or suspect (none when fine).
+    pub flags: Vec<RowFlags>,
 }
 
 /// Compensates every row of every channel that has a model, in parallel
@@ -124,21 +125,14 @@ fn calibration_mean(log: &FlightLog, model: &FittedModel, interference: &[f64]) 
     }
 }
 
-/// Reasons a row's outputs are missing, `;`-separated, in model order:
-/// a missing scalar or vector sample, a missing source column of an
-/// augmented model, or a lag that reads the scalar beyond its record.
-fn row_flags(log: &FlightLog, models: &[FittedModel], channels: &[CompensatedChannel]) -> Vec<String> {
+/// Reasons a row's outputs are missing, after those raised while reading
+/// and screening, in model order: a missing scalar or vector sample, a
+/// missing source column of an augmented model, or a lag that reads the
+/// scalar beyond its record.
+fn row_flags(log: &FlightLog, models: &[FittedModel], channels: &[CompensatedChannel]) -> Vec<RowFlags> {
     let mut flags = match log.row_flags().len() == log.len() {
         true => log.row_flags().to_vec(),
-        false => vec![String::new(); log.len()],
-    };
-    let mut push = |row: usize, reason: String| {
-        if !flags[row].split(';').any(|r| r == reason) {
-            if !flags[row].is_empty() {
-                flags[row].push(';');
-            }
-            flags[row].push_str(&reason);
-        }
+        false => vec![RowFlags::default(); log.len()],
     };
     for (model, compensated) in models.iter().zip(channels) {
         let scalar = &log
@@ -161,16 +155,16 @@ fn row_flags(log: &FlightLog, models: &[FittedModel], channels: &[CompensatedCha
         for row in 0..log.len() {
             let mut explained = false;
             if !scalar[row].is_finite() {
-                push(row, format!("missing_scalar:{}", model.channel));
+                flags[row].raise(FlagKind::MissingScalar, &model.channel);
                 explained = true;
             }
             if field.iter().any(|c| !c[row].is_finite()) {
-                push(row, format!("missing_vector:{}", model.vector_sensor));
+                flags[row].raise(FlagKind::MissingVector, &model.vector_sensor);
                 explained = true;
             }
             for (column, values) in &sources {
                 if !values[row].is_finite() {
-                    push(row, format!("missing_source:{column}"));
+                    flags[row].raise(FlagKind::MissingSource, column);
                     explained = true;
                 }
             }
@@ -179,22 +173,14 @@ fn row_flags(log: &FlightLog, models: &[FittedModel], channels: &[CompensatedCha
             let valid = |r: usize| field.iter().all(|c| c[r].is_finite());
             let beside_gap = (row > 0 && !valid(row - 1)) || (row + 1 < log.len() && !valid(row + 1));
             if !explained && derivatives && beside_gap && compensated.values[row].is_finite() {
-                push(row, format!("beside_gap:{}", model.vector_sensor));
+                flags[row].raise(FlagKind::BesideGap, &model.vector_sensor);
             }
             if !explained && !compensated.values[row].is_finite() {
-                let lagged = model.spec.extensions.lag_s != 0.0;
-                push(
-                    row,
-                    format!(
-                        "{}:{}",
-                        if lagged {
-                            "lag_outside_record"
-                        } else {
-                            "model_undefined"
-                        },
-                        model.channel
-                    ),
-                );
+                let kind = match model.spec.extensions.lag_s != 0.0 {
+                    true => FlagKind::LagOutsideRecord,
+                    false => FlagKind::ModelUndefined,
+                };
+                flags[row].raise(kind, &model.channel);
             }
         }
     }

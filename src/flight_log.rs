@@ -6,6 +6,7 @@
 //! (equal lengths, finite and strictly increasing time) are checked once, in
 //! [`FlightLog::new`], so later stages can rely on them.
 
+use crate::flags::RowFlags;
 use std::path::{Path, PathBuf};
 
 use serde::Serialize;
@@ -93,7 +94,7 @@ pub struct FlightLog {
     median_interval_s: f64,
     channels: Vec<Channel>,
     source_row_offsets: Option<Vec<u64>>,
-    row_flags: Vec<String>,
+    row_flags: Vec<RowFlags>,
     alignment: Option<AlignmentReport>,
     date: Option<crate::flight_date::FlightDate>,
     reading_warnings: Vec<String>,
@@ -151,7 +152,7 @@ impl FlightLog {
 
     /// Attaches per-row flags raised while reading (e.g. `gap:cur_a` where
     /// a channel had a gap); ignored unless there is one per row.
-    pub fn with_row_flags(mut self, flags: Vec<String>) -> Self {
+    pub fn with_row_flags(mut self, flags: Vec<RowFlags>) -> Self {
         if flags.len() == self.time_s.len() {
             self.row_flags = flags;
         }
@@ -159,7 +160,7 @@ impl FlightLog {
     }
 
     /// Per-row flags raised while reading; empty when there are none.
-    pub fn row_flags(&self) -> &[String] {
+    pub fn row_flags(&self) -> &[RowFlags] {
         &self.row_flags
     }
 

@@ -77,6 +77,7 @@ pub mod detect;
 pub mod diagnose;
 pub mod error;
 pub mod filter;
+pub mod flags;
 pub mod flight_date;
 pub mod flight_identity;
 pub mod flight_log;

@@ -28,6 +28,7 @@
 //!
 //! A missing or non-finite sample is not screened: it is already missing.
 
+use crate::flags::{FlagKind, RowFlags};
 use std::collections::BTreeMap;
 
 use serde::Serialize;
@@ -77,13 +78,13 @@ pub enum MaskReason {
 }
 
 impl MaskReason {
-    /// The flag written in the row's `flags` cell, before `:<column>`.
-    pub fn flag(self) -> &'static str {
+    /// The flag the masked sample's row gets.
+    pub fn flag(self) -> FlagKind {
         match self {
-            MaskReason::OutOfRange => "out_of_range",
-            MaskReason::ZeroVector => "zero_vector",
-            MaskReason::Spike => "spike",
-            MaskReason::Dropout => "dropout",
+            MaskReason::OutOfRange => FlagKind::OutOfRange,
+            MaskReason::ZeroVector => FlagKind::ZeroVector,
+            MaskReason::Spike => FlagKind::Spike,
+            MaskReason::Dropout => FlagKind::Dropout,
         }
     }
 
@@ -128,7 +129,7 @@ impl MaskedSamples {
             crate::error::Number(self.first_value),
             if self.samples == 1 { "it" } else { "them" },
             if self.samples == 1 { "its row is" } else { "their rows are" },
-            self.reason.flag(),
+            self.reason.flag().name(),
             self.column
         )
     }
@@ -309,7 +310,7 @@ fn spikes(values: &[f64], jump: f64, masked: &[(usize, MaskReason)]) -> Vec<(usi
 fn apply_masks(log: &FlightLog, masks: BTreeMap<usize, Vec<(usize, MaskReason)>>) -> Result<Screened> {
     let mut flags = match log.row_flags().len() == log.len() {
         true => log.row_flags().to_vec(),
-        false => vec![String::new(); log.len()],
+        false => vec![RowFlags::default(); log.len()],
     };
     let mut masked_log = log.clone();
     let mut summary = Vec::new();
@@ -322,13 +323,7 @@ fn apply_masks(log: &FlightLog, masks: BTreeMap<usize, Vec<(usize, MaskReason)>>
         for (row, reason) in rows {
             values[row] = f64::NAN;
             by_reason.entry(reason).or_default().push(row);
-            let flag = format!("{}:{}", reason.flag(), channel.name);
-            if !flags[row].split(';').any(|f| f == flag) {
-                if !flags[row].is_empty() {
-                    flags[row].push(';');
-                }
-                flags[row].push_str(&flag);
-            }
+            flags[row].raise(reason.flag(), &channel.name);
         }
         for (reason, rows) in by_reason {
             summary.push(MaskedSamples {

@@ -248,7 +248,10 @@ fn a_clean_fluxgate_is_not_reported() {
     let check = diagnosis.fluxgate.as_ref().unwrap();
     assert!(check.heldout_mismatch_before_nt < 100.0, "{check:?}");
     assert!(check.heldout_mismatch_after_nt < 1.0, "{check:?}");
-    assert!(diagnosis.channels.iter().all(|c| c.fluxgate == "raw"));
+    assert!(diagnosis
+        .channels
+        .iter()
+        .all(|c| c.fluxgate == magcomp::diagnose::FluxgateReading::Raw));
 }
 
 #[test]

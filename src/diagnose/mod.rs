@@ -248,9 +248,8 @@ pub struct ChannelDiagnosis {
     /// RMS before the first finding is with it). The diagnosed model keeps
     /// the pipeline's.
     pub search_criterion: Criterion,
-    /// Which fluxgate reading the search used: `raw`, or `calibrated` when
-    /// that fitted better on held-out data.
-    pub fluxgate: &'static str,
+    /// Which fluxgate reading the search used.
+    pub fluxgate: FluxgateReading,
     /// The model the findings make: what `compensate --diagnosis` and the
     /// pipeline's `[diagnose] apply` fit and compensate with.
     pub model: Extensions,
@@ -258,6 +257,16 @@ pub struct ChannelDiagnosis {
     /// the noise floor, structured stretches, coherent columns.
     #[serde(flatten)]
     pub localisation: localise::Localisation,
+}
+
+/// Which fluxgate reading a channel's diagnosis used.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FluxgateReading {
+    /// As recorded.
+    Raw,
+    /// With the fluxgate check's calibration, which fitted better held out.
+    Calibrated,
 }
 
 /// DIAGNOSIS.json.
@@ -534,8 +543,8 @@ pub fn diagnose(
             };
             let calibrated_rms = alternative.as_ref().map(|(_, h)| h.rms_nt);
             let (chosen, start, label) = match alternative {
-                Some((p, h)) if h.rms_nt < raw.rms_nt => (p, h, "calibrated"),
-                _ => (raw_problem, raw, "raw"),
+                Some((p, h)) if h.rms_nt < raw.rms_nt => (p, h, FluxgateReading::Calibrated),
+                _ => (raw_problem, raw, FluxgateReading::Raw),
             };
             let (mut summary, found) = diagnose_channel(&chosen, start_model, start, settings)?;
             // The model compensation uses keeps the pipeline's criterion:
@@ -548,7 +557,7 @@ pub fn diagnose(
             summary.heldout_rms_calibrated_fluxgate_nt = calibrated_rms;
             summary.heldout_rms_other_criterion_nt = other_rms;
             summary.fluxgate = label;
-            if label == "calibrated" {
+            if label == FluxgateReading::Calibrated {
                 summary.model.vector_calibration = fluxgate.as_ref().map(|check| check.calibration.clone());
             }
             Ok(Ok((summary, found)))

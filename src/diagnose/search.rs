@@ -210,7 +210,7 @@ pub(super) fn diagnose_channel(
         heldout_rms_calibrated_fluxgate_nt: None,
         heldout_rms_other_criterion_nt: None,
         search_criterion,
-        fluxgate: "raw",
+        fluxgate: FluxgateReading::Raw,
         model,
         localisation,
     };

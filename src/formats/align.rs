@@ -24,6 +24,7 @@
 //!
 //! What was done to each channel is recorded in an [`AlignmentReport`].
 
+use crate::flags::{FlagKind, RowFlags};
 pub use crate::flight_log::{AlignmentReport, ResampledChannel};
 use serde::Deserialize;
 
@@ -80,8 +81,8 @@ pub struct Aligned {
     pub time_s: Vec<f64>,
     /// `(name, values)` per channel, in stream order, the base included.
     pub channels: Vec<(String, Vec<f64>)>,
-    /// Per-row flags (`gap:<channel>`, `;`-separated).
-    pub row_flags: Vec<String>,
+    /// Per-row flags (`gap:<channel>`, `duplicate_time:<channel>`).
+    pub row_flags: Vec<RowFlags>,
     /// What was done.
     pub report: AlignmentReport,
 }
@@ -100,7 +101,7 @@ pub fn align(mut streams: Vec<Stream>, base: usize, options: &AlignmentOptions) 
     }
     let base_times = streams[base].times_ns.clone();
     let time_s: Vec<f64> = base_times.iter().map(|&t| t as f64 / 1e9).collect();
-    let mut row_flags = vec![String::new(); base_times.len()];
+    let mut row_flags = vec![RowFlags::default(); base_times.len()];
     let mut channels = Vec::with_capacity(streams.len());
     let mut report = Vec::with_capacity(streams.len());
     let mut warnings = Vec::new();
@@ -115,15 +116,12 @@ pub fn align(mut streams: Vec<Stream>, base: usize, options: &AlignmentOptions) 
         };
         let resampled = resample(&stream, &repeats, &base_times, (tolerance_s * 1e9) as u64);
         for (rows, flag) in [
-            (&resampled.gap_rows, "gap"),
-            (&resampled.conflict_rows, "duplicate_time"),
-            (&resampled.repeat_rows, "duplicate_time"),
+            (&resampled.gap_rows, FlagKind::Gap),
+            (&resampled.conflict_rows, FlagKind::DuplicateTime),
+            (&resampled.repeat_rows, FlagKind::DuplicateTime),
         ] {
             for &row in rows {
-                if !row_flags[row].is_empty() {
-                    row_flags[row].push(';');
-                }
-                row_flags[row].push_str(&format!("{flag}:{}", stream.name));
+                row_flags[row].raise(flag, &stream.name);
             }
         }
         if repeats.dropped > 0 {
@@ -371,7 +369,7 @@ mod tests {
         let aligned = align(vec![base, current], 0, &AlignmentOptions::default()).unwrap();
         let values = &aligned.channels[1].1;
         assert!(values[3].is_nan() && values[4].is_nan() && values[5].is_nan());
-        assert_eq!(aligned.row_flags[4], "gap:cur_a");
+        assert_eq!(aligned.row_flags[4].to_string(), "gap:cur_a");
         assert_eq!(aligned.report.channels[1].rows_in_gaps, 3);
         let loose = AlignmentOptions {
             gap_tolerance_s: Some(1.0),
@@ -422,9 +420,13 @@ mod tests {
         let aligned = align(vec![base, current], 0, &AlignmentOptions::default()).unwrap();
         let values = &aligned.channels[1].1;
         assert_eq!(values[..3], [1.0, 2.0, 3.0], "an exact repeat is read once");
-        assert_eq!(aligned.row_flags[1], "duplicate_time:cur_a", "and its row flagged");
+        assert_eq!(
+            aligned.row_flags[1].to_string(),
+            "duplicate_time:cur_a",
+            "and its row flagged"
+        );
         assert!(values[3].is_nan(), "disagreeing samples leave the row missing");
-        assert_eq!(aligned.row_flags[3], "duplicate_time:cur_a");
+        assert_eq!(aligned.row_flags[3].to_string(), "duplicate_time:cur_a");
         let channel = &aligned.report.channels[1];
         assert_eq!(
             (

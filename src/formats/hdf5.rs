@@ -195,7 +195,8 @@ pub fn stage_hdf5(
             builder.create_dataset(name).with_f64_data(&channel.values);
         }
         if let Some(flags) = added.get(compensation.channels.len()) {
-            let texts: Vec<&str> = compensation.flags.iter().map(String::as_str).collect();
+            let texts: Vec<String> = compensation.flags.iter().map(|f| f.to_string()).collect();
+            let texts: Vec<&str> = texts.iter().map(String::as_str).collect();
             builder.create_dataset(flags).with_vlen_strings(&texts);
         }
     }

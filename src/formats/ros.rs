@@ -11,6 +11,8 @@
 //!   roll right wing down, pitch nose up, yaw clockwise from north;
 //! - `NavSatFix`: latitude, longitude (degrees) and altitude (m).
 
+use nalgebra::{Quaternion, UnitQuaternion};
+
 /// The ROS 2 message types magcomp reads.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum RosType {
@@ -142,11 +144,10 @@ pub fn decode(kind: RosType, data: &[u8], values: &mut [f64]) -> Result<(), Stri
 /// ENU). Roll keeps its sign, pitch changes sign (FLU pitch is nose down),
 /// and heading is 90° − the ENU yaw.
 pub fn sgl_attitude_deg([x, y, z, w]: [f64; 4]) -> [f64; 3] {
-    let norm = (x * x + y * y + z * z + w * w).sqrt();
-    let (x, y, z, w) = (x / norm, y / norm, z / norm, w / norm);
-    let roll = (2.0 * (w * x + y * z)).atan2(1.0 - 2.0 * (x * x + y * y));
-    let pitch = (2.0 * (w * y - z * x)).clamp(-1.0, 1.0).asin();
-    let yaw = (2.0 * (w * z + x * y)).atan2(1.0 - 2.0 * (y * y + z * z));
+    // Roll, pitch and yaw of the ZYX (yaw, then pitch, then roll)
+    // rotation, the quaternion normalised first.
+    let orientation = UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z));
+    let (roll, pitch, yaw) = orientation.euler_angles();
     let heading = (90.0 - yaw.to_degrees()).rem_euclid(360.0);
     [roll.to_degrees(), -pitch.to_degrees(), heading]
 }

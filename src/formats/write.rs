@@ -167,6 +167,8 @@ pub(crate) struct ExtraColumns<'a> {
     /// The next row to write.
     pub(crate) row: usize,
     buffer: number_text::Buffer,
+    /// The row's flags as text.
+    flags: String,
 }
 
 impl<'a> ExtraColumns<'a> {
@@ -175,14 +177,26 @@ impl<'a> ExtraColumns<'a> {
             compensation,
             row: 0,
             buffer: number_text::Buffer::default(),
+            flags: String::new(),
         }
+    }
+
+    /// The flags cell of the next row (empty when it is fine).
+    fn flags_text(&mut self) -> &[u8] {
+        use std::fmt::Write as _;
+        self.flags.clear();
+        let flags = &self.compensation.flags[self.row];
+        if !flags.is_empty() {
+            let _ = write!(self.flags, "{flags}");
+        }
+        self.flags.as_bytes()
     }
 
     pub(crate) fn append_to(&mut self, record: &mut ::csv::ByteRecord) {
         for channel in &self.compensation.channels {
             record.push_field(self.buffer.format(channel.values[self.row]));
         }
-        record.push_field(self.compensation.flags[self.row].as_bytes());
+        record.push_field(self.flags_text());
         self.row += 1;
     }
 
@@ -198,9 +212,9 @@ impl<'a> ExtraColumns<'a> {
                 b"*"
             })?;
         }
-        let flags = &self.compensation.flags[self.row];
         out.write_all(b" ")?;
-        out.write_all(if flags.is_empty() { b"*" } else { flags.as_bytes() })?;
+        let flags = self.flags_text();
+        out.write_all(if flags.is_empty() { b"*" } else { flags })?;
         self.row += 1;
         Ok(())
     }
@@ -212,7 +226,8 @@ impl<'a> ExtraColumns<'a> {
             out.write_all(self.buffer.format(channel.values[self.row]))?;
         }
         out.write_all(b",")?;
-        write_cell(out, self.compensation.flags[self.row].as_bytes())?;
+        let flags = self.flags_text();
+        write_cell(out, flags)?;
         self.row += 1;
         Ok(())
     }
