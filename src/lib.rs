@@ -50,7 +50,7 @@
 //!
 //! ```
 //! use magcomp::{compensate::{compensate, LevelConvention}, model::{fit, FitOptions, ModelSpec}};
-//! use magcomp::{ingest::{read_flight_log, IngestOptions}, pipeline::choose_vector_sensor};
+//! use magcomp::{formats::{read_flight_log, IngestOptions}, pipeline::choose_vector_sensor};
 //! use magcomp::{quality::assess_quality, sample_flight, windows::read_detect_json};
 //!
 //! let folder = tempfile::tempdir()?;
