@@ -51,7 +51,7 @@
 //! ```
 //! use magcomp::{compensate::{compensate, LevelConvention}, model::{fit, FitOptions, ModelSpec}};
 //! use magcomp::{formats::{read_flight_log, IngestOptions}, pipeline::choose_vector_sensor};
-//! use magcomp::{quality::assess_quality, sample_flight, windows::read_detect_json};
+//! use magcomp::{quality::assess_quality, sample_flight, stacked::StorePool, windows::read_detect_json};
 //!
 //! let folder = tempfile::tempdir()?;
 //! let (csv, windows) = (folder.path().join("flight.csv"), folder.path().join("windows.json"));
@@ -61,7 +61,8 @@
 //! let log = read_flight_log(&csv, &IngestOptions::default())?;
 //! let sensor = choose_vector_sensor(&log, Some("flux_a"))?;
 //! let windows = read_detect_json(&windows, 5.0)?;
-//! let model = fit(&log, &sensor, "mag_1_uc", &windows, &ModelSpec::default(), &FitOptions::default())?;
+//! let (spec, options, stores) = (ModelSpec::default(), FitOptions::default(), StorePool::new());
+//! let model = fit(&log, &sensor, "mag_1_uc", &windows, &spec, &options, &stores)?;
 //! let models = vec![model];
 //! let compensated = compensate(&log, &models, LevelConvention::Absolute)?;
 //! let quality = assess_quality(&log, &models[0], &compensated.channels[0]);

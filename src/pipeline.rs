@@ -17,6 +17,7 @@ use crate::formats::align::AlignmentReport;
 use crate::formats::{read_flight_log, IngestOptions};
 use crate::model::{fit, Extensions, FitOptions, FittedModel, ModelSpec};
 use crate::quality::{assess_quality, ChannelQuality};
+use crate::stacked::StorePool;
 use crate::tolles_lawson::TermSet;
 use crate::transfer::{check_transfer, TransferOptions};
 use rayon::prelude::*;
@@ -241,20 +242,32 @@ pub fn run(job: &FlightJob, options: &StageOptions, compensated: &Path) -> Resul
     )?;
     warnings.splice(0..0, screened.warnings(&recorded));
     warnings.extend(crate::formats::mcap::undated_warning(&recorded, compensated));
+    // The channels' fits share their stores; the stores are freed before
+    // compensating, which does not need them.
+    let stores = StorePool::new();
     let models: Vec<FittedModel> = channels
         .par_iter()
         .map(|channel| {
             let spec = ModelSpec::of_channel(options.terms, &plan, channel);
-            fit(log, &sensor, channel, &windows, &spec, &options.fit)
+            fit(log, &sensor, channel, &windows, &spec, &options.fit, &stores)
         })
         .collect::<Result<_>>()?;
+    drop(stores);
     let compensation = compensate(log, &models, options.level)?;
+    let stores = StorePool::new();
     let quality: Vec<ChannelQuality> = models
         .par_iter()
         .zip(&compensation.channels)
         .map(|(model, channel)| {
             let mut quality = assess_quality(log, model, channel);
-            quality.transfer = check_transfer(log, &sensor, model, &windows, &options.fit, &options.transfer)?;
+            quality.transfer = check_transfer(
+                log,
+                &sensor,
+                model,
+                &windows,
+                (&options.fit, &options.transfer),
+                &stores,
+            )?;
             Ok(quality)
         })
         .collect::<Result<_>>()?;

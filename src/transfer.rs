@@ -75,19 +75,18 @@ pub fn check_transfer(
     sensor: &VectorSensor,
     model: &FittedModel,
     windows: &[CalibrationWindow],
-    options: &FitOptions,
-    transfer: &TransferOptions,
+    (options, transfer): (&FitOptions, &TransferOptions),
+    stores: &StorePool,
 ) -> Result<Option<TransferCheck>> {
     let boxes = group_into_boxes(windows);
     // Every fit of the check is of the model's kind on the same prepared
-    // flight, and shares its stores.
+    // flight; the stacked data's memory comes from `stores`.
     let prepared = Prepared::new(log, sensor, &model.channel, &model.spec)?;
-    let stores = StorePool::new();
     let (method, in_sample, held_out) = match boxes.as_slice() {
         [first, second, ..] => {
-            let trained = prepared.fit(first, options, &stores)?;
-            let own = prepared.fit(second, options, &stores)?;
-            let held = prepared.held_out(&trained, second, options, &stores)?;
+            let trained = prepared.fit(first, options, stores)?;
+            let own = prepared.fit(second, options, stores)?;
+            let held = prepared.held_out(&trained, second, options, stores)?;
             (
                 TransferMethod::SecondBox,
                 compensated_fom(&own.windows),
@@ -95,7 +94,7 @@ pub fn check_transfer(
             )
         }
         [only] => {
-            let held = leave_one_heading_out(&prepared, only, options, &stores)?;
+            let held = leave_one_heading_out(&prepared, only, options, stores)?;
             let Some(held) = held else { return Ok(None) };
             let own: Vec<WindowFit> = model
                 .windows

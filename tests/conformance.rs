@@ -82,7 +82,16 @@ fn compensated_difference_std(padding: EdgePadding) -> Option<f64> {
     };
     let window = CalibrationWindow::new(log.time_s()[0], log.time_s()[log.len() - 1]);
     let spec = ModelSpec::plain(TermSet::default());
-    let model = fit(&log, &sensor, "mag_1_uc", &[window], &spec, &options).unwrap();
+    let model = fit(
+        &log,
+        &sensor,
+        "mag_1_uc",
+        &[window],
+        &spec,
+        &options,
+        &Default::default(),
+    )
+    .unwrap();
     let ours = compensate(&log, &[model], LevelConvention::Absolute).unwrap();
     let reference = &log.channel("mag_1_c").unwrap().values;
     let difference: Vec<f64> = ours.channels[0]

@@ -89,7 +89,15 @@ fn errors(seed: u64, effect: &str) -> BTreeMap<String, (f64, f64)> {
             .iter()
             .map(|channel| {
                 let spec = magcomp::model::ModelSpec::of_channel(pipeline.terms, plan, channel);
-                magcomp::model::fit(log, &sensor, channel, &windows, &spec, &pipeline.fit)
+                magcomp::model::fit(
+                    log,
+                    &sensor,
+                    channel,
+                    &windows,
+                    &spec,
+                    &pipeline.fit,
+                    &Default::default(),
+                )
             })
             .collect::<Result<Vec<_>, _>>()
             .unwrap();

@@ -376,6 +376,7 @@ fn compensating_a_flight_without_the_models_channel_is_an_error() {
         &read_detect_json(&windows, 5.0).unwrap(),
         &ModelSpec::default(),
         &FitOptions::default(),
+        &Default::default(),
     )
     .unwrap();
     let models = vec![model];

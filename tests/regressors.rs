@@ -39,8 +39,18 @@ fn a_coupled_current_is_recovered_as_its_body_frame_vector() {
     );
     let windows = flight.truth.calibration_windows(5.0);
     let options = FitOptions::default();
-    let plain = fit(log, &sensor, "mag_1_uc", &windows, &ModelSpec::default(), &options).unwrap();
-    let extended = fit(log, &sensor, "mag_1_uc", &windows, &coupled, &options).unwrap();
+    let stores = Default::default();
+    let plain = fit(
+        log,
+        &sensor,
+        "mag_1_uc",
+        &windows,
+        &ModelSpec::default(),
+        &options,
+        &stores,
+    )
+    .unwrap();
+    let extended = fit(log, &sensor, "mag_1_uc", &windows, &coupled, &options, &stores).unwrap();
     assert_eq!(extended.term_names.len(), 21);
     assert_eq!(&extended.term_names[18..], &["cur_ail_x", "cur_ail_y", "cur_ail_z"]);
     let residual = |m: &FittedModel| {

@@ -81,7 +81,17 @@ fn replay(pipeline: &Pipeline, job: &magcomp::config::FlightJob) -> Expected {
     let plain = ModelSpec::plain(pipeline.terms);
     let models = channels
         .iter()
-        .map(|channel| fit(&log, &sensor, channel, &windows, &plain, &pipeline.fit))
+        .map(|channel| {
+            fit(
+                &log,
+                &sensor,
+                channel,
+                &windows,
+                &plain,
+                &pipeline.fit,
+                &Default::default(),
+            )
+        })
         .collect::<Result<Vec<_>, _>>()
         .unwrap();
     let compensated = compensate(&log, &models, pipeline.level).unwrap();
@@ -100,7 +110,15 @@ fn replay(pipeline: &Pipeline, job: &magcomp::config::FlightJob) -> Expected {
         .iter()
         .map(|channel| {
             let spec = ModelSpec::of_channel(pipeline.terms, &plan, channel);
-            fit(&log, &sensor, channel, &windows, &spec, &pipeline.fit)
+            fit(
+                &log,
+                &sensor,
+                channel,
+                &windows,
+                &spec,
+                &pipeline.fit,
+                &Default::default(),
+            )
         })
         .collect::<Result<Vec<_>, _>>()
         .unwrap();

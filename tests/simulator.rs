@@ -154,6 +154,7 @@ fn plain_tolles_lawson(flight: &SimulatedFlight, log: &FlightLog) -> Vec<(f64, f
                 &windows,
                 &ModelSpec::default(),
                 &FitOptions::default(),
+                &Default::default(),
             )
         })
         .collect::<Result<Vec<_>, _>>()

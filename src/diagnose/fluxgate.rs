@@ -13,11 +13,12 @@ pub(super) fn quietest_reference(
     channels: &[String],
     windows: &[CalibrationWindow],
     (terms, options): (&TermSet, &FitOptions),
+    stores: &StorePool,
 ) -> Result<(String, f64)> {
     let plain = ModelSpec::plain(*terms);
     let models: Vec<FittedModel> = channels
         .par_iter()
-        .map(|channel| fit(log, sensor, channel, windows, &plain, options))
+        .map(|channel| fit(log, sensor, channel, windows, &plain, options, stores))
         .collect::<Result<_>>()?;
     let compensation = crate::compensate::compensate(log, &models, crate::compensate::LevelConvention::Absolute)?;
     let rows = window_rows(log.time_s(), windows);

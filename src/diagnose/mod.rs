@@ -481,7 +481,8 @@ pub fn diagnose(
     // aircraft field of its own, and the threshold grows with what is
     // left: a cabin sensor's hundreds of nT would otherwise count as
     // fluxgate offsets.
-    let checked = quietest_reference(log, sensor, channels, windows, (terms, options))
+    let stores = StorePool::new();
+    let checked = quietest_reference(log, sensor, channels, windows, (terms, options), &stores)
         .map_err(|e| e.to_string())
         .and_then(|(reference, interference_nt)| {
             check_fluxgate(log, sensor, &reference, windows, interference_nt, settings)
@@ -497,7 +498,6 @@ pub fn diagnose(
         .filter(|check| mismatch_stands(check, settings))
         .map(|check| check.calibration.apply(log, sensor))
         .transpose()?;
-    let stores = StorePool::new();
     let raw_direction = field_directions(log, sensor);
     let levels = source_levels(log);
     let calibrated_direction = calibrated.as_ref().map(|l| field_directions(l, sensor));

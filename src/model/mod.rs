@@ -143,7 +143,10 @@ pub struct FittedModel {
 }
 
 /// Fits `spec` to scalar `channel` on `windows`, the terms built from
-/// `sensor`. The one fit of every model kind.
+/// `sensor`. The one fit of every model kind. The stacked data's memory
+/// comes from and goes back to `stores`: fits that share a pool (the
+/// channels of a flight, the folds of a check) reuse it instead of
+/// touching fresh pages each time.
 pub fn fit(
     log: &FlightLog,
     sensor: &VectorSensor,
@@ -151,8 +154,9 @@ pub fn fit(
     windows: &[CalibrationWindow],
     spec: &ModelSpec,
     options: &FitOptions,
+    stores: &StorePool,
 ) -> Result<FittedModel> {
-    Prepared::new(log, sensor, channel, spec)?.fit(windows, options, &StorePool::new())
+    Prepared::new(log, sensor, channel, spec)?.fit(windows, options, stores)
 }
 
 /// A model's prediction over a whole flight.

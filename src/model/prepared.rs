@@ -55,7 +55,12 @@ impl<'a> Prepared<'a> {
             Some(calibration) => Cow::Owned(calibration.apply(log, sensor)?),
             None => Cow::Borrowed(log),
         };
-        let direction = field_directions(&calibrated, sensor);
+        // Only the extension columns use the field's direction.
+        let extensions = &spec.extensions;
+        let direction = match extensions.eddy_tau_s > 0.0 || !extensions.sources.is_empty() {
+            true => field_directions(&calibrated, sensor),
+            false => Default::default(),
+        };
         Self::with_directions(calibrated, sensor, channel, spec, &direction)
     }
 

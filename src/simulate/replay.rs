@@ -35,6 +35,7 @@ use crate::flight_log::{FlightLog, VectorSensor};
 use crate::model::{advanced, fit, Extensions, FitOptions, FittedModel, ModelSpec};
 use crate::quality::root_mean_square;
 use crate::segments::valid_runs;
+use crate::stacked::StorePool;
 use crate::tolles_lawson::TermSet;
 use crate::windows::CalibrationWindow;
 
@@ -81,10 +82,19 @@ pub fn replay(
     let results: Vec<(ReplayedChannel, Vec<f64>)> = channels
         .par_iter()
         .map(|channel| {
-            let plain = fit(log, sensor, channel, windows, &ModelSpec::plain(*terms), options)?;
+            let stores = StorePool::new();
+            let plain = fit(
+                log,
+                sensor,
+                channel,
+                windows,
+                &ModelSpec::plain(*terms),
+                options,
+                &stores,
+            )?;
             let spec = ModelSpec::of_channel(*terms, plan, channel);
             let diagnosed = match spec.is_plain() {
-                false => fit(log, sensor, channel, windows, &spec, options)?,
+                false => fit(log, sensor, channel, windows, &spec, options, &stores)?,
                 true => plain.clone(),
             };
             let recorded = &log
