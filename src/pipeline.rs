@@ -274,14 +274,12 @@ pub fn run(job: &FlightJob, options: &StageOptions, compensated: &Path) -> Resul
     let added_columns = added_column_names(log, compensated, &compensation)?;
     let mut notes = renaming_notes(&channels, &added_columns);
     notes.extend(calibration.iter().map(|c| c.summary()));
-    notes.extend(models.iter().filter_map(|m| {
-        (!m.spec.is_plain()).then(|| {
-            format!(
-                "{}: fitted and compensated with the diagnosed model: {}",
-                m.channel,
-                m.spec.describe()
-            )
-        })
+    notes.extend(models.iter().filter(|m| !m.spec.is_plain()).map(|m| {
+        format!(
+            "{}: fitted and compensated with the diagnosed model: {}",
+            m.channel,
+            m.spec.describe()
+        )
     }));
     if let Some(detection) = &detected {
         notes.extend(detection_notes(detection));
