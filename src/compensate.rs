@@ -139,11 +139,7 @@ fn row_flags(log: &FlightLog, models: &[FittedModel], channels: &[CompensatedCha
             .channel(&model.channel)
             .expect("the prediction checked that every model's channel is in the flight log")
             .values;
-        let Some(sensor) = log
-            .vector_sensors()
-            .into_iter()
-            .find(|s| s.prefix == model.vector_sensor)
-        else {
+        let Some(sensor) = log.vector_sensor(&model.vector_sensor) else {
             continue;
         };
         let field = log.vector_components(&sensor);

@@ -299,6 +299,12 @@ impl FlightLog {
             .collect()
     }
 
+    /// The vector magnetometer `prefix`, when the flight records its three
+    /// axes.
+    pub fn vector_sensor(&self, prefix: &str) -> Option<VectorSensor> {
+        self.vector_sensors().into_iter().find(|s| s.prefix == prefix)
+    }
+
     /// The x, y, z sample columns of `sensor`.
     pub fn vector_components(&self, sensor: &VectorSensor) -> [&[f64]; 3] {
         sensor.axes.map(|i| self.channels[i].values.as_slice())

@@ -85,22 +85,7 @@ fn errors(seed: u64, effect: &str) -> BTreeMap<String, (f64, f64)> {
     .models();
     let line = &log.channel("line").unwrap().values;
     let error_with = |plan: &BTreeMap<String, magcomp::model::Extensions>| {
-        let models = channels
-            .iter()
-            .map(|channel| {
-                let spec = magcomp::model::ModelSpec::of_channel(pipeline.terms, plan, channel);
-                magcomp::model::fit(
-                    log,
-                    &sensor,
-                    channel,
-                    &windows,
-                    &spec,
-                    &pipeline.fit,
-                    &Default::default(),
-                )
-            })
-            .collect::<Result<Vec<_>, _>>()
-            .unwrap();
+        let models = common::fit_channels(log, &sensor, (&channels, &windows), &pipeline, plan);
         let compensated = magcomp::compensate::compensate(log, &models, pipeline.level).unwrap();
         compensated
             .channels

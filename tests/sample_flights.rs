@@ -15,13 +15,14 @@
 //! of magnitude while catching any change of method, data or physics; λ
 //! is a grid point and must match to 1e-9 relative.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 
 use magcomp::compensate::compensate;
 use magcomp::config::Pipeline;
 use magcomp::detect::detect_manoeuvres;
 use magcomp::formats::read_flight_log;
-use magcomp::model::{fit, ModelSpec};
 use magcomp::pipeline::{choose_channels, choose_vector_sensor};
 use magcomp::quality::assess_quality;
 use magcomp::simulate::truth::survey_line_error_nt;
@@ -78,22 +79,7 @@ fn replay(pipeline: &Pipeline, job: &magcomp::config::FlightJob) -> Expected {
     } else {
         job.windows.clone()
     };
-    let plain = ModelSpec::plain(pipeline.terms);
-    let models = channels
-        .iter()
-        .map(|channel| {
-            fit(
-                &log,
-                &sensor,
-                channel,
-                &windows,
-                &plain,
-                &pipeline.fit,
-                &Default::default(),
-            )
-        })
-        .collect::<Result<Vec<_>, _>>()
-        .unwrap();
+    let models = common::fit_channels(&log, &sensor, (&channels, &windows), pipeline, &Default::default());
     let compensated = compensate(&log, &models, pipeline.level).unwrap();
     let diagnosis = magcomp::diagnose::diagnose(
         &log,
@@ -105,23 +91,7 @@ fn replay(pipeline: &Pipeline, job: &magcomp::config::FlightJob) -> Expected {
         &pipeline.diagnose,
     )
     .unwrap();
-    let plan = diagnosis.models();
-    let diagnosed = channels
-        .iter()
-        .map(|channel| {
-            let spec = ModelSpec::of_channel(pipeline.terms, &plan, channel);
-            fit(
-                &log,
-                &sensor,
-                channel,
-                &windows,
-                &spec,
-                &pipeline.fit,
-                &Default::default(),
-            )
-        })
-        .collect::<Result<Vec<_>, _>>()
-        .unwrap();
+    let diagnosed = common::fit_channels(&log, &sensor, (&channels, &windows), pipeline, &diagnosis.models());
     let diagnosed_compensated = compensate(&log, &diagnosed, pipeline.level).unwrap();
     let truth = job.input.with_extension("truth.csv");
     let line_error = |channel: &str, values: &[f64]| {

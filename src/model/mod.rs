@@ -244,10 +244,7 @@ impl FittedModel {
     /// The model's vector sensor in `log`; an error when `log` lacks it
     /// or the scalar channel.
     fn sensor_in(&self, log: &FlightLog) -> Result<VectorSensor> {
-        let sensor = log
-            .vector_sensors()
-            .into_iter()
-            .find(|s| s.prefix == self.vector_sensor);
+        let sensor = log.vector_sensor(&self.vector_sensor);
         let missing = match (log.channel(&self.channel), &sensor) {
             (None, _) => ("scalar magnetometer", &self.channel),
             (_, None) => ("vector magnetometer", &self.vector_sensor),
@@ -284,11 +281,7 @@ impl SharedDesign {
             {
                 continue;
             }
-            let Some(sensor) = log
-                .vector_sensors()
-                .into_iter()
-                .find(|s| s.prefix == model.vector_sensor)
-            else {
+            let Some(sensor) = log.vector_sensor(&model.vector_sensor) else {
                 continue;
             };
             shared.push(SharedDesign {

@@ -1,14 +1,20 @@
 //! Shared by the diagnosis tests: a simulated flight with the tail, cabin
-//! and wing sensors, diagnosed with the default settings.
+//! and wing sensors, diagnosed with the default settings; and every
+//! channel of a flight fitted with its diagnosed model.
 
 // Each test binary uses its own share of these helpers.
 #![allow(dead_code)]
 
+use std::collections::BTreeMap;
+
 use magcomp::config::{FlightJob, Pipeline};
 use magcomp::diagnose::Diagnosis;
+use magcomp::flight_log::{FlightLog, VectorSensor};
+use magcomp::model::{Extensions, FittedModel, ModelSpec};
 use magcomp::pipeline::{diagnose_flight, StageOptions};
 use magcomp::simulate::scenario::{RawScenario, Scenario};
 use magcomp::simulate::simulate;
+use magcomp::windows::CalibrationWindow;
 
 /// A short box-and-one-line flight with a tail (`mag_1_uc`), a cabin
 /// (`mag_2_uc`) and a wing (`mag_3_uc`) sensor, plus `effects` (TOML
@@ -89,4 +95,24 @@ pub fn heldout_rms(log: &magcomp::flight_log::FlightLog, channel: &str, model: &
     let sensor = magcomp::pipeline::choose_vector_sensor(log, None).unwrap();
     let spec = magcomp::model::ModelSpec::new(options.terms, model.clone());
     magcomp::diagnose::heldout_rms(log, &sensor, channel, &windows, &spec, &options.fit).unwrap()
+}
+
+/// Every channel fitted on `windows` with its extensions in `plan` (plain
+/// Tolles-Lawson where the plan has none), on the pipeline's terms and fit
+/// settings, the fits sharing one store pool.
+pub fn fit_channels(
+    log: &FlightLog,
+    sensor: &VectorSensor,
+    (channels, windows): (&[String], &[CalibrationWindow]),
+    pipeline: &Pipeline,
+    plan: &BTreeMap<String, Extensions>,
+) -> Vec<FittedModel> {
+    let stores = magcomp::stacked::StorePool::new();
+    channels
+        .iter()
+        .map(|channel| {
+            let spec = ModelSpec::of_channel(pipeline.terms, plan, channel);
+            magcomp::model::fit(log, sensor, channel, windows, &spec, &pipeline.fit, &stores).unwrap()
+        })
+        .collect()
 }
