@@ -111,13 +111,16 @@ const MIN_SAMPLES: usize = 100;
 const CONDITION_LIMIT: f64 = 1e8;
 
 /// Largest one-sigma uncertainty of an entry of C for a usable calibration
-/// (1 % of scale, about 0.6° of angle). A calibration box pins them to
-/// 1e-3 or better (the simulator's flights: 2e-5 to 1.2e-3); 100 s of
-/// straight survey flight leaves them at 0.2–1.
+/// (1 % of scale, about 0.6° of angle). A calibration box, which turns the
+/// sensor through many attitudes, pins them an order of magnitude or more
+/// below it; a short stretch of straight survey flight leaves them far
+/// above it (measured figures: docs/measurements.md, section
+/// vector_calibration).
 const MAX_MATRIX_UNCERTAINTY: f64 = 0.01;
 
 /// Largest one-sigma uncertainty of an offset for a usable calibration, nT
-/// (1 % of the Earth's field; the simulator's boxes: 0.2–65 nT).
+/// (1 % of the Earth's field; measured figures: docs/measurements.md,
+/// section vector_calibration).
 const MAX_OFFSET_UNCERTAINTY_NT: f64 = 500.0;
 
 /// Fits the calibration of `sensor` against scalar channel `reference` on

@@ -274,11 +274,10 @@ fn parse_missing(text: &str) -> Option<(String, f64)> {
 
 /// Flights allowed an accuracy fault (a manoeuvre found below the IoU
 /// bound, lost and named missing, or named the other of two kinds the
-/// fluxgate flagged it could be), of 240: the figure measured (14: 4 with
-/// INS attitude, 10 with the fluxgate alone), so that detection can only
-/// get better. It was 27 when the campaign was written; looking again on
-/// the calibration piece of a leg cut from a climb or a line brought it
-/// to 14. Plans 1000..1240, never tuned on, give 12.
+/// fluxgate flagged it could be), of 240: the figure measured on plans
+/// 0..240, held as a floor so that detection can only get better
+/// (measured figures and their history: docs/measurements.md, section
+/// tests::flight_plans).
 const ACCURACY_FAULTS_ALLOWED: usize = 14;
 
 #[test]

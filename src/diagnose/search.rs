@@ -11,12 +11,12 @@ use super::*;
 /// Blocked PRESS (the default) guards against the autocorrelation of
 /// band-passed noise, which makes leave-one-sample-out PRESS pick too
 /// little regularisation. Where the noise is small against the
-/// interference the guard costs more than it saves: the simulator's wing
-/// sensors, with 0.01 nT of noise, were fitted to 0.035–0.053 nT held out
-/// with blocked PRESS and to 0.010–0.013 nT with PRESS, and the bias the
-/// larger λ left was what a slow attitude-following column (the trim tab)
-/// then "explained". Which one predicts the held-out headings better is
-/// measured, not assumed, and the search starts from it.
+/// interference the guard costs more than it saves: the larger λ it picks
+/// leaves a bias well above the noise in the held-out fit, which a slow
+/// attitude-following column (the trim tab) can then "explain". Which one
+/// predicts the held-out headings better is measured, not assumed, and the
+/// search starts from it (measured figures: docs/measurements.md, section
+/// diagnose::search).
 pub(super) fn criterion_trial(problem: &Problem) -> Result<Option<(Model, HeldOut)>> {
     if problem.options.solve.lambda != LambdaChoice::Select {
         return Ok(None);
@@ -76,14 +76,15 @@ pub(super) fn diagnose_channel(
         // A lag or an eddy τ changes the model's own regressors (the
         // scalar shifted, the eddy terms lagged), so the λ criterion that
         // suited the current model need not suit it: blocked PRESS can
-        // shrink the lagged eddy terms too hard (a wing eddy τ of 0.2 s
-        // held out 0.049 nT under it and 0.014 nT under PRESS, and lost to
-        // a lag). Such leading candidates take the other criterion when it
-        // predicts them better and the effect pays by the threshold against
-        // the current model under that criterion too: a change of criterion
-        // alone is no finding. A source adds terms to an unchanged model
-        // and keeps its criterion (letting the 30 sources of the two-hour
-        // benchmark flight choose too named a slow one on a quiet sensor).
+        // shrink the lagged eddy terms too hard, enough for a wing eddy τ to
+        // lose to a lag (figures: docs/measurements.md, section
+        // diagnose::search). Such leading candidates take the other
+        // criterion when it predicts them better and the effect pays by
+        // the threshold against the current model under that criterion
+        // too: a change of criterion alone is no finding. A source adds
+        // terms to an unchanged model and keeps its criterion (letting the
+        // 30 sources of the two-hour benchmark flight choose too named a
+        // slow one on a quiet sensor).
         let current_other = flip_criterion(problem, &model).map_or(f64::INFINITY, |(_, h)| h.rms_nt);
         let flips: Vec<Option<(Model, HeldOut)>> = scored
             .par_iter()
@@ -169,8 +170,9 @@ pub(super) fn diagnose_channel(
     );
     // What the total field's second-order term explains is physics the
     // library knows, not `unexplained`: judge what is left after it where
-    // it lowers the held-out RMS (on the simulator's clean flights it took
-    // a cabin sensor's structured residual from 0.054 to 0.014 nT).
+    // it lowers the held-out RMS (on a cabin sensor it can be most of the
+    // structured residual; figures: docs/measurements.md, section
+    // diagnose::search).
     let localise_windows = |windows: &[WindowFit]| {
         localise::localise(
             problem.log,

@@ -19,12 +19,13 @@ pub(super) const SOURCE_SHIFTS: usize = 9;
 /// causes the residual, the real best beats all nine with chance 1/10.
 /// A slow column whose level differs from leg to leg acts as a permanent
 /// field that changes with heading and can fit a cabin sensor's residual
-/// by chance; with 22 slow unrelated columns added, the threshold alone
-/// named one on 2 of 24 clean flights. A current that causes the residual
-/// loses it when shifted. The shifted candidates are of the tested one's
-/// form (a column alone, or with its rate: with its rate, a shifted pure
-/// sinusoid such as a fan's ripple takes any phase), and the tested
-/// column's own shifted copy is left out at a shift that realigns it
+/// by chance, and the more such columns a flight records, the likelier one
+/// of them clears the threshold alone (measured figures:
+/// docs/measurements.md, section diagnose::shifted). A current that causes
+/// the residual loses it when shifted. The shifted candidates are of the
+/// tested one's form (a column alone, or with its rate: with its rate, a
+/// shifted pure sinusoid such as a fan's ripple takes any phase), and the
+/// tested column's own shifted copy is left out at a shift that realigns it
 /// (correlation above 0.5 with the original over the calibration
 /// windows, as a periodic column is about every half-period). Other
 /// effects always pass.
