@@ -10,6 +10,7 @@ use serde::Serialize;
 use crate::compensate::{compensate, LevelConvention};
 use crate::config::FlightJob;
 use crate::detect::{detect_manoeuvres, DetectOptions, Detection};
+use crate::diagnose::EffectKind;
 use crate::error::{Error, Result};
 use crate::flight_log::{FlightLog, VectorSensor};
 use crate::formats::added_column_names;
@@ -66,8 +67,8 @@ pub struct FlightResult {
 pub struct AppliedFinding {
     /// Scalar channel.
     pub channel: String,
-    /// CONTRACT §3 effect name.
-    pub effect: String,
+    /// The effect (written by its CONTRACT §3 name).
+    pub effect: EffectKind,
     /// The column that drives it, when one does.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub source: Option<String>,
@@ -80,7 +81,7 @@ pub struct AppliedFinding {
 impl AppliedFinding {
     /// "sensor_lag on mag_1_uc: held-out RMS 0.1080 → 0.0320 nT (−70 % against the model before it)".
     pub fn describe(&self) -> String {
-        if self.effect == "vector_calibration" {
+        if self.effect == EffectKind::VectorCalibration {
             return format!(
                 "vector_calibration of {}: magnitude against {}, held out, {:.1} → {:.1} nT",
                 self.channel,
@@ -119,15 +120,15 @@ fn applied_findings(diagnosis: &crate::diagnose::Diagnosis) -> Vec<AppliedFindin
     diagnosis
         .findings
         .iter()
-        .filter(|f| f.effect != "unexplained")
-        .filter(|f| f.effect == "vector_calibration" || changed(&f.channel))
-        .filter(|f| f.effect != "vector_calibration" || !calibrated_channels.is_empty())
+        .filter(|f| f.effect.kind() != EffectKind::Unexplained)
+        .filter(|f| f.effect.kind() == EffectKind::VectorCalibration || changed(&f.channel))
+        .filter(|f| f.effect.kind() != EffectKind::VectorCalibration || !calibrated_channels.is_empty())
         .map(|f| AppliedFinding {
-            channel: match f.effect.as_str() {
-                "vector_calibration" => format!("{} (for {})", f.channel, calibrated_channels.join(", ")),
+            channel: match f.effect.kind() {
+                EffectKind::VectorCalibration => format!("{} (for {})", f.channel, calibrated_channels.join(", ")),
                 _ => f.channel.clone(),
             },
-            effect: f.effect.clone(),
+            effect: f.effect.kind(),
             source: f.source.clone(),
             heldout_rms_before_nt: f.heldout_rms_before_nt,
             heldout_rms_after_nt: f.heldout_rms_after_nt,

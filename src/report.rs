@@ -629,14 +629,15 @@ pub fn diagnosis_section(diagnosis: &Diagnosis) -> Result<String> {
         html += "<table class=\"findings\"><tr><th>effect</th><th>channel</th><th>source</th><th>parameters</th><th>held-out RMS, nT</th><th>what it means</th></tr>";
         for finding in &diagnosis.findings {
             let parameters: Vec<String> = finding
-                .parameters
+                .effect
+                .parameters()
                 .iter()
                 .map(|(k, v)| format!("{k} = {v:.4}"))
                 .collect();
             let _ = write!(
                 html,
                 "<tr class=\"finding\"><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.4} → {:.4}</td><td style=\"text-align:left\">{}</td></tr>",
-                escape(&finding.effect),
+                escape(finding.effect.name()),
                 escape(&finding.channel),
                 escape(finding.source.as_deref().unwrap_or("")),
                 escape(&parameters.join(", ")),
@@ -722,7 +723,7 @@ fn applied_findings_section(result: &FlightResult) -> String {
                 html,
                 "<tr class=\"applied\"><td>{}</td><td>{}</td><td>{}</td><td>{:.4}</td><td>{:.4}</td></tr>",
                 escape(&applied.channel),
-                escape(&applied.effect),
+                escape(applied.effect.name()),
                 escape(applied.source.as_deref().unwrap_or("")),
                 applied.heldout_rms_before_nt,
                 applied.heldout_rms_after_nt

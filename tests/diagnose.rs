@@ -53,10 +53,10 @@ fn a_concealed_lag_is_named_with_its_lag() {
     assert_eq!(diagnosis.findings.len(), 1, "{:#?}", diagnosis.findings);
     let finding = &diagnosis.findings[0];
     assert_eq!(
-        (finding.effect.as_str(), finding.channel.as_str()),
+        (finding.effect.name(), finding.channel.as_str()),
         ("sensor_lag", "mag_2_uc")
     );
-    let lag = finding.parameters["lag_s"];
+    let lag = finding.effect.parameters()["lag_s"];
     assert!((lag - 0.15).abs() < 0.03, "lag {lag}");
     // Modelling the lag takes the held-out RMS to the clean flight's level
     // for this sensor (0.025 nT), from 0.55 nT.
@@ -76,7 +76,7 @@ fn concealed_couplings_are_traced_to_their_sources() {
     let found: Vec<(&str, &str, Option<&str>)> = diagnosis
         .findings
         .iter()
-        .map(|f| (f.effect.as_str(), f.channel.as_str(), f.source.as_deref()))
+        .map(|f| (f.effect.name(), f.channel.as_str(), f.source.as_deref()))
         .collect();
     assert_eq!(
         found,
@@ -86,7 +86,7 @@ fn concealed_couplings_are_traced_to_their_sources() {
         ]
     );
     // The coupling vector of the radio current: (0.12, −0.08, 0.20) nT/A.
-    let tail = &diagnosis.findings[0].parameters;
+    let tail = diagnosis.findings[0].effect.parameters();
     for (axis, truth) in ["k_x_nt_per_unit", "k_y_nt_per_unit", "k_z_nt_per_unit"]
         .iter()
         .zip([0.12, -0.08, 0.2])
@@ -120,11 +120,15 @@ fn strong_pulsations_are_traced_to_the_base_station() {
     let diagnosis = diagnose("concealed_d.csv");
     let tail = diagnosis.findings.iter().find(|f| f.channel == "mag_1_uc").unwrap();
     assert_eq!(
-        (tail.effect.as_str(), tail.source.as_deref()),
+        (tail.effect.name(), tail.source.as_deref()),
         ("external_field", Some("diurnal"))
     );
     // The sensor sees the variation one to one.
-    assert!((tail.parameters["gain"] - 1.0).abs() < 0.1, "{:?}", tail.parameters);
+    assert!(
+        (tail.effect.parameters()["gain"] - 1.0).abs() < 0.1,
+        "{:?}",
+        tail.effect.parameters()
+    );
     assert!(tail.heldout_rms_after_nt < 0.5 * tail.heldout_rms_before_nt);
 }
 
@@ -136,12 +140,12 @@ fn an_eddy_time_constant_is_told_apart_from_a_lag() {
     let diagnosis = diagnose("concealed_c.csv");
     let cabin: Vec<&magcomp::diagnose::Finding> =
         diagnosis.findings.iter().filter(|f| f.channel == "mag_2_uc").collect();
-    assert_eq!(cabin[0].effect, "eddy_time_constant", "{cabin:#?}");
-    let tau = cabin[0].parameters["tau_s"];
+    assert_eq!(cabin[0].effect.name(), "eddy_time_constant", "{cabin:#?}");
+    let tau = cabin[0].effect.parameters()["tau_s"];
     assert!((tau - 0.4).abs() < 0.08, "τ {tau}");
     assert!(cabin[0].heldout_rms_after_nt < 0.3 * cabin[0].heldout_rms_before_nt);
     // And the lag flight is still a lag, not an eddy time constant.
-    assert_eq!(diagnose("concealed_a.csv").findings[0].effect, "sensor_lag");
+    assert_eq!(diagnose("concealed_a.csv").findings[0].effect.name(), "sensor_lag");
 }
 
 /// The lower-triangular correction C (CᵀC = (M Mᵀ)⁻¹) and offset q of a
@@ -173,7 +177,7 @@ fn fluxgate_calibration_errors_are_named_with_their_parameters() {
     let found: Vec<&magcomp::diagnose::Finding> = diagnosis
         .findings
         .iter()
-        .filter(|f| f.effect == "vector_calibration")
+        .filter(|f| f.effect.name() == "vector_calibration")
         .collect();
     assert_eq!(found.len(), 1, "{:#?}", diagnosis.findings);
     assert_eq!(
@@ -283,7 +287,7 @@ fn an_effect_outside_the_library_is_reported_as_unexplained_where_it_happens() {
     let tail: Vec<&magcomp::diagnose::Finding> =
         diagnosis.findings.iter().filter(|f| f.channel == "mag_1_uc").collect();
     assert_eq!(tail.len(), 1, "{tail:#?}");
-    assert_eq!(tail[0].effect, "unexplained");
+    assert_eq!(tail[0].effect.name(), "unexplained");
     assert!(tail[0].located.len() >= 2, "{tail:#?}");
     // Every located stretch holds a radio transmission switching on or off
     // (within the filter's reach, 2 s either side).
@@ -295,7 +299,10 @@ fn an_effect_outside_the_library_is_reported_as_unexplained_where_it_happens() {
         assert!(switches, "no radio switching near {stretch:?}");
     }
     // The clean flight and the flight with the column keep no such finding.
-    assert!(diagnose("clean.csv").findings.iter().all(|f| f.effect != "unexplained"));
+    assert!(diagnose("clean.csv")
+        .findings
+        .iter()
+        .all(|f| f.effect.name() != "unexplained"));
 }
 
 #[test]

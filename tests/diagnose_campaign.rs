@@ -14,9 +14,10 @@ use magcomp::diagnose::Diagnosis;
 use magcomp::model::{column_level, Extensions, SourceTerm};
 use magcomp::simulate::scenario::Scenario;
 
-/// Seeds per effect: 5 in `cargo test` (35 flights, about two minutes on
-/// two cores), `MAGCOMP_CAMPAIGN_SEEDS=10` for the full campaign the issue
-/// notes report.
+/// Seeds per effect: 5 in `cargo test` (35 flights; run time:
+/// docs/measurements.md, section tests::diagnose_campaign),
+/// `MAGCOMP_CAMPAIGN_SEEDS=10` for the full campaign the issue notes
+/// report.
 fn seeds() -> u64 {
     std::env::var("MAGCOMP_CAMPAIGN_SEEDS")
         .ok()
@@ -128,26 +129,28 @@ impl Truth {
     fn named_in(&self, diagnosis: &Diagnosis) -> bool {
         diagnosis.findings.iter().any(|f| match self {
             Truth::Lag { channel, lag_s } => {
-                f.effect == "sensor_lag" && &f.channel == channel && (f.parameters["lag_s"] - lag_s).abs() < 0.03
+                f.effect.name() == "sensor_lag"
+                    && &f.channel == channel
+                    && (f.effect.parameters()["lag_s"] - lag_s).abs() < 0.03
             }
             Truth::Coupling { channel, source } => {
-                f.effect == "aux_coupling" && &f.channel == channel && f.source.as_ref() == Some(source)
+                f.effect.name() == "aux_coupling" && &f.channel == channel && f.source.as_ref() == Some(source)
             }
             Truth::Eddy { channel, tau_s } => {
-                f.effect == "eddy_time_constant"
+                f.effect.name() == "eddy_time_constant"
                     && &f.channel == channel
-                    && (f.parameters["tau_s"] - tau_s).abs() < 0.2 * tau_s
+                    && (f.effect.parameters()["tau_s"] - tau_s).abs() < 0.2 * tau_s
             }
-            Truth::Pulsations => f.effect == "external_field" && f.channel == "mag_1_uc",
+            Truth::Pulsations => f.effect.name() == "external_field" && f.channel == "mag_1_uc",
             // The aircraft's field at the fluxgate (induced ~2e-3) is
             // calibrated with the sensor's own errors: scale within 4e-3.
             Truth::Fluxgate { scale } => {
-                f.effect == "vector_calibration"
+                f.effect.name() == "vector_calibration"
                     && f.channel == "flux_a"
                     && ["scale_x", "scale_y", "scale_z"]
                         .iter()
                         .zip(scale)
-                        .all(|(k, s)| (f.parameters[*k] - s).abs() < 4e-3)
+                        .all(|(k, s)| (f.effect.parameters()[*k] - s).abs() < 4e-3)
             }
         })
     }
@@ -357,9 +360,9 @@ fn campaign_names_each_effect_and_leaves_clean_flights_alone() {
                     // `unexplained` is right on a channel whose concealed
                     // effect went unnamed, spurious on any other.
                     let concealed_here = case.truths.iter().any(|t| t.channel() == Some(f.channel.as_str()));
-                    f.effect != "external_field"
-                        && !(f.effect == "unexplained" && concealed_here)
-                        && !case.truths.iter().any(|t| t.explains(&f.effect, &f.channel))
+                    f.effect.name() != "external_field"
+                        && !(f.effect.name() == "unexplained" && concealed_here)
+                        && !case.truths.iter().any(|t| t.explains(f.effect.name(), &f.channel))
                 })
                 .map(|f| {
                     format!(
@@ -378,7 +381,7 @@ fn campaign_names_each_effect_and_leaves_clean_flights_alone() {
                             f.effect,
                             f.channel,
                             f.source,
-                            f.parameters,
+                            f.effect.parameters(),
                             f.heldout_rms_before_nt,
                             f.heldout_rms_after_nt
                         )
@@ -399,7 +402,7 @@ fn campaign_names_each_effect_and_leaves_clean_flights_alone() {
                     case.seed, case.row, case.truths
                 );
             }
-            let mut columns: Vec<String> = diagnosis.findings.iter().map(|f| f.effect.clone()).collect();
+            let mut columns: Vec<String> = diagnosis.findings.iter().map(|f| f.effect.name().to_string()).collect();
             if columns.is_empty() {
                 columns.push("none".into());
             }

@@ -24,7 +24,7 @@ fn named(diagnosis: &Diagnosis, channel: &str) -> Vec<(String, Option<String>)> 
         .findings
         .iter()
         .filter(|f| f.channel == channel)
-        .map(|f| (f.effect.clone(), f.source.clone()))
+        .map(|f| (f.effect.name().to_string(), f.source.clone()))
         .collect()
 }
 
@@ -63,11 +63,11 @@ fn an_eddy_time_constant_is_not_taken_for_a_servo_current() {
         let cabin: Vec<&magcomp::diagnose::Finding> =
             diagnosis.findings.iter().filter(|f| f.channel == "mag_2_uc").collect();
         assert_eq!(
-            cabin.first().map(|f| f.effect.as_str()),
+            cabin.first().map(|f| f.effect.name()),
             Some("eddy_time_constant"),
             "seed {seed}: {cabin:#?}"
         );
-        let tau = cabin[0].parameters["tau_s"];
+        let tau = cabin[0].effect.parameters()["tau_s"];
         assert!((tau - tau_s).abs() < 0.2 * tau_s, "seed {seed}: τ {tau} for {tau_s}");
         assert!(
             !cabin.iter().any(|f| f.source.as_deref() == Some("cur_ail")),
@@ -114,8 +114,8 @@ fn a_short_eddy_time_constant_on_the_wing_is_not_taken_for_a_lag() {
     );
     let wing: Vec<_> = eddy.findings.iter().filter(|f| f.channel == "mag_3_uc").collect();
     assert_eq!(wing.len(), 1, "{wing:?}");
-    assert_eq!(wing[0].effect, "eddy_time_constant", "{wing:?}");
-    let tau_s = wing[0].parameters["tau_s"];
+    assert_eq!(wing[0].effect.name(), "eddy_time_constant", "{wing:?}");
+    let tau_s = wing[0].effect.parameters()["tau_s"];
     assert!((tau_s - 0.2).abs() < 0.2 * 0.2, "τ {tau_s} s");
 }
 
@@ -140,7 +140,7 @@ fn the_residual_a_clean_cabin_sensor_leaves_is_not_unexplained() {
         let named: Vec<_> = diagnosis
             .findings
             .iter()
-            .filter(|f| f.effect != "external_field")
+            .filter(|f| f.effect.name() != "external_field")
             .collect();
         assert!(named.is_empty(), "seed {seed}: {named:#?}");
     }
@@ -162,7 +162,7 @@ fn unrelated_columns_do_not_stand_in_for_anything() {
             diagnosis
                 .findings
                 .iter()
-                .filter(|f| f.effect == "aux_coupling")
+                .filter(|f| f.effect.name() == "aux_coupling")
                 .map(|f| format!("seed {seed}: {} on {} from {:?}", f.effect, f.channel, f.source)),
         );
     }
@@ -194,8 +194,8 @@ fn a_current_acting_through_its_rate_of_change_is_named_with_both_vectors() {
         );
         let finding = diagnosis.findings.iter().find(|f| f.channel == "mag_2_uc").unwrap();
         for (axis, (k, kdot)) in ["x", "y", "z"].iter().zip(k_true.iter().zip(kdot_true)) {
-            let found_k = finding.parameters[&format!("k_{axis}_nt_per_unit")];
-            let found_kdot = finding.parameters[&format!("kdot_{axis}_nt_s_per_unit")];
+            let found_k = finding.effect.parameters()[&format!("k_{axis}_nt_per_unit")];
+            let found_kdot = finding.effect.parameters()[&format!("kdot_{axis}_nt_s_per_unit")];
             assert!(
                 (found_kdot - kdot).abs() < 0.15,
                 "seed {seed} {axis}: rate {found_kdot} vs {kdot}"
@@ -221,7 +221,7 @@ fn a_current_without_a_rate_effect_is_not_given_one() {
         let finding = diagnosis.findings.iter().find(|f| f.channel == "mag_2_uc").unwrap();
         assert_eq!(finding.source.as_deref(), Some("cur_ail"), "{finding:?}");
         assert!(
-            !finding.parameters.contains_key("kdot_x_nt_s_per_unit"),
+            !finding.effect.parameters().contains_key("kdot_x_nt_s_per_unit"),
             "seed {seed}: {finding:?}"
         );
     }

@@ -111,8 +111,8 @@ fn replay(pipeline: &Pipeline, job: &magcomp::config::FlightJob) -> Expected {
                 effects: diagnosis
                     .findings
                     .iter()
-                    .filter(|f| f.channel == model.channel && f.effect != "unexplained")
-                    .map(|f| f.effect.clone())
+                    .filter(|f| f.channel == model.channel && f.effect.name() != "unexplained")
+                    .map(|f| f.effect.name().to_string())
                     .collect(),
                 fom_after_nt: assess_quality(&log, diagnosed_model, diagnosed_channel)
                     .fom_after_nt

@@ -13,9 +13,10 @@ pub(super) const UNEXPLAINED_SHARE: f64 = 0.5;
 /// ([`localise::STRUCTURE_FACTOR`]), in two manoeuvres or more, and the
 /// held-out RMS three times the in-band noise floor. One stretch alone is
 /// not enough: leaving a heading out can extrapolate badly over one
-/// manoeuvre (the simulator's concealed flights showed single stretches
-/// holding 38–57 % of a channel's residual with nothing concealed there),
-/// while an unrecorded current that switches shows wherever it switched.
+/// manoeuvre, so that a single stretch holds about half a channel's
+/// residual with nothing concealed there (measured figures:
+/// docs/measurements.md, section diagnose::finding), while an unrecorded
+/// current that switches shows wherever it switched.
 pub(super) fn unexplained(channel: &str, rms_nt: f64, found: &localise::Localisation) -> Option<Finding> {
     if !is_structured(rms_nt, found) {
         return None;
@@ -33,14 +34,13 @@ pub(super) fn unexplained(channel: &str, rms_nt: f64, found: &localise::Localisa
         .max_by(|a, b| a.residual_rms_nt.total_cmp(&b.residual_rms_nt))
         .map(|b| format!("{:.2}–{:.2} Hz", b.low_hz, b.high_hz))
         .unwrap_or_default();
-    let mut parameters = std::collections::BTreeMap::new();
-    parameters.insert("structured_energy_share".into(), found.structured_energy_share);
-    parameters.insert("noise_floor_nt".into(), found.noise_floor_nt);
     Some(Finding {
-        effect: "unexplained".into(),
+        effect: Effect::Unexplained(Unexplained {
+            structured_energy_share: found.structured_energy_share,
+            noise_floor_nt: found.noise_floor_nt,
+        }),
         channel: channel.to_string(),
         source: None,
-        parameters,
         explanation: format!(
             "{:.0} % of what is left of {channel}'s residual ({rms_nt:.4} nT held out, {:.1} times the sensor noise in the band) sits in {} stretches, most of it at {band}, and nothing in the library explains it. The recorded columns most coherent with it are {columns}; look at what the aircraft was doing then (an unrecorded load switching, a sensor fault, a local anomaly).",
             100.0 * found.structured_energy_share,
@@ -79,7 +79,6 @@ pub(super) fn finding(
     (before_nt, before_windows): (f64, &[WindowFit]),
     mut result: HeldOut,
 ) -> Result<(Finding, Model, HeldOut)> {
-    let mut parameters = std::collections::BTreeMap::new();
     let (effect, source, explanation);
     match extension {
         Extension::Lag { lag_s } => {
@@ -89,8 +88,7 @@ pub(super) fn finding(
             };
             // Steps of 0.01 s (a tenth of a sample at 10 Hz) around the 0.05 s grid point.
             let refined = refine(problem, (*lag_s, 0.01, 5), |lag_s| Model { lag_s, ..base.clone() })?;
-            parameters.insert("lag_s".to_string(), refined.0);
-            effect = "sensor_lag";
+            effect = Effect::SensorLag(SensorLag { lag_s: refined.0 });
             source = None;
             explanation = format!(
                 "{} reads the field {:.3} s {} the fluxgate and attitude: its record is shifted in time against the regressors, which leaves a residual proportional to the rate of change during every manoeuvre.",
@@ -111,8 +109,7 @@ pub(super) fn finding(
                 eddy_tau_s,
                 ..base.clone()
             })?;
-            parameters.insert("tau_s".to_string(), refined.0);
-            effect = "eddy_time_constant";
+            effect = Effect::EddyTimeConstant(EddyTimeConstant { tau_s: refined.0 });
             source = None;
             explanation = format!(
                 "Eddy currents in the airframe near {} build up and decay with a time constant of about {:.2} s instead of following the field's rate of change at once: the eddy terms, lagged by it, explain the residual that plain Tolles-Lawson leaves in the faster manoeuvres.",
@@ -129,28 +126,29 @@ pub(super) fn finding(
             let coefficients = extension_coefficients(problem, &model, 3 * (direct as usize + rate as usize))?;
             let (k, kdot) = coefficients.split_at(if direct { 3 } else { 0 });
             let mut parts = Vec::new();
+            let axes = |v: &[f64]| [v[0], v[1], v[2]];
             if direct {
-                insert_vector(&mut parameters, "k_{}_nt_per_unit", k);
                 parts.push(format!(
                     "the field of whatever '{column}' measures reaches {}: a body-fixed field proportional to it ({:.3}, {:.3}, {:.3} nT per unit along x, y, z), which the scalar sees through the direction cosines",
                     problem.channel, k[0], k[1], k[2]
                 ));
             }
             if rate {
-                insert_vector(&mut parameters, "kdot_{}_nt_s_per_unit", kdot);
                 parts.push(format!(
                     "'{column}' acts through its rate of change too: a field proportional to d{column}/dt ({:.3}, {:.3}, {:.3} nT per unit/s along x, y, z), as from eddy currents a changing current induces in conductors near {}",
                     kdot[0], kdot[1], kdot[2], problem.channel
                 ));
             }
-            effect = "aux_coupling";
+            effect = Effect::AuxCoupling(AuxCoupling {
+                k_nt_per_unit: direct.then(|| axes(k)),
+                kdot_nt_s_per_unit: rate.then(|| axes(kdot)),
+            });
             source = Some(column.clone());
             explanation = capitalised(&parts.join("; ")) + ".";
         }
         Extension::External { source: column } => {
             let coefficients = extension_coefficients(problem, &model, 1)?;
-            parameters.insert("gain".to_string(), coefficients[0]);
-            effect = "external_field";
+            effect = Effect::ExternalField(ExternalField { gain: coefficients[0] });
             source = Some(column.clone());
             explanation = format!(
                 "Geomagnetic variation recorded by the base station '{column}' is in the calibration band: {} follows it with a gain of {:.2}. Subtract it (or model it) before fitting.",
@@ -159,24 +157,15 @@ pub(super) fn finding(
         }
     }
     let found = Finding {
-        effect: effect.to_string(),
+        effect,
         channel: problem.channel.to_string(),
         source,
-        parameters,
         explanation,
         located: locate(before_windows, &result.windows),
         heldout_rms_before_nt: before_nt,
         heldout_rms_after_nt: result.rms_nt,
     };
     Ok((found, model, result))
-}
-
-/// Puts a body-axis vector into `parameters` under `pattern` with `{}`
-/// replaced by x, y and z.
-pub(super) fn insert_vector(parameters: &mut BTreeMap<String, f64>, pattern: &str, vector: &[f64]) {
-    for (axis, value) in ["x", "y", "z"].iter().zip(vector) {
-        parameters.insert(pattern.replace("{}", axis), *value);
-    }
 }
 
 /// `text` with its first letter in upper case.

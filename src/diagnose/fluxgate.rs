@@ -134,9 +134,9 @@ pub(super) fn check_fluxgate(
 /// than `vector_mismatch_nt` held out and the calibration removes most of
 /// it: the `vector_calibration` finding. (A better Tolles-Lawson fit on the
 /// calibrated fluxgate is not evidence on its own: calibrating also
-/// removes the aircraft's own field at the fluxgate, which the simulator's
-/// campaign showed can lower a wing sensor's held-out RMS by a third with
-/// a fluxgate that has no error of its own.)
+/// removes the aircraft's own field at the fluxgate, which can lower a
+/// sensor's held-out RMS markedly with a fluxgate that has no error of its
+/// own; measured figures: docs/measurements.md, section diagnose::fluxgate.)
 pub(super) fn mismatch_stands(check: &FluxgateCheck, settings: &DiagnoseOptions) -> bool {
     check.heldout_mismatch_before_nt > check.threshold_nt
         && check.heldout_mismatch_after_nt < check.heldout_mismatch_before_nt * (1.0 - settings.min_improvement)
@@ -157,14 +157,6 @@ pub(super) fn fluxgate_finding(check: &FluxgateCheck, channels: &[ChannelDiagnos
         })
         .collect();
     let c = &check.calibration;
-    let mut parameters = std::collections::BTreeMap::new();
-    for (axis, k) in ["x", "y", "z"].iter().enumerate() {
-        parameters.insert(format!("scale_{k}"), c.scale[axis]);
-        parameters.insert(format!("offset_{k}_nt"), c.offset_nt[axis]);
-    }
-    for (pair, angle) in ["xy", "xz", "yz"].iter().zip(c.non_orthogonality_deg) {
-        parameters.insert(format!("non_orthogonality_{pair}_deg"), angle);
-    }
     let tolles_lawson = match helped.is_empty() {
         true => "Tolles-Lawson absorbs most of it (its terms are linear in the direction cosines), so the compensation changes little; vector products and heading need the calibration.".to_string(),
         false => format!(
@@ -177,10 +169,13 @@ pub(super) fn fluxgate_finding(check: &FluxgateCheck, channels: &[ChannelDiagnos
         ),
     };
     Finding {
-        effect: "vector_calibration".into(),
+        effect: Effect::VectorCalibration(FluxgateErrors {
+            scale: c.scale,
+            offset_nt: c.offset_nt,
+            non_orthogonality_deg: c.non_orthogonality_deg,
+        }),
         channel: c.sensor.clone(),
         source: Some(c.reference.clone()),
-        parameters,
         explanation: format!(
             "The magnitude of {} misses the total field of {} by {:.1} nT RMS as the aircraft turns: scale factors {:.4}, {:.4}, {:.4}, non-orthogonality {:.2}°, {:.2}°, {:.2}° and offsets {:.0}, {:.0}, {:.0} nT (the sensor's own errors and any aircraft field at it) explain all but {:.2} nT. {tolles_lawson}",
             c.sensor,

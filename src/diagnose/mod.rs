@@ -46,10 +46,10 @@
 //! comparison. The threshold guards the scan too. Unrelated regressors
 //! change a held-out RMS by under 1 %, but a channel that follows the
 //! manoeuvres (a servo current, the trim tab) can stand in for structured
-//! residual it did not cause. On the simulator's clean and concealed
-//! flights such stand-ins gained up to 26 % (a servo current on a cabin
-//! sensor's second-order residual), while the concealed effects gained
-//! 59–94 %.
+//! residual it did not cause. Such a stand-in borrows only the manoeuvres'
+//! timing, so it explains part of that residual, while a real effect
+//! explains most of it: the threshold sits between the two (measured
+//! figures: docs/measurements.md, section diagnose).
 //!
 //! What is left is localised ([`localise`]): per manoeuvre, per sub-band
 //! against the noise floor, in structured stretches, and by coherence with
@@ -63,9 +63,10 @@
 //! [`crate::model`]), against the current model with the same term;
 //! each side keeps it only where it lowers its held-out RMS. An effect is
 //! accepted only if it still pays then, so a channel standing in for the
-//! second-order residual is rejected. On the simulator's cabin sensors
-//! the term is a few hundredths of a nT in the band, and the truth shows
-//! it is nearly all that the first-order model leaves there.
+//! second-order residual is rejected. Where the aircraft's field is large
+//! (a cabin sensor), the term can be nearly all that the first-order model
+//! leaves in the band (measured figures: docs/measurements.md, section
+//! diagnose).
 //!
 //! Start: λ is picked by the pipeline's criterion (blocked PRESS by
 //! default) or by the other one, whichever predicts the held-out headings
@@ -78,6 +79,7 @@
 //! fluxgate check, `finding` the findings in words, [`localise`] where the
 //! residual is.
 
+mod effect;
 mod finding;
 mod fluxgate;
 mod heldout;
@@ -90,6 +92,10 @@ use fluxgate::*;
 use heldout::*;
 use search::*;
 use shifted::*;
+
+pub use effect::{
+    AuxCoupling, EddyTimeConstant, Effect, EffectKind, ExternalField, FluxgateErrors, SensorLag, Unexplained,
+};
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -197,17 +203,16 @@ pub struct Located {
 }
 
 /// One discovered effect (CONTRACT §3).
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct Finding {
-    /// CONTRACT §3 effect name.
-    pub effect: String,
+    /// The effect and its physical parameters; DIAGNOSIS.json writes them
+    /// as `effect` (the CONTRACT §3 name) and `parameters` (`lag_s`,
+    /// `k_x_nt_per_unit`, ...).
+    pub effect: Effect,
     /// Scalar channel.
     pub channel: String,
     /// The column that drives it, when one does.
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub source: Option<String>,
-    /// Physical parameters (`lag_s`, `k_x_nt_per_unit`, ...).
-    pub parameters: std::collections::BTreeMap<String, f64>,
     /// One or two plain sentences of physics.
     pub explanation: String,
     /// The windows it improves most.
@@ -216,6 +221,25 @@ pub struct Finding {
     pub heldout_rms_before_nt: f64,
     /// Held-out RMS after, nT.
     pub heldout_rms_after_nt: f64,
+}
+
+impl Serialize for Finding {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> std::result::Result<S::Ok, S::Error> {
+        use serde::ser::SerializeStruct;
+        let mut finding = serializer.serialize_struct("Finding", 8)?;
+        finding.serialize_field("effect", &self.effect.kind())?;
+        finding.serialize_field("channel", &self.channel)?;
+        match &self.source {
+            Some(source) => finding.serialize_field("source", source)?,
+            None => finding.skip_field("source")?,
+        }
+        finding.serialize_field("parameters", &self.effect.parameters())?;
+        finding.serialize_field("explanation", &self.explanation)?;
+        finding.serialize_field("located", &self.located)?;
+        finding.serialize_field("heldout_rms_before_nt", &self.heldout_rms_before_nt)?;
+        finding.serialize_field("heldout_rms_after_nt", &self.heldout_rms_after_nt)?;
+        finding.end()
+    }
 }
 
 /// Held-out figures of one channel.

@@ -53,6 +53,7 @@ use std::path::Path;
 
 use serde::Deserialize;
 
+use crate::diagnose::EffectKind;
 use crate::error::{Error, Result};
 use crate::simulate::igrf::decimal_year;
 
@@ -458,14 +459,14 @@ pub enum Effect {
 }
 
 impl Effect {
-    /// The CONTRACT §3 name of the effect.
-    pub fn contract_name(&self) -> &'static str {
+    /// The effect the diagnosis should name for it.
+    pub fn kind(&self) -> EffectKind {
         match self {
-            Effect::SensorLag { .. } => "sensor_lag",
-            Effect::AuxCoupling { .. } => "aux_coupling",
-            Effect::VectorCalibration { .. } => "vector_calibration",
-            Effect::EddyTimeConstant { .. } => "eddy_time_constant",
-            Effect::Pulsations { .. } => "external_field",
+            Effect::SensorLag { .. } => EffectKind::SensorLag,
+            Effect::AuxCoupling { .. } => EffectKind::AuxCoupling,
+            Effect::VectorCalibration { .. } => EffectKind::VectorCalibration,
+            Effect::EddyTimeConstant { .. } => EffectKind::EddyTimeConstant,
+            Effect::Pulsations { .. } => EffectKind::ExternalField,
         }
     }
 }
@@ -631,7 +632,7 @@ fn check_effect(raw: &RawScenario, effect: &Effect) -> std::result::Result<(), S
     let unknown_scalar = |name: &str| {
         format!(
             "[[effect]] {}: channel '{name}' is not one of the [[scalar]] sensors",
-            effect.contract_name()
+            effect.kind().name()
         )
     };
     match effect {
