@@ -12,10 +12,10 @@
 use std::path::Path;
 use std::time::Instant;
 
-use magcomp::config::{FlightJob, Pipeline};
+use magcomp::config::{FlightJob, Pipeline, Settings};
 use magcomp::flight_log::{Channel, ChannelRole, FlightLog, VectorAxis};
 use magcomp::model::{fit, FitOptions, ModelSpec};
-use magcomp::pipeline::{choose_vector_sensor, StageOptions};
+use magcomp::pipeline::{choose_vector_sensor, Settings};
 use magcomp::sink::{process_flight, FlightOutputs};
 use magcomp::windows::CalibrationWindow;
 
@@ -181,7 +181,7 @@ fn bench_whole_file(rows: usize) {
     let bare = median_seconds(3, || bare_csv_copy(&input, &folder.path().join("bare.csv")));
     // Plain Tolles-Lawson: the reading, fitting and writing this figure has
     // always measured (`run` below times the default, which diagnoses).
-    let mut options = StageOptions::from(&Pipeline::default());
+    let mut options = Settings::default();
     options.diagnose.apply = magcomp::diagnose::ApplyDiagnosis::Never;
     let windows: Vec<CalibrationWindow> = (0..8)
         .map(|w| CalibrationWindow::new(w as f64 * 300.0, w as f64 * 300.0 + 120.0))
@@ -378,7 +378,7 @@ fn bench_run_default() {
         magcomp::diagnose::ApplyDiagnosis::Never,
         magcomp::diagnose::ApplyDiagnosis::Auto,
     ] {
-        let mut options = StageOptions::from(&Pipeline::default());
+        let mut options = Settings::default();
         options.diagnose.apply = apply;
         let outputs = FlightOutputs::in_directory(&folder.path().join(format!("{apply:?}")), &input);
         std::fs::create_dir_all(outputs.compensated.parent().unwrap()).unwrap();
@@ -410,9 +410,9 @@ fn bench_diagnose() {
         channels: None,
         windows: Vec::new(),
     };
-    let options = StageOptions::from(&pipeline);
+    let options = pipeline.settings.clone();
     let start = std::time::Instant::now();
-    let diagnosis = magcomp::pipeline::diagnose_flight(&log, &job, &options, &pipeline.diagnose).unwrap();
+    let diagnosis = magcomp::pipeline::diagnose_flight(&log, &job, &options, &pipeline.settings.diagnose).unwrap();
     println!(
         "diagnose: {} rows, 5 scalar channels, 30 auxiliary columns: {:.2} s, {} findings; peak RSS {:.0} MB",
         log.len(),

@@ -259,9 +259,23 @@ impl FlightJob {
     }
 }
 
-/// A validated pipeline.
+/// A validated pipeline: the settings every flight's stages take, where
+/// the outputs go, and the flights.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Pipeline {
+    /// What each stage is handed.
+    pub settings: Settings,
+    /// Output folder.
+    pub output_directory: PathBuf,
+    /// Flights to process.
+    pub flights: Vec<FlightJob>,
+}
+
+/// The validated settings of a run, shared by every flight: each stage
+/// takes its own part (reading, detection, the fit, the checks, the
+/// diagnosis).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Settings {
     /// Reading options.
     pub ingest: IngestOptions,
     /// Tolles-Lawson terms of every model (`[fit] terms`).
@@ -276,14 +290,16 @@ pub struct Pipeline {
     pub transfer: TransferOptions,
     /// FOM limit the report judges against, nT.
     pub fom_limit_nt: f64,
-    /// Physics diagnosis settings.
+    /// Physics diagnosis, and whether the fit takes its models.
     pub diagnose: crate::diagnose::DiagnoseOptions,
     /// Fluxgate calibration before the fit.
     pub vector_calibration: crate::vector_calibration::VectorCalibrationOptions,
-    /// Output folder.
-    pub output_directory: PathBuf,
-    /// Flights to process.
-    pub flights: Vec<FlightJob>,
+}
+
+impl Default for Settings {
+    fn default() -> Self {
+        Pipeline::default().settings
+    }
 }
 
 impl Default for Pipeline {
@@ -357,7 +373,7 @@ impl Pipeline {
             .into_iter()
             .map(|f| flight_job(f, base, source_name, margin_s))
             .collect::<Result<Vec<_>>>()?;
-        Ok(Pipeline {
+        let settings = Settings {
             ingest: IngestOptions {
                 columns: raw.columns,
                 alignment: raw.alignment,
@@ -372,6 +388,9 @@ impl Pipeline {
             fom_limit_nt: raw.quality.fom_limit_nt,
             diagnose: raw.diagnose,
             vector_calibration: raw.vector_calibration,
+        };
+        Ok(Pipeline {
+            settings,
             output_directory: base.join(raw.output.directory),
             flights,
         })
@@ -624,9 +643,9 @@ mod tests {
     #[test]
     fn defaults_are_the_classic_magnav_settings() {
         let pipeline = parse("").unwrap();
-        assert_eq!(pipeline.terms.len(), 18);
-        assert_eq!(pipeline.fit.filter, FilterSettings::default());
-        assert_eq!(pipeline.fit.solve.lambda, LambdaChoice::Select);
+        assert_eq!(pipeline.settings.terms.len(), 18);
+        assert_eq!(pipeline.settings.fit.filter, FilterSettings::default());
+        assert_eq!(pipeline.settings.fit.solve.lambda, LambdaChoice::Select);
     }
 
     #[test]
@@ -634,8 +653,8 @@ mod tests {
         let text = "[fit]\nlambda = 0.001\nterms = [\"permanent\", \"induced_5\", \"eddy_8\"]\n\
                     [[flight]]\ninput = \"f.csv\"\nwindows = [{t_start = 1.0, t_end = 9.0, kind = \"roll\", heading_deg = 90.0}]\n";
         let pipeline = parse(text).unwrap();
-        assert_eq!(pipeline.fit.solve.lambda, LambdaChoice::Fixed(0.001));
-        assert_eq!(pipeline.terms.len(), 16);
+        assert_eq!(pipeline.settings.fit.solve.lambda, LambdaChoice::Fixed(0.001));
+        assert_eq!(pipeline.settings.terms.len(), 16);
         assert_eq!(pipeline.flights[0].input, Path::new("/data/f.csv"));
         assert_eq!(pipeline.flights[0].windows[0].display_label(), "roll, heading 90");
     }

@@ -10,7 +10,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use magcomp::config::{FlightJob, Pipeline};
 use magcomp::diagnose::ApplyDiagnosis;
 use magcomp::formats::{prepare, Destination, OutputKind, OutputSet};
-use magcomp::pipeline::{summary, StageOptions};
+use magcomp::pipeline::summary;
 use magcomp::sink::{process_flight, FlightOutputs};
 use magcomp::solve::LambdaChoice;
 use magcomp::windows::CalibrationWindow;
@@ -271,7 +271,7 @@ fn error_paragraph(error: &anyhow::Error) -> String {
 
 /// Reads a flight and screens its samples, printing what was masked.
 fn read_screened(flight: &Path, pipeline: &Pipeline) -> magcomp::error::Result<magcomp::flight_log::FlightLog> {
-    let recorded = magcomp::formats::read_flight_log(flight, &pipeline.ingest)?;
+    let recorded = magcomp::formats::read_flight_log(flight, &pipeline.settings.ingest)?;
     let screened = magcomp::screen::screen_samples(&recorded)?;
     for warning in screened.warnings(&recorded) {
         println!("  warning: {warning}");
@@ -303,14 +303,10 @@ fn spinner(message: String) -> ProgressBar {
     bar
 }
 
-fn stage_options(pipeline: &Pipeline) -> StageOptions {
-    StageOptions::from(pipeline)
-}
-
 fn run(config: &Path, plain: bool, force: bool) -> anyhow::Result<()> {
     let mut pipeline = Pipeline::load(config)?;
     if plain {
-        pipeline.diagnose.apply = ApplyDiagnosis::Never;
+        pipeline.settings.diagnose.apply = ApplyDiagnosis::Never;
     }
     for job in &mut pipeline.flights {
         job.force_diagnosis = force;
@@ -320,12 +316,12 @@ fn run(config: &Path, plain: bool, force: bool) -> anyhow::Result<()> {
         "{}: no [[flight]] entries; add one with input = \"path/to/flight.csv\"",
         config.display()
     );
-    let options = stage_options(&pipeline);
+    let options = &pipeline.settings;
     let mut statuses = Vec::new();
     for job in &pipeline.flights {
         let outputs = FlightOutputs::in_directory(&pipeline.output_directory, &job.input);
         let bar = spinner(format!("compensating {}", job.input.display()));
-        let result = prepare_flight_outputs(job, &outputs).and_then(|()| process_flight(job, &options, &outputs));
+        let result = prepare_flight_outputs(job, &outputs).and_then(|()| process_flight(job, options, &outputs));
         bar.finish_and_clear();
         let status = match result {
             Ok(result) => {
@@ -421,7 +417,7 @@ fn compensate(args: CompensateArgs) -> anyhow::Result<()> {
             lambda.is_finite() && lambda >= 0.0,
             "--lambda {lambda}: λ must be a non-negative number (0 for no regularisation); leave --lambda out to choose λ by PRESS"
         );
-        pipeline.fit.solve.lambda = LambdaChoice::Fixed(lambda);
+        pipeline.settings.fit.solve.lambda = LambdaChoice::Fixed(lambda);
     }
     let mut windows = args
         .windows
@@ -431,16 +427,16 @@ fn compensate(args: CompensateArgs) -> anyhow::Result<()> {
     if let Some(file) = &args.windows_file {
         windows.extend(magcomp::windows::read_detect_json(
             file,
-            pipeline.detect.window_margin_s,
+            pipeline.settings.detect.window_margin_s,
         )?);
     }
     if args.augment {
-        pipeline.diagnose.apply = ApplyDiagnosis::Always;
+        pipeline.settings.diagnose.apply = ApplyDiagnosis::Always;
     }
     if args.plain {
-        pipeline.diagnose.apply = ApplyDiagnosis::Never;
+        pipeline.settings.diagnose.apply = ApplyDiagnosis::Never;
     }
-    pipeline.ingest.date = args.date.or(pipeline.ingest.date);
+    pipeline.settings.ingest.date = args.date.or(pipeline.settings.ingest.date);
     let job = FlightJob {
         diagnosis: args.diagnosis.clone(),
         force_diagnosis: args.force,
@@ -466,7 +462,7 @@ fn compensate(args: CompensateArgs) -> anyhow::Result<()> {
     magcomp::formats::destination::refuse_inputs(&other_inputs, &outputs.destinations())?;
     prepare_flight_outputs(&job, &outputs)?;
     let bar = spinner(format!("compensating {}", args.flight.display()));
-    let result = process_flight(&job, &stage_options(&pipeline), &outputs);
+    let result = process_flight(&job, &pipeline.settings, &outputs);
     bar.finish_and_clear();
     print!("{}", summary(&result?));
     println!("  wrote {}", args.out.display());
@@ -480,13 +476,13 @@ fn convert(
     date: Option<magcomp::flight_date::FlightDate>,
 ) -> anyhow::Result<()> {
     let mut pipeline = Pipeline::load_or_default(config)?;
-    pipeline.ingest.date = date.or(pipeline.ingest.date);
+    pipeline.settings.ingest.date = date.or(pipeline.settings.ingest.date);
     let inputs: Vec<&Path> = std::iter::once(flight).chain(config).collect();
     print_notes(&prepare(
         &inputs,
         &[Destination::new(out, OutputKind::Flight, "--out")],
     )?);
-    let log = magcomp::formats::read_flight_log(flight, &pipeline.ingest)?;
+    let log = magcomp::formats::read_flight_log(flight, &pipeline.settings.ingest)?;
     magcomp::formats::write_flight_log(&log, out)?;
     if let Some(warning) = magcomp::formats::mcap::undated_warning(&log, out) {
         println!("  warning: {warning}");
@@ -555,8 +551,8 @@ fn replay_flight(
         .map(|w| CalibrationWindow::parse(w))
         .collect::<Result<Vec<_>, _>>()?;
     if windows.is_empty() {
-        windows = magcomp::detect::detect_manoeuvres(&log, &pipeline.detect)?
-            .calibration_windows(pipeline.detect.window_margin_s);
+        windows = magcomp::detect::detect_manoeuvres(&log, &pipeline.settings.detect)?
+            .calibration_windows(pipeline.settings.detect.window_margin_s);
     }
     let bar = spinner(format!("replaying {}", flight.display()));
     let plan = match diagnosis {
@@ -573,9 +569,9 @@ fn replay_flight(
             &sensor,
             &channels,
             &windows,
-            &pipeline.terms,
-            &pipeline.fit,
-            &pipeline.diagnose,
+            &pipeline.settings.terms,
+            &pipeline.settings.fit,
+            &pipeline.settings.diagnose,
         )
         .map(|d| d.models()),
     };
@@ -585,8 +581,8 @@ fn replay_flight(
             &sensor,
             &channels,
             &windows,
-            &pipeline.terms,
-            &pipeline.fit,
+            &pipeline.settings.terms,
+            &pipeline.settings.fit,
             &plan,
         )
     });
@@ -657,7 +653,7 @@ fn detect(flight: &Path, out: &Path, config: Option<&Path>) -> anyhow::Result<()
     let inputs: Vec<&Path> = std::iter::once(flight).chain(config).collect();
     print_notes(&prepare(&inputs, &[Destination::new(out, OutputKind::Json, "--out")])?);
     let log = read_screened(flight, &pipeline)?;
-    let detection = magcomp::detect::detect_manoeuvres(&log, &pipeline.detect)?;
+    let detection = magcomp::detect::detect_manoeuvres(&log, &pipeline.settings.detect)?;
     magcomp::formats::write_json(out, "the detected manoeuvres", &detection)?;
     for note in magcomp::pipeline::detection_notes(&detection) {
         println!("  {note}");
@@ -714,7 +710,7 @@ fn diagnose(
             .collect::<Result<_, _>>()?,
     };
     let bar = spinner(format!("diagnosing {}", flight.display()));
-    let diagnosis = magcomp::pipeline::diagnose_flight(&log, &job, &stage_options(&pipeline), &pipeline.diagnose);
+    let diagnosis = magcomp::pipeline::diagnose_flight(&log, &job, &pipeline.settings, &pipeline.settings.diagnose);
     bar.finish_and_clear();
     let diagnosis = diagnosis?;
     let mut set = OutputSet::new();
@@ -727,10 +723,10 @@ fn diagnose(
             channel.channel,
             channel.heldout_rms_baseline_nt,
             channel.heldout_rms_final_nt,
-            pipeline.fit.solve.criterion.describe()
+            pipeline.settings.fit.solve.criterion.describe()
         );
         if let (true, Some(start)) = (
-            channel.search_criterion != pipeline.fit.solve.criterion,
+            channel.search_criterion != pipeline.settings.fit.solve.criterion,
             channel.heldout_rms_other_criterion_nt,
         ) {
             println!(

@@ -7,20 +7,19 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-use crate::compensate::{compensate, LevelConvention};
-use crate::config::FlightJob;
-use crate::detect::{detect_manoeuvres, DetectOptions, Detection};
+use crate::compensate::compensate;
+use crate::config::{FlightJob, Settings};
+use crate::detect::{detect_manoeuvres, Detection};
 use crate::diagnose::EffectKind;
 use crate::error::{Error, Result};
 use crate::flight_log::{FlightLog, VectorSensor};
 use crate::formats::added_column_names;
 use crate::formats::align::AlignmentReport;
-use crate::formats::{read_flight_log, IngestOptions};
-use crate::model::{fit, Extensions, FitOptions, FittedModel, ModelSpec};
+use crate::formats::read_flight_log;
+use crate::model::{fit, Extensions, FittedModel, ModelSpec};
 use crate::quality::{assess_quality, ChannelQuality};
 use crate::stacked::StorePool;
-use crate::tolles_lawson::TermSet;
-use crate::transfer::{check_transfer, TransferOptions};
+use crate::transfer::check_transfer;
 use rayon::prelude::*;
 
 /// What processing one flight produced.
@@ -136,46 +135,6 @@ fn applied_findings(diagnosis: &crate::diagnose::Diagnosis) -> Vec<AppliedFindin
         .collect()
 }
 
-/// Settings shared by every flight of a run.
-#[derive(Debug, Clone, PartialEq)]
-pub struct StageOptions {
-    /// Reading options.
-    pub ingest: IngestOptions,
-    /// Tolles-Lawson terms of every model.
-    pub terms: TermSet,
-    /// How models are fitted.
-    pub fit: FitOptions,
-    /// DC level convention.
-    pub level: LevelConvention,
-    /// Manoeuvre detection, used when a flight gives no windows.
-    pub detect: DetectOptions,
-    /// Transfer check of the calibration.
-    pub transfer: TransferOptions,
-    /// FOM limit the report judges against, nT.
-    pub fom_limit_nt: f64,
-    /// Fluxgate calibration before the fit.
-    pub vector_calibration: crate::vector_calibration::VectorCalibrationOptions,
-    /// Physics diagnosis, and whether the fit takes its models.
-    pub diagnose: crate::diagnose::DiagnoseOptions,
-}
-
-impl From<&crate::config::Pipeline> for StageOptions {
-    /// The stage settings of a pipeline.toml.
-    fn from(pipeline: &crate::config::Pipeline) -> Self {
-        StageOptions {
-            ingest: pipeline.ingest.clone(),
-            terms: pipeline.terms,
-            fit: pipeline.fit.clone(),
-            level: pipeline.level,
-            detect: pipeline.detect.clone(),
-            transfer: pipeline.transfer.clone(),
-            fom_limit_nt: pipeline.fom_limit_nt,
-            vector_calibration: pipeline.vector_calibration.clone(),
-            diagnose: pipeline.diagnose.clone(),
-        }
-    }
-}
-
 /// One flight through every stage: what [`run`] produced, for the sinks
 /// ([`crate::sink`]) to write.
 #[derive(Debug, Clone)]
@@ -201,7 +160,7 @@ impl FlightRun {
 /// Reads, fits, compensates and assesses one flight; writes nothing.
 /// `compensated` is where the compensated flight will go: its format
 /// names the columns magcomp adds.
-pub fn run(job: &FlightJob, options: &StageOptions, compensated: &Path) -> Result<FlightRun> {
+pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<FlightRun> {
     let ingest = crate::formats::IngestOptions {
         date: job.date.or(options.ingest.date),
         ..options.ingest.clone()
@@ -340,7 +299,7 @@ fn augmentation_plan(
     sensor: &VectorSensor,
     channels: &[String],
     windows: &[crate::windows::CalibrationWindow],
-    options: &StageOptions,
+    options: &Settings,
     stage_calibrated: bool,
 ) -> Result<ExtensionsPlan> {
     use crate::diagnose::ApplyDiagnosis;
@@ -429,7 +388,7 @@ pub fn detection_warnings(detection: &Detection) -> Vec<String> {
 pub fn diagnose_flight(
     log: &FlightLog,
     job: &FlightJob,
-    options: &StageOptions,
+    options: &Settings,
     settings: &crate::diagnose::DiagnoseOptions,
 ) -> Result<crate::diagnose::Diagnosis> {
     let sensor = choose_vector_sensor(log, job.vector.as_deref())?;

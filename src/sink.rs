@@ -11,11 +11,12 @@ use std::path::{Path, PathBuf};
 use serde::Serialize;
 
 use crate::config::FlightJob;
+use crate::config::Settings;
 use crate::error::{Error, Result};
 use crate::formats::mcap::McapExtras;
 use crate::formats::{detect_format, stage, stage_compensated, Destination, Format, OutputKind, OutputSet};
 use crate::model::FittedModel;
-use crate::pipeline::{run, FlightResult, FlightRun, StageOptions};
+use crate::pipeline::{run, FlightResult, FlightRun};
 
 /// Where one flight's outputs go.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -85,7 +86,7 @@ impl FlightOutputs {
 
 /// Reads, fits, compensates and assesses one flight ([`run`]) and writes
 /// its outputs ([`write`]).
-pub fn process_flight(job: &FlightJob, options: &StageOptions, outputs: &FlightOutputs) -> Result<FlightResult> {
+pub fn process_flight(job: &FlightJob, options: &Settings, outputs: &FlightOutputs) -> Result<FlightResult> {
     let inputs: Vec<&Path> = std::iter::once(job.input.as_path())
         .chain(job.diagnosis.as_deref())
         .collect();
@@ -99,7 +100,7 @@ pub fn process_flight(job: &FlightJob, options: &StageOptions, outputs: &FlightO
 
 /// Writes every output of `flight`, all committed together, the report
 /// last.
-pub fn write(flight: &FlightRun, options: &StageOptions, outputs: &FlightOutputs) -> Result<()> {
+pub fn write(flight: &FlightRun, options: &Settings, outputs: &FlightOutputs) -> Result<()> {
     let result = &flight.result;
     let mut written = OutputSet::new();
     if let (Some(diagnosis), Some(path)) = (&result.diagnosis, &outputs.diagnosis_json) {

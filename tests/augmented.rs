@@ -6,8 +6,8 @@
 
 use std::path::{Path, PathBuf};
 
-use magcomp::config::{FlightJob, Pipeline};
-use magcomp::pipeline::{FlightResult, StageOptions};
+use magcomp::config::{FlightJob, Settings};
+use magcomp::pipeline::FlightResult;
 use magcomp::sink::{process_flight, FlightOutputs};
 
 fn sample(name: &str) -> PathBuf {
@@ -29,7 +29,7 @@ fn job(input: PathBuf, diagnosis: Option<PathBuf>) -> FlightJob {
 }
 
 fn run(job: &FlightJob, apply: bool, out: &Path) -> (FlightResult, FlightOutputs) {
-    let mut options = StageOptions::from(&Pipeline::default());
+    let mut options = Settings::default();
     options.diagnose.apply = match apply {
         true => magcomp::diagnose::ApplyDiagnosis::Always,
         false => magcomp::diagnose::ApplyDiagnosis::Never,
@@ -159,7 +159,7 @@ fn a_diagnosis_naming_a_column_the_flight_lacks_is_a_clear_error() {
             {"kind": "aux_coupling", "column": "cur_winch", "level": 0.0}]}}], "findings": []}"#,
     )
     .unwrap();
-    let options = StageOptions::from(&Pipeline::default());
+    let options = Settings::default();
     let input = sample("clean.csv");
     let outputs = FlightOutputs::in_directory(folder.path(), &input);
     let error = process_flight(&job(input, Some(diagnosis.clone())), &options, &outputs).unwrap_err();

@@ -36,7 +36,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{mpsc, Mutex};
 use std::time::{Duration, Instant};
 
-use magcomp::config::Pipeline;
+use magcomp::config::Settings;
 use magcomp::flight_log::{Channel, FlightLog};
 use magcomp::formats::read_flight_log;
 use magcomp::formats::write_flight_log;
@@ -216,7 +216,7 @@ fn good_flight(folder: &Path) -> GoodFlight {
     let flight = generate(&spec, SEED);
     let csv_path = folder.join("good.csv");
     write(&flight, &csv_path, &folder.join("good.windows.json")).unwrap();
-    let log = read_flight_log(&csv_path, &Pipeline::default().ingest).unwrap();
+    let log = read_flight_log(&csv_path, &Settings::default().ingest).unwrap();
     let written = |extension: &str| {
         let path = folder.join(format!("good.{extension}"));
         write_flight_log(&log, &path).unwrap();
@@ -995,7 +995,7 @@ fn read_in_process(input: &Path) -> Result<Option<ReaderView>, (Kind, String)> {
     let (sender, receiver) = mpsc::channel();
     let path = input.to_path_buf();
     std::thread::spawn(move || {
-        let read = read_flight_log(&path, &Pipeline::default().ingest).ok().map(|log| {
+        let read = read_flight_log(&path, &Settings::default().ingest).ok().map(|log| {
             let warnings = log.alignment().map(|a| a.warnings.clone()).unwrap_or_default();
             (log.len(), warnings)
         });

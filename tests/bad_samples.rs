@@ -6,7 +6,6 @@ use std::path::{Path, PathBuf};
 
 use magcomp::config::{FlightJob, Pipeline};
 use magcomp::diagnose::ApplyDiagnosis;
-use magcomp::pipeline::StageOptions;
 use magcomp::sample_flight::{generate, write, SampleFlightSpec};
 use magcomp::sink::{process_flight, FlightOutputs};
 use magcomp::windows::read_detect_json;
@@ -74,13 +73,13 @@ impl Flight {
 /// returns the output's header and rows.
 fn compensate(input: &Path, windows: &Path, out: &Path) -> (Vec<String>, Vec<Vec<String>>, Vec<String>) {
     let mut pipeline = Pipeline::default();
-    pipeline.diagnose.apply = ApplyDiagnosis::Never;
+    pipeline.settings.diagnose.apply = ApplyDiagnosis::Never;
     let job = FlightJob {
         windows: read_detect_json(windows, 5.0).unwrap(),
         ..FlightJob::new(input.to_path_buf())
     };
     let outputs = FlightOutputs::in_directory(out, input);
-    let result = process_flight(&job, &StageOptions::from(&pipeline), &outputs).unwrap();
+    let result = process_flight(&job, &pipeline.settings, &outputs).unwrap();
     let text = std::fs::read_to_string(&outputs.compensated).unwrap();
     let mut lines = text.lines();
     let header = lines.next().unwrap().split(',').map(String::from).collect();

@@ -69,24 +69,24 @@ fn errors(seed: u64, effect: &str) -> BTreeMap<String, (f64, f64)> {
     let pipeline = magcomp::config::Pipeline::default();
     let sensor = choose_vector_sensor(log, None).unwrap();
     let channels = choose_channels(log, None).unwrap();
-    let windows = detect_manoeuvres(log, &pipeline.detect)
+    let windows = detect_manoeuvres(log, &pipeline.settings.detect)
         .unwrap()
-        .calibration_windows(pipeline.detect.window_margin_s);
+        .calibration_windows(pipeline.settings.detect.window_margin_s);
     let plan = diagnose(
         log,
         &sensor,
         &channels,
         &windows,
-        &pipeline.terms,
-        &pipeline.fit,
-        &pipeline.diagnose,
+        &pipeline.settings.terms,
+        &pipeline.settings.fit,
+        &pipeline.settings.diagnose,
     )
     .unwrap()
     .models();
     let line = &log.channel("line").unwrap().values;
     let error_with = |plan: &BTreeMap<String, magcomp::model::Extensions>| {
         let models = common::fit_channels(log, &sensor, (&channels, &windows), &pipeline, plan);
-        let compensated = magcomp::compensate::compensate(log, &models, pipeline.level).unwrap();
+        let compensated = magcomp::compensate::compensate(log, &models, pipeline.settings.level).unwrap();
         compensated
             .channels
             .iter()

@@ -7,14 +7,14 @@ use std::path::PathBuf;
 use magcomp::config::{FlightJob, Pipeline};
 use magcomp::diagnose::Diagnosis;
 use magcomp::formats::read_flight_log;
-use magcomp::pipeline::{diagnose_flight, StageOptions};
+use magcomp::pipeline::diagnose_flight;
 
 fn diagnose(name: &str) -> Diagnosis {
     let input = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("sample_flights")
         .join(name);
     let pipeline = Pipeline::default();
-    let log = read_flight_log(&input, &pipeline.ingest).unwrap();
+    let log = read_flight_log(&input, &pipeline.settings.ingest).unwrap();
     let job = FlightJob {
         diagnosis: None,
         force_diagnosis: false,
@@ -24,7 +24,7 @@ fn diagnose(name: &str) -> Diagnosis {
         channels: None,
         windows: Vec::new(),
     };
-    diagnose_flight(&log, &job, &StageOptions::from(&pipeline), &pipeline.diagnose).unwrap()
+    diagnose_flight(&log, &job, &pipeline.settings, &pipeline.settings.diagnose).unwrap()
 }
 
 #[test]
@@ -264,7 +264,7 @@ fn an_effect_outside_the_library_is_reported_as_unexplained_where_it_happens() {
     // still reaches the tail sensor, but nothing recorded can explain it.
     let input = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("sample_flights/concealed_b.csv");
     let pipeline = Pipeline::default();
-    let full = read_flight_log(&input, &pipeline.ingest).unwrap();
+    let full = read_flight_log(&input, &pipeline.settings.ingest).unwrap();
     let radio = full.channel("cur_com1").unwrap().values.clone();
     let channels = full
         .channels()
@@ -283,7 +283,7 @@ fn an_effect_outside_the_library_is_reported_as_unexplained_where_it_happens() {
         channels: None,
         windows: Vec::new(),
     };
-    let diagnosis = diagnose_flight(&log, &job, &StageOptions::from(&pipeline), &pipeline.diagnose).unwrap();
+    let diagnosis = diagnose_flight(&log, &job, &pipeline.settings, &pipeline.settings.diagnose).unwrap();
     let tail: Vec<&magcomp::diagnose::Finding> =
         diagnosis.findings.iter().filter(|f| f.channel == "mag_1_uc").collect();
     assert_eq!(tail.len(), 1, "{tail:#?}");
@@ -332,11 +332,11 @@ fn diagnosed_and_by_hand(
     use magcomp::pipeline::choose_vector_sensor;
     let diagnosis = diagnose(name);
     let pipeline = Pipeline::default();
-    let options = StageOptions::from(&pipeline);
+    let options = pipeline.settings.clone();
     let input = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("sample_flights")
         .join(name);
-    let log = read_flight_log(&input, &pipeline.ingest).unwrap();
+    let log = read_flight_log(&input, &pipeline.settings.ingest).unwrap();
     let windows = magcomp::detect::detect_manoeuvres(&log, &options.detect)
         .unwrap()
         .calibration_windows(options.detect.window_margin_s);

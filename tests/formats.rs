@@ -3,11 +3,10 @@
 
 use std::path::{Path, PathBuf};
 
-use magcomp::config::{FlightJob, Pipeline};
+use magcomp::config::{FlightJob, Settings};
 use magcomp::flight_log::FlightLog;
 use magcomp::formats::write_flight_log;
 use magcomp::formats::{read_flight_log, IngestOptions};
-use magcomp::pipeline::StageOptions;
 use magcomp::sample_flight::{generate, write, SampleFlightSpec};
 use magcomp::sink::{process_flight, FlightOutputs};
 use magcomp::windows::read_detect_json;
@@ -44,8 +43,8 @@ fn assert_same_log(a: &FlightLog, b: &FlightLog, tolerance: f64) {
     }
 }
 
-fn options() -> StageOptions {
-    StageOptions::from(&Pipeline::default())
+fn options() -> Settings {
+    Settings::default()
 }
 
 /// Compensated values of `column` from a CSV or XYZ output.

@@ -6,9 +6,8 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use magcomp::config::{FlightJob, Pipeline};
+use magcomp::config::{FlightJob, Pipeline, Settings};
 use magcomp::diagnose::ApplyDiagnosis;
-use magcomp::pipeline::StageOptions;
 use magcomp::simulate::scenario::{RawScenario, Scenario};
 use magcomp::sink::{process_flight, FlightOutputs};
 use magcomp::windows::CalibrationWindow;
@@ -91,8 +90,8 @@ fn a_box_on_two_headings_is_not_diagnosed() {
     let error = magcomp::pipeline::diagnose_flight(
         &log,
         &FlightJob::new(&flight),
-        &StageOptions::from(&pipeline),
-        &pipeline.diagnose,
+        &pipeline.settings,
+        &pipeline.settings.diagnose,
     )
     .unwrap_err();
     let text = error.to_string();
@@ -116,7 +115,7 @@ fn windows_given_by_time_are_tested_with_a_caveat() {
         ..FlightJob::new(sample("clean.csv"))
     };
     let diagnosis =
-        magcomp::pipeline::diagnose_flight(&log, &job, &StageOptions::from(&pipeline), &pipeline.diagnose).unwrap();
+        magcomp::pipeline::diagnose_flight(&log, &job, &pipeline.settings, &pipeline.settings.diagnose).unwrap();
     assert!(
         diagnosis.notes.iter().any(|n| n.contains("held out window by window")),
         "{:?}",
@@ -247,7 +246,7 @@ fn a_flight_that_cannot_be_diagnosed_is_compensated_plain_with_a_warning() {
         raw.calibration.headings_deg = vec![20.0, 110.0];
     });
     let outputs = FlightOutputs::in_directory(&folder.path().join("out"), &flight);
-    let mut options = StageOptions::from(&Pipeline::default());
+    let mut options = Settings::default();
     let result = process_flight(&FlightJob::new(&flight), &options, &outputs).unwrap();
     assert!(result.diagnosis.is_none() && result.applied_findings.is_empty());
     assert!(
@@ -294,8 +293,8 @@ fn diagnose_log(log: &magcomp::flight_log::FlightLog) -> magcomp::diagnose::Diag
     magcomp::pipeline::diagnose_flight(
         log,
         &FlightJob::new("simulated"),
-        &StageOptions::from(&pipeline),
-        &pipeline.diagnose,
+        &pipeline.settings,
+        &pipeline.settings.diagnose,
     )
     .unwrap()
 }

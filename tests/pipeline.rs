@@ -4,8 +4,7 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use magcomp::config::{FlightJob, Pipeline};
-use magcomp::pipeline::StageOptions;
+use magcomp::config::{FlightJob, Settings};
 use magcomp::sample_flight::{generate, write, SampleFlightSpec};
 use magcomp::sink::{process_flight, FlightOutputs};
 use magcomp::windows::read_detect_json;
@@ -22,8 +21,8 @@ fn small_flight(folder: &Path) -> (PathBuf, PathBuf) {
     (csv, windows)
 }
 
-fn options() -> StageOptions {
-    StageOptions::from(&Pipeline::default())
+fn options() -> Settings {
+    Settings::default()
 }
 
 fn run_with_threads(threads: usize, csv: &Path, windows: &Path, out: &Path) -> Vec<u8> {

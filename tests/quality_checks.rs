@@ -3,24 +3,24 @@
 
 use std::path::{Path, PathBuf};
 
-use magcomp::config::{FlightJob, Pipeline};
-use magcomp::pipeline::{FlightResult, StageOptions};
+use magcomp::config::{FlightJob, Settings};
+use magcomp::pipeline::FlightResult;
 use magcomp::simulate::scenario::{RawScenario, Scenario};
 use magcomp::sink::{process_flight, FlightOutputs};
 use magcomp::transfer::TransferMethod;
 
 fn run(input: &Path, out: &Path) -> FlightResult {
-    run_with(input, out, StageOptions::from(&Pipeline::default()))
+    run_with(input, out, Settings::default())
 }
 
 /// Plain Tolles-Lawson, with no diagnosis applied.
 fn run_plain(input: &Path, out: &Path) -> FlightResult {
-    let mut options = StageOptions::from(&Pipeline::default());
+    let mut options = Settings::default();
     options.diagnose.apply = magcomp::diagnose::ApplyDiagnosis::Never;
     run_with(input, out, options)
 }
 
-fn run_with(input: &Path, out: &Path, options: StageOptions) -> FlightResult {
+fn run_with(input: &Path, out: &Path, options: Settings) -> FlightResult {
     let job = FlightJob {
         diagnosis: None,
         force_diagnosis: false,

@@ -16,20 +16,20 @@ fn replayed(name: &str) -> Replay {
         .join("sample_flights")
         .join(name);
     let pipeline = Pipeline::default();
-    let log = read_flight_log(&input, &pipeline.ingest).unwrap();
+    let log = read_flight_log(&input, &pipeline.settings.ingest).unwrap();
     let sensor = choose_vector_sensor(&log, None).unwrap();
     let channels = choose_channels(&log, None).unwrap();
-    let windows = detect_manoeuvres(&log, &pipeline.detect)
+    let windows = detect_manoeuvres(&log, &pipeline.settings.detect)
         .unwrap()
-        .calibration_windows(pipeline.detect.window_margin_s);
+        .calibration_windows(pipeline.settings.detect.window_margin_s);
     let diagnosis = diagnose(
         &log,
         &sensor,
         &channels,
         &windows,
-        &pipeline.terms,
-        &pipeline.fit,
-        &pipeline.diagnose,
+        &pipeline.settings.terms,
+        &pipeline.settings.fit,
+        &pipeline.settings.diagnose,
     )
     .unwrap();
     let replay = replay(
@@ -37,8 +37,8 @@ fn replayed(name: &str) -> Replay {
         &sensor,
         &channels,
         &windows,
-        &pipeline.terms,
-        &pipeline.fit,
+        &pipeline.settings.terms,
+        &pipeline.settings.fit,
         &diagnosis.models(),
     )
     .unwrap();

@@ -5,8 +5,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use magcomp::config::{FlightJob, Pipeline};
-use magcomp::pipeline::StageOptions;
+use magcomp::config::{FlightJob, Settings};
 use magcomp::sink::{process_flight, FlightOutputs};
 
 fn report_of_clean_flight(folder: &Path) -> (PathBuf, magcomp::pipeline::FlightResult) {
@@ -22,7 +21,7 @@ fn report_of_clean_flight(folder: &Path) -> (PathBuf, magcomp::pipeline::FlightR
     };
     let outputs = FlightOutputs::in_directory(folder, &input);
     // Plain Tolles-Lawson: the diagnosis's section has its own test below.
-    let mut options = StageOptions::from(&Pipeline::default());
+    let mut options = Settings::default();
     options.diagnose.apply = magcomp::diagnose::ApplyDiagnosis::Never;
     let result = process_flight(&job, &options, &outputs).unwrap();
     (outputs.report_html.unwrap(), result)
@@ -140,7 +139,7 @@ fn a_diagnosed_flight_reports_its_findings_and_marks_where_they_helped() {
         channels: None,
         windows: Vec::new(),
     };
-    let mut options = StageOptions::from(&Pipeline::default());
+    let mut options = Settings::default();
     options.diagnose.apply = magcomp::diagnose::ApplyDiagnosis::Always;
     let outputs = FlightOutputs::in_directory(folder.path(), &input);
     let result = process_flight(&job, &options, &outputs).unwrap();

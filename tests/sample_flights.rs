@@ -70,29 +70,29 @@ fn truth_column(path: &Path, name: &str) -> Vec<f64> {
 }
 
 fn replay(pipeline: &Pipeline, job: &magcomp::config::FlightJob) -> Expected {
-    let log = read_flight_log(&job.input, &pipeline.ingest).unwrap();
+    let log = read_flight_log(&job.input, &pipeline.settings.ingest).unwrap();
     let sensor = choose_vector_sensor(&log, job.vector.as_deref()).unwrap();
     let channels = choose_channels(&log, job.channels.as_deref()).unwrap();
     let windows = if job.windows.is_empty() {
-        let detection = detect_manoeuvres(&log, &pipeline.detect).unwrap();
-        detection.calibration_windows(pipeline.detect.window_margin_s)
+        let detection = detect_manoeuvres(&log, &pipeline.settings.detect).unwrap();
+        detection.calibration_windows(pipeline.settings.detect.window_margin_s)
     } else {
         job.windows.clone()
     };
     let models = common::fit_channels(&log, &sensor, (&channels, &windows), pipeline, &Default::default());
-    let compensated = compensate(&log, &models, pipeline.level).unwrap();
+    let compensated = compensate(&log, &models, pipeline.settings.level).unwrap();
     let diagnosis = magcomp::diagnose::diagnose(
         &log,
         &sensor,
         &channels,
         &windows,
-        &pipeline.terms,
-        &pipeline.fit,
-        &pipeline.diagnose,
+        &pipeline.settings.terms,
+        &pipeline.settings.fit,
+        &pipeline.settings.diagnose,
     )
     .unwrap();
     let diagnosed = common::fit_channels(&log, &sensor, (&channels, &windows), pipeline, &diagnosis.models());
-    let diagnosed_compensated = compensate(&log, &diagnosed, pipeline.level).unwrap();
+    let diagnosed_compensated = compensate(&log, &diagnosed, pipeline.settings.level).unwrap();
     let truth = job.input.with_extension("truth.csv");
     let line_error = |channel: &str, values: &[f64]| {
         truth.exists().then(|| {

@@ -10,10 +10,9 @@
 
 use std::path::Path;
 
-use magcomp::config::{FlightJob, Pipeline};
+use magcomp::config::{FlightJob, Settings};
 use magcomp::diagnose::ApplyDiagnosis;
 use magcomp::formats::read_flight_log;
-use magcomp::pipeline::StageOptions;
 use magcomp::sink::{process_flight, FlightOutputs};
 use magcomp::windows::CalibrationWindow;
 
@@ -27,11 +26,10 @@ pub fn exercise(bytes: &[u8], extension: &str) -> bool {
 }
 
 fn run_every_stage(input: &Path, out: &Path) -> bool {
-    let mut pipeline = Pipeline::default();
+    let mut options = Settings::default();
     // Plain Tolles-Lawson keeps one input to a second or two; the
     // diagnosis's own readers and fits are the same code.
-    pipeline.diagnose.apply = ApplyDiagnosis::Never;
-    let options = StageOptions::from(&pipeline);
+    options.diagnose.apply = ApplyDiagnosis::Never;
     let outputs = FlightOutputs::in_directory(out, input);
     let detected = process_flight(&FlightJob::new(input), &options, &outputs).is_ok();
     let Ok(log) = read_flight_log(input, &options.ingest) else {

@@ -11,7 +11,7 @@ use magcomp::config::{FlightJob, Pipeline};
 use magcomp::diagnose::Diagnosis;
 use magcomp::flight_log::{FlightLog, VectorSensor};
 use magcomp::model::{Extensions, FittedModel, ModelSpec};
-use magcomp::pipeline::{diagnose_flight, StageOptions};
+use magcomp::pipeline::diagnose_flight;
 use magcomp::simulate::scenario::{RawScenario, Scenario};
 use magcomp::simulate::simulate;
 use magcomp::windows::CalibrationWindow;
@@ -81,14 +81,14 @@ pub fn diagnose_log(log: &magcomp::flight_log::FlightLog) -> Diagnosis {
         channels: None,
         windows: Vec::new(),
     };
-    diagnose_flight(log, &job, &StageOptions::from(&pipeline), &pipeline.diagnose).unwrap()
+    diagnose_flight(log, &job, &pipeline.settings, &pipeline.settings.diagnose).unwrap()
 }
 
 /// The held-out RMS of `model` on `channel`, scored as the diagnosis
 /// scores its candidates, on `log`'s detected box.
 pub fn heldout_rms(log: &magcomp::flight_log::FlightLog, channel: &str, model: &magcomp::model::Extensions) -> f64 {
     let pipeline = Pipeline::default();
-    let options = StageOptions::from(&pipeline);
+    let options = pipeline.settings.clone();
     let windows = magcomp::detect::detect_manoeuvres(log, &options.detect)
         .unwrap()
         .calibration_windows(options.detect.window_margin_s);
@@ -111,8 +111,8 @@ pub fn fit_channels(
     channels
         .iter()
         .map(|channel| {
-            let spec = ModelSpec::of_channel(pipeline.terms, plan, channel);
-            magcomp::model::fit(log, sensor, channel, windows, &spec, &pipeline.fit, &stores).unwrap()
+            let spec = ModelSpec::of_channel(pipeline.settings.terms, plan, channel);
+            magcomp::model::fit(log, sensor, channel, windows, &spec, &pipeline.settings.fit, &stores).unwrap()
         })
         .collect()
 }
