@@ -34,7 +34,7 @@
 use std::ops::Range;
 
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
-use serde::{Deserialize, Serialize};
+use serde::Serialize;
 
 use crate::error::{Error, Result};
 use crate::flight_log::{AttitudeAngle, ChannelRole, FlightLog};
@@ -42,8 +42,7 @@ use crate::holdout::heading_difference;
 use crate::windows::{CalibrationWindow, ManoeuvreKind};
 
 /// Detection thresholds (`[detect]` in pipeline.toml).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
+#[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct DetectOptions {
     /// Window of the circular mean that smooths the heading, s.
     pub heading_smoothing_s: f64,

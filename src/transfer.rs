@@ -12,7 +12,7 @@
 //! warning: the model explains the calibration it saw better than it will
 //! explain the survey.
 
-use serde::{Deserialize, Serialize};
+use serde::Serialize;
 
 use crate::error::Result;
 use crate::flight_log::{FlightLog, VectorSensor};
@@ -24,8 +24,7 @@ use crate::stacked::StorePool;
 use crate::windows::CalibrationWindow;
 
 /// `[quality]` settings of the transfer check.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
+#[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct TransferOptions {
     /// Warn when the held-out FOM exceeds the in-sample FOM by this factor.
     pub warning_factor: f64,

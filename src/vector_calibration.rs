@@ -41,8 +41,7 @@ use crate::windows::CalibrationWindow;
 
 /// `[vector_calibration]` settings: a pipeline stage that calibrates the
 /// fluxgate against a scalar channel before the Tolles-Lawson fit.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
+#[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct VectorCalibrationOptions {
     /// Calibrate the fluxgate before fitting.
     pub enabled: bool,

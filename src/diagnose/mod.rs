@@ -118,8 +118,7 @@ use crate::vector_calibration::{calibrate, VectorCalibration};
 use crate::windows::CalibrationWindow;
 
 /// `[diagnose]` settings.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
+#[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct DiagnoseOptions {
     /// Smallest relative drop of the held-out RMS that accepts an effect.
     pub min_improvement: f64,

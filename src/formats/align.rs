@@ -26,7 +26,6 @@
 
 use crate::flags::{FlagKind, RowFlags};
 pub use crate::flight_log::{AlignmentReport, ResampledChannel};
-use serde::Deserialize;
 
 /// One recorded series before alignment.
 #[derive(Debug, Clone)]
@@ -49,8 +48,7 @@ pub struct Stream {
 }
 
 /// `[alignment]` settings.
-#[derive(Debug, Clone, Default, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields, default)]
+#[derive(Debug, Clone, Default, PartialEq)]
 pub struct AlignmentOptions {
     /// Channel whose timestamps are the time base; default the first scalar
     /// magnetometer.

@@ -25,8 +25,7 @@ pub struct VectorColumns {
 }
 
 /// Which column plays which role.
-#[derive(Debug, Clone, PartialEq, Eq, Deserialize)]
-#[serde(deny_unknown_fields, default)]
+#[derive(Debug, Clone, PartialEq, Eq)]
 pub struct ColumnNames {
     /// Time column, seconds.
     pub time: String,

@@ -54,8 +54,7 @@ pub struct IngestOptions {
 /// A `[[topic]]` entry: what a ROS 2 `sensor_msgs/msg/MagneticField` topic
 /// becomes. Without one, a MagneticField topic is a vector magnetometer
 /// named `flux_<topic>`.
-#[derive(Debug, Clone, PartialEq, Eq, serde::Deserialize)]
-#[serde(deny_unknown_fields)]
+#[derive(Debug, Clone, PartialEq, Eq)]
 pub struct TopicMapping {
     /// The topic, e.g. `/imu/mag`.
     pub topic: String,

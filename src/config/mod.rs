@@ -1,8 +1,15 @@
-//! pipeline.toml: the raw file and the validated pipeline it becomes.
+//! pipeline.toml: the file as written, and the validated settings it
+//! becomes.
 //!
-//! The raw structs mirror the file and reject unknown fields, so a typo is an
-//! error that names the field. [`Pipeline::try_from`] then checks values and
-//! combinations and resolves paths relative to the file.
+//! Two layers, as ripgrep's low- and high-level arguments. The raw structs
+//! (here and in `sections`) mirror the file and reject unknown fields, so
+//! a typo is an error that names the field; a field left out takes the
+//! validated section's default. Validation (`Pipeline::validate`, through
+//! each section's [`TryFrom`]) checks values and combinations, resolves
+//! paths relative to the file, and reads nothing from disk; [`Pipeline::load`]
+//! then reads the DETECT.json files flights name as windows. The validated
+//! [`Settings`] hand each stage its own options (reading, detection, the
+//! fit, the checks, the diagnosis).
 //!
 //! ```toml
 //! [columns]            # SGL names by default; map your own here
@@ -45,20 +52,26 @@ use serde::Deserialize;
 
 use crate::compensate::LevelConvention;
 use crate::detect::DetectOptions;
+use crate::diagnose::DiagnoseOptions;
 use crate::error::{Error, Result};
 use crate::filter::{EdgePadding, FilterBand};
 use crate::formats::align::AlignmentOptions;
-use crate::formats::{ColumnNames, IngestOptions, TopicMapping};
+use crate::formats::{ColumnNames, IngestOptions};
 use crate::model::{FilterSettings, FitOptions};
 use crate::solve::{Criterion, LambdaChoice, SolveOptions};
 use crate::tolles_lawson::{EddyTerms, InducedTerms, TermSet};
 use crate::transfer::TransferOptions;
+use crate::vector_calibration::VectorCalibrationOptions;
 use crate::windows::{read_detect_json, CalibrationWindow};
+
+mod sections;
+
+use sections::{RawAlignment, RawColumns, RawDetect, RawDiagnose, RawTopic, RawTransfer, RawVectorCalibration};
 
 /// `[filter]` as written.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields, default)]
-pub struct RawFilter {
+pub(crate) struct RawFilter {
     /// `bandpass`, `lowpass`, `highpass` or `none`.
     pub band: String,
     /// Lower corner, Hz.
@@ -89,7 +102,7 @@ impl Default for RawFilter {
 /// A λ as written: `"press"` or a number.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(untagged)]
-pub enum RawLambda {
+pub(crate) enum RawLambda {
     /// A fixed value.
     Fixed(f64),
     /// `"press"`: select on the grid.
@@ -99,7 +112,7 @@ pub enum RawLambda {
 /// `[fit]` as written.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields, default)]
-pub struct RawFit {
+pub(crate) struct RawFit {
     /// Term groups: `permanent`, `induced` (`induced_6`/`_5`/`_3`), `eddy`
     /// (`eddy_9`/`_8`/`_3`), `field_derivative`, `bias`.
     pub terms: Vec<String>,
@@ -134,7 +147,7 @@ impl Default for RawFit {
 /// `[output]` as written.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields, default)]
-pub struct RawOutput {
+pub(crate) struct RawOutput {
     /// Folder for outputs, relative to pipeline.toml.
     pub directory: PathBuf,
 }
@@ -150,7 +163,7 @@ impl Default for RawOutput {
 /// One `[[flight]]` as written.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct RawFlight {
+pub(crate) struct RawFlight {
     /// Flight log path, relative to pipeline.toml.
     pub input: PathBuf,
     /// Vector magnetometer prefix; default: the first found.
@@ -177,9 +190,9 @@ pub struct RawFlight {
 /// `[quality]` as written.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields, default)]
-pub struct RawQuality {
+pub(crate) struct RawQuality {
     /// Transfer check of the calibration.
-    pub transfer: TransferOptions,
+    pub transfer: RawTransfer,
     /// FOM limit the report judges against, nT.
     pub fom_limit_nt: f64,
 }
@@ -187,7 +200,7 @@ pub struct RawQuality {
 impl Default for RawQuality {
     fn default() -> Self {
         RawQuality {
-            transfer: TransferOptions::default(),
+            transfer: RawTransfer::default(),
             fom_limit_nt: 1.5,
         }
     }
@@ -196,14 +209,14 @@ impl Default for RawQuality {
 /// pipeline.toml as written.
 #[derive(Debug, Clone, Default, Deserialize)]
 #[serde(deny_unknown_fields, default)]
-pub struct RawPipeline {
+pub(crate) struct RawPipeline {
     /// Column-name mapping.
-    pub columns: ColumnNames,
+    pub columns: RawColumns,
     /// Multi-rate alignment (MCAP inputs).
-    pub alignment: AlignmentOptions,
+    pub alignment: RawAlignment,
     /// What ROS 2 topics become.
     #[serde(rename = "topic")]
-    pub topics: Vec<TopicMapping>,
+    pub topics: Vec<RawTopic>,
     /// Band-pass settings.
     pub filter: RawFilter,
     /// Fit settings.
@@ -211,13 +224,13 @@ pub struct RawPipeline {
     /// Output settings.
     pub output: RawOutput,
     /// Manoeuvre detection thresholds.
-    pub detect: DetectOptions,
+    pub detect: RawDetect,
     /// Quality checks.
     pub quality: RawQuality,
     /// Physics diagnosis.
-    pub diagnose: crate::diagnose::DiagnoseOptions,
+    pub diagnose: RawDiagnose,
     /// Fluxgate calibration before the fit.
-    pub vector_calibration: crate::vector_calibration::VectorCalibrationOptions,
+    pub vector_calibration: RawVectorCalibration,
     /// Flights to process.
     #[serde(rename = "flight")]
     pub flights: Vec<RawFlight>,
@@ -291,9 +304,9 @@ pub struct Settings {
     /// FOM limit the report judges against, nT.
     pub fom_limit_nt: f64,
     /// Physics diagnosis, and whether the fit takes its models.
-    pub diagnose: crate::diagnose::DiagnoseOptions,
+    pub diagnose: DiagnoseOptions,
     /// Fluxgate calibration before the fit.
-    pub vector_calibration: crate::vector_calibration::VectorCalibrationOptions,
+    pub vector_calibration: VectorCalibrationOptions,
 }
 
 impl Default for Settings {
@@ -304,20 +317,38 @@ impl Default for Settings {
 
 impl Default for Pipeline {
     fn default() -> Self {
-        Pipeline::from_raw(RawPipeline::default(), Path::new("."), "defaults").expect("the defaults are valid")
+        let (pipeline, _) =
+            Pipeline::validate(RawPipeline::default(), Path::new("."), "defaults").expect("the defaults are valid");
+        pipeline
     }
 }
 
+/// A `windows_file` of the flight at `flight`, to read once the file is
+/// validated.
+struct WindowsFile {
+    flight: usize,
+    path: PathBuf,
+}
+
 impl Pipeline {
-    /// Reads and validates a pipeline.toml.
+    /// Reads and validates a pipeline.toml, then reads the DETECT.json
+    /// files its flights name as windows.
     pub fn load(path: &Path) -> Result<Self> {
         let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, "reading", e))?;
+        let source_name = path.display().to_string();
         let raw: RawPipeline = toml::from_str(&text).map_err(|e| Error::Config {
-            source_name: path.display().to_string(),
+            source_name: source_name.clone(),
             message: e.to_string().trim().replace('\n', " "),
         })?;
         let base = path.parent().unwrap_or(Path::new("."));
-        Pipeline::from_raw(raw, base, &path.display().to_string())
+        let (mut pipeline, windows_files) = Pipeline::validate(raw, base, &source_name)?;
+        let margin_s = pipeline.settings.detect.window_margin_s;
+        for file in windows_files {
+            let windows = read_detect_json(&file.path, margin_s)?;
+            windows.iter().try_for_each(|w| w.validate(&source_name))?;
+            pipeline.flights[file.flight].windows.extend(windows);
+        }
+        Ok(pipeline)
     }
 
     /// The settings of `path` when given, otherwise the defaults (a
@@ -329,8 +360,9 @@ impl Pipeline {
         }
     }
 
-    /// Validates `raw`, resolving relative paths against `base`.
-    pub fn from_raw(raw: RawPipeline, base: &Path, source_name: &str) -> Result<Self> {
+    /// Validates `raw`, resolving relative paths against `base`; reads
+    /// nothing. Returns the windows files still to read.
+    fn validate(raw: RawPipeline, base: &Path, source_name: &str) -> Result<(Self, Vec<WindowsFile>)> {
         let bad = |message: String| Error::Config {
             source_name: source_name.into(),
             message,
@@ -340,68 +372,50 @@ impl Pipeline {
             filter: filter_settings(&raw.filter).map_err(bad)?,
             solve: solve_options(&raw.fit).map_err(bad)?,
         };
-        check_detect(&raw.detect).map_err(bad)?;
         if !(raw.quality.fom_limit_nt.is_finite() && raw.quality.fom_limit_nt > 0.0) {
             return Err(bad(format!(
                 "[quality] fom_limit_nt = {}: give a positive number of nT (1.5 is usual)",
                 raw.quality.fom_limit_nt
             )));
         }
-        let factor = raw.quality.transfer.warning_factor;
-        if !(factor.is_finite() && factor >= 1.0) {
-            return Err(bad(format!(
-                "[quality.transfer] warning_factor = {factor}: give a factor of 1 or more (2 is usual)"
-            )));
-        }
-        if !(1..=100_000).contains(&raw.vector_calibration.max_iterations) {
-            return Err(bad(format!(
-                "[vector_calibration] max_iterations = {}: give 1 to 100000 (100 is usual)",
-                raw.vector_calibration.max_iterations
-            )));
-        }
-        check_diagnose(&raw.diagnose).map_err(bad)?;
-        if let Some(tolerance) = raw.alignment.gap_tolerance_s {
-            if !(tolerance.is_finite() && tolerance > 0.0) {
-                return Err(bad(format!(
-                    "[alignment] gap_tolerance_s = {tolerance}: give a positive number of seconds"
-                )));
-            }
-        }
-        let margin_s = raw.detect.window_margin_s;
-        let flights = raw
-            .flights
-            .into_iter()
-            .map(|f| flight_job(f, base, source_name, margin_s))
-            .collect::<Result<Vec<_>>>()?;
         let settings = Settings {
             ingest: IngestOptions {
-                columns: raw.columns,
-                alignment: raw.alignment,
-                topics: raw.topics,
+                columns: ColumnNames::try_from(raw.columns).map_err(bad)?,
+                alignment: AlignmentOptions::try_from(raw.alignment).map_err(bad)?,
+                topics: sections::topics(raw.topics).map_err(bad)?,
                 date: None,
             },
             terms,
             fit,
             level: raw.fit.level,
-            detect: raw.detect,
-            transfer: raw.quality.transfer,
+            detect: DetectOptions::try_from(raw.detect).map_err(bad)?,
+            transfer: TransferOptions::try_from(raw.quality.transfer).map_err(bad)?,
             fom_limit_nt: raw.quality.fom_limit_nt,
-            diagnose: raw.diagnose,
-            vector_calibration: raw.vector_calibration,
+            diagnose: DiagnoseOptions::try_from(raw.diagnose).map_err(bad)?,
+            vector_calibration: VectorCalibrationOptions::try_from(raw.vector_calibration).map_err(bad)?,
         };
-        Ok(Pipeline {
+        let mut windows_files = Vec::new();
+        let mut flights = Vec::with_capacity(raw.flights.len());
+        for (index, mut flight) in raw.flights.into_iter().enumerate() {
+            if let Some(file) = flight.windows_file.take() {
+                windows_files.push(WindowsFile {
+                    flight: index,
+                    path: base.join(file),
+                });
+            }
+            flights.push(flight_job(flight, base, source_name)?);
+        }
+        let pipeline = Pipeline {
             settings,
             output_directory: base.join(raw.output.directory),
             flights,
-        })
+        };
+        Ok((pipeline, windows_files))
     }
 }
 
-fn flight_job(raw: RawFlight, base: &Path, source_name: &str, margin_s: f64) -> Result<FlightJob> {
-    let mut windows = raw.windows;
-    if let Some(file) = raw.windows_file {
-        windows.extend(read_detect_json(&base.join(file), margin_s)?);
-    }
+fn flight_job(raw: RawFlight, base: &Path, source_name: &str) -> Result<FlightJob> {
+    let windows = raw.windows;
     windows.iter().try_for_each(|w| w.validate(source_name))?;
     let date = raw
         .date
@@ -432,64 +446,6 @@ const MOST_GRID_POINTS: usize = 10_000;
 
 /// Most samples trimmed at each end of a filtered run.
 const MOST_TRIM_SAMPLES: usize = 100_000;
-
-fn check_diagnose(raw: &crate::diagnose::DiagnoseOptions) -> std::result::Result<(), String> {
-    if !(raw.min_improvement.is_finite() && raw.min_improvement > 0.0 && raw.min_improvement < 1.0) {
-        return Err(format!(
-            "[diagnose] min_improvement = {}: give a fraction between 0 and 1 (0.3 is usual: a 30 % lower held-out RMS)",
-            raw.min_improvement
-        ));
-    }
-    if !(raw.max_lag_s.is_finite() && raw.max_lag_s > 0.0 && raw.max_lag_s <= 60.0) {
-        return Err(format!(
-            "[diagnose] max_lag_s = {}: give a positive number of seconds up to 60",
-            raw.max_lag_s
-        ));
-    }
-    if !(1..=100).contains(&raw.max_findings) {
-        return Err(format!("[diagnose] max_findings = {}: give 1 to 100", raw.max_findings));
-    }
-    if !(raw.vector_mismatch_nt.is_finite() && raw.vector_mismatch_nt > 0.0) {
-        return Err(format!(
-            "[diagnose] vector_mismatch_nt = {}: give a positive number of nT",
-            raw.vector_mismatch_nt
-        ));
-    }
-    Ok(())
-}
-
-fn check_detect(raw: &DetectOptions) -> std::result::Result<(), String> {
-    let positive = [
-        ("heading_smoothing_s", raw.heading_smoothing_s),
-        ("straight_rate_deg_s", raw.straight_rate_deg_s),
-        ("min_leg_s", raw.min_leg_s),
-        ("heading_tolerance_deg", raw.heading_tolerance_deg),
-        ("envelope_s", raw.envelope_s),
-        ("turbulence_factor", raw.turbulence_factor),
-        ("max_half_cycle_spread", raw.max_half_cycle_spread),
-        ("leg_run_on_s", raw.leg_run_on_s),
-        ("max_turn_s", raw.max_turn_s),
-    ];
-    for (name, value) in positive {
-        if !(value.is_finite() && value > 0.0) {
-            return Err(format!("[detect] {name} = {value}: give a positive number"));
-        }
-    }
-    let amplitudes = raw
-        .min_rms_deg
-        .iter()
-        .chain(&raw.nominal_amplitude_deg)
-        .chain(&raw.min_amplitude_deg);
-    if amplitudes
-        .chain([&raw.window_margin_s, &raw.join_gap_s])
-        .any(|v| !(v.is_finite() && *v >= 0.0))
-    {
-        return Err(
-            "[detect] min_rms_deg, nominal_amplitude_deg, min_amplitude_deg, window_margin_s and join_gap_s must be non-negative".into(),
-        );
-    }
-    Ok(())
-}
 
 fn parse_terms(names: &[String], bt_scale_nt: f64) -> std::result::Result<TermSet, String> {
     if !(bt_scale_nt.is_finite() && bt_scale_nt > 0.0) {
@@ -615,7 +571,7 @@ mod tests {
             source_name: "test".into(),
             message: e.to_string(),
         })?;
-        Pipeline::from_raw(raw, Path::new("/data"), "test")
+        Ok(Pipeline::validate(raw, Path::new("/data"), "test")?.0)
     }
 
     #[test]
@@ -677,6 +633,10 @@ mod tests {
             "[diagnose]\nmax_findings = 0\n",
             "[vector_calibration]\nmax_iterations = 1000000000\n",
             "[alignment]\ngap_tolerance_s = -1.0\n",
+            "[detect]\nmin_leg_s = 0.0\n",
+            "[quality.transfer]\nwarning_factor = 0.5\n",
+            "[columns]\ntime = \"\"\n",
+            "[diagnose]\nvector_mismatch_nt = -3.0\n",
         ] {
             let error = parse(bad).unwrap_err().to_string();
             let key = bad
@@ -687,5 +647,63 @@ mod tests {
             let section = bad.lines().next().unwrap_or_default();
             assert!(error.contains(section) && error.contains(key), "{bad:?}: {error}");
         }
+    }
+
+    #[test]
+    fn a_section_left_partly_out_keeps_the_defaults_of_the_rest() {
+        let pipeline = parse("[detect]\nmin_leg_s = 60.0\n[diagnose]\napply = \"never\"\n").unwrap();
+        let settings = &pipeline.settings;
+        assert_eq!(settings.detect.min_leg_s, 60.0);
+        assert_eq!(
+            DetectOptions {
+                min_leg_s: DetectOptions::default().min_leg_s,
+                ..settings.detect.clone()
+            },
+            DetectOptions::default()
+        );
+        assert_eq!(settings.diagnose.apply, crate::diagnose::ApplyDiagnosis::Never);
+        assert_eq!(settings.diagnose.min_improvement, DiagnoseOptions::default().min_improvement);
+        assert_eq!(settings.ingest.columns, ColumnNames::default());
+    }
+
+    #[test]
+    fn a_typo_in_any_section_names_the_field() {
+        for (text, typo) in [
+            ("[detect]\nmin_leg = 60.0\n", "min_leg"),
+            ("[diagnose]\nmin_improvment = 0.2\n", "min_improvment"),
+            ("[vector_calibration]\nenable = true\n", "enable"),
+            ("[quality.transfer]\nwarning = 3.0\n", "warning"),
+            ("[alignment]\ntimebase = \"mag_1_uc\"\n", "timebase"),
+            ("[columns]\ntimes = \"t\"\n", "times"),
+            ("[[topic]]\ntopic = \"/imu/mag\"\nvectr = \"flux_a\"\n", "vectr"),
+        ] {
+            let error = parse(text).unwrap_err().to_string();
+            assert!(error.contains(typo), "{text:?}: {error}");
+        }
+    }
+
+    #[test]
+    fn a_topic_is_mapped_once_to_one_kind_of_channel() {
+        let both = "[[topic]]\ntopic = \"/imu/mag\"\nvector = \"flux_a\"\nscalar = \"mag_9\"\n";
+        let error = parse(both).unwrap_err().to_string();
+        assert!(error.contains("/imu/mag") && error.contains("not both"), "{error}");
+        let twice = "[[topic]]\ntopic = \"/imu/mag\"\nvector = \"flux_a\"\n[[topic]]\ntopic = \"/imu/mag\"\nscalar = \"mag_9\"\n";
+        let error = parse(twice).unwrap_err().to_string();
+        assert!(error.contains("mapped twice"), "{error}");
+        let one = parse("[[topic]]\ntopic = \"/imu/mag\"\nscalar = \"mag_9\"\n").unwrap();
+        assert_eq!(one.settings.ingest.topics[0].scalar.as_deref(), Some("mag_9"));
+    }
+
+    #[test]
+    fn validating_reads_no_file_and_loading_reads_the_windows_files() {
+        let text = "[[flight]]\ninput = \"f.csv\"\nwindows_file = \"absent.windows.json\"\n";
+        assert!(parse(text).is_ok(), "validation alone must not open the windows file");
+        let folder = std::env::temp_dir().join(format!("magcomp-config-{}", std::process::id()));
+        std::fs::create_dir_all(&folder).unwrap();
+        let config = folder.join("pipeline.toml");
+        std::fs::write(&config, text).unwrap();
+        let error = Pipeline::load(&config).unwrap_err().to_string();
+        std::fs::remove_dir_all(&folder).unwrap();
+        assert!(error.contains("absent.windows.json"), "{error}");
     }
 }

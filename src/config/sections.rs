@@ -1,0 +1,320 @@
+//! The sections of pipeline.toml as written, and their checks.
+//!
+//! Each raw section mirrors the file: every field optional, unknown fields
+//! rejected so that a typo names itself. A field left out takes the
+//! validated section's default; [`TryFrom`] fills those in and checks
+//! values and combinations, naming the section and field of any that is
+//! wrong. The validated types (`DetectOptions`, `DiagnoseOptions`, …) live
+//! beside the stages that use them and cannot be read from a file without
+//! passing through here.
+
+use serde::Deserialize;
+
+use crate::detect::DetectOptions;
+use crate::diagnose::{ApplyDiagnosis, DiagnoseOptions};
+use crate::formats::align::AlignmentOptions;
+use crate::formats::{ColumnNames, TopicMapping, VectorColumns};
+use crate::transfer::TransferOptions;
+use crate::vector_calibration::VectorCalibrationOptions;
+
+/// A section as written: one optional field per field of the validated
+/// section `$validated`, which fills in its defaults for the absent ones.
+macro_rules! raw_section {
+    ($(#[$meta:meta])* $raw:ident => $validated:ident { $($field:ident: $ty:ty),* $(,)? }) => {
+        $(#[$meta])*
+        #[derive(Debug, Clone, Default, Deserialize)]
+        #[serde(deny_unknown_fields)]
+        pub(crate) struct $raw {
+            $(#[serde(default)] $field: Option<$ty>,)*
+        }
+
+        impl $raw {
+            /// The section with every absent field at its default, not yet
+            /// checked.
+            fn over_defaults(self) -> $validated {
+                let defaults = $validated::default();
+                $validated {
+                    $($field: self.$field.unwrap_or(defaults.$field),)*
+                }
+            }
+        }
+    };
+}
+
+raw_section! {
+    /// `[detect]` as written.
+    RawDetect => DetectOptions {
+        heading_smoothing_s: f64,
+        straight_rate_deg_s: f64,
+        min_leg_s: f64,
+        join_gap_s: f64,
+        heading_tolerance_deg: f64,
+        turn_heading_deg: f64,
+        turn_bank_deg: f64,
+        envelope_s: f64,
+        min_rms_deg: [f64; 3],
+        fluxgate_min_rms_deg: f64,
+        turbulence_factor: f64,
+        nominal_amplitude_deg: [f64; 3],
+        min_amplitude_deg: [f64; 3],
+        join_activity_s: f64,
+        min_half_cycles: usize,
+        max_half_cycle_spread: f64,
+        max_peak_spread: f64,
+        max_turn_s: f64,
+        leg_run_on_s: f64,
+        window_margin_s: f64,
+    }
+}
+
+raw_section! {
+    /// `[diagnose]` as written.
+    RawDiagnose => DiagnoseOptions {
+        min_improvement: f64,
+        max_lag_s: f64,
+        max_findings: usize,
+        vector_mismatch_nt: f64,
+        apply: ApplyDiagnosis,
+    }
+}
+
+raw_section! {
+    /// `[vector_calibration]` as written.
+    RawVectorCalibration => VectorCalibrationOptions {
+        enabled: bool,
+        reference: Option<String>,
+        whole_flight: bool,
+        max_iterations: usize,
+    }
+}
+
+raw_section! {
+    /// `[quality.transfer]` as written.
+    RawTransfer => TransferOptions {
+        warning_factor: f64,
+    }
+}
+
+raw_section! {
+    /// `[alignment]` as written.
+    RawAlignment => AlignmentOptions {
+        time_base: Option<String>,
+        gap_tolerance_s: Option<f64>,
+    }
+}
+
+raw_section! {
+    /// `[columns]` as written.
+    RawColumns => ColumnNames {
+        time: String,
+        line: String,
+        scalar: Option<Vec<String>>,
+        vector: Vec<VectorColumns>,
+        pitch: String,
+        roll: String,
+        yaw: String,
+        position: Vec<String>,
+        base_station: String,
+    }
+}
+
+/// One `[[topic]]` as written.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawTopic {
+    topic: String,
+    #[serde(default)]
+    vector: Option<String>,
+    #[serde(default)]
+    scalar: Option<String>,
+}
+
+/// `name = value` must be positive and finite.
+fn positive(section: &str, name: &str, value: f64) -> Result<f64, String> {
+    match value.is_finite() && value > 0.0 {
+        true => Ok(value),
+        false => Err(format!("[{section}] {name} = {value}: give a positive number")),
+    }
+}
+
+impl TryFrom<RawDetect> for DetectOptions {
+    type Error = String;
+
+    fn try_from(raw: RawDetect) -> Result<Self, String> {
+        let detect = raw.over_defaults();
+        for (name, value) in [
+            ("heading_smoothing_s", detect.heading_smoothing_s),
+            ("straight_rate_deg_s", detect.straight_rate_deg_s),
+            ("min_leg_s", detect.min_leg_s),
+            ("heading_tolerance_deg", detect.heading_tolerance_deg),
+            ("envelope_s", detect.envelope_s),
+            ("turbulence_factor", detect.turbulence_factor),
+            ("max_half_cycle_spread", detect.max_half_cycle_spread),
+            ("leg_run_on_s", detect.leg_run_on_s),
+            ("max_turn_s", detect.max_turn_s),
+        ] {
+            positive("detect", name, value)?;
+        }
+        let amplitudes = detect
+            .min_rms_deg
+            .iter()
+            .chain(&detect.nominal_amplitude_deg)
+            .chain(&detect.min_amplitude_deg);
+        if amplitudes
+            .chain([&detect.window_margin_s, &detect.join_gap_s])
+            .any(|v| !(v.is_finite() && *v >= 0.0))
+        {
+            return Err(
+                "[detect] min_rms_deg, nominal_amplitude_deg, min_amplitude_deg, window_margin_s and join_gap_s must be non-negative".into(),
+            );
+        }
+        Ok(detect)
+    }
+}
+
+impl TryFrom<RawDiagnose> for DiagnoseOptions {
+    type Error = String;
+
+    fn try_from(raw: RawDiagnose) -> Result<Self, String> {
+        let diagnose = raw.over_defaults();
+        if !(diagnose.min_improvement.is_finite() && diagnose.min_improvement > 0.0 && diagnose.min_improvement < 1.0) {
+            return Err(format!(
+                "[diagnose] min_improvement = {}: give a fraction between 0 and 1 (0.3 is usual: a 30 % lower held-out RMS)",
+                diagnose.min_improvement
+            ));
+        }
+        if !(diagnose.max_lag_s.is_finite() && diagnose.max_lag_s > 0.0 && diagnose.max_lag_s <= 60.0) {
+            return Err(format!(
+                "[diagnose] max_lag_s = {}: give a positive number of seconds up to 60",
+                diagnose.max_lag_s
+            ));
+        }
+        if !(1..=100).contains(&diagnose.max_findings) {
+            return Err(format!(
+                "[diagnose] max_findings = {}: give 1 to 100",
+                diagnose.max_findings
+            ));
+        }
+        if !(diagnose.vector_mismatch_nt.is_finite() && diagnose.vector_mismatch_nt > 0.0) {
+            return Err(format!(
+                "[diagnose] vector_mismatch_nt = {}: give a positive number of nT",
+                diagnose.vector_mismatch_nt
+            ));
+        }
+        Ok(diagnose)
+    }
+}
+
+impl TryFrom<RawVectorCalibration> for VectorCalibrationOptions {
+    type Error = String;
+
+    fn try_from(raw: RawVectorCalibration) -> Result<Self, String> {
+        let calibration = raw.over_defaults();
+        if !(1..=100_000).contains(&calibration.max_iterations) {
+            return Err(format!(
+                "[vector_calibration] max_iterations = {}: give 1 to 100000 (100 is usual)",
+                calibration.max_iterations
+            ));
+        }
+        if calibration.reference.as_deref().is_some_and(|r| r.trim().is_empty()) {
+            return Err(
+                "[vector_calibration] reference = \"\": name a scalar channel, or leave it out for the quietest".into(),
+            );
+        }
+        Ok(calibration)
+    }
+}
+
+impl TryFrom<RawTransfer> for TransferOptions {
+    type Error = String;
+
+    fn try_from(raw: RawTransfer) -> Result<Self, String> {
+        let transfer = raw.over_defaults();
+        let factor = transfer.warning_factor;
+        if !(factor.is_finite() && factor >= 1.0) {
+            return Err(format!(
+                "[quality.transfer] warning_factor = {factor}: give a factor of 1 or more (2 is usual)"
+            ));
+        }
+        Ok(transfer)
+    }
+}
+
+impl TryFrom<RawAlignment> for AlignmentOptions {
+    type Error = String;
+
+    fn try_from(raw: RawAlignment) -> Result<Self, String> {
+        let alignment = raw.over_defaults();
+        if let Some(tolerance) = alignment.gap_tolerance_s {
+            positive("alignment", "gap_tolerance_s", tolerance)
+                .map_err(|_| format!("[alignment] gap_tolerance_s = {tolerance}: give a positive number of seconds"))?;
+        }
+        if alignment.time_base.as_deref().is_some_and(|t| t.trim().is_empty()) {
+            return Err(
+                "[alignment] time_base = \"\": name a channel, or leave it out for the first scalar magnetometer"
+                    .into(),
+            );
+        }
+        Ok(alignment)
+    }
+}
+
+impl TryFrom<RawColumns> for ColumnNames {
+    type Error = String;
+
+    fn try_from(raw: RawColumns) -> Result<Self, String> {
+        let columns = raw.over_defaults();
+        let named = [
+            ("time", &columns.time),
+            ("line", &columns.line),
+            ("pitch", &columns.pitch),
+            ("roll", &columns.roll),
+            ("yaw", &columns.yaw),
+            ("base_station", &columns.base_station),
+        ];
+        if let Some((name, _)) = named.iter().find(|(_, column)| column.trim().is_empty()) {
+            return Err(format!("[columns] {name} = \"\": name the column"));
+        }
+        for v in &columns.vector {
+            if [&v.prefix, &v.x, &v.y, &v.z].iter().any(|c| c.trim().is_empty()) {
+                return Err(format!(
+                    "[[columns.vector]] prefix = {:?}: give the prefix and all three columns x, y, z",
+                    v.prefix
+                ));
+            }
+        }
+        Ok(columns)
+    }
+}
+
+impl TryFrom<RawTopic> for TopicMapping {
+    type Error = String;
+
+    fn try_from(raw: RawTopic) -> Result<Self, String> {
+        if raw.vector.is_some() && raw.scalar.is_some() {
+            return Err(format!(
+                "[[topic]] topic = {:?}: give vector (the three components) or scalar (their magnitude), not both",
+                raw.topic
+            ));
+        }
+        Ok(TopicMapping {
+            topic: raw.topic,
+            vector: raw.vector,
+            scalar: raw.scalar,
+        })
+    }
+}
+
+/// The `[[topic]]` list, checked: each topic mapped once.
+pub(crate) fn topics(raw: Vec<RawTopic>) -> Result<Vec<TopicMapping>, String> {
+    let topics: Vec<TopicMapping> = raw.into_iter().map(TopicMapping::try_from).collect::<Result<_, _>>()?;
+    for (i, mapping) in topics.iter().enumerate() {
+        if topics[..i].iter().any(|m| m.topic == mapping.topic) {
+            return Err(format!(
+                "[[topic]] topic = {:?} is mapped twice; keep one entry",
+                mapping.topic
+            ));
+        }
+    }
+    Ok(topics)
+}
