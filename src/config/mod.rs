@@ -662,7 +662,10 @@ mod tests {
             DetectOptions::default()
         );
         assert_eq!(settings.diagnose.apply, crate::diagnose::ApplyDiagnosis::Never);
-        assert_eq!(settings.diagnose.min_improvement, DiagnoseOptions::default().min_improvement);
+        assert_eq!(
+            settings.diagnose.min_improvement,
+            DiagnoseOptions::default().min_improvement
+        );
         assert_eq!(settings.ingest.columns, ColumnNames::default());
     }
 
