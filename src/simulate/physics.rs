@@ -3,62 +3,66 @@
 
 use std::f64::consts::PI;
 
+use nalgebra::{Matrix3, Rotation3, Vector3};
+
 use crate::simulate::random::Random;
 
-/// A 3-vector, nT unless named otherwise.
+/// A 3-vector, nT unless named otherwise: the simulator's storage type
+/// (written to the truth files as `[x, y, z]`); the algebra is nalgebra's.
 pub type Vector = [f64; 3];
+
+fn vector3(v: Vector) -> Vector3<f64> {
+    Vector3::from(v)
+}
 
 /// Dot product.
 pub fn dot(a: Vector, b: Vector) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+    vector3(a).dot(&vector3(b))
 }
 
 /// Euclidean norm.
 pub fn norm(a: Vector) -> f64 {
-    dot(a, a).sqrt()
+    vector3(a).norm()
 }
 
 /// Component-wise sum.
 pub fn add(a: Vector, b: Vector) -> Vector {
-    [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
+    (vector3(a) + vector3(b)).into()
 }
 
-/// Matrix-vector product.
+/// Matrix-vector product, `matrix` given by rows.
 pub fn apply(matrix: &[Vector; 3], v: Vector) -> Vector {
-    [dot(matrix[0], v), dot(matrix[1], v), dot(matrix[2], v)]
+    (Matrix3::from_fn(|i, j| matrix[i][j]) * vector3(v)).into()
 }
 
-/// Rotates a north-east-down vector into body axes (forward, right, down):
-/// $v_b = R^\top v_{NED}$ with $R = R_z(\psi) R_y(\theta) R_x(\phi)$, yaw ψ
-/// clockwise from north, pitch θ nose up, roll φ right wing down.
+/// The rotation from body axes (forward, right, down) to north-east-down:
+/// $R = R_z(\psi) R_y(\theta) R_x(\phi)$, yaw ψ clockwise from north,
+/// pitch θ nose up, roll φ right wing down (CONTRACT §1).
+pub fn body_to_ned(roll_deg: f64, pitch_deg: f64, yaw_deg: f64) -> Rotation3<f64> {
+    Rotation3::from_euler_angles(roll_deg.to_radians(), pitch_deg.to_radians(), yaw_deg.to_radians())
+}
+
+/// Rotates a north-east-down vector into body axes: $v_b = R^\top v_{NED}$.
 pub fn to_body(ned: Vector, roll_deg: f64, pitch_deg: f64, yaw_deg: f64) -> Vector {
-    let (sf, cf) = roll_deg.to_radians().sin_cos();
-    let (st, ct) = pitch_deg.to_radians().sin_cos();
-    let (sp, cp) = yaw_deg.to_radians().sin_cos();
-    let r = [
-        [ct * cp, sf * st * cp - cf * sp, cf * st * cp + sf * sp],
-        [ct * sp, sf * st * sp + cf * cp, cf * st * sp - sf * cp],
-        [-st, sf * ct, cf * ct],
-    ];
-    [0, 1, 2].map(|j| (0..3).map(|i| r[i][j] * ned[i]).sum())
+    body_to_ned(roll_deg, pitch_deg, yaw_deg)
+        .inverse_transform_vector(&vector3(ned))
+        .into()
 }
 
 /// Rotates a body vector into north-east-down axes: $R\,v_b$.
 pub fn to_ned(body: Vector, roll_deg: f64, pitch_deg: f64, yaw_deg: f64) -> Vector {
-    // R is orthogonal: rotate the three NED unit vectors into body axes and
-    // project.
-    let axes = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]].map(|e| to_body(e, roll_deg, pitch_deg, yaw_deg));
-    axes.map(|a| dot(a, body))
+    (body_to_ned(roll_deg, pitch_deg, yaw_deg) * vector3(body)).into()
 }
 
 /// Field of a point dipole of moment `moment_a_m2` at `offset_m` from the
 /// dipole to the observer, nT (Blakely 1995, eq. 4.13):
 /// $B = \frac{\mu_0}{4\pi} \frac{3(m\cdot\hat r)\hat r - m}{r^3}$.
 pub fn dipole_field_nt(moment_a_m2: Vector, offset_m: Vector) -> Vector {
-    let distance = norm(offset_m);
-    let unit = offset_m.map(|c| c / distance);
-    let along = dot(moment_a_m2, unit);
-    [0, 1, 2].map(|i| 100.0 * (3.0 * along * unit[i] - moment_a_m2[i]) / distance.powi(3))
+    let (moment, offset) = (vector3(moment_a_m2), vector3(offset_m));
+    let distance = offset.norm();
+    let unit = offset / distance;
+    // μ0/4π = 1e-7 T·m/A = 100 nT·m/A.
+    ((3.0 * moment.dot(&unit) * unit - moment) * (100.0 / distance.powi(3))).into()
 }
 
 /// Buried dipoles: the crustal anomaly.
@@ -99,9 +103,10 @@ impl Crust {
 
     /// The anomaly field at `position_m` (north, east, down of the start).
     pub fn field_nt(&self, position_m: Vector) -> Vector {
-        self.dipoles.iter().fold([0.0; 3], |sum, (at, moment)| {
-            add(sum, dipole_field_nt(*moment, [0, 1, 2].map(|i| position_m[i] - at[i])))
-        })
+        let field = self.dipoles.iter().fold(Vector3::zeros(), |sum, (at, moment)| {
+            sum + vector3(dipole_field_nt(*moment, (vector3(position_m) - vector3(*at)).into()))
+        });
+        field.into()
     }
 }
 
@@ -152,10 +157,13 @@ impl ExternalField {
 
     /// The variation at time `t_s`, nT.
     pub fn field_nt(&self, t_s: f64) -> Vector {
-        self.waves.iter().fold([0.0; 3], |sum, (amplitude, period, phase)| {
-            let s = (2.0 * PI * t_s / period + phase).sin();
-            add(sum, amplitude.map(|a| a * s))
-        })
+        let field = self
+            .waves
+            .iter()
+            .fold(Vector3::zeros(), |sum, (amplitude, period, phase)| {
+                sum + vector3(*amplitude) * (2.0 * PI * t_s / period + phase).sin()
+            });
+        field.into()
     }
 }
 
