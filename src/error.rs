@@ -221,14 +221,15 @@ pub enum Error {
     },
 
     /// Serialising an output failed.
-    #[error("{path}: could not serialise {what}: {message}")]
+    #[error("{path}: could not serialise {what}: {source}")]
     Serialise {
         /// The output file.
         path: PathBuf,
         /// What was being written.
         what: &'static str,
-        /// The serialiser's message.
-        message: String,
+        /// The serialiser's (or the plotting library's) own error.
+        #[source]
+        source: Box<dyn std::error::Error + Send + Sync>,
     },
 }
 

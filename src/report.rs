@@ -66,11 +66,11 @@ pub struct ReportFigures {
     pub channels: Vec<ChannelFigures>,
 }
 
-fn plot_error(e: impl std::fmt::Display) -> Error {
+fn plot_error(e: impl std::error::Error + Send + Sync + 'static) -> Error {
     Error::Serialise {
         path: Default::default(),
         what: "a report plot",
-        message: e.to_string(),
+        source: Box::new(e),
     }
 }
 

@@ -144,7 +144,7 @@ fn to_json<T: Serialize>(path: Option<&Path>, what: &'static str, value: &T) -> 
     serde_json::to_string_pretty(value).map_err(|e| Error::Serialise {
         path: path.map(Path::to_path_buf).unwrap_or_default(),
         what,
-        message: e.to_string(),
+        source: Box::new(e),
     })
 }
 

@@ -594,7 +594,7 @@ fn jacobian_condition(m: &[[f64; 3]], p: &Parameters) -> f64 {
     // The R factor of the Jacobian's columns, each scaled to unit norm,
     // not JᵀJ: squaring would floor the ratio at √(1/ε) ≈ 1e8, the limit
     // itself.
-    let mut columns = vec![Vec::with_capacity(m.len()); 9];
+    let mut columns: Vec<Vec<f64>> = (0..9).map(|_| Vec::with_capacity(m.len())).collect();
     for v in m {
         let (_, gradient) = p.residual_gradient(v, 0.0);
         for (column, g) in columns.iter_mut().zip(gradient) {

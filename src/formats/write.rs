@@ -46,7 +46,7 @@ pub fn stage_json<T: Serialize>(path: &Path, what: &'static str, value: &T) -> R
     let text = serde_json::to_string_pretty(value).map_err(|e| Error::Serialise {
         path: path.to_path_buf(),
         what,
-        message: e.to_string(),
+        source: Box::new(e),
     })?;
     stage(path, |w| w.write_all(text.as_bytes()))
 }
