@@ -109,7 +109,7 @@ fn bench_fit(rows: usize, repeats: usize) {
     let window = CalibrationWindow::new(0.0, log.time_s()[rows - 1]);
     let options = FitOptions::default();
     // The repeats share one pool of stores, as the fits of a flight do.
-    let stores = magcomp::stacked::StorePool::new();
+    let stores = magcomp::numerics::stacked::StorePool::new();
     let fit = || {
         let model = fit(
             &log,

@@ -155,7 +155,7 @@ pub enum Error {
         /// The flight.
         path: PathBuf,
         /// Why the design failed.
-        source: crate::filter::FilterError,
+        source: crate::numerics::filter::FilterError,
         /// What to do.
         hint: String,
     },
@@ -239,10 +239,10 @@ pub enum Error {
 pub enum FitFailure {
     /// The regression could not be solved.
     #[error(transparent)]
-    Solve(#[from] crate::solve::SolveError),
+    Solve(#[from] crate::numerics::solve::SolveError),
     /// The calibration data could not be filtered.
     #[error(transparent)]
-    Filter(#[from] crate::filter::FilterError),
+    Filter(#[from] crate::numerics::filter::FilterError),
     /// Anything else, in words.
     #[error("{0}")]
     Other(String),

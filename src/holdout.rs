@@ -1,5 +1,5 @@
 //! Headings and the held-out splits built on them, shared by the transfer
-//! check ([`crate::transfer`]), the diagnosis ([`crate::diagnose`]) and the
+//! check ([`crate::quality::transfer`]), the diagnosis ([`crate::diagnose`]) and the
 //! FOM table ([`crate::quality`]).
 //!
 //! Two headings are the same leg when they are closer than

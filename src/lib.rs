@@ -25,12 +25,13 @@
 //!   and the physics a diagnosis adds) is fitted by [`model::fit`] into a
 //!   [`model::FittedModel`] that predicts the interference and its held-out
 //!   residual; [`compensate`] subtracts the prediction.
-//! - Numerics: [`tolles_lawson`] (the terms), [`filter`] (zero-phase
-//!   band-pass), [`stacked`] and [`solve`] (ridge by PRESS, truncated SVD),
-//!   [`segments`].
+//! - [`tolles_lawson`]: the terms. [`numerics`]: [`numerics::filter`]
+//!   (zero-phase band-pass), [`numerics::stacked`] and [`numerics::solve`]
+//!   (ridge by PRESS, truncated SVD), [`numerics::segments`],
+//!   [`numerics::linalg`]; it imports nothing else of magcomp.
 //! - [`diagnose`]: the physics the model leaves out, found, named and
 //!   scored held out; [`holdout`] is the leave-one-heading-out rule it
-//!   shares with [`transfer`] and [`quality`].
+//!   shares with [`quality::transfer`] and [`quality`].
 //! - [`pipeline`]: one flight through every stage, writing nothing
 //!   ([`pipeline::run`] → [`pipeline::FlightRun`]); [`sink`] writes what a
 //!   run produced, and [`report`] is the HTML page.
@@ -51,7 +52,7 @@
 //! ```
 //! use magcomp::{compensate::{compensate, LevelConvention}, model::{fit, FitOptions, ModelSpec}};
 //! use magcomp::{formats::{read_flight_log, IngestOptions}, pipeline::choose_vector_sensor};
-//! use magcomp::{quality::assess_quality, sample_flight, stacked::StorePool, windows::read_detect_json};
+//! use magcomp::{quality::assess_quality, sample_flight, numerics::stacked::StorePool, windows::read_detect_json};
 //!
 //! let folder = tempfile::tempdir()?;
 //! let (csv, windows) = (folder.path().join("flight.csv"), folder.path().join("windows.json"));
@@ -77,29 +78,23 @@ pub mod config;
 pub mod detect;
 pub mod diagnose;
 pub mod error;
-pub mod filter;
 pub mod flags;
 pub mod flight_date;
 pub mod flight_identity;
 pub mod flight_log;
 pub mod formats;
-pub mod heading_error;
 pub mod holdout;
-pub mod linalg;
 pub mod messages;
 pub mod model;
+pub mod numerics;
 pub mod pipeline;
 pub mod quality;
 pub mod report;
 pub mod sample_flight;
 pub mod screen;
-pub mod segments;
 pub mod simulate;
 pub mod sink;
-pub mod solve;
-pub mod stacked;
 pub mod tolles_lawson;
-pub mod transfer;
 pub mod vector_calibration;
 pub mod windows;
 

@@ -10,9 +10,9 @@ use indicatif::{ProgressBar, ProgressStyle};
 use magcomp::config::{FlightJob, Pipeline};
 use magcomp::diagnose::ApplyDiagnosis;
 use magcomp::formats::{prepare, Destination, OutputKind, OutputSet};
+use magcomp::numerics::solve::LambdaChoice;
 use magcomp::pipeline::summary;
 use magcomp::sink::{process_flight, FlightOutputs};
-use magcomp::solve::LambdaChoice;
 use magcomp::windows::CalibrationWindow;
 
 /// Post-flight compensation of aeromagnetic surveys.

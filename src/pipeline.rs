@@ -17,9 +17,9 @@ use crate::formats::added_column_names;
 use crate::formats::align::AlignmentReport;
 use crate::formats::read_flight_log;
 use crate::model::{fit, Extensions, FittedModel, ModelSpec};
+use crate::numerics::stacked::StorePool;
+use crate::quality::transfer::check_transfer;
 use crate::quality::{assess_quality, ChannelQuality};
-use crate::stacked::StorePool;
-use crate::transfer::check_transfer;
 use rayon::prelude::*;
 
 /// What processing one flight produced.
@@ -526,8 +526,8 @@ pub fn summary(result: &FlightResult) -> String {
         }
         if let Some(check) = &quality.transfer {
             let how = match check.method {
-                crate::transfer::TransferMethod::SecondBox => "second box",
-                crate::transfer::TransferMethod::LeaveOneHeadingOut => "leave one heading out",
+                crate::quality::transfer::TransferMethod::SecondBox => "second box",
+                crate::quality::transfer::TransferMethod::LeaveOneHeadingOut => "leave one heading out",
             };
             text += &format!(
                 "    held-out FOM ({how}): {:.2} nT against {:.2} nT in sample ({:.1}×)\n",

@@ -39,7 +39,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 use crate::flight_log::{FlightLog, VectorSensor};
-use crate::linalg::{solve_spd, tall_skinny_r};
+use crate::numerics::linalg::{solve_spd, tall_skinny_r};
 use crate::windows::CalibrationWindow;
 use levenberg_marquardt::{LeastSquaresProblem, LevenbergMarquardt};
 use nalgebra::{DVector, Dyn, OMatrix, Owned, SVector, U9};
@@ -444,7 +444,7 @@ fn ellipsoid_start(m: &[[f64; 3]], f: &[f64]) -> Option<Parameters> {
     let columns: Vec<Vec<f64>> = terms.iter().map(|t| m.iter().map(t).collect()).collect();
     let views: Vec<&[f64]> = columns.iter().map(Vec::as_slice).collect();
     let r = tall_skinny_r(&views);
-    let (_, _, v) = crate::linalg::small_svd(r.as_ref())?;
+    let (_, _, v) = crate::numerics::linalg::small_svd(r.as_ref())?;
     let theta: Vec<f64> = (0..10).map(|i| v[(i, 9)]).collect();
     let a = Mat::from_fn(3, 3, |i, j| theta[[[0, 1, 2], [1, 3, 4], [2, 4, 5]][i][j]]);
     // A may come out negative definite: the quadric's sign is arbitrary.
@@ -469,7 +469,7 @@ fn ellipsoid_start(m: &[[f64; 3]], f: &[f64]) -> Option<Parameters> {
     // Lower-triangular C with CᵀC = A/ratio: reverse the axes, take the
     // Cholesky factor L, reverse back: A = P L Lᵀ P, so C = P Lᵀ P.
     let reversed = Mat::from_fn(3, 3, |i, j| a[(2 - i, 2 - j)] / ratio);
-    let lower = crate::linalg::cholesky_lower(reversed.as_ref())?;
+    let lower = crate::numerics::linalg::cholesky_lower(reversed.as_ref())?;
     let c = |i: usize, j: usize| lower[(2 - j, 2 - i)];
     Some(Parameters([
         c(0, 0),
@@ -610,7 +610,7 @@ fn jacobian_condition(m: &[[f64; 3]], p: &Parameters) -> f64 {
     }
     let views: Vec<&[f64]> = columns.iter().map(Vec::as_slice).collect();
     let r = tall_skinny_r(&views);
-    match crate::linalg::small_svd(r.as_ref()) {
+    match crate::numerics::linalg::small_svd(r.as_ref()) {
         Some((_, sigma, _)) => sigma[0] / sigma[8].max(f64::MIN_POSITIVE),
         None => f64::INFINITY,
     }

@@ -7,12 +7,12 @@
 use std::path::{Path, PathBuf};
 
 use magcomp::compensate::{compensate, LevelConvention};
-use magcomp::filter::{EdgePadding, FilterBand};
 use magcomp::formats::{read_flight_log, IngestOptions};
 use magcomp::model::{fit, FilterSettings, FitOptions, ModelSpec};
+use magcomp::numerics::filter::{EdgePadding, FilterBand};
+use magcomp::numerics::solve::{LambdaChoice, SolveOptions};
 use magcomp::pipeline::choose_vector_sensor;
 use magcomp::quality::standard_deviation;
-use magcomp::solve::{LambdaChoice, SolveOptions};
 use magcomp::tolles_lawson::TermSet;
 use magcomp::windows::CalibrationWindow;
 

@@ -37,7 +37,7 @@ fn a_clean_flight_gives_no_finding() {
         // held-out headings better (measured: PRESS for the tail, 0.0108 →
         // 0.0098 nT; blocked PRESS for the cabin, 0.0254 against 0.0353).
         let other = channel.heldout_rms_other_criterion_nt.unwrap();
-        let started_with_other = channel.search_criterion != magcomp::solve::Criterion::BlockedPress;
+        let started_with_other = channel.search_criterion != magcomp::numerics::solve::Criterion::BlockedPress;
         assert_eq!(
             started_with_other,
             other < channel.heldout_rms_baseline_nt,
@@ -162,7 +162,7 @@ fn effective_correction(m: [[f64; 3]; 3]) -> [[f64; 3]; 3] {
     let a = |i: usize, j: usize| (0..3).map(|l| inverse[l][i] * inverse[l][j]).sum::<f64>();
     // Reverse the axes, Cholesky, reverse back: C = P Lᵀ P.
     let reversed = faer::Mat::from_fn(3, 3, |i, j| a(2 - i, 2 - j));
-    let lower = magcomp::linalg::cholesky_lower(reversed.as_ref()).unwrap();
+    let lower = magcomp::numerics::linalg::cholesky_lower(reversed.as_ref()).unwrap();
     [0, 1, 2].map(|i| [0, 1, 2].map(|j| lower[(2 - j, 2 - i)]))
 }
 

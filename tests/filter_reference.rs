@@ -6,7 +6,7 @@
 //! zpk → bilinear → sos algorithm; differences are rounding), and the filtered
 //! test vector to 1e-9 of its unit-scale amplitude.
 
-use magcomp::filter::{EdgePadding, FilterBand, ZeroPhaseFilter};
+use magcomp::numerics::filter::{EdgePadding, FilterBand, ZeroPhaseFilter};
 use sci_rs::signal::filter::design::{butter_dyn, DigitalFilter, FilterBandType, FilterOutputType};
 
 const BANDPASS_SOS: [f64; 24] = [

@@ -5,9 +5,9 @@ use std::path::{Path, PathBuf};
 
 use magcomp::config::{FlightJob, Settings};
 use magcomp::pipeline::FlightResult;
+use magcomp::quality::transfer::TransferMethod;
 use magcomp::simulate::scenario::{RawScenario, Scenario};
 use magcomp::sink::{process_flight, FlightOutputs};
-use magcomp::transfer::TransferMethod;
 
 fn run(input: &Path, out: &Path) -> FlightResult {
     run_with(input, out, Settings::default())
@@ -116,7 +116,7 @@ fn reciprocal_lines_measure_the_heading_error_before_and_after() {
         // between them, and the few metres between matched samples).
         let truth = flight.truth.earth_total_nt(&quality.channel).unwrap();
         let log = magcomp::formats::read_flight_log(&path, &Default::default()).unwrap();
-        let natural = magcomp::heading_error::heading_error(&log, truth, truth, 25.0).unwrap();
+        let natural = magcomp::quality::heading_error::heading_error(&log, truth, truth, 25.0).unwrap();
         println!("{}: {error:?}, natural {:.3} nT", quality.channel, natural.after_nt);
         assert!(error.pairs > 500);
         // Compensated, the heading error is the natural one within 0.05 nT

@@ -5,9 +5,10 @@
 use std::ops::Range;
 
 use magcomp::compensate::{compensate, LevelConvention};
-use magcomp::filter::{EdgePadding, FilterBand, ZeroPhaseFilter};
 use magcomp::flight_log::{Channel, FlightLog};
 use magcomp::model::{fit, FitOptions, ModelSpec};
+use magcomp::numerics::filter::{EdgePadding, FilterBand, ZeroPhaseFilter};
+use magcomp::numerics::solve::{solve, SolveOptions};
 use magcomp::pipeline::choose_vector_sensor;
 use magcomp::quality::standard_deviation;
 use magcomp::simulate::igrf::Igrf;
@@ -16,7 +17,6 @@ use magcomp::simulate::recording::first_order_lag;
 use magcomp::simulate::scenario::{Effect, RawScenario, Scenario};
 use magcomp::simulate::truth::survey_line_error_nt;
 use magcomp::simulate::{simulate, SimulatedFlight};
-use magcomp::solve::{solve, SolveOptions};
 use magcomp::tolles_lawson::TermSet;
 use magcomp::windows::CalibrationWindow;
 

@@ -1,7 +1,7 @@
 //! Known-answer tests of the regularised solver.
 
 use faer::Mat;
-use magcomp::solve::{solve, Criterion, Decomposition, LambdaChoice, Method, SolveOptions};
+use magcomp::numerics::solve::{solve, Criterion, Decomposition, LambdaChoice, Method, SolveOptions};
 use proptest::prelude::*;
 
 /// Deterministic pseudo-random values in [-1, 1) (SplitMix64).

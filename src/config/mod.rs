@@ -54,13 +54,13 @@ use crate::compensate::LevelConvention;
 use crate::detect::DetectOptions;
 use crate::diagnose::DiagnoseOptions;
 use crate::error::{Error, Result};
-use crate::filter::{EdgePadding, FilterBand};
 use crate::formats::align::AlignmentOptions;
 use crate::formats::{ColumnNames, IngestOptions};
 use crate::model::{FilterSettings, FitOptions};
-use crate::solve::{Criterion, LambdaChoice, SolveOptions};
+use crate::numerics::filter::{EdgePadding, FilterBand};
+use crate::numerics::solve::{Criterion, LambdaChoice, SolveOptions};
+use crate::quality::transfer::TransferOptions;
 use crate::tolles_lawson::{EddyTerms, InducedTerms, TermSet};
-use crate::transfer::TransferOptions;
 use crate::vector_calibration::VectorCalibrationOptions;
 use crate::windows::{read_detect_json, CalibrationWindow};
 

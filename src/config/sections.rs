@@ -14,7 +14,7 @@ use crate::detect::DetectOptions;
 use crate::diagnose::{ApplyDiagnosis, DiagnoseOptions};
 use crate::formats::align::AlignmentOptions;
 use crate::formats::{ColumnNames, TopicMapping, VectorColumns};
-use crate::transfer::TransferOptions;
+use crate::quality::transfer::TransferOptions;
 use crate::vector_calibration::VectorCalibrationOptions;
 
 /// A section as written: one optional field per field of the validated

@@ -22,10 +22,10 @@ use std::ops::Range;
 
 use serde::Serialize;
 
-use crate::filter::ZeroPhaseFilter;
 use crate::flight_log::{ChannelRole, FlightLog};
-use crate::linalg::solve_spd;
 use crate::model::{FitOptions, WindowFit};
+use crate::numerics::filter::ZeroPhaseFilter;
+use crate::numerics::linalg::solve_spd;
 use crate::quality::root_mean_square;
 
 use super::Located;
@@ -193,7 +193,7 @@ fn sensor_noise(values: &[f64]) -> f64 {
 /// The fitting band's edges, Hz (a low-pass starts at 0, a high-pass ends
 /// at Nyquist).
 fn band_edges(options: &FitOptions, fs: f64) -> (f64, f64) {
-    use crate::filter::FilterBand;
+    use crate::numerics::filter::FilterBand;
     match options.filter.band {
         FilterBand::Bandpass { low_hz, high_hz } => (low_hz, high_hz),
         FilterBand::Lowpass { high_hz } => (0.0, high_hz),

@@ -110,9 +110,9 @@ use crate::model::{
     column_level, field_directions, fit, Extensions, FitOptions, FittedModel, ModelSpec, Prepared, SourceTerm,
     WindowFit,
 };
+use crate::numerics::solve::{Criterion, LambdaChoice};
+use crate::numerics::stacked::StorePool;
 use crate::quality::root_mean_square;
-use crate::solve::{Criterion, LambdaChoice};
-use crate::stacked::StorePool;
 use crate::tolles_lawson::TermSet;
 use crate::vector_calibration::{calibrate, VectorCalibration};
 use crate::windows::CalibrationWindow;

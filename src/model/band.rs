@@ -12,11 +12,11 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::error::{Error, Number, Result};
-use crate::filter::{EdgePadding, FilterBand, FilterError, ZeroPhaseFilter, LANES};
 use crate::flight_log::{FlightLog, VectorSensor};
-use crate::segments::valid_runs;
-use crate::solve::SolveOptions;
-use crate::stacked::{Stacked, StackedBuilder, StorePool};
+use crate::numerics::filter::{EdgePadding, FilterBand, FilterError, ZeroPhaseFilter, LANES};
+use crate::numerics::segments::valid_runs;
+use crate::numerics::solve::SolveOptions;
+use crate::numerics::stacked::{Stacked, StackedBuilder, StorePool};
 use crate::tolles_lawson::TermSet;
 use crate::windows::CalibrationWindow;
 

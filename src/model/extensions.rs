@@ -28,7 +28,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::flight_log::{FlightLog, VectorSensor};
-use crate::solve::Criterion;
+use crate::numerics::solve::Criterion;
 use crate::tolles_lawson::TermSet;
 use crate::vector_calibration::VectorCalibration;
 

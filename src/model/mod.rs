@@ -11,7 +11,7 @@
 //! where the scalar, the vector magnetometer and every extension column
 //! are valid are split into contiguous runs; each run's design columns and
 //! scalar are band-passed on their own and trimmed, and the runs stacked
-//! ([`band`]). The regularised solve ([`crate::solve`]) picks λ by PRESS,
+//! ([`band`]). The regularised solve ([`crate::numerics::solve`]) picks λ by PRESS,
 //! each window one fold of the blocked PRESS:
 //!
 //! $$ \hat\beta = \arg\min_\beta \|y - A\beta\|^2 + \lambda \|\beta\|^2 $$
@@ -38,9 +38,9 @@ use serde::Serialize;
 
 use crate::error::{Error, Result};
 use crate::flight_log::{FlightLog, VectorSensor};
-use crate::segments::valid_runs;
-use crate::solve::{Solution, SolveOptions};
-use crate::stacked::StorePool;
+use crate::numerics::segments::valid_runs;
+use crate::numerics::solve::{Solution, SolveOptions};
+use crate::numerics::stacked::StorePool;
 use crate::tolles_lawson::{DesignMatrix, EddyTerms, TermSet};
 use crate::windows::CalibrationWindow;
 

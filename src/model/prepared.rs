@@ -7,8 +7,8 @@ use std::borrow::Cow;
 
 use crate::error::{Error, Result};
 use crate::flight_log::{FlightLog, VectorSensor};
-use crate::solve::solve_stacked;
-use crate::stacked::StorePool;
+use crate::numerics::solve::solve_stacked;
+use crate::numerics::stacked::StorePool;
 use crate::windows::CalibrationWindow;
 
 use super::band::{band_data, BandData, FitOptions, WindowFit};

@@ -30,12 +30,12 @@ use serde::Serialize;
 
 use crate::compensate::{compensate, LevelConvention};
 use crate::error::Result;
-use crate::filter::FilterBand;
 use crate::flight_log::{FlightLog, VectorSensor};
 use crate::model::{advanced, fit, Extensions, FitOptions, FittedModel, ModelSpec};
+use crate::numerics::filter::FilterBand;
+use crate::numerics::segments::valid_runs;
+use crate::numerics::stacked::StorePool;
 use crate::quality::root_mean_square;
-use crate::segments::valid_runs;
-use crate::stacked::StorePool;
 use crate::tolles_lawson::TermSet;
 use crate::windows::CalibrationWindow;
 

@@ -107,7 +107,7 @@ pub fn fit_channels(
     pipeline: &Pipeline,
     plan: &BTreeMap<String, Extensions>,
 ) -> Vec<FittedModel> {
-    let stores = magcomp::stacked::StorePool::new();
+    let stores = magcomp::numerics::stacked::StorePool::new();
     channels
         .iter()
         .map(|channel| {

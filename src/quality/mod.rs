@@ -10,6 +10,9 @@
 //!   the manoeuvre signatures in the band (SEG dictionary, "figure of merit"),
 //!   whenever windows are labelled with manoeuvre kind and heading.
 
+pub mod heading_error;
+pub mod transfer;
+
 use serde::Serialize;
 
 use crate::compensate::CompensatedChannel;
@@ -166,7 +169,7 @@ pub struct ChannelQuality {
     pub fom_table: Vec<FomRow>,
     /// Level difference between opposite-direction survey lines over the
     /// same ground, when there are such lines.
-    pub heading_error: Option<crate::heading_error::HeadingError>,
+    pub heading_error: Option<crate::quality::heading_error::HeadingError>,
     /// In-sample against held-out FOM (second box, or leave one heading out).
     pub transfer: Option<TransferCheck>,
     /// Per-window figures.
@@ -209,7 +212,7 @@ pub fn assess_quality(log: &FlightLog, model: &FittedModel, compensated: &Compen
         fom_manoeuvres: fom.map_or(0, |f| f.2),
         fom_table: table,
         transfer: None,
-        heading_error: crate::heading_error::heading_error(log, scalar, &compensated.values, 25.0),
+        heading_error: crate::quality::heading_error::heading_error(log, scalar, &compensated.values, 25.0),
         windows,
         rows_missing: compensated.values.iter().filter(|v| !v.is_finite()).count(),
     }

@@ -18,9 +18,9 @@ use crate::error::Result;
 use crate::flight_log::{FlightLog, VectorSensor};
 use crate::holdout::{heading_splits, same_heading};
 use crate::model::{FitOptions, FittedModel, Prepared, WindowFit};
+use crate::numerics::stacked::StorePool;
 use crate::quality::{figure_of_merit, fom_table, window_quality};
 pub use crate::quality::{TransferCheck, TransferMethod};
-use crate::stacked::StorePool;
 use crate::windows::CalibrationWindow;
 
 /// `[quality]` settings of the transfer check.

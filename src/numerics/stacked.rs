@@ -17,8 +17,8 @@ use std::sync::Mutex;
 use faer::{Mat, MatRef};
 use rayon::prelude::*;
 
-use crate::filter::LANES;
-use crate::linalg::{gram, multiply};
+use crate::numerics::filter::LANES;
+use crate::numerics::linalg::{gram, multiply};
 
 /// Rows per block of the passes over the rows.
 pub const BLOCK_ROWS: usize = 2048;

@@ -38,8 +38,8 @@ use faer::{Mat, MatRef};
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::linalg::{cholesky_lower, gram, multiply, small_svd, tall_skinny_r};
-use crate::stacked::{Block, Stacked, BLOCK_ROWS};
+use crate::numerics::linalg::{cholesky_lower, gram, multiply, small_svd, tall_skinny_r};
+use crate::numerics::stacked::{Block, Stacked, BLOCK_ROWS};
 
 /// How λ is obtained.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -1207,7 +1207,7 @@ mod tests {
         let root: Vec<f64> = w.iter().map(|v| v.sqrt()).collect();
         let k_matrix = Mat::from_fn(p, p, |i, j| f64::from(i == j) - root[i] * fold.gram[(i, j)] * root[j]);
         let rhs: Vec<f64> = (0..p).map(|k| root[k] * projected[k]).collect();
-        let Some(z) = crate::linalg::solve_spd(k_matrix.as_ref(), &rhs) else {
+        let Some(z) = crate::numerics::linalg::solve_spd(k_matrix.as_ref(), &rhs) else {
             return f64::INFINITY;
         };
         let correction: Vec<f64> = (0..p).map(|k| root[k] * z[k]).collect();
