@@ -15,7 +15,7 @@ use std::time::Instant;
 use magcomp::config::{FlightJob, Pipeline, Settings};
 use magcomp::flight_log::{Channel, ChannelRole, FlightLog, VectorAxis};
 use magcomp::model::{fit, FitOptions, ModelSpec};
-use magcomp::pipeline::{choose_vector_sensor, Settings};
+use magcomp::pipeline::choose_vector_sensor;
 use magcomp::sink::{process_flight, FlightOutputs};
 use magcomp::windows::CalibrationWindow;
 
