@@ -75,10 +75,18 @@ pub fn tall_skinny_r(columns: &[&[f64]]) -> Mat<f64> {
         stacked_r.push(qr_r_factor(block));
         start = end;
     }
-    let total: usize = stacked_r.iter().map(|r| r.nrows()).sum();
+    combine_r(&stacked_r, cols)
+}
+
+/// The R factor of the rows of several matrices stacked, from their own R
+/// factors (`parts`, each with `cols` columns): the QR of the stacked
+/// factors, as the last step of a tall-skinny QR. A fit that leaves out
+/// one fold of rows builds its R from the other folds' this way.
+pub fn combine_r(parts: &[Mat<f64>], cols: usize) -> Mat<f64> {
+    let total: usize = parts.iter().map(|r| r.nrows()).sum();
     let mut all = Mat::<f64>::zeros(total.max(cols), cols);
     let mut row = 0;
-    for r in &stacked_r {
+    for r in parts {
         all.as_mut().get_mut(row..row + r.nrows(), ..).copy_from(r.as_ref());
         row += r.nrows();
     }
