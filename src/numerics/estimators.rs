@@ -217,7 +217,7 @@ impl Decomposed {
         let p = self.regressors();
         let q = p + 1;
         let v22_norm: f64 = (rank..q).map(|k| self.v_z[(p, k)].powi(2)).sum();
-        if !(v22_norm > f64::EPSILON) {
+        if v22_norm.is_nan() || v22_norm <= f64::EPSILON {
             return None;
         }
         Some(
@@ -502,8 +502,8 @@ mod tests {
         // By hand: least squares on the other two folds' rows, residual on
         // the third.
         let mut total = 0.0;
-        for b in 0..3 {
-            let train: Vec<usize> = (0..n).filter(|i| !fold_rows[b].contains(i)).collect();
+        for held in &fold_rows {
+            let train: Vec<usize> = (0..n).filter(|i| !held.contains(i)).collect();
             let cols: Vec<Vec<f64>> = a.iter().map(|c| train.iter().map(|&i| c[i]).collect()).collect();
             let ty: Vec<f64> = train.iter().map(|&i| y[i]).collect();
             let views: Vec<&[f64]> = cols.iter().map(Vec::as_slice).collect();
@@ -511,7 +511,7 @@ mod tests {
                 .unwrap()
                 .coefficients(Estimator::Ls)
                 .unwrap();
-            total += fold_rows[b]
+            total += held
                 .clone()
                 .map(|i| (y[i] - (0..p).map(|j| beta[j] * a[j][i]).sum::<f64>()).powi(2))
                 .sum::<f64>();
