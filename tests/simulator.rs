@@ -135,6 +135,33 @@ fn the_simulated_field_at_the_box_matches_igrf() {
     // And the truth file's Earth field at the tail sensor says the same.
     let truth = flight.truth.earth_total_nt("mag_1_uc").unwrap();
     assert!((truth[rows.start] - reference.total_nt()).abs() < 25.0);
+    // The fluxgate's true field in north-east-down (the truth file's
+    // `flux_a_earth_n/e/d`): IGRF's total and inclination to the same
+    // bounds, and its declination to the angle 25 nT makes across the
+    // horizontal field.
+    let fluxgate = &flight.truth.fluxgates[0];
+    let [n, e, d] = &fluxgate.earth_ned_nt;
+    let (mut total, mut inclination, mut declination) = (0.0, 0.0, 0.0);
+    for k in rows.clone() {
+        let ned_length = (n[k] * n[k] + e[k] * e[k] + d[k] * d[k]).sqrt();
+        total += ned_length;
+        inclination += d[k].atan2(n[k].hypot(e[k])).to_degrees();
+        declination += e[k].atan2(n[k]).to_degrees();
+    }
+    assert!((total / count - reference.total_nt()).abs() < 25.0);
+    assert!(
+        (inclination / count - reference.inclination_deg()).abs() < 0.03,
+        "{} vs {}",
+        inclination / count,
+        reference.inclination_deg()
+    );
+    let horizontal_nt = reference.total_nt() * reference.inclination_deg().to_radians().cos();
+    assert!(
+        (declination / count - reference.declination_deg()).abs() < (25.0 / horizontal_nt).to_degrees(),
+        "{} vs {}",
+        declination / count,
+        reference.declination_deg()
+    );
 }
 
 /// Fits plain Tolles-Lawson on the flight's calibration windows and

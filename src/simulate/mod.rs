@@ -373,11 +373,21 @@ fn record_fluxgate(
         })
         .collect();
     let earth_body_nt = [0, 1, 2].map(|axis| average_down(&earth.iter().map(|b| b[axis]).collect::<Vec<_>>(), factor));
+    // The same field in north-east-down, rotated back with the true
+    // attitude before averaging down, as the vector output is judged in it.
+    let earth_ned: Vec<Vector> = earth
+        .iter()
+        .zip(&path.poses)
+        .map(|(b, pose)| to_ned(*b, pose.roll_deg, pose.pitch_deg, pose.yaw_deg))
+        .collect();
+    let earth_ned_nt =
+        [0, 1, 2].map(|axis| average_down(&earth_ned.iter().map(|b| b[axis]).collect::<Vec<_>>(), factor));
     let truth = FluxgateTruth {
         sensor: fluxgate.name.clone(),
         calibration,
         aircraft: own,
         earth_body_nt,
+        earth_ned_nt,
     };
     (columns, truth)
 }

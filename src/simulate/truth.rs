@@ -5,8 +5,9 @@
 //! concealed effects with their parameters and each sensor's aircraft
 //! field. `<flight>.truth.csv` holds, per output sample, the true Earth
 //! field magnitude at every scalar sensor (`<channel>_earth_nt`), the true
-//! Earth field in body axes at every fluxgate (`<sensor>_earth_x/y/z`) and
-//! the external variation along the main field (`external_nt`).
+//! Earth field at every fluxgate in INS body axes (`<sensor>_earth_x/y/z`)
+//! and in north-east-down (`<sensor>_earth_n/e/d`), and the external
+//! variation along the main field (`external_nt`).
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -47,6 +48,10 @@ pub struct FluxgateTruth {
     /// True Earth field in body axes at the fluxgate, nT, per output sample.
     #[serde(skip)]
     pub earth_body_nt: [Vec<f64>; 3],
+    /// True Earth field in north-east-down at the fluxgate, nT, per output
+    /// sample.
+    #[serde(skip)]
+    pub earth_ned_nt: [Vec<f64>; 3],
 }
 
 /// One manoeuvre as flown, in the flight's time.
@@ -222,7 +227,7 @@ impl Truth {
     fn write_csv(&self, out: &mut impl Write) -> std::io::Result<()> {
         let mut names: Vec<String> = self.sensors.iter().map(|s| format!("{}_earth_nt", s.channel)).collect();
         for fluxgate in &self.fluxgates {
-            names.extend(["x", "y", "z"].map(|axis| format!("{}_earth_{axis}", fluxgate.sensor)));
+            names.extend(["x", "y", "z", "n", "e", "d"].map(|axis| format!("{}_earth_{axis}", fluxgate.sensor)));
         }
         writeln!(out, "tt,{},external_nt", names.join(","))?;
         let mut number = ryu::Buffer::new();
@@ -232,7 +237,7 @@ impl Truth {
                 write!(out, ",{:.4}", sensor.earth_total_nt[row])?;
             }
             for fluxgate in &self.fluxgates {
-                for axis in &fluxgate.earth_body_nt {
+                for axis in fluxgate.earth_body_nt.iter().chain(&fluxgate.earth_ned_nt) {
                     write!(out, ",{:.4}", axis[row])?;
                 }
             }
