@@ -142,6 +142,23 @@ pub struct FittedModel {
     pub windows: Vec<WindowFit>,
 }
 
+/// Every estimator of the family (least squares, ridge, TSVD, damped
+/// TSVD, TLS, truncated TLS) on the design of `spec` over `windows`, each
+/// with its rank or λ chosen and scored by leaving one heading out, so a
+/// user sees which the data favour. `None` when the windows span fewer
+/// than three headings.
+pub fn compare_estimators(
+    log: &FlightLog,
+    sensor: &VectorSensor,
+    channel: &str,
+    windows: &[CalibrationWindow],
+    spec: &ModelSpec,
+    options: &FitOptions,
+    stores: &StorePool,
+) -> Result<Option<Vec<crate::numerics::estimators::Scored>>> {
+    Prepared::new(log, sensor, channel, spec)?.compare_estimators(windows, options, stores)
+}
+
 /// Fits `spec` to scalar `channel` on `windows`, the terms built from
 /// `sensor`. The one fit of every model kind. The stacked data's memory
 /// comes from and goes back to `stores`: fits that share a pool (the

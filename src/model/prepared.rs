@@ -7,6 +7,8 @@ use std::borrow::Cow;
 
 use crate::error::{Error, Result};
 use crate::flight_log::{FlightLog, VectorSensor};
+use crate::holdout::{distinct_headings, same_heading};
+use crate::numerics::estimators::{compare, Factor, Scored};
 use crate::numerics::solve::solve_stacked;
 use crate::numerics::stacked::StorePool;
 use crate::windows::CalibrationWindow;
@@ -233,6 +235,58 @@ impl<'a> Prepared<'a> {
             solution,
             windows: fits,
         })
+    }
+
+    /// Every estimator of the family ([`crate::numerics::estimators`]) on
+    /// this model's band-passed design over `windows`, each held out
+    /// heading by heading: one R factor per heading, each heading predicted
+    /// from the others'. `None` when the windows span fewer than three
+    /// headings or one has none. The design is the first-order one (the
+    /// flight as recorded, without the second-order term's correction).
+    pub fn compare_estimators(
+        &self,
+        windows: &[CalibrationWindow],
+        options: &FitOptions,
+        stores: &StorePool,
+    ) -> Result<Option<Vec<Scored>>> {
+        let headings = distinct_headings(windows);
+        if headings.len() < 3 || windows.iter().any(|w| w.heading_deg.is_none()) {
+            return Ok(None);
+        }
+        let BandData {
+            stacked, windows: fits, ..
+        } = band_data(
+            &self.log,
+            self.sensor,
+            self.channel,
+            windows,
+            (self.spec.fitted_terms(), &options.filter),
+            &self.extra_columns(),
+            stores,
+        )?;
+        let factors: Vec<Factor> = headings
+            .iter()
+            .map(|&heading| {
+                let ranges: Vec<_> = fits
+                    .iter()
+                    .filter(|f| f.window.heading_deg.is_some_and(|h| same_heading(h, heading)))
+                    .map(|f| f.stacked_rows.clone())
+                    .collect();
+                // Columns 0..p are the design, column p the scalar.
+                let gather = |column: usize| -> Vec<f64> {
+                    ranges
+                        .iter()
+                        .flat_map(|r| stacked.column_range(column, r.clone()))
+                        .collect()
+                };
+                let columns: Vec<Vec<f64>> = (0..stacked.columns()).map(gather).collect();
+                let target = gather(stacked.columns());
+                let views: Vec<&[f64]> = columns.iter().map(Vec::as_slice).collect();
+                Factor::of_columns(&views, &target)
+            })
+            .collect();
+        stores.recycle(stacked);
+        Ok(Some(compare(&factors)))
     }
 
     /// The band-passed residual of `fitted` (a model of this spec) on

@@ -1,0 +1,70 @@
+//! The estimator family on a real design: every estimator of
+//! `model::compare_estimators`, held out heading by heading on the clean
+//! sample flight, against the same figure reached the long way (fit on
+//! three headings with `model::fit`, predict the fourth with
+//! `FittedModel::held_out`).
+
+use std::path::PathBuf;
+
+use magcomp::formats::{read_flight_log, IngestOptions};
+use magcomp::holdout::heading_splits;
+use magcomp::model::{compare_estimators, fit, FitOptions, ModelSpec};
+use magcomp::numerics::estimators::{Estimator, Family};
+use magcomp::numerics::solve::LambdaChoice;
+use magcomp::numerics::stacked::StorePool;
+use magcomp::pipeline::choose_vector_sensor;
+use magcomp::windows::read_detect_json;
+
+fn sample(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("sample_flights")
+        .join(name)
+}
+
+#[test]
+fn least_squares_held_out_by_heading_matches_refits_through_the_model() {
+    let log = read_flight_log(&sample("clean.csv"), &IngestOptions::default()).unwrap();
+    let windows = read_detect_json(&sample("clean.windows.json"), 5.0).unwrap();
+    let sensor = choose_vector_sensor(&log, None).unwrap();
+    let spec = ModelSpec::default();
+    let options = FitOptions::default();
+    let stores = StorePool::new();
+    let table = compare_estimators(&log, &sensor, "mag_1_uc", &windows, &spec, &options, &stores)
+        .unwrap()
+        .expect("four headings");
+    assert_eq!(table.iter().map(|s| s.family).collect::<Vec<_>>(), Family::ALL);
+    for scored in &table {
+        println!(
+            "{:?}: held-out RMS {:.5} nT with {:?}",
+            scored.family, scored.heldout_rms, scored.estimator
+        );
+        assert!(scored.heldout_rms.is_finite() && scored.heldout_rms > 0.0, "{scored:?}");
+        assert_eq!(scored.coefficients.len(), 18);
+    }
+    let ls = &table[0];
+    assert_eq!(ls.estimator, Estimator::Ls);
+
+    // The long way: plain least squares (λ fixed at 0) on three headings,
+    // the fourth's band-passed residual from the fitted model.
+    let mut unregularised = options;
+    unregularised.solve.lambda = LambdaChoice::Fixed(0.0);
+    let (mut sum, mut count) = (0.0, 0usize);
+    for (held_out, training) in heading_splits(&windows).unwrap() {
+        let model = fit(&log, &sensor, "mag_1_uc", &training, &spec, &unregularised, &stores).unwrap();
+        for window in model.held_out(&log, &sensor, &held_out, &unregularised).unwrap() {
+            sum += window.band_after_nt.iter().map(|r| r * r).sum::<f64>();
+            count += window.band_after_nt.len();
+        }
+    }
+    let long_way = (sum / count as f64).sqrt();
+    assert!(
+        (ls.heldout_rms - long_way).abs() < 1e-6 * long_way,
+        "estimators {} vs refits {long_way}",
+        ls.heldout_rms
+    );
+    // A family that contains least squares as a limit does at least as well.
+    for family in [Family::Ridge, Family::Tsvd, Family::DampedTsvd] {
+        let scored = table.iter().find(|s| s.family == family).unwrap();
+        assert!(scored.heldout_rms <= ls.heldout_rms * (1.0 + 1e-6), "{scored:?}");
+    }
+}
