@@ -16,7 +16,7 @@ use crate::flight_log::{FlightLog, VectorSensor};
 use crate::formats::added_column_names;
 use crate::formats::align::AlignmentReport;
 use crate::formats::read_flight_log;
-use crate::model::{fit, Extensions, FittedModel, ModelSpec};
+use crate::model::{compare_estimators, fit, Extensions, FittedModel, ModelSpec};
 use crate::numerics::stacked::StorePool;
 use crate::quality::transfer::check_transfer;
 use crate::quality::{assess_quality, ChannelQuality};
@@ -209,7 +209,9 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
         .par_iter()
         .map(|channel| {
             let spec = ModelSpec::of_channel(options.terms, &plan, channel);
-            fit(log, &sensor, channel, &windows, &spec, &options.fit, &stores)
+            let mut model = fit(log, &sensor, channel, &windows, &spec, &options.fit, &stores)?;
+            model.estimators = compare_estimators(log, &sensor, channel, &windows, &spec, &options.fit, &stores)?;
+            Ok(model)
         })
         .collect::<Result<_>>()?;
     drop(stores);

@@ -539,6 +539,42 @@ fn verdict(quality: &ChannelQuality, limit_nt: f64) -> String {
     lines.iter().map(|l| format!("<p>{l}</p>")).collect()
 }
 
+/// Every estimator's held-out RMS on the model's windows, best first
+/// marked, so a user sees which the data favour.
+fn estimator_table(model: &FittedModel) -> String {
+    let Some(table) = &model.estimators else {
+        return String::new();
+    };
+    let best = table.iter().map(|s| s.heldout_rms).fold(f64::INFINITY, f64::min);
+    let mut html = String::from(
+        "<table class=\"estimators\"><tr><th>estimator</th><th>setting</th><th>held-out RMS (leave one heading out), nT</th></tr>",
+    );
+    for scored in table {
+        let setting = match scored.estimator {
+            crate::numerics::estimators::Estimator::Ridge { lambda } => format!("λ {lambda:.2e}"),
+            crate::numerics::estimators::Estimator::Tsvd { rank }
+            | crate::numerics::estimators::Estimator::Ttls { rank } => format!("rank {rank}"),
+            crate::numerics::estimators::Estimator::DampedTsvd { rank, lambda } => {
+                format!("rank {rank}, λ {lambda:.2e}")
+            }
+            _ => String::new(),
+        };
+        let mark = if scored.heldout_rms == best {
+            " class=\"pass\""
+        } else {
+            ""
+        };
+        let _ = write!(
+            html,
+            "<tr><td>{:?}</td><td>{}</td><td{mark}>{:.5}</td></tr>",
+            scored.family,
+            escape(&setting),
+            scored.heldout_rms
+        );
+    }
+    html + "</table>"
+}
+
 fn coefficient_table(model: &FittedModel) -> String {
     let mut html = String::from(
         "<table class=\"coefficients\"><tr><th>term</th><th>coefficient</th><th>± 1σ</th><th>|σ/coefficient|</th></tr>",
@@ -800,6 +836,7 @@ pub fn stage_report(path: &Path, flight: &FlightRun, fom_limit_nt: f64) -> Resul
         );
         html += "<h3>Coefficients</h3>";
         html += &coefficient_table(model);
+        html += &estimator_table(model);
         if let Some(map) = line_map(log, &channel.values)? {
             let _ = write!(html, "<h3>Survey lines</h3><figure class=\"map\">{map}</figure>");
         }

@@ -68,3 +68,55 @@ fn least_squares_held_out_by_heading_matches_refits_through_the_model() {
         assert!(scored.heldout_rms <= ls.heldout_rms * (1.0 + 1e-6), "{scored:?}");
     }
 }
+
+#[test]
+fn the_pipeline_reports_the_table_for_every_channel_it_compensates() {
+    let mut settings = magcomp::config::Settings::default();
+    settings.diagnose.apply = magcomp::diagnose::ApplyDiagnosis::Never;
+    let mut job = magcomp::config::FlightJob::new(sample("clean.csv"));
+    job.windows = read_detect_json(&sample("clean.windows.json"), 5.0).unwrap();
+    let folder = tempfile::tempdir().unwrap();
+    let run = magcomp::pipeline::run(&job, &settings, &folder.path().join("clean_c.csv")).unwrap();
+    let log = run.log();
+    let sensor = choose_vector_sensor(log, None).unwrap();
+    assert!(!run.result.models.is_empty());
+    for model in &run.result.models {
+        let table = model
+            .estimators
+            .as_ref()
+            .expect("a table for every compensated channel");
+        // The same table as asked for directly, to the bit: one path.
+        let direct = compare_estimators(
+            log,
+            &sensor,
+            &model.channel,
+            &job.windows,
+            &model.spec,
+            &settings.fit,
+            &StorePool::new(),
+        )
+        .unwrap()
+        .unwrap();
+        assert_eq!(table, &direct, "{}", model.channel);
+    }
+    // The model JSON and the report carry it.
+    let json = serde_json::to_value(&run.result.models[0]).unwrap();
+    assert_eq!(
+        json["estimators"].as_array().map(Vec::len),
+        Some(6),
+        "{}",
+        json["estimators"]
+    );
+    assert_eq!(json["estimators"][4]["family"], "tls");
+    let report = folder.path().join("report.html");
+    magcomp::report::stage_report(&report, &run, 1.5)
+        .unwrap()
+        .page
+        .commit()
+        .unwrap();
+    let html = std::fs::read_to_string(&report).unwrap();
+    assert_eq!(
+        html.matches("<table class=\"estimators\">").count(),
+        run.result.models.len()
+    );
+}

@@ -140,6 +140,12 @@ pub struct FittedModel {
     pub coefficient_uncertainty: Vec<f64>,
     /// Per-window use of the data.
     pub windows: Vec<WindowFit>,
+    /// Every estimator of the family on the same design and windows, each
+    /// held out heading by heading ([`compare_estimators`]); set by the
+    /// pipeline for the models it compensates with, `None` elsewhere or
+    /// with fewer than three headings.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub estimators: Option<Vec<crate::numerics::estimators::Scored>>,
 }
 
 /// Every estimator of the family (least squares, ridge, TSVD, damped

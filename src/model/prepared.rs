@@ -234,6 +234,7 @@ impl<'a> Prepared<'a> {
             sample_rate_hz,
             solution,
             windows: fits,
+            estimators: None,
         })
     }
 
