@@ -61,6 +61,31 @@ pub struct FlightResult {
     pub models: Vec<FittedModel>,
 }
 
+/// What a channel's estimator table leaves out, in words: the whole table
+/// when the windows span fewer than three headings, or the families no
+/// split could fit.
+fn estimator_table_gap(model: &FittedModel) -> Option<String> {
+    use crate::numerics::estimators::Family;
+    let Some(table) = &model.estimators else {
+        return Some(format!(
+            "{}: no estimator table: the calibration windows span fewer than three headings, so no estimator can be held out by heading",
+            model.channel
+        ));
+    };
+    let missing: Vec<String> = Family::ALL
+        .iter()
+        .filter(|family| !table.iter().any(|s| s.family == **family))
+        .map(|family| format!("{family:?}"))
+        .collect();
+    (!missing.is_empty()).then(|| {
+        format!(
+            "{}: the estimator table lacks {}: no split of the headings could be fitted by it",
+            model.channel,
+            missing.join(", ")
+        )
+    })
+}
+
 /// A diagnosed effect the fit of a channel applied.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct AppliedFinding {
@@ -236,6 +261,7 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
     let added_columns = added_column_names(log, compensated, &compensation)?;
     let mut notes = renaming_notes(&channels, &added_columns);
     notes.extend(calibration.iter().map(|c| c.summary()));
+    notes.extend(models.iter().filter_map(estimator_table_gap));
     notes.extend(models.iter().filter(|m| !m.spec.is_plain()).map(|m| {
         format!(
             "{}: fitted and compensated with the diagnosed model: {}",

@@ -120,3 +120,31 @@ fn the_pipeline_reports_the_table_for_every_channel_it_compensates() {
         run.result.models.len()
     );
 }
+
+#[test]
+fn a_box_of_two_headings_says_it_has_no_estimator_table() {
+    let mut settings = magcomp::config::Settings::default();
+    settings.diagnose.apply = magcomp::diagnose::ApplyDiagnosis::Never;
+    let mut job = magcomp::config::FlightJob::new(sample("clean.csv"));
+    let windows = read_detect_json(&sample("clean.windows.json"), 5.0).unwrap();
+    let headings = magcomp::holdout::distinct_headings(&windows);
+    assert!(headings.len() >= 3);
+    job.windows = windows
+        .into_iter()
+        .filter(|w| {
+            w.heading_deg
+                .is_some_and(|h| headings[..2].iter().any(|k| magcomp::holdout::same_heading(h, *k)))
+        })
+        .collect();
+    let folder = tempfile::tempdir().unwrap();
+    let run = magcomp::pipeline::run(&job, &settings, &folder.path().join("clean_c.csv")).unwrap();
+    for model in &run.result.models {
+        assert_eq!(model.estimators, None);
+        let said = format!("{}: no estimator table", model.channel);
+        assert!(
+            run.result.notes.iter().any(|n| n.starts_with(&said)),
+            "{:?}",
+            run.result.notes
+        );
+    }
+}
