@@ -262,6 +262,16 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
     let mut notes = renaming_notes(&channels, &added_columns);
     notes.extend(calibration.iter().map(|c| c.summary()));
     notes.extend(models.iter().filter_map(estimator_table_gap));
+    // A solver asked for and not used is a warning: the coefficients are
+    // not what the settings say.
+    warnings.extend(models.iter().filter_map(|m| {
+        let solver = m.solver.as_ref()?;
+        match solver.applied() {
+            true => None,
+            false => Some(format!("{}: {}", m.channel, solver.reason)),
+        }
+    }));
+
     notes.extend(models.iter().filter(|m| !m.spec.is_plain()).map(|m| {
         format!(
             "{}: fitted and compensated with the diagnosed model: {}",
@@ -523,9 +533,14 @@ pub fn summary(result: &FlightResult) -> String {
     let mut text = format!("{}: {} rows\n", result.flight.display(), result.rows);
     for (quality, model) in result.channels.iter().zip(&result.models) {
         let solution = &model.solution;
-        let regulariser = match (solution.lambda, solution.rank) {
-            (Some(lambda), _) => format!("ridge λ={lambda:.3e}"),
-            (_, Some(rank)) => format!("TSVD rank {rank}"),
+        let regulariser = match (
+            model.solver.as_ref().and_then(|s| s.estimator),
+            solution.lambda,
+            solution.rank,
+        ) {
+            (Some(estimator), _, _) => estimator.describe(),
+            (None, Some(lambda), _) => format!("ridge λ={lambda:.3e}"),
+            (None, _, Some(rank)) => format!("TSVD rank {rank}"),
             _ => String::new(),
         };
         text += &format!(

@@ -9,6 +9,7 @@ use std::path::{Path, PathBuf};
 use magcomp::compensate::{compensate, LevelConvention};
 use magcomp::formats::{read_flight_log, IngestOptions};
 use magcomp::model::{fit, FilterSettings, FitOptions, ModelSpec};
+use magcomp::numerics::estimators::Solver;
 use magcomp::numerics::filter::{EdgePadding, FilterBand};
 use magcomp::numerics::solve::{LambdaChoice, SolveOptions};
 use magcomp::pipeline::choose_vector_sensor;
@@ -79,6 +80,7 @@ fn compensated_difference_std(padding: EdgePadding) -> Option<f64> {
             lambda: LambdaChoice::Fixed(0.001),
             ..SolveOptions::default()
         },
+        solver: Solver::Ridge,
     };
     let window = CalibrationWindow::new(log.time_s()[0], log.time_s()[log.len() - 1]);
     let spec = ModelSpec::plain(TermSet::default());

@@ -148,3 +148,154 @@ fn a_box_of_two_headings_says_it_has_no_estimator_table() {
         );
     }
 }
+
+#[test]
+fn every_solver_fits_with_the_estimator_its_table_names() {
+    use magcomp::numerics::estimators::Solver;
+    let log = read_flight_log(&sample("clean.csv"), &IngestOptions::default()).unwrap();
+    let windows = read_detect_json(&sample("clean.windows.json"), 5.0).unwrap();
+    let sensor = choose_vector_sensor(&log, None).unwrap();
+    let spec = ModelSpec::default();
+    let stores = StorePool::new();
+    let table = compare_estimators(
+        &log,
+        &sensor,
+        "mag_1_uc",
+        &windows,
+        &spec,
+        &FitOptions::default(),
+        &stores,
+    )
+    .unwrap()
+    .unwrap();
+    let ridge = fit(
+        &log,
+        &sensor,
+        "mag_1_uc",
+        &windows,
+        &spec,
+        &FitOptions::default(),
+        &stores,
+    )
+    .unwrap();
+    assert_eq!(ridge.solver, None, "ridge is the PRESS path, no solver record");
+    for solver in [
+        Solver::Ls,
+        Solver::Tsvd,
+        Solver::DampedTsvd,
+        Solver::Tls,
+        Solver::Ttls,
+        Solver::Auto,
+    ] {
+        let options = FitOptions {
+            solver,
+            ..FitOptions::default()
+        };
+        let model = fit(&log, &sensor, "mag_1_uc", &windows, &spec, &options, &stores).unwrap();
+        let used = model.solver.as_ref().expect("a solver record");
+        assert!(used.applied(), "{solver:?}: {}", used.reason);
+        let expected = match solver {
+            Solver::Auto => table
+                .iter()
+                .min_by(|a, b| a.heldout_rms.total_cmp(&b.heldout_rms))
+                .unwrap(),
+            _ => table.iter().find(|s| Some(s.family) == used.family).unwrap(),
+        };
+        assert_eq!(used.family, Some(expected.family), "{solver:?}");
+        assert_eq!(used.estimator, Some(expected.estimator), "{solver:?}");
+        assert_eq!(used.heldout_rms, Some(expected.heldout_rms), "{solver:?}");
+        assert_eq!(model.coefficients, expected.coefficients, "{solver:?}");
+        // The in-sample residual is that of these coefficients, and no
+        // larger than least squares' beyond rounding only for LS itself.
+        let rss: f64 = model.windows.iter().flat_map(|w| &w.band_after_nt).map(|r| r * r).sum();
+        let rows: usize = model.windows.iter().map(|w| w.band_after_nt.len()).sum();
+        let rms = (rss / rows as f64).sqrt();
+        assert!(rms.is_finite() && rms > 0.0 && rms < 1.0, "{solver:?}: {rms}");
+        assert!(
+            model.coefficient_uncertainty.iter().all(|s| s.is_finite() && *s > 0.0),
+            "{solver:?}: {:?}",
+            model.coefficient_uncertainty
+        );
+        assert!(
+            model.solution.reason.contains(solver.name()),
+            "{}",
+            model.solution.reason
+        );
+        println!(
+            "{solver:?}: {} held out {:.5} nT, in sample {rms:.5} nT",
+            used.reason, expected.heldout_rms
+        );
+    }
+    // Least squares' fitted standard errors are no smaller than ridge's
+    // (ridge shrinks): a check that the uncertainty follows the estimator.
+    let ls = fit(
+        &log,
+        &sensor,
+        "mag_1_uc",
+        &windows,
+        &spec,
+        &FitOptions {
+            solver: Solver::Ls,
+            ..FitOptions::default()
+        },
+        &stores,
+    )
+    .unwrap();
+    let larger = ls
+        .coefficient_uncertainty
+        .iter()
+        .zip(&ridge.coefficient_uncertainty)
+        .filter(|(l, r)| l >= r)
+        .count();
+    assert!(
+        larger >= 15,
+        "{:?} vs {:?}",
+        ls.coefficient_uncertainty,
+        ridge.coefficient_uncertainty
+    );
+}
+
+#[test]
+fn a_solver_that_needs_three_headings_falls_back_to_ridge_and_warns() {
+    let mut settings = magcomp::config::Settings::default();
+    settings.diagnose.apply = magcomp::diagnose::ApplyDiagnosis::Never;
+    settings.fit.solver = magcomp::numerics::estimators::Solver::Tls;
+    let mut job = magcomp::config::FlightJob::new(sample("clean.csv"));
+    let windows = read_detect_json(&sample("clean.windows.json"), 5.0).unwrap();
+    let headings = magcomp::holdout::distinct_headings(&windows);
+    job.windows = windows
+        .into_iter()
+        .filter(|w| {
+            w.heading_deg
+                .is_some_and(|h| headings[..2].iter().any(|k| magcomp::holdout::same_heading(h, *k)))
+        })
+        .collect();
+    let folder = tempfile::tempdir().unwrap();
+    let run = magcomp::pipeline::run(&job, &settings, &folder.path().join("clean_c.csv")).unwrap();
+    let log = run.log();
+    let sensor = choose_vector_sensor(log, None).unwrap();
+    for model in &run.result.models {
+        let used = model.solver.as_ref().expect("a solver record");
+        assert!(!used.applied());
+        // The coefficients are ridge's, exactly.
+        let mut ridge_options = settings.fit.clone();
+        ridge_options.solver = magcomp::numerics::estimators::Solver::Ridge;
+        let ridge = fit(
+            log,
+            &sensor,
+            &model.channel,
+            &job.windows,
+            &model.spec,
+            &ridge_options,
+            &StorePool::new(),
+        )
+        .unwrap();
+        assert_eq!(model.coefficients, ridge.coefficients, "{}", model.channel);
+        let said = format!("{}: [fit] solver = \"tls\" was not used", model.channel);
+        assert!(
+            run.result.warnings.iter().any(|w| w.starts_with(&said)),
+            "{:?}",
+            run.result.warnings
+        );
+    }
+}

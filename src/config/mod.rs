@@ -57,6 +57,7 @@ use crate::error::{Error, Result};
 use crate::formats::align::AlignmentOptions;
 use crate::formats::{ColumnNames, IngestOptions};
 use crate::model::{FilterSettings, FitOptions};
+use crate::numerics::estimators::Solver;
 use crate::numerics::filter::{EdgePadding, FilterBand};
 use crate::numerics::solve::{Criterion, LambdaChoice, SolveOptions};
 use crate::quality::transfer::TransferOptions;
@@ -128,6 +129,9 @@ pub(crate) struct RawFit {
     pub tsvd_condition_limit: f64,
     /// DC level convention of the compensated output.
     pub level: LevelConvention,
+    /// Estimator: `ridge`, `tsvd`, `ls`, `tls`, `ttls`, `damped_tsvd` or
+    /// `auto`.
+    pub solver: String,
 }
 
 impl Default for RawFit {
@@ -140,6 +144,7 @@ impl Default for RawFit {
             grid_points: 50,
             tsvd_condition_limit: 1e10,
             level: LevelConvention::Absolute,
+            solver: Solver::Ridge.name().into(),
         }
     }
 }
@@ -371,6 +376,13 @@ impl Pipeline {
         let fit = FitOptions {
             filter: filter_settings(&raw.filter).map_err(bad)?,
             solve: solve_options(&raw.fit).map_err(bad)?,
+            solver: Solver::from_name(&raw.fit.solver).ok_or_else(|| {
+                bad(format!(
+                    "[fit] solver = \"{}\": write one of {}",
+                    raw.fit.solver,
+                    Solver::ALL.map(|s| format!("\"{}\"", s.name())).join(", ")
+                ))
+            })?,
         };
         if !(raw.quality.fom_limit_nt.is_finite() && raw.quality.fom_limit_nt > 0.0) {
             return Err(bad(format!(
@@ -586,6 +598,20 @@ mod tests {
             .to_string();
         assert!(
             error.contains("\"2020-02-30\" is not a day") && error.contains("YYYY-MM-DD"),
+            "{error}"
+        );
+    }
+
+    #[test]
+    fn the_solver_is_named_or_refused_with_the_names() {
+        assert_eq!(parse("").unwrap().settings.fit.solver, Solver::Ridge);
+        for solver in Solver::ALL {
+            let text = format!("[fit]\nsolver = \"{}\"\n", solver.name());
+            assert_eq!(parse(&text).unwrap().settings.fit.solver, solver);
+        }
+        let error = parse("[fit]\nsolver = \"svd\"\n").unwrap_err().to_string();
+        assert!(
+            error.contains("\"svd\"") && error.contains("\"damped_tsvd\"") && error.contains("\"auto\""),
             "{error}"
         );
     }

@@ -56,6 +56,8 @@ pub struct FitOptions {
     pub filter: FilterSettings,
     /// Regularised solve.
     pub solve: SolveOptions,
+    /// The estimator (`[fit] solver`); ridge by PRESS by default.
+    pub solver: crate::numerics::estimators::Solver,
 }
 
 /// How one window contributed to the fit.

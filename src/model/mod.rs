@@ -38,6 +38,7 @@ use serde::Serialize;
 
 use crate::error::{Error, Result};
 use crate::flight_log::{FlightLog, VectorSensor};
+use crate::numerics::estimators::{Estimator, Family, Solver};
 use crate::numerics::segments::valid_runs;
 use crate::numerics::solve::{Solution, SolveOptions};
 use crate::numerics::stacked::StorePool;
@@ -146,6 +147,32 @@ pub struct FittedModel {
     /// with fewer than three headings.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub estimators: Option<Vec<crate::numerics::estimators::Scored>>,
+    /// The estimator the coefficients come from when `[fit] solver` is not
+    /// ridge; `None` with ridge (the solution says which λ or rank).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub solver: Option<SolverUse>,
+}
+
+/// How a model fitted with a `[fit] solver` other than ridge was solved.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SolverUse {
+    /// The solver asked for.
+    pub requested: Solver,
+    /// The family used; `None` when the fit fell back to ridge.
+    pub family: Option<Family>,
+    /// Its setting, chosen leaving one heading out.
+    pub estimator: Option<Estimator>,
+    /// Its held-out RMS leaving one heading out, nT.
+    pub heldout_rms: Option<f64>,
+    /// In words: what was used and why.
+    pub reason: String,
+}
+
+impl SolverUse {
+    /// Whether the requested solver was used (not the ridge fallback).
+    pub fn applied(&self) -> bool {
+        self.estimator.is_some()
+    }
 }
 
 /// Every estimator of the family (least squares, ridge, TSVD, damped

@@ -8,14 +8,14 @@ use std::borrow::Cow;
 use crate::error::{Error, Result};
 use crate::flight_log::{FlightLog, VectorSensor};
 use crate::holdout::{distinct_headings, same_heading};
-use crate::numerics::estimators::{compare, Factor, Scored};
-use crate::numerics::solve::solve_stacked;
-use crate::numerics::stacked::StorePool;
+use crate::numerics::estimators::{compare, compare_families, Decomposed, Factor, Scored, Solver};
+use crate::numerics::solve::{solve_stacked, Solution};
+use crate::numerics::stacked::{Stacked, StorePool};
 use crate::windows::CalibrationWindow;
 
 use super::band::{band_data, BandData, FitOptions, WindowFit};
 use super::extensions::{advanced, field_directions, lagged_rate, rate_of_change, second_order_term, SourceTerm};
-use super::{FittedModel, ModelSpec, SECOND_ORDER_PASSES};
+use super::{FittedModel, ModelSpec, SolverUse, SECOND_ORDER_PASSES};
 
 /// One extension column: a regressor beside the Tolles-Lawson terms.
 #[derive(Debug, Clone)]
@@ -201,12 +201,17 @@ impl<'a> Prepared<'a> {
         )?;
         let solve = self.spec.solve_options(&options.solve);
         let solution = solve_stacked(&stacked, &solve);
-        stores.recycle(stacked);
-        let solution = solution.map_err(|e| Error::Fit {
+        let mut solution = solution.map_err(|e| Error::Fit {
             path: log.source().to_path_buf(),
             channel: self.channel.into(),
             source: e.into(),
-        })?;
+        });
+        let chosen = match (&mut solution, options.solver) {
+            (Ok(_), Solver::Ridge) | (Err(_), _) => None,
+            (Ok(solution), requested) => Some(solve_on_headings(&stacked, &fits, requested, solution)),
+        };
+        stores.recycle(stacked);
+        let solution = solution?;
         for fit in &mut fits {
             fit.band_after_nt = (fit.band_before_nt.iter())
                 .zip(&solution.fitted[fit.stacked_rows.clone()])
@@ -220,6 +225,7 @@ impl<'a> Prepared<'a> {
             .max(1.0)
             .sqrt();
         Ok(FittedModel {
+            solver: chosen,
             coefficient_uncertainty: solution.standard_errors.iter().map(|e| e * correlation).collect(),
             channel: self.channel.into(),
             vector_sensor: self.sensor.prefix.clone(),
@@ -265,29 +271,9 @@ impl<'a> Prepared<'a> {
             &self.extra_columns(),
             stores,
         )?;
-        let factors: Vec<Factor> = headings
-            .iter()
-            .map(|&heading| {
-                let ranges: Vec<_> = fits
-                    .iter()
-                    .filter(|f| f.window.heading_deg.is_some_and(|h| same_heading(h, heading)))
-                    .map(|f| f.stacked_rows.clone())
-                    .collect();
-                // Columns 0..p are the design, column p the scalar.
-                let gather = |column: usize| -> Vec<f64> {
-                    ranges
-                        .iter()
-                        .flat_map(|r| stacked.column_range(column, r.clone()))
-                        .collect()
-                };
-                let columns: Vec<Vec<f64>> = (0..stacked.columns()).map(gather).collect();
-                let target = gather(stacked.columns());
-                let views: Vec<&[f64]> = columns.iter().map(Vec::as_slice).collect();
-                Factor::of_columns(&views, &target)
-            })
-            .collect();
+        let factors = heading_factors(&stacked, &fits);
         stores.recycle(stacked);
-        Ok(Some(compare(&factors)))
+        Ok(factors.map(|f| compare(&f)))
     }
 
     /// The band-passed residual of `fitted` (a model of this spec) on
@@ -348,5 +334,96 @@ pub(crate) fn scalar_values<'a>(log: &'a FlightLog, channel: &str) -> Result<&'a
             looked_for: format!("'{channel}'"),
             hint: "Name a scalar channel the flight records.".into(),
         }),
+    }
+}
+
+/// One R factor of the band-passed design and scalar per heading of
+/// `fits`' windows; `None` when they span fewer than three headings or a
+/// window has none.
+fn heading_factors(stacked: &Stacked, fits: &[WindowFit]) -> Option<Vec<Factor>> {
+    if fits.iter().any(|f| f.window.heading_deg.is_none()) {
+        return None;
+    }
+    let windows: Vec<CalibrationWindow> = fits.iter().map(|f| f.window.clone()).collect();
+    let headings = distinct_headings(&windows);
+    if headings.len() < 3 {
+        return None;
+    }
+    let factors = headings
+        .iter()
+        .map(|&heading| {
+            let ranges: Vec<_> = fits
+                .iter()
+                .filter(|f| f.window.heading_deg.is_some_and(|h| same_heading(h, heading)))
+                .map(|f| f.stacked_rows.clone())
+                .collect();
+            // Columns 0..p are the design, column p the scalar.
+            let gather = |column: usize| -> Vec<f64> {
+                ranges
+                    .iter()
+                    .flat_map(|r| stacked.column_range(column, r.clone()))
+                    .collect()
+            };
+            let columns: Vec<Vec<f64>> = (0..stacked.columns()).map(gather).collect();
+            let target = gather(stacked.columns());
+            let views: Vec<&[f64]> = columns.iter().map(Vec::as_slice).collect();
+            Factor::of_columns(&views, &target)
+        })
+        .collect();
+    Some(factors)
+}
+
+/// Fits by `requested` (not ridge) on the heading folds of `stacked`:
+/// its family's rank or λ chosen leaving one heading out, the
+/// coefficients fitted on every heading replacing `solution`'s, with its
+/// fitted values, standard errors and reason. With fewer than three
+/// headings, or when no estimator of the family can be fitted on every
+/// split, `solution` (ridge by PRESS) stands and the returned use says why.
+fn solve_on_headings(stacked: &Stacked, fits: &[WindowFit], requested: Solver, solution: &mut Solution) -> SolverUse {
+    let fallback = |why: &str| SolverUse {
+        requested,
+        family: None,
+        estimator: None,
+        heldout_rms: None,
+        reason: format!(
+            "[fit] solver = \"{}\" was not used: {why}; fitted by ridge with λ by PRESS instead",
+            requested.name()
+        ),
+    };
+    let Some(folds) = heading_factors(stacked, fits) else {
+        return fallback("the calibration windows span fewer than three headings (or one has no heading), so no estimator can be chosen leaving one heading out");
+    };
+    let scored = compare_families(&folds, requested.families());
+    let Some(best) = scored.iter().min_by(|a, b| a.heldout_rms.total_cmp(&b.heldout_rms)) else {
+        return fallback("no estimator of the family could be fitted on every split of the headings");
+    };
+    let all = Factor::combine(&folds).and_then(|f| Decomposed::new(&f));
+    let fitted = stacked.predict(&best.coefficients);
+    let rows = stacked.rows();
+    let p = best.coefficients.len();
+    let rss: f64 = (stacked.target_pieces().flatten().zip(&fitted))
+        .map(|(y, f)| (y - f).powi(2))
+        .sum();
+    let noise = (rss / rows.saturating_sub(p).max(1) as f64).sqrt();
+    let standard_errors = all
+        .and_then(|d| d.standard_errors(best.estimator, noise))
+        .unwrap_or_else(|| vec![f64::NAN; p]);
+    let reason = format!(
+        "Fitted by {} ([fit] solver = \"{}\"), scored leaving one heading out: held-out RMS {:.4} nT. The ridge figures beside it are for comparison: {}",
+        best.estimator.describe(),
+        requested.name(),
+        best.heldout_rms,
+        solution.reason
+    );
+    solution.coefficients = best.coefficients.clone();
+    solution.fitted = fitted;
+    solution.standard_errors = standard_errors;
+    solution.reason = reason.clone();
+    SolverUse {
+        requested,
+        family: Some(best.family),
+        estimator: Some(best.estimator),
+        heldout_rms: Some(best.heldout_rms),
+        reason,
     }
 }

@@ -76,6 +76,22 @@ pub enum Estimator {
     },
 }
 
+impl Estimator {
+    /// The estimator and its setting, for people.
+    pub fn describe(&self) -> String {
+        match *self {
+            Estimator::Ls => "least squares".into(),
+            Estimator::Ridge { lambda } => format!("ridge, λ {lambda:.2e} on unit-norm columns"),
+            Estimator::Tsvd { rank } => format!("truncated SVD, rank {rank}"),
+            Estimator::DampedTsvd { rank, lambda } => {
+                format!("damped truncated SVD, rank {rank}, λ {lambda:.2e} on unit-norm columns")
+            }
+            Estimator::Tls => "total least squares".into(),
+            Estimator::Ttls { rank } => format!("truncated total least squares, rank {rank}"),
+        }
+    }
+}
+
 /// The R factor of the augmented design of some rows: what a fit or a
 /// held-out score needs of them.
 #[derive(Debug, Clone)]
@@ -136,6 +152,8 @@ pub struct Decomposed {
     c: Vec<f64>,
     /// Right singular vectors of the scaled Z.
     v_z: Mat<f64>,
+    /// Smallest singular value of the scaled Z.
+    sigma_z_last: f64,
 }
 
 impl Decomposed {
@@ -156,8 +174,9 @@ impl Decomposed {
         let c = (0..p)
             .map(|k| (0..p).map(|i| u[(i, k)] * scaled[(i, p)]).sum())
             .collect();
-        let (_, _, v_z) = small_svd(scaled.as_ref())?;
+        let (_, sigma_z, v_z) = small_svd(scaled.as_ref())?;
         Some(Decomposed {
+            sigma_z_last: sigma_z.last().copied().unwrap_or(0.0),
             scale,
             sigma,
             v,
@@ -209,6 +228,52 @@ impl Decomposed {
         // A_s β_s ≈ y_s with A_s = A S_A and y_s = y / s_y: β = S_A β_s s_y.
         let y_scale = self.scale[p];
         Some(scaled.iter().zip(&self.scale).map(|(b, s)| b * y_scale / s).collect())
+    }
+
+    /// One-sigma standard error of each coefficient of `estimator` when
+    /// y carries white noise of standard deviation `noise`, to first order:
+    /// a spectral filter $\beta_s = V\,\mathrm{diag}(w_k/\sigma_k)\,c$ has
+    /// $\mathrm{se}_j = (\text{noise}/s_j)\sqrt{\sum_k v_{jk}^2 w_k^2/\sigma_k^2}$
+    /// with $s_j$ column j's scale. TLS is the filter
+    /// $w_k = \sigma_k^2/(\sigma_k^2 - \tilde\sigma_q^2)$ (Fierro et al.
+    /// 1997), its noise inflated by $\sqrt{1 + \lVert\beta_s\rVert^2}$ for
+    /// the errors it allows in A (Van Huffel & Vandewalle 1991, §8); truncated
+    /// TLS of rank r is taken as the TSVD filter of rank r, its first-order
+    /// equivalent when the dropped singular values are well separated.
+    /// `None` where [`Self::coefficients`] is.
+    pub fn standard_errors(&self, estimator: Estimator, noise: f64) -> Option<Vec<f64>> {
+        let p = self.regressors();
+        let beta = self.coefficients(estimator)?;
+        let smallest_z = self.sigma_z_last;
+        let (weight, inflation): (Box<dyn Fn(usize, f64) -> f64>, f64) = match estimator {
+            Estimator::Ls => (Box::new(|_, _| 1.0), 1.0),
+            Estimator::Ridge { lambda } => (Box::new(move |_, s| s * s / (s * s + lambda)), 1.0),
+            Estimator::Tsvd { rank } | Estimator::Ttls { rank } => (Box::new(move |k, _| f64::from(k < rank)), 1.0),
+            Estimator::DampedTsvd { rank, lambda } => (
+                Box::new(move |k, s| if k < rank { s * s / (s * s + lambda) } else { 0.0 }),
+                1.0,
+            ),
+            Estimator::Tls => {
+                let scaled_norm: f64 = (beta.iter().zip(&self.scale))
+                    .map(|(b, s)| (b * s / self.scale[p]).powi(2))
+                    .sum();
+                (
+                    Box::new(move |_, s| s * s / (s * s - smallest_z * smallest_z)),
+                    (1.0 + scaled_norm).sqrt(),
+                )
+            }
+        };
+        Some(
+            (0..p)
+                .map(|j| {
+                    let gain: f64 = (0..p)
+                        .filter(|&k| self.sigma[k] > 0.0)
+                        .map(|k| (self.v[(j, k)] * weight(k, self.sigma[k]) / self.sigma[k]).powi(2))
+                        .sum();
+                    noise * inflation * gain.sqrt() / self.scale[j]
+                })
+                .collect(),
+        )
     }
 
     /// $-\tilde V_{12} \tilde V_{22}^\top / \lVert \tilde V_{22} \rVert^2$
@@ -293,10 +358,82 @@ pub struct Scored {
     pub coefficients: Vec<f64>,
 }
 
+/// The estimator a model is fitted with (`[fit] solver`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Solver {
+    /// Ridge with λ by PRESS over the windows, truncated SVD when the
+    /// design is too ill-conditioned ([`crate::numerics::solve`]).
+    #[default]
+    Ridge,
+    /// Truncated SVD, rank chosen leaving one heading out.
+    Tsvd,
+    /// Ordinary least squares.
+    Ls,
+    /// Total least squares.
+    Tls,
+    /// Truncated TLS, rank chosen leaving one heading out.
+    Ttls,
+    /// Damped TSVD, rank and λ chosen leaving one heading out.
+    DampedTsvd,
+    /// The family with the least held-out RMS, leaving one heading out.
+    Auto,
+}
+
+impl Solver {
+    /// Every solver, as `[fit] solver` names them.
+    pub const ALL: [Solver; 7] = [
+        Solver::Ridge,
+        Solver::Tsvd,
+        Solver::Ls,
+        Solver::Tls,
+        Solver::Ttls,
+        Solver::DampedTsvd,
+        Solver::Auto,
+    ];
+
+    /// The name `[fit] solver` takes.
+    pub fn name(self) -> &'static str {
+        match self {
+            Solver::Ridge => "ridge",
+            Solver::Tsvd => "tsvd",
+            Solver::Ls => "ls",
+            Solver::Tls => "tls",
+            Solver::Ttls => "ttls",
+            Solver::DampedTsvd => "damped_tsvd",
+            Solver::Auto => "auto",
+        }
+    }
+
+    /// The solver named `name`.
+    pub fn from_name(name: &str) -> Option<Solver> {
+        Solver::ALL.into_iter().find(|s| s.name() == name)
+    }
+
+    /// The families this solver chooses among on heading folds; empty for
+    /// ridge, which selects λ by PRESS over the windows instead.
+    pub fn families(self) -> &'static [Family] {
+        match self {
+            Solver::Ridge => &[],
+            Solver::Tsvd => &[Family::Tsvd],
+            Solver::Ls => &[Family::Ls],
+            Solver::Tls => &[Family::Tls],
+            Solver::Ttls => &[Family::Ttls],
+            Solver::DampedTsvd => &[Family::DampedTsvd],
+            Solver::Auto => &Family::ALL,
+        }
+    }
+}
+
 /// Scores every family on `folds`, each fold predicted by a fit on the
 /// others; at least two folds. A family none of whose candidates can be
 /// fitted on every split is left out.
 pub fn compare(folds: &[Factor]) -> Vec<Scored> {
+    compare_families(folds, &Family::ALL)
+}
+
+/// [`compare`] restricted to `families`, in their order.
+pub fn compare_families(folds: &[Factor], families: &[Family]) -> Vec<Scored> {
     if folds.len() < 2 {
         return Vec::new();
     }
@@ -313,7 +450,7 @@ pub fn compare(folds: &[Factor]) -> Vec<Scored> {
         return Vec::new();
     }
     let rows: usize = folds.iter().map(|f| f.rows).sum();
-    Family::ALL
+    families
         .iter()
         .filter_map(|&family| {
             let mut best: Option<(f64, Estimator)> = None;
@@ -529,5 +666,119 @@ mod tests {
         }
         // The noise: 0.2 × uniform on [-1, 1), RMS 0.2/√3 = 0.115.
         assert!(ls.heldout_rms > 0.09 && ls.heldout_rms < 0.15, "{}", ls.heldout_rms);
+    }
+
+    #[test]
+    fn least_squares_standard_errors_are_the_inverse_normal_matrix_diagonal() {
+        let (n, p) = (120, 3);
+        let a = columns(n, p, 401);
+        let y: Vec<f64> = (0..n).map(|i| a[0][i] + 0.3 * a[2][i] + 0.1 * noise(5, n)[i]).collect();
+        let views: Vec<&[f64]> = a.iter().map(Vec::as_slice).collect();
+        let d = Decomposed::new(&Factor::of_columns(&views, &y)).unwrap();
+        let sigma = 0.7;
+        let se = d.standard_errors(Estimator::Ls, sigma).unwrap();
+        // Brute force: σ² (AᵀA)⁻¹, column by column through solve_spd.
+        let g = Mat::from_fn(p, p, |i, j| (0..n).map(|k| a[i][k] * a[j][k]).sum::<f64>());
+        for j in 0..p {
+            let e: Vec<f64> = (0..p).map(|i| f64::from(i == j)).collect();
+            let column = crate::numerics::linalg::solve_spd(g.as_ref(), &e).unwrap();
+            let expected = sigma * column[j].sqrt();
+            assert!(
+                (se[j] - expected).abs() < 1e-10 * expected,
+                "{se:?} vs {expected} at {j}"
+            );
+        }
+        // Truncation and damping only shrink them.
+        for other in [Estimator::Tsvd { rank: 2 }, Estimator::Ridge { lambda: 0.1 }] {
+            let shrunk = d.standard_errors(other, sigma).unwrap();
+            assert!(
+                shrunk.iter().zip(&se).all(|(s, l)| *s <= l * (1.0 + 1e-12)),
+                "{other:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn total_least_squares_is_the_filter_of_the_smallest_singular_value_of_z() {
+        // β_TLS = (AᵀA − σ̃²I)⁻¹Aᵀy on the scaled columns: the spectral
+        // filter w_k = σ_k²/(σ_k² − σ̃²), which standard_errors uses.
+        let (n, p) = (200, 3);
+        let clean = columns(n, p, 501);
+        let a: Vec<Vec<f64>> = (0..p)
+            .map(|j| {
+                (0..n)
+                    .map(|i| clean[j][i] + 0.1 * noise(600 + j as u64, n)[i])
+                    .collect()
+            })
+            .collect();
+        let y: Vec<f64> = (0..n)
+            .map(|i| 2.0 * clean[0][i] - clean[1][i] + 0.5 * clean[2][i] + 0.1 * noise(700, n)[i])
+            .collect();
+        let views: Vec<&[f64]> = a.iter().map(Vec::as_slice).collect();
+        let d = Decomposed::new(&Factor::of_columns(&views, &y)).unwrap();
+        let tls = d.coefficients(Estimator::Tls).unwrap();
+        let smallest = d.sigma_z_last;
+        let mut scaled = vec![0.0; p];
+        for k in 0..p {
+            let w = d.sigma[k].powi(2) / (d.sigma[k].powi(2) - smallest * smallest);
+            for (j, b) in scaled.iter_mut().enumerate() {
+                *b += d.v[(j, k)] * w * d.c[k] / d.sigma[k];
+            }
+        }
+        for j in 0..p {
+            let filtered = scaled[j] * d.scale[p] / d.scale[j];
+            assert!(
+                (filtered - tls[j]).abs() < 1e-9 * tls[j].abs().max(1.0),
+                "{filtered} vs {}",
+                tls[j]
+            );
+        }
+    }
+
+    #[test]
+    fn with_noise_in_the_regressors_tls_recovers_the_coefficients_and_least_squares_predicts_better() {
+        // Errors in variables: a regressor read with noise (a noisy
+        // fluxgate) attenuates least squares toward zero by
+        // var(clean)/(var(clean) + var(noise)); TLS, whose assumption of
+        // one noise level on every scaled column holds here, does not.
+        // Held out, least squares still predicts the noisy scalar better:
+        // it is the best linear predictor from the regressors as recorded.
+        // So the held-out table favours LS or ridge, while the physical
+        // coefficients (the aircraft's permanent and induced moments) are
+        // TLS's when the fluxgate is the noisier instrument.
+        let (n, p) = (6000, 2);
+        let truth = [1.0, -1.0];
+        let clean = columns(n, p, 801);
+        // Uniform on [-1, 1): variance 1/3; noise 0.4 × uniform: variance
+        // 0.16/3. Attenuation 1/(1 + 0.16) = 0.862.
+        let a: Vec<Vec<f64>> = (0..p)
+            .map(|j| {
+                (0..n)
+                    .map(|i| clean[j][i] + 0.4 * noise(900 + j as u64, n)[i])
+                    .collect()
+            })
+            .collect();
+        // y's noise scaled by |β| so that every scaled column carries the
+        // same noise, as TLS assumes.
+        let y: Vec<f64> = (0..n)
+            .map(|i| truth[0] * clean[0][i] + truth[1] * clean[1][i] + 0.4 * 2f64.sqrt() * noise(990, n)[i])
+            .collect();
+        let folds: Vec<Factor> = (0..4)
+            .map(|b| {
+                let r = b * n / 4..(b + 1) * n / 4;
+                let views: Vec<&[f64]> = a.iter().map(|c| &c[r.clone()]).collect();
+                Factor::of_columns(&views, &y[r])
+            })
+            .collect();
+        let all = Decomposed::new(&Factor::combine(&folds).unwrap()).unwrap();
+        let ls = all.coefficients(Estimator::Ls).unwrap();
+        let tls = all.coefficients(Estimator::Tls).unwrap();
+        for j in 0..p {
+            assert!((tls[j] - truth[j]).abs() < 0.04, "TLS {tls:?}");
+            assert!((ls[j] / truth[j] - 1.0 / 1.16).abs() < 0.04, "LS {ls:?}");
+        }
+        let table = compare(&folds);
+        let rms = |family| table.iter().find(|s| s.family == family).unwrap().heldout_rms;
+        assert!(rms(Family::Ls) < rms(Family::Tls), "{table:?}");
     }
 }
