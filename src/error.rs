@@ -160,6 +160,15 @@ pub enum Error {
         hint: String,
     },
 
+    /// The vector compensation of a fluxgate could not be done.
+    #[error("vector compensation of '{sensor}': {message}")]
+    Vector {
+        /// Fluxgate prefix.
+        sensor: String,
+        /// Why, in words.
+        message: String,
+    },
+
     /// The fit could not be computed.
     #[error("{path}: fitting channel '{channel}': {source}")]
     Fit {

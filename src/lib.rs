@@ -84,6 +84,7 @@ pub mod flight_identity;
 pub mod flight_log;
 pub mod formats;
 pub mod holdout;
+pub mod igrf;
 pub mod messages;
 pub mod model;
 pub mod numerics;
@@ -95,6 +96,7 @@ pub mod screen;
 pub mod simulate;
 pub mod sink;
 pub mod tolles_lawson;
+pub mod vector;
 pub mod vector_calibration;
 pub mod windows;
 

@@ -27,7 +27,7 @@
 //! manoeuvres and the effects' parameters, goes to a separate truth file.
 //! A scenario and a seed give bit-identical output.
 
-pub mod igrf;
+pub use crate::igrf;
 pub mod physics;
 pub mod random;
 pub mod recording;

@@ -3,7 +3,7 @@
 
 use std::f64::consts::PI;
 
-use nalgebra::{Matrix3, Rotation3, Vector3};
+use nalgebra::{Matrix3, Vector3};
 
 use crate::simulate::random::Random;
 
@@ -35,12 +35,7 @@ pub fn apply(matrix: &[Vector; 3], v: Vector) -> Vector {
     (Matrix3::from_fn(|i, j| matrix[i][j]) * vector3(v)).into()
 }
 
-/// The rotation from body axes (forward, right, down) to north-east-down:
-/// $R = R_z(\psi) R_y(\theta) R_x(\phi)$, yaw ψ clockwise from north,
-/// pitch θ nose up, roll φ right wing down (CONTRACT §1).
-pub fn body_to_ned(roll_deg: f64, pitch_deg: f64, yaw_deg: f64) -> Rotation3<f64> {
-    Rotation3::from_euler_angles(roll_deg.to_radians(), pitch_deg.to_radians(), yaw_deg.to_radians())
-}
+pub use crate::vector::body_to_ned;
 
 /// Rotates a north-east-down vector into body axes: $v_b = R^\top v_{NED}$.
 pub fn to_body(ned: Vector, roll_deg: f64, pitch_deg: f64, yaw_deg: f64) -> Vector {
