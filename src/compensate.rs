@@ -59,6 +59,37 @@ pub struct Compensation {
     pub channels: Vec<CompensatedChannel>,
     /// Per row: why its outputs are missing or suspect (none when fine).
     pub flags: Vec<RowFlags>,
+    /// The Earth's field from each fluxgate, vector-compensated
+    /// ([`crate::vector`]); empty when vector compensation is off or
+    /// impossible.
+    pub vectors: Vec<crate::vector::CompensatedVector>,
+}
+
+impl Compensation {
+    /// Every column of values magcomp adds, in the order of the added
+    /// column names: each compensated channel, then each fluxgate's body
+    /// x, y, z and north, east, down (the flags column follows them).
+    pub fn value_columns(&self) -> Vec<&[f64]> {
+        let channels = self.channels.iter().map(|c| c.values.as_slice());
+        let vectors = self
+            .vectors
+            .iter()
+            .flat_map(|v| v.body_nt.iter().chain(&v.ned_nt).map(Vec::as_slice));
+        channels.chain(vectors).collect()
+    }
+
+    /// Adds `vector` and flags the rows where it is missing: without a
+    /// fluxgate reading (both frames), without an attitude (north-east-down).
+    pub fn add_vector(&mut self, vector: crate::vector::CompensatedVector) {
+        for (row, flags) in self.flags.iter_mut().enumerate() {
+            if vector.body_nt[0][row].is_nan() {
+                flags.raise(crate::flags::FlagKind::MissingVector, &vector.sensor);
+            } else if vector.ned_nt[0][row].is_nan() {
+                flags.raise(crate::flags::FlagKind::MissingAttitude, &vector.sensor);
+            }
+        }
+        self.vectors.push(vector);
+    }
 }
 
 /// Compensates every row of every channel that has a model, in parallel
@@ -82,7 +113,11 @@ pub fn compensate(log: &FlightLog, models: &[FittedModel], level: LevelConventio
         })
         .collect::<Result<_>>()?;
     let flags = row_flags(log, models, &channels);
-    Ok(Compensation { channels, flags })
+    Ok(Compensation {
+        channels,
+        flags,
+        vectors: Vec::new(),
+    })
 }
 
 /// `scalar` less `interference`, levelled by `level`.

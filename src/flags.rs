@@ -36,6 +36,9 @@ pub enum FlagKind {
     LagOutsideRecord,
     /// The model gives no value for another reason.
     ModelUndefined,
+    /// The INS attitude is missing: the vector in north-east-down is not
+    /// given.
+    MissingAttitude,
 }
 
 impl FlagKind {
@@ -54,6 +57,7 @@ impl FlagKind {
             FlagKind::BesideGap => "beside_gap",
             FlagKind::LagOutsideRecord => "lag_outside_record",
             FlagKind::ModelUndefined => "model_undefined",
+            FlagKind::MissingAttitude => "missing_attitude",
         }
     }
 }

@@ -59,6 +59,156 @@ pub struct FlightResult {
     /// The fitted models.
     #[serde(skip)]
     pub models: Vec<FittedModel>,
+    /// The twelve-constant model of each vector-compensated fluxgate.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub vector_models: Vec<crate::vector::VectorModel>,
+}
+
+/// What the vector stage produced: models, compensated vectors, words.
+struct VectorStage {
+    models: Vec<crate::vector::VectorModel>,
+    compensated: Vec<crate::vector::CompensatedVector>,
+    notes: Vec<String>,
+    warnings: Vec<String>,
+}
+
+/// Fitted direction further than this from IGRF's, degrees: a warning (a
+/// wrong attitude convention, date or position, or a box without pitches
+/// and rolls).
+const VECTOR_DIRECTION_WARNING_DEG: f64 = 2.0;
+
+/// Vector-compensates every fluxgate of `log` with the twelve-constant
+/// model fitted on `windows`, the field's size from the quietest
+/// compensated channel: when `[vector] enabled` and the flight records an
+/// INS attitude. A fluxgate whose fit fails is a warning, not an error:
+/// the scalar outputs stand.
+fn vector_stage(
+    log: &FlightLog,
+    (windows, boxes): (&[crate::windows::CalibrationWindow], &[(f64, f64)]),
+    compensation: &crate::compensate::Compensation,
+    quality: &[ChannelQuality],
+    options: &crate::vector::VectorOptions,
+) -> VectorStage {
+    let mut stage = VectorStage {
+        models: Vec::new(),
+        compensated: Vec::new(),
+        notes: Vec::new(),
+        warnings: Vec::new(),
+    };
+    if !options.enabled {
+        return stage;
+    }
+    if crate::vector::attitude(log).is_none() {
+        stage
+            .notes
+            .push("no vector compensation: the flight records no INS attitude (roll, pitch and yaw)".into());
+        return stage;
+    }
+    let reference = quality
+        .iter()
+        .zip(&compensation.channels)
+        .filter(|(q, _)| q.band_std_after_nt.is_finite())
+        .min_by(|a, b| a.0.band_std_after_nt.total_cmp(&b.0.band_std_after_nt))
+        .map(|(_, c)| c);
+    let Some(reference) = reference else {
+        stage
+            .warnings
+            .push("no vector compensation: no compensated scalar channel to give the field's size".into());
+        return stage;
+    };
+    let reference_name = format!("{} (compensated)", reference.channel);
+    for sensor in log.vector_sensors() {
+        let fitted = crate::vector::fit(log, &sensor, (windows, boxes), (&reference_name, &reference.values))
+            .and_then(|model| Ok((model.compensate(log)?, model)));
+        match fitted {
+            Ok((compensated, model)) => {
+                stage.notes.push(vector_note(&model));
+                stage.warnings.push(format!(
+                    "{}: the vector-compensated columns are experimental: the fit's residual is measured on the calibration box only, and on simulated flights the survey-line error is within 3 nT on most but not all (tests/vector.rs); check them against a known field before use",
+                    model.sensor
+                ));
+                if let Some(warning) = vector_direction_warning(&model) {
+                    stage.warnings.push(warning);
+                }
+                stage.compensated.push(compensated);
+                stage.models.push(model);
+            }
+            Err(e) => stage
+                .warnings
+                .push(format!("{}: no vector compensation: {e}", sensor.prefix)),
+        }
+    }
+    stage
+}
+
+/// Windows closer than this are taken as one box's, and the flight
+/// between them (the turns between legs) as the box's too, s.
+const BOX_GAP_S: f64 = 150.0;
+
+/// The spans of given windows (no detection): windows less than
+/// [`BOX_GAP_S`] apart joined, the flight between them included.
+fn window_hulls(windows: &[crate::windows::CalibrationWindow]) -> Vec<(f64, f64)> {
+    let mut spans: Vec<(f64, f64)> = windows.iter().map(|w| (w.t_start, w.t_end)).collect();
+    spans.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mut hulls: Vec<(f64, f64)> = Vec::new();
+    for (t0, t1) in spans {
+        match hulls.last_mut() {
+            Some(last) if t0 - last.1 <= BOX_GAP_S => last.1 = last.1.max(t1),
+            _ => hulls.push((t0, t1)),
+        }
+    }
+    hulls
+}
+
+/// One line on a vector model.
+fn vector_note(model: &crate::vector::VectorModel) -> String {
+    let [x, y, z] = model.residual_rms_nt;
+    let mut text = format!(
+        "{}: vector-compensated with the twelve-constant model on {} calibration rows, the field's size from {}: residual x/y/z {x:.2}/{y:.2}/{z:.2} nT",
+        model.sensor, model.rows, model.reference
+    );
+    if let Some(held) = &model.held_out {
+        let [x, y, z] = held.rms_nt;
+        text += &format!(
+            ", held out by heading ({} headings) {x:.2}/{y:.2}/{z:.2} nT",
+            held.headings
+        );
+    }
+    text += &format!(
+        "; Earth field inclination {:.3}°, declination {:.3}°",
+        model.inclination_deg, model.declination_deg
+    );
+    if let crate::vector::FieldStart::Igrf {
+        inclination_deg,
+        declination_deg,
+        ..
+    } = model.start
+    {
+        text += &format!(" (IGRF-14: {inclination_deg:.3}°, {declination_deg:.3}°)");
+    }
+    text
+}
+
+/// A warning when the fitted field direction is far from IGRF's.
+fn vector_direction_warning(model: &crate::vector::VectorModel) -> Option<String> {
+    let crate::vector::FieldStart::Igrf {
+        inclination_deg,
+        declination_deg,
+        dated,
+        ..
+    } = model.start
+    else {
+        return None;
+    };
+    let d_incl = model.inclination_deg - inclination_deg;
+    let d_decl = (model.declination_deg - declination_deg + 540.0).rem_euclid(360.0) - 180.0;
+    (d_incl.abs().max(d_decl.abs()) > VECTOR_DIRECTION_WARNING_DEG).then(|| {
+        format!(
+            "{}: the vector-compensated field's direction differs from IGRF-14's by {d_incl:.2}° in inclination and {d_decl:.2}° in declination (more than {VECTOR_DIRECTION_WARNING_DEG}°){}: check the INS attitude convention (CONTRACT §1), the position columns and the flight's date; the body-axis vector may be rotated",
+            model.sensor,
+            if dated { "" } else { " with no flight date (IGRF taken at 2025.0)" }
+        )
+    })
 }
 
 /// What a channel's estimator table leaves out, in words: the whole table
@@ -240,7 +390,7 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
         })
         .collect::<Result<_>>()?;
     drop(stores);
-    let compensation = compensate(log, &models, options.level)?;
+    let mut compensation = compensate(log, &models, options.level)?;
     let stores = StorePool::new();
     let quality: Vec<ChannelQuality> = models
         .par_iter()
@@ -258,6 +408,14 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
             Ok(quality)
         })
         .collect::<Result<_>>()?;
+    let boxes: Vec<(f64, f64)> = match &detected {
+        Some(detection) => detection.boxes.iter().map(|b| (b.t_start, b.t_end)).collect(),
+        None => window_hulls(&windows),
+    };
+    let vector = vector_stage(log, (&windows, &boxes), &compensation, &quality, &options.vector);
+    for compensated in vector.compensated {
+        compensation.add_vector(compensated);
+    }
     let added_columns = added_column_names(log, compensated, &compensation)?;
     let mut notes = renaming_notes(&channels, &added_columns);
     notes.extend(calibration.iter().map(|c| c.summary()));
@@ -279,6 +437,8 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
             m.spec.describe()
         )
     }));
+    notes.extend(vector.notes);
+    warnings.extend(vector.warnings);
     if let Some(detection) = &detected {
         notes.extend(detection_notes(detection));
         warnings.extend(detection_warnings(detection));
@@ -305,6 +465,7 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
         warnings,
         diagnosis,
         models,
+        vector_models: vector.models,
     };
     Ok(FlightRun {
         recorded,

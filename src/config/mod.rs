@@ -62,12 +62,15 @@ use crate::numerics::filter::{EdgePadding, FilterBand};
 use crate::numerics::solve::{Criterion, LambdaChoice, SolveOptions};
 use crate::quality::transfer::TransferOptions;
 use crate::tolles_lawson::{EddyTerms, InducedTerms, TermSet};
+use crate::vector::VectorOptions;
 use crate::vector_calibration::VectorCalibrationOptions;
 use crate::windows::{read_detect_json, CalibrationWindow};
 
 mod sections;
 
-use sections::{RawAlignment, RawColumns, RawDetect, RawDiagnose, RawTopic, RawTransfer, RawVectorCalibration};
+use sections::{
+    RawAlignment, RawColumns, RawDetect, RawDiagnose, RawTopic, RawTransfer, RawVector, RawVectorCalibration,
+};
 
 /// `[filter]` as written.
 #[derive(Debug, Clone, Deserialize)]
@@ -236,6 +239,8 @@ pub(crate) struct RawPipeline {
     pub diagnose: RawDiagnose,
     /// Fluxgate calibration before the fit.
     pub vector_calibration: RawVectorCalibration,
+    /// Vector compensation.
+    pub vector: RawVector,
     /// Flights to process.
     #[serde(rename = "flight")]
     pub flights: Vec<RawFlight>,
@@ -312,6 +317,8 @@ pub struct Settings {
     pub diagnose: DiagnoseOptions,
     /// Fluxgate calibration before the fit.
     pub vector_calibration: VectorCalibrationOptions,
+    /// Vector compensation (the twelve-constant model).
+    pub vector: VectorOptions,
 }
 
 impl Default for Settings {
@@ -405,6 +412,7 @@ impl Pipeline {
             fom_limit_nt: raw.quality.fom_limit_nt,
             diagnose: DiagnoseOptions::try_from(raw.diagnose).map_err(bad)?,
             vector_calibration: VectorCalibrationOptions::try_from(raw.vector_calibration).map_err(bad)?,
+            vector: VectorOptions::from(raw.vector),
         };
         let mut windows_files = Vec::new();
         let mut flights = Vec::with_capacity(raw.flights.len());

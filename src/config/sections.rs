@@ -15,6 +15,7 @@ use crate::diagnose::{ApplyDiagnosis, DiagnoseOptions};
 use crate::formats::align::AlignmentOptions;
 use crate::formats::{ColumnNames, TopicMapping, VectorColumns};
 use crate::quality::transfer::TransferOptions;
+use crate::vector::VectorOptions;
 use crate::vector_calibration::VectorCalibrationOptions;
 
 /// A section as written: one optional field per field of the validated
@@ -85,6 +86,19 @@ raw_section! {
         reference: Option<String>,
         whole_flight: bool,
         max_iterations: usize,
+    }
+}
+
+raw_section! {
+    /// `[vector]` as written.
+    RawVector => VectorOptions {
+        enabled: bool,
+    }
+}
+
+impl From<RawVector> for VectorOptions {
+    fn from(raw: RawVector) -> Self {
+        raw.over_defaults()
     }
 }
 

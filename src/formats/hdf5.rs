@@ -191,10 +191,11 @@ pub fn stage_hdf5(
         builder.create_dataset(&channel.name).with_f64_data(&channel.values);
     }
     if let Some(compensation) = compensation {
-        for (name, channel) in added.iter().zip(&compensation.channels) {
-            builder.create_dataset(name).with_f64_data(&channel.values);
+        let values = compensation.value_columns();
+        for (name, column) in added.iter().zip(&values) {
+            builder.create_dataset(name).with_f64_data(column);
         }
-        if let Some(flags) = added.get(compensation.channels.len()) {
+        if let Some(flags) = added.get(values.len()) {
             let texts: Vec<String> = compensation.flags.iter().map(|f| f.to_string()).collect();
             let texts: Vec<&str> = texts.iter().map(String::as_str).collect();
             builder.create_dataset(flags).with_vlen_strings(&texts);

@@ -156,6 +156,15 @@ fn new_column_names(existing: &[String], compensation: &Compensation) -> Vec<Str
         let taken: Vec<String> = existing.iter().chain(&added).cloned().collect();
         added.push(output_column_name(&channel.channel, &taken));
     }
+    for vector in &compensation.vectors {
+        for axis in ["x", "y", "z", "n", "e", "d"] {
+            let base = format!("{}_{axis}_c", vector.sensor);
+            added.push(match existing.iter().chain(&added).any(|n| *n == base) {
+                true => format!("{base}_magcomp"),
+                false => base,
+            });
+        }
+    }
     let taken: Vec<String> = existing.iter().chain(&added).cloned().collect();
     added.push(flags_column_name(&taken));
     added
@@ -164,6 +173,8 @@ fn new_column_names(existing: &[String], compensation: &Compensation) -> Vec<Str
 /// Formats magcomp's cells for one row at a time.
 pub(crate) struct ExtraColumns<'a> {
     compensation: &'a Compensation,
+    /// The value columns, channels then vectors.
+    values: Vec<&'a [f64]>,
     /// The next row to write.
     pub(crate) row: usize,
     buffer: number_text::Buffer,
@@ -175,6 +186,7 @@ impl<'a> ExtraColumns<'a> {
     pub(crate) fn new(compensation: &'a Compensation) -> Self {
         ExtraColumns {
             compensation,
+            values: compensation.value_columns(),
             row: 0,
             buffer: number_text::Buffer::default(),
             flags: String::new(),
@@ -193,8 +205,8 @@ impl<'a> ExtraColumns<'a> {
     }
 
     pub(crate) fn append_to(&mut self, record: &mut ::csv::ByteRecord) {
-        for channel in &self.compensation.channels {
-            record.push_field(self.buffer.format(channel.values[self.row]));
+        for column in &self.values {
+            record.push_field(self.buffer.format(column[self.row]));
         }
         record.push_field(self.flags_text());
         self.row += 1;
@@ -203,9 +215,9 @@ impl<'a> ExtraColumns<'a> {
     /// Writes ` value` per channel (`*` for a null) and ` flags` for the
     /// next row of an XYZ file.
     pub(crate) fn write_xyz_cells<W: Write>(&mut self, out: &mut W) -> std::io::Result<()> {
-        for channel in &self.compensation.channels {
+        for column in &self.values {
             out.write_all(b" ")?;
-            let value = channel.values[self.row];
+            let value = column[self.row];
             out.write_all(if value.is_finite() {
                 self.buffer.format(value)
             } else {
@@ -221,9 +233,9 @@ impl<'a> ExtraColumns<'a> {
 
     /// Writes `,value` per channel and `,flags` for the next row.
     pub(crate) fn write_cells<W: Write>(&mut self, out: &mut W) -> std::io::Result<()> {
-        for channel in &self.compensation.channels {
+        for column in &self.values {
             out.write_all(b",")?;
-            out.write_all(self.buffer.format(channel.values[self.row]))?;
+            out.write_all(self.buffer.format(column[self.row]))?;
         }
         out.write_all(b",")?;
         let flags = self.flags_text();

@@ -62,14 +62,17 @@ use crate::windows::CalibrationWindow;
 /// `[vector]` settings.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct VectorOptions {
-    /// Compensate the vector whenever the flight has INS attitude and a
-    /// calibration box.
+    /// Compensate the vector when the flight has INS attitude and a
+    /// calibration box (`[vector] enabled = true`; off by default while
+    /// it is validated).
     pub enabled: bool,
 }
 
 impl Default for VectorOptions {
+    /// Off until its survey-line accuracy is shown on simulated flights
+    /// (see `tests/vector.rs`): the box residual alone does not prove it.
     fn default() -> Self {
-        VectorOptions { enabled: true }
+        VectorOptions { enabled: false }
     }
 }
 
@@ -151,6 +154,11 @@ pub struct VectorModel {
     pub condition_number: f64,
     /// In-sample RMS residual per fluxgate axis, nT.
     pub residual_rms_nt: [f64; 3],
+    /// The fluxgate's lag behind the INS attitude, in sample intervals.
+    pub fluxgate_lag_samples: f64,
+    /// The fluxgate's smoothing against the INS, in units of the second
+    /// difference (1/24 ≈ 0.042: averaging over one sample interval).
+    pub fluxgate_smoothing: f64,
     /// Held out by heading, with three headings or more.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub held_out: Option<HeldOut>,
@@ -168,13 +176,43 @@ pub struct CompensatedVector {
     pub ned_nt: [Vec<f64>; 3],
 }
 
-/// One calibration row: the fluxgate reading, the rotation NED → body and
-/// the field's size.
+/// What one row says of the Earth's field: the rotation NED → body, the
+/// field's size, and IGRF's turn of its direction across the box (its
+/// unit direction here less its mean over the box, about 0.01° a km,
+/// added to the fitted direction).
+#[derive(Debug, Clone, Copy)]
+struct Point {
+    ned_to_body: Matrix3<f64>,
+    total_nt: f64,
+    turn: Vector3<f64>,
+}
+
+impl Point {
+    /// The Earth's field here in body axes for box direction `u`.
+    fn body(&self, u: &Vector3<f64>) -> Vector3<f64> {
+        self.ned_to_body * ((u + self.turn).normalize() * self.total_nt)
+    }
+}
+
+/// One calibration row with its neighbours: the fluxgate reading and the
+/// field at the row before, at and after it.
 #[derive(Debug, Clone, Copy)]
 struct Sample {
     reading: Vector3<f64>,
-    ned_to_body: Matrix3<f64>,
-    total_nt: f64,
+    points: [Point; 3],
+}
+
+impl Sample {
+    /// The body-axis field the fluxgate reads for direction `u`: the
+    /// field at the row's instant, `lag` samples late and smoothed by
+    /// `smoothing` times its second difference. A fluxgate that averages
+    /// over its sample interval, read against an INS that samples an
+    /// instant, has smoothing 1/24 (the boxcar's second-order term); a
+    /// timing offset between the two is a lag.
+    fn body(&self, u: &Vector3<f64>, lag: f64, smoothing: f64) -> Vector3<f64> {
+        let [before, at, after] = self.points.map(|p| p.body(u));
+        at - lag * (after - before) * 0.5 + smoothing * (after - 2.0 * at + before)
+    }
 }
 
 /// The INS attitude (roll, pitch, yaw) columns of `log`, degrees.
@@ -199,23 +237,33 @@ fn ned_to_body(attitude: &[&[f64]; 3], i: usize) -> Option<Matrix3<f64>> {
         .then(|| body_to_ned(roll, pitch, yaw).inverse().into_inner())
 }
 
-/// Fits the twelve-constant model of `sensor` on the rows of `windows`,
-/// the field's size from `reference` (a scalar channel's values on every
-/// row of `log`, named `reference_name`).
+/// Fits the twelve-constant model of `sensor` on the rows of `windows`
+/// and of the box `spans` (start, end; the whole box, its turns
+/// included), the field's size from `reference` (a scalar channel's
+/// values on every row of `log`, named `reference_name`). Each heading of
+/// `windows` is held out in turn for the held-out residual.
+///
+/// The turns between a box's legs matter: a steady bank of 20° or more
+/// for half a minute pins the field's inclination and declination, which
+/// the manoeuvres' fast, small swings pin less well (a fluxgate averages
+/// over its sample interval while an INS samples an instant, a mismatch
+/// that grows with the manoeuvre's rate).
 pub fn fit(
     log: &FlightLog,
     sensor: &VectorSensor,
-    windows: &[CalibrationWindow],
+    (windows, spans): (&[CalibrationWindow], &[(f64, f64)]),
     (reference_name, reference): (&str, &[f64]),
 ) -> Result<VectorModel> {
     let attitude = attitude(log).ok_or_else(|| Error::Vector {
         sensor: sensor.prefix.clone(),
         message: "the flight records no INS attitude (roll, pitch and yaw)".into(),
     })?;
-    let rows = window_rows(log, windows);
-    let samples = samples(log, sensor, &attitude, reference, rows.iter().cloned());
-    let start = start_direction(log, rows.iter().cloned(), &samples);
-    let mut model = fit_samples(&samples, &start.0).ok_or_else(|| Error::Vector {
+    let mut spanned: Vec<CalibrationWindow> = windows.to_vec();
+    spanned.extend(spans.iter().map(|&(t0, t1)| CalibrationWindow::new(t0, t1)));
+    let rows = union(window_rows(log, &spanned));
+    let (angles, start, turns) = start_direction(log, sensor, &rows, (&attitude, reference));
+    let samples = samples(log, sensor, (&attitude, reference, &turns), rows.iter().cloned());
+    let mut model = fit_samples(&samples, &angles).ok_or_else(|| Error::Vector {
         sensor: sensor.prefix.clone(),
         message: format!(
             "{} calibration rows with a fluxgate reading, an attitude and a '{reference_name}' reading: too few, or the attitudes too alike, to fit twelve constants",
@@ -224,8 +272,8 @@ pub fn fit(
     })?;
     model.sensor = sensor.prefix.clone();
     model.reference = reference_name.into();
-    model.start = start.1;
-    model.held_out = held_out(log, sensor, windows, &attitude, reference, &start.0);
+    model.start = start;
+    model.held_out = held_out(log, sensor, windows, (&attitude, reference, &turns), &angles);
     Ok(model)
 }
 
@@ -239,40 +287,74 @@ fn window_rows(log: &FlightLog, windows: &[CalibrationWindow]) -> Vec<Range<usiz
         .collect()
 }
 
+/// `ranges` merged where they overlap or touch, in order.
+fn union(mut ranges: Vec<Range<usize>>) -> Vec<Range<usize>> {
+    ranges.sort_by_key(|r| (r.start, r.end));
+    let mut merged: Vec<Range<usize>> = Vec::new();
+    for range in ranges {
+        match merged.last_mut() {
+            Some(last) if range.start <= last.end => last.end = last.end.max(range.end),
+            _ => merged.push(range),
+        }
+    }
+    merged
+}
+
 /// The usable samples of `rows`: a full fluxgate reading, an attitude and
 /// a positive reference.
 fn samples(
     log: &FlightLog,
     sensor: &VectorSensor,
-    attitude: &[&[f64]; 3],
-    reference: &[f64],
+    (attitude, reference, turns): (&[&[f64]; 3], &[f64], &Turns),
     rows: impl Iterator<Item = Range<usize>>,
 ) -> Vec<Sample> {
     let field = log.vector_components(sensor);
+    let time = log.time_s();
+    let step = log.median_interval_s();
+    let point = |i: usize| {
+        let total_nt = reference[i];
+        (total_nt.is_finite() && total_nt > 0.0).then_some(())?;
+        Some(Point {
+            ned_to_body: ned_to_body(attitude, i)?,
+            total_nt,
+            turn: turns.at(i),
+        })
+    };
+    // A row needs both neighbours one sample interval away.
+    let even = |a: usize, b: usize| ((time[b] - time[a]) - step).abs() <= 0.25 * step;
     rows.flatten()
+        .filter(|&i| i > 0 && i + 1 < log.len() && even(i - 1, i) && even(i, i + 1))
         .filter_map(|i| {
             let reading = Vector3::new(field[0][i], field[1][i], field[2][i]);
-            let total_nt = reference[i];
-            if !(reading.iter().all(|v| v.is_finite()) && total_nt.is_finite() && total_nt > 0.0) {
-                return None;
-            }
+            reading.iter().all(|v| v.is_finite()).then_some(())?;
             Some(Sample {
                 reading,
-                ned_to_body: ned_to_body(attitude, i)?,
-                total_nt,
+                points: [point(i - 1)?, point(i)?, point(i + 1)?],
             })
         })
         .collect()
 }
 
-/// The starting direction (inclination, declination in radians): IGRF-14
-/// at the mean position of `rows` when the flight records one, else the
-/// best of a 5° grid.
+/// IGRF's turn of the field's direction across the box, by row.
+#[derive(Debug, Default)]
+struct Turns(std::collections::BTreeMap<usize, Vector3<f64>>);
+
+impl Turns {
+    fn at(&self, row: usize) -> Vector3<f64> {
+        self.0.get(&row).copied().unwrap_or_else(Vector3::zeros)
+    }
+}
+
+/// The starting direction (inclination, declination in radians) and the
+/// main field's turn across `rows`: IGRF-14 at every row with a position
+/// (their mean direction the start) when the flight records one; else the
+/// best of a 5° grid and no turn.
 fn start_direction(
     log: &FlightLog,
-    rows: impl Iterator<Item = Range<usize>>,
-    samples: &[Sample],
-) -> ((f64, f64), FieldStart) {
+    sensor: &VectorSensor,
+    rows: &[Range<usize>],
+    (attitude, reference): (&[&[f64]; 3], &[f64]),
+) -> ((f64, f64), FieldStart, Turns) {
     let column = |names: &[&str]| {
         names
             .iter()
@@ -282,48 +364,55 @@ fn start_direction(
     let (latitude, longitude) = (column(&["lat", "ins_lat"]), column(&["lon", "ins_lon"]));
     let height = column(&["msl", "alt", "utm_z", "ins_alt"]);
     if let (Some(latitude), Some(longitude)) = (latitude, longitude) {
-        let (mut sum, mut count) = ([0.0; 3], 0usize);
-        for i in rows.flatten() {
+        let (year, dated) = match log.date() {
+            Some(d) => (decimal_year(d.year, d.month, d.day, 43_200.0), true),
+            None => (2025.0, false),
+        };
+        let model = Igrf::fourteenth();
+        let (first, last) = model.valid_years();
+        let epoch = model.at_year(year.clamp(first, last));
+        let mut directions = std::collections::BTreeMap::new();
+        let (mut sum, mut total) = (Vector3::zeros(), 0.0);
+        for i in rows.iter().cloned().flatten() {
             let h = height.map_or(0.0, |h| h[i]);
-            if latitude[i].is_finite() && longitude[i].is_finite() && h.is_finite() {
-                sum = [sum[0] + latitude[i], sum[1] + longitude[i], sum[2] + h];
-                count += 1;
+            if !(latitude[i].is_finite() && longitude[i].is_finite() && h.is_finite()) {
+                continue;
             }
+            let field = Vector3::from(epoch.field(latitude[i], longitude[i], h).north_east_down_nt);
+            sum += field.normalize();
+            total += field.norm();
+            directions.insert(i, field.normalize());
         }
-        if count > 0 {
-            let [lat, lon, h] = sum.map(|s| s / count as f64);
-            let (year, dated) = match log.date() {
-                Some(d) => (decimal_year(d.year, d.month, d.day, 43_200.0), true),
-                None => (2025.0, false),
-            };
-            let model = Igrf::fourteenth();
-            let (first, last) = model.valid_years();
-            let main = model.field(lat, lon, h, year.clamp(first, last));
+        if !directions.is_empty() {
+            let count = directions.len() as f64;
+            let mean = sum.normalize();
+            let inclination = mean[2].asin();
+            let declination = mean[1].atan2(mean[0]);
             let start = FieldStart::Igrf {
                 year,
                 dated,
-                inclination_deg: main.inclination_deg(),
-                declination_deg: main.declination_deg(),
-                total_nt: main.total_nt(),
+                inclination_deg: inclination.to_degrees(),
+                declination_deg: declination.to_degrees(),
+                total_nt: total / count,
             };
-            return (
-                (main.inclination_deg().to_radians(), main.declination_deg().to_radians()),
-                start,
-            );
+            let turns = Turns(directions.into_iter().map(|(i, u)| (i, u - mean)).collect());
+            return ((inclination, declination), start, turns);
         }
     }
+    let turns = Turns::default();
+    let samples = samples(log, sensor, (attitude, reference, &turns), rows.iter().cloned());
     let mut best = (f64::INFINITY, (0.0, 0.0));
     for i in -17..=17 {
         for d in 0..72 {
             let angles = ((i as f64 * 5.0).to_radians(), (d as f64 * 5.0).to_radians());
-            if let Some((_, _, cost)) = linear_fit(samples, direction(angles.0, angles.1)[0]) {
+            if let Some((_, _, cost)) = linear_fit(&samples, direction(angles.0, angles.1)[0]) {
                 if cost < best.0 {
                     best = (cost, angles);
                 }
             }
         }
     }
-    (best.1, FieldStart::Grid)
+    (best.1, FieldStart::Grid, turns)
 }
 
 /// K and h by linear least squares at direction `u`, and the cost.
@@ -331,12 +420,7 @@ fn linear_fit(samples: &[Sample], u: Vector3<f64>) -> Option<(Matrix3<f64>, Vect
     if samples.len() < 8 {
         return None;
     }
-    let regressors: [Vec<f64>; 3] = std::array::from_fn(|k| {
-        samples
-            .iter()
-            .map(|s| (s.ned_to_body * u)[k] * s.total_nt)
-            .collect()
-    });
+    let regressors: [Vec<f64>; 3] = std::array::from_fn(|k| samples.iter().map(|s| s.body(&u, 0.0, 0.0)[k]).collect());
     let ones = vec![1.0; samples.len()];
     let mut k = Matrix3::zeros();
     let mut h = Vector3::zeros();
@@ -377,7 +461,16 @@ struct Parameters {
     h: Vector3<f64>,
     inclination: f64,
     declination: f64,
+    /// The fluxgate's lag behind the INS, samples.
+    lag: f64,
+    /// The fluxgate's smoothing against the INS (1/24: a boxcar over one
+    /// sample interval).
+    smoothing: f64,
 }
+
+/// Parameters fitted: K (9), h (3), inclination, declination, lag,
+/// smoothing.
+const PARAMETERS: usize = 16;
 
 impl Parameters {
     fn step(&self, delta: &[f64], scale: f64) -> Parameters {
@@ -390,21 +483,52 @@ impl Parameters {
         }
         next.inclination += scale * delta[12];
         next.declination += scale * delta[13];
+        next.lag += scale * delta[14];
+        next.smoothing += scale * delta[15];
         next
     }
 
-    /// Sum of squared residuals over `samples`.
-    fn cost(&self, samples: &[Sample]) -> f64 {
+    /// The predicted less the recorded reading of `s`.
+    fn residual(&self, s: &Sample, u: &Vector3<f64>) -> Vector3<f64> {
+        self.k * s.body(u, self.lag, self.smoothing) + self.h - s.reading
+    }
+
+    /// Weighted sum of squared residuals over `samples`.
+    fn cost(&self, samples: &[Sample], weights: &[f64]) -> f64 {
         let u = direction(self.inclination, self.declination)[0];
         samples
             .iter()
-            .map(|s| (self.k * (s.ned_to_body * u) * s.total_nt + self.h - s.reading).norm_squared())
+            .zip(weights)
+            .map(|(s, w)| w * self.residual(s, &u).norm_squared())
             .sum()
+    }
+
+    /// Huber weights of the rows at these parameters: 1 within
+    /// [`HUBER_SPREAD`] times the median residual size, falling as its
+    /// inverse beyond. A row where the INS attitude and the fluxgate
+    /// disagree (one sampled at an instant, the other averaged over the
+    /// interval, at the onset of a fast roll) weighs little.
+    fn weights(&self, samples: &[Sample]) -> Vec<f64> {
+        let u = direction(self.inclination, self.declination)[0];
+        let sizes: Vec<f64> = samples.iter().map(|s| self.residual(s, &u).norm()).collect();
+        let mut sorted = sizes.clone();
+        sorted.sort_by(f64::total_cmp);
+        let median = sorted.get(sorted.len() / 2).copied().unwrap_or(0.0);
+        let limit = HUBER_SPREAD * median;
+        sizes
+            .iter()
+            .map(|&r| if r <= limit || limit <= 0.0 { 1.0 } else { limit / r })
+            .collect()
     }
 }
 
-/// Gauss-Newton from the linear fit at `start`; `None` when the samples
-/// cannot determine the parameters.
+/// Residual sizes beyond this many medians are down-weighted (Huber): for
+/// Gaussian errors the median size of a 3-vector is 1.54σ, so 2.5 medians
+/// is about 3.9σ and leaves clean rows alone.
+const HUBER_SPREAD: f64 = 2.5;
+
+/// Iteratively reweighted Gauss-Newton from the linear fit at `start`;
+/// `None` when the samples cannot determine the parameters.
 fn fit_samples(samples: &[Sample], start: &(f64, f64)) -> Option<VectorModel> {
     let (k, h, _) = linear_fit(samples, direction(start.0, start.1)[0])?;
     let mut parameters = Parameters {
@@ -412,19 +536,22 @@ fn fit_samples(samples: &[Sample], start: &(f64, f64)) -> Option<VectorModel> {
         h,
         inclination: start.0,
         declination: start.1,
+        lag: 0.0,
+        smoothing: 0.0,
     };
-    let mut cost = parameters.cost(samples);
     let mut iterations = 0;
     let mut condition_number = f64::INFINITY;
     while iterations < MOST_ITERATIONS {
         iterations += 1;
-        let (delta, condition) = gauss_newton_step(samples, &parameters)?;
+        let weights = parameters.weights(samples);
+        let cost = parameters.cost(samples, &weights);
+        let (delta, condition) = gauss_newton_step(samples, &weights, &parameters)?;
         condition_number = condition;
         let mut scale = 1.0;
         let mut improved = None;
         for _ in 0..30 {
             let candidate = parameters.step(&delta, scale);
-            let candidate_cost = candidate.cost(samples);
+            let candidate_cost = candidate.cost(samples, &weights);
             if candidate_cost <= cost {
                 improved = Some((candidate, candidate_cost));
                 break;
@@ -434,30 +561,24 @@ fn fit_samples(samples: &[Sample], start: &(f64, f64)) -> Option<VectorModel> {
         let Some((next, next_cost)) = improved else {
             break;
         };
-        let fell = cost - next_cost;
         parameters = next;
-        cost = next_cost;
-        if fell <= 1e-13 * cost.max(f64::MIN_POSITIVE) {
+        if cost - next_cost <= 1e-12 * cost.max(f64::MIN_POSITIVE) {
             break;
         }
     }
     let u = direction(parameters.inclination, parameters.declination)[0];
     let mut squares = [0.0; 3];
     for s in samples {
-        let r = parameters.k * (s.ned_to_body * u) * s.total_nt + parameters.h - s.reading;
+        let r = parameters.residual(s, &u);
         for j in 0..3 {
             squares[j] += r[j] * r[j];
         }
     }
     parameters.k.try_inverse()?;
     // Inclination in [-90°, 90°], declination in (-180°, 180°].
-    let (mut inclination, mut declination) = (parameters.inclination, parameters.declination);
-    if inclination.cos() < 0.0 {
-        inclination = std::f64::consts::PI - inclination;
-        declination += std::f64::consts::PI;
-    }
-    inclination = inclination.sin().atan2(inclination.cos().abs());
-    declination = declination.sin().atan2(declination.cos());
+    let unit = u;
+    let inclination = unit[2].clamp(-1.0, 1.0).asin();
+    let declination = unit[1].atan2(unit[0]);
     Some(VectorModel {
         sensor: String::new(),
         reference: String::new(),
@@ -471,41 +592,53 @@ fn fit_samples(samples: &[Sample], start: &(f64, f64)) -> Option<VectorModel> {
         condition_number,
         residual_rms_nt: squares.map(|s| (s / samples.len() as f64).sqrt()),
         held_out: None,
+        fluxgate_lag_samples: parameters.lag,
+        fluxgate_smoothing: parameters.smoothing,
     })
 }
 
-/// The Gauss-Newton step minimising $\lVert J\Delta + r\rVert$, from the R
-/// factor of $[J \mid -r]$, and the condition number of J with unit-norm
-/// columns.
-fn gauss_newton_step(samples: &[Sample], parameters: &Parameters) -> Option<(Vec<f64>, f64)> {
+/// The Gauss-Newton step minimising $\lVert W^{1/2}(J\Delta + r)\rVert$,
+/// from the R factor of $W^{1/2}[J \mid -r]$, and the condition number of
+/// $W^{1/2}J$ with unit-norm columns. The derivatives by the angles leave
+/// out the box's small turn (it changes them by 1e-3 of themselves); the
+/// cost the step is judged by keeps it.
+fn gauss_newton_step(samples: &[Sample], weights: &[f64], parameters: &Parameters) -> Option<(Vec<f64>, f64)> {
     let n = samples.len() * 3;
     let [u, du_di, du_dd] = direction(parameters.inclination, parameters.declination);
-    let mut columns: Vec<Vec<f64>> = vec![vec![0.0; n]; 15];
-    for (i, s) in samples.iter().enumerate() {
-        let body = s.ned_to_body * u * s.total_nt;
-        let by_inclination = parameters.k * (s.ned_to_body * du_di) * s.total_nt;
-        let by_declination = parameters.k * (s.ned_to_body * du_dd) * s.total_nt;
+    let (lag, smoothing) = (parameters.lag, parameters.smoothing);
+    let mut columns: Vec<Vec<f64>> = vec![vec![0.0; n]; PARAMETERS + 1];
+    for (i, (s, w)) in samples.iter().zip(weights).enumerate() {
+        let root = w.sqrt();
+        let body = s.body(&u, lag, smoothing);
+        let [before, at, after] = s.points.map(|p| p.body(&u));
+        let by_lag = parameters.k * (-(after - before) * 0.5);
+        let by_smoothing = parameters.k * (after - 2.0 * at + before);
+        let at = s.points[1];
+        let by_inclination = parameters.k * (at.ned_to_body * du_di) * at.total_nt;
+        let by_declination = parameters.k * (at.ned_to_body * du_dd) * at.total_nt;
         let residual = parameters.k * body + parameters.h - s.reading;
         for j in 0..3 {
             let row = 3 * i + j;
             for c in 0..3 {
-                columns[3 * j + c][row] = body[c];
+                columns[3 * j + c][row] = root * body[c];
             }
-            columns[9 + j][row] = 1.0;
-            columns[12][row] = by_inclination[j];
-            columns[13][row] = by_declination[j];
-            columns[14][row] = -residual[j];
+            columns[9 + j][row] = root;
+            columns[12][row] = root * by_inclination[j];
+            columns[13][row] = root * by_declination[j];
+            columns[14][row] = root * by_lag[j];
+            columns[15][row] = root * by_smoothing[j];
+            columns[PARAMETERS][row] = -root * residual[j];
         }
     }
     let views: Vec<&[f64]> = columns.iter().map(Vec::as_slice).collect();
     let r = tall_skinny_r(&views);
-    let delta = back_substitute(&r, 14)?;
-    let norms: Vec<f64> = (0..14)
+    let delta = back_substitute(&r, PARAMETERS)?;
+    let norms: Vec<f64> = (0..PARAMETERS)
         .map(|j| (0..=j).map(|i| r[(i, j)].powi(2)).sum::<f64>().sqrt())
         .collect();
-    let scaled = faer::Mat::from_fn(14, 14, |i, j| r[(i, j)] / norms[j]);
+    let scaled = faer::Mat::from_fn(PARAMETERS, PARAMETERS, |i, j| r[(i, j)] / norms[j]);
     let (_, sigma, _) = small_svd(scaled.as_ref())?;
-    let condition = sigma[0] / sigma[13];
+    let condition = sigma[0] / sigma[PARAMETERS - 1];
     Some((delta, condition))
 }
 
@@ -515,8 +648,7 @@ fn held_out(
     log: &FlightLog,
     sensor: &VectorSensor,
     windows: &[CalibrationWindow],
-    attitude: &[&[f64]; 3],
-    reference: &[f64],
+    inputs: (&[&[f64]; 3], &[f64], &Turns),
     start: &(f64, f64),
 ) -> Option<HeldOut> {
     if windows.iter().any(|w| w.heading_deg.is_none()) {
@@ -532,13 +664,19 @@ fn held_out(
             .iter()
             .cloned()
             .partition(|w| w.heading_deg.is_some_and(|h| same_heading(h, heading)));
-        let training = samples(log, sensor, attitude, reference, window_rows(log, &kept).into_iter());
+        let training = samples(log, sensor, inputs, window_rows(log, &kept).into_iter());
         let model = fit_samples(&training, start)?;
-        let k = Matrix3::from_fn(|j, c| model.soft_iron[j][c]);
-        let h = Vector3::from(model.hard_iron_nt);
-        let u = direction(model.inclination_deg.to_radians(), model.declination_deg.to_radians())[0];
-        for s in samples(log, sensor, attitude, reference, window_rows(log, &held).into_iter()) {
-            let r = k * (s.ned_to_body * u) * s.total_nt + h - s.reading;
+        let parameters = Parameters {
+            k: Matrix3::from_fn(|j, c| model.soft_iron[j][c]),
+            h: Vector3::from(model.hard_iron_nt),
+            inclination: model.inclination_deg.to_radians(),
+            declination: model.declination_deg.to_radians(),
+            lag: model.fluxgate_lag_samples,
+            smoothing: model.fluxgate_smoothing,
+        };
+        let u = direction(parameters.inclination, parameters.declination)[0];
+        for s in samples(log, sensor, inputs, window_rows(log, &held).into_iter()) {
+            let r = parameters.residual(&s, &u);
             for j in 0..3 {
                 squares[j] += r[j] * r[j];
             }
@@ -599,24 +737,46 @@ impl VectorModel {
 mod tests {
     use super::*;
 
-    /// Readings of a known K, h and field direction over attitudes that
-    /// turn through every heading with ±15° of pitch and roll.
-    fn synthetic(k: Matrix3<f64>, h: Vector3<f64>, u: Vector3<f64>) -> Vec<Sample> {
-        (0..2000)
+    /// Samples of consecutive rows read as `k`·field + `h`, the attitude of
+    /// row t given by `attitude(t)` (roll, pitch, yaw).
+    fn rows(
+        count: usize,
+        (k, h, u): (Matrix3<f64>, Vector3<f64>, Vector3<f64>),
+        attitude: impl Fn(f64) -> (f64, f64, f64),
+    ) -> Vec<Sample> {
+        let points: Vec<Point> = (0..count + 2)
             .map(|i| {
                 let t = i as f64 * 0.1;
-                let yaw = t * 1.8;
-                let roll = 15.0 * (t * 0.7).sin();
-                let pitch = 8.0 * (t * 0.45).cos();
-                let total_nt = 52_000.0 + 30.0 * (t * 0.01).sin();
-                let ned_to_body = body_to_ned(roll, pitch, yaw).inverse().into_inner();
-                Sample {
-                    reading: k * (ned_to_body * u) * total_nt + h,
-                    ned_to_body,
-                    total_nt,
+                let (roll, pitch, yaw) = attitude(t);
+                Point {
+                    ned_to_body: body_to_ned(roll, pitch, yaw).inverse().into_inner(),
+                    total_nt: 52_000.0 + 30.0 * (t * 0.01).sin(),
+                    turn: Vector3::zeros(),
                 }
             })
+            .collect();
+        (1..=count)
+            .map(|i| Sample {
+                reading: k * points[i].body(&u) + h,
+                points: [points[i - 1], points[i], points[i + 1]],
+            })
             .collect()
+    }
+
+    /// Every heading with ±15° of roll and ±8° of pitch.
+    fn turning(t: f64) -> (f64, f64, f64) {
+        (15.0 * (t * 0.7).sin(), 8.0 * (t * 0.45).cos(), t * 1.8)
+    }
+
+    fn parameters(k: Matrix3<f64>, h: Vector3<f64>, inclination_deg: f64) -> Parameters {
+        Parameters {
+            k,
+            h,
+            inclination: inclination_deg.to_radians(),
+            declination: 0.0,
+            lag: 0.0,
+            smoothing: 0.0,
+        }
     }
 
     #[test]
@@ -624,7 +784,7 @@ mod tests {
         let k = Matrix3::new(1.03, 0.012, -0.008, 0.004, 0.97, 0.015, -0.011, 0.009, 1.02);
         let h = Vector3::new(950.0, -1200.0, 640.0);
         let (inclination, declination) = (70f64.to_radians(), (-12f64).to_radians());
-        let samples = synthetic(k, h, direction(inclination, declination)[0]);
+        let samples = rows(2000, (k, h, direction(inclination, declination)[0]), turning);
         let model = fit_samples(&samples, &(65f64.to_radians(), (-4f64).to_radians())).unwrap();
         for j in 0..3 {
             for c in 0..3 {
@@ -635,36 +795,41 @@ mod tests {
         }
         assert!((model.inclination_deg - 70.0).abs() < 1e-9, "{model:?}");
         assert!((model.declination_deg + 12.0).abs() < 1e-9, "{model:?}");
+        assert!(
+            model.fluxgate_lag_samples.abs() < 1e-7 && model.fluxgate_smoothing.abs() < 1e-7,
+            "{model:?}"
+        );
+    }
+
+    #[test]
+    fn a_fluxgate_that_lags_and_averages_is_fitted_with_its_lag_and_smoothing() {
+        // Readings of the field 0.3 samples late and smoothed as a boxcar
+        // over one interval (1/24 of the second difference).
+        let k = Matrix3::new(1.01, 0.0, 0.0, 0.005, 0.99, 0.0, 0.0, 0.0, 1.0);
+        let h = Vector3::new(300.0, -200.0, 100.0);
+        let u = direction(68f64.to_radians(), 5f64.to_radians())[0];
+        let mut samples = rows(2000, (k, h, u), turning);
+        for s in &mut samples {
+            s.reading = k * s.body(&u, 0.3, 1.0 / 24.0) + h;
+        }
+        let model = fit_samples(&samples, &(66f64.to_radians(), 3f64.to_radians())).unwrap();
+        assert!((model.fluxgate_lag_samples - 0.3).abs() < 1e-6, "{model:?}");
+        assert!((model.fluxgate_smoothing - 1.0 / 24.0).abs() < 1e-6, "{model:?}");
+        assert!((model.inclination_deg - 68.0).abs() < 1e-7, "{model:?}");
+        assert!((model.declination_deg - 5.0).abs() < 1e-7, "{model:?}");
     }
 
     #[test]
     fn without_pitch_or_roll_the_declination_is_not_determined() {
         // Level flight: a declination error and a fluxgate yawed the
         // other way read the same, and the Jacobian says so.
-        let k = Matrix3::identity();
-        let h = Vector3::new(100.0, 0.0, -50.0);
+        let (k, h) = (Matrix3::identity(), Vector3::new(100.0, 0.0, -50.0));
         let u = direction(70f64.to_radians(), 0.0)[0];
-        let level: Vec<Sample> = (0..500)
-            .map(|i| {
-                let yaw = i as f64 * 0.72;
-                let ned_to_body = body_to_ned(0.0, 0.0, yaw).inverse().into_inner();
-                Sample {
-                    reading: k * (ned_to_body * u) * 50_000.0 + h,
-                    ned_to_body,
-                    total_nt: 50_000.0,
-                }
-            })
-            .collect();
-        let parameters = Parameters {
-            k,
-            h,
-            inclination: 70f64.to_radians(),
-            declination: 0.0,
-        };
-        let condition = gauss_newton_step(&level, &parameters).map(|(_, c)| c);
+        let level = rows(500, (k, h, u), |t| (0.0, 0.0, t * 7.2));
+        let condition = gauss_newton_step(&level, &[1.0; 500], &parameters(k, h, 70.0)).map(|(_, c)| c);
         assert!(condition.is_none_or(|c| c > 1e12), "{condition:?}");
-        let turning = synthetic(k, h, u);
-        let (_, condition) = gauss_newton_step(&turning, &parameters).unwrap();
-        assert!(condition < 1e4, "{condition}");
+        let turning = rows(2000, (k, h, u), turning);
+        let (_, condition) = gauss_newton_step(&turning, &[1.0; 2000], &parameters(k, h, 70.0)).unwrap();
+        assert!(condition < 1e5, "{condition}");
     }
 }

@@ -14,6 +14,8 @@
 //! | `lat`, `lon` and a height | `/gps/fix` | `foxglove.LocationFix` |
 //! | every other channel | `/aux/<name>` | `magcomp.Sample` |
 //! | compensated `mag_<n>` | `/mag/<n>/compensated` | `magcomp.ScalarMag` |
+//! | vector-compensated `flux_<s>`, body axes | `/mag/<s>/vector_compensated` | `magcomp.VectorMag` (frame `body`) |
+//! | the same in north-east-down | `/mag/<s>/vector_compensated_ned` | `magcomp.VectorMag` (x, y, z = n, e, d; frame `ned`) |
 //!
 //! The fitted model and quality figures go in as metadata records and JSON
 //! attachments.
@@ -344,6 +346,28 @@ fn plan_topics<'a>(log: &'a FlightLog, compensation: Option<&'a Compensation>) -
                 })
             }),
         });
+    }
+    for vector in compensation.map(|c| c.vectors.as_slice()).unwrap_or_default() {
+        let label = vector.sensor.strip_prefix("flux_").unwrap_or(&vector.sensor);
+        for (suffix, frame, values) in [("", "body", &vector.body_nt), ("_ned", "ned", &vector.ned_nt)] {
+            topics.push(Topic {
+                topic: format!("/mag/{label}/vector_compensated{suffix}"),
+                schema: "magcomp.VectorMag",
+                metadata: BTreeMap::new(),
+                encode: Box::new(move |row, time| {
+                    Some(
+                        VectorMag {
+                            timestamp: Some(timestamp(time)),
+                            frame_id: frame.into(),
+                            x_nt: values[0][row],
+                            y_nt: values[1][row],
+                            z_nt: values[2][row],
+                        }
+                        .encode_to_vec(),
+                    )
+                }),
+            });
+        }
     }
     topics
 }
