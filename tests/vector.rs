@@ -5,84 +5,153 @@
 //! aircraft's permanent and induced field.
 //!
 //! Error budget, per component on the survey lines:
-//! - body axes: the fluxgate's own noise (0.1 nT per axis, averaged down
-//!   with the oversampling) and the fit's error in K and h. The fit reads
-//!   the INS attitude, whose 0.005° noise is 4 nT per component at
-//!   52 000 nT on every calibration row; over thousands of rows it
-//!   averages to a few tenths of a nT in the constants. The field's
-//!   direction is taken as one over the box: the crust turns it by about
-//!   |ΔB|/F there (a 50 nT anomaly, 0.06°), which the fit absorbs partly
-//!   into K. Budget: 3 nT.
-//! - north-east-down: the body-axis error plus the INS attitude noise on
-//!   each row, F·σ ≈ 4.5 nT per component; judged against 3 nT plus that
-//!   floor in quadrature.
+//! - **the fit** (K, h and the field's direction): the fluxgate's own
+//!   noise (0.1 nT per axis, averaged down with the oversampling), the
+//!   INS attitude's noise (0.005°, 4 nT per component at 52 000 nT on
+//!   every calibration row, averaged over thousands of rows to a few
+//!   tenths of a nT in the constants), the crust's and the external
+//!   field's turn of the field's direction over the box (a 50 nT anomaly
+//!   turns it by 0.06°), the fluxgate's averaging against the INS's
+//!   instants. Budget: 3 nT.
+//! - **the reference level**: the vector's scale rests on the scalar's
+//!   level over the box, which is wrong by the aircraft's mean field δ at
+//!   the scalar sensor (a few nT at a tail stinger; no data pin it, see
+//!   `vector::Reference::levelled`). It scales the vector by 1 + δ/F: an
+//!   error of δ·b_k/F on component b_k, at most |δ|.
+//! - **north-east-down**: the body-axis error plus the INS attitude noise
+//!   on each row, F·σ ≈ 4.5 nT per component: the floor, measured in the
+//!   test by rotating the true body-axis field with the recorded attitude.
 
 use magcomp::config::{FlightJob, Settings};
 use magcomp::diagnose::ApplyDiagnosis;
 use magcomp::flight_date::FlightDate;
 use magcomp::formats::write_flight_log;
+use magcomp::simulate::random::Random;
 use magcomp::simulate::scenario::{RawScenario, Scenario};
 use magcomp::simulate::{simulate, SimulatedFlight};
 
-/// A box and two survey lines, the fluxgate miscalibrated by several % in
-/// scale, about 1° of non-orthogonality and 1000 nT offsets (signs and
-/// sizes varying with the seed).
+/// A flight plan drawn from `seed`: the site anywhere from 60° S to 65° N
+/// (inclinations from about −75° to 75°), the box's headings, altitude
+/// and manoeuvre sizes, the lines' heading, the sample rate, and a
+/// fluxgate miscalibrated by 2–6 % in scale, 0.5–1.5° of
+/// non-orthogonality and 300–1500 nT offsets, seeing 100–800 nT of the
+/// aircraft's permanent field and 0.5–5 % induced. Every third flight
+/// also carries a cabin magnetometer, whose level is far worse than the
+/// tail's.
 fn flight(seed: u64) -> SimulatedFlight {
-    let sign = |k: u64| if (seed >> k) & 1 == 0 { 1.0 } else { -1.0 };
+    let mut draw = Random::new(seed).fork("vector test plan");
+    let mut signed = |low: f64, high: f64| {
+        let size = draw.uniform(low, high);
+        if draw.uniform(0.0, 1.0) < 0.5 {
+            -size
+        } else {
+            size
+        }
+    };
+    let scale: Vec<f64> = (0..3).map(|_| 1.0 + signed(0.02, 0.06)).collect();
+    let offset: Vec<f64> = (0..3).map(|_| signed(300.0, 1500.0)).collect();
+    let skew: Vec<f64> = (0..3).map(|_| signed(0.5, 1.5)).collect();
+    let mut draw = Random::new(seed).fork("vector test flight");
+    let base = draw.uniform(0.0, 90.0);
+    let headings: Vec<f64> = (0..4).map(|k| base + 90.0 * k as f64).collect();
+    let cabin = if seed.is_multiple_of(3) {
+        "[[scalar]]\nname = \"mag_2_uc\"\nlocation = \"cabin\"\n"
+    } else {
+        ""
+    };
     let text = format!(
         r#"
         seed = {seed}
+        sample_rate_hz = {rate}
+        [site]
+        latitude_deg = {latitude}
+        longitude_deg = {longitude}
+        [calibration]
+        headings_deg = {headings:?}
+        altitude_m = {altitude}
+        pitch_deg = {pitch}
+        roll_deg = {roll}
+        yaw_deg = {yaw}
         [survey]
         line_count = 2
         line_length_m = 4000.0
+        line_heading_deg = {line_heading}
         [[scalar]]
         name = "mag_1_uc"
         location = "tail"
+        {cabin}
         [[fluxgate]]
         name = "flux_a"
-        permanent_nt = 400.0
-        induced = 0.02
+        permanent_nt = {permanent}
+        induced = {induced}
         [[effect]]
         kind = "vector_calibration"
         sensor = "flux_a"
-        scale = [{}, {}, {}]
-        offset_nt = [{}, {}, {}]
-        non_orthogonality_deg = [{}, {}, {}]
+        scale = {scale:?}
+        offset_nt = {offset:?}
+        non_orthogonality_deg = {skew:?}
         "#,
-        1.0 + 0.04 * sign(0),
-        1.0 - 0.03 * sign(1),
-        1.0 + 0.05 * sign(2),
-        1000.0 * sign(3),
-        -800.0 * sign(4),
-        1200.0 * sign(5),
-        1.0 * sign(6),
-        -0.8 * sign(7),
-        0.9 * sign(0),
+        rate = if draw.uniform(0.0, 1.0) < 0.5 { 10.0 } else { 20.0 },
+        latitude = draw.uniform(-60.0, 65.0),
+        longitude = draw.uniform(-180.0, 180.0),
+        altitude = draw.uniform(2000.0, 4000.0),
+        pitch = draw.uniform(3.0, 8.0),
+        roll = draw.uniform(8.0, 20.0),
+        yaw = draw.uniform(3.0, 8.0),
+        line_heading = draw.uniform(0.0, 180.0),
+        permanent = draw.uniform(100.0, 800.0),
+        induced = draw.uniform(0.005, 0.05),
     );
     let raw: RawScenario = toml::from_str(&text).unwrap();
     simulate(&Scenario::try_from(raw).unwrap()).unwrap()
 }
 
-const BODY_BOUND_NT: f64 = 3.0;
+/// The fit's budget per body-axis component on the survey lines, nT.
+const FIT_BUDGET_NT: f64 = 3.0;
 
 fn rms(errors: impl Iterator<Item = f64>) -> f64 {
     let (sum, count) = errors.fold((0.0, 0usize), |(s, c), e| (s + e * e, c + 1));
     (sum / count.max(1) as f64).sqrt()
 }
 
+fn mean(values: impl Iterator<Item = f64>) -> f64 {
+    let (sum, count) = values.fold((0.0, 0usize), |(s, c), v| (s + v, c + 1));
+    sum / count.max(1) as f64
+}
+
+/// The rows of `log` inside the true boxes.
+fn box_rows(log: &magcomp::flight_log::FlightLog, simulated: &SimulatedFlight) -> Vec<usize> {
+    let time = log.time_s();
+    simulated
+        .truth
+        .boxes
+        .iter()
+        .flat_map(|b| time.partition_point(|t| *t < b.t_start)..time.partition_point(|t| *t <= b.t_end))
+        .collect()
+}
+
+/// Flights drawn at random (`VECTOR_SEEDS=a..b` or `=a` picks others):
+/// on each, the body-axis vector on the survey lines is within the fit's
+/// budget plus the reference level's share (|δ|·rms(b_k)/F) of the truth
+/// per component; the
+/// north-east-down vector is within the body error and the INS floor;
+/// and the tail stinger, not the cabin, is the reference.
 #[test]
-#[ignore = "not yet met: on seeds 3 and 9 the survey-line error is 14 and 364 nT (issue 21); run with --ignored"]
-fn the_compensated_vector_matches_the_true_earth_field_on_ten_flights() {
+fn the_compensated_vector_matches_the_true_earth_field_on_flights_drawn_at_random() {
+    let seeds = match std::env::var("VECTOR_SEEDS") {
+        Ok(text) => match text.split_once("..") {
+            Some((a, b)) => a.parse().unwrap()..b.parse().unwrap(),
+            None => text.parse().unwrap()..text.parse::<u64>().unwrap() + 1,
+        },
+        Err(_) => 1..25,
+    };
     let folder = tempfile::tempdir().unwrap();
     let mut settings = Settings::default();
     settings.diagnose.apply = ApplyDiagnosis::Never;
     settings.vector.enabled = true;
-    let mut worst_body: f64 = 0.0;
-    for seed in std::env::var("VECTOR_SEEDS")
-        .ok()
-        .and_then(|s| s.parse::<u64>().ok())
-        .map_or(1..=10u64, |s| s..=s)
-    {
+    let mut worst = [0.0f64; 2];
+    let count = seeds.end - seeds.start;
+    for seed in seeds {
         let simulated = flight(seed);
         let input = folder.path().join(format!("vector_{seed}.csv"));
         write_flight_log(&simulated.log, &input).unwrap();
@@ -91,67 +160,75 @@ fn the_compensated_vector_matches_the_true_earth_field_on_ten_flights() {
         let run = magcomp::pipeline::run(&job, &settings, &folder.path().join(format!("vector_{seed}_c.csv"))).unwrap();
         assert_eq!(run.result.vector_models.len(), 1, "{:?}", run.result.warnings);
         let model = &run.result.vector_models[0];
+        assert_eq!(
+            model.reference, "mag_1_uc",
+            "seed {seed}: the tail stinger is the reference"
+        );
         let vector = &run.compensation.vectors[0];
         let truth = &simulated.truth.fluxgates[0];
-        let lines: Vec<usize> = run
-            .log()
-            .survey_lines()
-            .into_iter()
-            .flat_map(|(_, rows)| rows)
-            .collect();
-        assert!(lines.len() > 1000, "{} survey rows", lines.len());
         let log = run.log();
+        let lines: Vec<usize> = log.survey_lines().into_iter().flat_map(|(_, rows)| rows).collect();
+        assert!(lines.len() > 1000, "{} survey rows", lines.len());
+        // The reference level's error: the aircraft's mean field at the
+        // tail over the box.
+        let earth = simulated.truth.earth_total_nt("mag_1_uc").unwrap();
+        let recorded = &log.channel("mag_1_uc").unwrap().values;
+        let boxed = box_rows(log, &simulated);
+        let level = mean(boxed.iter().map(|&i| recorded[i] - earth[i]).filter(|v| v.is_finite()));
+        let size = mean(boxed.iter().map(|&i| earth[i]));
         let reading = log.vector_components(&log.vector_sensor("flux_a").unwrap());
-        let mut body = [0.0; 3];
-        let mut ned = [0.0; 3];
-        let mut raw = [0.0; 3];
-        // The INS floor: the true body-axis field rotated with the recorded
-        // attitude, against the true north-east-down field.
         let floor = ins_floor(log, truth, &lines);
-        for axis in 0..3 {
-            body[axis] = rms(lines
+        let error = |axis: usize, scale: f64| {
+            rms(lines
                 .iter()
-                .map(|&i| vector.body_nt[axis][i] - truth.earth_body_nt[axis][i]));
-            ned[axis] = rms(lines
+                .map(|&i| vector.body_nt[axis][i] - scale * truth.earth_body_nt[axis][i]))
+        };
+        // Printed, not judged: the fit's error with the level's scale taken
+        // out (the fit partly absorbs the level, so this is no bound).
+        let fit: [f64; 3] = std::array::from_fn(|axis| error(axis, 1.0 + level / size));
+        let body: [f64; 3] = std::array::from_fn(|axis| error(axis, 1.0));
+        let ned: [f64; 3] = std::array::from_fn(|axis| {
+            rms(lines
                 .iter()
-                .map(|&i| vector.ned_nt[axis][i] - truth.earth_ned_nt[axis][i]));
-            raw[axis] = rms(lines.iter().map(|&i| reading[axis][i] - truth.earth_body_nt[axis][i]));
-        }
-        let mean: Vec<f64> = (0..3)
-            .map(|a| {
-                lines
-                    .iter()
-                    .map(|&i| vector.body_nt[a][i] - truth.earth_body_nt[a][i])
-                    .sum::<f64>()
-                    / lines.len() as f64
-            })
-            .collect();
+                .map(|&i| vector.ned_nt[axis][i] - truth.earth_ned_nt[axis][i]))
+        });
+        let raw: [f64; 3] =
+            std::array::from_fn(|axis| rms(lines.iter().map(|&i| reading[axis][i] - truth.earth_body_nt[axis][i])));
         println!(
-            "  mean body error {mean:.2?}, INS floor {floor:.2?}, residual {:.2?}, lag {:.3} smoothing {:.4}",
-            model.residual_rms_nt, model.fluxgate_lag_samples, model.fluxgate_smoothing
-        );
-        println!(
-            "seed {seed}: body error {body:.2?} nT, north-east-down {ned:.2?} nT, raw {raw:.0?} nT; incl {:.3}° decl {:.3}°, held out {:?}, cond {:.1e}, {} iterations",
+            "seed {seed}: body error {body:.2?} nT ({fit:.2?} with the scale set right; level {level:.2} nT, stated swing {:.2} nT), north-east-down {ned:.2?} nT (INS floor {floor:.2?}), raw {raw:.0?} nT; incl {:.2}° decl {:.2}°, held out {:.2?}, cond {:.1e}",
+            model.reference_swing_nt,
             model.inclination_deg,
             model.declination_deg,
             model.held_out.as_ref().map(|h| h.rms_nt),
             model.condition_number,
-            model.iterations
         );
         for axis in 0..3 {
-            assert!(body[axis] < BODY_BOUND_NT, "seed {seed} axis {axis}: {body:?}");
+            let share = rms(lines.iter().map(|&i| truth.earth_body_nt[axis][i])) / size;
+            let budget = FIT_BUDGET_NT + level.abs() * share;
+            if std::env::var("VECTOR_RATIOS").is_ok() {
+                // Survey the budget on many plans without stopping.
+                println!("ratio {seed} {axis} {:.3} {:.3}", body[axis] / budget, body[axis]);
+                continue;
+            }
+            assert!(
+                body[axis] < budget,
+                "seed {seed} axis {axis}: {body:?} against {budget} (level {level})"
+            );
             assert!(
                 raw[axis] > 10.0 * body[axis],
                 "seed {seed} axis {axis}: raw {raw:?} vs {body:?}"
             );
-            let bound = (body[axis].powi(2) + floor[axis].powi(2)).sqrt() * 1.1 + 0.1;
+            // The rotation to north-east-down mixes the body-axis errors.
+            let bound = (body.iter().map(|b| b * b).sum::<f64>() + floor[axis].powi(2)).sqrt() * 1.1 + 0.1;
             assert!(
                 ned[axis] < bound,
-                "seed {seed} axis {axis}: {ned:?} against floor {floor:?}"
+                "seed {seed} axis {axis}: {ned:?} against {bound} (body {body:?}, floor {floor:?})"
             );
         }
-        worst_body = body.iter().copied().fold(worst_body, f64::max);
-        // The columns are named in the output.
+        worst = [
+            fit.iter().chain(&worst[..1]).copied().fold(0.0, f64::max),
+            body.iter().chain(&worst[1..]).copied().fold(0.0, f64::max),
+        ];
         for axis in ["x", "y", "z", "n", "e", "d"] {
             let name = format!("flux_a_{axis}_c");
             assert!(
@@ -161,7 +238,10 @@ fn the_compensated_vector_matches_the_true_earth_field_on_ten_flights() {
             );
         }
     }
-    println!("worst body-axis RMS error over ten flights: {worst_body:.2} nT");
+    println!(
+        "worst body-axis RMS error over {count} flights: {:.2} nT with the scale set right, {:.2} nT as output",
+        worst[0], worst[1]
+    );
 }
 
 /// RMS over `rows` of the true body-axis field rotated to north-east-down
@@ -222,31 +302,16 @@ fn vector_compensation_is_off_by_default_and_when_on_adds_six_columns_a_fluxgate
         "{:?}",
         on.result.warnings
     );
-    // On this flight (seed 1) the body-axis vector on the survey lines is
-    // within 3 nT RMS of the truth per component, against raw errors of
-    // hundreds to thousands of nT; the north-east-down within the INS
-    // floor and that.
+    // The accuracy is the randomised test's; here the output on the
+    // survey lines is a few nT from the truth, not the raw reading's
+    // thousands, so the columns hold the compensated vector.
     let truth = &simulated.truth.fluxgates[0];
     let log = on.log();
     let lines: Vec<usize> = log.survey_lines().into_iter().flat_map(|(_, rows)| rows).collect();
     let vector = &on.compensation.vectors[0];
-    let floor = ins_floor(log, truth, &lines);
-    for axis in 0..3 {
-        let body = rms(lines
-            .iter()
-            .map(|&i| vector.body_nt[axis][i] - truth.earth_body_nt[axis][i]));
-        let ned = rms(lines
-            .iter()
-            .map(|&i| vector.ned_nt[axis][i] - truth.earth_ned_nt[axis][i]));
-        println!(
-            "axis {axis}: body {body:.2} nT, north-east-down {ned:.2} nT (INS floor {:.2} nT)",
-            floor[axis]
-        );
-        assert!(body < 3.0, "axis {axis}: {body}");
-        assert!(
-            ned < (body * body + floor[axis] * floor[axis]).sqrt() * 1.1 + 0.1,
-            "axis {axis}: {ned}"
-        );
+    for (axis, (output, earth)) in vector.body_nt.iter().zip(&truth.earth_body_nt).enumerate() {
+        let body = rms(lines.iter().map(|&i| output[i] - earth[i]));
+        assert!(body < 5.0, "axis {axis}: {body}");
     }
     // Every row is written: a row without attitude has the body vector
     // and a flag, not the north-east-down one.
