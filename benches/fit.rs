@@ -3,8 +3,9 @@
 //! 1. Fit of one channel (design matrix, band-pass, PRESS over the λ grid
 //!    and the TSVD check) at 1e5 and 1e6 calibration rows, median of several
 //!    runs, with the peak resident set size after each size.
-//! 2. A whole-file run: 200 000 rows × 100 columns with 5 scalar channels,
-//!    CSV in and CSV out, against the bare time the csv crate needs to read
+//! 2. A whole-file run: 200 000 rows × 100 columns with 5 scalar channels
+//!    and a fluxgate with INS attitude (vector compensation on; `-- file
+//!    novector` turns it off), CSV in and CSV out, against the bare time the csv crate needs to read
 //!    and write the same file.
 //! 3. Format ingest: 1e6 protobuf messages from MCAP against the bare mcap +
 //!    prost decode, and CSV / XYZ against the bare csv crate parse.
@@ -139,24 +140,44 @@ fn bench_fit(rows: usize, repeats: usize) {
     );
 }
 
+/// A 200 000-row file of 5 scalar channels, a fluxgate, the INS attitude
+/// and 88 auxiliary columns (100 in all). The fluxgate reads the Earth's
+/// field rotated by the attitude, through a twelve-constant error, so the
+/// vector stage fits what it would on a flight.
 fn write_wide_csv(path: &Path, rows: usize) {
     use std::io::Write;
-    let (field, scalar) = synthetic_field(rows);
     let mut out = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
     let mut header = vec!["tt".to_string()];
     header.extend((1..=5).map(|n| format!("mag_{n}_uc")));
     header.extend(["flux_a_x", "flux_a_y", "flux_a_z"].map(String::from));
-    header.extend((0..91).map(|k| format!("aux_{k}")));
+    header.extend(["ins_roll", "ins_pitch", "ins_yaw"].map(String::from));
+    header.extend((0..88).map(|k| format!("aux_{k}")));
     writeln!(out, "{}", header.join(",")).unwrap();
+    let earth = nalgebra::Vector3::new(17_500.0, -3_900.0, 49_200.0);
+    let k_error = nalgebra::Matrix3::new(1.03, 0.012, -0.008, 0.004, 0.97, 0.015, -0.011, 0.009, 1.02);
+    let h_error = nalgebra::Vector3::new(950.0, -1_200.0, 640.0);
     for k in 0..rows {
-        write!(out, "{:.1}", k as f64 / 10.0).unwrap();
+        let t = k as f64 / 10.0;
+        // Manoeuvres of ±10° roll and ±5° pitch, every heading in turn.
+        let (roll, pitch, yaw) = (
+            10.0 * (t * 0.9).sin(),
+            5.0 * (t * 1.1).cos(),
+            (t * 0.6).rem_euclid(360.0),
+        );
+        let body = magcomp::vector::body_to_ned(roll, pitch, yaw).inverse() * earth;
+        let total = body.norm();
+        let interference = 2.0 * body[0] / total - 1.5 * body[1] / total + 3e-4 * body[0] * body[2] / total;
+        let noise = 0.01 * ((k * 7919 % 1000) as f64 / 500.0 - 1.0);
+        write!(out, "{t:.1}").unwrap();
         for n in 0..5 {
-            write!(out, ",{:.3}", scalar[k] + n as f64 * 10.0).unwrap();
+            write!(out, ",{:.3}", total + (1.0 + n as f64) * interference + noise).unwrap();
         }
-        for axis in &field {
-            write!(out, ",{:.3}", axis[k]).unwrap();
+        let reading = k_error * body + h_error;
+        for axis in 0..3 {
+            write!(out, ",{:.3}", reading[axis]).unwrap();
         }
-        for a in 0..91 {
+        write!(out, ",{roll:.4},{pitch:.4},{yaw:.4}").unwrap();
+        for a in 0..88 {
             write!(out, ",{:.4}", ((k * (a + 3)) % 997) as f64 * 0.01).unwrap();
         }
         writeln!(out).unwrap();
@@ -183,6 +204,8 @@ fn bench_whole_file(rows: usize) {
     // always measured (`run` below times the default, which diagnoses).
     let mut options = Settings::default();
     options.diagnose.apply = magcomp::diagnose::ApplyDiagnosis::Never;
+    // `-- file novector` times it with the vector stage off.
+    options.vector.enabled = !std::env::args().any(|a| a == "novector");
     let windows: Vec<CalibrationWindow> = (0..8)
         .map(|w| CalibrationWindow::new(w as f64 * 300.0, w as f64 * 300.0 + 120.0))
         .collect();
@@ -201,7 +224,8 @@ fn bench_whole_file(rows: usize) {
     });
     let megabytes = std::fs::metadata(&input).unwrap().len() as f64 / 1e6;
     println!(
-        "whole file, {rows} rows × 100 columns ({megabytes:.0} MB), 5 channels, {} threads: magcomp {:.0} ms, bare csv read+write {:.0} ms, ratio {:.2}; peak RSS so far {:.0} MB",
+        "whole file, {rows} rows × 100 columns ({megabytes:.0} MB), 5 channels, vector {}, {} threads: magcomp {:.0} ms, bare csv read+write {:.0} ms, ratio {:.2}; peak RSS so far {:.0} MB",
+        if options.vector.enabled { "on" } else { "off" },
         rayon::current_num_threads(),
         full * 1e3,
         bare * 1e3,

@@ -242,7 +242,15 @@ fn sgl_xyz_with_line_records_runs_through_the_cli() {
     let input_lines: Vec<&str> = text.lines().collect();
     let output_lines: Vec<&str> = written.lines().collect();
     assert_eq!(input_lines.len(), output_lines.len(), "every line is kept");
-    assert_eq!(output_lines[1], format!("{} mag_1_c mag_2_c flags", input_lines[1]));
+    // The compensated scalars, then (the file has a fluxgate and INS
+    // attitude) the vector in body axes and north-east-down, then flags.
+    assert_eq!(
+        output_lines[1],
+        format!(
+            "{} mag_1_c mag_2_c flux_a_x_c flux_a_y_c flux_a_z_c flux_a_n_c flux_a_e_c flux_a_d_c flags",
+            input_lines[1]
+        )
+    );
     for (i, o) in input_lines.iter().zip(&output_lines).skip(2) {
         assert!(o.starts_with(i), "line copied unchanged: {i}");
     }

@@ -44,6 +44,10 @@ fn run_with_threads(threads: usize, csv: &Path, windows: &Path, out: &Path) -> V
     bytes
 }
 
+/// The vector-compensated columns of the sample flights' fluxgate (it has
+/// INS attitude and a box, so they are written by default).
+const VECTOR_COLUMNS: &str = "flux_a_x_c,flux_a_y_c,flux_a_z_c,flux_a_n_c,flux_a_e_c,flux_a_d_c";
+
 #[test]
 fn outputs_are_bit_identical_for_any_thread_count() {
     let folder = tempfile::tempdir().unwrap();
@@ -78,15 +82,26 @@ fn every_row_and_column_survives_and_missing_rows_are_flagged() {
     let out = std::fs::read_to_string(folder.path().join("flight_compensated.csv")).unwrap();
     let out_lines: Vec<&str> = out.lines().collect();
     assert_eq!(out_lines.len(), lines.len(), "every input row is written");
-    assert_eq!(out_lines[0], format!("{},mag_1_c,mag_2_c,flags", lines[0]));
+    assert_eq!(
+        out_lines[0],
+        format!("{},mag_1_c,mag_2_c,{VECTOR_COLUMNS},flags", lines[0])
+    );
     for (input, output) in lines.iter().zip(&out_lines).skip(1) {
         assert!(output.starts_with(input.as_str()), "input columns are copied unchanged");
     }
     let cells = |line: &str| line.split(',').map(String::from).collect::<Vec<_>>();
+    // Without the fluxgate: no compensated scalar and no vector.
     let vector_gap = cells(out_lines[rows - 100]);
-    assert_eq!(vector_gap[vector_gap.len() - 3..], ["", "", "missing_vector:flux_a"]);
+    assert_eq!(
+        vector_gap[vector_gap.len() - 9..],
+        ["", "", "", "", "", "", "", "", "missing_vector:flux_a"]
+    );
     let scalar_gap = cells(out_lines[rows - 50]);
-    assert_eq!(scalar_gap[scalar_gap.len() - 2..], ["", "missing_scalar:mag_2_uc"]);
+    assert_eq!(scalar_gap[scalar_gap.len() - 8], "");
+    assert!(scalar_gap[scalar_gap.len() - 7..scalar_gap.len() - 1]
+        .iter()
+        .all(|c| c.parse::<f64>().is_ok()));
+    assert_eq!(scalar_gap[scalar_gap.len() - 1], "missing_scalar:mag_2_uc");
     assert!(!cells(out_lines[rows - 49]).last().unwrap().contains("missing"));
 }
 
@@ -285,13 +300,16 @@ fn awkward_csv_text_is_copied_verbatim() {
     let out = std::fs::read_to_string(folder.path().join("flight_compensated.csv")).unwrap();
     let out_lines: Vec<&str> = out.split('\n').filter(|l| !l.is_empty()).collect();
     assert_eq!(out_lines.len(), lines.len(), "one output line per input record");
-    assert_eq!(out_lines[0], format!("{},mag_1_c,mag_2_c,flags", lines[0]));
+    assert_eq!(
+        out_lines[0],
+        format!("{},mag_1_c,mag_2_c,{VECTOR_COLUMNS},flags", lines[0])
+    );
     for (input, output) in lines.iter().zip(&out_lines).skip(1) {
         let appended = output
             .strip_prefix(input.as_str())
             .expect("input record copied unchanged");
         let cells: Vec<&str> = appended.split(',').collect();
-        assert_eq!(cells.len(), 4, "{appended}");
+        assert_eq!(cells.len(), 10, "{appended}");
         assert!(
             cells[1].parse::<f64>().is_ok() && cells[2].parse::<f64>().is_ok(),
             "{appended}"

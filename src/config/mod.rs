@@ -38,6 +38,9 @@
 //! criterion = "blocked_press"  # blocked_press (leave one window out) | press
 //! level = "absolute"   # absolute | calibration_mean
 //!
+//! [vector]
+//! enabled = true       # every fluxgate's vector, with INS attitude and a box
+//!
 //! [output]
 //! directory = "out"
 //!

@@ -68,17 +68,16 @@ use crate::windows::CalibrationWindow;
 /// `[vector]` settings.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct VectorOptions {
-    /// Compensate the vector when the flight has INS attitude and a
-    /// calibration box (`[vector] enabled = true`; off by default while
-    /// it is validated).
+    /// Compensate the vector of every fluxgate when the flight has INS
+    /// attitude and a calibration box (`[vector] enabled`, on by default).
     pub enabled: bool,
 }
 
 impl Default for VectorOptions {
-    /// Off until its survey-line accuracy is shown on simulated flights
-    /// (see `tests/vector.rs`): the box residual alone does not prove it.
+    /// On: its survey-line accuracy is shown on flight plans drawn at
+    /// random in `tests/vector.rs`.
     fn default() -> Self {
-        VectorOptions { enabled: false }
+        VectorOptions { enabled: true }
     }
 }
 
