@@ -125,17 +125,7 @@ fn the_pipeline_reports_the_table_for_every_channel_it_compensates() {
 fn a_box_of_two_headings_says_it_has_no_estimator_table() {
     let mut settings = magcomp::config::Settings::default();
     settings.diagnose.apply = magcomp::diagnose::ApplyDiagnosis::Never;
-    let mut job = magcomp::config::FlightJob::new(sample("clean.csv"));
-    let windows = read_detect_json(&sample("clean.windows.json"), 5.0).unwrap();
-    let headings = magcomp::holdout::distinct_headings(&windows);
-    assert!(headings.len() >= 3);
-    job.windows = windows
-        .into_iter()
-        .filter(|w| {
-            w.heading_deg
-                .is_some_and(|h| headings[..2].iter().any(|k| magcomp::holdout::same_heading(h, *k)))
-        })
-        .collect();
+    let job = clean_flight_on_two_headings();
     let folder = tempfile::tempdir().unwrap();
     let run = magcomp::pipeline::run(&job, &settings, &folder.path().join("clean_c.csv")).unwrap();
     for model in &run.result.models {
@@ -260,16 +250,7 @@ fn a_solver_that_needs_three_headings_falls_back_to_ridge_and_warns() {
     let mut settings = magcomp::config::Settings::default();
     settings.diagnose.apply = magcomp::diagnose::ApplyDiagnosis::Never;
     settings.fit.solver = magcomp::numerics::estimators::Solver::Tls;
-    let mut job = magcomp::config::FlightJob::new(sample("clean.csv"));
-    let windows = read_detect_json(&sample("clean.windows.json"), 5.0).unwrap();
-    let headings = magcomp::holdout::distinct_headings(&windows);
-    job.windows = windows
-        .into_iter()
-        .filter(|w| {
-            w.heading_deg
-                .is_some_and(|h| headings[..2].iter().any(|k| magcomp::holdout::same_heading(h, *k)))
-        })
-        .collect();
+    let job = clean_flight_on_two_headings();
     let folder = tempfile::tempdir().unwrap();
     let run = magcomp::pipeline::run(&job, &settings, &folder.path().join("clean_c.csv")).unwrap();
     let log = run.log();
@@ -298,4 +279,21 @@ fn a_solver_that_needs_three_headings_falls_back_to_ridge_and_warns() {
             run.result.warnings
         );
     }
+}
+
+/// The clean sample flight with its calibration windows cut to the first
+/// two of its headings.
+fn clean_flight_on_two_headings() -> magcomp::config::FlightJob {
+    let mut job = magcomp::config::FlightJob::new(sample("clean.csv"));
+    let windows = read_detect_json(&sample("clean.windows.json"), 5.0).unwrap();
+    let headings = magcomp::holdout::distinct_headings(&windows);
+    assert!(headings.len() >= 3);
+    job.windows = windows
+        .into_iter()
+        .filter(|w| {
+            w.heading_deg
+                .is_some_and(|h| headings[..2].iter().any(|k| magcomp::holdout::same_heading(h, *k)))
+        })
+        .collect();
+    job
 }
