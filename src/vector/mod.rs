@@ -491,14 +491,12 @@ fn start_direction(
     }
     let turns = Turns::default();
     let samples = samples(log, sensor, (attitude, reference, &turns), rows.iter().cloned());
-    // A coarse start needs few rows: at most GRID_ROWS, evenly spread.
-    let stride = samples.len().div_ceil(GRID_ROWS).max(1);
-    let samples: Vec<Sample> = samples.into_iter().step_by(stride).collect();
+    let score = GridScore::new(&samples);
     let mut best = (f64::INFINITY, (0.0, 0.0));
     for i in -17..=17 {
         for d in 0..72 {
             let angles = ((i as f64 * 5.0).to_radians(), (d as f64 * 5.0).to_radians());
-            if let Some((_, _, cost)) = linear_fit(&samples, direction(angles.0, angles.1)[0]) {
+            if let Some(cost) = score.as_ref().and_then(|s| s.cost(&direction(angles.0, angles.1)[0])) {
                 if cost < best.0 {
                     best = (cost, angles);
                 }
@@ -508,15 +506,88 @@ fn start_direction(
     (best.1, FieldStart::Grid, turns)
 }
 
-/// Rows the 5° grid of starting directions is scored on (2,520 linear fits).
-const GRID_ROWS: usize = 600;
+/// The cost of [`linear_fit`] at any direction u, from sums over the
+/// samples gathered once, for the 5° grid of starting directions (2,520
+/// directions; scoring each on every row took seconds on a long box).
+///
+/// With no turn and no lag, a row's field in body axes is $A_i u$, $A_i =
+/// F_i R_i$, linear in u. With the intercept h the fit of reading
+/// component j is the fit of its centred values $\tilde y_{ij}$ on $\tilde
+/// A_i u$ ($A_i$ less its mean), whose residual sum of squares is
+/// $\sum_i \tilde y_{ij}^2 - c_j^\top S^{-1} c_j$ with $S = \sum_i \tilde A_i u
+/// u^\top \tilde A_i^\top$ (quadratic in u: 81 sums) and $c_j = (\sum_i
+/// \tilde y_{ij} \tilde A_i) u$ (27 sums).
+struct GridScore {
+    /// $\sum_i \tilde A_i[a, c] \tilde A_i[b, d]$ at `[a][b][c][d]`.
+    second: [[[[f64; 3]; 3]; 3]; 3],
+    /// $\sum_i \tilde y_{ij} \tilde A_i$ for reading component j.
+    cross: [Matrix3<f64>; 3],
+    /// $\sum_i \tilde y_{ij}^2$.
+    squares: [f64; 3],
+}
+
+impl GridScore {
+    /// The sums over `samples`; `None` with fewer than [`linear_fit`] needs.
+    fn new(samples: &[Sample]) -> Option<GridScore> {
+        if samples.len() < 8 {
+            return None;
+        }
+        let count = samples.len() as f64;
+        let field = |s: &Sample| s.points[2].ned_to_body * s.points[2].total_nt;
+        let mean_field = samples.iter().map(field).sum::<Matrix3<f64>>() / count;
+        let mean_reading = samples.iter().map(|s| s.reading).sum::<Vector3<f64>>() / count;
+        let mut score = GridScore {
+            second: [[[[0.0; 3]; 3]; 3]; 3],
+            cross: [Matrix3::zeros(); 3],
+            squares: [0.0; 3],
+        };
+        for s in samples {
+            let a = field(s) - mean_field;
+            let y = s.reading - mean_reading;
+            for (first, row) in score.second.iter_mut().enumerate() {
+                for (second, block) in row.iter_mut().enumerate() {
+                    for (c, line) in block.iter_mut().enumerate() {
+                        for (d, sum) in line.iter_mut().enumerate() {
+                            *sum += a[(first, c)] * a[(second, d)];
+                        }
+                    }
+                }
+            }
+            for j in 0..3 {
+                score.cross[j] += a * y[j];
+                score.squares[j] += y[j] * y[j];
+            }
+        }
+        Some(score)
+    }
+
+    /// The residual sum of squares of the linear fit at direction `u`;
+    /// `None` when the field's variation there spans less than three axes.
+    fn cost(&self, u: &Vector3<f64>) -> Option<f64> {
+        let spread = Matrix3::from_fn(|a, b| {
+            let block = &self.second[a][b];
+            (0..3)
+                .map(|c| (0..3).map(|d| block[c][d] * u[c] * u[d]).sum::<f64>())
+                .sum::<f64>()
+        });
+        let cholesky = spread.cholesky()?;
+        Some(
+            (0..3)
+                .map(|j| {
+                    let c = self.cross[j] * u;
+                    self.squares[j] - c.dot(&cholesky.solve(&c))
+                })
+                .sum(),
+        )
+    }
+}
 
 /// K and h by linear least squares at direction `u`, and the cost.
 fn linear_fit(samples: &[Sample], u: Vector3<f64>) -> Option<(Matrix3<f64>, Vector3<f64>, f64)> {
     if samples.len() < 8 {
         return None;
     }
-    let regressors: [Vec<f64>; 3] = std::array::from_fn(|k| samples.iter().map(|s| s.body(&u, 0.0, 0.0)[k]).collect());
+    let regressors: [Vec<f64>; 3] = std::array::from_fn(|k| samples.iter().map(|s| s.points[2].body(&u)[k]).collect());
     let ones = vec![1.0; samples.len()];
     let mut k = Matrix3::zeros();
     let mut h = Vector3::zeros();
@@ -895,6 +966,51 @@ mod tests {
         assert!(
             model.fluxgate_lag_samples.abs() < 1e-7 && model.fluxgate_smoothing.abs() < 1e-7,
             "{model:?}"
+        );
+    }
+
+    #[test]
+    fn the_grid_score_from_sums_is_the_linear_fits_residual_at_every_direction() {
+        // Readings with a deterministic ±5 nT disturbance, so the cost is
+        // not zero at the true direction; the closed form must match the
+        // QR fit's residual sum of squares to 1e-7 of itself everywhere
+        // the grid looks, the true direction included.
+        let k = Matrix3::new(1.03, 0.012, -0.008, 0.004, 0.97, 0.015, -0.011, 0.009, 1.02);
+        let h = Vector3::new(950.0, -1200.0, 640.0);
+        let mut samples = rows(
+            3000,
+            (k, h, direction(62f64.to_radians(), 8f64.to_radians())[0]),
+            turning,
+        );
+        for (i, s) in samples.iter_mut().enumerate() {
+            s.reading += Vector3::new(
+                5.0 * (i as f64 * 0.37).sin(),
+                3.0 * (i as f64 * 1.3).cos(),
+                -4.0 * (i as f64 * 0.11).sin(),
+            );
+        }
+        let score = GridScore::new(&samples).unwrap();
+        let mut best = (f64::INFINITY, (0, 0));
+        for i in -17..=17 {
+            for d in (0..72).step_by(5) {
+                let u = direction((i as f64 * 5.0).to_radians(), (d as f64 * 5.0).to_radians())[0];
+                let (_, _, expected) = linear_fit(&samples, u).unwrap();
+                let cost = score.cost(&u).unwrap();
+                assert!(
+                    (cost - expected).abs() <= 1e-7 * expected,
+                    "{i} {d}: {cost} against {expected}"
+                );
+                if cost < best.0 {
+                    best = (cost, (i, d));
+                }
+            }
+        }
+        let u = direction(62f64.to_radians(), 8f64.to_radians())[0];
+        let (_, _, expected) = linear_fit(&samples, u).unwrap();
+        assert!((score.cost(&u).unwrap() - expected).abs() <= 1e-7 * expected);
+        assert!(
+            expected < best.0,
+            "the true direction scores best: {expected} against {best:?}"
         );
     }
 
