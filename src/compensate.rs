@@ -52,6 +52,16 @@ pub struct CompensatedChannel {
     pub level_offset_nt: f64,
 }
 
+/// A compensated gradient ([`crate::gradient`]) on every row, nT/m (`NaN` where either sensor
+/// or the fluxgate is missing).
+#[derive(Debug, Clone, PartialEq)]
+pub struct CompensatedGradient {
+    /// The output column, `grad_<a>_<b>_c`.
+    pub column: String,
+    /// Values, nT/m.
+    pub values: Vec<f64>,
+}
+
 /// All compensated channels of a flight, with per-row flags.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Compensation {
@@ -63,19 +73,24 @@ pub struct Compensation {
     /// ([`crate::vector`]); empty when vector compensation is off or
     /// impossible.
     pub vectors: Vec<crate::vector::CompensatedVector>,
+    /// Each compensated gradient, nT/m ([`crate::gradient`]); empty when
+    /// none is asked for.
+    pub gradients: Vec<CompensatedGradient>,
 }
 
 impl Compensation {
     /// Every column of values magcomp adds, in the order of the added
     /// column names: each compensated channel, then each fluxgate's body
-    /// x, y, z and north, east, down (the flags column follows them).
+    /// x, y, z and north, east, down, then each gradient (the flags column
+    /// follows them).
     pub fn value_columns(&self) -> Vec<&[f64]> {
         let channels = self.channels.iter().map(|c| c.values.as_slice());
         let vectors = self
             .vectors
             .iter()
             .flat_map(|v| v.body_nt.iter().chain(&v.ned_nt).map(Vec::as_slice));
-        channels.chain(vectors).collect()
+        let gradients = self.gradients.iter().map(|g| g.values.as_slice());
+        channels.chain(vectors).chain(gradients).collect()
     }
 
     /// Adds `vector` and flags the rows where it is missing: without a
@@ -117,6 +132,7 @@ pub fn compensate(log: &FlightLog, models: &[FittedModel], level: LevelConventio
         channels,
         flags,
         vectors: Vec::new(),
+        gradients: Vec::new(),
     })
 }
 

@@ -83,6 +83,7 @@ pub mod flight_date;
 pub mod flight_identity;
 pub mod flight_log;
 pub mod formats;
+pub mod gradient;
 pub mod holdout;
 pub mod igrf;
 pub mod messages;

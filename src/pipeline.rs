@@ -62,6 +62,13 @@ pub struct FlightResult {
     /// The twelve-constant model of each vector-compensated fluxgate.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub vector_models: Vec<crate::vector::VectorModel>,
+    /// Each compensated gradient: the method used, why, and both methods
+    /// held out.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub gradients: Vec<crate::gradient::GradientResult>,
+    /// The gradients' direct models (the model JSON holds them).
+    #[serde(skip)]
+    pub gradient_models: Vec<FittedModel>,
 }
 
 /// What the vector stage produced: models, compensated vectors, words.
@@ -439,6 +446,18 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
     for compensated in vector.compensated {
         compensation.add_vector(compensated);
     }
+    let gradients = crate::gradient::compensate_gradients(
+        &crate::gradient::GradientInputs {
+            log,
+            sensor: &sensor,
+            windows: &windows,
+            models: &models,
+            compensation: &compensation,
+        },
+        &options.gradients,
+        (options.terms, &options.fit, options.level),
+    );
+    compensation.gradients = gradients.compensated;
     let added_columns = added_column_names(log, compensated, &compensation)?;
     let mut notes = renaming_notes(&channels, &added_columns);
     notes.extend(calibration.iter().map(|c| c.summary()));
@@ -462,6 +481,8 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
     }));
     notes.extend(vector.notes);
     warnings.extend(vector.warnings);
+    notes.extend(gradients.notes);
+    warnings.extend(gradients.warnings);
     if let Some(detection) = &detected {
         notes.extend(detection_notes(detection));
         warnings.extend(detection_warnings(detection));
@@ -489,6 +510,8 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
         diagnosis,
         models,
         vector_models: vector.models,
+        gradients: gradients.results,
+        gradient_models: gradients.models,
     };
     Ok(FlightRun {
         recorded,

@@ -155,6 +155,9 @@ struct ModelFile<'a> {
     #[serde(skip_serializing_if = "Option::is_none")]
     vector_calibration: Option<&'a crate::vector_calibration::VectorCalibration>,
     models: &'a [FittedModel],
+    /// The direct models of the compensated gradients.
+    #[serde(skip_serializing_if = "<[_]>::is_empty")]
+    gradient_models: &'a [FittedModel],
 }
 
 impl<'a> ModelFile<'a> {
@@ -163,6 +166,7 @@ impl<'a> ModelFile<'a> {
             flight: &result.flight,
             vector_calibration: result.vector_calibration.as_ref(),
             models: &result.models,
+            gradient_models: &result.gradient_models,
         }
     }
 }

@@ -41,6 +41,15 @@
 //! [vector]
 //! enabled = true       # every fluxgate's vector, with INS attitude and a box
 //!
+//! [sensor_positions]   # body axes (forward, right, down), m; without
+//! mag_4_uc = [0.0, -7.5, 0.0]   # [[gradient]], every pair is a gradient
+//! mag_5_uc = [0.0, 7.5, 0.0]
+//!
+//! [[gradient]]         # grad_4_5_c = (mag_4_uc − mag_5_uc)/d, nT/m
+//! channels = ["mag_4_uc", "mag_5_uc"]
+//! separation_m = 15.0  # or from [sensor_positions]
+//! method = "auto"      # auto (held out by heading) | direct | difference
+//!
 //! [output]
 //! directory = "out"
 //!
@@ -59,6 +68,7 @@ use crate::diagnose::DiagnoseOptions;
 use crate::error::{Error, Result};
 use crate::formats::align::AlignmentOptions;
 use crate::formats::{ColumnNames, IngestOptions};
+use crate::gradient::{GradientMethod, GradientPair, LEAST_SEPARATION_M};
 use crate::model::{FilterSettings, FitOptions};
 use crate::numerics::estimators::Solver;
 use crate::numerics::filter::{EdgePadding, FilterBand};
@@ -244,6 +254,11 @@ pub(crate) struct RawPipeline {
     pub vector_calibration: RawVectorCalibration,
     /// Vector compensation.
     pub vector: RawVector,
+    /// Gradients to compensate.
+    #[serde(rename = "gradient")]
+    pub gradients: Vec<RawGradient>,
+    /// Scalar sensors' positions in body axes (forward, right, down), m.
+    pub sensor_positions: std::collections::BTreeMap<String, [f64; 3]>,
     /// Flights to process.
     #[serde(rename = "flight")]
     pub flights: Vec<RawFlight>,
@@ -322,6 +337,9 @@ pub struct Settings {
     pub vector_calibration: VectorCalibrationOptions,
     /// Vector compensation (the twelve-constant model).
     pub vector: VectorOptions,
+    /// Gradients to compensate (`[[gradient]]`, or every pair of
+    /// `[sensor_positions]`).
+    pub gradients: Vec<GradientPair>,
 }
 
 impl Default for Settings {
@@ -416,6 +434,7 @@ impl Pipeline {
             diagnose: DiagnoseOptions::try_from(raw.diagnose).map_err(bad)?,
             vector_calibration: VectorCalibrationOptions::try_from(raw.vector_calibration).map_err(bad)?,
             vector: VectorOptions::from(raw.vector),
+            gradients: gradient_pairs(&raw.gradients, &raw.sensor_positions).map_err(bad)?,
         };
         let mut windows_files = Vec::new();
         let mut flights = Vec::with_capacity(raw.flights.len());
@@ -435,6 +454,90 @@ impl Pipeline {
         };
         Ok((pipeline, windows_files))
     }
+}
+
+/// `[[gradient]]` as written.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawGradient {
+    /// The two scalar channels, a then b: the gradient is (a − b)/d.
+    pub channels: [String; 2],
+    /// Their distance, m; else from `[sensor_positions]`.
+    #[serde(default)]
+    pub separation_m: Option<f64>,
+    /// How to compensate it.
+    #[serde(default)]
+    pub method: GradientMethod,
+}
+
+/// The gradients to compensate: each `[[gradient]]`, its separation given
+/// or from the two sensors' positions; without any, every pair of
+/// `[sensor_positions]` (in name order) at least [`LEAST_SEPARATION_M`]
+/// apart.
+fn gradient_pairs(
+    raw: &[RawGradient],
+    positions: &std::collections::BTreeMap<String, [f64; 3]>,
+) -> std::result::Result<Vec<GradientPair>, String> {
+    if let Some((name, _)) = positions.iter().find(|(_, p)| p.iter().any(|v| !v.is_finite())) {
+        return Err(format!(
+            "[sensor_positions] {name}: give three finite numbers of metres (forward, right, down)"
+        ));
+    }
+    let between = |a: &str, b: &str| {
+        let (pa, pb) = (positions.get(a)?, positions.get(b)?);
+        let offset = nalgebra::Vector3::from(*pa) - nalgebra::Vector3::from(*pb);
+        Some((offset.norm(), offset))
+    };
+    let pair = |a: &str, b: &str, separation: Option<f64>, method| {
+        let measured = between(a, b);
+        let separation_m = match (separation, measured) {
+            (Some(given), Some((from_positions, _))) if (given - from_positions).abs() > 0.01 => {
+                return Err(format!(
+                    "[[gradient]] {a}, {b}: separation_m = {given} but [sensor_positions] puts them {from_positions:.3} m apart"
+                ))
+            }
+            (Some(given), _) => given,
+            (None, Some((from_positions, _))) => from_positions,
+            (None, None) => {
+                return Err(format!(
+                    "[[gradient]] {a}, {b}: give separation_m, or both sensors' positions in [sensor_positions]"
+                ))
+            }
+        };
+        if !(separation_m.is_finite() && separation_m >= LEAST_SEPARATION_M) {
+            return Err(format!(
+                "[[gradient]] {a}, {b}: the sensors are {separation_m} m apart; a gradient needs at least {LEAST_SEPARATION_M} m"
+            ));
+        }
+        if a == b {
+            return Err(format!("[[gradient]] {a}, {b}: name two different channels"));
+        }
+        Ok(GradientPair {
+            a: a.into(),
+            b: b.into(),
+            separation_m,
+            axis_body: measured
+                .filter(|(d, _)| *d > 0.0)
+                .map(|(d, offset)| std::array::from_fn(|k| offset[k] / d)),
+            method,
+        })
+    };
+    if !raw.is_empty() {
+        return raw
+            .iter()
+            .map(|g| pair(&g.channels[0], &g.channels[1], g.separation_m, g.method))
+            .collect();
+    }
+    let names: Vec<&String> = positions.keys().collect();
+    let mut pairs = Vec::new();
+    for (i, a) in names.iter().enumerate() {
+        for b in &names[i + 1..] {
+            if between(a, b).is_some_and(|(d, _)| d >= LEAST_SEPARATION_M) {
+                pairs.push(pair(a, b, None, GradientMethod::Auto)?);
+            }
+        }
+    }
+    Ok(pairs)
 }
 
 fn flight_job(raw: RawFlight, base: &Path, source_name: &str) -> Result<FlightJob> {
@@ -595,6 +698,62 @@ mod tests {
             message: e.to_string(),
         })?;
         Ok(Pipeline::validate(raw, Path::new("/data"), "test")?.0)
+    }
+
+    #[test]
+    fn gradients_take_their_separation_from_the_file_or_the_sensor_positions() {
+        let pairs = parse(
+            "[sensor_positions]\nmag_4_uc = [0.0, -7.5, 0.0]\nmag_5_uc = [0.0, 7.5, 0.0]\nmag_1_uc = [-9.0, 0.0, 0.0]\n",
+        )
+        .unwrap()
+        .settings
+        .gradients;
+        // Without [[gradient]], every pair of positioned sensors, in name
+        // order.
+        let names: Vec<(&str, &str)> = pairs.iter().map(|p| (p.a.as_str(), p.b.as_str())).collect();
+        assert_eq!(
+            names,
+            [
+                ("mag_1_uc", "mag_4_uc"),
+                ("mag_1_uc", "mag_5_uc"),
+                ("mag_4_uc", "mag_5_uc")
+            ]
+        );
+        let wings = &pairs[2];
+        assert!((wings.separation_m - 15.0).abs() < 1e-12);
+        assert_eq!(wings.axis_body, Some([0.0, -1.0, 0.0]));
+        assert!((pairs[0].separation_m - (81.0f64 + 56.25).sqrt()).abs() < 1e-12);
+        assert_eq!(wings.column(), "grad_4_5_c");
+
+        // [[gradient]] chooses; its separation, given, must agree with the
+        // positions.
+        let chosen = parse(
+            "[sensor_positions]\nmag_4_uc = [0.0, -7.5, 0.0]\nmag_5_uc = [0.0, 7.5, 0.0]\n[[gradient]]\nchannels = [\"mag_5_uc\", \"mag_4_uc\"]\nmethod = \"direct\"\n",
+        )
+        .unwrap()
+        .settings
+        .gradients;
+        assert_eq!(chosen.len(), 1);
+        assert_eq!(
+            (chosen[0].a.as_str(), chosen[0].method),
+            ("mag_5_uc", GradientMethod::Direct)
+        );
+        let given = parse("[[gradient]]\nchannels = [\"mag_4_uc\", \"mag_5_uc\"]\nseparation_m = 2.5\n").unwrap();
+        assert_eq!(given.settings.gradients[0].separation_m, 2.5);
+        assert_eq!(given.settings.gradients[0].axis_body, None);
+        for (text, says) in [
+            ("[[gradient]]\nchannels = [\"mag_4_uc\", \"mag_5_uc\"]\n", "give separation_m"),
+            (
+                "[sensor_positions]\nmag_4_uc = [0.0, -7.5, 0.0]\nmag_5_uc = [0.0, 7.5, 0.0]\n[[gradient]]\nchannels = [\"mag_4_uc\", \"mag_5_uc\"]\nseparation_m = 14.0\n",
+                "15.000 m apart",
+            ),
+            ("[[gradient]]\nchannels = [\"mag_4_uc\", \"mag_5_uc\"]\nseparation_m = 0.0\n", "at least 0.1 m"),
+            ("[[gradient]]\nchannels = [\"mag_4_uc\", \"mag_4_uc\"]\nseparation_m = 1.0\n", "two different"),
+            ("[sensor_positions]\nmag_4_uc = [0.0, nan, 0.0]\n", "finite"),
+        ] {
+            let error = parse(text).unwrap_err().to_string();
+            assert!(error.contains(says), "{text}: {error}");
+        }
     }
 
     #[test]

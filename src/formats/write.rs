@@ -149,7 +149,8 @@ pub fn detect_output_format(output: &Path) -> Format {
 }
 
 /// Names of the columns magcomp adds after `existing`: one per compensated
-/// channel, then the flags column.
+/// channel, six per compensated fluxgate, one per gradient, then the flags
+/// column.
 fn new_column_names(existing: &[String], compensation: &Compensation) -> Vec<String> {
     let mut added: Vec<String> = Vec::new();
     for channel in &compensation.channels {
@@ -165,6 +166,12 @@ fn new_column_names(existing: &[String], compensation: &Compensation) -> Vec<Str
             });
         }
     }
+    for gradient in &compensation.gradients {
+        added.push(match existing.iter().chain(&added).any(|n| *n == gradient.column) {
+            true => format!("{}_magcomp", gradient.column),
+            false => gradient.column.clone(),
+        });
+    }
     let taken: Vec<String> = existing.iter().chain(&added).cloned().collect();
     added.push(flags_column_name(&taken));
     added
@@ -173,7 +180,7 @@ fn new_column_names(existing: &[String], compensation: &Compensation) -> Vec<Str
 /// Formats magcomp's cells for one row at a time.
 pub(crate) struct ExtraColumns<'a> {
     compensation: &'a Compensation,
-    /// The value columns, channels then vectors.
+    /// The value columns, channels, vectors, then gradients.
     values: Vec<&'a [f64]>,
     /// The next row to write.
     pub(crate) row: usize,

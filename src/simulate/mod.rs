@@ -314,6 +314,7 @@ fn record_scalar(
     let truth = SensorTruth {
         channel: sensor.name.clone(),
         location: sensor.location,
+        position_m: sensor.position_m,
         aircraft,
         earth_total_nt: earth_total,
     };

@@ -6,8 +6,11 @@
 //! field. `<flight>.truth.csv` holds, per output sample, the true Earth
 //! field magnitude at every scalar sensor (`<channel>_earth_nt`), the true
 //! Earth field at every fluxgate in INS body axes (`<sensor>_earth_x/y/z`)
-//! and in north-east-down (`<sensor>_earth_n/e/d`), and the external
-//! variation along the main field (`external_nt`).
+//! and in north-east-down (`<sensor>_earth_n/e/d`), the true gradient
+//! between every two scalar sensors at least 0.1 m apart
+//! (`grad_<a>_<b>_true`, nT/m: the difference of their true Earth fields
+//! over their separation, a before b in the scenario's order), and the
+//! external variation along the main field (`external_nt`).
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -29,6 +32,8 @@ pub struct SensorTruth {
     pub channel: String,
     /// Where it sits.
     pub location: SensorLocation,
+    /// Its position in body axes (forward, right, down), m.
+    pub position_m: [f64; 3],
     /// The aircraft's field at the sensor.
     pub aircraft: AircraftField,
     /// True Earth field magnitude at the sensor, nT, per output sample.
@@ -52,6 +57,21 @@ pub struct FluxgateTruth {
     /// sample.
     #[serde(skip)]
     pub earth_ned_nt: [Vec<f64>; 3],
+}
+
+/// The true gradient between two scalar sensors.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrueGradient {
+    /// `grad_<a>_<b>`.
+    pub name: String,
+    /// The first sensor's channel.
+    pub a: String,
+    /// The second sensor's channel.
+    pub b: String,
+    /// Their distance, m.
+    pub separation_m: f64,
+    /// (Earth field at a − at b)/separation, nT/m, per output sample.
+    pub values_nt_per_m: Vec<f64>,
 }
 
 /// One manoeuvre as flown, in the flight's time.
@@ -186,6 +206,38 @@ impl Truth {
             .collect()
     }
 
+    /// The true gradient between every two scalar sensors at least
+    /// [`crate::gradient::LEAST_SEPARATION_M`] apart, a before b in the
+    /// scenario's order: the difference of their true Earth fields over
+    /// their separation, nT/m, per output sample.
+    pub fn gradients(&self) -> Vec<TrueGradient> {
+        let mut gradients = Vec::new();
+        for (i, a) in self.sensors.iter().enumerate() {
+            for b in &self.sensors[i + 1..] {
+                let separation_m = (0..3)
+                    .map(|k| (a.position_m[k] - b.position_m[k]).powi(2))
+                    .sum::<f64>()
+                    .sqrt();
+                if separation_m < crate::gradient::LEAST_SEPARATION_M {
+                    continue;
+                }
+                gradients.push(TrueGradient {
+                    name: crate::gradient::gradient_name(&a.channel, &b.channel),
+                    a: a.channel.clone(),
+                    b: b.channel.clone(),
+                    separation_m,
+                    values_nt_per_m: a
+                        .earth_total_nt
+                        .iter()
+                        .zip(&b.earth_total_nt)
+                        .map(|(x, y)| (x - y) / separation_m)
+                        .collect(),
+                });
+            }
+        }
+        gradients
+    }
+
     /// The true Earth field at `channel`'s sensor, per output sample.
     pub fn earth_total_nt(&self, channel: &str) -> Option<&[f64]> {
         self.sensors
@@ -229,6 +281,8 @@ impl Truth {
         for fluxgate in &self.fluxgates {
             names.extend(["x", "y", "z", "n", "e", "d"].map(|axis| format!("{}_earth_{axis}", fluxgate.sensor)));
         }
+        let gradients = self.gradients();
+        names.extend(gradients.iter().map(|g| format!("{}_true", g.name)));
         writeln!(out, "tt,{},external_nt", names.join(","))?;
         let mut number = ryu::Buffer::new();
         for (row, t) in self.time_s.iter().enumerate() {
@@ -240,6 +294,9 @@ impl Truth {
                 for axis in fluxgate.earth_body_nt.iter().chain(&fluxgate.earth_ned_nt) {
                     write!(out, ",{:.4}", axis[row])?;
                 }
+            }
+            for gradient in &gradients {
+                write!(out, ",{:.6}", gradient.values_nt_per_m[row])?;
             }
             writeln!(out, ",{:.4}", self.external_nt[row])?;
         }

@@ -16,6 +16,7 @@
 //! | compensated `mag_<n>` | `/mag/<n>/compensated` | `magcomp.ScalarMag` |
 //! | vector-compensated `flux_<s>`, body axes | `/mag/<s>/vector_compensated` | `magcomp.VectorMag` (frame `body`) |
 //! | the same in north-east-down | `/mag/<s>/vector_compensated_ned` | `magcomp.VectorMag` (x, y, z = n, e, d; frame `ned`) |
+//! | compensated gradient `grad_<a>_<b>_c` | `/grad/<a>_<b>/compensated` | `magcomp.Sample` (unit `nT/m`) |
 //!
 //! The fitted model and quality figures go in as metadata records and JSON
 //! attachments.
@@ -368,6 +369,25 @@ fn plan_topics<'a>(log: &'a FlightLog, compensation: Option<&'a Compensation>) -
                 }),
             });
         }
+    }
+    for gradient in compensation.map(|c| c.gradients.as_slice()).unwrap_or_default() {
+        let label = gradient.column.strip_prefix("grad_").unwrap_or(&gradient.column);
+        let label = label.strip_suffix("_c").unwrap_or(label);
+        topics.push(Topic {
+            topic: format!("/grad/{label}/compensated"),
+            schema: "magcomp.Sample",
+            metadata: BTreeMap::new(),
+            encode: Box::new(move |row, time| {
+                Some(
+                    Sample {
+                        timestamp: Some(timestamp(time)),
+                        value: gradient.values[row],
+                        unit: "nT/m".into(),
+                    }
+                    .encode_to_vec(),
+                )
+            }),
+        });
     }
     topics
 }

@@ -1,0 +1,416 @@
+//! Gradient compensation: the difference of two scalar sensors over their
+//! separation, in nT/m, with the aircraft's interference removed.
+//!
+//! A gradient can be compensated two ways:
+//! - **difference**: each sensor compensated on its own, then
+//!   $(c_a - c_b)/d$;
+//! - **direct**: one Tolles-Lawson model fitted to the recorded difference
+//!   $m_a - m_b$ (band-passed, λ by the same criterion as any channel),
+//!   then $((m_a - m_b) - \hat I_{ab})/d$.
+//!
+//! The two differ in what the fit sees. Whatever both sensors see alike
+//! (geomagnetic pulsations, the crust's field in the calibration band
+//! over the box) is noise to each single-sensor fit and biases its
+//! coefficients, each its own way, so the biases need not cancel in the
+//! difference; it cancels in $m_a - m_b$ before the direct fit. The
+//! direct fit has one λ for the pair, the difference one per sensor. Which
+//! is better on a flight is measured, not assumed: each heading of the box
+//! is held out in turn, both are fitted on the others, and the band-passed
+//! residual of the gradient on the held-out heading decides (`method =
+//! "auto"`).
+//!
+//! **Level.** The manoeuvres pin the interference's variation, not its
+//! mean: the induced terms sum to a constant, and the aircraft's steady
+//! field at the two sensors differs by an amount no manoeuvre reveals. The
+//! gradient's level is therefore that of the compensated channels (or of
+//! the direct fit's), as `[fit] level` says, and can be off by the
+//! aircraft's steady difference over d; the run says so. What is
+//! compensated is the gradient's variation along the lines, which is what
+//! gradient surveys level to tie lines anyway.
+
+use std::path::PathBuf;
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::compensate::{compensate, CompensatedGradient, Compensation, LevelConvention};
+use crate::error::{Error, Result};
+use crate::flight_log::{Channel, ChannelRole, FlightLog, VectorSensor};
+use crate::model::{fit, FitOptions, FittedModel, ModelSpec, WindowFit};
+use crate::numerics::stacked::StorePool;
+use crate::tolles_lawson::TermSet;
+use crate::windows::CalibrationWindow;
+
+/// How a gradient is compensated (`[[gradient]] method`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum GradientMethod {
+    /// The one of the two with the smaller held-out residual.
+    #[default]
+    Auto,
+    /// One model fitted to the difference of the two sensors.
+    Direct,
+    /// The difference of the two compensated channels.
+    Difference,
+}
+
+/// One gradient to compensate: `(a − b)/separation`.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct GradientPair {
+    /// The first sensor (the gradient points from `b` to `a`).
+    pub a: String,
+    /// The second sensor.
+    pub b: String,
+    /// Distance between them, m.
+    pub separation_m: f64,
+    /// The unit vector from `b` to `a` in body axes (forward, right, down),
+    /// when their positions are known.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub axis_body: Option<[f64; 3]>,
+    /// How to compensate it.
+    pub method: GradientMethod,
+}
+
+impl GradientPair {
+    /// The output column: `grad_<a>_<b>_c` with each sensor's stem
+    /// ([`sensor_stem`]).
+    pub fn column(&self) -> String {
+        format!("{}_c", gradient_name(&self.a, &self.b))
+    }
+}
+
+/// Sensors closer than this (m) make no gradient: their difference is
+/// the aircraft's and the noise's.
+pub const LEAST_SEPARATION_M: f64 = 0.1;
+
+/// `grad_<a>_<b>`, each sensor by its stem: `mag_1_uc` and `mag_3_uc` give
+/// `grad_1_3`.
+pub fn gradient_name(a: &str, b: &str) -> String {
+    format!("grad_{}_{}", sensor_stem(a), sensor_stem(b))
+}
+
+/// A scalar channel's short name: `<n>` of the SGL `mag_<n>_uc`, else the
+/// name itself.
+pub fn sensor_stem(channel: &str) -> &str {
+    channel
+        .strip_prefix("mag_")
+        .and_then(|s| s.strip_suffix("_uc"))
+        .unwrap_or(channel)
+}
+
+/// The held-out comparison of the two methods, nT/m.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct GradientHeldOut {
+    /// Headings held out in turn.
+    pub headings: usize,
+    /// Band-passed rows scored (held-out rows both methods predict).
+    pub rows: usize,
+    /// RMS of the direct model's band-passed gradient residual, nT/m.
+    pub direct_nt_per_m: f64,
+    /// RMS of the difference of the two channels' residuals, nT/m.
+    pub difference_nt_per_m: f64,
+}
+
+/// What the gradient stage did with one pair.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct GradientResult {
+    /// The output column.
+    pub column: String,
+    /// The pair and its settings.
+    pub pair: GradientPair,
+    /// The method the output comes from.
+    pub method_used: GradientMethod,
+    /// Why that method.
+    pub reason: String,
+    /// Both methods held out by heading; `None` with fewer than three
+    /// headings.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub held_out: Option<GradientHeldOut>,
+    /// The direct model's in-band residual over the box, nT/m.
+    pub direct_residual_nt_per_m: f64,
+    /// The level the output's convention added, nT/m: how far the
+    /// gradient's mean rests on a choice, not on the data.
+    pub level_offset_nt_per_m: f64,
+}
+
+/// Everything the stage produced.
+#[derive(Debug, Default)]
+pub struct GradientStage {
+    /// One per pair compensated.
+    pub results: Vec<GradientResult>,
+    /// The direct models (the model JSON holds them).
+    pub models: Vec<FittedModel>,
+    /// The compensated columns.
+    pub compensated: Vec<CompensatedGradient>,
+    /// Lines for the summary.
+    pub notes: Vec<String>,
+    /// What the user must know.
+    pub warnings: Vec<String>,
+}
+
+/// What the stage reads from the run: the flight as fitted, the fluxgate,
+/// the windows, the channels' models and their compensation.
+pub struct GradientInputs<'a> {
+    /// The flight as the fits saw it (fluxgate calibrated when it was).
+    pub log: &'a FlightLog,
+    /// The fluxgate the terms are built from.
+    pub sensor: &'a VectorSensor,
+    /// Calibration windows.
+    pub windows: &'a [CalibrationWindow],
+    /// The fitted channel models.
+    pub models: &'a [FittedModel],
+    /// Their compensation.
+    pub compensation: &'a Compensation,
+}
+
+/// Compensates every pair of `pairs` whose sensors both have a model. A
+/// pair that cannot be compensated is a warning; the other outputs stand.
+pub fn compensate_gradients(
+    inputs: &GradientInputs,
+    pairs: &[GradientPair],
+    (terms, options, level): (TermSet, &FitOptions, LevelConvention),
+) -> GradientStage {
+    let mut stage = GradientStage::default();
+    for pair in pairs {
+        match compensate_pair(inputs, pair, (terms, options, level)) {
+            Ok((result, model, compensated)) => {
+                stage.notes.push(describe(&result));
+                stage.warnings.push(format!(
+                    "{}: the gradient's level is not pinned by the calibration: the aircraft's steady field differs between {} and {} by an amount no manoeuvre reveals, up to the aircraft's field at the sensors over {:.2} m{}; use its variation along the lines, or level it to tie lines",
+                    result.column,
+                    pair.a,
+                    pair.b,
+                    pair.separation_m,
+                    match result.level_offset_nt_per_m {
+                        0.0 => String::new(),
+                        offset => format!(" ([fit] level moved it by {offset:.4} nT/m)"),
+                    }
+                ));
+                stage.results.push(result);
+                stage.models.push(model);
+                stage.compensated.push(compensated);
+            }
+            Err(e) => stage
+                .warnings
+                .push(format!("{}: no gradient compensation: {e}", pair.column())),
+        }
+    }
+    stage
+}
+
+/// One line on a compensated gradient.
+fn describe(result: &GradientResult) -> String {
+    let mut text = format!(
+        "{}: ({} − {})/{:.3} m, from the {} ({})",
+        result.column,
+        result.pair.a,
+        result.pair.b,
+        result.pair.separation_m,
+        match result.method_used {
+            GradientMethod::Direct => "model fitted to the difference",
+            _ => "difference of the compensated channels",
+        },
+        result.reason
+    );
+    if let Some(held) = &result.held_out {
+        text += &format!(
+            "; held out by heading ({} headings): direct {:.5} nT/m, difference {:.5} nT/m",
+            held.headings, held.direct_nt_per_m, held.difference_nt_per_m
+        );
+    }
+    text
+}
+
+fn compensate_pair(
+    inputs: &GradientInputs,
+    pair: &GradientPair,
+    (terms, options, level): (TermSet, &FitOptions, LevelConvention),
+) -> Result<(GradientResult, FittedModel, CompensatedGradient)> {
+    let log = inputs.log;
+    let index = |name: &str| {
+        inputs
+            .models
+            .iter()
+            .position(|m| m.channel == name)
+            .ok_or_else(|| Error::Config {
+                source_name: "[[gradient]]".into(),
+                message: format!("'{name}' is not a compensated scalar channel of this flight"),
+            })
+    };
+    let (ia, ib) = (index(&pair.a)?, index(&pair.b)?);
+    if !(pair.separation_m.is_finite() && pair.separation_m > 0.0) {
+        return Err(Error::Config {
+            source_name: "[[gradient]]".into(),
+            message: format!("separation {} m: it must be positive", pair.separation_m),
+        });
+    }
+    let name = gradient_name(&pair.a, &pair.b);
+    let lean = difference_log(log, inputs.sensor, pair, &name)?;
+    let sensor = lean.vector_sensor(&inputs.sensor.prefix).ok_or_else(|| Error::Vector {
+        sensor: inputs.sensor.prefix.clone(),
+        message: "the fluxgate is not in the flight".into(),
+    })?;
+    let spec = ModelSpec::plain(terms);
+    let stores = StorePool::new();
+    let model = fit(&lean, &sensor, &name, inputs.windows, &spec, options, &stores)?;
+    let d = pair.separation_m;
+    let held_out = held_out(inputs, (&lean, &sensor, &name), (&spec, options), (ia, ib, d))?;
+    let (method_used, reason) = choose(pair.method, held_out.as_ref());
+    let (values, level_offset_nt) = match method_used {
+        GradientMethod::Direct => {
+            let direct = compensate(&lean, std::slice::from_ref(&model), level)?;
+            let channel = direct.channels.into_iter().next().ok_or_else(|| Error::Vector {
+                sensor: name.clone(),
+                message: "the direct model compensated nothing".into(),
+            })?;
+            (channel.values, channel.level_offset_nt)
+        }
+        _ => {
+            let (a, b) = (&inputs.compensation.channels[ia], &inputs.compensation.channels[ib]);
+            let values = a.values.iter().zip(&b.values).map(|(a, b)| a - b).collect();
+            (values, a.level_offset_nt - b.level_offset_nt)
+        }
+    };
+    let residual = model
+        .windows
+        .iter()
+        .flat_map(|w| w.band_after_nt.iter())
+        .fold((0.0, 0usize), |(s, n), r| (s + r * r, n + 1));
+    let result = GradientResult {
+        column: pair.column(),
+        pair: pair.clone(),
+        method_used,
+        reason,
+        held_out,
+        direct_residual_nt_per_m: (residual.0 / residual.1.max(1) as f64).sqrt() / d,
+        level_offset_nt_per_m: level_offset_nt / d,
+    };
+    let compensated = CompensatedGradient {
+        column: pair.column(),
+        values: values.into_iter().map(|v| v / d).collect(),
+    };
+    Ok((result, model, compensated))
+}
+
+/// The flight reduced to what the direct fit reads: the fluxgate and the
+/// recorded difference `a − b` as a scalar channel named `name` (NaN
+/// where either is missing).
+fn difference_log(log: &FlightLog, sensor: &VectorSensor, pair: &GradientPair, name: &str) -> Result<FlightLog> {
+    let values = |channel: &str| {
+        log.channel(channel)
+            .map(|c| c.values.as_slice())
+            .ok_or_else(|| Error::MissingColumn {
+                path: log.source().to_path_buf(),
+                role: "scalar magnetometer",
+                looked_for: format!("'{channel}'"),
+                hint: "Name two scalar channels the flight records in [[gradient]].".into(),
+            })
+    };
+    let difference: Vec<f64> = values(&pair.a)?
+        .iter()
+        .zip(values(&pair.b)?)
+        .map(|(a, b)| a - b)
+        .collect();
+    let mut channels: Vec<Channel> = sensor.axes.iter().map(|&i| log.channels()[i].clone()).collect();
+    channels.push(Channel {
+        name: name.into(),
+        role: ChannelRole::ScalarMagnetometer,
+        values: difference,
+    });
+    Ok(FlightLog::new(
+        PathBuf::from(log.source()),
+        log.time_column(),
+        log.time_s().to_vec(),
+        channels,
+    )?
+    .with_row_flags(log.row_flags().to_vec()))
+}
+
+/// Each heading held out in turn: the direct model and the two channels'
+/// models fitted on the others, the band-passed residual of the gradient
+/// on it, over the separation `d`. `None` with fewer than three headings.
+fn held_out(
+    inputs: &GradientInputs,
+    (lean, lean_sensor, name): (&FlightLog, &VectorSensor, &str),
+    (spec, options): (&ModelSpec, &FitOptions),
+    (ia, ib, d): (usize, usize, f64),
+) -> Result<Option<GradientHeldOut>> {
+    let Some(splits) = crate::holdout::heading_splits(inputs.windows) else {
+        return Ok(None);
+    };
+    let stores = StorePool::new();
+    let folds: Vec<Vec<(f64, f64)>> = splits
+        .par_iter()
+        .map(|(held, kept)| {
+            let direct = fit(lean, lean_sensor, name, kept, spec, options, &stores)?.held_out(
+                lean,
+                lean_sensor,
+                held,
+                options,
+            )?;
+            let channel = |i: usize| -> Result<Vec<WindowFit>> {
+                let model: &FittedModel = &inputs.models[i];
+                fit(
+                    inputs.log,
+                    inputs.sensor,
+                    &model.channel,
+                    kept,
+                    &model.spec,
+                    options,
+                    &stores,
+                )?
+                .held_out(inputs.log, inputs.sensor, held, options)
+            };
+            let (a, b) = (by_row(&channel(ia)?), by_row(&channel(ib)?));
+            Ok(by_row(&direct)
+                .into_iter()
+                .filter_map(|(row, direct)| Some((direct, a.get(&row)? - b.get(&row)?)))
+                .collect())
+        })
+        .collect::<Result<_>>()?;
+    let pairs: Vec<(f64, f64)> = folds.into_iter().flatten().collect();
+    if pairs.is_empty() {
+        return Ok(None);
+    }
+    let rms =
+        |pick: fn(&(f64, f64)) -> f64| (pairs.iter().map(|p| pick(p).powi(2)).sum::<f64>() / pairs.len() as f64).sqrt();
+    Ok(Some(GradientHeldOut {
+        headings: splits.len(),
+        rows: pairs.len(),
+        direct_nt_per_m: rms(|p| p.0) / d,
+        difference_nt_per_m: rms(|p| p.1) / d,
+    }))
+}
+
+/// The band-passed residual of `fits` by flight row.
+fn by_row(fits: &[WindowFit]) -> std::collections::BTreeMap<usize, f64> {
+    fits.iter()
+        .flat_map(|w| {
+            w.flight_rows
+                .iter()
+                .cloned()
+                .flatten()
+                .zip(w.band_after_nt.iter().copied())
+        })
+        .collect()
+}
+
+/// The method to use and why.
+fn choose(asked: GradientMethod, held_out: Option<&GradientHeldOut>) -> (GradientMethod, String) {
+    match (asked, held_out) {
+        (GradientMethod::Direct, _) => (GradientMethod::Direct, "as [[gradient]] method asks".into()),
+        (GradientMethod::Difference, _) => (GradientMethod::Difference, "as [[gradient]] method asks".into()),
+        (GradientMethod::Auto, Some(held)) if held.direct_nt_per_m <= held.difference_nt_per_m => (
+            GradientMethod::Direct,
+            "the smaller residual held out by heading".into(),
+        ),
+        (GradientMethod::Auto, Some(_)) => (
+            GradientMethod::Difference,
+            "the smaller residual held out by heading".into(),
+        ),
+        (GradientMethod::Auto, None) => (
+            GradientMethod::Direct,
+            "not compared held out: the windows span fewer than three headings; the direct fit is not disturbed by what both sensors see alike".into(),
+        ),
+    }
+}
