@@ -5,8 +5,11 @@
 //!    runs, with the peak resident set size after each size.
 //! 2. A whole-file run: 200 000 rows × 100 columns with 5 scalar channels
 //!    and a fluxgate with INS attitude (vector compensation on; `-- file
-//!    novector` turns it off), CSV in and CSV out, against the bare time the csv crate needs to read
-//!    and write the same file.
+//!    novector` turns it off) and two gradients (`-- file nogradient`
+//!    turns them off), CSV in and CSV out, against the bare time the csv
+//!    crate needs to read and write the same file. Its windows carry no
+//!    heading, so nothing is held out by heading (no estimator table, no
+//!    held-out comparison of the gradient methods).
 //! 3. Format ingest: 1e6 protobuf messages from MCAP against the bare mcap +
 //!    prost decode, and CSV / XYZ against the bare csv crate parse.
 
@@ -206,6 +209,19 @@ fn bench_whole_file(rows: usize) {
     options.diagnose.apply = magcomp::diagnose::ApplyDiagnosis::Never;
     // `-- file novector` times it with the vector stage off.
     options.vector.enabled = !std::env::args().any(|a| a == "novector");
+    // Two gradients, fitted directly and compared with the difference
+    // (`-- file nogradient` times it without).
+    if !std::env::args().any(|a| a == "nogradient") {
+        options.gradients = [("mag_1_uc", "mag_2_uc"), ("mag_3_uc", "mag_5_uc")]
+            .map(|(a, b)| magcomp::gradient::GradientPair {
+                a: a.into(),
+                b: b.into(),
+                separation_m: 1.5,
+                axis_body: None,
+                method: magcomp::gradient::GradientMethod::Auto,
+            })
+            .to_vec();
+    }
     let windows: Vec<CalibrationWindow> = (0..8)
         .map(|w| CalibrationWindow::new(w as f64 * 300.0, w as f64 * 300.0 + 120.0))
         .collect();
@@ -224,8 +240,9 @@ fn bench_whole_file(rows: usize) {
     });
     let megabytes = std::fs::metadata(&input).unwrap().len() as f64 / 1e6;
     println!(
-        "whole file, {rows} rows × 100 columns ({megabytes:.0} MB), 5 channels, vector {}, {} threads: magcomp {:.0} ms, bare csv read+write {:.0} ms, ratio {:.2}; peak RSS so far {:.0} MB",
+        "whole file, {rows} rows × 100 columns ({megabytes:.0} MB), 5 channels, vector {}, {} gradients, {} threads: magcomp {:.0} ms, bare csv read+write {:.0} ms, ratio {:.2}; peak RSS so far {:.0} MB",
         if options.vector.enabled { "on" } else { "off" },
+        options.gradients.len(),
         rayon::current_num_threads(),
         full * 1e3,
         bare * 1e3,

@@ -170,9 +170,14 @@ pub fn compensate_gradients(
     pairs: &[GradientPair],
     (terms, options, level): (TermSet, &FitOptions, LevelConvention),
 ) -> GradientStage {
+    // The pairs are independent: fitted in parallel, gathered in order.
+    let outcomes: Vec<_> = pairs
+        .par_iter()
+        .map(|pair| compensate_pair(inputs, pair, (terms, options, level)))
+        .collect();
     let mut stage = GradientStage::default();
-    for pair in pairs {
-        match compensate_pair(inputs, pair, (terms, options, level)) {
+    for (pair, outcome) in pairs.iter().zip(outcomes) {
+        match outcome {
             Ok((result, model, compensated)) => {
                 stage.notes.push(describe(&result));
                 stage.warnings.push(format!(

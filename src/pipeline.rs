@@ -442,21 +442,27 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
         Some(detection) => detection.boxes.iter().map(|b| (b.t_start, b.t_end)).collect(),
         None => window_hulls(&windows),
     };
-    let vector = vector_stage(log, (&windows, &boxes), &compensation, &options.vector);
+    // The vector and the gradients read the compensated channels and not
+    // each other: they run side by side.
+    let (vector, gradients) = rayon::join(
+        || vector_stage(log, (&windows, &boxes), &compensation, &options.vector),
+        || {
+            crate::gradient::compensate_gradients(
+                &crate::gradient::GradientInputs {
+                    log,
+                    sensor: &sensor,
+                    windows: &windows,
+                    models: &models,
+                    compensation: &compensation,
+                },
+                &options.gradients,
+                (options.terms, &options.fit, options.level),
+            )
+        },
+    );
     for compensated in vector.compensated {
         compensation.add_vector(compensated);
     }
-    let gradients = crate::gradient::compensate_gradients(
-        &crate::gradient::GradientInputs {
-            log,
-            sensor: &sensor,
-            windows: &windows,
-            models: &models,
-            compensation: &compensation,
-        },
-        &options.gradients,
-        (options.terms, &options.fit, options.level),
-    );
     compensation.gradients = gradients.compensated;
     let added_columns = added_column_names(log, compensated, &compensation)?;
     let mut notes = renaming_notes(&channels, &added_columns);
