@@ -16,7 +16,7 @@ use crate::flight_log::{FlightLog, VectorSensor};
 use crate::formats::added_column_names;
 use crate::formats::align::AlignmentReport;
 use crate::formats::read_flight_log;
-use crate::model::{compare_estimators, fit, Extensions, FittedModel, ModelSpec};
+use crate::model::{compare_estimators, fit, Extensions, FitOptions, FittedModel, ModelSpec};
 use crate::numerics::stacked::StorePool;
 use crate::quality::transfer::check_transfer;
 use crate::quality::{assess_quality, ChannelQuality};
@@ -100,7 +100,7 @@ fn vector_stage(
     log: &FlightLog,
     (windows, boxes): (&[crate::windows::CalibrationWindow], &[(f64, f64)]),
     compensation: &crate::compensate::Compensation,
-    options: &crate::vector::VectorOptions,
+    (options, fit_options): (&crate::vector::VectorOptions, &FitOptions),
 ) -> VectorStage {
     let mut stage = VectorStage {
         models: Vec::new(),
@@ -136,7 +136,8 @@ fn vector_stage(
         return stage;
     };
     for sensor in log.vector_sensors() {
-        let fitted = crate::vector::fit(log, &sensor, (windows, boxes), &reference)
+        let stage_options = options.tolles_lawson.then_some(fit_options);
+        let fitted = crate::vector::fit(log, &sensor, (windows, boxes), &reference, stage_options)
             .and_then(|model| Ok((model.compensate(log)?, model)));
         match fitted {
             Ok((compensated, model)) => {
@@ -149,6 +150,12 @@ fn vector_stage(
                 }
                 if let Some(warning) = vector_direction_warning(&model) {
                     stage.warnings.push(warning);
+                }
+                if let Some(reason) = &model.tolles_lawson_skipped {
+                    stage.warnings.push(format!(
+                        "{}: no vector Tolles-Lawson stage (the eddy currents' field is left in the vector): {reason}",
+                        model.sensor
+                    ));
                 }
                 stage.compensated.push(compensated);
                 stage.models.push(model);
@@ -205,6 +212,21 @@ fn vector_note(model: &crate::vector::VectorModel) -> String {
     } = model.start
     {
         text += &format!(" (IGRF-14: {inclination_deg:.3}°, {declination_deg:.3}°)");
+    }
+    if let Some(stage) = &model.tolles_lawson {
+        let axes = |v: [f64; 3]| format!("{:.2}/{:.2}/{:.2}", v[0], v[1], v[2]);
+        text += &format!(
+            "; vector Tolles-Lawson (eddy currents, per axis): band-passed residual x/y/z {} → {} nT",
+            axes(stage.band_rms_before_nt),
+            axes(stage.band_rms_after_nt)
+        );
+        if let Some(held) = &stage.held_out {
+            text += &format!(
+                ", held out by heading {} → {} nT",
+                axes(held.before_nt),
+                axes(held.after_nt)
+            );
+        }
     }
     text
 }
@@ -427,6 +449,7 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
         .zip(&compensation.channels)
         .map(|(model, channel)| {
             let mut quality = assess_quality(log, model, channel);
+            quality.uncertainty = crate::quality::uncertainty(log, model)?;
             quality.transfer = check_transfer(
                 log,
                 &sensor,
@@ -445,7 +468,7 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
     // The vector and the gradients read the compensated channels and not
     // each other: they run side by side.
     let (vector, gradients) = rayon::join(
-        || vector_stage(log, (&windows, &boxes), &compensation, &options.vector),
+        || vector_stage(log, (&windows, &boxes), &compensation, (&options.vector, &options.fit)),
         || {
             crate::gradient::compensate_gradients(
                 &crate::gradient::GradientInputs {

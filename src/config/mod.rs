@@ -40,6 +40,7 @@
 //!
 //! [vector]
 //! enabled = true       # every fluxgate's vector, with INS attitude and a box
+//! tolles_lawson = true # and its eddy-current and in-band induced terms
 //!
 //! [sensor_positions]   # body axes (forward, right, down), m; without
 //! mag_4_uc = [0.0, -7.5, 0.0]   # [[gradient]], every pair is a gradient

@@ -93,6 +93,7 @@ raw_section! {
     /// `[vector]` as written.
     RawVector => VectorOptions {
         enabled: bool,
+        tolles_lawson: bool,
     }
 }
 

@@ -291,6 +291,63 @@ impl FittedModel {
         })
     }
 
+    /// The uncertainty of the predicted interference, from the blocked
+    /// jackknife of the coefficients
+    /// ([`crate::numerics::solve::Solution::jackknife`]); `None` without one
+    /// (fewer than three windows). For each deviation $d_f$ the prediction
+    /// $p_f(i) = a_i \cdot d_f$ ($a_i$ the row's design: terms and aircraft
+    /// source columns) splits into its mean over the calibration windows'
+    /// rows, $\bar p_f$ (the level, which the band-passed fit does not pin),
+    /// and the rest:
+    /// - per row, $\sqrt{\sum_f (p_f(i) - \bar p_f)^2}$: one sigma of the
+    ///   compensated value relative to its level over the calibration, nT
+    ///   (`NaN` where the prediction is missing);
+    /// - $\sqrt{\sum_f \bar p_f^2}$: one sigma of that level, nT.
+    ///
+    /// The second-order term's share is left out.
+    pub fn prediction_sigma(&self, log: &FlightLog) -> Result<Option<(Vec<f64>, f64)>> {
+        let deviations = &self.solution.jackknife;
+        if deviations.is_empty() {
+            return Ok(None);
+        }
+        let sensor = self.sensor_in(log)?;
+        let prepared = Prepared::new(log, &sensor, &self.channel, &self.spec)?;
+        let terms = self.spec.fitted_terms();
+        let design = design_matrix(&prepared.log, &sensor, &terms);
+        let count = design.columns.len();
+        let aircraft: Vec<(usize, &[f64])> = (prepared.extra.iter().enumerate())
+            .filter(|(_, c)| !c.geomagnetic)
+            .map(|(k, c)| (count + k, c.values.as_slice()))
+            .collect();
+        let predict = |row: usize, d: &[f64]| {
+            design.predict_row(row, &d[..count.min(d.len())])
+                + aircraft.iter().map(|(k, c)| c[row] * d[*k]).sum::<f64>()
+        };
+        let calibration: Vec<usize> = (self.windows.iter())
+            .flat_map(|w| w.flight_rows.iter().cloned().flatten())
+            .collect();
+        let levels: Vec<f64> = deviations
+            .iter()
+            .map(|d| {
+                let (sum, n) = (calibration.iter())
+                    .map(|&row| predict(row, d))
+                    .filter(|v| v.is_finite())
+                    .fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
+                sum / n.max(1) as f64
+            })
+            .collect();
+        let per_row = (0..log.len())
+            .map(|row| {
+                (deviations.iter().zip(&levels))
+                    .map(|(d, level)| (predict(row, d) - level).powi(2))
+                    .sum::<f64>()
+                    .sqrt()
+            })
+            .collect();
+        let level = levels.iter().map(|l| l * l).sum::<f64>().sqrt();
+        Ok(Some((per_row, level)))
+    }
+
     /// The model's vector sensor in `log`; an error when `log` lacks it
     /// or the scalar channel.
     fn sensor_in(&self, log: &FlightLog) -> Result<VectorSensor> {

@@ -328,7 +328,7 @@ fn record_fluxgate(
     fluxgate: &scenario::Fluxgate,
     random: &mut Random,
 ) -> (Vec<(String, Vec<f64>)>, FluxgateTruth) {
-    let own = AircraftField::draw(random, fluxgate.permanent_nt, fluxgate.induced, 0.0);
+    let own = AircraftField::draw(random, fluxgate.permanent_nt, fluxgate.induced, fluxgate.eddy_s);
     let residual = FluxgateCalibration::draw(
         random,
         fluxgate.scale_error,
@@ -357,9 +357,13 @@ fn record_fluxgate(
     let errors = calibration.errors();
     let earth = earth_field_at(path, environment, [1.0, 0.0, -0.3]);
     let factor = scenario.raw.oversampling;
+    // The eddy currents' drive: the body-axis Earth field's rate of change.
+    let drive: [Vec<f64>; 3] =
+        [0, 1, 2].map(|i| central_rate(&earth.iter().map(|b| b[i]).collect::<Vec<_>>(), path.dt_s));
     let readings: Vec<Vector> = earth
         .iter()
-        .map(|b| errors.read(add(*b, own.at(*b, [0.0; 3]))))
+        .enumerate()
+        .map(|(k, b)| errors.read(add(*b, own.at(*b, [drive[0][k], drive[1][k], drive[2][k]]))))
         .collect();
     let columns = ["x", "y", "z"]
         .iter()

@@ -379,6 +379,10 @@ pub struct Fluxgate {
     pub permanent_nt: f64,
     /// Size of the induced coefficients at the fluxgate (dimensionless).
     pub induced: f64,
+    /// Size of the eddy-current coefficients at the fluxgate, s: the
+    /// aircraft's field there moves with the rate of change of the body-axis
+    /// Earth field (0: none, the default).
+    pub eddy_s: f64,
     /// Size of the residual scale-factor errors left by the factory
     /// calibration (drawn per axis in ±this).
     pub scale_error: f64,
@@ -395,6 +399,7 @@ impl Default for Fluxgate {
             noise_nt: 0.1,
             permanent_nt: 40.0,
             induced: 2e-3,
+            eddy_s: 0.0,
             scale_error: 5e-4,
             non_orthogonality_deg: 0.03,
             offset_nt: 5.0,

@@ -65,19 +65,29 @@ use crate::igrf::{decimal_year, Igrf};
 use crate::numerics::linalg::{small_svd, tall_skinny_r};
 use crate::windows::CalibrationWindow;
 
+pub mod tolles_lawson;
+
+pub use tolles_lawson::VectorTollesLawson;
+
 /// `[vector]` settings.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct VectorOptions {
     /// Compensate the vector of every fluxgate when the flight has INS
     /// attitude and a calibration box (`[vector] enabled`, on by default).
     pub enabled: bool,
+    /// Fit the vector Tolles-Lawson stage ([`tolles_lawson`]) after the
+    /// twelve constants (`[vector] tolles_lawson`, on by default).
+    pub tolles_lawson: bool,
 }
 
 impl Default for VectorOptions {
     /// On: its survey-line accuracy is shown on flight plans drawn at
     /// random in `tests/vector.rs`.
     fn default() -> Self {
-        VectorOptions { enabled: true }
+        VectorOptions {
+            enabled: true,
+            tolles_lawson: true,
+        }
     }
 }
 
@@ -170,6 +180,12 @@ pub struct VectorModel {
     /// Held out by heading, with three headings or more.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub held_out: Option<HeldOut>,
+    /// The vector Tolles-Lawson stage, when fitted.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub tolles_lawson: Option<VectorTollesLawson>,
+    /// Why the vector Tolles-Lawson stage was not fitted, when asked for.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub tolles_lawson_skipped: Option<String>,
 }
 
 /// The compensated vector of one fluxgate on every row.
@@ -278,6 +294,7 @@ pub fn fit(
     sensor: &VectorSensor,
     (windows, spans): (&[CalibrationWindow], &[(f64, f64)]),
     reference: &Reference,
+    tolles_lawson: Option<&crate::model::FitOptions>,
 ) -> Result<VectorModel> {
     let (reference_name, reference_nt) = (&reference.channel, reference.total_nt.as_slice());
     let attitude = attitude(log).ok_or_else(|| Error::Vector {
@@ -286,7 +303,9 @@ pub fn fit(
     })?;
     let rows = union(window_rows(log, &spanned(windows, spans)));
     let (angles, start, turns) = start_direction(log, sensor, &rows, (&attitude, reference_nt));
-    let samples = samples(log, sensor, (&attitude, reference_nt, &turns), rows.iter().cloned());
+    let readings = log.vector_components(sensor);
+    let inputs = (&attitude, reference_nt, &turns, readings);
+    let samples = samples(log, inputs, rows.iter().cloned());
     let mut model = fit_samples(&samples, &angles).ok_or_else(|| Error::Vector {
         sensor: sensor.prefix.clone(),
         message: format!(
@@ -298,8 +317,59 @@ pub fn fit(
     model.reference = reference_name.clone();
     model.reference_swing_nt = reference.swing_nt;
     model.start = start;
-    model.held_out = held_out(log, sensor, windows, (&attitude, reference_nt, &turns), &angles);
+    model.held_out = held_out(log, windows, inputs, &angles);
+    let Some(options) = tolles_lawson else {
+        return Ok(model);
+    };
+    // The eddy field biases the twelve constants (it is large where the
+    // manoeuvres turn fastest): the stage fitted on the first constants'
+    // output, its field taken from the readings, the constants refitted on
+    // what remains, and the stage fitted again on the new constants'
+    // output of the recorded readings.
+    let stage = |model: &VectorModel| -> Result<VectorTollesLawson> {
+        let body = model.twelve_constant_body(log)?;
+        let expected = model.expected_body(log, inputs, windows);
+        tolles_lawson::fit_stage(log, &sensor.prefix, (&body, &expected), windows, options)
+    };
+    let first = match stage(&model) {
+        Ok(first) => first,
+        Err(e) => {
+            model.tolles_lawson_skipped = Some(e.to_string());
+            return Ok(model);
+        }
+    };
+    let mut body = model.twelve_constant_body(log)?;
+    let raw = body.clone();
+    first.apply(log, &sensor.prefix, &mut body)?;
+    let k = Matrix3::from_fn(|j, c| model.soft_iron[j][c]);
+    let corrected: [Vec<f64>; 3] = std::array::from_fn(|j| {
+        (0..log.len())
+            .map(|i| {
+                let eddy = Vector3::new(raw[0][i] - body[0][i], raw[1][i] - body[1][i], raw[2][i] - body[2][i]);
+                readings[j][i] - (k * eddy)[j]
+            })
+            .collect()
+    });
+    let corrected_inputs = (&attitude, reference_nt, &turns, corrected.each_ref().map(Vec::as_slice));
+    let refitted = fit_samples(&samples_of(log, corrected_inputs, &rows), &angles);
+    if let Some(mut refitted) = refitted {
+        refitted.sensor = model.sensor.clone();
+        refitted.reference = model.reference.clone();
+        refitted.reference_swing_nt = model.reference_swing_nt;
+        refitted.start = model.start.clone();
+        refitted.held_out = held_out(log, windows, corrected_inputs, &angles);
+        model = refitted;
+    }
+    match stage(&model) {
+        Ok(second) => model.tolles_lawson = Some(second),
+        Err(e) => model.tolles_lawson_skipped = Some(e.to_string()),
+    }
     Ok(model)
+}
+
+/// [`samples`] over `rows`.
+fn samples_of(log: &FlightLog, inputs: Inputs, rows: &[Range<usize>]) -> Vec<Sample> {
+    samples(log, inputs, rows.iter().cloned())
 }
 
 /// The Earth field's size on every row, from one scalar channel.
@@ -390,15 +460,30 @@ fn union(mut ranges: Vec<Range<usize>>) -> Vec<Range<usize>> {
     merged
 }
 
+/// What a row's sample is built from: the INS attitude (roll, pitch, yaw),
+/// the reference's size, IGRF's turn across the box, and the fluxgate
+/// readings (x, y, z) fitted.
+type Inputs<'a> = (&'a [&'a [f64]; 3], &'a [f64], &'a Turns, [&'a [f64]; 3]);
+
 /// The usable samples of `rows`: a full fluxgate reading, an attitude and
 /// a positive reference.
 fn samples(
     log: &FlightLog,
-    sensor: &VectorSensor,
-    (attitude, reference, turns): (&[&[f64]; 3], &[f64], &Turns),
+    inputs: Inputs,
     rows: impl Iterator<Item = Range<usize>>,
 ) -> Vec<Sample> {
-    let field = log.vector_components(sensor);
+    indexed_samples(log, inputs, rows)
+        .into_iter()
+        .map(|(_, s)| s)
+        .collect()
+}
+
+/// [`samples`] with the row of each.
+fn indexed_samples(
+    log: &FlightLog,
+    (attitude, reference, turns, field): Inputs,
+    rows: impl Iterator<Item = Range<usize>>,
+) -> Vec<(usize, Sample)> {
     let time = log.time_s();
     let step = log.median_interval_s();
     let point = |i: usize| {
@@ -417,10 +502,13 @@ fn samples(
         .filter_map(|i| {
             let reading = Vector3::new(field[0][i], field[1][i], field[2][i]);
             reading.iter().all(|v| v.is_finite()).then_some(())?;
-            Some(Sample {
-                reading,
-                points: [point(i - 2)?, point(i - 1)?, point(i)?, point(i + 1)?, point(i + 2)?],
-            })
+            Some((
+                i,
+                Sample {
+                    reading,
+                    points: [point(i - 2)?, point(i - 1)?, point(i)?, point(i + 1)?, point(i + 2)?],
+                },
+            ))
         })
         .collect()
 }
@@ -490,7 +578,8 @@ fn start_direction(
         }
     }
     let turns = Turns::default();
-    let samples = samples(log, sensor, (attitude, reference, &turns), rows.iter().cloned());
+    let field = log.vector_components(sensor);
+    let samples = samples(log, (attitude, reference, &turns, field), rows.iter().cloned());
     let score = GridScore::new(&samples);
     let mut best = (f64::INFINITY, (0.0, 0.0));
     for i in -17..=17 {
@@ -760,6 +849,8 @@ fn fit_samples(samples: &[Sample], start: &(f64, f64)) -> Option<VectorModel> {
         condition_number,
         residual_rms_nt: squares.map(|s| (s / samples.len() as f64).sqrt()),
         held_out: None,
+        tolles_lawson: None,
+        tolles_lawson_skipped: None,
         fluxgate_lag_samples: parameters.lag,
         fluxgate_smoothing: parameters.smoothing,
     })
@@ -814,9 +905,8 @@ fn gauss_newton_step(samples: &[Sample], weights: &[f64], parameters: &Parameter
 /// fewer than three headings.
 fn held_out(
     log: &FlightLog,
-    sensor: &VectorSensor,
     windows: &[CalibrationWindow],
-    inputs: (&[&[f64]; 3], &[f64], &Turns),
+    inputs: Inputs,
     start: &(f64, f64),
 ) -> Option<HeldOut> {
     if windows.iter().any(|w| w.heading_deg.is_none()) {
@@ -832,7 +922,7 @@ fn held_out(
             .iter()
             .cloned()
             .partition(|w| w.heading_deg.is_some_and(|h| same_heading(h, heading)));
-        let training = samples(log, sensor, inputs, window_rows(log, &kept).into_iter());
+        let training = samples(log, inputs, window_rows(log, &kept).into_iter());
         let model = fit_samples(&training, start)?;
         let parameters = Parameters {
             k: Matrix3::from_fn(|j, c| model.soft_iron[j][c]),
@@ -843,7 +933,7 @@ fn held_out(
             smoothing: model.fluxgate_smoothing,
         };
         let u = direction(parameters.inclination, parameters.declination)[0];
-        for s in samples(log, sensor, inputs, window_rows(log, &held).into_iter()) {
+        for s in samples(log, inputs, window_rows(log, &held).into_iter()) {
             let r = parameters.residual(&s, &u);
             for j in 0..3 {
                 squares[j] += r[j] * r[j];
@@ -858,10 +948,32 @@ fn held_out(
 }
 
 impl VectorModel {
-    /// The Earth's field in body axes and north-east-down on every row of
-    /// `log`: $K^{-1}(m_i - h)$, rotated with the INS attitude where it is
-    /// recorded.
-    pub fn compensate(&self, log: &FlightLog) -> Result<CompensatedVector> {
+    /// The field the fitted constants expect in body axes on the rows of
+    /// `windows` (`NaN` elsewhere and where a row lacks an attitude, a
+    /// reference or its neighbours): the reference's size along the
+    /// fitted direction, rotated with the INS attitude, the fluxgate's
+    /// smoothing kept and its lag left out (a lag is what the Tolles-Lawson
+    /// stage's rate terms take, with the eddy currents).
+    fn expected_body(
+        &self,
+        log: &FlightLog,
+        inputs: Inputs,
+        windows: &[CalibrationWindow],
+    ) -> [Vec<f64>; 3] {
+        let u = direction(self.inclination_deg.to_radians(), self.declination_deg.to_radians())[0];
+        let mut expected: [Vec<f64>; 3] = std::array::from_fn(|_| vec![f64::NAN; log.len()]);
+        let rows = union(window_rows(log, windows));
+        for (i, sample) in indexed_samples(log, inputs, rows.into_iter()) {
+            let body = sample.body(&u, 0.0, self.fluxgate_smoothing);
+            for k in 0..3 {
+                expected[k][i] = body[k];
+            }
+        }
+        expected
+    }
+
+    /// $K^{-1}(m_i - h)$ on every row of `log` (`NaN` without a reading).
+    fn twelve_constant_body(&self, log: &FlightLog) -> Result<[Vec<f64>; 3]> {
         let sensor = log.vector_sensor(&self.sensor).ok_or_else(|| Error::Vector {
             sensor: self.sensor.clone(),
             message: "the flight does not record this fluxgate".into(),
@@ -873,11 +985,8 @@ impl VectorModel {
         })?;
         let h = Vector3::from(self.hard_iron_nt);
         let field = log.vector_components(&sensor);
-        let attitude = attitude(log);
-        let rows = log.len();
-        let mut body_nt: [Vec<f64>; 3] = std::array::from_fn(|_| vec![f64::NAN; rows]);
-        let mut ned_nt: [Vec<f64>; 3] = std::array::from_fn(|_| vec![f64::NAN; rows]);
-        for i in 0..rows {
+        let mut body_nt: [Vec<f64>; 3] = std::array::from_fn(|_| vec![f64::NAN; log.len()]);
+        for i in 0..log.len() {
             let reading = Vector3::new(field[0][i], field[1][i], field[2][i]);
             if !reading.iter().all(|v| v.is_finite()) {
                 continue;
@@ -885,6 +994,27 @@ impl VectorModel {
             let body = inverse * (reading - h);
             for j in 0..3 {
                 body_nt[j][i] = body[j];
+            }
+        }
+        Ok(body_nt)
+    }
+
+    /// The Earth's field in body axes and north-east-down on every row of
+    /// `log`: $K^{-1}(m_i - h)$ less the vector Tolles-Lawson stage's
+    /// prediction where it is fitted, rotated with the INS attitude where
+    /// that is recorded.
+    pub fn compensate(&self, log: &FlightLog) -> Result<CompensatedVector> {
+        let mut body_nt = self.twelve_constant_body(log)?;
+        if let Some(stage) = &self.tolles_lawson {
+            stage.apply(log, &self.sensor, &mut body_nt)?;
+        }
+        let attitude = attitude(log);
+        let rows = log.len();
+        let mut ned_nt: [Vec<f64>; 3] = std::array::from_fn(|_| vec![f64::NAN; rows]);
+        for i in 0..rows {
+            let body = Vector3::new(body_nt[0][i], body_nt[1][i], body_nt[2][i]);
+            if !body.iter().all(|v| v.is_finite()) {
+                continue;
             }
             if let Some(to_body) = attitude.as_ref().and_then(|a| ned_to_body(a, i)) {
                 let ned = to_body.transpose() * body;
