@@ -266,11 +266,12 @@ fn right_or_loudly_uncertain(
         let uncertainty = quality.uncertainty.as_ref().expect("twelve windows: a jackknife");
         assert_eq!(uncertainty.windows, 12);
         assert!(!uncertainty.lines.is_empty());
-        let warning = run
-            .result
-            .warnings
-            .iter()
-            .any(|w| w.starts_with(&format!("{}: the compensation away from the calibration is uncertain", model.channel)));
+        let warning = run.result.warnings.iter().any(|w| {
+            w.starts_with(&format!(
+                "{}: the compensation away from the calibration is uncertain",
+                model.channel
+            ))
+        });
         println!(
             "seed {seed} {}: survey error {error:.3} nT, stated uncertainty {:.3} nT (level {:.1} nT), warned {warning}",
             model.channel, uncertainty.outside_calibration_sigma_nt, uncertainty.level_sigma_nt
@@ -278,7 +279,11 @@ fn right_or_loudly_uncertain(
         if error > WRONG_NT {
             warned.1 += 1;
             warned.0 += usize::from(warning);
-            assert!(warning, "seed {seed} {}: {error} nT wrong and not warned", model.channel);
+            assert!(
+                warning,
+                "seed {seed} {}: {error} nT wrong and not warned",
+                model.channel
+            );
         }
         if error < RIGHT_NT {
             assert!(!warning, "seed {seed} {}: right ({error} nT) but warned", model.channel);

@@ -204,8 +204,12 @@ fn the_compensated_vector_matches_the_true_earth_field_on_flights_drawn_at_rando
         // out (the fit partly absorbs the level, so this is no bound).
         let fit: [f64; 3] = std::array::from_fn(|axis| error(axis, 1.0 + level / size));
         let body: [f64; 3] = std::array::from_fn(|axis| error(axis, 1.0));
-        let plain = magcomp::pipeline::run(&job, &without_stage, &folder.path().join(format!("vector_{seed}_p.csv")))
-            .unwrap();
+        let plain = magcomp::pipeline::run(
+            &job,
+            &without_stage,
+            &folder.path().join(format!("vector_{seed}_p.csv")),
+        )
+        .unwrap();
         let plain_body: [f64; 3] = std::array::from_fn(|axis| {
             rms(lines
                 .iter()
@@ -221,7 +225,10 @@ fn the_compensated_vector_matches_the_true_earth_field_on_flights_drawn_at_rando
         });
         let raw: [f64; 3] =
             std::array::from_fn(|axis| rms(lines.iter().map(|&i| reading[axis][i] - truth.earth_body_nt[axis][i])));
-        let stage = model.tolles_lawson.as_ref().expect("the vector Tolles-Lawson stage is on by default");
+        let stage = model
+            .tolles_lawson
+            .as_ref()
+            .expect("the vector Tolles-Lawson stage is on by default");
         let held = stage.held_out.as_ref().expect("four headings: held out");
         println!(
             "seed {seed}: vector Tolles-Lawson band RMS {:.2?} → {:.2?} nT, held out {:.2?} → {:.2?} nT",
@@ -286,7 +293,10 @@ fn the_compensated_vector_matches_the_true_earth_field_on_flights_drawn_at_rando
     );
     let [with, without] = squares.map(f64::sqrt);
     println!("survey body error over the flights (root sum of squares): {with:.2} nT with the vector Tolles-Lawson stage, {without:.2} nT without");
-    assert!(with < without, "the stage helps over the flights: {with} against {without}");
+    assert!(
+        with < without,
+        "the stage helps over the flights: {with} against {without}"
+    );
 }
 
 /// RMS over `rows` of the true body-axis field rotated to north-east-down

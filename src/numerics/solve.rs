@@ -352,7 +352,9 @@ fn jackknife(spectrum: &Spectrum, folds: &[FoldStatistics], lambda: Option<f64>,
         fitted.push(beta);
     }
     let count = fitted.len() as f64;
-    let mean: Vec<f64> = (0..p).map(|j| fitted.iter().map(|b| b[j]).sum::<f64>() / count).collect();
+    let mean: Vec<f64> = (0..p)
+        .map(|j| fitted.iter().map(|b| b[j]).sum::<f64>() / count)
+        .collect();
     let scale = ((count - 1.0) / count).sqrt();
     fitted
         .into_iter()
@@ -1324,12 +1326,14 @@ mod tests {
         let (p, lengths) = (4, [20usize, 25, 30, 15]);
         let rows: usize = lengths.iter().sum();
         let columns: Vec<Vec<f64>> = (0..p)
-            .map(|k| (0..rows).map(|i| ((i * (k + 2)) as f64 * 0.31 + k as f64).sin()).collect())
+            .map(|k| {
+                (0..rows)
+                    .map(|i| ((i * (k + 2)) as f64 * 0.31 + k as f64).sin())
+                    .collect()
+            })
             .collect();
         let y: Vec<f64> = (0..rows)
-            .map(|i| {
-                (0..p).map(|k| (k as f64 + 1.0) * columns[k][i]).sum::<f64>() + 0.05 * (i as f64 * 1.7).cos()
-            })
+            .map(|i| (0..p).map(|k| (k as f64 + 1.0) * columns[k][i]).sum::<f64>() + 0.05 * (i as f64 * 1.7).cos())
             .collect();
         for lambda in [1e-3, 0.7] {
             let options = SolveOptions {

@@ -467,15 +467,8 @@ type Inputs<'a> = (&'a [&'a [f64]; 3], &'a [f64], &'a Turns, [&'a [f64]; 3]);
 
 /// The usable samples of `rows`: a full fluxgate reading, an attitude and
 /// a positive reference.
-fn samples(
-    log: &FlightLog,
-    inputs: Inputs,
-    rows: impl Iterator<Item = Range<usize>>,
-) -> Vec<Sample> {
-    indexed_samples(log, inputs, rows)
-        .into_iter()
-        .map(|(_, s)| s)
-        .collect()
+fn samples(log: &FlightLog, inputs: Inputs, rows: impl Iterator<Item = Range<usize>>) -> Vec<Sample> {
+    indexed_samples(log, inputs, rows).into_iter().map(|(_, s)| s).collect()
 }
 
 /// [`samples`] with the row of each.
@@ -903,12 +896,7 @@ fn gauss_newton_step(samples: &[Sample], weights: &[f64], parameters: &Parameter
 
 /// Each heading of `windows` predicted by a fit on the others; `None` with
 /// fewer than three headings.
-fn held_out(
-    log: &FlightLog,
-    windows: &[CalibrationWindow],
-    inputs: Inputs,
-    start: &(f64, f64),
-) -> Option<HeldOut> {
+fn held_out(log: &FlightLog, windows: &[CalibrationWindow], inputs: Inputs, start: &(f64, f64)) -> Option<HeldOut> {
     if windows.iter().any(|w| w.heading_deg.is_none()) {
         return None;
     }
@@ -954,12 +942,7 @@ impl VectorModel {
     /// fitted direction, rotated with the INS attitude, the fluxgate's
     /// smoothing kept and its lag left out (a lag is what the Tolles-Lawson
     /// stage's rate terms take, with the eddy currents).
-    fn expected_body(
-        &self,
-        log: &FlightLog,
-        inputs: Inputs,
-        windows: &[CalibrationWindow],
-    ) -> [Vec<f64>; 3] {
+    fn expected_body(&self, log: &FlightLog, inputs: Inputs, windows: &[CalibrationWindow]) -> [Vec<f64>; 3] {
         let u = direction(self.inclination_deg.to_radians(), self.declination_deg.to_radians())[0];
         let mut expected: [Vec<f64>; 3] = std::array::from_fn(|_| vec![f64::NAN; log.len()]);
         let rows = union(window_rows(log, windows));

@@ -131,14 +131,26 @@ pub fn fit_stage(
     let residual: [Vec<f64>; 3] =
         std::array::from_fn(|k| body[k].iter().zip(&expected[k]).map(|(v, b)| v - b).collect());
     let lean = lean_log(log, prefix, body, residual)?;
-    let sensor = lean.vector_sensor(&format!("{prefix}_body")).ok_or_else(|| Error::Vector {
-        sensor: prefix.into(),
-        message: "the body vector is not in the lean flight".into(),
-    })?;
+    let sensor = lean
+        .vector_sensor(&format!("{prefix}_body"))
+        .ok_or_else(|| Error::Vector {
+            sensor: prefix.into(),
+            message: "the body vector is not in the lean flight".into(),
+        })?;
     let spec = ModelSpec::plain(terms());
     let stores = StorePool::new();
     let components = (0..3)
-        .map(|k| fit(&lean, &sensor, &residual_name(prefix, k), windows, &spec, options, &stores))
+        .map(|k| {
+            fit(
+                &lean,
+                &sensor,
+                &residual_name(prefix, k),
+                windows,
+                &spec,
+                options,
+                &stores,
+            )
+        })
         .collect::<Result<Vec<_>>>()?;
     let figure = |pick: fn(&WindowFit) -> &[f64], summary: fn(&[&[f64]]) -> f64| -> [f64; 3] {
         std::array::from_fn(|k| {
