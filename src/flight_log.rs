@@ -150,6 +150,31 @@ impl FlightLog {
         Ok(log)
     }
 
+    /// The same rows (times, row flags, source and date) with only
+    /// `channels`, each one value per row: the lean flight a derived fit
+    /// reads (a gradient's difference, a fluxgate's body-axis residual).
+    pub fn with_channels(&self, channels: Vec<Channel>) -> Result<Self> {
+        if let Some(bad) = channels.iter().find(|c| c.values.len() != self.time_s.len()) {
+            return Err(Error::LengthMismatch {
+                column: bad.name.clone(),
+                found: bad.values.len(),
+                expected: self.time_s.len(),
+            });
+        }
+        Ok(FlightLog {
+            source: self.source.clone(),
+            time_column: self.time_column.clone(),
+            time_s: self.time_s.clone(),
+            median_interval_s: self.median_interval_s,
+            channels,
+            source_row_offsets: self.source_row_offsets.clone(),
+            row_flags: self.row_flags.clone(),
+            alignment: None,
+            date: self.date,
+            reading_warnings: Vec::new(),
+        })
+    }
+
     /// Attaches per-row flags raised while reading (e.g. `gap:cur_a` where
     /// a channel had a gap); ignored unless there is one per row.
     pub fn with_row_flags(mut self, flags: Vec<RowFlags>) -> Self {

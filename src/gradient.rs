@@ -28,8 +28,6 @@
 //! compensated is the gradient's variation along the lines, which is what
 //! gradient surveys level to tie lines anyway.
 
-use std::path::PathBuf;
-
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -322,13 +320,7 @@ fn difference_log(log: &FlightLog, sensor: &VectorSensor, pair: &GradientPair, n
         role: ChannelRole::ScalarMagnetometer,
         values: difference,
     });
-    Ok(FlightLog::new(
-        PathBuf::from(log.source()),
-        log.time_column(),
-        log.time_s().to_vec(),
-        channels,
-    )?
-    .with_row_flags(log.row_flags().to_vec()))
+    log.with_channels(channels)
 }
 
 /// Each heading held out in turn: the direct model and the two channels'

@@ -151,11 +151,10 @@ fn vector_stage(
                 if let Some(warning) = vector_direction_warning(&model) {
                     stage.warnings.push(warning);
                 }
-                if let Some(reason) = &model.tolles_lawson_skipped {
-                    stage.warnings.push(format!(
-                        "{}: no vector Tolles-Lawson stage (the eddy currents' field is left in the vector): {reason}",
-                        model.sensor
-                    ));
+                if let Some(reason) = &model.tolles_lawson_warning {
+                    stage
+                        .warnings
+                        .push(format!("{}: vector Tolles-Lawson: {reason}", model.sensor));
                 }
                 stage.compensated.push(compensated);
                 stage.models.push(model);

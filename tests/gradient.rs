@@ -14,6 +14,8 @@
 //!   that the held-out choice is no worse on the survey lines than the
 //!   other method by more than the stated margin.
 
+mod common;
+
 use magcomp::config::{FlightJob, Settings};
 use magcomp::diagnose::ApplyDiagnosis;
 use magcomp::flight_date::FlightDate;
@@ -56,25 +58,12 @@ fn flight(seed: u64) -> (SimulatedFlight, Layout, f64) {
         }
     };
     let separation = (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f64>().sqrt();
-    let base = draw.uniform(0.0, 90.0);
-    let headings: Vec<f64> = (0..4).map(|k| base + 90.0 * k as f64).collect();
+    let opening = common::random_box(seed, &mut draw);
     let text = format!(
         r#"
-        seed = {seed}
-        sample_rate_hz = {rate}
-        [site]
-        latitude_deg = {latitude}
-        longitude_deg = {longitude}
-        [calibration]
-        headings_deg = {headings:?}
-        altitude_m = {altitude}
-        pitch_deg = {pitch}
-        roll_deg = {roll}
-        yaw_deg = {yaw}
-        [survey]
+        {opening}
         line_count = 3
         line_length_m = 6000.0
-        line_heading_deg = {line_heading}
         altitude_m = {survey_altitude}
         [crust]
         dipole_count = 24
@@ -96,14 +85,6 @@ fn flight(seed: u64) -> (SimulatedFlight, Layout, f64) {
         [[fluxgate]]
         name = "flux_a"
         "#,
-        rate = if draw.uniform(0.0, 1.0) < 0.5 { 10.0 } else { 20.0 },
-        latitude = draw.uniform(-60.0, 65.0),
-        longitude = draw.uniform(-180.0, 180.0),
-        altitude = draw.uniform(2000.0, 4000.0),
-        pitch = draw.uniform(3.0, 8.0),
-        roll = draw.uniform(8.0, 20.0),
-        yaw = draw.uniform(3.0, 8.0),
-        line_heading = draw.uniform(0.0, 180.0),
         survey_altitude = draw.uniform(100.0, 300.0),
         pulsation = draw.uniform(0.1, 1.0),
     );

@@ -24,6 +24,8 @@
 //!   on each row, F·σ ≈ 4.5 nT per component: the floor, measured in the
 //!   test by rotating the true body-axis field with the recorded attitude.
 
+mod common;
+
 use magcomp::config::{FlightJob, Settings};
 use magcomp::diagnose::ApplyDiagnosis;
 use magcomp::flight_date::FlightDate;
@@ -55,8 +57,7 @@ fn flight(seed: u64) -> SimulatedFlight {
     let offset: Vec<f64> = (0..3).map(|_| signed(300.0, 1500.0)).collect();
     let skew: Vec<f64> = (0..3).map(|_| signed(0.5, 1.5)).collect();
     let mut draw = Random::new(seed).fork("vector test flight");
-    let base = draw.uniform(0.0, 90.0);
-    let headings: Vec<f64> = (0..4).map(|k| base + 90.0 * k as f64).collect();
+    let opening = common::random_box(seed, &mut draw);
     let cabin = if seed.is_multiple_of(3) {
         "[[scalar]]\nname = \"mag_2_uc\"\nlocation = \"cabin\"\n"
     } else {
@@ -64,21 +65,9 @@ fn flight(seed: u64) -> SimulatedFlight {
     };
     let text = format!(
         r#"
-        seed = {seed}
-        sample_rate_hz = {rate}
-        [site]
-        latitude_deg = {latitude}
-        longitude_deg = {longitude}
-        [calibration]
-        headings_deg = {headings:?}
-        altitude_m = {altitude}
-        pitch_deg = {pitch}
-        roll_deg = {roll}
-        yaw_deg = {yaw}
-        [survey]
+        {opening}
         line_count = 2
         line_length_m = 4000.0
-        line_heading_deg = {line_heading}
         [[scalar]]
         name = "mag_1_uc"
         location = "tail"
@@ -95,14 +84,6 @@ fn flight(seed: u64) -> SimulatedFlight {
         offset_nt = {offset:?}
         non_orthogonality_deg = {skew:?}
         "#,
-        rate = if draw.uniform(0.0, 1.0) < 0.5 { 10.0 } else { 20.0 },
-        latitude = draw.uniform(-60.0, 65.0),
-        longitude = draw.uniform(-180.0, 180.0),
-        altitude = draw.uniform(2000.0, 4000.0),
-        pitch = draw.uniform(3.0, 8.0),
-        roll = draw.uniform(8.0, 20.0),
-        yaw = draw.uniform(3.0, 8.0),
-        line_heading = draw.uniform(0.0, 180.0),
         permanent = draw.uniform(100.0, 800.0),
         induced = draw.uniform(0.005, 0.05),
         eddy = draw.uniform(0.0, 2e-3),

@@ -183,9 +183,10 @@ pub struct VectorModel {
     /// The vector Tolles-Lawson stage, when fitted.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub tolles_lawson: Option<VectorTollesLawson>,
-    /// Why the vector Tolles-Lawson stage was not fitted, when asked for.
+    /// What went wrong with the vector Tolles-Lawson stage, when asked
+    /// for: not fitted, or fitted without refitting the constants.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub tolles_lawson_skipped: Option<String>,
+    pub tolles_lawson_warning: Option<String>,
 }
 
 /// The compensated vector of one fluxgate on every row.
@@ -305,12 +306,12 @@ pub fn fit(
     let (angles, start, turns) = start_direction(log, sensor, &rows, (&attitude, reference_nt));
     let readings = log.vector_components(sensor);
     let inputs = (&attitude, reference_nt, &turns, readings);
-    let samples = samples(log, inputs, rows.iter().cloned());
-    let mut model = fit_samples(&samples, &angles).ok_or_else(|| Error::Vector {
+    let calibration = samples(log, inputs, rows.iter().cloned());
+    let mut model = fit_samples(&calibration, &angles).ok_or_else(|| Error::Vector {
         sensor: sensor.prefix.clone(),
         message: format!(
             "{} calibration rows with a fluxgate reading, an attitude and a '{reference_name}' reading: too few, or the attitudes too alike, to fit twelve constants",
-            samples.len()
+            calibration.len()
         ),
     })?;
     model.sensor = sensor.prefix.clone();
@@ -326,50 +327,58 @@ pub fn fit(
     // output, its field taken from the readings, the constants refitted on
     // what remains, and the stage fitted again on the new constants'
     // output of the recorded readings.
-    let stage = |model: &VectorModel| -> Result<VectorTollesLawson> {
-        let body = model.twelve_constant_body(log)?;
+    let stage = |model: &VectorModel, body: &[Vec<f64>; 3]| -> Result<VectorTollesLawson> {
         let expected = model.expected_body(log, inputs, windows);
-        tolles_lawson::fit_stage(log, &sensor.prefix, (&body, &expected), windows, options)
+        tolles_lawson::fit_stage(log, &sensor.prefix, (body, &expected), windows, options)
     };
-    let first = match stage(&model) {
+    let raw = model.twelve_constant_body(log)?;
+    let first = match stage(&model, &raw) {
         Ok(first) => first,
         Err(e) => {
-            model.tolles_lawson_skipped = Some(e.to_string());
+            model.tolles_lawson_warning = Some(format!(
+                "no stage (the eddy currents' field is left in the vector): {e}"
+            ));
             return Ok(model);
         }
     };
-    let mut body = model.twelve_constant_body(log)?;
-    let raw = body.clone();
+    let mut body = raw.clone();
     first.apply(log, &sensor.prefix, &mut body)?;
     let k = Matrix3::from_fn(|j, c| model.soft_iron[j][c]);
-    let corrected: [Vec<f64>; 3] = std::array::from_fn(|j| {
-        (0..log.len())
-            .map(|i| {
-                let eddy = Vector3::new(raw[0][i] - body[0][i], raw[1][i] - body[1][i], raw[2][i] - body[2][i]);
-                readings[j][i] - (k * eddy)[j]
-            })
-            .collect()
-    });
-    let corrected_inputs = (&attitude, reference_nt, &turns, corrected.each_ref().map(Vec::as_slice));
-    let refitted = fit_samples(&samples_of(log, corrected_inputs, &rows), &angles);
-    if let Some(mut refitted) = refitted {
-        refitted.sensor = model.sensor.clone();
-        refitted.reference = model.reference.clone();
-        refitted.reference_swing_nt = model.reference_swing_nt;
-        refitted.start = model.start.clone();
-        refitted.held_out = held_out(log, windows, corrected_inputs, &angles);
-        model = refitted;
+    let mut corrected: [Vec<f64>; 3] = readings.map(<[f64]>::to_vec);
+    for i in 0..log.len() {
+        let eddy = k * Vector3::new(raw[0][i] - body[0][i], raw[1][i] - body[1][i], raw[2][i] - body[2][i]);
+        for j in 0..3 {
+            corrected[j][i] -= eddy[j];
+        }
     }
-    match stage(&model) {
+    let corrected_inputs = (&attitude, reference_nt, &turns, corrected.each_ref().map(Vec::as_slice));
+    match fit_samples(&samples(log, corrected_inputs, rows.iter().cloned()), &angles) {
+        Some(mut refitted) => {
+            refitted.sensor = model.sensor.clone();
+            refitted.reference = model.reference.clone();
+            refitted.reference_swing_nt = model.reference_swing_nt;
+            refitted.start = model.start.clone();
+            refitted.held_out = held_out(log, windows, corrected_inputs, &angles);
+            model = refitted;
+        }
+        None => {
+            model.tolles_lawson_warning = Some(
+                "the twelve constants could not be refitted without the eddy currents' field, so they keep its bias; the stage is the first fit's".into(),
+            );
+            model.tolles_lawson = Some(first);
+            return Ok(model);
+        }
+    }
+    let body = model.twelve_constant_body(log)?;
+    match stage(&model, &body) {
         Ok(second) => model.tolles_lawson = Some(second),
-        Err(e) => model.tolles_lawson_skipped = Some(e.to_string()),
+        Err(e) => {
+            model.tolles_lawson_warning = Some(format!(
+                "no stage (the eddy currents' field is left in the vector): {e}"
+            ))
+        }
     }
     Ok(model)
-}
-
-/// [`samples`] over `rows`.
-fn samples_of(log: &FlightLog, inputs: Inputs, rows: &[Range<usize>]) -> Vec<Sample> {
-    samples(log, inputs, rows.iter().cloned())
 }
 
 /// The Earth field's size on every row, from one scalar channel.
@@ -843,7 +852,7 @@ fn fit_samples(samples: &[Sample], start: &(f64, f64)) -> Option<VectorModel> {
         residual_rms_nt: squares.map(|s| (s / samples.len() as f64).sqrt()),
         held_out: None,
         tolles_lawson: None,
-        tolles_lawson_skipped: None,
+        tolles_lawson_warning: None,
         fluxgate_lag_samples: parameters.lag,
         fluxgate_smoothing: parameters.smoothing,
     })

@@ -25,8 +25,6 @@
 //! the band, and h has it. The induced terms in the band correct K only
 //! where the manoeuvres show it wrong; their constant part is K's.
 
-use std::path::PathBuf;
-
 use serde::Serialize;
 
 use crate::error::{Error, Result};
@@ -105,13 +103,7 @@ fn lean_log(log: &FlightLog, prefix: &str, body: &[Vec<f64>; 3], residual: [Vec<
         role: ChannelRole::ScalarMagnetometer,
         values,
     }));
-    Ok(FlightLog::new(
-        PathBuf::from(log.source()),
-        log.time_column(),
-        log.time_s().to_vec(),
-        channels,
-    )?
-    .with_row_flags(log.row_flags().to_vec()))
+    log.with_channels(channels)
 }
 
 fn residual_name(prefix: &str, axis: usize) -> String {

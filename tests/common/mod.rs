@@ -116,3 +116,39 @@ pub fn fit_channels(
         })
         .collect()
 }
+
+/// The opening of a scenario drawn from `draw` for `seed`: the sample
+/// rate (10 or 20 Hz), a site from 60° S to 65° N anywhere in longitude, a
+/// box of four headings 90° apart from a random base, 2–4 km up, with
+/// pitches of 3–8°, rolls of 8–20° and yaws of 3–8°, and the survey lines'
+/// heading. It ends inside `[survey]`, so the caller's survey keys follow.
+/// Drawn in a fixed order: the plan stays the same for a seed.
+pub fn random_box(seed: u64, draw: &mut magcomp::simulate::random::Random) -> String {
+    let base = draw.uniform(0.0, 90.0);
+    let headings: Vec<f64> = (0..4).map(|k| base + 90.0 * k as f64).collect();
+    format!(
+        r#"
+        seed = {seed}
+        sample_rate_hz = {rate}
+        [site]
+        latitude_deg = {latitude}
+        longitude_deg = {longitude}
+        [calibration]
+        headings_deg = {headings:?}
+        altitude_m = {altitude}
+        pitch_deg = {pitch}
+        roll_deg = {roll}
+        yaw_deg = {yaw}
+        [survey]
+        line_heading_deg = {line_heading}
+        "#,
+        rate = if draw.uniform(0.0, 1.0) < 0.5 { 10.0 } else { 20.0 },
+        latitude = draw.uniform(-60.0, 65.0),
+        longitude = draw.uniform(-180.0, 180.0),
+        altitude = draw.uniform(2000.0, 4000.0),
+        pitch = draw.uniform(3.0, 8.0),
+        roll = draw.uniform(8.0, 20.0),
+        yaw = draw.uniform(3.0, 8.0),
+        line_heading = draw.uniform(0.0, 180.0),
+    )
+}
