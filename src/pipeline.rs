@@ -516,8 +516,21 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
         warnings.extend(detection_warnings(detection));
     }
     let next_step = next_step(options.diagnose.apply, job.diagnosis.is_some(), diagnosis.is_some());
-    for q in &quality {
+    for (q, model) in quality.iter().zip(&models) {
         warnings.extend(crate::quality::quality_warnings(q, options.fom_limit_nt, next_step));
+        if model.solution.jackknife.is_empty() && model.windows.len() >= 3 {
+            let why = match model.solver.as_ref().filter(|s| s.applied()) {
+                Some(solver) => format!(
+                    "the blocked jackknife is computed for ridge and truncated SVD, not for [fit] solver = \"{}\"",
+                    solver.requested.name()
+                ),
+                None => format!(
+                    "with one of the {} windows left out a term is no longer pinned (that window alone carries it), so the compensation away from the calibration rests on that one window",
+                    model.windows.len()
+                ),
+            };
+            warnings.push(format!("{}: no uncertainty figure: {why}", model.channel));
+        }
     }
     let applied_findings = diagnosis.as_ref().map(applied_findings).unwrap_or_default();
     let result = FlightResult {

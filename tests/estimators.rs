@@ -169,6 +169,11 @@ fn every_solver_fits_with_the_estimator_its_table_names() {
     )
     .unwrap();
     assert_eq!(ridge.solver, None, "ridge is the PRESS path, no solver record");
+    assert_eq!(
+        ridge.solution.jackknife.len(),
+        windows.len(),
+        "ridge: one deviation a window"
+    );
     for solver in [
         Solver::Ls,
         Solver::Tsvd,
@@ -184,6 +189,10 @@ fn every_solver_fits_with_the_estimator_its_table_names() {
         let model = fit(&log, &sensor, "mag_1_uc", &windows, &spec, &options, &stores).unwrap();
         let used = model.solver.as_ref().expect("a solver record");
         assert!(used.applied(), "{solver:?}: {}", used.reason);
+        assert!(
+            model.solution.jackknife.is_empty(),
+            "{solver:?}: ridge's jackknife says nothing of these coefficients"
+        );
         let expected = match solver {
             Solver::Auto => table
                 .iter()
@@ -296,4 +305,35 @@ fn clean_flight_on_two_headings() -> magcomp::config::FlightJob {
         })
         .collect();
     job
+}
+
+/// A solver other than ridge has no jackknife, so no uncertainty figure:
+/// the quality JSON has none and the run says why, where ridge on the same
+/// flight states one.
+#[test]
+fn a_solver_without_a_jackknife_says_it_has_no_uncertainty_figure() {
+    let folder = tempfile::tempdir().unwrap();
+    let mut job = magcomp::config::FlightJob::new(sample("clean.csv"));
+    job.windows = read_detect_json(&sample("clean.windows.json"), 5.0).unwrap();
+    let mut settings = magcomp::config::Settings::default();
+    settings.diagnose.apply = magcomp::diagnose::ApplyDiagnosis::Never;
+    let ridge = magcomp::pipeline::run(&job, &settings, &folder.path().join("ridge.csv")).unwrap();
+    settings.fit.solver = magcomp::numerics::estimators::Solver::Tls;
+    let tls = magcomp::pipeline::run(&job, &settings, &folder.path().join("tls.csv")).unwrap();
+    assert!(!ridge.result.channels.is_empty());
+    for (stated, unstated) in ridge.result.channels.iter().zip(&tls.result.channels) {
+        let sigma = stated.uncertainty.as_ref().expect("ridge states an uncertainty");
+        assert!(sigma.outside_calibration_sigma_nt.is_finite() && sigma.outside_calibration_sigma_nt > 0.0);
+        assert_eq!(unstated.uncertainty, None, "{}", unstated.channel);
+        let said = format!(
+            "{}: no uncertainty figure: the blocked jackknife is computed for ridge and truncated SVD, not for [fit] solver = \"tls\"",
+            unstated.channel
+        );
+        assert!(tls.result.warnings.contains(&said), "{:?}", tls.result.warnings);
+        assert!(!ridge
+            .result
+            .warnings
+            .iter()
+            .any(|w| w.contains("no uncertainty figure")));
+    }
 }

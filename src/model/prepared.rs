@@ -416,6 +416,9 @@ fn solve_on_headings(stacked: &Stacked, fits: &[WindowFit], requested: Solver, s
         solution.reason
     );
     solution.coefficients = best.coefficients.clone();
+    // The jackknife is ridge's (or TSVD's); it says nothing of these
+    // coefficients.
+    solution.jackknife.clear();
     solution.fitted = fitted;
     solution.standard_errors = standard_errors;
     solution.reason = reason.clone();
