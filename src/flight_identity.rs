@@ -109,7 +109,7 @@ fn hex(digest: &[u8]) -> String {
 }
 
 /// SHA-256 of a file's bytes, read in 1 MiB blocks.
-fn hash_file(path: &Path) -> Result<String> {
+pub fn hash_file(path: &Path) -> Result<String> {
     let mut file = std::fs::File::open(path).map_err(|e| Error::io(path, "reading (to hash)", e))?;
     let mut hasher = Sha256::new();
     let mut block = vec![0u8; 1 << 20];

@@ -73,6 +73,7 @@
 //! ```
 #![deny(missing_docs)]
 
+pub mod campaign;
 pub mod compensate;
 pub mod config;
 pub mod detect;

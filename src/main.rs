@@ -7,6 +7,8 @@ use std::time::Duration;
 use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 
+use anyhow::Context as _;
+use magcomp::campaign::{process_campaign_flight, CampaignFlight, FlightState, Shard};
 use magcomp::config::{FlightJob, Pipeline};
 use magcomp::diagnose::ApplyDiagnosis;
 use magcomp::formats::{prepare, Destination, OutputKind, OutputSet};
@@ -34,10 +36,24 @@ enum Command {
         /// (overrides [diagnose] apply).
         #[arg(long)]
         plain: bool,
-        /// Apply each [[flight]]'s saved diagnosis even when it was made on
-        /// another flight.
+        /// Redo every flight, even those whose outputs are current (same
+        /// input bytes and settings), and apply each flight's saved
+        /// diagnosis even when it was made on another flight.
         #[arg(long)]
         force: bool,
+        /// Process only shard K of N (K from 0): the flights at positions
+        /// K, K+N, K+2N, … of the campaign sorted by output name. auto/N
+        /// takes K from SLURM_ARRAY_TASK_ID (less SLURM_ARRAY_TASK_MIN),
+        /// JOB_COMPLETION_INDEX or AWS_BATCH_JOB_ARRAY_INDEX.
+        #[arg(long, value_name = "K/N")]
+        shard: Option<String>,
+    },
+    /// Merge a run's per-flight statuses and quality and model JSONs into
+    /// a campaign table: campaign_summary.csv and .html, and
+    /// campaign_coefficients.csv when an aircraft recurs.
+    Summarize {
+        /// The [output] directory of a run.
+        outdir: PathBuf,
     },
     /// Fit on calibration windows (detected unless given) and compensate
     /// every row of one flight.
@@ -209,7 +225,13 @@ fn main() -> ExitCode {
     }
     let cli = Cli::parse();
     let outcome = match cli.command {
-        Command::Run { config, plain, force } => run(&config, plain, force),
+        Command::Run {
+            config,
+            plain,
+            force,
+            shard,
+        } => run(&config, plain, force, shard.as_deref()),
+        Command::Summarize { outdir } => summarize(&outdir),
         Command::Compensate(args) => compensate(args),
         Command::Detect { flight, out, config } => detect(&flight, &out, config.as_deref()),
         Command::Diagnose {
@@ -303,7 +325,7 @@ fn spinner(message: String) -> ProgressBar {
     bar
 }
 
-fn run(config: &Path, plain: bool, force: bool) -> anyhow::Result<()> {
+fn run(config: &Path, plain: bool, force: bool, shard: Option<&str>) -> anyhow::Result<()> {
     let mut pipeline = Pipeline::load(config)?;
     if plain {
         pipeline.settings.diagnose.apply = ApplyDiagnosis::Never;
@@ -313,34 +335,62 @@ fn run(config: &Path, plain: bool, force: bool) -> anyhow::Result<()> {
     }
     anyhow::ensure!(
         !pipeline.flights.is_empty(),
-        "{}: no [[flight]] entries; add one with input = \"path/to/flight.csv\"",
+        "{}: no flights; add a [[flight]] with input = \"path/to/flight.csv\", or a [campaign] with inputs = [\"flights/*.csv\"] or a manifest",
         config.display()
     );
-    let options = &pipeline.settings;
-    let mut statuses = Vec::new();
-    for job in &pipeline.flights {
-        let outputs = FlightOutputs::in_directory(&pipeline.output_directory, &job.input);
+    let shard = match shard {
+        Some(text) => Shard::parse(text, |name| std::env::var(name).ok())?,
+        None => Shard::default(),
+    };
+    let mine = shard.select(&pipeline.flights);
+    if shard.count > 1 {
+        println!(
+            "shard {shard}: {} of the campaign's {} flights",
+            mine.len(),
+            pipeline.flights.len()
+        );
+    }
+    let folder = &pipeline.output_directory;
+    let mut statuses = Vec::with_capacity(mine.len());
+    for &index in &mine {
+        let job = &pipeline.flights[index];
+        let outputs = FlightOutputs::for_job(folder, job);
+        // Outputs that cannot be written fail the flight below, with the
+        // same error, in its status like any other failure.
+        let _ = prepare_flight_outputs(job, &outputs);
         let bar = spinner(format!("compensating {}", job.input.display()));
-        let result = prepare_flight_outputs(job, &outputs).and_then(|()| process_flight(job, options, &outputs));
+        let flight = process_campaign_flight(job, &pipeline.settings, folder, shard, force);
         bar.finish_and_clear();
-        let status = match result {
-            Ok(result) => {
-                print!("{}", summary(&result));
-                println!("  wrote {}", outputs.compensated.display());
-                FlightStatus::done(&job.input, &result)
+        let flight = flight.with_context(|| format!("{}: writing the flight's status", job.input.display()))?;
+        let outcome = match &flight {
+            CampaignFlight::UpToDate(_) => {
+                println!(
+                    "{}: outputs current (same input and settings), skipped; --force redoes it",
+                    job.input.display()
+                );
+                "up to date, skipped".to_string()
             }
-            Err(error) => {
-                eprintln!("magcomp: error: processing {}: {error}", job.input.display());
-                FlightStatus::failed(&job.input, &error)
+            CampaignFlight::Processed { status, result } => {
+                match result {
+                    Ok(result) => {
+                        print!("{}", summary(result));
+                        println!("  wrote {}", outputs.compensated.display());
+                    }
+                    Err(error) => eprintln!("magcomp: error: processing {}: {error}", job.input.display()),
+                }
+                status.outcome()
             }
         };
-        statuses.push(status);
+        statuses.push((job.input.display().to_string(), flight.status().state, outcome));
     }
     print!("{}", status_table(&statuses));
-    let failed = statuses.iter().filter(|s| s.failed).count();
+    let failed = statuses
+        .iter()
+        .filter(|(_, state, _)| *state == FlightState::Failed)
+        .count();
     anyhow::ensure!(
         failed == 0,
-        "{}: {failed} of {} flights failed; each error is printed above, and the other flights' outputs were written",
+        "{}: {failed} of {} flights failed; each error is printed above and in its <flight>_status.json, and the other flights' outputs were written; run again to redo only the failed flights",
         config.display(),
         statuses.len()
     );
@@ -357,57 +407,28 @@ fn prepare_flight_outputs(job: &FlightJob, outputs: &FlightOutputs) -> magcomp::
     Ok(())
 }
 
-/// How one flight of a run ended, for the table at the end.
-struct FlightStatus {
-    flight: String,
-    failed: bool,
-    outcome: String,
-}
-
-impl FlightStatus {
-    fn done(flight: &Path, result: &magcomp::pipeline::FlightResult) -> Self {
-        let warnings = result.warnings.len();
-        FlightStatus {
-            flight: flight.display().to_string(),
-            failed: false,
-            outcome: match warnings {
-                0 => format!("ok, {} rows", result.rows),
-                n => format!(
-                    "ok with {n} warning{}, {} rows",
-                    if n == 1 { "" } else { "s" },
-                    result.rows
-                ),
-            },
-        }
-    }
-
-    fn failed(flight: &Path, error: &magcomp::error::Error) -> Self {
-        let text = error.to_string();
-        let first: String = text.chars().take(100).collect();
-        FlightStatus {
-            flight: flight.display().to_string(),
-            failed: true,
-            outcome: match first.len() < text.len() {
-                true => format!("FAILED: {first}…"),
-                false => format!("FAILED: {first}"),
-            },
-        }
-    }
-}
-
-/// The run's per-flight status table.
-fn status_table(statuses: &[FlightStatus]) -> String {
+/// The run's per-flight status table: flight, and how it ended.
+fn status_table(statuses: &[(String, FlightState, String)]) -> String {
     let width = statuses
         .iter()
-        .map(|s| s.flight.chars().count())
+        .map(|(flight, _, _)| flight.chars().count())
         .max()
         .unwrap_or(0)
         .max(6);
     let mut table = format!("\n{:<width$}  status\n", "flight");
-    for status in statuses {
-        table += &format!("{:<width$}  {}\n", status.flight, status.outcome);
+    for (flight, _, outcome) in statuses {
+        table += &format!("{flight:<width$}  {outcome}\n");
     }
     table
+}
+
+fn summarize(folder: &Path) -> anyhow::Result<()> {
+    let summary = magcomp::campaign::summary::summarize(folder)?;
+    print!("{}", summary.describe());
+    for path in summary.write(folder)? {
+        println!("  wrote {}", path.display());
+    }
+    Ok(())
 }
 
 fn compensate(args: CompensateArgs) -> anyhow::Result<()> {
@@ -440,11 +461,10 @@ fn compensate(args: CompensateArgs) -> anyhow::Result<()> {
     let job = FlightJob {
         diagnosis: args.diagnosis.clone(),
         force_diagnosis: args.force,
-        date: None,
-        input: args.flight.clone(),
         vector: args.vector,
         channels: args.channels,
         windows,
+        ..FlightJob::new(args.flight.clone())
     };
     let beside_out = |suffix: &str| beside(&args.out, suffix);
     let outputs = FlightOutputs {
@@ -700,14 +720,11 @@ fn diagnose(
     let job = FlightJob {
         diagnosis: None,
         force_diagnosis: false,
-        date: None,
-        input: flight.to_path_buf(),
-        vector: None,
-        channels: None,
         windows: windows
             .iter()
             .map(|w| CalibrationWindow::parse(w))
             .collect::<Result<_, _>>()?,
+        ..FlightJob::new(flight)
     };
     let bar = spinner(format!("diagnosing {}", flight.display()));
     let diagnosis = magcomp::pipeline::diagnose_flight(&log, &job, &pipeline.settings, &pipeline.settings.diagnose);

@@ -462,7 +462,7 @@ pub fn line_noise(log: &FlightLog, before: &[f64], after: &[f64]) -> Vec<LineNoi
         .collect()
 }
 
-fn escape(text: &str) -> String {
+pub(crate) fn escape(text: &str) -> String {
     text.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;")
 }
 

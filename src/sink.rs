@@ -40,6 +40,17 @@ impl FlightOutputs {
         let stem = input
             .file_stem()
             .map_or("flight".into(), |s| s.to_string_lossy().into_owned());
+        FlightOutputs::named(directory, &stem, input)
+    }
+
+    /// The outputs of a campaign's flight: `<dir>/<output name>_…`.
+    pub fn for_job(directory: &Path, job: &FlightJob) -> Self {
+        FlightOutputs::named(directory, &job.output_name, &job.input)
+    }
+
+    /// `<dir>/<stem>_compensated.<csv, xyz or mcap as the input>` and the
+    /// JSON and HTML beside it.
+    fn named(directory: &Path, stem: &str, input: &Path) -> Self {
         // Geosoft and MCAP users get their format back; everything else CSV.
         let extension = match detect_format(input) {
             Ok(Format::Xyz) => "xyz",
@@ -87,6 +98,15 @@ impl FlightOutputs {
 /// Reads, fits, compensates and assesses one flight ([`run`]) and writes
 /// its outputs ([`write`]).
 pub fn process_flight(job: &FlightJob, options: &Settings, outputs: &FlightOutputs) -> Result<FlightResult> {
+    process_flight_listing(job, options, outputs).map(|(result, _)| result)
+}
+
+/// [`process_flight`], also returning the files written.
+pub fn process_flight_listing(
+    job: &FlightJob,
+    options: &Settings,
+    outputs: &FlightOutputs,
+) -> Result<(FlightResult, Vec<PathBuf>)> {
     let inputs: Vec<&Path> = std::iter::once(job.input.as_path())
         .chain(job.diagnosis.as_deref())
         .collect();
@@ -94,13 +114,13 @@ pub fn process_flight(job: &FlightJob, options: &Settings, outputs: &FlightOutpu
     // tells its user calls `prepare` first.
     crate::formats::prepare(&inputs, &outputs.destinations())?;
     let flight = run(job, options, &outputs.compensated)?;
-    write(&flight, options, outputs)?;
-    Ok(flight.result)
+    let written = write(&flight, options, outputs)?;
+    Ok((flight.result, written))
 }
 
 /// Writes every output of `flight`, all committed together, the report
-/// last.
-pub fn write(flight: &FlightRun, options: &Settings, outputs: &FlightOutputs) -> Result<()> {
+/// last; returns the files written.
+pub fn write(flight: &FlightRun, options: &Settings, outputs: &FlightOutputs) -> Result<Vec<PathBuf>> {
     let result = &flight.result;
     let mut written = OutputSet::new();
     if let (Some(diagnosis), Some(path)) = (&result.diagnosis, &outputs.diagnosis_json) {
@@ -136,7 +156,7 @@ pub fn write(flight: &FlightRun, options: &Settings, outputs: &FlightOutputs) ->
         written.add(report.figures_json);
         written.add_last(report.page);
     }
-    written.commit().map(drop)
+    written.commit()
 }
 
 /// Pretty JSON text of `value`; `path` only names the file in an error.

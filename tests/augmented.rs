@@ -18,13 +18,8 @@ fn sample(name: &str) -> PathBuf {
 
 fn job(input: PathBuf, diagnosis: Option<PathBuf>) -> FlightJob {
     FlightJob {
-        input,
-        vector: None,
-        channels: None,
-        windows: Vec::new(),
         diagnosis,
-        force_diagnosis: false,
-        date: None,
+        ..FlightJob::new(input)
     }
 }
 

@@ -15,15 +15,7 @@ fn diagnose(name: &str) -> Diagnosis {
         .join(name);
     let pipeline = Pipeline::default();
     let log = read_flight_log(&input, &pipeline.settings.ingest).unwrap();
-    let job = FlightJob {
-        diagnosis: None,
-        force_diagnosis: false,
-        date: None,
-        input,
-        vector: None,
-        channels: None,
-        windows: Vec::new(),
-    };
+    let job = FlightJob::new(input);
     diagnose_flight(&log, &job, &pipeline.settings, &pipeline.settings.diagnose).unwrap()
 }
 
@@ -274,15 +266,7 @@ fn an_effect_outside_the_library_is_reported_as_unexplained_where_it_happens() {
         .collect();
     let log = magcomp::flight_log::FlightLog::new(full.source(), full.time_column(), full.time_s().to_vec(), channels)
         .unwrap();
-    let job = FlightJob {
-        diagnosis: None,
-        force_diagnosis: false,
-        date: None,
-        input,
-        vector: None,
-        channels: None,
-        windows: Vec::new(),
-    };
+    let job = FlightJob::new(input);
     let diagnosis = diagnose_flight(&log, &job, &pipeline.settings, &pipeline.settings.diagnose).unwrap();
     let tail: Vec<&magcomp::diagnose::Finding> =
         diagnosis.findings.iter().filter(|f| f.channel == "mag_1_uc").collect();

@@ -80,6 +80,7 @@ use crate::vector::VectorOptions;
 use crate::vector_calibration::VectorCalibrationOptions;
 use crate::windows::{read_detect_json, CalibrationWindow};
 
+mod campaign;
 mod sections;
 
 use sections::{
@@ -207,6 +208,10 @@ pub(crate) struct RawFlight {
     /// says (MCAP output's log times count from its midnight).
     #[serde(default)]
     pub date: Option<String>,
+    /// The airframe (e.g. its registration), for following its calibration
+    /// over a campaign.
+    #[serde(default)]
+    pub aircraft: Option<String>,
 }
 
 /// `[quality]` as written.
@@ -263,6 +268,8 @@ pub(crate) struct RawPipeline {
     /// Flights to process.
     #[serde(rename = "flight")]
     pub flights: Vec<RawFlight>,
+    /// More flights, by glob pattern or manifest.
+    pub campaign: campaign::RawCampaign,
 }
 
 /// One flight to process, validated.
@@ -283,21 +290,81 @@ pub struct FlightJob {
     pub force_diagnosis: bool,
     /// The day the flight was flown, over what the file says.
     pub date: Option<crate::flight_date::FlightDate>,
+    /// The airframe, when the campaign names it.
+    pub aircraft: Option<String>,
+    /// What the flight's outputs are named after: the input's file stem,
+    /// or, when two flights of a campaign share a stem, their path.
+    pub output_name: String,
 }
 
 impl FlightJob {
     /// A flight with every choice left to the pipeline: detected windows,
     /// every scalar channel, the first fluxgate, no saved diagnosis.
     pub fn new(input: impl Into<PathBuf>) -> Self {
+        let input = input.into();
         FlightJob {
-            input: input.into(),
+            output_name: file_stem(&input),
+            input,
             vector: None,
             channels: None,
             windows: Vec::new(),
             diagnosis: None,
             force_diagnosis: false,
             date: None,
+            aircraft: None,
         }
+    }
+}
+
+/// The file name of `path` without its extension (`flight` when it has
+/// none).
+fn file_stem(path: &Path) -> String {
+    path.file_stem()
+        .map_or("flight".into(), |s| s.to_string_lossy().into_owned())
+}
+
+/// Gives every flight a distinct output name: its file stem, unless
+/// another flight shares it; then its path under `base` without the
+/// extension, folders joined by `_` (`2020/06/flight.csv` →
+/// `2020_06_flight`); and if that is shared too, with the first eight hex
+/// digits of the path's SHA-256 after it. Depends only on the list, so
+/// every shard of a campaign names every flight alike.
+fn name_outputs(flights: &mut [FlightJob], base: &Path) {
+    let count = |names: &[String], name: &str| names.iter().filter(|n| n.as_str() == name).count();
+    let stems: Vec<String> = flights.iter().map(|f| file_stem(&f.input)).collect();
+    let by_path: Vec<String> = flights
+        .iter()
+        .zip(&stems)
+        .map(|(flight, stem)| {
+            let relative = flight.input.strip_prefix(base).unwrap_or(&flight.input);
+            let folders: Vec<String> = relative
+                .parent()
+                .into_iter()
+                .flat_map(|p| p.components())
+                .filter_map(|c| match c {
+                    std::path::Component::Normal(part) => Some(part.to_string_lossy().into_owned()),
+                    _ => None,
+                })
+                .collect();
+            folders
+                .iter()
+                .chain(std::iter::once(stem))
+                .cloned()
+                .collect::<Vec<_>>()
+                .join("_")
+        })
+        .collect();
+    for (index, flight) in flights.iter_mut().enumerate() {
+        flight.output_name = match (count(&stems, &stems[index]), count(&by_path, &by_path[index])) {
+            (1, _) => stems[index].clone(),
+            (_, 1) => by_path[index].clone(),
+            _ => {
+                use sha2::Digest;
+                let digest = sha2::Sha256::digest(flight.input.to_string_lossy().as_bytes());
+                let hex: String = digest[..4].iter().map(|b| format!("{b:02x}")).collect();
+                format!("{}_{hex}", by_path[index])
+            }
+        };
     }
 }
 
@@ -375,6 +442,8 @@ impl Pipeline {
             message: e.to_string().trim().replace('\n', " "),
         })?;
         let base = path.parent().unwrap_or(Path::new("."));
+        let mut raw = raw;
+        raw.flights = campaign::campaign_flights(&raw.campaign, &raw.flights, base, &source_name)?;
         let (mut pipeline, windows_files) = Pipeline::validate(raw, base, &source_name)?;
         let margin_s = pipeline.settings.detect.window_margin_s;
         for file in windows_files {
@@ -448,6 +517,7 @@ impl Pipeline {
             }
             flights.push(flight_job(flight, base, source_name)?);
         }
+        name_outputs(&mut flights, base);
         let pipeline = Pipeline {
             settings,
             output_directory: base.join(raw.output.directory),
@@ -556,14 +626,15 @@ fn flight_job(raw: RawFlight, base: &Path, source_name: &str) -> Result<FlightJo
             })
         })
         .transpose()?;
+    let input = base.join(raw.input);
     Ok(FlightJob {
-        input: base.join(raw.input),
         vector: raw.vector,
         channels: raw.channels,
         windows,
         diagnosis: raw.diagnosis.map(|d| base.join(d)),
-        force_diagnosis: false,
         date,
+        aircraft: raw.aircraft,
+        ..FlightJob::new(input)
     })
 }
 
@@ -755,6 +826,28 @@ mod tests {
             let error = parse(text).unwrap_err().to_string();
             assert!(error.contains(says), "{text}: {error}");
         }
+    }
+
+    #[test]
+    fn flights_sharing_a_stem_are_named_by_their_folders() {
+        let base = Path::new("/campaign");
+        let mut flights: Vec<FlightJob> = [
+            "/campaign/2020/06/flight.csv",
+            "/campaign/2020/07/flight.csv",
+            "/campaign/other.mcap",
+            "/campaign/2020_06/flight.csv",
+        ]
+        .into_iter()
+        .map(FlightJob::new)
+        .collect();
+        name_outputs(&mut flights, base);
+        let names: Vec<&str> = flights.iter().map(|f| f.output_name.as_str()).collect();
+        assert_eq!(names[1], "2020_07_flight");
+        assert_eq!(names[2], "other");
+        // Two paths that join alike take a hash of their path as well.
+        assert!(names[0].starts_with("2020_06_flight_") && names[3].starts_with("2020_06_flight_"));
+        assert_ne!(names[0], names[3]);
+        assert_eq!(names[0].len(), "2020_06_flight_".len() + 8);
     }
 
     #[test]

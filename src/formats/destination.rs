@@ -1,7 +1,7 @@
 //! Where magcomp may write, and a command's outputs committed together.
 //!
 //! Every output is first written in full to a temporary file in its own
-//! folder, named `.magcomp-<process id>-XXXXXX.tmp`, then renamed over the
+//! folder, named `.magcomp-<process id>@<host>-XXXXXX.tmp`, then renamed over the
 //! destination ([`stage`], [`Staged::commit`]). A command stages all its
 //! outputs before it renames any and renames the HTML report last
 //! ([`OutputSet`]), so a run that fails part way leaves the previous run's
@@ -285,9 +285,47 @@ fn check_writable(folder: &Path, output: &Destination) -> Result<()> {
     })
 }
 
-/// The prefix of this process's temporary files.
+/// The prefix of this process's temporary files:
+/// `.magcomp-<process id>@<host>-`. The host matters when shards of a
+/// campaign on several machines share one output folder: a process id
+/// says whether a writer is alive only on its own machine.
 fn temporary_prefix() -> String {
-    format!(".magcomp-{}-", std::process::id())
+    format!(".magcomp-{}@{}-", std::process::id(), host_name())
+}
+
+/// This machine's name, with only the characters a file name keeps
+/// everywhere (others become `_`); `host` when it cannot be read.
+fn host_name() -> String {
+    let name = read_host_name().unwrap_or_default();
+    let name: String = name
+        .chars()
+        .map(|c| match c.is_ascii_alphanumeric() || c == '.' || c == '_' {
+            true => c,
+            false => '_',
+        })
+        .collect();
+    match name.is_empty() {
+        true => "host".into(),
+        false => name,
+    }
+}
+
+#[cfg(unix)]
+fn read_host_name() -> Option<String> {
+    let mut buffer = [0u8; 256];
+    // SAFETY: the buffer is valid for its length; gethostname writes at
+    // most that many bytes.
+    let answer = unsafe { libc::gethostname(buffer.as_mut_ptr().cast(), buffer.len()) };
+    if answer != 0 {
+        return None;
+    }
+    let end = buffer.iter().position(|&b| b == 0).unwrap_or(buffer.len());
+    Some(String::from_utf8_lossy(&buffer[..end]).into_owned())
+}
+
+#[cfg(not(unix))]
+fn read_host_name() -> Option<String> {
+    std::env::var("COMPUTERNAME").ok()
 }
 
 fn temporary_in(folder: &Path) -> std::io::Result<tempfile::NamedTempFile> {
@@ -298,9 +336,10 @@ fn temporary_in(folder: &Path) -> std::io::Result<tempfile::NamedTempFile> {
 }
 
 /// Removes magcomp's temporary files in `folder` whose process is gone: a
-/// run killed while writing leaves its `.magcomp-<pid>-….tmp` behind. Files
-/// of older versions, whose names carry no process id, are removed once a
-/// day old. Errors are ignored: the files are only litter.
+/// run killed while writing leaves its `.magcomp-<pid>@<host>-….tmp`
+/// behind. Files of another machine (a shard sharing the folder), and of
+/// older versions whose names carry no process id, are removed once a day
+/// old. Errors are ignored: the files are only litter.
 pub fn remove_stale_temporaries(folder: &Path) {
     let Ok(entries) = std::fs::read_dir(folder) else {
         return;
@@ -311,13 +350,26 @@ pub fn remove_stale_temporaries(folder: &Path) {
         let Some(inner) = name.strip_prefix(".magcomp-").and_then(|n| n.strip_suffix(".tmp")) else {
             continue;
         };
-        let stale = match inner.split_once('-').and_then(|(pid, _)| pid.parse::<u32>().ok()) {
-            Some(pid) => !process_is_running(pid),
-            None => older_than_a_day(&entry),
+        let stale = match writer(inner) {
+            Some((pid, host)) if host.as_ref().is_none_or(|h| *h == host_name()) => !process_is_running(pid),
+            // Another machine's writer, or a name of an older version
+            // without a process id: litter once a day old.
+            _ => older_than_a_day(&entry),
         };
         if stale {
             let _ = std::fs::remove_file(entry.path());
         }
+    }
+}
+
+/// The process id and host in a temporary file's name between
+/// `.magcomp-` and `.tmp`: `<pid>@<host>-<random>`, or `<pid>-<random>`
+/// as earlier versions wrote (this machine's).
+fn writer(inner: &str) -> Option<(u32, Option<String>)> {
+    let (writer, _) = inner.rsplit_once('-')?;
+    match writer.split_once('@') {
+        Some((pid, host)) => Some((pid.parse().ok()?, Some(host.to_string()))),
+        None => Some((writer.parse().ok()?, None)),
     }
 }
 
@@ -553,13 +605,19 @@ mod tests {
         // Process ids are below 2^22 on Linux; this one cannot be running.
         let dead = folder.path().join(".magcomp-4294967-abc123.tmp");
         let alive = folder.path().join(format!("{}abc123.tmp", temporary_prefix()));
+        let dead_here = folder
+            .path()
+            .join(format!(".magcomp-4294967@{}-abc123.tmp", host_name()));
+        // A shard on another machine sharing the folder: its process id
+        // means nothing here, and its file is young.
+        let elsewhere = folder.path().join(".magcomp-4294967@another.host-abc123.tmp");
         let other = folder.path().join(".other-1-x.tmp");
-        for path in [&dead, &alive, &other] {
+        for path in [&dead, &dead_here, &alive, &elsewhere, &other] {
             std::fs::write(path, "x").unwrap();
         }
         remove_stale_temporaries(folder.path());
-        assert!(!dead.exists());
-        assert!(alive.exists());
+        assert!(!dead.exists() && !dead_here.exists());
+        assert!(alive.exists() && elsewhere.exists());
         assert!(other.exists());
     }
 }

@@ -1,0 +1,489 @@
+//! `magcomp summarize OUTDIR`: a campaign's flights in one table.
+//!
+//! Reads every `<flight>_status.json` in the folder and, for each flight
+//! done, its quality and model JSON; writes
+//! - `campaign_summary.csv`: a row per flight and channel (a failed
+//!   flight: one row with its reason): state, rows, warnings, the FOM
+//!   before and after, the improvement ratio, the band residual and the
+//!   diagnosed findings applied;
+//! - `campaign_coefficients.csv`, when an aircraft has two calibrated
+//!   flights or more: each coefficient of each channel, flight by flight
+//!   in date order, with its one-sigma uncertainty, so a change of the
+//!   installation shows;
+//! - `campaign_summary.html`: the same tables on one page.
+//!
+//! Only flights the campaign names an aircraft for (`aircraft = …` in a
+//! `[[flight]]` or a manifest) are followed over time: flights of unnamed
+//! aircraft may be of different airframes, whose coefficients side by side
+//! would suggest a change that is none.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use serde_json::Value;
+
+use super::status::unreadable;
+use super::{FlightState, FlightStatus};
+use crate::error::{Error, Result};
+use crate::formats::{stage, OutputSet};
+
+/// One scalar channel of a flight, from its quality JSON.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ChannelFigures {
+    /// The channel.
+    pub channel: String,
+    /// FOM before compensation, nT.
+    pub fom_before_nt: Option<f64>,
+    /// FOM after, nT.
+    pub fom_after_nt: Option<f64>,
+    /// Improvement ratio of the band-passed standard deviation.
+    pub improvement_ratio: Option<f64>,
+    /// Band-passed residual over the windows, nT.
+    pub band_std_after_nt: Option<f64>,
+    /// Diagnosed effects applied, `effect` or `effect from source`.
+    pub findings: Vec<String>,
+}
+
+/// One coefficient of one channel's model.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Coefficient {
+    /// The channel.
+    pub channel: String,
+    /// The term's name.
+    pub term: String,
+    /// Its value.
+    pub value: f64,
+    /// One sigma, when the fit gives one.
+    pub sigma: Option<f64>,
+}
+
+/// A flight of the campaign: its status and, when done, its figures.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SummaryFlight {
+    /// The status the run left.
+    pub status: FlightStatus,
+    /// Per-channel figures (empty for a failed flight).
+    pub channels: Vec<ChannelFigures>,
+    /// The fitted coefficients (empty for a failed flight).
+    pub coefficients: Vec<Coefficient>,
+    /// What could not be read for this flight.
+    pub problems: Vec<String>,
+}
+
+/// A campaign's flights, in output-name order.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CampaignSummary {
+    /// Every flight with a status in the folder.
+    pub flights: Vec<SummaryFlight>,
+}
+
+/// Reads the statuses in `folder` and the JSON files they list.
+pub fn summarize(folder: &Path) -> Result<CampaignSummary> {
+    let entries = std::fs::read_dir(folder).map_err(|e| Error::io(folder, "listing", e))?;
+    let mut paths: Vec<PathBuf> = entries
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| {
+            p.file_name()
+                .and_then(|n| n.to_str())
+                .is_some_and(|n| n.ends_with("_status.json"))
+        })
+        .collect();
+    paths.sort();
+    if paths.is_empty() {
+        return Err(Error::Config {
+            source_name: folder.display().to_string(),
+            message: "holds no <flight>_status.json; give the [output] directory of a magcomp run".into(),
+        });
+    }
+    let flights = paths
+        .iter()
+        .map(|path| summary_flight(folder, path))
+        .collect::<Result<Vec<_>>>()?;
+    Ok(CampaignSummary { flights })
+}
+
+fn summary_flight(folder: &Path, path: &Path) -> Result<SummaryFlight> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, "reading", e))?;
+    let status: FlightStatus = serde_json::from_str(&text).map_err(|e| unreadable(path, e.to_string()))?;
+    let mut flight = SummaryFlight {
+        status,
+        channels: Vec::new(),
+        coefficients: Vec::new(),
+        problems: Vec::new(),
+    };
+    if flight.status.state != FlightState::Done {
+        return Ok(flight);
+    }
+    let name = flight.status.flight.clone();
+    match read_json(&folder.join(format!("{name}_quality.json"))) {
+        Ok(quality) => flight.channels = channel_figures(&quality),
+        Err(problem) => flight.problems.push(problem),
+    }
+    match read_json(&folder.join(format!("{name}_model.json"))) {
+        Ok(model) => flight.coefficients = coefficients(&model),
+        Err(problem) => flight.problems.push(problem),
+    }
+    Ok(flight)
+}
+
+fn read_json(path: &Path) -> std::result::Result<Value, String> {
+    let name = path.file_name().unwrap_or_default().to_string_lossy();
+    let text = std::fs::read_to_string(path).map_err(|e| format!("{name}: {e}"))?;
+    serde_json::from_str(&text).map_err(|e| format!("{name}: {e}"))
+}
+
+fn channel_figures(quality: &Value) -> Vec<ChannelFigures> {
+    let findings = quality["applied_findings"].as_array().cloned().unwrap_or_default();
+    let number = |value: &Value| value.as_f64();
+    quality["channels"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .map(|channel| {
+            let name = channel["channel"].as_str().unwrap_or_default().to_string();
+            ChannelFigures {
+                fom_before_nt: number(&channel["fom_before_nt"]),
+                fom_after_nt: number(&channel["fom_after_nt"]),
+                improvement_ratio: number(&channel["improvement_ratio"]),
+                band_std_after_nt: number(&channel["band_std_after_nt"]),
+                findings: findings
+                    .iter()
+                    .filter(|f| f["channel"].as_str() == Some(&name))
+                    .map(|f| {
+                        let effect = f["effect"].as_str().unwrap_or("?");
+                        match f["source"].as_str() {
+                            Some(source) => format!("{effect} from {source}"),
+                            None => effect.to_string(),
+                        }
+                    })
+                    .collect(),
+                channel: name,
+            }
+        })
+        .collect()
+}
+
+fn coefficients(model: &Value) -> Vec<Coefficient> {
+    let mut all = Vec::new();
+    for fitted in model["models"].as_array().into_iter().flatten() {
+        let channel = fitted["channel"].as_str().unwrap_or_default();
+        let names = fitted["term_names"].as_array().cloned().unwrap_or_default();
+        let values = fitted["coefficients"].as_array().cloned().unwrap_or_default();
+        let sigmas = fitted["coefficient_uncertainty"]
+            .as_array()
+            .cloned()
+            .unwrap_or_default();
+        for (index, (term, value)) in names.iter().zip(&values).enumerate() {
+            let (Some(term), Some(value)) = (term.as_str(), value.as_f64()) else {
+                continue;
+            };
+            all.push(Coefficient {
+                channel: channel.into(),
+                term: term.into(),
+                value,
+                sigma: sigmas.get(index).and_then(Value::as_f64),
+            });
+        }
+    }
+    all
+}
+
+impl CampaignSummary {
+    /// Flights done and failed.
+    pub fn counts(&self) -> (usize, usize) {
+        let done = self
+            .flights
+            .iter()
+            .filter(|f| f.status.state == FlightState::Done)
+            .count();
+        (done, self.flights.len() - done)
+    }
+
+    /// The named aircraft with two flights done or more, each with its flights
+    /// in date order (undated last, then by name).
+    pub fn recurring_aircraft(&self) -> Vec<(String, Vec<&SummaryFlight>)> {
+        let mut groups: std::collections::BTreeMap<String, Vec<&SummaryFlight>> = Default::default();
+        for flight in self.flights.iter().filter(|f| f.status.state == FlightState::Done) {
+            if let Some(aircraft) = &flight.status.aircraft {
+                groups.entry(aircraft.clone()).or_default().push(flight);
+            }
+        }
+        groups
+            .into_iter()
+            .filter(|(_, flights)| flights.len() >= 2)
+            .map(|(aircraft, mut flights)| {
+                flights.sort_by(|a, b| {
+                    let key =
+                        |f: &SummaryFlight| (f.status.date.is_none(), f.status.date.clone(), f.status.flight.clone());
+                    key(a).cmp(&key(b))
+                });
+                (aircraft, flights)
+            })
+            .collect()
+    }
+
+    /// `campaign_summary.csv`.
+    pub fn flights_csv(&self) -> String {
+        let mut text = String::from(
+            "flight,input,aircraft,date,state,rows,warnings,channel,fom_before_nt,fom_after_nt,improvement_ratio,band_std_after_nt,findings,problem\n",
+        );
+        for flight in &self.flights {
+            let status = &flight.status;
+            let head = [
+                status.flight.clone(),
+                status.input.display().to_string(),
+                status.aircraft.clone().unwrap_or_default(),
+                status.date.clone().unwrap_or_default(),
+                state_name(status.state).into(),
+                status.rows.map(|r| r.to_string()).unwrap_or_default(),
+                status.warnings.len().to_string(),
+            ];
+            let problem = status
+                .error
+                .iter()
+                .chain(&flight.problems)
+                .cloned()
+                .collect::<Vec<_>>()
+                .join("; ");
+            if flight.channels.is_empty() {
+                let row: Vec<String> = head
+                    .iter()
+                    .cloned()
+                    .chain(vec![String::new(); 6])
+                    .chain([problem])
+                    .collect();
+                text += &csv_row(&row);
+                continue;
+            }
+            for channel in &flight.channels {
+                let figures = [
+                    channel.channel.clone(),
+                    figure(channel.fom_before_nt),
+                    figure(channel.fom_after_nt),
+                    figure(channel.improvement_ratio),
+                    figure(channel.band_std_after_nt),
+                    channel.findings.join("; "),
+                    problem.clone(),
+                ];
+                text += &csv_row(&head.iter().cloned().chain(figures).collect::<Vec<_>>());
+            }
+        }
+        text
+    }
+
+    /// `campaign_coefficients.csv`, or `None` when no aircraft recurs.
+    pub fn coefficients_csv(&self) -> Option<String> {
+        let recurring = self.recurring_aircraft();
+        if recurring.is_empty() {
+            return None;
+        }
+        let mut text = String::from("aircraft,date,flight,channel,term,coefficient,sigma\n");
+        for (aircraft, flights) in &recurring {
+            for flight in flights {
+                for c in &flight.coefficients {
+                    text += &csv_row(&[
+                        aircraft.clone(),
+                        flight.status.date.clone().unwrap_or_default(),
+                        flight.status.flight.clone(),
+                        c.channel.clone(),
+                        c.term.clone(),
+                        format!("{:e}", c.value),
+                        c.sigma.map(|s| format!("{s:e}")).unwrap_or_default(),
+                    ]);
+                }
+            }
+        }
+        Some(text)
+    }
+
+    /// The lines `summarize` prints.
+    pub fn describe(&self) -> String {
+        let (done, failed) = self.counts();
+        let mut text = format!("{} flights: {done} done, {failed} failed\n", self.flights.len());
+        for flight in self.flights.iter().filter(|f| f.status.state == FlightState::Failed) {
+            let _ = writeln!(
+                text,
+                "  failed: {}: {}",
+                flight.status.flight,
+                flight.status.error.as_deref().unwrap_or("no reason recorded")
+            );
+        }
+        for flight in self.flights.iter().filter(|f| !f.problems.is_empty()) {
+            let _ = writeln!(
+                text,
+                "  warning: {}: {}",
+                flight.status.flight,
+                flight.problems.join("; ")
+            );
+        }
+        text
+    }
+
+    /// `campaign_summary.html`.
+    pub fn html(&self) -> String {
+        let escape = crate::report::escape;
+        let (done, failed) = self.counts();
+        let mut page = String::from(
+            "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>magcomp campaign summary</title>\n<style>body{font-family:sans-serif;margin:2em}table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #bbb;padding:2px 6px;text-align:right}td.text,th.text{text-align:left}tr.failed td{background:#fdd}</style></head><body>\n",
+        );
+        let _ = writeln!(
+            page,
+            "<h1>Campaign summary</h1>\n<p>{} flights: {done} done, {failed} failed.</p>",
+            self.flights.len()
+        );
+        page += "<h2>Flights</h2>\n<table><tr><th class=\"text\">flight</th><th class=\"text\">aircraft</th><th class=\"text\">date</th><th class=\"text\">state</th><th>rows</th><th>warnings</th><th class=\"text\">channel</th><th>FOM before, nT</th><th>FOM after, nT</th><th>IR</th><th class=\"text\">findings applied</th><th class=\"text\">problem</th></tr>\n";
+        for flight in &self.flights {
+            let status = &flight.status;
+            let problem = status
+                .error
+                .iter()
+                .chain(&flight.problems)
+                .cloned()
+                .collect::<Vec<_>>()
+                .join("; ");
+            let class = match status.state {
+                FlightState::Failed => " class=\"failed\"",
+                FlightState::Done => "",
+            };
+            let head = format!(
+                "<td class=\"text\">{}</td><td class=\"text\">{}</td><td class=\"text\">{}</td><td class=\"text\">{}</td><td>{}</td><td>{}</td>",
+                escape(&status.flight),
+                escape(status.aircraft.as_deref().unwrap_or("")),
+                escape(status.date.as_deref().unwrap_or("")),
+                state_name(status.state),
+                status.rows.map(|r| r.to_string()).unwrap_or_default(),
+                status.warnings.len()
+            );
+            if flight.channels.is_empty() {
+                let _ = writeln!(
+                    page,
+                    "<tr{class}>{head}<td></td><td></td><td></td><td></td><td></td><td class=\"text\">{}</td></tr>",
+                    escape(&problem)
+                );
+            }
+            for channel in &flight.channels {
+                let _ = writeln!(
+                    page,
+                    "<tr{class}>{head}<td class=\"text\">{}</td><td>{}</td><td>{}</td><td>{}</td><td class=\"text\">{}</td><td class=\"text\">{}</td></tr>",
+                    escape(&channel.channel),
+                    figure(channel.fom_before_nt),
+                    figure(channel.fom_after_nt),
+                    figure(channel.improvement_ratio),
+                    escape(&channel.findings.join("; ")),
+                    escape(&problem)
+                );
+            }
+        }
+        page += "</table>\n";
+        if self.flights.iter().all(|f| f.status.aircraft.is_none()) {
+            page += "<p>No flight names its aircraft: name it (<code>aircraft = \"…\"</code> in a [[flight]] or a manifest column) to follow each aircraft's coefficients over time.</p>\n";
+        }
+        page += &self.coefficients_html();
+        page += "</body></html>\n";
+        page
+    }
+
+    /// One table per recurring aircraft and channel: a row per term, a
+    /// column per flight in date order, value ± one sigma.
+    fn coefficients_html(&self) -> String {
+        let escape = crate::report::escape;
+        let mut html = String::new();
+        for (aircraft, flights) in self.recurring_aircraft() {
+            let _ = writeln!(html, "<h2>Coefficients over time: {}</h2>", escape(&aircraft));
+            let mut channels: Vec<&str> = flights
+                .iter()
+                .flat_map(|f| f.coefficients.iter().map(|c| c.channel.as_str()))
+                .collect();
+            channels.sort_unstable();
+            channels.dedup();
+            for channel in channels {
+                let _ = write!(
+                    html,
+                    "<h3>{}</h3>\n<table><tr><th class=\"text\">term</th>",
+                    escape(channel)
+                );
+                for flight in &flights {
+                    let label = match &flight.status.date {
+                        Some(date) => format!("{} ({date})", flight.status.flight),
+                        None => flight.status.flight.clone(),
+                    };
+                    let _ = write!(html, "<th>{}</th>", escape(&label));
+                }
+                html += "</tr>\n";
+                let mut terms: Vec<&str> = Vec::new();
+                for c in flights
+                    .iter()
+                    .flat_map(|f| &f.coefficients)
+                    .filter(|c| c.channel == channel)
+                {
+                    if !terms.contains(&c.term.as_str()) {
+                        terms.push(&c.term);
+                    }
+                }
+                for term in terms {
+                    let _ = write!(html, "<tr><td class=\"text\">{}</td>", escape(term));
+                    for flight in &flights {
+                        let found = flight
+                            .coefficients
+                            .iter()
+                            .find(|c| c.channel == channel && c.term == term);
+                        let text = match found {
+                            Some(Coefficient {
+                                value, sigma: Some(s), ..
+                            }) => format!("{value:.4e} ± {s:.1e}"),
+                            Some(c) => format!("{:.4e}", c.value),
+                            None => "–".into(),
+                        };
+                        let _ = write!(html, "<td>{text}</td>");
+                    }
+                    html += "</tr>\n";
+                }
+                html += "</table>\n";
+            }
+        }
+        html
+    }
+
+    /// Writes the summary files into `folder`, all committed together;
+    /// returns their paths.
+    pub fn write(&self, folder: &Path) -> Result<Vec<PathBuf>> {
+        let mut files = vec![
+            ("campaign_summary.csv", self.flights_csv()),
+            ("campaign_summary.html", self.html()),
+        ];
+        if let Some(text) = self.coefficients_csv() {
+            files.push(("campaign_coefficients.csv", text));
+        }
+        let mut set = OutputSet::new();
+        for (name, text) in files {
+            set.add(stage(&folder.join(name), |w| {
+                std::io::Write::write_all(w, text.as_bytes())
+            })?);
+        }
+        set.commit()
+    }
+}
+
+fn state_name(state: FlightState) -> &'static str {
+    match state {
+        FlightState::Done => "done",
+        FlightState::Failed => "failed",
+    }
+}
+
+fn figure(value: Option<f64>) -> String {
+    value.map(|v| format!("{v:.4}")).unwrap_or_default()
+}
+
+/// One CSV line, quoting the fields that need it.
+fn csv_row(fields: &[String]) -> String {
+    let quoted: Vec<String> = fields
+        .iter()
+        .map(|f| match f.contains([',', '"', '\n', '\r']) {
+            true => format!("\"{}\"", f.replace('"', "\"\"")),
+            false => f.clone(),
+        })
+        .collect();
+    quoted.join(",") + "\n"
+}

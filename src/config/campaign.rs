@@ -1,0 +1,447 @@
+//! `[campaign]`: the flights of a season named by glob patterns or by a
+//! manifest, besides `[[flight]]` tables.
+//!
+//! ```toml
+//! [campaign]
+//! inputs = ["flights/*.csv", "archive/**/*.mcap"]   # glob patterns
+//! manifest = "flights.csv"                          # or flights.jsonl
+//! ```
+//!
+//! A manifest is CSV (a header row naming its columns) or JSON lines (one
+//! object a line). Its fields are those of a `[[flight]]`: `input` (the
+//! only one required), `windows`, `diagnosis`, `vector`, `channels`,
+//! `date`, and `aircraft`, the airframe a calibration belongs to (the
+//! campaign summary follows each aircraft's coefficients over time). In CSV,
+//! `windows` is a DETECT.json path or `T0:T1` windows separated by spaces
+//! or `;`, and `channels` are names separated by spaces or `;`. In JSON
+//! lines, `windows` is a DETECT.json path or a list of `"T0:T1"` strings or
+//! `{"t_start": …, "t_end": …}` objects, and `channels` a list of names.
+//!
+//! Every relative path, in pipeline.toml and in the manifest alike,
+//! resolves against the folder of pipeline.toml.
+//!
+//! The flights are the `[[flight]]` tables, then the manifest's rows, then
+//! the files the patterns match (each pattern's matches in path order). A
+//! file named twice by tables or manifest rows is an error (its settings
+//! would be ambiguous); a file a pattern matches that a table or row
+//! already names is taken from the table or row, so a pattern can sweep a
+//! folder while a few flights get their own windows.
+
+use std::path::{Path, PathBuf};
+
+use serde::Deserialize;
+
+use super::RawFlight;
+use crate::error::{Error, Result};
+use crate::windows::CalibrationWindow;
+
+/// `[campaign]` as written.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub(crate) struct RawCampaign {
+    /// Glob patterns of flight files, relative to pipeline.toml.
+    pub inputs: Vec<String>,
+    /// A manifest of flights: CSV, or JSON lines (`.jsonl`, `.ndjson`).
+    pub manifest: Option<PathBuf>,
+}
+
+/// The calibration windows of a manifest row as written.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(untagged)]
+enum ManifestWindows {
+    /// A DETECT.json file.
+    File(PathBuf),
+    /// Windows given inline.
+    List(Vec<ManifestWindow>),
+}
+
+/// One inline window: `"T0:T1"` or a window object.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(untagged)]
+enum ManifestWindow {
+    /// `"T0:T1"`.
+    Text(String),
+    /// `{"t_start": …, "t_end": …}` with an optional label.
+    Window(CalibrationWindow),
+}
+
+/// The channels of a manifest row: a list, or names in one string.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(untagged)]
+enum ManifestChannels {
+    /// `["mag_1_uc", "mag_2_uc"]`.
+    List(Vec<String>),
+    /// `"mag_1_uc mag_2_uc"` (spaces, `;` or `,` between names).
+    Text(String),
+}
+
+/// One JSON-lines manifest row as written.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ManifestRow {
+    input: PathBuf,
+    #[serde(default)]
+    windows: Option<ManifestWindows>,
+    #[serde(default)]
+    diagnosis: Option<PathBuf>,
+    #[serde(default)]
+    vector: Option<String>,
+    #[serde(default)]
+    channels: Option<ManifestChannels>,
+    #[serde(default)]
+    date: Option<String>,
+    #[serde(default)]
+    aircraft: Option<String>,
+}
+
+/// The columns a CSV manifest may have.
+const MANIFEST_COLUMNS: [&str; 7] = [
+    "input",
+    "windows",
+    "diagnosis",
+    "vector",
+    "channels",
+    "date",
+    "aircraft",
+];
+
+/// The flights `campaign` names, after the `explicit` ones: the manifest's
+/// rows, then each pattern's matches not already named. Reads the manifest
+/// and lists folders; `base` is pipeline.toml's folder.
+pub(crate) fn campaign_flights(
+    campaign: &RawCampaign,
+    explicit: &[RawFlight],
+    base: &Path,
+    source_name: &str,
+) -> Result<Vec<RawFlight>> {
+    let mut flights = explicit.to_vec();
+    if let Some(manifest) = &campaign.manifest {
+        flights.extend(read_manifest(&base.join(manifest))?);
+    }
+    let mut named: Vec<PathBuf> = Vec::with_capacity(flights.len());
+    for flight in &flights {
+        let key = path_key(&base.join(&flight.input));
+        if named.contains(&key) {
+            return Err(Error::Config {
+                source_name: source_name.into(),
+                message: format!(
+                    "the flight {} is named twice (by [[flight]] tables or manifest rows); name each flight once, with all its settings",
+                    flight.input.display()
+                ),
+            });
+        }
+        named.push(key);
+    }
+    for pattern in &campaign.inputs {
+        for path in glob_matches(pattern, base, source_name)? {
+            let key = path_key(&path);
+            if !named.contains(&key) {
+                named.push(key);
+                flights.push(raw_flight(path));
+            }
+        }
+    }
+    Ok(flights)
+}
+
+/// A path to compare flights by: the file itself when it exists (so
+/// `a/../b.csv` and `b.csv` are one flight), else the path as written.
+fn path_key(path: &Path) -> PathBuf {
+    std::fs::canonicalize(path).unwrap_or_else(|_| path.to_path_buf())
+}
+
+/// The files `pattern` (relative to `base`) matches, in path order. A
+/// pattern that matches nothing is an error: a campaign that silently
+/// processes no flights of a folder is worse than none.
+fn glob_matches(pattern: &str, base: &Path, source_name: &str) -> Result<Vec<PathBuf>> {
+    let bad = |message: String| Error::Config {
+        source_name: source_name.into(),
+        message,
+    };
+    let text = match Path::new(pattern).is_absolute() {
+        true => pattern.to_string(),
+        false => {
+            // The folder is taken literally: a `[` in its name is no pattern.
+            let folder = base.to_str().ok_or_else(|| {
+                bad(format!(
+                    "[campaign] inputs: the folder {} is not valid UTF-8",
+                    base.display()
+                ))
+            })?;
+            match folder.is_empty() {
+                true => pattern.to_string(),
+                false => format!("{}/{pattern}", glob::Pattern::escape(folder)),
+            }
+        }
+    };
+    let paths = glob::glob(&text).map_err(|e| {
+        bad(format!(
+            "[campaign] inputs: {pattern:?} is not a glob pattern ({e}); write e.g. \"flights/*.csv\" or \"archive/**/*.mcap\""
+        ))
+    })?;
+    let mut matches = Vec::new();
+    for path in paths {
+        let path = path.map_err(|e| Error::io(e.path(), "listing", std::io::Error::other(e.to_string())))?;
+        if path.is_file() {
+            matches.push(path);
+        }
+    }
+    if matches.is_empty() {
+        return Err(bad(format!(
+            "[campaign] inputs: {pattern:?} matches no file (looked for {text}); check the pattern, or remove it"
+        )));
+    }
+    matches.sort();
+    Ok(matches)
+}
+
+fn raw_flight(input: PathBuf) -> RawFlight {
+    RawFlight {
+        input,
+        vector: None,
+        channels: None,
+        windows: Vec::new(),
+        windows_file: None,
+        diagnosis: None,
+        date: None,
+        aircraft: None,
+    }
+}
+
+/// The flights of a manifest file: JSON lines by its extension (`.jsonl`,
+/// `.ndjson`), CSV otherwise.
+fn read_manifest(path: &Path) -> Result<Vec<RawFlight>> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, "reading", e))?;
+    let extension = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase)
+        .unwrap_or_default();
+    match extension.as_str() {
+        "jsonl" | "ndjson" => read_json_lines(path, &text),
+        _ => read_manifest_csv(path, &text),
+    }
+}
+
+fn manifest_error(path: &Path, line: usize, problem: String) -> Error {
+    Error::Config {
+        source_name: format!("{} line {line}", path.display()),
+        message: problem,
+    }
+}
+
+fn read_json_lines(path: &Path, text: &str) -> Result<Vec<RawFlight>> {
+    let mut flights = Vec::new();
+    for (index, line) in text.lines().enumerate() {
+        if line.trim().is_empty() {
+            continue;
+        }
+        let row: ManifestRow = serde_json::from_str(line).map_err(|e| {
+            manifest_error(
+                path,
+                index + 1,
+                format!("{e}; each line is one JSON object such as {{\"input\": \"flight.csv\"}}"),
+            )
+        })?;
+        flights.push(from_row(row).map_err(|message| manifest_error(path, index + 1, message))?);
+    }
+    Ok(flights)
+}
+
+fn read_manifest_csv(path: &Path, text: &str) -> Result<Vec<RawFlight>> {
+    let mut reader = csv::ReaderBuilder::new()
+        .trim(csv::Trim::All)
+        .comment(Some(b'#'))
+        .from_reader(text.as_bytes());
+    let header: Vec<String> = reader
+        .headers()
+        .map_err(|e| manifest_error(path, 1, format!("the header row cannot be read: {e}")))?
+        .iter()
+        .map(str::to_string)
+        .collect();
+    if let Some(unknown) = header.iter().find(|h| !MANIFEST_COLUMNS.contains(&h.as_str())) {
+        return Err(manifest_error(
+            path,
+            1,
+            format!(
+                "column {unknown:?} is not a manifest column; use {}",
+                MANIFEST_COLUMNS.join(", ")
+            ),
+        ));
+    }
+    if !header.iter().any(|h| h == "input") {
+        return Err(manifest_error(
+            path,
+            1,
+            "the header has no \"input\" column; name each flight's file in one".into(),
+        ));
+    }
+    let mut flights = Vec::new();
+    for record in reader.records() {
+        let record = record.map_err(|e| {
+            let line = e.position().map_or(0, |p| p.line() as usize);
+            manifest_error(path, line, e.to_string())
+        })?;
+        let line = record.position().map_or(0, |p| p.line() as usize);
+        let cell = |name: &str| {
+            let index = header.iter().position(|h| h == name)?;
+            record.get(index).filter(|v| !v.is_empty()).map(str::to_string)
+        };
+        let row = ManifestRow {
+            input: cell("input")
+                .map(PathBuf::from)
+                .ok_or_else(|| manifest_error(path, line, "the input cell is empty".into()))?,
+            windows: cell("windows").map(csv_windows),
+            diagnosis: cell("diagnosis").map(PathBuf::from),
+            vector: cell("vector"),
+            channels: cell("channels").map(ManifestChannels::Text),
+            date: cell("date"),
+            aircraft: cell("aircraft"),
+        };
+        flights.push(from_row(row).map_err(|message| manifest_error(path, line, message))?);
+    }
+    Ok(flights)
+}
+
+/// A CSV `windows` cell: a `.json` path, or `T0:T1` windows.
+fn csv_windows(cell: String) -> ManifestWindows {
+    match cell.to_ascii_lowercase().ends_with(".json") {
+        true => ManifestWindows::File(cell.into()),
+        false => ManifestWindows::List(
+            cell.split(|c: char| c == ';' || c.is_whitespace())
+                .filter(|w| !w.is_empty())
+                .map(|w| ManifestWindow::Text(w.into()))
+                .collect(),
+        ),
+    }
+}
+
+fn from_row(row: ManifestRow) -> std::result::Result<RawFlight, String> {
+    let mut flight = raw_flight(row.input);
+    match row.windows {
+        Some(ManifestWindows::File(file)) => flight.windows_file = Some(file),
+        Some(ManifestWindows::List(list)) => {
+            for window in list {
+                flight.windows.push(match window {
+                    ManifestWindow::Window(window) => window,
+                    ManifestWindow::Text(text) => CalibrationWindow::parse(&text).map_err(|e| e.to_string())?,
+                });
+            }
+        }
+        None => {}
+    }
+    flight.diagnosis = row.diagnosis;
+    flight.vector = row.vector;
+    flight.channels = row.channels.map(|channels| match channels {
+        ManifestChannels::List(list) => list,
+        ManifestChannels::Text(text) => text
+            .split(|c: char| c == ';' || c == ',' || c.is_whitespace())
+            .filter(|c| !c.is_empty())
+            .map(str::to_string)
+            .collect(),
+    });
+    flight.date = row.date;
+    flight.aircraft = row.aircraft;
+    Ok(flight)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn write(folder: &Path, name: &str, text: &str) -> PathBuf {
+        let path = folder.join(name);
+        std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+        std::fs::write(&path, text).unwrap();
+        path
+    }
+
+    #[test]
+    fn csv_and_json_lines_manifests_name_the_same_flights() {
+        let folder = tempfile::tempdir().unwrap();
+        let csv = write(
+            folder.path(),
+            "m.csv",
+            "input,windows,channels,date,aircraft\n\
+             a.csv,100:200;300:400,mag_1_uc mag_2_uc,2020-06-20,C-FTLL\n\
+             # a comment\n\
+             b.csv,b.windows.json,,,\n",
+        );
+        let jsonl = write(
+            folder.path(),
+            "m.jsonl",
+            "{\"input\": \"a.csv\", \"windows\": [\"100:200\", {\"t_start\": 300, \"t_end\": 400}], \
+              \"channels\": [\"mag_1_uc\", \"mag_2_uc\"], \"date\": \"2020-06-20\", \"aircraft\": \"C-FTLL\"}\n\
+             \n\
+             {\"input\": \"b.csv\", \"windows\": \"b.windows.json\"}\n",
+        );
+        for path in [csv, jsonl] {
+            let flights = read_manifest(&path).unwrap();
+            assert_eq!(flights.len(), 2, "{}", path.display());
+            assert_eq!(flights[0].input, PathBuf::from("a.csv"));
+            let spans: Vec<(f64, f64)> = flights[0].windows.iter().map(|w| (w.t_start, w.t_end)).collect();
+            assert_eq!(spans, [(100.0, 200.0), (300.0, 400.0)]);
+            assert_eq!(flights[0].channels.as_deref().unwrap(), ["mag_1_uc", "mag_2_uc"]);
+            assert_eq!(flights[0].date.as_deref(), Some("2020-06-20"));
+            assert_eq!(flights[0].aircraft.as_deref(), Some("C-FTLL"));
+            assert_eq!(flights[1].windows_file, Some(PathBuf::from("b.windows.json")));
+            assert!(flights[1].windows.is_empty() && flights[1].channels.is_none());
+        }
+    }
+
+    #[test]
+    fn a_bad_manifest_names_the_file_line_and_field() {
+        let folder = tempfile::tempdir().unwrap();
+        let unknown = write(folder.path(), "u.csv", "input,window\na.csv,1:2\n");
+        let text = read_manifest(&unknown).unwrap_err().to_string();
+        assert!(text.contains("u.csv line 1") && text.contains("\"window\""), "{text}");
+        let bad_window = write(folder.path(), "w.csv", "input,windows\na.csv,1:2\nb.csv,5-9\n");
+        let text = read_manifest(&bad_window).unwrap_err().to_string();
+        assert!(text.contains("w.csv line 3") && text.contains("5-9"), "{text}");
+        let typo = write(folder.path(), "t.jsonl", "{\"input\": \"a.csv\", \"chanels\": []}\n");
+        let text = read_manifest(&typo).unwrap_err().to_string();
+        assert!(text.contains("t.jsonl line 1") && text.contains("chanels"), "{text}");
+    }
+
+    #[test]
+    fn patterns_sweep_a_folder_and_tables_keep_their_own_settings() {
+        let folder = tempfile::tempdir().unwrap();
+        for name in ["f/2.csv", "f/1.csv", "f/sub/3.csv", "f/notes.txt"] {
+            write(folder.path(), name, "tt\n0\n");
+        }
+        let campaign = RawCampaign {
+            inputs: vec!["f/**/*.csv".into()],
+            manifest: None,
+        };
+        let mut own = raw_flight("f/2.csv".into());
+        own.vector = Some("flux_b".into());
+        let flights = campaign_flights(&campaign, &[own], folder.path(), "p.toml").unwrap();
+        let names: Vec<String> = flights
+            .iter()
+            .map(|f| {
+                f.input
+                    .strip_prefix(folder.path())
+                    .unwrap_or(&f.input)
+                    .display()
+                    .to_string()
+            })
+            .collect();
+        assert_eq!(names, ["f/2.csv", "f/1.csv", "f/sub/3.csv"]);
+        assert_eq!(flights[0].vector.as_deref(), Some("flux_b"));
+
+        let twice = [raw_flight("f/1.csv".into()), raw_flight("f/../f/1.csv".into())];
+        let text = campaign_flights(&RawCampaign::default(), &twice, folder.path(), "p.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(text.contains("named twice"), "{text}");
+
+        let nothing = RawCampaign {
+            inputs: vec!["g/*.csv".into()],
+            manifest: None,
+        };
+        let text = campaign_flights(&nothing, &[], folder.path(), "p.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(text.contains("matches no file"), "{text}");
+    }
+}
