@@ -371,7 +371,7 @@ fn run(config: &Path, plain: bool, force: bool, shard: Option<&str>) -> anyhow::
                 "up to date, skipped".to_string()
             }
             CampaignFlight::Processed { status, result } => {
-                match result {
+                match result.as_ref() {
                     Ok(result) => {
                         print!("{}", summary(result));
                         println!("  wrote {}", outputs.compensated.display());

@@ -38,7 +38,7 @@ pub enum CampaignFlight {
         /// The status written.
         status: FlightStatus,
         /// What processing produced, or why it failed.
-        result: Result<FlightResult>,
+        result: Box<Result<FlightResult>>,
     },
 }
 
@@ -108,7 +108,10 @@ pub fn process_campaign_flight(
     };
     status.elapsed_s = started.elapsed().as_secs_f64();
     status.write(&path)?;
-    Ok(CampaignFlight::Processed { status, result })
+    Ok(CampaignFlight::Processed {
+        status,
+        result: Box::new(result),
+    })
 }
 
 fn file_names(paths: &[PathBuf]) -> Vec<String> {

@@ -25,7 +25,8 @@
 //! file named twice by tables or manifest rows is an error (its settings
 //! would be ambiguous); a file a pattern matches that a table or row
 //! already names is taken from the table or row, so a pattern can sweep a
-//! folder while a few flights get their own windows.
+//! folder while a few flights get their own windows. Files in the output
+//! folder are outputs of earlier runs, never flights.
 
 use std::path::{Path, PathBuf};
 
@@ -111,9 +112,13 @@ const MANIFEST_COLUMNS: [&str; 7] = [
 pub(crate) fn campaign_flights(
     campaign: &RawCampaign,
     explicit: &[RawFlight],
-    base: &Path,
+    (base, output_directory): (&Path, &Path),
     source_name: &str,
 ) -> Result<Vec<RawFlight>> {
+    // A pattern such as "**/*.csv" also matches the compensated files of
+    // earlier runs when the output folder lies below; they are outputs,
+    // not flights.
+    let outputs = std::fs::canonicalize(base.join(output_directory)).ok();
     let mut flights = explicit.to_vec();
     if let Some(manifest) = &campaign.manifest {
         flights.extend(read_manifest(&base.join(manifest))?);
@@ -135,7 +140,8 @@ pub(crate) fn campaign_flights(
     for pattern in &campaign.inputs {
         for path in glob_matches(pattern, base, source_name)? {
             let key = path_key(&path);
-            if !named.contains(&key) {
+            let an_output = outputs.as_ref().is_some_and(|folder| key.starts_with(folder));
+            if !an_output && !named.contains(&key) {
                 named.push(key);
                 flights.push(raw_flight(path));
             }
@@ -409,13 +415,16 @@ mod tests {
         for name in ["f/2.csv", "f/1.csv", "f/sub/3.csv", "f/notes.txt"] {
             write(folder.path(), name, "tt\n0\n");
         }
-        let campaign = RawCampaign {
-            inputs: vec!["f/**/*.csv".into()],
-            manifest: None,
-        };
         let mut own = raw_flight("f/2.csv".into());
         own.vector = Some("flux_b".into());
-        let flights = campaign_flights(&campaign, &[own], folder.path(), "p.toml").unwrap();
+        for name in ["out/1_compensated.csv", "f/out/2_compensated.csv"] {
+            write(folder.path(), name, "tt\n0\n");
+        }
+        let campaign = RawCampaign {
+            inputs: vec!["f/**/*.csv".into(), "out/*.csv".into()],
+            manifest: None,
+        };
+        let flights = campaign_flights(&campaign, &[own], (folder.path(), Path::new("f/out")), "p.toml").unwrap();
         let names: Vec<String> = flights
             .iter()
             .map(|f| {
@@ -426,20 +435,26 @@ mod tests {
                     .to_string()
             })
             .collect();
-        assert_eq!(names, ["f/2.csv", "f/1.csv", "f/sub/3.csv"]);
+        // The output folder's files are no flights; another folder's are.
+        assert_eq!(names, ["f/2.csv", "f/1.csv", "f/sub/3.csv", "out/1_compensated.csv"]);
         assert_eq!(flights[0].vector.as_deref(), Some("flux_b"));
 
         let twice = [raw_flight("f/1.csv".into()), raw_flight("f/../f/1.csv".into())];
-        let text = campaign_flights(&RawCampaign::default(), &twice, folder.path(), "p.toml")
-            .unwrap_err()
-            .to_string();
+        let text = campaign_flights(
+            &RawCampaign::default(),
+            &twice,
+            (folder.path(), Path::new("out")),
+            "p.toml",
+        )
+        .unwrap_err()
+        .to_string();
         assert!(text.contains("named twice"), "{text}");
 
         let nothing = RawCampaign {
             inputs: vec!["g/*.csv".into()],
             manifest: None,
         };
-        let text = campaign_flights(&nothing, &[], folder.path(), "p.toml")
+        let text = campaign_flights(&nothing, &[], (folder.path(), Path::new("out")), "p.toml")
             .unwrap_err()
             .to_string();
         assert!(text.contains("matches no file"), "{text}");

@@ -57,6 +57,11 @@
 //! [[flight]]
 //! input = "sample_flights/box_and_lines.csv"
 //! windows_file = "sample_flights/box_and_lines.windows.json"
+//! aircraft = "C-GMAG"  # optional: the summary follows its coefficients
+//!
+//! [campaign]           # more flights: see `campaign`
+//! inputs = ["flights/*.csv"]
+//! manifest = "flights.csv"
 //! ```
 
 use std::path::{Path, PathBuf};
@@ -443,7 +448,8 @@ impl Pipeline {
         })?;
         let base = path.parent().unwrap_or(Path::new("."));
         let mut raw = raw;
-        raw.flights = campaign::campaign_flights(&raw.campaign, &raw.flights, base, &source_name)?;
+        raw.flights =
+            campaign::campaign_flights(&raw.campaign, &raw.flights, (base, &raw.output.directory), &source_name)?;
         let (mut pipeline, windows_files) = Pipeline::validate(raw, base, &source_name)?;
         let margin_s = pipeline.settings.detect.window_margin_s;
         for file in windows_files {
