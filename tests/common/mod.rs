@@ -72,15 +72,7 @@ pub fn with_unrelated_columns(log: &magcomp::flight_log::FlightLog, count: usize
 /// Diagnoses `log` on its detected box with the default settings.
 pub fn diagnose_log(log: &magcomp::flight_log::FlightLog) -> Diagnosis {
     let pipeline = Pipeline::default();
-    let job = FlightJob {
-        diagnosis: None,
-        force_diagnosis: false,
-        date: None,
-        input: "simulated".into(),
-        vector: None,
-        channels: None,
-        windows: Vec::new(),
-    };
+    let job = FlightJob::new("simulated");
     diagnose_flight(log, &job, &pipeline.settings, &pipeline.settings.diagnose).unwrap()
 }
 
