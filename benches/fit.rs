@@ -226,13 +226,8 @@ fn bench_whole_file(rows: usize) {
         .map(|w| CalibrationWindow::new(w as f64 * 300.0, w as f64 * 300.0 + 120.0))
         .collect();
     let job = FlightJob {
-        diagnosis: None,
-        force_diagnosis: false,
-        date: None,
-        input: input.clone(),
-        vector: None,
-        channels: None,
         windows,
+        ..FlightJob::new(input.clone())
     };
     let outputs = FlightOutputs::in_directory(folder.path(), &input);
     let full = median_seconds(3, || {
@@ -442,15 +437,7 @@ fn bench_diagnose() {
     // Slow, smooth channels (temperatures, pressures, settings).
     let log = common::with_unrelated_columns(&flight.log, 22);
     let pipeline = Pipeline::default();
-    let job = magcomp::config::FlightJob {
-        diagnosis: None,
-        force_diagnosis: false,
-        date: None,
-        input: "bench".into(),
-        vector: None,
-        channels: None,
-        windows: Vec::new(),
-    };
+    let job = magcomp::config::FlightJob::new("bench");
     let options = pipeline.settings.clone();
     let start = std::time::Instant::now();
     let diagnosis = magcomp::pipeline::diagnose_flight(&log, &job, &options, &pipeline.settings.diagnose).unwrap();

@@ -111,13 +111,8 @@ fn every_format_ingests_to_the_same_log_and_compensates_identically() {
     let mut compensated = Vec::new();
     for input in [&csv, &xyz, &mcap, &hdf5] {
         let job = FlightJob {
-            diagnosis: None,
-            force_diagnosis: false,
-            date: None,
-            input: input.clone(),
-            vector: None,
-            channels: None,
             windows: read_detect_json(&windows, 5.0).unwrap(),
+            ..FlightJob::new(input.clone())
         };
         let outputs = FlightOutputs::in_directory(&folder.path().join("out"), input);
         process_flight(&job, &options(), &outputs).unwrap();

@@ -27,13 +27,8 @@ fn options() -> Settings {
 
 fn run_with_threads(threads: usize, csv: &Path, windows: &Path, out: &Path) -> Vec<u8> {
     let job = FlightJob {
-        diagnosis: None,
-        force_diagnosis: false,
-        date: None,
-        input: csv.to_path_buf(),
-        vector: None,
-        channels: None,
         windows: read_detect_json(windows, 5.0).unwrap(),
+        ..FlightJob::new(csv.to_path_buf())
     };
     let outputs = FlightOutputs::in_directory(out, csv);
     let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
@@ -323,15 +318,7 @@ fn the_vector_calibration_stage_calibrates_the_fluxgate_before_the_fit() {
     // offsets of up to 120 nT.
     let folder = tempfile::tempdir().unwrap();
     let input = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("sample_flights/concealed_c.csv");
-    let job = FlightJob {
-        diagnosis: None,
-        force_diagnosis: false,
-        date: None,
-        input: input.clone(),
-        vector: None,
-        channels: None,
-        windows: Vec::new(),
-    };
+    let job = FlightJob::new(input.clone());
     let plain = process_flight(
         &job,
         &options(),

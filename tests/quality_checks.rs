@@ -21,15 +21,7 @@ fn run_plain(input: &Path, out: &Path) -> FlightResult {
 }
 
 fn run_with(input: &Path, out: &Path, options: Settings) -> FlightResult {
-    let job = FlightJob {
-        diagnosis: None,
-        force_diagnosis: false,
-        date: None,
-        input: input.to_path_buf(),
-        vector: None,
-        channels: None,
-        windows: Vec::new(),
-    };
+    let job = FlightJob::new(input.to_path_buf());
     let outputs = FlightOutputs::in_directory(out, input);
     process_flight(&job, &options, &outputs).unwrap()
 }

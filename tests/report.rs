@@ -10,15 +10,7 @@ use magcomp::sink::{process_flight, FlightOutputs};
 
 fn report_of_clean_flight(folder: &Path) -> (PathBuf, magcomp::pipeline::FlightResult) {
     let input = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("sample_flights/clean.csv");
-    let job = FlightJob {
-        diagnosis: None,
-        force_diagnosis: false,
-        date: None,
-        input: input.clone(),
-        vector: None,
-        channels: None,
-        windows: Vec::new(),
-    };
+    let job = FlightJob::new(input.clone());
     let outputs = FlightOutputs::in_directory(folder, &input);
     // Plain Tolles-Lawson: the diagnosis's section has its own test below.
     let mut options = Settings::default();
@@ -130,15 +122,7 @@ fn a_diagnosed_flight_reports_its_findings_and_marks_where_they_helped() {
     // concealed_a with `[diagnose] apply`: the cabin sensor's lag.
     let folder = tempfile::tempdir().unwrap();
     let input = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("sample_flights/concealed_a.csv");
-    let job = FlightJob {
-        diagnosis: None,
-        force_diagnosis: false,
-        date: None,
-        input: input.clone(),
-        vector: None,
-        channels: None,
-        windows: Vec::new(),
-    };
+    let job = FlightJob::new(input.clone());
     let mut options = Settings::default();
     options.diagnose.apply = magcomp::diagnose::ApplyDiagnosis::Always;
     let outputs = FlightOutputs::in_directory(folder.path(), &input);
