@@ -50,6 +50,18 @@ pub struct CompensatedChannel {
     pub interference_nt: Vec<f64>,
     /// The level offset δ, nT.
     pub level_offset_nt: f64,
+    /// One sigma of each compensated value relative to the channel's
+    /// level over the calibration windows, nT (the `mag_<n>_c_sigma`
+    /// column): $\sqrt{\sigma_\beta(i)^2 + \sigma_n^2}$, with
+    /// $\sigma_\beta(i)$ the spread of the modelled interference at row i
+    /// under the blocked jackknife of the coefficients
+    /// ([`crate::model::FittedModel::prediction_sigma`]) and $\sigma_n$ the
+    /// compensated channel's fourth-difference noise. The level itself is
+    /// not in it: the band-passed fit does not pin it (its sigma is the
+    /// quality JSON's `level_sigma_nt`, a warning when large), and a
+    /// sensor's constant offset is seen by no calibration. `None` without
+    /// a jackknife (fewer than three windows, or another solver).
+    pub sigma_nt: Option<Vec<f64>>,
 }
 
 /// A compensated gradient ([`crate::gradient`]) on every row, nT/m (`NaN` where either sensor
@@ -80,11 +92,15 @@ pub struct Compensation {
 
 impl Compensation {
     /// Every column of values magcomp adds, in the order of the added
-    /// column names: each compensated channel, then each fluxgate's body
+    /// column names: each compensated channel (and its sigma, when it has
+    /// one), then each fluxgate's body
     /// x, y, z and north, east, down, then each gradient (the flags column
     /// follows them).
     pub fn value_columns(&self) -> Vec<&[f64]> {
-        let channels = self.channels.iter().map(|c| c.values.as_slice());
+        let channels = self
+            .channels
+            .iter()
+            .flat_map(|c| std::iter::once(c.values.as_slice()).chain(c.sigma_nt.as_deref()));
         let vectors = self
             .vectors
             .iter()
@@ -158,6 +174,25 @@ fn level_compensated(
         values,
         interference_nt: interference,
         level_offset_nt,
+        sigma_nt: None,
+    }
+}
+
+impl CompensatedChannel {
+    /// Sets [`CompensatedChannel::sigma_nt`] from the model's `prediction`
+    /// sigma and the compensated channel's `noise_nt`; `NaN` where the
+    /// value is missing.
+    pub fn set_sigma(&mut self, prediction: &crate::model::PredictionSigma, noise_nt: f64) {
+        let sigma = self
+            .values
+            .iter()
+            .zip(&prediction.relative_nt)
+            .map(|(value, sigma)| match value.is_finite() {
+                true => sigma.hypot(noise_nt),
+                false => f64::NAN,
+            })
+            .collect();
+        self.sigma_nt = Some(sigma);
     }
 }
 

@@ -445,10 +445,15 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
     let stores = StorePool::new();
     let quality: Vec<ChannelQuality> = models
         .par_iter()
-        .zip(&compensation.channels)
+        .zip(compensation.channels.par_iter_mut())
         .map(|(model, channel)| {
             let mut quality = assess_quality(log, model, channel);
-            quality.uncertainty = crate::quality::uncertainty(log, model)?;
+            if let Some(prediction) = model.prediction_sigma(log)? {
+                quality.uncertainty = crate::quality::uncertainty_of(log, model, &prediction);
+                let noise =
+                    (quality.survey_noise_4th_difference_after_nt).unwrap_or(quality.noise_4th_difference_after_nt);
+                channel.set_sigma(&prediction, noise);
+            }
             quality.transfer = check_transfer(
                 log,
                 &sensor,

@@ -242,7 +242,7 @@ fn sgl_xyz_with_line_records_runs_through_the_cli() {
     assert_eq!(
         output_lines[1],
         format!(
-            "{} mag_1_c mag_2_c flux_a_x_c flux_a_y_c flux_a_z_c flux_a_n_c flux_a_e_c flux_a_d_c flags",
+            "{} mag_1_c mag_1_c_sigma mag_2_c mag_2_c_sigma flux_a_x_c flux_a_y_c flux_a_z_c flux_a_n_c flux_a_e_c flux_a_d_c flags",
             input_lines[1]
         )
     );

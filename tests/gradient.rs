@@ -128,6 +128,7 @@ fn compensated_gradients_match_the_true_gradients_on_flights_drawn_at_random() {
     let folder = tempfile::tempdir().unwrap();
     let mut squares = [0.0f64; 3];
     let mut warned = (0usize, 0usize);
+    let mut coverage = Coverage::default();
     for seed in seeds(1..13) {
         let (simulated, layout, separation) = flight(seed);
         let input = folder.path().join(format!("gradient_{seed}.csv"));
@@ -168,7 +169,7 @@ fn compensated_gradients_match_the_true_gradients_on_flights_drawn_at_random() {
             outputs.push(run);
         }
         let log = outputs[0].log();
-        right_or_loudly_uncertain(seed, &simulated, &outputs[0], &mut warned);
+        right_or_loudly_uncertain(seed, &simulated, &outputs[0], (&mut warned, &mut coverage));
         let lines: Vec<usize> = log.survey_lines().into_iter().flat_map(|(_, rows)| rows).collect();
         assert!(lines.len() > 1000, "{} survey rows", lines.len());
         let error = |values: &[f64]| {
@@ -214,6 +215,7 @@ fn compensated_gradients_match_the_true_gradients_on_flights_drawn_at_random() {
         "uncertainty warnings: {} of {} scalar channels wrong by more than 0.1 nT on the survey",
         warned.0, warned.1
     );
+    coverage.check();
     let [direct, difference, auto] = squares.map(f64::sqrt);
     println!("survey error over the flights (root sum of squares): direct {direct:.4}, difference {difference:.4}, auto {auto:.4} nT/m");
     assert!(
@@ -235,7 +237,7 @@ fn right_or_loudly_uncertain(
     seed: u64,
     simulated: &SimulatedFlight,
     run: &magcomp::pipeline::FlightRun,
-    warned: &mut (usize, usize),
+    (warned, coverage): (&mut (usize, usize), &mut Coverage),
 ) {
     const WRONG_NT: f64 = 0.1;
     const RIGHT_NT: f64 = 0.03;
@@ -253,10 +255,24 @@ fn right_or_loudly_uncertain(
                 model.channel
             ))
         });
+        let column = sigma_coverage(model, channel, truth, line);
         println!(
-            "seed {seed} {}: survey error {error:.3} nT, stated uncertainty {:.3} nT (level {:.1} nT), warned {warning}",
-            model.channel, uncertainty.outside_calibration_sigma_nt, uncertainty.level_sigma_nt
+            "seed {seed} {}: survey error {error:.3} nT, stated uncertainty {:.3} nT (level {:.1} nT), warned {warning}; sigma column: {:.3} nT RMS against {:.3} nT RMS error from the calibration level, within 1σ {:.2}, 2σ {:.2}",
+            model.channel, uncertainty.outside_calibration_sigma_nt, uncertainty.level_sigma_nt,
+            column.sigma_rms_nt, column.error_rms_nt, column.within[0], column.within[1]
         );
+        // A column that understates the error threefold, on an error that
+        // matters, is on a warned channel.
+        if column.error_rms_nt > (3.0 * column.sigma_rms_nt).max(WRONG_NT) {
+            assert!(
+                warning,
+                "seed {seed} {}: the sigma column says {:.3} nT, the error is {:.3} nT, and no warning",
+                model.channel, column.sigma_rms_nt, column.error_rms_nt
+            );
+        }
+        if !warning {
+            coverage.add(&column);
+        }
         if error > WRONG_NT {
             warned.1 += 1;
             warned.0 += usize::from(warning);
@@ -269,6 +285,85 @@ fn right_or_loudly_uncertain(
         if error < RIGHT_NT {
             assert!(!warning, "seed {seed} {}: right ({error} nT) but warned", model.channel);
         }
+    }
+}
+
+/// How the `mag_<n>_c_sigma` column of one channel covers its true error
+/// on the survey lines, both relative to the calibration windows' level
+/// (the column leaves the level out).
+struct ColumnCoverage {
+    sigma_rms_nt: f64,
+    error_rms_nt: f64,
+    /// Fractions of survey samples within one and two sigma.
+    within: [f64; 2],
+    samples: usize,
+}
+
+/// The coverage pooled over the channels no warning marks, sample by
+/// sample.
+#[derive(Default)]
+struct Coverage {
+    samples: usize,
+    within: [f64; 2],
+    channels: usize,
+}
+
+impl Coverage {
+    fn add(&mut self, column: &ColumnCoverage) {
+        self.samples += column.samples;
+        self.channels += 1;
+        for k in 0..2 {
+            self.within[k] += column.within[k] * column.samples as f64;
+        }
+    }
+
+    /// One sigma should hold 68 % of the errors and two 95 %. The errors
+    /// are correlated along a line (the model's error is smooth), so the
+    /// samples are far from independent: the effective count is about
+    /// the number of channels (tens), whose binomial spread on 0.68 is
+    /// about ±0.08; hence 0.55-0.85 and 0.85-0.99.
+    fn check(&self) {
+        let [one, two] = self.within.map(|w| w / self.samples as f64);
+        println!(
+            "sigma column over {} unwarned channels ({} survey samples): within 1σ {one:.3}, within 2σ {two:.3}",
+            self.channels, self.samples
+        );
+        assert!(self.channels >= 15, "{} unwarned channels", self.channels);
+        assert!((0.55..=0.85).contains(&one), "within one sigma: {one}");
+        assert!((0.85..=0.99).contains(&two), "within two sigma: {two}");
+    }
+}
+
+fn sigma_coverage(
+    model: &magcomp::model::FittedModel,
+    channel: &magcomp::compensate::CompensatedChannel,
+    truth: &[f64],
+    line: &[f64],
+) -> ColumnCoverage {
+    let sigma = channel.sigma_nt.as_ref().expect("a jackknife: a sigma column");
+    let error = |i: usize| channel.values[i] - truth[i];
+    let calibration: Vec<usize> = (model.windows.iter())
+        .flat_map(|w| w.flight_rows.iter().cloned().flatten())
+        .filter(|&i| error(i).is_finite())
+        .collect();
+    let level = calibration.iter().map(|&i| error(i)).sum::<f64>() / calibration.len() as f64;
+    let survey: Vec<usize> = (0..line.len())
+        .filter(|&i| line[i] > 0.0 && error(i).is_finite() && sigma[i].is_finite())
+        .collect();
+    let n = survey.len() as f64;
+    let rms = |f: &dyn Fn(usize) -> f64| (survey.iter().map(|&i| f(i).powi(2)).sum::<f64>() / n).sqrt();
+    let within = |k: f64| {
+        survey
+            .iter()
+            .filter(|&&i| (error(i) - level).abs() <= k * sigma[i])
+            .count() as f64
+            / n
+    };
+    ColumnCoverage {
+        sigma_rms_nt: rms(&|i| sigma[i]),
+        error_rms_nt: rms(&|i| error(i) - level),
+        within: [within(1.0), within(2.0)],
+        samples: survey.len(),
     }
 }
 

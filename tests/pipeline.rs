@@ -79,7 +79,10 @@ fn every_row_and_column_survives_and_missing_rows_are_flagged() {
     assert_eq!(out_lines.len(), lines.len(), "every input row is written");
     assert_eq!(
         out_lines[0],
-        format!("{},mag_1_c,mag_2_c,{VECTOR_COLUMNS},flags", lines[0])
+        format!(
+            "{},mag_1_c,mag_1_c_sigma,mag_2_c,mag_2_c_sigma,{VECTOR_COLUMNS},flags",
+            lines[0]
+        )
     );
     for (input, output) in lines.iter().zip(&out_lines).skip(1) {
         assert!(output.starts_with(input.as_str()), "input columns are copied unchanged");
@@ -88,14 +91,18 @@ fn every_row_and_column_survives_and_missing_rows_are_flagged() {
     // Without the fluxgate: no compensated scalar and no vector.
     let vector_gap = cells(out_lines[rows - 100]);
     assert_eq!(
-        vector_gap[vector_gap.len() - 9..],
-        ["", "", "", "", "", "", "", "", "missing_vector:flux_a"]
+        vector_gap[vector_gap.len() - 11..],
+        ["", "", "", "", "", "", "", "", "", "", "missing_vector:flux_a"]
     );
+    // Without mag_2: neither its value nor its sigma; mag_1's sigma is a
+    // positive number of nT.
     let scalar_gap = cells(out_lines[rows - 50]);
-    assert_eq!(scalar_gap[scalar_gap.len() - 8], "");
-    assert!(scalar_gap[scalar_gap.len() - 7..scalar_gap.len() - 1]
-        .iter()
-        .all(|c| c.parse::<f64>().is_ok()));
+    let n = scalar_gap.len();
+    assert_eq!(scalar_gap[n - 9..n - 7], ["", ""]);
+    let sigma_1: f64 = scalar_gap[n - 10].parse().unwrap();
+    assert!(sigma_1 > 0.0 && sigma_1 < 1.0, "{sigma_1}");
+    assert!(scalar_gap[n - 11].parse::<f64>().is_ok());
+    assert!(scalar_gap[n - 7..n - 1].iter().all(|c| c.parse::<f64>().is_ok()));
     assert_eq!(scalar_gap[scalar_gap.len() - 1], "missing_scalar:mag_2_uc");
     assert!(!cells(out_lines[rows - 49]).last().unwrap().contains("missing"));
 }
@@ -297,18 +304,20 @@ fn awkward_csv_text_is_copied_verbatim() {
     assert_eq!(out_lines.len(), lines.len(), "one output line per input record");
     assert_eq!(
         out_lines[0],
-        format!("{},mag_1_c,mag_2_c,{VECTOR_COLUMNS},flags", lines[0])
+        format!(
+            "{},mag_1_c,mag_1_c_sigma,mag_2_c,mag_2_c_sigma,{VECTOR_COLUMNS},flags",
+            lines[0]
+        )
     );
     for (input, output) in lines.iter().zip(&out_lines).skip(1) {
         let appended = output
             .strip_prefix(input.as_str())
             .expect("input record copied unchanged");
         let cells: Vec<&str> = appended.split(',').collect();
-        assert_eq!(cells.len(), 10, "{appended}");
-        assert!(
-            cells[1].parse::<f64>().is_ok() && cells[2].parse::<f64>().is_ok(),
-            "{appended}"
-        );
+        // Empty first cell (after the input's last comma), then mag_1_c,
+        // its sigma, mag_2_c, its sigma, six vector cells and the flags.
+        assert_eq!(cells.len(), 12, "{appended}");
+        assert!(cells[1..5].iter().all(|c| c.parse::<f64>().is_ok()), "{appended}");
     }
 }
 

@@ -155,7 +155,18 @@ fn new_column_names(existing: &[String], compensation: &Compensation) -> Vec<Str
     let mut added: Vec<String> = Vec::new();
     for channel in &compensation.channels {
         let taken: Vec<String> = existing.iter().chain(&added).cloned().collect();
-        added.push(output_column_name(&channel.channel, &taken));
+        let name = output_column_name(&channel.channel, &taken);
+        if channel.sigma_nt.is_some() {
+            // `mag_<n>_c_sigma` beside `mag_<n>_c` (CONTRACT §3).
+            let sigma = format!("{name}_sigma");
+            added.push(name);
+            added.push(match existing.iter().chain(&added).any(|n| *n == sigma) {
+                true => format!("{sigma}_magcomp"),
+                false => sigma,
+            });
+        } else {
+            added.push(name);
+        }
     }
     for vector in &compensation.vectors {
         for axis in ["x", "y", "z", "n", "e", "d"] {

@@ -115,6 +115,17 @@ impl ModelSpec {
     }
 }
 
+/// How uncertain a model's prediction is, row by row, from the blocked
+/// jackknife of its coefficients ([`FittedModel::prediction_sigma`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct PredictionSigma {
+    /// One sigma of the prediction relative to its mean over the
+    /// calibration windows, per row, nT.
+    pub relative_nt: Vec<f64>,
+    /// One sigma of the prediction's mean over the calibration windows, nT.
+    pub level_nt: f64,
+}
+
 /// A fitted model of one scalar channel; it predicts the interference.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct FittedModel {
@@ -305,7 +316,7 @@ impl FittedModel {
     /// - $\sqrt{\sum_f \bar p_f^2}$: one sigma of that level, nT.
     ///
     /// The second-order term's share is left out.
-    pub fn prediction_sigma(&self, log: &FlightLog) -> Result<Option<(Vec<f64>, f64)>> {
+    pub fn prediction_sigma(&self, log: &FlightLog) -> Result<Option<PredictionSigma>> {
         let deviations = &self.solution.jackknife;
         if deviations.is_empty() {
             return Ok(None);
@@ -336,7 +347,7 @@ impl FittedModel {
                 sum / n.max(1) as f64
             })
             .collect();
-        let per_row = (0..log.len())
+        let relative_nt = (0..log.len())
             .map(|row| {
                 (deviations.iter().zip(&levels))
                     .map(|(d, level)| (predict(row, d) - level).powi(2))
@@ -344,8 +355,10 @@ impl FittedModel {
                     .sqrt()
             })
             .collect();
-        let level = levels.iter().map(|l| l * l).sum::<f64>().sqrt();
-        Ok(Some((per_row, level)))
+        Ok(Some(PredictionSigma {
+            relative_nt,
+            level_nt: levels.iter().map(|l| l * l).sum::<f64>().sqrt(),
+        }))
     }
 
     /// The model's vector sensor in `log`; an error when `log` lacks it

@@ -17,7 +17,7 @@ use serde::Serialize;
 
 use crate::compensate::CompensatedChannel;
 use crate::flight_log::FlightLog;
-use crate::model::{FittedModel, WindowFit};
+use crate::model::{FittedModel, PredictionSigma, WindowFit};
 use crate::windows::ManoeuvreKind;
 
 /// Figures for one calibration window.
@@ -212,9 +212,15 @@ pub const LEVEL_UNCERTAINTY_WARNING_NT: f64 = 10.0;
 /// The [`Uncertainty`] of `model`'s compensation on `log`; `None` without a
 /// jackknife (fewer than three windows) or a row outside the windows.
 pub fn uncertainty(log: &FlightLog, model: &FittedModel) -> crate::error::Result<Option<Uncertainty>> {
-    let Some((sigma, level_sigma_nt)) = model.prediction_sigma(log)? else {
+    let Some(prediction) = model.prediction_sigma(log)? else {
         return Ok(None);
     };
+    Ok(uncertainty_of(log, model, &prediction))
+}
+
+/// The figures of [`uncertainty`] from the model's per-row sigma.
+pub fn uncertainty_of(log: &FlightLog, model: &FittedModel, prediction: &PredictionSigma) -> Option<Uncertainty> {
+    let (sigma, level_sigma_nt) = (&prediction.relative_nt, prediction.level_nt);
     let mut inside = vec![false; log.len()];
     for window in &model.windows {
         for row in window.window.rows(log.time_s()) {
@@ -227,20 +233,18 @@ pub fn uncertainty(log: &FlightLog, model: &FittedModel) -> crate::error::Result
             .fold((0.0, 0usize), |(s, n), i| (s + sigma[i] * sigma[i], n + 1));
         (count > 0).then(|| (sum / count as f64).sqrt())
     };
-    let Some(outside_calibration_sigma_nt) = rms(&mut (0..log.len()).filter(|&i| !inside[i])) else {
-        return Ok(None);
-    };
+    let outside_calibration_sigma_nt = rms(&mut (0..log.len()).filter(|&i| !inside[i]))?;
     let lines = log
         .survey_lines()
         .into_iter()
         .filter_map(|(line, rows)| Some((line, rms(&mut rows.into_iter())?)))
         .collect();
-    Ok(Some(Uncertainty {
+    Some(Uncertainty {
         windows: model.solution.jackknife.len(),
         outside_calibration_sigma_nt,
         lines,
         level_sigma_nt,
-    }))
+    })
 }
 
 /// Quality figures of one channel's fit and compensation.
