@@ -42,7 +42,8 @@ use crate::windows::CalibrationWindow;
 pub(crate) struct RawCampaign {
     /// Glob patterns of flight files, relative to pipeline.toml.
     pub inputs: Vec<String>,
-    /// A manifest of flights: CSV, or JSON lines (`.jsonl`, `.ndjson`).
+    /// A manifest of flights: CSV, or JSON lines (`.jsonl`, `.ndjson`,
+    /// `.json`; a `.json` file may also hold one array of objects).
     pub manifest: Option<PathBuf>,
 }
 
@@ -214,8 +215,9 @@ fn raw_flight(input: PathBuf) -> RawFlight {
     }
 }
 
-/// The flights of a manifest file: JSON lines by its extension (`.jsonl`,
-/// `.ndjson`), CSV otherwise.
+/// The flights of a manifest file: JSON by its extension (`.jsonl`,
+/// `.ndjson`, `.json`: one object a line, or in `.json` one array), CSV
+/// otherwise.
 fn read_manifest(path: &Path) -> Result<Vec<RawFlight>> {
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, "reading", e))?;
     let extension = path
@@ -224,9 +226,27 @@ fn read_manifest(path: &Path) -> Result<Vec<RawFlight>> {
         .map(str::to_ascii_lowercase)
         .unwrap_or_default();
     match extension.as_str() {
-        "jsonl" | "ndjson" => read_json_lines(path, &text),
+        "json" if text.trim_start().starts_with('[') => read_json_array(path, &text),
+        "jsonl" | "ndjson" | "json" => read_json_lines(path, &text),
         _ => read_manifest_csv(path, &text),
     }
+}
+
+/// A `.json` manifest holding one array of flight objects.
+fn read_json_array(path: &Path, text: &str) -> Result<Vec<RawFlight>> {
+    let rows: Vec<ManifestRow> = serde_json::from_str(text).map_err(|e| {
+        manifest_error(
+            path,
+            e.line(),
+            format!("{e}; give an array of objects such as [{{\"input\": \"flight.csv\"}}], or one object a line"),
+        )
+    })?;
+    rows.into_iter()
+        .enumerate()
+        .map(|(index, row)| {
+            from_row(row).map_err(|m| manifest_error(path, index + 1, format!("flight {}: {m}", index + 1)))
+        })
+        .collect()
 }
 
 fn manifest_error(path: &Path, line: usize, problem: String) -> Error {
@@ -381,7 +401,13 @@ mod tests {
              \n\
              {\"input\": \"b.csv\", \"windows\": \"b.windows.json\"}\n",
         );
-        for path in [csv, jsonl] {
+        let array = write(
+            folder.path(),
+            "m.json",
+            "[{\"input\": \"a.csv\", \"windows\": [\"100:200\", \"300:400\"], \"channels\": \"mag_1_uc;mag_2_uc\",\n \
+               \"date\": \"2020-06-20\", \"aircraft\": \"C-FTLL\"},\n {\"input\": \"b.csv\", \"windows\": \"b.windows.json\"}]",
+        );
+        for path in [csv, jsonl, array] {
             let flights = read_manifest(&path).unwrap();
             assert_eq!(flights.len(), 2, "{}", path.display());
             assert_eq!(flights[0].input, PathBuf::from("a.csv"));
