@@ -327,6 +327,7 @@ fn spinner(message: String) -> ProgressBar {
 
 fn run(config: &Path, plain: bool, force: bool, shard: Option<&str>) -> anyhow::Result<()> {
     let mut pipeline = Pipeline::load(config)?;
+    print_notes(&pipeline.notes);
     if plain {
         pipeline.settings.diagnose.apply = ApplyDiagnosis::Never;
     }

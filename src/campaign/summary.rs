@@ -225,9 +225,23 @@ impl CampaignSummary {
 
     /// `campaign_summary.csv`.
     pub fn flights_csv(&self) -> String {
-        let mut text = String::from(
-            "flight,input,aircraft,date,state,rows,warnings,channel,fom_before_nt,fom_after_nt,improvement_ratio,band_std_after_nt,findings,problem\n",
-        );
+        let header = [
+            "flight",
+            "input",
+            "aircraft",
+            "date",
+            "state",
+            "rows",
+            "warnings",
+            "channel",
+            "fom_before_nt",
+            "fom_after_nt",
+            "improvement_ratio",
+            "band_std_after_nt",
+            "findings",
+            "problem",
+        ];
+        let mut rows = vec![header.map(String::from).to_vec()];
         for flight in &self.flights {
             let status = &flight.status;
             let head = [
@@ -239,22 +253,14 @@ impl CampaignSummary {
                 status.rows.map(|r| r.to_string()).unwrap_or_default(),
                 status.warnings.len().to_string(),
             ];
-            let problem = status
-                .error
-                .iter()
-                .chain(&flight.problems)
-                .cloned()
-                .collect::<Vec<_>>()
-                .join("; ");
             if flight.channels.is_empty() {
-                let row: Vec<String> = head
-                    .iter()
-                    .cloned()
-                    .chain(vec![String::new(); 6])
-                    .chain([problem])
-                    .collect();
-                text += &csv_row(&row);
-                continue;
+                rows.push(
+                    head.iter()
+                        .cloned()
+                        .chain(vec![String::new(); 6])
+                        .chain([flight.problem()])
+                        .collect(),
+                );
             }
             for channel in &flight.channels {
                 let figures = [
@@ -264,12 +270,12 @@ impl CampaignSummary {
                     figure(channel.improvement_ratio),
                     figure(channel.band_std_after_nt),
                     channel.findings.join("; "),
-                    problem.clone(),
+                    flight.problem(),
                 ];
-                text += &csv_row(&head.iter().cloned().chain(figures).collect::<Vec<_>>());
+                rows.push(head.iter().cloned().chain(figures).collect());
             }
         }
-        text
+        csv_text(&rows)
     }
 
     /// `campaign_coefficients.csv`, or `None` when no aircraft recurs.
@@ -278,11 +284,12 @@ impl CampaignSummary {
         if recurring.is_empty() {
             return None;
         }
-        let mut text = String::from("aircraft,date,flight,channel,term,coefficient,sigma\n");
+        let header = ["aircraft", "date", "flight", "channel", "term", "coefficient", "sigma"];
+        let mut rows = vec![header.map(String::from).to_vec()];
         for (aircraft, flights) in &recurring {
             for flight in flights {
                 for c in &flight.coefficients {
-                    text += &csv_row(&[
+                    rows.push(vec![
                         aircraft.clone(),
                         flight.status.date.clone().unwrap_or_default(),
                         flight.status.flight.clone(),
@@ -294,7 +301,7 @@ impl CampaignSummary {
                 }
             }
         }
-        Some(text)
+        Some(csv_text(&rows))
     }
 
     /// The lines `summarize` prints.
@@ -335,13 +342,7 @@ impl CampaignSummary {
         page += "<h2>Flights</h2>\n<table><tr><th class=\"text\">flight</th><th class=\"text\">aircraft</th><th class=\"text\">date</th><th class=\"text\">state</th><th>rows</th><th>warnings</th><th class=\"text\">channel</th><th>FOM before, nT</th><th>FOM after, nT</th><th>IR</th><th class=\"text\">findings applied</th><th class=\"text\">problem</th></tr>\n";
         for flight in &self.flights {
             let status = &flight.status;
-            let problem = status
-                .error
-                .iter()
-                .chain(&flight.problems)
-                .cloned()
-                .collect::<Vec<_>>()
-                .join("; ");
+            let problem = flight.problem();
             let class = match status.state {
                 FlightState::Failed => " class=\"failed\"",
                 FlightState::Done => "",
@@ -476,14 +477,28 @@ fn figure(value: Option<f64>) -> String {
     value.map(|v| format!("{v:.4}")).unwrap_or_default()
 }
 
-/// One CSV line, quoting the fields that need it.
-fn csv_row(fields: &[String]) -> String {
-    let quoted: Vec<String> = fields
-        .iter()
-        .map(|f| match f.contains([',', '"', '\n', '\r']) {
-            true => format!("\"{}\"", f.replace('"', "\"\"")),
-            false => f.clone(),
-        })
-        .collect();
-    quoted.join(",") + "\n"
+/// `rows` as CSV text, fields quoted where they need it.
+fn csv_text(rows: &[Vec<String>]) -> String {
+    let mut writer = csv::Writer::from_writer(Vec::new());
+    for row in rows {
+        // Writing to memory cannot fail.
+        let _ = writer.write_record(row);
+    }
+    let bytes = writer.into_inner().unwrap_or_default();
+    String::from_utf8_lossy(&bytes).into_owned()
+}
+
+impl SummaryFlight {
+    /// Why the flight failed and what of it could not be read, in one
+    /// cell (empty when nothing is wrong).
+    fn problem(&self) -> String {
+        let status = &self.status;
+        status
+            .error
+            .iter()
+            .chain(&self.problems)
+            .cloned()
+            .collect::<Vec<_>>()
+            .join("; ")
+    }
 }

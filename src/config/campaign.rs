@@ -108,14 +108,16 @@ const MANIFEST_COLUMNS: [&str; 7] = [
 ];
 
 /// The flights `campaign` names, after the `explicit` ones: the manifest's
-/// rows, then each pattern's matches not already named. Reads the manifest
-/// and lists folders; `base` is pipeline.toml's folder.
+/// rows, then each pattern's matches not already named; and a note for
+/// each pattern that matched files in the output folder, which are left
+/// out. Reads the manifest and lists folders; `base` is pipeline.toml's
+/// folder.
 pub(crate) fn campaign_flights(
     campaign: &RawCampaign,
     explicit: &[RawFlight],
     (base, output_directory): (&Path, &Path),
     source_name: &str,
-) -> Result<Vec<RawFlight>> {
+) -> Result<(Vec<RawFlight>, Vec<String>)> {
     // A pattern such as "**/*.csv" also matches the compensated files of
     // earlier runs when the output folder lies below; they are outputs,
     // not flights.
@@ -138,17 +140,26 @@ pub(crate) fn campaign_flights(
         }
         named.push(key);
     }
+    let mut notes = Vec::new();
     for pattern in &campaign.inputs {
+        let mut left_out = 0;
         for path in glob_matches(pattern, base, source_name)? {
             let key = path_key(&path);
-            let an_output = outputs.as_ref().is_some_and(|folder| key.starts_with(folder));
-            if !an_output && !named.contains(&key) {
+            if outputs.as_ref().is_some_and(|folder| key.starts_with(folder)) {
+                left_out += 1;
+            } else if !named.contains(&key) {
                 named.push(key);
                 flights.push(raw_flight(path));
             }
         }
+        if left_out > 0 {
+            notes.push(format!(
+                "[campaign] inputs: {pattern:?} matches {left_out} file(s) in the output folder {}; they are outputs of earlier runs, not flights, and are left out",
+                output_directory.display()
+            ));
+        }
     }
-    Ok(flights)
+    Ok((flights, notes))
 }
 
 /// A path to compare flights by: the file itself when it exists (so
@@ -220,11 +231,7 @@ fn raw_flight(input: PathBuf) -> RawFlight {
 /// otherwise.
 fn read_manifest(path: &Path) -> Result<Vec<RawFlight>> {
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, "reading", e))?;
-    let extension = path
-        .extension()
-        .and_then(|e| e.to_str())
-        .map(str::to_ascii_lowercase)
-        .unwrap_or_default();
+    let extension = crate::formats::lowercase_extension(path);
     match extension.as_str() {
         "json" if text.trim_start().starts_with('[') => read_json_array(path, &text),
         "jsonl" | "ndjson" | "json" => read_json_lines(path, &text),
@@ -450,7 +457,13 @@ mod tests {
             inputs: vec!["f/**/*.csv".into(), "out/*.csv".into()],
             manifest: None,
         };
-        let flights = campaign_flights(&campaign, &[own], (folder.path(), Path::new("f/out")), "p.toml").unwrap();
+        let (flights, notes) =
+            campaign_flights(&campaign, &[own], (folder.path(), Path::new("f/out")), "p.toml").unwrap();
+        assert_eq!(notes.len(), 1, "{notes:?}");
+        assert!(
+            notes[0].contains("\"f/**/*.csv\" matches 1 file(s) in the output folder"),
+            "{notes:?}"
+        );
         let names: Vec<String> = flights
             .iter()
             .map(|f| {

@@ -383,6 +383,8 @@ pub struct Pipeline {
     pub output_directory: PathBuf,
     /// Flights to process.
     pub flights: Vec<FlightJob>,
+    /// What reading the campaign left out, and why, for the user.
+    pub notes: Vec<String>,
 }
 
 /// The validated settings of a run, shared by every flight: each stage
@@ -448,9 +450,11 @@ impl Pipeline {
         })?;
         let base = path.parent().unwrap_or(Path::new("."));
         let mut raw = raw;
-        raw.flights =
+        let (flights, notes) =
             campaign::campaign_flights(&raw.campaign, &raw.flights, (base, &raw.output.directory), &source_name)?;
+        raw.flights = flights;
         let (mut pipeline, windows_files) = Pipeline::validate(raw, base, &source_name)?;
+        pipeline.notes = notes;
         let margin_s = pipeline.settings.detect.window_margin_s;
         for file in windows_files {
             let windows = read_detect_json(&file.path, margin_s)?;
@@ -528,6 +532,7 @@ impl Pipeline {
             settings,
             output_directory: base.join(raw.output.directory),
             flights,
+            notes: Vec::new(),
         };
         Ok((pipeline, windows_files))
     }

@@ -120,7 +120,7 @@ pub fn prepare(inputs: &[&Path], outputs: &[Destination]) -> Result<Vec<String>>
         if let Some(note) = create_folder(&folder, output)? {
             notes.push(note);
         }
-        remove_stale_temporaries(&folder);
+        remove_stale_temporaries_once(&folder);
         check_writable(&folder, output)?;
         folders.push(folder);
     }
@@ -128,12 +128,7 @@ pub fn prepare(inputs: &[&Path], outputs: &[Destination]) -> Result<Vec<String>>
 }
 
 fn check_extension(output: &Destination) -> Result<()> {
-    let extension = output
-        .path
-        .extension()
-        .and_then(|e| e.to_str())
-        .map(str::to_ascii_lowercase)
-        .unwrap_or_default();
+    let extension = super::lowercase_extension(&output.path);
     let allowed = output.kind.extensions();
     if allowed.contains(&extension.as_str()) {
         return Ok(());
@@ -333,6 +328,20 @@ fn temporary_in(folder: &Path) -> std::io::Result<tempfile::NamedTempFile> {
         .prefix(&temporary_prefix())
         .suffix(".tmp")
         .tempfile_in(folder)
+}
+
+/// [`remove_stale_temporaries`] the first time this process prepares
+/// outputs in `folder`: a campaign prepares every flight's outputs in one
+/// folder of thousands of files, and listing it each time would cost
+/// flights × files.
+fn remove_stale_temporaries_once(folder: &Path) {
+    static CLEANED: std::sync::Mutex<Vec<PathBuf>> = std::sync::Mutex::new(Vec::new());
+    let key = std::fs::canonicalize(folder).unwrap_or_else(|_| folder.to_path_buf());
+    let mut cleaned = CLEANED.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+    if !cleaned.contains(&key) {
+        remove_stale_temporaries(folder);
+        cleaned.push(key);
+    }
 }
 
 /// Removes magcomp's temporary files in `folder` whose process is gone: a

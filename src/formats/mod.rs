@@ -77,14 +77,19 @@ pub enum Format {
     Hdf5,
 }
 
+/// The extension of `path` in lowercase, without the dot (empty when it
+/// has none or it is not UTF-8).
+pub fn lowercase_extension(path: &Path) -> String {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase)
+        .unwrap_or_default()
+}
+
 /// Chooses the format of `path` from its extension, or from its first bytes
 /// when the extension says nothing.
 pub fn detect_format(path: &Path) -> Result<Format> {
-    let extension = path
-        .extension()
-        .and_then(|e| e.to_str())
-        .map(str::to_ascii_lowercase)
-        .unwrap_or_default();
+    let extension = lowercase_extension(path);
     match extension.as_str() {
         "csv" | "txt" | "tsv" | "dat" => return Ok(Format::DelimitedText),
         "xyz" => return Ok(Format::Xyz),

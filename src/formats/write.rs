@@ -135,11 +135,7 @@ pub fn stage_flight_log(log: &FlightLog, output: &Path) -> Result<Staged> {
 
 /// The format an output path asks for, by extension (CSV by default).
 pub fn detect_output_format(output: &Path) -> Format {
-    let extension = output
-        .extension()
-        .and_then(|e| e.to_str())
-        .map(str::to_ascii_lowercase)
-        .unwrap_or_default();
+    let extension = super::lowercase_extension(output);
     match extension.as_str() {
         "xyz" => Format::Xyz,
         "mcap" => Format::Mcap,
