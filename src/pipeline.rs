@@ -450,9 +450,18 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
             let mut quality = assess_quality(log, model, channel);
             if let Some(prediction) = model.prediction_sigma(log)? {
                 quality.uncertainty = crate::quality::uncertainty_of(log, model, &prediction);
-                let noise =
-                    (quality.survey_noise_4th_difference_after_nt).unwrap_or(quality.noise_4th_difference_after_nt);
-                channel.set_sigma(&prediction, noise);
+                let noise = [
+                    quality.survey_noise_4th_difference_after_nt,
+                    Some(quality.noise_4th_difference_after_nt),
+                ]
+                .into_iter()
+                .flatten()
+                .find(|n| n.is_finite());
+                // Without a noise figure there is no sigma column; the
+                // run warns below.
+                if let Some(noise) = noise {
+                    channel.set_sigma(&prediction, noise);
+                }
             }
             quality.transfer = check_transfer(
                 log,
@@ -521,8 +530,14 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
         warnings.extend(detection_warnings(detection));
     }
     let next_step = next_step(options.diagnose.apply, job.diagnosis.is_some(), diagnosis.is_some());
-    for (q, model) in quality.iter().zip(&models) {
+    for ((q, model), channel) in quality.iter().zip(&models).zip(&compensation.channels) {
         warnings.extend(crate::quality::quality_warnings(q, options.fom_limit_nt, next_step));
+        if q.uncertainty.is_some() && channel.sigma_nt.is_none() {
+            warnings.push(format!(
+                "{}: no sigma column: the compensated channel's noise cannot be measured (too few consecutive samples)",
+                model.channel
+            ));
+        }
         if model.solution.jackknife.is_empty() && model.windows.len() >= 3 {
             let why = match model.solver.as_ref().filter(|s| s.applied()) {
                 Some(solver) => format!(
