@@ -24,6 +24,13 @@ pub enum VectorAxis {
     Z,
 }
 
+/// The rotation from body axes (forward, right, down) to north-east-down:
+/// $R_{nb} = R_z(\psi) R_y(\theta) R_x(\phi)$, yaw ψ clockwise from north,
+/// pitch θ nose up, roll φ right wing down (CONTRACT §1).
+pub fn body_to_ned(roll_deg: f64, pitch_deg: f64, yaw_deg: f64) -> nalgebra::Rotation3<f64> {
+    nalgebra::Rotation3::from_euler_angles(roll_deg.to_radians(), pitch_deg.to_radians(), yaw_deg.to_radians())
+}
+
 /// The three INS attitude angles, in degrees (CONTRACT §1 conventions).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum AttitudeAngle {
@@ -328,6 +335,22 @@ impl FlightLog {
     /// axes.
     pub fn vector_sensor(&self, prefix: &str) -> Option<VectorSensor> {
         self.vector_sensors().into_iter().find(|s| s.prefix == prefix)
+    }
+
+    /// The INS attitude (roll, pitch, yaw) columns, degrees; `None`
+    /// unless all three are recorded.
+    pub fn attitude(&self) -> Option<[&[f64]; 3]> {
+        let angle = |wanted: AttitudeAngle| {
+            self.channels
+                .iter()
+                .find(|c| c.role == ChannelRole::Attitude(wanted))
+                .map(|c| c.values.as_slice())
+        };
+        Some([
+            angle(AttitudeAngle::Roll)?,
+            angle(AttitudeAngle::Pitch)?,
+            angle(AttitudeAngle::Yaw)?,
+        ])
     }
 
     /// The x, y, z sample columns of `sensor`.

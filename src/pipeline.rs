@@ -111,7 +111,7 @@ fn vector_stage(
     if !options.enabled {
         return stage;
     }
-    if crate::vector::attitude(log).is_none() {
+    if log.attitude().is_none() {
         stage
             .notes
             .push("no vector compensation: the flight records no INS attitude (roll, pitch and yaw)".into());

@@ -24,6 +24,19 @@ pub enum ManoeuvreKind {
     Yaw,
 }
 
+impl ManoeuvreKind {
+    /// The attitude offset (roll, pitch, yaw), degrees, of this manoeuvre
+    /// swung `angle_deg` from level: the simulator's pilot and the
+    /// excitation analysis's candidate manoeuvres both fly it, as a sine.
+    pub fn attitude_offset(self, angle_deg: f64) -> [f64; 3] {
+        match self {
+            ManoeuvreKind::Roll => [angle_deg, 0.0, 0.0],
+            ManoeuvreKind::Pitch => [0.0, angle_deg, 0.0],
+            ManoeuvreKind::Yaw => [0.0, 0.0, angle_deg],
+        }
+    }
+}
+
 /// One calibration window, in the flight log's own time unit.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]

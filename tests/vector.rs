@@ -288,7 +288,7 @@ fn ins_floor(
     truth: &magcomp::simulate::FluxgateTruth,
     rows: &[usize],
 ) -> [f64; 3] {
-    let [roll, pitch, yaw] = magcomp::vector::attitude(log).unwrap();
+    let [roll, pitch, yaw] = log.attitude().unwrap();
     let mut squares = [0.0; 3];
     for &i in rows {
         let body = nalgebra::Vector3::new(

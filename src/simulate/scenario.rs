@@ -28,6 +28,7 @@
 //! roll_deg = 10.0
 //! yaw_deg = 5.0
 //! omit = ["yaw@290"]        # manoeuvres the pilot forgets
+//! weaken = ["roll@110=0.2"] # manoeuvres flown at a fraction of the amplitude
 //! turbulence_deg = 0.05
 //!
 //! [survey]
@@ -156,6 +157,9 @@ pub struct Calibration {
     pub yaw_deg: f64,
     /// Manoeuvres left out, as `kind@heading`, e.g. `yaw@290`.
     pub omit: Vec<String>,
+    /// Manoeuvres flown at a fraction of their amplitude, as
+    /// `kind@heading=fraction`, e.g. `roll@110=0.2`.
+    pub weaken: Vec<String>,
     /// Standard deviation of attitude turbulence on the legs, degrees.
     pub turbulence_deg: f64,
     /// Standard deviation of a slow (30 s) drift of the held heading on the
@@ -207,6 +211,7 @@ impl Default for Calibration {
             roll_deg: 10.0,
             yaw_deg: 5.0,
             omit: Vec::new(),
+            weaken: Vec::new(),
             turbulence_deg: 0.05,
             heading_wander_deg: 0.0,
             speed_m_s: 70.0,
@@ -576,6 +581,9 @@ fn check_flight_plan(raw: &RawScenario) -> std::result::Result<(), String> {
     for omitted in &box_.omit {
         parse_omission(omitted)?;
     }
+    for weakened in &box_.weaken {
+        parse_weakening(weakened)?;
+    }
     for (name, range) in [("lead_in_s", box_.lead_in_s), ("pause_s", box_.pause_s)] {
         if !(range[0] >= 0.0 && range[0] <= range[1] && range[1] < 3600.0) {
             return Err(format!(
@@ -605,6 +613,19 @@ pub fn parse_omission(text: &str) -> std::result::Result<(crate::windows::Manoeu
         _ => return Err(bad()),
     };
     Ok((kind, heading.trim().parse::<f64>().map_err(|_| bad())?))
+}
+
+/// Parses `kind@heading=fraction` (e.g. `roll@110=0.2`) into the kind,
+/// heading and the fraction of the amplitude flown (0 to 1).
+pub fn parse_weakening(text: &str) -> std::result::Result<(crate::windows::ManoeuvreKind, f64, f64), String> {
+    let bad = || format!("[calibration] weaken = \"{text}\": write kind@heading=fraction, e.g. \"roll@110=0.2\", the fraction from 0 to 1");
+    let (manoeuvre, fraction) = text.split_once('=').ok_or_else(bad)?;
+    let (kind, heading) = parse_omission(manoeuvre).map_err(|_| bad())?;
+    let fraction: f64 = fraction.trim().parse().map_err(|_| bad())?;
+    if !(0.0..=1.0).contains(&fraction) {
+        return Err(bad());
+    }
+    Ok((kind, heading, fraction))
 }
 
 fn check_sensors(raw: &RawScenario) -> std::result::Result<(), String> {

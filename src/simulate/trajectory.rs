@@ -9,7 +9,7 @@
 use std::f64::consts::PI;
 
 use crate::simulate::random::Random;
-use crate::simulate::scenario::{parse_omission, BoxPosition, Scenario};
+use crate::simulate::scenario::{parse_omission, parse_weakening, BoxPosition, Scenario};
 use crate::windows::ManoeuvreKind;
 
 /// Where the aircraft is and how it is oriented at one internal sample.
@@ -228,7 +228,7 @@ impl Pilot<'_> {
         }
     }
 
-    fn manoeuvre(&mut self, scenario: &Scenario, kind: ManoeuvreKind, heading_deg: f64) {
+    fn manoeuvre(&mut self, scenario: &Scenario, kind: ManoeuvreKind, heading_deg: f64, fraction: f64) {
         let box_ = &scenario.raw.calibration;
         let cycles = self.random.integer(box_.cycles[0], box_.cycles[1]);
         let period_s = self.random.uniform(box_.period_s[0], box_.period_s[1]);
@@ -237,17 +237,12 @@ impl Pilot<'_> {
             ManoeuvreKind::Roll => box_.roll_deg,
             ManoeuvreKind::Yaw => box_.yaw_deg,
         };
-        let amplitude_deg = nominal * self.random.uniform(0.8, 1.2);
+        let amplitude_deg = nominal * self.random.uniform(0.8, 1.2) * fraction;
         let t_start_s = self.now();
         for k in 0..self.samples(cycles as f64 * period_s) {
             self.gust(box_.turbulence_deg);
             let angle = amplitude_deg * (2.0 * PI * (k + 1) as f64 * self.dt_s / period_s).sin();
-            let offset = match kind {
-                ManoeuvreKind::Roll => [angle, 0.0, 0.0],
-                ManoeuvreKind::Pitch => [0.0, angle, 0.0],
-                ManoeuvreKind::Yaw => [0.0, 0.0, angle],
-            };
-            self.step(heading_deg, offset, box_.speed_m_s);
+            self.step(heading_deg, kind.attitude_offset(angle), box_.speed_m_s);
         }
         self.path.manoeuvres.push(FlownManoeuvre {
             kind,
@@ -277,6 +272,8 @@ impl Pilot<'_> {
         let box_ = &scenario.raw.calibration;
         self.wander.1 = box_.heading_wander_deg;
         let omitted: Vec<(ManoeuvreKind, f64)> = box_.omit.iter().filter_map(|o| parse_omission(o).ok()).collect();
+        let weakened: Vec<(ManoeuvreKind, f64, f64)> =
+            box_.weaken.iter().filter_map(|w| parse_weakening(w).ok()).collect();
         let start = self.now();
         let headings = &box_.headings_deg;
         for (leg, &heading) in headings.iter().enumerate() {
@@ -285,7 +282,10 @@ impl Pilot<'_> {
             for kind in [ManoeuvreKind::Pitch, ManoeuvreKind::Roll, ManoeuvreKind::Yaw] {
                 let skipped = omitted.iter().any(|(k, h)| *k == kind && (h - heading).abs() < 0.5);
                 if !skipped {
-                    self.manoeuvre(scenario, kind, heading);
+                    let fraction = (weakened.iter())
+                        .find(|(k, h, _)| *k == kind && (h - heading).abs() < 0.5)
+                        .map_or(1.0, |w| w.2);
+                    self.manoeuvre(scenario, kind, heading, fraction);
                     let pause = self.draw(box_.pause_s);
                     self.level(pause, heading, box_.turbulence_deg, box_.speed_m_s);
                 }

@@ -55,11 +55,11 @@
 
 use std::ops::Range;
 
-use nalgebra::{Matrix3, Rotation3, Vector3};
+use nalgebra::{Matrix3, Vector3};
 use serde::Serialize;
 
 use crate::error::{Error, Result};
-use crate::flight_log::{AttitudeAngle, ChannelRole, FlightLog, VectorSensor};
+use crate::flight_log::{ChannelRole, FlightLog, VectorSensor};
 use crate::holdout::{distinct_headings, same_heading};
 use crate::igrf::{decimal_year, Igrf};
 use crate::numerics::linalg::{small_svd, tall_skinny_r};
@@ -94,12 +94,7 @@ impl Default for VectorOptions {
 /// Most Gauss-Newton iterations.
 const MOST_ITERATIONS: usize = 50;
 
-/// The rotation from body axes (forward, right, down) to north-east-down:
-/// $R_{nb} = R_z(\psi) R_y(\theta) R_x(\phi)$, yaw ψ clockwise from north,
-/// pitch θ nose up, roll φ right wing down (CONTRACT §1).
-pub fn body_to_ned(roll_deg: f64, pitch_deg: f64, yaw_deg: f64) -> Rotation3<f64> {
-    Rotation3::from_euler_angles(roll_deg.to_radians(), pitch_deg.to_radians(), yaw_deg.to_radians())
-}
+pub use crate::flight_log::body_to_ned;
 
 /// Unit vector of inclination `inclination` and declination `declination`
 /// (radians) in north-east-down, and its derivatives by each.
@@ -258,21 +253,6 @@ fn differences([far_before, before, at, after, far_after]: [Vector3<f64>; 5]) ->
     ]
 }
 
-/// The INS attitude (roll, pitch, yaw) columns of `log`, degrees.
-pub fn attitude(log: &FlightLog) -> Option<[&[f64]; 3]> {
-    let angle = |wanted: AttitudeAngle| {
-        log.channels()
-            .iter()
-            .find(|c| c.role == ChannelRole::Attitude(wanted))
-            .map(|c| c.values.as_slice())
-    };
-    Some([
-        angle(AttitudeAngle::Roll)?,
-        angle(AttitudeAngle::Pitch)?,
-        angle(AttitudeAngle::Yaw)?,
-    ])
-}
-
 /// NED → body rotation of row `i`, when its attitude is recorded.
 fn ned_to_body(attitude: &[&[f64]; 3], i: usize) -> Option<Matrix3<f64>> {
     let [roll, pitch, yaw] = attitude.map(|c| c[i]);
@@ -298,7 +278,7 @@ pub fn fit(
     tolles_lawson: Option<&crate::model::FitOptions>,
 ) -> Result<VectorModel> {
     let (reference_name, reference_nt) = (&reference.channel, reference.total_nt.as_slice());
-    let attitude = attitude(log).ok_or_else(|| Error::Vector {
+    let attitude = log.attitude().ok_or_else(|| Error::Vector {
         sensor: sensor.prefix.clone(),
         message: "the flight records no INS attitude (roll, pitch and yaw)".into(),
     })?;
@@ -1000,7 +980,7 @@ impl VectorModel {
         if let Some(stage) = &self.tolles_lawson {
             stage.apply(log, &self.sensor, &mut body_nt)?;
         }
-        let attitude = attitude(log);
+        let attitude = log.attitude();
         let rows = log.len();
         let mut ned_nt: [Vec<f64>; 3] = std::array::from_fn(|_| vec![f64::NAN; rows]);
         for i in 0..rows {
