@@ -437,6 +437,8 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
             let spec = ModelSpec::of_channel(options.terms, &plan, channel);
             let mut model = fit(log, &sensor, channel, &windows, &spec, &options.fit, &stores)?;
             model.estimators = compare_estimators(log, &sensor, channel, &windows, &spec, &options.fit, &stores)?;
+            model.excitation =
+                crate::model::excitation::analyse(log, &sensor, &model, &windows, &options.fit, &stores)?;
             Ok(model)
         })
         .collect::<Result<_>>()?;
@@ -504,6 +506,12 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
     let mut notes = renaming_notes(&channels, &added_columns);
     notes.extend(calibration.iter().map(|c| c.summary()));
     notes.extend(models.iter().filter_map(estimator_table_gap));
+    // A gap in the box is a warning: the FOM lacks a manoeuvre and the
+    // coefficients it pins are less certain.
+    warnings.extend(models.iter().flat_map(|m| {
+        let gaps = m.excitation.iter().flat_map(|e| e.gaps());
+        gaps.map(|line| format!("{}: {line}", m.channel)).collect::<Vec<_>>()
+    }));
     // A solver asked for and not used is a warning: the coefficients are
     // not what the settings say.
     warnings.extend(models.iter().filter_map(|m| {

@@ -575,6 +575,53 @@ fn estimator_table(model: &FittedModel) -> String {
     html + "</table>"
 }
 
+/// How well the manoeuvres flown pin each coefficient, and what to fly:
+/// the analysis in words, the table of terms and the candidates.
+fn excitation_section(model: &FittedModel) -> String {
+    let Some(analysis) = &model.excitation else {
+        return String::new();
+    };
+    let mut html = String::from("<h3>What the calibration pins</h3>");
+    for line in &analysis.summary {
+        let _ = write!(html, "<p>{}</p>", escape(line));
+    }
+    let _ = write!(html, "<p class=\"note\">{}</p>", escape(&analysis.candidates_from));
+    html += "<table class=\"excitation\"><tr><th>term</th><th>standard error against a full box</th><th>share no manoeuvre pins</th><th>pinned by</th></tr>";
+    for term in &analysis.terms {
+        let by: Vec<String> = (term.pinned_by.iter().take(3))
+            .map(|(label, share)| format!("{label} {:.0} %", 100.0 * share))
+            .collect();
+        let mark = if term.poorly_pinned { " class=\"fail\"" } else { "" };
+        let _ = write!(
+            html,
+            "<tr><td>{}</td><td{mark}>×{:.2}</td><td>{:.0} %</td><td>{}</td></tr>",
+            escape(&term.term),
+            term.inflation.sqrt(),
+            100.0 * term.unpinnable_fraction,
+            escape(&by.join(", "))
+        );
+    }
+    html += "</table><table class=\"advice\"><tr><th>manoeuvre</th><th>in the box</th><th>amplitude, period, length</th><th>predicted survey uncertainty, nT</th><th>change</th></tr>";
+    for candidate in &analysis.additions {
+        let state = match (candidate.gap, candidate.flown) {
+            (true, false) => "missing".to_string(),
+            (true, true) => format!("weak ({:.0} %)", 100.0 * candidate.excitation_flown),
+            (false, _) => "flown".to_string(),
+        };
+        let _ = write!(
+            html,
+            "<tr><td>{}</td><td>{state}</td><td>±{:.1}°, {:.1} s, {:.0} s</td><td>{:.4}</td><td>{:+.1} %</td></tr>",
+            escape(&candidate.label()),
+            candidate.amplitude_deg,
+            candidate.period_s,
+            candidate.duration_s,
+            candidate.survey_sigma_nt,
+            100.0 * candidate.change
+        );
+    }
+    html + "</table>"
+}
+
 fn coefficient_table(model: &FittedModel) -> String {
     let mut html = String::from(
         "<table class=\"coefficients\"><tr><th>term</th><th>coefficient</th><th>± 1σ</th><th>|σ/coefficient|</th></tr>",
@@ -837,6 +884,7 @@ pub fn stage_report(path: &Path, flight: &FlightRun, fom_limit_nt: f64) -> Resul
         html += "<h3>Coefficients</h3>";
         html += &coefficient_table(model);
         html += &estimator_table(model);
+        html += &excitation_section(model);
         if let Some(map) = line_map(log, &channel.values)? {
             let _ = write!(html, "<h3>Survey lines</h3><figure class=\"map\">{map}</figure>");
         }

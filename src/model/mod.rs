@@ -28,6 +28,7 @@
 //! compensation all go through these three functions.
 
 pub mod band;
+pub mod excitation;
 pub mod extensions;
 mod prepared;
 
@@ -158,6 +159,11 @@ pub struct FittedModel {
     /// with fewer than three headings.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub estimators: Option<Vec<crate::numerics::estimators::Scored>>,
+    /// How well the manoeuvres flown pin each coefficient, and which
+    /// manoeuvre would pin them better ([`excitation::analyse`]); set by
+    /// the pipeline for the models it compensates with.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub excitation: Option<excitation::Excitation>,
     /// The estimator the coefficients come from when `[fit] solver` is not
     /// ridge; `None` with ridge (the solution says which λ or rank).
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -321,19 +327,11 @@ impl FittedModel {
         if deviations.is_empty() {
             return Ok(None);
         }
-        let sensor = self.sensor_in(log)?;
-        let prepared = Prepared::new(log, &sensor, &self.channel, &self.spec)?;
-        let terms = self.spec.fitted_terms();
-        let design = design_matrix(&prepared.log, &sensor, &terms);
-        let count = design.columns.len();
-        let aircraft: Vec<(usize, &[f64])> = (prepared.extra.iter().enumerate())
-            .filter(|(_, c)| !c.geomagnetic)
-            .map(|(k, c)| (count + k, c.values.as_slice()))
+        let columns = self.flight_columns(log)?;
+        let aircraft: Vec<(usize, &[f64])> = (columns.iter().enumerate())
+            .filter_map(|(k, c)| Some((k, c.as_deref()?)))
             .collect();
-        let predict = |row: usize, d: &[f64]| {
-            design.predict_row(row, &d[..count.min(d.len())])
-                + aircraft.iter().map(|(k, c)| c[row] * d[*k]).sum::<f64>()
-        };
+        let predict = |row: usize, d: &[f64]| aircraft.iter().map(|(k, c)| c[row] * d[*k]).sum::<f64>();
         let calibration: Vec<usize> = (self.windows.iter())
             .flat_map(|w| w.flight_rows.iter().cloned().flatten())
             .collect();
@@ -359,6 +357,19 @@ impl FittedModel {
             relative_nt,
             level_nt: levels.iter().map(|l| l * l).sum::<f64>().sqrt(),
         }))
+    }
+
+    /// The columns the model predicts from over the whole of `log`, one
+    /// per coefficient: the fitted terms (derivatives inside runs of valid
+    /// vector samples), then the extension columns. A base-station column
+    /// is `None`: it is fitted but not predicted.
+    pub(crate) fn flight_columns(&self, log: &FlightLog) -> Result<Vec<Option<Vec<f64>>>> {
+        let sensor = self.sensor_in(log)?;
+        let prepared = Prepared::new(log, &sensor, &self.channel, &self.spec)?;
+        let design = design_matrix(&prepared.log, &sensor, &self.spec.fitted_terms());
+        Ok((design.columns.into_iter().map(Some))
+            .chain(prepared.extra.into_iter().map(|c| (!c.geomagnetic).then_some(c.values)))
+            .collect())
     }
 
     /// The model's vector sensor in `log`; an error when `log` lacks it

@@ -153,7 +153,7 @@ impl<'a> Prepared<'a> {
     }
 
     /// The extension columns as the band data takes them.
-    fn extra_columns(&self) -> Vec<&[f64]> {
+    pub(crate) fn extra_columns(&self) -> Vec<&[f64]> {
         self.extra.iter().map(|c| c.values.as_slice()).collect()
     }
 
@@ -241,6 +241,7 @@ impl<'a> Prepared<'a> {
             solution,
             windows: fits,
             estimators: None,
+            excitation: None,
         })
     }
 

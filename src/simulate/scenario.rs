@@ -618,7 +618,9 @@ pub fn parse_omission(text: &str) -> std::result::Result<(crate::windows::Manoeu
 /// Parses `kind@heading=fraction` (e.g. `roll@110=0.2`) into the kind,
 /// heading and the fraction of the amplitude flown (0 to 1).
 pub fn parse_weakening(text: &str) -> std::result::Result<(crate::windows::ManoeuvreKind, f64, f64), String> {
-    let bad = || format!("[calibration] weaken = \"{text}\": write kind@heading=fraction, e.g. \"roll@110=0.2\", the fraction from 0 to 1");
+    let bad = || {
+        format!("[calibration] weaken = \"{text}\": write kind@heading=fraction, e.g. \"roll@110=0.2\", the fraction from 0 to 1")
+    };
     let (manoeuvre, fraction) = text.split_once('=').ok_or_else(bad)?;
     let (kind, heading) = parse_omission(manoeuvre).map_err(|_| bad())?;
     let fraction: f64 = fraction.trim().parse().map_err(|_| bad())?;
