@@ -957,3 +957,67 @@ fn summarise(excitation: &Excitation) -> Vec<String> {
     }
     lines
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A sine of known amplitude and period between level flight, with a
+    /// little turbulence: the swing's amplitude within 3 % and its period
+    /// within 2 %, yaw about a heading across north included.
+    #[test]
+    fn a_swing_is_measured_from_the_attitude() {
+        for (kind, centre) in [(ManoeuvreKind::Roll, 0.0), (ManoeuvreKind::Yaw, 358.0)] {
+            let dt = 0.1;
+            let time: Vec<f64> = (0..400).map(|k| k as f64 * dt).collect();
+            let angle: Vec<f64> = time
+                .iter()
+                .map(|&t| {
+                    let swing = match (5.0..35.0).contains(&t) {
+                        true => 12.0 * (2.0 * std::f64::consts::PI * (t - 5.0) / 6.0).sin(),
+                        false => 0.0,
+                    };
+                    let value = centre + swing + 0.1 * (t * 7.3).sin();
+                    match kind {
+                        // Yaw is a heading, 0 to 360; roll is signed.
+                        ManoeuvreKind::Yaw => value.rem_euclid(360.0),
+                        _ => value,
+                    }
+                })
+                .collect();
+            let (amplitude, period, duration) = swing(&angle, 0..400, &time, kind).unwrap();
+            assert!((amplitude - 12.0).abs() < 0.36, "{kind:?} amplitude {amplitude}");
+            assert!((period - 6.0).abs() < 0.12, "{kind:?} period {period}");
+            assert!((duration - 30.0).abs() < 3.0, "{kind:?} duration {duration}");
+        }
+    }
+
+    /// The sums no rotation changes are unit vectors along the scaled
+    /// (1, 1, 1) of the diagonal terms, and absent when a term is.
+    #[test]
+    fn the_structural_sums_follow_the_scaled_diagonal_terms() {
+        let names: Vec<String> = ["perm_x", "ind_xx", "ind_yy", "ind_zz", "eddy_xx", "eddy_yy"]
+            .iter()
+            .map(|s| s.to_string())
+            .collect();
+        let scale = [1.0, 1.0, 2.0, 2.0, 1.0, 1.0];
+        let null = structural_null(&names, &scale);
+        assert_eq!(null.len(), 1, "no eddy_zz: no eddy sum");
+        let expected = [0.0, 1.0 / 3.0, 2.0 / 3.0, 2.0 / 3.0, 0.0, 0.0];
+        for (got, want) in null[0].iter().zip(expected) {
+            assert!((got - want).abs() < 1e-15, "{got} against {want}");
+        }
+    }
+
+    /// `tr(S G⁻¹)` by the inverse equals the sum of `S`'s quadratic forms
+    /// in the columns of `G⁻¹` on a small case worked by hand.
+    #[test]
+    fn the_survey_criterion_is_the_trace_of_s_against_the_inverse() {
+        let g = Mat::from_fn(2, 2, |i, j| [[4.0, 1.0], [1.0, 3.0]][i][j]);
+        let s = Mat::from_fn(2, 2, |i, j| [[2.0, 0.5], [0.5, 1.0]][i][j]);
+        let inverse = inverse_spd(&g).unwrap();
+        // G⁻¹ = [[3, −1], [−1, 4]] / 11; tr(S G⁻¹) = (6 − 0.5 − 0.5 + 4) / 11.
+        assert!((trace_product(&s, &inverse) - 9.0 / 11.0).abs() < 1e-14);
+        assert!((log_det(&g) - 11f64.ln()).abs() < 1e-14);
+    }
+}
