@@ -431,17 +431,29 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
     // The channels' fits share their stores; the stores are freed before
     // compensating, which does not need them.
     let stores = StorePool::new();
-    let models: Vec<FittedModel> = channels
+    let fitted: Vec<(FittedModel, Option<String>)> = channels
         .par_iter()
         .map(|channel| {
             let spec = ModelSpec::of_channel(options.terms, &plan, channel);
             let mut model = fit(log, &sensor, channel, &windows, &spec, &options.fit, &stores)?;
             model.estimators = compare_estimators(log, &sensor, channel, &windows, &spec, &options.fit, &stores)?;
-            model.excitation =
-                crate::model::excitation::analyse(log, &sensor, &model, &windows, &options.fit, &stores)?;
-            Ok(model)
+            // The analysis informs; a flight it cannot analyse is still
+            // compensated, and the run says why there is none.
+            let excitation = crate::model::excitation::analyse(log, &sensor, &model, &windows, &options.fit, &stores);
+            let note = match excitation {
+                Ok(Some(analysis)) => {
+                    model.excitation = Some(analysis);
+                    None
+                }
+                Ok(None) => Some(format!(
+                    "{channel}: no excitation analysis: a window's heading is unknown (none given and no INS yaw), or the windows leave the design singular"
+                )),
+                Err(e) => Some(format!("{channel}: no excitation analysis: {e}")),
+            };
+            Ok((model, note))
         })
         .collect::<Result<_>>()?;
+    let (models, excitation_notes): (Vec<FittedModel>, Vec<Option<String>>) = fitted.into_iter().unzip();
     drop(stores);
     let mut compensation = compensate(log, &models, options.level)?;
     let stores = StorePool::new();
@@ -506,6 +518,7 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
     let mut notes = renaming_notes(&channels, &added_columns);
     notes.extend(calibration.iter().map(|c| c.summary()));
     notes.extend(models.iter().filter_map(estimator_table_gap));
+    notes.extend(excitation_notes.into_iter().flatten());
     // A gap in the box is a warning: the FOM lacks a manoeuvre and the
     // coefficients it pins are less certain.
     warnings.extend(models.iter().flat_map(|m| {
