@@ -15,9 +15,10 @@
 //! a pilot would fly (pitch, roll and yaw on every heading of the box, at
 //! the amplitudes and periods flown, through the Earth's field the flight
 //! records), simulated and band-passed as the fit's windows are. Their sum
-//! $G_{\text{box}}$, scaled to the flown samples, is a full box of the same
-//! length. Directions that even $G + G_{\text{box}}$ barely sees (the
-//! induced terms' sum along the Earth's field, a constant in the band) no
+//! $G_{\text{box}}$, scaled to the same total excitation (trace) as $G$,
+//! is a full box of the same strength. Directions $G_{\text{box}}$ does not
+//! see (the sums of the diagonal induced and eddy terms, which no rotation
+//! changes, and any below [`UNPINNABLE_FRACTION`] of its spectrum) no
 //! manoeuvre pins: the regulariser sets them and they are set aside. In
 //! the rest, a coefficient whose variance exceeds the full box's fourfold
 //! (twice the standard error) is poorly pinned.
@@ -103,7 +104,8 @@ pub struct Excitation {
     /// (the pinnable part, least squares), one sigma, nT.
     pub survey_sigma_nt: f64,
     /// Rows the survey figure is taken over: survey lines, or the rows
-    /// outside the calibration windows.
+    /// outside the calibration windows; 0 when there are none and the
+    /// calibration rows stand in.
     pub survey_rows: usize,
     /// How the candidate manoeuvres were made.
     pub candidates_from: String,
@@ -271,7 +273,6 @@ pub fn analyse(
         .iter()
         .map(|f| rows_gram(|j| stacked.column_range(j, f.stacked_rows.clone()), p))
         .collect();
-    let samples = stacked.rows();
     stores.recycle(stacked);
     let total = sum(per_window.iter(), p);
     let scale: Vec<f64> = (0..p)
@@ -283,16 +284,14 @@ pub fn analyse(
     let information = sum(flown.iter(), p);
 
     // One of each kind on each heading: the candidates, and together a
-    // full box, scaled to the flown samples.
+    // full box.
     // Without manoeuvre kinds (windows given by time alone) no gap can be told.
     let kinds_known = windows.iter().any(|w| w.kind.is_some());
     let mut candidates: Vec<(Candidate, Mat<f64>)> = Vec::new();
-    let mut box_samples = 0;
     for &heading_deg in &plan.headings {
         for kind in [ManoeuvreKind::Pitch, ManoeuvreKind::Roll, ManoeuvreKind::Yaw] {
             let shape = plan.shapes[kind_index(kind)];
-            let (gram, used) = candidate_gram(&prepared, model, options, plan.field_ned, (kind, heading_deg, shape))?;
-            box_samples += used;
+            let gram = candidate_gram(&prepared, model, options, plan.field_ned, (kind, heading_deg, shape))?;
             let own: Vec<usize> = (0..fits.len())
                 .filter(|&k| {
                     let w = &fits[k].window;
@@ -328,7 +327,6 @@ pub fn analyse(
     let box_trace: f64 = (0..p).map(|i| box_information[(i, i)]).sum();
     let flown_trace: f64 = (0..p).map(|i| information[(i, i)]).sum();
     let reference = Mat::from_fn(p, p, |i, j| box_information[(i, j)] * flown_trace / box_trace);
-    let _ = (samples, box_samples);
 
     // The pinnable directions: those a full box sees, less the sums no
     // rotation can change (see [`structural_null`]).
@@ -538,7 +536,8 @@ fn rows_gram(column: impl Fn(usize) -> Vec<f64>, p: usize) -> Mat<f64> {
 
 /// The second moment, about its mean over the calibration rows, of the
 /// scaled design over the survey: the survey lines' rows, or without lines
-/// the rows outside every window; with the rows it is over.
+/// the rows outside every window (the calibration rows when there are
+/// none); with the survey rows it is over (0 for the calibration's).
 fn survey_moment(log: &FlightLog, model: &FittedModel, fits: &[WindowFit], scale: &[f64]) -> Result<(Mat<f64>, usize)> {
     let columns = model.flight_columns(log)?;
     let p = scale.len();
@@ -564,10 +563,19 @@ fn survey_moment(log: &FlightLog, model: &FittedModel, fits: &[WindowFit], scale
         }
     };
     let survey: Vec<usize> = survey.into_iter().filter(|&r| finite(r)).collect();
+    // A flight that is all calibration: its figures are over the
+    // calibration rows (`survey_rows` 0, and the summary says so).
+    let (survey, count) = match survey.is_empty() {
+        true => (calibration, 0),
+        false => {
+            let count = survey.len();
+            (survey, count)
+        }
+    };
     let centred = Mat::from_fn(survey.len(), p, |i, j| value(survey[i], j) - mean[j]);
-    let count = survey.len().max(1) as f64;
+    let rows = survey.len().max(1) as f64;
     let moment = gram(centred.as_ref());
-    Ok((Mat::from_fn(p, p, |i, j| moment[(i, j)] / count), survey.len()))
+    Ok((Mat::from_fn(p, p, |i, j| moment[(i, j)] / rows), count))
 }
 
 /// The sine a candidate manoeuvre swings through.
@@ -807,7 +815,7 @@ fn earth_field_ned(log: &FlightLog, sensor: &VectorSensor, windows: &[Calibratio
 }
 
 /// The unscaled information of one candidate manoeuvre, band-passed and
-/// trimmed as a flown window is, and the samples it keeps: the manoeuvre
+/// trimmed as a flown window is: the manoeuvre
 /// flown through `field_ned` with level flight either side, the vector
 /// magnetometer reading the field in body axes, the model's extension
 /// columns built from it (a source column held at its level, so it adds
@@ -818,7 +826,7 @@ fn candidate_gram(
     options: &FitOptions,
     field_ned: [f64; 3],
     (kind, heading_deg, shape): (ManoeuvreKind, f64, Shape),
-) -> Result<(Mat<f64>, usize)> {
+) -> Result<Mat<f64>> {
     let log = &prepared.log;
     let dt = log.median_interval_s();
     let margin = (CANDIDATE_MARGIN_S / dt).ceil() as usize + options.filter.trim_samples;
@@ -866,7 +874,7 @@ fn candidate_gram(
     let time: Vec<f64> = (0..rows).map(|k| k as f64 * dt).collect();
     let flight = FlightLog::new(log.source(), log.time_column(), time, channels)?;
     let Some(candidate_sensor) = flight.vector_sensor(&sensor.prefix) else {
-        return Ok((Mat::zeros(model.coefficients.len(), model.coefficients.len()), 0));
+        return Ok(Mat::zeros(model.coefficients.len(), model.coefficients.len()));
     };
     // The field is already what the model reads: no fluxgate calibration again.
     let mut spec = model.spec.clone();
@@ -883,13 +891,15 @@ fn candidate_gram(
         &StorePool::new(),
     )?;
     let p = data.stacked.columns();
-    let used = data.stacked.rows();
-    Ok((rows_gram(|j| data.stacked.column(j), p), used))
+    Ok(rows_gram(|j| data.stacked.column(j), p))
 }
 
 /// The analysis in a few sentences for people.
 fn summarise(excitation: &Excitation) -> Vec<String> {
     let mut lines = Vec::new();
+    if excitation.survey_rows == 0 {
+        lines.push("The flight has no survey rows (every row lies in a calibration window): the survey uncertainties below are taken over the calibration rows.".to_string());
+    }
     let poor: Vec<&TermPinning> = excitation.terms.iter().filter(|t| t.poorly_pinned).collect();
     match poor.is_empty() {
         true => lines.push(format!(
