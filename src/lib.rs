@@ -91,6 +91,7 @@ pub mod messages;
 pub mod model;
 pub mod numerics;
 pub mod pipeline;
+pub mod plan;
 pub mod quality;
 pub mod report;
 pub mod sample_flight;

@@ -135,6 +135,19 @@ enum Command {
         #[arg(long, requires = "replay")]
         config: Option<PathBuf>,
     },
+    /// Predict what a planned calibration would achieve before it is
+    /// flown: the FOM and the survey uncertainty, from simulated flights of
+    /// the plan, and the cheapest manoeuvres to add to meet a target.
+    Plan {
+        /// The plan: a scenario (SCENARIO.toml's tables) with a [plan] table.
+        plan: PathBuf,
+        /// PLAN_REPORT.json to write.
+        #[arg(long)]
+        out: PathBuf,
+        /// Settings file for the fit (flights in it are ignored).
+        #[arg(long)]
+        config: Option<PathBuf>,
+    },
     /// Write a sample flight (box and survey lines) and its calibration windows.
     SampleFlight {
         /// Output CSV.
@@ -245,6 +258,7 @@ fn main() -> ExitCode {
             diagnose(&flight, (&out, &html), &windows, config.as_deref())
         }
         Command::SampleFlight { out, windows, seed } => sample_flight(&out, &windows, seed),
+        Command::Plan { plan, out, config } => plan_calibration(&plan, &out, config.as_deref()),
         Command::Convert {
             flight,
             out,
@@ -666,6 +680,32 @@ fn simulate(scenario_path: &Path, out: &Path, seed: Option<u64>) -> anyhow::Resu
         truth_csv.display(),
         windows.display()
     );
+    Ok(())
+}
+
+fn plan_calibration(plan_path: &Path, out: &Path, config: Option<&Path>) -> anyhow::Result<()> {
+    let pipeline = Pipeline::load_or_default(config)?;
+    let plan = magcomp::plan::Plan::load(plan_path)?;
+    let mut inputs: Vec<&Path> = vec![plan_path];
+    inputs.extend(config);
+    inputs.extend(plan.settings.installation.as_deref());
+    print_notes(&prepare(&inputs, &[Destination::new(out, OutputKind::Json, "--out")])?);
+    let bar = spinner(format!(
+        "flying {} simulated flights of {}",
+        plan.settings.realisations,
+        plan_path.display()
+    ));
+    let report = magcomp::plan::predict(&plan, &pipeline.settings);
+    bar.finish_and_clear();
+    let report = report?;
+    magcomp::formats::write_json(out, "the plan report", &report)?;
+    for line in &report.summary {
+        println!("  {line}");
+    }
+    for warning in &report.warnings {
+        println!("  warning: {warning}");
+    }
+    println!("wrote {}", out.display());
     Ok(())
 }
 

@@ -188,7 +188,7 @@ impl Candidate {
     }
 
     /// "±10.0°, 6.0 s period, 30 s".
-    fn shape_words(&self) -> String {
+    pub fn shape_words(&self) -> String {
         format!(
             "±{:.1}°, {:.1} s period, {:.0} s",
             self.amplitude_deg, self.period_s, self.duration_s
@@ -201,23 +201,27 @@ impl Excitation {
     /// or weak, how to fly it and what it would do to the survey.
     pub fn gaps(&self) -> Vec<String> {
         (self.additions.iter().filter(|c| c.gap).take(4))
-            .map(|gap| {
-                let state = match gap.flown {
-                    false => "is not among the windows".to_string(),
-                    true => format!(
-                        "was flown with {:.0} % of the excitation of a typical {}",
-                        100.0 * gap.excitation_flown,
-                        kind_name(gap.kind)
-                    ),
-                };
-                format!(
-                    "The box's {} {state}: fly it ({}); {}.",
-                    gap.label(),
-                    gap.shape_words(),
-                    self.change_words(gap)
-                )
-            })
+            .map(|gap| self.gap_words(gap))
             .collect()
+    }
+
+    /// The sentence of one gap: what is missing or weak, how to fly it
+    /// and what it would do to the survey.
+    pub fn gap_words(&self, gap: &Candidate) -> String {
+        let state = match gap.flown {
+            false => "is not among the windows".to_string(),
+            true => format!(
+                "was flown with {:.0} % of the excitation of a typical {}",
+                100.0 * gap.excitation_flown,
+                kind_name(gap.kind)
+            ),
+        };
+        format!(
+            "The box's {} {state}: fly it ({}); {}.",
+            gap.label(),
+            gap.shape_words(),
+            self.change_words(gap)
+        )
     }
 
     /// "the predicted survey uncertainty goes from … to … (…)".
@@ -251,6 +255,78 @@ pub fn analyse(
     options: &FitOptions,
     stores: &StorePool,
 ) -> Result<Option<Excitation>> {
+    Ok(analyse_design(log, sensor, model, windows, options, stores)?.map(|(excitation, _)| excitation))
+}
+
+/// The information behind an analysis, for scoring sets of additions
+/// (planning): the flown information and every candidate's, scaled
+/// alike, and what turns information into the survey's uncertainty.
+#[derive(Debug, Clone)]
+pub struct Design {
+    /// The pinnable directions of the scaled coefficients (p × r).
+    basis: Mat<f64>,
+    /// The survey's second moment on them (r × r).
+    survey: Mat<f64>,
+    /// σ² per unit information.
+    noise_variance: f64,
+    /// Added to the reduced information's diagonal.
+    floor: f64,
+    /// The flown windows' scaled information (p × p).
+    flown: Mat<f64>,
+    /// Each candidate and its scaled information, in the order of
+    /// [`Excitation::additions`] before sorting: heading by heading,
+    /// pitch, roll, yaw.
+    candidates: Vec<(Candidate, Mat<f64>)>,
+}
+
+impl Design {
+    /// The candidates, unscored.
+    pub fn candidates(&self) -> impl Iterator<Item = &Candidate> {
+        self.candidates.iter().map(|c| &c.0)
+    }
+
+    /// The survey uncertainty (the coefficients' part, least squares,
+    /// one sigma, nT) with the candidates at `chosen` (indices into
+    /// [`Self::candidates`], repeats allowed) flown as well.
+    pub fn survey_sigma_with(&self, chosen: &[usize]) -> f64 {
+        let mut information = self.flown.clone();
+        for &k in chosen {
+            if let Some((_, g)) = self.candidates.get(k) {
+                information += g;
+            }
+        }
+        self.survey_sigma(&information)
+    }
+
+    /// The reduced, floored information.
+    fn reduced(&self, g: &Mat<f64>) -> Mat<f64> {
+        let mut reduced = self.basis.transpose() * g * &self.basis;
+        for k in 0..reduced.nrows() {
+            reduced[(k, k)] += self.floor;
+        }
+        reduced
+    }
+
+    /// The survey uncertainty of scaled information `g`, nT.
+    fn survey_sigma(&self, g: &Mat<f64>) -> f64 {
+        match inverse_spd(&self.reduced(g)) {
+            Some(inverse) => (self.noise_variance * trace_product(&self.survey, &inverse))
+                .max(0.0)
+                .sqrt(),
+            None => f64::INFINITY,
+        }
+    }
+}
+
+/// [`analyse`], and the information it rests on.
+pub fn analyse_design(
+    log: &FlightLog,
+    sensor: &VectorSensor,
+    model: &FittedModel,
+    windows: &[CalibrationWindow],
+    options: &FitOptions,
+    stores: &StorePool,
+) -> Result<Option<(Excitation, Design)>> {
     let prepared = Prepared::new(log, sensor, &model.channel, &model.spec)?;
     let Some(plan) = CandidatePlan::of_flight(&prepared.log, sensor, windows) else {
         return Ok(None);
@@ -343,49 +419,41 @@ pub fn analyse(
         (0..p).partition(|&k| values[k] > UNPINNABLE_FRACTION * largest);
     let r = pinnable.len();
     let basis = Mat::from_fn(p, r, |i, k| vectors[(i, pinnable[k])]);
-    let reduce = |g: &Mat<f64>| -> Mat<f64> { basis.transpose() * g * &basis };
 
     let (survey_moment, survey_rows) = survey_moment(log, model, &fits, &scale)?;
-    let survey_reduced = reduce(&survey_moment);
     // σ² per unit information: the band-passed residual's variance times
     // f_s / 2B for its autocorrelation, as the coefficient uncertainty.
     let correlation = (sample_rate_hz / (2.0 * options.filter.band.bandwidth_hz(sample_rate_hz))).max(1.0);
-    let noise_variance = model.solution.residual_rms.powi(2) * correlation;
-    // A floor for directions the flown windows leave wholly open.
-    let floor = FLOOR * flown_trace / p as f64;
-    let reduce_floored = |g: &Mat<f64>| -> Mat<f64> {
-        let mut reduced = reduce(g);
-        for k in 0..r {
-            reduced[(k, k)] += floor;
-        }
-        reduced
+    let mut design = Design {
+        survey: basis.transpose() * &survey_moment * &basis,
+        basis,
+        noise_variance: model.solution.residual_rms.powi(2) * correlation,
+        // A floor for directions the flown windows leave wholly open.
+        floor: FLOOR * flown_trace / p as f64,
+        flown: information,
+        candidates: Vec::new(),
     };
-    let survey_sigma = |g: &Mat<f64>| -> f64 {
-        match inverse_spd(&reduce_floored(g)) {
-            Some(inverse) => (noise_variance * trace_product(&survey_reduced, &inverse))
-                .max(0.0)
-                .sqrt(),
-            None => f64::INFINITY,
-        }
-    };
+    let (basis, information) = (&design.basis, &design.flown);
+    let reduce_floored = |g: &Mat<f64>| design.reduced(g);
+    let survey_sigma = |g: &Mat<f64>| design.survey_sigma(g);
     let (Some(flown_inverse), Some(reference_inverse)) = (
         inverse_spd(&reduce_floored(&information)),
         inverse_spd(&reduce_floored(&reference)),
     ) else {
         return Ok(None);
     };
-    let survey_sigma_nt = survey_sigma(&information);
-    let flown_log_det = log_det(&reduce_floored(&information));
+    let survey_sigma_nt = survey_sigma(information);
+    let flown_log_det = log_det(&reduce_floored(information));
     let flown_variance: f64 = (0..r).map(|k| flown_inverse[(k, k)]).sum();
-    let flown_covariance = &basis * &flown_inverse * basis.transpose();
-    let reference_covariance = &basis * &reference_inverse * basis.transpose();
+    let flown_covariance = basis * &flown_inverse * basis.transpose();
+    let reference_covariance = basis * &reference_inverse * basis.transpose();
 
     let labels: Vec<String> = fits.iter().map(|f| f.window.display_label()).collect();
     let terms: Vec<TermPinning> = (0..p)
         .map(|j| {
             let inflation = flown_covariance[(j, j)] / reference_covariance[(j, j)];
             let v: Vec<f64> = (0..p).map(|i| flown_covariance[(i, j)]).collect();
-            let whole = quadratic(&information, &v);
+            let whole = quadratic(information, &v);
             let mut pinned_by: Vec<(String, f64)> = (labels.iter().zip(&flown))
                 .map(|(label, g)| (label.clone(), quadratic(g, &v) / whole))
                 .filter(|(_, share)| *share >= 0.05)
@@ -408,7 +476,7 @@ pub fn analyse(
     let trace: f64 = (0..p).map(|i| information[(i, i)]).sum();
     let window_shares = (labels.iter().zip(&flown))
         .map(|(label, g)| {
-            let sigma = survey_sigma(&(&information - g));
+            let sigma = survey_sigma(&(information - g));
             WindowShare {
                 label: label.clone(),
                 information_share: (0..p).map(|i| g[(i, i)]).sum::<f64>() / trace,
@@ -418,9 +486,10 @@ pub fn analyse(
         })
         .collect();
     let mut additions: Vec<Candidate> = candidates
-        .into_iter()
-        .map(|(mut candidate, g)| {
-            let with = &information + &g;
+        .iter()
+        .map(|(candidate, g)| {
+            let mut candidate = candidate.clone();
+            let with = information + g;
             candidate.survey_sigma_nt = survey_sigma(&with);
             candidate.change = candidate.survey_sigma_nt / survey_sigma_nt - 1.0;
             candidate.information_gain = 0.5 * (log_det(&reduce_floored(&with)) - flown_log_det);
@@ -455,7 +524,8 @@ pub fn analyse(
         summary: Vec::new(),
     };
     excitation.summary = summarise(&excitation);
-    Ok(Some(excitation))
+    design.candidates = candidates;
+    Ok(Some((excitation, design)))
 }
 
 /// The directions of the scaled coefficients that no rotation of the

@@ -244,7 +244,10 @@ fn record_scalar(
 ) -> (Vec<f64>, SensorTruth) {
     let (permanent, induced, eddy) = field_sizes(sensor.location);
     let scale = sensor.field_scale;
-    let aircraft = AircraftField::draw(random, permanent * scale, induced * scale, eddy * scale);
+    // Drawn even when the scenario gives the field, so the draws after it
+    // do not depend on whether it does.
+    let drawn = AircraftField::draw(random, permanent * scale, induced * scale, eddy * scale);
+    let aircraft = sensor.aircraft.clone().unwrap_or(drawn);
     let earth = earth_field_at(path, environment, sensor.position_m);
     let mut drive: [Vec<f64>; 3] =
         [0, 1, 2].map(|i| central_rate(&earth.iter().map(|b| b[i]).collect::<Vec<_>>(), path.dt_s));

@@ -164,7 +164,8 @@ impl ExternalField {
 
 /// The aircraft's field at one sensor: $P + A\,B + E\,\dot B$ with P in nT,
 /// A dimensionless and E in s (Tolles & Lawson 1950, in vector form).
-#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct AircraftField {
     /// Permanent field, nT.
     pub permanent_nt: Vector,
@@ -185,6 +186,15 @@ impl AircraftField {
             induced: tensor,
             eddy_s: [random.vector(eddy_s), random.vector(eddy_s), random.vector(eddy_s)],
         }
+    }
+
+    /// Whether every constant is finite and of a size an aircraft can
+    /// have at a magnetometer.
+    pub fn is_plausible(&self) -> bool {
+        let all = |rows: &[Vector; 3], limit: f64| rows.iter().flatten().all(|v| v.is_finite() && v.abs() <= limit);
+        self.permanent_nt.iter().all(|v| v.is_finite() && v.abs() <= 1e6)
+            && all(&self.induced, 1.0)
+            && all(&self.eddy_s, 10.0)
     }
 
     /// The aircraft field for Earth field `field` and eddy drive `rate`

@@ -29,6 +29,7 @@
 //! yaw_deg = 5.0
 //! omit = ["yaw@290"]        # manoeuvres the pilot forgets
 //! weaken = ["roll@110=0.2"] # manoeuvres flown at a fraction of the amplitude
+//! extra = ["roll@110"]      # manoeuvres flown again at the end of their leg
 //! turbulence_deg = 0.05
 //!
 //! [survey]
@@ -43,6 +44,8 @@
 //! name = "mag_1_uc"
 //! location = "tail"         # tail | wing | cabin: sets the aircraft field's size
 //! noise_nt = 0.005
+//! # aircraft = { permanent_nt = [..], induced = [[..], [..], [..]], eddy_s = [[..], [..], [..]] }
+//! #                         # this aircraft's field instead of one drawn for the location
 //!
 //! [[effect]]                # concealed in the output, written to the truth file
 //! kind = "sensor_lag"
@@ -57,6 +60,7 @@ use serde::Deserialize;
 use crate::diagnose::EffectKind;
 use crate::error::{Error, Result};
 use crate::simulate::igrf::decimal_year;
+use crate::simulate::physics::AircraftField;
 
 /// A scenario, as written.
 #[derive(Debug, Clone, Deserialize)]
@@ -160,6 +164,10 @@ pub struct Calibration {
     /// Manoeuvres flown at a fraction of their amplitude, as
     /// `kind@heading=fraction`, e.g. `roll@110=0.2`.
     pub weaken: Vec<String>,
+    /// Manoeuvres flown once more at the end of their leg (after its pitch,
+    /// roll and yaw), as `kind@heading`, e.g. `roll@110`; a heading must be
+    /// one of `headings_deg`.
+    pub extra: Vec<String>,
     /// Standard deviation of attitude turbulence on the legs, degrees.
     pub turbulence_deg: f64,
     /// Standard deviation of a slow (30 s) drift of the held heading on the
@@ -212,6 +220,7 @@ impl Default for Calibration {
             yaw_deg: 5.0,
             omit: Vec::new(),
             weaken: Vec::new(),
+            extra: Vec::new(),
             turbulence_deg: 0.05,
             heading_wander_deg: 0.0,
             speed_m_s: 70.0,
@@ -340,6 +349,10 @@ pub struct ScalarSensor {
     /// Position in body axes (forward, right, down), m.
     #[serde(default)]
     pub position_m: [f64; 3],
+    /// The aircraft's field at this sensor, instead of one drawn at the
+    /// location's size (a previous flight's model, for a plan).
+    #[serde(default)]
+    pub aircraft: Option<AircraftField>,
 }
 
 fn default_scalar_noise() -> f64 {
@@ -355,7 +368,8 @@ fn default_dead_zone_axis() -> [f64; 3] {
 }
 
 impl ScalarSensor {
-    fn new(name: &str, location: SensorLocation, noise_nt: f64) -> Self {
+    /// A sensor at `location`'s usual place with white noise `noise_nt`.
+    pub fn new(name: &str, location: SensorLocation, noise_nt: f64) -> Self {
         ScalarSensor {
             name: name.into(),
             location,
@@ -368,6 +382,7 @@ impl ScalarSensor {
                 SensorLocation::Wing => [-1.0, 7.0, 0.0],
                 SensorLocation::Cabin => [1.5, 0.3, 0.2],
             },
+            aircraft: None,
         }
     }
 }
@@ -584,6 +599,16 @@ fn check_flight_plan(raw: &RawScenario) -> std::result::Result<(), String> {
     for weakened in &box_.weaken {
         parse_weakening(weakened)?;
     }
+    for extra in &box_.extra {
+        let (_, heading) = parse_omission(extra)
+            .map_err(|_| format!("[calibration] extra = \"{extra}\": write kind@heading, e.g. \"roll@110\""))?;
+        if !box_.headings_deg.iter().any(|h| (h - heading).abs() < 0.5) {
+            return Err(format!(
+                "[calibration] extra = \"{extra}\": {heading} is not one of headings_deg {:?}; a manoeuvre is flown again on one of the box's legs",
+                box_.headings_deg
+            ));
+        }
+    }
     for (name, range) in [("lead_in_s", box_.lead_in_s), ("pause_s", box_.pause_s)] {
         if !(range[0] >= 0.0 && range[0] <= range[1] && range[1] < 3600.0) {
             return Err(format!(
@@ -641,6 +666,14 @@ fn check_sensors(raw: &RawScenario) -> std::result::Result<(), String> {
                 "[[scalar]] '{}': name it mag_<n>_uc and give non-negative noise_nt and field_scale",
                 sensor.name
             ));
+        }
+        if let Some(field) = &sensor.aircraft {
+            if !field.is_plausible() {
+                return Err(format!(
+                    "[[scalar]] '{}': aircraft: give a finite field, permanent_nt within ±1e6 nT, induced within ±1 and eddy_s within ±10 s",
+                    sensor.name
+                ));
+            }
         }
     }
     let mut names: Vec<&str> = raw.scalar.iter().map(|s| s.name.as_str()).collect();

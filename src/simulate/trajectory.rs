@@ -265,7 +265,8 @@ impl Pilot<'_> {
     }
 
     /// One box: on each leg a lead-in, then pitch, roll and yaw each
-    /// followed by a pause, then the turn to the next leg (the long way
+    /// followed by a pause (and any `extra` manoeuvres of the leg after
+    /// them), then the turn to the next leg (the long way
     /// round for a clover leaf). The turn after the last leg back to the
     /// first heading is flown when `turn_back`.
     fn fly_box(&mut self, scenario: &Scenario, turn_back: bool) {
@@ -274,6 +275,7 @@ impl Pilot<'_> {
         let omitted: Vec<(ManoeuvreKind, f64)> = box_.omit.iter().filter_map(|o| parse_omission(o).ok()).collect();
         let weakened: Vec<(ManoeuvreKind, f64, f64)> =
             box_.weaken.iter().filter_map(|w| parse_weakening(w).ok()).collect();
+        let extra: Vec<(ManoeuvreKind, f64)> = box_.extra.iter().filter_map(|o| parse_omission(o).ok()).collect();
         let start = self.now();
         let headings = &box_.headings_deg;
         for (leg, &heading) in headings.iter().enumerate() {
@@ -289,6 +291,11 @@ impl Pilot<'_> {
                     let pause = self.draw(box_.pause_s);
                     self.level(pause, heading, box_.turbulence_deg, box_.speed_m_s);
                 }
+            }
+            for kind in (extra.iter()).filter(|(_, h)| (h - heading).abs() < 0.5).map(|e| e.0) {
+                self.manoeuvre(scenario, kind, heading, 1.0);
+                let pause = self.draw(box_.pause_s);
+                self.level(pause, heading, box_.turbulence_deg, box_.speed_m_s);
             }
             let end = self.now();
             let next = headings[(leg + 1) % headings.len()];

@@ -1,0 +1,1071 @@
+//! Planning a calibration before it is flown: `magcomp plan PLAN.toml
+//! --out PLAN_REPORT.json`.
+//!
+//! A plan is a scenario ([`crate::simulate::scenario`]: the box's headings,
+//! manoeuvres, amplitudes and periods, the sample rate, the sensors, the
+//! survey lines the compensation is for) with a `[plan]` table:
+//!
+//! ```toml
+//! [plan]
+//! realisations = 8                  # simulated flights of the plan
+//! target_survey_sigma_nt = 0.02     # optional: the survey uncertainty wanted
+//! target_fom_nt = 1.0               # optional: the FOM wanted
+//! installation = "last_model.json"  # optional: a previous flight's --model
+//! most_additions = 6                # additions proposed at most
+//! ```
+//!
+//! Each realisation flies the plan in the simulator with its own seed
+//! (turbulence, the pilot's amplitudes and periods, noise; and, without
+//! an installation, an aircraft drawn at each sensor location's typical
+//! size), fits plain Tolles-Lawson on the planned manoeuvres as
+//! `compensate` does, and measures what a flight of the plan would give:
+//! the FOM, the survey uncertainty the excitation analysis states (the
+//! coefficients' part, [`crate::model::excitation`], with the compensated
+//! noise), and the survey lines' error against the simulation's truth.
+//! The prediction is the median over the realisations, with their range.
+//!
+//! With a survey target, additions are chosen greedily from the analysis's
+//! candidate manoeuvres (pitch, roll and yaw on each heading): each step
+//! takes the one that lowers the channels' excess over the target most per
+//! second of flight, scored on every realisation's information at once,
+//! until every channel meets the target or nothing helps. Flight time is
+//! the manoeuvre's length and a pause, plus a lead-in and two turns when
+//! its heading is not a leg of the plan. The plan is then flown again with
+//! the additions, so the report shows what they achieve, not only what the
+//! analysis expects.
+//!
+//! With `installation`, each scalar sensor the model file compensates
+//! takes that aircraft's field (its permanent, induced and eddy
+//! coefficients turned into the simulator's $P + A B + E \dot B$); a plan
+//! without `[[scalar]]` tables takes the model file's channels.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::config::Settings;
+use crate::error::{Error, Result};
+use crate::model::excitation::{analyse_design, Design};
+use crate::model::{fit, FittedModel, ModelSpec};
+use crate::numerics::stacked::StorePool;
+use crate::simulate::physics::AircraftField;
+use crate::simulate::scenario::{RawScenario, ScalarSensor, Scenario, SensorLocation};
+use crate::simulate::{simulate, SimulatedFlight};
+use crate::windows::ManoeuvreKind;
+
+/// Realisations when `[plan]` gives none.
+const DEFAULT_REALISATIONS: usize = 8;
+
+/// Most realisations a plan may ask for.
+const MOST_REALISATIONS: usize = 64;
+
+/// An addition is taken only if it lowers the channels' summed excess
+/// over the target by at least this fraction.
+const LEAST_GAIN: f64 = 0.005;
+
+/// Extra flight time for a manoeuvre on a heading that is not a leg of
+/// the plan: a lead-in and two 90° turns at 3°/s, s.
+const NEW_LEG_S: f64 = 80.0;
+
+/// The factor within which the plan's medians are expected to hold on
+/// flights of the plan (FOM and survey figures); see `tests/plan.rs`.
+pub const STATED_FACTOR: f64 = 2.0;
+
+/// `[plan]`: how to predict.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PlanSettings {
+    /// Simulated flights of the plan.
+    pub realisations: usize,
+    /// The survey uncertainty wanted, one sigma, nT.
+    pub target_survey_sigma_nt: Option<f64>,
+    /// The FOM wanted, nT.
+    pub target_fom_nt: Option<f64>,
+    /// A previous flight's model JSON (`compensate --model`): the
+    /// aircraft's field at each sensor it compensates.
+    pub installation: Option<PathBuf>,
+    /// Most manoeuvres added (a repeat counts each time).
+    pub most_additions: usize,
+}
+
+impl Default for PlanSettings {
+    fn default() -> Self {
+        PlanSettings {
+            realisations: DEFAULT_REALISATIONS,
+            target_survey_sigma_nt: None,
+            target_fom_nt: None,
+            installation: None,
+            most_additions: 6,
+        }
+    }
+}
+
+/// A checked plan.
+#[derive(Debug, Clone)]
+pub struct Plan {
+    /// The plan file.
+    pub path: PathBuf,
+    /// `[plan]`.
+    pub settings: PlanSettings,
+    /// The planned flight.
+    pub scenario: Scenario,
+    /// Where each sensor's aircraft field comes from, in words.
+    pub installation: String,
+}
+
+impl Plan {
+    /// Reads and checks a plan file.
+    pub fn load(path: &Path) -> Result<Plan> {
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, "reading", e))?;
+        let config = |message: String| Error::Config {
+            source_name: path.display().to_string(),
+            message,
+        };
+        let mut table: toml::Table = toml::from_str(&text).map_err(|e| config(e.to_string()))?;
+        let settings: PlanSettings = match table.remove("plan") {
+            Some(value) => value.try_into().map_err(|e| config(format!("[plan]: {e}")))?,
+            None => PlanSettings::default(),
+        };
+        let has_scalars = table.contains_key("scalar");
+        let mut raw: RawScenario = toml::Value::Table(table)
+            .try_into()
+            .map_err(|e| config(e.to_string()))?;
+        if !(1..=MOST_REALISATIONS).contains(&settings.realisations) {
+            return Err(config(format!(
+                "[plan] realisations = {}: give 1 to {MOST_REALISATIONS} simulated flights",
+                settings.realisations
+            )));
+        }
+        for (name, target) in [
+            ("target_survey_sigma_nt", settings.target_survey_sigma_nt),
+            ("target_fom_nt", settings.target_fom_nt),
+        ] {
+            if target.is_some_and(|t| !(t.is_finite() && t > 0.0)) {
+                return Err(config(format!("[plan] {name}: give a positive number of nT")));
+            }
+        }
+        if raw.calibration.repeats == 0 {
+            return Err(config(
+                "[calibration] repeats = 0: a plan needs a calibration box to predict".into(),
+            ));
+        }
+        let installation = match &settings.installation {
+            None => "typical values: each scalar sensor's aircraft field drawn at its location's size (tail, wing or cabin), afresh in every realisation".to_string(),
+            Some(file) => {
+                let file = match file.is_absolute() {
+                    true => file.clone(),
+                    false => path.parent().unwrap_or(Path::new(".")).join(file),
+                };
+                install(&mut raw, &file, has_scalars)?
+            }
+        };
+        let scenario = Scenario::try_from(raw).map_err(config)?;
+        Ok(Plan {
+            path: path.to_path_buf(),
+            settings,
+            scenario,
+            installation,
+        })
+    }
+}
+
+/// Sets the aircraft field of each scalar sensor of `raw` that the model
+/// file at `file` compensates (all of the file's channels when the plan
+/// names no sensor); says what was taken.
+fn install(raw: &mut RawScenario, file: &Path, has_scalars: bool) -> Result<String> {
+    let not_ours = |problem: String| {
+        Error::NotOurFile {
+        path: file.to_path_buf(),
+        expected: "a model JSON written by compensate --model",
+        problem,
+        hint: "Give [plan] installation the --model file of a previous flight of this aircraft, or leave it out for typical values.",
+    }
+    };
+    let text = std::fs::read_to_string(file).map_err(|e| Error::io(file, "reading", e))?;
+    let json: serde_json::Value = serde_json::from_str(&text).map_err(|e| not_ours(e.to_string()))?;
+    let models = json
+        .get("models")
+        .and_then(|m| m.as_array())
+        .ok_or_else(|| not_ours("it has no \"models\" list".into()))?;
+    let mut fields: BTreeMap<String, AircraftField> = BTreeMap::new();
+    for model in models {
+        let (Some(channel), Some(field)) = (model.get("channel").and_then(|c| c.as_str()), aircraft_field(model))
+        else {
+            continue;
+        };
+        if channel.starts_with("mag_") && channel.ends_with("_uc") {
+            fields.insert(channel.to_string(), field);
+        }
+    }
+    if fields.is_empty() {
+        return Err(not_ours(
+            "no model of a mag_<n>_uc channel with Tolles-Lawson coefficients and a sample rate".into(),
+        ));
+    }
+    if !has_scalars {
+        raw.scalar = fields
+            .keys()
+            .map(|name| ScalarSensor::new(name, SensorLocation::Tail, 0.005))
+            .collect();
+    }
+    let mut taken = Vec::new();
+    let mut typical = Vec::new();
+    for sensor in &mut raw.scalar {
+        match fields.get(&sensor.name) {
+            Some(field) => {
+                sensor.aircraft = Some(field.clone());
+                taken.push(sensor.name.clone());
+            }
+            None => typical.push(sensor.name.clone()),
+        }
+    }
+    let mut words = format!(
+        "from {}: the aircraft's field at {} from that flight's Tolles-Lawson coefficients",
+        file.display(),
+        taken.join(", ")
+    );
+    if !typical.is_empty() {
+        words += &format!(
+            "; {} not in it, so drawn at the location's typical size",
+            typical.join(", ")
+        );
+    }
+    Ok(words)
+}
+
+/// The simulator's aircraft field from one model of a model JSON: the
+/// permanent terms are P; the induced terms $a_{ij} u_i B_j / s$ give the
+/// symmetric A ($a_{ii} = s A_{ii}$, $a_{ij} = 2 s A_{ij}$); the eddy
+/// terms $b_{ij} u_i \Delta B_j / s$, ΔB per sample, give
+/// $E_{ij} = b_{ij} / (s f_s)$ in seconds. Terms the model lacks are zero;
+/// extension columns (lags, couplings) are left out. `None` without
+/// coefficients or a sample rate.
+fn aircraft_field(model: &serde_json::Value) -> Option<AircraftField> {
+    let names = model.get("term_names")?.as_array()?;
+    let values = model.get("coefficients")?.as_array()?;
+    let rate = model.get("sample_rate_hz")?.as_f64().filter(|r| *r > 0.0)?;
+    let scale = (model.pointer("/spec/terms/bt_scale_nt"))
+        .and_then(|s| s.as_f64())
+        .filter(|s| *s > 0.0)?;
+    let axis = |c: char| "xyz".find(c);
+    let mut field = AircraftField {
+        permanent_nt: [0.0; 3],
+        induced: [[0.0; 3]; 3],
+        eddy_s: [[0.0; 3]; 3],
+    };
+    let mut any = false;
+    for (name, value) in names.iter().zip(values) {
+        let (Some(name), Some(value)) = (name.as_str(), value.as_f64()) else {
+            continue;
+        };
+        let letters: Vec<usize> = name.rsplit('_').next()?.chars().filter_map(axis).collect();
+        match (name.split('_').next(), letters.as_slice()) {
+            (Some("perm"), &[i]) => field.permanent_nt[i] = value,
+            (Some("ind"), &[i, j]) if i == j => field.induced[i][i] = value / scale,
+            (Some("ind"), &[i, j]) => {
+                field.induced[i][j] = value / (2.0 * scale);
+                field.induced[j][i] = field.induced[i][j];
+            }
+            (Some("eddy"), &[i, j]) => field.eddy_s[i][j] = value / (scale * rate),
+            _ => continue,
+        }
+        any = true;
+    }
+    (any && field.is_plausible()).then_some(field)
+}
+
+/// A figure over the realisations.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Spread {
+    /// Median.
+    pub median: f64,
+    /// Smallest.
+    pub low: f64,
+    /// Largest.
+    pub high: f64,
+}
+
+impl Spread {
+    fn of(values: impl IntoIterator<Item = f64>) -> Spread {
+        let mut values: Vec<f64> = values.into_iter().filter(|v| !v.is_nan()).collect();
+        values.sort_by(f64::total_cmp);
+        let n = values.len();
+        match n {
+            0 => Spread {
+                median: f64::NAN,
+                low: f64::NAN,
+                high: f64::NAN,
+            },
+            _ => Spread {
+                median: match n % 2 {
+                    1 => values[n / 2],
+                    _ => 0.5 * (values[n / 2 - 1] + values[n / 2]),
+                },
+                low: values[0],
+                high: values[n - 1],
+            },
+        }
+    }
+
+    fn words(&self, decimals: usize) -> String {
+        format!(
+            "{:.d$} nT (range {:.d$}–{:.d$})",
+            self.median,
+            self.low,
+            self.high,
+            d = decimals
+        )
+    }
+}
+
+/// What one channel would achieve on flights of the plan.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ChannelPrediction {
+    /// Scalar channel.
+    pub channel: String,
+    /// FOM before compensation, nT.
+    pub fom_before_nt: Spread,
+    /// FOM after compensation, nT.
+    pub fom_nt: Spread,
+    /// Manoeuvres in the FOM (median).
+    pub fom_manoeuvres: usize,
+    /// The survey uncertainty the compensation would state: the
+    /// excitation analysis's coefficient part and the compensated noise
+    /// together, one sigma, nT.
+    pub survey_sigma_nt: Spread,
+    /// The coefficients' part of it (the excitation analysis), nT.
+    pub coefficient_sigma_nt: Spread,
+    /// The compensated channel's noise on the survey lines (fourth
+    /// difference), nT.
+    pub noise_nt: Spread,
+    /// What the simulated flights achieved: the RMS over the survey lines
+    /// of the compensated value's error against the simulation's truth,
+    /// relative to its level over the calibration windows, nT.
+    pub survey_error_nt: Spread,
+    /// The blocked jackknife's uncertainty of the compensation away from
+    /// the calibration (the quality JSON's `outside_calibration_sigma_nt`),
+    /// nT.
+    pub jackknife_sigma_nt: Spread,
+    /// Simulated flights whose compensation would carry the uncertainty
+    /// warning (jackknife above [`crate::quality::UNCERTAINTY_WARNING_NT`]).
+    pub uncertain_flights: usize,
+    /// Terms poorly pinned in at least half the realisations.
+    pub poorly_pinned: Vec<String>,
+    /// Gaps in the box the analysis names in at least half the
+    /// realisations.
+    pub gaps: Vec<String>,
+    /// Whether the median FOM meets `[plan] target_fom_nt`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub meets_fom_target: Option<bool>,
+    /// Whether the median survey sigma meets `[plan] target_survey_sigma_nt`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub meets_survey_target: Option<bool>,
+}
+
+/// A manoeuvre to add to the plan.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Addition {
+    /// Manoeuvre.
+    pub kind: ManoeuvreKind,
+    /// Heading, degrees.
+    pub heading_deg: f64,
+    /// Amplitude, degrees (the plan's, as the realisations flew it).
+    pub amplitude_deg: f64,
+    /// Period, s.
+    pub period_s: f64,
+    /// Length, s.
+    pub duration_s: f64,
+    /// Times it is flown (one after the other on its leg).
+    pub count: usize,
+    /// Flight time it adds, all times together, s.
+    pub cost_s: f64,
+    /// Whether its heading is a new leg.
+    pub new_leg: bool,
+    /// Each channel's predicted survey sigma (median) with this and the
+    /// additions before it, nT.
+    pub survey_sigma_nt: BTreeMap<String, f64>,
+}
+
+/// `PLAN_REPORT.json`.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct PlanReport {
+    /// The plan file.
+    pub plan: PathBuf,
+    /// The seeds of the simulated flights.
+    pub seeds: Vec<u64>,
+    /// Where the aircraft's field comes from.
+    pub installation: String,
+    /// The planned box's headings, degrees.
+    pub headings_deg: Vec<f64>,
+    /// Manoeuvres in the planned box(es).
+    pub manoeuvres: usize,
+    /// Length of the calibration (first manoeuvre to last), s (median).
+    pub calibration_s: f64,
+    /// `[plan] target_fom_nt`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub target_fom_nt: Option<f64>,
+    /// `[plan] target_survey_sigma_nt`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub target_survey_sigma_nt: Option<f64>,
+    /// The factor within which the medians are expected to hold on
+    /// flights of the plan.
+    pub stated_factor: f64,
+    /// Each channel's prediction.
+    pub channels: Vec<ChannelPrediction>,
+    /// Additions that would meet the survey target, cheapest first
+    /// (empty without a target, or when the plan meets it).
+    pub additions: Vec<Addition>,
+    /// Whether the additions meet the target, as the analysis predicts.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub additions_meet_target: Option<bool>,
+    /// The plan flown again with the additions.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub with_additions: Vec<ChannelPrediction>,
+    /// Without a survey target: each candidate's median change of the
+    /// survey sigma, per channel, the most useful first.
+    pub candidates: Vec<CandidateValue>,
+    /// What the user must know.
+    pub warnings: Vec<String>,
+    /// The prediction in words.
+    pub summary: Vec<String>,
+}
+
+/// What one candidate manoeuvre would do, on the median realisation.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct CandidateValue {
+    /// Manoeuvre.
+    pub kind: ManoeuvreKind,
+    /// Heading, degrees.
+    pub heading_deg: f64,
+    /// Flight time it adds, s.
+    pub cost_s: f64,
+    /// Each channel's median relative change of the coefficients' survey
+    /// sigma (negative: better).
+    pub change: BTreeMap<String, f64>,
+}
+
+/// One channel of one realisation.
+struct Outcome {
+    channel: String,
+    fom: Option<(f64, f64, usize)>,
+    coefficient_sigma_nt: f64,
+    noise_nt: f64,
+    survey_error_nt: f64,
+    /// The blocked jackknife's uncertainty away from the calibration, nT.
+    jackknife_sigma_nt: f64,
+    poorly_pinned: Vec<String>,
+    /// The box's gaps the analysis names.
+    gaps: Vec<crate::model::excitation::Candidate>,
+    design: Option<Design>,
+}
+
+/// One simulated flight of the plan.
+struct Realisation {
+    outcomes: Vec<Outcome>,
+    manoeuvres: usize,
+    calibration_s: f64,
+}
+
+/// Predicts what flights of `plan` would achieve (see the module doc).
+/// Results do not depend on the number of threads: each realisation is
+/// simulated and fitted on its own seed, and they are gathered in order.
+pub fn predict(plan: &Plan, settings: &Settings) -> Result<PlanReport> {
+    let seeds: Vec<u64> = (0..plan.settings.realisations as u64)
+        .map(|k| plan.scenario.raw.seed.wrapping_add(k))
+        .collect();
+    let realisations = realise_all(&plan.scenario, &seeds, settings)?;
+    let target_survey = plan.settings.target_survey_sigma_nt;
+    let target_fom = plan.settings.target_fom_nt;
+    let channels = predictions(&realisations, target_survey, target_fom);
+    let mut warnings = Vec::new();
+    let report_realisations = realisations.len();
+    let headings = plan.scenario.raw.calibration.headings_deg.clone();
+    let cost = |candidate: &crate::model::excitation::Candidate| -> (f64, bool) {
+        let pause = plan.scenario.raw.calibration.pause_s;
+        let new_leg = !headings.iter().any(|h| angle_apart(*h, candidate.heading_deg) < 1.0);
+        let extra = if new_leg { NEW_LEG_S } else { 0.0 };
+        (candidate.duration_s + 0.5 * (pause[0] + pause[1]) + extra, new_leg)
+    };
+    let mut additions = Vec::new();
+    let mut additions_meet_target = None;
+    let mut with_additions = Vec::new();
+    let mut candidates = Vec::new();
+    match target_survey {
+        Some(target) => {
+            let chosen = choose_additions(&realisations, target, plan.settings.most_additions, &cost);
+            for (channel, outcome) in channels.iter().zip(&realisations[0].outcomes) {
+                let floor = median_of(realisations.iter().map(|r| noise_of(r, &outcome.channel)));
+                if floor >= target {
+                    warnings.push(format!(
+                        "{}: no manoeuvre can meet the survey target of {target:.3} nT: the compensated channel's noise alone is {floor:.3} nT",
+                        channel.channel
+                    ));
+                }
+            }
+            if let Some((list, met)) = chosen {
+                additions = list;
+                additions_meet_target = Some(met);
+                if !additions.is_empty() {
+                    let mut scenario = plan.scenario.clone();
+                    add_to_scenario(&mut scenario.raw, &additions);
+                    let scenario = Scenario::try_from(scenario.raw).map_err(|message| Error::Config {
+                        source_name: plan.path.display().to_string(),
+                        message,
+                    })?;
+                    let again = realise_all(&scenario, &seeds, settings)?;
+                    with_additions = predictions(&again, target_survey, target_fom);
+                }
+            }
+        }
+        None => candidates = candidate_values(&realisations, &cost),
+    }
+    for channel in &channels {
+        if channel.meets_fom_target == Some(false) {
+            warnings.push(format!(
+                "{}: the plan's predicted FOM, {}, is above the target of {:.2} nT; no addition to the box lowers it (it measures the compensated residual over the box's own manoeuvres, {} of it the compensated noise)",
+                channel.channel,
+                channel.fom_nt.words(2),
+                target_fom.unwrap_or(f64::NAN),
+                format_args!("{:.3} nT", channel.noise_nt.median),
+            ));
+        }
+        for gap in &channel.gaps {
+            warnings.push(format!("{}: {gap}", channel.channel));
+        }
+        if channel.uncertain_flights > 0 {
+            warnings.push(format!(
+                "{}: in {} of the {} simulated flights the compensation away from the calibration is uncertain by more than {:.3} nT (the blocked jackknife, up to {:.3} nT; the survey lines' error up to {:.3} nT): the planned manoeuvres leave the fit open on the survey's headings and attitudes on some flights, and compensate would warn on them",
+                channel.channel,
+                channel.uncertain_flights,
+                report_realisations,
+                crate::quality::UNCERTAINTY_WARNING_NT,
+                channel.jackknife_sigma_nt.high,
+                channel.survey_error_nt.high,
+            ));
+        }
+    }
+    if additions_meet_target == Some(false) {
+        warnings.push(format!(
+            "no set of up to {} additions meets the survey target of {:.3} nT on every channel; the report lists the best found",
+            plan.settings.most_additions,
+            target_survey.unwrap_or(f64::NAN)
+        ));
+    }
+    let mut report = PlanReport {
+        plan: plan.path.clone(),
+        seeds,
+        installation: plan.installation.clone(),
+        headings_deg: headings.clone(),
+        manoeuvres: median_of(realisations.iter().map(|r| r.manoeuvres as f64)).round() as usize,
+        calibration_s: median_of(realisations.iter().map(|r| r.calibration_s)),
+        target_fom_nt: target_fom,
+        target_survey_sigma_nt: target_survey,
+        stated_factor: STATED_FACTOR,
+        channels,
+        additions,
+        additions_meet_target,
+        with_additions,
+        candidates,
+        warnings,
+        summary: Vec::new(),
+    };
+    report.summary = summarise(&report);
+    Ok(report)
+}
+
+/// Simulates and fits `scenario` once per seed, in parallel, in order.
+fn realise_all(scenario: &Scenario, seeds: &[u64], settings: &Settings) -> Result<Vec<Realisation>> {
+    seeds
+        .par_iter()
+        .map(|&seed| {
+            let mut scenario = scenario.clone();
+            scenario.raw.seed = seed;
+            let flight = simulate(&scenario)?;
+            realise(&flight, settings)
+        })
+        .collect()
+}
+
+/// Fits and measures one simulated flight as `compensate --plain` would,
+/// on its planned manoeuvres.
+fn realise(flight: &SimulatedFlight, settings: &Settings) -> Result<Realisation> {
+    let log = &flight.log;
+    let sensor = crate::pipeline::choose_vector_sensor(log, None)?;
+    let windows = flight.truth.calibration_windows(settings.detect.window_margin_s);
+    let stores = StorePool::new();
+    let spec = ModelSpec::plain(settings.terms);
+    let channels: Vec<String> = flight.truth.sensors.iter().map(|s| s.channel.clone()).collect();
+    let mut models: Vec<FittedModel> = Vec::new();
+    let mut designs = Vec::new();
+    for channel in &channels {
+        let model = fit(log, &sensor, channel, &windows, &spec, &settings.fit, &stores)?;
+        designs.push(analyse_design(log, &sensor, &model, &windows, &settings.fit, &stores)?);
+        models.push(model);
+    }
+    let compensation = crate::compensate::compensate(log, &models, settings.level)?;
+    let line = log.channel("line").map(|c| c.values.as_slice()).unwrap_or_default();
+    let outcomes = (models.iter().zip(&compensation.channels).zip(designs))
+        .map(|((model, compensated), design)| {
+            let quality = crate::quality::assess_quality(log, model, compensated);
+            let noise_nt = [
+                quality.survey_noise_4th_difference_after_nt,
+                Some(quality.noise_4th_difference_after_nt),
+            ]
+            .into_iter()
+            .flatten()
+            .find(|n| n.is_finite())
+            .unwrap_or(f64::NAN);
+            let truth = flight.truth.earth_total_nt(&model.channel).unwrap_or_default();
+            let (excitation, design) = design.unzip();
+            let jackknife_sigma_nt = match model.prediction_sigma(log)? {
+                Some(prediction) => crate::quality::uncertainty_of(log, model, &prediction)
+                    .map_or(f64::NAN, |u| u.outside_calibration_sigma_nt),
+                None => f64::NAN,
+            };
+            Ok(Outcome {
+                channel: model.channel.clone(),
+                fom: quality
+                    .fom_before_nt
+                    .zip(quality.fom_after_nt)
+                    .map(|(b, a)| (b, a, quality.fom_manoeuvres)),
+                coefficient_sigma_nt: excitation.as_ref().map_or(f64::NAN, |e| e.survey_sigma_nt),
+                noise_nt,
+                survey_error_nt: error_from_calibration_level(model, &compensated.values, truth, line),
+                poorly_pinned: (excitation.iter())
+                    .flat_map(|e| e.terms.iter().filter(|t| t.poorly_pinned).map(|t| t.term.clone()))
+                    .collect(),
+                gaps: (excitation.iter())
+                    .flat_map(|e| e.additions.iter().filter(|c| c.gap).cloned())
+                    .collect(),
+                jackknife_sigma_nt,
+                design,
+            })
+        })
+        .collect::<Result<_>>()?;
+    let manoeuvres = &flight.truth.manoeuvres;
+    let calibration_s = match (manoeuvres.first(), manoeuvres.last()) {
+        (Some(first), Some(last)) => last.t_end - first.t_start,
+        _ => 0.0,
+    };
+    Ok(Realisation {
+        outcomes,
+        manoeuvres: manoeuvres.len(),
+        calibration_s,
+    })
+}
+
+/// RMS over the survey lines (rows whose `line` is positive) of the
+/// compensated value's error against the truth, less its mean over the
+/// calibration windows' rows (the band-passed fit does not pin the
+/// level), nT; NaN without such rows.
+pub fn error_from_calibration_level(model: &FittedModel, compensated: &[f64], truth: &[f64], line: &[f64]) -> f64 {
+    let error = |i: usize| match (compensated.get(i), truth.get(i)) {
+        (Some(c), Some(t)) => c - t,
+        _ => f64::NAN,
+    };
+    let calibration: Vec<f64> = (model.windows.iter())
+        .flat_map(|w| w.flight_rows.iter().cloned().flatten())
+        .map(error)
+        .filter(|e| e.is_finite())
+        .collect();
+    let level = calibration.iter().sum::<f64>() / calibration.len() as f64;
+    let survey: Vec<f64> = (0..line.len())
+        .filter(|&i| line[i] > 0.0)
+        .map(|i| error(i) - level)
+        .filter(|e| e.is_finite())
+        .collect();
+    (survey.iter().map(|e| e * e).sum::<f64>() / survey.len() as f64).sqrt()
+}
+
+/// The predictions of every channel, from the realisations.
+fn predictions(
+    realisations: &[Realisation],
+    target_survey: Option<f64>,
+    target_fom: Option<f64>,
+) -> Vec<ChannelPrediction> {
+    let Some(first) = realisations.first() else {
+        return Vec::new();
+    };
+    let half = realisations.len().div_ceil(2);
+    (first.outcomes.iter().enumerate())
+        .map(|(c, outcome)| {
+            let figure = |f: &dyn Fn(&Outcome) -> f64| Spread::of(realisations.iter().map(|r| f(&r.outcomes[c])));
+            let majority = |list: &dyn Fn(&Outcome) -> Vec<(String, String)>| -> Vec<String> {
+                let mut counts: BTreeMap<String, (usize, String)> = BTreeMap::new();
+                for r in realisations {
+                    for (key, words) in list(&r.outcomes[c]) {
+                        counts.entry(key).or_insert((0, words)).0 += 1;
+                    }
+                }
+                (counts.into_values())
+                    .filter(|(n, _)| *n >= half)
+                    .map(|(_, words)| words)
+                    .collect()
+            };
+            let uncertain_flights = (realisations.iter())
+                .filter(|r| r.outcomes[c].jackknife_sigma_nt > crate::quality::UNCERTAINTY_WARNING_NT)
+                .count();
+            let fom_nt = figure(&|o| o.fom.map_or(f64::NAN, |f| f.1));
+            let survey_sigma_nt = figure(&|o| o.coefficient_sigma_nt.hypot(o.noise_nt));
+            ChannelPrediction {
+                channel: outcome.channel.clone(),
+                fom_before_nt: figure(&|o| o.fom.map_or(f64::NAN, |f| f.0)),
+                fom_nt,
+                fom_manoeuvres: median_of(
+                    realisations
+                        .iter()
+                        .map(|r| r.outcomes[c].fom.map_or(0.0, |f| f.2 as f64)),
+                ) as usize,
+                survey_sigma_nt,
+                coefficient_sigma_nt: figure(&|o| o.coefficient_sigma_nt),
+                noise_nt: figure(&|o| o.noise_nt),
+                survey_error_nt: figure(&|o| o.survey_error_nt),
+                jackknife_sigma_nt: figure(&|o| o.jackknife_sigma_nt),
+                uncertain_flights,
+                poorly_pinned: majority(&|o| o.poorly_pinned.iter().map(|t| (t.clone(), t.clone())).collect()),
+                gaps: majority(&|o| o.gaps.iter().map(|g| (g.label(), g.label())).collect())
+                    .into_iter()
+                    .map(|label| gap_words(realisations, c, &label))
+                    .collect(),
+                meets_fom_target: target_fom.map(|t| fom_nt.median <= t),
+                meets_survey_target: target_survey.map(|t| survey_sigma_nt.median <= t),
+            }
+        })
+        .collect()
+}
+
+/// The sentence of a gap named `label` in channel `c`'s analyses: what
+/// the plan lacks, how to fly it and the median change it would make.
+fn gap_words(realisations: &[Realisation], c: usize, label: &str) -> String {
+    let gaps: Vec<&crate::model::excitation::Candidate> = (realisations.iter())
+        .flat_map(|r| r.outcomes[c].gaps.iter().filter(|g| g.label() == label))
+        .collect();
+    let Some(first) = gaps.first() else {
+        return format!("the plan's box lacks {label}");
+    };
+    let state = match first.flown {
+        false => format!("the plan's box has no {label}"),
+        true => format!(
+            "the plan's {label} gives {:.0} % of the excitation of a typical one",
+            100.0 * median_of(gaps.iter().map(|g| g.excitation_flown))
+        ),
+    };
+    format!(
+        "{state}: flying it ({}) changes the survey uncertainty the coefficients leave by {:+.0} % (median of {} simulated flights).",
+        first.shape_words(),
+        100.0 * median_of(gaps.iter().map(|g| g.change)),
+        gaps.len()
+    )
+}
+
+/// The median of the finite values; NaN without one.
+fn median_of(values: impl IntoIterator<Item = f64>) -> f64 {
+    Spread::of(values.into_iter().filter(|v| v.is_finite())).median
+}
+
+/// Channel `channel`'s noise in realisation `r`.
+fn noise_of(r: &Realisation, channel: &str) -> f64 {
+    r.outcomes
+        .iter()
+        .find(|o| o.channel == channel)
+        .map_or(f64::NAN, |o| o.noise_nt)
+}
+
+/// The candidates of the first realisation with a design (the same
+/// kinds and headings in every realisation, the plan's legs completed to
+/// four), and each one's index in every realisation's design of every
+/// channel.
+fn candidate_index(
+    realisations: &[Realisation],
+) -> Vec<(crate::model::excitation::Candidate, Vec<Vec<Option<usize>>>)> {
+    let Some(reference) = realisations
+        .iter()
+        .flat_map(|r| r.outcomes.iter())
+        .find_map(|o| o.design.as_ref())
+    else {
+        return Vec::new();
+    };
+    reference
+        .candidates()
+        .map(|candidate| {
+            let index = realisations
+                .iter()
+                .map(|r| {
+                    (r.outcomes.iter())
+                        .map(|o| {
+                            o.design.as_ref().and_then(|d| {
+                                d.candidates().position(|c| {
+                                    c.kind == candidate.kind && angle_apart(c.heading_deg, candidate.heading_deg) < 1.0
+                                })
+                            })
+                        })
+                        .collect()
+                })
+                .collect();
+            (candidate.clone(), index)
+        })
+        .collect()
+}
+
+/// Each channel's median, over the realisations, of the survey sigma
+/// (coefficients' part with the noise) with the candidates `chosen`
+/// (indices into `index`) flown as well.
+fn sigma_with(
+    realisations: &[Realisation],
+    index: &[(crate::model::excitation::Candidate, Vec<Vec<Option<usize>>>)],
+    chosen: &[usize],
+) -> Vec<f64> {
+    let channels = realisations.first().map_or(0, |r| r.outcomes.len());
+    (0..channels)
+        .map(|c| {
+            median_of(realisations.iter().enumerate().map(|(k, r)| {
+                let outcome = &r.outcomes[c];
+                let Some(design) = &outcome.design else {
+                    return f64::NAN;
+                };
+                let picks: Vec<usize> = chosen.iter().filter_map(|&m| index[m].1[k][c]).collect();
+                design.survey_sigma_with(&picks).hypot(outcome.noise_nt)
+            }))
+        })
+        .collect()
+}
+
+/// The channels' summed excess over `target`, as ratios: Σ max(σ/target, 1)
+/// over the channels whose noise alone does not exceed it.
+fn excess(sigmas: &[f64], reachable: &[bool], target: f64) -> f64 {
+    (sigmas.iter().zip(reachable))
+        .filter(|(s, r)| **r && s.is_finite())
+        .map(|(s, _)| (s / target).max(1.0))
+        .sum()
+}
+
+/// Greedy additions towards `target` (see the module doc): the list and
+/// whether it meets the target on every channel that can meet it. `None`
+/// when no realisation could be analysed.
+fn choose_additions(
+    realisations: &[Realisation],
+    target: f64,
+    most: usize,
+    cost: &dyn Fn(&crate::model::excitation::Candidate) -> (f64, bool),
+) -> Option<(Vec<Addition>, bool)> {
+    let index = candidate_index(realisations);
+    if index.is_empty() {
+        return None;
+    }
+    let names: Vec<String> = realisations[0].outcomes.iter().map(|o| o.channel.clone()).collect();
+    let reachable: Vec<bool> = names
+        .iter()
+        .map(|name| median_of(realisations.iter().map(|r| noise_of(r, name))) < target)
+        .collect();
+    let met = |sigmas: &[f64]| (sigmas.iter().zip(&reachable)).all(|(s, r)| !r || *s <= target);
+    let mut chosen: Vec<usize> = Vec::new();
+    let mut additions = Vec::new();
+    let mut sigmas = sigma_with(realisations, &index, &chosen);
+    while !met(&sigmas) && chosen.len() < most {
+        let now = excess(&sigmas, &reachable, target);
+        let best = (0..index.len())
+            .map(|m| {
+                let mut trial = chosen.clone();
+                trial.push(m);
+                let after = sigma_with(realisations, &index, &trial);
+                let gain = now - excess(&after, &reachable, target);
+                (m, gain, gain / cost(&index[m].0).0, after)
+            })
+            .filter(|(_, gain, _, _)| *gain >= LEAST_GAIN * now)
+            .max_by(|a, b| a.2.total_cmp(&b.2).then(b.0.cmp(&a.0)));
+        let Some((m, _, _, after)) = best else {
+            break;
+        };
+        chosen.push(m);
+        sigmas = after;
+        let candidate = &index[m].0;
+        let (cost_s, new_leg) = cost(candidate);
+        let survey_sigma_nt: BTreeMap<String, f64> = names.iter().cloned().zip(sigmas.iter().copied()).collect();
+        if let Some(last) = additions
+            .last_mut()
+            .filter(|a: &&mut Addition| a.kind == candidate.kind && a.heading_deg == candidate.heading_deg)
+        {
+            last.count += 1;
+            last.cost_s += cost_s - if new_leg { NEW_LEG_S } else { 0.0 };
+            last.survey_sigma_nt = survey_sigma_nt;
+            continue;
+        }
+        additions.push(Addition {
+            kind: candidate.kind,
+            heading_deg: candidate.heading_deg,
+            amplitude_deg: candidate.amplitude_deg,
+            period_s: candidate.period_s,
+            duration_s: candidate.duration_s,
+            count: 1,
+            cost_s,
+            new_leg,
+            survey_sigma_nt,
+        });
+    }
+    Some((additions, met(&sigmas)))
+}
+
+/// Without a target: what each candidate alone would do.
+fn candidate_values(
+    realisations: &[Realisation],
+    cost: &dyn Fn(&crate::model::excitation::Candidate) -> (f64, bool),
+) -> Vec<CandidateValue> {
+    let index = candidate_index(realisations);
+    let names: Vec<String> = realisations
+        .first()
+        .map(|r| r.outcomes.iter().map(|o| o.channel.clone()).collect())
+        .unwrap_or_default();
+    let channels = names.len();
+    let change_of = |m: usize, c: usize| -> f64 {
+        median_of(realisations.iter().enumerate().map(|(k, r)| {
+            let Some(design) = &r.outcomes[c].design else {
+                return f64::NAN;
+            };
+            let Some(pick) = index[m].1[k][c] else {
+                return f64::NAN;
+            };
+            design.survey_sigma_with(&[pick]) / design.survey_sigma_with(&[]) - 1.0
+        }))
+    };
+    let mut values: Vec<CandidateValue> = (0..index.len())
+        .map(|m| CandidateValue {
+            kind: index[m].0.kind,
+            heading_deg: index[m].0.heading_deg,
+            cost_s: cost(&index[m].0).0,
+            change: (0..channels).map(|c| (names[c].clone(), change_of(m, c))).collect(),
+        })
+        .collect();
+    let mean_change = |v: &CandidateValue| v.change.values().filter(|c| c.is_finite()).sum::<f64>();
+    values.sort_by(|a, b| mean_change(a).total_cmp(&mean_change(b)));
+    values
+}
+
+/// The plan with `additions` flown: on a leg of the plan as an `extra`;
+/// on a new heading as a new leg with only the added manoeuvres.
+fn add_to_scenario(raw: &mut RawScenario, additions: &[Addition]) {
+    let name = |kind: ManoeuvreKind| match kind {
+        ManoeuvreKind::Pitch => "pitch",
+        ManoeuvreKind::Roll => "roll",
+        ManoeuvreKind::Yaw => "yaw",
+    };
+    let box_ = &mut raw.calibration;
+    for addition in additions.iter().flat_map(|a| std::iter::repeat_n(a, a.count)) {
+        let heading = addition.heading_deg;
+        let leg = box_
+            .headings_deg
+            .iter()
+            .copied()
+            .find(|h| angle_apart(*h, heading) < 1.0);
+        match leg {
+            Some(leg) => {
+                // A new leg's first manoeuvre of a kind is its own; the
+                // rest of that kind are extras.
+                let omitted = format!("{}@{leg}", name(addition.kind));
+                match box_.omit.iter().position(|o| *o == omitted) {
+                    Some(at) => {
+                        box_.omit.remove(at);
+                    }
+                    None => box_.extra.push(omitted),
+                }
+            }
+            None => {
+                box_.headings_deg.push(heading);
+                for kind in [ManoeuvreKind::Pitch, ManoeuvreKind::Roll, ManoeuvreKind::Yaw] {
+                    if kind != addition.kind {
+                        box_.omit.push(format!("{}@{heading}", name(kind)));
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// The angular distance between two headings, degrees (0 to 180).
+fn angle_apart(a: f64, b: f64) -> f64 {
+    let d = (a - b).rem_euclid(360.0);
+    d.min(360.0 - d)
+}
+
+/// The prediction in a few sentences.
+fn summarise(report: &PlanReport) -> Vec<String> {
+    let mut lines = vec![format!(
+        "{} simulated flights of the plan ({} manoeuvres on headings {}, {:.0} s of calibration); aircraft: {}.",
+        report.seeds.len(),
+        report.manoeuvres,
+        (report.headings_deg.iter())
+            .map(|h| format!("{h:.0}"))
+            .collect::<Vec<_>>()
+            .join(", "),
+        report.calibration_s,
+        report.installation
+    )];
+    for channel in &report.channels {
+        lines.push(format!(
+            "{}: FOM {} after compensation ({} before); survey uncertainty {} (coefficients {:.3} nT, noise {:.3} nT); the simulated survey lines' error {}.",
+            channel.channel,
+            channel.fom_nt.words(2),
+            channel.fom_before_nt.words(1),
+            channel.survey_sigma_nt.words(3),
+            channel.coefficient_sigma_nt.median,
+            channel.noise_nt.median,
+            channel.survey_error_nt.words(3),
+        ));
+    }
+    if let Some(target) = report.target_survey_sigma_nt {
+        let meeting: Vec<&str> = (report.channels.iter())
+            .filter(|c| c.meets_survey_target == Some(true))
+            .map(|c| c.channel.as_str())
+            .collect();
+        match (report.additions.is_empty(), report.additions_meet_target) {
+            (true, Some(true)) => lines.push(format!(
+                "The plan meets the survey target of {target:.3} nT as it stands on {} (a channel whose noise alone exceeds it is warned).",
+                match meeting.is_empty() {
+                    true => "no channel".to_string(),
+                    false => meeting.join(", "),
+                }
+            )),
+            (true, _) => lines.push(format!(
+                "No addition lowers the survey uncertainty towards the target of {target:.3} nT."
+            )),
+            (false, met) => {
+                let list: Vec<String> = (report.additions.iter())
+                    .map(|a| {
+                        format!(
+                            "{} on heading {:.0}{}{} ({:.0} s)",
+                            match a.kind {
+                                ManoeuvreKind::Pitch => "pitch",
+                                ManoeuvreKind::Roll => "roll",
+                                ManoeuvreKind::Yaw => "yaw",
+                            },
+                            a.heading_deg,
+                            if a.count > 1 { format!(" ×{}", a.count) } else { String::new() },
+                            if a.new_leg { ", a new leg" } else { "" },
+                            a.cost_s
+                        )
+                    })
+                    .collect();
+                let total: f64 = report.additions.iter().map(|a| a.cost_s).sum();
+                let verdict = match met {
+                    Some(true) => "meet",
+                    _ => "come closest to",
+                };
+                lines.push(format!(
+                    "The cheapest additions that {verdict} the survey target of {target:.3} nT: {} ({total:.0} s of flight in all).",
+                    list.join(", ")
+                ));
+                for channel in &report.with_additions {
+                    lines.push(format!(
+                        "Flown with them, {}: survey uncertainty {}, simulated error {}, FOM {}.",
+                        channel.channel,
+                        channel.survey_sigma_nt.words(3),
+                        channel.survey_error_nt.words(3),
+                        channel.fom_nt.words(2)
+                    ));
+                }
+            }
+        }
+    }
+    lines
+}
