@@ -331,9 +331,9 @@ pub struct ChannelPrediction {
     pub fom_nt: Spread,
     /// Manoeuvres in the FOM (median).
     pub fom_manoeuvres: usize,
-    /// The survey uncertainty the compensation would state: the
-    /// excitation analysis's coefficient part and the compensated noise
-    /// together, one sigma, nT.
+    /// The survey uncertainty the excitation analysis states (the model
+    /// JSON's `excitation.survey_sigma_nt`) with the compensated noise,
+    /// one sigma, nT: what the target and the additions are judged on.
     pub survey_sigma_nt: Spread,
     /// The coefficients' part of it (the excitation analysis), nT.
     pub coefficient_sigma_nt: Spread,
@@ -348,6 +348,9 @@ pub struct ChannelPrediction {
     /// the calibration (the quality JSON's `outside_calibration_sigma_nt`),
     /// nT.
     pub jackknife_sigma_nt: Spread,
+    /// The `mag_<n>_c_sigma` column's RMS over the survey lines (the
+    /// jackknife's spread with the noise), nT.
+    pub sigma_column_nt: Spread,
     /// Simulated flights whose compensation would carry the uncertainty
     /// warning (jackknife above [`crate::quality::UNCERTAINTY_WARNING_NT`]).
     pub uncertain_flights: usize,
@@ -455,6 +458,8 @@ struct Outcome {
     survey_error_nt: f64,
     /// The blocked jackknife's uncertainty away from the calibration, nT.
     jackknife_sigma_nt: f64,
+    /// RMS of the sigma column over the survey lines, nT.
+    sigma_column_nt: f64,
     poorly_pinned: Vec<String>,
     /// The box's gaps the analysis names.
     gaps: Vec<crate::model::excitation::Candidate>,
@@ -619,10 +624,20 @@ fn realise(flight: &SimulatedFlight, settings: &Settings) -> Result<Realisation>
             .unwrap_or(f64::NAN);
             let truth = flight.truth.earth_total_nt(&model.channel).unwrap_or_default();
             let (excitation, design) = design.unzip();
-            let jackknife_sigma_nt = match model.prediction_sigma(log)? {
-                Some(prediction) => crate::quality::uncertainty_of(log, model, &prediction)
-                    .map_or(f64::NAN, |u| u.outside_calibration_sigma_nt),
-                None => f64::NAN,
+            let (jackknife_sigma_nt, sigma_column_nt) = match model.prediction_sigma(log)? {
+                Some(prediction) => {
+                    let column: Vec<f64> = (0..line.len())
+                        .filter(|&i| line[i] > 0.0)
+                        .map(|i| prediction.relative_nt[i].hypot(noise_nt))
+                        .filter(|v| v.is_finite())
+                        .collect();
+                    (
+                        crate::quality::uncertainty_of(log, model, &prediction)
+                            .map_or(f64::NAN, |u| u.outside_calibration_sigma_nt),
+                        (column.iter().map(|v| v * v).sum::<f64>() / column.len() as f64).sqrt(),
+                    )
+                }
+                None => (f64::NAN, f64::NAN),
             };
             Ok(Outcome {
                 channel: model.channel.clone(),
@@ -640,6 +655,7 @@ fn realise(flight: &SimulatedFlight, settings: &Settings) -> Result<Realisation>
                     .flat_map(|e| e.additions.iter().filter(|c| c.gap).cloned())
                     .collect(),
                 jackknife_sigma_nt,
+                sigma_column_nt,
                 design,
             })
         })
@@ -723,6 +739,7 @@ fn predictions(
                 noise_nt: figure(&|o| o.noise_nt),
                 survey_error_nt: figure(&|o| o.survey_error_nt),
                 jackknife_sigma_nt: figure(&|o| o.jackknife_sigma_nt),
+                sigma_column_nt: figure(&|o| o.sigma_column_nt),
                 uncertain_flights,
                 poorly_pinned: majority(&|o| o.poorly_pinned.iter().map(|t| (t.clone(), t.clone())).collect()),
                 gaps: majority(&|o| o.gaps.iter().map(|g| (g.label(), g.label())).collect())

@@ -437,7 +437,7 @@ pub fn analyse_design(
     let reduce_floored = |g: &Mat<f64>| design.reduced(g);
     let survey_sigma = |g: &Mat<f64>| design.survey_sigma(g);
     let (Some(flown_inverse), Some(reference_inverse)) = (
-        inverse_spd(&reduce_floored(&information)),
+        inverse_spd(&reduce_floored(information)),
         inverse_spd(&reduce_floored(&reference)),
     ) else {
         return Ok(None);

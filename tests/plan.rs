@@ -1,0 +1,279 @@
+//! Planning a calibration before it is flown (`magcomp plan`): the
+//! prediction against flights of the plan it has not seen.
+//!
+//! For each seed a plan is drawn at random (`common::random_box`: four
+//! headings 90° apart from a random base, site, height, amplitudes and
+//! sample rate; on odd seeds one manoeuvre left out), with a tail and a
+//! wing magnetometer. `magcomp::plan::predict` flies it on its own
+//! seeds; then four fresh flights of the same plan (other seeds) are
+//! written to CSV and run through the pipeline as `compensate --plain`
+//! does, manoeuvres detected. What is judged, per channel:
+//! - the median FOM of the fresh flights lies within the plan's stated
+//!   factor of the predicted median;
+//! - so does the survey uncertainty compensate states (the excitation
+//!   analysis's coefficient part with the compensated noise);
+//! - so does the fresh flights' true survey-line error (against the
+//!   simulation's truth, relative to the calibration level).
+//!
+//! A second test gives a plan a previous flight's model as its
+//! installation and a survey target it misses: the additions proposed
+//! meet the target when the plan is flown again with them.
+
+mod common;
+
+use std::path::Path;
+
+use magcomp::config::{FlightJob, Settings};
+use magcomp::diagnose::ApplyDiagnosis;
+use magcomp::flight_date::FlightDate;
+use magcomp::formats::write_flight_log;
+use magcomp::plan::{predict, Plan, PlanReport, STATED_FACTOR};
+use magcomp::simulate::random::Random;
+use magcomp::simulate::scenario::Scenario;
+use magcomp::simulate::simulate;
+
+/// One channel of a fresh flight: name, FOM after, stated survey sigma,
+/// true survey error.
+type Flown = (String, f64, f64, f64);
+
+/// A random plan's TOML for `seed`, with `extra` appended.
+fn plan_text(seed: u64, extra: &str) -> String {
+    let mut draw = Random::new(seed).fork("plan test flight");
+    let mut opening = common::random_box(seed, &mut draw);
+    if seed % 2 == 1 {
+        let heading: f64 = {
+            let start = opening.find("headings_deg = [").unwrap() + "headings_deg = [".len();
+            let end = opening[start..].find(',').unwrap() + start;
+            opening[start..end].trim().parse().unwrap()
+        };
+        let kind = ["pitch", "roll", "yaw"][draw.integer(0, 2)];
+        opening = opening.replace("[survey]", &format!("omit = [\"{kind}@{heading}\"]\n        [survey]"));
+    }
+    format!(
+        r#"
+        {opening}
+        line_count = 2
+        line_length_m = 6000.0
+        [[scalar]]
+        name = "mag_1_uc"
+        location = "tail"
+        [[scalar]]
+        name = "mag_2_uc"
+        location = "wing"
+        [[fluxgate]]
+        name = "flux_a"
+        {extra}
+        "#
+    )
+}
+
+/// Settings of `compensate --plain` without the vector stage.
+fn plain() -> Settings {
+    let mut settings = Settings::default();
+    settings.diagnose.apply = ApplyDiagnosis::Never;
+    settings.vector.enabled = false;
+    settings
+}
+
+/// One fresh flight of `plan` with `seed`, through the pipeline with
+/// detected windows: per channel, (FOM after, stated survey sigma, true
+/// survey error).
+fn fresh_flight(folder: &Path, plan: &Plan, seed: u64) -> Vec<Flown> {
+    let mut scenario: Scenario = plan.scenario.clone();
+    scenario.raw.seed = seed;
+    let simulated = simulate(&scenario).unwrap();
+    let input = folder.join(format!("fresh_{seed}.csv"));
+    write_flight_log(&simulated.log, &input).unwrap();
+    let mut job = FlightJob::new(&input);
+    job.date = FlightDate::parse(&scenario.raw.date);
+    let run = magcomp::pipeline::run(&job, &plain(), &folder.join(format!("fresh_{seed}_c.csv"))).unwrap();
+    let line = &run.log().channel("line").unwrap().values;
+    (run.result.models.iter().zip(&run.compensation.channels))
+        .map(|(model, channel)| {
+            let quality = run.result.channels.iter().find(|q| q.channel == model.channel).unwrap();
+            let noise = quality.survey_noise_4th_difference_after_nt.unwrap();
+            let stated = model
+                .excitation
+                .as_ref()
+                .map_or(f64::NAN, |e| e.survey_sigma_nt.hypot(noise));
+            let truth = simulated.truth.earth_total_nt(&model.channel).unwrap();
+            let error = magcomp::plan::error_from_calibration_level(model, &channel.values, truth, line);
+            (
+                model.channel.clone(),
+                quality.fom_after_nt.unwrap_or(f64::NAN),
+                stated,
+                error,
+            )
+        })
+        .collect()
+}
+
+fn median(mut values: Vec<f64>) -> f64 {
+    values.retain(|v| v.is_finite());
+    values.sort_by(f64::total_cmp);
+    let n = values.len();
+    assert!(n > 0, "no finite value");
+    match n % 2 {
+        1 => values[n / 2],
+        _ => 0.5 * (values[n / 2 - 1] + values[n / 2]),
+    }
+}
+
+fn load(folder: &Path, name: &str, text: &str) -> Plan {
+    let path = folder.join(name);
+    std::fs::write(&path, text).unwrap();
+    Plan::load(&path).unwrap()
+}
+
+/// Seeds from `MAGCOMP_PLAN_SEEDS=N` (the first N), four by default.
+fn seeds() -> std::ops::Range<u64> {
+    let n = std::env::var("MAGCOMP_PLAN_SEEDS")
+        .ok()
+        .and_then(|n| n.parse().ok())
+        .unwrap_or(4);
+    1..1 + n
+}
+
+#[test]
+fn the_prediction_holds_on_flights_of_the_plan_it_has_not_seen() {
+    let folder = tempfile::tempdir().unwrap();
+    let (mut judged, mut warned) = (0, 0);
+    for seed in seeds() {
+        let plan = load(
+            folder.path(),
+            &format!("plan_{seed}.toml"),
+            &plan_text(seed, "[plan]\nrealisations = 6"),
+        );
+        let report: PlanReport = predict(&plan, &plain()).unwrap();
+        assert_eq!(report.seeds.len(), 6);
+        let fresh: Vec<Vec<Flown>> = (0..4)
+            .map(|k| fresh_flight(folder.path(), &plan, 1000 + 10 * seed + k))
+            .collect();
+        for (c, predicted) in report.channels.iter().enumerate() {
+            let of = |f: &dyn Fn(&Flown) -> f64| median(fresh.iter().map(|run| f(&run[c])).collect());
+            let (fom, stated, error) = (of(&|r| r.1), of(&|r| r.2), of(&|r| r.3));
+            println!(
+                "seed {seed} {}: FOM predicted {:.3} ({:.3}–{:.3}) flown {fom:.3}; survey sigma predicted {:.4} flown {stated:.4}; true error predicted {:.4} ({:.4}–{:.4}) flown {error:.4}; uncertain in {} of 6",
+                predicted.channel,
+                predicted.fom_nt.median,
+                predicted.fom_nt.low,
+                predicted.fom_nt.high,
+                predicted.survey_sigma_nt.median,
+                predicted.survey_error_nt.median,
+                predicted.survey_error_nt.low,
+                predicted.survey_error_nt.high,
+                predicted.uncertain_flights,
+            );
+            let within =
+                |predicted: f64, flown: f64| (1.0 / STATED_FACTOR..=STATED_FACTOR).contains(&(flown / predicted));
+            for (what, predicted, flown) in [
+                ("FOM", predicted.fom_nt.median, fom),
+                ("stated survey sigma", predicted.survey_sigma_nt.median, stated),
+            ] {
+                assert!(
+                    within(predicted, flown),
+                    "seed {seed} channel {c}: {what} predicted {predicted:.4} nT, flown {flown:.4} nT"
+                );
+            }
+            // The true error lies in the plan's range widened by the
+            // factor (its median is of a heavy-tailed few), unless the plan
+            // warned that the compensation is uncertain on some of its
+            // flights (a fragile box: on those the error is many times the
+            // median).
+            let range = predicted.survey_error_nt;
+            match (range.low / STATED_FACTOR..=range.high * STATED_FACTOR).contains(&error) {
+                true => judged += 1,
+                false => {
+                    assert!(
+                        predicted.uncertain_flights > 0
+                            && report.warnings.iter().any(|w| w.starts_with(&format!("{}: in ", predicted.channel))),
+                        "seed {seed} channel {c}: true survey error predicted {:.4} nT, flown {error:.4} nT, and the plan did not warn",
+                        predicted.survey_error_nt.median
+                    );
+                    warned += 1;
+                }
+            }
+        }
+        // A plan that leaves a manoeuvre out says so.
+        if seed % 2 == 1 {
+            assert!(
+                report.warnings.iter().any(|w| w.contains("the plan's box has no")),
+                "seed {seed}: {:?}",
+                report.warnings
+            );
+        }
+    }
+    println!("{judged} channels whose flown true error lies in the plan's range widened ×{STATED_FACTOR}, {warned} outside it on a plan that warned");
+    assert!(judged >= 5, "{judged} channels within the factor");
+}
+
+#[test]
+fn additions_proposed_for_a_target_meet_it_when_flown() {
+    let folder = tempfile::tempdir().unwrap();
+    // A previous flight of the aircraft: its model is the installation.
+    let previous = load(folder.path(), "previous.toml", &plan_text(7, ""));
+    let simulated = simulate(&previous.scenario).unwrap();
+    let input = folder.path().join("previous.csv");
+    write_flight_log(&simulated.log, &input).unwrap();
+    let mut job = FlightJob::new(&input);
+    job.date = FlightDate::parse(&previous.scenario.raw.date);
+    let run = magcomp::pipeline::run(&job, &plain(), &folder.path().join("previous_c.csv")).unwrap();
+    let models = serde_json::json!({"flight": "previous.csv", "models": run.result.models});
+    std::fs::write(folder.path().join("previous_model.json"), models.to_string()).unwrap();
+
+    // A three-leg plan without a roll: well above a target the full box
+    // would meet.
+    let mut text = plan_text(8, "");
+    let start = text.find("headings_deg = [").unwrap();
+    let end = text[start..].find(']').unwrap() + start + 1;
+    let base: f64 = text[start + "headings_deg = [".len()..end - 1]
+        .split(',')
+        .next()
+        .unwrap()
+        .trim()
+        .parse()
+        .unwrap();
+    let legs = [base, base + 90.0, base + 180.0];
+    text.replace_range(
+        start..end,
+        &format!("headings_deg = {legs:?}\n        omit = [\"roll@{}\"]", legs[1]),
+    );
+    let installed = format!("{text}\n[plan]\nrealisations = 6\ninstallation = \"previous_model.json\"\n");
+    let untouched = predict(&load(folder.path(), "probe.toml", &installed), &plain()).unwrap();
+    let tail = &untouched.channels[0];
+    let target = 0.7 * tail.survey_sigma_nt.median;
+    assert!(
+        target > 1.5 * tail.noise_nt.median,
+        "the target {target:.4} must lie above the noise {:.4}",
+        tail.noise_nt.median
+    );
+    let plan_toml = format!("{installed}target_survey_sigma_nt = {target}\nmost_additions = 8\n");
+    let plan = load(folder.path(), "plan.toml", &plan_toml);
+    assert!(plan.installation.contains("mag_1_uc"), "{}", plan.installation);
+    let report = predict(&plan, &plain()).unwrap();
+    for line in report.summary.iter().chain(&report.warnings) {
+        println!("{line}");
+    }
+    let before = report.channels[0].survey_sigma_nt.median;
+    assert!(before > target, "the plan already meets {target}: {before}");
+    assert!(!report.additions.is_empty());
+    assert_eq!(report.additions_meet_target, Some(true), "{:?}", report.additions);
+    // The gap (the roll left out) is among the additions.
+    assert!(
+        report
+            .additions
+            .iter()
+            .any(|a| a.kind == magcomp::windows::ManoeuvreKind::Roll),
+        "{:?}",
+        report.additions
+    );
+    // Flown with the additions, the plan meets the target on the tail
+    // sensor within the stated factor, and is better than without.
+    let after = report.with_additions[0].survey_sigma_nt.median;
+    println!("mag_1_uc: survey sigma {before:.4} nT; with the additions predicted {:.4}, flown {after:.4}; target {target:.4}", report.additions.last().unwrap().survey_sigma_nt["mag_1_uc"]);
+    assert!(after < before, "{after} not below {before}");
+    assert!(
+        after <= target * 1.25,
+        "flown with the additions: {after:.4} against the target {target:.4}"
+    );
+}
