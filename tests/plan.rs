@@ -277,3 +277,54 @@ fn additions_proposed_for_a_target_meet_it_when_flown() {
         "flown with the additions: {after:.4} against the target {target:.4}"
     );
 }
+
+/// A plan that cannot be flown or read gets an error naming the table,
+/// the value and what to give; the command never writes over its input.
+#[test]
+fn a_bad_plan_is_refused_with_what_to_fix() {
+    let folder = tempfile::tempdir().unwrap();
+    let refused = |name: &str, text: &str, expected: &str| {
+        let path = folder.path().join(name);
+        std::fs::write(&path, text).unwrap();
+        let message = Plan::load(&path).unwrap_err().to_string();
+        assert!(message.contains(expected), "{name}: {message}");
+    };
+    refused(
+        "zero.toml",
+        "[plan]\nrealisations = 0\n",
+        "realisations = 0: give 1 to 64",
+    );
+    refused("typo.toml", "[plan]\nrealisation = 4\n", "unknown field `realisation`");
+    refused(
+        "target.toml",
+        "[plan]\ntarget_fom_nt = -1.0\n",
+        "target_fom_nt: give a positive number",
+    );
+    refused(
+        "nobox.toml",
+        "[calibration]\nrepeats = 0\n",
+        "a plan needs a calibration box",
+    );
+    refused(
+        "extra.toml",
+        "[calibration]\nheadings_deg = [0.0, 90.0]\nextra = [\"roll@45\"]\n",
+        "45 is not one of headings_deg",
+    );
+    std::fs::write(folder.path().join("not_a_model.json"), "{\"flight\": \"x.csv\"}").unwrap();
+    refused(
+        "installation.toml",
+        "[plan]\ninstallation = \"not_a_model.json\"\n",
+        "not a model JSON written by compensate --model: it has no \"models\" list",
+    );
+    // Written over its own input: refused, the plan unchanged.
+    let plan = folder.path().join("plan.toml");
+    std::fs::write(&plan, "[plan]\nrealisations = 1\n").unwrap();
+    let output = std::process::Command::new(env!("CARGO_BIN_EXE_magcomp"))
+        .args(["plan", plan.to_str().unwrap(), "--out", plan.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(!output.status.success());
+    assert_eq!(std::fs::read_to_string(&plan).unwrap(), "[plan]\nrealisations = 1\n");
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(stderr.starts_with("magcomp: error:"), "{stderr}");
+}
