@@ -190,13 +190,18 @@ fn install(raw: &mut RawScenario, file: &Path, has_scalars: bool) -> Result<Stri
         .and_then(|m| m.as_array())
         .ok_or_else(|| not_ours("it has no \"models\" list".into()))?;
     let mut fields: BTreeMap<String, AircraftField> = BTreeMap::new();
+    let mut left_out: Vec<String> = Vec::new();
     for model in models {
-        let (Some(channel), Some(field)) = (model.get("channel").and_then(|c| c.as_str()), aircraft_field(model))
+        let (Some(channel), Some((field, unused))) =
+            (model.get("channel").and_then(|c| c.as_str()), aircraft_field(model))
         else {
             continue;
         };
         if channel.starts_with("mag_") && channel.ends_with("_uc") {
             fields.insert(channel.to_string(), field);
+            if !unused.is_empty() {
+                left_out.push(format!("{channel}'s {}", unused.join(", ")));
+            }
         }
     }
     if fields.is_empty() {
@@ -226,6 +231,12 @@ fn install(raw: &mut RawScenario, file: &Path, has_scalars: bool) -> Result<Stri
         file.display(),
         taken.join(", ")
     );
+    if !left_out.is_empty() {
+        words += &format!(
+            "; left out, as the simulated aircraft field holds no such term: {}",
+            left_out.join("; ")
+        );
+    }
     if !typical.is_empty() {
         words += &format!(
             "; {} not in it, so drawn at the location's typical size",
@@ -240,9 +251,9 @@ fn install(raw: &mut RawScenario, file: &Path, has_scalars: bool) -> Result<Stri
 /// symmetric A ($a_{ii} = s A_{ii}$, $a_{ij} = 2 s A_{ij}$); the eddy
 /// terms $b_{ij} u_i \Delta B_j / s$, ΔB per sample, give
 /// $E_{ij} = b_{ij} / (s f_s)$ in seconds. Terms the model lacks are zero;
-/// extension columns (lags, couplings) are left out. `None` without
-/// coefficients or a sample rate.
-fn aircraft_field(model: &serde_json::Value) -> Option<AircraftField> {
+/// extension columns (lags, couplings) are left out and named. `None`
+/// without coefficients or a sample rate.
+fn aircraft_field(model: &serde_json::Value) -> Option<(AircraftField, Vec<String>)> {
     let names = model.get("term_names")?.as_array()?;
     let values = model.get("coefficients")?.as_array()?;
     let rate = model.get("sample_rate_hz")?.as_f64().filter(|r| *r > 0.0)?;
@@ -256,6 +267,7 @@ fn aircraft_field(model: &serde_json::Value) -> Option<AircraftField> {
         eddy_s: [[0.0; 3]; 3],
     };
     let mut any = false;
+    let mut unused = Vec::new();
     for (name, value) in names.iter().zip(values) {
         let (Some(name), Some(value)) = (name.as_str(), value.as_f64()) else {
             continue;
@@ -269,11 +281,14 @@ fn aircraft_field(model: &serde_json::Value) -> Option<AircraftField> {
                 field.induced[j][i] = field.induced[i][j];
             }
             (Some("eddy"), &[i, j]) => field.eddy_s[i][j] = value / (scale * rate),
-            _ => continue,
+            _ => {
+                unused.push(name.to_string());
+                continue;
+            }
         }
         any = true;
     }
-    (any && field.is_plausible()).then_some(field)
+    (any && field.is_plausible()).then_some((field, unused))
 }
 
 /// A figure over the realisations.
@@ -534,6 +549,15 @@ pub fn predict(plan: &Plan, settings: &Settings) -> Result<PlanReport> {
                 channel.fom_nt.words(2),
                 target_fom.unwrap_or(f64::NAN),
                 format_args!("{:.3} nT", channel.noise_nt.median),
+            ));
+        }
+        let unanalysed = (realisations.iter())
+            .filter(|r| (r.outcomes.iter()).any(|o| o.channel == channel.channel && o.design.is_none()))
+            .count();
+        if unanalysed > 0 {
+            warnings.push(format!(
+                "{}: {unanalysed} of the {report_realisations} simulated flights have no excitation analysis (the windows leave the design singular): the survey uncertainty and the additions rest on the others",
+                channel.channel
             ));
         }
         for gap in &channel.gaps {
