@@ -12,6 +12,7 @@
 //! `magcomp summarize OUTDIR` ([`summary`]) merges the statuses and the
 //! quality and model JSONs into a campaign table.
 
+pub mod drift;
 mod shard;
 mod status;
 pub mod summary;

@@ -8,8 +8,11 @@
 //!   diagnosed findings applied;
 //! - `campaign_coefficients.csv`, when an aircraft has two calibrated
 //!   flights or more: each coefficient of each channel, flight by flight
-//!   in date order, with its one-sigma uncertainty, so a change of the
-//!   installation shows;
+//!   in date order, with its one-sigma uncertainty;
+//! - `campaign_drift.csv`, for the same aircraft: each channel's model
+//!   compared with the aircraft's previous calibration ([`super::drift`]),
+//!   with the FOM of both, and a change the uncertainties do not explain
+//!   flagged (and warned of on stdout);
 //! - `campaign_summary.html`: the same tables on one page.
 //!
 //! Only flights the campaign names an aircraft for (`aircraft = …` in a
@@ -22,6 +25,7 @@ use std::path::{Path, PathBuf};
 
 use serde_json::Value;
 
+use super::drift::{compare, Calibration, Drift, Verdict};
 use super::status::unreadable;
 use super::{FlightState, FlightStatus};
 use crate::error::{Error, Result};
@@ -66,8 +70,46 @@ pub struct SummaryFlight {
     pub channels: Vec<ChannelFigures>,
     /// The fitted coefficients (empty for a failed flight).
     pub coefficients: Vec<Coefficient>,
+    /// Each channel's model, as the drift comparison reads it.
+    pub calibrations: Vec<Calibration>,
     /// What could not be read for this flight.
     pub problems: Vec<String>,
+}
+
+/// One channel of a recurring aircraft compared with its previous
+/// calibration.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DriftRow {
+    /// The aircraft.
+    pub aircraft: String,
+    /// The channel.
+    pub channel: String,
+    /// The earlier flight and its date.
+    pub from: (String, Option<String>),
+    /// The later flight and its date.
+    pub to: (String, Option<String>),
+    /// The channel's FOM after compensation on each, nT.
+    pub fom_nt: (Option<f64>, Option<f64>),
+    /// The comparison.
+    pub drift: Drift,
+}
+
+impl DriftRow {
+    /// The row in one sentence, for stdout and the page.
+    pub fn describe(&self) -> String {
+        let fom = match self.fom_nt {
+            (Some(a), Some(b)) => format!("; FOM {a:.3} → {b:.3} nT"),
+            _ => String::new(),
+        };
+        format!(
+            "{}, {}: {} → {}: {}{fom}",
+            self.aircraft,
+            self.channel,
+            self.from.0,
+            self.to.0,
+            self.drift.describe()
+        )
+    }
 }
 
 /// A campaign's flights, in output-name order.
@@ -110,6 +152,7 @@ fn summary_flight(folder: &Path, path: &Path) -> Result<SummaryFlight> {
         status,
         channels: Vec::new(),
         coefficients: Vec::new(),
+        calibrations: Vec::new(),
         problems: Vec::new(),
     };
     if flight.status.state != FlightState::Done {
@@ -121,7 +164,12 @@ fn summary_flight(folder: &Path, path: &Path) -> Result<SummaryFlight> {
         Err(problem) => flight.problems.push(problem),
     }
     match read_json(&folder.join(format!("{name}_model.json"))) {
-        Ok(model) => flight.coefficients = coefficients(&model),
+        Ok(model) => {
+            flight.coefficients = coefficients(&model);
+            flight.calibrations = (model["models"].as_array().into_iter().flatten())
+                .map(Calibration::from_model_json)
+                .collect();
+        }
         Err(problem) => flight.problems.push(problem),
     }
     Ok(flight)
@@ -221,6 +269,98 @@ impl CampaignSummary {
                 (aircraft, flights)
             })
             .collect()
+    }
+
+    /// Each channel of each recurring aircraft compared with the
+    /// aircraft's previous calibration, flight after flight in date order.
+    pub fn drifts(&self) -> Vec<DriftRow> {
+        let mut rows = Vec::new();
+        for (aircraft, flights) in self.recurring_aircraft() {
+            for pair in flights.windows(2) {
+                let (earlier, later) = (pair[0], pair[1]);
+                for b in &later.calibrations {
+                    let Some(a) = earlier.calibrations.iter().find(|a| a.channel == b.channel) else {
+                        continue;
+                    };
+                    let fom = |flight: &SummaryFlight| {
+                        (flight.channels.iter())
+                            .find(|c| c.channel == b.channel)
+                            .and_then(|c| c.fom_after_nt)
+                    };
+                    rows.push(DriftRow {
+                        aircraft: aircraft.clone(),
+                        channel: b.channel.clone(),
+                        from: (earlier.status.flight.clone(), earlier.status.date.clone()),
+                        to: (later.status.flight.clone(), later.status.date.clone()),
+                        fom_nt: (fom(earlier), fom(later)),
+                        drift: compare(a, b),
+                    });
+                }
+            }
+        }
+        rows
+    }
+
+    /// `campaign_drift.csv`, or `None` when no aircraft recurs.
+    pub fn drift_csv(&self) -> Option<String> {
+        if self.recurring_aircraft().is_empty() {
+            return None;
+        }
+        let header = [
+            "aircraft",
+            "channel",
+            "flight_before",
+            "date_before",
+            "flight_after",
+            "date_after",
+            "verdict",
+            "change_rms_nt",
+            "expected_rms_nt",
+            "ratio",
+            "limit",
+            "degrees_of_freedom",
+            "compared_terms",
+            "permanent_change_x_nt",
+            "permanent_change_y_nt",
+            "permanent_change_z_nt",
+            "permanent_sigma_x_nt",
+            "permanent_sigma_y_nt",
+            "permanent_sigma_z_nt",
+            "permanent_t2",
+            "permanent_limit",
+            "fom_before_flight_nt",
+            "fom_after_flight_nt",
+            "note",
+        ];
+        let mut rows = vec![header.map(String::from).to_vec()];
+        for row in self.drifts() {
+            let d = &row.drift;
+            let number = |v: f64| match v.is_finite() {
+                true => format!("{v:.6}"),
+                false => String::new(),
+            };
+            let (change, sigma) = d.permanent_change_nt.unwrap_or(([f64::NAN; 3], [f64::NAN; 3]));
+            let mut cells = vec![
+                row.aircraft.clone(),
+                row.channel.clone(),
+                row.from.0.clone(),
+                row.from.1.clone().unwrap_or_default(),
+                row.to.0.clone(),
+                row.to.1.clone().unwrap_or_default(),
+                d.verdict.name().into(),
+                number(d.change_rms_nt),
+                number(d.expected_rms_nt),
+                number(d.ratio),
+                number(d.limit),
+                number(d.degrees_of_freedom),
+                d.compared_terms.to_string(),
+            ];
+            cells.extend(change.iter().chain(&sigma).map(|&v| number(v)));
+            cells.extend([number(d.permanent_t2), number(d.permanent_limit)]);
+            cells.extend([figure(row.fom_nt.0), figure(row.fom_nt.1), d.note.clone()]);
+            rows.push(cells);
+        }
+        Some(csv_text(&rows))
     }
 
     /// `campaign_summary.csv`.
@@ -324,6 +464,14 @@ impl CampaignSummary {
                 flight.problems.join("; ")
             );
         }
+        for row in self.drifts() {
+            let kind = match row.drift.verdict {
+                Verdict::Changed => "warning: installation changed",
+                Verdict::Unknown => "note: drift not compared",
+                Verdict::Steady => continue,
+            };
+            let _ = writeln!(text, "  {kind}: {}", row.describe());
+        }
         text
     }
 
@@ -380,9 +528,56 @@ impl CampaignSummary {
         if self.flights.iter().all(|f| f.status.aircraft.is_none()) {
             page += "<p>No flight names its aircraft: name it (<code>aircraft = \"…\"</code> in a [[flight]] or a manifest column) to follow each aircraft's coefficients over time.</p>\n";
         }
+        page += &self.drift_html();
         page += &self.coefficients_html();
         page += "</body></html>\n";
         page
+    }
+
+    /// The drift table: each channel against the aircraft's previous
+    /// calibration, a change the uncertainties do not explain in red.
+    fn drift_html(&self) -> String {
+        let escape = crate::report::escape;
+        let rows = self.drifts();
+        if rows.is_empty() {
+            return String::new();
+        }
+        let mut html = String::from(
+            "<h2>Drift between calibrations</h2>\n<p>Each channel's model against the aircraft's previous calibration: the RMS of the two models' predictions' difference over the calibration manoeuvres, against what the two fits' blocked-jackknife uncertainties explain. A ratio above the limit (the χ² 0.999 quantile times 1.5) is a change of the installation.</p>\n<table><tr><th class=\"text\">aircraft</th><th class=\"text\">channel</th><th class=\"text\">before</th><th class=\"text\">after</th><th class=\"text\">verdict</th><th>change, nT</th><th>expected, nT</th><th>ratio</th><th>limit</th><th>FOM before, nT</th><th>FOM after, nT</th><th class=\"text\">in words</th></tr>\n",
+        );
+        for row in &rows {
+            let d = &row.drift;
+            let label = |(flight, date): &(String, Option<String>)| match date {
+                Some(date) => format!("{flight} ({date})"),
+                None => flight.clone(),
+            };
+            let class = match d.verdict {
+                Verdict::Changed => " class=\"failed\"",
+                _ => "",
+            };
+            let number = |v: f64| match v.is_finite() {
+                true => format!("{v:.3}"),
+                false => "–".into(),
+            };
+            let _ = writeln!(
+                html,
+                "<tr{class}><td class=\"text\">{}</td><td class=\"text\">{}</td><td class=\"text\">{}</td><td class=\"text\">{}</td><td class=\"text\">{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td class=\"text\">{}</td></tr>",
+                escape(&row.aircraft),
+                escape(&row.channel),
+                escape(&label(&row.from)),
+                escape(&label(&row.to)),
+                d.verdict.name(),
+                number(d.change_rms_nt),
+                number(d.expected_rms_nt),
+                number(d.ratio),
+                number(d.limit),
+                figure(row.fom_nt.0),
+                figure(row.fom_nt.1),
+                escape(&d.describe())
+            );
+        }
+        html += "</table>\n";
+        html
     }
 
     /// One table per recurring aircraft and channel: a row per term, a
@@ -455,6 +650,9 @@ impl CampaignSummary {
         ];
         if let Some(text) = self.coefficients_csv() {
             files.push(("campaign_coefficients.csv", text));
+        }
+        if let Some(text) = self.drift_csv() {
+            files.push(("campaign_drift.csv", text));
         }
         let mut set = OutputSet::new();
         for (name, text) in files {

@@ -111,6 +111,14 @@ pub struct Excitation {
     pub candidates_from: String,
     /// The analysis in plain words.
     pub summary: Vec<String>,
+    /// The band-passed design's second moment over the calibration
+    /// windows, $M = A^\top A / n$ (p × p, the coefficients' own units, the
+    /// model's term order). For two models' coefficient difference
+    /// $\Delta$, $\Delta^\top M \Delta$ is the mean square of their
+    /// predictions' difference over this calibration's manoeuvres, nT²:
+    /// what compares two calibrations of one aircraft
+    /// ([`crate::campaign::drift`]).
+    pub calibration_moment: Vec<Vec<f64>>,
 }
 
 /// How well one coefficient is pinned.
@@ -345,12 +353,16 @@ pub fn analyse_design(
         stores,
     )?;
     let p = stacked.columns();
+    let rows: usize = fits.iter().map(|f| f.stacked_rows.len()).sum();
     let per_window: Vec<Mat<f64>> = fits
         .iter()
         .map(|f| rows_gram(|j| stacked.column_range(j, f.stacked_rows.clone()), p))
         .collect();
     stores.recycle(stacked);
     let total = sum(per_window.iter(), p);
+    let calibration_moment = (0..p)
+        .map(|i| (0..p).map(|j| total[(i, j)] / rows.max(1) as f64).collect())
+        .collect();
     let scale: Vec<f64> = (0..p)
         .map(|j| total[(j, j)].sqrt())
         .map(|d| if d > 0.0 && d.is_finite() { d } else { 1.0 })
@@ -522,6 +534,7 @@ pub fn analyse_design(
         survey_rows,
         candidates_from: plan.described,
         summary: Vec::new(),
+        calibration_moment,
     };
     excitation.summary = summarise(&excitation);
     design.candidates = candidates;

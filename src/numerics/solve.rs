@@ -197,8 +197,7 @@ pub struct Solution {
     /// is kept, and so is what differs between windows: the Earth's field
     /// in the band, which coefficients along directions the manoeuvres
     /// barely excite fit differently each time. Empty with fewer than
-    /// three folds.
-    #[serde(skip)]
+    /// three folds. In the model JSON, one row per fold.
     pub jackknife: Vec<Vec<f64>>,
 }
 

@@ -331,7 +331,10 @@ fn record_fluxgate(
     fluxgate: &scenario::Fluxgate,
     random: &mut Random,
 ) -> (Vec<(String, Vec<f64>)>, FluxgateTruth) {
-    let own = AircraftField::draw(random, fluxgate.permanent_nt, fluxgate.induced, fluxgate.eddy_s);
+    // Drawn even when the scenario gives the field, so the draws after it
+    // do not depend on whether it does.
+    let drawn = AircraftField::draw(random, fluxgate.permanent_nt, fluxgate.induced, fluxgate.eddy_s);
+    let own = fluxgate.aircraft.clone().unwrap_or(drawn);
     let residual = FluxgateCalibration::draw(
         random,
         fluxgate.scale_error,

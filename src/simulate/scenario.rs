@@ -47,6 +47,11 @@
 //! # aircraft = { permanent_nt = [..], induced = [[..], [..], [..]], eddy_s = [[..], [..], [..]] }
 //! #                         # this aircraft's field instead of one drawn for the location
 //!
+//! [[fluxgate]]              # one per vector magnetometer
+//! name = "flux_a"
+//! permanent_nt = 40.0       # sizes the aircraft's field at the fluxgate is drawn at
+//! # aircraft = { .. }       # or the field itself, as for a scalar
+//!
 //! [[effect]]                # concealed in the output, written to the truth file
 //! kind = "sensor_lag"
 //! channel = "mag_1_uc"
@@ -410,6 +415,9 @@ pub struct Fluxgate {
     pub non_orthogonality_deg: f64,
     /// Size of the residual offsets, nT.
     pub offset_nt: f64,
+    /// The aircraft's field at the fluxgate, instead of one drawn at
+    /// these sizes (one airframe flown on several days).
+    pub aircraft: Option<AircraftField>,
 }
 
 impl Default for Fluxgate {
@@ -423,6 +431,7 @@ impl Default for Fluxgate {
             scale_error: 5e-4,
             non_orthogonality_deg: 0.03,
             offset_nt: 5.0,
+            aircraft: None,
         }
     }
 }
@@ -684,6 +693,12 @@ fn check_sensors(raw: &RawScenario) -> std::result::Result<(), String> {
     }
     if let Some(f) = raw.fluxgate.iter().find(|f| !f.name.starts_with("flux_")) {
         return Err(format!("[[fluxgate]] '{}': name it flux_<s>, e.g. flux_a", f.name));
+    }
+    if let Some(f) = (raw.fluxgate.iter()).find(|f| f.aircraft.as_ref().is_some_and(|a| !a.is_plausible())) {
+        return Err(format!(
+            "[[fluxgate]] '{}': aircraft: give a finite field, permanent_nt within ±1e6 nT, induced within ±1 and eddy_s within ±10 s",
+            f.name
+        ));
     }
     Ok(())
 }
