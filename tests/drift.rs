@@ -13,8 +13,7 @@ mod common;
 use std::path::Path;
 
 use magcomp::campaign::drift::{compare, Calibration, Verdict};
-use magcomp::config::{FlightJob, Settings};
-use magcomp::diagnose::ApplyDiagnosis;
+use magcomp::config::FlightJob;
 use magcomp::flight_date::FlightDate;
 use magcomp::formats::write_flight_log;
 use magcomp::simulate::random::Random;
@@ -44,14 +43,6 @@ fn raw_scenario(seed: u64) -> RawScenario {
     toml::from_str(&text).unwrap()
 }
 
-/// Settings of `compensate --plain` without the vector stage.
-fn plain() -> Settings {
-    let mut settings = Settings::default();
-    settings.diagnose.apply = ApplyDiagnosis::Never;
-    settings.vector.enabled = false;
-    settings
-}
-
 /// Flies `raw`, compensates it, and returns each channel's model as the
 /// campaign summary reads it from the model JSON, and the truth.
 fn fly(folder: &Path, raw: RawScenario, name: &str) -> (Vec<Calibration>, Truth) {
@@ -61,7 +52,7 @@ fn fly(folder: &Path, raw: RawScenario, name: &str) -> (Vec<Calibration>, Truth)
     write_flight_log(&simulated.log, &input).unwrap();
     let mut job = FlightJob::new(&input);
     job.date = FlightDate::parse(&date);
-    let run = magcomp::pipeline::run(&job, &plain(), &folder.join(format!("{name}_c.csv"))).unwrap();
+    let run = magcomp::pipeline::run(&job, &common::plain(), &folder.join(format!("{name}_c.csv"))).unwrap();
     let calibrations = (run.result.models.iter())
         .map(|model| Calibration::from_model_json(&serde_json::to_value(model).unwrap()))
         .collect();

@@ -23,8 +23,7 @@ mod common;
 
 use std::path::Path;
 
-use magcomp::config::{FlightJob, Settings};
-use magcomp::diagnose::ApplyDiagnosis;
+use magcomp::config::FlightJob;
 use magcomp::flight_date::FlightDate;
 use magcomp::formats::write_flight_log;
 use magcomp::plan::{predict, Plan, PlanReport, STATED_FACTOR};
@@ -67,14 +66,6 @@ fn plan_text(seed: u64, extra: &str) -> String {
     )
 }
 
-/// Settings of `compensate --plain` without the vector stage.
-fn plain() -> Settings {
-    let mut settings = Settings::default();
-    settings.diagnose.apply = ApplyDiagnosis::Never;
-    settings.vector.enabled = false;
-    settings
-}
-
 /// One fresh flight of `plan` with `seed`, through the pipeline with
 /// detected windows: per channel, (FOM after, stated survey sigma, true
 /// survey error).
@@ -86,7 +77,7 @@ fn fresh_flight(folder: &Path, plan: &Plan, seed: u64) -> Vec<Flown> {
     write_flight_log(&simulated.log, &input).unwrap();
     let mut job = FlightJob::new(&input);
     job.date = FlightDate::parse(&scenario.raw.date);
-    let run = magcomp::pipeline::run(&job, &plain(), &folder.join(format!("fresh_{seed}_c.csv"))).unwrap();
+    let run = magcomp::pipeline::run(&job, &common::plain(), &folder.join(format!("fresh_{seed}_c.csv"))).unwrap();
     let line = &run.log().channel("line").unwrap().values;
     (run.result.models.iter().zip(&run.compensation.channels))
         .map(|(model, channel)| {
@@ -144,7 +135,7 @@ fn the_prediction_holds_on_flights_of_the_plan_it_has_not_seen() {
             &format!("plan_{seed}.toml"),
             &plan_text(seed, "[plan]\nrealisations = 6"),
         );
-        let report: PlanReport = predict(&plan, &plain()).unwrap();
+        let report: PlanReport = predict(&plan, &common::plain()).unwrap();
         assert_eq!(report.seeds.len(), 6);
         let fresh: Vec<Vec<Flown>> = (0..4)
             .map(|k| fresh_flight(folder.path(), &plan, 1000 + 10 * seed + k))
@@ -217,7 +208,7 @@ fn additions_proposed_for_a_target_meet_it_when_flown() {
     write_flight_log(&simulated.log, &input).unwrap();
     let mut job = FlightJob::new(&input);
     job.date = FlightDate::parse(&previous.scenario.raw.date);
-    let run = magcomp::pipeline::run(&job, &plain(), &folder.path().join("previous_c.csv")).unwrap();
+    let run = magcomp::pipeline::run(&job, &common::plain(), &folder.path().join("previous_c.csv")).unwrap();
     let models = serde_json::json!({"flight": "previous.csv", "models": run.result.models});
     std::fs::write(folder.path().join("previous_model.json"), models.to_string()).unwrap();
 
@@ -239,7 +230,7 @@ fn additions_proposed_for_a_target_meet_it_when_flown() {
         &format!("headings_deg = {legs:?}\n        omit = [\"roll@{}\"]", legs[1]),
     );
     let installed = format!("{text}\n[plan]\nrealisations = 6\ninstallation = \"previous_model.json\"\n");
-    let untouched = predict(&load(folder.path(), "probe.toml", &installed), &plain()).unwrap();
+    let untouched = predict(&load(folder.path(), "probe.toml", &installed), &common::plain()).unwrap();
     let tail = &untouched.channels[0];
     let target = 0.7 * tail.survey_sigma_nt.median;
     assert!(
@@ -250,7 +241,7 @@ fn additions_proposed_for_a_target_meet_it_when_flown() {
     let plan_toml = format!("{installed}target_survey_sigma_nt = {target}\nmost_additions = 8\n");
     let plan = load(folder.path(), "plan.toml", &plan_toml);
     assert!(plan.installation.contains("mag_1_uc"), "{}", plan.installation);
-    let report = predict(&plan, &plain()).unwrap();
+    let report = predict(&plan, &common::plain()).unwrap();
     for line in report.summary.iter().chain(&report.warnings) {
         println!("{line}");
     }

@@ -231,21 +231,7 @@ pub struct Drift {
 
 /// Compares the earlier calibration `a` with the later `b` of one channel.
 pub fn compare(a: &Calibration, b: &Calibration) -> Drift {
-    let mut drift = Drift {
-        compared_terms: 0,
-        change_rms_nt: f64::NAN,
-        expected_rms_nt: f64::NAN,
-        ratio: f64::NAN,
-        limit: f64::NAN,
-        degrees_of_freedom: f64::NAN,
-        covariance_dof: f64::NAN,
-        verdict: Verdict::Unknown,
-        families: [None; 3],
-        permanent_change_nt: None,
-        permanent_t2: f64::NAN,
-        permanent_limit: f64::NAN,
-        note: String::new(),
-    };
+    let mut drift = Drift::unknown(String::new());
     for (which, calibration) in [("earlier", a), ("later", b)] {
         if let Some(why) = calibration.incomparable() {
             drift.note = format!("not compared: the {which} model cannot be: {why}");
@@ -349,9 +335,14 @@ pub fn compare(a: &Calibration, b: &Calibration) -> Drift {
             BETWEEN_BOXES * deviations.iter().map(|d| d[index[r]] * d[index[c]]).sum::<f64>()
         });
         let change = nalgebra::Vector3::new(delta[x], delta[y], delta[z]);
-        if let Some(inverse) = covariance.try_inverse() {
-            drift.permanent_t2 = change.dot(&(inverse * change));
-            drift.permanent_limit = 3.0 * m / (m - 2.0) * f_quantile(3.0, m - 2.0, 1.0 - FALSE_ALARM);
+        match covariance.try_inverse() {
+            Some(inverse) => {
+                drift.permanent_t2 = change.dot(&(inverse * change));
+                drift.permanent_limit = 3.0 * m / (m - 2.0) * f_quantile(3.0, m - 2.0, 1.0 - FALSE_ALARM);
+            }
+            None => {
+                drift.note = "the permanent field is not tested on its own: its jackknife covariance is singular".into()
+            }
         }
     }
     drift.verdict = match drift.ratio > drift.limit || drift.permanent_t2 > drift.permanent_limit {
@@ -364,7 +355,10 @@ pub fn compare(a: &Calibration, b: &Calibration) -> Drift {
             true => "none".to_string(),
             false => e.join(", "),
         };
-        drift.note = format!(
+        if !drift.note.is_empty() {
+            drift.note += "; ";
+        }
+        drift.note += &format!(
             "the models differ beyond Tolles-Lawson (earlier: {}; later: {}); a term one model adds can move the shared coefficients a little",
             list(&own_a),
             list(&own_b)
@@ -374,6 +368,25 @@ pub fn compare(a: &Calibration, b: &Calibration) -> Drift {
 }
 
 impl Drift {
+    /// No comparison, for the reason `note`.
+    pub fn unknown(note: String) -> Drift {
+        Drift {
+            compared_terms: 0,
+            change_rms_nt: f64::NAN,
+            expected_rms_nt: f64::NAN,
+            ratio: f64::NAN,
+            limit: f64::NAN,
+            degrees_of_freedom: f64::NAN,
+            covariance_dof: f64::NAN,
+            verdict: Verdict::Unknown,
+            families: [None; 3],
+            permanent_change_nt: None,
+            permanent_t2: f64::NAN,
+            permanent_limit: f64::NAN,
+            note,
+        }
+    }
+
     /// The family whose change the uncertainties explain least, if the
     /// model changed.
     pub fn mostly_in(&self) -> Option<&'static str> {

@@ -279,8 +279,12 @@ impl CampaignSummary {
             for pair in flights.windows(2) {
                 let (earlier, later) = (pair[0], pair[1]);
                 for b in &later.calibrations {
-                    let Some(a) = earlier.calibrations.iter().find(|a| a.channel == b.channel) else {
-                        continue;
+                    let drift = match earlier.calibrations.iter().find(|a| a.channel == b.channel) {
+                        Some(a) => compare(a, b),
+                        None => Drift::unknown(format!(
+                            "not compared: the earlier flight has no model of {} (not compensated, or its model JSON unreadable)",
+                            b.channel
+                        )),
                     };
                     let fom = |flight: &SummaryFlight| {
                         (flight.channels.iter())
@@ -293,7 +297,7 @@ impl CampaignSummary {
                         from: (earlier.status.flight.clone(), earlier.status.date.clone()),
                         to: (later.status.flight.clone(), later.status.date.clone()),
                         fom_nt: (fom(earlier), fom(later)),
-                        drift: compare(a, b),
+                        drift,
                     });
                 }
             }

@@ -144,3 +144,11 @@ pub fn random_box(seed: u64, draw: &mut magcomp::simulate::random::Random) -> St
         line_heading = draw.uniform(0.0, 180.0),
     )
 }
+
+/// Settings of `compensate --plain` without the vector stage.
+pub fn plain() -> magcomp::config::Settings {
+    let mut settings = magcomp::config::Settings::default();
+    settings.diagnose.apply = magcomp::diagnose::ApplyDiagnosis::Never;
+    settings.vector.enabled = false;
+    settings
+}
