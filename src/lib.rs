@@ -73,6 +73,7 @@
 //! ```
 #![deny(missing_docs)]
 
+pub mod against_plan;
 pub mod campaign;
 pub mod compensate;
 pub mod config;

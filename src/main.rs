@@ -214,6 +214,12 @@ struct CompensateArgs {
     /// Apply --diagnosis even when it was made on another flight.
     #[arg(long, requires = "diagnosis")]
     force: bool,
+    /// The PLAN_REPORT.json of the plan this flight was flown to
+    /// (`magcomp plan`): each channel's FOM and survey uncertainty are set
+    /// against the plan's prediction, and a figure beyond the plan's
+    /// stated factor is a warning.
+    #[arg(long)]
+    plan: Option<PathBuf>,
     /// The day the flight was flown, YYYY-MM-DD (UTC), over what the file
     /// says; MCAP output's log times count from its midnight.
     #[arg(long, value_parser = parse_date)]
@@ -417,6 +423,7 @@ fn run(config: &Path, plain: bool, force: bool, shard: Option<&str>) -> anyhow::
 fn prepare_flight_outputs(job: &FlightJob, outputs: &FlightOutputs) -> magcomp::error::Result<()> {
     let inputs: Vec<&Path> = std::iter::once(job.input.as_path())
         .chain(job.diagnosis.as_deref())
+        .chain(job.plan.as_deref())
         .collect();
     print_notes(&prepare(&inputs, &outputs.destinations())?);
     Ok(())
@@ -476,6 +483,7 @@ fn compensate(args: CompensateArgs) -> anyhow::Result<()> {
     let job = FlightJob {
         diagnosis: args.diagnosis.clone(),
         force_diagnosis: args.force,
+        plan: args.plan.clone(),
         vector: args.vector,
         channels: args.channels,
         windows,

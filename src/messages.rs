@@ -85,6 +85,18 @@ pub struct Sample {
     pub unit: String,
 }
 
+/// `magcomp.RowFlags`: why a compensated row is missing or suspect (the
+/// `flags` column of CSV output); empty when the row is fine.
+#[derive(Clone, PartialEq, prost::Message)]
+pub struct RowFlags {
+    /// Sample time.
+    #[prost(message, optional, tag = "1")]
+    pub timestamp: Option<Timestamp>,
+    /// The flags, as the CSV's `flags` column writes them.
+    #[prost(string, tag = "2")]
+    pub flags: String,
+}
+
 /// `foxglove.LocationFix`, the fields magcomp writes.
 #[derive(Clone, PartialEq, prost::Message)]
 pub struct LocationFix {
@@ -181,6 +193,7 @@ fn magcomp_file() -> FileDescriptorProto {
                 ],
             ),
             message("Sample", vec![stamp(), double("value", 2), string("unit", 3)]),
+            message("RowFlags", vec![stamp(), string("flags", 2)]),
         ],
         syntax: Some("proto3".into()),
         ..Default::default()

@@ -69,6 +69,50 @@ pub struct FlightResult {
     /// The gradients' direct models (the model JSON holds them).
     #[serde(skip)]
     pub gradient_models: Vec<FittedModel>,
+    /// The flight against the plan it was flown to (`--plan`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub plan: Option<crate::against_plan::PlanComparison>,
+}
+
+/// The flight's channels and manoeuvres set against `planned`: the FOM,
+/// the survey uncertainty the excitation analysis states (with the noise
+/// the sigma column takes) and the sigma column over the survey lines.
+fn against_plan(
+    planned: &crate::against_plan::PlanPrediction,
+    log: &FlightLog,
+    models: &[FittedModel],
+    quality: &[ChannelQuality],
+    compensation: &crate::compensate::Compensation,
+) -> crate::against_plan::PlanComparison {
+    let line = log.channel("line").map(|c| c.values.as_slice()).unwrap_or_default();
+    let channels: Vec<crate::against_plan::FlownChannel> = (models.iter().zip(quality).zip(&compensation.channels))
+        .map(|((model, quality), channel)| {
+            let noise = [
+                quality.survey_noise_4th_difference_after_nt,
+                Some(quality.noise_4th_difference_after_nt),
+            ]
+            .into_iter()
+            .flatten()
+            .find(|n| n.is_finite());
+            crate::against_plan::FlownChannel {
+                channel: model.channel.clone(),
+                fom_nt: quality.fom_after_nt,
+                survey_sigma_nt: (model.excitation.as_ref())
+                    .zip(noise)
+                    .map(|(e, noise)| e.survey_sigma_nt.hypot(noise)),
+                sigma_column_nt: (channel.sigma_nt.as_deref()).and_then(|s| crate::against_plan::survey_rms(s, line)),
+            }
+        })
+        .collect();
+    // The windows every channel was fitted on; labelled by kind and
+    // heading when detected (or given so).
+    let manoeuvres: Option<Vec<(crate::windows::ManoeuvreKind, f64)>> = (models.first()).and_then(|m| {
+        m.windows
+            .iter()
+            .map(|w| w.window.kind.zip(w.window.heading_deg))
+            .collect()
+    });
+    crate::against_plan::compare(planned, manoeuvres.as_deref(), &channels)
 }
 
 /// What the vector stage produced: models, compensated vectors, words.
@@ -391,6 +435,10 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
         date: job.date.or(options.ingest.date),
         ..options.ingest.clone()
     };
+    // A plan report that cannot be read fails before the flight's work.
+    let planned = (job.plan.as_deref())
+        .map(crate::against_plan::PlanPrediction::read)
+        .transpose()?;
     let recorded = read_flight_log(&job.input, &ingest)?;
     // Every stage works on the screened samples; the output copies the
     // recorded ones.
@@ -573,6 +621,11 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
             warnings.push(format!("{}: no uncertainty figure: {why}", model.channel));
         }
     }
+    let plan = planned.map(|planned| against_plan(&planned, log, &models, &quality, &compensation));
+    if let Some(plan) = &plan {
+        notes.extend(plan.notes.iter().cloned());
+        warnings.extend(plan.warnings.iter().cloned());
+    }
     let applied_findings = diagnosis.as_ref().map(applied_findings).unwrap_or_default();
     let result = FlightResult {
         flight: job.input.clone(),
@@ -594,6 +647,7 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
         vector_models: vector.models,
         gradients: gradients.results,
         gradient_models: gradients.models,
+        plan,
     };
     Ok(FlightRun {
         recorded,

@@ -38,6 +38,9 @@
 //! takes that aircraft's field (its permanent, induced and eddy
 //! coefficients turned into the simulator's $P + A B + E \dot B$); a plan
 //! without `[[scalar]]` tables takes the model file's channels.
+//!
+//! A flight flown to the plan is set against the report by
+//! [`crate::against_plan`] (`compensate --plan PLAN_REPORT.json`).
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -47,6 +50,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::config::Settings;
 use crate::error::{Error, Result};
+use crate::holdout::angle_apart;
 use crate::model::excitation::{analyse_design, Design};
 use crate::model::{fit, FittedModel, ModelSpec};
 use crate::numerics::stacked::StorePool;
@@ -69,9 +73,7 @@ const LEAST_GAIN: f64 = 0.005;
 /// the plan: a lead-in and two 90° turns at 3°/s, s.
 const NEW_LEG_S: f64 = 80.0;
 
-/// The factor within which the plan's medians are expected to hold on
-/// flights of the plan (FOM and survey figures); see `tests/plan.rs`.
-pub const STATED_FACTOR: f64 = 2.0;
+pub use crate::against_plan::STATED_FACTOR;
 
 /// `[plan]`: how to predict.
 #[derive(Debug, Clone, Deserialize)]
@@ -382,6 +384,15 @@ pub struct ChannelPrediction {
     pub meets_survey_target: Option<bool>,
 }
 
+/// A manoeuvre of the planned box.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct PlannedManoeuvre {
+    /// Manoeuvre.
+    pub kind: ManoeuvreKind,
+    /// Leg heading, degrees.
+    pub heading_deg: f64,
+}
+
 /// A manoeuvre to add to the plan.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Addition {
@@ -419,6 +430,9 @@ pub struct PlanReport {
     pub headings_deg: Vec<f64>,
     /// Manoeuvres in the planned box(es).
     pub manoeuvres: usize,
+    /// Each planned manoeuvre, as the first simulated flight flew it:
+    /// what a flight of the plan is matched with (`compensate --plan`).
+    pub planned_manoeuvres: Vec<PlannedManoeuvre>,
     /// Length of the calibration (first manoeuvre to last), s (median).
     pub calibration_s: f64,
     /// `[plan] target_fom_nt`.
@@ -483,6 +497,8 @@ struct Outcome {
 
 /// One simulated flight of the plan.
 struct Realisation {
+    /// The manoeuvres flown, in order.
+    flown: Vec<PlannedManoeuvre>,
     outcomes: Vec<Outcome>,
     manoeuvres: usize,
     calibration_s: f64,
@@ -588,6 +604,7 @@ pub fn predict(plan: &Plan, settings: &Settings) -> Result<PlanReport> {
         installation: plan.installation.clone(),
         headings_deg: headings.clone(),
         manoeuvres: median_of(realisations.iter().map(|r| r.manoeuvres as f64)).round() as usize,
+        planned_manoeuvres: realisations.first().map(|r| r.flown.clone()).unwrap_or_default(),
         calibration_s: median_of(realisations.iter().map(|r| r.calibration_s)),
         target_fom_nt: target_fom,
         target_survey_sigma_nt: target_survey,
@@ -692,6 +709,12 @@ fn realise(flight: &SimulatedFlight, settings: &Settings) -> Result<Realisation>
     Ok(Realisation {
         outcomes,
         manoeuvres: manoeuvres.len(),
+        flown: (manoeuvres.iter())
+            .map(|m| PlannedManoeuvre {
+                kind: m.kind,
+                heading_deg: m.heading_deg,
+            })
+            .collect(),
         calibration_s,
     })
 }
@@ -986,11 +1009,6 @@ fn candidate_values(
 /// The plan with `additions` flown: on a leg of the plan as an `extra`;
 /// on a new heading as a new leg with only the added manoeuvres.
 fn add_to_scenario(raw: &mut RawScenario, additions: &[Addition]) {
-    let name = |kind: ManoeuvreKind| match kind {
-        ManoeuvreKind::Pitch => "pitch",
-        ManoeuvreKind::Roll => "roll",
-        ManoeuvreKind::Yaw => "yaw",
-    };
     let box_ = &mut raw.calibration;
     for addition in additions.iter().flat_map(|a| std::iter::repeat_n(a, a.count)) {
         let heading = addition.heading_deg;
@@ -1003,7 +1021,7 @@ fn add_to_scenario(raw: &mut RawScenario, additions: &[Addition]) {
             Some(leg) => {
                 // A new leg's first manoeuvre of a kind is its own; the
                 // rest of that kind are extras.
-                let omitted = format!("{}@{leg}", name(addition.kind));
+                let omitted = format!("{}@{leg}", addition.kind.name());
                 match box_.omit.iter().position(|o| *o == omitted) {
                     Some(at) => {
                         box_.omit.remove(at);
@@ -1015,18 +1033,12 @@ fn add_to_scenario(raw: &mut RawScenario, additions: &[Addition]) {
                 box_.headings_deg.push(heading);
                 for kind in [ManoeuvreKind::Pitch, ManoeuvreKind::Roll, ManoeuvreKind::Yaw] {
                     if kind != addition.kind {
-                        box_.omit.push(format!("{}@{heading}", name(kind)));
+                        box_.omit.push(format!("{}@{heading}", kind.name()));
                     }
                 }
             }
         }
     }
-}
-
-/// The angular distance between two headings, degrees (0 to 180).
-fn angle_apart(a: f64, b: f64) -> f64 {
-    let d = (a - b).rem_euclid(360.0);
-    d.min(360.0 - d)
 }
 
 /// The prediction in a few sentences.
@@ -1075,11 +1087,7 @@ fn summarise(report: &PlanReport) -> Vec<String> {
                     .map(|a| {
                         format!(
                             "{} on heading {:.0}{}{} ({:.0} s)",
-                            match a.kind {
-                                ManoeuvreKind::Pitch => "pitch",
-                                ManoeuvreKind::Roll => "roll",
-                                ManoeuvreKind::Yaw => "yaw",
-                            },
+                            a.kind.name(),
                             a.heading_deg,
                             if a.count > 1 { format!(" ×{}", a.count) } else { String::new() },
                             if a.new_leg { ", a new leg" } else { "" },

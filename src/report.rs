@@ -817,6 +817,60 @@ fn applied_findings_section(result: &FlightResult) -> String {
     html + "</section>"
 }
 
+/// The flight against the plan it was flown to: each channel's figures,
+/// planned and flown, and the manoeuvres the flight lacks.
+fn plan_section(plan: &crate::against_plan::PlanComparison) -> String {
+    use crate::against_plan::Verdict;
+    let mut html = format!(
+        "<section id=\"plan\"><h2>Against the plan</h2><p>Plan report <code>{}</code> (plan <code>{}</code>){}; a figure holds inside the range of the plan's simulated flights widened ×{}.</p>",
+        escape(&plan.report.display().to_string()),
+        escape(&plan.plan.display().to_string()),
+        match plan.with_additions {
+            true => ", with the additions it proposed, which the flight flew",
+            false => "",
+        },
+        plan.stated_factor
+    );
+    if !plan.missing.is_empty() {
+        let _ = write!(
+            html,
+            "<p class=\"warning\">Planned and not flown: {}.</p>",
+            escape(&plan.missing.join(", "))
+        );
+    }
+    if !plan.unplanned.is_empty() {
+        let _ = write!(
+            html,
+            "<p class=\"note\">Flown and not planned: {}.</p>",
+            escape(&plan.unplanned.join(", "))
+        );
+    }
+    html += "<table><tr><th>channel</th><th>figure</th><th>planned, nT</th><th>range, nT</th><th>flown, nT</th><th>flown / planned</th><th>verdict</th></tr>";
+    let number = |v: Option<f64>| v.map_or("–".to_string(), |v| format!("{v:.4}"));
+    for channel in &plan.channels {
+        for figure in &channel.figures {
+            let (class, verdict) = match figure.verdict {
+                Verdict::AsPlanned => ("", "as planned"),
+                Verdict::Worse => (" class=\"warning\"", "worse than planned"),
+                Verdict::Better => (" class=\"warning\"", "better than planned"),
+                Verdict::NotCompared => ("", "not compared"),
+            };
+            let _ = write!(
+                html,
+                "<tr{class}><td>{}</td><td>{}</td><td>{}</td><td>{}–{}</td><td>{}</td><td>{}</td><td>{verdict}</td></tr>",
+                escape(&channel.channel),
+                figure.figure,
+                number(figure.planned_nt),
+                number(figure.planned_low_nt),
+                number(figure.planned_high_nt),
+                number(figure.flown_nt),
+                figure.ratio.map_or("–".to_string(), |r| format!("{r:.2}")),
+            );
+        }
+    }
+    html + "</table></section>"
+}
+
 /// The report's page and its figures as JSON beside it (`<path>` with the
 /// extension `.json`), staged for `path`.
 pub struct StagedReport {
@@ -846,6 +900,9 @@ pub fn stage_report(path: &Path, flight: &FlightRun, fom_limit_nt: f64) -> Resul
         let _ = write!(html, "<p class=\"warning\">Warning: {}</p>", escape(warning));
     }
     html += &applied_findings_section(result);
+    if let Some(plan) = &result.plan {
+        html += &plan_section(plan);
+    }
     for note in &result.notes {
         let _ = write!(html, "<p class=\"note\">{}</p>", escape(note));
     }

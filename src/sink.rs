@@ -109,6 +109,7 @@ pub fn process_flight_listing(
 ) -> Result<(FlightResult, Vec<PathBuf>)> {
     let inputs: Vec<&Path> = std::iter::once(job.input.as_path())
         .chain(job.diagnosis.as_deref())
+        .chain(job.plan.as_deref())
         .collect();
     // Folders created here are not noted in the outputs: a caller that
     // tells its user calls `prepare` first.

@@ -25,6 +25,15 @@ pub enum ManoeuvreKind {
 }
 
 impl ManoeuvreKind {
+    /// The manoeuvre's name as users and the JSON files write it.
+    pub fn name(self) -> &'static str {
+        match self {
+            ManoeuvreKind::Pitch => "pitch",
+            ManoeuvreKind::Roll => "roll",
+            ManoeuvreKind::Yaw => "yaw",
+        }
+    }
+
     /// The attitude offset (roll, pitch, yaw), degrees, of this manoeuvre
     /// swung `angle_deg` from level: the simulator's pilot and the
     /// excitation analysis's candidate manoeuvres both fly it, as a sine.

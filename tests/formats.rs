@@ -116,24 +116,30 @@ fn every_format_ingests_to_the_same_log_and_compensates_identically() {
         };
         let outputs = FlightOutputs::in_directory(&folder.path().join("out"), input);
         process_flight(&job, &options(), &outputs).unwrap();
-        let values: Vec<u64> = match outputs.compensated.extension().is_some_and(|e| e == "mcap") {
-            // MCAP in, MCAP out: the compensated topic reads back as mag_1_c.
-            true => read_flight_log(&outputs.compensated, &ingest)
-                .unwrap()
-                .channel("mag_1_c")
-                .expect("/mag/1/compensated is written")
-                .values
-                .iter()
-                .map(|v| if v.is_nan() { u64::MAX } else { v.to_bits() })
-                .collect(),
-            false => output_column(&outputs.compensated, "mag_1_c")
-                .iter()
-                .map(|v| v.parse::<f64>().map_or(u64::MAX, f64::to_bits))
-                .collect(),
+        let bits = |v: f64| if v.is_nan() { u64::MAX } else { v.to_bits() };
+        let column = |name: &str| -> Vec<u64> {
+            match outputs.compensated.extension().is_some_and(|e| e == "mcap") {
+                // MCAP in, MCAP out: /mag/1/compensated reads back as
+                // mag_1_c and /mag/1/compensated_sigma as mag_1_c_sigma.
+                true => read_flight_log(&outputs.compensated, &ingest)
+                    .unwrap()
+                    .channel(name)
+                    .unwrap_or_else(|| panic!("{name} is written to MCAP"))
+                    .values
+                    .iter()
+                    .map(|&v| bits(v))
+                    .collect(),
+                false => output_column(&outputs.compensated, name)
+                    .iter()
+                    .map(|v| v.parse::<f64>().map_or(u64::MAX, bits))
+                    .collect(),
+            }
         };
-        compensated.push(values);
+        let (values, sigma) = (column("mag_1_c"), column("mag_1_c_sigma"));
+        assert!(sigma.iter().any(|&s| s != u64::MAX), "{input:?}: a sigma column");
+        compensated.push([values, sigma].concat());
     }
-    assert_eq!(compensated[0].len(), from_csv.len());
+    assert_eq!(compensated[0].len(), 2 * from_csv.len());
     assert!(
         compensated[0] == compensated[1],
         "CSV and XYZ inputs compensate differently"

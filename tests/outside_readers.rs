@@ -63,11 +63,16 @@ fn compensated_mcap_decodes_with_the_official_python_reader() {
         "/aux/cur_strb",
         "/mag/1/compensated",
         "/mag/2/compensated",
+        "/mag/1/compensated_sigma",
+        "/mag/2/compensated_sigma",
+        "/magcomp/flags",
     ] {
         assert_eq!(summary["counts"][topic].as_u64(), Some(rows), "{topic}");
     }
     assert_eq!(summary["schemas"]["/mag/a/vector"], "magcomp.VectorMag");
     assert_eq!(summary["schemas"]["/gps/fix"], "foxglove.LocationFix");
+    assert_eq!(summary["schemas"]["/magcomp/flags"], "magcomp.RowFlags");
+    assert_eq!(summary["schemas"]["/mag/1/compensated_sigma"], "magcomp.Sample");
     assert_eq!(summary["timestamps_match_log_time"], true);
     assert!(
         summary["chunk_indexes"].as_u64().unwrap() > 0,

@@ -72,12 +72,7 @@ fn plan_text(seed: u64, extra: &str) -> String {
 fn fresh_flight(folder: &Path, plan: &Plan, seed: u64) -> Vec<Flown> {
     let mut scenario: Scenario = plan.scenario.clone();
     scenario.raw.seed = seed;
-    let simulated = simulate(&scenario).unwrap();
-    let input = folder.join(format!("fresh_{seed}.csv"));
-    write_flight_log(&simulated.log, &input).unwrap();
-    let mut job = FlightJob::new(&input);
-    job.date = FlightDate::parse(&scenario.raw.date);
-    let run = magcomp::pipeline::run(&job, &common::plain(), &folder.join(format!("fresh_{seed}_c.csv"))).unwrap();
+    let (simulated, run) = fly(folder, &scenario, &format!("fresh_{seed}"), None);
     let line = &run.log().channel("line").unwrap().values;
     (run.result.models.iter().zip(&run.compensation.channels))
         .map(|(model, channel)| {
@@ -97,6 +92,24 @@ fn fresh_flight(folder: &Path, plan: &Plan, seed: u64) -> Vec<Flown> {
             )
         })
         .collect()
+}
+
+/// Simulates `scenario`, writes it to CSV as `<name>.csv` and runs it
+/// through the pipeline as `compensate --plain [--plan plan]` does.
+fn fly(
+    folder: &Path,
+    scenario: &Scenario,
+    name: &str,
+    plan: Option<&Path>,
+) -> (magcomp::simulate::SimulatedFlight, magcomp::pipeline::FlightRun) {
+    let simulated = simulate(scenario).unwrap();
+    let input = folder.join(format!("{name}.csv"));
+    write_flight_log(&simulated.log, &input).unwrap();
+    let mut job = FlightJob::new(&input);
+    job.date = FlightDate::parse(&scenario.raw.date);
+    job.plan = plan.map(Path::to_path_buf);
+    let run = magcomp::pipeline::run(&job, &common::plain(), &folder.join(format!("{name}_c.csv"))).unwrap();
+    (simulated, run)
 }
 
 fn median(mut values: Vec<f64>) -> f64 {
@@ -318,4 +331,200 @@ fn a_bad_plan_is_refused_with_what_to_fix() {
     assert_eq!(std::fs::read_to_string(&plan).unwrap(), "[plan]\nrealisations = 1\n");
     let stderr = String::from_utf8_lossy(&output.stderr);
     assert!(stderr.starts_with("magcomp: error:"), "{stderr}");
+}
+
+/// Seeds from `MAGCOMP_PLAN_COMPARE_SEEDS=N` (N even seeds), three by
+/// default: plans that leave no manoeuvre out.
+fn compare_seeds() -> Vec<u64> {
+    let n = std::env::var("MAGCOMP_PLAN_COMPARE_SEEDS")
+        .ok()
+        .and_then(|n| n.parse().ok())
+        .unwrap_or(3);
+    (1..=n).map(|k| 2 * k).collect()
+}
+
+/// `scenario` with its raw tables changed by `change`, checked again.
+fn changed(scenario: &Scenario, change: impl FnOnce(&mut magcomp::simulate::scenario::RawScenario)) -> Scenario {
+    let mut raw = scenario.raw.clone();
+    change(&mut raw);
+    Scenario::try_from(raw).unwrap()
+}
+
+/// A flight flown to a plan, compensated with its PLAN_REPORT.json
+/// (`compensate --plan`), on random plans:
+/// - flown as planned, its figures hold (inside the plan's simulated
+///   range widened by the stated factor) and no manoeuvre is missing;
+/// - flown with one planned manoeuvre left out, exactly that manoeuvre is
+///   named and warned of;
+/// - flown with the tail magnetometer thirty times noisier than planned,
+///   its FOM and stated survey uncertainty are worse than planned and
+///   the run warns of it, while the wing magnetometer still holds.
+#[test]
+fn a_flight_is_set_against_the_plan_it_was_flown_to() {
+    use magcomp::against_plan::Verdict;
+    let folder = tempfile::tempdir().unwrap();
+    let (mut figures, mut held) = (0, 0);
+    for seed in compare_seeds() {
+        let plan = load(
+            folder.path(),
+            &format!("compare_{seed}.toml"),
+            &plan_text(seed, "[plan]\nrealisations = 6"),
+        );
+        let report = predict(&plan, &common::plain()).unwrap();
+        let report_path = folder.path().join(format!("compare_{seed}_report.json"));
+        magcomp::formats::write_json(&report_path, "the plan report", &report).unwrap();
+        assert_eq!(report.planned_manoeuvres.len(), report.manoeuvres);
+
+        // As planned.
+        let mut scenario = plan.scenario.clone();
+        scenario.raw.seed = 2000 + seed;
+        let (_, run) = fly(
+            folder.path(),
+            &scenario,
+            &format!("as_planned_{seed}"),
+            Some(&report_path),
+        );
+        let comparison = run.result.plan.as_ref().expect("a comparison with the plan");
+        assert!(
+            comparison.missing.is_empty() && comparison.unplanned.is_empty(),
+            "seed {seed}: missing {:?}, unplanned {:?}",
+            comparison.missing,
+            comparison.unplanned
+        );
+        assert_eq!(comparison.channels.len(), 2);
+        for channel in &comparison.channels {
+            for figure in &channel.figures {
+                println!(
+                    "seed {seed} {} {}: planned {:?} ({:?}–{:?}) flown {:?}: {:?}",
+                    channel.channel,
+                    figure.figure,
+                    figure.planned_nt,
+                    figure.planned_low_nt,
+                    figure.planned_high_nt,
+                    figure.flown_nt,
+                    figure.verdict
+                );
+                assert_ne!(figure.verdict, Verdict::NotCompared, "seed {seed}: {figure:?}");
+                figures += 1;
+                held += usize::from(figure.verdict == Verdict::AsPlanned);
+            }
+        }
+
+        // One planned manoeuvre left out.
+        let mut draw = Random::new(seed).fork("left out of the flown plan");
+        let leg = scenario.raw.calibration.headings_deg[draw.integer(0, 3)];
+        let kind = ["pitch", "roll", "yaw"][draw.integer(0, 2)];
+        let lacking = changed(&scenario, |raw| raw.calibration.omit.push(format!("{kind}@{leg}")));
+        let (_, run) = fly(folder.path(), &lacking, &format!("lacking_{seed}"), Some(&report_path));
+        let comparison = run.result.plan.as_ref().unwrap();
+        let expected = format!("{kind} on heading {:.0}°", leg.rem_euclid(360.0));
+        assert_eq!(comparison.missing, vec![expected.clone()], "seed {seed}");
+        assert!(
+            run.result
+                .warnings
+                .iter()
+                .any(|w| w.contains("the flight lacks 1 of the plan's") && w.contains(&expected)),
+            "seed {seed}: {:?}",
+            run.result.warnings
+        );
+
+        // The tail magnetometer far noisier than the plan's.
+        let noisy = changed(&scenario, |raw| raw.scalar[0].noise_nt *= 30.0);
+        let (_, run) = fly(folder.path(), &noisy, &format!("noisy_{seed}"), Some(&report_path));
+        let comparison = run.result.plan.as_ref().unwrap();
+        let verdicts =
+            |c: usize| -> Vec<Verdict> { comparison.channels[c].figures.iter().map(|f| f.verdict).collect() };
+        let flown = |c: usize| -> Vec<String> {
+            (comparison.channels[c].figures.iter())
+                .map(|f| {
+                    format!(
+                        "{:.4}/{:.4}",
+                        f.flown_nt.unwrap_or(f64::NAN),
+                        f.planned_high_nt.unwrap_or(f64::NAN)
+                    )
+                })
+                .collect()
+        };
+        println!(
+            "seed {seed} noisy tail: {:?} (flown/planned high {:?}), wing: {:?}",
+            verdicts(0),
+            flown(0),
+            verdicts(1)
+        );
+        assert_eq!(verdicts(0)[..2], [Verdict::Worse, Verdict::Worse], "seed {seed}");
+        assert!(
+            run.result
+                .warnings
+                .iter()
+                .any(|w| w.starts_with("mag_1_uc: FOM") && w.contains("worse than planned")),
+            "seed {seed}: {:?}",
+            run.result.warnings
+        );
+        assert!(
+            !verdicts(1).contains(&Verdict::Worse),
+            "seed {seed}: the wing {:?}",
+            verdicts(1)
+        );
+        if seed == 2 {
+            the_command_line_sets_the_flight_against_the_plan(folder.path(), &report_path);
+        }
+    }
+    println!("{held} of {figures} figures of flights flown as planned hold");
+    assert!(held as f64 >= 0.85 * figures as f64, "{held} of {figures} figures held");
+}
+
+/// `compensate --plan` on the noisy flight of seed 2: the warning on
+/// stdout, the `plan` section in the quality JSON and the report page;
+/// a file that is not a plan report is refused before any work.
+fn the_command_line_sets_the_flight_against_the_plan(folder: &Path, report: &Path) {
+    let magcomp = |args: &[&std::ffi::OsStr]| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_magcomp"))
+            .current_dir(folder)
+            .args(args)
+            .output()
+            .unwrap()
+    };
+    let os = |s: &str| std::ffi::OsString::from(s);
+    let output = magcomp(&[
+        &os("compensate"),
+        &os("noisy_2.csv"),
+        &os("--out"),
+        &os("noisy_2_cli.csv"),
+        &os("--report"),
+        &os("noisy_2_quality.json"),
+        &os("--plain"),
+        &os("--plan"),
+        report.as_os_str(),
+    ]);
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+    assert!(
+        stdout
+            .lines()
+            .any(|l| l.contains("warning: mag_1_uc: FOM") && l.contains("worse than planned")),
+        "{stdout}"
+    );
+    let quality: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(folder.join("noisy_2_quality.json")).unwrap()).unwrap();
+    let verdict = &quality["plan"]["channels"][0]["figures"][0];
+    assert_eq!(verdict["figure"], "fom_nt");
+    assert_eq!(verdict["verdict"], "worse");
+    let page = std::fs::read_to_string(folder.join("noisy_2_cli_report.html")).unwrap();
+    assert!(page.contains("Against the plan") && page.contains("worse than planned"));
+    // The flight's own CSV is not a plan report.
+    let output = magcomp(&[
+        &os("compensate"),
+        &os("noisy_2.csv"),
+        &os("--out"),
+        &os("refused.csv"),
+        &os("--plan"),
+        &os("noisy_2.csv"),
+    ]);
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success());
+    assert!(
+        stderr.contains("not a PLAN_REPORT.json as `magcomp plan` writes it"),
+        "{stderr}"
+    );
+    assert!(!folder.join("refused.csv").exists());
 }

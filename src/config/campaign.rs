@@ -9,9 +9,10 @@
 //!
 //! A manifest is CSV (a header row naming its columns) or JSON lines (one
 //! object a line). Its fields are those of a `[[flight]]`: `input` (the
-//! only one required), `windows`, `diagnosis`, `vector`, `channels`,
-//! `date`, and `aircraft`, the airframe a calibration belongs to (the
-//! campaign summary follows each aircraft's coefficients over time). In CSV,
+//! only one required), `windows`, `diagnosis`, `plan` (the PLAN_REPORT.json
+//! of the plan the flight was flown to), `vector`, `channels`, `date`, and
+//! `aircraft`, the airframe a calibration belongs to (the campaign summary
+//! follows each aircraft's coefficients over time). In CSV,
 //! `windows` is a DETECT.json path or `T0:T1` windows separated by spaces
 //! or `;`, and `channels` are names separated by spaces or `;`. In JSON
 //! lines, `windows` is a DETECT.json path or a list of `"T0:T1"` strings or
@@ -87,6 +88,8 @@ struct ManifestRow {
     #[serde(default)]
     diagnosis: Option<PathBuf>,
     #[serde(default)]
+    plan: Option<PathBuf>,
+    #[serde(default)]
     vector: Option<String>,
     #[serde(default)]
     channels: Option<ManifestChannels>,
@@ -97,10 +100,11 @@ struct ManifestRow {
 }
 
 /// The columns a CSV manifest may have.
-const MANIFEST_COLUMNS: [&str; 7] = [
+const MANIFEST_COLUMNS: [&str; 8] = [
     "input",
     "windows",
     "diagnosis",
+    "plan",
     "vector",
     "channels",
     "date",
@@ -221,6 +225,7 @@ fn raw_flight(input: PathBuf) -> RawFlight {
         windows: Vec::new(),
         windows_file: None,
         diagnosis: None,
+        plan: None,
         date: None,
         aircraft: None,
     }
@@ -326,6 +331,7 @@ fn read_manifest_csv(path: &Path, text: &str) -> Result<Vec<RawFlight>> {
                 .ok_or_else(|| manifest_error(path, line, "the input cell is empty".into()))?,
             windows: cell("windows").map(csv_windows),
             diagnosis: cell("diagnosis").map(PathBuf::from),
+            plan: cell("plan").map(PathBuf::from),
             vector: cell("vector"),
             channels: cell("channels").map(ManifestChannels::Text),
             date: cell("date"),
@@ -364,6 +370,7 @@ fn from_row(row: ManifestRow) -> std::result::Result<RawFlight, String> {
         None => {}
     }
     flight.diagnosis = row.diagnosis;
+    flight.plan = row.plan;
     flight.vector = row.vector;
     flight.channels = row.channels.map(|channels| match channels {
         ManifestChannels::List(list) => list,

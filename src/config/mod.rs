@@ -209,6 +209,9 @@ pub(crate) struct RawFlight {
     /// A DIAGNOSIS.json whose models to fit and compensate with.
     #[serde(default)]
     pub diagnosis: Option<PathBuf>,
+    /// The PLAN_REPORT.json of the plan the flight was flown to.
+    #[serde(default)]
+    pub plan: Option<PathBuf>,
     /// The day the flight was flown, `YYYY-MM-DD` (UTC), over what the file
     /// says (MCAP output's log times count from its midnight).
     #[serde(default)]
@@ -293,6 +296,10 @@ pub struct FlightJob {
     pub diagnosis: Option<PathBuf>,
     /// Apply `diagnosis` even when it was made on another flight (`--force`).
     pub force_diagnosis: bool,
+    /// The PLAN_REPORT.json of the plan the flight was flown to: the
+    /// compensation is set against its prediction
+    /// ([`crate::against_plan`]).
+    pub plan: Option<PathBuf>,
     /// The day the flight was flown, over what the file says.
     pub date: Option<crate::flight_date::FlightDate>,
     /// The airframe, when the campaign names it.
@@ -315,6 +322,7 @@ impl FlightJob {
             windows: Vec::new(),
             diagnosis: None,
             force_diagnosis: false,
+            plan: None,
             date: None,
             aircraft: None,
         }
@@ -643,6 +651,7 @@ fn flight_job(raw: RawFlight, base: &Path, source_name: &str) -> Result<FlightJo
         channels: raw.channels,
         windows,
         diagnosis: raw.diagnosis.map(|d| base.join(d)),
+        plan: raw.plan.map(|p| base.join(p)),
         date,
         aircraft: raw.aircraft,
         ..FlightJob::new(input)

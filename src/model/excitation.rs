@@ -42,7 +42,7 @@ use serde::Serialize;
 
 use crate::error::Result;
 use crate::flight_log::{body_to_ned, Channel, ChannelRole, FlightLog, VectorSensor};
-use crate::holdout::{distinct_headings, same_heading};
+use crate::holdout::{angle_apart, distinct_headings, same_heading};
 use crate::numerics::linalg::gram;
 use crate::numerics::stacked::StorePool;
 use crate::windows::{CalibrationWindow, ManoeuvreKind};
@@ -192,7 +192,7 @@ pub struct Candidate {
 impl Candidate {
     /// "roll, heading 110".
     pub fn label(&self) -> String {
-        format!("{}, heading {}", kind_name(self.kind), self.heading_deg.round())
+        format!("{}, heading {}", self.kind.name(), self.heading_deg.round())
     }
 
     /// "±10.0°, 6.0 s period, 30 s".
@@ -221,7 +221,7 @@ impl Excitation {
             true => format!(
                 "was flown with {:.0} % of the excitation of a typical {}",
                 100.0 * gap.excitation_flown,
-                kind_name(gap.kind)
+                gap.kind.name()
             ),
         };
         format!(
@@ -240,14 +240,6 @@ impl Excitation {
             candidate.survey_sigma_nt,
             100.0 * candidate.change
         )
-    }
-}
-
-fn kind_name(kind: ManoeuvreKind) -> &'static str {
-    match kind {
-        ManoeuvreKind::Pitch => "pitch",
-        ManoeuvreKind::Roll => "roll",
-        ManoeuvreKind::Yaw => "yaw",
     }
 }
 
@@ -748,7 +740,7 @@ impl CandidatePlan {
                 let s = shapes[kind_index(kind)];
                 format!(
                     "{} ±{:.1}° every {:.1} s for {:.0} s",
-                    kind_name(kind),
+                    kind.name(),
                     s.amplitude_deg,
                     s.period_s,
                     s.duration_s
@@ -802,12 +794,6 @@ fn median(mut values: Vec<f64>) -> Option<f64> {
         1 => values[n / 2],
         _ => 0.5 * (values[n / 2 - 1] + values[n / 2]),
     })
-}
-
-/// The angular distance between two headings, degrees (0 to 180).
-fn angle_apart(a: f64, b: f64) -> f64 {
-    let d = (a - b).rem_euclid(360.0);
-    d.min(360.0 - d)
 }
 
 /// The circular mean of angles in degrees (0 to 360); `None` without a

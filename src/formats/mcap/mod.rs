@@ -275,6 +275,17 @@ pub fn channel_name(topic: &str, field: &str, altitude_column: &str) -> String {
     let known = match (parts.as_slice(), field) {
         (["mag", n, "scalar"], "total_nt") => Some(format!("mag_{n}_uc")),
         (["mag", n, "compensated"], "total_nt") => Some(format!("mag_{n}_c")),
+        (["mag", n, "compensated_sigma"], "value") => Some(format!("mag_{n}_c_sigma")),
+        (["mag", s, "vector_compensated"], "x_nt" | "y_nt" | "z_nt") => Some(format!("flux_{s}_{}_c", &field[..1])),
+        (["mag", s, "vector_compensated_ned"], "x_nt" | "y_nt" | "z_nt") => {
+            let axis = match &field[..1] {
+                "x" => "n",
+                "y" => "e",
+                _ => "d",
+            };
+            Some(format!("flux_{s}_{axis}_c"))
+        }
+        (["grad", pair, "compensated"], "value") => Some(format!("grad_{pair}_c")),
         (["mag", s, "vector"], "x_nt" | "y_nt" | "z_nt") => Some(format!("flux_{s}_{}", &field[..1])),
         (["ins", "attitude"], "roll_deg" | "pitch_deg" | "yaw_deg") => {
             Some(format!("ins_{}", field.trim_end_matches("_deg")))
@@ -598,4 +609,31 @@ fn time_of_day(
         stream.times_ns.iter_mut().for_each(|t| *t -= midnight);
     }
     Some(date)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::channel_name;
+
+    /// A compensated MCAP reads back with the CSV output's column names.
+    #[test]
+    fn compensated_topics_read_back_as_the_csv_columns() {
+        let cases = [
+            ("/mag/1/scalar", "total_nt", "mag_1_uc"),
+            ("/mag/1/compensated", "total_nt", "mag_1_c"),
+            ("/mag/1/compensated_sigma", "value", "mag_1_c_sigma"),
+            ("/mag/a/vector", "y_nt", "flux_a_y"),
+            ("/mag/a/vector_compensated", "z_nt", "flux_a_z_c"),
+            ("/mag/b/vector_compensated_ned", "x_nt", "flux_b_n_c"),
+            ("/mag/b/vector_compensated_ned", "y_nt", "flux_b_e_c"),
+            ("/mag/b/vector_compensated_ned", "z_nt", "flux_b_d_c"),
+            ("/grad/4_5/compensated", "value", "grad_4_5_c"),
+            ("/aux/cur_strb", "value", "cur_strb"),
+            ("/gps/fix", "altitude", "msl"),
+            ("/weather/station", "wind", "weather_station_wind"),
+        ];
+        for (topic, field, column) in cases {
+            assert_eq!(channel_name(topic, field, "msl"), column, "{topic} {field}");
+        }
+    }
 }

@@ -14,9 +14,15 @@
 //! | `lat`, `lon` and a height | `/gps/fix` | `foxglove.LocationFix` |
 //! | every other channel | `/aux/<name>` | `magcomp.Sample` |
 //! | compensated `mag_<n>` | `/mag/<n>/compensated` | `magcomp.ScalarMag` |
+//! | its one-sigma uncertainty `mag_<n>_c_sigma` | `/mag/<n>/compensated_sigma` | `magcomp.Sample` (unit `nT`) |
 //! | vector-compensated `flux_<s>`, body axes | `/mag/<s>/vector_compensated` | `magcomp.VectorMag` (frame `body`) |
 //! | the same in north-east-down | `/mag/<s>/vector_compensated_ned` | `magcomp.VectorMag` (x, y, z = n, e, d; frame `ned`) |
 //! | compensated gradient `grad_<a>_<b>_c` | `/grad/<a>_<b>/compensated` | `magcomp.Sample` (unit `nT/m`) |
+//! | the row flags (`flags`) | `/magcomp/flags` | `magcomp.RowFlags` (empty when the row is fine) |
+//!
+//! Reading a compensated file back gives the CSV's column names:
+//! `mag_<n>_c`, `mag_<n>_c_sigma`, `flux_<s>_<x|y|z|n|e|d>_c`,
+//! `grad_<a>_<b>_c` ([`super::channel_name`]).
 //!
 //! The fitted model and quality figures go in as metadata records and JSON
 //! attachments.
@@ -33,7 +39,7 @@ use crate::error::{Error, Result};
 use crate::flight_date::SECONDS_PER_DAY;
 use crate::flight_log::{AttitudeAngle, ChannelRole, FlightLog};
 use crate::formats::destination::{stage, Staged};
-use crate::messages::{descriptor_set, timestamp, Attitude, LocationFix, Sample, ScalarMag, VectorMag};
+use crate::messages::{descriptor_set, timestamp, Attitude, LocationFix, RowFlags, Sample, ScalarMag, VectorMag};
 
 /// JSON documents stored with the data.
 #[derive(Debug, Clone, Default)]
@@ -331,8 +337,9 @@ fn plan_topics<'a>(log: &'a FlightLog, compensation: Option<&'a Compensation>) -
     }
     for compensated in compensation.map(|c| c.channels.as_slice()).unwrap_or_default() {
         let frame = compensated.channel.clone();
+        let label = scalar_label(&compensated.channel);
         topics.push(Topic {
-            topic: format!("/mag/{}/compensated", scalar_label(&compensated.channel)),
+            topic: format!("/mag/{label}/compensated"),
             schema: "magcomp.ScalarMag",
             metadata: BTreeMap::new(),
             encode: Box::new(move |row, time| {
@@ -347,6 +354,23 @@ fn plan_topics<'a>(log: &'a FlightLog, compensation: Option<&'a Compensation>) -
                 })
             }),
         });
+        if let Some(sigma) = compensated.sigma_nt.as_deref() {
+            topics.push(Topic {
+                topic: format!("/mag/{label}/compensated_sigma"),
+                schema: "magcomp.Sample",
+                metadata: BTreeMap::new(),
+                encode: Box::new(move |row, time| {
+                    Some(
+                        Sample {
+                            timestamp: Some(timestamp(time)),
+                            value: sigma[row],
+                            unit: "nT".into(),
+                        }
+                        .encode_to_vec(),
+                    )
+                }),
+            });
+        }
     }
     for vector in compensation.map(|c| c.vectors.as_slice()).unwrap_or_default() {
         let label = vector.sensor.strip_prefix("flux_").unwrap_or(&vector.sensor);
@@ -383,6 +407,23 @@ fn plan_topics<'a>(log: &'a FlightLog, compensation: Option<&'a Compensation>) -
                         timestamp: Some(timestamp(time)),
                         value: gradient.values[row],
                         unit: "nT/m".into(),
+                    }
+                    .encode_to_vec(),
+                )
+            }),
+        });
+    }
+    if let Some(compensation) = compensation {
+        let flags = &compensation.flags;
+        topics.push(Topic {
+            topic: "/magcomp/flags".into(),
+            schema: "magcomp.RowFlags",
+            metadata: BTreeMap::new(),
+            encode: Box::new(move |row, time| {
+                Some(
+                    RowFlags {
+                        timestamp: Some(timestamp(time)),
+                        flags: flags.get(row).map(|f| f.to_string()).unwrap_or_default(),
                     }
                     .encode_to_vec(),
                 )
