@@ -129,11 +129,21 @@ impl Compensation {
 /// channel or vector sensor the flight lacks (a model fitted on another
 /// flight) is an error.
 pub fn compensate(log: &FlightLog, models: &[FittedModel], level: LevelConvention) -> Result<Compensation> {
-    let shared = SharedDesign::of_models(log, models);
+    compensate_with(log, models, level, &SharedDesign::of_models(log, models))
+}
+
+/// [`compensate`], taking the models' terms from `shared` where it holds
+/// them.
+pub fn compensate_with(
+    log: &FlightLog,
+    models: &[FittedModel],
+    level: LevelConvention,
+    shared: &[SharedDesign],
+) -> Result<Compensation> {
     let channels: Vec<CompensatedChannel> = models
         .par_iter()
         .map(|model| {
-            let prediction = model.predict_with(log, &shared)?;
+            let prediction = model.predict_with(log, shared)?;
             Ok(level_compensated(
                 log,
                 model,

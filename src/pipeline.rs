@@ -7,7 +7,6 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-use crate::compensate::compensate;
 use crate::config::{FlightJob, Settings};
 use crate::detect::{detect_manoeuvres, Detection};
 use crate::diagnose::EffectKind;
@@ -16,7 +15,7 @@ use crate::flight_log::{FlightLog, VectorSensor};
 use crate::formats::added_column_names;
 use crate::formats::align::AlignmentReport;
 use crate::formats::read_flight_log;
-use crate::model::{compare_estimators, fit, Extensions, FitOptions, FittedModel, ModelSpec};
+use crate::model::{compare_estimators, fit, Extensions, FitOptions, FittedModel, ModelSpec, SharedDesign};
 use crate::numerics::stacked::StorePool;
 use crate::quality::transfer::check_transfer;
 use crate::quality::{assess_quality, ChannelQuality};
@@ -479,15 +478,32 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
     // The channels' fits share their stores; the stores are freed before
     // compensating, which does not need them.
     let stores = StorePool::new();
-    let fitted: Vec<(FittedModel, Option<String>)> = channels
+    let fitted: Vec<FittedModel> = channels
         .par_iter()
         .map(|channel| {
             let spec = ModelSpec::of_channel(options.terms, &plan, channel);
             let mut model = fit(log, &sensor, channel, &windows, &spec, &options.fit, &stores)?;
             model.estimators = compare_estimators(log, &sensor, channel, &windows, &spec, &options.fit, &stores)?;
+            Ok(model)
+        })
+        .collect::<Result<_>>()?;
+    // The whole flight's terms, built once for every channel that uses
+    // them: the analysis, the compensation and the sigma column read them.
+    let shared = SharedDesign::of_models(log, &fitted);
+    let fitted: Vec<(FittedModel, Option<String>)> = fitted
+        .into_par_iter()
+        .map(|mut model| {
+            let channel = model.channel.clone();
             // The analysis informs; a flight it cannot analyse is still
             // compensated, and the run says why there is none.
-            let excitation = crate::model::excitation::analyse(log, &sensor, &model, &windows, &options.fit, &stores);
+            let excitation = crate::model::excitation::analyse(
+                log,
+                &sensor,
+                &model,
+                &windows,
+                &options.fit,
+                (&stores, &shared),
+            );
             let note = match excitation {
                 Ok(Some(analysis)) => {
                     model.excitation = Some(analysis);
@@ -503,14 +519,14 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
         .collect::<Result<_>>()?;
     let (models, excitation_notes): (Vec<FittedModel>, Vec<Option<String>>) = fitted.into_iter().unzip();
     drop(stores);
-    let mut compensation = compensate(log, &models, options.level)?;
+    let mut compensation = crate::compensate::compensate_with(log, &models, options.level, &shared)?;
     let stores = StorePool::new();
     let quality: Vec<ChannelQuality> = models
         .par_iter()
         .zip(compensation.channels.par_iter_mut())
         .map(|(model, channel)| {
             let mut quality = assess_quality(log, model, channel);
-            if let Some(prediction) = model.prediction_sigma(log)? {
+            if let Some(prediction) = model.prediction_sigma_with(log, &shared)? {
                 quality.uncertainty = crate::quality::uncertainty_of(log, model, &prediction);
                 let noise = [
                     quality.survey_noise_4th_difference_after_nt,
@@ -536,6 +552,7 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
             Ok(quality)
         })
         .collect::<Result<_>>()?;
+    drop(shared);
     let boxes: Vec<(f64, f64)> = match &detected {
         Some(detection) => detection.boxes.iter().map(|b| (b.t_start, b.t_end)).collect(),
         None => window_hulls(&windows),

@@ -51,8 +51,8 @@ use serde::{Deserialize, Serialize};
 use crate::config::Settings;
 use crate::error::{Error, Result};
 use crate::holdout::angle_apart;
-use crate::model::excitation::{analyse_design, Design};
-use crate::model::{fit, FittedModel, ModelSpec};
+use crate::model::excitation::{analyse_design, Design, Excitation};
+use crate::model::{fit, FittedModel, ModelSpec, SharedDesign};
 use crate::numerics::stacked::StorePool;
 use crate::simulate::physics::AircraftField;
 use crate::simulate::scenario::{RawScenario, ScalarSensor, Scenario, SensorLocation};
@@ -643,14 +643,14 @@ fn realise(flight: &SimulatedFlight, settings: &Settings) -> Result<Realisation>
     let stores = StorePool::new();
     let spec = ModelSpec::plain(settings.terms);
     let channels: Vec<String> = flight.truth.sensors.iter().map(|s| s.channel.clone()).collect();
-    let mut models: Vec<FittedModel> = Vec::new();
-    let mut designs = Vec::new();
-    for channel in &channels {
-        let model = fit(log, &sensor, channel, &windows, &spec, &settings.fit, &stores)?;
-        designs.push(analyse_design(log, &sensor, &model, &windows, &settings.fit, &stores)?);
-        models.push(model);
-    }
-    let compensation = crate::compensate::compensate(log, &models, settings.level)?;
+    let models: Vec<FittedModel> = (channels.iter())
+        .map(|channel| fit(log, &sensor, channel, &windows, &spec, &settings.fit, &stores))
+        .collect::<Result<_>>()?;
+    let shared = SharedDesign::of_models(log, &models);
+    let designs: Vec<Option<(Excitation, Design)>> = (models.iter())
+        .map(|model| analyse_design(log, &sensor, model, &windows, &settings.fit, (&stores, &shared)))
+        .collect::<Result<_>>()?;
+    let compensation = crate::compensate::compensate_with(log, &models, settings.level, &shared)?;
     let line = log.channel("line").map(|c| c.values.as_slice()).unwrap_or_default();
     let outcomes = (models.iter().zip(&compensation.channels).zip(designs))
         .map(|((model, compensated), design)| {
@@ -665,7 +665,7 @@ fn realise(flight: &SimulatedFlight, settings: &Settings) -> Result<Realisation>
             .unwrap_or(f64::NAN);
             let truth = flight.truth.earth_total_nt(&model.channel).unwrap_or_default();
             let (excitation, design) = design.unzip();
-            let (jackknife_sigma_nt, sigma_column_nt) = match model.prediction_sigma(log)? {
+            let (jackknife_sigma_nt, sigma_column_nt) = match model.prediction_sigma_with(log, &shared)? {
                 Some(prediction) => {
                     let column: Vec<f64> = (0..line.len())
                         .filter(|&i| line[i] > 0.0)

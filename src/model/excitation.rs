@@ -49,7 +49,7 @@ use crate::windows::{CalibrationWindow, ManoeuvreKind};
 
 use super::band::{band_data, BandData, FitOptions};
 use super::extensions::SourceTerm;
-use super::{FittedModel, Prepared, WindowFit};
+use super::{FittedModel, Prepared, SharedDesign, WindowFit};
 
 /// A coefficient whose variance exceeds a full box's of the same length
 /// by this factor (its standard error twice as large) is poorly pinned.
@@ -246,16 +246,17 @@ impl Excitation {
 /// The excitation analysis of `model` (fitted on `windows` of `log`, its
 /// terms built from `sensor`). `None` when the candidates cannot be
 /// placed (windows without a heading on a flight without attitude) or the
-/// flown information is singular even on the pinnable directions.
+/// flown information is singular even on the pinnable directions. The
+/// whole flight's terms come from `shared` when it holds them.
 pub fn analyse(
     log: &FlightLog,
     sensor: &VectorSensor,
     model: &FittedModel,
     windows: &[CalibrationWindow],
     options: &FitOptions,
-    stores: &StorePool,
+    (stores, shared): (&StorePool, &[SharedDesign]),
 ) -> Result<Option<Excitation>> {
-    Ok(analyse_design(log, sensor, model, windows, options, stores)?.map(|(excitation, _)| excitation))
+    Ok(analyse_design(log, sensor, model, windows, options, (stores, shared))?.map(|(excitation, _)| excitation))
 }
 
 /// The information behind an analysis, for scoring sets of additions
@@ -325,7 +326,7 @@ pub fn analyse_design(
     model: &FittedModel,
     windows: &[CalibrationWindow],
     options: &FitOptions,
-    stores: &StorePool,
+    (stores, shared): (&StorePool, &[SharedDesign]),
 ) -> Result<Option<(Excitation, Design)>> {
     let prepared = Prepared::new(log, sensor, &model.channel, &model.spec)?;
     let Some(plan) = CandidatePlan::of_flight(&prepared.log, sensor, windows) else {
@@ -424,7 +425,7 @@ pub fn analyse_design(
     let r = pinnable.len();
     let basis = Mat::from_fn(p, r, |i, k| vectors[(i, pinnable[k])]);
 
-    let (survey_moment, survey_rows) = survey_moment(log, model, &fits, &scale)?;
+    let (survey_moment, survey_rows) = survey_moment(log, model, (&fits, shared), &scale)?;
     // σ² per unit information: the band-passed residual's variance times
     // f_s / 2B for its autocorrelation, as the coefficient uncertainty.
     let correlation = (sample_rate_hz / (2.0 * options.filter.band.bandwidth_hz(sample_rate_hz))).max(1.0);
@@ -609,16 +610,25 @@ fn rows_gram(column: impl Fn(usize) -> Vec<f64>, p: usize) -> Mat<f64> {
     gram(Mat::from_fn(rows, p, |i, j| columns[j][i]).as_ref())
 }
 
+/// Rows of the centred design summed into the survey moment at a time.
+const MOMENT_BLOCK_ROWS: usize = 4096;
+
 /// The second moment, about its mean over the calibration rows, of the
 /// scaled design over the survey: the survey lines' rows, or without lines
 /// the rows outside every window (the calibration rows when there are
 /// none); with the survey rows it is over (0 for the calibration's).
-fn survey_moment(log: &FlightLog, model: &FittedModel, fits: &[WindowFit], scale: &[f64]) -> Result<(Mat<f64>, usize)> {
-    let columns = model.flight_columns(log)?;
+fn survey_moment(
+    log: &FlightLog,
+    model: &FittedModel,
+    (fits, shared): (&[WindowFit], &[SharedDesign]),
+    scale: &[f64],
+) -> Result<(Mat<f64>, usize)> {
+    let owned = model.flight_columns(log, shared)?;
     let p = scale.len();
-    let value =
-        |row: usize, j: usize| -> f64 { columns.get(j).and_then(|c| c.as_ref()).map_or(0.0, |c| c[row]) / scale[j] };
-    let finite = |row: usize| (0..p).all(|j| value(row, j).is_finite());
+    // A column the model does not predict from (a base station) is 0.
+    let columns: Vec<Option<&[f64]>> = (0..p).map(|j| owned.get(j).and_then(|c| c.as_deref())).collect();
+    let value = |row: usize, j: usize| -> f64 { columns[j].map_or(0.0, |c| c[row]) };
+    let finite = |row: usize| columns.iter().all(|c| c.is_none_or(|c| c[row].is_finite()));
     let calibration: Vec<usize> = (fits.iter())
         .flat_map(|f| f.flight_rows.iter().cloned().flatten())
         .filter(|&r| finite(r))
@@ -647,10 +657,18 @@ fn survey_moment(log: &FlightLog, model: &FittedModel, fits: &[WindowFit], scale
             (survey, count)
         }
     };
-    let centred = Mat::from_fn(survey.len(), p, |i, j| value(survey[i], j) - mean[j]);
+    // Summed a block of rows at a time (a whole flight's centred design
+    // would be as large as the design itself), unscaled, then scaled.
+    let mut moment = Mat::<f64>::zeros(p, p);
+    for block in survey.chunks(MOMENT_BLOCK_ROWS) {
+        let centred = Mat::from_fn(block.len(), p, |i, j| value(block[i], j) - mean[j]);
+        moment += gram(centred.as_ref());
+    }
     let rows = survey.len().max(1) as f64;
-    let moment = gram(centred.as_ref());
-    Ok((Mat::from_fn(p, p, |i, j| moment[(i, j)] / rows), count))
+    Ok((
+        Mat::from_fn(p, p, |i, j| moment[(i, j)] / (rows * scale[i] * scale[j])),
+        count,
+    ))
 }
 
 /// The sine a candidate manoeuvre swings through.

@@ -274,13 +274,9 @@ impl FittedModel {
             _ => Cow::Owned(prepared::scalar_values(&prepared.log, &self.channel)?.to_vec()),
         };
         let terms = self.spec.fitted_terms();
-        let reusable = self.spec.extensions.vector_calibration.is_none();
         let built;
-        let design = match shared
-            .iter()
-            .find(|s| reusable && s.sensor == self.vector_sensor && s.terms == terms)
-        {
-            Some(s) => &s.design,
+        let design = match self.shared_design(shared, &terms) {
+            Some(design) => design,
             None => {
                 built = design_matrix(&prepared.log, &sensor, &terms);
                 &built
@@ -323,11 +319,17 @@ impl FittedModel {
     ///
     /// The second-order term's share is left out.
     pub fn prediction_sigma(&self, log: &FlightLog) -> Result<Option<PredictionSigma>> {
+        self.prediction_sigma_with(log, &[])
+    }
+
+    /// [`Self::prediction_sigma`], taking the terms from `shared` when it
+    /// holds this model's (see [`SharedDesign`]).
+    pub fn prediction_sigma_with(&self, log: &FlightLog, shared: &[SharedDesign]) -> Result<Option<PredictionSigma>> {
         let deviations = &self.solution.jackknife;
         if deviations.is_empty() {
             return Ok(None);
         }
-        let columns = self.flight_columns(log)?;
+        let columns = self.flight_columns(log, shared)?;
         let aircraft: Vec<(usize, &[f64])> = (columns.iter().enumerate())
             .filter_map(|(k, c)| Some((k, c.as_deref()?)))
             .collect();
@@ -345,14 +347,30 @@ impl FittedModel {
                 sum / n.max(1) as f64
             })
             .collect();
-        let relative_nt = (0..log.len())
-            .map(|row| {
-                (deviations.iter().zip(&levels))
-                    .map(|(d, level)| (predict(row, d) - level).powi(2))
+        // Row blocks, a column at a time: the columns are read in order,
+        // not across 18 arrays a row.
+        let mut relative_nt = Vec::with_capacity(log.len());
+        let mut predicted = vec![0.0; deviations.len() * SIGMA_BLOCK_ROWS];
+        for start in (0..log.len()).step_by(SIGMA_BLOCK_ROWS) {
+            let len = SIGMA_BLOCK_ROWS.min(log.len() - start);
+            predicted.fill(0.0);
+            for (k, column) in &aircraft {
+                let column = &column[start..start + len];
+                for (f, d) in deviations.iter().enumerate() {
+                    let slot = &mut predicted[f * SIGMA_BLOCK_ROWS..f * SIGMA_BLOCK_ROWS + len];
+                    let weight = d[*k];
+                    for (p, c) in slot.iter_mut().zip(column) {
+                        *p += c * weight;
+                    }
+                }
+            }
+            relative_nt.extend((0..len).map(|i| {
+                (levels.iter().enumerate())
+                    .map(|(f, level)| (predicted[f * SIGMA_BLOCK_ROWS + i] - level).powi(2))
                     .sum::<f64>()
                     .sqrt()
-            })
-            .collect();
+            }));
+        }
         Ok(Some(PredictionSigma {
             relative_nt,
             level_nt: levels.iter().map(|l| l * l).sum::<f64>().sqrt(),
@@ -361,15 +379,41 @@ impl FittedModel {
 
     /// The columns the model predicts from over the whole of `log`, one
     /// per coefficient: the fitted terms (derivatives inside runs of valid
-    /// vector samples), then the extension columns. A base-station column
-    /// is `None`: it is fitted but not predicted.
-    pub(crate) fn flight_columns(&self, log: &FlightLog) -> Result<Vec<Option<Vec<f64>>>> {
+    /// vector samples; borrowed from `shared` when it holds them), then
+    /// the extension columns. A base-station column is `None`: it is
+    /// fitted but not predicted.
+    pub(crate) fn flight_columns<'s>(
+        &self,
+        log: &FlightLog,
+        shared: &'s [SharedDesign],
+    ) -> Result<Vec<Option<Cow<'s, [f64]>>>> {
         let sensor = self.sensor_in(log)?;
         let prepared = Prepared::new(log, &sensor, &self.channel, &self.spec)?;
-        let design = design_matrix(&prepared.log, &sensor, &self.spec.fitted_terms());
-        Ok((design.columns.into_iter().map(Some))
-            .chain(prepared.extra.into_iter().map(|c| (!c.geomagnetic).then_some(c.values)))
+        let terms = self.spec.fitted_terms();
+        let design: Vec<Cow<'s, [f64]>> = match self.shared_design(shared, &terms) {
+            Some(design) => design.columns.iter().map(|c| Cow::Borrowed(c.as_slice())).collect(),
+            None => (design_matrix(&prepared.log, &sensor, &terms).columns.into_iter())
+                .map(Cow::Owned)
+                .collect(),
+        };
+        Ok((design.into_iter().map(Some))
+            .chain(
+                prepared
+                    .extra
+                    .into_iter()
+                    .map(|c| (!c.geomagnetic).then_some(Cow::Owned(c.values))),
+            )
             .collect())
+    }
+
+    /// The design in `shared` of this model's (vector sensor, fitted
+    /// `terms`), when it has one and the model does not recalibrate the
+    /// fluxgate (its terms are then of the calibrated field).
+    fn shared_design<'s>(&self, shared: &'s [SharedDesign], terms: &TermSet) -> Option<&'s DesignMatrix> {
+        let reusable = self.spec.extensions.vector_calibration.is_none();
+        (shared.iter())
+            .find(|s| reusable && s.sensor == self.vector_sensor && s.terms == *terms)
+            .map(|s| &s.design)
     }
 
     /// The model's vector sensor in `log`; an error when `log` lacks it
@@ -390,10 +434,15 @@ impl FittedModel {
     }
 }
 
+/// Rows of the sigma column computed at a time.
+const SIGMA_BLOCK_ROWS: usize = 256;
+
 /// The Tolles-Lawson columns of one (vector sensor, terms) over a whole
-/// flight, built once for every model that uses them.
+/// flight, built once for every model that uses them: the excitation
+/// analysis, the compensation and the sigma column of every channel read
+/// the same columns.
 #[derive(Debug, Clone)]
-pub(crate) struct SharedDesign {
+pub struct SharedDesign {
     sensor: String,
     terms: TermSet,
     design: DesignMatrix,
