@@ -86,13 +86,7 @@ fn against_plan(
     let line = log.channel("line").map(|c| c.values.as_slice()).unwrap_or_default();
     let channels: Vec<crate::against_plan::FlownChannel> = (models.iter().zip(quality).zip(&compensation.channels))
         .map(|((model, quality), channel)| {
-            let noise = [
-                quality.survey_noise_4th_difference_after_nt,
-                Some(quality.noise_4th_difference_after_nt),
-            ]
-            .into_iter()
-            .flatten()
-            .find(|n| n.is_finite());
+            let noise = quality.white_noise_nt();
             crate::against_plan::FlownChannel {
                 channel: model.channel.clone(),
                 fom_nt: quality.fom_after_nt,
@@ -528,13 +522,7 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
             let mut quality = assess_quality(log, model, channel);
             if let Some(prediction) = model.prediction_sigma_with(log, &shared)? {
                 quality.uncertainty = crate::quality::uncertainty_of(log, model, &prediction);
-                let noise = [
-                    quality.survey_noise_4th_difference_after_nt,
-                    Some(quality.noise_4th_difference_after_nt),
-                ]
-                .into_iter()
-                .flatten()
-                .find(|n| n.is_finite());
+                let noise = quality.white_noise_nt();
                 // Without a noise figure there is no sigma column; the
                 // run warns below.
                 if let Some(noise) = noise {

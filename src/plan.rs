@@ -354,8 +354,9 @@ pub struct ChannelPrediction {
     pub survey_sigma_nt: Spread,
     /// The coefficients' part of it (the excitation analysis), nT.
     pub coefficient_sigma_nt: Spread,
-    /// The compensated channel's noise on the survey lines (fourth
-    /// difference), nT.
+    /// The compensated channel's noise on the survey lines, one sigma of
+    /// white noise (from the fourth difference,
+    /// [`crate::quality::ChannelQuality::white_noise_nt`]), nT.
     pub noise_nt: Spread,
     /// What the simulated flights achieved: the RMS over the survey lines
     /// of the compensated value's error against the simulation's truth,
@@ -655,14 +656,7 @@ fn realise(flight: &SimulatedFlight, settings: &Settings) -> Result<Realisation>
     let outcomes = (models.iter().zip(&compensation.channels).zip(designs))
         .map(|((model, compensated), design)| {
             let quality = crate::quality::assess_quality(log, model, compensated);
-            let noise_nt = [
-                quality.survey_noise_4th_difference_after_nt,
-                Some(quality.noise_4th_difference_after_nt),
-            ]
-            .into_iter()
-            .flatten()
-            .find(|n| n.is_finite())
-            .unwrap_or(f64::NAN);
+            let noise_nt = quality.white_noise_nt().unwrap_or(f64::NAN);
             let truth = flight.truth.earth_total_nt(&model.channel).unwrap_or_default();
             let (excitation, design) = design.unzip();
             let (jackknife_sigma_nt, sigma_column_nt) = match model.prediction_sigma_with(log, &shared)? {

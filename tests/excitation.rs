@@ -57,7 +57,12 @@ fn fitted(folder: &std::path::Path, name: &str, raw: RawScenario) -> (FittedMode
 /// [`fitted`]; with `given_windows`, on the simulation's own manoeuvre
 /// windows, labelled with kind and heading (as a DETECT.json or a window
 /// list would give them), instead of detected ones.
-fn fitted_on(folder: &std::path::Path, name: &str, raw: RawScenario, given_windows: bool) -> (FittedModel, Vec<String>) {
+fn fitted_on(
+    folder: &std::path::Path,
+    name: &str,
+    raw: RawScenario,
+    given_windows: bool,
+) -> (FittedModel, Vec<String>) {
     let simulated = simulate(&Scenario::try_from(raw).unwrap()).unwrap();
     let input = folder.join(format!("{name}.csv"));
     write_flight_log(&simulated.log, &input).unwrap();
@@ -188,7 +193,9 @@ fn a_weak_manoeuvre_among_the_windows_is_a_gap() {
         let (model, warnings) = fitted_on(folder.path(), &format!("weak_{seed}"), plan(seed, &change), true);
         assert!(
             (model.windows.iter()).any(|w| w.window.kind == Some(kind)
-                && w.window.heading_deg.is_some_and(|h| magcomp::holdout::same_heading(h, heading))),
+                && w.window
+                    .heading_deg
+                    .is_some_and(|h| magcomp::holdout::same_heading(h, heading))),
             "seed {seed}: the weak manoeuvre is among the windows"
         );
         let analysis = model.excitation.as_ref().expect("labelled windows: an analysis");

@@ -77,7 +77,7 @@ fn fresh_flight(folder: &Path, plan: &Plan, seed: u64) -> Vec<Flown> {
     (run.result.models.iter().zip(&run.compensation.channels))
         .map(|(model, channel)| {
             let quality = run.result.channels.iter().find(|q| q.channel == model.channel).unwrap();
-            let noise = quality.survey_noise_4th_difference_after_nt.unwrap();
+            let noise = quality.white_noise_nt().unwrap();
             let stated = model
                 .excitation
                 .as_ref()

@@ -247,6 +247,31 @@ pub fn uncertainty_of(log: &FlightLog, model: &FittedModel, prediction: &Predict
     })
 }
 
+/// The standard deviation of white noise over the RMS of its fourth
+/// difference with the Seequent QCNOISE normalisation: the difference
+/// $(x_{-2} - 4x_{-1} + 6x_0 - 4x_{+1} + x_{+2})/16$ of white noise of
+/// standard deviation σ has standard deviation $\sqrt{70}\,σ/16 ≈ 0.52σ$.
+pub const WHITE_NOISE_PER_FOURTH_DIFFERENCE: f64 = 1.912_365_774_935_03;
+
+impl ChannelQuality {
+    /// The compensated channel's noise as one sigma of white noise, nT:
+    /// its fourth-difference RMS over the survey lines (over the whole
+    /// flight without lines) times [`WHITE_NOISE_PER_FOURTH_DIFFERENCE`].
+    /// What a compensated sample scatters by about the smooth field, the
+    /// noise part of the `mag_<n>_c_sigma` column and of the stated survey
+    /// uncertainty; `None` when it cannot be measured.
+    pub fn white_noise_nt(&self) -> Option<f64> {
+        [
+            self.survey_noise_4th_difference_after_nt,
+            Some(self.noise_4th_difference_after_nt),
+        ]
+        .into_iter()
+        .flatten()
+        .find(|n| n.is_finite())
+        .map(|n| n * WHITE_NOISE_PER_FOURTH_DIFFERENCE)
+    }
+}
+
 /// Quality figures of one channel's fit and compensation.
 pub fn assess_quality(log: &FlightLog, model: &FittedModel, compensated: &CompensatedChannel) -> ChannelQuality {
     let before: Vec<f64> = model
@@ -524,6 +549,31 @@ mod tests {
         // ±1 alternating: (1 + 4 + 6 + 4 + 1)/16 = 1 in magnitude
         let alternating: Vec<f64> = (0..20).map(|k| if k % 2 == 0 { 1.0 } else { -1.0 }).collect();
         assert!((fourth_difference_noise(&alternating) - 1.0).abs() < 1e-15);
+    }
+
+    /// Gaussian white noise of σ = 0.7 (Box-Muller on a 64-bit LCG):
+    /// the fourth difference's RMS times the factor gives σ back within
+    /// 1 % on 200 000 samples (the estimate's own spread is about 0.3 %).
+    #[test]
+    fn the_white_noise_factor_turns_the_fourth_difference_into_sigma() {
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut uniform = || {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            ((state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+        };
+        let noise: Vec<f64> = (0..100_000)
+            .flat_map(|_| {
+                let (u, v) = (uniform(), uniform());
+                let r = (-2.0 * u.ln()).sqrt();
+                let angle = std::f64::consts::TAU * v;
+                [0.7 * r * angle.cos(), 0.7 * r * angle.sin()]
+            })
+            .collect();
+        let sigma = fourth_difference_noise(&noise) * WHITE_NOISE_PER_FOURTH_DIFFERENCE;
+        assert!((sigma / 0.7 - 1.0).abs() < 0.01, "{sigma}");
+        assert!((WHITE_NOISE_PER_FOURTH_DIFFERENCE - 16.0 / 70f64.sqrt()).abs() < 1e-14);
     }
 
     #[test]
