@@ -126,6 +126,11 @@ pub struct GradientResult {
     pub held_out: Option<GradientHeldOut>,
     /// The direct model's in-band residual over the box, nT/m.
     pub direct_residual_nt_per_m: f64,
+    /// How far the two methods' gradients differ on the survey lines (the
+    /// rows outside the windows without lines): RMS about the mean
+    /// difference, nT/m. One of them is at least half that wrong there.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub methods_disagree_nt_per_m: Option<f64>,
     /// The level the output's convention added, nT/m: how far the
     /// gradient's mean rests on a choice, not on the data.
     pub level_offset_nt_per_m: f64,
@@ -159,6 +164,9 @@ pub struct GradientInputs<'a> {
     pub models: &'a [FittedModel],
     /// Their compensation.
     pub compensation: &'a Compensation,
+    /// Whether each model's compensation carries the uncertainty warning
+    /// ([`crate::quality::is_uncertain`]), in the models' order.
+    pub uncertain: &'a [bool],
 }
 
 /// Compensates every pair of `pairs` whose sensors both have a model. A
@@ -189,6 +197,11 @@ pub fn compensate_gradients(
                         offset => format!(" ([fit] level moved it by {offset:.4} nT/m)"),
                     }
                 ));
+                match disagreement(inputs, &result) {
+                    Some((true, warning)) => stage.warnings.push(warning),
+                    Some((false, note)) => stage.notes.push(note),
+                    None => {}
+                }
                 stage.results.push(result);
                 stage.models.push(model);
                 stage.compensated.push(compensated);
@@ -199,6 +212,50 @@ pub fn compensate_gradients(
         }
     }
     stage
+}
+
+/// Two methods whose gradients part on the survey lines by more than
+/// this, nT over the separation (the scalar channels' uncertainty
+/// warning), and by more than [`DISAGREEMENT_FACTOR`] times what either
+/// held out, are not both right there.
+const DISAGREEMENT_FLOOR_NT: f64 = 0.05;
+
+/// See [`DISAGREEMENT_FLOOR_NT`].
+const DISAGREEMENT_FACTOR: f64 = 5.0;
+
+/// Where the direct fit and the difference of the compensated channels
+/// part on the survey lines beyond what either held out, while neither
+/// channel's compensation is marked uncertain: the direct fit is the one
+/// at odds. A warning when the output is the direct fit (`true`), a note
+/// when it is the difference (`false`); `None` when they agree, or a
+/// channel's own uncertainty warning explains the difference.
+fn disagreement(inputs: &GradientInputs, result: &GradientResult) -> Option<(bool, String)> {
+    let apart = result.methods_disagree_nt_per_m?;
+    let d = result.pair.separation_m;
+    let held = (result.held_out.as_ref()).map_or(0.0, |h| h.direct_nt_per_m.max(h.difference_nt_per_m));
+    if apart <= (DISAGREEMENT_FLOOR_NT / d).max(DISAGREEMENT_FACTOR * held) {
+        return None;
+    }
+    let uncertain = |name: &str| {
+        (inputs.models.iter().position(|m| m.channel == name)).is_some_and(|i| inputs.uncertain.get(i) == Some(&true))
+    };
+    if uncertain(&result.pair.a) || uncertain(&result.pair.b) {
+        return None;
+    }
+    let words = format!(
+        "{}: the direct fit and the difference of the compensated channels part on the survey lines by {apart:.4} nT/m (RMS about their mean difference, {:.3} nT over {d:.2} m), more than they differ held out, while neither {} nor {} is marked uncertain",
+        result.column,
+        apart * d,
+        result.pair.a,
+        result.pair.b
+    );
+    Some(match result.method_used {
+        GradientMethod::Direct => (
+            true,
+            format!("{words}: the direct fit, which the output uses, is likely wrong there by about that much; use [[gradient]] method = \"difference\", or fly a fuller box"),
+        ),
+        _ => (false, format!("{words}: the output uses the difference")),
+    })
 }
 
 /// One line on a compensated gradient.
@@ -259,20 +316,25 @@ fn compensate_pair(
     let d = pair.separation_m;
     let held_out = held_out(inputs, (&lean, &sensor, &name), (&spec, options), (ia, ib, d))?;
     let (method_used, reason) = choose(pair.method, held_out.as_ref());
+    // Both methods' difference fields, nT: the one used is the output,
+    // and where they part on the survey one of them is wrong.
+    let direct = {
+        let direct = compensate(&lean, std::slice::from_ref(&model), level)?;
+        let channel = direct.channels.into_iter().next().ok_or_else(|| Error::Vector {
+            sensor: name.clone(),
+            message: "the direct model compensated nothing".into(),
+        })?;
+        (channel.values, channel.level_offset_nt)
+    };
+    let difference = {
+        let (a, b) = (&inputs.compensation.channels[ia], &inputs.compensation.channels[ib]);
+        let values: Vec<f64> = a.values.iter().zip(&b.values).map(|(a, b)| a - b).collect();
+        (values, a.level_offset_nt - b.level_offset_nt)
+    };
+    let disagree_nt = survey_spread(log, inputs.windows, &direct.0, &difference.0);
     let (values, level_offset_nt) = match method_used {
-        GradientMethod::Direct => {
-            let direct = compensate(&lean, std::slice::from_ref(&model), level)?;
-            let channel = direct.channels.into_iter().next().ok_or_else(|| Error::Vector {
-                sensor: name.clone(),
-                message: "the direct model compensated nothing".into(),
-            })?;
-            (channel.values, channel.level_offset_nt)
-        }
-        _ => {
-            let (a, b) = (&inputs.compensation.channels[ia], &inputs.compensation.channels[ib]);
-            let values = a.values.iter().zip(&b.values).map(|(a, b)| a - b).collect();
-            (values, a.level_offset_nt - b.level_offset_nt)
-        }
+        GradientMethod::Direct => direct,
+        _ => difference,
     };
     let residual = model
         .windows
@@ -286,6 +348,7 @@ fn compensate_pair(
         reason,
         held_out,
         direct_residual_nt_per_m: (residual.0 / residual.1.max(1) as f64).sqrt() / d,
+        methods_disagree_nt_per_m: disagree_nt.map(|v| v / d),
         level_offset_nt_per_m: level_offset_nt / d,
     };
     let compensated = CompensatedGradient {
@@ -293,6 +356,25 @@ fn compensate_pair(
         values: values.into_iter().map(|v| v / d).collect(),
     };
     Ok((result, model, compensated))
+}
+
+/// The spread of `a − b` about its mean over the survey lines' rows (the
+/// rows outside `windows` without lines), nT; `None` without a row where
+/// both are finite.
+fn survey_spread(log: &FlightLog, windows: &[CalibrationWindow], a: &[f64], b: &[f64]) -> Option<f64> {
+    let lines = log.survey_lines();
+    let rows: Vec<usize> = match lines.is_empty() {
+        false => lines.into_iter().flat_map(|(_, rows)| rows).collect(),
+        true => {
+            let mut inside = vec![false; log.len()];
+            for window in windows {
+                inside[window.rows(log.time_s())].fill(true);
+            }
+            (0..log.len()).filter(|&r| !inside[r]).collect()
+        }
+    };
+    let differences: Vec<f64> = (rows.iter()).map(|&r| a[r] - b[r]).filter(|v| v.is_finite()).collect();
+    (!differences.is_empty()).then(|| crate::quality::standard_deviation(&differences))
 }
 
 /// The flight reduced to what the direct fit reads: the fluxgate and the

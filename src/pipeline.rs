@@ -557,6 +557,7 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
                     windows: &windows,
                     models: &models,
                     compensation: &compensation,
+                    uncertain: &quality.iter().map(crate::quality::is_uncertain).collect::<Vec<_>>(),
                 },
                 &options.gradients,
                 (options.terms, &options.fit, options.level),

@@ -116,9 +116,13 @@ fn budget(raw_nt_per_m: f64, separation_m: f64) -> f64 {
     (0.1 * raw_nt_per_m).max(0.2 / separation_m)
 }
 
-/// Flights drawn at random (`GRADIENT_SEEDS=a..b` or `=a` picks others):
-/// on each, both methods' survey-line gradient is judged against the true
-/// gradient. The direct fit and `auto`'s choice are within [`budget`];
+/// Flights drawn at random (`GRADIENT_SEEDS=a..b` or `=a` picks others;
+/// by default 1-12 and 25, the one plan of 40 whose direct fit leaves the
+/// budget): on each, both methods' survey-line gradient is judged against
+/// the true gradient. The direct fit and `auto`'s choice are within
+/// [`budget`], or the run warns that the two methods part on the survey
+/// lines while neither channel is marked uncertain (on 40 plans that
+/// warning came once, on the one direct fit beyond the budget);
 /// `auto` takes the method with the smaller held-out residual; and over
 /// all flights `auto`'s error is no larger than always taking the
 /// difference of the compensated channels (which fails badly where one
@@ -129,7 +133,13 @@ fn compensated_gradients_match_the_true_gradients_on_flights_drawn_at_random() {
     let mut squares = [0.0f64; 3];
     let mut warned = (0usize, 0usize);
     let mut coverage = Coverage::default();
-    for seed in seeds(1..13) {
+    let mut beyond = (0usize, 0usize);
+    let default: Vec<u64> = (1..13).chain([25]).collect();
+    let chosen_seeds: Vec<u64> = match std::env::var("GRADIENT_SEEDS") {
+        Ok(_) => seeds(0..0).collect(),
+        Err(_) => default,
+    };
+    for seed in chosen_seeds {
         let (simulated, layout, separation) = flight(seed);
         let input = folder.path().join(format!("gradient_{seed}.csv"));
         write_flight_log(&simulated.log, &input).unwrap();
@@ -205,8 +215,24 @@ fn compensated_gradients_match_the_true_gradients_on_flights_drawn_at_random() {
             "seed {seed}: auto takes the smaller held-out residual"
         );
         let limit = budget(raw, separation);
-        assert!(direct < limit, "seed {seed}: direct {direct} against {limit}");
-        assert!(auto < limit, "seed {seed}: auto {auto} against {limit}");
+        // Outputs 0 and 2 are the direct fit and auto's choice.
+        let parted = |k: usize| {
+            (outputs[k].result.warnings.iter()).any(|w| w.starts_with("grad_4_5_c: the direct fit and the difference"))
+        };
+        for (what, error, k) in [("direct", direct, 0), ("auto", auto, 2)] {
+            if error >= limit {
+                beyond.0 += 1;
+                beyond.1 += usize::from(parted(k));
+                assert!(
+                    parted(k),
+                    "seed {seed}: {what} {error} against {limit}, and no warning: {:?}",
+                    outputs[k].result.warnings
+                );
+            }
+        }
+        if direct < limit / 2.0 && auto < limit / 2.0 {
+            assert!(!parted(2), "seed {seed}: within half the budget and warned");
+        }
         for (sum, e) in squares.iter_mut().zip(errors) {
             *sum += e * e;
         }
@@ -214,6 +240,10 @@ fn compensated_gradients_match_the_true_gradients_on_flights_drawn_at_random() {
     println!(
         "uncertainty warnings: {} of {} scalar channels wrong by more than 0.1 nT on the survey",
         warned.0, warned.1
+    );
+    println!(
+        "gradients beyond the budget: {} (direct or auto), {} of them warned that the methods part",
+        beyond.0, beyond.1
     );
     coverage.check();
     let [direct, difference, auto] = squares.map(f64::sqrt);

@@ -209,6 +209,18 @@ pub const UNCERTAINTY_WARNING_NT: f64 = 0.05;
 /// A level uncertainty above this (nT, one sigma) is a warning.
 pub const LEVEL_UNCERTAINTY_WARNING_NT: f64 = 10.0;
 
+/// The uncertainty away from the calibration above which a channel's
+/// compensation is marked uncertain, nT: [`UNCERTAINTY_WARNING_NT`] or
+/// twice the fit's band-passed residual, the larger.
+pub fn uncertainty_limit_nt(quality: &ChannelQuality) -> f64 {
+    UNCERTAINTY_WARNING_NT.max(2.0 * quality.band_std_after_nt)
+}
+
+/// Whether the channel's compensation carries the uncertainty warning.
+pub fn is_uncertain(quality: &ChannelQuality) -> bool {
+    (quality.uncertainty.as_ref()).is_some_and(|u| u.outside_calibration_sigma_nt > uncertainty_limit_nt(quality))
+}
+
 /// The [`Uncertainty`] of `model`'s compensation on `log`; `None` without a
 /// jackknife (fewer than three windows) or a row outside the windows.
 pub fn uncertainty(log: &FlightLog, model: &FittedModel) -> crate::error::Result<Option<Uncertainty>> {
@@ -399,8 +411,8 @@ pub fn quality_warnings(quality: &ChannelQuality, fom_limit_nt: f64, next_step: 
         }
     }
     if let Some(uncertainty) = &quality.uncertainty {
-        let limit = UNCERTAINTY_WARNING_NT.max(2.0 * quality.band_std_after_nt);
-        if uncertainty.outside_calibration_sigma_nt > limit {
+        let limit = uncertainty_limit_nt(quality);
+        if is_uncertain(quality) {
             warnings.push(format!(
                 "{channel}: the compensation away from the calibration is uncertain by {:.3} nT (one sigma, leaving out each of the {} windows in turn), above {limit:.3} nT: the manoeuvres flown do not pin the model on the survey's headings and attitudes, and the survey lines can be wrong by that much or more. Try [fit] solver = \"auto\", fly a fuller box, or check the per-line figures in the quality JSON. {next_step}",
                 uncertainty.outside_calibration_sigma_nt, uncertainty.windows
