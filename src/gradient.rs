@@ -131,6 +131,10 @@ pub struct GradientResult {
     /// difference, nT/m. One of them is at least half that wrong there.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub methods_disagree_nt_per_m: Option<f64>,
+    /// Whether they part beyond what either held out while neither
+    /// channel is marked uncertain: the direct fit is then the one at
+    /// odds, and `auto` takes the difference.
+    pub direct_at_odds: bool,
     /// The level the output's convention added, nT/m: how far the
     /// gradient's mean rests on a choice, not on the data.
     pub level_offset_nt_per_m: f64,
@@ -197,7 +201,7 @@ pub fn compensate_gradients(
                         offset => format!(" ([fit] level moved it by {offset:.4} nT/m)"),
                     }
                 ));
-                match disagreement(inputs, &result) {
+                match disagreement(&result) {
                     Some((true, warning)) => stage.warnings.push(warning),
                     Some((false, note)) => stage.notes.push(note),
                     None => {}
@@ -223,25 +227,33 @@ const DISAGREEMENT_FLOOR_NT: f64 = 0.05;
 /// See [`DISAGREEMENT_FLOOR_NT`].
 const DISAGREEMENT_FACTOR: f64 = 5.0;
 
-/// Where the direct fit and the difference of the compensated channels
-/// part on the survey lines beyond what either held out, while neither
-/// channel's compensation is marked uncertain: the direct fit is the one
-/// at odds. A warning when the output is the direct fit (`true`), a note
-/// when it is the difference (`false`); `None` when they agree, or a
-/// channel's own uncertainty warning explains the difference.
-fn disagreement(inputs: &GradientInputs, result: &GradientResult) -> Option<(bool, String)> {
-    let apart = result.methods_disagree_nt_per_m?;
-    let d = result.pair.separation_m;
-    let held = (result.held_out.as_ref()).map_or(0.0, |h| h.direct_nt_per_m.max(h.difference_nt_per_m));
-    if apart <= (DISAGREEMENT_FLOOR_NT / d).max(DISAGREEMENT_FACTOR * held) {
+/// Whether the direct fit and the difference of the compensated channels
+/// (channels `ia`, `ib`) part on the survey lines by `apart` (nT/m)
+/// beyond what either held out, while neither channel's compensation is
+/// marked uncertain (which would explain a bad difference): the direct fit
+/// is then the one at odds.
+fn direct_at_odds(
+    inputs: &GradientInputs,
+    (ia, ib): (usize, usize),
+    apart: Option<f64>,
+    held_out: Option<&GradientHeldOut>,
+    d: f64,
+) -> bool {
+    let held = held_out.map_or(0.0, |h| h.direct_nt_per_m.max(h.difference_nt_per_m));
+    let uncertain = |i: usize| inputs.uncertain.get(i) == Some(&true);
+    apart.is_some_and(|apart| apart > (DISAGREEMENT_FLOOR_NT / d).max(DISAGREEMENT_FACTOR * held))
+        && !uncertain(ia)
+        && !uncertain(ib)
+}
+
+/// The words on a direct fit at odds ([`direct_at_odds`]): a warning when
+/// the output is the direct fit (`true`: `method = "direct"` asked for
+/// it), a note when it is the difference (`false`); `None` otherwise.
+fn disagreement(result: &GradientResult) -> Option<(bool, String)> {
+    if !result.direct_at_odds {
         return None;
     }
-    let uncertain = |name: &str| {
-        (inputs.models.iter().position(|m| m.channel == name)).is_some_and(|i| inputs.uncertain.get(i) == Some(&true))
-    };
-    if uncertain(&result.pair.a) || uncertain(&result.pair.b) {
-        return None;
-    }
+    let (apart, d) = (result.methods_disagree_nt_per_m?, result.pair.separation_m);
     let words = format!(
         "{}: the direct fit and the difference of the compensated channels part on the survey lines by {apart:.4} nT/m (RMS about their mean difference, {:.3} nT over {d:.2} m), more than they differ held out, while neither {} nor {} is marked uncertain",
         result.column,
@@ -252,9 +264,9 @@ fn disagreement(inputs: &GradientInputs, result: &GradientResult) -> Option<(boo
     Some(match result.method_used {
         GradientMethod::Direct => (
             true,
-            format!("{words}: the direct fit, which the output uses, is likely wrong there by about that much; use [[gradient]] method = \"difference\", or fly a fuller box"),
+            format!("{words}: the direct fit, which the output uses, is likely wrong there by about that much; use [[gradient]] method = \"auto\" or \"difference\", or fly a fuller box"),
         ),
-        _ => (false, format!("{words}: the output uses the difference")),
+        _ => (false, format!("{words}: the direct fit is at odds, and the output uses the difference")),
     })
 }
 
@@ -315,7 +327,6 @@ fn compensate_pair(
     let model = fit(&lean, &sensor, &name, inputs.windows, &spec, options, &stores)?;
     let d = pair.separation_m;
     let held_out = held_out(inputs, (&lean, &sensor, &name), (&spec, options), (ia, ib, d))?;
-    let (method_used, reason) = choose(pair.method, held_out.as_ref());
     // Both methods' difference fields, nT: the one used is the output,
     // and where they part on the survey one of them is wrong.
     let direct = {
@@ -332,6 +343,8 @@ fn compensate_pair(
         (values, a.level_offset_nt - b.level_offset_nt)
     };
     let disagree_nt = survey_spread(log, inputs.windows, &direct.0, &difference.0);
+    let at_odds = direct_at_odds(inputs, (ia, ib), disagree_nt.map(|v| v / d), held_out.as_ref(), d);
+    let (method_used, reason) = choose(pair.method, held_out.as_ref(), at_odds);
     let (values, level_offset_nt) = match method_used {
         GradientMethod::Direct => direct,
         _ => difference,
@@ -349,6 +362,7 @@ fn compensate_pair(
         held_out,
         direct_residual_nt_per_m: (residual.0 / residual.1.max(1) as f64).sqrt() / d,
         methods_disagree_nt_per_m: disagree_nt.map(|v| v / d),
+        direct_at_odds: at_odds,
         level_offset_nt_per_m: level_offset_nt / d,
     };
     let compensated = CompensatedGradient {
@@ -474,11 +488,16 @@ fn by_row(fits: &[WindowFit]) -> std::collections::BTreeMap<usize, f64> {
         .collect()
 }
 
-/// The method to use and why.
-fn choose(asked: GradientMethod, held_out: Option<&GradientHeldOut>) -> (GradientMethod, String) {
+/// The method to use and why; `at_odds`: the direct fit parts from the
+/// difference on the survey lines ([`direct_at_odds`]).
+fn choose(asked: GradientMethod, held_out: Option<&GradientHeldOut>, at_odds: bool) -> (GradientMethod, String) {
     match (asked, held_out) {
         (GradientMethod::Direct, _) => (GradientMethod::Direct, "as [[gradient]] method asks".into()),
         (GradientMethod::Difference, _) => (GradientMethod::Difference, "as [[gradient]] method asks".into()),
+        (GradientMethod::Auto, _) if at_odds => (
+            GradientMethod::Difference,
+            "the direct fit parts from the difference on the survey lines while neither channel is marked uncertain".into(),
+        ),
         (GradientMethod::Auto, Some(held)) if held.direct_nt_per_m <= held.difference_nt_per_m => (
             GradientMethod::Direct,
             "the smaller residual held out by heading".into(),
