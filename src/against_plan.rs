@@ -300,13 +300,13 @@ pub fn compare(
         Some(flown) => {
             let (lacking, extra) = match_manoeuvres(&planned, flown);
             let extra_flown: Vec<(ManoeuvreKind, f64)> = extra.iter().map(|&f| flown[f]).collect();
-            if lacking.is_empty() && !additions.is_empty() {
-                let (additions_lacking, _) = match_manoeuvres(&additions, &extra_flown);
-                with_additions = additions_lacking.is_empty();
-            }
+            // The extras are the proposed additions when they hold all of
+            // them (and the box is whole); what is left is unplanned.
+            let (additions_lacking, beyond_additions) = match_manoeuvres(&additions, &extra_flown);
+            with_additions = lacking.is_empty() && !additions.is_empty() && additions_lacking.is_empty();
             missing = lacking.iter().map(|&p| manoeuvre_words(planned[p].0, planned[p].1)).collect();
             unplanned = match with_additions {
-                true => match_manoeuvres(&additions, &extra_flown).1,
+                true => beyond_additions,
                 false => (0..extra_flown.len()).collect(),
             }
             .into_iter()

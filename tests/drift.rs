@@ -30,15 +30,9 @@ fn raw_scenario(seed: u64) -> RawScenario {
         {opening}
         line_count = 1
         line_length_m = 4000.0
-        [[scalar]]
-        name = "mag_1_uc"
-        location = "tail"
-        [[scalar]]
-        name = "mag_2_uc"
-        location = "wing"
-        [[fluxgate]]
-        name = "flux_a"
-        "#
+        {}
+        "#,
+        common::TAIL_AND_WING
     );
     toml::from_str(&text).unwrap()
 }

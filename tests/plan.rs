@@ -53,16 +53,10 @@ fn plan_text(seed: u64, extra: &str) -> String {
         {opening}
         line_count = 2
         line_length_m = 6000.0
-        [[scalar]]
-        name = "mag_1_uc"
-        location = "tail"
-        [[scalar]]
-        name = "mag_2_uc"
-        location = "wing"
-        [[fluxgate]]
-        name = "flux_a"
+        {}
         {extra}
-        "#
+        "#,
+        common::TAIL_AND_WING
     )
 }
 

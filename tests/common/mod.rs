@@ -152,3 +152,16 @@ pub fn plain() -> magcomp::config::Settings {
     settings.vector.enabled = false;
     settings
 }
+
+/// Scenario tables of a tail and a wing magnetometer (`mag_1_uc`,
+/// `mag_2_uc`) and a fluxgate (`flux_a`).
+pub const TAIL_AND_WING: &str = r#"
+[[scalar]]
+name = "mag_1_uc"
+location = "tail"
+[[scalar]]
+name = "mag_2_uc"
+location = "wing"
+[[fluxgate]]
+name = "flux_a"
+"#;

@@ -201,6 +201,25 @@ fn unit_of(name: &str, role: &ChannelRole) -> &'static str {
     }
 }
 
+/// A `magcomp.Sample` topic of `values`, one message a row, in `unit`.
+fn sample_topic<'a>(topic: String, values: &'a [f64], unit: &'static str) -> Topic<'a> {
+    Topic {
+        topic,
+        schema: "magcomp.Sample",
+        metadata: BTreeMap::new(),
+        encode: Box::new(move |row, time| {
+            Some(
+                Sample {
+                    timestamp: Some(timestamp(time)),
+                    value: values[row],
+                    unit: unit.into(),
+                }
+                .encode_to_vec(),
+            )
+        }),
+    }
+}
+
 fn plan_topics<'a>(log: &'a FlightLog, compensation: Option<&'a Compensation>) -> Vec<Topic<'a>> {
     let mut topics: Vec<Topic<'a>> = Vec::new();
     let mut covered = vec![false; log.channels().len()];
@@ -317,23 +336,11 @@ fn plan_topics<'a>(log: &'a FlightLog, compensation: Option<&'a Compensation>) -
         });
     }
     for (i, c) in log.channels().iter().enumerate().filter(|(i, _)| !covered[*i]) {
-        let unit = unit_of(&c.name, &c.role);
-        topics.push(Topic {
-            topic: format!("/aux/{}", c.name),
-            schema: "magcomp.Sample",
-            metadata: BTreeMap::new(),
-            encode: Box::new(move |row, time| {
-                let value = channel(i)[row];
-                Some({
-                    Sample {
-                        timestamp: Some(timestamp(time)),
-                        value,
-                        unit: unit.into(),
-                    }
-                    .encode_to_vec()
-                })
-            }),
-        });
+        topics.push(sample_topic(
+            format!("/aux/{}", c.name),
+            channel(i),
+            unit_of(&c.name, &c.role),
+        ));
     }
     for compensated in compensation.map(|c| c.channels.as_slice()).unwrap_or_default() {
         let frame = compensated.channel.clone();
@@ -355,21 +362,7 @@ fn plan_topics<'a>(log: &'a FlightLog, compensation: Option<&'a Compensation>) -
             }),
         });
         if let Some(sigma) = compensated.sigma_nt.as_deref() {
-            topics.push(Topic {
-                topic: format!("/mag/{label}/compensated_sigma"),
-                schema: "magcomp.Sample",
-                metadata: BTreeMap::new(),
-                encode: Box::new(move |row, time| {
-                    Some(
-                        Sample {
-                            timestamp: Some(timestamp(time)),
-                            value: sigma[row],
-                            unit: "nT".into(),
-                        }
-                        .encode_to_vec(),
-                    )
-                }),
-            });
+            topics.push(sample_topic(format!("/mag/{label}/compensated_sigma"), sigma, "nT"));
         }
     }
     for vector in compensation.map(|c| c.vectors.as_slice()).unwrap_or_default() {
@@ -397,21 +390,11 @@ fn plan_topics<'a>(log: &'a FlightLog, compensation: Option<&'a Compensation>) -
     for gradient in compensation.map(|c| c.gradients.as_slice()).unwrap_or_default() {
         let label = gradient.column.strip_prefix("grad_").unwrap_or(&gradient.column);
         let label = label.strip_suffix("_c").unwrap_or(label);
-        topics.push(Topic {
-            topic: format!("/grad/{label}/compensated"),
-            schema: "magcomp.Sample",
-            metadata: BTreeMap::new(),
-            encode: Box::new(move |row, time| {
-                Some(
-                    Sample {
-                        timestamp: Some(timestamp(time)),
-                        value: gradient.values[row],
-                        unit: "nT/m".into(),
-                    }
-                    .encode_to_vec(),
-                )
-            }),
-        });
+        topics.push(sample_topic(
+            format!("/grad/{label}/compensated"),
+            &gradient.values,
+            "nT/m",
+        ));
     }
     if let Some(compensation) = compensation {
         let flags = &compensation.flags;
