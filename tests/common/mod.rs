@@ -165,3 +165,74 @@ location = "wing"
 [[fluxgate]]
 name = "flux_a"
 "#;
+
+/// How the two extra sensors of [`paired_sensors_flight`] are mounted.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PairLayout {
+    /// Two wing-tip pods, ±half-span right.
+    Wings,
+    /// A nose boom and a tail stinger.
+    NoseTail,
+    /// Two tail sensors, one above the other.
+    Stacked,
+}
+
+/// A flight plan drawn from `seed` with a tail sensor (`mag_1_uc`), a pair
+/// (`mag_4_uc`, `mag_5_uc`) mounted by `seed % 3` as wing tips, nose and
+/// tail, or stacked in the tail, and a fluxgate (`flux_a`): the pair's
+/// separation, the site, the box's headings, altitude and manoeuvres
+/// ([`random_box`]), the survey height (100–300 m over 24 dipoles
+/// 80–400 m down, gradients of tenths of a nT/m to several nT/m), the
+/// lines' heading, the sample rate and the pulsations' size (0.1–1 nT).
+/// Returns the flight, the layout and the pair's separation (m).
+pub fn paired_sensors_flight(seed: u64) -> (magcomp::simulate::SimulatedFlight, PairLayout, f64) {
+    let mut draw = magcomp::simulate::random::Random::new(seed).fork("gradient test flight");
+    let layout = [PairLayout::Wings, PairLayout::NoseTail, PairLayout::Stacked][(seed % 3) as usize];
+    let (location, a, b) = match layout {
+        PairLayout::Wings => {
+            let half = draw.uniform(5.0, 9.0);
+            ("wing", [0.0, -half, 0.0], [0.0, half, 0.0])
+        }
+        PairLayout::NoseTail => {
+            let length = draw.uniform(10.0, 16.0);
+            ("tail", [length / 2.0, 0.0, 0.0], [-length / 2.0, 0.0, 0.0])
+        }
+        PairLayout::Stacked => {
+            let height = draw.uniform(1.0, 2.5);
+            ("tail", [-8.0, 0.0, -height], [-8.0, 0.0, 0.0])
+        }
+    };
+    let separation = (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f64>().sqrt();
+    let opening = random_box(seed, &mut draw);
+    let text = format!(
+        r#"
+        {opening}
+        line_count = 3
+        line_length_m = 6000.0
+        altitude_m = {survey_altitude}
+        [crust]
+        dipole_count = 24
+        depth_m = [80.0, 400.0]
+        moment_a_m2 = 3.0e8
+        [external]
+        pulsation_nt = {pulsation}
+        [[scalar]]
+        name = "mag_1_uc"
+        location = "tail"
+        [[scalar]]
+        name = "mag_4_uc"
+        location = "{location}"
+        position_m = {a:?}
+        [[scalar]]
+        name = "mag_5_uc"
+        location = "{location}"
+        position_m = {b:?}
+        [[fluxgate]]
+        name = "flux_a"
+        "#,
+        survey_altitude = draw.uniform(100.0, 300.0),
+        pulsation = draw.uniform(0.1, 1.0),
+    );
+    let raw: RawScenario = toml::from_str(&text).unwrap();
+    (simulate(&Scenario::try_from(raw).unwrap()).unwrap(), layout, separation)
+}
