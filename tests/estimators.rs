@@ -337,3 +337,140 @@ fn a_solver_without_a_jackknife_says_it_has_no_uncertainty_figure() {
             .any(|w| w.contains("no uncertainty figure")));
     }
 }
+
+/// A box drawn from `seed` (site from 60° S to 65° N, headings 90° apart
+/// from a random base) with a quiet tail scalar (0.002 nT) and a fluxgate
+/// of `fluxgate_noise_nt` white noise; with `weak`, the pitches, rolls and
+/// yaws of three headings are flown at a quarter of their amplitude, the
+/// first heading's at full amplitude. Fitted on the simulation's own
+/// windows (weak manoeuvres are below what detection takes), solver
+/// `solver`, no diagnosis or vector stage: the channel's model and its
+/// survey-line error against the true Earth field, nT.
+fn noisy_fluxgate_box(
+    seed: u64,
+    fluxgate_noise_nt: f64,
+    weak: bool,
+    solver: magcomp::numerics::estimators::Solver,
+) -> (magcomp::model::FittedModel, f64) {
+    let mut draw = magcomp::simulate::random::Random::new(seed).fork("noisy fluxgate box");
+    let base = draw.uniform(0.0, 90.0);
+    let headings: Vec<f64> = (0..4).map(|k| (base + 90.0 * k as f64).round()).collect();
+    let weaken: Vec<String> = match weak {
+        true => (headings[1..].iter())
+            .flat_map(|h| ["pitch", "roll", "yaw"].map(|kind| format!("\"{kind}@{h}=0.25\"")))
+            .collect(),
+        false => Vec::new(),
+    };
+    let text = format!(
+        r#"
+        seed = {seed}
+        sample_rate_hz = 10.0
+        [site]
+        latitude_deg = {latitude}
+        longitude_deg = {longitude}
+        [calibration]
+        headings_deg = {headings:?}
+        weaken = [{weaken}]
+        [survey]
+        line_count = 2
+        line_length_m = 5000.0
+        [[scalar]]
+        name = "mag_1_uc"
+        location = "tail"
+        noise_nt = 0.002
+        [[fluxgate]]
+        name = "flux_a"
+        noise_nt = {fluxgate_noise_nt}
+        "#,
+        latitude = draw.uniform(-60.0, 65.0),
+        longitude = draw.uniform(-180.0, 180.0),
+        weaken = weaken.join(", "),
+    );
+    let raw: magcomp::simulate::scenario::RawScenario = toml::from_str(&text).unwrap();
+    let simulated =
+        magcomp::simulate::simulate(&magcomp::simulate::scenario::Scenario::try_from(raw).unwrap()).unwrap();
+    let folder = tempfile::tempdir().unwrap();
+    let input = folder.path().join("box.csv");
+    magcomp::formats::write_flight_log(&simulated.log, &input).unwrap();
+    let mut settings = magcomp::config::Settings::default();
+    settings.diagnose.apply = magcomp::diagnose::ApplyDiagnosis::Never;
+    settings.vector.enabled = false;
+    settings.fit.solver = solver;
+    let mut job = magcomp::config::FlightJob::new(&input);
+    job.date = magcomp::flight_date::FlightDate::parse("2026-06-15");
+    job.windows = simulated.truth.calibration_windows(settings.detect.window_margin_s);
+    let run = magcomp::pipeline::run(&job, &settings, &folder.path().join("box_c.csv")).unwrap();
+    let line = &run.log().channel("line").unwrap().values;
+    let truth = simulated.truth.earth_total_nt("mag_1_uc").unwrap();
+    let error = magcomp::simulate::truth::survey_line_error_nt(&run.compensation.channels[0].values, truth, line);
+    (run.result.models[0].clone(), error)
+}
+
+/// The held-out RMS of the best of `families` in a model's table.
+fn best_of(model: &magcomp::model::FittedModel, families: &[Family]) -> (Family, f64) {
+    let table = model.estimators.as_ref().expect("four headings: a table");
+    (table.iter())
+        .filter(|s| families.contains(&s.family))
+        .map(|s| (s.family, s.heldout_rms))
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .unwrap()
+}
+
+/// Where truncated TLS wins, and where ridge does, explained. TLS allows
+/// noise in the design (the fluxgate) as well as in the scalar. Least
+/// squares and ridge are attenuated by the design's noise
+/// (var(swing)/(var(swing) + var(noise))), which costs nothing held out
+/// when the heading held out swings as the fitted ones do (the attenuated
+/// fit is then the best linear predictor from the recorded design), and
+/// costs the attenuated share of the swing when the heading held out
+/// swings wider (`numerics::estimators` tests both on a design with known
+/// answers). A box whose three headings are flown at a quarter of the
+/// amplitude, with 1000 nT of fluxgate noise (in the band, comparable to
+/// the weak headings' swings of the direction cosines), is that case. On
+/// 16 random sites and headings, `auto` took truncated TLS on 9 such
+/// boxes, and a whole box (every heading at full amplitude, the same
+/// noise) favoured it once: its folds swing alike, and a ridge-type
+/// estimator (least squares, ridge, TSVD, damped TSVD) predicts them
+/// best. Asserted: truncated TLS on at least 6 of the 16 weak boxes and
+/// on at most 2 of the whole ones.
+///
+/// What the held-out win does not buy: the survey is flown straight and
+/// level, its swings as small as the weak headings', where the attenuated
+/// fit predicts as well; on the 9 boxes truncated TLS's survey-line error
+/// was below the default ridge's on 3 (printed, not asserted). A real
+/// fluxgate's noise (0.1–1 nT) is a thousand times below this case's.
+#[test]
+fn truncated_tls_wins_held_out_on_boxes_of_weak_headings_with_a_noisy_fluxgate_and_ridge_on_whole_boxes() {
+    use magcomp::numerics::estimators::Solver;
+    let ridge_type = [Family::Ls, Family::Ridge, Family::Tsvd, Family::DampedTsvd];
+    let (mut weak_ttls, mut survey_better, mut whole_ttls) = (0, 0, 0);
+    for seed in 1..17 {
+        let (weak, error) = noisy_fluxgate_box(seed, 1000.0, true, Solver::Auto);
+        let (family, ridge_rms) = best_of(&weak, &ridge_type);
+        let (_, ttls_rms) = best_of(&weak, &[Family::Ttls]);
+        let used = weak.solver.as_ref().and_then(|s| s.family);
+        assert_eq!(
+            used,
+            Some(best_of(&weak, &Family::ALL).0),
+            "seed {seed}: auto takes the best held out"
+        );
+        let mut line = format!(
+            "seed {seed}, three weak headings: auto took {used:?}; held out truncated TLS {ttls_rms:.4} nT, best ridge-type {family:?} {ridge_rms:.4} nT"
+        );
+        if used == Some(Family::Ttls) {
+            weak_ttls += 1;
+            let (_, ridge_error) = noisy_fluxgate_box(seed, 1000.0, true, Solver::Ridge);
+            survey_better += usize::from(error < ridge_error);
+            line += &format!("; survey error truncated TLS {error:.3} nT, default ridge {ridge_error:.3} nT");
+        }
+        let (whole, _) = noisy_fluxgate_box(seed, 1000.0, false, Solver::Auto);
+        let (best, rms) = best_of(&whole, &Family::ALL);
+        println!("{line}\nseed {seed}, whole box: best held out {best:?} {rms:.4} nT");
+        whole_ttls += usize::from(matches!(best, Family::Ttls | Family::Tls));
+    }
+    println!(
+        "truncated TLS best held out on {weak_ttls} of 16 boxes of weak headings (survey better than ridge on {survey_better}), on {whole_ttls} of 16 whole boxes"
+    );
+    assert!(weak_ttls >= 6, "truncated TLS on {weak_ttls} of 16 weak boxes");
+    assert!(whole_ttls <= 2, "TLS on {whole_ttls} of 16 whole boxes");
+}

@@ -781,4 +781,75 @@ mod tests {
         let rms = |family| table.iter().find(|s| s.family == family).unwrap().heldout_rms;
         assert!(rms(Family::Ls) < rms(Family::Tls), "{table:?}");
     }
+
+    #[test]
+    fn tls_wins_held_out_when_a_heading_swings_wider_than_the_others_under_regressor_noise() {
+        // The same errors in variables, but one fold (a heading whose
+        // manoeuvres swing the regressors four times wider) unlike the
+        // others; every variance below in units of 1/3 (uniform noise).
+        // Narrow folds: clean 0.25, regressor noise 0.16, y's noise 0.32.
+        // Fitted on the three narrow folds, least squares is attenuated to
+        // 0.25/0.41 = 0.61 and misses 39 % of the wide fold's swing (clean
+        // 4 per column): residual variance 0.39²·8 + 0.61²·0.32 + 0.32 =
+        // 1.66; TLS is not attenuated and leaves the noise only, 0.64.
+        // Each narrow fold, held out, is predicted from a fit that includes
+        // the wide fold (clean 1.5, attenuation 0.90): 0.58 for least
+        // squares, 0.64 for TLS. Over the four folds: least squares
+        // √((1.66 + 3·0.58)/12) = 0.53, TLS √(0.64/3) = 0.46. So the
+        // heading table favours TLS: the regressors' noise is comparable to
+        // the narrow headings' swings, and the heading held out swings
+        // wider than the ones fitted, where the best linear predictor of
+        // the fitted data is no longer the best one.
+        let (n, p) = (8000, 2);
+        let truth = [1.0, -1.0];
+        let clean = columns(n, p, 1801);
+        let wide = |i: usize| if i >= 3 * n / 4 { 4.0 } else { 1.0 };
+        // Narrow folds: clean variance 0.25 × 1/3, noise variance 0.16/3.
+        let a: Vec<Vec<f64>> = (0..p)
+            .map(|j| {
+                (0..n)
+                    .map(|i| 0.5 * wide(i) * clean[j][i] + 0.4 * noise(1900 + j as u64, n)[i])
+                    .collect()
+            })
+            .collect();
+        let y: Vec<f64> = (0..n)
+            .map(|i| {
+                0.5 * wide(i) * (truth[0] * clean[0][i] + truth[1] * clean[1][i])
+                    + 0.4 * 2f64.sqrt() * noise(1990, n)[i]
+            })
+            .collect();
+        let folds: Vec<Factor> = (0..4)
+            .map(|b| {
+                let r = b * n / 4..(b + 1) * n / 4;
+                let views: Vec<&[f64]> = a.iter().map(|c| &c[r.clone()]).collect();
+                Factor::of_columns(&views, &y[r])
+            })
+            .collect();
+        // Fitted on the narrow folds alone: least squares attenuated to
+        // 0.61 of the truth, TLS within 0.06 of it.
+        let narrow = Decomposed::new(&Factor::combine(&folds[..3]).unwrap()).unwrap();
+        let (ls, tls) = (
+            narrow.coefficients(Estimator::Ls).unwrap(),
+            narrow.coefficients(Estimator::Tls).unwrap(),
+        );
+        for j in 0..p {
+            assert!((ls[j] / truth[j] - 0.61).abs() < 0.05, "LS {ls:?}");
+            assert!((tls[j] - truth[j]).abs() < 0.06, "TLS {tls:?}");
+        }
+        let table = compare(&folds);
+        let rms = |family| table.iter().find(|s| s.family == family).unwrap().heldout_rms;
+        assert!((rms(Family::Ls) - 0.533).abs() < 0.02, "{table:?}");
+        assert!((rms(Family::Tls) - 0.462).abs() < 0.02, "{table:?}");
+        for family in [Family::Ls, Family::Ridge, Family::Tsvd, Family::DampedTsvd] {
+            assert!(
+                rms(Family::Tls) < 0.9 * rms(family),
+                "TLS against {family:?}: {table:?}"
+            );
+        }
+        let best = table
+            .iter()
+            .min_by(|x, y| x.heldout_rms.total_cmp(&y.heldout_rms))
+            .unwrap();
+        assert!(matches!(best.family, Family::Tls | Family::Ttls), "{table:?}");
+    }
 }
