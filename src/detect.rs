@@ -1083,13 +1083,26 @@ fn group_boxes(legs: &[Leg], manoeuvres: &[DetectedManoeuvre], options: &DetectO
 /// "no leg near 270°". The box's headings are taken 90° apart from the
 /// circular mean of its legs' headings modulo 90° (the angle of the mean
 /// of $e^{4ih}$, divided by four), so any one leg's heading error and any
-/// flying order count alike.
+/// flying order count alike. Legs off that pattern by the heading
+/// tolerance or more (a box flown on three headings 120° apart) are said
+/// to be off it, and no heading is named.
 fn missing_headings(legs: &[&Leg], tolerance_deg: f64) -> Vec<String> {
     let (sin, cos) = legs.iter().fold((0.0, 0.0), |(s, c), leg| {
         let angle = 4.0 * leg.heading_deg.to_radians();
         (s + angle.sin(), c + angle.cos())
     });
     let base = sin.atan2(cos).to_degrees() / 4.0;
+    let off_pattern = |heading_deg: f64| {
+        let from_pattern_deg = (heading_difference(heading_deg, base) + 45.0).rem_euclid(90.0) - 45.0;
+        from_pattern_deg.abs() >= tolerance_deg
+    };
+    if legs.iter().any(|leg| off_pattern(leg.heading_deg)) {
+        let headings: Vec<String> = legs.iter().map(|leg| format!("{:.0}°", leg.heading_deg)).collect();
+        return vec![format!(
+            "its legs ({}) are not on four headings 90° apart, so no heading of a four-heading box can be named as missing",
+            headings.join(", ")
+        )];
+    }
     (0..4)
         .map(|k| (base + 90.0 * k as f64).rem_euclid(360.0))
         .filter(|expected| {

@@ -349,6 +349,22 @@ fn a_box_without_a_heading_names_it() {
     assert_eq!(detection.boxes[0].missing, vec!["no leg near 0°"]);
 }
 
+/// A box flown on three headings 120° apart lacks no heading of a
+/// four-heading box: its manoeuvres are all found, and it says its legs
+/// are off the pattern instead of naming three headings it never meant
+/// to fly (before: "no leg near 90°, 180°, 270°" for legs on 10°, 130°,
+/// 250°).
+#[test]
+fn a_box_off_the_four_heading_pattern_says_so() {
+    let flight = fly(4, |raw| raw.calibration.headings_deg = vec![10.0, 130.0, 250.0]);
+    let detection = detect(&flight);
+    assert_perfect("three headings 120° apart", &flight, &detection);
+    let missing = &detection.boxes[0].missing;
+    assert_eq!(missing.len(), 1, "{missing:?}");
+    assert!(missing[0].contains("not on four headings 90° apart"), "{missing:?}");
+    assert!(!missing[0].contains("no leg near"), "{missing:?}");
+}
+
 /// On magnetic headings 0, 90, 180 and 270 the fluxgate sees a pitch and
 /// a yaw alike on the east and west legs, and a roll and a yaw alike on
 /// the north and south ones (the field then lies in the plane of the two
