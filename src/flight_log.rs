@@ -105,6 +105,7 @@ pub struct FlightLog {
     alignment: Option<AlignmentReport>,
     date: Option<crate::flight_date::FlightDate>,
     reading_warnings: Vec<String>,
+    text_columns: Vec<String>,
 }
 
 impl FlightLog {
@@ -137,6 +138,7 @@ impl FlightLog {
             alignment: None,
             date: None,
             reading_warnings: Vec::new(),
+            text_columns: Vec::new(),
         })
     }
 
@@ -179,6 +181,7 @@ impl FlightLog {
             alignment: None,
             date: self.date,
             reading_warnings: Vec::new(),
+            text_columns: Vec::new(),
         })
     }
 
@@ -194,6 +197,18 @@ impl FlightLog {
     /// Per-row flags raised while reading; empty when there are none.
     pub fn row_flags(&self) -> &[RowFlags] {
         &self.row_flags
+    }
+
+    /// Records the input's columns of text (not numbers), which the log
+    /// does not hold: only a copy of the input file keeps them.
+    pub fn with_text_columns(mut self, names: Vec<String>) -> Self {
+        self.text_columns = names;
+        self
+    }
+
+    /// The input's columns of text, left out of the log.
+    pub fn text_columns(&self) -> &[String] {
+        &self.text_columns
     }
 
     /// Records what the reader could not read or had to leave out.

@@ -467,11 +467,11 @@ fn compensate(args: CompensateArgs) -> anyhow::Result<()> {
         .iter()
         .map(|w| CalibrationWindow::parse(w))
         .collect::<Result<Vec<_>, _>>()?;
+    let mut windows_detected_on = None;
     if let Some(file) = &args.windows_file {
-        windows.extend(magcomp::windows::read_detect_json(
-            file,
-            pipeline.settings.detect.window_margin_s,
-        )?);
+        let detected = magcomp::windows::read_detect_file(file, pipeline.settings.detect.window_margin_s)?;
+        windows.extend(detected.windows);
+        windows_detected_on = detected.flight.map(|identity| (file.clone(), identity));
     }
     if args.augment {
         pipeline.settings.diagnose.apply = ApplyDiagnosis::Always;
@@ -487,6 +487,7 @@ fn compensate(args: CompensateArgs) -> anyhow::Result<()> {
         vector: args.vector,
         channels: args.channels,
         windows,
+        windows_detected_on,
         ..FlightJob::new(args.flight.clone())
     };
     let beside_out = |suffix: &str| beside(&args.out, suffix);
@@ -527,7 +528,10 @@ fn convert(
     )?);
     let log = magcomp::formats::read_flight_log(flight, &pipeline.settings.ingest)?;
     magcomp::formats::write_flight_log(&log, out)?;
-    if let Some(warning) = magcomp::formats::mcap::undated_warning(&log, out) {
+    let warnings = (log.reading_warnings().iter().cloned())
+        .chain(magcomp::formats::mcap::undated_warning(&log, out))
+        .chain(magcomp::formats::write::text_columns_warning(&log, out, false));
+    for warning in warnings {
         println!("  warning: {warning}");
     }
     println!(
@@ -723,7 +727,18 @@ fn detect(flight: &Path, out: &Path, config: Option<&Path>) -> anyhow::Result<()
     print_notes(&prepare(&inputs, &[Destination::new(out, OutputKind::Json, "--out")])?);
     let log = read_screened(flight, &pipeline)?;
     let detection = magcomp::detect::detect_manoeuvres(&log, &pipeline.settings.detect)?;
-    magcomp::formats::write_json(out, "the detected manoeuvres", &detection)?;
+    /// DETECT.json: the detection and the flight it was made on.
+    #[derive(serde::Serialize)]
+    struct DetectJson<'a> {
+        #[serde(flatten)]
+        detection: &'a magcomp::detect::Detection,
+        flight: magcomp::flight_identity::FlightIdentity,
+    }
+    let file = DetectJson {
+        detection: &detection,
+        flight: magcomp::flight_identity::FlightIdentity::of(&log)?,
+    };
+    magcomp::formats::write_json(out, "the detected manoeuvres", &file)?;
     for note in magcomp::pipeline::detection_notes(&detection) {
         println!("  {note}");
     }

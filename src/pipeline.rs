@@ -468,7 +468,15 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
         calibration.is_some(),
     )?;
     warnings.splice(0..0, screened.warnings(&recorded));
+    if let Some((path, detected_on)) = &job.windows_detected_on {
+        warnings.extend(crate::windows::other_flight_warning(path, detected_on, &recorded)?);
+    }
     warnings.extend(crate::formats::mcap::undated_warning(&recorded, compensated));
+    warnings.extend(crate::formats::write::text_columns_warning(
+        &recorded,
+        compensated,
+        true,
+    ));
     // The channels' fits share their stores; the stores are freed before
     // compensating, which does not need them.
     let stores = StorePool::new();

@@ -11,6 +11,8 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
+use crate::flight_identity::FlightIdentity;
+use crate::flight_log::FlightLog;
 
 /// The three manoeuvres of the FOM box.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -149,6 +151,20 @@ pub struct DetectFile {
     manoeuvres: Vec<DetectedManoeuvre>,
     #[serde(default)]
     boxes: Vec<BoxSpan>,
+    /// The flight the manoeuvres were detected on (`magcomp detect`
+    /// writes it; a hand-made file may leave it out).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    flight: Option<FlightIdentity>,
+}
+
+/// The calibration windows of a DETECT.json file and the flight they were
+/// detected on, when the file says.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DetectedWindows {
+    /// The manoeuvres, widened for the band-pass.
+    pub windows: Vec<CalibrationWindow>,
+    /// The flight `magcomp detect` found them on.
+    pub flight: Option<FlightIdentity>,
 }
 
 #[derive(Debug, Deserialize, Serialize)]
@@ -185,6 +201,7 @@ impl DetectFile {
                 .iter()
                 .map(|&(t_start, t_end)| BoxSpan { t_start, t_end })
                 .collect(),
+            flight: None,
         }
     }
 }
@@ -193,6 +210,11 @@ impl DetectFile {
 /// widened by `margin_s` of level flight on both sides (the fit's band-pass
 /// and trimming need it).
 pub fn read_detect_json(path: &Path, margin_s: f64) -> Result<Vec<CalibrationWindow>> {
+    read_detect_file(path, margin_s).map(|file| file.windows)
+}
+
+/// [`read_detect_json`]'s windows with the flight they were detected on.
+pub fn read_detect_file(path: &Path, margin_s: f64) -> Result<DetectedWindows> {
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, "reading", e))?;
     let file: DetectFile = serde_json::from_str(&text).map_err(|e| Error::NotOurFile {
         path: path.to_path_buf(),
@@ -208,7 +230,25 @@ pub fn read_detect_json(path: &Path, margin_s: f64) -> Result<Vec<CalibrationWin
     windows
         .iter()
         .try_for_each(|w| w.validate(&path.display().to_string()))?;
-    Ok(windows)
+    Ok(DetectedWindows {
+        windows,
+        flight: file.flight,
+    })
+}
+
+/// A warning when `windows`, read from `path`, were detected on another
+/// flight than `log`: they still set the fit, but may not lie on its
+/// manoeuvres.
+pub fn other_flight_warning(path: &Path, detected_on: &FlightIdentity, log: &FlightLog) -> Result<Option<String>> {
+    let flight = FlightIdentity::of(log)?;
+    Ok(detected_on.difference(&flight).map(|difference| {
+        format!(
+            "the calibration windows of {} were detected on {}, not on this flight {} ({difference}): check that they lie on this flight's manoeuvres, or detect them on it with `magcomp detect`",
+            path.display(),
+            detected_on.describe(),
+            flight.describe()
+        )
+    }))
 }
 
 #[cfg(test)]

@@ -359,3 +359,203 @@ fn a_clean_fluxgate_is_not_blamed_for_a_cabin_sensors_field() {
         check.threshold_nt
     );
 }
+
+/// `[columns]` names a flight's own column names; each name given must be
+/// in the file. On a flight whose columns are renamed (`tmi_tail`,
+/// `tmi_cabin`, `att_roll`, …): the right names compensate both
+/// magnetometers; a misspelt scalar name, and a misspelt roll beside a
+/// pitch and yaw that are there, are errors that name the setting and the
+/// column (before, the scalar was silently left uncompensated and the roll
+/// silently turned auxiliary, taking the flight's attitude with it); a
+/// misspelt base station is a warning that names it.
+#[test]
+fn a_column_named_in_the_settings_must_be_in_the_flight() {
+    let folder = tempfile::tempdir().unwrap();
+    let flight = simulated(folder.path(), "flight.csv", |_| {});
+    let text = std::fs::read_to_string(&flight).unwrap();
+    let (header, body) = text.split_once('\n').unwrap();
+    let renames = [
+        ("tt", "time_s"),
+        ("mag_1_uc", "tmi_tail"),
+        ("mag_2_uc", "tmi_cabin"),
+        ("ins_pitch", "att_pitch"),
+        ("ins_roll", "att_roll"),
+        ("ins_yaw", "att_yaw"),
+        ("diurnal", "base_nt"),
+    ];
+    let header: Vec<&str> = (header.split(','))
+        .map(|name| {
+            renames
+                .iter()
+                .find(|(old, _)| *old == name)
+                .map_or(name, |(_, new)| new)
+        })
+        .collect();
+    let renamed = folder.path().join("renamed.csv");
+    std::fs::write(&renamed, format!("{}\n{body}", header.join(","))).unwrap();
+    let run = |scalar: &str, roll: &str, base: &str| {
+        let config = folder.path().join("columns.toml");
+        std::fs::write(
+            &config,
+            format!(
+                "[columns]\ntime = \"time_s\"\nscalar = [\"tmi_tail\", \"{scalar}\"]\npitch = \"att_pitch\"\nroll = \"{roll}\"\nyaw = \"att_yaw\"\nbase_station = \"{base}\"\n[diagnose]\napply = \"never\"\n"
+            ),
+        )
+        .unwrap();
+        let out = folder.path().join("out.csv");
+        let _ = std::fs::remove_file(&out);
+        let result = magcomp(&[
+            "compensate",
+            renamed.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--config",
+            config.to_str().unwrap(),
+        ]);
+        let header = std::fs::read_to_string(&out)
+            .ok()
+            .map(|t| t.lines().next().unwrap_or("").to_string());
+        (result, header)
+    };
+    let ((code, stdout, stderr), header) = run("tmi_cabin", "att_roll", "base_nt");
+    assert_eq!(code, 0, "{stdout}\n{stderr}");
+    let header = header.unwrap();
+    for column in ["tmi_tail_c", "tmi_cabin_c", "flux_a_x_c"] {
+        assert!(header.split(',').any(|c| c == column), "{column} in {header}");
+    }
+    assert!(!stdout.contains("is not in the file"), "{stdout}");
+
+    let ((code, _, stderr), header) = run("tmi_cabn", "att_roll", "base_nt");
+    println!("misspelt scalar: exit {code}\n{stderr}");
+    assert_ne!(code, 0);
+    assert!(header.is_none(), "no output is written");
+    assert!(stderr.contains("'tmi_cabn', named by [columns] scalar"), "{stderr}");
+    assert!(
+        stderr.contains("'tmi_cabin'"),
+        "the file's columns are listed: {stderr}"
+    );
+
+    let ((code, _, stderr), _) = run("tmi_cabin", "att_rol", "base_nt");
+    println!("misspelt roll: exit {code}\n{stderr}");
+    assert_ne!(code, 0);
+    assert!(stderr.contains("'att_rol', named by [columns] roll"), "{stderr}");
+
+    let ((code, stdout, stderr), header) = run("tmi_cabin", "att_roll", "base");
+    println!("misspelt base station: exit {code}\n{stdout}");
+    assert_eq!(code, 0, "{stderr}");
+    assert!(header.is_some());
+    assert!(
+        stdout.contains("the column 'base' named by [columns] base_station is not in the file"),
+        "{stdout}"
+    );
+}
+
+/// DETECT.json records the flight it was detected on; its windows given
+/// to another flight are used, with a warning that names both (before,
+/// another flight's windows were taken silently).
+#[test]
+fn windows_detected_on_another_flight_are_named() {
+    let folder = tempfile::tempdir().unwrap();
+    let flight = simulated(folder.path(), "flight.csv", |_| {});
+    let other = simulated(folder.path(), "other.csv", |raw| raw.seed = 22);
+    let detect = folder.path().join("DETECT.json");
+    let (code, _, stderr) = magcomp(&["detect", flight.to_str().unwrap(), "--out", detect.to_str().unwrap()]);
+    assert_eq!(code, 0, "{stderr}");
+    let json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&detect).unwrap()).unwrap();
+    assert_eq!(json["flight"]["file"], "flight.csv");
+    assert_eq!(json["flight"]["sha256"].as_str().unwrap().len(), 64);
+    assert!(json["manoeuvres"].as_array().unwrap().len() >= 10, "{json}");
+    let compensate = |input: &Path| {
+        let out = folder.path().join("out.csv");
+        let args = ["compensate", input.to_str().unwrap(), "--out", out.to_str().unwrap()];
+        magcomp(&[&args[..], &["--windows-file", detect.to_str().unwrap(), "--plain"]].concat())
+    };
+    let (code, stdout, stderr) = compensate(&flight);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(!stdout.contains("were detected on"), "{stdout}");
+    let (code, stdout, stderr) = compensate(&other);
+    println!("{stdout}");
+    assert_eq!(code, 0, "{stderr}");
+    assert!(
+        stdout.contains("were detected on flight.csv") && stdout.contains("not on this flight other.csv"),
+        "{stdout}"
+    );
+}
+
+/// Attitude recorded in radians reads without error but leaves every
+/// manoeuvre a few hundredths of a degree: `detect` says what to convert,
+/// and the same flight in degrees says nothing of units.
+#[test]
+fn attitude_in_radians_is_named() {
+    let folder = tempfile::tempdir().unwrap();
+    let flight = simulated(folder.path(), "flight.csv", |_| {});
+    let text = std::fs::read_to_string(&flight).unwrap();
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let angles: Vec<usize> = (0..header.len()).filter(|&i| header[i].starts_with("ins_")).collect();
+    assert_eq!(angles.len(), 3, "{header:?}");
+    let mut radians = vec![header.join(",")];
+    for line in lines {
+        let mut cells: Vec<String> = line.split(',').map(String::from).collect();
+        for &i in &angles {
+            if let Ok(degrees) = cells[i].parse::<f64>() {
+                cells[i] = degrees.to_radians().to_string();
+            }
+        }
+        radians.push(cells.join(","));
+    }
+    let radians_csv = folder.path().join("radians.csv");
+    std::fs::write(&radians_csv, radians.join("\n")).unwrap();
+    let out = folder.path().join("DETECT.json");
+    for (input, named) in [(&flight, false), (&radians_csv, true)] {
+        let (code, stdout, stderr) = magcomp(&["detect", input.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+        println!("{}: {stdout}", input.display());
+        assert_eq!(code, 0, "{stderr}");
+        assert_eq!(stdout.contains("the attitude looks like radians"), named, "{stdout}");
+    }
+}
+
+/// A column of text (the compensated CSV's `flags`, a vendor's note)
+/// lives only in a copy of the input: `convert`, which writes the flight
+/// log's numbers, names it as left out, and a compensated CSV of a CSV
+/// input keeps it without a word.
+#[test]
+fn text_columns_left_out_of_an_output_are_named() {
+    let folder = tempfile::tempdir().unwrap();
+    let flight = simulated(folder.path(), "flight.csv", |_| {});
+    let text = std::fs::read_to_string(&flight).unwrap();
+    let noted: Vec<String> = (text.lines().enumerate())
+        .map(|(i, line)| match i {
+            0 => format!("{line},remark"),
+            _ if i % 100 == 0 => format!("{line},turbulence"),
+            _ => format!("{line},"),
+        })
+        .collect();
+    let noted_csv = folder.path().join("noted.csv");
+    std::fs::write(&noted_csv, noted.join("\n")).unwrap();
+    let out = folder.path().join("noted_c.csv");
+    let (code, stdout, stderr) = magcomp(&[
+        "compensate",
+        noted_csv.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--plain",
+    ]);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(!stdout.contains("text column"), "{stdout}");
+    let compensated = std::fs::read_to_string(&out).unwrap();
+    assert_eq!(
+        compensated.lines().filter(|l| l.contains(",turbulence,")).count(),
+        noted.len() / 100,
+        "the remarks are kept"
+    );
+    for input in [&noted_csv, &out] {
+        let converted = folder.path().join("converted.mcap");
+        let (code, stdout, stderr) =
+            magcomp(&["convert", input.to_str().unwrap(), "--out", converted.to_str().unwrap()]);
+        println!("{stdout}");
+        assert_eq!(code, 0, "{stderr}");
+        assert!(stdout.contains("text column(s) 'remark'"), "{stdout}");
+        assert!(stdout.contains("are not written to"), "{stdout}");
+    }
+}

@@ -83,7 +83,7 @@ use crate::quality::transfer::TransferOptions;
 use crate::tolles_lawson::{EddyTerms, InducedTerms, TermSet};
 use crate::vector::VectorOptions;
 use crate::vector_calibration::VectorCalibrationOptions;
-use crate::windows::{read_detect_json, CalibrationWindow};
+use crate::windows::{read_detect_file, CalibrationWindow};
 
 mod campaign;
 mod sections;
@@ -291,6 +291,9 @@ pub struct FlightJob {
     pub channels: Option<Vec<String>>,
     /// Calibration windows.
     pub windows: Vec<CalibrationWindow>,
+    /// The DETECT.json that gave windows, and the flight it was detected
+    /// on: windows of another flight are a warning.
+    pub windows_detected_on: Option<(PathBuf, crate::flight_identity::FlightIdentity)>,
     /// A DIAGNOSIS.json to accept: each channel it lists is fitted and
     /// compensated with the model it found.
     pub diagnosis: Option<PathBuf>,
@@ -320,6 +323,7 @@ impl FlightJob {
             vector: None,
             channels: None,
             windows: Vec::new(),
+            windows_detected_on: None,
             diagnosis: None,
             force_diagnosis: false,
             plan: None,
@@ -465,9 +469,10 @@ impl Pipeline {
         pipeline.notes = notes;
         let margin_s = pipeline.settings.detect.window_margin_s;
         for file in windows_files {
-            let windows = read_detect_json(&file.path, margin_s)?;
-            windows.iter().try_for_each(|w| w.validate(&source_name))?;
-            pipeline.flights[file.flight].windows.extend(windows);
+            let detected = read_detect_file(&file.path, margin_s)?;
+            let flight = &mut pipeline.flights[file.flight];
+            flight.windows.extend(detected.windows);
+            flight.windows_detected_on = detected.flight.map(|identity| (file.path, identity));
         }
         Ok(pipeline)
     }

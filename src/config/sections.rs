@@ -13,7 +13,7 @@ use serde::Deserialize;
 use crate::detect::DetectOptions;
 use crate::diagnose::{ApplyDiagnosis, DiagnoseOptions};
 use crate::formats::align::AlignmentOptions;
-use crate::formats::{ColumnNames, TopicMapping, VectorColumns};
+use crate::formats::{ColumnNames, GivenColumn, TopicMapping, VectorColumns};
 use crate::quality::transfer::TransferOptions;
 use crate::vector::VectorOptions;
 use crate::vector_calibration::VectorCalibrationOptions;
@@ -31,11 +31,14 @@ macro_rules! raw_section {
 
         impl $raw {
             /// The section with every absent field at its default, not yet
-            /// checked.
+            /// checked; fields the section does not set (none, or what is
+            /// derived from it) keep their defaults.
+            #[allow(clippy::needless_update)]
             fn over_defaults(self) -> $validated {
                 let defaults = $validated::default();
                 $validated {
                     $($field: self.$field.unwrap_or(defaults.$field),)*
+                    ..defaults
                 }
             }
         }
@@ -274,11 +277,41 @@ impl TryFrom<RawAlignment> for AlignmentOptions {
     }
 }
 
+impl RawColumns {
+    /// The columns named, as against left at their defaults.
+    fn given(&self) -> Vec<GivenColumn> {
+        fn one(setting: &'static str, column: &Option<String>) -> Option<GivenColumn> {
+            column.clone().map(|column| GivenColumn { setting, column })
+        }
+        let vectors = self.vector.iter().flatten().flat_map(|v| [&v.x, &v.y, &v.z]);
+        (self.scalar.iter().flatten().flatten().map(|c| GivenColumn {
+            setting: "scalar",
+            column: c.clone(),
+        }))
+        .chain(vectors.map(|c| GivenColumn {
+            setting: "vector",
+            column: c.clone(),
+        }))
+        .chain(one("pitch", &self.pitch))
+        .chain(one("roll", &self.roll))
+        .chain(one("yaw", &self.yaw))
+        .chain(one("line", &self.line))
+        .chain(one("base_station", &self.base_station))
+        .chain(self.position.iter().flatten().map(|c| GivenColumn {
+            setting: "position",
+            column: c.clone(),
+        }))
+        .collect()
+    }
+}
+
 impl TryFrom<RawColumns> for ColumnNames {
     type Error = String;
 
     fn try_from(raw: RawColumns) -> Result<Self, String> {
-        let columns = raw.over_defaults();
+        let given = raw.given();
+        let mut columns = raw.over_defaults();
+        columns.given = given;
         let named = [
             ("time", &columns.time),
             ("line", &columns.line),

@@ -8,7 +8,22 @@
 
 use serde::Deserialize;
 
-use crate::flight_log::{AttitudeAngle, ChannelRole, VectorAxis};
+use std::path::Path;
+
+use crate::error::{Error, Result};
+use crate::flight_log::{AttitudeAngle, ChannelRole, FlightLog, VectorAxis};
+
+/// The names of `log`'s columns, time first, for a message (at most 40).
+fn column_list(log: &FlightLog) -> String {
+    let names: Vec<String> = std::iter::once(log.time_column())
+        .chain(log.channels().iter().map(|c| c.name.as_str()))
+        .map(|n| format!("'{n}'"))
+        .collect();
+    match names.len() {
+        0..=40 => names.join(", "),
+        n => format!("{} and {} more", names[..40].join(", "), n - 40),
+    }
+}
 
 /// Names of the three columns of one vector magnetometer.
 #[derive(Debug, Clone, PartialEq, Eq, Deserialize)]
@@ -46,6 +61,18 @@ pub struct ColumnNames {
     pub position: Vec<String>,
     /// Base-station (diurnal) column, nT.
     pub base_station: String,
+    /// The columns `[columns]` named, as against the defaults: each must be
+    /// in the flight ([`ColumnNames::check_given`]).
+    pub given: Vec<GivenColumn>,
+}
+
+/// A column named in `[columns]`, with the setting that named it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct GivenColumn {
+    /// The setting, e.g. `scalar` or `roll`.
+    pub setting: &'static str,
+    /// The column's name as given.
+    pub column: String,
 }
 
 impl Default for ColumnNames {
@@ -60,11 +87,53 @@ impl Default for ColumnNames {
             yaw: "ins_yaw".into(),
             position: ["lat", "lon", "utm_z", "msl", "alt"].map(String::from).to_vec(),
             base_station: "diurnal".into(),
+            given: Vec::new(),
         }
     }
 }
 
 impl ColumnNames {
+    /// Checks that every column `[columns]` named is in `log`, read from
+    /// `path`, so that a misspelt name is never silently an auxiliary
+    /// column or a role left empty. A scalar or vector magnetometer the
+    /// flight lacks is an error (its channel would be dropped), and so is
+    /// an attitude angle missing beside another that is there (a typo that
+    /// would leave the flight without attitude); the warnings returned name
+    /// a missing line, base-station or position column, and attitude
+    /// columns missing where the flight has no attitude at all (flown
+    /// without INS).
+    pub fn check_given(&self, path: &Path, log: &FlightLog) -> Result<Vec<String>> {
+        let missing: Vec<&GivenColumn> = (self.given.iter())
+            .filter(|g| g.column != log.time_column() && log.channel(&g.column).is_none())
+            .collect();
+        let some_attitude = (log.channels().iter()).any(|c| matches!(c.role, ChannelRole::Attitude(_)));
+        let error = |g: &GivenColumn, role: &'static str| Error::MissingColumn {
+            path: path.to_path_buf(),
+            role,
+            looked_for: format!("'{}', named by [columns] {}", g.column, g.setting),
+            hint: format!(
+                "Correct the name in pipeline.toml's [columns]; the file's columns are {}.",
+                column_list(log)
+            ),
+        };
+        let mut warnings = Vec::new();
+        for g in missing {
+            match g.setting {
+                "scalar" => return Err(error(g, "scalar magnetometer")),
+                "vector" => return Err(error(g, "vector magnetometer")),
+                "pitch" | "roll" | "yaw" if some_attitude => {
+                    return Err(error(g, "INS attitude"))
+                }
+                setting => warnings.push(format!(
+                    "{}: the column '{}' named by [columns] {setting} is not in the file, so the flight is read without it",
+                    path.display(),
+                    g.column
+                )),
+            }
+        }
+        Ok(warnings)
+    }
+
     /// The role of the column called `name`, or `None` for the time column.
     pub fn role_of(&self, name: &str) -> Option<ChannelRole> {
         if name == self.time {

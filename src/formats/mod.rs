@@ -21,6 +21,7 @@ pub mod destination;
 pub mod hdf5;
 pub mod mcap;
 pub mod ros;
+pub mod units;
 pub mod write;
 pub mod xyz;
 
@@ -33,7 +34,7 @@ pub use write::{
 use std::io::Read;
 use std::path::Path;
 
-pub use columns::{ColumnNames, VectorColumns};
+pub use columns::{ColumnNames, GivenColumn, VectorColumns};
 
 use crate::error::{Error, Result};
 use crate::flight_log::FlightLog;
@@ -134,6 +135,8 @@ pub fn read_flight_log(path: &Path, options: &IngestOptions) -> Result<FlightLog
     }?;
     let recorded = log.date().or_else(|| date_from_columns(&log));
     let mut warnings = log.reading_warnings().to_vec();
+    warnings.extend(options.columns.check_given(path, &log)?);
+    warnings.extend(units::unit_warnings(&path.display().to_string(), &log));
     if let (Some(given), Some(recorded)) = (options.date, recorded) {
         if given != recorded {
             warnings.push(format!(

@@ -114,6 +114,27 @@ pub fn stage_compensated(
     }
 }
 
+/// A warning naming the input's text columns when `output` is written
+/// from the flight log (which holds numbers only) rather than copied from
+/// the input: a CSV input to a CSV output, or an XYZ input to an XYZ
+/// output, of the compensated flight keeps them; `convert` never does.
+pub fn text_columns_warning(log: &FlightLog, output: &Path, copies_input: bool) -> Option<String> {
+    let copied = copies_input
+        && matches!(
+            (detect_output_format(output), detect_format(log.source()).ok()),
+            (Format::Xyz, Some(Format::Xyz)) | (Format::DelimitedText, Some(Format::DelimitedText))
+        );
+    (!copied && !log.text_columns().is_empty()).then(|| {
+        let names: Vec<String> = log.text_columns().iter().map(|n| format!("'{n}'")).collect();
+        format!(
+            "{}: the input's text column(s) {} are not written to {}, which holds the numeric columns only; a compensated CSV or XYZ written from an input of the same format keeps them",
+            log.source().display(),
+            names.join(", "),
+            output.display()
+        )
+    })
+}
+
 /// Writes a flight log as it is, in the format `output`'s extension names
 /// (see [`stage_flight_log`]).
 pub fn write_flight_log(log: &FlightLog, output: &Path) -> Result<()> {

@@ -508,15 +508,15 @@ impl<'a> ColumnBuilder<'a> {
             });
         }
         let mut time_s = Vec::new();
-        let mut channels = Vec::new();
+        let (mut channels, mut text) = (Vec::new(), Vec::new());
         for ((name, kind), values) in self.names.into_iter().zip(self.kinds).zip(self.values) {
             match roles.role_of(&name) {
                 None => time_s = values,
-                Some(_) if kind == ColumnKind::Text => {}
+                Some(_) if kind == ColumnKind::Text => text.push(name),
                 Some(role) => channels.push(Channel { name, role, values }),
             }
         }
-        FlightLog::new(self.path, roles.time.clone(), time_s, channels)
+        Ok(FlightLog::new(self.path, roles.time.clone(), time_s, channels)?.with_text_columns(text))
     }
 }
 

@@ -1,0 +1,164 @@
+//! Units a flight's columns are read in, checked against what they hold.
+//!
+//! magcomp reads time in seconds and the INS attitude in degrees
+//! (CONTRACT §1). A file in other units reads without error and then fails
+//! far from the cause: time in milliseconds makes a 10 Hz flight's
+//! samples 100 s apart, and attitude in radians leaves every manoeuvre a
+//! few hundredths of a degree. Each check here looks for a sign no flight
+//! in the right units shows and returns a warning that says what to
+//! convert.
+
+use crate::flight_log::{AttitudeAngle, ChannelRole, FlightLog};
+
+/// A median step above this, s, is no survey recording: calibration needs
+/// several samples per manoeuvre period (5–20 s), and magnetometers and
+/// fluxgates record at 1–1,000 Hz.
+pub const MAX_MEDIAN_INTERVAL_S: f64 = 5.0;
+
+/// The fluxgate's horizontal field turning through more than this, °, is a
+/// flight that turned.
+const TURNED_DEG: f64 = 60.0;
+
+/// Warnings for columns whose values show they are not in the units
+/// magcomp reads; `file` names the flight in them.
+pub fn unit_warnings(file: &str, log: &FlightLog) -> Vec<String> {
+    let mut warnings = Vec::new();
+    let step_s = log.median_interval_s();
+    if step_s > MAX_MEDIAN_INTERVAL_S {
+        warnings.push(format!(
+            "{file}: the time column '{}' steps {step_s} between samples at the median, and magcomp reads it in seconds: no survey records {step_s} s apart. If it is in milliseconds (or another unit), convert it to seconds",
+            log.time_column()
+        ));
+    }
+    if let Some(turned_deg) = attitude_looks_like_radians(log) {
+        warnings.push(format!(
+            "{file}: the INS attitude never exceeds 2π in size (pitch and roll never π/2) while the fluxgate's field turned through {turned_deg:.0}° in the aircraft's axes: the attitude looks like radians, and magcomp reads degrees. Convert it to degrees"
+        ));
+    }
+    warnings
+}
+
+/// The fluxgate's turn, °, when every attitude sample fits radians (|pitch|
+/// and |roll| ≤ π/2, |yaw| ≤ 2π) although the aircraft turned through more
+/// than [`TURNED_DEG`]: a yaw in degrees through such a turn leaves ±2π.
+fn attitude_looks_like_radians(log: &FlightLog) -> Option<f64> {
+    let limits = [
+        (AttitudeAngle::Pitch, std::f64::consts::FRAC_PI_2),
+        (AttitudeAngle::Roll, std::f64::consts::FRAC_PI_2),
+        (AttitudeAngle::Yaw, std::f64::consts::TAU),
+    ];
+    for (angle, limit) in limits {
+        let channel = (log.channels().iter()).find(|c| c.role == ChannelRole::Attitude(angle))?;
+        let mut finite = channel.values.iter().filter(|v| v.is_finite()).peekable();
+        finite.peek()?;
+        if finite.any(|v| v.abs() > limit + 1e-6) {
+            return None;
+        }
+    }
+    let turned_deg = (log.vector_sensors().iter())
+        .map(|sensor| horizontal_turn_deg(sensor.axes.map(|axis| log.channels()[axis].values.as_slice())))
+        .fold(0.0, f64::max);
+    (turned_deg > TURNED_DEG).then_some(turned_deg)
+}
+
+/// The range, °, through which the field's direction in the sensor's x-y
+/// plane turns over the flight, unwrapped across ±180°.
+fn horizontal_turn_deg([x, y, _]: [&[f64]; 3]) -> f64 {
+    let mut angles = x
+        .iter()
+        .zip(y)
+        .filter(|(x, y)| x.is_finite() && y.is_finite() && x.hypot(**y) > 0.0)
+        .map(|(x, y)| y.atan2(*x).to_degrees());
+    let Some(first) = angles.next() else {
+        return 0.0;
+    };
+    let (mut previous, mut unwrapped) = (first, first);
+    let (mut low, mut high) = (first, first);
+    for angle in angles {
+        unwrapped += (angle - previous + 540.0).rem_euclid(360.0) - 180.0;
+        previous = angle;
+        low = low.min(unwrapped);
+        high = high.max(unwrapped);
+    }
+    high - low
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::flight_log::{Channel, VectorAxis};
+
+    /// A flight turning once through 360° at 10 Hz: the fluxgate's
+    /// horizontal field turns with it, and the attitude is written in
+    /// degrees, or in radians when `radians`.
+    fn turning_flight(radians: bool, step_s: f64) -> FlightLog {
+        let rows = 600;
+        let heading_deg: Vec<f64> = (0..rows).map(|i| i as f64 * 360.0 / rows as f64).collect();
+        let unit = if radians { 1f64.to_radians() } else { 1.0 };
+        let attitude = |angle, values: Vec<f64>| Channel {
+            name: format!("{angle:?}"),
+            role: ChannelRole::Attitude(angle),
+            values: values.into_iter().map(|v| v * unit).collect(),
+        };
+        let vector = |axis, values: Vec<f64>| Channel {
+            name: format!("flux_a_{axis:?}"),
+            role: ChannelRole::VectorMagnetometer {
+                sensor: "flux_a".into(),
+                axis,
+            },
+            values,
+        };
+        let north_nt = 20_000.0;
+        let channels = vec![
+            attitude(AttitudeAngle::Pitch, vec![2.0; rows]),
+            attitude(
+                AttitudeAngle::Roll,
+                (0..rows).map(|i| 10.0 * (i as f64 * 0.1).sin()).collect(),
+            ),
+            attitude(AttitudeAngle::Yaw, heading_deg.iter().map(|h| h - 180.0).collect()),
+            vector(
+                VectorAxis::X,
+                heading_deg.iter().map(|h| north_nt * h.to_radians().cos()).collect(),
+            ),
+            vector(
+                VectorAxis::Y,
+                heading_deg.iter().map(|h| -north_nt * h.to_radians().sin()).collect(),
+            ),
+            vector(VectorAxis::Z, vec![45_000.0; rows]),
+        ];
+        let time_s = (0..rows).map(|i| i as f64 * step_s).collect();
+        FlightLog::new("turn.csv", "tt", time_s, channels).unwrap()
+    }
+
+    #[test]
+    fn attitude_in_radians_through_a_turn_is_named() {
+        let warnings = unit_warnings("turn.csv", &turning_flight(true, 0.1));
+        assert_eq!(warnings.len(), 1, "{warnings:?}");
+        assert!(warnings[0].contains("looks like radians"), "{}", warnings[0]);
+        // The fluxgate turned through the whole circle: 359.4° of 600 steps.
+        assert!(warnings[0].contains("turned through 359°"), "{}", warnings[0]);
+    }
+
+    #[test]
+    fn attitude_in_degrees_is_not_named() {
+        assert!(unit_warnings("turn.csv", &turning_flight(false, 0.1)).is_empty());
+    }
+
+    #[test]
+    fn time_in_milliseconds_is_named() {
+        let warnings = unit_warnings("turn.csv", &turning_flight(false, 100.0));
+        assert_eq!(warnings.len(), 1, "{warnings:?}");
+        assert!(warnings[0].contains("steps 100 between samples"), "{}", warnings[0]);
+    }
+
+    #[test]
+    fn the_turn_is_unwrapped_across_the_date_line_of_angles() {
+        // 170° to -170° is a 20° turn, not 340°.
+        let z = [0.0; 3];
+        let angles_deg = [170.0f64, 180.0, -170.0];
+        let cos: Vec<f64> = angles_deg.iter().map(|a| a.to_radians().cos()).collect();
+        let sin: Vec<f64> = angles_deg.iter().map(|a| a.to_radians().sin()).collect();
+        let turn = horizontal_turn_deg([&cos, &sin, &z]);
+        assert!((turn - 20.0).abs() < 1e-9, "{turn}");
+    }
+}
