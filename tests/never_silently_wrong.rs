@@ -517,8 +517,9 @@ fn attitude_in_radians_is_named() {
 
 /// A column of text (the compensated CSV's `flags`, a vendor's note)
 /// lives only in a copy of the input: `convert`, which writes the flight
-/// log's numbers, names it as left out, and a compensated CSV of a CSV
-/// input keeps it without a word.
+/// log's numbers, and a compensated MCAP name it as left out, and a
+/// compensated CSV of a CSV input keeps it without a word. Reading a
+/// compensated MCAP back names its row-flags topic as not read.
 #[test]
 fn text_columns_left_out_of_an_output_are_named() {
     let folder = tempfile::tempdir().unwrap();
@@ -558,4 +559,22 @@ fn text_columns_left_out_of_an_output_are_named() {
         assert!(stdout.contains("text column(s) 'remark'"), "{stdout}");
         assert!(stdout.contains("are not written to"), "{stdout}");
     }
+    // A compensated MCAP's row flags are text: reading it back says so.
+    let mcap = folder.path().join("noted_c.mcap");
+    let (code, stdout, stderr) = magcomp(&[
+        "compensate",
+        noted_csv.to_str().unwrap(),
+        "--out",
+        mcap.to_str().unwrap(),
+        "--plain",
+    ]);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(
+        stdout.contains("text column(s) 'remark' are not written to"),
+        "{stdout}"
+    );
+    let back = folder.path().join("back.csv");
+    let (code, stdout, stderr) = magcomp(&["convert", mcap.to_str().unwrap(), "--out", back.to_str().unwrap()]);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(stdout.contains("topic '/magcomp/flags' skipped"), "{stdout}");
 }

@@ -241,6 +241,10 @@ fn plan_topic(channel: &ChannelRecord, schema: Option<&SchemaRecord>, names: &Co
     let decoder = match (channel.message_encoding.as_str(), schema) {
         ("protobuf", Some(schema)) if schema.encoding == "protobuf" => {
             match MessageLayout::from_descriptor_set(&schema.data, &schema.name) {
+                Ok(layout) if layout.names.is_empty() => Decoder::Skip(format!(
+                    "message type '{}' has no number field (text, such as magcomp's row flags, is not read)",
+                    schema.name
+                )),
                 Ok(layout) => Decoder::Protobuf(layout),
                 Err(e) => Decoder::Skip(e),
             }
