@@ -194,9 +194,34 @@ pub struct Detection {
     pub legs: Vec<Leg>,
     /// Remarks for the user.
     pub notes: Vec<String>,
+    /// With the fluxgate standing in for the INS: the median angle, °, by
+    /// which the field dips below the aircraft's x-y plane (the
+    /// inclination, in level flight).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fluxgate_dip_deg: Option<f64>,
 }
 
+/// A field dipping more than this, °, leaves the fluxgate a horizontal
+/// part too small to give the heading well, and a yaw (a turn about the
+/// near-vertical field) turns the field direction by under
+/// cos(75°) = 0.26 of its angle: manoeuvres may be flown and not seen.
+pub const STEEP_DIP_DEG: f64 = 75.0;
+
 impl Detection {
+    /// A warning when the fluxgate stood in for the INS under a steep field
+    /// and the detection found manoeuvres missing (or none): they may have
+    /// been flown and not seen.
+    pub fn steep_field_warning(&self) -> Option<String> {
+        let dip_deg = self.fluxgate_dip_deg?;
+        let incomplete = self.manoeuvres.is_empty() || self.boxes.iter().any(|b| !b.missing.is_empty());
+        (dip_deg.abs() > STEEP_DIP_DEG && incomplete).then(|| {
+            format!(
+                "the field dips {:.0}° at the fluxgate, which stands in for the INS: its horizontal part gives the heading weakly and a yaw barely turns the field direction, so manoeuvres reported missing may have been flown and not seen. Give the INS attitude (ins_pitch, ins_roll, ins_yaw) or the windows with --window",
+                dip_deg.abs()
+            )
+        })
+    }
+
     /// The manoeuvres as calibration windows, each with `margin_s` of level
     /// flight on both sides.
     pub fn calibration_windows(&self, margin_s: f64) -> Vec<CalibrationWindow> {
@@ -285,6 +310,20 @@ pub fn detect_manoeuvres(log: &FlightLog, options: &DetectOptions) -> Result<Det
         attitude_source: attitude.source,
         legs,
         notes,
+        fluxgate_dip_deg: attitude.field_unit.as_deref().and_then(median_dip_deg),
+    })
+}
+
+/// The median angle, °, of the field below the x-y plane of its unit
+/// directions `unit` (body z down); `None` without a finite one.
+fn median_dip_deg(unit: &[Vector3<f64>]) -> Option<f64> {
+    let mut dips: Vec<f64> = (unit.iter())
+        .filter(|u| u.iter().all(|c| c.is_finite()))
+        .map(|u| u.z.atan2(u.x.hypot(u.y)).to_degrees())
+        .collect();
+    (!dips.is_empty()).then(|| {
+        let middle = dips.len() / 2;
+        *dips.select_nth_unstable_by(middle, f64::total_cmp).1
     })
 }
 

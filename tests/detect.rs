@@ -2,7 +2,7 @@
 //! pilots, headings, turbulence levels and seeds, and each edge case of the
 //! detection issue on its own.
 
-use magcomp::detect::{detect_manoeuvres, AttitudeSource, DetectOptions, Detection};
+use magcomp::detect::{detect_manoeuvres, AttitudeSource, DetectOptions, Detection, STEEP_DIP_DEG};
 use magcomp::flight_log::{Channel, FlightLog};
 use magcomp::simulate::scenario::{RawScenario, Scenario};
 use magcomp::simulate::truth::TrueManoeuvre;
@@ -295,6 +295,41 @@ fn without_an_ins_the_fluxgate_stands_in() {
             "{found} vs {expected}"
         );
     }
+}
+
+/// Near the magnetic pole (78° N, 95° W: the field dips about 88°) the
+/// fluxgate alone misses manoeuvres it cannot see; the detection says the
+/// field is steep and that the missing ones may have been flown, where at
+/// 45° N (a dip of about 70°, every manoeuvre found) it says nothing of it.
+/// The dip it states is the site's inclination within 2° (IGRF-14).
+#[test]
+fn under_a_steep_field_the_fluxgate_says_what_it_cannot_see() {
+    let site = |raw: &mut RawScenario| {
+        raw.site.latitude_deg = 78.0;
+        raw.site.longitude_deg = -95.0;
+    };
+    let flight = fly(62, site);
+    let detection = detect_manoeuvres(&without_ins(&flight.log), &DetectOptions::default()).unwrap();
+    let inclination = magcomp::simulate::igrf::Igrf::fourteenth()
+        .field(78.0, -95.0, 3080.0, 2026.45)
+        .inclination_deg();
+    let dip = detection.fluxgate_dip_deg.unwrap();
+    assert!((dip - inclination).abs() < 2.0, "dip {dip} against {inclination}");
+    assert!(detection.manoeuvres.len() < 12, "{}", detection.manoeuvres.len());
+    let warnings = magcomp::pipeline::detection_warnings(&detection);
+    assert!(
+        warnings.iter().any(|w| w.contains("may have been flown and not seen")),
+        "{warnings:?}"
+    );
+    // With the INS the same flight is whole and says nothing of the field.
+    let with_ins = detect(&flight);
+    assert_perfect("with the INS at 78° N", &flight, &with_ins);
+    assert!(with_ins.steep_field_warning().is_none());
+
+    let flight = fly(14, |_| {});
+    let detection = detect_manoeuvres(&without_ins(&flight.log), &DetectOptions::default()).unwrap();
+    assert!(detection.fluxgate_dip_deg.unwrap() < STEEP_DIP_DEG);
+    assert!(detection.steep_field_warning().is_none());
 }
 
 #[test]
