@@ -199,7 +199,15 @@ pub struct Detection {
     /// inclination, in level flight).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub fluxgate_dip_deg: Option<f64>,
+    /// Spans (start, end) of at least [`ATTITUDE_GAP_S`] where the INS
+    /// attitude is missing: legs and manoeuvres there cannot be seen.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub attitude_gaps: Vec<(f64, f64)>,
 }
+
+/// A stretch without INS attitude this long, s, can hide a manoeuvre
+/// (two cycles of a 5 s period).
+pub const ATTITUDE_GAP_S: f64 = 10.0;
 
 /// A field dipping more than this, °, leaves the fluxgate a horizontal
 /// part too small to give the heading well, and a yaw (a turn about the
@@ -208,6 +216,21 @@ pub struct Detection {
 pub const STEEP_DIP_DEG: f64 = 75.0;
 
 impl Detection {
+    /// A warning when the INS attitude has gaps and the detection found
+    /// manoeuvres missing (or none): what was flown in a gap is not seen.
+    pub fn attitude_gap_warning(&self) -> Option<String> {
+        let incomplete = self.manoeuvres.is_empty() || self.boxes.iter().any(|b| !b.missing.is_empty());
+        (incomplete && !self.attitude_gaps.is_empty()).then(|| {
+            let spans: Vec<String> = (self.attitude_gaps.iter())
+                .map(|(start, end)| format!("{start:.1}–{end:.1} s"))
+                .collect();
+            format!(
+                "the INS attitude is missing over {}: legs or manoeuvres flown there cannot be seen, so what is reported missing may have been flown there; give the windows with --window if so",
+                spans.join(", ")
+            )
+        })
+    }
+
     /// A warning when the fluxgate stood in for the INS under a steep field
     /// and the detection found manoeuvres missing (or none): they may have
     /// been flown and not seen.
@@ -311,7 +334,34 @@ pub fn detect_manoeuvres(log: &FlightLog, options: &DetectOptions) -> Result<Det
         legs,
         notes,
         fluxgate_dip_deg: attitude.field_unit.as_deref().and_then(median_dip_deg),
+        attitude_gaps: match attitude.source {
+            AttitudeSource::Ins => missing_spans(log.time_s(), &attitude.angles, ATTITUDE_GAP_S),
+            AttitudeSource::Fluxgate => Vec::new(),
+        },
     })
+}
+
+/// The spans (first and last time) of at least `min_s` where a row lacks
+/// one of `angles`.
+fn missing_spans(time_s: &[f64], angles: &[Vec<f64>; 3], min_s: f64) -> Vec<(f64, f64)> {
+    let missing = |row: usize| angles.iter().any(|a| !a[row].is_finite());
+    let mut spans = Vec::new();
+    let mut row = 0;
+    while row < time_s.len() {
+        if !missing(row) {
+            row += 1;
+            continue;
+        }
+        let start = row;
+        while row < time_s.len() && missing(row) {
+            row += 1;
+        }
+        let (first, last) = (time_s[start], time_s[row - 1]);
+        if last - first >= min_s {
+            spans.push((first, last));
+        }
+    }
+    spans
 }
 
 /// The median angle, °, of the field below the x-y plane of its unit

@@ -776,6 +776,7 @@ pub fn detection_warnings(detection: &Detection) -> Vec<String> {
         .collect();
     warnings.extend(crate::detect::uncertain_kinds(detection));
     warnings.extend(detection.steep_field_warning());
+    warnings.extend(detection.attitude_gap_warning());
     warnings
 }
 

@@ -265,6 +265,32 @@ fn gaps_and_dropouts_lose_at_most_the_manoeuvre_they_hit() {
     }
 }
 
+/// The INS attitude missing over a whole leg's manoeuvres (about 80 s):
+/// the three are lost and reported missing, and the detection says the
+/// attitude is missing over that span, where they may have been flown;
+/// a 1 s dropout is no such span.
+#[test]
+fn an_attitude_gap_over_a_leg_is_named_with_what_is_missing() {
+    let flight = fly(13, |_| {});
+    let truth = &flight.truth.manoeuvres;
+    let row = |t: f64| flight.log.time_s().partition_point(|&x| x < t);
+    let gap = row(truth[3].t_start - 5.0)..row(truth[5].t_end + 5.0);
+    let (first, last) = (flight.log.time_s()[gap.start], flight.log.time_s()[gap.end - 1]);
+    let detection = detect_manoeuvres(&with_gap(&flight.log, gap, false), &DetectOptions::default()).unwrap();
+    assert!(
+        detection.manoeuvres.len() <= truth.len() - 3,
+        "{}",
+        detection.manoeuvres.len()
+    );
+    assert_eq!(detection.attitude_gaps, vec![(first, last)]);
+    let warning = detection.attitude_gap_warning().expect("a warning");
+    assert!(warning.contains(&format!("{first:.1}–{last:.1} s")), "{warning}");
+    let short = row(truth[3].t_start + 3.0)..row(truth[3].t_start + 4.0);
+    let detection = detect_manoeuvres(&with_gap(&flight.log, short, false), &DetectOptions::default()).unwrap();
+    assert!(detection.attitude_gaps.is_empty());
+    assert!(detection.attitude_gap_warning().is_none());
+}
+
 /// `log` without its INS columns: attitude from the fluxgate alone.
 fn without_ins(log: &FlightLog) -> FlightLog {
     let channels: Vec<Channel> = log
