@@ -188,6 +188,12 @@ fn vector_stage(
                 if let Some(warning) = vector_direction_warning(&model) {
                     stage.warnings.push(warning);
                 }
+                if model.held_out.is_none() {
+                    stage.warnings.push(format!(
+                        "{}: the twelve-constant fit's windows do not span three headings of known heading, so no heading is held out and the vector's accuracy away from them is not checked; fit on a box (four headings, each with pitch, roll and yaw)",
+                        model.sensor
+                    ));
+                }
                 if let Some(reason) = &model.tolles_lawson_warning {
                     stage
                         .warnings
@@ -444,9 +450,9 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
         .is_empty()
         .then(|| detect_manoeuvres(raw_log, &options.detect))
         .transpose()?;
-    let windows = match &detected {
-        Some(detection) => detection.calibration_windows(options.detect.window_margin_s),
-        None => job.windows.clone(),
+    let (windows, headings_note) = match &detected {
+        Some(detection) => (detection.calibration_windows(options.detect.window_margin_s), None),
+        None => crate::windows::headings_from_ins(raw_log, &job.windows, options.detect.heading_tolerance_deg),
     };
     // The fit (and everything after it) sees the calibrated fluxgate; the
     // compensated file keeps the recorded columns.
@@ -578,6 +584,7 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
     compensation.gradients = gradients.compensated;
     let added_columns = added_column_names(log, compensated, &compensation)?;
     let mut notes = renaming_notes(&channels, &added_columns);
+    notes.extend(headings_note);
     notes.extend(calibration.iter().map(|c| c.summary()));
     notes.extend(models.iter().filter_map(estimator_table_gap));
     notes.extend(excitation_notes.into_iter().flatten());
@@ -619,6 +626,13 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
             warnings.push(format!(
                 "{}: no sigma column: the compensated channel's noise cannot be measured (too few consecutive samples)",
                 model.channel
+            ));
+        }
+        if model.windows.len() < 3 {
+            warnings.push(format!(
+                "{}: fitted on {} calibration window(s), too few to leave one out: the compensation away from the calibration is not checked and has no uncertainty figure or sigma column. Give three or more windows (a box: four headings, each with pitch, roll and yaw)",
+                model.channel,
+                model.windows.len()
             ));
         }
         if model.solution.jackknife.is_empty() && model.windows.len() >= 3 {
@@ -792,7 +806,7 @@ pub fn diagnose_flight(
     let channels = choose_channels(log, job.channels.as_deref())?;
     let windows = match job.windows.is_empty() {
         true => detect_manoeuvres(log, &options.detect)?.calibration_windows(options.detect.window_margin_s),
-        false => job.windows.clone(),
+        false => crate::windows::headings_from_ins(log, &job.windows, options.detect.heading_tolerance_deg).0,
     };
     let mut diagnosis = crate::diagnose::diagnose(
         log,

@@ -236,6 +236,72 @@ pub fn read_detect_file(path: &Path, margin_s: f64) -> Result<DetectedWindows> {
     })
 }
 
+/// `windows` with each window given by time (no heading) given its leg's
+/// heading from the INS yaw: the circular mean over its rows, kept only
+/// where every row's yaw lies within `tolerance_deg` of it (a window
+/// across a turn keeps none). The heading lets the fit hold a heading out
+/// as it does for detected manoeuvres. Returns the windows and a note of
+/// what was labelled; a flight without INS attitude keeps its windows.
+pub fn headings_from_ins(
+    log: &FlightLog,
+    windows: &[CalibrationWindow],
+    tolerance_deg: f64,
+) -> (Vec<CalibrationWindow>, Option<String>) {
+    let Some([_, _, yaw]) = log.attitude() else {
+        return (windows.to_vec(), None);
+    };
+    let (mut labelled, mut across) = (Vec::new(), 0);
+    let windows = (windows.iter())
+        .map(|window| {
+            let mut window = window.clone();
+            if window.heading_deg.is_none() {
+                let rows = window.rows(log.time_s());
+                match steady_heading_deg(&yaw[rows], tolerance_deg) {
+                    Some(heading) => {
+                        window.heading_deg = Some(heading);
+                        labelled.push(format!("{heading:.0}°"));
+                    }
+                    None => across += 1,
+                }
+            }
+            window
+        })
+        .collect();
+    let keep_none = match across {
+        0 => String::new(),
+        n => format!("{n} window(s) given by time span a turn or lack the yaw and keep no heading"),
+    };
+    let note = match labelled.len() {
+        0 if across == 0 => None,
+        0 => Some(keep_none),
+        n => Some(format!(
+            "{n} window(s) given by time take their leg's heading from the INS yaw ({}){}",
+            labelled.join(", "),
+            if across > 0 {
+                format!("; {keep_none}")
+            } else {
+                String::new()
+            }
+        )),
+    };
+    (windows, note)
+}
+
+/// The circular mean of `yaw_deg`, when every finite sample lies within
+/// `tolerance_deg` of it.
+fn steady_heading_deg(yaw_deg: &[f64], tolerance_deg: f64) -> Option<f64> {
+    let finite = || yaw_deg.iter().filter(|y| y.is_finite());
+    let (sin, cos) = finite().fold((0.0, 0.0), |(s, c), y| {
+        (s + y.to_radians().sin(), c + y.to_radians().cos())
+    });
+    if finite().next().is_none() {
+        return None;
+    }
+    let mean = sin.atan2(cos).to_degrees().rem_euclid(360.0);
+    let apart = |y: &f64| ((y - mean + 540.0).rem_euclid(360.0) - 180.0).abs();
+    finite().all(|y| apart(y) < tolerance_deg).then_some(mean)
+}
+
 /// A warning when `windows`, read from `path`, were detected on another
 /// flight than `log`: they still set the fit, but may not lie on its
 /// manoeuvres.
