@@ -6,13 +6,16 @@
 //! the mean difference (first direction minus the opposite one) over the
 //! matched pairs. Parallel lines a line spacing apart never match; a line
 //! reflown both ways, or overlapping lines, do. Reported uncompensated and
-//! compensated.
+//! compensated. The passes are flown minutes apart, so the external
+//! field's change between them (diurnal variation) is taken out with the
+//! base station where the flight records one; a pair without a base
+//! station reading is left out.
 
 use std::collections::HashMap;
 
 use serde::Serialize;
 
-use crate::flight_log::FlightLog;
+use crate::flight_log::{ChannelRole, FlightLog};
 
 /// Metres per degree of latitude (mean).
 const METRES_PER_DEGREE: f64 = 111_195.0;
@@ -30,6 +33,11 @@ pub struct HeadingError {
     pub before_nt: f64,
     /// The same, compensated, nT.
     pub after_nt: f64,
+    /// Whether the base station's change between the matched samples was
+    /// taken out of both differences (the external field's drift between
+    /// two passes is no heading error); without a base station it is in
+    /// them.
+    pub external_field_removed: bool,
 }
 
 /// One survey line: its rows and its track.
@@ -104,6 +112,10 @@ pub fn heading_error(log: &FlightLog, before: &[f64], after: &[f64], match_dista
     for row in back.iter().flat_map(|l| l.rows.iter().copied()) {
         grid.entry(cell(positions[row])).or_default().push(row);
     }
+    let base_station = (log.channels().iter())
+        .find(|c| c.role == ChannelRole::BaseStation)
+        .map(|c| c.values.as_slice());
+    let external = |row: usize, other: usize| base_station.map_or(0.0, |base| base[row] - base[other]);
     let (mut pairs, mut sum_before, mut sum_after) = (0usize, 0.0, 0.0);
     for row in forward.iter().flat_map(|l| l.rows.iter().copied()) {
         let (i, j) = cell(positions[row]);
@@ -117,7 +129,8 @@ pub fn heading_error(log: &FlightLog, before: &[f64], after: &[f64], match_dista
             .filter(|other| distance(*other) <= match_distance_m)
             .min_by(|a, b| distance(*a).total_cmp(&distance(*b)).then(a.cmp(b)));
         let Some(other) = nearest else { continue };
-        let (db, da) = (before[row] - before[other], after[row] - after[other]);
+        let change = external(row, other);
+        let (db, da) = (before[row] - before[other] - change, after[row] - after[other] - change);
         if db.is_finite() && da.is_finite() {
             (pairs, sum_before, sum_after) = (pairs + 1, sum_before + db, sum_after + da);
         }
@@ -127,5 +140,6 @@ pub fn heading_error(log: &FlightLog, before: &[f64], after: &[f64], match_dista
         pairs,
         before_nt: sum_before / pairs as f64,
         after_nt: sum_after / pairs as f64,
+        external_field_removed: base_station.is_some(),
     })
 }

@@ -405,8 +405,14 @@ pub fn quality_warnings(quality: &ChannelQuality, fom_limit_nt: f64, next_step: 
     if let Some(error) = &quality.heading_error {
         if error.after_nt.abs() > error.before_nt.abs().max(0.05) * NOISE_RISE_WARNING {
             warnings.push(format!(
-                "{channel}: compensation raised the level difference between reciprocal survey lines (heading error) from {:.3} to {:.3} nT over {} matched samples. {next_step}",
-                error.before_nt, error.after_nt, error.pairs
+                "{channel}: compensation raised the level difference between reciprocal survey lines (heading error) from {:.3} to {:.3} nT over {} matched samples{}. {next_step}",
+                error.before_nt,
+                error.after_nt,
+                error.pairs,
+                match error.external_field_removed {
+                    true => " (the base station's change between the passes taken out)",
+                    false => " (the flight has no base station, so this includes the external field's change between the passes)",
+                }
             ));
         }
     }
