@@ -357,3 +357,45 @@ fn the_slurm_and_kubernetes_examples_split_the_campaign_as_their_schedulers_woul
     assert_eq!(statuses, FLIGHTS.len());
     assert!(slurm == k8s, "the two schedulers' splits wrote different files");
 }
+
+/// One input left under two output names (a flight renamed when another
+/// with its stem left the campaign, as `a/flight.csv` goes from
+/// `a_flight` to `flight`) is one flight the table would count twice:
+/// `summarize` names both outputs and the input they share, and a
+/// campaign of distinct flights gets no such line.
+#[test]
+fn summarize_names_one_input_counted_under_two_names() {
+    let folder = tempfile::tempdir().unwrap();
+    let folder = folder.path();
+    simulated(&folder.join("a/flight.csv"), 51);
+    simulated(&folder.join("b/flight.csv"), 52);
+    let config = folder.join("pipeline.toml");
+    std::fs::write(
+        &config,
+        "[output]\ndirectory = \"out\"\n[campaign]\ninputs = [\"*/flight.csv\"]\n[diagnose]\napply = \"never\"\n",
+    )
+    .unwrap();
+    let out = folder.join("out");
+    let run = || {
+        let output = magcomp(&["run", config.to_str().unwrap()], &[]);
+        assert!(output.status.success(), "{}", text(&output.stderr));
+    };
+    let summarize = || {
+        let output = magcomp(&["summarize", out.to_str().unwrap()], &[]);
+        assert!(output.status.success(), "{}", text(&output.stderr));
+        text(&output.stdout)
+    };
+    run();
+    let first = summarize();
+    println!("{first}");
+    assert!(!first.contains("has the same content"), "{first}");
+    std::fs::remove_dir_all(folder.join("b")).unwrap();
+    run();
+    assert!(out.join("flight_status.json").exists() && out.join("a_flight_status.json").exists());
+    let second = summarize();
+    println!("{second}");
+    assert!(second.contains("warning: a_flight: its input"), "{second}");
+    assert!(second.contains("has the same content as that of 'flight'"), "{second}");
+    assert!(second.contains("warning: flight: its input"), "{second}");
+    assert!(!second.contains("warning: b_flight: its input"), "{second}");
+}

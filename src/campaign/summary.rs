@@ -138,11 +138,39 @@ pub fn summarize(folder: &Path) -> Result<CampaignSummary> {
             message: "holds no <flight>_status.json; give the [output] directory of a magcomp run".into(),
         });
     }
-    let flights = paths
+    let mut flights = paths
         .iter()
         .map(|path| summary_flight(folder, path))
         .collect::<Result<Vec<_>>>()?;
+    name_repeated_inputs(&mut flights);
     Ok(CampaignSummary { flights })
+}
+
+/// Marks each flight whose input's content another flight of the folder
+/// shares: one input under two output names (a run that named it
+/// otherwise left its outputs) would otherwise count twice in the table.
+fn name_repeated_inputs(flights: &mut [SummaryFlight]) {
+    let names_of = |sha256: &str, flights: &[SummaryFlight]| -> Vec<String> {
+        (flights.iter())
+            .filter(|f| f.status.input_sha256 == sha256)
+            .map(|f| f.status.flight.clone())
+            .collect()
+    };
+    let repeated: Vec<(usize, Vec<String>)> = (0..flights.len())
+        .filter(|&i| !flights[i].status.input_sha256.is_empty())
+        .map(|i| (i, names_of(&flights[i].status.input_sha256, flights)))
+        .filter(|(_, names)| names.len() > 1)
+        .collect();
+    for (i, names) in repeated {
+        let others: Vec<&String> = names.iter().filter(|n| **n != flights[i].status.flight).collect();
+        let others: Vec<String> = others.iter().map(|n| format!("'{n}'")).collect();
+        flights[i].problems.push(format!(
+            "its input ({}) has the same content as that of {}, so the table counts one flight {} times: remove the outputs an earlier run left under the name no longer used",
+            flights[i].status.input.display(),
+            others.join(", "),
+            names.len()
+        ));
+    }
 }
 
 fn summary_flight(folder: &Path, path: &Path) -> Result<SummaryFlight> {
