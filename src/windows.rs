@@ -291,12 +291,10 @@ pub fn headings_from_ins(
 /// `tolerance_deg` of it.
 fn steady_heading_deg(yaw_deg: &[f64], tolerance_deg: f64) -> Option<f64> {
     let finite = || yaw_deg.iter().filter(|y| y.is_finite());
+    finite().next()?;
     let (sin, cos) = finite().fold((0.0, 0.0), |(s, c), y| {
         (s + y.to_radians().sin(), c + y.to_radians().cos())
     });
-    if finite().next().is_none() {
-        return None;
-    }
     let mean = sin.atan2(cos).to_degrees().rem_euclid(360.0);
     let apart = |y: &f64| ((y - mean + 540.0).rem_euclid(360.0) - 180.0).abs();
     finite().all(|y| apart(y) < tolerance_deg).then_some(mean)
