@@ -209,6 +209,10 @@ pub struct Detection {
 /// (two cycles of a 5 s period).
 pub const ATTITUDE_GAP_S: f64 = 10.0;
 
+/// How far before or after an incomplete box, s, an attitude gap can hide
+/// a leg of it (a turn and a leg).
+const GAP_REACH_S: f64 = 300.0;
+
 /// A field dipping more than this, °, leaves the fluxgate a horizontal
 /// part too small to give the heading well, and a yaw (a turn about the
 /// near-vertical field) turns the field direction by under
@@ -219,9 +223,16 @@ impl Detection {
     /// A warning when the INS attitude has gaps and the detection found
     /// manoeuvres missing (or none): what was flown in a gap is not seen.
     pub fn attitude_gap_warning(&self) -> Option<String> {
-        let incomplete = self.manoeuvres.is_empty() || self.boxes.iter().any(|b| !b.missing.is_empty());
-        (incomplete && !self.attitude_gaps.is_empty()).then(|| {
-            let spans: Vec<String> = (self.attitude_gaps.iter())
+        // A gap can hide what an incomplete box lacks when it lies in the
+        // box or the turns around it; with no manoeuvre found, anywhere.
+        let near = |&&(start, end): &&(f64, f64)| {
+            self.manoeuvres.is_empty()
+                || (self.boxes.iter())
+                    .any(|b| !b.missing.is_empty() && start <= b.t_end + GAP_REACH_S && end >= b.t_start - GAP_REACH_S)
+        };
+        let gaps: Vec<&(f64, f64)> = self.attitude_gaps.iter().filter(near).collect();
+        (!gaps.is_empty()).then(|| {
+            let spans: Vec<String> = (gaps.iter())
                 .map(|(start, end)| format!("{start:.1}–{end:.1} s"))
                 .collect();
             format!(
@@ -1173,8 +1184,9 @@ fn group_boxes(legs: &[Leg], manoeuvres: &[DetectedManoeuvre], options: &DetectO
 /// circular mean of its legs' headings modulo 90° (the angle of the mean
 /// of $e^{4ih}$, divided by four), so any one leg's heading error and any
 /// flying order count alike. Legs off that pattern by the heading
-/// tolerance or more (a box flown on three headings 120° apart) are said
-/// to be off it, and no heading is named.
+/// tolerance or more (three headings 120° apart; legs crabbed into a
+/// strong wind; eight headings) name no heading: four legs or more are a
+/// box, fewer are said to be fewer.
 fn missing_headings(legs: &[&Leg], tolerance_deg: f64) -> Vec<String> {
     let (sin, cos) = legs.iter().fold((0.0, 0.0), |(s, c), leg| {
         let angle = 4.0 * leg.heading_deg.to_radians();
@@ -1187,10 +1199,13 @@ fn missing_headings(legs: &[&Leg], tolerance_deg: f64) -> Vec<String> {
     };
     if legs.iter().any(|leg| off_pattern(leg.heading_deg)) {
         let headings: Vec<String> = legs.iter().map(|leg| format!("{:.0}°", leg.heading_deg)).collect();
-        return vec![format!(
-            "its legs ({}) are not on four headings 90° apart, so no heading of a four-heading box can be named as missing",
-            headings.join(", ")
-        )];
+        return match legs.len() {
+            4.. => Vec::new(),
+            n => vec![format!(
+                "it has {n} legs ({}), not four headings, and they are not 90° apart, so no heading can be named as missing",
+                headings.join(", ")
+            )],
+        };
     }
     (0..4)
         .map(|k| (base + 90.0 * k as f64).rem_euclid(360.0))

@@ -190,7 +190,7 @@ fn vector_stage(
                 }
                 if model.held_out.is_none() {
                     stage.warnings.push(format!(
-                        "{}: the twelve-constant fit's windows do not span three headings of known heading, so no heading is held out and the vector's accuracy away from them is not checked; fit on a box (four headings, each with pitch, roll and yaw)",
+                        "{}: the twelve-constant fit's windows do not give three headings (a window given by time that spans a turn has none), so no heading is held out and the vector's accuracy away from them is not checked; give the box's manoeuvres or legs as windows",
                         model.sensor
                     ));
                 }
@@ -312,7 +312,7 @@ fn estimator_table_gap(model: &FittedModel) -> Option<String> {
     use crate::numerics::estimators::Family;
     let Some(table) = &model.estimators else {
         return Some(format!(
-            "{}: no estimator table: the calibration windows span fewer than three headings, so no estimator can be held out by heading",
+            "{}: no estimator table: the calibration windows do not give three headings (a window given by time that spans a turn has none), so no estimator can be held out by heading",
             model.channel
         ));
     };
@@ -630,7 +630,7 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
         }
         if model.windows.len() < 3 {
             warnings.push(format!(
-                "{}: fitted on {} calibration window(s), too few to leave one out: the compensation away from the calibration is not checked and has no uncertainty figure or sigma column. Give three or more windows (a box: four headings, each with pitch, roll and yaw)",
+                "{}: fitted on {} calibration window(s), too few to leave one out: the compensation away from the calibration is not checked and has no uncertainty figure or sigma column. Give three or more windows, one per manoeuvre or leg (a window spanning a whole box is one window; `magcomp detect` finds the manoeuvres)",
                 model.channel,
                 model.windows.len()
             ));

@@ -259,7 +259,7 @@ pub fn headings_from_ins(
                 match steady_heading_deg(&yaw[rows], tolerance_deg) {
                     Some(heading) => {
                         window.heading_deg = Some(heading);
-                        labelled.push(format!("{heading:.0}°"));
+                        labelled.push(format!("{:.0}°", heading.round().rem_euclid(360.0)));
                     }
                     None => across += 1,
                 }
@@ -302,9 +302,16 @@ fn steady_heading_deg(yaw_deg: &[f64], tolerance_deg: f64) -> Option<f64> {
 
 /// A warning when `windows`, read from `path`, were detected on another
 /// flight than `log`: they still set the fit, but may not lie on its
-/// manoeuvres.
+/// manoeuvres. The same rows over the same times are the same flight
+/// (another format or a re-saved copy of it), whatever its bytes.
 pub fn other_flight_warning(path: &Path, detected_on: &FlightIdentity, log: &FlightLog) -> Result<Option<String>> {
     let flight = FlightIdentity::of(log)?;
+    let same_rows = flight.rows == detected_on.rows
+        && flight.t_start.to_bits() == detected_on.t_start.to_bits()
+        && flight.t_end.to_bits() == detected_on.t_end.to_bits();
+    if same_rows {
+        return Ok(None);
+    }
     Ok(detected_on.difference(&flight).map(|difference| {
         format!(
             "the calibration windows of {} were detected on {}, not on this flight {} ({difference}): check that they lie on this flight's manoeuvres, or detect them on it with `magcomp detect`",

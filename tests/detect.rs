@@ -411,10 +411,10 @@ fn a_box_without_a_heading_names_it() {
 }
 
 /// A box flown on three headings 120° apart lacks no heading of a
-/// four-heading box: its manoeuvres are all found, and it says its legs
-/// are off the pattern instead of naming three headings it never meant
-/// to fly (before: "no leg near 90°, 180°, 270°" for legs on 10°, 130°,
-/// 250°).
+/// four-heading box: its manoeuvres are all found, and it says it has
+/// three legs off the pattern instead of naming three headings it never
+/// meant to fly (before: "no leg near 90°, 180°, 270°" for legs on 10°,
+/// 130°, 250°). Four legs off the pattern by a crab angle are a box.
 #[test]
 fn a_box_off_the_four_heading_pattern_says_so() {
     let flight = fly(4, |raw| raw.calibration.headings_deg = vec![10.0, 130.0, 250.0]);
@@ -422,8 +422,21 @@ fn a_box_off_the_four_heading_pattern_says_so() {
     assert_perfect("three headings 120° apart", &flight, &detection);
     let missing = &detection.boxes[0].missing;
     assert_eq!(missing.len(), 1, "{missing:?}");
-    assert!(missing[0].contains("not on four headings 90° apart"), "{missing:?}");
+    assert!(
+        missing[0].contains("it has 3 legs (10°, 130°, 250°), not four headings"),
+        "{missing:?}"
+    );
     assert!(!missing[0].contains("no leg near"), "{missing:?}");
+    // Four legs crabbed into a 20 m/s wind (yaw 343.4°, 90°, 196.6°, 270°
+    // for tracks north, east, south and west) are a whole box.
+    let flight = fly(4, |raw| raw.calibration.headings_deg = vec![343.4, 90.0, 196.6, 270.0]);
+    let detection = detect(&flight);
+    assert_perfect("crabbed legs", &flight, &detection);
+    assert!(
+        detection.boxes[0].missing.is_empty(),
+        "{:?}",
+        detection.boxes[0].missing
+    );
 }
 
 /// On magnetic headings 0, 90, 180 and 270 the fluxgate sees a pitch and

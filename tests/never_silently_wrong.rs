@@ -189,7 +189,7 @@ fn fewer_than_three_windows_are_fitted_with_a_warning() {
         );
         assert_eq!(stdout.matches(&told).count(), 2, "both channels: {stdout}");
         assert!(
-            stdout.contains("flux_a: the twelve-constant fit's windows do not span three headings"),
+            stdout.contains("flux_a: the twelve-constant fit's windows do not give three headings"),
             "{stdout}"
         );
         assert!(stdout.contains("take their leg's heading from the INS yaw"), "{stdout}");
@@ -514,6 +514,16 @@ fn a_column_named_in_the_settings_must_be_in_the_flight() {
     assert_ne!(code, 0);
     assert!(stderr.contains("'att_rol', named by [columns] roll"), "{stderr}");
 
+    // Pitch's column named for the roll too (a copy-paste): before, the
+    // flight silently lost its attitude and its vector compensation.
+    let ((code, _, stderr), _) = run("tmi_cabin", "att_pitch", "base_nt");
+    println!("roll named as pitch: exit {code}\n{stderr}");
+    assert_ne!(code, 0);
+    assert!(
+        stderr.contains("[columns] pitch and roll both name the column 'att_pitch'"),
+        "{stderr}"
+    );
+
     let ((code, stdout, stderr), header) = run("tmi_cabin", "att_roll", "base");
     println!("misspelt base station: exit {code}\n{stdout}");
     assert_eq!(code, 0, "{stderr}");
@@ -526,7 +536,8 @@ fn a_column_named_in_the_settings_must_be_in_the_flight() {
 
 /// DETECT.json records the flight it was detected on; its windows given
 /// to another flight are used, with a warning that names both (before,
-/// another flight's windows were taken silently).
+/// another flight's windows were taken silently); the same rows over the
+/// same times in another format are the same flight.
 #[test]
 fn windows_detected_on_another_flight_are_named() {
     let folder = tempfile::tempdir().unwrap();
@@ -554,6 +565,13 @@ fn windows_detected_on_another_flight_are_named() {
         stdout.contains("were detected on flight.csv") && stdout.contains("not on this flight other.csv"),
         "{stdout}"
     );
+    // The same flight in another format is the same flight.
+    let xyz = folder.path().join("flight.xyz");
+    let (code, _, stderr) = magcomp(&["convert", flight.to_str().unwrap(), "--out", xyz.to_str().unwrap()]);
+    assert_eq!(code, 0, "{stderr}");
+    let (code, stdout, stderr) = compensate(&xyz);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(!stdout.contains("were detected on"), "{stdout}");
 }
 
 /// Attitude recorded in radians reads without error but leaves every

@@ -323,6 +323,18 @@ impl TryFrom<RawColumns> for ColumnNames {
         if let Some((name, _)) = named.iter().find(|(_, column)| column.trim().is_empty()) {
             return Err(format!("[columns] {name} = \"\": name the column"));
         }
+        let single = named.iter().map(|(setting, column)| (*setting, column.as_str()));
+        let listed = (columns.given.iter())
+            .filter(|g| matches!(g.setting, "scalar" | "vector" | "position"))
+            .map(|g| (g.setting, g.column.as_str()));
+        let mut roles: Vec<(&str, &str)> = single.chain(listed).collect();
+        roles.sort_by(|a, b| a.1.cmp(b.1));
+        if let Some(pair) = roles.windows(2).find(|pair| pair[0].1 == pair[1].1) {
+            return Err(format!(
+                "[columns] {} and {} both name the column '{}': a column plays one role; name each its own",
+                pair[0].0, pair[1].0, pair[0].1
+            ));
+        }
         for v in &columns.vector {
             if [&v.prefix, &v.x, &v.y, &v.z].iter().any(|c| c.trim().is_empty()) {
                 return Err(format!(

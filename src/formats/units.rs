@@ -8,6 +8,8 @@
 //! in the right units shows and returns a warning that says what to
 //! convert.
 
+use std::f64::consts::FRAC_PI_2;
+
 use crate::flight_log::{AttitudeAngle, ChannelRole, FlightLog};
 
 /// A median step above this, s, is no survey recording: calibration needs
@@ -30,57 +32,80 @@ pub fn unit_warnings(file: &str, log: &FlightLog) -> Vec<String> {
             log.time_column()
         ));
     }
-    if let Some(turned_deg) = attitude_looks_like_radians(log) {
-        warnings.push(format!(
-            "{file}: the INS attitude never exceeds 2π in size (pitch and roll never π/2) while the fluxgate's field turned through {turned_deg:.0}° in the aircraft's axes: the attitude looks like radians, and magcomp reads degrees. Convert it to degrees"
-        ));
+    if let Some(warning) = attitude_in_radians(file, log) {
+        warnings.push(warning);
     }
     warnings
 }
 
-/// The fluxgate's turn, °, when every attitude sample fits radians (|pitch|
-/// and |roll| ≤ π/2, |yaw| ≤ 2π) although the aircraft turned through more
-/// than [`TURNED_DEG`]: a yaw in degrees through such a turn leaves ±2π.
-fn attitude_looks_like_radians(log: &FlightLog) -> Option<f64> {
-    let limits = [
-        (AttitudeAngle::Pitch, std::f64::consts::FRAC_PI_2),
-        (AttitudeAngle::Roll, std::f64::consts::FRAC_PI_2),
-        (AttitudeAngle::Yaw, std::f64::consts::TAU),
-    ];
-    for (angle, limit) in limits {
-        let channel = (log.channels().iter()).find(|c| c.role == ChannelRole::Attitude(angle))?;
-        let mut finite = channel.values.iter().filter(|v| v.is_finite()).peekable();
-        finite.peek()?;
-        if finite.any(|v| v.abs() > limit + 1e-6) {
-            return None;
-        }
+/// A warning when pitch and roll never leave ±π/2 although the aircraft
+/// turned: through more than [`TURNED_DEG`] of yaw read as degrees (pitch
+/// and roll in radians beside a yaw in degrees), or through more than 1
+/// of yaw read as radians while the fluxgate's field turned more than
+/// [`TURNED_DEG`] in the aircraft's axes (all three in radians). Any turn
+/// of that size banks the aircraft beyond 1.6°; a calm straight line under
+/// a near-vertical field, where roll alone swings the horizontal field,
+/// turns its yaw by neither.
+fn attitude_in_radians(file: &str, log: &FlightLog) -> Option<String> {
+    let angle = |wanted: AttitudeAngle| {
+        let channel = (log.channels().iter()).find(|c| c.role == ChannelRole::Attitude(wanted))?;
+        let finite: Vec<f64> = channel.values.iter().copied().filter(|v| v.is_finite()).collect();
+        (!finite.is_empty()).then_some(finite)
+    };
+    let (pitch, roll, yaw) = (
+        angle(AttitudeAngle::Pitch)?,
+        angle(AttitudeAngle::Roll)?,
+        angle(AttitudeAngle::Yaw)?,
+    );
+    let within = |values: &[f64], limit: f64| values.iter().all(|v| v.abs() <= limit + 1e-6);
+    if !(within(&pitch, FRAC_PI_2) && within(&roll, FRAC_PI_2)) {
+        return None;
     }
-    let turned_deg = (log.vector_sensors().iter())
+    let yaw_turn_deg = unwrapped_range(yaw.iter().copied(), 360.0);
+    if yaw_turn_deg > TURNED_DEG {
+        return Some(format!(
+            "{file}: the INS pitch and roll never exceed π/2 in size although the yaw turned through {yaw_turn_deg:.0}°: they look like radians, and magcomp reads degrees. Convert them to degrees"
+        ));
+    }
+    let yaw_range =
+        yaw.iter().copied().fold(f64::NEG_INFINITY, f64::max) - yaw.iter().copied().fold(f64::INFINITY, f64::min);
+    let field_turn_deg = (log.vector_sensors().iter())
         .map(|sensor| horizontal_turn_deg(sensor.axes.map(|axis| log.channels()[axis].values.as_slice())))
         .fold(0.0, f64::max);
-    (turned_deg > TURNED_DEG).then_some(turned_deg)
+    (yaw_range > 1.0 && field_turn_deg > TURNED_DEG).then(|| {
+        format!(
+            "{file}: the INS attitude never exceeds π/2 in pitch and roll, and its yaw spans {yaw_range:.2}, while the fluxgate's field turned through {field_turn_deg:.0}° in the aircraft's axes: the attitude looks like radians, and magcomp reads degrees. Convert it to degrees"
+        )
+    })
+}
+
+/// The range of `values` unwrapped with period `period` (a step larger
+/// than half a period is taken the short way round).
+fn unwrapped_range(values: impl Iterator<Item = f64>, period: f64) -> f64 {
+    let half = period / 2.0;
+    let mut values = values;
+    let Some(first) = values.next() else {
+        return 0.0;
+    };
+    let (mut previous, mut unwrapped, mut low, mut high) = (first, first, first, first);
+    for value in values {
+        unwrapped += (value - previous + period + half).rem_euclid(period) - half;
+        previous = value;
+        low = low.min(unwrapped);
+        high = high.max(unwrapped);
+    }
+    high - low
 }
 
 /// The range, °, through which the field's direction in the sensor's x-y
 /// plane turns over the flight, unwrapped across ±180°.
 fn horizontal_turn_deg([x, y, _]: [&[f64]; 3]) -> f64 {
-    let mut angles = x
+    let angles = x
         .iter()
         .zip(y)
         .filter(|(x, y)| x.is_finite() && y.is_finite() && x.hypot(**y) > 0.0)
         .map(|(x, y)| y.atan2(*x).to_degrees());
-    let Some(first) = angles.next() else {
-        return 0.0;
-    };
-    let (mut previous, mut unwrapped) = (first, first);
-    let (mut low, mut high) = (first, first);
-    for angle in angles {
-        unwrapped += (angle - previous + 540.0).rem_euclid(360.0) - 180.0;
-        previous = angle;
-        low = low.min(unwrapped);
-        high = high.max(unwrapped);
-    }
-    high - low
+    unwrapped_range(angles, 360.0)
 }
 
 #[cfg(test)]
@@ -142,6 +167,38 @@ mod tests {
     #[test]
     fn attitude_in_degrees_is_not_named() {
         assert!(unit_warnings("turn.csv", &turning_flight(false, 0.1)).is_empty());
+    }
+
+    /// `log` with the attitude channel `name` set to `value(row)`.
+    fn with_angle(log: FlightLog, name: &str, value: impl Fn(usize) -> f64) -> FlightLog {
+        log.with_values(name, (0..log.len()).map(value).collect()).unwrap()
+    }
+
+    #[test]
+    fn pitch_and_roll_in_radians_beside_a_yaw_in_degrees_are_named() {
+        let log = turning_flight(false, 0.1);
+        let log = with_angle(log, "Pitch", |_| 2f64.to_radians());
+        let log = with_angle(log, "Roll", |i| (10.0 * (i as f64 * 0.1).sin()).to_radians());
+        let warnings = unit_warnings("turn.csv", &log);
+        assert_eq!(warnings.len(), 1, "{warnings:?}");
+        assert!(
+            warnings[0].contains("pitch and roll never exceed π/2 in size although the yaw turned through 359°"),
+            "{}",
+            warnings[0]
+        );
+    }
+
+    /// Near a dip pole the horizontal field is small and roll alone swings
+    /// its direction: a calm straight line in degrees (yaw within ±0.4° in
+    /// the ±180° convention, roll within ±0.8°) under a field that turns
+    /// through the whole circle in the aircraft's axes is not named.
+    #[test]
+    fn a_calm_straight_line_under_a_steep_field_is_not_named() {
+        let log = turning_flight(false, 0.1);
+        let log = with_angle(log, "Yaw", |i| 0.4 * (i as f64 * 0.01).sin());
+        let log = with_angle(log, "Roll", |i| 0.8 * (i as f64 * 0.1).sin());
+        let log = with_angle(log, "Pitch", |_| 0.5);
+        assert!(unit_warnings("line.csv", &log).is_empty());
     }
 
     #[test]
