@@ -285,6 +285,20 @@ fn an_attitude_gap_over_a_leg_is_named_with_what_is_missing() {
     assert_eq!(detection.attitude_gaps, vec![(first, last)]);
     let warning = detection.attitude_gap_warning().expect("a warning");
     assert!(warning.contains(&format!("{first:.1}–{last:.1} s")), "{warning}");
+    // A gap on the survey lines, far from a box that lacks a manoeuvre,
+    // is listed but not blamed.
+    let omitted = fly(13, |raw| {
+        raw.calibration.headings_deg = vec![0.0, 90.0, 180.0, 270.0];
+        raw.calibration.omit = vec!["yaw@270".into()];
+    });
+    let end = omitted.log.time_s()[omitted.log.len() - 1];
+    let rows = |t: f64| omitted.log.time_s().partition_point(|&x| x < t);
+    let far = rows(end - 120.0)..rows(end - 100.0);
+    let detection = detect_manoeuvres(&with_gap(&omitted.log, far, false), &DetectOptions::default()).unwrap();
+    assert!(detection.boxes[0].t_end < end - 400.0, "the gap is on the survey lines");
+    assert!(!detection.boxes[0].missing.is_empty());
+    assert_eq!(detection.attitude_gaps.len(), 1);
+    assert!(detection.attitude_gap_warning().is_none());
     let short = row(truth[3].t_start + 3.0)..row(truth[3].t_start + 4.0);
     let detection = detect_manoeuvres(&with_gap(&flight.log, short, false), &DetectOptions::default()).unwrap();
     assert!(detection.attitude_gaps.is_empty());
