@@ -505,6 +505,18 @@ mod tests {
         ((0..q).map(|k| svd.S()[k]).collect(), svd.V().to_owned())
     }
 
+    /// The rows of `a` and `y` in four consecutive folds of equal size.
+    fn quarter_folds(a: &[Vec<f64>], y: &[f64]) -> Vec<Factor> {
+        let n = y.len();
+        (0..4)
+            .map(|b| {
+                let rows = b * n / 4..(b + 1) * n / 4;
+                let views: Vec<&[f64]> = a.iter().map(|c| &c[rows.clone()]).collect();
+                Factor::of_columns(&views, &y[rows])
+            })
+            .collect()
+    }
+
     fn columns(n: usize, p: usize, seed: u64) -> Vec<Vec<f64>> {
         (0..p).map(|j| noise(seed + j as u64, n)).collect()
     }
@@ -763,13 +775,7 @@ mod tests {
         let y: Vec<f64> = (0..n)
             .map(|i| truth[0] * clean[0][i] + truth[1] * clean[1][i] + 0.4 * 2f64.sqrt() * noise(990, n)[i])
             .collect();
-        let folds: Vec<Factor> = (0..4)
-            .map(|b| {
-                let r = b * n / 4..(b + 1) * n / 4;
-                let views: Vec<&[f64]> = a.iter().map(|c| &c[r.clone()]).collect();
-                Factor::of_columns(&views, &y[r])
-            })
-            .collect();
+        let folds = quarter_folds(&a, &y);
         let all = Decomposed::new(&Factor::combine(&folds).unwrap()).unwrap();
         let ls = all.coefficients(Estimator::Ls).unwrap();
         let tls = all.coefficients(Estimator::Tls).unwrap();
@@ -818,13 +824,7 @@ mod tests {
                     + 0.4 * 2f64.sqrt() * noise(1990, n)[i]
             })
             .collect();
-        let folds: Vec<Factor> = (0..4)
-            .map(|b| {
-                let r = b * n / 4..(b + 1) * n / 4;
-                let views: Vec<&[f64]> = a.iter().map(|c| &c[r.clone()]).collect();
-                Factor::of_columns(&views, &y[r])
-            })
-            .collect();
+        let folds = quarter_folds(&a, &y);
         // Fitted on the narrow folds alone: least squares attenuated to
         // 0.61 of the truth, TLS within 0.06 of it.
         let narrow = Decomposed::new(&Factor::combine(&folds[..3]).unwrap()).unwrap();
