@@ -221,19 +221,23 @@ fn right_or_loudly_uncertain(
                 model.channel
             ))
         });
-        let column = sigma_coverage(model, channel, truth, line);
+        let column = common::SigmaColumn::of(model, channel, truth, line);
+        let (sigma_rms_nt, error_rms_nt) = (
+            common::SigmaColumn::rms(&column.sigma_nt),
+            common::SigmaColumn::rms(&column.error_nt),
+        );
         println!(
             "seed {seed} {}: survey error {error:.3} nT, stated uncertainty {:.3} nT (level {:.1} nT), warned {warning}; sigma column: {:.3} nT RMS against {:.3} nT RMS error from the calibration level, within 1σ {:.2}, 2σ {:.2}",
             model.channel, uncertainty.outside_calibration_sigma_nt, uncertainty.level_sigma_nt,
-            column.sigma_rms_nt, column.error_rms_nt, column.within[0], column.within[1]
+            sigma_rms_nt, error_rms_nt, column.fraction_within(1.0), column.fraction_within(2.0)
         );
         // A column that understates the error threefold, on an error that
         // matters, is on a warned channel.
-        if column.error_rms_nt > (3.0 * column.sigma_rms_nt).max(WRONG_NT) {
+        if error_rms_nt > (3.0 * sigma_rms_nt).max(WRONG_NT) {
             assert!(
                 warning,
                 "seed {seed} {}: the sigma column says {:.3} nT, the error is {:.3} nT, and no warning",
-                model.channel, column.sigma_rms_nt, column.error_rms_nt
+                model.channel, sigma_rms_nt, error_rms_nt
             );
         }
         if error > WRONG_NT {
@@ -248,50 +252,6 @@ fn right_or_loudly_uncertain(
         if error < RIGHT_NT {
             assert!(!warning, "seed {seed} {}: right ({error} nT) but warned", model.channel);
         }
-    }
-}
-
-/// How the `mag_<n>_c_sigma` column of one channel covers its true error
-/// on the survey lines, both relative to the calibration windows' level
-/// (the column leaves the level out).
-/// Pooled over 80 plans, the column's calibration is
-/// `tests/uncertainty.rs`.
-struct ColumnCoverage {
-    sigma_rms_nt: f64,
-    error_rms_nt: f64,
-    /// Fractions of survey samples within one and two sigma.
-    within: [f64; 2],
-}
-
-fn sigma_coverage(
-    model: &magcomp::model::FittedModel,
-    channel: &magcomp::compensate::CompensatedChannel,
-    truth: &[f64],
-    line: &[f64],
-) -> ColumnCoverage {
-    let sigma = channel.sigma_nt.as_ref().expect("a jackknife: a sigma column");
-    let error = |i: usize| channel.values[i] - truth[i];
-    let calibration: Vec<usize> = (model.windows.iter())
-        .flat_map(|w| w.flight_rows.iter().cloned().flatten())
-        .filter(|&i| error(i).is_finite())
-        .collect();
-    let level = calibration.iter().map(|&i| error(i)).sum::<f64>() / calibration.len() as f64;
-    let survey: Vec<usize> = (0..line.len())
-        .filter(|&i| line[i] > 0.0 && error(i).is_finite() && sigma[i].is_finite())
-        .collect();
-    let n = survey.len() as f64;
-    let rms = |f: &dyn Fn(usize) -> f64| (survey.iter().map(|&i| f(i).powi(2)).sum::<f64>() / n).sqrt();
-    let within = |k: f64| {
-        survey
-            .iter()
-            .filter(|&&i| (error(i) - level).abs() <= k * sigma[i])
-            .count() as f64
-            / n
-    };
-    ColumnCoverage {
-        sigma_rms_nt: rms(&|i| sigma[i]),
-        error_rms_nt: rms(&|i| error(i) - level),
-        within: [within(1.0), within(2.0)],
     }
 }
 

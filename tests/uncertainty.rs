@@ -39,53 +39,6 @@ fn seeds() -> std::ops::Range<u64> {
     }
 }
 
-/// One channel's survey-line samples: the column's sigma and the true
-/// error from the calibration's level.
-struct Column {
-    sigma_nt: Vec<f64>,
-    error_nt: Vec<f64>,
-}
-
-impl Column {
-    fn rms(values: &[f64]) -> f64 {
-        (values.iter().map(|v| v * v).sum::<f64>() / values.len() as f64).sqrt()
-    }
-
-    fn within(&self, k: f64) -> usize {
-        self.error_nt
-            .iter()
-            .zip(&self.sigma_nt)
-            .filter(|(e, s)| e.abs() <= k * **s)
-            .count()
-    }
-}
-
-fn column(
-    model: &magcomp::model::FittedModel,
-    channel: &magcomp::compensate::CompensatedChannel,
-    truth: &[f64],
-    line: &[f64],
-) -> Column {
-    let sigma = channel
-        .sigma_nt
-        .as_ref()
-        .expect("twelve windows and ridge: a sigma column");
-    let error = |i: usize| channel.values[i] - truth[i];
-    let calibration: Vec<usize> = (model.windows.iter())
-        .flat_map(|w| w.flight_rows.iter().cloned().flatten())
-        .filter(|&i| error(i).is_finite())
-        .collect();
-    assert!(calibration.len() > 100, "{}: calibration rows", model.channel);
-    let level = calibration.iter().map(|&i| error(i)).sum::<f64>() / calibration.len() as f64;
-    let survey: Vec<usize> = (0..line.len())
-        .filter(|&i| line[i] > 0.0 && error(i).is_finite() && sigma[i].is_finite())
-        .collect();
-    Column {
-        sigma_nt: survey.iter().map(|&i| sigma[i]).collect(),
-        error_nt: survey.iter().map(|&i| error(i) - level).collect(),
-    }
-}
-
 /// Over every plan, the channels without the uncertainty warning have a
 /// calibrated sigma column, and the warning marks the wrong channels and
 /// spares the right ones:
@@ -138,15 +91,15 @@ fn the_sigma_column_is_calibrated_and_the_wrong_channels_are_warned_on_random_pl
                 "seed {seed} {}",
                 model.channel
             );
-            let column = column(model, channel, truth, line);
+            let column = common::SigmaColumn::of(model, channel, truth, line);
             let n = column.error_nt.len();
             assert!(n > 1000, "seed {seed} {}: {n} survey samples", model.channel);
-            let error = Column::rms(&column.error_nt);
-            let fractions = [1.0, 2.0].map(|k| column.within(k) as f64 / n as f64);
+            let error = common::SigmaColumn::rms(&column.error_nt);
+            let fractions = [1.0, 2.0].map(|k| column.fraction_within(k));
             println!(
                 "seed {seed:2} {layout:?} {}: error from the calibration level {error:.3} nT RMS, column {:.3} nT RMS (stated {:.3}), within 1σ {:.2}, 2σ {:.2}{}",
                 model.channel,
-                Column::rms(&column.sigma_nt),
+                common::SigmaColumn::rms(&column.sigma_nt),
                 stated.outside_calibration_sigma_nt,
                 fractions[0],
                 fractions[1],

@@ -236,3 +236,56 @@ pub fn paired_sensors_flight(seed: u64) -> (magcomp::simulate::SimulatedFlight, 
     let raw: RawScenario = toml::from_str(&text).unwrap();
     (simulate(&Scenario::try_from(raw).unwrap()).unwrap(), layout, separation)
 }
+
+/// One channel's survey-line samples: its `mag_<n>_c_sigma` and its true
+/// error, both relative to the calibration windows' level (the column
+/// leaves the level out, and a sensor's constant offset is seen by no
+/// calibration).
+pub struct SigmaColumn {
+    pub sigma_nt: Vec<f64>,
+    pub error_nt: Vec<f64>,
+}
+
+impl SigmaColumn {
+    /// The survey-line (`line` > 0) samples of `channel`, compensated with
+    /// `model`, against `truth`.
+    pub fn of(
+        model: &FittedModel,
+        channel: &magcomp::compensate::CompensatedChannel,
+        truth: &[f64],
+        line: &[f64],
+    ) -> SigmaColumn {
+        let sigma = channel.sigma_nt.as_ref().expect("a jackknife: a sigma column");
+        let error = |i: usize| channel.values[i] - truth[i];
+        let calibration: Vec<usize> = (model.windows.iter())
+            .flat_map(|w| w.flight_rows.iter().cloned().flatten())
+            .filter(|&i| error(i).is_finite())
+            .collect();
+        assert!(calibration.len() > 100, "{}: calibration rows", model.channel);
+        let level = calibration.iter().map(|&i| error(i)).sum::<f64>() / calibration.len() as f64;
+        let survey: Vec<usize> = (0..line.len())
+            .filter(|&i| line[i] > 0.0 && error(i).is_finite() && sigma[i].is_finite())
+            .collect();
+        SigmaColumn {
+            sigma_nt: survey.iter().map(|&i| sigma[i]).collect(),
+            error_nt: survey.iter().map(|&i| error(i) - level).collect(),
+        }
+    }
+
+    /// Root mean square of `values`.
+    pub fn rms(values: &[f64]) -> f64 {
+        (values.iter().map(|v| v * v).sum::<f64>() / values.len() as f64).sqrt()
+    }
+
+    /// Samples whose error lies within `k` sigma.
+    pub fn within(&self, k: f64) -> usize {
+        (self.error_nt.iter().zip(&self.sigma_nt))
+            .filter(|(e, s)| e.abs() <= k * **s)
+            .count()
+    }
+
+    /// Fraction of samples within `k` sigma.
+    pub fn fraction_within(&self, k: f64) -> f64 {
+        self.within(k) as f64 / self.error_nt.len() as f64
+    }
+}
