@@ -67,8 +67,19 @@ pub struct DetectOptions {
     pub fluxgate_min_rms_deg: f64,
     /// Activity must also exceed this multiple of the leg's turbulence level.
     pub turbulence_factor: f64,
-    /// Nominal amplitudes of pitch, roll and yaw manoeuvres, degrees (to compare axes).
+    /// Nominal amplitudes of pitch, roll and yaw manoeuvres, degrees (to
+    /// compare axes when the fluxgate stands in for the INS).
     pub nominal_amplitude_deg: [f64; 3],
+    /// What each axis's activity is divided by, degrees, to tell which one
+    /// the pilot drove where several move together. An airframe answers a
+    /// roll with adverse yaw (0.25–0.3× the roll on a real survey aircraft)
+    /// and a yaw with roll (0.4–0.46× the yaw): a roll over 6/5 of the yaw
+    /// it carries is a roll, so a roll with up to 0.8× adverse yaw and a yaw
+    /// with up to 1.2× roll are named right.
+    pub dominance_deg: [f64; 3],
+    /// A stretch where one axis dominates for less than this, s, belongs to
+    /// its neighbour (a manoeuvre is at least two cycles of 3 s).
+    pub min_dominance_s: f64,
     /// Smallest peak of a pitch, roll and yaw manoeuvre, degrees.
     pub min_amplitude_deg: [f64; 3],
     /// Active stretches closer than this join, s.
@@ -96,7 +107,7 @@ impl Default for DetectOptions {
         DetectOptions {
             heading_smoothing_s: 20.0,
             straight_rate_deg_s: 1.0,
-            min_leg_s: 40.0,
+            min_leg_s: 25.0,
             join_gap_s: 15.0,
             heading_tolerance_deg: 15.0,
             turn_heading_deg: 9.0,
@@ -106,6 +117,8 @@ impl Default for DetectOptions {
             fluxgate_min_rms_deg: 0.5,
             turbulence_factor: 3.0,
             nominal_amplitude_deg: [5.0, 10.0, 5.0],
+            dominance_deg: [5.0, 6.0, 5.0],
+            min_dominance_s: 3.0,
             min_amplitude_deg: [2.0, 4.0, 2.0],
             join_activity_s: 2.0,
             min_half_cycles: 4,
@@ -756,41 +769,142 @@ struct Candidate {
     /// The other axis it may be (fluxgate fallback, axes alike).
     could_be: Option<usize>,
     region: Range<usize>,
+    /// Where its strong half-cycles may lie (leg-relative rows); `None`:
+    /// anywhere in the measured span.
+    core: Option<Range<usize>>,
+    /// Another manoeuvre follows on directly before it, after it.
+    joined: [bool; 2],
     strength: f64,
     series: std::rc::Rc<Vec<f64>>,
 }
 
+/// The INS path: each axis's activity as an RMS envelope, then every
+/// active sample named by the axis strongest against its dominance weight,
+/// so a stretch where the pilot flies pitch, roll and yaw back to back
+/// splits where the driven axis changes, and the coupled motion of the
+/// others (adverse yaw in a roll, roll in a yaw) never names a manoeuvre
+/// of its own. Each stretch is a candidate on its axis.
 fn ins_candidates(attitude: &Attitude, leg: &Leg, options: &DetectOptions, dt: f64) -> Vec<Candidate> {
     let window = samples(options.envelope_s, dt);
-    let mut candidates = Vec::new();
+    let n = leg.rows.len();
+    let mut weighted: [Vec<f64>; 3] = Default::default();
+    let mut active: [Vec<bool>; 3] = Default::default();
+    let mut series: [std::rc::Rc<Vec<f64>>; 3] = Default::default();
     for axis in 0..3 {
         let activity = deviation(attitude, samples(options.heading_smoothing_s, dt), leg, axis);
         let envelope = rms_envelope(&activity, window);
         let threshold = options.min_rms_deg[axis].max(options.turbulence_factor * percentile(&envelope, 0.1));
-        let regions = active_regions(
+        active[axis] = vec![false; n];
+        for region in active_regions(
             &envelope,
             threshold,
             samples(options.join_activity_s, dt),
             samples(2.0, dt),
-        );
-        let series = std::rc::Rc::new(if axis == 2 {
+        ) {
+            active[axis][region].fill(true);
+        }
+        weighted[axis] = envelope.iter().map(|e| e / options.dominance_deg[axis]).collect();
+        series[axis] = std::rc::Rc::new(if axis == 2 {
             heading_deviation(attitude, leg)
         } else {
             offset_from_median(attitude, leg, axis)
         });
-        for region in regions {
-            let peak = region.clone().map(|k| envelope[k]).fold(0.0, f64::max);
-            candidates.push(Candidate {
+    }
+    let labels: Vec<Option<usize>> = (0..n)
+        .map(|k| {
+            (0..3)
+                .filter(|axis| active[*axis][k])
+                .max_by(|a, b| weighted[*a][k].total_cmp(&weighted[*b][k]).then(b.cmp(a)))
+        })
+        .collect();
+    let runs = dominant_runs(labels, &weighted, samples(options.min_dominance_s, dt));
+    let pad = samples(MEASURE_PAD_S, dt);
+    (0..runs.len())
+        .map(|i| {
+            let (axis, region) = runs[i].clone();
+            // Where another manoeuvre follows on directly, its motion on
+            // this axis is not this one's: the strong half-cycles are
+            // looked for up to the shared boundary only.
+            // (A pause shorter than the level flight measure() looks at
+            // either side joins them too: the boundary is then taken in
+            // the middle of the pause.)
+            let joined_before = i > 0 && region.start - runs[i - 1].1.end < pad;
+            let joined_after = i + 1 < runs.len() && runs[i + 1].1.start - region.end < pad;
+            let core = match joined_before {
+                true => region.start - (region.start - runs[i - 1].1.end) / 2,
+                false => region.start.saturating_sub(pad),
+            }..match joined_after {
+                true => region.end + (runs[i + 1].1.start - region.end) / 2,
+                false => (region.end + pad).min(n),
+            };
+            let strength = region.clone().map(|k| weighted[axis][k]).fold(0.0, f64::max);
+            Candidate {
                 axis,
                 could_be: None,
                 region,
-                strength: peak / options.nominal_amplitude_deg[axis],
-                series: series.clone(),
-            });
+                core: Some(core),
+                joined: [joined_before, joined_after],
+                strength,
+                series: series[axis].clone(),
+            }
+        })
+        .collect()
+}
+
+/// Runs of samples named by one axis (`None`: no axis active), the runs
+/// shorter than `shortest` given to the neighbour whose axis is the
+/// stronger over them, until none is left: a dominance that flickers for
+/// a moment at a manoeuvre's edge or a zero crossing does not split it.
+fn dominant_runs(
+    mut labels: Vec<Option<usize>>,
+    weighted: &[Vec<f64>; 3],
+    shortest: usize,
+) -> Vec<(usize, Range<usize>)> {
+    loop {
+        let runs = label_runs(&labels);
+        // The shortest run that touches a run of another axis.
+        let short = (0..runs.len())
+            .filter(|&i| runs[i].0.is_some() && runs[i].1.len() < shortest)
+            .filter_map(|i| {
+                let neighbours: Vec<usize> = [i.checked_sub(1), Some(i + 1)]
+                    .into_iter()
+                    .flatten()
+                    .filter(|&j| j < runs.len() && runs[j].0.is_some())
+                    .filter_map(|j| runs[j].0)
+                    .collect();
+                (!neighbours.is_empty()).then_some((i, neighbours))
+            })
+            .min_by_key(|(i, _)| (runs[*i].1.len(), *i));
+        let Some((i, neighbours)) = short else {
+            return runs
+                .into_iter()
+                .filter_map(|(label, range)| label.map(|axis| (axis, range)))
+                .collect();
+        };
+        let range = runs[i].1.clone();
+        let mean = |axis: usize| range.clone().map(|k| weighted[axis][k]).sum::<f64>();
+        let to = neighbours
+            .into_iter()
+            .max_by(|a, b| mean(*a).total_cmp(&mean(*b)).then(b.cmp(a)))
+            .unwrap_or(0);
+        labels[range].fill(Some(to));
+    }
+}
+
+/// Maximal runs of equal labels.
+fn label_runs(labels: &[Option<usize>]) -> Vec<(Option<usize>, Range<usize>)> {
+    let mut runs: Vec<(Option<usize>, Range<usize>)> = Vec::new();
+    for (k, label) in labels.iter().enumerate() {
+        match runs.last_mut() {
+            Some((last, range)) if last == label => range.end = k + 1,
+            _ => runs.push((*label, k..k + 1)),
         }
     }
-    candidates
+    runs
 }
+
+/// Level flight looked at on either side of an active stretch, s.
+const MEASURE_PAD_S: f64 = 4.0;
 
 /// Principal direction of a cloud of 3-vectors: the eigenvector of the
 /// largest eigenvalue of their covariance, signed to lean towards
@@ -875,6 +989,8 @@ fn fluxgate_candidates(unit: &[Vector3<f64>], leg: &Leg, options: &DetectOptions
         let candidate = Candidate {
             axis: by_size[0],
             could_be: by_size.get(1).copied(),
+            core: None,
+            joined: [false; 2],
             region,
             strength: size,
             series: std::rc::Rc::new(Vec::new()),
@@ -955,10 +1071,12 @@ fn leg_manoeuvres(log: &FlightLog, attitude: &Attitude, leg: &Leg, options: &Det
                  axis,
                  could_be,
                  region,
+                 core,
+                 joined,
                  series,
                  ..
              }| {
-                let found = measure(series, region.clone(), dt)?;
+                let found = measure(series, region.clone(), core.clone(), *joined, dt)?;
                 check_regular(&found, options)?;
                 (found.amplitude_deg >= options.min_amplitude_deg[*axis]).then_some(())?;
                 let time = log.time_s();
@@ -1022,28 +1140,81 @@ fn level_in(values: &[f64], range: Range<usize>) -> Option<(f64, f64)> {
 
 /// Measures the oscillation around an active region against a baseline
 /// interpolated between the level flight on either side.
-fn measure(values: &[f64], region: Range<usize>, dt: f64) -> Option<Oscillation> {
+///
+/// A manoeuvre `joined` to another on either side has no level flight
+/// there to draw the baseline to: it is measured against the median of
+/// its own core instead (an oscillation swings evenly about its level).
+fn measure(
+    values: &[f64],
+    region: Range<usize>,
+    core: Option<Range<usize>>,
+    joined: [bool; 2],
+    dt: f64,
+) -> Option<Oscillation> {
     let n = values.len();
-    let pad = samples(4.0, dt);
+    let pad = samples(MEASURE_PAD_S, dt);
     let outer = region.start.saturating_sub(pad)..(region.end + pad).min(n);
+    if let (true, Some(core)) = (joined[0] || joined[1], &core) {
+        // Into a neighbouring manoeuvre the oscillation may reach only as
+        // far as the boundary between the two can be off: its coupled
+        // motion on this axis is not this manoeuvre's.
+        let slack = samples(JOINED_SLACK_S, dt);
+        let outer = match joined[0] {
+            true => core.start.saturating_sub(slack),
+            false => core.start,
+        }..match joined[1] {
+            true => (core.end + slack).min(n),
+            false => core.end,
+        };
+        let levelled = less_level(values, outer.clone(), core.clone());
+        let core = core.start.clamp(outer.start, outer.end) - outer.start
+            ..core.end.clamp(outer.start, outer.end) - outer.start;
+        return measure_between(&levelled, outer, core, 0..0, 0..0, dt);
+    }
     // First against the level flight a few seconds either side of the
     // active stretch, then again against the level flight right next to
     // the oscillation found, so a drifting heading is followed closely.
     let before = region.start.saturating_sub(2 * pad)..region.start.saturating_sub(pad / 2).max(1);
     let after = (region.end + pad / 2).min(n - 1)..(region.end + 2 * pad).min(n);
-    let rough = measure_between(values, outer.clone(), before, after, dt)?;
+    // The strong half-cycles are looked for in the core only, in
+    // outer-relative rows.
+    let core = core.map_or(0..outer.len(), |c| {
+        c.start.clamp(outer.start, outer.end) - outer.start..c.end.clamp(outer.start, outer.end) - outer.start
+    });
+    let rough = measure_between(values, outer.clone(), core.clone(), before, after, dt)?;
     let near = samples(3.0, dt);
     let gap = samples(0.3, dt);
     let before = rough.start.saturating_sub(near)..rough.start.saturating_sub(gap).max(1);
     let after = (rough.end + gap).min(n - 1)..(rough.end + near).min(n);
-    measure_between(values, outer, before, after, dt)
+    measure_between(values, outer, core, before, after, dt)
+}
+
+/// How far, s, the boundary between two manoeuvres flown back to back may
+/// lie from where the envelopes of their axes cross (half the envelope's
+/// window).
+const JOINED_SLACK_S: f64 = 1.5;
+
+/// `values` over `outer` less the median of its finite values in `fit`
+/// (NaN elsewhere). A sloping line would not do: fitted to an oscillation
+/// of N cycles, it tilts by 3/(πN) of the amplitude at the ends.
+fn less_level(values: &[f64], outer: Range<usize>, fit: Range<usize>) -> Vec<f64> {
+    let mut finite: Vec<f64> = values[fit].iter().copied().filter(|v| v.is_finite()).collect();
+    let level = median(&mut finite).unwrap_or(0.0);
+    let mut levelled = vec![f64::NAN; values.len()];
+    for k in outer {
+        levelled[k] = values[k] - level;
+    }
+    levelled
 }
 
 /// Measures the oscillation in `outer` against a baseline drawn between
-/// the medians of the level flight in `before` and `after`.
+/// the medians of the level flight in `before` and `after`; its peak and
+/// strong half-cycles are looked for in `core` (rows of `outer`), and its
+/// ends may reach beyond, out to where those half-cycles cross zero.
 fn measure_between(
     values: &[f64],
     outer: Range<usize>,
+    core: Range<usize>,
     before: Range<usize>,
     after: Range<usize>,
     dt: f64,
@@ -1070,7 +1241,8 @@ fn measure_between(
     let centred: Vec<f64> = (outer_start..outer_end)
         .map(|k| values[k] - (first + (last - first) * (k - outer_start) as f64 / span))
         .collect();
-    let peak = centred
+    let core = core.start.min(centred.len())..core.end.min(centred.len());
+    let peak = centred[core.clone()]
         .iter()
         .filter(|v| v.is_finite())
         .fold(0.0f64, |m, v| m.max(v.abs()));
@@ -1080,8 +1252,8 @@ fn measure_between(
     // A half-cycle is strong when it reaches 40 % of the largest: a
     // wandering heading or turbulence can shift single peaks by a third.
     let strong = |v: f64| v.is_finite() && v.abs() >= STRONG * peak;
-    let first_strong = centred.iter().position(|v| strong(*v))?;
-    let last_strong = centred.iter().rposition(|v| strong(*v))?;
+    let first_strong = core.start + centred[core.clone()].iter().position(|v| strong(*v))?;
+    let last_strong = core.start + centred[core.clone()].iter().rposition(|v| strong(*v))?;
     // The oscillation leaves level flight where it first passes a tenth of
     // its peak, or three times the level flight's own scatter if that is
     // larger: turbulence alone rarely gets that far.
@@ -1325,7 +1497,7 @@ mod tests {
         let mut values = vec![0.0; 100];
         values.extend((1..=180).map(|k| 5.0 * (2.0 * std::f64::consts::PI * k as f64 * 0.1 / 6.0).sin()));
         values.extend(vec![0.0; 100]);
-        let found = measure(&values, 105..275, 0.1).unwrap();
+        let found = measure(&values, 105..275, None, [false; 2], 0.1).unwrap();
         assert_eq!(found.half_cycles.len(), 6);
         assert!((found.amplitude_deg - 5.0).abs() < 0.01);
         assert!((found.period_s - 6.0).abs() < 0.15, "{}", found.period_s);

@@ -60,6 +60,8 @@ raw_section! {
         fluxgate_min_rms_deg: f64,
         turbulence_factor: f64,
         nominal_amplitude_deg: [f64; 3],
+        dominance_deg: [f64; 3],
+        min_dominance_s: f64,
         min_amplitude_deg: [f64; 3],
         join_activity_s: f64,
         min_half_cycles: usize,
@@ -170,6 +172,10 @@ impl TryFrom<RawDetect> for DetectOptions {
             ("max_half_cycle_spread", detect.max_half_cycle_spread),
             ("leg_run_on_s", detect.leg_run_on_s),
             ("max_turn_s", detect.max_turn_s),
+            ("min_dominance_s", detect.min_dominance_s),
+            ("dominance_deg[0]", detect.dominance_deg[0]),
+            ("dominance_deg[1]", detect.dominance_deg[1]),
+            ("dominance_deg[2]", detect.dominance_deg[2]),
         ] {
             positive("detect", name, value)?;
         }

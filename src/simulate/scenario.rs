@@ -195,8 +195,46 @@ pub struct Calibration {
     pub clover_leaf: bool,
     /// Level flight on each leg before its first manoeuvre, s (drawn per leg).
     pub lead_in_s: [f64; 2],
-    /// Level flight after each manoeuvre, s (drawn per manoeuvre).
+    /// Level flight after each manoeuvre, s (drawn per manoeuvre). Real
+    /// crews often fly the three back to back: `[0, 1]`.
     pub pause_s: [f64; 2],
+    /// Rate of the turns between legs, degrees/s (drawn per turn); the bank
+    /// follows from the speed (3°/s at 70 m/s banks 20.5°).
+    pub turn_rate_deg_s: [f64; 2],
+    /// The airframe's cross-axis response to the pilot's input.
+    pub coupling: Coupling,
+}
+
+/// `[calibration.coupling]`: the motion of the other axes during a
+/// manoeuvre, as a fraction of the driven axis's amplitude, drawn per
+/// manoeuvre from each range, with a phase lag drawn from `lag_deg`.
+/// Measured on a real survey aircraft: roll 0.2× a pitch, adverse yaw
+/// 0.25–0.3× a roll, roll 0.4–0.46× a yaw.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct Coupling {
+    /// Roll during a pitch manoeuvre.
+    pub pitch_roll: [f64; 2],
+    /// Pitch during a roll manoeuvre.
+    pub roll_pitch: [f64; 2],
+    /// Yaw during a roll manoeuvre (adverse yaw, against the roll).
+    pub roll_yaw: [f64; 2],
+    /// Roll during a yaw manoeuvre (the wing that advances lifts).
+    pub yaw_roll: [f64; 2],
+    /// Phase lag of the coupled motion behind the driven one, degrees.
+    pub lag_deg: [f64; 2],
+}
+
+impl Default for Coupling {
+    fn default() -> Self {
+        Coupling {
+            pitch_roll: [0.0, 0.0],
+            roll_pitch: [0.0, 0.0],
+            roll_yaw: [0.0, 0.0],
+            yaw_roll: [0.0, 0.0],
+            lag_deg: [0.0, 0.0],
+        }
+    }
 }
 
 /// Where the calibration boxes sit in the flight.
@@ -235,6 +273,8 @@ impl Default for Calibration {
             clover_leaf: false,
             lead_in_s: [20.0, 20.0],
             pause_s: [8.0, 14.0],
+            turn_rate_deg_s: [3.0, 3.0],
+            coupling: Coupling::default(),
         }
     }
 }
@@ -624,6 +664,31 @@ fn check_flight_plan(raw: &RawScenario) -> std::result::Result<(), String> {
                 "[calibration] {name} = {range:?}: give [shortest, longest] in seconds, 0 ≤ shortest ≤ longest"
             ));
         }
+    }
+    let rates = box_.turn_rate_deg_s;
+    if !(rates[0] >= 0.5 && rates[0] <= rates[1] && rates[1] <= 10.0) {
+        return Err(format!(
+            "[calibration] turn_rate_deg_s = {rates:?}: give [slowest, fastest] between 0.5 and 10 degrees/s"
+        ));
+    }
+    let coupling = &box_.coupling;
+    for (name, range) in [
+        ("pitch_roll", coupling.pitch_roll),
+        ("roll_pitch", coupling.roll_pitch),
+        ("roll_yaw", coupling.roll_yaw),
+        ("yaw_roll", coupling.yaw_roll),
+    ] {
+        if !(range[0] >= 0.0 && range[0] <= range[1] && range[1] <= 1.0) {
+            return Err(format!(
+                "[calibration.coupling] {name} = {range:?}: give [least, most] as fractions of the driven axis's amplitude, 0 ≤ least ≤ most ≤ 1"
+            ));
+        }
+    }
+    let lag = coupling.lag_deg;
+    if !(lag[0] >= -180.0 && lag[0] <= lag[1] && lag[1] <= 180.0) {
+        return Err(format!(
+            "[calibration.coupling] lag_deg = {lag:?}: give [least, most] in degrees within ±180"
+        ));
     }
     let speeds = [box_.speed_m_s, raw.survey.speed_m_s];
     if speeds.iter().any(|s| !(*s > 1.0 && *s < 400.0)) {

@@ -9,7 +9,7 @@
 use std::f64::consts::PI;
 
 use crate::simulate::random::Random;
-use crate::simulate::scenario::{parse_omission, parse_weakening, BoxPosition, Scenario};
+use crate::simulate::scenario::{parse_omission, parse_weakening, BoxPosition, Coupling, Scenario};
 use crate::windows::ManoeuvreKind;
 
 /// Where the aircraft is and how it is oriented at one internal sample.
@@ -238,11 +238,23 @@ impl Pilot<'_> {
             ManoeuvreKind::Yaw => box_.yaw_deg,
         };
         let amplitude_deg = nominal * self.random.uniform(0.8, 1.2) * fraction;
+        let coupled = self.coupled_motion(&box_.coupling, kind);
         let t_start_s = self.now();
-        for k in 0..self.samples(cycles as f64 * period_s) {
+        let count = self.samples(cycles as f64 * period_s);
+        // The coupled motion fades in and out over half a period, as the
+        // airframe's response builds and dies away with the input.
+        let fade = (0.5 * period_s / self.dt_s).max(1.0);
+        for k in 0..count {
             self.gust(box_.turbulence_deg);
-            let angle = amplitude_deg * (2.0 * PI * (k + 1) as f64 * self.dt_s / period_s).sin();
-            self.step(heading_deg, kind.attitude_offset(angle), box_.speed_m_s);
+            let phase = 2.0 * PI * (k + 1) as f64 * self.dt_s / period_s;
+            let angle = amplitude_deg * phase.sin();
+            let mut offset = kind.attitude_offset(angle);
+            let edge = ((k + 1).min(count - k) as f64 / fade).min(1.0);
+            let taper = 0.5 - 0.5 * (PI * edge).cos();
+            for (axis, (share, lag)) in coupled.iter().enumerate() {
+                offset[axis] += share * amplitude_deg * taper * (phase - lag).sin();
+            }
+            self.step(heading_deg, offset, box_.speed_m_s);
         }
         self.path.manoeuvres.push(FlownManoeuvre {
             kind,
@@ -253,6 +265,28 @@ impl Pilot<'_> {
             amplitude_deg,
             period_s,
         });
+    }
+
+    /// The other axes' motion during a `kind` manoeuvre: per axis (roll,
+    /// pitch, yaw) its signed share of the driven amplitude and its phase
+    /// lag, radians. Adverse yaw opposes the roll; the roll in a yaw follows
+    /// it. Nothing is drawn where the coupling's ranges are zero, so plans
+    /// without coupling fly as before.
+    fn coupled_motion(&mut self, coupling: &Coupling, kind: ManoeuvreKind) -> [(f64, f64); 3] {
+        let mut shares = [(0.0, 0.0); 3];
+        let drawn: &[(usize, [f64; 2], f64)] = match kind {
+            ManoeuvreKind::Pitch => &[(0, coupling.pitch_roll, 1.0)],
+            ManoeuvreKind::Roll => &[(1, coupling.roll_pitch, 1.0), (2, coupling.roll_yaw, -1.0)],
+            ManoeuvreKind::Yaw => &[(0, coupling.yaw_roll, 1.0)],
+        };
+        for &(axis, range, sign) in drawn {
+            if range[1] > 0.0 {
+                let share = sign * self.draw(range);
+                let lag = self.draw(coupling.lag_deg).to_radians();
+                shares[axis] = (share, lag);
+            }
+        }
+        shares
     }
 
     /// A draw from `range`, or its value when it is a single one (no draw,
@@ -312,7 +346,8 @@ impl Pilot<'_> {
                     true => change - 360.0 * change.signum(),
                     false => change,
                 };
-                self.turn_by(heading, change, 3.0, box_.speed_m_s, box_.turbulence_deg);
+                let rate = self.draw(box_.turn_rate_deg_s);
+                self.turn_by(heading, change, rate, box_.speed_m_s, box_.turbulence_deg);
             }
         }
         self.wander.1 = 0.0;
