@@ -269,6 +269,36 @@ impl Detection {
         })
     }
 
+    /// What was found on the calibration lines `spans` (line, start, end)
+    /// only: the manoeuvres within one, and the legs and boxes that reach
+    /// into one; a note says which lines gave how many.
+    pub fn on_lines(mut self, spans: &[(f64, f64, f64)]) -> Detection {
+        let inside = |start: f64, end: f64| spans.iter().any(|(_, a, b)| start >= *a && end <= *b);
+        let touches = |start: f64, end: f64| spans.iter().any(|(_, a, b)| start <= *b && end >= *a);
+        self.manoeuvres.retain(|m| inside(m.t_start, m.t_end));
+        self.legs.retain(|leg| touches(leg.t_start, leg.t_end));
+        self.boxes.retain(|b| touches(b.t_start, b.t_end));
+        let mut lines: Vec<f64> = spans.iter().map(|s| s.0).collect();
+        lines.dedup();
+        let counts: Vec<String> = (lines.iter())
+            .map(|line| {
+                let on_line = (self.manoeuvres.iter())
+                    .filter(|m| {
+                        spans
+                            .iter()
+                            .any(|(l, a, b)| l == line && m.t_start >= *a && m.t_end <= *b)
+                    })
+                    .count();
+                format!("{on_line} on line {line}")
+            })
+            .collect();
+        self.notes.push(format!(
+            "calibration data by line: manoeuvres detected {}",
+            counts.join(", ")
+        ));
+        self
+    }
+
     /// The manoeuvres as calibration windows, each with `margin_s` of level
     /// flight on both sides.
     pub fn calibration_windows(&self, margin_s: f64) -> Vec<CalibrationWindow> {

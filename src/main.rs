@@ -185,6 +185,11 @@ struct CompensateArgs {
     /// DETECT.json file whose manoeuvres are the calibration windows.
     #[arg(long)]
     windows_file: Option<PathBuf>,
+    /// Calibration data by line number (the line column), comma-separated,
+    /// e.g. 1002.20,1002.21: the manoeuvres detected on those lines (or,
+    /// where none is, each line's whole span) are the calibration windows.
+    #[arg(long, conflicts_with_all = ["windows", "windows_file"])]
+    lines: Option<String>,
     /// Fix the ridge parameter instead of choosing it by PRESS.
     #[arg(long, allow_negative_numbers = true)]
     lambda: Option<f64>,
@@ -487,6 +492,12 @@ fn compensate(args: CompensateArgs) -> anyhow::Result<()> {
         vector: args.vector,
         channels: args.channels,
         windows,
+        lines: args
+            .lines
+            .as_deref()
+            .map(magcomp::windows::parse_lines)
+            .transpose()?
+            .unwrap_or_default(),
         windows_detected_on,
         ..FlightJob::new(args.flight.clone())
     };

@@ -388,7 +388,7 @@ fn applied_findings(diagnosis: &crate::diagnose::Diagnosis) -> Vec<AppliedFindin
     diagnosis
         .findings
         .iter()
-        .filter(|f| f.effect.kind() != EffectKind::Unexplained)
+        .filter(|f| f.effect.kind() != EffectKind::Unexplained && f.not_applied.is_none())
         .filter(|f| f.effect.kind() == EffectKind::VectorCalibration || changed(&f.channel))
         .filter(|f| f.effect.kind() != EffectKind::VectorCalibration || !calibrated_channels.is_empty())
         .map(|f| AppliedFinding {
@@ -445,15 +445,7 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
     let raw_log = screened.log_or(&recorded);
     let sensor = choose_vector_sensor(raw_log, job.vector.as_deref())?;
     let channels = choose_channels(raw_log, job.channels.as_deref())?;
-    let detected = job
-        .windows
-        .is_empty()
-        .then(|| detect_manoeuvres(raw_log, &options.detect))
-        .transpose()?;
-    let (windows, headings_note) = match &detected {
-        Some(detection) => (detection.calibration_windows(options.detect.window_margin_s), None),
-        None => crate::windows::headings_from_ins(raw_log, &job.windows, options.detect.heading_tolerance_deg),
-    };
+    let (windows, detected, headings_note) = calibration_windows(raw_log, job, options)?;
     // The fit (and everything after it) sees the calibrated fluxgate; the
     // compensated file keeps the recorded columns.
     let calibration =
@@ -462,7 +454,7 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
     let log = calibrated.as_ref().unwrap_or(raw_log);
     let ExtensionsPlan {
         models: plan,
-        diagnosis,
+        mut diagnosis,
         mut warnings,
     } = augmentation_plan(
         job,
@@ -473,6 +465,10 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
         options,
         calibration.is_some(),
     )?;
+    let (plan, departures) = match diagnosis.as_mut() {
+        Some(diagnosis) => evidence_rule(log, &sensor, &windows, plan, diagnosis, options, &mut warnings)?,
+        None => (plan, BTreeMap::new()),
+    };
     warnings.splice(0..0, screened.warnings(&recorded));
     if let Some((path, detected_on)) = &job.windows_detected_on {
         warnings.extend(crate::windows::other_flight_warning(path, detected_on, &recorded)?);
@@ -529,6 +525,11 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
     drop(stores);
     let mut compensation = crate::compensate::compensate_with(log, &models, options.level, &shared)?;
     let stores = StorePool::new();
+    let boxes: Vec<(f64, f64)> = match &detected {
+        Some(detection) => detection.boxes.iter().map(|b| (b.t_start, b.t_end)).collect(),
+        None => window_hulls(&windows),
+    };
+    let transfer_notes = std::sync::Mutex::new(Vec::new());
     let quality: Vec<ChannelQuality> = models
         .par_iter()
         .zip(compensation.channels.par_iter_mut())
@@ -551,14 +552,16 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
                 (&options.fit, &options.transfer),
                 &stores,
             )?;
+            let (transfers, notes) =
+                crate::quality::transfer::box_transfer(log, &sensor, model, &windows, &boxes, &options.fit, &stores)?;
+            quality.box_transfer = transfers;
+            if let Ok(mut all) = transfer_notes.lock() {
+                all.extend(notes);
+            }
             Ok(quality)
         })
         .collect::<Result<_>>()?;
     drop(shared);
-    let boxes: Vec<(f64, f64)> = match &detected {
-        Some(detection) => detection.boxes.iter().map(|b| (b.t_start, b.t_end)).collect(),
-        None => window_hulls(&windows),
-    };
     // The vector and the gradients read the compensated channels and not
     // each other: they run side by side.
     let (vector, gradients) = rayon::join(
@@ -584,6 +587,10 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
     compensation.gradients = gradients.compensated;
     let added_columns = added_column_names(log, compensated, &compensation)?;
     let mut notes = renaming_notes(&channels, &added_columns);
+    // In channel order, whatever order the threads finished in.
+    let mut transfer_notes = transfer_notes.into_inner().unwrap_or_default();
+    transfer_notes.sort();
+    notes.extend(transfer_notes);
     notes.extend(headings_note);
     notes.extend(calibration.iter().map(|c| c.summary()));
     notes.extend(models.iter().filter_map(estimator_table_gap));
@@ -618,6 +625,20 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
     if let Some(detection) = &detected {
         notes.extend(detection_notes(detection));
         warnings.extend(detection_warnings(detection));
+    }
+    let mut quality = quality;
+    for q in &mut quality {
+        q.survey_departure_from_plain_nt = departures.get(&q.channel).copied();
+        if let Some((departure, stated)) = q.unchecked_departure() {
+            warnings.push(format!(
+                "{}: the diagnosed findings move the survey {departure:.4} nT RMS from plain Tolles-Lawson, more than {}: the verdict is not a plain pass; compare with a plain run (--plain) before using this channel",
+                q.channel,
+                match stated {
+                    Some(sigma) => format!("its stated uncertainty ({sigma:.4} nT)"),
+                    None => "anything its uncertainty states (none is stated)".into(),
+                }
+            ));
+        }
     }
     let next_step = next_step(options.diagnose.apply, job.diagnosis.is_some(), diagnosis.is_some());
     for ((q, model), channel) in quality.iter().zip(&models).zip(&compensation.channels) {
@@ -747,8 +768,8 @@ fn augmentation_plan(
             diagnosis.flight = Some(crate::flight_identity::FlightIdentity::of(raw_log)?);
             Ok(ExtensionsPlan {
                 models: diagnosis.models(),
+                warnings: unexplained_warnings(&diagnosis),
                 diagnosis: Some(diagnosis),
-                warnings: Vec::new(),
             })
         }
         // Under "auto" a flight that cannot be diagnosed is fitted plain,
@@ -758,6 +779,95 @@ fn augmentation_plan(
         )])),
         Err(error) => Err(error),
     }
+}
+
+/// Applies the evidence rule ([`crate::diagnose::evidence`]) to a fresh
+/// diagnosis's plan: a channel whose findings would act on the survey
+/// beyond what the calibration saw is fitted plain under `apply = "auto"`
+/// (its findings marked not applied, with the reason, and a warning), and
+/// warned of under `"always"`. Returns the plan and, per channel whose
+/// findings are applied, how far they move the survey from plain
+/// Tolles-Lawson (nT RMS).
+fn evidence_rule(
+    log: &FlightLog,
+    sensor: &VectorSensor,
+    windows: &[crate::windows::CalibrationWindow],
+    mut plan: BTreeMap<String, Extensions>,
+    diagnosis: &mut crate::diagnose::Diagnosis,
+    options: &Settings,
+    warnings: &mut Vec<String>,
+) -> Result<(BTreeMap<String, Extensions>, BTreeMap<String, f64>)> {
+    use crate::diagnose::evidence::{departures, plain_of};
+    let measured = departures(log, sensor, windows, &plan, (options.terms, &options.fit))?;
+    let mut applied = BTreeMap::new();
+    for (channel, departure) in measured {
+        let Some(departure) = departure else {
+            continue;
+        };
+        if departure.holds() {
+            applied.insert(channel, departure.survey_departure_nt);
+            continue;
+        }
+        let reason = departure.reason();
+        let named: Vec<String> = (diagnosis.findings.iter())
+            .filter(|f| f.channel == channel && applies_to_model(f.effect.kind()))
+            .map(|f| {
+                format!(
+                    "{}{}",
+                    f.effect,
+                    f.source.as_ref().map(|s| format!(" from {s}")).unwrap_or_default()
+                )
+            })
+            .collect();
+        if options.diagnose.apply == crate::diagnose::ApplyDiagnosis::Always {
+            warnings.push(format!(
+                "{channel}: the diagnosis's {} applied as [diagnose] apply = \"always\" asks, though {}",
+                named.join(", "),
+                reason.replace(", so the channel is compensated with plain Tolles-Lawson", "")
+            ));
+            applied.insert(channel, departure.survey_departure_nt);
+            continue;
+        }
+        for finding in
+            (diagnosis.findings.iter_mut()).filter(|f| f.channel == channel && applies_to_model(f.effect.kind()))
+        {
+            finding.not_applied = Some(reason.clone());
+        }
+        if let Some(model) = plan.get_mut(&channel) {
+            *model = plain_of(model);
+        }
+        if let Some(entry) = diagnosis.channels.iter_mut().find(|c| c.channel == channel) {
+            entry.model = plain_of(&entry.model);
+        }
+        warnings.push(format!(
+            "{channel}: the diagnosis's {} not applied: {reason}",
+            named.join(", ")
+        ));
+    }
+    Ok((plan, applied))
+}
+
+/// Whether a finding of `kind` changes a channel's own model (a fluxgate
+/// calibration is the flight's, an `unexplained` residual changes none).
+fn applies_to_model(kind: EffectKind) -> bool {
+    !matches!(kind, EffectKind::Unexplained | EffectKind::VectorCalibration)
+}
+
+/// One warning per channel the diagnosis left with an `unexplained`
+/// residual: its compensation is not to be trusted to the noise level.
+fn unexplained_warnings(diagnosis: &crate::diagnose::Diagnosis) -> Vec<String> {
+    (diagnosis.findings.iter())
+        .filter_map(|f| match &f.effect {
+            crate::diagnose::Effect::Unexplained(u) => Some(format!(
+                "{}: the diagnosis leaves an unexplained residual of {:.4} nT held out, {:.0} times the sensor noise in the band, largest on {}: the compensation of this channel is not good to the noise level; see the diagnosis's unexplained finding",
+                f.channel,
+                f.heldout_rms_after_nt,
+                u.residual_to_noise,
+                f.located.iter().map(|l| l.label.as_str()).collect::<Vec<_>>().join(", ")
+            )),
+            _ => None,
+        })
+        .collect()
 }
 
 /// What a user can do about a failed quality check, given how the flight
@@ -794,6 +904,62 @@ pub fn detection_warnings(detection: &Detection) -> Vec<String> {
     warnings
 }
 
+/// The windows a flight is calibrated on, with the detection that gave
+/// them and a note on their headings: the windows given; else the
+/// manoeuvres detected (on the calibration lines only, when the job names
+/// lines); else, on lines where none is detected, each line's whole span.
+pub fn calibration_windows(
+    log: &FlightLog,
+    job: &FlightJob,
+    options: &Settings,
+) -> Result<(
+    Vec<crate::windows::CalibrationWindow>,
+    Option<Detection>,
+    Option<String>,
+)> {
+    let tolerance = options.detect.heading_tolerance_deg;
+    if !job.windows.is_empty() {
+        let (windows, note) = crate::windows::headings_from_ins(log, &job.windows, tolerance);
+        return Ok((windows, None, note));
+    }
+    let detection = detect_manoeuvres(log, &options.detect)?;
+    if job.lines.is_empty() {
+        return Ok((
+            detection.calibration_windows(options.detect.window_margin_s),
+            Some(detection),
+            None,
+        ));
+    }
+    let spans = crate::windows::line_spans(log, &job.lines)?;
+    let detection = detection.on_lines(&spans);
+    if !detection.manoeuvres.is_empty() {
+        return Ok((
+            detection.calibration_windows(options.detect.window_margin_s),
+            Some(detection),
+            None,
+        ));
+    }
+    // No manoeuvre seen on the lines: each line's span is a window, its
+    // heading from the INS where it holds one.
+    let whole: Vec<crate::windows::CalibrationWindow> = (spans.iter())
+        .filter(|(_, start, end)| start < end)
+        .map(|(line, start, end)| crate::windows::CalibrationWindow {
+            label: format!("line {line}"),
+            ..crate::windows::CalibrationWindow::new(*start, *end)
+        })
+        .collect();
+    let (windows, note) = crate::windows::headings_from_ins(log, &whole, tolerance);
+    let said = format!(
+        "no calibration manoeuvre was detected on line(s) {}: each line's whole span is a calibration window",
+        job.lines.iter().map(|l| l.to_string()).collect::<Vec<_>>().join(", ")
+    );
+    Ok((
+        windows,
+        None,
+        Some(note.map_or(said.clone(), |n| format!("{said}; {n}"))),
+    ))
+}
+
 /// Diagnoses a flight: its windows (given, or detected), its vector
 /// sensor and channels, then [`crate::diagnose::diagnose`].
 pub fn diagnose_flight(
@@ -804,10 +970,7 @@ pub fn diagnose_flight(
 ) -> Result<crate::diagnose::Diagnosis> {
     let sensor = choose_vector_sensor(log, job.vector.as_deref())?;
     let channels = choose_channels(log, job.channels.as_deref())?;
-    let windows = match job.windows.is_empty() {
-        true => detect_manoeuvres(log, &options.detect)?.calibration_windows(options.detect.window_margin_s),
-        false => crate::windows::headings_from_ins(log, &job.windows, options.detect.heading_tolerance_deg).0,
-    };
+    let (windows, _, _) = calibration_windows(log, job, options)?;
     let mut diagnosis = crate::diagnose::diagnose(
         log,
         &sensor,
@@ -948,6 +1111,12 @@ pub fn summary(result: &FlightResult) -> String {
             text += &format!(
                 "    held-out FOM ({how}): {:.2} nT against {:.2} nT in sample ({:.1}×)\n",
                 check.held_out_fom_nt, check.in_sample_fom_nt, check.ratio
+            );
+        }
+        for transfer in &quality.box_transfer {
+            text += &format!(
+                "    box transfer: fitted on {}, {} residual {:.3} nT (fitted on itself {:.3} nT)\n",
+                transfer.fit, transfer.test, transfer.band_std_nt, transfer.own_fit_band_std_nt
             );
         }
     }

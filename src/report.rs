@@ -502,7 +502,19 @@ fn fom_section(quality: &ChannelQuality, limit_nt: f64) -> String {
 
 fn verdict(quality: &ChannelQuality, limit_nt: f64) -> String {
     let mut lines = Vec::new();
+    let unchecked = quality.unchecked_departure();
+    if let Some((departure, stated)) = unchecked {
+        lines.push(format!(
+            "<span class=\"fail\">CHECK</span> the diagnosed findings move the survey {departure:.4} nT from plain Tolles-Lawson, beyond the stated uncertainty{}: compare with a plain run",
+            stated.map(|s| format!(" ({s:.4} nT)")).unwrap_or_else(|| " (none stated)".into())
+        ));
+    }
     match quality.fom_after_nt {
+        Some(fom) if fom <= limit_nt && unchecked.is_some() => lines.push(format!(
+            "FOM {:.2} → {fom:.2} nT over {} of 12 manoeuvres (limit {limit_nt} nT)",
+            quality.fom_before_nt.unwrap_or(f64::NAN),
+            quality.fom_manoeuvres
+        )),
         Some(fom) if fom <= limit_nt => lines.push(format!(
             "<span class=\"pass\">PASS</span> FOM {:.2} → {fom:.2} nT over {} of 12 manoeuvres (limit {limit_nt} nT)",
             quality.fom_before_nt.unwrap_or(f64::NAN),
@@ -528,6 +540,12 @@ fn verdict(quality: &ChannelQuality, limit_nt: f64) -> String {
         lines.push(format!(
             "<span class=\"{class}\">held-out FOM {:.2} nT</span> against {:.2} nT in sample ({:.1}×, {:?})",
             check.held_out_fom_nt, check.in_sample_fom_nt, check.ratio, check.method
+        ));
+    }
+    for transfer in &quality.box_transfer {
+        lines.push(format!(
+            "box transfer: fitted on {}, {} band-passed residual {:.3} nT (fitted on itself {:.3} nT)",
+            transfer.fit, transfer.test, transfer.band_std_nt, transfer.own_fit_band_std_nt
         ));
     }
     if let Some(error) = &quality.heading_error {

@@ -341,3 +341,74 @@ mod tests {
         assert_eq!(CalibrationWindow::new(5.0, 6.0).rows(&time), 5..5);
     }
 }
+
+/// The calibration data a flight's `lines` select: per line number given,
+/// every run of rows carrying it, as (line, first time, last time).
+///
+/// An error names what is wrong and the fix: a flight without a line
+/// column, or a line number it does not hold (with the lines it does).
+pub fn line_spans(log: &FlightLog, lines: &[f64]) -> Result<Vec<(f64, f64, f64)>> {
+    let source_name = log.source().display().to_string();
+    let flown = log.survey_lines();
+    if flown.is_empty() {
+        return Err(Error::Config {
+            source_name,
+            message: format!(
+                "calibration lines {} were asked for, but the flight has no line column (or no non-zero line number in it): name it in [columns] line, or give the calibration windows by time with --window",
+                list_lines(lines)
+            ),
+        });
+    }
+    let time = log.time_s();
+    let mut spans = Vec::new();
+    for &line in lines {
+        let runs: Vec<(f64, f64, f64)> = (flown.iter())
+            .filter(|(number, _)| same_line(*number, line))
+            .filter_map(|(number, rows)| Some((*number, time[*rows.first()?], time[*rows.last()?])))
+            .collect();
+        if runs.is_empty() {
+            let mut present: Vec<f64> = flown.iter().map(|(number, _)| *number).collect();
+            present.sort_by(f64::total_cmp);
+            present.dedup();
+            return Err(Error::Config {
+                source_name,
+                message: format!(
+                    "calibration line {line} is not in the flight; its lines are {}. Give one of them with --lines (or [[flight]] lines)",
+                    list_lines(&present)
+                ),
+            });
+        }
+        spans.extend(runs);
+    }
+    spans.sort_by(|a, b| a.1.total_cmp(&b.1));
+    Ok(spans)
+}
+
+/// Line numbers as written (1002.2 for 1002.20): equal to a millionth,
+/// since a CSV's text and a float's digits may differ in the last place.
+fn same_line(a: f64, b: f64) -> bool {
+    (a - b).abs() <= 1e-6 * a.abs().max(1.0)
+}
+
+fn list_lines(lines: &[f64]) -> String {
+    let shown: Vec<String> = lines.iter().take(20).map(|l| l.to_string()).collect();
+    match lines.len() > 20 {
+        true => format!("{}, … ({} in all)", shown.join(", "), lines.len()),
+        false => shown.join(", "),
+    }
+}
+
+/// Parses `--lines 1002.20,1002.21` into line numbers.
+pub fn parse_lines(text: &str) -> Result<Vec<f64>> {
+    text.split([',', ';', ' '])
+        .filter(|part| !part.trim().is_empty())
+        .map(|part| {
+            part.trim().parse::<f64>().ok().filter(|v| v.is_finite() && *v != 0.0).ok_or_else(|| Error::Config {
+                source_name: "command line".into(),
+                message: format!(
+                    "--lines '{text}': '{part}' is not a line number; write the calibration lines as numbers separated by commas, e.g. --lines 1002.20,1002.21"
+                ),
+            })
+        })
+        .collect()
+}

@@ -137,10 +137,13 @@ fn the_residual_a_clean_cabin_sensor_leaves_is_not_unexplained() {
             cabin.heldout_rms_second_order_nt < cabin.heldout_rms_final_nt,
             "seed {seed}: {cabin:?}"
         );
+        // The second-order term, where it pays held out, is a finding
+        // like any other: the simulated scalar reads the total field, so
+        // it is real physics here.
         let named: Vec<_> = diagnosis
             .findings
             .iter()
-            .filter(|f| f.effect.name() != "external_field")
+            .filter(|f| !matches!(f.effect.name(), "external_field" | "second_order"))
             .collect();
         assert!(named.is_empty(), "seed {seed}: {named:#?}");
     }
@@ -223,6 +226,60 @@ fn a_current_without_a_rate_effect_is_not_given_one() {
         assert!(
             !finding.effect.parameters().contains_key("kdot_x_nt_s_per_unit"),
             "seed {seed}: {finding:?}"
+        );
+    }
+}
+
+/// A residual far above the noise floor is `unexplained`, spread or not:
+/// the aileron servo's field reaches the tail sensor (2 nT per A on each
+/// axis) but its current is not in the file, so nothing recorded can
+/// explain it, and what it leaves follows every roll rather than standing
+/// out in a few stretches. The diagnosis names it with the residual's
+/// ratio to the noise floor (over 50, the factor the diagnosis states) and where it is
+/// largest (rolls first), and the default run warns. Clean flights of the
+/// same seeds keep no `unexplained` finding.
+#[test]
+fn a_residual_far_above_the_noise_is_unexplained_even_when_spread() {
+    for seed in [521, 522] {
+        let scenario = common::three_sensor_scenario(
+            seed,
+            r#"
+            [[effect]]
+            kind = "aux_coupling"
+            channel = "mag_1_uc"
+            source = "cur_ail"
+            nt_per_unit = [2.0, 2.0, 2.0]
+            "#,
+        );
+        let flight = magcomp::simulate::simulate(&scenario).unwrap();
+        let channels = (flight.log.channels().iter())
+            .filter(|c| c.name != "cur_ail")
+            .cloned()
+            .collect();
+        let log = magcomp::flight_log::FlightLog::new(
+            flight.log.source(),
+            flight.log.time_column(),
+            flight.log.time_s().to_vec(),
+            channels,
+        )
+        .unwrap();
+        let diagnosis = common::diagnose_log(&log);
+        let tail: Vec<_> = diagnosis.findings.iter().filter(|f| f.channel == "mag_1_uc").collect();
+        let unexplained: Vec<_> = tail.iter().filter(|f| f.effect.name() == "unexplained").collect();
+        assert_eq!(unexplained.len(), 1, "seed {seed}: {tail:#?}");
+        let ratio = unexplained[0].effect.parameters()["residual_to_noise"];
+        assert!(ratio > 50.0, "seed {seed}: {ratio}");
+        assert!(
+            unexplained[0].located.iter().any(|l| l.label.contains("roll")),
+            "seed {seed}: {:?}",
+            unexplained[0].located
+        );
+        println!("seed {seed}: {}", unexplained[0].explanation);
+        let clean = diagnose(seed, "");
+        assert!(
+            clean.findings.iter().all(|f| f.effect.name() != "unexplained"),
+            "seed {seed}: {:#?}",
+            clean.findings
         );
     }
 }

@@ -97,10 +97,23 @@ struct ManifestRow {
     date: Option<String>,
     #[serde(default)]
     aircraft: Option<String>,
+    #[serde(default)]
+    lines: Option<ManifestLines>,
+}
+
+/// The calibration lines of a manifest row: numbers, or one string of
+/// them (spaces, `;` or `,` between).
+#[derive(Debug, Clone, Deserialize)]
+#[serde(untagged)]
+enum ManifestLines {
+    /// `[1002.2, 1002.21]`.
+    List(Vec<f64>),
+    /// `"1002.20 1002.21"`.
+    Text(String),
 }
 
 /// The columns a CSV manifest may have.
-const MANIFEST_COLUMNS: [&str; 8] = [
+const MANIFEST_COLUMNS: [&str; 9] = [
     "input",
     "windows",
     "diagnosis",
@@ -109,6 +122,7 @@ const MANIFEST_COLUMNS: [&str; 8] = [
     "channels",
     "date",
     "aircraft",
+    "lines",
 ];
 
 /// The flights `campaign` names, after the `explicit` ones: the manifest's
@@ -224,6 +238,7 @@ fn raw_flight(input: PathBuf) -> RawFlight {
         channels: None,
         windows: Vec::new(),
         windows_file: None,
+        lines: Vec::new(),
         diagnosis: None,
         plan: None,
         date: None,
@@ -336,6 +351,7 @@ fn read_manifest_csv(path: &Path, text: &str) -> Result<Vec<RawFlight>> {
             channels: cell("channels").map(ManifestChannels::Text),
             date: cell("date"),
             aircraft: cell("aircraft"),
+            lines: cell("lines").map(ManifestLines::Text),
         };
         flights.push(from_row(row).map_err(|message| manifest_error(path, line, message))?);
     }
@@ -369,6 +385,15 @@ fn from_row(row: ManifestRow) -> std::result::Result<RawFlight, String> {
         }
         None => {}
     }
+    flight.lines = match row.lines {
+        Some(ManifestLines::List(list)) => list,
+        Some(ManifestLines::Text(text)) => crate::windows::parse_lines(&text).map_err(|_| {
+            format!(
+                "lines = {text:?}: give the calibration line numbers separated by spaces or ';', e.g. 1002.20;1002.21"
+            )
+        })?,
+        None => Vec::new(),
+    };
     flight.diagnosis = row.diagnosis;
     flight.plan = row.plan;
     flight.vector = row.vector;

@@ -206,6 +206,10 @@ pub(crate) struct RawFlight {
     /// A DETECT.json file whose manoeuvres are the calibration windows.
     #[serde(default)]
     pub windows_file: Option<PathBuf>,
+    /// Calibration data by line number (the `line` column): the
+    /// manoeuvres detected on these lines, or their whole spans.
+    #[serde(default)]
+    pub lines: Vec<f64>,
     /// A DIAGNOSIS.json whose models to fit and compensate with.
     #[serde(default)]
     pub diagnosis: Option<PathBuf>,
@@ -291,6 +295,9 @@ pub struct FlightJob {
     pub channels: Option<Vec<String>>,
     /// Calibration windows.
     pub windows: Vec<CalibrationWindow>,
+    /// Calibration lines: the manoeuvres detected on them (or, when none
+    /// is, their whole spans) are the calibration windows.
+    pub lines: Vec<f64>,
     /// The DETECT.json that gave windows, and the flight it was detected
     /// on: windows of another flight are a warning.
     pub windows_detected_on: Option<(PathBuf, crate::flight_identity::FlightIdentity)>,
@@ -323,6 +330,7 @@ impl FlightJob {
             vector: None,
             channels: None,
             windows: Vec::new(),
+            lines: Vec::new(),
             windows_detected_on: None,
             diagnosis: None,
             force_diagnosis: false,
@@ -532,6 +540,15 @@ impl Pipeline {
         let mut windows_files = Vec::new();
         let mut flights = Vec::with_capacity(raw.flights.len());
         for (index, mut flight) in raw.flights.into_iter().enumerate() {
+            if !flight.lines.is_empty() && flight.windows_file.is_some() {
+                return Err(Error::Config {
+                    source_name: source_name.into(),
+                    message: format!(
+                        "[[flight]] input = {:?}: both lines and windows_file are given; give the calibration data one way, by lines or by windows",
+                        flight.input
+                    ),
+                });
+            }
             if let Some(file) = flight.windows_file.take() {
                 windows_files.push(WindowsFile {
                     flight: index,
@@ -650,11 +667,30 @@ fn flight_job(raw: RawFlight, base: &Path, source_name: &str) -> Result<FlightJo
             })
         })
         .transpose()?;
+    if let Some(line) = raw.lines.iter().find(|l| !(l.is_finite() && **l != 0.0)) {
+        return Err(Error::Config {
+            source_name: source_name.into(),
+            message: format!(
+                "[[flight]] input = {:?}: lines holds {line}, which is no line number; give the calibration lines as numbers, e.g. lines = [1002.20]",
+                raw.input
+            ),
+        });
+    }
+    if !raw.lines.is_empty() && (!windows.is_empty() || raw.windows_file.is_some()) {
+        return Err(Error::Config {
+            source_name: source_name.into(),
+            message: format!(
+                "[[flight]] input = {:?}: both lines and windows are given; give the calibration data one way, by lines or by windows",
+                raw.input
+            ),
+        });
+    }
     let input = base.join(raw.input);
     Ok(FlightJob {
         vector: raw.vector,
         channels: raw.channels,
         windows,
+        lines: raw.lines,
         diagnosis: raw.diagnosis.map(|d| base.join(d)),
         plan: raw.plan.map(|p| base.join(p)),
         date,

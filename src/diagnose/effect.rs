@@ -26,6 +26,8 @@ pub enum EffectKind {
     EddyTimeConstant,
     /// The fluxgate's scale, non-orthogonality and offsets.
     VectorCalibration,
+    /// The aircraft field's second-order part of the total field.
+    SecondOrder,
     /// Structured residual nothing in the library explains.
     Unexplained,
 }
@@ -39,6 +41,7 @@ impl EffectKind {
             EffectKind::ExternalField => "external_field",
             EffectKind::EddyTimeConstant => "eddy_time_constant",
             EffectKind::VectorCalibration => "vector_calibration",
+            EffectKind::SecondOrder => "second_order",
             EffectKind::Unexplained => "unexplained",
         }
     }
@@ -63,6 +66,8 @@ pub enum Effect {
     EddyTimeConstant(EddyTimeConstant),
     /// `vector_calibration`.
     VectorCalibration(FluxgateErrors),
+    /// `second_order`.
+    SecondOrder(SecondOrder),
     /// `unexplained`.
     Unexplained(Unexplained),
 }
@@ -114,6 +119,15 @@ pub struct FluxgateErrors {
     pub non_orthogonality_deg: [f64; 3],
 }
 
+/// The total field's second-order term $|F_\perp|^2 / 2|B|$: the
+/// aircraft field across the Earth's, computed from the fitted permanent
+/// and induced coefficients, so it adds no coefficient of its own.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SecondOrder {
+    /// RMS of the term over the calibration windows, nT.
+    pub term_rms_nt: f64,
+}
+
 /// What the localisation found of a residual nothing explains.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Unexplained {
@@ -121,6 +135,8 @@ pub struct Unexplained {
     pub structured_energy_share: f64,
     /// The sensor's noise floor in the calibration band, nT.
     pub noise_floor_nt: f64,
+    /// The held-out residual over that noise floor.
+    pub residual_to_noise: f64,
 }
 
 const AXES: [&str; 3] = ["x", "y", "z"];
@@ -134,6 +150,7 @@ impl Effect {
             Effect::ExternalField(_) => EffectKind::ExternalField,
             Effect::EddyTimeConstant(_) => EffectKind::EddyTimeConstant,
             Effect::VectorCalibration(_) => EffectKind::VectorCalibration,
+            Effect::SecondOrder(_) => EffectKind::SecondOrder,
             Effect::Unexplained(_) => EffectKind::Unexplained,
         }
     }
@@ -146,7 +163,8 @@ impl Effect {
     /// The parameters under DIAGNOSIS.json's names, units in each name:
     /// `lag_s`; `k_x_nt_per_unit` … and `kdot_x_nt_s_per_unit` …; `gain`;
     /// `tau_s`; `scale_x` …, `offset_x_nt` …, `non_orthogonality_xy_deg` …;
-    /// `structured_energy_share`, `noise_floor_nt`.
+    /// `term_rms_nt`; `structured_energy_share`, `noise_floor_nt`,
+    /// `residual_to_noise`.
     pub fn parameters(&self) -> BTreeMap<String, f64> {
         let mut named = BTreeMap::new();
         let axes = |pattern: &str, values: [f64; 3], named: &mut BTreeMap<String, f64>| {
@@ -179,9 +197,13 @@ impl Effect {
                     named.insert(format!("non_orthogonality_{pair}_deg"), angle);
                 }
             }
+            Effect::SecondOrder(p) => {
+                named.insert("term_rms_nt".into(), p.term_rms_nt);
+            }
             Effect::Unexplained(p) => {
                 named.insert("structured_energy_share".into(), p.structured_energy_share);
                 named.insert("noise_floor_nt".into(), p.noise_floor_nt);
+                named.insert("residual_to_noise".into(), p.residual_to_noise);
             }
         }
         named
@@ -233,6 +255,7 @@ mod tests {
             located: Vec::new(),
             heldout_rms_before_nt: 0.5,
             heldout_rms_after_nt: 0.125,
+            not_applied: None,
         };
         assert_eq!(
             serde_json::to_string(&finding).unwrap(),

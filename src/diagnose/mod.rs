@@ -80,6 +80,7 @@
 //! residual is.
 
 mod effect;
+pub mod evidence;
 mod finding;
 mod fluxgate;
 mod heldout;
@@ -94,7 +95,8 @@ use search::*;
 use shifted::*;
 
 pub use effect::{
-    AuxCoupling, EddyTimeConstant, Effect, EffectKind, ExternalField, FluxgateErrors, SensorLag, Unexplained,
+    AuxCoupling, EddyTimeConstant, Effect, EffectKind, ExternalField, FluxgateErrors, SecondOrder, SensorLag,
+    Unexplained,
 };
 
 use rayon::prelude::*;
@@ -220,12 +222,16 @@ pub struct Finding {
     pub heldout_rms_before_nt: f64,
     /// Held-out RMS after, nT.
     pub heldout_rms_after_nt: f64,
+    /// Why the finding, though it passed the held-out test, was not
+    /// applied to the compensation (the evidence rule,
+    /// [`evidence`]); `None` when applied or never meant to be.
+    pub not_applied: Option<String>,
 }
 
 impl Serialize for Finding {
     fn serialize<S: serde::Serializer>(&self, serializer: S) -> std::result::Result<S::Ok, S::Error> {
         use serde::ser::SerializeStruct;
-        let mut finding = serializer.serialize_struct("Finding", 8)?;
+        let mut finding = serializer.serialize_struct("Finding", 10)?;
         finding.serialize_field("effect", &self.effect.kind())?;
         finding.serialize_field("channel", &self.channel)?;
         match &self.source {
@@ -237,6 +243,16 @@ impl Serialize for Finding {
         finding.serialize_field("located", &self.located)?;
         finding.serialize_field("heldout_rms_before_nt", &self.heldout_rms_before_nt)?;
         finding.serialize_field("heldout_rms_after_nt", &self.heldout_rms_after_nt)?;
+        match &self.not_applied {
+            Some(reason) => {
+                finding.serialize_field("applied", &false)?;
+                finding.serialize_field("reason", reason)?;
+            }
+            None => {
+                finding.skip_field("applied")?;
+                finding.skip_field("reason")?;
+            }
+        }
         finding.end()
     }
 }
@@ -445,6 +461,8 @@ enum Extension {
     External {
         source: String,
     },
+    /// The total field's second-order term.
+    SecondOrder,
 }
 
 /// The model under test: plain Tolles-Lawson with the physics accepted

@@ -32,7 +32,10 @@ pub(super) const SOURCE_SHIFTS: usize = 9;
 pub(super) fn beats_shifted_sources(problem: &Problem, model: &Model, extension: &Extension, rms_nt: f64) -> bool {
     let (tested, with_rate) = match extension {
         // A rate refines a coupling whose timing already stood this test.
-        Extension::Lag { .. } | Extension::Eddy { .. } | Extension::CouplingRate { .. } => return true,
+        // The second-order term has no source column to shift.
+        Extension::Lag { .. } | Extension::Eddy { .. } | Extension::CouplingRate { .. } | Extension::SecondOrder => {
+            return true
+        }
         Extension::Coupling { source } | Extension::External { source } => (source, false),
         Extension::CouplingWithRate { source } => (source, true),
     };

@@ -172,6 +172,13 @@ pub struct ChannelQuality {
     pub heading_error: Option<crate::quality::heading_error::HeadingError>,
     /// In-sample against held-out FOM (second box, or leave one heading out).
     pub transfer: Option<TransferCheck>,
+    /// Each calibration box's model on every other box of the flight.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub box_transfer: Vec<crate::quality::transfer::BoxTransfer>,
+    /// How far the diagnosed findings move the survey from plain
+    /// Tolles-Lawson, RMS, nT; only for a channel fitted with findings.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub survey_departure_from_plain_nt: Option<f64>,
     /// How uncertain the compensation is away from the calibration, by the
     /// blocked jackknife over the windows (three windows or more).
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -266,6 +273,18 @@ pub fn uncertainty_of(log: &FlightLog, model: &FittedModel, prediction: &Predict
 pub const WHITE_NOISE_PER_FOURTH_DIFFERENCE: f64 = 1.912_365_774_935_03;
 
 impl ChannelQuality {
+    /// The findings' departure from plain Tolles-Lawson on the survey when
+    /// it exceeds the stated uncertainty outside the calibration (or a
+    /// hundredth of a nT where none is stated): (departure, stated sigma).
+    /// Such a channel gets no plain pass: its output rests on findings
+    /// whose effect on the survey nothing checked to that level.
+    pub fn unchecked_departure(&self) -> Option<(f64, Option<f64>)> {
+        let departure = self.survey_departure_from_plain_nt?;
+        let stated = self.uncertainty.as_ref().map(|u| u.outside_calibration_sigma_nt);
+        let bound = stated.unwrap_or(0.0).max(crate::diagnose::evidence::SURVEY_FLOOR_NT);
+        (departure > bound).then_some((departure, stated))
+    }
+
     /// The compensated channel's noise as one sigma of white noise, nT:
     /// its fourth-difference RMS over the survey lines (over the whole
     /// flight without lines) times [`WHITE_NOISE_PER_FOURTH_DIFFERENCE`].
@@ -318,6 +337,8 @@ pub fn assess_quality(log: &FlightLog, model: &FittedModel, compensated: &Compen
         fom_manoeuvres: fom.map_or(0, |f| f.2),
         fom_table: table,
         transfer: None,
+        box_transfer: Vec::new(),
+        survey_departure_from_plain_nt: None,
         uncertainty: None,
         heading_error: crate::quality::heading_error::heading_error(log, scalar, &compensated.values, 25.0),
         windows,

@@ -169,3 +169,89 @@ mod tests {
         assert_eq!(boxes.iter().map(Vec::len).collect::<Vec<_>>(), vec![12, 6]);
     }
 }
+
+/// One calibration box's model on another box of the same flight
+/// (quality JSON `box_transfer`): how the calibration carries to flight it
+/// did not see, with no truth needed.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct BoxTransfer {
+    /// The box the model was fitted on ("box 1", in flying order).
+    pub fit: String,
+    /// The box it was measured on.
+    pub test: String,
+    /// Standard deviation of the band-passed residual on `test`'s
+    /// calibration windows, nT.
+    pub band_std_nt: f64,
+    /// The same on `test` fitted on `test` itself, nT: what the model
+    /// could do there had it seen it.
+    pub own_fit_band_std_nt: f64,
+}
+
+/// Every box's model of `model`'s kind measured on every other box:
+/// `boxes` are the calibration boxes' time spans (detected, the
+/// calibration lines, or the hulls of given windows), and each window
+/// belongs to the box its middle lies in. A box with fewer than three
+/// windows neither fits nor tests (`None` for a flight without two such
+/// boxes); a fit that fails is named in the returned notes.
+pub fn box_transfer(
+    log: &FlightLog,
+    sensor: &VectorSensor,
+    model: &FittedModel,
+    windows: &[CalibrationWindow],
+    boxes: &[(f64, f64)],
+    options: &FitOptions,
+    stores: &StorePool,
+) -> Result<(Vec<BoxTransfer>, Vec<String>)> {
+    let grouped: Vec<(usize, Vec<CalibrationWindow>)> = (boxes.iter().enumerate())
+        .map(|(k, (start, end))| {
+            let inside = (windows.iter())
+                .filter(|w| (*start..=*end).contains(&(0.5 * (w.t_start + w.t_end))))
+                .cloned()
+                .collect::<Vec<_>>();
+            (k, inside)
+        })
+        .filter(|(_, inside)| inside.len() >= 3)
+        .collect();
+    if grouped.len() < 2 {
+        return Ok((Vec::new(), Vec::new()));
+    }
+    let prepared = Prepared::new(log, sensor, &model.channel, &model.spec)?;
+    let mut notes = Vec::new();
+    let fits: Vec<Option<FittedModel>> = (grouped.iter())
+        .map(|(k, inside)| match prepared.fit(inside, options, stores) {
+            Ok(fitted) => Some(fitted),
+            Err(error) => {
+                notes.push(format!(
+                    "{}: no box transfer from box {}: {error}",
+                    model.channel,
+                    k + 1
+                ));
+                None
+            }
+        })
+        .collect();
+    let band_std = |fits: &[WindowFit]| {
+        let values: Vec<f64> = fits.iter().flat_map(|w| w.band_after_nt.iter().copied()).collect();
+        let mean = values.iter().sum::<f64>() / values.len().max(1) as f64;
+        (values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / values.len().max(1) as f64).sqrt()
+    };
+    let mut transfers = Vec::new();
+    for (i, (fit_box, _)) in grouped.iter().enumerate() {
+        for (j, (test_box, test_windows)) in grouped.iter().enumerate() {
+            let (Some(trained), Some(own)) = (&fits[i], &fits[j]) else {
+                continue;
+            };
+            if i == j {
+                continue;
+            }
+            let held = prepared.held_out(trained, test_windows, options, stores)?;
+            transfers.push(BoxTransfer {
+                fit: format!("box {}", fit_box + 1),
+                test: format!("box {}", test_box + 1),
+                band_std_nt: band_std(&held),
+                own_fit_band_std_nt: band_std(&own.windows),
+            });
+        }
+    }
+    Ok((transfers, notes))
+}

@@ -231,6 +231,7 @@ fn field_sizes(location: SensorLocation) -> (f64, f64, f64) {
         SensorLocation::Tail => (3.0, 6e-5, 4e-5),
         SensorLocation::Wing => (25.0, 4e-4, 2e-4),
         SensorLocation::Cabin => (250.0, 4e-3, 1e-3),
+        SensorLocation::Nose => (10.0, 2e-4, 1e-4),
     }
 }
 

@@ -203,6 +203,10 @@ pub struct Calibration {
     pub turn_rate_deg_s: [f64; 2],
     /// The airframe's cross-axis response to the pilot's input.
     pub coupling: Coupling,
+    /// The line number each box carries in the line column, in flying
+    /// order (SGL files number their calibration lines, e.g. 1002.20);
+    /// boxes beyond the list carry 0, as off-line flight does.
+    pub line_numbers: Vec<f64>,
 }
 
 /// `[calibration.coupling]`: the motion of the other axes during a
@@ -275,6 +279,7 @@ impl Default for Calibration {
             pause_s: [8.0, 14.0],
             turn_rate_deg_s: [3.0, 3.0],
             coupling: Coupling::default(),
+            line_numbers: Vec::new(),
         }
     }
 }
@@ -368,6 +373,8 @@ pub enum SensorLocation {
     Wing,
     /// Inside the cabin: hundreds of nT.
     Cabin,
+    /// On a nose boom, ahead of the engines: about ten nT.
+    Nose,
 }
 
 /// `[[scalar]]`: one scalar magnetometer.
@@ -426,6 +433,7 @@ impl ScalarSensor {
                 SensorLocation::Tail => [-9.0, 0.0, -0.5],
                 SensorLocation::Wing => [-1.0, 7.0, 0.0],
                 SensorLocation::Cabin => [1.5, 0.3, 0.2],
+                SensorLocation::Nose => [7.0, 0.0, 0.3],
             },
             aircraft: None,
         }
@@ -664,6 +672,11 @@ fn check_flight_plan(raw: &RawScenario) -> std::result::Result<(), String> {
                 "[calibration] {name} = {range:?}: give [shortest, longest] in seconds, 0 ≤ shortest ≤ longest"
             ));
         }
+    }
+    if let Some(number) = box_.line_numbers.iter().find(|n| !n.is_finite() || **n < 0.0) {
+        return Err(format!(
+            "[calibration] line_numbers holds {number}: give each box's line number as a non-negative number (0 for none)"
+        ));
     }
     let rates = box_.turn_rate_deg_s;
     if !(rates[0] >= 0.5 && rates[0] <= rates[1] && rates[1] <= 10.0) {

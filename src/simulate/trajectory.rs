@@ -121,7 +121,9 @@ pub fn fly(scenario: &Scenario, random: &mut Random) -> FlightPath {
     }
     let continues = box_.continue_into_survey && lines_before < lines && box_.repeats > 0;
     for repeat in 0..box_.repeats {
+        pilot.pose.line = box_.line_numbers.get(repeat).copied().unwrap_or(0.0);
         pilot.fly_box(scenario, !(continues && repeat + 1 == box_.repeats));
+        pilot.pose.line = 0.0;
     }
     if lines_before < lines {
         let heading = pilot.pose.yaw_deg.rem_euclid(360.0);

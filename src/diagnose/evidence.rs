@@ -1,0 +1,181 @@
+//! The evidence rule: a finding that passed the held-out test on the
+//! calibration is applied to the survey by default only when what it does
+//! there stays within what the calibration saw it do.
+//!
+//! The held-out test judges a finding on the box alone. A source column
+//! that stands in for something on the box (a servo current that follows
+//! the rolls) can pass it with a coupling that, on the survey, multiplies
+//! a level the box never saw: on a clean simulated flight such a coupling
+//! lowered the held-out RMS by 30 % and moved the survey's level by
+//! 4,400 nT. So before the diagnosed model is applied its prediction is
+//! set against plain Tolles-Lawson's over the whole flight: the difference
+//! d between them is what the findings add. Over the calibration windows d
+//! swings by its spread about its median; on the survey lines (the rows
+//! outside the calibration when the file has no line column) it departs
+//! from that median by its survey RMS. The findings are applied when
+//!
+//! survey departure ≤ [`SURVEY_FACTOR`] × calibration spread + [`SURVEY_FLOOR_NT`].
+//!
+//! Physics the calibration measured acts on the survey no harder than in
+//! the manoeuvres, which drive the largest rates and attitudes: a lag or
+//! an eddy τ (the field's rate of change), the second-order term (the
+//! heading), a coupling whose source ranges over the survey as over the
+//! box. A departure three times the calibration's spread is extrapolation
+//! beyond anything the box tested; the floor keeps differences below a
+//! hundredth of a nT, under any survey's noise, from deciding anything.
+//! Findings that fail are reported with `"applied": false` and the figures
+//! as the reason, the channel is fitted plain, and the run warns.
+
+use std::collections::BTreeMap;
+
+use crate::error::Result;
+use crate::flight_log::{FlightLog, VectorSensor};
+use crate::model::{fit, Extensions, FitOptions, ModelSpec};
+use crate::numerics::stacked::StorePool;
+use crate::tolles_lawson::TermSet;
+use crate::windows::CalibrationWindow;
+
+/// How far the survey departure may exceed the calibration's spread.
+pub const SURVEY_FACTOR: f64 = 3.0;
+
+/// Departures below this are applied whatever the calibration's spread, nT.
+pub const SURVEY_FLOOR_NT: f64 = 0.01;
+
+/// What a channel's findings add to its compensation, on the calibration
+/// and on the survey.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Departure {
+    /// RMS of the diagnosed model's prediction less plain Tolles-Lawson's
+    /// about its median over the calibration windows, nT.
+    pub calibration_spread_nt: f64,
+    /// RMS of the same difference on the survey about that median, nT.
+    pub survey_departure_nt: f64,
+    /// Survey rows it was measured on.
+    pub survey_rows: usize,
+}
+
+impl Departure {
+    /// Whether the findings stay within what the calibration saw.
+    pub fn holds(&self) -> bool {
+        self.survey_departure_nt <= SURVEY_FACTOR * self.calibration_spread_nt + SURVEY_FLOOR_NT
+    }
+
+    /// The reason a finding is not applied, in words.
+    pub fn reason(&self) -> String {
+        format!(
+            "on the survey it would move the compensation by {:.4} nT RMS, more than {SURVEY_FACTOR} times what it does over the calibration ({:.4} nT) plus {SURVEY_FLOOR_NT} nT: it would act beyond anything the box tested, so the channel is compensated with plain Tolles-Lawson",
+            self.survey_departure_nt, self.calibration_spread_nt
+        )
+    }
+}
+
+/// `d = diagnosed − plain` over the calibration windows and the survey
+/// rows of `log` (its survey lines; without any, the rows outside every
+/// window). `None` without finite calibration or survey rows.
+pub fn departure(
+    log: &FlightLog,
+    windows: &[CalibrationWindow],
+    plain: &[f64],
+    diagnosed: &[f64],
+) -> Option<Departure> {
+    let time = log.time_s();
+    let mut in_windows = vec![false; log.len()];
+    for window in windows {
+        in_windows[window.rows(time)].fill(true);
+    }
+    let lines = log.survey_lines();
+    let survey: Vec<usize> = match lines.is_empty() {
+        true => (0..log.len()).filter(|row| !in_windows[*row]).collect(),
+        false => lines
+            .into_iter()
+            .flat_map(|(_, rows)| rows)
+            .filter(|row| !in_windows[*row])
+            .collect(),
+    };
+    let difference = |row: usize| diagnosed[row] - plain[row];
+    let mut box_values: Vec<f64> = (0..log.len())
+        .filter(|row| in_windows[*row])
+        .map(difference)
+        .filter(|d| d.is_finite())
+        .collect();
+    let survey_values: Vec<f64> = survey.into_iter().map(difference).filter(|d| d.is_finite()).collect();
+    if box_values.is_empty() || survey_values.is_empty() {
+        return None;
+    }
+    let rms_about = |values: &[f64], centre: f64| {
+        (values.iter().map(|v| (v - centre).powi(2)).sum::<f64>() / values.len() as f64).sqrt()
+    };
+    let middle = box_values.len() / 2;
+    let centre = *box_values.select_nth_unstable_by(middle, f64::total_cmp).1;
+    Some(Departure {
+        calibration_spread_nt: rms_about(&box_values, centre),
+        survey_departure_nt: rms_about(&survey_values, centre),
+        survey_rows: survey_values.len(),
+    })
+}
+
+/// The channel's model with its per-channel findings taken away (a
+/// fluxgate calibration, which is the flight's, kept).
+pub fn plain_of(model: &Extensions) -> Extensions {
+    Extensions {
+        vector_calibration: model.vector_calibration.clone(),
+        ..Extensions::default()
+    }
+}
+
+/// What the findings of each channel of `plan` add on the survey: per
+/// channel with a model that is not plain, its [`Departure`] (`None` where
+/// it cannot be measured: no survey rows).
+pub fn departures(
+    log: &FlightLog,
+    sensor: &VectorSensor,
+    windows: &[CalibrationWindow],
+    plan: &BTreeMap<String, Extensions>,
+    (terms, options): (TermSet, &FitOptions),
+) -> Result<BTreeMap<String, Option<Departure>>> {
+    use rayon::prelude::*;
+    let changed: Vec<(&String, &Extensions)> = plan.iter().filter(|(_, model)| *model != &plain_of(model)).collect();
+    let stores = StorePool::new();
+    let measured: Vec<(String, Option<Departure>)> = changed
+        .par_iter()
+        .map(|(channel, model)| {
+            let predict = |extensions: Extensions| -> Result<Vec<f64>> {
+                let spec = ModelSpec::new(terms, extensions);
+                Ok(fit(log, sensor, channel, windows, &spec, options, &stores)?
+                    .predict(log)?
+                    .interference_nt)
+            };
+            let diagnosed = predict((*model).clone())?;
+            let plain = predict(plain_of(model))?;
+            Ok(((*channel).clone(), departure(log, windows, &plain, &diagnosed)))
+        })
+        .collect::<Result<_>>()?;
+    Ok(measured.into_iter().collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_departure_beyond_the_calibration_fails_and_one_within_holds() {
+        let within = Departure {
+            calibration_spread_nt: 0.1,
+            survey_departure_nt: 0.25,
+            survey_rows: 100,
+        };
+        assert!(within.holds());
+        let beyond = Departure {
+            survey_departure_nt: 0.32,
+            ..within
+        };
+        assert!(!beyond.holds());
+        assert!(beyond.reason().contains("0.3200 nT"), "{}", beyond.reason());
+        let tiny = Departure {
+            calibration_spread_nt: 0.0,
+            survey_departure_nt: 0.009,
+            survey_rows: 100,
+        };
+        assert!(tiny.holds());
+    }
+}

@@ -1,0 +1,164 @@
+//! The default never makes a clean channel worse: clean simulated flights
+//! drawn the way a new user would draw them (1–8 scalar sensors in the
+//! tail, cabin, wings and nose; 5–50 Hz; 20–240 minutes; the simulator's
+//! auxiliary channels, which vary through the flight but couple to
+//! nothing; a base station with 10–100 nT of diurnal variation), each
+//! compensated by `compensate`'s default (`[diagnose] apply = "auto"`,
+//! through the pipeline and its evidence rule) and plain (`--plain`).
+//!
+//! What must hold, on the survey lines against the simulator's true Earth
+//! field (standard deviation of compensated − truth over the line rows):
+//! no channel worse than plain by more than 10 % + 0.01 nT. The figures
+//! of every channel whose default differs from plain are printed, with the
+//! findings it applied and those it held back.
+//!
+//! Flights: 300 with `MAGCOMP_SAFETY_FLIGHTS=300`; `cargo test` flies
+//! [`DEFAULT_FLIGHTS`] of them (the first ones of the same draw).
+
+mod common;
+
+use magcomp::config::{FlightJob, Settings};
+use magcomp::simulate::random::Random;
+use magcomp::simulate::scenario::{RawScenario, ScalarSensor, Scenario, SensorLocation};
+use magcomp::simulate::simulate;
+use magcomp::simulate::truth::survey_line_error_nt;
+use rayon::prelude::*;
+
+/// Flights in `cargo test`.
+const DEFAULT_FLIGHTS: u64 = 24;
+
+fn flights() -> u64 {
+    std::env::var("MAGCOMP_SAFETY_FLIGHTS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(DEFAULT_FLIGHTS)
+}
+
+/// A clean flight plan drawn from `seed`: the layout, rate, length, site,
+/// box and diurnal variation. No concealed effect.
+fn clean_plan(seed: u64) -> RawScenario {
+    let mut draw = Random::new(0x5AFE ^ seed).fork("clean flight");
+    let mut raw = RawScenario {
+        seed: 20_000 + seed,
+        ..RawScenario::default()
+    };
+    let rates = [5.0, 10.0, 10.0, 20.0, 50.0];
+    raw.sample_rate_hz = rates[draw.integer(0, rates.len() - 1)];
+    raw.oversampling = (100.0 / raw.sample_rate_hz).round().max(1.0) as usize;
+    // 20–240 minutes, fewer at the high rates so that a flight stays
+    // under about 100,000 rows.
+    let longest_min = (100_000.0 / raw.sample_rate_hz / 60.0).min(240.0);
+    let minutes = draw.uniform(20.0, longest_min.max(21.0));
+    let locations = [
+        SensorLocation::Tail,
+        SensorLocation::Cabin,
+        SensorLocation::Wing,
+        SensorLocation::Nose,
+    ];
+    let count = draw.integer(1, 8);
+    raw.scalar = (0..count)
+        .map(|k| {
+            let location = match k {
+                0 => SensorLocation::Tail,
+                _ => locations[draw.integer(0, locations.len() - 1)],
+            };
+            ScalarSensor::new(&format!("mag_{}_uc", k + 1), location, draw.uniform(0.002, 0.02))
+        })
+        .collect();
+    raw.site.latitude_deg = draw.uniform(-60.0, 70.0);
+    raw.site.longitude_deg = draw.uniform(-180.0, 180.0);
+    raw.external.diurnal_nt = draw.uniform(10.0, 100.0);
+    let box_ = &mut raw.calibration;
+    let base = draw.uniform(0.0, 90.0).round();
+    box_.headings_deg = (0..4).map(|k| base + 90.0 * k as f64).collect();
+    box_.pitch_deg = draw.uniform(3.0, 6.0);
+    box_.roll_deg = draw.uniform(6.0, 12.0);
+    box_.yaw_deg = draw.uniform(3.0, 6.0);
+    box_.turbulence_deg = draw.uniform(0.02, 0.2);
+    box_.altitude_m = draw.uniform(1500.0, 4000.0);
+    // The survey: lines of 5–15 minutes filling the rest of the flight.
+    let survey = &mut raw.survey;
+    survey.speed_m_s = draw.uniform(55.0, 75.0);
+    let line_min = draw.uniform(5.0, 15.0);
+    survey.line_length_m = line_min * 60.0 * survey.speed_m_s;
+    survey.line_count = (((minutes - 12.0) / (line_min + 1.0)).round() as usize).max(1);
+    survey.line_heading_deg = draw.uniform(0.0, 180.0).round();
+    survey.altitude_m = draw.uniform(100.0, 400.0);
+    survey.turbulence_deg = draw.uniform(0.2, 1.0);
+    raw.crust.dipole_count = 12;
+    raw
+}
+
+/// Per channel: (name, plain error, default error, applied, held back).
+type Outcome = Vec<(String, f64, f64, Vec<String>, Vec<String>)>;
+
+fn fly(seed: u64) -> (String, Outcome) {
+    let raw = clean_plan(seed);
+    let describe = format!(
+        "seed {seed}: {} sensors, {} Hz, {} lines",
+        raw.scalar.len(),
+        raw.sample_rate_hz,
+        raw.survey.line_count
+    );
+    let flight = simulate(&Scenario::try_from(raw).unwrap()).unwrap();
+    let folder = tempfile::tempdir().unwrap();
+    let csv = folder.path().join("clean.csv");
+    magcomp::formats::write_flight_log(&flight.log, &csv).unwrap();
+    let job = FlightJob::new(&csv);
+    let mut default = Settings::default();
+    default.vector.enabled = false;
+    let plain = common::plain();
+    let out = folder.path().join("out.csv");
+    let auto = magcomp::pipeline::run(&job, &default, &out).unwrap();
+    let fitted_plain = magcomp::pipeline::run(&job, &plain, &out).unwrap();
+    let line = &flight.log.channel("line").unwrap().values;
+    let outcome = (auto.compensation.channels.iter())
+        .zip(&fitted_plain.compensation.channels)
+        .zip(&auto.result.models)
+        .map(|((a, p), model)| {
+            let truth = flight.truth.earth_total_nt(&model.channel).unwrap();
+            let applied: Vec<String> = (auto.result.applied_findings.iter())
+                .filter(|f| f.channel == model.channel)
+                .map(|f| f.describe())
+                .collect();
+            let held: Vec<String> = (auto.result.diagnosis.iter())
+                .flat_map(|d| d.findings.iter())
+                .filter(|f| f.channel == model.channel && f.not_applied.is_some())
+                .map(|f| format!("{} {:?}", f.effect, f.source))
+                .collect();
+            (
+                model.channel.clone(),
+                survey_line_error_nt(&p.values, truth, line),
+                survey_line_error_nt(&a.values, truth, line),
+                applied,
+                held,
+            )
+        })
+        .collect();
+    (describe, outcome)
+}
+
+#[test]
+fn the_default_never_makes_a_clean_channel_worse_than_plain() {
+    let outcomes: Vec<(String, Outcome)> = (0..flights()).into_par_iter().map(fly).collect();
+    let (mut channels, mut harmed, mut held_back, mut worst) = (0, Vec::new(), 0, 1.0f64);
+    for (flight, outcome) in &outcomes {
+        for (channel, plain, auto, applied, held) in outcome {
+            channels += 1;
+            held_back += held.len();
+            worst = worst.max(auto / plain);
+            if !applied.is_empty() || !held.is_empty() || auto != plain {
+                println!("{flight} {channel}: plain {plain:.4} nT, default {auto:.4} nT; applied {applied:?}; held back {held:?}");
+            }
+            if *auto > 1.1 * plain + 0.01 {
+                harmed.push(format!("{flight} {channel}: {plain:.4} → {auto:.4} nT"));
+            }
+        }
+    }
+    println!(
+        "{} clean flights, {channels} channels: {} harmed (worst default/plain {worst:.2}); {held_back} findings held back by the evidence rule",
+        outcomes.len(),
+        harmed.len()
+    );
+    assert!(harmed.is_empty(), "{harmed:#?}");
+}
