@@ -850,7 +850,10 @@ fn evidence_rule(
 /// Whether a finding of `kind` changes a channel's own model (a fluxgate
 /// calibration is the flight's, an `unexplained` residual changes none).
 fn applies_to_model(kind: EffectKind) -> bool {
-    !matches!(kind, EffectKind::Unexplained | EffectKind::VectorCalibration)
+    !matches!(
+        kind,
+        EffectKind::Unexplained | EffectKind::VectorCalibration | EffectKind::ExternalField
+    )
 }
 
 /// One warning per channel the diagnosis left with an `unexplained`

@@ -1,4 +1,5 @@
-//! The default compensation (`[diagnose] apply = "auto"`) against plain
+//! The default compensation (`[diagnose] apply = "auto"`, through the
+//! pipeline, so with its evidence rule) against plain
 //! Tolles-Lawson, judged on the survey lines against the simulator's true
 //! Earth field: per concealed effect, the survey-line error (standard
 //! deviation of compensated − truth over the line rows) of every sensor,
@@ -17,9 +18,6 @@
 
 mod common;
 
-use magcomp::detect::detect_manoeuvres;
-use magcomp::diagnose::diagnose;
-use magcomp::pipeline::{choose_channels, choose_vector_sensor};
 use magcomp::simulate::simulate;
 use magcomp::simulate::truth::survey_line_error_nt;
 use std::collections::BTreeMap;
@@ -62,40 +60,34 @@ const EFFECTS: [(&str, &str, &str); 6] = [
 ];
 
 /// Survey-line error of every channel with plain Tolles-Lawson and with
-/// the diagnosed models, nT.
+/// the default, nT: both through the pipeline (`compensate --plain` and
+/// `compensate`), so the default's evidence rule decides what is applied.
 fn errors(seed: u64, effect: &str) -> BTreeMap<String, (f64, f64)> {
     let flight = simulate(&common::three_sensor_scenario(seed, effect)).unwrap();
-    let log = &flight.log;
-    let pipeline = magcomp::config::Pipeline::default();
-    let sensor = choose_vector_sensor(log, None).unwrap();
-    let channels = choose_channels(log, None).unwrap();
-    let windows = detect_manoeuvres(log, &pipeline.settings.detect)
-        .unwrap()
-        .calibration_windows(pipeline.settings.detect.window_margin_s);
-    let plan = diagnose(
-        log,
-        &sensor,
-        &channels,
-        &windows,
-        &pipeline.settings.terms,
-        &pipeline.settings.fit,
-        &pipeline.settings.diagnose,
-    )
-    .unwrap()
-    .models();
-    let line = &log.channel("line").unwrap().values;
-    let error_with = |plan: &BTreeMap<String, magcomp::model::Extensions>| {
-        let models = common::fit_channels(log, &sensor, (&channels, &windows), &pipeline, plan);
-        let compensated = magcomp::compensate::compensate(log, &models, pipeline.settings.level).unwrap();
-        compensated
-            .channels
-            .iter()
-            .zip(&channels)
-            .map(|(c, name)| survey_line_error_nt(&c.values, flight.truth.earth_total_nt(name).unwrap(), line))
-            .collect::<Vec<f64>>()
-    };
-    let (plain, auto) = (error_with(&BTreeMap::new()), error_with(&plan));
-    channels.into_iter().zip(plain.into_iter().zip(auto)).collect()
+    let folder = tempfile::tempdir().unwrap();
+    let csv = folder.path().join("flight.csv");
+    magcomp::formats::write_flight_log(&flight.log, &csv).unwrap();
+    let job = magcomp::config::FlightJob::new(&csv);
+    let out = folder.path().join("out.csv");
+    let mut default = magcomp::config::Settings::default();
+    default.vector.enabled = false;
+    let auto = magcomp::pipeline::run(&job, &default, &out).unwrap();
+    let plain = magcomp::pipeline::run(&job, &common::plain(), &out).unwrap();
+    let line = &flight.log.channel("line").unwrap().values;
+    (auto.compensation.channels.iter())
+        .zip(&plain.compensation.channels)
+        .zip(&auto.result.models)
+        .map(|((a, p), model)| {
+            let truth = flight.truth.earth_total_nt(&model.channel).unwrap();
+            (
+                model.channel.clone(),
+                (
+                    survey_line_error_nt(&p.values, truth, line),
+                    survey_line_error_nt(&a.values, truth, line),
+                ),
+            )
+        })
+        .collect()
 }
 
 #[test]

@@ -136,7 +136,8 @@ fn random_plan(seed: u64) -> Plan {
 /// yaw ±3.4–4.5° (±2.8–6°), each ±20 % per manoeuvre; roll 0.2× a pitch
 /// (0.1–0.3×), adverse yaw 0.25–0.3× a roll (0.2–0.4×), roll 0.4–0.46× a
 /// yaw (0.3–0.55×) lagging by up to 60°; the first manoeuvre 5–45 s after
-/// the turn's roll-out; turns banked up to 24° (18–27°); two boxes back to
+/// the turn's roll-out; turns banked up to 24° (18–27°), the bank rolling
+/// in over 1.5–6 s with the heading's rate; two boxes back to
 /// back (or one), headings clockwise from any base, as crews fly them.
 /// These plans share nothing with the detector but the flight it reads.
 fn crew_plan(seed: u64) -> Plan {
@@ -168,6 +169,9 @@ fn crew_plan(seed: u64) -> Plan {
     box_.pause_s = [0.0, random.uniform(0.0, 1.5)];
     let slowest = random.uniform(2.3, 3.3);
     box_.turn_rate_deg_s = [slowest, random.uniform(slowest, 3.9)];
+    // The bank rolls in over 1.5–6 s, the heading's rate with it.
+    let quickest = random.uniform(1.5, 4.0);
+    box_.turn_entry_s = [quickest, random.uniform(quickest, 6.0)];
     let coupling = &mut box_.coupling;
     let mut range = |low: f64, high: f64| {
         let a = random.uniform(low, high);

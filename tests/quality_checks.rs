@@ -76,11 +76,34 @@ fn leave_one_heading_out_flags_a_calibration_that_does_not_transfer() {
     println!("coupled: {check:?}");
     assert!(check.ratio > 2.0 && check.warning.is_some(), "{check:?}");
     assert!(coupled.warnings.iter().any(|n| n.contains("may not transfer")));
-    // With the diagnosis applied (the default) the coupling is modelled
-    // and the calibration transfers.
+    // The diagnosis finds the coupling, and the fit with it transfers
+    // (`augmented` below), but the default does not apply it: on the
+    // survey lines, flown lower, the trim tab sits where the box never
+    // had it, and the coupling would move the compensation 3.2 nT RMS
+    // against 0.32 nT over the calibration. Held back, it is named with
+    // the reason, and the transfer warning stays: loudly uncertain.
     let diagnosed = run(&root.join("concealed_b.csv"), &folder.path().join("diagnosed"));
-    let check = diagnosed.channels[1].transfer.as_ref().unwrap();
-    println!("diagnosed: {check:?}");
+    let held: Vec<_> = (diagnosed.diagnosis.iter())
+        .flat_map(|d| d.findings.iter())
+        .filter(|f| f.channel == "mag_2_uc" && f.source.as_deref() == Some("trim_tab"))
+        .collect();
+    assert_eq!(held.len(), 1, "{held:#?}");
+    assert!(held[0]
+        .not_applied
+        .as_deref()
+        .is_some_and(|r| r.contains("beyond anything the box tested")));
+    assert!(diagnosed
+        .warnings
+        .iter()
+        .any(|w| w.starts_with("mag_2_uc: the diagnosis's aux_coupling from trim_tab not applied")));
+    assert!(diagnosed.channels[1].transfer.as_ref().unwrap().warning.is_some());
+    // Asked for (`[diagnose] apply = "always"`), the coupling is modelled
+    // and the calibration transfers.
+    let mut always = Settings::default();
+    always.diagnose.apply = magcomp::diagnose::ApplyDiagnosis::Always;
+    let augmented = run_with(&root.join("concealed_b.csv"), &folder.path().join("augmented"), always);
+    let check = augmented.channels[1].transfer.as_ref().unwrap();
+    println!("augmented: {check:?}");
     assert!(check.ratio < 2.0 && check.warning.is_none(), "{check:?}");
 }
 

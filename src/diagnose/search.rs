@@ -223,7 +223,12 @@ pub(super) fn diagnose_channel(
     }
     // Far above the noise, a residual is unexplained whether or not it
     // stands out in stretches: "nothing to report" would be a claim.
-    if !findings.iter().any(|f| f.effect.kind() == EffectKind::Unexplained)
+    // Only on a box held out by heading: a window of straight flight
+    // (held out by quarters) holds the survey's geology in the band,
+    // which is the Earth's field and no residual of the aircraft's.
+    let boxed = matches!(HoldOut::of(problem.windows), HoldOut::ByHeading(_));
+    if boxed
+        && !findings.iter().any(|f| f.effect.kind() == EffectKind::Unexplained)
         && left_rms > FAR_ABOVE_NOISE * left.noise_floor_nt
     {
         let fitted = in_sample_fit()?;

@@ -213,6 +213,10 @@ pub struct Uncertainty {
 /// wrong 0.094-4.4 nT.
 pub const UNCERTAINTY_WARNING_NT: f64 = 0.05;
 
+/// A difference between two compensations below this, nT RMS, decides
+/// nothing: it is under any survey's noise.
+pub const DEPARTURE_FLOOR_NT: f64 = 0.01;
+
 /// A level uncertainty above this (nT, one sigma) is a warning.
 pub const LEVEL_UNCERTAINTY_WARNING_NT: f64 = 10.0;
 
@@ -281,7 +285,7 @@ impl ChannelQuality {
     pub fn unchecked_departure(&self) -> Option<(f64, Option<f64>)> {
         let departure = self.survey_departure_from_plain_nt?;
         let stated = self.uncertainty.as_ref().map(|u| u.outside_calibration_sigma_nt);
-        let bound = stated.unwrap_or(0.0).max(crate::diagnose::evidence::SURVEY_FLOOR_NT);
+        let bound = stated.unwrap_or(0.0).max(DEPARTURE_FLOOR_NT);
         (departure > bound).then_some((departure, stated))
     }
 

@@ -201,6 +201,11 @@ pub struct Calibration {
     /// Rate of the turns between legs, degrees/s (drawn per turn); the bank
     /// follows from the speed (3°/s at 70 m/s banks 20.5°).
     pub turn_rate_deg_s: [f64; 2],
+    /// Time to roll into (and out of) the turns between legs, s (drawn per
+    /// turn): the heading's rate follows the bank as it builds, so the
+    /// heading leaves the leg gradually, as a real aircraft's does. Zero
+    /// (the default) starts the turn's rate at once.
+    pub turn_entry_s: [f64; 2],
     /// The airframe's cross-axis response to the pilot's input.
     pub coupling: Coupling,
     /// The line number each box carries in the line column, in flying
@@ -278,6 +283,7 @@ impl Default for Calibration {
             lead_in_s: [20.0, 20.0],
             pause_s: [8.0, 14.0],
             turn_rate_deg_s: [3.0, 3.0],
+            turn_entry_s: [0.0, 0.0],
             coupling: Coupling::default(),
             line_numbers: Vec::new(),
         }
@@ -682,6 +688,12 @@ fn check_flight_plan(raw: &RawScenario) -> std::result::Result<(), String> {
     if !(rates[0] >= 0.5 && rates[0] <= rates[1] && rates[1] <= 10.0) {
         return Err(format!(
             "[calibration] turn_rate_deg_s = {rates:?}: give [slowest, fastest] between 0.5 and 10 degrees/s"
+        ));
+    }
+    let entry = box_.turn_entry_s;
+    if !(entry[0] >= 0.0 && entry[0] <= entry[1] && entry[1] <= 30.0) {
+        return Err(format!(
+            "[calibration] turn_entry_s = {entry:?}: give [shortest, longest] between 0 and 30 s"
         ));
     }
     let coupling = &box_.coupling;

@@ -230,6 +230,44 @@ impl Pilot<'_> {
         }
     }
 
+    /// A coordinated turn through `change` degrees whose rate builds to
+    /// `rate_deg_s` over `entry_s` (a raised cosine) as the bank rolls in,
+    /// and dies away the same way as it rolls out: the bank is the
+    /// coordinated bank of the rate at each moment, atan(v·ψ̇/g).
+    fn banked_turn(
+        &mut self,
+        from_deg: f64,
+        change: f64,
+        (rate_deg_s, entry_s): (f64, f64),
+        speed_m_s: f64,
+        turbulence_deg: f64,
+    ) {
+        let steady_s = change.abs() / rate_deg_s;
+        // A change too small for the full rate is flown with shorter ramps.
+        let entry_s = entry_s.min(steady_s);
+        let total_s = steady_s + entry_s;
+        let samples = self.samples(total_s);
+        let dt = total_s / samples as f64;
+        let shape = |t: f64| {
+            let edge = (t.min(total_s - t) / entry_s.max(1e-9)).clamp(0.0, 1.0);
+            0.5 - 0.5 * (PI * edge).cos()
+        };
+        let mut heading = from_deg;
+        // Scaled so that the ramps' sampled sum turns exactly `change`.
+        let turned: f64 = (0..samples).map(|k| shape((k as f64 + 0.5) * dt) * dt).sum();
+        let scale = change / turned.max(1e-12);
+        for k in 0..samples {
+            let rate = shape((k as f64 + 0.5) * dt) * scale;
+            heading += rate * dt;
+            let bank = (speed_m_s * rate.to_radians() / 9.81)
+                .atan()
+                .to_degrees()
+                .clamp(-30.0, 30.0);
+            self.gust(turbulence_deg);
+            self.step(heading, [bank, 0.0, 0.0], speed_m_s);
+        }
+    }
+
     fn manoeuvre(&mut self, scenario: &Scenario, kind: ManoeuvreKind, heading_deg: f64, fraction: f64) {
         let box_ = &scenario.raw.calibration;
         let cycles = self.random.integer(box_.cycles[0], box_.cycles[1]);
@@ -349,7 +387,13 @@ impl Pilot<'_> {
                     false => change,
                 };
                 let rate = self.draw(box_.turn_rate_deg_s);
-                self.turn_by(heading, change, rate, box_.speed_m_s, box_.turbulence_deg);
+                match box_.turn_entry_s[1] > 0.0 {
+                    true => {
+                        let entry = self.draw(box_.turn_entry_s);
+                        self.banked_turn(heading, change, (rate, entry), box_.speed_m_s, box_.turbulence_deg);
+                    }
+                    false => self.turn_by(heading, change, rate, box_.speed_m_s, box_.turbulence_deg),
+                }
             }
         }
         self.wander.1 = 0.0;
