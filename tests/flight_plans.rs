@@ -105,20 +105,11 @@ fn random_plan(seed: u64) -> Plan {
     box_.lead_in_s = [lead, random.uniform(lead, 40.0)];
     let pause = random.uniform(5.0, 12.0);
     box_.pause_s = [pause, random.uniform(pause, 20.0)];
-    let mut omitted = Vec::new();
-    if omits {
-        let kind = ["pitch", "roll", "yaw"][random.integer(0, 2)];
-        let heading = headings[random.integer(0, headings.len() - 1)];
-        box_.omit = vec![format!("{kind}@{heading}")];
-        omitted.push((kind, heading));
-    }
-    box_.headings_deg = headings;
-    raw.survey.line_count = random.integer(2, 3);
-    raw.survey.line_length_m = random.uniform(3000.0, 6000.0);
-    raw.survey.line_heading_deg = random.uniform(0.0, 360.0).round();
-    raw.survey.turbulence_deg = random.uniform(0.5, 1.5);
-    raw.crust.dipole_count = 2;
-    raw.scalar.truncate(1);
+    let omitted = match omits {
+        true => omit_one(&mut random, &mut raw, &headings),
+        false => Vec::new(),
+    };
+    finish_plan(&mut random, &mut raw, headings);
     Plan {
         raw,
         fluxgate_only,
@@ -182,20 +173,11 @@ fn crew_plan(seed: u64) -> Plan {
     coupling.roll_yaw = range(0.2, 0.4);
     coupling.yaw_roll = range(0.3, 0.55);
     coupling.lag_deg = [0.0, 60.0];
-    let mut omitted = Vec::new();
-    if random.uniform(0.0, 1.0) < 0.15 {
-        let kind = ["pitch", "roll", "yaw"][random.integer(0, 2)];
-        let heading = headings[random.integer(0, headings.len() - 1)];
-        box_.omit = vec![format!("{kind}@{heading}")];
-        omitted.push((kind, heading));
-    }
-    box_.headings_deg = headings;
-    raw.survey.line_count = random.integer(2, 3);
-    raw.survey.line_length_m = random.uniform(3000.0, 6000.0);
-    raw.survey.line_heading_deg = random.uniform(0.0, 360.0).round();
-    raw.survey.turbulence_deg = random.uniform(0.5, 1.5);
-    raw.crust.dipole_count = 2;
-    raw.scalar.truncate(1);
+    let omitted = match random.uniform(0.0, 1.0) < 0.15 {
+        true => omit_one(&mut random, &mut raw, &headings),
+        false => Vec::new(),
+    };
+    finish_plan(&mut random, &mut raw, headings);
     Plan {
         raw,
         fluxgate_only: false,
@@ -203,6 +185,26 @@ fn crew_plan(seed: u64) -> Plan {
         omitted,
         iou: 0.8,
     }
+}
+
+/// Leaves one manoeuvre out of the box: its kind and its leg drawn.
+fn omit_one(random: &mut Random, raw: &mut RawScenario, headings: &[f64]) -> Vec<(&'static str, f64)> {
+    let kind = ["pitch", "roll", "yaw"][random.integer(0, 2)];
+    let heading = headings[random.integer(0, headings.len() - 1)];
+    raw.calibration.omit = vec![format!("{kind}@{heading}")];
+    vec![(kind, heading)]
+}
+
+/// The box on `headings`, then two or three short survey lines on a drawn
+/// heading, over a light crust, with one scalar sensor.
+fn finish_plan(random: &mut Random, raw: &mut RawScenario, headings: Vec<f64>) {
+    raw.calibration.headings_deg = headings;
+    raw.survey.line_count = random.integer(2, 3);
+    raw.survey.line_length_m = random.uniform(3000.0, 6000.0);
+    raw.survey.line_heading_deg = random.uniform(0.0, 360.0).round();
+    raw.survey.turbulence_deg = random.uniform(0.5, 1.5);
+    raw.crust.dipole_count = 2;
+    raw.scalar.truncate(1);
 }
 
 /// Intersection over union of two time windows.

@@ -21,19 +21,8 @@ pub(super) fn unexplained(channel: &str, rms_nt: f64, found: &localise::Localisa
     if !is_structured(rms_nt, found) {
         return None;
     }
-    let columns = found
-        .coherence
-        .iter()
-        .take(3)
-        .map(|c| format!("{} (R² {:.2})", c.column, c.r_squared))
-        .collect::<Vec<_>>()
-        .join(", ");
-    let band = found
-        .spectrum
-        .iter()
-        .max_by(|a, b| a.residual_rms_nt.total_cmp(&b.residual_rms_nt))
-        .map(|b| format!("{:.2}–{:.2} Hz", b.low_hz, b.high_hz))
-        .unwrap_or_default();
+    let columns = coherent_columns(found).join(", ");
+    let band = loudest_band(found);
     Some(Finding {
         effect: Effect::Unexplained(Unexplained {
             structured_energy_share: found.structured_energy_share,
@@ -99,19 +88,8 @@ pub(super) fn far_above_noise(
         .map(|w| format!("{} ({:.3} nT)", w.label, w.heldout_rms_final_nt))
         .collect::<Vec<_>>()
         .join(", ");
-    let band = found
-        .spectrum
-        .iter()
-        .max_by(|a, b| a.residual_rms_nt.total_cmp(&b.residual_rms_nt))
-        .map(|b| format!("{:.2}–{:.2} Hz", b.low_hz, b.high_hz))
-        .unwrap_or_default();
-    let columns = match found
-        .coherence
-        .iter()
-        .take(3)
-        .map(|c| format!("{} (R² {:.2})", c.column, c.r_squared))
-        .collect::<Vec<_>>()
-    {
+    let band = loudest_band(found);
+    let columns = match coherent_columns(found) {
         named if named.is_empty() => "no recorded column".to_string(),
         named => named.join(", "),
     };
@@ -136,6 +114,21 @@ pub(super) fn far_above_noise(
         heldout_rms_after_nt: rms_nt,
         not_applied: None,
     })
+}
+
+/// The sub-band where the residual is largest, e.g. "0.10–0.30 Hz".
+fn loudest_band(found: &localise::Localisation) -> String {
+    (found.spectrum.iter())
+        .max_by(|a, b| a.residual_rms_nt.total_cmp(&b.residual_rms_nt))
+        .map(|b| format!("{:.2}–{:.2} Hz", b.low_hz, b.high_hz))
+        .unwrap_or_default()
+}
+
+/// The three recorded columns most coherent with the residual, with R².
+fn coherent_columns(found: &localise::Localisation) -> Vec<String> {
+    (found.coherence.iter().take(3))
+        .map(|c| format!("{} (R² {:.2})", c.column, c.r_squared))
+        .collect()
 }
 
 /// Whether a residual of `rms_nt` is structured as [`unexplained`] asks.
