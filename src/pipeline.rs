@@ -174,8 +174,14 @@ fn vector_stage(
     };
     for sensor in log.vector_sensors() {
         let stage_options = options.tolles_lawson.then_some(fit_options);
-        let fitted = crate::vector::fit(log, &sensor, (windows, boxes), &reference, stage_options)
-            .and_then(|model| Ok((model.compensate(log)?, model)));
+        let fitted = crate::vector::fit(
+            log,
+            &sensor,
+            (windows, boxes),
+            &reference,
+            (options.site.as_ref(), stage_options),
+        )
+        .and_then(|model| Ok((model.compensate(log)?, model)));
         match fitted {
             Ok((compensated, model)) => {
                 stage.notes.push(vector_note(&model));
@@ -188,6 +194,7 @@ fn vector_stage(
                 if let Some(warning) = vector_direction_warning(&model) {
                     stage.warnings.push(warning);
                 }
+                stage.warnings.extend(vector_sign_warning(&model));
                 if model.held_out.is_none() {
                     stage.warnings.push(format!(
                         "{}: the twelve-constant fit's windows do not give three headings (a window given by time that spans a turn has none), so no heading is held out and the vector's accuracy away from them is not checked; give the box's manoeuvres or legs as windows",
@@ -250,11 +257,17 @@ fn vector_note(model: &crate::vector::VectorModel) -> String {
     if let crate::vector::FieldStart::Igrf {
         inclination_deg,
         declination_deg,
+        position,
         ..
     } = model.start
     {
-        text += &format!(" (IGRF-14: {inclination_deg:.3}°, {declination_deg:.3}°)");
+        let at = match position {
+            crate::vector::PositionSource::Recorded => "",
+            crate::vector::PositionSource::Site => " at the [site]",
+        };
+        text += &format!(" (IGRF-14{at}: {inclination_deg:.3}°, {declination_deg:.3}°)");
     }
+    text += &format!("; {}", model.mounting.describe());
     if let Some(stage) = &model.tolles_lawson {
         let axes = |v: [f64; 3]| format!("{:.2}/{:.2}/{:.2}", v[0], v[1], v[2]);
         text += &format!(
@@ -271,6 +284,36 @@ fn vector_note(model: &crate::vector::VectorModel) -> String {
         }
     }
     text
+}
+
+/// A warning when the field's sign could not be checked (no position, no
+/// `[site]`), or when IGRF-14 fixed it and the fluxgate's axes came out
+/// left-handed.
+fn vector_sign_warning(model: &crate::vector::VectorModel) -> Option<String> {
+    use crate::vector::FieldSign;
+    match model.field_sign {
+        FieldSign::RightHandedAxes => Some(format!(
+            "{}: the Earth field's direction is unverified: the flight records no position (lat, lon) and pipeline.toml sets no [site], and the data fix the direction only up to its sign (a fluxgate reading reversed on all three axes under a field pointing up reads as this one does); it is taken so that the fluxgate's axes are right-handed: inclination {:.2}°, declination {:.2}°, {}. Set [site] latitude, longitude and date to check it against IGRF-14. Without a position the field's turn across the box (about 0.01° a km) is not modelled either: expect tens of nT on each component",
+            model.sensor,
+            model.inclination_deg,
+            model.declination_deg,
+            model.mounting.describe()
+        )),
+        FieldSign::Igrf if !model.mounting.right_handed => Some(format!(
+            "{}: with the field's sign from IGRF-14, the fluxgate's axes are left-handed (det K < 0): one axis, or all three, read reversed (the wiring, or a sign in the file); the vector output is in the INS's body axes as fitted, but check the fluxgate's axis signs, and the position and date if its axes are known to be right-handed",
+            model.sensor
+        )),
+        FieldSign::Igrf => match model.start {
+            crate::vector::FieldStart::Igrf {
+                position: crate::vector::PositionSource::Site,
+                ..
+            } => Some(format!(
+                "{}: the flight records no position: the field's sign and direction are checked against IGRF-14 at the [site], but the field's turn across the box (about 0.01° a km) is not modelled: expect tens of nT on each component (a few with lat and lon columns)",
+                model.sensor
+            )),
+            _ => None,
+        },
+    }
 }
 
 /// A warning when the fitted field direction is further than

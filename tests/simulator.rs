@@ -476,6 +476,33 @@ fn a_scenario_typo_names_the_field() {
     });
     let message = Scenario::try_from(raw).unwrap_err();
     assert!(message.contains("mag_7_uc"), "{message}");
+    for axes in [["x", "x", "z"], ["x", "y", "w"], ["x", "--y", "z"]] {
+        let mut raw = RawScenario::default();
+        raw.fluxgate[0].axes = axes.map(String::from);
+        let message = Scenario::try_from(raw).unwrap_err();
+        assert!(message.contains("axes") && message.contains("flux_a"), "{message}");
+    }
+}
+
+/// A fluxgate on its side and turned reads the body-axis field through
+/// its mounting: axes ["-z", "x", "-y"] read (−b_z, b_x, −b_y), and a yaw
+/// of 90° more about its own z turns its x onto its former y.
+#[test]
+fn a_fluxgate_reads_through_its_mounting() {
+    let mut fluxgate = magcomp::simulate::scenario::Fluxgate {
+        axes: ["-z", "x", "-y"].map(String::from),
+        ..Default::default()
+    };
+    let mounting = fluxgate.mounting().unwrap();
+    assert_eq!(mounting, [[0.0, 0.0, -1.0], [1.0, 0.0, 0.0], [0.0, -1.0, 0.0]]);
+    fluxgate.turn_deg = [0.0, 0.0, 90.0];
+    let turned = fluxgate.mounting().unwrap();
+    let expected = [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]];
+    for (row, want) in turned.iter().zip(expected) {
+        for (got, want) in row.iter().zip(want) {
+            assert!((got - want).abs() < 1e-12, "{turned:?}");
+        }
+    }
 }
 
 #[test]

@@ -40,10 +40,56 @@ use magcomp::simulate::{simulate, SimulatedFlight};
 /// fluxgate miscalibrated by 2–6 % in scale, 0.5–1.5° of
 /// non-orthogonality and 300–1500 nT offsets, seeing 100–800 nT of the
 /// aircraft's permanent field, 0.5–5 % induced and an eddy tensor of
-/// 0–2 ms. Every third flight
+/// 0–2 ms, mounted any way round ([`mounting`]). Every third flight
 /// also carries a cabin magnetometer, whose level is far worse than the
 /// tail's.
 fn flight(seed: u64) -> SimulatedFlight {
+    let (axes, turn) = mounting(seed);
+    flight_mounted(seed, &axes, turn)
+}
+
+/// A mounting drawn from `seed`: one of the 24 turns that take the body
+/// axes onto themselves (on its side, upside down, backwards), and on
+/// every other flight a further turn of up to 15° in roll and pitch and
+/// 30–45° in yaw (a fluxgate set diagonally on its shelf).
+fn mounting(seed: u64) -> ([String; 3], [f64; 3]) {
+    let mut draw = Random::new(seed).fork("vector test mounting");
+    let orders = [[0, 1, 2], [0, 2, 1], [1, 0, 2], [1, 2, 0], [2, 0, 1], [2, 1, 0]];
+    let mut proper = Vec::new();
+    for (k, order) in orders.iter().enumerate() {
+        // Orders 1, 2 and 5 swap one pair: odd.
+        let parity = if [1, 2, 5].contains(&k) { -1.0 } else { 1.0 };
+        for signs in 0..8 {
+            let sign = |j: usize| if signs >> j & 1 == 1 { -1.0 } else { 1.0 };
+            if parity * sign(0) * sign(1) * sign(2) > 0.0 {
+                proper.push(std::array::from_fn(|j| {
+                    format!("{}{}", if sign(j) < 0.0 { "-" } else { "" }, ["x", "y", "z"][order[j]])
+                }));
+            }
+        }
+    }
+    assert_eq!(proper.len(), 24);
+    let axes = proper[(draw.uniform(0.0, 24.0) as usize).min(23)].clone();
+    let turn = if seed % 2 == 1 {
+        let yaw = draw.uniform(30.0, 45.0);
+        [
+            draw.uniform(-15.0, 15.0),
+            draw.uniform(-15.0, 15.0),
+            if draw.uniform(0.0, 1.0) < 0.5 { -yaw } else { yaw },
+        ]
+    } else {
+        [0.0; 3]
+    };
+    (axes, turn)
+}
+
+/// [`flight`] with the fluxgate's axes and turn given.
+fn flight_mounted(seed: u64, axes: &[String; 3], turn: [f64; 3]) -> SimulatedFlight {
+    simulate(&scenario(seed, axes, turn)).unwrap()
+}
+
+/// The scenario [`flight_mounted`] flies.
+fn scenario(seed: u64, axes: &[String; 3], turn: [f64; 3]) -> Scenario {
     let mut draw = Random::new(seed).fork("vector test plan");
     let mut signed = |low: f64, high: f64| {
         let size = draw.uniform(low, high);
@@ -77,6 +123,8 @@ fn flight(seed: u64) -> SimulatedFlight {
         permanent_nt = {permanent}
         induced = {induced}
         eddy_s = {eddy}
+        axes = {axes:?}
+        turn_deg = {turn:?}
         [[effect]]
         kind = "vector_calibration"
         sensor = "flux_a"
@@ -89,7 +137,7 @@ fn flight(seed: u64) -> SimulatedFlight {
         eddy = draw.uniform(0.0, 2e-3),
     );
     let raw: RawScenario = toml::from_str(&text).unwrap();
-    simulate(&Scenario::try_from(raw).unwrap()).unwrap()
+    Scenario::try_from(raw).unwrap()
 }
 
 /// The fit's budget per body-axis component on the survey lines, nT.
@@ -164,6 +212,21 @@ fn the_compensated_vector_matches_the_true_earth_field_on_flights_drawn_at_rando
         );
         let vector = &run.compensation.vectors[0];
         let truth = &simulated.truth.fluxgates[0];
+        // The mounting read off K: on a flight whose fluxgate is not
+        // turned further, the drawn axes, within the non-orthogonality's
+        // share of a turn (up to 1.5° of skew: under 2°).
+        let (axes, turn) = mounting(seed);
+        assert_eq!(model.field_sign, magcomp::vector::FieldSign::Igrf);
+        assert!(model.mounting.right_handed, "seed {seed}: {:?}", model.mounting);
+        if turn == [0.0; 3] {
+            let signed = axes.map(|a| if a.starts_with('-') { a } else { format!("+{a}") });
+            assert_eq!(model.mounting.axes, signed, "seed {seed}");
+            assert!(
+                model.mounting.misalignment_deg < 2.0,
+                "seed {seed}: {:?}",
+                model.mounting
+            );
+        }
         let log = run.log();
         let lines: Vec<usize> = log.survey_lines().into_iter().flat_map(|(_, rows)| rows).collect();
         assert!(lines.len() > 1000, "{} survey rows", lines.len());
@@ -363,4 +426,152 @@ fn vector_compensation_is_on_by_default_adds_six_columns_a_fluxgate_and_turns_of
     let compensated = model.compensate(&log).unwrap();
     assert!(compensated.body_nt[0][10].is_finite() && compensated.ned_nt[0][10].is_nan());
     assert!(compensated.ned_nt[0][11].is_finite());
+}
+
+/// The flight's CSV without its position columns.
+fn without_position(input: &std::path::Path, output: &std::path::Path) {
+    let mut reader = csv::Reader::from_path(input).unwrap();
+    let header = reader.headers().unwrap().clone();
+    let kept: Vec<usize> = (0..header.len())
+        .filter(|&c| !["lat", "lon", "msl"].contains(&&header[c]))
+        .collect();
+    assert_eq!(kept.len(), header.len() - 3, "{header:?}");
+    let mut writer = csv::Writer::from_path(output).unwrap();
+    writer.write_record(kept.iter().map(|&c| &header[c])).unwrap();
+    for record in reader.records() {
+        let record = record.unwrap();
+        writer.write_record(kept.iter().map(|&c| &record[c])).unwrap();
+    }
+    writer.flush().unwrap();
+}
+
+/// The data fix the field's direction only up to its sign (a fluxgate
+/// read reversed on all three axes under a field pointing up reads the
+/// same), so something outside them must choose. On flights whose
+/// fluxgate sits any way round, drawn at random:
+/// - with no position and no `[site]`: the right-handed triad's sign, the
+///   field within 1° of the truth, and a warning that it is unverified;
+/// - with the `[site]` instead: IGRF-14 there chooses, and nothing is
+///   unverified, but a warning says the field's turn across the box is
+///   not modelled;
+/// - with the position and the fluxgate's three axes wired reversed (a
+///   left-handed triad): IGRF-14 chooses, the vector is still right, and
+///   a warning names the left-handed axes.
+///
+/// The mirrored field (inclination −I, declination D + 180°) is the
+/// vector wrong by twice the field, 100,000 nT; the bound here is 5 nT.
+#[test]
+fn the_field_keeps_its_sign_with_the_fluxgate_any_way_round() {
+    let folder = tempfile::tempdir().unwrap();
+    let mut settings = Settings::default();
+    settings.diagnose.apply = ApplyDiagnosis::Never;
+    // Northern and southern sites among them (the fields dip −36° to +71°).
+    for seed in 101..105u64 {
+        let (axes, turn) = mounting(seed);
+        let plan = scenario(seed, &axes, turn);
+        let simulated = simulate(&plan).unwrap();
+        let truth = &simulated.truth.fluxgates[0];
+        let input = folder.path().join(format!("sign_{seed}.csv"));
+        write_flight_log(&simulated.log, &input).unwrap();
+        let bare = folder.path().join(format!("sign_{seed}_no_position.csv"));
+        without_position(&input, &bare);
+        let lines: Vec<usize> = simulated
+            .log
+            .survey_lines()
+            .into_iter()
+            .flat_map(|(_, rows)| rows)
+            .collect();
+        // The true field's mean direction over the box.
+        let boxed = box_rows(&simulated.log, &simulated);
+        let true_direction =
+            nalgebra::Vector3::from_fn(|axis, _| mean(boxed.iter().map(|&i| truth.earth_ned_nt[axis][i]))).normalize();
+        // Without a position the field's turn across the box (about 0.01°
+        // a km) is not modelled: tens of nT (25-41 nT on these flights),
+        // against a few with it.
+        let check = |run: &magcomp::pipeline::FlightRun, case: &str, bound_nt: f64| {
+            let model = &run.result.vector_models[0];
+            let (i, d) = (model.inclination_deg.to_radians(), model.declination_deg.to_radians());
+            let fitted = nalgebra::Vector3::new(i.cos() * d.cos(), i.cos() * d.sin(), i.sin());
+            let angle = fitted.angle(&true_direction).to_degrees();
+            let vector = &run.compensation.vectors[0];
+            let body: [f64; 3] = std::array::from_fn(|axis| {
+                rms(lines
+                    .iter()
+                    .map(|&i| vector.body_nt[axis][i] - truth.earth_body_nt[axis][i]))
+            });
+            println!(
+                "seed {seed} {case}: axes {axes:?} turned {turn:.1?}, read as {}; field {:.2}°/{:.2}° ({angle:.3}° from the truth), body error {body:.2?} nT",
+                model.mounting.describe(),
+                model.inclination_deg,
+                model.declination_deg
+            );
+            assert!(angle < 0.2, "seed {seed} {case}: {angle}° from the true direction");
+            assert!(body.iter().all(|b| *b < bound_nt), "seed {seed} {case}: {body:?}");
+            model.clone()
+        };
+        let job = FlightJob::new(&bare);
+        let unverified =
+            magcomp::pipeline::run(&job, &settings, &folder.path().join(format!("sign_{seed}_u.csv"))).unwrap();
+        let model = check(&unverified, "no position", 100.0);
+        assert_eq!(model.field_sign, magcomp::vector::FieldSign::RightHandedAxes);
+        assert!(
+            unverified
+                .result
+                .warnings
+                .iter()
+                .any(|w| w.starts_with("flux_a: the Earth field's direction is unverified")),
+            "seed {seed}: {:?}",
+            unverified.result.warnings
+        );
+        let mut sited = settings.clone();
+        let site = &plan.raw.site;
+        sited.vector.site = Some(magcomp::vector::Site {
+            latitude_deg: site.latitude_deg,
+            longitude_deg: site.longitude_deg,
+            height_m: 0.0,
+            date: FlightDate::parse(&plan.raw.date),
+        });
+        let at_site = magcomp::pipeline::run(&job, &sited, &folder.path().join(format!("sign_{seed}_s.csv"))).unwrap();
+        let model = check(&at_site, "[site]", 100.0);
+        assert_eq!(model.field_sign, magcomp::vector::FieldSign::Igrf);
+        assert!(matches!(
+            model.start,
+            magcomp::vector::FieldStart::Igrf {
+                position: magcomp::vector::PositionSource::Site,
+                ..
+            }
+        ));
+        let fluxgate_warnings: Vec<&String> = at_site
+            .result
+            .warnings
+            .iter()
+            .filter(|w| w.starts_with("flux_a"))
+            .collect();
+        assert!(
+            fluxgate_warnings.len() == 1 && fluxgate_warnings[0].contains("turn across the box"),
+            "seed {seed}: {:?}",
+            at_site.result.warnings
+        );
+        // All three axes reversed: a left-handed triad.
+        let reversed = axes.clone().map(|a| match a.strip_prefix('-') {
+            Some(rest) => rest.to_string(),
+            None => format!("-{a}"),
+        });
+        let mirrored = flight_mounted(seed, &reversed, turn);
+        let input = folder.path().join(format!("sign_{seed}_left.csv"));
+        write_flight_log(&mirrored.log, &input).unwrap();
+        let left = magcomp::pipeline::run(
+            &FlightJob::new(&input),
+            &settings,
+            &folder.path().join(format!("sign_{seed}_l.csv")),
+        )
+        .unwrap();
+        let model = check(&left, "left-handed, positioned", 5.0);
+        assert!(!model.mounting.right_handed);
+        assert!(
+            left.result.warnings.iter().any(|w| w.contains("left-handed")),
+            "seed {seed}: {:?}",
+            left.result.warnings
+        );
+    }
 }

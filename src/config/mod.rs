@@ -42,6 +42,12 @@
 //! enabled = true       # every fluxgate's vector, with INS attitude and a box
 //! tolles_lawson = true # and its eddy-current and in-band induced terms
 //!
+//! [site]               # where the survey was flown, for files without a
+//! latitude = 49.3      # position: IGRF-14 there fixes the field's sign
+//! longitude = -123.1   # and checks the vector fit's direction
+//! height_m = 500.0     # optional, 0 by default
+//! date = "2026-06-15"  # optional; the flight's own date comes first
+//!
 //! [sensor_positions]   # body axes (forward, right, down), m; without
 //! mag_4_uc = [0.0, -7.5, 0.0]   # [[gradient]], every pair is a gradient
 //! mag_5_uc = [0.0, 7.5, 0.0]
@@ -89,7 +95,7 @@ mod campaign;
 mod sections;
 
 use sections::{
-    RawAlignment, RawColumns, RawDetect, RawDiagnose, RawTopic, RawTransfer, RawVector, RawVectorCalibration,
+    RawAlignment, RawColumns, RawDetect, RawDiagnose, RawSite, RawTopic, RawTransfer, RawVector, RawVectorCalibration,
 };
 
 /// `[filter]` as written.
@@ -272,6 +278,8 @@ pub(crate) struct RawPipeline {
     pub vector_calibration: RawVectorCalibration,
     /// Vector compensation.
     pub vector: RawVector,
+    /// Where the survey was flown (flights without a position).
+    pub site: Option<RawSite>,
     /// Gradients to compensate.
     #[serde(rename = "gradient")]
     pub gradients: Vec<RawGradient>,
@@ -534,7 +542,10 @@ impl Pipeline {
             fom_limit_nt: raw.quality.fom_limit_nt,
             diagnose: DiagnoseOptions::try_from(raw.diagnose).map_err(bad)?,
             vector_calibration: VectorCalibrationOptions::try_from(raw.vector_calibration).map_err(bad)?,
-            vector: VectorOptions::from(raw.vector),
+            vector: VectorOptions {
+                site: raw.site.map(crate::vector::Site::try_from).transpose().map_err(bad)?,
+                ..VectorOptions::from(raw.vector)
+            },
             gradients: gradient_pairs(&raw.gradients, &raw.sensor_positions).map_err(bad)?,
         };
         let mut windows_files = Vec::new();
@@ -988,6 +999,9 @@ mod tests {
             "[quality.transfer]\nwarning_factor = 0.5\n",
             "[columns]\ntime = \"\"\n",
             "[diagnose]\nvector_mismatch_nt = -3.0\n",
+            "[site]\nlatitude = 95.0\nlongitude = 0.0\n",
+            "[site]\nlongitude = 400.0\nlatitude = 0.0\n",
+            "[site]\ndate = \"June\"\nlatitude = 0.0\nlongitude = 0.0\n",
         ] {
             let error = parse(bad).unwrap_err().to_string();
             let key = bad
@@ -998,6 +1012,21 @@ mod tests {
             let section = bad.lines().next().unwrap_or_default();
             assert!(error.contains(section) && error.contains(key), "{bad:?}: {error}");
         }
+    }
+
+    #[test]
+    fn the_site_gives_the_vector_stage_a_position_and_a_date() {
+        assert_eq!(parse("").unwrap().settings.vector.site, None);
+        let pipeline = parse("[site]\nlatitude = -33.5\nlongitude = 151.25\ndate = \"2026-06-15\"\n").unwrap();
+        assert_eq!(
+            pipeline.settings.vector.site,
+            Some(crate::vector::Site {
+                latitude_deg: -33.5,
+                longitude_deg: 151.25,
+                height_m: 0.0,
+                date: crate::flight_date::FlightDate::parse("2026-06-15"),
+            })
+        );
     }
 
     #[test]

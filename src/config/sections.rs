@@ -108,6 +108,56 @@ impl From<RawVector> for VectorOptions {
     }
 }
 
+/// `[site]` as written.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawSite {
+    latitude: f64,
+    longitude: f64,
+    #[serde(default)]
+    height_m: f64,
+    #[serde(default)]
+    date: Option<String>,
+}
+
+impl TryFrom<RawSite> for crate::vector::Site {
+    type Error = String;
+
+    fn try_from(raw: RawSite) -> Result<Self, String> {
+        if !(raw.latitude.is_finite() && raw.latitude.abs() <= 90.0) {
+            return Err(format!(
+                "[site] latitude = {}: give degrees north, from -90 to 90",
+                raw.latitude
+            ));
+        }
+        if !(raw.longitude.is_finite() && (-180.0..=360.0).contains(&raw.longitude)) {
+            return Err(format!(
+                "[site] longitude = {}: give degrees east, from -180 to 360",
+                raw.longitude
+            ));
+        }
+        if !(raw.height_m.is_finite() && raw.height_m.abs() < 100_000.0) {
+            return Err(format!(
+                "[site] height_m = {}: give metres above mean sea level",
+                raw.height_m
+            ));
+        }
+        let date = match raw.date {
+            None => None,
+            Some(text) => Some(
+                crate::flight_date::FlightDate::parse(&text)
+                    .ok_or_else(|| format!("[site] date = {text:?}: write the survey's date as YYYY-MM-DD"))?,
+            ),
+        };
+        Ok(crate::vector::Site {
+            latitude_deg: raw.latitude,
+            longitude_deg: raw.longitude,
+            height_m: raw.height_m,
+            date,
+        })
+    }
+}
+
 raw_section! {
     /// `[quality.transfer]` as written.
     RawTransfer => TransferOptions {

@@ -362,6 +362,9 @@ fn record_fluxgate(
         })
         .unwrap_or(residual);
     let errors = calibration.errors();
+    let mounting = fluxgate
+        .mounting()
+        .expect("the scenario checks each fluxgate's mounting");
     let earth = earth_field_at(path, environment, [1.0, 0.0, -0.3]);
     let factor = scenario.raw.oversampling;
     // The eddy currents' drive: the body-axis Earth field's rate of change.
@@ -370,7 +373,10 @@ fn record_fluxgate(
     let readings: Vec<Vector> = earth
         .iter()
         .enumerate()
-        .map(|(k, b)| errors.read(add(*b, own.at(*b, [drive[0][k], drive[1][k], drive[2][k]]))))
+        .map(|(k, b)| {
+            let body = add(*b, own.at(*b, [drive[0][k], drive[1][k], drive[2][k]]));
+            errors.read(physics::apply(&mounting, body))
+        })
         .collect();
     let columns = ["x", "y", "z"]
         .iter()
@@ -398,6 +404,7 @@ fn record_fluxgate(
         sensor: fluxgate.name.clone(),
         calibration,
         aircraft: own,
+        mounting,
         earth_body_nt,
         earth_ned_nt,
     };

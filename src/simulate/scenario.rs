@@ -472,6 +472,49 @@ pub struct Fluxgate {
     /// The aircraft's field at the fluxgate, instead of one drawn at
     /// these sizes (one airframe flown on several days).
     pub aircraft: Option<AircraftField>,
+    /// The body axis (forward x, right y, down z) each fluxgate axis x, y,
+    /// z reads along, with its sign: `["-z", "x", "-y"]` is a fluxgate on
+    /// its side (default `["x", "y", "z"]`). Three reversed or an odd
+    /// permutation with one reversed make a left-handed triad.
+    pub axes: [String; 3],
+    /// The fluxgate turned from those axes about its own: roll, pitch,
+    /// yaw, degrees (default none).
+    pub turn_deg: [f64; 3],
+}
+
+impl Fluxgate {
+    /// The reading per body-axis field (rows: fluxgate axes): the axes'
+    /// signed permutation, then the turn.
+    pub fn mounting(&self) -> std::result::Result<[[f64; 3]; 3], String> {
+        let bad = || {
+            format!(
+                "[[fluxgate]] '{}': axes = {:?}: give each fluxgate axis as a body axis x, y or z, with a sign if reversed (\"-z\"), each body axis once",
+                self.name, self.axes
+            )
+        };
+        let mut permutation = [[0.0; 3]; 3];
+        let mut used = [false; 3];
+        for (row, text) in self.axes.iter().enumerate() {
+            let text = text.trim();
+            let (sign, name) = match text.strip_prefix('-') {
+                Some(rest) => (-1.0, rest),
+                None => (1.0, text.strip_prefix('+').unwrap_or(text)),
+            };
+            let axis = ["x", "y", "z"].iter().position(|a| *a == name).ok_or_else(bad)?;
+            if std::mem::replace(&mut used[axis], true) {
+                return Err(bad());
+            }
+            permutation[row][axis] = sign;
+        }
+        if !self.turn_deg.iter().all(|a| a.is_finite()) {
+            return Err(format!("[[fluxgate]] '{}': turn_deg must be finite degrees", self.name));
+        }
+        let [roll, pitch, yaw] = self.turn_deg;
+        let columns = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]].map(|e| {
+            crate::simulate::physics::to_body(crate::simulate::physics::apply(&permutation, e), roll, pitch, yaw)
+        });
+        Ok(std::array::from_fn(|row| std::array::from_fn(|c| columns[c][row])))
+    }
 }
 
 impl Default for Fluxgate {
@@ -486,6 +529,8 @@ impl Default for Fluxgate {
             non_orthogonality_deg: 0.03,
             offset_nt: 5.0,
             aircraft: None,
+            axes: ["x", "y", "z"].map(String::from),
+            turn_deg: [0.0; 3],
         }
     }
 }
@@ -783,6 +828,9 @@ fn check_sensors(raw: &RawScenario) -> std::result::Result<(), String> {
     }
     if let Some(f) = raw.fluxgate.iter().find(|f| !f.name.starts_with("flux_")) {
         return Err(format!("[[fluxgate]] '{}': name it flux_<s>, e.g. flux_a", f.name));
+    }
+    for fluxgate in &raw.fluxgate {
+        fluxgate.mounting()?;
     }
     if let Some(f) = (raw.fluxgate.iter()).find(|f| f.aircraft.as_ref().is_some_and(|a| !a.is_plausible())) {
         return Err(format!(

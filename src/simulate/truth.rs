@@ -50,6 +50,9 @@ pub struct FluxgateTruth {
     pub calibration: FluxgateCalibration,
     /// The aircraft's field at the fluxgate.
     pub aircraft: AircraftField,
+    /// How it is mounted: its reading per body-axis field (rows: its
+    /// axes), before its calibration errors.
+    pub mounting: [[f64; 3]; 3],
     /// True Earth field in body axes at the fluxgate, nT, per output sample.
     #[serde(skip)]
     pub earth_body_nt: [Vec<f64>; 3],

@@ -25,7 +25,18 @@
 //! scale error), the direction one unit vector, inclination I (down positive) and
 //! declination D (east of north) fitted with K and h. IGRF-14 at the
 //! box's mean position and the flight's date gives the starting direction;
-//! without a position the start is the best of a 5° grid.
+//! without a position it is IGRF-14 at the `[site]` of pipeline.toml, and
+//! without one the best of a 5° grid.
+//!
+//! **The field's sign.** K is any 3×3 matrix, so the fluxgate may sit any
+//! way round (axes permuted, reversed, turned): the linear fit at the
+//! start takes the mounting into K before Gauss-Newton refines it, and
+//! [`Mounting`] reads it back off K. But then $K u$ and $(-K)(-u)$ read
+//! alike, and the data cannot tell the field pointing down and north from
+//! the field pointing up and south. IGRF-14's direction chooses where
+//! there is a position; without one the fit takes the sign that makes the
+//! fluxgate's axes right-handed and says the direction is unverified
+//! ([`FieldSign`]).
 //!
 //! **What the data determine.** Tying $|b_i|$ to the scalar fixes the
 //! overall scale, which $K b$ alone leaves free ($K/s$, $s\,b$). The
@@ -78,6 +89,9 @@ pub struct VectorOptions {
     /// Fit the vector Tolles-Lawson stage ([`tolles_lawson`]) after the
     /// twelve constants (`[vector] tolles_lawson`, on by default).
     pub tolles_lawson: bool,
+    /// Where the survey was flown, for flights without a position
+    /// (`[site]`; none by default).
+    pub site: Option<Site>,
 }
 
 impl Default for VectorOptions {
@@ -87,6 +101,7 @@ impl Default for VectorOptions {
         VectorOptions {
             enabled: true,
             tolles_lawson: true,
+            site: None,
         }
     }
 }
@@ -112,8 +127,11 @@ fn direction(inclination: f64, declination: f64) -> [Vector3<f64>; 3] {
 #[derive(Debug, Clone, PartialEq, Serialize)]
 #[serde(tag = "from", rename_all = "snake_case")]
 pub enum FieldStart {
-    /// IGRF-14 at the box's mean position.
+    /// IGRF-14 at the box's mean position, or at the `[site]` when the
+    /// flight records none.
     Igrf {
+        /// Whether the position is the flight's own or the `[site]`'s.
+        position: PositionSource,
         /// Decimal year used (the flight's date, or 2025.0 without one).
         year: f64,
         /// Whether the year is the flight's own date.
@@ -125,8 +143,116 @@ pub enum FieldStart {
         /// IGRF total field, nT.
         total_nt: f64,
     },
-    /// The best direction of a 5° grid (no position recorded).
+    /// The best direction of a 5° grid (no position recorded, no
+    /// `[site]`).
     Grid,
+}
+
+/// Where the position IGRF-14 is evaluated at came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PositionSource {
+    /// The flight's position columns on the box's rows.
+    Recorded,
+    /// `[site]` in pipeline.toml (the flight records no position).
+    Site,
+}
+
+/// `[site]`: where and when the survey was flown, for a flight whose file
+/// records no position (or no date). The vector stage takes IGRF-14's
+/// field direction there to choose the field's sign and to check the fit.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Site {
+    /// Geodetic latitude, degrees north.
+    pub latitude_deg: f64,
+    /// Longitude, degrees east.
+    pub longitude_deg: f64,
+    /// Height above mean sea level, m.
+    pub height_m: f64,
+    /// The survey's date, used when the flight has none of its own.
+    pub date: Option<crate::flight_date::FlightDate>,
+}
+
+/// How the fit chose the sign of the Earth field's direction.
+///
+/// The twelve constants determine the field's direction only up to its
+/// sign: $K R_i F_i u = (-K) R_i F_i (-u)$ on every row, so a fluxgate
+/// whose three axes all read reversed, under a field pointing up and
+/// south, records exactly what the true one does. Something outside the
+/// data has to choose.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FieldSign {
+    /// The sign nearer IGRF-14's direction (position recorded or `[site]`).
+    Igrf,
+    /// No position: the sign that makes the fluxgate's axes right-handed
+    /// (det K > 0), as a three-axis fluxgate's are; unverified.
+    RightHandedAxes,
+}
+
+/// How the fluxgate sits against the INS body axes, read off the fitted K:
+/// the rotation nearest K (its polar factor), the body axis nearest each
+/// fluxgate axis, and how far the fluxgate is turned from those axes.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Mounting {
+    /// The body axis (forward x, right y, down z) each fluxgate axis x, y,
+    /// z reads nearest along, with its sign, e.g. `["-z", "+x", "-y"]`.
+    pub axes: [String; 3],
+    /// The angle between those body axes and the fluxgate's own, degrees:
+    /// a mounting misalignment (no turn is more than about 63° from the
+    /// nearest axes).
+    pub misalignment_deg: f64,
+    /// Whether the fluxgate's axes are right-handed (det K > 0). A
+    /// left-handed triad under a field whose sign IGRF fixes means an axis
+    /// reads reversed (wiring, or a sign in the file).
+    pub right_handed: bool,
+}
+
+impl Mounting {
+    /// The mounting K describes (rows: fluxgate axes, columns: body axes).
+    fn of(k: &Matrix3<f64>) -> Mounting {
+        let right_handed = k.determinant() > 0.0;
+        let svd = k.svd(true, true);
+        let rotation = match (svd.u, svd.v_t) {
+            (Some(u), Some(v_t)) => u * v_t,
+            _ => Matrix3::identity(),
+        };
+        // The signed permutation nearest the rotation: the assignment of
+        // body axes to fluxgate axes with the largest summed |cosines|.
+        const ORDERS: [[usize; 3]; 6] = [[0, 1, 2], [0, 2, 1], [1, 0, 2], [1, 2, 0], [2, 0, 1], [2, 1, 0]];
+        let score = |order: &[usize; 3]| (0..3).map(|j| rotation[(j, order[j])].abs()).sum::<f64>();
+        let order = ORDERS
+            .iter()
+            .copied()
+            .max_by(|a, b| score(a).total_cmp(&score(b)))
+            .unwrap_or([0, 1, 2]);
+        let mut nearest = Matrix3::zeros();
+        let axes = std::array::from_fn(|j| {
+            let sign = if rotation[(j, order[j])] < 0.0 { -1.0 } else { 1.0 };
+            nearest[(j, order[j])] = sign;
+            format!("{}{}", if sign < 0.0 { '-' } else { '+' }, ['x', 'y', 'z'][order[j]])
+        });
+        // The turn between the permuted body axes and the fluxgate's; a
+        // reflection left in (signs read off a turn near 45°) is taken out.
+        let turn = nearest.transpose() * rotation;
+        let turn = if turn.determinant() < 0.0 { -turn } else { turn };
+        let misalignment_deg = ((turn.trace() - 1.0) / 2.0).clamp(-1.0, 1.0).acos().to_degrees();
+        Mounting {
+            axes,
+            misalignment_deg,
+            right_handed,
+        }
+    }
+
+    /// `-z, +x, -y` (turned 45.0°), for notes.
+    pub fn describe(&self) -> String {
+        format!(
+            "fluxgate axes along body {} (turned {:.1}° from them{})",
+            self.axes.join(", "),
+            self.misalignment_deg,
+            if self.right_handed { "" } else { "; left-handed" }
+        )
+    }
 }
 
 /// Held-out residual of the model: each heading predicted by a fit on the
@@ -159,6 +285,10 @@ pub struct VectorModel {
     pub declination_deg: f64,
     /// The starting direction.
     pub start: FieldStart,
+    /// How the field's sign was chosen.
+    pub field_sign: FieldSign,
+    /// How the fluxgate sits against the INS body axes.
+    pub mounting: Mounting,
     /// Calibration rows fitted.
     pub rows: usize,
     /// Gauss-Newton iterations.
@@ -275,7 +405,7 @@ pub fn fit(
     sensor: &VectorSensor,
     (windows, spans): (&[CalibrationWindow], &[(f64, f64)]),
     reference: &Reference,
-    tolles_lawson: Option<&crate::model::FitOptions>,
+    (site, tolles_lawson): (Option<&Site>, Option<&crate::model::FitOptions>),
 ) -> Result<VectorModel> {
     let (reference_name, reference_nt) = (&reference.channel, reference.total_nt.as_slice());
     let attitude = log.attitude().ok_or_else(|| Error::Vector {
@@ -283,7 +413,15 @@ pub fn fit(
         message: "the flight records no INS attitude (roll, pitch and yaw)".into(),
     })?;
     let rows = union(window_rows(log, &spanned(windows, spans)));
-    let (angles, start, turns) = start_direction(log, sensor, &rows, (&attitude, reference_nt));
+    let (angles, start, turns) = start_direction(log, sensor, &rows, (&attitude, reference_nt), site);
+    let igrf = match start {
+        FieldStart::Igrf {
+            inclination_deg,
+            declination_deg,
+            ..
+        } => Some(direction(inclination_deg.to_radians(), declination_deg.to_radians())[0]),
+        FieldStart::Grid => None,
+    };
     let readings = log.vector_components(sensor);
     let inputs = (&attitude, reference_nt, &turns, readings);
     let calibration = samples(log, inputs, rows.iter().cloned());
@@ -294,6 +432,7 @@ pub fn fit(
             calibration.len()
         ),
     })?;
+    model.orient(igrf);
     model.sensor = sensor.prefix.clone();
     model.reference = reference_name.clone();
     model.reference_swing_nt = reference.swing_nt;
@@ -334,6 +473,7 @@ pub fn fit(
     let corrected_inputs = (&attitude, reference_nt, &turns, corrected.each_ref().map(Vec::as_slice));
     match fit_samples(&samples(log, corrected_inputs, rows.iter().cloned()), &angles) {
         Some(mut refitted) => {
+            refitted.orient(igrf);
             refitted.sensor = model.sensor.clone();
             refitted.reference = model.reference.clone();
             refitted.reference_swing_nt = model.reference_swing_nt;
@@ -507,13 +647,15 @@ impl Turns {
 
 /// The starting direction (inclination, declination in radians) and the
 /// main field's turn across `rows`: IGRF-14 at every row with a position
-/// (their mean direction the start) when the flight records one; else the
-/// best of a 5° grid and no turn.
+/// (their mean direction the start) when the flight records one; else
+/// IGRF-14 at the `[site]` with no turn; else the best of a 5° grid (whose
+/// cost is the same for u and −u, see [`FieldSign`]) and no turn.
 fn start_direction(
     log: &FlightLog,
     sensor: &VectorSensor,
     rows: &[Range<usize>],
     (attitude, reference): (&[&[f64]; 3], &[f64]),
+    site: Option<&Site>,
 ) -> ((f64, f64), FieldStart, Turns) {
     let column = |names: &[&str]| {
         names
@@ -523,14 +665,14 @@ fn start_direction(
     };
     let (latitude, longitude) = (column(&["lat", "ins_lat"]), column(&["lon", "ins_lon"]));
     let height = column(&["msl", "alt", "utm_z", "ins_alt"]);
+    let (year, dated) = match log.date().or(site.and_then(|s| s.date)) {
+        Some(d) => (decimal_year(d.year, d.month, d.day, 43_200.0), true),
+        None => (2025.0, false),
+    };
+    let model = Igrf::fourteenth();
+    let (first, last) = model.valid_years();
+    let epoch = model.at_year(year.clamp(first, last));
     if let (Some(latitude), Some(longitude)) = (latitude, longitude) {
-        let (year, dated) = match log.date() {
-            Some(d) => (decimal_year(d.year, d.month, d.day, 43_200.0), true),
-            None => (2025.0, false),
-        };
-        let model = Igrf::fourteenth();
-        let (first, last) = model.valid_years();
-        let epoch = model.at_year(year.clamp(first, last));
         let mut directions = std::collections::BTreeMap::new();
         let (mut sum, mut total) = (Vector3::zeros(), 0.0);
         for i in rows.iter().cloned().flatten() {
@@ -549,6 +691,7 @@ fn start_direction(
             let inclination = mean[2].asin();
             let declination = mean[1].atan2(mean[0]);
             let start = FieldStart::Igrf {
+                position: PositionSource::Recorded,
                 year,
                 dated,
                 inclination_deg: inclination.to_degrees(),
@@ -560,6 +703,24 @@ fn start_direction(
         }
     }
     let turns = Turns::default();
+    if let Some(site) = site {
+        let field = Vector3::from(
+            epoch
+                .field(site.latitude_deg, site.longitude_deg, site.height_m)
+                .north_east_down_nt,
+        );
+        let unit = field.normalize();
+        let (inclination, declination) = (unit[2].asin(), unit[1].atan2(unit[0]));
+        let start = FieldStart::Igrf {
+            position: PositionSource::Site,
+            year,
+            dated,
+            inclination_deg: inclination.to_degrees(),
+            declination_deg: declination.to_degrees(),
+            total_nt: field.norm(),
+        };
+        return ((inclination, declination), start, turns);
+    }
     let field = log.vector_components(sensor);
     let samples = samples(log, (attitude, reference, &turns, field), rows.iter().cloned());
     let score = GridScore::new(&samples);
@@ -826,6 +987,8 @@ fn fit_samples(samples: &[Sample], start: &(f64, f64)) -> Option<VectorModel> {
         inclination_deg: inclination.to_degrees(),
         declination_deg: declination.to_degrees(),
         start: FieldStart::Grid,
+        field_sign: FieldSign::RightHandedAxes,
+        mounting: Mounting::of(&parameters.k),
         rows: samples.len(),
         iterations,
         condition_number,
@@ -925,6 +1088,26 @@ fn held_out(log: &FlightLog, windows: &[CalibrationWindow], inputs: Inputs, star
 }
 
 impl VectorModel {
+    /// Chooses the sign of the field's direction, which the data leave
+    /// free (see [`FieldSign`]): the one nearer IGRF-14's direction `igrf`
+    /// when there is one, else the one that makes K's axes right-handed;
+    /// then reads the mounting off K.
+    fn orient(&mut self, igrf: Option<Vector3<f64>>) {
+        let u = direction(self.inclination_deg.to_radians(), self.declination_deg.to_radians())[0];
+        let k = Matrix3::from_fn(|j, c| self.soft_iron[j][c]);
+        let (flip, sign) = match igrf {
+            Some(expected) => (u.dot(&expected) < 0.0, FieldSign::Igrf),
+            None => (k.determinant() < 0.0, FieldSign::RightHandedAxes),
+        };
+        if flip {
+            self.soft_iron = self.soft_iron.map(|row| row.map(|v| -v));
+            self.inclination_deg = -self.inclination_deg;
+            self.declination_deg = (self.declination_deg + 360.0).rem_euclid(360.0) - 180.0;
+        }
+        self.field_sign = sign;
+        self.mounting = Mounting::of(&Matrix3::from_fn(|j, c| self.soft_iron[j][c]));
+    }
+
     /// The field the fitted constants expect in body axes on the rows of
     /// `windows` (`NaN` elsewhere and where a row lacks an attitude, a
     /// reference or its neighbours): the reference's size along the
