@@ -14,6 +14,11 @@ pub(super) struct HeldOut {
     pub(super) terms: usize,
     /// The fewest samples any of its fits was made on.
     pub(super) fewest_training_samples: usize,
+    /// Each split's fit as a ridge λ on the unscaled design, in split
+    /// order: its own λ, or for a truncated SVD of rank r the product of
+    /// the singular values either side of the cut (0 at full rank). The
+    /// screen ([`super::screen`]) fits candidates with it.
+    pub(super) ridge: Vec<f64>,
 }
 
 impl HeldOut {
@@ -85,8 +90,17 @@ pub(super) fn residuals(
     let prepared = prepare(problem, &spec)?;
     let mut windows = Vec::new();
     let (mut terms, mut fewest_training_samples) = (0, usize::MAX);
+    let mut ridge = Vec::new();
     for (out, rest) in splits {
         let fitted = prepared.fit(&rest, problem.options, problem.stores)?;
+        let solution = &fitted.solution;
+        ridge.push(solution.lambda.unwrap_or_else(|| {
+            let sigma = &solution.singular_values;
+            match solution.rank {
+                Some(r) if r > 0 && r < sigma.len() => sigma[r - 1] * sigma[r],
+                _ => 0.0,
+            }
+        }));
         terms = terms.max(fitted.coefficients.len());
         fewest_training_samples = fewest_training_samples.min(fitted.solution.samples);
         windows.extend(prepared.held_out(&fitted, &out, problem.options, problem.stores)?);
@@ -98,6 +112,7 @@ pub(super) fn residuals(
         samples: all.len(),
         terms,
         fewest_training_samples,
+        ridge,
     })
 }
 

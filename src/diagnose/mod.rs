@@ -85,6 +85,7 @@ mod finding;
 mod fluxgate;
 mod heldout;
 pub mod localise;
+mod screen;
 mod search;
 mod shifted;
 

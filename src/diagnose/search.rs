@@ -57,6 +57,7 @@ pub(super) fn diagnose_channel(
     let mut control = held_out(problem, &with_second_order(&model))?;
     let second_order = control.rms_nt;
     let mut current = baseline.rms_nt;
+    let mut current_ridge = baseline.ridge.clone();
     let baseline_windows = baseline.windows.clone();
     let mut current_windows = baseline.windows;
     let mut findings = Vec::new();
@@ -64,6 +65,10 @@ pub(super) fn diagnose_channel(
     let keep = 1.0 - settings.min_improvement;
     while findings.len() < settings.max_findings {
         let candidates = candidates(problem, &model, settings);
+        let candidates = match super::screen::Screen::new(problem, &model, &current_ridge) {
+            Some(screen) => screen.select(problem, candidates),
+            None => candidates,
+        };
         let mut scored: Vec<(Model, Extension, HeldOut)> = candidates
             .into_par_iter()
             .filter_map(|(next, extension)| held_out(problem, &next).ok().map(|h| (next, extension, h)))
@@ -176,6 +181,7 @@ pub(super) fn diagnose_channel(
         };
         findings.push(found);
         control = held_out(problem, &with_second_order(&next))?;
+        current_ridge = result.ridge.clone();
         (model, current, current_windows) = (next, result.rms_nt, result.windows);
     }
     let localisation = localise::localise(

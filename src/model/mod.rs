@@ -51,7 +51,7 @@ pub use extensions::{
     advanced, column_level, field_directions, rate_of_change, second_order_term, Extensions, SourceTerm,
     SECOND_ORDER_PASSES,
 };
-pub(crate) use prepared::Prepared;
+pub(crate) use prepared::{ExtraColumn, Prepared};
 
 /// What is fitted for one scalar channel: the Tolles-Lawson terms and the
 /// physics added to them.

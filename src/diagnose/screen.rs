@@ -1,0 +1,372 @@
+//! A cheap first look at every candidate, so that only the promising few
+//! are scored in full.
+//!
+//! The full score of a candidate ([`held_out`]) builds and band-passes its
+//! whole design on every split, then picks λ by PRESS on each: a hundred
+//! candidates of thirty auxiliary columns cost a hundred times the fit.
+//! But most candidates add a few columns to the current model (a source's
+//! coupling) or change only its target (a lag), and the held-out residual
+//! of a linear fit is a function of moment matrices: with the current
+//! model's band-passed design X and target y on each held-out piece (a
+//! heading's windows, a window, a quarter), and a candidate's new columns
+//! C and target y′,
+//!
+//! $$ G = \begin{pmatrix} X^\top X & X^\top C \\ C^\top X & C^\top C
+//! \end{pmatrix}, \qquad b = \begin{pmatrix} X^\top y' \\ C^\top y'
+//! \end{pmatrix}, $$
+//!
+//! summed over a split's training pieces, give its coefficients $β = (G +
+//! Λ)^{-1} b$, and over its held-out pieces its residual sum of squares
+//! $y'^\top y' - 2β^\top b + β^\top G β$. X's moments are gathered once per
+//! step of the search; a candidate costs the band-pass of its own columns
+//! and their products with X: a few per cent of its full score.
+//!
+//! Λ holds the current model's own ridge λ of that split on X's columns
+//! (its regularisation, which the full score would mostly choose again)
+//! and none on a source's columns, so the screen asks what they add to the
+//! model as it stands; an eddy time constant's lagged terms, which replace
+//! X's nine eddy columns, take the model's λ as those did. It ranks; it
+//! decides nothing: the best [`SCREENED_KEEP`] by the screen, and every
+//! candidate it cannot judge (the second-order term, whose target depends
+//! on the fit; a source with gaps on the windows, which changes the rows),
+//! go on to the full score and to every test after it.
+
+use faer::linalg::solvers::Solve;
+use faer::Mat;
+
+use super::*;
+use crate::model::band::band_data;
+use crate::model::ExtraColumn;
+use crate::tolles_lawson::{EddyTerms, InducedTerms};
+
+/// Candidates the screen passes on to the full score, besides those it
+/// cannot judge. The search checks the best few of the full scores against
+/// the control ([`CONTROL_CHECKS`]) and the other λ criterion: the screen
+/// keeps twice as many.
+pub(super) const SCREENED_KEEP: usize = 8;
+
+/// The current model's band-passed design on every held-out piece, and
+/// each piece's moments.
+pub(super) struct Screen {
+    /// The held-out pieces, split by split.
+    pieces: Vec<CalibrationWindow>,
+    /// The split holding out each piece.
+    split_of: Vec<usize>,
+    /// Each split's ridge λ on the current design.
+    ridge: Vec<f64>,
+    /// The model screened against.
+    model: Model,
+    /// Names of its design columns (terms, then extension columns).
+    names: Vec<String>,
+    /// Its design columns over the stacked rows of every piece.
+    columns: Vec<Vec<f64>>,
+    /// Its band-passed target over the same rows.
+    target: Vec<f64>,
+    /// Each piece's stacked rows and flight rows.
+    rows: Vec<std::ops::Range<usize>>,
+    flight_rows: Vec<Vec<std::ops::Range<usize>>>,
+    /// Each piece's $X^\top X$ (row-major) and $X^\top y$, $y^\top y$.
+    gram: Vec<Vec<f64>>,
+    cross: Vec<Vec<f64>>,
+    squares: Vec<f64>,
+}
+
+/// $a^\top b$, in eight running sums the compiler can keep in one vector
+/// register (the order of the additions is fixed: the same bits on any
+/// machine and thread count).
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    let n = a.len().min(b.len());
+    let (a, b) = (&a[..n], &b[..n]);
+    let mut sums = [0.0; 8];
+    let (a_chunks, b_chunks) = (a.chunks_exact(8), b.chunks_exact(8));
+    let tail: f64 = (a_chunks.remainder().iter())
+        .zip(b_chunks.remainder())
+        .map(|(x, y)| x * y)
+        .sum();
+    for (x, y) in a_chunks.zip(b_chunks) {
+        for lane in 0..8 {
+            sums[lane] += x[lane] * y[lane];
+        }
+    }
+    sums.iter().sum::<f64>() + tail
+}
+
+impl Screen {
+    /// The screen of `model`, fitted on each split with ridge λ `ridge`
+    /// ([`HeldOut::ridge`]); `None` where it cannot be built (a model with
+    /// the second-order term, whose target the fit corrects; a split count
+    /// that does not match).
+    pub(super) fn new(problem: &Problem, model: &Model, ridge: &[f64]) -> Option<Screen> {
+        if model.second_order {
+            return None;
+        }
+        let splits = folds(problem.windows);
+        if ridge.len() != splits.len() {
+            return None;
+        }
+        let (mut pieces, mut split_of) = (Vec::new(), Vec::new());
+        for (split, (out, _)) in splits.iter().enumerate() {
+            pieces.extend(out.iter().cloned());
+            split_of.extend(std::iter::repeat_n(split, out.len()));
+        }
+        let spec = problem.spec(model);
+        let prepared = prepare(problem, &spec).ok()?;
+        let data = band_data(
+            &prepared.log,
+            problem.sensor,
+            problem.channel,
+            &pieces,
+            (spec.fitted_terms(), &problem.options.filter),
+            &prepared.extra_columns(),
+            problem.stores,
+        )
+        .ok()?;
+        let p = data.stacked.columns();
+        let columns: Vec<Vec<f64>> = (0..p).map(|j| data.stacked.column(j)).collect();
+        let target = data.stacked.target();
+        problem.stores.recycle(data.stacked);
+        let rows: Vec<_> = data.windows.iter().map(|w| w.stacked_rows.clone()).collect();
+        let (mut gram, mut cross, mut squares) = (Vec::new(), Vec::new(), Vec::new());
+        for range in &rows {
+            let piece: Vec<&[f64]> = columns.iter().map(|c| &c[range.clone()]).collect();
+            let y = &target[range.clone()];
+            let mut g = vec![0.0; p * p];
+            for i in 0..p {
+                for j in i..p {
+                    let value = dot(piece[i], piece[j]);
+                    g[i * p + j] = value;
+                    g[j * p + i] = value;
+                }
+            }
+            gram.push(g);
+            cross.push(piece.iter().map(|c| dot(c, y)).collect());
+            squares.push(dot(y, y));
+        }
+        Some(Screen {
+            pieces,
+            split_of,
+            ridge: ridge.to_vec(),
+            model: model.clone(),
+            names: (spec.fitted_terms().names().into_iter())
+                .chain(prepared.extra.iter().map(|c| c.name.clone()))
+                .collect(),
+            columns,
+            target,
+            flight_rows: data.windows.iter().map(|w| w.flight_rows.clone()).collect(),
+            rows,
+            gram,
+            cross,
+            squares,
+        })
+    }
+
+    /// The screened held-out RMS of `candidate`, nT; `None` where the
+    /// screen cannot judge it.
+    fn score(&self, problem: &Problem, candidate: &Model) -> Option<f64> {
+        let model = &self.model;
+        if candidate.second_order != model.second_order || candidate.vector_calibration != model.vector_calibration {
+            return None;
+        }
+        let spec = problem.spec(candidate);
+        let prepared = prepare(problem, &spec).ok()?;
+        // The candidate's design: the model's columns it keeps (an eddy
+        // time constant drops the nine instantaneous eddy terms), then its
+        // new ones.
+        let names: Vec<String> = (spec.fitted_terms().names().into_iter())
+            .chain(prepared.extra.iter().map(|c| c.name.clone()))
+            .collect();
+        let kept: Vec<usize> = (0..self.names.len()).filter(|&i| names.contains(&self.names[i])).collect();
+        let new: Vec<&ExtraColumn> = (prepared.extra.iter()).filter(|c| !self.names.contains(&c.name)).collect();
+        if kept.len() + new.len() != names.len() {
+            return None;
+        }
+        let retargeted = candidate.lag_s != model.lag_s;
+        let none = TermSet {
+            permanent: false,
+            induced: InducedTerms::None,
+            eddy: EddyTerms::None,
+            field_derivative: false,
+            bias: false,
+            ..problem.terms
+        };
+        let new_values: Vec<&[f64]> = new.iter().map(|c| c.values.as_slice()).collect();
+        let data = band_data(
+            &prepared.log,
+            problem.sensor,
+            problem.channel,
+            &self.pieces,
+            (none, &problem.options.filter),
+            &new_values,
+            problem.stores,
+        )
+        .ok()?;
+        // The candidate's columns must fill the same rows as the model's.
+        let aligned = data.windows.len() == self.rows.len()
+            && (data.windows.iter())
+                .zip(&self.flight_rows)
+                .all(|(w, rows)| w.flight_rows == *rows);
+        let k = new.len();
+        let added: Vec<Vec<f64>> = (0..k).map(|j| data.stacked.column(j)).collect();
+        let target = retargeted.then(|| data.stacked.target());
+        problem.stores.recycle(data.stacked);
+        if !aligned {
+            return None;
+        }
+        let (p, all) = (kept.len(), self.columns.len());
+        let q = p + k;
+        // The model's regularisation on its own columns and on columns
+        // that stand in for its terms (the lagged eddy terms); none on a
+        // source's.
+        let penalised: Vec<bool> = (0..p)
+            .map(|_| true)
+            .chain(new.iter().map(|c| c.name.starts_with("eddy_lagged")))
+            .collect();
+        let y = target.as_deref().unwrap_or(&self.target);
+        // Each piece's moments of [X C] and y′.
+        let moments: Vec<(Vec<f64>, Vec<f64>, f64)> = (self.rows.iter().enumerate())
+            .map(|(piece, range)| {
+                let x: Vec<&[f64]> = kept.iter().map(|&i| &self.columns[i][range.clone()]).collect();
+                let c: Vec<&[f64]> = added.iter().map(|c| &c[range.clone()]).collect();
+                let y = &y[range.clone()];
+                let mut g = vec![0.0; q * q];
+                for (a, &i) in kept.iter().enumerate() {
+                    for (b, &j) in kept.iter().enumerate() {
+                        g[a * q + b] = self.gram[piece][i * all + j];
+                    }
+                }
+                for a in 0..k {
+                    for (i, column) in x.iter().enumerate() {
+                        let value = dot(c[a], column);
+                        g[(p + a) * q + i] = value;
+                        g[i * q + p + a] = value;
+                    }
+                    for b in a..k {
+                        let value = dot(c[a], c[b]);
+                        g[(p + a) * q + p + b] = value;
+                        g[(p + b) * q + p + a] = value;
+                    }
+                }
+                let mut b: Vec<f64> = match retargeted {
+                    true => x.iter().map(|column| dot(column, y)).collect(),
+                    false => kept.iter().map(|&i| self.cross[piece][i]).collect(),
+                };
+                b.extend(c.iter().map(|column| dot(column, y)));
+                let squares = match retargeted {
+                    true => dot(y, y),
+                    false => self.squares[piece],
+                };
+                (g, b, squares)
+            })
+            .collect();
+        let (mut residual, mut samples) = (0.0, 0usize);
+        for (split, &lambda) in self.ridge.iter().enumerate() {
+            let (mut g, mut b) = (vec![0.0; q * q], vec![0.0; q]);
+            for (piece, (gp, bp, _)) in moments.iter().enumerate() {
+                if self.split_of[piece] != split {
+                    g.iter_mut().zip(gp).for_each(|(s, v)| *s += v);
+                    b.iter_mut().zip(bp).for_each(|(s, v)| *s += v);
+                }
+            }
+            let system = Mat::from_fn(q, q, |i, j| g[i * q + j] + if i == j && penalised[i] { lambda } else { 0.0 });
+            let factor = system.llt(faer::Side::Lower).ok()?;
+            let beta = factor.solve(Mat::from_fn(q, 1, |i, _| b[i]));
+            let beta: Vec<f64> = (0..q).map(|i| beta[(i, 0)]).collect();
+            for (piece, (gp, bp, yy)) in moments.iter().enumerate() {
+                if self.split_of[piece] != split {
+                    continue;
+                }
+                let g_beta: Vec<f64> = gp.chunks_exact(q).map(|row| dot(row, &beta)).collect();
+                residual += yy - 2.0 * dot(&beta, bp) + dot(&beta, &g_beta);
+                samples += self.rows[piece].len();
+            }
+        }
+        (samples > 0 && residual.is_finite()).then(|| (residual.max(0.0) / samples as f64).sqrt())
+    }
+
+    /// The candidates worth the full score: the best [`SCREENED_KEEP`] by
+    /// the screen, every one it cannot judge, and the column alone of a
+    /// column kept with its rate (the rate must earn its place against it,
+    /// [`drop_unearned_rates`]). In `candidates`' order.
+    pub(super) fn select(&self, problem: &Problem, candidates: Vec<(Model, Extension)>) -> Vec<(Model, Extension)> {
+        let scores: Vec<Option<f64>> = candidates.par_iter().map(|(m, _)| self.score(problem, m)).collect();
+        let mut ranked: Vec<usize> = (0..candidates.len()).filter(|&i| scores[i].is_some()).collect();
+        ranked.sort_by(|&a, &b| scores[a].unwrap_or(f64::INFINITY).total_cmp(&scores[b].unwrap_or(f64::INFINITY)));
+        let mut keep: Vec<bool> = scores.iter().map(Option::is_none).collect();
+        for &i in ranked.iter().take(SCREENED_KEEP) {
+            keep[i] = true;
+        }
+        let partners: Vec<String> = (0..candidates.len())
+            .filter(|&i| keep[i])
+            .filter_map(|i| match &candidates[i].1 {
+                Extension::CouplingWithRate { source } => Some(source.clone()),
+                _ => None,
+            })
+            .collect();
+        for (i, (_, extension)) in candidates.iter().enumerate() {
+            if let Extension::Coupling { source } = extension {
+                keep[i] |= partners.contains(source);
+            }
+        }
+        candidates
+            .into_iter()
+            .zip(keep)
+            .filter_map(|(candidate, kept)| kept.then_some(candidate))
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::simulate::scenario::{RawScenario, Scenario};
+
+    /// A simulated box with a tail sensor, its detected windows, and a
+    /// problem over them.
+    fn flight() -> (FlightLog, Vec<CalibrationWindow>) {
+        let raw: RawScenario = toml::from_str("[survey]\nline_count = 1\nline_length_m = 3000.0\n").unwrap();
+        let flight = crate::simulate::simulate(&Scenario::try_from(raw).unwrap()).unwrap();
+        let detection = crate::detect::detect_manoeuvres(&flight.log, &Default::default()).unwrap();
+        (flight.log, detection.calibration_windows(1.0))
+    }
+
+    /// With no new column and the same target, the screen's figure is the
+    /// model's own held-out RMS: the moments give what the rows give, so
+    /// the screen and the full score measure the same thing. A lag (a new
+    /// target) screens within 20 % of its full score (which picks its own
+    /// λ).
+    #[test]
+    fn the_screen_of_the_model_itself_is_its_held_out_rms() {
+        let (log, windows) = flight();
+        let sensor = log.vector_sensor("flux_a").unwrap();
+        let direction = field_directions(&log, &sensor);
+        let levels = source_levels(&log);
+        let (options, stores) = (FitOptions::default(), StorePool::new());
+        let problem = Problem {
+            log: &log,
+            sensor: &sensor,
+            channel: "mag_1_uc",
+            windows: &windows,
+            terms: TermSet::default(),
+            options: &options,
+            direction: &direction,
+            levels: &levels,
+            stores: &stores,
+        };
+        let model = Model::default();
+        let full = held_out(&problem, &model).unwrap();
+        let screen = Screen::new(&problem, &model, &full.ridge).unwrap();
+        let screened = screen.score(&problem, &model).unwrap();
+        assert!(
+            (screened - full.rms_nt).abs() < 1e-6 * full.rms_nt,
+            "{screened} against {}",
+            full.rms_nt
+        );
+        let lagged = Model {
+            lag_s: 0.1,
+            ..Model::default()
+        };
+        let lag = screen.score(&problem, &lagged).unwrap();
+        let lag_full = held_out(&problem, &lagged).unwrap().rms_nt;
+        assert!(lag.is_finite() && lag > 0.0 && (lag / lag_full - 1.0).abs() < 0.2, "{lag} against {lag_full}");
+    }
+}
