@@ -5,6 +5,7 @@ use super::*;
 
 /// Held-out residuals of a model: per window, predicted by a fit without
 /// that window's heading.
+#[derive(Clone)]
 pub(super) struct HeldOut {
     pub(super) rms_nt: f64,
     pub(super) windows: Vec<WindowFit>,

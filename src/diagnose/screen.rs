@@ -114,7 +114,7 @@ impl Screen {
         let data = band_data(
             &prepared.log,
             problem.sensor,
-            problem.channel,
+            (problem.channel, &prepared.scalar),
             &pieces,
             (spec.fitted_terms(), &problem.options.filter),
             &prepared.extra_columns(),
@@ -193,7 +193,7 @@ impl Screen {
         let data = band_data(
             &prepared.log,
             problem.sensor,
-            problem.channel,
+            (problem.channel, &prepared.scalar),
             &self.pieces,
             (none, &problem.options.filter),
             &new_values,

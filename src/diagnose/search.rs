@@ -69,9 +69,16 @@ pub(super) fn diagnose_channel(
             Some(screen) => screen.select(problem, candidates),
             None => candidates,
         };
+        // The second-order candidate is the control, already scored.
         let mut scored: Vec<(Model, Extension, HeldOut)> = candidates
             .into_par_iter()
-            .filter_map(|(next, extension)| held_out(problem, &next).ok().map(|h| (next, extension, h)))
+            .filter_map(|(next, extension)| {
+                let result = match extension {
+                    Extension::SecondOrder if next == with_second_order(&model) => Ok(control.clone()),
+                    _ => held_out(problem, &next),
+                };
+                result.ok().map(|h| (next, extension, h))
+            })
             // A candidate with more terms than its folds have samples
             // measures nothing.
             .filter(|(_, _, h)| h.unusable().is_none())

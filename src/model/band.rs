@@ -96,25 +96,24 @@ pub(crate) struct BandData {
 
 /// Band-passes and stacks `windows` of one channel: the columns of
 /// `terms`, then `extra` (one value per row of the flight each), then the
-/// scalar record.
+/// channel's readings `scalar` (one per row: the recorded ones, or those
+/// a model reads, advanced by a lag or less its second-order term).
 pub(crate) fn band_data(
     log: &FlightLog,
     sensor: &VectorSensor,
-    channel: &str,
+    (channel, scalar): (&str, &[f64]),
     windows: &[CalibrationWindow],
     (terms, settings): (TermSet, &FilterSettings),
     extra: &[&[f64]],
     stores: &StorePool,
 ) -> Result<BandData> {
-    let scalar = &log
-        .channel(channel)
-        .ok_or_else(|| Error::MissingColumn {
-            path: log.source().to_path_buf(),
-            role: "scalar magnetometer",
-            looked_for: format!("'{channel}'"),
-            hint: "Check --channels or [columns] scalar in pipeline.toml.".into(),
-        })?
-        .values;
+    if scalar.len() != log.len() {
+        return Err(Error::LengthMismatch {
+            column: channel.to_string(),
+            found: scalar.len(),
+            expected: log.len(),
+        });
+    }
     let filter = design_filter(log, settings)?;
     let sample_rate_hz = 1.0 / log.median_interval_s();
     let trim = settings.trim_samples;

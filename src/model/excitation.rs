@@ -339,7 +339,7 @@ pub fn analyse_design(
     } = band_data(
         &prepared.log,
         sensor,
-        &model.channel,
+        (&model.channel, &prepared.scalar),
         windows,
         (model.spec.fitted_terms(), &options.filter),
         &prepared.extra_columns(),
@@ -971,7 +971,7 @@ fn candidate_gram(
     let data = band_data(
         &candidate.log,
         &candidate_sensor,
-        &model.channel,
+        (&model.channel, &candidate.scalar),
         &[window],
         (spec.fitted_terms(), &options.filter),
         &candidate.extra_columns(),

@@ -271,7 +271,7 @@ impl FittedModel {
         let prepared = Prepared::new(log, &sensor, &self.channel, &self.spec)?;
         let scalar_nt = match self.spec.extensions.lag_s {
             0.0 => Cow::Borrowed(prepared::scalar_values(log, &self.channel)?),
-            _ => Cow::Owned(prepared::scalar_values(&prepared.log, &self.channel)?.to_vec()),
+            _ => Cow::Owned(prepared.scalar.to_vec()),
         };
         let terms = self.spec.fitted_terms();
         let built;

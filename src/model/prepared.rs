@@ -46,6 +46,9 @@ pub(crate) struct Prepared<'a> {
     pub spec: &'a ModelSpec,
     /// Extension columns, in the order their coefficients follow the terms'.
     pub extra: Vec<ExtraColumn>,
+    /// The scalar channel's readings, advanced by the lag (borrowed when
+    /// there is none): the flight itself is never copied for it.
+    pub scalar: Cow<'a, [f64]>,
 }
 
 impl<'a> Prepared<'a> {
@@ -136,12 +139,10 @@ impl<'a> Prepared<'a> {
                 }
             }
         }
-        let log = match extensions.lag_s {
-            0.0 => log,
-            lag_s => {
-                let values = advanced(scalar_values(&log, channel)?, log.time_s(), lag_s);
-                Cow::Owned(log.with_values(channel, values)?)
-            }
+        let scalar = match (&log, extensions.lag_s) {
+            (_, lag_s) if lag_s != 0.0 => Cow::Owned(advanced(scalar_values(&log, channel)?, log.time_s(), lag_s)),
+            (Cow::Borrowed(flight), _) => Cow::Borrowed(scalar_values(flight, channel)?),
+            (Cow::Owned(flight), _) => Cow::Owned(scalar_values(flight, channel)?.to_vec()),
         };
         Ok(Prepared {
             log,
@@ -149,6 +150,7 @@ impl<'a> Prepared<'a> {
             channel,
             spec,
             extra,
+            scalar,
         })
     }
 
@@ -166,10 +168,10 @@ impl<'a> Prepared<'a> {
                 path: self.log.source().to_path_buf(),
             });
         }
-        let mut fitted = self.fit_once(&self.log, windows, options, stores)?;
+        let mut fitted = self.fit_once(&self.scalar, windows, options, stores)?;
         if self.spec.extensions.second_order {
             for _ in 0..SECOND_ORDER_PASSES {
-                let corrected = self.corrected(&fitted)?;
+                let corrected = self.corrected(&fitted);
                 fitted = self.fit_once(&corrected, windows, options, stores)?;
             }
         }
@@ -180,7 +182,7 @@ impl<'a> Prepared<'a> {
     /// (the prepared flight, or it less the second-order term).
     fn fit_once(
         &self,
-        log: &FlightLog,
+        scalar: &[f64],
         windows: &[CalibrationWindow],
         options: &FitOptions,
         stores: &StorePool,
@@ -191,9 +193,9 @@ impl<'a> Prepared<'a> {
             windows: mut fits,
             sample_rate_hz,
         } = band_data(
-            log,
+            &self.log,
             self.sensor,
-            self.channel,
+            (self.channel, scalar),
             windows,
             (terms, &options.filter),
             &self.extra_columns(),
@@ -202,7 +204,7 @@ impl<'a> Prepared<'a> {
         let solve = self.spec.solve_options(&options.solve);
         let solution = solve_stacked(&stacked, &solve);
         let mut solution = solution.map_err(|e| Error::Fit {
-            path: log.source().to_path_buf(),
+            path: self.log.source().to_path_buf(),
             channel: self.channel.into(),
             source: e.into(),
         });
@@ -266,7 +268,7 @@ impl<'a> Prepared<'a> {
         } = band_data(
             &self.log,
             self.sensor,
-            self.channel,
+            (self.channel, &self.scalar),
             windows,
             (self.spec.fitted_terms(), &options.filter),
             &self.extra_columns(),
@@ -286,11 +288,11 @@ impl<'a> Prepared<'a> {
         options: &FitOptions,
         stores: &StorePool,
     ) -> Result<Vec<WindowFit>> {
-        let corrected = self.corrected(fitted)?;
+        let corrected = self.corrected(fitted);
         let data = band_data(
-            &corrected,
+            &self.log,
             self.sensor,
-            self.channel,
+            (self.channel, &corrected),
             windows,
             (self.spec.fitted_terms(), &options.filter),
             &self.extra_columns(),
@@ -309,23 +311,19 @@ impl<'a> Prepared<'a> {
 
     /// The prepared flight with the channel less the second-order term of
     /// `fitted`'s aircraft field (unchanged without the term).
-    fn corrected(&self, fitted: &FittedModel) -> Result<Cow<'_, FlightLog>> {
+    fn corrected(&self, fitted: &FittedModel) -> Cow<'_, [f64]> {
         if !self.spec.extensions.second_order {
-            return Ok(Cow::Borrowed(self.log.as_ref()));
+            return Cow::Borrowed(&self.scalar);
         }
         let term = second_order_term(
             self.log.vector_components(self.sensor),
             &self.spec.fitted_terms(),
             &fitted.coefficients,
         );
-        let scalar = scalar_values(&self.log, self.channel)?;
-        let values = scalar.iter().zip(&term).map(|(s, q)| s - q).collect();
-        Ok(Cow::Owned(self.log.with_values(self.channel, values)?))
+        Cow::Owned(self.scalar.iter().zip(&term).map(|(s, q)| s - q).collect())
     }
 }
 
-/// The record of scalar `channel`; an error naming it when the flight
-/// lacks it.
 pub(crate) fn scalar_values<'a>(log: &'a FlightLog, channel: &str) -> Result<&'a [f64]> {
     match log.channel(channel) {
         Some(scalar) => Ok(&scalar.values),
