@@ -388,7 +388,9 @@ mod tests {
         // A prime and an even length, noise-like values: the FFT's band
         // power against the DFT summed term by term.
         for n in [997usize, 1000] {
-            let x: Vec<f64> = (0..n).map(|k| ((k * 7919 % 1009) as f64 / 504.5 - 1.0) + (k as f64 * 0.37).sin()).collect();
+            let x: Vec<f64> = (0..n)
+                .map(|k| ((k * 7919 % 1009) as f64 / 504.5 - 1.0) + (k as f64 * 0.37).sin())
+                .collect();
             let (fs, low, high) = (10.0, 0.1, 0.9);
             let mut power = 0.0;
             for k in 1..n.div_ceil(2) {

@@ -175,8 +175,12 @@ impl Screen {
         let names: Vec<String> = (spec.fitted_terms().names().into_iter())
             .chain(prepared.extra.iter().map(|c| c.name.clone()))
             .collect();
-        let kept: Vec<usize> = (0..self.names.len()).filter(|&i| names.contains(&self.names[i])).collect();
-        let new: Vec<&ExtraColumn> = (prepared.extra.iter()).filter(|c| !self.names.contains(&c.name)).collect();
+        let kept: Vec<usize> = (0..self.names.len())
+            .filter(|&i| names.contains(&self.names[i]))
+            .collect();
+        let new: Vec<&ExtraColumn> = (prepared.extra.iter())
+            .filter(|c| !self.names.contains(&c.name))
+            .collect();
         if kept.len() + new.len() != names.len() {
             return None;
         }
@@ -267,7 +271,9 @@ impl Screen {
                     b.iter_mut().zip(bp).for_each(|(s, v)| *s += v);
                 }
             }
-            let system = Mat::from_fn(q, q, |i, j| g[i * q + j] + if i == j && penalised[i] { lambda } else { 0.0 });
+            let system = Mat::from_fn(q, q, |i, j| {
+                g[i * q + j] + if i == j && penalised[i] { lambda } else { 0.0 }
+            });
             let factor = system.llt(faer::Side::Lower).ok()?;
             let beta = factor.solve(Mat::from_fn(q, 1, |i, _| b[i]));
             let beta: Vec<f64> = (0..q).map(|i| beta[(i, 0)]).collect();
@@ -290,7 +296,11 @@ impl Screen {
     pub(super) fn select(&self, problem: &Problem, candidates: Vec<(Model, Extension)>) -> Vec<(Model, Extension)> {
         let scores: Vec<Option<f64>> = candidates.par_iter().map(|(m, _)| self.score(problem, m)).collect();
         let mut ranked: Vec<usize> = (0..candidates.len()).filter(|&i| scores[i].is_some()).collect();
-        ranked.sort_by(|&a, &b| scores[a].unwrap_or(f64::INFINITY).total_cmp(&scores[b].unwrap_or(f64::INFINITY)));
+        ranked.sort_by(|&a, &b| {
+            scores[a]
+                .unwrap_or(f64::INFINITY)
+                .total_cmp(&scores[b].unwrap_or(f64::INFINITY))
+        });
         let mut keep: Vec<bool> = scores.iter().map(Option::is_none).collect();
         for &i in ranked.iter().take(SCREENED_KEEP) {
             keep[i] = true;
@@ -367,6 +377,9 @@ mod tests {
         };
         let lag = screen.score(&problem, &lagged).unwrap();
         let lag_full = held_out(&problem, &lagged).unwrap().rms_nt;
-        assert!(lag.is_finite() && lag > 0.0 && (lag / lag_full - 1.0).abs() < 0.2, "{lag} against {lag_full}");
+        assert!(
+            lag.is_finite() && lag > 0.0 && (lag / lag_full - 1.0).abs() < 0.2,
+            "{lag} against {lag_full}"
+        );
     }
 }
