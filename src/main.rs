@@ -86,6 +86,10 @@ enum Command {
         /// Settings file for columns and [detect] thresholds (flights in it are ignored).
         #[arg(long)]
         config: Option<PathBuf>,
+        /// Keep only what was detected on these calibration lines (the line
+        /// column), comma-separated, e.g. 1002.20,1002.21.
+        #[arg(long)]
+        lines: Option<String>,
     },
     /// Rewrite a flight log in another format (CSV, XYZ or MCAP, by the
     /// output's extension); MCAP inputs are aligned on one time base.
@@ -257,7 +261,12 @@ fn main() -> ExitCode {
         } => run(&config, plain, force, shard.as_deref()),
         Command::Summarize { outdir } => summarize(&outdir),
         Command::Compensate(args) => compensate(args),
-        Command::Detect { flight, out, config } => detect(&flight, &out, config.as_deref()),
+        Command::Detect {
+            flight,
+            out,
+            config,
+            lines,
+        } => detect(&flight, &out, config.as_deref(), lines.as_deref()),
         Command::Diagnose {
             flight,
             out,
@@ -732,12 +741,17 @@ fn plan_calibration(plan_path: &Path, out: &Path, config: Option<&Path>) -> anyh
     Ok(())
 }
 
-fn detect(flight: &Path, out: &Path, config: Option<&Path>) -> anyhow::Result<()> {
+fn detect(flight: &Path, out: &Path, config: Option<&Path>, lines: Option<&str>) -> anyhow::Result<()> {
     let pipeline = Pipeline::load_or_default(config)?;
+    let lines = lines.map(magcomp::windows::parse_lines).transpose()?;
     let inputs: Vec<&Path> = std::iter::once(flight).chain(config).collect();
     print_notes(&prepare(&inputs, &[Destination::new(out, OutputKind::Json, "--out")])?);
     let log = read_screened(flight, &pipeline)?;
-    let detection = magcomp::detect::detect_manoeuvres(&log, &pipeline.settings.detect)?;
+    let mut detection = magcomp::detect::detect_manoeuvres(&log, &pipeline.settings.detect)?;
+    if let Some(lines) = lines {
+        let spans = magcomp::windows::line_spans(&log, &lines)?;
+        detection = detection.on_lines(&spans);
+    }
     /// DETECT.json: the detection and the flight it was made on.
     #[derive(serde::Serialize)]
     struct DetectJson<'a> {

@@ -71,6 +71,56 @@ fn a_line_number_selects_its_box_and_nothing_else() {
     }
 }
 
+/// `magcomp detect --lines` writes only the manoeuvres of the lines named:
+/// twelve within the second box's span, none of the first's; and a line the
+/// flight does not hold is refused.
+#[test]
+fn detect_keeps_the_lines_named() {
+    let folder = tempfile::tempdir().unwrap();
+    let (csv, flight) = two_box_flight(folder.path(), 43);
+    let binary = env!("CARGO_BIN_EXE_magcomp");
+    let out = folder.path().join("DETECT.json");
+    let run = Command::new(binary)
+        .args([
+            "detect",
+            csv.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--lines",
+            "1002.21",
+        ])
+        .output()
+        .unwrap();
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let said = String::from_utf8_lossy(&run.stdout);
+    assert!(said.contains("12 on line 1002.21"), "{said}");
+    let json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    let manoeuvres = json["manoeuvres"].as_array().unwrap();
+    assert_eq!(manoeuvres.len(), 12, "{said}");
+    let own = &flight.truth.boxes[1];
+    for m in manoeuvres {
+        let (start, end) = (m["t_start"].as_f64().unwrap(), m["t_end"].as_f64().unwrap());
+        assert!(start >= own.t_start - 5.0 && end <= own.t_end + 5.0, "{m}");
+    }
+    let absent = Command::new(binary)
+        .args([
+            "detect",
+            csv.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--lines",
+            "1003.5",
+        ])
+        .output()
+        .unwrap();
+    assert!(!absent.status.success());
+    assert!(
+        String::from_utf8_lossy(&absent.stderr).contains("calibration line 1003.5 is not in the flight"),
+        "{}",
+        String::from_utf8_lossy(&absent.stderr)
+    );
+}
+
 /// A line the flight does not hold is an error that lists the lines it
 /// does; a flight without a line column says so; lines beside windows
 /// are refused.
