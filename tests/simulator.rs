@@ -484,6 +484,40 @@ fn a_scenario_typo_names_the_field() {
     }
 }
 
+/// A scenario cannot run away or name the impossible: each size is bounded
+/// (and the bound is in the error), the date is a calendar day, the site a
+/// place on Earth, an omitted or weakened manoeuvre on one of the legs.
+#[test]
+fn a_scenario_that_would_run_away_or_cannot_be_is_refused() {
+    for (text, says) in [
+        ("[crust]\ndipole_count = 10000000\n", "at most 10000"),
+        ("[survey]\nline_count = 100000\n", "at most 1000"),
+        ("[survey]\nline_length_m = 1e12\n", "at most 1,000 km"),
+        ("[calibration]\nrepeats = 1000\n", "at most 20"),
+        (
+            "[survey]\nline_count = 900\nline_length_m = 100000.0\n",
+            "the flight would take about",
+        ),
+        ("[site]\nlatitude_deg = 95.0\n", "latitude_deg = 95"),
+        ("date = \"2026-02-30\"\n", "that month has 28 days"),
+        (
+            "[calibration]\nomit = [\"yaw@999\"]\n",
+            "999 is not one of headings_deg",
+        ),
+        (
+            "[calibration]\nweaken = [\"roll@45=0.5\"]\n",
+            "45 is not one of headings_deg",
+        ),
+    ] {
+        let raw: RawScenario = toml::from_str(text).unwrap();
+        let message = Scenario::try_from(raw).unwrap_err();
+        assert!(message.contains(says), "{text:?}: {message}");
+    }
+    // The leap day of a leap year is a day.
+    let raw: RawScenario = toml::from_str("date = \"2024-02-29\"\n").unwrap();
+    assert!(Scenario::try_from(raw).is_ok());
+}
+
 /// A fluxgate on its side and turned reads the body-axis field through
 /// its mounting: axes ["-z", "x", "-y"] read (−b_z, b_x, −b_y), and a yaw
 /// of 90° more about its own z turns its x onto its former y.

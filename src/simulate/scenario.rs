@@ -640,6 +640,7 @@ impl TryFrom<RawScenario> for Scenario {
         let year = parse_date(&raw.date)?;
         check_rates(&raw)?;
         check_flight_plan(&raw)?;
+        check_sizes(&raw)?;
         check_sensors(&raw)?;
         for effect in &raw.effect {
             check_effect(&raw, effect)?;
@@ -661,6 +662,16 @@ fn parse_date(date: &str) -> std::result::Result<f64, String> {
     );
     if !(1900..2030).contains(&year) || !(1..=12).contains(&month) || !(1..=31).contains(&day) {
         return Err(bad());
+    }
+    let leap = year % 4 == 0 && (year % 100 != 0 || year % 400 == 0);
+    let days = match month {
+        2 if leap => 29,
+        2 => 28,
+        4 | 6 | 9 | 11 => 30,
+        _ => 31,
+    };
+    if day > days {
+        return Err(format!("date = \"{date}\": that month has {days} days"));
     }
     Ok(decimal_year(year, month, day, 0.0))
 }
@@ -701,11 +712,24 @@ fn check_flight_plan(raw: &RawScenario) -> std::result::Result<(), String> {
             box_.period_s
         ));
     }
+    let on_a_leg = |heading: f64| box_.headings_deg.iter().any(|h| (h - heading).abs() < 0.5);
     for omitted in &box_.omit {
-        parse_omission(omitted)?;
+        let (_, heading) = parse_omission(omitted)?;
+        if !on_a_leg(heading) {
+            return Err(format!(
+                "[calibration] omit = \"{omitted}\": {heading} is not one of headings_deg {:?}",
+                box_.headings_deg
+            ));
+        }
     }
     for weakened in &box_.weaken {
-        parse_weakening(weakened)?;
+        let (_, heading, _) = parse_weakening(weakened)?;
+        if !on_a_leg(heading) {
+            return Err(format!(
+                "[calibration] weaken = \"{weakened}\": {heading} is not one of headings_deg {:?}",
+                box_.headings_deg
+            ));
+        }
     }
     for extra in &box_.extra {
         let (_, heading) = parse_omission(extra)
@@ -766,6 +790,70 @@ fn check_flight_plan(raw: &RawScenario) -> std::result::Result<(), String> {
     }
     if raw.survey.line_count > 0 && !(raw.survey.line_length_m > 0.0 && raw.survey.line_spacing_m >= 0.0) {
         return Err("[survey] line_length_m must be positive and line_spacing_m not negative (0 reflies the same line both ways)".into());
+    }
+    Ok(())
+}
+
+/// Most samples simulated inside one flight (its length times the sample
+/// rate times the oversampling): 10⁷ is a 28-hour survey at 100 Hz inside,
+/// a few GB of memory.
+const MOST_INTERNAL_SAMPLES: f64 = 1e7;
+
+/// Most dipole evaluations (dipoles times internal samples): 2·10¹⁰ takes
+/// about a minute.
+const MOST_DIPOLE_EVALUATIONS: f64 = 2e10;
+
+/// The site, and sizes bounded so that a scenario cannot run away: each
+/// bound is in its error.
+fn check_sizes(raw: &RawScenario) -> std::result::Result<(), String> {
+    let site = &raw.site;
+    if !(site.latitude_deg.is_finite() && site.latitude_deg.abs() <= 89.0) {
+        return Err(format!(
+            "[site] latitude_deg = {}: give degrees north within ±89",
+            site.latitude_deg
+        ));
+    }
+    if !(site.longitude_deg.is_finite() && site.longitude_deg.abs() <= 360.0) {
+        return Err(format!(
+            "[site] longitude_deg = {}: give degrees east within ±360",
+            site.longitude_deg
+        ));
+    }
+    for (name, value, most) in [
+        ("[calibration] repeats", raw.calibration.repeats, 20),
+        ("[survey] line_count", raw.survey.line_count, 1000),
+        ("[crust] dipole_count", raw.crust.dipole_count, 10_000),
+    ] {
+        if value > most {
+            return Err(format!("{name} = {value}: at most {most}"));
+        }
+    }
+    let survey = &raw.survey;
+    if survey.line_count > 0 && survey.line_length_m > 1e6 {
+        return Err(format!(
+            "[survey] line_length_m = {}: at most 1,000 km (1e6 m)",
+            survey.line_length_m
+        ));
+    }
+    // The flight's length, roughly: the lines, and ten minutes per leg of
+    // each box with the turns.
+    let legs = raw.calibration.repeats * raw.calibration.headings_deg.len();
+    let seconds = survey.line_count as f64 * survey.line_length_m / survey.speed_m_s + 600.0 * (legs as f64 + 1.0);
+    let samples = seconds * raw.sample_rate_hz * raw.oversampling as f64;
+    if samples > MOST_INTERNAL_SAMPLES {
+        return Err(format!(
+            "the flight would take about {:.1} h, {samples:.1e} samples at {} Hz × {} oversampling: at most {MOST_INTERNAL_SAMPLES:.0e}; fly fewer or shorter lines, or a lower rate",
+            seconds / 3600.0,
+            raw.sample_rate_hz,
+            raw.oversampling
+        ));
+    }
+    let evaluations = samples * raw.crust.dipole_count as f64;
+    if evaluations > MOST_DIPOLE_EVALUATIONS {
+        return Err(format!(
+            "[crust] dipole_count = {} over {samples:.1e} samples is {evaluations:.1e} dipole evaluations: at most {MOST_DIPOLE_EVALUATIONS:.0e}; use fewer dipoles",
+            raw.crust.dipole_count
+        ));
     }
     Ok(())
 }
