@@ -418,24 +418,7 @@ fn bench_run_one_window() {
     let mut job = FlightJob::new(&input);
     let time = log.time_s();
     job.windows = vec![CalibrationWindow::new(time[0], time[log.len() - 1])];
-    for apply in [
-        magcomp::diagnose::ApplyDiagnosis::Never,
-        magcomp::diagnose::ApplyDiagnosis::Auto,
-    ] {
-        let mut options = Settings::default();
-        options.diagnose.apply = apply;
-        let outputs = FlightOutputs::in_directory(&folder.path().join(format!("{apply:?}")), &input);
-        std::fs::create_dir_all(outputs.compensated.parent().unwrap()).unwrap();
-        let start = Instant::now();
-        let result = process_flight(&job, &options, &outputs).unwrap();
-        println!(
-            "compensate over one window spanning the flight, apply = {apply:?}: {} rows, 5 scalar channels, 30 auxiliary columns, CSV in and out with report: {:.2} s, {} findings applied; peak RSS {:.0} MB",
-            log.len(),
-            start.elapsed().as_secs_f64(),
-            result.applied_findings.len(),
-            peak_rss_mb()
-        );
-    }
+    default_against_plain(&job, folder.path(), (log.len(), " over one window spanning the flight"));
 }
 
 /// `compensate` with the default settings (diagnose, then fit with what
@@ -448,19 +431,26 @@ fn bench_run_default() {
     let input = folder.path().join("two_hours.csv");
     magcomp::formats::write_flight_log(&log, &input).unwrap();
     let job = FlightJob::new(&input);
+    default_against_plain(&job, folder.path(), (log.len(), ""));
+}
+
+/// `compensate` of `job` with no finding applied (as `--plain`), then the
+/// default,
+/// outputs under `folder`: the time, the findings applied and the peak RSS
+/// of each, for a flight of `rows` rows (`how` says how it was fitted).
+fn default_against_plain(job: &FlightJob, folder: &Path, (rows, how): (usize, &str)) {
     for apply in [
         magcomp::diagnose::ApplyDiagnosis::Never,
         magcomp::diagnose::ApplyDiagnosis::Auto,
     ] {
         let mut options = Settings::default();
         options.diagnose.apply = apply;
-        let outputs = FlightOutputs::in_directory(&folder.path().join(format!("{apply:?}")), &input);
+        let outputs = FlightOutputs::in_directory(&folder.join(format!("{apply:?}")), &job.input);
         std::fs::create_dir_all(outputs.compensated.parent().unwrap()).unwrap();
         let start = Instant::now();
-        let result = process_flight(&job, &options, &outputs).unwrap();
+        let result = process_flight(job, &options, &outputs).unwrap();
         println!(
-            "compensate, apply = {apply:?}: {} rows, 5 scalar channels, 30 auxiliary columns, CSV in and out with report: {:.2} s, {} findings applied; peak RSS {:.0} MB",
-            log.len(),
+            "compensate{how}, apply = {apply:?}: {rows} rows, 5 scalar channels, 30 auxiliary columns, CSV in and out with report: {:.2} s, {} findings applied; peak RSS {:.0} MB",
             start.elapsed().as_secs_f64(),
             result.applied_findings.len(),
             peak_rss_mb()

@@ -37,7 +37,7 @@ fn flights() -> u64 {
 }
 
 /// A clean flight plan drawn from `seed`: the layout, rate, length, site,
-/// box and diurnal variation. No concealed effect.
+/// box, diurnal variation and the fluxgate's mounting. No concealed effect.
 fn clean_plan(seed: u64) -> RawScenario {
     let mut draw = Random::new(0x5AFE ^ seed).fork("clean flight");
     let mut raw = RawScenario {
@@ -88,6 +88,13 @@ fn clean_plan(seed: u64) -> RawScenario {
     survey.altitude_m = draw.uniform(100.0, 400.0);
     survey.turbulence_deg = draw.uniform(0.2, 1.0);
     raw.crust.dipole_count = 12;
+    // The fluxgate mounted any way round, as on real aircraft (its own
+    // draws: the rest of the plan is unchanged).
+    let mut mount = Random::new(0x5AFE ^ seed).fork("clean flight mounting");
+    let turned = mount.uniform(0.0, 1.0) < 0.5;
+    let (axes, turn) = common::random_mounting(&mut mount, turned);
+    raw.fluxgate[0].axes = axes;
+    raw.fluxgate[0].turn_deg = turn;
     raw
 }
 

@@ -48,39 +48,11 @@ fn flight(seed: u64) -> SimulatedFlight {
     flight_mounted(seed, &axes, turn)
 }
 
-/// A mounting drawn from `seed`: one of the 24 turns that take the body
-/// axes onto themselves (on its side, upside down, backwards), and on
-/// every other flight a further turn of up to 15° in roll and pitch and
-/// 30–45° in yaw (a fluxgate set diagonally on its shelf).
+/// A mounting drawn from `seed` ([`common::random_mounting`]), turned
+/// further on every other flight.
 fn mounting(seed: u64) -> ([String; 3], [f64; 3]) {
     let mut draw = Random::new(seed).fork("vector test mounting");
-    let orders = [[0, 1, 2], [0, 2, 1], [1, 0, 2], [1, 2, 0], [2, 0, 1], [2, 1, 0]];
-    let mut proper = Vec::new();
-    for (k, order) in orders.iter().enumerate() {
-        // Orders 1, 2 and 5 swap one pair: odd.
-        let parity = if [1, 2, 5].contains(&k) { -1.0 } else { 1.0 };
-        for signs in 0..8 {
-            let sign = |j: usize| if signs >> j & 1 == 1 { -1.0 } else { 1.0 };
-            if parity * sign(0) * sign(1) * sign(2) > 0.0 {
-                proper.push(std::array::from_fn(|j| {
-                    format!("{}{}", if sign(j) < 0.0 { "-" } else { "" }, ["x", "y", "z"][order[j]])
-                }));
-            }
-        }
-    }
-    assert_eq!(proper.len(), 24);
-    let axes = proper[(draw.uniform(0.0, 24.0) as usize).min(23)].clone();
-    let turn = if seed % 2 == 1 {
-        let yaw = draw.uniform(30.0, 45.0);
-        [
-            draw.uniform(-15.0, 15.0),
-            draw.uniform(-15.0, 15.0),
-            if draw.uniform(0.0, 1.0) < 0.5 { -yaw } else { yaw },
-        ]
-    } else {
-        [0.0; 3]
-    };
-    (axes, turn)
+    common::random_mounting(&mut draw, seed % 2 == 1)
 }
 
 /// [`flight`] with the fluxgate's axes and turn given.

@@ -289,3 +289,38 @@ impl SigmaColumn {
         self.within(k) as f64 / self.error_nt.len() as f64
     }
 }
+
+/// A fluxgate mounting drawn with `draw`: one of the 24 turns that take the
+/// body axes onto themselves (on its side, upside down, backwards), as
+/// `[[fluxgate]] axes`, and when `turned` a further turn (`turn_deg`) of up
+/// to 15° in roll and pitch and 30–45° in yaw (a fluxgate set diagonally on
+/// its shelf).
+pub fn random_mounting(draw: &mut magcomp::simulate::random::Random, turned: bool) -> ([String; 3], [f64; 3]) {
+    let orders = [[0, 1, 2], [0, 2, 1], [1, 0, 2], [1, 2, 0], [2, 0, 1], [2, 1, 0]];
+    let mut proper = Vec::new();
+    for (k, order) in orders.iter().enumerate() {
+        // Orders 1, 2 and 5 swap one pair: odd.
+        let parity = if [1, 2, 5].contains(&k) { -1.0 } else { 1.0 };
+        for signs in 0..8 {
+            let sign = |j: usize| if signs >> j & 1 == 1 { -1.0 } else { 1.0 };
+            if parity * sign(0) * sign(1) * sign(2) > 0.0 {
+                proper.push(std::array::from_fn(|j| {
+                    format!("{}{}", if sign(j) < 0.0 { "-" } else { "" }, ["x", "y", "z"][order[j]])
+                }));
+            }
+        }
+    }
+    assert_eq!(proper.len(), 24);
+    let axes: [String; 3] = proper[(draw.uniform(0.0, 24.0) as usize).min(23)].clone();
+    let turn = if turned {
+        let yaw = draw.uniform(30.0, 45.0);
+        [
+            draw.uniform(-15.0, 15.0),
+            draw.uniform(-15.0, 15.0),
+            if draw.uniform(0.0, 1.0) < 0.5 { -yaw } else { yaw },
+        ]
+    } else {
+        [0.0; 3]
+    };
+    (axes, turn)
+}
