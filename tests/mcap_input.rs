@@ -141,6 +141,10 @@ fn write_records(path: &Path, layout: Layout, records: Vec<Record>) {
     let mut channels: BTreeMap<&str, u16> = BTreeMap::new();
     for (sequence, (topic, t, fields)) in records.into_iter().enumerate() {
         let channel = *channels.entry(topic).or_insert_with(|| {
+            // A topic in an encoding magcomp does not decode.
+            if topic.starts_with("/msgpack/") {
+                return writer.add_channel(0, topic, "msgpack", &BTreeMap::new()).unwrap();
+            }
             let schema = match layout.json {
                 true => writer
                     .add_schema(schema_of(topic), "jsonschema", b"{\"type\":\"object\"}")
@@ -164,6 +168,27 @@ fn write_records(path: &Path, layout: Layout, records: Vec<Record>) {
             .unwrap();
     }
     writer.finish().unwrap();
+}
+
+/// A topic in an encoding magcomp cannot decode is not dropped silently:
+/// the flight carries a reading warning (which `compensate` prints and the
+/// report shows) that names the topic and says it is not in the output.
+#[test]
+fn a_topic_magcomp_cannot_decode_is_a_warning() {
+    let folder = tempfile::tempdir().unwrap();
+    let path = folder.path().join("unread.mcap");
+    let mut records = records();
+    records.extend((0..30).map(|k| ("/msgpack/mag_9", 100.0 + k as f64, vec![("value", 1.0)])));
+    write_records(&path, INDEXED, records);
+    let log = read_flight_log(&path, &IngestOptions::default()).unwrap();
+    assert_eq!(log.len(), 300);
+    assert!(
+        log.reading_warnings()
+            .iter()
+            .any(|w| w.contains("topic '/msgpack/mag_9' is not in the output") && w.contains("'msgpack'")),
+        "{:?}",
+        log.reading_warnings()
+    );
 }
 
 #[test]

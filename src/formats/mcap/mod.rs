@@ -58,7 +58,13 @@ enum Decoder {
     Protobuf(MessageLayout),
     Json,
     Ros(RosType),
-    Skip(String),
+    /// Not read: why, and whether numbers it may hold are lost with it (an
+    /// encoding or schema magcomp cannot decode) or it holds none magcomp
+    /// reads (text, a ROS 2 type other than the three read).
+    Skip {
+        why: String,
+        lost: bool,
+    },
 }
 
 /// Per MCAP channel: its topic, decoder and the height column of a fix.
@@ -241,23 +247,32 @@ fn plan_topic(channel: &ChannelRecord, schema: Option<&SchemaRecord>, names: &Co
     let decoder = match (channel.message_encoding.as_str(), schema) {
         ("protobuf", Some(schema)) if schema.encoding == "protobuf" => {
             match MessageLayout::from_descriptor_set(&schema.data, &schema.name) {
-                Ok(layout) if layout.names.is_empty() => Decoder::Skip(format!(
-                    "message type '{}' has no number field (text, such as magcomp's row flags, is not read)",
-                    schema.name
-                )),
+                Ok(layout) if layout.names.is_empty() => Decoder::Skip {
+                    why: format!(
+                        "message type '{}' has no number field (text, such as magcomp's row flags, is not read)",
+                        schema.name
+                    ),
+                    lost: false,
+                },
                 Ok(layout) => Decoder::Protobuf(layout),
-                Err(e) => Decoder::Skip(e),
+                Err(why) => Decoder::Skip { why, lost: true },
             }
         }
         ("json", _) => Decoder::Json,
         ("cdr", Some(schema)) => match RosType::from_schema_name(&schema.name) {
             Some(kind) => Decoder::Ros(kind),
-            None => Decoder::Skip(format!(
-                "ROS 2 type '{}' is not read (magcomp reads sensor_msgs MagneticField, Imu and NavSatFix)",
-                schema.name
-            )),
+            None => Decoder::Skip {
+                why: format!(
+                    "ROS 2 type '{}' is not read (magcomp reads sensor_msgs MagneticField, Imu and NavSatFix)",
+                    schema.name
+                ),
+                lost: false,
+            },
         },
-        (encoding, _) => Decoder::Skip(format!("message encoding '{encoding}' is not read")),
+        (encoding, _) => Decoder::Skip {
+            why: format!("message encoding '{encoding}' is not read (magcomp reads protobuf, JSON and ROS 2 CDR)"),
+            lost: true,
+        },
     };
     let altitude_column = channel
         .metadata
@@ -320,7 +335,7 @@ fn add_message(
     let Some(plan) = plans.get(&id) else { return };
     let decoded = part.entry(id).or_default();
     let result = match &plan.decoder {
-        Decoder::Skip(_) => return,
+        Decoder::Skip { .. } => return,
         Decoder::Protobuf(layout) => decode_protobuf(layout, data, decoded),
         Decoder::Json => decode_json(data, decoded),
         Decoder::Ros(kind) => decode_ros(*kind, data, decoded),
@@ -481,8 +496,13 @@ fn build_log(
     let (names, alignment) = (&options.columns, &options.alignment);
     let mut attitude_taken = false;
     for plan in plans.values() {
-        if let Decoder::Skip(why) = &plan.decoder {
-            notes.push(format!("topic '{}' skipped: {why}", plan.topic));
+        match &plan.decoder {
+            Decoder::Skip { why, lost: true } => losses.push(format!(
+                "topic '{}' is not in the output: {why}; whatever it records is lost to this run (write it in an encoding magcomp reads)",
+                plan.topic
+            )),
+            Decoder::Skip { why, lost: false } => notes.push(format!("topic '{}' skipped: {why}", plan.topic)),
+            _ => {}
         }
     }
     let mut streams: Vec<Stream> = Vec::new();
