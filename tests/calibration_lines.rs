@@ -78,19 +78,15 @@ fn a_line_number_selects_its_box_and_nothing_else() {
 fn detect_keeps_the_lines_named() {
     let folder = tempfile::tempdir().unwrap();
     let (csv, flight) = two_box_flight(folder.path(), 43);
-    let binary = env!("CARGO_BIN_EXE_magcomp");
     let out = folder.path().join("DETECT.json");
-    let run = Command::new(binary)
-        .args([
-            "detect",
-            csv.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-            "--lines",
-            "1002.21",
-        ])
-        .output()
-        .unwrap();
+    let detect = |lines: &str| {
+        let (csv, out) = (csv.to_str().unwrap(), out.to_str().unwrap());
+        Command::new(env!("CARGO_BIN_EXE_magcomp"))
+            .args(["detect", csv, "--out", out, "--lines", lines])
+            .output()
+            .unwrap()
+    };
+    let run = detect("1002.21");
     assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
     let said = String::from_utf8_lossy(&run.stdout);
     assert!(said.contains("12 on line 1002.21"), "{said}");
@@ -102,17 +98,7 @@ fn detect_keeps_the_lines_named() {
         let (start, end) = (m["t_start"].as_f64().unwrap(), m["t_end"].as_f64().unwrap());
         assert!(start >= own.t_start - 5.0 && end <= own.t_end + 5.0, "{m}");
     }
-    let absent = Command::new(binary)
-        .args([
-            "detect",
-            csv.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-            "--lines",
-            "1003.5",
-        ])
-        .output()
-        .unwrap();
+    let absent = detect("1003.5");
     assert!(!absent.status.success());
     assert!(
         String::from_utf8_lossy(&absent.stderr).contains("calibration line 1003.5 is not in the flight"),
