@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use magcomp::compensate::{compensate, LevelConvention};
 use magcomp::formats::{read_flight_log, IngestOptions};
-use magcomp::model::{fit, FilterSettings, FitOptions, ModelSpec};
+use magcomp::model::{fit, FilterSettings, FitMagnitude, FitOptions, ModelSpec};
 use magcomp::numerics::estimators::Solver;
 use magcomp::numerics::filter::{EdgePadding, FilterBand};
 use magcomp::numerics::solve::{LambdaChoice, SolveOptions};
@@ -40,7 +40,7 @@ fn design_matrix_matches_magnav_to_1e_12() {
     let Some(folder) = reference_folder() else { return };
     let log = read_flight_log(&folder.join("magnav_tl_segment.csv"), &IngestOptions::default()).unwrap();
     let sensor = choose_vector_sensor(&log, Some("flux_a")).unwrap();
-    let ours = TermSet::default().design_matrix(log.vector_components(&sensor), std::slice::from_ref(&(0..log.len())));
+    let ours = TermSet::magnav().design_matrix(log.vector_components(&sensor), std::slice::from_ref(&(0..log.len())));
     let reference = read_matrix(&folder.join("magnav_tl_segment_A.csv"));
     assert_eq!(reference.len(), log.len());
     for (j, column) in ours.columns.iter().enumerate() {
@@ -75,6 +75,7 @@ fn compensated_difference_std(padding: EdgePadding) -> Option<f64> {
             poles: 4,
             padding,
             trim_samples: 20,
+            magnitude: FitMagnitude::Measured,
         },
         solve: SolveOptions {
             lambda: LambdaChoice::Fixed(0.001),
@@ -83,7 +84,7 @@ fn compensated_difference_std(padding: EdgePadding) -> Option<f64> {
         solver: Solver::Ridge,
     };
     let window = CalibrationWindow::new(log.time_s()[0], log.time_s()[log.len() - 1]);
-    let spec = ModelSpec::plain(TermSet::default());
+    let spec = ModelSpec::plain(TermSet::magnav());
     let model = fit(
         &log,
         &sensor,

@@ -15,7 +15,8 @@
 //! applied and those it held back, and a table by what was applied.
 //!
 //! Flights: 300 with `MAGCOMP_SAFETY_FLIGHTS=300`; `cargo test` flies
-//! [`DEFAULT_FLIGHTS`] of them (the first ones of the same draw).
+//! [`DEFAULT_FLIGHTS`] of them (the first ones of the same draw);
+//! `MAGCOMP_SAFETY_SEEDS=6,27` flies those plans alone.
 
 mod common;
 
@@ -34,6 +35,22 @@ fn flights() -> u64 {
         .ok()
         .and_then(|v| v.parse().ok())
         .unwrap_or(DEFAULT_FLIGHTS)
+}
+
+/// The plans flown: the first [`flights`], or those of
+/// `MAGCOMP_SAFETY_SEEDS` (seeds separated by commas) to look again at a
+/// few.
+fn seeds() -> Vec<u64> {
+    match std::env::var("MAGCOMP_SAFETY_SEEDS") {
+        Ok(list) => (list.split(','))
+            .map(|s| {
+                s.trim()
+                    .parse()
+                    .expect("MAGCOMP_SAFETY_SEEDS: seeds separated by commas")
+            })
+            .collect(),
+        Err(_) => (0..flights()).collect(),
+    }
 }
 
 /// A clean flight plan drawn from `seed`: the layout, rate, length, site,
@@ -160,7 +177,7 @@ const HARMED_ALLOWED: usize = 2;
 
 #[test]
 fn the_default_never_makes_a_clean_channel_worse_than_plain() {
-    let outcomes: Vec<(String, Outcome)> = (0..flights()).into_par_iter().map(fly).collect();
+    let outcomes: Vec<(String, Outcome)> = seeds().into_par_iter().map(fly).collect();
     let (mut channels, mut harmed, mut held_back, mut worst) = (0, Vec::new(), 0, 1.0f64);
     // Per set of effects applied: channels, harmed, helped by more than 10 %.
     let mut by_effect: std::collections::BTreeMap<String, (usize, usize, usize)> = Default::default();
@@ -200,7 +217,7 @@ fn the_default_never_makes_a_clean_channel_worse_than_plain() {
         harmed.len()
     );
     println!("{harmed:#?}");
-    if flights() == DEFAULT_FLIGHTS {
+    if flights() == DEFAULT_FLIGHTS && std::env::var("MAGCOMP_SAFETY_SEEDS").is_err() {
         assert!(harmed.len() <= HARMED_ALLOWED, "{harmed:#?}");
     }
 }

@@ -30,9 +30,11 @@
 //! poles = 4
 //! trim_samples = 20
 //! edge_padding = "scipy"   # scipy | dsp_jl | none
+//! field_magnitude = "measured"  # measured (MagNav.jl's) | run_mean
 //!
 //! [fit]
-//! terms = ["permanent", "induced", "eddy"]
+//! terms = ["permanent", "induced", "eddy"]   # TL's 18; induced_traceless
+//!                      # and eddy_traceless leave out the isotropic two
 //! bt_scale_nt = 50000.0
 //! lambda = "press"     # or a number to fix it
 //! criterion = "blocked_press"  # blocked_press (leave one window out) | press
@@ -114,6 +116,8 @@ pub(crate) struct RawFilter {
     pub trim_samples: usize,
     /// Edge extension convention.
     pub edge_padding: EdgePadding,
+    /// The field strength the fit's design is built with.
+    pub field_magnitude: crate::model::FitMagnitude,
 }
 
 impl Default for RawFilter {
@@ -125,6 +129,7 @@ impl Default for RawFilter {
             poles: 4,
             trim_samples: 20,
             edge_padding: EdgePadding::Scipy,
+            field_magnitude: crate::model::FitMagnitude::Measured,
         }
     }
 }
@@ -735,14 +740,16 @@ fn parse_terms(names: &[String], bt_scale_nt: f64) -> std::result::Result<TermSe
         match name.as_str() {
             "permanent" => set.permanent = true,
             "induced" | "induced_6" => set.induced = InducedTerms::Six,
+            "induced_traceless" => set.induced = InducedTerms::Traceless,
             "induced_5" => set.induced = InducedTerms::Five,
             "induced_3" => set.induced = InducedTerms::Three,
             "eddy" | "eddy_9" => set.eddy = EddyTerms::Nine,
+            "eddy_traceless" => set.eddy = EddyTerms::Traceless,
             "eddy_8" => set.eddy = EddyTerms::Eight,
             "eddy_3" => set.eddy = EddyTerms::Three,
             "field_derivative" | "fdm" => set.field_derivative = true,
             "bias" => set.bias = true,
-            other => return Err(format!("[fit] terms: unknown term group '{other}'; use permanent, induced, induced_5, induced_3, eddy, eddy_8, eddy_3, field_derivative or bias")),
+            other => return Err(format!("[fit] terms: unknown term group '{other}'; use permanent, induced, induced_traceless, induced_5, induced_3, eddy, eddy_traceless, eddy_8, eddy_3, field_derivative or bias")),
         }
     }
     if set.is_empty() {
@@ -797,6 +804,7 @@ fn filter_settings(raw: &RawFilter) -> std::result::Result<FilterSettings, Strin
         poles: raw.poles,
         padding: raw.edge_padding,
         trim_samples: raw.trim_samples,
+        magnitude: raw.field_magnitude,
     })
 }
 
@@ -961,7 +969,17 @@ mod tests {
     #[test]
     fn defaults_are_the_classic_magnav_settings() {
         let pipeline = parse("").unwrap();
+        assert_eq!(pipeline.settings.terms, TermSet::magnav());
         assert_eq!(pipeline.settings.terms.len(), 18);
+        assert_eq!(
+            pipeline.settings.fit.filter.magnitude,
+            crate::model::FitMagnitude::Measured
+        );
+        let text = "[fit]\nterms = [\"permanent\", \"induced_traceless\", \"eddy_traceless\"]\n[filter]\nfield_magnitude = \"run_mean\"\n";
+        let traceless = parse(text).unwrap().settings;
+        assert_eq!(traceless.terms, TermSet::traceless());
+        assert_eq!(traceless.terms.len(), 16);
+        assert_eq!(traceless.fit.filter.magnitude, crate::model::FitMagnitude::RunMean);
         assert_eq!(pipeline.settings.fit.filter, FilterSettings::default());
         assert_eq!(pipeline.settings.fit.solve.lambda, LambdaChoice::Select);
     }

@@ -31,10 +31,31 @@ pub struct FilterSettings {
     pub padding: EdgePadding,
     /// Samples dropped at each end of every filtered run.
     pub trim_samples: usize,
+    /// The field strength the fit's design is built with.
+    pub magnitude: FitMagnitude,
+}
+
+/// The field strength the fit's Tolles-Lawson columns are built with.
+///
+/// The induced and eddy terms scale with |B|, and |B| as the fluxgate
+/// reads it carries the Earth's own variation (pulsations, the crustal
+/// field under the box) into the band, where the scalar reads it too. A
+/// fit free to weight it subtracts part of the Earth's field. Built with
+/// each run's mean strength and the recorded direction, the design holds
+/// the aircraft's attitude alone; the fitted coefficients still predict
+/// with the field as recorded.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FitMagnitude {
+    /// The direction as recorded at the run's mean strength.
+    RunMean,
+    /// The field as recorded (MagNav.jl's convention).
+    Measured,
 }
 
 impl Default for FilterSettings {
-    /// 4-pole Butterworth band-pass, 0.1–0.9 Hz, 20 samples trimmed.
+    /// 4-pole Butterworth band-pass, 0.1–0.9 Hz, 20 samples trimmed, the
+    /// design from the field as measured.
     fn default() -> Self {
         FilterSettings {
             band: FilterBand::Bandpass {
@@ -44,6 +65,7 @@ impl Default for FilterSettings {
             poles: 4,
             padding: EdgePadding::Scipy,
             trim_samples: 20,
+            magnitude: FitMagnitude::Measured,
         }
     }
 }
@@ -123,12 +145,19 @@ pub(crate) fn band_data(
         .map(|window| WindowPlan::new(log, sensor, (scalar, extra), window, needed, trim))
         .collect::<Result<_>>()?;
     let field = log.vector_components(sensor);
-    let stacked =
-        stack_filtered((field, extra), scalar, &plans, &filter, (terms, trim), stores).map_err(|e| Error::Fit {
-            path: log.source().to_path_buf(),
-            channel: channel.into(),
-            source: e.into(),
-        })?;
+    let stacked = stack_filtered(
+        (field, extra),
+        scalar,
+        &plans,
+        (&filter, settings.magnitude),
+        (terms, trim),
+        stores,
+    )
+    .map_err(|e| Error::Fit {
+        path: log.source().to_path_buf(),
+        channel: channel.into(),
+        source: e.into(),
+    })?;
     let mut fits: Vec<WindowFit> = Vec::with_capacity(plans.len());
     let mut start = 0;
     for plan in plans {
@@ -211,8 +240,8 @@ impl<'w> WindowPlan<'w> {
     }
 }
 
-/// Rows of the flight, the panel filled and the panel rows it receives.
-type FilterTask<'a> = (Range<usize>, usize, Vec<&'a mut [[f64; LANES]]>);
+/// The run (its index), the panel filled and the panel rows it receives.
+type FilterTask<'a> = (usize, usize, Vec<&'a mut [[f64; LANES]]>);
 
 /// Builds the stacked, filtered, trimmed design columns and target: every
 /// run of every window, one panel of [`LANES`] columns per filter pass, the
@@ -222,7 +251,7 @@ fn stack_filtered(
     (field, extra): ([&[f64]; 3], &[&[f64]]),
     scalar: &[f64],
     plans: &[WindowPlan],
-    filter: &ZeroPhaseFilter,
+    (filter, magnitude): (&ZeroPhaseFilter, FitMagnitude),
     (terms, trim): (TermSet, usize),
     stores: &StorePool,
 ) -> std::result::Result<Stacked, FilterError> {
@@ -231,6 +260,11 @@ fn stack_filtered(
     let fold_lengths: Vec<usize> = plans.iter().map(|p| p.used(trim)).collect();
     let mut builder = StackedBuilder::new(&fold_lengths, design, stores);
     let runs: Vec<Range<usize>> = plans.iter().flat_map(|p| p.runs.iter().cloned()).collect();
+    // Each run's field at its mean strength, indexed from the run's start.
+    let steady: Vec<[Vec<f64>; 3]> = match magnitude {
+        FitMagnitude::RunMean => runs.iter().map(|run| at_mean_strength(field, run.clone())).collect(),
+        FitMagnitude::Measured => Vec::new(),
+    };
     let mut stacked_rows = Vec::with_capacity(runs.len());
     let mut start = 0;
     for run in &runs {
@@ -240,11 +274,12 @@ fn stack_filtered(
     // One task per (run, panel), each owning its panel rows.
     let mut tasks: Vec<FilterTask> = Vec::new();
     for (panel, per_run) in builder.segments_mut(&stacked_rows).into_iter().enumerate() {
-        for (run, segments) in runs.iter().zip(per_run) {
-            tasks.push((run.clone(), panel, segments));
+        for (index, segments) in per_run.into_iter().enumerate() {
+            tasks.push((index, panel, segments));
         }
     }
-    tasks.into_par_iter().try_for_each(|(run, panel, mut output)| {
+    tasks.into_par_iter().try_for_each(|(index, panel, mut output)| {
+        let run = runs[index].clone();
         let group = panel * LANES..(panel + 1) * LANES;
         let term_part = group.start.min(count)..group.end.min(count);
         let sources: Vec<(usize, &[f64])> = (group.start.max(count)..group.end.min(design))
@@ -257,7 +292,14 @@ fn stack_filtered(
                 out.iter_mut().for_each(|row| *row = [0.0; LANES]);
             }
             if !term_part.is_empty() {
-                terms.fill_lanes(field, run.clone(), rows.clone(), term_part.clone(), out);
+                match steady.get(index) {
+                    Some(local) => {
+                        let local = [local[0].as_slice(), local[1].as_slice(), local[2].as_slice()];
+                        let within = rows.start - run.start..rows.end - run.start;
+                        terms.fill_lanes(local, 0..run.len(), within, term_part.clone(), out);
+                    }
+                    None => terms.fill_lanes(field, run.clone(), rows.clone(), term_part.clone(), out),
+                }
             }
             for &(lane, source) in &sources {
                 for (row, &value) in out.iter_mut().zip(&source[rows.clone()]) {
@@ -268,6 +310,21 @@ fn stack_filtered(
         filter.apply_panel(run.len(), source, &mut output, trim)
     })?;
     Ok(builder.finish())
+}
+
+/// The field over `run` in its recorded direction at the run's mean
+/// strength ([`FitMagnitude::RunMean`]).
+fn at_mean_strength(field: [&[f64]; 3], run: Range<usize>) -> [Vec<f64>; 3] {
+    let strength: Vec<f64> = run
+        .clone()
+        .map(|k| (field[0][k] * field[0][k] + field[1][k] * field[1][k] + field[2][k] * field[2][k]).sqrt())
+        .collect();
+    let mean = strength.iter().sum::<f64>() / strength.len().max(1) as f64;
+    [0, 1, 2].map(|axis| {
+        (run.clone().zip(&strength))
+            .map(|(k, total)| field[axis][k] * (mean / total))
+            .collect()
+    })
 }
 
 /// The fit's band-pass filter for `log`'s sample rate (the reciprocal of

@@ -320,7 +320,7 @@ mod tests {
         // 1e-2, in a 52 000 nT field seen at three attitudes.
         let permanent = [420.0, -310.0, 280.0];
         let tensor = [[0.012, -0.004, 0.003], [-0.004, -0.008, 0.006], [0.003, 0.006, 0.010]];
-        let terms = TermSet::default();
+        let terms = TermSet::magnav();
         let s = terms.bt_scale_nt;
         let mut coefficients = permanent.to_vec();
         for (i, j) in [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)] {

@@ -46,7 +46,7 @@ use crate::numerics::stacked::StorePool;
 use crate::tolles_lawson::{DesignMatrix, EddyTerms, TermSet};
 use crate::windows::CalibrationWindow;
 
-pub use band::{design_filter, FilterSettings, FitOptions, WindowFit};
+pub use band::{design_filter, FilterSettings, FitMagnitude, FitOptions, WindowFit};
 pub use extensions::{
     advanced, column_level, field_directions, rate_of_change, second_order_term, Extensions, SourceTerm,
     SECOND_ORDER_PASSES,
