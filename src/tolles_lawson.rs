@@ -59,7 +59,7 @@ pub enum EddyTerms {
 
 /// The set of Tolles-Lawson terms and their scale.
 ///
-/// The default is Tolles-Lawson's 18 terms, as MagNav.jl fits them.
+/// The default is Tolles-Lawson's 18 terms, as MagNav.jl fits them;
 /// [`TermSet::traceless`] leaves out their two isotropic directions (16
 /// columns). Of the induced terms, $\sum_i u_i B_i = |B|$;
 /// of the eddy terms, $\sum_i u_i \dot B_i = d|B|/dt$. Both are the
@@ -71,9 +71,8 @@ pub enum EddyTerms {
 /// without them). An induced field along B is also what the field of
 /// soft iron outside the sensor is not: the field of an isotropically
 /// induced dipole, $(3\hat r \hat r^\top - I) m / r^3$, is traceless.
-/// `terms = ["permanent", "induced_traceless", "eddy_traceless"]` chooses
-/// them (with `[filter] field_magnitude = "run_mean"`, see
-/// [`crate::model::FitMagnitude`]).
+/// `terms = ["permanent", "induced_traceless", "eddy_traceless"]`
+/// chooses the 16.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct TermSet {
     /// The 3 permanent (hard-iron) terms $u_i$.

@@ -40,10 +40,15 @@ pub struct FilterSettings {
 /// The induced and eddy terms scale with |B|, and |B| as the fluxgate
 /// reads it carries the Earth's own variation (pulsations, the crustal
 /// field under the box) into the band, where the scalar reads it too. A
-/// fit free to weight it subtracts part of the Earth's field. Built with
-/// each run's mean strength and the recorded direction, the design holds
-/// the aircraft's attitude alone; the fitted coefficients still predict
-/// with the field as recorded.
+/// fit free to weight it subtracts part of the Earth's field. The
+/// traceless terms leave out the two isotropic directions that carry most
+/// of it ([`crate::tolles_lawson::TermSet`]); built with each run's mean
+/// strength and the recorded direction, the design holds the aircraft's
+/// attitude alone, and the fitted coefficients still predict with the
+/// field as recorded. That is not recommended: a miscalibrated fluxgate's
+/// field is then no longer a linear image of the true one, which the
+/// coefficients would otherwise absorb (a cabin sensor's FOM 0.98 → 2.9 nT
+/// on a fluxgate with 1.5 % scale errors).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum FitMagnitude {

@@ -11,7 +11,6 @@ use crate::holdout::{distinct_headings, same_heading};
 use crate::numerics::estimators::{compare, compare_families, Decomposed, Factor, Scored, Solver};
 use crate::numerics::solve::{solve_stacked, Solution};
 use crate::numerics::stacked::{Stacked, StorePool};
-use crate::tolles_lawson::{EddyTerms, TRACELESS_DIAGONALS};
 use crate::windows::CalibrationWindow;
 
 use super::band::{band_data, BandData, FitOptions, WindowFit};
@@ -98,37 +97,14 @@ impl<'a> Prepared<'a> {
                 .iter()
                 .map(|b| lagged_rate(b, dt, extensions.eddy_tau_s))
                 .collect();
-            let term = |i: usize, j: usize| -> Vec<f64> {
-                direction[i]
-                    .iter()
-                    .zip(&lagged[j])
-                    .map(|(u, d)| u * d / scale)
-                    .collect()
-            };
-            let axes = ["x", "y", "z"];
-            match spec.terms.eddy {
-                // As the instantaneous terms: the lagged rate of |B| along
-                // the diagonal is left out (crate::tolles_lawson::TermSet).
-                EddyTerms::Traceless => {
-                    let diagonal: [Vec<f64>; 3] = [0, 1, 2].map(|i| term(i, i));
-                    for i in 0..3 {
-                        for j in (0..3).filter(|&j| j != i) {
-                            push(format!("eddy_lagged_{}{}", axes[i], axes[j]), term(i, j), false);
-                        }
-                    }
-                    for (name, weights) in ["xx-yy", "xx+yy-2zz"].iter().zip(TRACELESS_DIAGONALS) {
-                        let values = (0..diagonal[0].len())
-                            .map(|k| (0..3).map(|i| weights[i] * diagonal[i][k]).sum())
-                            .collect();
-                        push(format!("eddy_lagged_{name}"), values, false);
-                    }
-                }
-                _ => {
-                    for i in 0..3 {
-                        for j in 0..3 {
-                            push(format!("eddy_lagged_{}{}", axes[i], axes[j]), term(i, j), false);
-                        }
-                    }
+            for (i, axis_i) in ["x", "y", "z"].iter().enumerate() {
+                for (j, axis_j) in ["x", "y", "z"].iter().enumerate() {
+                    let values = direction[i]
+                        .iter()
+                        .zip(&lagged[j])
+                        .map(|(u, d)| u * d / scale)
+                        .collect();
+                    push(format!("eddy_lagged_{axis_i}{axis_j}"), values, false);
                 }
             }
         }
