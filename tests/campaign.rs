@@ -399,3 +399,35 @@ fn summarize_names_one_input_counted_under_two_names() {
     assert!(second.contains("warning: flight: its input"), "{second}");
     assert!(!second.contains("warning: b_flight: its input"), "{second}");
 }
+
+/// A done flight whose quality JSON lists no channel keeps its row in the
+/// summary, with the reason in words, not a row of blanks.
+#[test]
+fn summarize_names_a_done_flight_without_channels() {
+    let folder = tempfile::tempdir().unwrap();
+    let folder = folder.path();
+    simulated(&folder.join("flight.csv"), 53);
+    let config = folder.join("pipeline.toml");
+    std::fs::write(
+        &config,
+        "[output]\ndirectory = \"out\"\n[campaign]\ninputs = [\"flight.csv\"]\n[diagnose]\napply = \"never\"\n",
+    )
+    .unwrap();
+    let output = magcomp(&["run", config.to_str().unwrap()], &[]);
+    assert!(output.status.success(), "{}", text(&output.stderr));
+    let out = folder.join("out");
+    let quality_path = out.join("flight_quality.json");
+    let mut quality: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&quality_path).unwrap()).unwrap();
+    assert!(!quality["channels"].as_array().unwrap().is_empty());
+    quality["channels"] = serde_json::json!([]);
+    std::fs::write(&quality_path, serde_json::to_string(&quality).unwrap()).unwrap();
+    let output = magcomp(&["summarize", out.to_str().unwrap()], &[]);
+    assert!(output.status.success(), "{}", text(&output.stderr));
+    let summary = text(&output.stdout);
+    println!("{summary}");
+    assert!(
+        summary.contains("flight_quality.json lists no compensated channel"),
+        "{summary}"
+    );
+}

@@ -188,7 +188,14 @@ fn summary_flight(folder: &Path, path: &Path) -> Result<SummaryFlight> {
     }
     let name = flight.status.flight.clone();
     match read_json(&folder.join(format!("{name}_quality.json"))) {
-        Ok(quality) => flight.channels = channel_figures(&quality),
+        Ok(quality) => {
+            flight.channels = channel_figures(&quality);
+            if flight.channels.is_empty() {
+                flight.problems.push(format!(
+                    "{name}_quality.json lists no compensated channel although the flight is done: its row has no figures; read the flight's warnings and run it again"
+                ));
+            }
+        }
         Err(problem) => flight.problems.push(problem),
     }
     match read_json(&folder.join(format!("{name}_model.json"))) {

@@ -565,6 +565,15 @@ impl Pipeline {
                     ),
                 });
             }
+            if !flight.windows.is_empty() && flight.windows_file.is_some() {
+                return Err(Error::Config {
+                    source_name: source_name.into(),
+                    message: format!(
+                        "[[flight]] input = {:?}: both windows and windows_file are given; give the calibration windows one way, inline or in the file",
+                        flight.input
+                    ),
+                });
+            }
             if let Some(file) = flight.windows_file.take() {
                 windows_files.push(WindowsFile {
                     flight: index,
@@ -958,6 +967,28 @@ mod tests {
             error.contains("\"svd\"") && error.contains("\"damped_tsvd\"") && error.contains("\"auto\""),
             "{error}"
         );
+    }
+
+    #[test]
+    fn windows_beside_a_windows_file_are_refused() {
+        let text = "[[flight]]\ninput = \"f.csv\"\nwindows_file = \"f.windows.json\"\n\
+                    windows = [{t_start = 1.0, t_end = 9.0, kind = \"roll\", heading_deg = 90.0}]\n";
+        let message = parse(text).unwrap_err().to_string();
+        assert!(message.contains("both windows and windows_file"), "{message}");
+    }
+
+    #[test]
+    fn a_column_whose_name_gives_it_another_role_is_refused() {
+        let message = parse("[columns]\npitch = \"mag_1_uc\"\n").unwrap_err().to_string();
+        assert!(
+            message.contains("pitch = \"mag_1_uc\"") && message.contains("scalar magnetometer by its name"),
+            "{message}"
+        );
+        let message = parse("[columns]\nline = \"flux_b_x\"\n").unwrap_err().to_string();
+        assert!(message.contains("vector magnetometer 'flux_b'"), "{message}");
+        // Listing the scalars frees the name.
+        let settings = parse("[columns]\nscalar = [\"mag_2_uc\"]\npitch = \"mag_1_uc\"\n").unwrap();
+        assert_eq!(settings.settings.ingest.columns.pitch, "mag_1_uc");
     }
 
     #[test]

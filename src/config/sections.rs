@@ -391,6 +391,9 @@ impl TryFrom<RawColumns> for ColumnNames {
                 pair[0].0, pair[1].0, pair[0].1
             ));
         }
+        if let Some(message) = columns.role_taken_by_name() {
+            return Err(message);
+        }
         for v in &columns.vector {
             if [&v.prefix, &v.x, &v.y, &v.z].iter().any(|c| c.trim().is_empty()) {
                 return Err(format!(

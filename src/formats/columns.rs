@@ -148,6 +148,36 @@ impl ColumnNames {
         name == self.time || self.named_role(name).is_some()
     }
 
+    /// A column `[columns]` gives a role that its name gives another:
+    /// `pitch = "mag_1_uc"` when every `mag_<n>_uc` is a scalar. The
+    /// message names both roles and the fix.
+    pub fn role_taken_by_name(&self) -> Option<String> {
+        let asked = |setting: &str| match setting {
+            "pitch" => Some(ChannelRole::Attitude(AttitudeAngle::Pitch)),
+            "roll" => Some(ChannelRole::Attitude(AttitudeAngle::Roll)),
+            "yaw" => Some(ChannelRole::Attitude(AttitudeAngle::Yaw)),
+            "line" => Some(ChannelRole::Line),
+            "base_station" => Some(ChannelRole::BaseStation),
+            "position" => Some(ChannelRole::Position),
+            _ => None,
+        };
+        self.given.iter().find_map(|g| {
+            let wanted = asked(g.setting)?;
+            let got = self.named_role(&g.column)?;
+            (got != wanted).then(|| {
+                let by_name = match got {
+                    ChannelRole::ScalarMagnetometer => "a scalar magnetometer by its name (every mag_<n>_uc is one unless [columns] scalar lists the scalars)".to_string(),
+                    ChannelRole::VectorMagnetometer { sensor, .. } => format!("an axis of the vector magnetometer '{sensor}' by its name"),
+                    _ => "given another role by another setting".to_string(),
+                };
+                format!(
+                    "[columns] {} = \"{}\": that column is {by_name}, and a column plays one role; name the {} column, or list the scalars in [columns] scalar without it",
+                    g.setting, g.column, g.setting
+                )
+            })
+        })
+    }
+
     fn named_role(&self, name: &str) -> Option<ChannelRole> {
         if let Some(role) = self.explicit_vector_role(name) {
             return Some(role);
