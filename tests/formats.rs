@@ -309,3 +309,43 @@ fn damaged_xyz_and_hdf5_files_give_errors_not_panics() {
         assert!(errors >= 1, ".{extension}: the empty file is an error");
     }
 }
+
+/// A time column that jumps by 10⁹ s (31.7 years) between two rows is
+/// read with every row kept and a warning that names the jump, its place
+/// and what to check; steps of an ordinary flight give none.
+#[test]
+fn a_time_column_that_jumps_by_years_is_warned_of() {
+    let folder = tempfile::tempdir().unwrap();
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let text = std::fs::read_to_string(root.join("sample_flights/clean.csv")).unwrap();
+    let mut lines: Vec<String> = text.lines().map(String::from).collect();
+    let header: Vec<&str> = lines[0].split(',').collect();
+    let time = header.iter().position(|c| *c == "tt").unwrap();
+    let rows = lines.len() - 1;
+    for line in lines.iter_mut().skip(1001) {
+        let mut cells: Vec<String> = line.split(',').map(String::from).collect();
+        cells[time] = format!("{}", cells[time].parse::<f64>().unwrap() + 1e9);
+        *line = cells.join(",");
+    }
+    let jumped = folder.path().join("jumped.csv");
+    std::fs::write(&jumped, lines.join("\n") + "\n").unwrap();
+    let clean = read_flight_log(&root.join("sample_flights/clean.csv"), &IngestOptions::default()).unwrap();
+    assert!(
+        !clean.reading_warnings().iter().any(|w| w.contains("jumps by")),
+        "{:?}",
+        clean.reading_warnings()
+    );
+    let log = read_flight_log(&jumped, &IngestOptions::default()).unwrap();
+    assert_eq!(log.len(), rows);
+    let warnings: Vec<&String> = log
+        .reading_warnings()
+        .iter()
+        .filter(|w| w.contains("jumps by"))
+        .collect();
+    assert_eq!(warnings.len(), 1, "{:?}", log.reading_warnings());
+    assert!(
+        warnings[0].contains("(11574.1 days)") && warnings[0].contains("row 1001 of the flight"),
+        "{}",
+        warnings[0]
+    );
+}

@@ -117,6 +117,44 @@ pub fn detect_format(path: &Path) -> Result<Format> {
     }
 }
 
+/// Longest step between consecutive times that a flight can hold without
+/// a word: a day. Beyond it the time column is most likely damaged, or two
+/// flights were joined.
+pub const LONGEST_TIME_STEP_S: f64 = 86_400.0;
+
+/// A warning for each step of the time column longer than
+/// [`LONGEST_TIME_STEP_S`] (the first three, then their count). The rows
+/// are kept: the step splits the flight as any gap does.
+fn time_jumps(path: &Path, log: &FlightLog) -> Vec<String> {
+    let time = log.time_s();
+    let jumps: Vec<usize> = (1..time.len())
+        .filter(|&k| time[k] - time[k - 1] > LONGEST_TIME_STEP_S)
+        .collect();
+    let mut warnings: Vec<String> = (jumps.iter().take(3))
+        .map(|&k| {
+            format!(
+                "{}: the time column '{}' jumps by {} s ({:.1} days) from {} to {} s (row {} of the flight): the rows after it are kept, as after any gap, but a flight this long is most likely a damaged time column or two flights joined; check the times, or split the file",
+                path.display(),
+                log.time_column(),
+                crate::error::Number(time[k] - time[k - 1]),
+                (time[k] - time[k - 1]) / 86_400.0,
+                crate::error::Number(time[k - 1]),
+                crate::error::Number(time[k]),
+                k + 1
+            )
+        })
+        .collect();
+    if jumps.len() > 3 {
+        warnings.push(format!(
+            "{}: the time column '{}' jumps by more than a day {} times in all",
+            path.display(),
+            log.time_column(),
+            jumps.len()
+        ));
+    }
+    warnings
+}
+
 /// Reads the flight log at `path`, choosing the reader by extension or content.
 pub fn read_flight_log(path: &Path, options: &IngestOptions) -> Result<FlightLog> {
     let format = detect_format(path)?;
@@ -137,6 +175,7 @@ pub fn read_flight_log(path: &Path, options: &IngestOptions) -> Result<FlightLog
     let mut warnings = log.reading_warnings().to_vec();
     warnings.extend(options.columns.check_given(path, &log)?);
     warnings.extend(units::unit_warnings(&path.display().to_string(), &log));
+    warnings.extend(time_jumps(path, &log));
     if let (Some(given), Some(recorded)) = (options.date, recorded) {
         if given != recorded {
             warnings.push(format!(
