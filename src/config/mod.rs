@@ -556,22 +556,16 @@ impl Pipeline {
         let mut windows_files = Vec::new();
         let mut flights = Vec::with_capacity(raw.flights.len());
         for (index, mut flight) in raw.flights.into_iter().enumerate() {
-            if !flight.lines.is_empty() && flight.windows_file.is_some() {
+            // The calibration data given two ways: which one wins would be a guess.
+            let twice = match (flight.windows_file.is_some(), flight.lines.is_empty(), flight.windows.is_empty()) {
+                (true, false, _) => Some("both lines and windows_file are given; give the calibration data one way, by lines or by windows"),
+                (true, true, false) => Some("both windows and windows_file are given; give the calibration windows one way, inline or in the file"),
+                _ => None,
+            };
+            if let Some(problem) = twice {
                 return Err(Error::Config {
                     source_name: source_name.into(),
-                    message: format!(
-                        "[[flight]] input = {:?}: both lines and windows_file are given; give the calibration data one way, by lines or by windows",
-                        flight.input
-                    ),
-                });
-            }
-            if !flight.windows.is_empty() && flight.windows_file.is_some() {
-                return Err(Error::Config {
-                    source_name: source_name.into(),
-                    message: format!(
-                        "[[flight]] input = {:?}: both windows and windows_file are given; give the calibration windows one way, inline or in the file",
-                        flight.input
-                    ),
+                    message: format!("[[flight]] input = {:?}: {problem}", flight.input),
                 });
             }
             if let Some(file) = flight.windows_file.take() {
