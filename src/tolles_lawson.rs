@@ -59,9 +59,9 @@ pub enum EddyTerms {
 
 /// The set of Tolles-Lawson terms and their scale.
 ///
-/// The default is Tolles-Lawson's 18 terms, as MagNav.jl fits them;
-/// [`TermSet::traceless`] leaves out their two isotropic directions (16
-/// columns). Of the induced terms, $\sum_i u_i B_i = |B|$;
+/// The default is Tolles-Lawson's 18 terms less their two isotropic
+/// directions (16 columns; [`TermSet::magnav`] has all 18). Of the induced
+/// terms, $\sum_i u_i B_i = |B|$;
 /// of the eddy terms, $\sum_i u_i \dot B_i = d|B|/dt$. Both are the
 /// Earth's own field, which the scalar also reads: fitted, they take in
 /// whatever geomagnetic variation (pulsations, crustal field) lies in the
@@ -71,8 +71,7 @@ pub enum EddyTerms {
 /// without them). An induced field along B is also what the field of
 /// soft iron outside the sensor is not: the field of an isotropically
 /// induced dipole, $(3\hat r \hat r^\top - I) m / r^3$, is traceless.
-/// `terms = ["permanent", "induced_traceless", "eddy_traceless"]`
-/// chooses the 16.
+/// `terms = ["permanent", "induced_6", "eddy_9"]` restores them.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct TermSet {
     /// The 3 permanent (hard-iron) terms $u_i$.
@@ -90,12 +89,13 @@ pub struct TermSet {
 }
 
 impl Default for TermSet {
-    /// The classic 18-term model with $s$ = 50 000 nT.
+    /// The 18 terms less their isotropic directions (16) with
+    /// $s$ = 50 000 nT.
     fn default() -> Self {
         TermSet {
             permanent: true,
-            induced: InducedTerms::Six,
-            eddy: EddyTerms::Nine,
+            induced: InducedTerms::Traceless,
+            eddy: EddyTerms::Traceless,
             field_derivative: false,
             bias: false,
             bt_scale_nt: 50_000.0,
@@ -183,19 +183,19 @@ fn combine((products, count): &Products, value: impl Fn(usize, usize) -> f64) ->
 
 impl TermSet {
     /// MagNav.jl's 18 terms (`create_TL_A`'s default), isotropic
-    /// directions included, with $s$ = 50 000 nT: the default.
+    /// directions included, with $s$ = 50 000 nT.
     pub fn magnav() -> Self {
-        TermSet::default()
+        TermSet {
+            induced: InducedTerms::Six,
+            eddy: EddyTerms::Nine,
+            ..TermSet::default()
+        }
     }
 
     /// The 18 terms less their isotropic directions (16), with
-    /// $s$ = 50 000 nT.
+    /// $s$ = 50 000 nT: the default.
     pub fn traceless() -> Self {
-        TermSet {
-            induced: InducedTerms::Traceless,
-            eddy: EddyTerms::Traceless,
-            ..TermSet::default()
-        }
+        TermSet::default()
     }
 
     fn terms(&self) -> Vec<Term> {
@@ -280,6 +280,28 @@ impl TermSet {
             }
         }
         (permanent, tensor)
+    }
+
+    /// The aircraft's eddy-current field per unit of field rate, E (per
+    /// sample, as the eddy terms take the rate), from fitted coefficients
+    /// whose first [`Self::len`] entries are these terms: the eddy term
+    /// $u_i \dot B_j / s$ has coefficient $E_{ij} s$. Terms the set leaves
+    /// out count as zero, so E is known, as M is, up to what the scalar
+    /// cannot see (a multiple of the identity for the traceless terms).
+    pub fn eddy_tensor(&self, coefficients: &[f64]) -> [[f64; 3]; 3] {
+        let mut tensor = [[0.0; 3]; 3];
+        for (term, &c) in self.terms().into_iter().zip(coefficients) {
+            match term {
+                Term::Eddy(i, j) => tensor[i][j] = c / self.bt_scale_nt,
+                Term::EddyDiagonal(k) => {
+                    for (i, w) in TRACELESS_DIAGONALS[k].iter().enumerate() {
+                        tensor[i][i] += w * c / self.bt_scale_nt;
+                    }
+                }
+                _ => {}
+            }
+        }
+        tensor
     }
 
     /// Builds the design matrix for the vector field `field_nt` (x, y, z

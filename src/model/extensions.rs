@@ -178,18 +178,30 @@ pub fn column_level(values: &[f64]) -> f64 {
 pub const SECOND_ORDER_PASSES: usize = 2;
 
 /// What the total field adds to the first-order projection, per row:
-/// $|B + F| - |B| - u \cdot F$ with $F = P + M B$ from the permanent and
-/// induced coefficients of `terms` ([`TermSet::aircraft_field`]) and B the
-/// vector magnetometer's field. The eddy field (a few nT) is left out: its
-/// part across B is a thousandth of a nT. `NaN` where B is.
+/// $|B + F| - |B| - u \cdot F$ with $F = P + M B + E \dot B$ from the
+/// permanent, induced and eddy coefficients of `terms`
+/// ([`TermSet::aircraft_field`], [`TermSet::eddy_tensor`]) and B the
+/// vector magnetometer's field ($\dot B$ its per-sample central difference
+/// between finite samples, as the eddy terms take it). The term is
+/// $|F_\perp|^2 / 2|B|$ to first order: the eddy field's own square is a
+/// thousandth of a nT, but its product with the permanent and induced
+/// field is not. On a cabin sensor (F of a few hundred nT) in a roll
+/// (eddy field of 10-20 nT), it is about 0.1 nT, and it follows the roll
+/// rate. `NaN` where B is.
 pub fn second_order_term(field: [&[f64]; 3], terms: &TermSet, coefficients: &[f64]) -> Vec<f64> {
     let (permanent, tensor) = terms.aircraft_field(coefficients);
+    let eddy = terms.eddy_tensor(coefficients);
+    let rates = field.map(rate_between_finite);
     (0..field[0].len())
         .map(|k| {
             let b = [field[0][k], field[1][k], field[2][k]];
+            let db = [rates[0][k], rates[1][k], rates[2][k]];
             let total = (b[0] * b[0] + b[1] * b[1] + b[2] * b[2]).sqrt();
-            let f: [f64; 3] =
-                [0, 1, 2].map(|i| permanent[i] + tensor[i][0] * b[0] + tensor[i][1] * b[1] + tensor[i][2] * b[2]);
+            let f: [f64; 3] = [0, 1, 2].map(|i| {
+                permanent[i]
+                    + (0..3).map(|j| tensor[i][j] * b[j]).sum::<f64>()
+                    + (0..3).map(|j| eddy[i][j] * db[j]).sum::<f64>()
+            });
             let along = (b[0] * f[0] + b[1] * f[1] + b[2] * f[2]) / total;
             let across_squared = (f[0] * f[0] + f[1] * f[1] + f[2] * f[2] - along * along).max(0.0);
             // |B + F| − |B| − u·F, written to keep precision: with
@@ -197,6 +209,22 @@ pub fn second_order_term(field: [&[f64]; 3], terms: &TermSet, coefficients: &[f6
             // c / (√(a² + c) + a).
             let a = total + along;
             across_squared / ((a * a + across_squared).sqrt() + a)
+        })
+        .collect()
+}
+
+/// Per-sample central difference of `values` between finite samples:
+/// one-sided beside a missing one, 0 for a sample alone, `NaN` where the
+/// value is.
+fn rate_between_finite(values: &[f64]) -> Vec<f64> {
+    let finite = |k: Option<usize>| k.and_then(|k| values.get(k)).copied().filter(|v| v.is_finite());
+    (0..values.len())
+        .map(|k| match (finite(k.checked_sub(1)), values[k], finite(Some(k + 1))) {
+            (_, v, _) if !v.is_finite() => f64::NAN,
+            (Some(before), _, Some(after)) => (after - before) / 2.0,
+            (None, v, Some(after)) => after - v,
+            (Some(before), v, None) => v - before,
+            (None, _, None) => 0.0,
         })
         .collect()
 }
@@ -317,8 +345,10 @@ mod tests {
     #[test]
     fn second_order_term_is_what_the_total_field_adds_to_the_projection() {
         // A cabin-sized aircraft field: P of 600 nT, a soft-iron tensor of
-        // 1e-2, in a 52 000 nT field seen at three attitudes.
+        // 1e-2 and an eddy tensor of 1e-2 per sample (0.1 s at 10 Hz), in a
+        // 52 000 nT field seen at three attitudes.
         let permanent = [420.0, -310.0, 280.0];
+        let eddy = [[0.011, -0.006, 0.002], [0.004, -0.009, 0.007], [-0.003, 0.005, 0.008]];
         let tensor = [[0.012, -0.004, 0.003], [-0.004, -0.008, 0.006], [0.003, 0.006, 0.010]];
         let terms = TermSet::magnav();
         let s = terms.bt_scale_nt;
@@ -330,7 +360,7 @@ mod tests {
                 2.0 * tensor[i][j] * s
             });
         }
-        coefficients.extend([0.0; 9]);
+        coefficients.extend((0..9).map(|k| eddy[k / 3][k % 3] * s));
         let fields = [
             [18_000.0, -2_000.0, 48_700.0],
             [-15_500.0, 9_000.0, 48_000.0],
@@ -339,9 +369,20 @@ mod tests {
         let field: [Vec<f64>; 3] = [0, 1, 2].map(|i| fields.iter().map(|b| b[i]).collect());
         let term = second_order_term([&field[0], &field[1], &field[2]], &terms, &coefficients);
         let design = terms.design_matrix([&field[0], &field[1], &field[2]], std::slice::from_ref(&(0..3)));
+        // The per-sample rate over the run of three: forward, central,
+        // backward.
+        let rate = |k: usize, j: usize| match k {
+            0 => fields[1][j] - fields[0][j],
+            1 => (fields[2][j] - fields[0][j]) / 2.0,
+            _ => fields[2][j] - fields[1][j],
+        };
         for (k, b) in fields.iter().enumerate() {
             let f: Vec<f64> = (0..3)
-                .map(|i| permanent[i] + (0..3).map(|j| tensor[i][j] * b[j]).sum::<f64>())
+                .map(|i| {
+                    permanent[i]
+                        + (0..3).map(|j| tensor[i][j] * b[j]).sum::<f64>()
+                        + (0..3).map(|j| eddy[i][j] * rate(k, j)).sum::<f64>()
+                })
                 .collect();
             let norm = |v: [f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
             let total = norm(*b);
