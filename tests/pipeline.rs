@@ -266,7 +266,7 @@ fn compensate_command_writes_all_outputs_and_honours_fixed_lambda() {
     assert!(ok, "{stderr}");
     let model: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(model).unwrap()).unwrap();
     assert_eq!(model["models"][0]["solution"]["lambda"], 0.001);
-    assert_eq!(model["models"][0]["term_names"].as_array().unwrap().len(), 18);
+    assert_eq!(model["models"][0]["term_names"].as_array().unwrap().len(), 16);
     let quality: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(report).unwrap()).unwrap();
     assert_eq!(quality["channels"][0]["fom_manoeuvres"], 12);
 }

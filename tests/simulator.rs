@@ -383,7 +383,8 @@ fn eddy_lag_fit(flight: &SimulatedFlight, channel: &str, tau_s: Option<f64>) -> 
     )
     .unwrap();
     let trim = 20;
-    let terms = TermSet::default();
+    // MagNav.jl's 18, whose eddy columns 9..18 are replaced by hand.
+    let terms = TermSet::magnav();
     let (mut columns, mut target, mut folds): (Vec<Vec<f64>>, Vec<f64>, Vec<Range<usize>>) =
         (vec![Vec::new(); 18], Vec::new(), Vec::new());
     for window in flight.truth.calibration_windows(5.0) {

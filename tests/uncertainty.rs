@@ -9,7 +9,12 @@
 //! over the calibration windows (the level is `level_sigma_nt`, and a
 //! sensor's constant offset is seen by no calibration), so each true
 //! error is taken from the calibration windows' mean error before it is
-//! compared with the column. Fitted with the plain settings (no diagnosis,
+//! compared with the column. Nor does any scalar fit see the isotropic
+//! part of the aircraft's induced tensor M, $k = \mathrm{tr}(M)/3$: the
+//! sensor reads it as $(1 + k)|B|$, a gain on the Earth's field (the
+//! default terms leave it out; `tests/earth_field.rs`). The truth each
+//! error is taken from is therefore $(1 + k)|B|$: on these plans k reaches
+//! a few 10⁻⁴ on the wing tips, 0.1 nT over 500 nT of anomaly. Fitted with the plain settings (no diagnosis,
 //! no vector stage): on seeds 1–40 the default diagnosis changed the model
 //! of 6 of 120 channels, every change on a channel wrong by more than
 //! 0.1 nT either way, and the pooled coverage moved from 0.719 / 0.896 to
@@ -76,7 +81,14 @@ fn the_sigma_column_is_calibrated_and_the_wrong_channels_are_warned_on_random_pl
         let line = &run.log().channel("line").unwrap().values;
         assert_eq!(run.result.models.len(), 3, "seed {seed}: {:?}", run.result.warnings);
         for (model, channel) in run.result.models.iter().zip(&run.compensation.channels) {
-            let truth = simulated.truth.earth_total_nt(&model.channel).unwrap();
+            // What a scalar compensation can know: the Earth's field times
+            // (1 + k), k the aircraft's isotropic induced part (see the
+            // module's comment).
+            let sensor = (simulated.truth.sensors.iter()).find(|s| s.channel == model.channel).unwrap();
+            let m = &sensor.aircraft.induced;
+            let gain = 1.0 + (m[0][0] + m[1][1] + m[2][2]) / 3.0;
+            let truth: Vec<f64> = sensor.earth_total_nt.iter().map(|b| gain * b).collect();
+            let truth = truth.as_slice();
             let quality = run.result.channels.iter().find(|q| q.channel == model.channel).unwrap();
             let stated = quality.uncertainty.as_ref().expect("twelve windows: a jackknife");
             let warned = run.result.warnings.iter().any(|w| {
@@ -137,8 +149,12 @@ fn the_sigma_column_is_calibrated_and_the_wrong_channels_are_warned_on_random_pl
     let everything = std::env::var("UNCERTAINTY_SEEDS").is_err();
     if everything {
         assert!(unwarned >= 100, "{unwarned} unwarned channels");
+        // With MagNav.jl's 18 terms about 45 of the channels were wrong:
+        // most of them had the survey's anomalies scaled by the isotropic
+        // terms. The default's 16 leave 11 wrong (0.10-0.19 nT), still
+        // enough that one missed warning fails the 95 % below.
         assert!(
-            wrong >= 40 && right >= 80,
+            wrong >= 10 && right >= 80,
             "{wrong} wrong and {right} right channels: the plans test both"
         );
     }

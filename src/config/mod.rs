@@ -33,8 +33,8 @@
 //! field_magnitude = "measured"  # measured (MagNav.jl's) | run_mean
 //!
 //! [fit]
-//! terms = ["permanent", "induced", "eddy"]   # TL's 18; induced_traceless
-//!                      # and eddy_traceless leave out the isotropic two
+//! terms = ["permanent", "induced", "eddy"]   # TL's 18 less the isotropic
+//!                      # two; induced_6 and eddy_9 keep them (MagNav.jl)
 //! bt_scale_nt = 50000.0
 //! lambda = "press"     # or a number to fix it
 //! criterion = "blocked_press"  # blocked_press (leave one window out) | press
@@ -742,17 +742,17 @@ fn parse_terms(names: &[String], bt_scale_nt: f64) -> std::result::Result<TermSe
     for name in names {
         match name.as_str() {
             "permanent" => set.permanent = true,
-            "induced" | "induced_6" => set.induced = InducedTerms::Six,
-            "induced_traceless" => set.induced = InducedTerms::Traceless,
+            "induced" | "induced_traceless" => set.induced = InducedTerms::Traceless,
+            "induced_6" => set.induced = InducedTerms::Six,
             "induced_5" => set.induced = InducedTerms::Five,
             "induced_3" => set.induced = InducedTerms::Three,
-            "eddy" | "eddy_9" => set.eddy = EddyTerms::Nine,
-            "eddy_traceless" => set.eddy = EddyTerms::Traceless,
+            "eddy" | "eddy_traceless" => set.eddy = EddyTerms::Traceless,
+            "eddy_9" => set.eddy = EddyTerms::Nine,
             "eddy_8" => set.eddy = EddyTerms::Eight,
             "eddy_3" => set.eddy = EddyTerms::Three,
             "field_derivative" | "fdm" => set.field_derivative = true,
             "bias" => set.bias = true,
-            other => return Err(format!("[fit] terms: unknown term group '{other}'; use permanent, induced, induced_traceless, induced_5, induced_3, eddy, eddy_traceless, eddy_8, eddy_3, field_derivative or bias")),
+            other => return Err(format!("[fit] terms: unknown term group '{other}'; use permanent, induced, induced_6, induced_5, induced_3, eddy, eddy_9, eddy_8, eddy_3, field_derivative or bias")),
         }
     }
     if set.is_empty() {
@@ -992,19 +992,20 @@ mod tests {
     }
 
     #[test]
-    fn defaults_are_the_classic_magnav_settings() {
+    fn defaults_are_tolles_lawson_less_the_isotropic_terms() {
         let pipeline = parse("").unwrap();
-        assert_eq!(pipeline.settings.terms, TermSet::magnav());
-        assert_eq!(pipeline.settings.terms.len(), 18);
+        assert_eq!(pipeline.settings.terms, TermSet::traceless());
+        assert_eq!(pipeline.settings.terms.len(), 16);
         assert_eq!(
             pipeline.settings.fit.filter.magnitude,
             crate::model::FitMagnitude::Measured
         );
-        let text = "[fit]\nterms = [\"permanent\", \"induced_traceless\", \"eddy_traceless\"]\n[filter]\nfield_magnitude = \"run_mean\"\n";
-        let traceless = parse(text).unwrap().settings;
-        assert_eq!(traceless.terms, TermSet::traceless());
-        assert_eq!(traceless.terms.len(), 16);
-        assert_eq!(traceless.fit.filter.magnitude, crate::model::FitMagnitude::RunMean);
+        let text =
+            "[fit]\nterms = [\"permanent\", \"induced_6\", \"eddy_9\"]\n[filter]\nfield_magnitude = \"run_mean\"\n";
+        let all = parse(text).unwrap().settings;
+        assert_eq!(all.terms, TermSet::magnav());
+        assert_eq!(all.terms.len(), 18);
+        assert_eq!(all.fit.filter.magnitude, crate::model::FitMagnitude::RunMean);
         assert_eq!(pipeline.settings.fit.filter, FilterSettings::default());
         assert_eq!(pipeline.settings.fit.solve.lambda, LambdaChoice::Select);
     }
