@@ -110,16 +110,45 @@ impl Compensation {
     }
 
     /// Adds `vector` and flags the rows where it is missing: without a
-    /// fluxgate reading (both frames), without an attitude (north-east-down).
+    /// fluxgate reading (both frames), without an attitude (north-east-down);
+    /// and those where a component lies beyond what a fluxgate reads
+    /// (`output_out_of_range:<sensor>`).
     pub fn add_vector(&mut self, vector: crate::vector::CompensatedVector) {
+        let most = crate::screen::MOST_VECTOR_COMPONENT_NT;
         for (row, flags) in self.flags.iter_mut().enumerate() {
             if vector.body_nt[0][row].is_nan() {
-                flags.raise(crate::flags::FlagKind::MissingVector, &vector.sensor);
+                flags.raise(FlagKind::MissingVector, &vector.sensor);
             } else if vector.ned_nt[0][row].is_nan() {
-                flags.raise(crate::flags::FlagKind::MissingAttitude, &vector.sensor);
+                flags.raise(FlagKind::MissingAttitude, &vector.sensor);
+            }
+            let components = vector.body_nt.iter().chain(&vector.ned_nt);
+            if components.map(|c| c[row]).any(|v| v.is_finite() && v.abs() > most) {
+                flags.raise(FlagKind::OutputOutOfRange, &vector.sensor);
             }
         }
         self.vectors.push(vector);
+    }
+
+    /// One warning per scalar channel or fluxgate with compensated values
+    /// beyond what the instrument reads (rows flagged
+    /// `output_out_of_range`): how many, the first row's time and value.
+    pub fn out_of_range_warnings(&self, time_s: &[f64]) -> Vec<String> {
+        let subjects =
+            (self.channels.iter().map(|c| c.channel.as_str())).chain(self.vectors.iter().map(|v| v.sensor.as_str()));
+        subjects
+            .filter_map(|subject| {
+                let rows: Vec<usize> = (0..self.flags.len())
+                    .filter(|&row| self.flags[row].has(FlagKind::OutputOutOfRange, subject))
+                    .collect();
+                let first = *rows.first()?;
+                Some(format!(
+                    "{subject}: {} compensated row{} lie beyond what the instrument reads (a total field outside 1,000-100,000 nT, a component beyond ±100,000 nT), the first at {} s; they are written and flagged output_out_of_range:{subject}. The model was applied far from what it was fitted on: look at the attitude and fluxgate there, and at the calibration windows",
+                    rows.len(),
+                    if rows.len() == 1 { "" } else { "s" },
+                    crate::error::Number(time_s[first]),
+                ))
+            })
+            .collect()
     }
 }
 
@@ -266,6 +295,11 @@ fn row_flags(log: &FlightLog, models: &[FittedModel], channels: &[CompensatedCha
             let beside_gap = (row > 0 && !valid(row - 1)) || (row + 1 < log.len() && !valid(row + 1));
             if !explained && derivatives && beside_gap && compensated.values[row].is_finite() {
                 flags[row].raise(FlagKind::BesideGap, &model.vector_sensor);
+            }
+            let value = compensated.values[row];
+            let (lowest, highest) = crate::screen::TOTAL_FIELD_RANGE_NT;
+            if value.is_finite() && !(lowest..=highest).contains(&value) {
+                flags[row].raise(FlagKind::OutputOutOfRange, &model.channel);
             }
             if !explained && !compensated.values[row].is_finite() {
                 let kind = match model.spec.extensions.lag_s != 0.0 {

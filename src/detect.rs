@@ -395,6 +395,46 @@ pub fn detect_manoeuvres(log: &FlightLog, options: &DetectOptions) -> Result<Det
     })
 }
 
+/// Longest run of missing attitude samples detection bridges, s: glitches
+/// screened out of the INS record (`crate::screen`) leave holes of a
+/// sample or three, which would otherwise cut every manoeuvre they fall
+/// in.
+pub const BRIDGED_ATTITUDE_GAP_S: f64 = 1.0;
+
+/// `values` with each run of missing samples no longer than
+/// [`BRIDGED_ATTITUDE_GAP_S`] between two finite ones filled by linear
+/// interpolation in time; a heading (`wraps`) is interpolated across
+/// north (the shorter way round). Longer runs stay missing.
+fn bridged(values: &[f64], time_s: &[f64], wraps: bool) -> Vec<f64> {
+    let mut out = values.to_vec();
+    let mut row = 0;
+    while row < values.len() {
+        if values[row].is_finite() {
+            row += 1;
+            continue;
+        }
+        let start = row;
+        while row < values.len() && !values[row].is_finite() {
+            row += 1;
+        }
+        let (Some(before), true) = (start.checked_sub(1), row < values.len()) else {
+            continue;
+        };
+        let span = time_s[row] - time_s[before];
+        if !(span > 0.0 && span <= BRIDGED_ATTITUDE_GAP_S + 1e-9) {
+            continue;
+        }
+        let step = match wraps {
+            true => (values[row] - values[before] + 180.0).rem_euclid(360.0) - 180.0,
+            false => values[row] - values[before],
+        };
+        for k in start..row {
+            out[k] = values[before] + step * (time_s[k] - time_s[before]) / span;
+        }
+    }
+    out
+}
+
 /// The spans (first and last time) of at least `min_s` where a row lacks
 /// one of `angles`.
 fn missing_spans(time_s: &[f64], angles: &[Vec<f64>; 3], min_s: f64) -> Vec<(f64, f64)> {
@@ -448,6 +488,9 @@ fn read_attitude(log: &FlightLog) -> Result<Attitude> {
         angle(AttitudeAngle::Roll),
         angle(AttitudeAngle::Yaw),
     ) {
+        let time = log.time_s();
+        let (pitch, roll) = (bridged(&pitch, time, false), bridged(&roll, time, false));
+        let yaw = bridged(&yaw, time, true);
         return Ok(Attitude {
             angles: [pitch, roll, yaw.clone()],
             heading_deg: yaw,

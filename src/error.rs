@@ -94,6 +94,19 @@ pub enum Error {
         column: String,
     },
 
+    /// Screening masked every sample of a column the run needs.
+    #[error("{path}: every sample of '{column}' was masked on screening: {reason}. {hint}")]
+    AllMasked {
+        /// The file concerned.
+        path: PathBuf,
+        /// Column name.
+        column: String,
+        /// What screening found, in words.
+        reason: String,
+        /// What to do.
+        hint: String,
+    },
+
     /// Channels of a flight log have different lengths.
     #[error("flight log: channel '{column}' has {found} samples but the time base has {expected}. Every channel must have one value per time sample.")]
     LengthMismatch {

@@ -23,6 +23,9 @@ pub enum FlagKind {
     Spike,
     /// An axis dropping to zero between normal neighbours, masked.
     Dropout,
+    /// A run of identical readings no working sensor makes (stuck or
+    /// dead), masked.
+    Stuck,
     /// The scalar sample is missing.
     MissingScalar,
     /// A component of the vector sample is missing.
@@ -39,6 +42,11 @@ pub enum FlagKind {
     /// The INS attitude is missing: the vector in north-east-down is not
     /// given.
     MissingAttitude,
+    /// The compensated value lies where no instrument reads (a total field
+    /// outside 1,000–100,000 nT, a vector component beyond ±100,000 nT):
+    /// the model was applied far outside what it was fitted on. The
+    /// value is written, flagged, and warned of.
+    OutputOutOfRange,
 }
 
 impl FlagKind {
@@ -51,6 +59,7 @@ impl FlagKind {
             FlagKind::ZeroVector => "zero_vector",
             FlagKind::Spike => "spike",
             FlagKind::Dropout => "dropout",
+            FlagKind::Stuck => "stuck",
             FlagKind::MissingScalar => "missing_scalar",
             FlagKind::MissingVector => "missing_vector",
             FlagKind::MissingSource => "missing_source",
@@ -58,6 +67,7 @@ impl FlagKind {
             FlagKind::LagOutsideRecord => "lag_outside_record",
             FlagKind::ModelUndefined => "model_undefined",
             FlagKind::MissingAttitude => "missing_attitude",
+            FlagKind::OutputOutOfRange => "output_out_of_range",
         }
     }
 }

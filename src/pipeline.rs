@@ -487,6 +487,7 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
     let screened = crate::screen::screen_samples(&recorded)?;
     let raw_log = screened.log_or(&recorded);
     let sensor = choose_vector_sensor(raw_log, job.vector.as_deref())?;
+    refuse_dead_columns(raw_log, &screened.screening, &sensor, job.channels.as_deref())?;
     let channels = choose_channels(raw_log, job.channels.as_deref())?;
     let (windows, detected, headings_note) = calibration_windows(raw_log, job, options)?;
     // The fit (and everything after it) sees the calibrated fluxgate; the
@@ -628,6 +629,7 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
         compensation.add_vector(compensated);
     }
     compensation.gradients = gradients.compensated;
+    warnings.extend(compensation.out_of_range_warnings(log.time_s()));
     let added_columns = added_column_names(log, compensated, &compensation)?;
     let mut notes = renaming_notes(&channels, &added_columns);
     // In channel order, whatever order the threads finished in.
@@ -1055,6 +1057,45 @@ fn renaming_notes(channels: &[String], added: &[String]) -> Vec<String> {
             format!("the input already has a '{original}' column (kept unchanged); magcomp's compensation of '{channel}' is in '{column}'")
         })
         .collect()
+}
+
+/// An error naming what screening found when it masked every sample of
+/// an axis of `sensor` or of a scalar channel to compensate (`wanted`, or
+/// every scalar channel): a dead axis or a stuck sensor is named as such,
+/// not as an empty column or a calibration window without samples.
+fn refuse_dead_columns(
+    log: &FlightLog,
+    screening: &crate::screen::Screening,
+    sensor: &VectorSensor,
+    wanted: Option<&[String]>,
+) -> Result<()> {
+    let axes = sensor.axes.map(|axis| log.channels()[axis].name.clone());
+    for column in &axes {
+        if let Some(reason) = screening.took_all(log, column) {
+            return Err(Error::AllMasked {
+                path: log.source().to_path_buf(),
+                column: column.clone(),
+                reason,
+                hint: format!("No Tolles-Lawson term can be built from '{}' without it. Repair the sensor or its export, or choose another fluxgate with --vector.", sensor.prefix),
+            });
+        }
+    }
+    let scalars: Vec<String> = match wanted {
+        Some(list) => list.to_vec(),
+        None => log.scalar_channels().into_iter().map(String::from).collect(),
+    };
+    for column in &scalars {
+        if let Some(reason) = screening.took_all(log, column) {
+            return Err(Error::AllMasked {
+                path: log.source().to_path_buf(),
+                column: column.clone(),
+                reason,
+                hint: "Leave the channel out with --channels (or [columns] in pipeline.toml) to compensate the others."
+                    .into(),
+            });
+        }
+    }
+    Ok(())
 }
 
 /// The vector magnetometer called `wanted`, or the first one found.

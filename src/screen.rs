@@ -19,8 +19,19 @@
 //!   zero between neighbours 500 nT or more from zero (a dropout), a
 //!   component beyond ±100,000 nT, or an isolated spike in one axis (that
 //!   axis, which makes the row's vector missing);
+//! - a scalar magnetometer or a fluxgate axis that repeats one reading
+//!   for [`STUCK_S`] or longer (and at least [`STUCK_SAMPLES`] samples):
+//!   a working sensor's noise and the aircraft's motion change every
+//!   reading, so the sensor is stuck, or the axis dead (all zeros), or the
+//!   logger held its last value;
 //! - pitch beyond ±90°, roll beyond ±180°, heading beyond ±3,600° (ten
-//!   turns, for headings recorded unwrapped);
+//!   turns, for headings recorded unwrapped), or a glitch: a sample
+//!   further from most of its neighbours than the aircraft can turn in two
+//!   intervals ([`FASTEST_ATTITUDE_DEG_S`], at least
+//!   [`LEAST_ATTITUDE_GLITCH_DEG`] an interval), up to
+//!   [`LONGEST_GLITCH_SAMPLES`] in a row; headings are compared across
+//!   north (a heading set to 0 or 359.9 by a dropout is masked, the turn
+//!   from 359.9° to 0.1° is not);
 //! - latitude beyond ±90°, longitude beyond ±360°, other positions (heights,
 //!   grid coordinates) beyond ±10,000 km;
 //! - an auxiliary column beyond ±1e12 (no current, voltage or counter reads
@@ -53,6 +64,24 @@ pub const FASTEST_TOTAL_FIELD_NT_S: f64 = 10_000.0;
 /// turning at 1 rad/s (57°/s, twice a steep survey aircraft's roll rate).
 pub const FASTEST_COMPONENT_NT_S: f64 = 50_000.0;
 
+/// Fastest an attitude angle can change, °/s: three times a steep
+/// survey aircraft's roll rate.
+pub const FASTEST_ATTITUDE_DEG_S: f64 = 90.0;
+
+/// Smallest attitude glitch masked, degrees: at high rates a smaller one
+/// changes no stage's result.
+pub const LEAST_ATTITUDE_GLITCH_DEG: f64 = 5.0;
+
+/// Most samples in a row an attitude glitch spans, and the neighbours on
+/// each side a sample is judged against.
+pub const LONGEST_GLITCH_SAMPLES: usize = 3;
+
+/// A magnetometer repeating one reading this long is stuck, s.
+pub const STUCK_S: f64 = 5.0;
+
+/// ... and for at least this many samples.
+pub const STUCK_SAMPLES: usize = 20;
+
 /// Below this a fluxgate axis reads nothing (a zero or subnormal dropout).
 const DROPOUT_NT: f64 = 1e-300;
 
@@ -75,6 +104,11 @@ pub enum MaskReason {
     Spike,
     /// A fluxgate axis reading zero between neighbours far from zero.
     Dropout,
+    /// Attitude samples further from most of their neighbours than the
+    /// aircraft can turn.
+    Glitch,
+    /// One reading repeated for [`STUCK_S`] or longer.
+    Stuck,
 }
 
 impl MaskReason {
@@ -85,6 +119,8 @@ impl MaskReason {
             MaskReason::ZeroVector => FlagKind::ZeroVector,
             MaskReason::Spike => FlagKind::Spike,
             MaskReason::Dropout => FlagKind::Dropout,
+            MaskReason::Glitch => FlagKind::Spike,
+            MaskReason::Stuck => FlagKind::Stuck,
         }
     }
 
@@ -96,6 +132,12 @@ impl MaskReason {
                 "isolated spikes, further from both neighbours than the field can change in one sample"
             }
             MaskReason::Dropout => "an axis reading zero between neighbours 500 nT or more from zero: a dropout",
+            MaskReason::Glitch => {
+                "glitches: samples further from most of their neighbours than the aircraft can turn in two intervals (90°/s), up to 3 in a row"
+            }
+            MaskReason::Stuck => {
+                "one reading repeated for 5 s or longer: the sensor is stuck or its axis dead, or the logger held its last value"
+            }
         }
     }
 }
@@ -146,6 +188,18 @@ impl Screening {
     /// Whether nothing was masked.
     pub fn is_clean(&self) -> bool {
         self.masked.is_empty()
+    }
+
+    /// What screening masked of `column` when it masked every finite
+    /// sample of it in `screened` (the log the stages work on), in words;
+    /// `None` when a sample is left or screening did not touch it.
+    pub fn took_all(&self, screened: &FlightLog, column: &str) -> Option<String> {
+        let left = screened.channel(column)?.values.iter().any(|v| v.is_finite());
+        let reasons: Vec<&str> = (self.masked.iter())
+            .filter(|m| m.column == column)
+            .map(|m| m.reason.describe())
+            .collect();
+        (!left && !reasons.is_empty()).then(|| reasons.join("; "))
     }
 
     /// One sentence per column and reason, for stdout and the report.
@@ -236,6 +290,10 @@ fn screen_channel(name: &str, role: &ChannelRole, values: &[f64], interval_s: f6
             let mut found = range(low, high);
             let jump_nt = (FASTEST_TOTAL_FIELD_NT_S * interval_s).max(100.0);
             found.extend(spikes(values, jump_nt, &found));
+            // A base station may record at a minute's cadence, held.
+            if matches!(role, ChannelRole::ScalarMagnetometer) {
+                found.extend(stuck(values, interval_s));
+            }
             found
         }
         ChannelRole::VectorTotal { .. } => range(0.0, MOST_VECTOR_COMPONENT_NT * 3f64.sqrt()),
@@ -243,11 +301,19 @@ fn screen_channel(name: &str, role: &ChannelRole, values: &[f64], interval_s: f6
             let jump_nt = (FASTEST_COMPONENT_NT_S * interval_s).max(1_000.0);
             let mut found = dropouts(values);
             found.extend(spikes(values, jump_nt, &found));
+            found.extend(stuck(values, interval_s));
             found
         }
-        ChannelRole::Attitude(AttitudeAngle::Pitch) => range(-90.0, 90.0),
-        ChannelRole::Attitude(AttitudeAngle::Roll) => range(-180.0, 180.0),
-        ChannelRole::Attitude(AttitudeAngle::Yaw) => range(-3_600.0, 3_600.0),
+        ChannelRole::Attitude(angle) => {
+            let mut found = match angle {
+                AttitudeAngle::Pitch => range(-90.0, 90.0),
+                AttitudeAngle::Roll => range(-180.0, 180.0),
+                AttitudeAngle::Yaw => range(-3_600.0, 3_600.0),
+            };
+            let jump_deg = (FASTEST_ATTITUDE_DEG_S * interval_s).max(LEAST_ATTITUDE_GLITCH_DEG);
+            found.extend(glitches(values, jump_deg, *angle == AttitudeAngle::Yaw, &found));
+            found
+        }
         ChannelRole::Position => {
             let lowercase = name.to_ascii_lowercase();
             if lowercase.starts_with("lat") {
@@ -304,6 +370,58 @@ fn spikes(values: &[f64], jump: f64, masked: &[(usize, MaskReason)]) -> Vec<(usi
         })
         .map(|row| (row, MaskReason::Spike))
         .collect()
+}
+
+/// Rows of attitude glitches: a finite sample further than twice `jump`
+/// (the most the aircraft turns in one interval) from more than half of
+/// its usable neighbours, up to [`LONGEST_GLITCH_SAMPLES`] on each side and
+/// at least three. At the fastest turn a good sample is within two
+/// intervals' turn of the four nearest of its six neighbours, so no motion
+/// the aircraft can make is masked; judged by majority, a good sample
+/// between glitches stays, and runs of up to [`LONGEST_GLITCH_SAMPLES`]
+/// glitches are found whatever their values. Differences of a heading
+/// (`wraps`) are taken across north, within ±180°. Rows already in
+/// `masked` are not neighbours.
+fn glitches(values: &[f64], jump: f64, wraps: bool, masked: &[(usize, MaskReason)]) -> Vec<(usize, MaskReason)> {
+    let excluded: std::collections::HashSet<usize> = masked.iter().map(|(row, _)| *row).collect();
+    let usable = |row: usize| values[row].is_finite() && !excluded.contains(&row);
+    let difference = |a: f64, b: f64| match wraps {
+        true => (a - b + 180.0).rem_euclid(360.0) - 180.0,
+        false => a - b,
+    };
+    let reach = LONGEST_GLITCH_SAMPLES;
+    (0..values.len())
+        .filter(|&row| usable(row))
+        .filter(|&row| {
+            let around = row.saturating_sub(reach)..=(row + reach).min(values.len() - 1);
+            let neighbours: Vec<usize> = around.filter(|&j| j != row && usable(j)).collect();
+            let far = (neighbours.iter())
+                .filter(|&&j| difference(values[j], values[row]).abs() > 2.0 * jump)
+                .count();
+            neighbours.len() >= 3 && 2 * far > neighbours.len()
+        })
+        .map(|row| (row, MaskReason::Glitch))
+        .collect()
+}
+
+/// Rows of runs of one repeated finite reading lasting [`STUCK_S`] or
+/// longer and at least [`STUCK_SAMPLES`] samples (at the median
+/// `interval_s`).
+fn stuck(values: &[f64], interval_s: f64) -> Vec<(usize, MaskReason)> {
+    let shortest = STUCK_SAMPLES.max((STUCK_S / interval_s).ceil() as usize);
+    let mut found = Vec::new();
+    let mut start = 0;
+    for row in 1..=values.len() {
+        let same = row < values.len() && values[row].is_finite() && values[row] == values[start];
+        if same {
+            continue;
+        }
+        if values[start].is_finite() && row - start >= shortest {
+            found.extend((start..row).map(|r| (r, MaskReason::Stuck)));
+        }
+        start = row;
+    }
+    found
 }
 
 /// The log with the masked samples set missing and their rows flagged.
@@ -393,7 +511,109 @@ mod tests {
     fn steady(rows: usize) -> FlightLog {
         let scalar: Vec<f64> = (0..rows).map(|k| 53_000.0 + (k as f64 * 0.3).sin()).collect();
         let x: Vec<f64> = (0..rows).map(|k| 18_000.0 + 300.0 * (k as f64 * 0.05).sin()).collect();
-        flight(scalar, [x, vec![-9_000.0; rows], vec![49_000.0; rows]], vec![2.0; rows])
+        let y: Vec<f64> = (0..rows).map(|k| -9_000.0 + 40.0 * (k as f64 * 0.07).cos()).collect();
+        let z: Vec<f64> = (0..rows).map(|k| 49_000.0 + 20.0 * (k as f64 * 0.03).sin()).collect();
+        flight(scalar, [x, y, z], vec![2.0; rows])
+    }
+
+    /// A heading turning steadily through north at 10 Hz.
+    fn heading(rows: usize) -> Vec<f64> {
+        (0..rows).map(|k| (340.0 + 0.4 * k as f64).rem_euclid(360.0)).collect()
+    }
+
+    fn with_heading(log: &FlightLog, yaw: Vec<f64>) -> FlightLog {
+        let mut channels = log.channels().to_vec();
+        channels.push(Channel {
+            name: "ins_yaw".into(),
+            role: ChannelRole::Attitude(AttitudeAngle::Yaw),
+            values: yaw,
+        });
+        FlightLog::new("flight.csv", "tt", log.time_s().to_vec(), channels).unwrap()
+    }
+
+    /// Heading glitches (a dropout read as 0, 359.9, −180 or a subnormal,
+    /// alone or two and three in a row) are masked as spikes; the turn
+    /// through north (359.6° to 0.0°) and a roll at the fastest rate are
+    /// not.
+    #[test]
+    fn attitude_glitches_are_masked_and_the_turn_through_north_is_not() {
+        let rows = 500;
+        let mut yaw = heading(rows);
+        let glitches: [(usize, f64); 8] = [
+            (150, 0.0),
+            (100, 359.9),
+            (160, -180.0),
+            (220, 4.9e-324),
+            (300, 0.0),
+            (301, 0.0),
+            (400, 359.9),
+            (402, 5.0),
+        ];
+        yaw[401] = 180.0;
+        for (row, value) in glitches {
+            yaw[row] = value;
+        }
+        let mut log = with_heading(&steady(rows), yaw);
+        // A roll swinging at 80°/s (the limit is 90°/s): no glitch.
+        let roll: Vec<f64> = (0..rows).map(|k| 25.0 * (k as f64 * 0.32).sin()).collect();
+        log = log.with_values("ins_roll", roll).unwrap();
+        let screened = screen_samples(&log).unwrap();
+        let flags = screened.log.as_ref().unwrap().row_flags();
+        let flagged: Vec<usize> = (0..rows).filter(|&k| !flags[k].is_empty()).collect();
+        let mut expected: Vec<usize> = glitches.iter().map(|(row, _)| *row).chain([401]).collect();
+        expected.sort();
+        assert_eq!(flagged, expected, "{:?}", screened.screening.warnings());
+        assert!(flagged.iter().all(|&k| flags[k].to_string() == "spike:ins_yaw"));
+        // The heading crosses north between rows 50 and 51 (359.6° to
+        // 0.0°, then 0.4°): kept.
+        let kept = &screened.log.as_ref().unwrap().channel("ins_yaw").unwrap().values;
+        assert!(kept[49..53].iter().all(|v| v.is_finite()), "{:?}", &kept[49..53]);
+        assert!(screened
+            .screening
+            .warnings()
+            .iter()
+            .any(|w| w.contains("masked 9 samples of ins_yaw")));
+    }
+
+    /// A fluxgate axis that reads 0 throughout and a scalar that repeats
+    /// one value for 8 s are masked as stuck; a scalar held for 1 s (a
+    /// slower instrument resampled) is not.
+    #[test]
+    fn a_dead_axis_and_a_stuck_scalar_are_masked() {
+        let rows = 500;
+        let log = steady(rows);
+        let mut scalar = log.channel("mag_1_uc").unwrap().values.clone();
+        for k in 100..180 {
+            scalar[k] = 53_000.25;
+        }
+        for k in 300..310 {
+            scalar[k] = scalar[300];
+        }
+        let log = log
+            .with_values("mag_1_uc", scalar)
+            .unwrap()
+            .with_values("flux_a_y", vec![0.0; rows])
+            .unwrap();
+        let screened = screen_samples(&log).unwrap();
+        let masked = screened.log.as_ref().unwrap();
+        let flags = masked.row_flags();
+        assert!((0..rows).all(|k| flags[k].has(FlagKind::Stuck, "flux_a_y")));
+        let stuck_scalar: Vec<usize> = (0..rows)
+            .filter(|&k| flags[k].has(FlagKind::Stuck, "mag_1_uc"))
+            .collect();
+        assert_eq!(stuck_scalar, (100..180).collect::<Vec<_>>());
+        assert!(masked.channel("flux_a_y").unwrap().values.iter().all(|v| v.is_nan()));
+        let warnings = screened.screening.warnings();
+        assert!(
+            warnings
+                .iter()
+                .any(|w| w.contains("masked 500 samples of flux_a_y") && w.contains("stuck or its axis dead")),
+            "{warnings:?}"
+        );
+        assert!(
+            warnings.iter().any(|w| w.contains("masked 80 samples of mag_1_uc")),
+            "{warnings:?}"
+        );
     }
 
     #[test]
