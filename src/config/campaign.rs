@@ -144,7 +144,7 @@ pub(crate) fn campaign_flights(
     if let Some(manifest) = &campaign.manifest {
         flights.extend(read_manifest(&base.join(manifest))?);
     }
-    let mut named: Vec<PathBuf> = Vec::with_capacity(flights.len());
+    let mut named: std::collections::HashSet<PathBuf> = std::collections::HashSet::with_capacity(flights.len());
     for flight in &flights {
         let key = path_key(&base.join(&flight.input));
         if named.contains(&key) {
@@ -156,7 +156,7 @@ pub(crate) fn campaign_flights(
                 ),
             });
         }
-        named.push(key);
+        named.insert(key);
     }
     let mut notes = Vec::new();
     for pattern in &campaign.inputs {
@@ -165,8 +165,7 @@ pub(crate) fn campaign_flights(
             let key = path_key(&path);
             if outputs.as_ref().is_some_and(|folder| key.starts_with(folder)) {
                 left_out += 1;
-            } else if !named.contains(&key) {
-                named.push(key);
+            } else if named.insert(key) {
                 flights.push(raw_flight(path));
             }
         }

@@ -368,7 +368,15 @@ fn file_stem(path: &Path) -> String {
 /// digits of the path's SHA-256 after it. Depends only on the list, so
 /// every shard of a campaign names every flight alike.
 fn name_outputs(flights: &mut [FlightJob], base: &Path) {
-    let count = |names: &[String], name: &str| names.iter().filter(|n| n.as_str() == name).count();
+    // Counted once (a campaign can name 10,000 flights, and every shard
+    // names them all).
+    let tally = |names: &[String]| {
+        let mut counts: std::collections::HashMap<String, usize> = std::collections::HashMap::new();
+        for name in names {
+            *counts.entry(name.clone()).or_default() += 1;
+        }
+        counts
+    };
     let stems: Vec<String> = flights.iter().map(|f| file_stem(&f.input)).collect();
     let by_path: Vec<String> = flights
         .iter()
@@ -392,8 +400,9 @@ fn name_outputs(flights: &mut [FlightJob], base: &Path) {
                 .join("_")
         })
         .collect();
+    let (stem_counts, path_counts) = (tally(&stems), tally(&by_path));
     for (index, flight) in flights.iter_mut().enumerate() {
-        flight.output_name = match (count(&stems, &stems[index]), count(&by_path, &by_path[index])) {
+        flight.output_name = match (stem_counts[&stems[index]], path_counts[&by_path[index]]) {
             (1, _) => stems[index].clone(),
             (_, 1) => by_path[index].clone(),
             _ => {
