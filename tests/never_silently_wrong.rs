@@ -269,7 +269,10 @@ fn a_diagnosis_is_applied_to_its_own_flight_only() {
         .filter(|l| !l.contains("fom_limit_nt"))
         .collect();
     assert!(warnings.is_empty(), "{stdout}");
-    assert!(stdout.contains("warning: mag_2_uc: FOM 1.54 nT after compensation"), "{stdout}");
+    assert!(
+        stdout.contains("warning: mag_2_uc: FOM 1.54 nT after compensation"),
+        "{stdout}"
+    );
 }
 
 /// By default a flight is diagnosed and fitted with what the diagnosis

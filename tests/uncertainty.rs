@@ -84,7 +84,9 @@ fn the_sigma_column_is_calibrated_and_the_wrong_channels_are_warned_on_random_pl
             // What a scalar compensation can know: the Earth's field times
             // (1 + k), k the aircraft's isotropic induced part (see the
             // module's comment).
-            let sensor = (simulated.truth.sensors.iter()).find(|s| s.channel == model.channel).unwrap();
+            let sensor = (simulated.truth.sensors.iter())
+                .find(|s| s.channel == model.channel)
+                .unwrap();
             let m = &sensor.aircraft.induced;
             let gain = 1.0 + (m[0][0] + m[1][1] + m[2][2]) / 3.0;
             let truth: Vec<f64> = sensor.earth_total_nt.iter().map(|b| gain * b).collect();

@@ -1374,17 +1374,24 @@ mod tests {
         assert_eq!(solution.jackknife.len(), lengths.len());
         let x = Mat::from_fn(rows, p, |i, k| columns[k][i]);
         use faer::linalg::solvers::Solve;
-        let inverse = (x.transpose() * &x).llt(faer::Side::Lower).unwrap().solve(Mat::<f64>::identity(p, p));
+        let inverse = (x.transpose() * &x)
+            .llt(faer::Side::Lower)
+            .unwrap()
+            .solve(Mat::<f64>::identity(p, p));
         let beta = &inverse * x.transpose() * Mat::from_fn(rows, 1, |i, _| y[i]);
         let mut start = 0;
         for (fold, &length) in lengths.iter().enumerate() {
             let xf = x.subrows(start, length);
-            let residual = Mat::from_fn(length, 1, |i, _| y[start + i] - (0..p).map(|k| xf[(i, k)] * beta[(k, 0)]).sum::<f64>());
+            let residual = Mat::from_fn(length, 1, |i, _| {
+                y[start + i] - (0..p).map(|k| xf[(i, k)] * beta[(k, 0)]).sum::<f64>()
+            });
             let kept = Mat::<f64>::identity(length, length) - xf * &inverse * xf.transpose();
             let eigen = kept.self_adjoint_eigen(faer::Side::Lower).unwrap();
             let (q, values) = (eigen.U(), eigen.S());
             let root = Mat::from_fn(length, length, |i, j| {
-                (0..length).map(|m| q[(i, m)] * q[(j, m)] / values[m].sqrt()).sum::<f64>()
+                (0..length)
+                    .map(|m| q[(i, m)] * q[(j, m)] / values[m].sqrt())
+                    .sum::<f64>()
             });
             let expected = &inverse * xf.transpose() * &root * &residual;
             let refit = &inverse * xf.transpose() * kept.llt(faer::Side::Lower).unwrap().solve(&residual);
@@ -1397,7 +1404,10 @@ mod tests {
                 );
             }
             let norm = |v: &dyn Fn(usize) -> f64| (0..p).map(|j| v(j) * v(j)).sum::<f64>();
-            assert!(norm(&|j| solution.jackknife[fold][j]) < norm(&|j| refit[(j, 0)]), "fold {fold}");
+            assert!(
+                norm(&|j| solution.jackknife[fold][j]) < norm(&|j| refit[(j, 0)]),
+                "fold {fold}"
+            );
             start += length;
         }
     }
