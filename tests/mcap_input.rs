@@ -501,3 +501,103 @@ fn log_times_are_absolute_and_read_back_as_times_of_day() {
         "{warnings:?}"
     );
 }
+
+/// The records laid end to end in `bytes` from the magic to the data-end
+/// record: (opcode, start, end) of each.
+fn records_of(bytes: &[u8]) -> Vec<(u8, usize, usize)> {
+    let mut at = 8;
+    let mut found = Vec::new();
+    while at + 9 <= bytes.len() {
+        let opcode = bytes[at];
+        let length = u64::from_le_bytes(bytes[at + 1..at + 9].try_into().unwrap()) as usize;
+        found.push((opcode, at, at + 9 + length));
+        at += 9 + length;
+        if opcode == 0x0F {
+            break;
+        }
+    }
+    found
+}
+
+/// A recording that stops between two records (no data-end record, no
+/// summary, no footer: a logger that died between writes) is read up to
+/// there, and a warning says it was cut short, with the rows and the time
+/// span read; the recording whole has no such warning.
+#[test]
+fn a_file_cut_at_a_record_boundary_says_so_with_what_was_read() {
+    let folder = tempfile::tempdir().unwrap();
+    let path = folder.path().join("whole.mcap");
+    write_file(&path, INDEXED);
+    let good = std::fs::read(&path).unwrap();
+    let whole = read_flight_log(&path, &IngestOptions::default()).unwrap();
+    assert!(!whole
+        .alignment()
+        .unwrap()
+        .warnings
+        .iter()
+        .any(|w| w.contains("cut short")));
+    let chunk_ends: Vec<usize> = records_of(&good)
+        .into_iter()
+        .filter(|(opcode, _, _)| *opcode == 0x06)
+        .map(|(_, _, end)| end)
+        .collect();
+    assert!(chunk_ends.len() >= 3, "{} chunks", chunk_ends.len());
+    let cut = folder.path().join("cut.mcap");
+    std::fs::write(&cut, &good[..chunk_ends[1]]).unwrap();
+    let log = read_flight_log(&cut, &IngestOptions::default()).unwrap();
+    assert!(
+        log.len() < whole.len() && log.len() > 0,
+        "{} of {} rows",
+        log.len(),
+        whole.len()
+    );
+    let warnings = &log.alignment().unwrap().warnings;
+    let said = warnings
+        .iter()
+        .find(|w| w.contains("cut short"))
+        .unwrap_or_else(|| panic!("{warnings:?}"));
+    assert!(
+        said.contains(&format!("ends at byte {} between two records", chunk_ends[1]))
+            && said.contains(&format!("read {} rows from", log.len())),
+        "{said}"
+    );
+}
+
+/// A summary whose chunk index lost an entry is not trusted: the file is
+/// read by a scan of its data section, every row is there, and a note says
+/// how many chunks the index listed.
+#[test]
+fn a_chunk_index_that_lost_an_entry_is_not_trusted() {
+    let folder = tempfile::tempdir().unwrap();
+    let path = folder.path().join("whole.mcap");
+    write_file(&path, INDEXED);
+    let mut bytes = std::fs::read(&path).unwrap();
+    let whole = read_flight_log(&path, &IngestOptions::default()).unwrap();
+    let chunks = records_of(&bytes)
+        .iter()
+        .filter(|(opcode, _, _)| *opcode == 0x06)
+        .count();
+    // The summary starts where the footer says; its first chunk index
+    // record (opcode 0x08) is turned into a record of an unknown kind,
+    // which readers skip.
+    let footer = bytes.len() - 8 - 29;
+    assert_eq!(bytes[footer], 0x02, "the footer");
+    let summary = u64::from_le_bytes(bytes[footer + 9..footer + 17].try_into().unwrap()) as usize;
+    let mut at = summary;
+    while bytes[at] != 0x08 {
+        at += 9 + u64::from_le_bytes(bytes[at + 1..at + 9].try_into().unwrap()) as usize;
+    }
+    bytes[at] = 0x7F;
+    let damaged = folder.path().join("lost_entry.mcap");
+    std::fs::write(&damaged, &bytes).unwrap();
+    let log = read_flight_log(&damaged, &IngestOptions::default()).unwrap();
+    assert_eq!(log.len(), whole.len());
+    assert_eq!(log.time_s(), whole.time_s());
+    let notes = &log.alignment().unwrap().notes;
+    assert!(
+        notes
+            .iter()
+            .any(|n| n.contains(&format!("lists {} of the {chunks} chunks", chunks - 1))),
+        "{notes:?}"
+    );
+}

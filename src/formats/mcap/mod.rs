@@ -150,12 +150,14 @@ pub fn read_mcap(path: &Path, options: &IngestOptions) -> Result<FlightLog> {
 }
 
 /// The topics' plans, their decoded messages, remarks on how the file was
-/// read, and what was lost reading it (a file cut short, damaged chunks).
+/// read, what was lost reading it (damaged chunks, undecodable messages)
+/// and where the file was cut short.
 type FileContents = (
     BTreeMap<u16, TopicPlan>,
     BTreeMap<u16, Decoded>,
     Vec<String>,
     Vec<String>,
+    Option<records::CutShort>,
 );
 
 /// A decompressed chunk and the schemas and channels it defines.
@@ -163,7 +165,7 @@ type OpenedChunk<'a> = (Cow<'a, [u8]>, Definitions);
 
 fn decode_file(bytes: &[u8], names: &ColumnNames) -> std::result::Result<FileContents, String> {
     let section = records::data_section(bytes)?;
-    let notes = section.notes;
+    let (notes, cut_short) = (section.notes, section.cut_short);
     let mut losses = section.losses;
     // Decompress every chunk (in parallel) and learn the schemas and
     // channels they define; messages are decoded once all are known.
@@ -238,7 +240,7 @@ fn decode_file(bytes: &[u8], names: &ColumnNames) -> std::result::Result<FileCon
     for (id, decoded) in loose {
         merged.entry(id).or_default().append(decoded);
     }
-    Ok((plans, merged, notes, losses))
+    Ok((plans, merged, notes, losses, cut_short))
 }
 
 /// Decides how to decode a channel and what its fields become.
@@ -491,7 +493,7 @@ fn ros_streams(
 fn build_log(
     path: &Path,
     options: &IngestOptions,
-    (plans, decoded, mut notes, mut losses): FileContents,
+    (plans, decoded, mut notes, mut losses, cut_short): FileContents,
 ) -> Result<FlightLog> {
     let (names, alignment) = (&options.columns, &options.alignment);
     let mut attitude_taken = false;
@@ -594,6 +596,12 @@ fn build_log(
     })?;
     aligned.report.notes = notes;
     aligned.report.warnings.splice(0..0, losses);
+    if let Some(cut) = cut_short {
+        aligned
+            .report
+            .warnings
+            .insert(0, cut_short_warning(&cut, &aligned.time_s));
+    }
     let channels: Vec<Channel> = aligned
         .channels
         .into_iter()
@@ -608,6 +616,29 @@ fn build_log(
         .with_reading_warnings(aligned.report.warnings.clone())
         .with_alignment(aligned.report)
         .with_date(date))
+}
+
+/// What a file cut short lost, with the rows and time span read.
+fn cut_short_warning(cut: &records::CutShort, time_s: &[f64]) -> String {
+    let span = match (time_s.first(), time_s.last()) {
+        (Some(first), Some(last)) => format!(
+            "{} rows from {} to {} s",
+            time_s.len(),
+            crate::error::Number(*first),
+            crate::error::Number(*last)
+        ),
+        _ => "no row".into(),
+    };
+    match cut.at_record_boundary {
+        true => format!(
+            "the file is cut short: it ends at byte {} between two records, without the data-end record and footer every finished recording has (a logger that stopped, a copy that did not finish); read {span}, and whatever was recorded after is lost",
+            cut.at_byte
+        ),
+        false => format!(
+            "the file is cut short at byte {} of {}, inside a record; read {span}, and the rest is lost",
+            cut.at_byte, cut.of_bytes
+        ),
+    }
 }
 
 /// The flight's day from the channels' metadata, with every stream's times

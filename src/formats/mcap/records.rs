@@ -240,8 +240,22 @@ pub struct DataSection<'a> {
     pub definitions: Definitions,
     /// How the file was read and what was wrong with it.
     pub notes: Vec<String>,
-    /// What could not be read (a file cut short).
+    /// What could not be read.
     pub losses: Vec<String>,
+    /// Where the file was cut short, when it was.
+    pub cut_short: Option<CutShort>,
+}
+
+/// A file that ends before its data section does.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct CutShort {
+    /// Where reading stopped, bytes.
+    pub at_byte: usize,
+    /// The file's length, bytes.
+    pub of_bytes: usize,
+    /// Whether it ends between two whole records (no data-end record nor
+    /// footer follows), rather than inside one.
+    pub at_record_boundary: bool,
 }
 
 /// Finds the chunks of an MCAP file: through the summary's chunk index when
@@ -251,14 +265,14 @@ pub fn data_section(bytes: &[u8]) -> Result<DataSection<'_>, String> {
     if !bytes.starts_with(mcap::MAGIC) {
         return Err("the file does not start with the MCAP magic bytes".into());
     }
-    if let Some(section) = indexed(bytes) {
-        return Ok(section);
-    }
+    let index = indexed(bytes);
     let mut section = DataSection::default();
     let mut messages = Vec::new();
     let mut chunks = Vec::new();
     let mut definitions = Definitions::default();
+    let mut last = None;
     let (stopped, truncated) = walk(bytes, mcap::MAGIC.len(), |opcode, body, _| {
+        last = Some(opcode);
         match opcode {
             op::CHUNK => chunks.push(body),
             op::MESSAGE => messages.push(message(body).ok_or("a message record is damaged")?),
@@ -266,20 +280,33 @@ pub fn data_section(bytes: &[u8]) -> Result<DataSection<'_>, String> {
         }
         Ok(())
     })?;
+    // The summary's chunk index is used when it lists every chunk the
+    // data section holds; an index that lost an entry would lose that
+    // chunk's rows without a word.
+    match index {
+        Some(section) if !truncated && section.chunks.len() == chunks.len() => return Ok(section),
+        Some(listed) => section.notes.push(format!(
+            "the summary's chunk index lists {} of the {} chunks in the data section; the file was read by a linear scan, which reads them all",
+            listed.chunks.len(),
+            chunks.len()
+        )),
+        None => section
+            .notes
+            .push("the file has no usable chunk index; it was read by a linear scan".into()),
+    }
     section.chunks = chunks;
     section.messages = messages;
     section.definitions = definitions;
-    section
-        .notes
-        .push("the file has no usable chunk index; it was read by a linear scan".into());
-    if truncated {
+    let ended = matches!(last, Some(op::DATA_END | op::FOOTER));
+    if truncated || !ended {
         if section.chunks.is_empty() && section.messages.is_empty() {
             return Err(format!("the file is cut short at byte {stopped}, before any message"));
         }
-        section.losses.push(format!(
-            "the file is cut short at byte {stopped} of {}; the records before that were read, the rest is lost",
-            bytes.len()
-        ));
+        section.cut_short = Some(CutShort {
+            at_byte: stopped,
+            of_bytes: bytes.len(),
+            at_record_boundary: !truncated,
+        });
     }
     Ok(section)
 }
