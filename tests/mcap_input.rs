@@ -601,3 +601,44 @@ fn a_chunk_index_that_lost_an_entry_is_not_trusted() {
         "{notes:?}"
     );
 }
+
+/// A value edited inside an uncompressed chunk is caught by the chunk's
+/// CRC: the chunk is left out with a warning that names the CRC, the
+/// data section's own CRC is said not to match, and the other chunks are
+/// read as they are.
+#[test]
+fn an_edited_chunk_fails_its_crc_and_is_left_out_with_a_warning() {
+    let folder = tempfile::tempdir().unwrap();
+    let path = folder.path().join("whole.mcap");
+    let layout = Layout {
+        compression: None,
+        ..INDEXED
+    };
+    write_file(&path, layout);
+    let mut bytes = std::fs::read(&path).unwrap();
+    let whole = read_flight_log(&path, &IngestOptions::default()).unwrap();
+    assert!(!whole.alignment().unwrap().warnings.iter().any(|w| w.contains("CRC")));
+    let chunks: Vec<(usize, usize)> = records_of(&bytes)
+        .into_iter()
+        .filter(|(opcode, _, _)| *opcode == 0x06)
+        .map(|(_, start, end)| (start, end))
+        .collect();
+    let (start, end) = chunks[1];
+    // Past the chunk's header, inside its records: a message's data.
+    bytes[end - (end - start) / 3] ^= 0x10;
+    let edited = folder.path().join("edited.mcap");
+    std::fs::write(&edited, &bytes).unwrap();
+    let log = read_flight_log(&edited, &IngestOptions::default()).unwrap();
+    let warnings = &log.alignment().unwrap().warnings;
+    assert!(
+        warnings
+            .iter()
+            .any(|w| w.contains("a damaged chunk was left out") && w.contains("do not match their CRC")),
+        "{warnings:?}"
+    );
+    assert!(warnings.iter().any(|w| w.contains("1 of") && w.contains("chunks were damaged")), "{warnings:?}");
+    assert!(
+        warnings.iter().any(|w| w.contains("the data section does not match the CRC")),
+        "{warnings:?}"
+    );
+}

@@ -167,6 +167,11 @@ fn decode_file(bytes: &[u8], names: &ColumnNames) -> std::result::Result<FileCon
     let section = records::data_section(bytes)?;
     let (notes, cut_short) = (section.notes, section.cut_short);
     let mut losses = section.losses;
+    if records::data_section_crc_holds(bytes) == Some(false) {
+        losses.push(
+            "the data section does not match the CRC its data-end record gives: bytes of the recording were altered after it was written; chunks whose own CRC fails are left out (below), and any other change is read as it stands".into(),
+        );
+    }
     // Decompress every chunk (in parallel) and learn the schemas and
     // channels they define; messages are decoded once all are known.
     let opened: Vec<std::result::Result<OpenedChunk, String>> = section

@@ -205,7 +205,32 @@ pub fn chunk_records(body: &[u8]) -> Result<Cow<'_, [u8]>, String> {
             out.len()
         ));
     }
+    // A CRC of 0 means the writer computed none.
+    let crc = u32_at(body, 24).ok_or_else(|| bad("header"))?;
+    let found = crc32fast::hash(&out);
+    if crc != 0 && found != crc {
+        return Err(format!(
+            "a chunk's records do not match their CRC (recorded {crc:08x}, computed {found:08x}): bytes inside it were altered"
+        ));
+    }
     Ok(out)
+}
+
+/// Whether the data section (the file up to its data-end record) matches
+/// the CRC that record gives; `None` when it gives none (0) or the file
+/// has no data-end record.
+pub fn data_section_crc_holds(bytes: &[u8]) -> Option<bool> {
+    let mut data_end = None;
+    walk(bytes, mcap::MAGIC.len(), |opcode, body, at| {
+        if opcode == op::DATA_END {
+            data_end = Some((at, u32_at(body, 0)));
+        }
+        Ok(())
+    })
+    .ok()?;
+    let (at, crc) = data_end?;
+    let crc = crc.filter(|&c| c != 0)?;
+    Some(crc32fast::hash(&bytes[..at]) == crc)
 }
 
 /// Calls `each` for every message in a chunk's (decompressed) records, and
