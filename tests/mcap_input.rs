@@ -126,6 +126,13 @@ fn write_file(path: &Path, layout: Layout) {
 }
 
 fn write_records(path: &Path, layout: Layout, records: Vec<Record>) {
+    write_records_restarting(path, layout, records, None);
+}
+
+/// [`write_records`], with the messages of topic `restart.0` from time
+/// `restart.1` on written on a second channel record of the same topic
+/// (a logger that restarted).
+fn write_records_restarting(path: &Path, layout: Layout, records: Vec<Record>, restart: Option<(&str, f64)>) {
     let file = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
     let mut writer = mcap::WriteOptions::new()
         .compression(layout.compression)
@@ -138,9 +145,10 @@ fn write_records(path: &Path, layout: Layout, records: Vec<Record>) {
         .emit_statistics(layout.summary)
         .create(file)
         .unwrap();
-    let mut channels: BTreeMap<&str, u16> = BTreeMap::new();
+    let mut channels: BTreeMap<(&str, bool), u16> = BTreeMap::new();
     for (sequence, (topic, t, fields)) in records.into_iter().enumerate() {
-        let channel = *channels.entry(topic).or_insert_with(|| {
+        let restarted = restart.is_some_and(|(name, from)| name == topic && t >= from);
+        let channel = *channels.entry((topic, restarted)).or_insert_with(|| {
             // A topic in an encoding magcomp does not decode.
             if topic.starts_with("/msgpack/") {
                 return writer.add_channel(0, topic, "msgpack", &BTreeMap::new()).unwrap();
@@ -154,7 +162,13 @@ fn write_records(path: &Path, layout: Layout, records: Vec<Record>) {
                     .unwrap(),
             };
             let encoding = if layout.json { "json" } else { "protobuf" };
-            writer.add_channel(schema, topic, encoding, &BTreeMap::new()).unwrap()
+            // The restarted logger's channel record differs in its
+            // metadata, so it is a record of its own.
+            let metadata = match restarted {
+                true => BTreeMap::from([("session".to_string(), "2".to_string())]),
+                false => BTreeMap::new(),
+            };
+            writer.add_channel(schema, topic, encoding, &metadata).unwrap()
         });
         let time_ns = (t * 1e9).round() as u64;
         let header = mcap::records::MessageHeader {
@@ -636,9 +650,47 @@ fn an_edited_chunk_fails_its_crc_and_is_left_out_with_a_warning() {
             .any(|w| w.contains("a damaged chunk was left out") && w.contains("do not match their CRC")),
         "{warnings:?}"
     );
-    assert!(warnings.iter().any(|w| w.contains("1 of") && w.contains("chunks were damaged")), "{warnings:?}");
     assert!(
-        warnings.iter().any(|w| w.contains("the data section does not match the CRC")),
+        warnings
+            .iter()
+            .any(|w| w.contains("1 of") && w.contains("chunks were damaged")),
         "{warnings:?}"
+    );
+    assert!(
+        warnings
+            .iter()
+            .any(|w| w.contains("the data section does not match the CRC")),
+        "{warnings:?}"
+    );
+}
+
+/// A topic recorded on two channel records (a logger that restarted
+/// halfway: the second half of the scalar's messages on a new channel of
+/// the same topic) is read whole, and a note says so.
+#[test]
+fn a_topic_on_two_channel_records_is_read_whole() {
+    let folder = tempfile::tempdir().unwrap();
+    let whole_path = folder.path().join("whole.mcap");
+    write_file(&whole_path, INDEXED);
+    let whole = read_flight_log(&whole_path, &IngestOptions::default()).unwrap();
+    let path = folder.path().join("restarted.mcap");
+    write_records_restarting(&path, INDEXED, records(), Some(("/mag/1/scalar", 115.0)));
+    let log = read_flight_log(&path, &IngestOptions::default()).unwrap();
+    assert_eq!(log.len(), whole.len());
+    assert_eq!(log.time_s(), whole.time_s());
+    for channel in whole.channels() {
+        let other = &log.channel(&channel.name).unwrap().values;
+        assert!(
+            (channel.values.iter().zip(other)).all(|(a, b)| a.to_bits() == b.to_bits()),
+            "{} differs",
+            channel.name
+        );
+    }
+    let notes = &log.alignment().unwrap().notes;
+    assert!(
+        notes.iter().any(
+            |n| n.contains("/mag/1/scalar:total_nt is recorded on 2 channel records") && n.contains("300 messages")
+        ),
+        "{notes:?}"
     );
 }

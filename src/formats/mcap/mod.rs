@@ -556,8 +556,7 @@ fn build_log(
             });
         }
     }
-    streams.sort_by(|a, b| a.name.cmp(&b.name).then(a.source.cmp(&b.source)));
-    streams.dedup_by(|later, earlier| later.name == earlier.name);
+    let mut streams = joined_streams(streams, &mut notes, &mut losses);
     let base = match &alignment.time_base {
         Some(name) => streams.iter().position(|s| &s.name == name).ok_or_else(|| Error::Config {
             source_name: "[alignment] time_base".into(),
@@ -621,6 +620,52 @@ fn build_log(
         .with_reading_warnings(aligned.report.warnings.clone())
         .with_alignment(aligned.report)
         .with_date(date))
+}
+
+/// One stream per column name. Streams of one source (a topic recorded on
+/// several channel records: a logger that restarted, two writers) are one
+/// series, read together in time order, with a note. Streams of different
+/// sources that would make the same column keep the first source's, and
+/// a line in `losses` names the others.
+fn joined_streams(mut streams: Vec<Stream>, notes: &mut Vec<String>, losses: &mut Vec<String>) -> Vec<Stream> {
+    streams.sort_by(|a, b| a.name.cmp(&b.name).then(a.source.cmp(&b.source)));
+    let mut joined: Vec<Stream> = Vec::with_capacity(streams.len());
+    let mut parts = 1;
+    for stream in streams {
+        let Some(last) = joined.last_mut().filter(|l| l.name == stream.name) else {
+            if parts > 1 {
+                notes.push(joined_note(joined.last(), parts));
+            }
+            parts = 1;
+            joined.push(stream);
+            continue;
+        };
+        if last.source != stream.source {
+            losses.push(format!(
+                "column '{}' is given by {} and by {}; the first is read and the second's {} messages are left out (map one of them to another column with [[topic]])",
+                stream.name,
+                last.source,
+                stream.source,
+                stream.times_ns.len()
+            ));
+            continue;
+        }
+        parts += 1;
+        let mut pairs: Vec<(u64, f64)> = (last.times_ns.iter().copied().zip(last.values.iter().copied()))
+            .chain(stream.times_ns.into_iter().zip(stream.values))
+            .collect();
+        pairs.sort_by_key(|(t, _)| *t);
+        (last.times_ns, last.values) = pairs.into_iter().unzip();
+    }
+    if parts > 1 {
+        notes.push(joined_note(joined.last(), parts));
+    }
+    joined
+}
+
+fn joined_note(stream: Option<&Stream>, parts: usize) -> String {
+    let (source, count) = stream.map_or(("?", 0), |s| (s.source.as_str(), s.times_ns.len()));
+    format!("{source} is recorded on {parts} channel records (a logger that restarted, or two writers); their {count} messages are read together, in time order")
 }
 
 /// What a file cut short lost, with the rows and time span read.
