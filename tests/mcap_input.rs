@@ -153,6 +153,13 @@ fn write_records_restarting(path: &Path, layout: Layout, records: Vec<Record>, r
             if topic.starts_with("/msgpack/") {
                 return writer.add_channel(0, topic, "msgpack", &BTreeMap::new()).unwrap();
             }
+            // A magnetometer recorded in a ROS 2 type magcomp does not read.
+            if topic == UNREAD_ROS_MAGNETOMETER {
+                let schema = writer
+                    .add_schema("vendor_msgs/msg/Total", "ros2msg", b"float64 total")
+                    .unwrap();
+                return writer.add_channel(schema, topic, "cdr", &BTreeMap::new()).unwrap();
+            }
             let schema = match layout.json {
                 true => writer
                     .add_schema(schema_of(topic), "jsonschema", b"{\"type\":\"object\"}")
@@ -182,6 +189,30 @@ fn write_records_restarting(path: &Path, layout: Layout, records: Vec<Record>, r
             .unwrap();
     }
     writer.finish().unwrap();
+}
+
+/// A magnetometer topic written in a ROS 2 type magcomp does not read.
+const UNREAD_ROS_MAGNETOMETER: &str = "/mag/2/scalar";
+
+/// A magnetometer recorded in a ROS 2 type magcomp does not read is a
+/// sensor lost, not a topic of no interest: a reading warning names it
+/// (other unread ROS types, such as diagnostics, are notes).
+#[test]
+fn a_magnetometer_in_an_unread_ros_type_is_a_warning() {
+    let folder = tempfile::tempdir().unwrap();
+    let path = folder.path().join("vendor.mcap");
+    let mut records = records();
+    records.extend((0..30).map(|k| (UNREAD_ROS_MAGNETOMETER, 100.0 + k as f64, vec![("value", 1.0)])));
+    write_records(&path, INDEXED, records);
+    let log = read_flight_log(&path, &IngestOptions::default()).unwrap();
+    assert_eq!(log.len(), 300);
+    assert!(
+        log.reading_warnings()
+            .iter()
+            .any(|w| w.contains("topic '/mag/2/scalar' is not in the output") && w.contains("vendor_msgs/msg/Total")),
+        "{:?}",
+        log.reading_warnings()
+    );
 }
 
 /// A topic in an encoding magcomp cannot decode is not dropped silently:

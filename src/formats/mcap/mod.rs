@@ -248,6 +248,16 @@ fn decode_file(bytes: &[u8], names: &ColumnNames) -> std::result::Result<FileCon
     Ok((plans, merged, notes, losses, cut_short))
 }
 
+/// Whether `topic` is one of the contract's sensor topics:
+/// `/mag/<n>/scalar`, `/mag/<s>/vector`, `/ins/attitude`, `/gps/fix`.
+fn is_sensor_topic(topic: &str) -> bool {
+    let parts: Vec<&str> = topic.trim_matches('/').split('/').collect();
+    matches!(
+        parts.as_slice(),
+        ["mag", _, "scalar"] | ["mag", _, "vector"] | ["ins", "attitude"] | ["gps", "fix"]
+    )
+}
+
 /// Decides how to decode a channel and what its fields become.
 fn plan_topic(channel: &ChannelRecord, schema: Option<&SchemaRecord>, names: &ColumnNames) -> TopicPlan {
     let topic = channel.topic.clone();
@@ -280,6 +290,13 @@ fn plan_topic(channel: &ChannelRecord, schema: Option<&SchemaRecord>, names: &Co
             why: format!("message encoding '{encoding}' is not read (magcomp reads protobuf, JSON and ROS 2 CDR)"),
             lost: true,
         },
+    };
+    // A sensor topic of the contract (a magnetometer, the INS, the GPS)
+    // that cannot be read loses a sensor the run would use: a warning,
+    // whatever the reason.
+    let decoder = match decoder {
+        Decoder::Skip { why, lost: false } if is_sensor_topic(&topic) => Decoder::Skip { why, lost: true },
+        other => other,
     };
     let altitude_column = channel
         .metadata
