@@ -333,18 +333,7 @@ fn every_layout_and_encoding_reads_to_the_same_log() {
         if name == "no summary" {
             assert!(scanned(&log), "a file without a summary is scanned");
         }
-        assert_eq!(log.time_s(), expected.time_s(), "{name}");
-        for channel in expected.channels() {
-            let other = log
-                .channel(&channel.name)
-                .unwrap_or_else(|| panic!("{name}: no {}", channel.name));
-            let same = channel
-                .values
-                .iter()
-                .zip(&other.values)
-                .all(|(a, b)| a.to_bits() == b.to_bits());
-            assert!(same, "{name}: {} differs", channel.name);
-        }
+        assert_same_log(&expected, &log, name);
     }
 }
 
@@ -547,6 +536,31 @@ fn log_times_are_absolute_and_read_back_as_times_of_day() {
     );
 }
 
+/// The flight written in `layout` to `whole.mcap` in `folder`: its bytes
+/// and the log read from it.
+fn whole_file(folder: &Path, layout: Layout) -> (Vec<u8>, magcomp::flight_log::FlightLog) {
+    let path = folder.join("whole.mcap");
+    write_file(&path, layout);
+    let log = read_flight_log(&path, &IngestOptions::default()).unwrap();
+    (std::fs::read(&path).unwrap(), log)
+}
+
+/// Asserts that `log` has `expected`'s rows and channels, bit for bit.
+fn assert_same_log(expected: &magcomp::flight_log::FlightLog, log: &magcomp::flight_log::FlightLog, name: &str) {
+    assert_eq!(log.time_s(), expected.time_s(), "{name}");
+    for channel in expected.channels() {
+        let other = log
+            .channel(&channel.name)
+            .unwrap_or_else(|| panic!("{name}: no {}", channel.name));
+        let same = channel
+            .values
+            .iter()
+            .zip(&other.values)
+            .all(|(a, b)| a.to_bits() == b.to_bits());
+        assert!(same, "{name}: {} differs", channel.name);
+    }
+}
+
 /// The records laid end to end in `bytes` from the magic to the data-end
 /// record: (opcode, start, end) of each.
 fn records_of(bytes: &[u8]) -> Vec<(u8, usize, usize)> {
@@ -571,10 +585,7 @@ fn records_of(bytes: &[u8]) -> Vec<(u8, usize, usize)> {
 #[test]
 fn a_file_cut_at_a_record_boundary_says_so_with_what_was_read() {
     let folder = tempfile::tempdir().unwrap();
-    let path = folder.path().join("whole.mcap");
-    write_file(&path, INDEXED);
-    let good = std::fs::read(&path).unwrap();
-    let whole = read_flight_log(&path, &IngestOptions::default()).unwrap();
+    let (good, whole) = whole_file(folder.path(), INDEXED);
     assert!(!whole
         .alignment()
         .unwrap()
@@ -614,10 +625,7 @@ fn a_file_cut_at_a_record_boundary_says_so_with_what_was_read() {
 #[test]
 fn a_chunk_index_that_lost_an_entry_is_not_trusted() {
     let folder = tempfile::tempdir().unwrap();
-    let path = folder.path().join("whole.mcap");
-    write_file(&path, INDEXED);
-    let mut bytes = std::fs::read(&path).unwrap();
-    let whole = read_flight_log(&path, &IngestOptions::default()).unwrap();
+    let (mut bytes, whole) = whole_file(folder.path(), INDEXED);
     let chunks = records_of(&bytes)
         .iter()
         .filter(|(opcode, _, _)| *opcode == 0x06)
@@ -636,8 +644,7 @@ fn a_chunk_index_that_lost_an_entry_is_not_trusted() {
     let damaged = folder.path().join("lost_entry.mcap");
     std::fs::write(&damaged, &bytes).unwrap();
     let log = read_flight_log(&damaged, &IngestOptions::default()).unwrap();
-    assert_eq!(log.len(), whole.len());
-    assert_eq!(log.time_s(), whole.time_s());
+    assert_same_log(&whole, &log, "lost index entry");
     let notes = &log.alignment().unwrap().notes;
     assert!(
         notes
@@ -654,14 +661,11 @@ fn a_chunk_index_that_lost_an_entry_is_not_trusted() {
 #[test]
 fn an_edited_chunk_fails_its_crc_and_is_left_out_with_a_warning() {
     let folder = tempfile::tempdir().unwrap();
-    let path = folder.path().join("whole.mcap");
     let layout = Layout {
         compression: None,
         ..INDEXED
     };
-    write_file(&path, layout);
-    let mut bytes = std::fs::read(&path).unwrap();
-    let whole = read_flight_log(&path, &IngestOptions::default()).unwrap();
+    let (mut bytes, whole) = whole_file(folder.path(), layout);
     assert!(!whole.alignment().unwrap().warnings.iter().any(|w| w.contains("CRC")));
     let chunks: Vec<(usize, usize)> = records_of(&bytes)
         .into_iter()
@@ -701,22 +705,11 @@ fn an_edited_chunk_fails_its_crc_and_is_left_out_with_a_warning() {
 #[test]
 fn a_topic_on_two_channel_records_is_read_whole() {
     let folder = tempfile::tempdir().unwrap();
-    let whole_path = folder.path().join("whole.mcap");
-    write_file(&whole_path, INDEXED);
-    let whole = read_flight_log(&whole_path, &IngestOptions::default()).unwrap();
+    let (_, whole) = whole_file(folder.path(), INDEXED);
     let path = folder.path().join("restarted.mcap");
     write_records_restarting(&path, INDEXED, records(), Some(("/mag/1/scalar", 115.0)));
     let log = read_flight_log(&path, &IngestOptions::default()).unwrap();
-    assert_eq!(log.len(), whole.len());
-    assert_eq!(log.time_s(), whole.time_s());
-    for channel in whole.channels() {
-        let other = &log.channel(&channel.name).unwrap().values;
-        assert!(
-            (channel.values.iter().zip(other)).all(|(a, b)| a.to_bits() == b.to_bits()),
-            "{} differs",
-            channel.name
-        );
-    }
+    assert_same_log(&whole, &log, "restarted");
     let notes = &log.alignment().unwrap().notes;
     assert!(
         notes.iter().any(
