@@ -448,13 +448,13 @@ pub fn quality_warnings(quality: &ChannelQuality, fom_limit_nt: f64, next_step: 
         let limit = uncertainty_limit_nt(quality);
         if is_uncertain(quality) {
             warnings.push(format!(
-                "{channel}: the compensation away from the calibration is uncertain by {:.3} nT (one sigma, leaving out each of the {} windows in turn), above {limit:.3} nT: the manoeuvres flown do not pin the model on the survey's headings and attitudes, and the survey lines can be wrong by that much or more. Try [fit] solver = \"auto\", fly a fuller box, or check the per-line figures in the quality JSON. {next_step}",
+                "{channel}: the compensation away from the calibration is uncertain by {:.3} nT (one sigma, from how much each of the {} windows moves the fit), above {limit:.3} nT: the manoeuvres flown do not pin the model on the survey's headings and attitudes, and the survey lines can be wrong by that much or more. Try [fit] solver = \"auto\", fly a fuller box, or check the per-line figures in the quality JSON. {next_step}",
                 uncertainty.outside_calibration_sigma_nt, uncertainty.windows
             ));
         }
         if uncertainty.level_sigma_nt > LEVEL_UNCERTAINTY_WARNING_NT {
             warnings.push(format!(
-                "{channel}: the compensated level is uncertain by {:.1} nT (one sigma, leaving out each window in turn): the band-passed fit does not pin it; level the channel to a base station or tie lines before using absolute values",
+                "{channel}: the compensated level is uncertain by {:.1} nT (one sigma, from how much each window moves the fit): the band-passed fit does not pin it; level the channel to a base station or tie lines before using absolute values",
                 uncertainty.level_sigma_nt
             ));
         }
