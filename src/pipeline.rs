@@ -1069,29 +1069,24 @@ fn refuse_dead_columns(
     sensor: &VectorSensor,
     wanted: Option<&[String]>,
 ) -> Result<()> {
+    let fluxgate_hint = format!(
+        "No Tolles-Lawson term can be built from '{}' without it. Repair the sensor or its export, or choose another fluxgate with --vector.",
+        sensor.prefix
+    );
+    let scalar_hint = "Leave the channel out with --channels (or [columns] in pipeline.toml) to compensate the others.";
     let axes = sensor.axes.map(|axis| log.channels()[axis].name.clone());
-    for column in &axes {
-        if let Some(reason) = screening.took_all(log, column) {
-            return Err(Error::AllMasked {
-                path: log.source().to_path_buf(),
-                column: column.clone(),
-                reason,
-                hint: format!("No Tolles-Lawson term can be built from '{}' without it. Repair the sensor or its export, or choose another fluxgate with --vector.", sensor.prefix),
-            });
-        }
-    }
     let scalars: Vec<String> = match wanted {
         Some(list) => list.to_vec(),
         None => log.scalar_channels().into_iter().map(String::from).collect(),
     };
-    for column in &scalars {
+    let needed = (axes.iter().map(|c| (c, fluxgate_hint.as_str()))).chain(scalars.iter().map(|c| (c, scalar_hint)));
+    for (column, hint) in needed {
         if let Some(reason) = screening.took_all(log, column) {
             return Err(Error::AllMasked {
                 path: log.source().to_path_buf(),
                 column: column.clone(),
                 reason,
-                hint: "Leave the channel out with --channels (or [columns] in pipeline.toml) to compensate the others."
-                    .into(),
+                hint: hint.into(),
             });
         }
     }
