@@ -202,7 +202,7 @@ fn masked_samples_do_not_spread(seed: u64) {
     // 0.01 nT). That refit moves the far rows' anomaly by at most 0.15 nT
     // on these seeds (bound 0.25 nT). The level it moves is printed: the
     // band-passed fit fixes a sensor's variation, not its mean (`[fit]
-    // level`, README "Method"), and a cabin sensor's level moves by up to
+    // level`, docs/guide/src/method.md), and a cabin sensor's level moves by up to
     // 250 nT on these seeds.
     let near = |row: usize| bad_rows.iter().any(|b| b.abs_diff(row) <= 100);
     for channel in [mag_1, mag_2] {

@@ -99,7 +99,7 @@ impl Default for SolveOptions {
             lambda: LambdaChoice::Select,
             // Leave-one-window-out: band-passed samples are autocorrelated,
             // so plain leave-one-out PRESS picks too little regularisation
-            // (see README, Method).
+            // (docs/guide/src/method.md, step 3).
             criterion: Criterion::BlockedPress,
             grid_points: 50,
             grid_decades: (-11.0, 1.0),
