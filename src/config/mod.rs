@@ -94,7 +94,10 @@ use crate::vector_calibration::VectorCalibrationOptions;
 use crate::windows::{read_detect_file, CalibrationWindow};
 
 mod campaign;
+mod keys;
 mod sections;
+
+pub use keys::accepted_keys;
 
 use sections::{
     RawAlignment, RawColumns, RawDetect, RawDiagnose, RawSite, RawTopic, RawTransfer, RawVector, RawVectorCalibration,
