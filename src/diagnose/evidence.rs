@@ -7,9 +7,11 @@
 //! the rolls) can pass it with a coupling that, on the survey, multiplies
 //! a level the box never saw: on a clean simulated flight such a coupling
 //! lowered the held-out RMS by 30 % and moved the survey's level by
-//! 4,400 nT. So before the diagnosed model is applied its prediction is
-//! set against plain Tolles-Lawson's over the whole flight: the difference
-//! d between them is what the findings add. Over the calibration windows d
+//! 4,400 nT. So before the diagnosed model is applied its compensated
+//! channel is set against plain Tolles-Lawson's over the whole flight: the
+//! difference d between them is what the findings add (a lag's included:
+//! it reads the record itself earlier, so it moves the survey's geology
+//! by τ times its rate, far more at survey height than at the box's). Over the calibration windows d
 //! swings by its spread about its median; on the survey lines (the rows
 //! outside the calibration when the file has no line column) it departs
 //! from that median by its survey RMS. The findings are applied when
@@ -69,7 +71,7 @@ impl Departure {
     }
 }
 
-/// `d = diagnosed − plain` over the calibration windows and the survey
+/// `d = diagnosed − plain` (compensated channels) over the calibration windows and the survey
 /// rows of `log` (its survey lines; without any, the rows outside every
 /// window). `None` without finite calibration or survey rows.
 pub fn departure(
@@ -149,11 +151,17 @@ pub fn departures(
     let measured: Vec<(String, Option<Departure>)> = changed
         .par_iter()
         .map(|(channel, model)| {
+            // The compensated channel, not the interference alone: a lag
+            // reads the record itself earlier, which moves the survey's
+            // geology along with it (τ × its rate, far more at survey height
+            // than at the box's).
             let predict = |extensions: Extensions| -> Result<Vec<f64>> {
                 let spec = ModelSpec::new(terms, extensions);
-                Ok(fit(log, sensor, channel, windows, &spec, options, &stores)?
-                    .predict(log)?
-                    .interference_nt)
+                let prediction = fit(log, sensor, channel, windows, &spec, options, &stores)?.predict(log)?;
+                Ok((prediction.scalar_nt.iter())
+                    .zip(&prediction.interference_nt)
+                    .map(|(scalar, interference)| scalar - interference)
+                    .collect())
             };
             let diagnosed = predict((*model).clone())?;
             let plain = predict(plain_of(model))?;
