@@ -35,6 +35,33 @@ pub enum Error {
         message: String,
     },
 
+    /// A header names one column twice.
+    #[error("{path}, line {line}: column '{}' appears twice in the header (fields {first} and {second}). Rename one of them: every column needs its own name, or no one can tell which holds the data.", Excerpt(.column))]
+    DuplicateColumn {
+        /// The file concerned.
+        path: PathBuf,
+        /// 1-based line number of the header.
+        line: u64,
+        /// The name given twice.
+        column: String,
+        /// 1-based position of its first field.
+        first: usize,
+        /// 1-based position of the second.
+        second: usize,
+    },
+
+    /// A line of a text file is not text.
+    #[error("{path}, line {line}: the line is not valid text (UTF-8){}. Export the file again as UTF-8 or ASCII text, or remove the stray bytes from that line.", .byte.map(|b| format!(", from byte {b} of the file")).unwrap_or_default())]
+    NotText {
+        /// The file concerned.
+        path: PathBuf,
+        /// 1-based line number in the file.
+        line: u64,
+        /// Offset of the line (or of the first bad byte) in the file,
+        /// where known.
+        byte: Option<u64>,
+    },
+
     /// A cell in a numeric column holds something that is not a number.
     #[error("{path}, line {line}, column '{}': '{}' is not a number. Correct the cell, or leave it empty (or write NaN or *) to mark the sample missing.", Excerpt(.column), Excerpt(.value))]
     MalformedNumber {

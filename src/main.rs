@@ -386,6 +386,11 @@ fn run(config: &Path, plain: bool, force: bool, shard: Option<&str>) -> anyhow::
         );
     }
     let folder = &pipeline.output_directory;
+    if !folder.as_os_str().is_empty() && !folder.is_dir() {
+        std::fs::create_dir_all(folder)
+            .with_context(|| format!("{}: creating the output folder {}", config.display(), folder.display()))?;
+        println!("created the output folder {}", folder.display());
+    }
     let mut statuses = Vec::with_capacity(mine.len());
     for &index in &mine {
         let job = &pipeline.flights[index];
@@ -396,7 +401,23 @@ fn run(config: &Path, plain: bool, force: bool, shard: Option<&str>) -> anyhow::
         let bar = spinner(format!("compensating {}", job.input.display()));
         let flight = process_campaign_flight(job, &pipeline.settings, folder, shard, force);
         bar.finish_and_clear();
-        let flight = flight.with_context(|| format!("{}: writing the flight's status", job.input.display()))?;
+        // A flight whose status cannot be written fails alone: the others
+        // are still processed and the table still comes.
+        let flight = match flight {
+            Ok(flight) => flight,
+            Err(error) => {
+                eprintln!(
+                    "magcomp: error: {}: writing the flight's status: {error}",
+                    job.input.display()
+                );
+                statuses.push((
+                    job.input.display().to_string(),
+                    FlightState::Failed,
+                    "failed, and its status could not be written".to_string(),
+                ));
+                continue;
+            }
+        };
         let outcome = match &flight {
             CampaignFlight::UpToDate(_) => {
                 println!(

@@ -180,6 +180,18 @@ fn bad_input_gives_the_documented_error_not_a_panic() {
     assert_fails_with(f, "empty.csv", "", &["empty.csv", "the file is empty (0 bytes)"]);
     assert_fails_with(
         f,
+        "twice.csv",
+        "tt,mag_1_uc,flux_a_x,flux_a_y,mag_1_uc\n0,50000,20000,5000,45000\n",
+        &[
+            "twice.csv",
+            "line 1",
+            "'mag_1_uc' appears twice",
+            "fields 2 and 5",
+            "Rename one",
+        ],
+    );
+    assert_fails_with(
+        f,
         "header_only.csv",
         header,
         &["header_only.csv", "header line but no data rows"],
@@ -407,4 +419,81 @@ fn compensating_a_flight_without_the_models_channel_is_an_error() {
         error.contains("'mag_1_uc', which the model of 'mag_1_uc' uses"),
         "{error}"
     );
+}
+
+/// Input that is not text, or not a file, is refused with the file, the
+/// place and what to do, not with a reader's inner words.
+#[test]
+fn a_file_that_is_not_text_or_not_a_regular_file_is_named_with_the_fix() {
+    let folder = tempfile::tempdir().unwrap();
+    let header = b"tt,mag_\xff1_uc,flux_a_x,flux_a_y,flux_a_z\n0,50000,20000,5000,45000\n0.1,50000,20000,5000,45000\n";
+    let input = folder.path().join("latin1.csv");
+    std::fs::write(&input, header).unwrap();
+    let out = folder.path().join("out.csv");
+    let (ok, stderr) = magcomp(&["compensate", input.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    assert!(!ok);
+    for fragment in [
+        "latin1.csv",
+        "line 1",
+        "not valid text (UTF-8)",
+        "Export the file again as UTF-8",
+    ] {
+        assert!(stderr.contains(fragment), "'{fragment}' missing from: {stderr}");
+    }
+    #[cfg(unix)]
+    {
+        let pipe = folder.path().join("pipe.csv");
+        let made = Command::new("mkfifo").arg(&pipe).status();
+        match made {
+            Ok(status) if status.success() => {
+                let (ok, stderr) = magcomp(&["compensate", pipe.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+                assert!(!ok);
+                for fragment in ["pipe.csv", "not a regular file", "write it to a file first"] {
+                    assert!(stderr.contains(fragment), "'{fragment}' missing from: {stderr}");
+                }
+            }
+            _ => println!("mkfifo is not available here: the named-pipe case was not run"),
+        }
+    }
+    assert!(!out.exists());
+}
+
+/// `run` makes its output folder, and a flight whose input is missing
+/// fails alone: the next flight is compensated and the table comes.
+#[test]
+fn run_makes_its_output_folder_and_a_missing_first_flight_fails_alone() {
+    let folder = tempfile::tempdir().unwrap();
+    let flight = folder.path().join("flight.csv");
+    std::fs::copy(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("sample_flights/clean.csv"),
+        &flight,
+    )
+    .unwrap();
+    let config = write_file(
+        folder.path(),
+        "pipeline.toml",
+        "[output]\ndirectory = \"made/here\"\n[vector]\nenabled = false\n[diagnose]\napply = \"never\"\n[[flight]]\ninput = \"missing.csv\"\n[[flight]]\ninput = \"flight.csv\"\n",
+    );
+    let output = Command::new(env!("CARGO_BIN_EXE_magcomp"))
+        .args(["run", config.to_str().unwrap()])
+        .current_dir(folder.path())
+        .output()
+        .unwrap();
+    let (stdout, stderr) = (
+        String::from_utf8_lossy(&output.stdout),
+        String::from_utf8_lossy(&output.stderr),
+    );
+    assert!(!output.status.success(), "one flight failed: {stdout}{stderr}");
+    assert!(
+        (stdout.lines()).any(|l| l.starts_with("created the output folder") && l.ends_with("made/here")),
+        "{stdout}"
+    );
+    assert!(
+        stderr.contains("missing.csv") && stderr.contains("1 of 2 flights failed"),
+        "{stderr}"
+    );
+    let table = stdout.split("\nflight ").nth(1).expect("the status table");
+    assert!(table.contains("missing.csv") && table.contains("FAILED"), "{table}");
+    assert!(table.contains("flight.csv") && table.contains("ok,"), "{table}");
+    assert!(folder.path().join("made/here/flight_compensated.csv").is_file());
 }

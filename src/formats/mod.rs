@@ -197,12 +197,19 @@ fn date_from_columns(log: &FlightLog) -> Option<crate::flight_date::FlightDate> 
     })
 }
 
-/// Refuses a file of no bytes at all with a message that says so.
+/// Refuses a file of no bytes at all, or one that is not a regular file,
+/// with a message that says so.
 fn check_not_empty(path: &Path) -> Result<()> {
-    let size = std::fs::metadata(path)
-        .map_err(|e| Error::io(path, "opening", e))?
-        .len();
-    match size {
+    let metadata = std::fs::metadata(path).map_err(|e| Error::io(path, "opening", e))?;
+    // A named pipe or a device reports no length, and a flight is read
+    // more than once (its format sniffed, then read).
+    if !metadata.is_file() {
+        return Err(Error::UnsupportedFormat {
+            path: path.to_path_buf(),
+            message: "not a regular file (a named pipe, a device or a folder): magcomp reads a flight log more than once, so write it to a file first and give that file".into(),
+        });
+    }
+    match metadata.len() {
         0 => Err(Error::NoData {
             path: path.to_path_buf(),
             problem: "the file is empty (0 bytes)".into(),

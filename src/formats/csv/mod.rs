@@ -42,9 +42,14 @@ pub fn sniff_separator(header_line: &str) -> Separator {
 pub fn read_header(path: &Path) -> Result<(Separator, Vec<String>)> {
     let file = File::open(path).map_err(|e| Error::io(path, "opening", e))?;
     let mut line = String::new();
-    BufReader::new(file)
-        .read_line(&mut line)
-        .map_err(|e| Error::io(path, "reading the header", e))?;
+    BufReader::new(file).read_line(&mut line).map_err(|e| match e.kind() {
+        std::io::ErrorKind::InvalidData => Error::NotText {
+            path: path.to_path_buf(),
+            line: 1,
+            byte: Some(0),
+        },
+        _ => Error::io(path, "reading the header", e),
+    })?;
     let line = line.trim_start_matches('\u{feff}').trim_end_matches(['\r', '\n']);
     let separator = sniff_separator(line);
     let names = match separator {
@@ -298,6 +303,11 @@ fn csv_error(path: &Path, error: csv::Error) -> Error {
             line,
             message: format!("the row has {len} fields but the header has {expected_len}"),
         },
+        csv::ErrorKind::Utf8 { pos, .. } => Error::NotText {
+            path: path.to_path_buf(),
+            line: pos.as_ref().map_or(line, |p| p.line()),
+            byte: pos.as_ref().map(|p| p.byte()),
+        },
         other => Error::MalformedRow {
             path: path.to_path_buf(),
             line,
@@ -340,16 +350,17 @@ impl<'a> ColumnBuilder<'a> {
                 looked_for: format!("'{}'", roles.time),
                 hint: "Name the time column in [columns] time = \"...\" in pipeline.toml.".into(),
             })?;
-        let mut seen = std::collections::HashSet::with_capacity(names.len());
-        if let Some(duplicate) = names.iter().find(|n| !seen.insert(n.as_str())) {
-            return Err(Error::MalformedRow {
-                path: path.to_path_buf(),
-                line: 1,
-                message: format!(
-                    "column '{}' appears twice in the header",
-                    crate::error::Excerpt(duplicate)
-                ),
-            });
+        let mut seen = std::collections::HashMap::with_capacity(names.len());
+        for (index, name) in names.iter().enumerate() {
+            if let Some(first) = seen.insert(name.as_str(), index) {
+                return Err(Error::DuplicateColumn {
+                    path: path.to_path_buf(),
+                    line: 1,
+                    column: name.clone(),
+                    first: first + 1,
+                    second: index + 1,
+                });
+            }
         }
         let kinds = names
             .iter()

@@ -197,10 +197,10 @@ fn read_range(
         let this_line = line_number;
         line_number += 1;
         let Ok(line) = std::str::from_utf8(&text) else {
-            return Err(Error::MalformedRow {
+            return Err(Error::NotText {
                 path: path.to_path_buf(),
                 line: this_line,
-                message: "the line is not valid text (UTF-8)".into(),
+                byte: Some(row_start),
             });
         };
         match classify(line) {
