@@ -50,7 +50,10 @@ pub(crate) struct RawCampaign {
 
 /// The calibration windows of a manifest row as written.
 #[derive(Debug, Clone, Deserialize)]
-#[serde(untagged)]
+#[serde(
+    untagged,
+    expecting = "give `windows` as a DETECT.json path, or a list of windows each \"T0:T1\" or {\"t_start\": T0, \"t_end\": T1} (seconds of the flight's time column)"
+)]
 enum ManifestWindows {
     /// A DETECT.json file.
     File(PathBuf),
@@ -60,7 +63,10 @@ enum ManifestWindows {
 
 /// One inline window: `"T0:T1"` or a window object.
 #[derive(Debug, Clone, Deserialize)]
-#[serde(untagged)]
+#[serde(
+    untagged,
+    expecting = "give a window as \"T0:T1\" or {\"t_start\": T0, \"t_end\": T1} (seconds of the flight's time column)"
+)]
 enum ManifestWindow {
     /// `"T0:T1"`.
     Text(String),
@@ -70,7 +76,10 @@ enum ManifestWindow {
 
 /// The channels of a manifest row: a list, or names in one string.
 #[derive(Debug, Clone, Deserialize)]
-#[serde(untagged)]
+#[serde(
+    untagged,
+    expecting = "give `channels` as a list of scalar channel names, or one string of them separated by spaces, ';' or ','"
+)]
 enum ManifestChannels {
     /// `["mag_1_uc", "mag_2_uc"]`.
     List(Vec<String>),
@@ -104,7 +113,10 @@ struct ManifestRow {
 /// The calibration lines of a manifest row: numbers, or one string of
 /// them (spaces, `;` or `,` between).
 #[derive(Debug, Clone, Deserialize)]
-#[serde(untagged)]
+#[serde(
+    untagged,
+    expecting = "give `lines` as a list of calibration line numbers, or one string of them separated by spaces or ';'"
+)]
 enum ManifestLines {
     /// `[1002.2, 1002.21]`.
     List(Vec<f64>),
@@ -378,7 +390,11 @@ fn from_row(row: ManifestRow) -> std::result::Result<RawFlight, String> {
             for window in list {
                 flight.windows.push(match window {
                     ManifestWindow::Window(window) => window,
-                    ManifestWindow::Text(text) => CalibrationWindow::parse(&text).map_err(|e| e.to_string())?,
+                    ManifestWindow::Text(text) => CalibrationWindow::parse(&text).map_err(|_| {
+                        format!(
+                            "windows: {text:?} is not a window: write each as T0:T1 in seconds of the flight's time column, separated by spaces or ';', e.g. 46000:46120;46200:46300"
+                        )
+                    })?,
                 });
             }
         }
@@ -468,6 +484,22 @@ mod tests {
         let bad_window = write(folder.path(), "w.csv", "input,windows\na.csv,1:2\nb.csv,5-9\n");
         let text = read_manifest(&bad_window).unwrap_err().to_string();
         assert!(text.contains("w.csv line 3") && text.contains("5-9"), "{text}");
+        assert!(
+            text.contains("write each as T0:T1") && !text.contains("command line"),
+            "{text}"
+        );
+        // A cell of the wrong shape says what shape it takes, not which
+        // inner variant failed.
+        for (cell, says) in [
+            ("\"windows\": 5", "give `windows` as a DETECT.json path"),
+            ("\"channels\": 5", "give `channels` as a list"),
+            ("\"lines\": {}", "give `lines` as a list"),
+        ] {
+            let shape = write(folder.path(), "s.jsonl", &format!("{{\"input\": \"a.csv\", {cell}}}\n"));
+            let text = read_manifest(&shape).unwrap_err().to_string();
+            assert!(text.contains("s.jsonl line 1") && text.contains(says), "{text}");
+            assert!(!text.contains("variant"), "{text}");
+        }
         let typo = write(folder.path(), "t.jsonl", "{\"input\": \"a.csv\", \"chanels\": []}\n");
         let text = read_manifest(&typo).unwrap_err().to_string();
         assert!(text.contains("t.jsonl line 1") && text.contains("chanels"), "{text}");
