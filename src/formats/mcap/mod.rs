@@ -169,7 +169,7 @@ fn decode_file(bytes: &[u8], names: &ColumnNames) -> std::result::Result<FileCon
     let mut losses = section.losses;
     if records::data_section_crc_holds(bytes) == Some(false) {
         losses.push(
-            "the data section does not match the CRC its data-end record gives: bytes of the recording were altered after it was written; chunks whose own CRC fails are left out (below), and any other change is read as it stands".into(),
+            "the data section does not match the CRC its data-end record gives: bytes of the recording were altered after it was written; chunks whose own CRC fails are left out (below), and any other change is read as it stands. Copy the recording again from the recorder or its backup".into(),
         );
     }
     // Decompress every chunk (in parallel) and learn the schemas and
@@ -203,7 +203,7 @@ fn decode_file(bytes: &[u8], names: &ColumnNames) -> std::result::Result<FileCon
     }
     if damaged > 0 {
         losses.push(format!(
-            "{damaged} of {} chunks were damaged and left out",
+            "{damaged} of {} chunks were damaged and left out: their samples are missing from the output. Copy the recording again from the recorder or its backup, whose copy may be whole",
             damaged + chunks.len()
         ));
         if chunks.is_empty() && section.messages.is_empty() {

@@ -125,10 +125,16 @@ fn log_times_ns(log: &FlightLog, midnight_ns: u64) -> Result<Vec<u64>> {
                     path: log.source().to_path_buf(),
                     location: format!("sample {row}"),
                     column: log.time_column().to_string(),
-                    problem: format!(
-                        "is {} s; MCAP log times are nanoseconds from 0, so negative times cannot be written",
-                        crate::error::Number(t)
-                    ),
+                    problem: match t < 0.0 || t.is_nan() {
+                        true => format!(
+                            "is {} s; MCAP log times are nanoseconds from 0, so negative times cannot be written",
+                            crate::error::Number(t)
+                        ),
+                        false => format!(
+                            "is {} s, beyond the about 584 years after 1970 that MCAP's nanosecond log times reach: the column is probably not in seconds (milliseconds or microseconds?); convert it to seconds before writing MCAP",
+                            crate::error::Number(t)
+                        ),
+                    },
                 }),
             },
         )
@@ -414,4 +420,33 @@ fn plan_topics<'a>(log: &'a FlightLog, compensation: Option<&'a Compensation>) -
         });
     }
     topics
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A time before 0 and a time beyond what nanoseconds reach are each
+    /// refused with their own cause: the second is a column in another
+    /// unit, not a negative time.
+    #[test]
+    fn times_mcap_cannot_hold_are_refused_with_their_cause() {
+        let log = |time: Vec<f64>| FlightLog::new("t.csv", "tt", time, Vec::new()).unwrap();
+        let early = log_times_ns(&log(vec![-1.0, 0.0]), 0).unwrap_err().to_string();
+        assert!(
+            early.contains("sample 0") && early.contains("negative times"),
+            "{early}"
+        );
+        let microseconds = log_times_ns(&log(vec![1.7e15, 1.7e15 + 1e5]), 0)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            microseconds.contains("not in seconds") && !microseconds.contains("negative"),
+            "{microseconds}"
+        );
+        assert_eq!(
+            log_times_ns(&log(vec![1.5, 2.0]), 10).unwrap(),
+            vec![1_500_000_010, 2_000_000_010]
+        );
+    }
 }
