@@ -430,7 +430,9 @@ fn one_per_cell(
 ) -> Vec<usize> {
     let cell = |value: f64, range: &std::ops::Range<f64>, count: u32| {
         let fraction = (value - range.start) / (range.end - range.start);
-        (0.0..1.0).contains(&fraction).then(|| (fraction * count as f64) as u32)
+        (0.0..1.0)
+            .contains(&fraction)
+            .then_some((fraction * count as f64) as u32)
     };
     let mut taken = vec![false; cells.0 as usize * cells.1 as usize];
     rows.iter()

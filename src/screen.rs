@@ -583,12 +583,9 @@ mod tests {
         let rows = 500;
         let log = steady(rows);
         let mut scalar = log.channel("mag_1_uc").unwrap().values.clone();
-        for k in 100..180 {
-            scalar[k] = 53_000.25;
-        }
-        for k in 300..310 {
-            scalar[k] = scalar[300];
-        }
+        scalar[100..180].fill(53_000.25);
+        let held = scalar[300];
+        scalar[300..310].fill(held);
         let log = log
             .with_values("mag_1_uc", scalar)
             .unwrap()

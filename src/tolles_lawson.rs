@@ -429,8 +429,8 @@ fn factor_rows(
             };
             factors[6 + axis][i - rows.start] = difference;
         }
-        for k in 0..count {
-            factors[6 + axis][k] *= per_nt;
+        for factor in &mut factors[6 + axis][..count] {
+            *factor *= per_nt;
         }
     }
     if !groups[0] {
@@ -644,9 +644,10 @@ mod tests {
             })
             .collect();
         let field_nt = [field[0].as_slice(), field[1].as_slice(), field[2].as_slice()];
-        let runs = [0..n];
-        let a16 = traceless.design_matrix(field_nt, &runs);
-        let a18 = TermSet::magnav().design_matrix(field_nt, &runs);
+        let whole = 0..n;
+        let runs = std::slice::from_ref(&whole);
+        let a16 = traceless.design_matrix(field_nt, runs);
+        let a18 = TermSet::magnav().design_matrix(field_nt, runs);
         for row in 0..n {
             let (p16, p18) = (a16.predict_row(row, &sixteen), a18.predict_row(row, &eighteen));
             assert!((p16 - p18).abs() < 1e-9 * p18.abs().max(1.0), "{row}: {p16} vs {p18}");

@@ -322,26 +322,6 @@ pub fn other_flight_warning(path: &Path, detected_on: &FlightIdentity, log: &Fli
     }))
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn parses_command_line_windows() {
-        let w = CalibrationWindow::parse("46000.5:46120").unwrap();
-        assert_eq!((w.t_start, w.t_end), (46000.5, 46120.0));
-        assert!(CalibrationWindow::parse("46120:46000").is_err());
-        assert!(CalibrationWindow::parse("46000").is_err());
-    }
-
-    #[test]
-    fn rows_are_inclusive_of_both_ends() {
-        let time = [0.0, 0.1, 0.2, 0.3, 0.4];
-        assert_eq!(CalibrationWindow::new(0.1, 0.3).rows(&time), 1..4);
-        assert_eq!(CalibrationWindow::new(5.0, 6.0).rows(&time), 5..5);
-    }
-}
-
 /// The calibration data a flight's `lines` select: per line number given,
 /// every run of rows carrying it, as (line, first time, last time).
 ///
@@ -411,4 +391,24 @@ pub fn parse_lines(text: &str) -> Result<Vec<f64>> {
             })
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parses_command_line_windows() {
+        let w = CalibrationWindow::parse("46000.5:46120").unwrap();
+        assert_eq!((w.t_start, w.t_end), (46000.5, 46120.0));
+        assert!(CalibrationWindow::parse("46120:46000").is_err());
+        assert!(CalibrationWindow::parse("46000").is_err());
+    }
+
+    #[test]
+    fn rows_are_inclusive_of_both_ends() {
+        let time = [0.0, 0.1, 0.2, 0.3, 0.4];
+        assert_eq!(CalibrationWindow::new(0.1, 0.3).rows(&time), 1..4);
+        assert_eq!(CalibrationWindow::new(5.0, 6.0).rows(&time), 5..5);
+    }
 }

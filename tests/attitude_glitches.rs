@@ -151,9 +151,9 @@ fn a_dead_fluxgate_axis_is_named_and_nothing_is_compensated_through_it() {
     let (simulated, _, _) = common::paired_sensors_flight(5);
     let rows = simulated.log.len();
     let dead = simulated.log.with_values("flux_a_y", vec![0.0; rows]).unwrap();
-    let error = run(folder.path(), &dead, "dead_axis")
-        .err()
-        .expect("no compensation through a dead axis");
+    let Err(error) = run(folder.path(), &dead, "dead_axis") else {
+        panic!("no compensation through a dead axis");
+    };
     let text = error.to_string();
     assert!(
         text.contains("every sample of 'flux_a_y' was masked on screening")
@@ -164,10 +164,10 @@ fn a_dead_fluxgate_axis_is_named_and_nothing_is_compensated_through_it() {
     // A scalar stuck for the whole flight is named the same way.
     let value = simulated.log.channel("mag_4_uc").unwrap().values[0];
     let stuck = simulated.log.with_values("mag_4_uc", vec![value; rows]).unwrap();
-    let text = run(folder.path(), &stuck, "stuck_scalar")
-        .err()
-        .expect("a stuck scalar")
-        .to_string();
+    let Err(error) = run(folder.path(), &stuck, "stuck_scalar") else {
+        panic!("a stuck scalar");
+    };
+    let text = error.to_string();
     assert!(
         text.contains("every sample of 'mag_4_uc' was masked on screening") && text.contains("--channels"),
         "{text}"

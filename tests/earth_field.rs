@@ -65,7 +65,9 @@ fn plan(seed: u64) -> RawScenario {
 
 /// Per channel: (name, slope with the 16 terms, slope with the 18
 /// terms on the field as measured, the aircraft's isotropic k).
-fn slopes(seed: u64) -> Vec<(String, f64, f64, f64)> {
+type Slopes = Vec<(String, f64, f64, f64)>;
+
+fn slopes(seed: u64) -> Slopes {
     let flight = simulate(&Scenario::try_from(plan(seed)).unwrap()).unwrap();
     let folder = tempfile::tempdir().unwrap();
     let csv = folder.path().join("pulsations.csv");
@@ -116,8 +118,7 @@ fn slopes(seed: u64) -> Vec<(String, f64, f64, f64)> {
 
 #[test]
 fn the_compensation_keeps_the_earth_field_at_full_scale() {
-    let measured: Vec<(u64, Vec<(String, f64, f64, f64)>)> =
-        (0..FLIGHTS).into_par_iter().map(|seed| (seed, slopes(seed))).collect();
+    let measured: Vec<(u64, Slopes)> = (0..FLIGHTS).into_par_iter().map(|seed| (seed, slopes(seed))).collect();
     let mut worst_ours = 0.0f64;
     let mut worst_eighteen = 0.0f64;
     for (seed, channels) in &measured {

@@ -590,7 +590,7 @@ fn a_file_cut_at_a_record_boundary_says_so_with_what_was_read() {
     std::fs::write(&cut, &good[..chunk_ends[1]]).unwrap();
     let log = read_flight_log(&cut, &IngestOptions::default()).unwrap();
     assert!(
-        log.len() < whole.len() && log.len() > 0,
+        log.len() < whole.len() && !log.is_empty(),
         "{} of {} rows",
         log.len(),
         whole.len()

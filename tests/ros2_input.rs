@@ -35,7 +35,7 @@ impl Cdr {
         Cdr(vec![0, 1, 0, 0])
     }
     fn align(&mut self, size: usize) {
-        while (self.0.len() - 4) % size != 0 {
+        while !(self.0.len() - 4).is_multiple_of(size) {
             self.0.push(0);
         }
     }

@@ -192,7 +192,7 @@ pub fn read_flight_log(path: &Path, options: &IngestOptions) -> Result<FlightLog
 fn date_from_columns(log: &FlightLog) -> Option<crate::flight_date::FlightDate> {
     let (year, doy) = (log.channel("year")?, log.channel("doy")?);
     year.values.iter().zip(&doy.values).find_map(|(&year, &day)| {
-        let whole = |v: f64| (v.is_finite() && v.fract() == 0.0 && v >= 1.0 && v < 1e4).then_some(v as u32);
+        let whole = |v: f64| (v.is_finite() && v.fract() == 0.0 && (1.0..1e4).contains(&v)).then_some(v as u32);
         crate::flight_date::FlightDate::from_day_of_year(whole(year)? as i32, whole(day)?)
     })
 }

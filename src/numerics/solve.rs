@@ -366,7 +366,8 @@ fn jackknife(spectrum: &Spectrum, folds: &[FoldStatistics], lambda: Option<f64>,
             return Vec::new();
         };
         let (q, values) = (eigen.U(), eigen.S());
-        if (0..n).any(|m| !(values[m] < 1.0 - 1e-12)) {
+        // A NaN eigenvalue fails as one at or above 1 does.
+        if (0..n).any(|m| values[m] >= 1.0 - 1e-12 || values[m].is_nan()) {
             return Vec::new();
         }
         let along: Vec<f64> = (0..n)

@@ -492,15 +492,18 @@ mod tests {
             let stale: Vec<Vec<f64>> = vec![vec![f64::NAN; 713]; columns.len()];
             stores.recycle(Stacked::from_columns(&stale, &[f64::NAN; 713], &[713]));
             let mut builder = StackedBuilder::new(&folds, columns.len(), &stores);
-            for (panel, pieces) in builder.segments_mut(&[0..700]).iter_mut().enumerate() {
-                let mut row = 0;
-                for lanes in pieces[0].iter_mut().flat_map(|piece| piece.iter_mut()) {
+            let whole = 0..700;
+            for (panel, pieces) in builder
+                .segments_mut(std::slice::from_ref(&whole))
+                .iter_mut()
+                .enumerate()
+            {
+                for (row, lanes) in pieces[0].iter_mut().flat_map(|piece| piece.iter_mut()).enumerate() {
                     *lanes = std::array::from_fn(|lane| match panel * LANES + lane {
                         j if j < columns.len() => columns[j][row],
                         j if j == columns.len() => target[row],
                         _ => 0.0,
                     });
-                    row += 1;
                 }
             }
             assert_eq!(builder.finish(), Stacked::from_columns(&columns, &target, &folds));
