@@ -109,6 +109,36 @@ impl Compensation {
         channels.chain(vectors).chain(gradients).collect()
     }
 
+    /// Rounds every added column to `decimals` places of nT (gradients,
+    /// nT/m, to three more): the resolution the outputs are written at,
+    /// in every format alike. `NaN` stays `NaN`.
+    pub fn round_to(&mut self, decimals: u32) {
+        let round = |values: &mut [f64], places: u32| {
+            let scale = 10f64.powi(places as i32);
+            for v in values.iter_mut().filter(|v| v.is_finite()) {
+                let scaled = *v * scale;
+                // Beyond 2^52 every double is already an integer.
+                if scaled.abs() < 4.5e15 {
+                    *v = scaled.round() / scale + 0.0;
+                }
+            }
+        };
+        for channel in &mut self.channels {
+            round(&mut channel.values, decimals);
+            if let Some(sigma) = channel.sigma_nt.as_mut() {
+                round(sigma, decimals);
+            }
+        }
+        for vector in &mut self.vectors {
+            for component in vector.body_nt.iter_mut().chain(vector.ned_nt.iter_mut()) {
+                round(component, decimals);
+            }
+        }
+        for gradient in &mut self.gradients {
+            round(&mut gradient.values, decimals + 3);
+        }
+    }
+
     /// Adds `vector` and flags the rows where it is missing: without a
     /// fluxgate reading (both frames), without an attitude (north-east-down);
     /// and those where a component lies beyond what a fluxgate reads

@@ -743,6 +743,9 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
         gradient_models: gradients.models,
         plan,
     };
+    // The figures above are of the full values; the outputs are written
+    // at the stated resolution.
+    compensation.round_to(options.output_decimals);
     Ok(FlightRun {
         recorded,
         screened,

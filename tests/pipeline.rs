@@ -497,3 +497,62 @@ fn run_makes_its_output_folder_and_a_missing_first_flight_fails_alone() {
     assert!(table.contains("flight.csv") && table.contains("ok,"), "{table}");
     assert!(folder.path().join("made/here/flight_compensated.csv").is_file());
 }
+
+/// The added columns are written at the stated resolution, 0.001 nT by
+/// default and `[output] decimals` when given, in place of the 17 digits
+/// of a double; a resolution no double holds is refused.
+#[test]
+fn added_columns_are_written_at_the_stated_resolution() {
+    let folder = tempfile::tempdir().unwrap();
+    let flight = folder.path().join("flight.csv");
+    std::fs::copy(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("sample_flights/clean.csv"),
+        &flight,
+    )
+    .unwrap();
+    let compensate = |config: Option<&str>, out: &str| -> (bool, String, Vec<Vec<String>>) {
+        let out = folder.path().join(out);
+        let mut args = vec![
+            "compensate".to_string(),
+            flight.display().to_string(),
+            "--out".into(),
+            out.display().to_string(),
+            "--plain".into(),
+        ];
+        if let Some(text) = config {
+            let path = write_file(folder.path(), "settings.toml", text);
+            args.extend(["--config".into(), path.display().to_string()]);
+        }
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        let (ok, stderr) = magcomp(&args);
+        let text = std::fs::read_to_string(&out).unwrap_or_default();
+        let rows = text.lines().map(|l| l.split(',').map(String::from).collect()).collect();
+        (ok, stderr, rows)
+    };
+    let decimals_of = |cell: &str| cell.split_once('.').map_or(0, |(_, f)| f.len());
+    let (ok, stderr, default) = compensate(None, "default.csv");
+    assert!(ok, "{stderr}");
+    let header = &default[0];
+    let at = |name: &str| header.iter().position(|h| h == name).unwrap();
+    let (value, sigma, raw) = (at("mag_1_c"), at("mag_1_c_sigma"), at("mag_1_uc"));
+    let most = |rows: &[Vec<String>], column: usize| rows[1..].iter().map(|r| decimals_of(&r[column])).max().unwrap();
+    assert_eq!(most(&default, value), 3);
+    assert_eq!(most(&default, sigma), 3);
+    // The input's cells are copied as they are.
+    let input = std::fs::read_to_string(&flight).unwrap();
+    for (line, row) in input.lines().zip(&default).skip(1).take(50) {
+        assert_eq!(line.split(',').nth(raw).unwrap(), row[raw]);
+    }
+    let (ok, stderr, coarse) = compensate(Some("[output]\ndecimals = 1\n"), "coarse.csv");
+    assert!(ok, "{stderr}");
+    assert_eq!(most(&coarse, value), 1);
+    for (fine, coarse) in default[1..].iter().zip(&coarse[1..]) {
+        let (fine, coarse): (f64, f64) = (fine[value].parse().unwrap(), coarse[value].parse().unwrap());
+        assert!((fine - coarse).abs() <= 0.05 + 1e-9, "{fine} → {coarse}");
+    }
+    let (ok, stderr, _) = compensate(Some("[output]\ndecimals = 11\n"), "refused.csv");
+    assert!(
+        !ok && stderr.contains("[output] decimals = 11") && stderr.contains("0 to 10"),
+        "{stderr}"
+    );
+}

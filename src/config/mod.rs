@@ -186,18 +186,31 @@ impl Default for RawFit {
     }
 }
 
+/// Decimal places of the added nT columns by default: 0.001 nT, below any
+/// magnetometer's noise, where the shortest round-trip text of a double
+/// wrote 17 digits and doubled a flight's CSV.
+pub const DEFAULT_DECIMALS: u32 = 3;
+
+/// The most decimal places `[output] decimals` takes: a double holds
+/// about 15 significant digits, and a field of 50,000 nT uses five.
+pub const MOST_DECIMALS: u32 = 10;
+
 /// `[output]` as written.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub(crate) struct RawOutput {
     /// Folder for outputs, relative to pipeline.toml.
     pub directory: PathBuf,
+    /// Decimal places of the added nT columns (gradients, nT/m, get three
+    /// more); the input's columns are copied as they are.
+    pub decimals: u32,
 }
 
 impl Default for RawOutput {
     fn default() -> Self {
         RawOutput {
             directory: "out".into(),
+            decimals: DEFAULT_DECIMALS,
         }
     }
 }
@@ -460,6 +473,8 @@ pub struct Settings {
     /// Gradients to compensate (`[[gradient]]`, or every pair of
     /// `[sensor_positions]`).
     pub gradients: Vec<GradientPair>,
+    /// Decimal places of the added nT columns (`[output] decimals`).
+    pub output_decimals: u32,
 }
 
 impl Default for Settings {
@@ -544,7 +559,14 @@ impl Pipeline {
                 raw.quality.fom_limit_nt
             )));
         }
+        if raw.output.decimals > MOST_DECIMALS {
+            return Err(bad(format!(
+                "[output] decimals = {}: give 0 to {MOST_DECIMALS} decimal places of nT (3, 0.001 nT, is the default)",
+                raw.output.decimals
+            )));
+        }
         let settings = Settings {
+            output_decimals: raw.output.decimals,
             ingest: IngestOptions {
                 columns: ColumnNames::try_from(raw.columns).map_err(bad)?,
                 alignment: AlignmentOptions::try_from(raw.alignment).map_err(bad)?,
