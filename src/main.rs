@@ -14,13 +14,18 @@ use magcomp::diagnose::ApplyDiagnosis;
 use magcomp::formats::{prepare, Destination, OutputKind, OutputSet};
 use magcomp::numerics::solve::LambdaChoice;
 use magcomp::pipeline::summary;
-use magcomp::sink::{process_flight, FlightOutputs};
+use magcomp::sink::{process_flight_listing, FlightOutputs};
 use magcomp::windows::CalibrationWindow;
 
 /// Post-flight compensation of aeromagnetic surveys.
 #[derive(Parser)]
 #[command(name = "magcomp", version, about)]
 struct Cli {
+    /// Print every note of a flight (how it was read, detected and
+    /// fitted) after its figures; without it only their count is printed,
+    /// and the quality JSON and the report hold them.
+    #[arg(short, long, global = true)]
+    verbose: bool,
     #[command(subcommand)]
     command: Command,
 }
@@ -258,9 +263,9 @@ fn main() -> ExitCode {
             plain,
             force,
             shard,
-        } => run(&config, plain, force, shard.as_deref()),
+        } => run(&config, (plain, force, cli.verbose), shard.as_deref()),
         Command::Summarize { outdir } => summarize(&outdir),
-        Command::Compensate(args) => compensate(args),
+        Command::Compensate(args) => compensate(args, cli.verbose),
         Command::Detect {
             flight,
             out,
@@ -359,7 +364,7 @@ fn spinner(message: String) -> ProgressBar {
     bar
 }
 
-fn run(config: &Path, plain: bool, force: bool, shard: Option<&str>) -> anyhow::Result<()> {
+fn run(config: &Path, (plain, force, verbose): (bool, bool, bool), shard: Option<&str>) -> anyhow::Result<()> {
     let mut pipeline = Pipeline::load(config)?;
     print_notes(&pipeline.notes);
     if plain {
@@ -429,8 +434,8 @@ fn run(config: &Path, plain: bool, force: bool, shard: Option<&str>) -> anyhow::
             CampaignFlight::Processed { status, result } => {
                 match result.as_ref() {
                     Ok(result) => {
-                        print!("{}", summary(result));
-                        println!("  wrote {}", outputs.compensated.display());
+                        print!("{}", summary(result, verbose));
+                        println!("  wrote {}: {}", folder.display(), status.outputs.join(", "));
                     }
                     Err(error) => eprintln!("magcomp: error: processing {}: {error}", job.input.display()),
                 }
@@ -488,7 +493,7 @@ fn summarize(folder: &Path) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn compensate(args: CompensateArgs) -> anyhow::Result<()> {
+fn compensate(args: CompensateArgs, verbose: bool) -> anyhow::Result<()> {
     let mut pipeline = Pipeline::load_or_default(args.config.as_deref())?;
     if let Some(lambda) = args.lambda {
         anyhow::ensure!(
@@ -547,10 +552,13 @@ fn compensate(args: CompensateArgs) -> anyhow::Result<()> {
     magcomp::formats::destination::refuse_inputs(&other_inputs, &outputs.destinations())?;
     prepare_flight_outputs(&job, &outputs)?;
     let bar = spinner(format!("compensating {}", args.flight.display()));
-    let result = process_flight(&job, &pipeline.settings, &outputs);
+    let result = process_flight_listing(&job, &pipeline.settings, &outputs);
     bar.finish_and_clear();
-    print!("{}", summary(&result?));
-    println!("  wrote {}", args.out.display());
+    let (result, written) = result?;
+    print!("{}", summary(&result, verbose));
+    for path in written {
+        println!("  wrote {}", path.display());
+    }
     Ok(())
 }
 

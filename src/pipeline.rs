@@ -1175,8 +1175,10 @@ pub fn choose_channels(log: &FlightLog, wanted: Option<&[String]>) -> Result<Vec
     Ok(channels)
 }
 
-/// A few lines per channel for the terminal.
-pub fn summary(result: &FlightResult) -> String {
+/// A few lines per channel for the terminal, and the warnings; the notes
+/// with `verbose`, else their count (the quality JSON and the report hold
+/// them all).
+pub fn summary(result: &FlightResult, verbose: bool) -> String {
     let mut text = format!("{}: {} rows\n", result.flight.display(), result.rows);
     for (quality, model) in result.channels.iter().zip(&result.models) {
         let solution = &model.solution;
@@ -1242,8 +1244,19 @@ pub fn summary(result: &FlightResult) -> String {
     for applied in &result.applied_findings {
         text += &format!("    {}\n", applied.describe());
     }
-    for note in &result.notes {
-        text += &format!("  note: {note}\n");
+    match (verbose, result.notes.len()) {
+        (_, 0) => {}
+        (true, _) => {
+            for note in &result.notes {
+                text += &format!("  note: {note}\n");
+            }
+        }
+        (false, count) => {
+            text += &format!(
+                "  {count} note{} in the quality JSON and the report (-v prints them)\n",
+                if count == 1 { "" } else { "s" }
+            )
+        }
     }
     for warning in &result.warnings {
         text += &format!("  warning: {warning}\n");

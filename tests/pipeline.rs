@@ -556,3 +556,51 @@ fn added_columns_are_written_at_the_stated_resolution() {
         "{stderr}"
     );
 }
+
+/// `compensate` lists every file it writes, and prints a flight's notes
+/// only with `-v` (their count otherwise); the warnings always.
+#[test]
+fn compensate_lists_what_it_writes_and_prints_notes_with_verbose() {
+    let folder = tempfile::tempdir().unwrap();
+    let flight = folder.path().join("flight.csv");
+    std::fs::copy(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("sample_flights/clean.csv"),
+        &flight,
+    )
+    .unwrap();
+    let stdout_of = |verbose: bool| -> String {
+        let out = folder.path().join("out.csv");
+        let mut command = Command::new(env!("CARGO_BIN_EXE_magcomp"));
+        command.args([
+            "compensate",
+            flight.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--plain",
+        ]);
+        if verbose {
+            command.arg("-v");
+        }
+        let output = command.output().unwrap();
+        assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+        String::from_utf8_lossy(&output.stdout).into_owned()
+    };
+    let quiet = stdout_of(false);
+    let notes: usize = (quiet.lines())
+        .find_map(|l| {
+            l.trim()
+                .strip_suffix(" in the quality JSON and the report (-v prints them)")
+        })
+        .and_then(|l| l.split(' ').next()?.parse().ok())
+        .unwrap_or_else(|| panic!("a count of the notes: {quiet}"));
+    assert!(notes > 0 && !quiet.contains("note:"), "{quiet}");
+    let written: Vec<&str> = quiet.lines().filter_map(|l| l.trim().strip_prefix("wrote ")).collect();
+    for name in ["out.csv", "out_report.html", "out_report.json"] {
+        assert!(written.iter().any(|w| w.ends_with(name)), "{name} not listed: {quiet}");
+    }
+    for path in &written {
+        assert!(Path::new(path).is_file(), "{path} is listed but not there");
+    }
+    let loud = stdout_of(true);
+    assert_eq!(loud.matches("  note: ").count(), notes, "{loud}");
+}
