@@ -16,8 +16,8 @@ use magcomp::simulate::scenario::Scenario;
 
 /// Seeds per effect: 5 in `cargo test` (35 flights; run time:
 /// docs/measurements.md, section tests::diagnose_campaign),
-/// `MAGCOMP_CAMPAIGN_SEEDS=10` for the full campaign the issue notes
-/// report.
+/// `MAGCOMP_CAMPAIGN_SEEDS=10` for the full campaign (70 flights, its
+/// figures below).
 fn seeds() -> u64 {
     std::env::var("MAGCOMP_CAMPAIGN_SEEDS")
         .ok()
@@ -464,8 +464,8 @@ fn campaign_names_each_effect_and_leaves_clean_flights_alone() {
     }
     let spurious: Vec<&String> = outcomes.iter().flat_map(|o| &o.spurious).collect();
     println!("spurious findings: {spurious:#?}");
-    // The goal is every flight right. Measured on this campaign (see the
-    // issue notes): clean 10/10, no finding but the base station's
+    // The goal is every flight right. Measured on this campaign with
+    // MAGCOMP_CAMPAIGN_SEEDS=10: clean 10/10, no finding but the base station's
     // (geomagnetic variation is in every simulated flight), and no
     // spurious finding in 70 flights. Before the search started from the
     // λ criterion that predicts the held-out headings better, the trim tab
