@@ -1,6 +1,6 @@
 //! Manoeuvre detection against the simulator's truth: accuracy over many
 //! pilots, headings, turbulence levels and seeds, and each edge case of the
-//! detection on its own (gaps, glitches, steep fields, coupled motion).
+//! detection on its own (gaps, no INS, steep fields, missing manoeuvres).
 
 use magcomp::detect::{detect_manoeuvres, AttitudeSource, DetectOptions, Detection, STEEP_DIP_DEG};
 use magcomp::flight_log::{Channel, FlightLog};
