@@ -8,25 +8,26 @@ use std::path::Path;
 #[path = "../fuzz/fuzz_targets/harness.rs"]
 mod harness;
 
-/// The kept damaged inputs, each made from its target's seed, and whether
+/// The kept damaged inputs (`kept_*`: names the fuzzer's own hashes,
+/// which .gitignore leaves out, never take), each made from its target's seed, and whether
 /// it must reach the report (`true`: a recording cut short or with a
 /// damaged chunk is read as far as it is whole, with a warning) or be
 /// refused with an error (`false`). Other kept inputs (found by the
 /// fuzzer) need only end without a panic.
 const KNOWN: [(&str, bool); 13] = [
-    ("header_names_a_column_twice.csv", false),
-    ("header_not_utf8.csv", false),
-    ("cell_not_utf8.csv", false),
-    ("row_one_field_short.csv", false),
-    ("carriage_returns_alone.csv", false),
-    ("time_backwards.csv", false),
-    ("units_row_under_header.csv", false),
-    ("cut_mid_row.csv", false),
-    ("line_not_utf8.xyz", false),
-    ("cut_mid_row.xyz", false),
-    ("cut_short.mcap", true),
-    ("byte_flipped_mid_file.mcap", true),
-    ("cut_short.h5", false),
+    ("kept_header_names_a_column_twice.csv", false),
+    ("kept_header_not_utf8.csv", false),
+    ("kept_cell_not_utf8.csv", false),
+    ("kept_row_one_field_short.csv", false),
+    ("kept_carriage_returns_alone.csv", false),
+    ("kept_time_backwards.csv", false),
+    ("kept_units_row_under_header.csv", false),
+    ("kept_cut_mid_row.csv", false),
+    ("kept_line_not_utf8.xyz", false),
+    ("kept_cut_mid_row.xyz", false),
+    ("kept_cut_short.mcap", true),
+    ("kept_byte_flipped_mid_file.mcap", true),
+    ("kept_cut_short.h5", false),
 ];
 
 #[test]
