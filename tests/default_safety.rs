@@ -170,6 +170,12 @@ fn fly(seed: u64) -> (String, Outcome) {
                     )
                 })
                 .unwrap_or_default();
+            let departure = (auto.result.channels.iter())
+                .find(|q| q.channel == model.channel)
+                .and_then(|q| q.survey_departure_from_plain_nt)
+                .map(|d| format!(", survey departure {d:.4} nT"))
+                .unwrap_or_default();
+            let heldout = format!("{heldout}{departure}");
             (
                 format!("{} ({heldout})", model.channel),
                 survey_line_error_nt(&p.values, truth, line),
