@@ -173,7 +173,14 @@ fn fewer_than_three_windows_are_fitted_with_a_warning() {
     };
     let out = folder.path().join("out.csv");
     for windows in [vec![manoeuvre(0)], vec![manoeuvre(0), manoeuvre(4)]] {
-        let mut args = vec!["compensate", flight.to_str().unwrap(), "--out", out.to_str().unwrap()];
+        // -v: the note on the windows' headings is printed with the rest.
+        let mut args = vec![
+            "compensate",
+            "-v",
+            flight.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ];
         for w in &windows {
             args.extend(["--window", w.as_str()]);
         }
