@@ -123,6 +123,17 @@ fn write_file(folder: &Path, name: &str, text: &str) -> PathBuf {
     path
 }
 
+/// A copy of the sample flight `clean.csv` in `folder`, as flight.csv.
+fn sample_flight_in(folder: &Path) -> PathBuf {
+    let flight = folder.join("flight.csv");
+    std::fs::copy(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("sample_flights/clean.csv"),
+        &flight,
+    )
+    .unwrap();
+    flight
+}
+
 /// A bad file must fail with an error whose text contains every `expected` fragment.
 fn assert_fails_with(folder: &Path, name: &str, text: &str, expected: &[&str]) {
     let input = write_file(folder, name, text);
@@ -463,12 +474,7 @@ fn a_file_that_is_not_text_or_not_a_regular_file_is_named_with_the_fix() {
 #[test]
 fn run_makes_its_output_folder_and_a_missing_first_flight_fails_alone() {
     let folder = tempfile::tempdir().unwrap();
-    let flight = folder.path().join("flight.csv");
-    std::fs::copy(
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("sample_flights/clean.csv"),
-        &flight,
-    )
-    .unwrap();
+    let flight = sample_flight_in(folder.path());
     let config = write_file(
         folder.path(),
         "pipeline.toml",
@@ -504,12 +510,7 @@ fn run_makes_its_output_folder_and_a_missing_first_flight_fails_alone() {
 #[test]
 fn added_columns_are_written_at_the_stated_resolution() {
     let folder = tempfile::tempdir().unwrap();
-    let flight = folder.path().join("flight.csv");
-    std::fs::copy(
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("sample_flights/clean.csv"),
-        &flight,
-    )
-    .unwrap();
+    let flight = sample_flight_in(folder.path());
     let compensate = |config: Option<&str>, out: &str| -> (bool, String, Vec<Vec<String>>) {
         let out = folder.path().join(out);
         let mut args = vec![
@@ -562,12 +563,7 @@ fn added_columns_are_written_at_the_stated_resolution() {
 #[test]
 fn compensate_lists_what_it_writes_and_prints_notes_with_verbose() {
     let folder = tempfile::tempdir().unwrap();
-    let flight = folder.path().join("flight.csv");
-    std::fs::copy(
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("sample_flights/clean.csv"),
-        &flight,
-    )
-    .unwrap();
+    let flight = sample_flight_in(folder.path());
     let stdout_of = |verbose: bool| -> String {
         let out = folder.path().join("out.csv");
         let mut command = Command::new(env!("CARGO_BIN_EXE_magcomp"));
