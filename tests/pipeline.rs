@@ -474,7 +474,7 @@ fn a_file_that_is_not_text_or_not_a_regular_file_is_named_with_the_fix() {
 #[test]
 fn run_makes_its_output_folder_and_a_missing_first_flight_fails_alone() {
     let folder = tempfile::tempdir().unwrap();
-    let flight = sample_flight_in(folder.path());
+    sample_flight_in(folder.path());
     let config = write_file(
         folder.path(),
         "pipeline.toml",
