@@ -111,22 +111,27 @@ impl Compensation {
 
     /// Rounds every added column to `decimals` places of nT (gradients,
     /// nT/m, to three more): the resolution the outputs are written at,
-    /// in every format alike. `NaN` stays `NaN`.
+    /// in every format alike. A sigma is rounded up, so that no stated
+    /// uncertainty comes out smaller than it is (nor zero). `NaN` stays
+    /// `NaN`.
     pub fn round_to(&mut self, decimals: u32) {
-        let round = |values: &mut [f64], places: u32| {
+        let round_with = |values: &mut [f64], places: u32, to_integer: fn(f64) -> f64| {
             let scale = 10f64.powi(places as i32);
             for v in values.iter_mut().filter(|v| v.is_finite()) {
                 let scaled = *v * scale;
                 // Beyond 2^52 every double is already an integer.
                 if scaled.abs() < 4.5e15 {
-                    *v = scaled.round() / scale + 0.0;
+                    *v = to_integer(scaled) / scale + 0.0;
                 }
             }
         };
+        let round = |values: &mut [f64], places: u32| round_with(values, places, f64::round);
         for channel in &mut self.channels {
             round(&mut channel.values, decimals);
             if let Some(sigma) = channel.sigma_nt.as_mut() {
-                round(sigma, decimals);
+                // A millionth of a step below: a sigma already on the grid
+                // (2.007 is 2007.0000000000002 thousandths) stays on it.
+                round_with(sigma, decimals, |x| (x - 1e-6).ceil());
             }
         }
         for vector in &mut self.vectors {
@@ -341,4 +346,39 @@ fn row_flags(log: &FlightLog, models: &[FittedModel], channels: &[CompensatedCha
         }
     }
     flags
+}
+
+#[cfg(test)]
+mod rounding_tests {
+    use super::*;
+
+    /// Values round to the nearest step, a sigma up to the next one (never
+    /// to zero), gradients three places finer, and a missing value stays
+    /// missing.
+    #[test]
+    fn outputs_round_to_their_resolution_and_a_sigma_rounds_up() {
+        let mut compensation = Compensation {
+            channels: vec![CompensatedChannel {
+                channel: "mag_1_uc".into(),
+                values: vec![53_000.123_45, -0.0004, f64::NAN],
+                interference_nt: vec![0.0; 3],
+                level_offset_nt: 0.0,
+                sigma_nt: Some(vec![0.0004, 0.0021, 2.007]),
+            }],
+            flags: Vec::new(),
+            vectors: Vec::new(),
+            gradients: vec![CompensatedGradient {
+                column: "grad_1_2_c".into(),
+                values: vec![0.012345678, 0.0, 1.0],
+            }],
+        };
+        compensation.round_to(3);
+        let channel = &compensation.channels[0];
+        assert_eq!(channel.values[..2], [53_000.123, 0.0]);
+        assert!(channel.values[2].is_nan());
+        assert_eq!(channel.sigma_nt.as_deref().unwrap(), [0.001, 0.003, 2.007]);
+        assert_eq!(compensation.gradients[0].values, [0.012346, 0.0, 1.0]);
+        // -0.0004 rounds to +0, written "0", not "-0".
+        assert!(channel.values[1].is_sign_positive());
+    }
 }
