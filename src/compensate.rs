@@ -50,6 +50,10 @@ pub struct CompensatedChannel {
     pub interference_nt: Vec<f64>,
     /// The level offset δ, nT.
     pub level_offset_nt: f64,
+    /// Mean of the interference over the calibration windows, nT (δ under
+    /// [`LevelConvention::CalibrationMean`], whichever convention is
+    /// used): saved with the model for flights it is applied to.
+    pub calibration_interference_nt: f64,
     /// One sigma of each compensated value relative to the channel's
     /// level over the calibration windows, nT (the `mag_<n>_c_sigma`
     /// column): $\sqrt{\sigma_\beta(i)^2 + \sigma_n^2}$, with
@@ -234,9 +238,15 @@ fn level_compensated(
     interference: Vec<f64>,
     level: LevelConvention,
 ) -> CompensatedChannel {
+    // A model applied to another flight keeps the level of its own
+    // calibration, which this flight's rows cannot give.
+    let calibration_interference_nt = match &model.calibration_level {
+        Some(saved) => saved.interference_nt,
+        None => calibration_mean(log, model, &interference),
+    };
     let level_offset_nt = match level {
         LevelConvention::Absolute => 0.0,
-        LevelConvention::CalibrationMean => calibration_mean(log, model, &interference),
+        LevelConvention::CalibrationMean => calibration_interference_nt,
     };
     let values = scalar
         .iter()
@@ -248,6 +258,7 @@ fn level_compensated(
         values,
         interference_nt: interference,
         level_offset_nt,
+        calibration_interference_nt,
         sigma_nt: None,
     }
 }
@@ -363,6 +374,7 @@ mod rounding_tests {
                 values: vec![53_000.123_45, -0.0004, f64::NAN],
                 interference_nt: vec![0.0; 3],
                 level_offset_nt: 0.0,
+                calibration_interference_nt: 0.0,
                 sigma_nt: Some(vec![0.0004, 0.0021, 2.007]),
             }],
             flags: Vec::new(),

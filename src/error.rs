@@ -249,6 +249,19 @@ pub enum Error {
         difference: String,
     },
 
+    /// A saved model (`--apply`) cannot compensate the flight it is given.
+    #[error("{model}: cannot be applied to {flight}: {problem}. {hint}")]
+    ModelMismatch {
+        /// The model file (MODEL.json).
+        model: PathBuf,
+        /// The flight it was to compensate.
+        flight: PathBuf,
+        /// What differs.
+        problem: String,
+        /// What to do.
+        hint: String,
+    },
+
     /// The format of an input file is not supported.
     #[error("{path}: {message}")]
     UnsupportedFormat {

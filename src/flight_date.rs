@@ -11,7 +11,7 @@
 use std::fmt;
 
 /// A calendar day, UTC.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, serde::Serialize, serde::Deserialize)]
 pub struct FlightDate {
     /// Year, e.g. 2020.
     pub year: i32,

@@ -74,6 +74,7 @@
 #![deny(missing_docs)]
 
 pub mod against_plan;
+pub mod apply;
 pub mod campaign;
 pub mod compensate;
 pub mod config;

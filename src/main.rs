@@ -181,9 +181,20 @@ struct CompensateArgs {
     /// Quality JSON to write.
     #[arg(long)]
     report: Option<PathBuf>,
-    /// Model JSON to write.
+    /// Model JSON to write: the fitted models with what applying them to
+    /// another flight (--apply) needs.
     #[arg(long)]
     model: Option<PathBuf>,
+    /// Compensate with a model saved from another flight (--model), e.g.
+    /// the calibration flight of the same aircraft: nothing is refitted.
+    /// Windows or --lines, when given, hold the model out on this flight's
+    /// own manoeuvres.
+    #[arg(long, value_name = "MODEL.json", conflicts_with_all = ["model", "diagnosis", "augment", "plain", "lambda", "plan"])]
+    apply: Option<PathBuf>,
+    /// The airframe (e.g. its registration): saved in the model JSON, and
+    /// checked against the model's with --apply.
+    #[arg(long)]
+    aircraft: Option<String>,
     /// HTML quality report to write (default: OUT's name with _report.html).
     #[arg(long)]
     html: Option<PathBuf>,
@@ -534,6 +545,8 @@ fn compensate(args: CompensateArgs, verbose: bool) -> anyhow::Result<()> {
             .transpose()?
             .unwrap_or_default(),
         windows_detected_on,
+        model: args.apply.clone(),
+        aircraft: args.aircraft.clone(),
         ..FlightJob::new(args.flight.clone())
     };
     let beside_out = |suffix: &str| beside(&args.out, suffix);
@@ -544,7 +557,7 @@ fn compensate(args: CompensateArgs, verbose: bool) -> anyhow::Result<()> {
         quality_json: args.report,
         report_html: Some(args.html.clone().unwrap_or_else(|| beside_out("_report.html"))),
     };
-    let other_inputs: Vec<&Path> = [&args.windows_file, &args.config]
+    let other_inputs: Vec<&Path> = [&args.windows_file, &args.config, &args.apply]
         .into_iter()
         .flatten()
         .map(PathBuf::as_path)

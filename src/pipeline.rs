@@ -71,6 +71,13 @@ pub struct FlightResult {
     /// The flight against the plan it was flown to (`--plan`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub plan: Option<crate::against_plan::PlanComparison>,
+    /// The saved model the flight was compensated with (`--apply`),
+    /// nothing refitted; `None` when it was fitted on its own calibration.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub model: Option<crate::apply::AppliedModel>,
+    /// The airframe, when the flight names it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub aircraft: Option<String>,
 }
 
 /// The flight's channels and manoeuvres set against `planned`: the FOM,
@@ -374,14 +381,14 @@ fn estimator_table_gap(model: &FittedModel) -> Option<String> {
 }
 
 /// A diagnosed effect the fit of a channel applied.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
 pub struct AppliedFinding {
     /// Scalar channel.
     pub channel: String,
     /// The effect (written by its CONTRACT §3 name).
     pub effect: EffectKind,
     /// The column that drives it, when one does.
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(skip_serializing_if = "Option::is_none", default)]
     pub source: Option<String>,
     /// Held-out in-band RMS before the effect was modelled, nT.
     pub heldout_rms_before_nt: f64,
@@ -473,6 +480,9 @@ impl FlightRun {
 /// `compensated` is where the compensated flight will go: its format
 /// names the columns magcomp adds.
 pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<FlightRun> {
+    if let Some(model) = &job.model {
+        return crate::apply::run(job, options, compensated, model);
+    }
     let ingest = crate::formats::IngestOptions {
         date: job.date.or(options.ingest.date),
         ..options.ingest.clone()
@@ -574,12 +584,14 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
         None => window_hulls(&windows),
     };
     let transfer_notes = std::sync::Mutex::new(Vec::new());
-    let quality: Vec<ChannelQuality> = models
+    let assessed: Vec<(ChannelQuality, Vec<f64>)> = models
         .par_iter()
         .zip(compensation.channels.par_iter_mut())
         .map(|(model, channel)| {
             let mut quality = assess_quality(log, model, channel);
+            let mut jackknife_levels = Vec::new();
             if let Some(prediction) = model.prediction_sigma_with(log, &shared)? {
+                jackknife_levels = prediction.levels_nt.clone();
                 quality.uncertainty = crate::quality::uncertainty_of(log, model, &prediction);
                 let noise = quality.white_noise_nt();
                 // Without a noise figure there is no sigma column; the
@@ -602,10 +614,20 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
             if let Ok(mut all) = transfer_notes.lock() {
                 all.extend(notes);
             }
-            Ok(quality)
+            Ok((quality, jackknife_levels))
         })
         .collect::<Result<_>>()?;
     drop(shared);
+    // Each model keeps its level over this calibration, for the flights
+    // it is applied to (the model JSON).
+    let (quality, jackknife_levels): (Vec<ChannelQuality>, Vec<Vec<f64>>) = assessed.into_iter().unzip();
+    let mut models = models;
+    for ((model, jackknife_nt), channel) in models.iter_mut().zip(jackknife_levels).zip(&compensation.channels) {
+        model.calibration_level = Some(crate::model::CalibrationLevel {
+            interference_nt: channel.calibration_interference_nt,
+            jackknife_nt,
+        });
+    }
     // The vector and the gradients read the compensated channels and not
     // each other: they run side by side.
     let (vector, gradients) = rayon::join(
@@ -742,6 +764,8 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
         gradients: gradients.results,
         gradient_models: gradients.models,
         plan,
+        model: None,
+        aircraft: job.aircraft.clone(),
     };
     // The figures above are of the full values; the outputs are written
     // at the stated resolution.
@@ -1076,7 +1100,7 @@ pub fn detection_notes(detection: &Detection) -> Vec<String> {
     notes
 }
 
-fn renaming_notes(channels: &[String], added: &[String]) -> Vec<String> {
+pub(crate) fn renaming_notes(channels: &[String], added: &[String]) -> Vec<String> {
     channels
         .iter()
         .zip(added)
@@ -1092,7 +1116,7 @@ fn renaming_notes(channels: &[String], added: &[String]) -> Vec<String> {
 /// an axis of `sensor` or of a scalar channel to compensate (`wanted`, or
 /// every scalar channel): a dead axis or a stuck sensor is named as such,
 /// not as an empty column or a calibration window without samples.
-fn refuse_dead_columns(
+pub(crate) fn refuse_dead_columns(
     log: &FlightLog,
     screening: &crate::screen::Screening,
     sensor: &VectorSensor,
@@ -1175,12 +1199,64 @@ pub fn choose_channels(log: &FlightLog, wanted: Option<&[String]>) -> Result<Vec
     Ok(channels)
 }
 
+/// The lines of [`summary`] for a flight compensated with a saved model:
+/// the model, then per channel its calibration figures and this flight's.
+fn applied_summary(result: &FlightResult, applied: &crate::apply::AppliedModel) -> String {
+    let mut text = format!(
+        "  compensated with the saved model {} (fitted on {}{}{}{}); nothing refitted\n",
+        applied.file.display(),
+        applied.fitted_on.display(),
+        applied.date.map(|d| format!(", {d}")).unwrap_or_default(),
+        applied
+            .aircraft
+            .as_ref()
+            .map(|a| format!(", aircraft {a}"))
+            .unwrap_or_default(),
+        applied
+            .age_days
+            .map(|d| format!(", {d} days before this flight"))
+            .unwrap_or_default(),
+    );
+    for (quality, model) in result.channels.iter().zip(&result.models) {
+        let calibration = (applied.calibration.iter())
+            .find(|c| c.channel == quality.channel)
+            .map_or("no calibration figures saved".into(), |c| c.describe());
+        text += &format!(
+            "  {} vs {}: on its calibration {calibration}; here 4th-difference noise {:.4} → {:.4} nT",
+            quality.channel,
+            model.vector_sensor,
+            quality.noise_4th_difference_before_nt,
+            quality.noise_4th_difference_after_nt
+        );
+        if let (Some(before), Some(after)) = (quality.fom_before_nt, quality.fom_after_nt) {
+            text += &format!(
+                "; held out on this flight's manoeuvres: FOM {before:.2} → {after:.2} nT ({} of 12), IR {:.2}",
+                quality.fom_manoeuvres, quality.improvement_ratio
+            );
+        }
+        text += "\n";
+        if let Some(error) = &quality.heading_error {
+            text += &format!(
+                "    heading error ({} matched samples on reciprocal lines): {:.3} → {:.3} nT\n",
+                error.pairs, error.before_nt, error.after_nt
+            );
+        }
+    }
+    text
+}
+
 /// A few lines per channel for the terminal, and the warnings; the notes
 /// with `verbose`, else their count (the quality JSON and the report hold
 /// them all).
 pub fn summary(result: &FlightResult, verbose: bool) -> String {
     let mut text = format!("{}: {} rows\n", result.flight.display(), result.rows);
+    if let Some(applied) = &result.model {
+        text += &applied_summary(result, applied);
+    }
     for (quality, model) in result.channels.iter().zip(&result.models) {
+        if result.model.is_some() {
+            break;
+        }
         let solution = &model.solution;
         let regulariser = match (
             model.solver.as_ref().and_then(|s| s.estimator),
@@ -1234,6 +1310,10 @@ pub fn summary(result: &FlightResult, verbose: bool) -> String {
         }
     }
     text += &match (result.diagnosis_mode, result.applied_findings.is_empty()) {
+        _ if result.model.is_some() => match result.applied_findings.is_empty() {
+            true => String::new(),
+            false => "  the model's findings (from its calibration flight):\n".to_string(),
+        },
         (crate::diagnose::ApplyDiagnosis::Never, _) => "  diagnosis: not applied (plain Tolles-Lawson)\n".to_string(),
         (_, true) if result.diagnosis.is_some() => {
             "  diagnosis: no finding changes the model; plain Tolles-Lawson\n".to_string()

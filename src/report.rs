@@ -559,6 +559,71 @@ fn verdict(quality: &ChannelQuality, limit_nt: f64) -> String {
     lines.iter().map(|l| format!("<p>{l}</p>")).collect()
 }
 
+/// The verdict of a channel compensated with a saved model: the model's
+/// figures on its calibration flight against the FOM limit, then this
+/// flight's: held out on its own manoeuvres when it names them, and its
+/// noise and heading error.
+fn applied_verdict(quality: &ChannelQuality, applied: &crate::apply::AppliedModel, limit_nt: f64) -> String {
+    let mut lines = Vec::new();
+    let saved = applied.calibration.iter().find(|c| c.channel == quality.channel);
+    let (class, word) = match saved.and_then(|c| c.fom_after_nt) {
+        Some(fom) if fom <= limit_nt => ("pass", "PASS"),
+        Some(_) => ("fail", "FAIL"),
+        None => ("fail", "NO FOM"),
+    };
+    lines.push(format!(
+        "<span class=\"{class}\">{word}</span> on its calibration flight ({}): {} (limit {limit_nt} nT)",
+        escape(&applied.fitted_on.display().to_string()),
+        saved.map_or("no calibration figures saved".into(), |c| c.describe())
+    ));
+    if let (Some(before), Some(after)) = (quality.fom_before_nt, quality.fom_after_nt) {
+        let class = if after <= limit_nt { "pass" } else { "fail" };
+        lines.push(format!(
+            "<span class=\"{class}\">held out on this flight's manoeuvres: FOM {before:.2} → {after:.2} nT</span> over {} of 12 (limit {limit_nt} nT), IR {:.1}",
+            quality.fom_manoeuvres, quality.improvement_ratio
+        ));
+    }
+    lines.push(format!(
+        "4th-difference noise {:.4} → {:.4} nT",
+        quality.noise_4th_difference_before_nt, quality.noise_4th_difference_after_nt
+    ));
+    if let Some(error) = &quality.heading_error {
+        lines.push(format!(
+            "heading error {:.3} → {:.3} nT over {} matched samples of reciprocal lines",
+            error.before_nt, error.after_nt, error.pairs
+        ));
+    }
+    lines.iter().map(|l| format!("<p>{l}</p>")).collect()
+}
+
+/// The saved model a flight was compensated with: where it comes from.
+fn applied_model_section(applied: &crate::apply::AppliedModel) -> String {
+    let mut rows = vec![
+        ("model file", applied.file.display().to_string()),
+        ("fitted on", applied.fitted_on.display().to_string()),
+        ("written by", applied.written_by.clone()),
+    ];
+    if let Some(flight) = &applied.flight {
+        rows.push(("calibration flight", flight.describe()));
+    }
+    if let Some(date) = applied.date {
+        rows.push(("calibration day", date.to_string()));
+    }
+    if let Some(age) = applied.age_days {
+        rows.push(("days from calibration to this flight", age.to_string()));
+    }
+    if let Some(aircraft) = &applied.aircraft {
+        rows.push(("aircraft", aircraft.clone()));
+    }
+    let mut html =
+        String::from("<section id=\"model\"><h2>Saved model applied (nothing refitted)</h2><table class=\"model\">");
+    for (name, value) in rows {
+        let _ = write!(html, "<tr><th>{name}</th><td>{}</td></tr>", escape(&value));
+    }
+    html += "</table></section>";
+    html
+}
+
 /// Every estimator's held-out RMS on the model's windows, best first
 /// marked, so a user sees which the data favour.
 fn estimator_table(model: &FittedModel) -> String {
@@ -919,6 +984,9 @@ pub fn stage_report(path: &Path, flight: &FlightRun, fom_limit_nt: f64) -> Resul
     for warning in &result.warnings {
         let _ = write!(html, "<p class=\"warning\">Warning: {}</p>", escape(warning));
     }
+    if let Some(applied) = &result.model {
+        html += &applied_model_section(applied);
+    }
     html += &applied_findings_section(result);
     if let Some(plan) = &result.plan {
         html += &plan_section(plan);
@@ -939,25 +1007,39 @@ pub fn stage_report(path: &Path, flight: &FlightRun, fom_limit_nt: f64) -> Resul
             "<section class=\"channel\" id=\"{0}\"><h2>{0}</h2>",
             escape(&model.channel)
         );
-        html += &verdict(quality, fom_limit_nt);
-        html += "<h3>FOM table (band-passed peak-to-peak, nT)</h3>";
-        html += &fom_section(quality, fom_limit_nt);
-        html += "<h3>Manoeuvres: before (grey) and after (blue), band-passed</h3><div class=\"grid\">";
-        for index in 0..model.windows.len() {
+        if let Some(applied) = &result.model {
+            html += &applied_verdict(quality, applied, fom_limit_nt);
+        }
+        if result.model.is_none() || !model.windows.is_empty() {
+            if result.model.is_none() {
+                html += &verdict(quality, fom_limit_nt);
+            }
+            html += "<h3>FOM table (band-passed peak-to-peak, nT)</h3>";
+            html += &fom_section(quality, fom_limit_nt);
+            html += "<h3>Manoeuvres: before (grey) and after (blue), band-passed</h3><div class=\"grid\">";
+            for index in 0..model.windows.len() {
+                let _ = write!(
+                    html,
+                    "<figure class=\"manoeuvre\">{}</figure>",
+                    manoeuvre_plot(model, index)?
+                );
+            }
+            html += "</div>";
+        }
+        html += "<h3>Regularisation</h3>";
+        let _ = write!(html, "<p>{}</p>", escape(&model.solution.reason));
+        if result.model.is_none() {
             let _ = write!(
                 html,
-                "<figure class=\"manoeuvre\">{}</figure>",
-                manoeuvre_plot(model, index)?
+                "<div class=\"grid\"><figure class=\"press\">{}</figure>",
+                press_plot(model)?
+            );
+            let _ = write!(
+                html,
+                "<figure class=\"singular\">{}</figure></div>",
+                singular_value_plot(model)?
             );
         }
-        html += "</div><h3>Regularisation</h3>";
-        let _ = write!(html, "<p>{}</p><div class=\"grid\">", escape(&model.solution.reason));
-        let _ = write!(html, "<figure class=\"press\">{}</figure>", press_plot(model)?);
-        let _ = write!(
-            html,
-            "<figure class=\"singular\">{}</figure></div>",
-            singular_value_plot(model)?
-        );
         html += "<h3>Coefficients</h3>";
         html += &coefficient_table(model);
         html += &estimator_table(model);

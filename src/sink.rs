@@ -110,6 +110,7 @@ pub fn process_flight_listing(
     let inputs: Vec<&Path> = std::iter::once(job.input.as_path())
         .chain(job.diagnosis.as_deref())
         .chain(job.plan.as_deref())
+        .chain(job.model.as_deref())
         .collect();
     // Folders created here are not noted in the outputs: a caller that
     // tells its user calls `prepare` first.
@@ -127,11 +128,17 @@ pub fn write(flight: &FlightRun, options: &Settings, outputs: &FlightOutputs) ->
     if let (Some(diagnosis), Some(path)) = (&result.diagnosis, &outputs.diagnosis_json) {
         written.add(crate::formats::stage_json(path, "the diagnosis", diagnosis)?);
     }
-    let model_text = to_json(
-        outputs.model_json.as_deref(),
-        "the fitted models",
-        &ModelFile::new(result),
-    )?;
+    // A flight compensated with a saved model fitted nothing: the model
+    // is the file it was given, and its MCAP holds that model's name.
+    let model_json = outputs.model_json.as_ref().filter(|_| result.model.is_none());
+    let model_text = match &result.model {
+        Some(applied) => to_json(None, "the applied model", applied)?,
+        None => to_json(
+            model_json.map(PathBuf::as_path),
+            "the fitted models",
+            &ModelFile::new(flight)?,
+        )?,
+    };
     let quality_text = to_json(outputs.quality_json.as_deref(), "the quality figures", result)?;
     let extras = McapExtras {
         documents: vec![
@@ -147,7 +154,10 @@ pub fn write(flight: &FlightRun, options: &Settings, outputs: &FlightOutputs) ->
         &result.added_columns,
         &extras,
     )?);
-    for (path, text) in [(&outputs.model_json, model_text), (&outputs.quality_json, quality_text)] {
+    for (path, text) in [
+        (&model_json.cloned(), model_text),
+        (&outputs.quality_json, quality_text),
+    ] {
         if let Some(path) = path {
             written.add(stage(path, |w| std::io::Write::write_all(w, text.as_bytes()))?);
         }
@@ -169,10 +179,23 @@ fn to_json<T: Serialize>(path: Option<&Path>, what: &'static str, value: &T) -> 
     })
 }
 
-/// The model JSON: the flight and its fitted models.
+/// The model JSON: the flight and its fitted models, with what applying
+/// them to another flight needs ([`crate::apply`]): the calibration
+/// flight's identity, day and aircraft, each channel's figures on it, and
+/// the findings its models carry.
 #[derive(Serialize)]
 struct ModelFile<'a> {
+    /// "magcomp 1.2.3".
+    written_by: String,
     flight: &'a Path,
+    flight_identity: crate::flight_identity::FlightIdentity,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    date: Option<crate::flight_date::FlightDate>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    aircraft: Option<&'a str>,
+    calibration: Vec<crate::apply::CalibrationFigures>,
+    #[serde(skip_serializing_if = "<[_]>::is_empty")]
+    applied_findings: &'a [crate::pipeline::AppliedFinding],
     #[serde(skip_serializing_if = "Option::is_none")]
     vector_calibration: Option<&'a crate::vector_calibration::VectorCalibration>,
     models: &'a [FittedModel],
@@ -182,12 +205,23 @@ struct ModelFile<'a> {
 }
 
 impl<'a> ModelFile<'a> {
-    fn new(result: &'a FlightResult) -> Self {
-        ModelFile {
+    fn new(flight: &'a FlightRun) -> Result<Self> {
+        let result = &flight.result;
+        Ok(ModelFile {
+            written_by: format!("magcomp {}", env!("CARGO_PKG_VERSION")),
             flight: &result.flight,
+            flight_identity: crate::flight_identity::FlightIdentity::of(&flight.recorded)?,
+            date: flight.recorded.date(),
+            aircraft: result.aircraft.as_deref(),
+            calibration: result
+                .channels
+                .iter()
+                .map(crate::apply::CalibrationFigures::of)
+                .collect(),
+            applied_findings: &result.applied_findings,
             vector_calibration: result.vector_calibration.as_ref(),
             models: &result.models,
             gradient_models: &result.gradient_models,
-        }
+        })
     }
 }

@@ -10,9 +10,11 @@
 //! A manifest is CSV (a header row naming its columns) or JSON lines (one
 //! object a line). Its fields are those of a `[[flight]]`: `input` (the
 //! only one required), `windows`, `diagnosis`, `plan` (the PLAN_REPORT.json
-//! of the plan the flight was flown to), `vector`, `channels`, `date`, and
-//! `aircraft`, the airframe a calibration belongs to (the campaign summary
-//! follows each aircraft's coefficients over time). In CSV,
+//! of the plan the flight was flown to), `model` (a MODEL.json saved from a
+//! calibration flight, applied to this one: [`crate::apply`]), `lines`,
+//! `vector`, `channels`, `date`, and `aircraft`, the airframe a
+//! calibration belongs to (the campaign summary follows each aircraft's
+//! coefficients over time). In CSV,
 //! `windows` is a DETECT.json path or `T0:T1` windows separated by spaces
 //! or `;`, and `channels` are names separated by spaces or `;`. In JSON
 //! lines, `windows` is a DETECT.json path or a list of `"T0:T1"` strings or
@@ -99,6 +101,8 @@ struct ManifestRow {
     #[serde(default)]
     plan: Option<PathBuf>,
     #[serde(default)]
+    model: Option<PathBuf>,
+    #[serde(default)]
     vector: Option<String>,
     #[serde(default)]
     channels: Option<ManifestChannels>,
@@ -125,11 +129,12 @@ enum ManifestLines {
 }
 
 /// The columns a CSV manifest may have.
-const MANIFEST_COLUMNS: [&str; 9] = [
+const MANIFEST_COLUMNS: [&str; 10] = [
     "input",
     "windows",
     "diagnosis",
     "plan",
+    "model",
     "vector",
     "channels",
     "date",
@@ -252,6 +257,7 @@ fn raw_flight(input: PathBuf) -> RawFlight {
         lines: Vec::new(),
         diagnosis: None,
         plan: None,
+        model: None,
         date: None,
         aircraft: None,
     }
@@ -358,6 +364,7 @@ fn read_manifest_csv(path: &Path, text: &str) -> Result<Vec<RawFlight>> {
             windows: cell("windows").map(csv_windows),
             diagnosis: cell("diagnosis").map(PathBuf::from),
             plan: cell("plan").map(PathBuf::from),
+            model: cell("model").map(PathBuf::from),
             vector: cell("vector"),
             channels: cell("channels").map(ManifestChannels::Text),
             date: cell("date"),
@@ -411,6 +418,7 @@ fn from_row(row: ManifestRow) -> std::result::Result<RawFlight, String> {
     };
     flight.diagnosis = row.diagnosis;
     flight.plan = row.plan;
+    flight.model = row.model;
     flight.vector = row.vector;
     flight.channels = row.channels.map(|channels| match channels {
         ManifestChannels::List(list) => list,

@@ -23,6 +23,7 @@ pub fn accepted_keys() -> Vec<(&'static str, &'static [&'static str])> {
         ("filter", field_names::<RawFilter>()),
         ("fit", field_names::<RawFit>()),
         ("output", field_names::<RawOutput>()),
+        ("model", field_names::<super::RawModel>()),
         ("detect", field_names::<RawDetect>()),
         ("quality", field_names::<RawQuality>()),
         ("quality.transfer", field_names::<RawTransfer>()),

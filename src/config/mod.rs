@@ -215,6 +215,24 @@ impl Default for RawOutput {
     }
 }
 
+/// `[model]` as written: how a saved model is applied (`--apply`,
+/// `[[flight]] model`).
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub(crate) struct RawModel {
+    /// A model calibrated more than this many days from the flight it is
+    /// applied to is a warning.
+    pub max_age_days: u32,
+}
+
+impl Default for RawModel {
+    fn default() -> Self {
+        RawModel {
+            max_age_days: crate::apply::DEFAULT_MAX_AGE_DAYS,
+        }
+    }
+}
+
 /// One `[[flight]]` as written.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -243,6 +261,10 @@ pub(crate) struct RawFlight {
     /// The PLAN_REPORT.json of the plan the flight was flown to.
     #[serde(default)]
     pub plan: Option<PathBuf>,
+    /// A MODEL.json saved from a calibration flight of this aircraft: the
+    /// flight is compensated with it, nothing refitted.
+    #[serde(default)]
+    pub model: Option<PathBuf>,
     /// The day the flight was flown, `YYYY-MM-DD` (UTC), over what the file
     /// says (MCAP output's log times count from its midnight).
     #[serde(default)]
@@ -289,6 +311,8 @@ pub(crate) struct RawPipeline {
     pub fit: RawFit,
     /// Output settings.
     pub output: RawOutput,
+    /// Applying saved models.
+    pub model: RawModel,
     /// Manoeuvre detection thresholds.
     pub detect: RawDetect,
     /// Quality checks.
@@ -339,6 +363,9 @@ pub struct FlightJob {
     /// compensation is set against its prediction
     /// ([`crate::against_plan`]).
     pub plan: Option<PathBuf>,
+    /// A MODEL.json saved from another flight to compensate this one with,
+    /// nothing refitted ([`crate::apply`]).
+    pub model: Option<PathBuf>,
     /// The day the flight was flown, over what the file says.
     pub date: Option<crate::flight_date::FlightDate>,
     /// The airframe, when the campaign names it.
@@ -364,6 +391,7 @@ impl FlightJob {
             diagnosis: None,
             force_diagnosis: false,
             plan: None,
+            model: None,
             date: None,
             aircraft: None,
         }
@@ -475,6 +503,9 @@ pub struct Settings {
     pub gradients: Vec<GradientPair>,
     /// Decimal places of the added nT columns (`[output] decimals`).
     pub output_decimals: u32,
+    /// Days after which an applied model is a warning (`[model]
+    /// max_age_days`).
+    pub model_max_age_days: u32,
 }
 
 impl Default for Settings {
@@ -586,6 +617,7 @@ impl Pipeline {
                 ..VectorOptions::from(raw.vector)
             },
             gradients: gradient_pairs(&raw.gradients, &raw.sensor_positions).map_err(bad)?,
+            model_max_age_days: raw.model.max_age_days,
         };
         let mut windows_files = Vec::new();
         let mut flights = Vec::with_capacity(raw.flights.len());
@@ -729,6 +761,24 @@ fn flight_job(raw: RawFlight, base: &Path, source_name: &str) -> Result<FlightJo
             ),
         });
     }
+    if raw.model.is_some() && raw.diagnosis.is_some() {
+        return Err(Error::Config {
+            source_name: source_name.into(),
+            message: format!(
+                "[[flight]] input = {:?}: both model and diagnosis are given; a saved model carries its own findings: give the model alone, or the diagnosis alone to fit on this flight's calibration",
+                raw.input
+            ),
+        });
+    }
+    if raw.model.is_some() && raw.plan.is_some() {
+        return Err(Error::Config {
+            source_name: source_name.into(),
+            message: format!(
+                "[[flight]] input = {:?}: both model and plan are given; a plan is set against the calibration box the flight fits on, and a flight given a model fits nothing: set the plan against the model's calibration flight",
+                raw.input
+            ),
+        });
+    }
     if !raw.lines.is_empty() && (!windows.is_empty() || raw.windows_file.is_some()) {
         return Err(Error::Config {
             source_name: source_name.into(),
@@ -746,6 +796,7 @@ fn flight_job(raw: RawFlight, base: &Path, source_name: &str) -> Result<FlightJo
         lines: raw.lines,
         diagnosis: raw.diagnosis.map(|d| base.join(d)),
         plan: raw.plan.map(|p| base.join(p)),
+        model: raw.model.map(|m| base.join(m)),
         date,
         aircraft: raw.aircraft,
         ..FlightJob::new(input)

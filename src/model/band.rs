@@ -21,7 +21,7 @@ use crate::tolles_lawson::TermSet;
 use crate::windows::CalibrationWindow;
 
 /// Settings of the band-pass applied before fitting.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, serde::Deserialize)]
 pub struct FilterSettings {
     /// Pass band.
     pub band: FilterBand,

@@ -35,7 +35,7 @@ mod prepared;
 use std::borrow::Cow;
 use std::collections::BTreeMap;
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 use crate::flight_log::{FlightLog, VectorSensor};
@@ -55,12 +55,12 @@ pub(crate) use prepared::{ExtraColumn, Prepared};
 
 /// What is fitted for one scalar channel: the Tolles-Lawson terms and the
 /// physics added to them.
-#[derive(Debug, Clone, PartialEq, Default, Serialize)]
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 pub struct ModelSpec {
     /// Tolles-Lawson terms (`[fit] terms`).
     pub terms: TermSet,
     /// Physics added to the terms (a diagnosis); default: none.
-    #[serde(skip_serializing_if = "Extensions::is_plain")]
+    #[serde(skip_serializing_if = "Extensions::is_plain", default)]
     pub extensions: Extensions,
 }
 
@@ -125,6 +125,26 @@ pub struct PredictionSigma {
     pub relative_nt: Vec<f64>,
     /// One sigma of the prediction's mean over the calibration windows, nT.
     pub level_nt: f64,
+    /// Each jackknife deviation's prediction, mean over the calibration
+    /// windows' rows, nT ([`CalibrationLevel::jackknife_nt`]).
+    pub levels_nt: Vec<f64>,
+}
+
+/// A model's level over the calibration it was fitted on, kept with it so
+/// that a flight without that calibration (a survey flight given the
+/// model with `--apply`) is compensated to the same level, with the same
+/// sigma column, as the calibration flight itself.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CalibrationLevel {
+    /// Mean of the predicted interference $A\beta$ over the calibration
+    /// windows' rows, nT: the level offset δ of
+    /// [`crate::compensate::LevelConvention::CalibrationMean`].
+    pub interference_nt: f64,
+    /// Each jackknife deviation's prediction $a_i \cdot d_f$, mean over
+    /// the rows the fit used, nT: the level the sigma column's spread is
+    /// measured from ([`FittedModel::prediction_sigma`]); empty without a
+    /// jackknife.
+    pub jackknife_nt: Vec<f64>,
 }
 
 /// A fitted model of one scalar channel; it predicts the interference.
@@ -168,6 +188,12 @@ pub struct FittedModel {
     /// ridge; `None` with ridge (the solution says which λ or rank).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub solver: Option<SolverUse>,
+    /// The model's level over its calibration; set by the pipeline once
+    /// the flight is compensated, and read from the model JSON with the
+    /// model (`--apply`), when the calibration windows are another
+    /// flight's. `None`: measured on [`Self::windows`] of the flight given.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub calibration_level: Option<CalibrationLevel>,
 }
 
 /// How a model fitted with a `[fit] solver` other than ridge was solved.
@@ -334,19 +360,35 @@ impl FittedModel {
             .filter_map(|(k, c)| Some((k, c.as_deref()?)))
             .collect();
         let predict = |row: usize, d: &[f64]| aircraft.iter().map(|(k, c)| c[row] * d[*k]).sum::<f64>();
-        let calibration: Vec<usize> = (self.windows.iter())
-            .flat_map(|w| w.flight_rows.iter().cloned().flatten())
-            .collect();
-        let levels: Vec<f64> = deviations
-            .iter()
-            .map(|d| {
-                let (sum, n) = (calibration.iter())
-                    .map(|&row| predict(row, d))
-                    .filter(|v| v.is_finite())
-                    .fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
-                sum / n.max(1) as f64
-            })
-            .collect();
+        let levels: Vec<f64> = match &self.calibration_level {
+            Some(saved) => saved.jackknife_nt.clone(),
+            None => {
+                let calibration: Vec<usize> = (self.windows.iter())
+                    .flat_map(|w| w.flight_rows.iter().cloned().flatten())
+                    .collect();
+                (deviations.iter())
+                    .map(|d| {
+                        let (sum, n) = (calibration.iter())
+                            .map(|&row| predict(row, d))
+                            .filter(|v| v.is_finite())
+                            .fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
+                        sum / n.max(1) as f64
+                    })
+                    .collect()
+            }
+        };
+        if levels.len() != deviations.len() {
+            return Err(Error::ModelMismatch {
+                model: format!("the model of '{}'", self.channel).into(),
+                flight: log.source().to_path_buf(),
+                problem: format!(
+                    "it holds {} jackknife deviations and {} calibration levels for them",
+                    deviations.len(),
+                    levels.len()
+                ),
+                hint: "Save the model again from its calibration flight (--model)".into(),
+            });
+        }
         // Row blocks, a column at a time: the columns are read in order,
         // not across 18 arrays a row.
         let mut relative_nt = Vec::with_capacity(log.len());
@@ -374,6 +416,7 @@ impl FittedModel {
         Ok(Some(PredictionSigma {
             relative_nt,
             level_nt: levels.iter().map(|l| l * l).sum::<f64>().sqrt(),
+            levels_nt: levels,
         }))
     }
 

@@ -244,6 +244,7 @@ impl<'a> Prepared<'a> {
             windows: fits,
             estimators: None,
             excitation: None,
+            calibration_level: None,
         })
     }
 

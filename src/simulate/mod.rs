@@ -360,6 +360,7 @@ fn record_fluxgate(
             }),
             _ => None,
         })
+        .or(fluxgate.calibration)
         .unwrap_or(residual);
     let errors = calibration.errors();
     let mounting = fluxgate

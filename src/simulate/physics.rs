@@ -208,7 +208,7 @@ impl AircraftField {
 }
 
 /// The parameters of a fluxgate's calibration errors.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct FluxgateCalibration {
     /// Scale factor per axis (1 = perfect).
     pub scale: Vector,

@@ -472,6 +472,9 @@ pub struct Fluxgate {
     /// The aircraft's field at the fluxgate, instead of one drawn at
     /// these sizes (one airframe flown on several days).
     pub aircraft: Option<AircraftField>,
+    /// The residual calibration errors, instead of ones drawn at these
+    /// sizes (one instrument flown on several days).
+    pub calibration: Option<crate::simulate::physics::FluxgateCalibration>,
     /// The body axis (forward x, right y, down z) each fluxgate axis x, y,
     /// z reads along, with its sign: `["-z", "x", "-y"]` is a fluxgate on
     /// its side (default `["x", "y", "z"]`). Three reversed or an odd
@@ -529,6 +532,7 @@ impl Default for Fluxgate {
             non_orthogonality_deg: 0.03,
             offset_nt: 5.0,
             aircraft: None,
+            calibration: None,
             axes: ["x", "y", "z"].map(String::from),
             turn_deg: [0.0; 3],
         }

@@ -1,0 +1,618 @@
+//! Calibrate once, apply everywhere: a model saved from the flight that
+//! flew the calibration box (`--model MODEL.json`) compensates the survey
+//! flights of the same aircraft, which fly no box (`--apply MODEL.json`,
+//! `[[flight]] model`, a campaign manifest's `model` column).
+//!
+//! Nothing is refitted. Each channel's coefficients, extensions (lag,
+//! eddy τ, sources, fluxgate calibration) and blocked jackknife come from
+//! the file, and so does the model's level over its own calibration
+//! ([`crate::model::CalibrationLevel`]): the survey flight is compensated
+//! to the level the calibration flight would have given it, and its sigma
+//! column spreads from the same level. Applied to the very flight it was
+//! fitted on, a model gives that flight's compensated columns again, bit
+//! for bit.
+//!
+//! A model is refused, with the reason, when the flight lacks one of its
+//! channels, its fluxgate or a source column, when the flight records at
+//! another rate (the eddy-current terms are per sample and the fit's band
+//! was designed at that rate), or when the file is not a magcomp model or
+//! predates the saved calibration level. It is applied with a warning when
+//! it is older than `[model] max_age_days` or belongs to another aircraft.
+//! When the flight names manoeuvres of its own (windows or calibration
+//! lines), the model is held out on them: the FOM and improvement ratio are
+//! then this flight's, of a model that never saw it.
+
+use std::path::{Path, PathBuf};
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::config::{FlightJob, Settings};
+use crate::error::{Error, Result};
+use crate::flight_date::FlightDate;
+use crate::flight_identity::FlightIdentity;
+use crate::flight_log::FlightLog;
+use crate::formats::{added_column_names, read_flight_log};
+use crate::model::{CalibrationLevel, FittedModel, ModelSpec, SharedDesign};
+use crate::numerics::solve::{Decomposition, Method, Solution};
+use crate::pipeline::{AppliedFinding, FlightResult, FlightRun};
+use crate::quality::{assess_quality, ChannelQuality};
+
+/// Days after which a saved model is applied with a warning, by default
+/// (`[model] max_age_days`): an installation drifts (a battery moved, a
+/// repair, a new instrument), and most survey contracts ask for a box at
+/// least monthly.
+pub const DEFAULT_MAX_AGE_DAYS: u32 = 30;
+
+/// The sample rate of the flight may differ from the model's by this
+/// fraction: clocks of one recorder differ by far less, and another rate
+/// is another recorder setting.
+const RATE_TOLERANCE: f64 = 0.01;
+
+/// A channel's figures on the flight its model was fitted on, as the model
+/// JSON keeps them: what the survey flights' quality JSON and report quote.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CalibrationFigures {
+    /// Scalar channel.
+    pub channel: String,
+    /// FOM before compensation over the calibration box, nT.
+    #[serde(default)]
+    pub fom_before_nt: Option<f64>,
+    /// FOM after compensation, nT.
+    #[serde(default)]
+    pub fom_after_nt: Option<f64>,
+    /// Manoeuvres summed in the FOM (12 for a whole box).
+    #[serde(default)]
+    pub fom_manoeuvres: usize,
+    /// Improvement ratio over the calibration windows.
+    #[serde(default)]
+    pub improvement_ratio: Option<f64>,
+    /// The held-out FOM of the transfer check (second box or one heading
+    /// left out), nT.
+    #[serde(default)]
+    pub held_out_fom_nt: Option<f64>,
+    /// The compensation's uncertainty away from the calibration, nT.
+    #[serde(default)]
+    pub outside_calibration_sigma_nt: Option<f64>,
+}
+
+impl CalibrationFigures {
+    /// The figures of one channel of a flight compensated on itself.
+    pub fn of(quality: &ChannelQuality) -> Self {
+        let finite = |v: f64| v.is_finite().then_some(v);
+        CalibrationFigures {
+            channel: quality.channel.clone(),
+            fom_before_nt: quality.fom_before_nt,
+            fom_after_nt: quality.fom_after_nt,
+            fom_manoeuvres: quality.fom_manoeuvres,
+            improvement_ratio: finite(quality.improvement_ratio),
+            held_out_fom_nt: (quality.transfer.as_ref()).map(|t| t.held_out_fom_nt),
+            outside_calibration_sigma_nt: (quality.uncertainty.as_ref()).map(|u| u.outside_calibration_sigma_nt),
+        }
+    }
+
+    /// "FOM 1.62 → 0.45 nT over 12 of 12 manoeuvres, IR 8.1".
+    pub fn describe(&self) -> String {
+        let mut parts = Vec::new();
+        if let (Some(before), Some(after)) = (self.fom_before_nt, self.fom_after_nt) {
+            parts.push(format!(
+                "FOM {before:.2} → {after:.2} nT over {} of 12 manoeuvres",
+                self.fom_manoeuvres
+            ));
+        }
+        if let Some(ir) = self.improvement_ratio {
+            parts.push(format!("IR {ir:.1}"));
+        }
+        if let Some(held_out) = self.held_out_fom_nt {
+            parts.push(format!("held-out FOM {held_out:.2} nT"));
+        }
+        match parts.is_empty() {
+            true => "no calibration figures saved".into(),
+            false => parts.join(", "),
+        }
+    }
+}
+
+/// The saved model a flight was compensated with (the quality JSON's
+/// `model`): its file, the flight it was fitted on and that flight's
+/// figures.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct AppliedModel {
+    /// The model JSON.
+    pub file: PathBuf,
+    /// The calibration flight's input, as the model JSON names it.
+    pub fitted_on: PathBuf,
+    /// Its identity (file name, rows, time span, hash).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub flight: Option<FlightIdentity>,
+    /// The day it was flown.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub date: Option<FlightDate>,
+    /// Days from the calibration flight to this one (negative: the
+    /// calibration was flown later); absent when either day is unknown.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub age_days: Option<i64>,
+    /// The airframe it was flown on.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub aircraft: Option<String>,
+    /// What magcomp wrote the model.
+    pub written_by: String,
+    /// Each channel's figures on the calibration flight.
+    pub calibration: Vec<CalibrationFigures>,
+}
+
+/// A model JSON as read back: what applying it needs.
+#[derive(Debug, Clone, Deserialize)]
+struct SavedFile {
+    #[serde(default)]
+    written_by: Option<String>,
+    flight: PathBuf,
+    #[serde(default)]
+    flight_identity: Option<FlightIdentity>,
+    #[serde(default)]
+    date: Option<FlightDate>,
+    #[serde(default)]
+    aircraft: Option<String>,
+    #[serde(default)]
+    calibration: Vec<CalibrationFigures>,
+    #[serde(default)]
+    applied_findings: Vec<AppliedFinding>,
+    #[serde(default)]
+    vector_calibration: Option<crate::vector_calibration::VectorCalibration>,
+    models: Vec<SavedFit>,
+}
+
+/// One channel's fitted model as the model JSON holds it.
+#[derive(Debug, Clone, Deserialize)]
+struct SavedFit {
+    channel: String,
+    vector_sensor: String,
+    spec: ModelSpec,
+    term_names: Vec<String>,
+    coefficients: Vec<f64>,
+    filter: crate::model::FilterSettings,
+    #[serde(default)]
+    coefficient_uncertainty: Vec<Option<f64>>,
+    sample_rate_hz: f64,
+    solution: SavedSolution,
+    #[serde(default)]
+    calibration_level: Option<CalibrationLevel>,
+}
+
+/// What of the solve a saved model keeps for its use: λ or rank, and the
+/// jackknife the sigma column comes from.
+#[derive(Debug, Clone, Deserialize)]
+struct SavedSolution {
+    #[serde(default)]
+    lambda: Option<f64>,
+    #[serde(default)]
+    rank: Option<usize>,
+    #[serde(default)]
+    samples: usize,
+    #[serde(default)]
+    jackknife: Vec<Vec<f64>>,
+}
+
+/// A saved model, read and checked, ready to apply.
+#[derive(Debug, Clone)]
+pub struct SavedModel {
+    path: PathBuf,
+    file: SavedFile,
+}
+
+impl SavedModel {
+    /// Reads the model JSON at `path`; an error when it is not one, is
+    /// damaged, or predates the saved calibration level.
+    pub fn read(path: &Path) -> Result<Self> {
+        let not_ours = |problem: String| {
+            Error::NotOurFile {
+            path: path.to_path_buf(),
+            expected: "a model JSON written by magcomp (--model, or run's <flight>_model.json)",
+            problem,
+            hint: "Give the model JSON that `magcomp compensate --model` or `magcomp run` wrote for the calibration flight",
+        }
+        };
+        let text = std::fs::read_to_string(path).map_err(|source| Error::Io {
+            path: path.to_path_buf(),
+            action: "reading",
+            source,
+        })?;
+        let file: SavedFile = serde_json::from_str(&text).map_err(|e| not_ours(e.to_string()))?;
+        if file.models.is_empty() {
+            return Err(not_ours("it holds no fitted model".into()));
+        }
+        for fit in &file.models {
+            let channel = &fit.channel;
+            if fit.calibration_level.is_none() {
+                return Err(not_ours(format!(
+                    "the model of '{channel}' has no calibration level (a model JSON written before magcomp kept one): compensate the calibration flight again with --model to save it"
+                )));
+            }
+            if fit.coefficients.len() != fit.term_names.len() {
+                return Err(not_ours(format!(
+                    "the model of '{channel}' has {} coefficients for {} term names",
+                    fit.coefficients.len(),
+                    fit.term_names.len()
+                )));
+            }
+            if let Some(k) = fit.coefficients.iter().position(|c| !c.is_finite()) {
+                return Err(not_ours(format!(
+                    "the model of '{channel}' has no finite value for its coefficient '{}'",
+                    fit.term_names[k]
+                )));
+            }
+            let jackknife = &fit.solution.jackknife;
+            let levels = fit.calibration_level.as_ref().map_or(0, |l| l.jackknife_nt.len());
+            let whole = jackknife.iter().flatten().all(|v| v.is_finite())
+                && jackknife.iter().all(|d| d.len() == fit.coefficients.len());
+            if !whole || levels != jackknife.len() {
+                return Err(not_ours(format!(
+                    "the jackknife of the model of '{channel}' is incomplete ({} deviations, {levels} levels for them)",
+                    jackknife.len()
+                )));
+            }
+            if !(fit.sample_rate_hz.is_finite() && fit.sample_rate_hz > 0.0) {
+                return Err(not_ours(format!("the model of '{channel}' has no sample rate")));
+            }
+        }
+        Ok(SavedModel {
+            path: path.to_path_buf(),
+            file,
+        })
+    }
+
+    /// The channels the model compensates, in its order.
+    pub fn channels(&self) -> Vec<&str> {
+        self.file.models.iter().map(|m| m.channel.as_str()).collect()
+    }
+
+    /// A refusal: the model does not fit `log` because of `problem`.
+    fn mismatch(&self, log: &FlightLog, problem: String, hint: &str) -> Error {
+        Error::ModelMismatch {
+            model: self.path.clone(),
+            flight: log.source().to_path_buf(),
+            problem,
+            hint: hint.into(),
+        }
+    }
+
+    /// The fitted models to compensate `log` with: those of the channels
+    /// `wanted` (every channel of the model when `None`). Refused when the
+    /// flight lacks a channel, the fluxgate or a source column, records at
+    /// another rate, or a wanted channel has no model, or `vector` names
+    /// another fluxgate.
+    pub fn models_for(
+        &self,
+        log: &FlightLog,
+        wanted: Option<&[String]>,
+        vector: Option<&str>,
+    ) -> Result<Vec<FittedModel>> {
+        let chosen: Vec<&SavedFit> = match wanted {
+            None => self.file.models.iter().collect(),
+            Some(wanted) => (wanted.iter())
+                .map(|channel| {
+                    self.file.models.iter().find(|m| &m.channel == channel).ok_or_else(|| {
+                        self.mismatch(
+                            log,
+                            format!(
+                                "channel '{channel}' was asked for, and the model holds {}",
+                                self.channels().join(", ")
+                            ),
+                            "Ask for the model's channels, or calibrate this channel on a flight with a box",
+                        )
+                    })
+                })
+                .collect::<Result<_>>()?,
+        };
+        let missing: Vec<&str> = (chosen.iter())
+            .filter(|m| log.channel(&m.channel).is_none())
+            .map(|m| m.channel.as_str())
+            .collect();
+        if !missing.is_empty() {
+            return Err(self.mismatch(
+                log,
+                format!(
+                    "the flight does not record {} (its scalar channels: {})",
+                    missing.join(", "),
+                    log.scalar_channels().join(", ")
+                ),
+                "Apply a model calibrated with this flight's magnetometers, or choose the channels both hold with --channels",
+            ));
+        }
+        for fit in &chosen {
+            if let Some(wanted) = vector.filter(|v| *v != fit.vector_sensor) {
+                return Err(self.mismatch(
+                    log,
+                    format!(
+                        "the fluxgate '{wanted}' was asked for, and the model of '{}' is built on '{}'",
+                        fit.channel, fit.vector_sensor
+                    ),
+                    "A model's terms are of the fluxgate it was fitted with: leave the fluxgate to the model",
+                ));
+            }
+            if log.vector_sensor(&fit.vector_sensor).is_none() {
+                return Err(self.mismatch(
+                    log,
+                    format!(
+                        "the model of '{}' is built on the fluxgate '{}', which the flight does not record",
+                        fit.channel, fit.vector_sensor
+                    ),
+                    "Apply a model calibrated with this flight's fluxgate, or name its columns in [columns]",
+                ));
+            }
+            let rate = 1.0 / log.median_interval_s();
+            if !((rate / fit.sample_rate_hz - 1.0).abs() <= RATE_TOLERANCE) {
+                return Err(self.mismatch(
+                    log,
+                    format!(
+                        "the model was fitted at {:.3} Hz and the flight is recorded at {rate:.3} Hz",
+                        fit.sample_rate_hz
+                    ),
+                    "Its eddy-current terms are per sample and its band-pass was designed at its rate: record the survey at the calibration's rate, or calibrate at this one",
+                ));
+            }
+            let sources = fit.spec.extensions.sources.iter().map(|s| s.column());
+            if let Some(column) = sources.into_iter().find(|c| log.channel(c).is_none()) {
+                return Err(self.mismatch(
+                    log,
+                    format!(
+                        "the model of '{}' takes the column '{column}' (a finding of its calibration), which the flight does not record",
+                        fit.channel
+                    ),
+                    "Record that column on the survey flights too, or save a plain model from the calibration flight (compensate it with --plain --model)",
+                ));
+            }
+        }
+        Ok(chosen.into_iter().map(|fit| self.fitted(fit)).collect())
+    }
+
+    /// A [`FittedModel`] of a saved fit: the coefficients, the spec, the
+    /// jackknife and the calibration level; no windows (they are the
+    /// calibration flight's) and no curves.
+    fn fitted(&self, fit: &SavedFit) -> FittedModel {
+        let reason = format!(
+            "applied from {} (fitted on {}{}): nothing refitted",
+            self.path.display(),
+            self.file.flight.display(),
+            self.file.date.map(|d| format!(", {d}")).unwrap_or_default()
+        );
+        FittedModel {
+            channel: fit.channel.clone(),
+            vector_sensor: fit.vector_sensor.clone(),
+            spec: fit.spec.clone(),
+            term_names: fit.term_names.clone(),
+            coefficients: fit.coefficients.clone(),
+            filter: fit.filter,
+            sample_rate_hz: fit.sample_rate_hz,
+            solution: Solution {
+                coefficients: fit.coefficients.clone(),
+                method: match fit.solution.rank {
+                    Some(_) => Method::TruncatedSvd,
+                    None => Method::Ridge,
+                },
+                reason,
+                lambda: fit.solution.lambda,
+                rank: fit.solution.rank,
+                effective_dof: f64::NAN,
+                lambda_by_press: f64::NAN,
+                lambda_by_blocked_press: None,
+                singular_values: Vec::new(),
+                condition_number: f64::NAN,
+                decomposition: Decomposition::CholeskyQr2,
+                scaled_condition_number: f64::NAN,
+                ridge_curve: Vec::new(),
+                tsvd_curve: Vec::new(),
+                samples: fit.solution.samples,
+                residual_rms: f64::NAN,
+                standard_errors: Vec::new(),
+                fitted: Vec::new(),
+                jackknife: fit.solution.jackknife.clone(),
+            },
+            coefficient_uncertainty: (fit.coefficient_uncertainty.iter())
+                .map(|u| u.unwrap_or(f64::NAN))
+                .collect(),
+            windows: Vec::new(),
+            estimators: None,
+            excitation: None,
+            solver: None,
+            calibration_level: fit.calibration_level.clone(),
+        }
+    }
+
+    /// What the quality JSON says of the model applied to a flight of
+    /// `date`.
+    fn applied(&self, date: Option<FlightDate>) -> AppliedModel {
+        let file = &self.file;
+        AppliedModel {
+            file: self.path.clone(),
+            fitted_on: file.flight.clone(),
+            flight: file.flight_identity.clone(),
+            date: file.date,
+            age_days: (file.date.zip(date))
+                .map(|(made, used)| used.days_since_unix_epoch() - made.days_since_unix_epoch()),
+            aircraft: file.aircraft.clone(),
+            written_by: file.written_by.clone().unwrap_or_else(|| "an earlier magcomp".into()),
+            calibration: file.calibration.clone(),
+        }
+    }
+
+    /// Warnings and notes for applying the model to a flight of `date`
+    /// flown by `aircraft`: age and airframe.
+    fn age_and_aircraft(
+        &self,
+        applied: &AppliedModel,
+        aircraft: Option<&str>,
+        max_age_days: u32,
+    ) -> (Vec<String>, Vec<String>) {
+        let (mut warnings, mut notes) = (Vec::new(), Vec::new());
+        let model = self.path.display();
+        match applied.age_days {
+            Some(age) if age.unsigned_abs() > u64::from(max_age_days) => warnings.push(format!(
+                "the model {model} was calibrated {} days {} this flight, more than [model] max_age_days = {max_age_days}: an installation changes (equipment moved, repairs, a new instrument); fly a new calibration box, or check this flight's heading error and noise against the calibration flight's",
+                age.unsigned_abs(),
+                if age >= 0 { "before" } else { "after" }
+            )),
+            Some(_) => {}
+            None => notes.push(format!(
+                "the model's age is not known: {} has no date (give [[flight]] date, or record year and doy columns)",
+                match applied.date {
+                    None => "the calibration flight",
+                    Some(_) => "this flight",
+                }
+            )),
+        }
+        match (applied.aircraft.as_deref(), aircraft) {
+            (Some(made), Some(used)) if made != used => warnings.push(format!(
+                "the model {model} was calibrated on the aircraft '{made}' and this flight is '{used}': another airframe's magnetic signature does not compensate this one; apply a model of '{used}'"
+            )),
+            (Some(_), Some(_)) => {}
+            (made, used) => notes.push(format!(
+                "the aircraft is not named for {}: magcomp cannot check that the model is this airframe's (name it with [[flight]] aircraft)",
+                match (made, used) {
+                    (None, None) => "either flight",
+                    (None, Some(_)) => "the calibration flight",
+                    _ => "this flight",
+                }
+            )),
+        }
+        (warnings, notes)
+    }
+}
+
+/// Compensates `job`'s flight with the saved model at `model_path`,
+/// nothing refitted; `compensated` is where the output will go (for the
+/// warnings that depend on its format). The flight's own windows or lines,
+/// when given, hold the model out.
+pub fn run(job: &FlightJob, options: &Settings, compensated: &Path, model_path: &Path) -> Result<FlightRun> {
+    let saved = SavedModel::read(model_path)?;
+    let ingest = crate::formats::IngestOptions {
+        date: job.date.or(options.ingest.date),
+        ..options.ingest.clone()
+    };
+    let recorded = read_flight_log(&job.input, &ingest)?;
+    let screened = crate::screen::screen_samples(&recorded)?;
+    let raw_log = screened.log_or(&recorded);
+    let mut models = saved.models_for(raw_log, job.channels.as_deref(), job.vector.as_deref())?;
+    let sensor = crate::pipeline::choose_vector_sensor(raw_log, Some(&models[0].vector_sensor))?;
+    let channels: Vec<String> = models.iter().map(|m| m.channel.clone()).collect();
+    crate::pipeline::refuse_dead_columns(raw_log, &screened.screening, &sensor, Some(&channels))?;
+    let applied = saved.applied(raw_log.date());
+    let (mut warnings, mut notes) =
+        saved.age_and_aircraft(&applied, job.aircraft.as_deref(), options.model_max_age_days);
+    if let Some(fitted_on) = &applied.flight {
+        if fitted_on.difference(&FlightIdentity::of(&recorded)?).is_none() {
+            notes.push(
+                "the model was fitted on this very flight: its compensation is that of the calibration run".into(),
+            );
+        }
+    }
+    warnings.splice(0..0, screened.warnings(&recorded));
+    let calibrated = (saved.file.vector_calibration.as_ref())
+        .map(|c| c.apply(raw_log, &sensor))
+        .transpose()?;
+    let log = calibrated.as_ref().unwrap_or(raw_log);
+    // The flight's own manoeuvres, when it names them: the model, which
+    // never saw them, is held out there.
+    if !job.windows.is_empty() || !job.lines.is_empty() {
+        let (windows, _, heading_note) = crate::pipeline::calibration_windows(raw_log, job, options)?;
+        notes.extend(heading_note);
+        for model in &mut models {
+            model.windows = model.held_out(log, &sensor, &windows, &options.fit)?;
+        }
+        notes.push(format!(
+            "the model is held out on this flight's {} calibration window(s): its FOM and IR here are of a model fitted on another flight",
+            windows.len()
+        ));
+    }
+    let shared = SharedDesign::of_models(log, &models);
+    let mut compensation = crate::compensate::compensate_with(log, &models, options.level, &shared)?;
+    let mut quality: Vec<ChannelQuality> = models
+        .par_iter()
+        .zip(compensation.channels.par_iter_mut())
+        .map(|(model, channel)| {
+            let mut quality = assess_quality(log, model, channel);
+            if let Some(prediction) = model.prediction_sigma_with(log, &shared)? {
+                quality.uncertainty = crate::quality::uncertainty_of(log, model, &prediction);
+                if let Some(noise) = quality.white_noise_nt() {
+                    channel.set_sigma(&prediction, noise);
+                }
+            }
+            Ok(quality)
+        })
+        .collect::<Result<_>>()?;
+    drop(shared);
+    if models.iter().all(|m| m.windows.is_empty()) {
+        // No band here: the improvement ratio is the calibration's.
+        for q in &mut quality {
+            q.improvement_ratio = f64::NAN;
+        }
+    }
+    let next_step = "Fly a calibration box, compensate it with --model and apply that model, or compare with the calibration flight's report";
+    for (q, channel) in quality.iter().zip(&compensation.channels) {
+        warnings.extend(crate::quality::quality_warnings(q, options.fom_limit_nt, next_step));
+        if channel.sigma_nt.is_none() {
+            warnings.push(format!(
+                "{}: no sigma column: {}",
+                q.channel,
+                match q.uncertainty {
+                    None => "the model was saved without a jackknife (fitted on fewer than three windows, or with another solver)",
+                    Some(_) => "the compensated channel's noise cannot be measured (too few consecutive samples)",
+                }
+            ));
+        }
+    }
+    if options.vector.enabled {
+        notes.push("no vector compensation: its twelve constants are fitted on a calibration box, and the model holds the scalar models".into());
+    }
+    if !options.gradients.is_empty() {
+        warnings.push("the gradients asked for are not compensated: they are fitted on a calibration box, and the model holds the scalar models; compensate the gradients on a flight with its box".into());
+    }
+    warnings.extend(crate::formats::mcap::undated_warning(&recorded, compensated));
+    warnings.extend(crate::formats::write::text_columns_warning(
+        &recorded,
+        compensated,
+        true,
+    ));
+    warnings.extend(compensation.out_of_range_warnings(log.time_s()));
+    let added_columns = added_column_names(log, compensated, &compensation)?;
+    notes.splice(0..0, crate::pipeline::renaming_notes(&channels, &added_columns));
+    notes.extend(models.iter().filter(|m| !m.spec.is_plain()).map(|m| {
+        format!(
+            "{}: compensated with the saved model's findings: {}",
+            m.channel,
+            m.spec.describe()
+        )
+    }));
+    let applied_findings: Vec<AppliedFinding> = (saved.file.applied_findings.iter())
+        .filter(|f| channels.contains(&f.channel))
+        .cloned()
+        .collect();
+    let result = FlightResult {
+        flight: job.input.clone(),
+        rows: log.len(),
+        added_columns,
+        notes,
+        detection: None,
+        alignment: log.alignment().cloned(),
+        channels: quality,
+        vector_calibration: saved.file.vector_calibration.clone(),
+        diagnosis_mode: crate::diagnose::ApplyDiagnosis::Never,
+        applied_findings,
+        warnings,
+        diagnosis: None,
+        models,
+        vector_models: Vec::new(),
+        gradients: Vec::new(),
+        gradient_models: Vec::new(),
+        plan: None,
+        model: Some(applied),
+        aircraft: job.aircraft.clone(),
+    };
+    compensation.round_to(options.output_decimals);
+    Ok(FlightRun {
+        recorded,
+        screened,
+        compensation,
+        result,
+    })
+}
