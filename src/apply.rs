@@ -24,25 +24,16 @@
 
 use std::path::{Path, PathBuf};
 
-use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::config::{FlightJob, Settings};
+use crate::diagnose::AppliedFinding;
 use crate::error::{Error, Result};
 use crate::flight_date::FlightDate;
 use crate::flight_identity::FlightIdentity;
 use crate::flight_log::FlightLog;
-use crate::formats::{added_column_names, read_flight_log};
-use crate::model::{CalibrationLevel, FittedModel, ModelSpec, SharedDesign};
+use crate::model::{CalibrationLevel, FittedModel, ModelSpec};
 use crate::numerics::solve::{Decomposition, Method, Solution};
-use crate::pipeline::{AppliedFinding, FlightResult, FlightRun};
-use crate::quality::{assess_quality, ChannelQuality};
-
-/// Days after which a saved model is applied with a warning, by default
-/// (`[model] max_age_days`): an installation drifts (a battery moved, a
-/// repair, a new instrument), and most survey contracts ask for a box at
-/// least monthly.
-pub const DEFAULT_MAX_AGE_DAYS: u32 = 30;
+use crate::quality::ChannelQuality;
 
 /// The sample rate of the flight may differ from the model's by this
 /// fraction: clocks of one recorder differ by far less, and another rate
@@ -261,6 +252,20 @@ impl SavedModel {
         })
     }
 
+    /// The fluxgate calibration the models' terms are built on, when the
+    /// calibration flight's `[vector_calibration]` stage made one.
+    pub fn vector_calibration(&self) -> Option<&crate::vector_calibration::VectorCalibration> {
+        self.file.vector_calibration.as_ref()
+    }
+
+    /// The findings the models carry, of `channels`.
+    pub fn applied_findings(&self, channels: &[String]) -> Vec<AppliedFinding> {
+        (self.file.applied_findings.iter())
+            .filter(|f| channels.contains(&f.channel))
+            .cloned()
+            .collect()
+    }
+
     /// The channels the model compensates, in its order.
     pub fn channels(&self) -> Vec<&str> {
         self.file.models.iter().map(|m| m.channel.as_str()).collect()
@@ -341,7 +346,8 @@ impl SavedModel {
                 ));
             }
             let rate = 1.0 / log.median_interval_s();
-            if !((rate / fit.sample_rate_hz - 1.0).abs() <= RATE_TOLERANCE) {
+            let same_rate = (rate / fit.sample_rate_hz - 1.0).abs() <= RATE_TOLERANCE;
+            if !same_rate {
                 return Err(self.mismatch(
                     log,
                     format!(
@@ -421,7 +427,7 @@ impl SavedModel {
 
     /// What the quality JSON says of the model applied to a flight of
     /// `date`.
-    fn applied(&self, date: Option<FlightDate>) -> AppliedModel {
+    pub fn applied(&self, date: Option<FlightDate>) -> AppliedModel {
         let file = &self.file;
         AppliedModel {
             file: self.path.clone(),
@@ -438,7 +444,7 @@ impl SavedModel {
 
     /// Warnings and notes for applying the model to a flight of `date`
     /// flown by `aircraft`: age and airframe.
-    fn age_and_aircraft(
+    pub fn age_and_aircraft(
         &self,
         applied: &AppliedModel,
         aircraft: Option<&str>,
@@ -477,142 +483,4 @@ impl SavedModel {
         }
         (warnings, notes)
     }
-}
-
-/// Compensates `job`'s flight with the saved model at `model_path`,
-/// nothing refitted; `compensated` is where the output will go (for the
-/// warnings that depend on its format). The flight's own windows or lines,
-/// when given, hold the model out.
-pub fn run(job: &FlightJob, options: &Settings, compensated: &Path, model_path: &Path) -> Result<FlightRun> {
-    let saved = SavedModel::read(model_path)?;
-    let ingest = crate::formats::IngestOptions {
-        date: job.date.or(options.ingest.date),
-        ..options.ingest.clone()
-    };
-    let recorded = read_flight_log(&job.input, &ingest)?;
-    let screened = crate::screen::screen_samples(&recorded)?;
-    let raw_log = screened.log_or(&recorded);
-    let mut models = saved.models_for(raw_log, job.channels.as_deref(), job.vector.as_deref())?;
-    let sensor = crate::pipeline::choose_vector_sensor(raw_log, Some(&models[0].vector_sensor))?;
-    let channels: Vec<String> = models.iter().map(|m| m.channel.clone()).collect();
-    crate::pipeline::refuse_dead_columns(raw_log, &screened.screening, &sensor, Some(&channels))?;
-    let applied = saved.applied(raw_log.date());
-    let (mut warnings, mut notes) =
-        saved.age_and_aircraft(&applied, job.aircraft.as_deref(), options.model_max_age_days);
-    if let Some(fitted_on) = &applied.flight {
-        if fitted_on.difference(&FlightIdentity::of(&recorded)?).is_none() {
-            notes.push(
-                "the model was fitted on this very flight: its compensation is that of the calibration run".into(),
-            );
-        }
-    }
-    warnings.splice(0..0, screened.warnings(&recorded));
-    let calibrated = (saved.file.vector_calibration.as_ref())
-        .map(|c| c.apply(raw_log, &sensor))
-        .transpose()?;
-    let log = calibrated.as_ref().unwrap_or(raw_log);
-    // The flight's own manoeuvres, when it names them: the model, which
-    // never saw them, is held out there.
-    if !job.windows.is_empty() || !job.lines.is_empty() {
-        let (windows, _, heading_note) = crate::pipeline::calibration_windows(raw_log, job, options)?;
-        notes.extend(heading_note);
-        for model in &mut models {
-            model.windows = model.held_out(log, &sensor, &windows, &options.fit)?;
-        }
-        notes.push(format!(
-            "the model is held out on this flight's {} calibration window(s): its FOM and IR here are of a model fitted on another flight",
-            windows.len()
-        ));
-    }
-    let shared = SharedDesign::of_models(log, &models);
-    let mut compensation = crate::compensate::compensate_with(log, &models, options.level, &shared)?;
-    let mut quality: Vec<ChannelQuality> = models
-        .par_iter()
-        .zip(compensation.channels.par_iter_mut())
-        .map(|(model, channel)| {
-            let mut quality = assess_quality(log, model, channel);
-            if let Some(prediction) = model.prediction_sigma_with(log, &shared)? {
-                quality.uncertainty = crate::quality::uncertainty_of(log, model, &prediction);
-                if let Some(noise) = quality.white_noise_nt() {
-                    channel.set_sigma(&prediction, noise);
-                }
-            }
-            Ok(quality)
-        })
-        .collect::<Result<_>>()?;
-    drop(shared);
-    if models.iter().all(|m| m.windows.is_empty()) {
-        // No band here: the improvement ratio is the calibration's.
-        for q in &mut quality {
-            q.improvement_ratio = f64::NAN;
-        }
-    }
-    let next_step = "Fly a calibration box, compensate it with --model and apply that model, or compare with the calibration flight's report";
-    for (q, channel) in quality.iter().zip(&compensation.channels) {
-        warnings.extend(crate::quality::quality_warnings(q, options.fom_limit_nt, next_step));
-        if channel.sigma_nt.is_none() {
-            warnings.push(format!(
-                "{}: no sigma column: {}",
-                q.channel,
-                match q.uncertainty {
-                    None => "the model was saved without a jackknife (fitted on fewer than three windows, or with another solver)",
-                    Some(_) => "the compensated channel's noise cannot be measured (too few consecutive samples)",
-                }
-            ));
-        }
-    }
-    if options.vector.enabled {
-        notes.push("no vector compensation: its twelve constants are fitted on a calibration box, and the model holds the scalar models".into());
-    }
-    if !options.gradients.is_empty() {
-        warnings.push("the gradients asked for are not compensated: they are fitted on a calibration box, and the model holds the scalar models; compensate the gradients on a flight with its box".into());
-    }
-    warnings.extend(crate::formats::mcap::undated_warning(&recorded, compensated));
-    warnings.extend(crate::formats::write::text_columns_warning(
-        &recorded,
-        compensated,
-        true,
-    ));
-    warnings.extend(compensation.out_of_range_warnings(log.time_s()));
-    let added_columns = added_column_names(log, compensated, &compensation)?;
-    notes.splice(0..0, crate::pipeline::renaming_notes(&channels, &added_columns));
-    notes.extend(models.iter().filter(|m| !m.spec.is_plain()).map(|m| {
-        format!(
-            "{}: compensated with the saved model's findings: {}",
-            m.channel,
-            m.spec.describe()
-        )
-    }));
-    let applied_findings: Vec<AppliedFinding> = (saved.file.applied_findings.iter())
-        .filter(|f| channels.contains(&f.channel))
-        .cloned()
-        .collect();
-    let result = FlightResult {
-        flight: job.input.clone(),
-        rows: log.len(),
-        added_columns,
-        notes,
-        detection: None,
-        alignment: log.alignment().cloned(),
-        channels: quality,
-        vector_calibration: saved.file.vector_calibration.clone(),
-        diagnosis_mode: crate::diagnose::ApplyDiagnosis::Never,
-        applied_findings,
-        warnings,
-        diagnosis: None,
-        models,
-        vector_models: Vec::new(),
-        gradients: Vec::new(),
-        gradient_models: Vec::new(),
-        plan: None,
-        model: Some(applied),
-        aircraft: job.aircraft.clone(),
-    };
-    compensation.round_to(options.output_decimals);
-    Ok(FlightRun {
-        recorded,
-        screened,
-        compensation,
-        result,
-    })
 }

@@ -62,7 +62,7 @@ enum Command {
     },
     /// Fit on calibration windows (detected unless given) and compensate
     /// every row of one flight.
-    Compensate(CompensateArgs),
+    Compensate(Box<CompensateArgs>),
     /// Find where the model and the recording disagree, name the physics
     /// left out, model it and show the held-out fit; write DIAGNOSIS.json.
     Diagnose {
@@ -276,7 +276,7 @@ fn main() -> ExitCode {
             shard,
         } => run(&config, (plain, force, cli.verbose), shard.as_deref()),
         Command::Summarize { outdir } => summarize(&outdir),
-        Command::Compensate(args) => compensate(args, cli.verbose),
+        Command::Compensate(args) => compensate(*args, cli.verbose),
         Command::Detect {
             flight,
             out,
@@ -393,7 +393,14 @@ fn run(config: &Path, (plain, force, verbose): (bool, bool, bool), shard: Option
         Some(text) => Shard::parse(text, |name| std::env::var(name).ok())?,
         None => Shard::default(),
     };
-    let mine = shard.select(&pipeline.flights);
+    let mut mine = shard.select(&pipeline.flights);
+    // A flight compensated with the model another flight of this run
+    // writes (a survey flight and its calibration flight) comes after it.
+    let folder = &pipeline.output_directory;
+    let written_models: Vec<PathBuf> = (mine.iter())
+        .filter_map(|&i| FlightOutputs::for_job(folder, &pipeline.flights[i]).model_json)
+        .collect();
+    mine.sort_by_key(|&i| (pipeline.flights[i].model.as_ref()).is_some_and(|m| written_models.contains(m)));
     if shard.count > 1 {
         println!(
             "shard {shard}: {} of the campaign's {} flights",
@@ -401,7 +408,6 @@ fn run(config: &Path, (plain, force, verbose): (bool, bool, bool), shard: Option
             pipeline.flights.len()
         );
     }
-    let folder = &pipeline.output_directory;
     if !folder.as_os_str().is_empty() && !folder.is_dir() {
         std::fs::create_dir_all(folder)
             .with_context(|| format!("{}: creating the output folder {}", config.display(), folder.display()))?;
@@ -475,6 +481,7 @@ fn prepare_flight_outputs(job: &FlightJob, outputs: &FlightOutputs) -> magcomp::
     let inputs: Vec<&Path> = std::iter::once(job.input.as_path())
         .chain(job.diagnosis.as_deref())
         .chain(job.plan.as_deref())
+        .chain(job.model.as_deref())
         .collect();
     print_notes(&prepare(&inputs, &outputs.destinations())?);
     Ok(())

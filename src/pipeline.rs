@@ -21,6 +21,8 @@ use crate::quality::transfer::check_transfer;
 use crate::quality::{assess_quality, ChannelQuality};
 use rayon::prelude::*;
 
+pub use crate::diagnose::AppliedFinding;
+
 /// What processing one flight produced.
 #[derive(Debug, Clone, Serialize)]
 pub struct FlightResult {
@@ -380,46 +382,6 @@ fn estimator_table_gap(model: &FittedModel) -> Option<String> {
     })
 }
 
-/// A diagnosed effect the fit of a channel applied.
-#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
-pub struct AppliedFinding {
-    /// Scalar channel.
-    pub channel: String,
-    /// The effect (written by its CONTRACT §3 name).
-    pub effect: EffectKind,
-    /// The column that drives it, when one does.
-    #[serde(skip_serializing_if = "Option::is_none", default)]
-    pub source: Option<String>,
-    /// Held-out in-band RMS before the effect was modelled, nT.
-    pub heldout_rms_before_nt: f64,
-    /// Held-out in-band RMS with it, nT.
-    pub heldout_rms_after_nt: f64,
-}
-
-impl AppliedFinding {
-    /// "sensor_lag on mag_1_uc: held-out RMS 0.1080 → 0.0320 nT (−70 % against the model before it)".
-    pub fn describe(&self) -> String {
-        if self.effect == EffectKind::VectorCalibration {
-            return format!(
-                "vector_calibration of {}: magnitude against {}, held out, {:.1} → {:.1} nT",
-                self.channel,
-                self.source.as_deref().unwrap_or("the scalar"),
-                self.heldout_rms_before_nt,
-                self.heldout_rms_after_nt
-            );
-        }
-        format!(
-            "{} on {}{}: held-out RMS {:.4} → {:.4} nT ({:+.0} % against the model before it)",
-            self.effect,
-            self.channel,
-            self.source.as_ref().map(|s| format!(" from {s}")).unwrap_or_default(),
-            self.heldout_rms_before_nt,
-            self.heldout_rms_after_nt,
-            100.0 * (self.heldout_rms_after_nt / self.heldout_rms_before_nt - 1.0)
-        )
-    }
-}
-
 /// The findings of `diagnosis` that change the model of a channel whose
 /// diagnosed model is not plain (an `unexplained` finding changes none).
 fn applied_findings(diagnosis: &crate::diagnose::Diagnosis) -> Vec<AppliedFinding> {
@@ -481,7 +443,7 @@ impl FlightRun {
 /// names the columns magcomp adds.
 pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<FlightRun> {
     if let Some(model) = &job.model {
-        return crate::apply::run(job, options, compensated, model);
+        return run_applied(job, options, compensated, model);
     }
     let ingest = crate::formats::IngestOptions {
         date: job.date.or(options.ingest.date),
@@ -769,6 +731,145 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
     };
     // The figures above are of the full values; the outputs are written
     // at the stated resolution.
+    compensation.round_to(options.output_decimals);
+    Ok(FlightRun {
+        recorded,
+        screened,
+        compensation,
+        result,
+    })
+}
+
+/// Compensates `job`'s flight with the saved model at `model_path`,
+/// nothing refitted; `compensated` is where the output will go (for the
+/// warnings that depend on its format). The flight's own windows or lines,
+/// when given, hold the model out.
+fn run_applied(job: &FlightJob, options: &Settings, compensated: &Path, model_path: &Path) -> Result<FlightRun> {
+    let saved = crate::apply::SavedModel::read(model_path)?;
+    let ingest = crate::formats::IngestOptions {
+        date: job.date.or(options.ingest.date),
+        ..options.ingest.clone()
+    };
+    let recorded = read_flight_log(&job.input, &ingest)?;
+    let screened = crate::screen::screen_samples(&recorded)?;
+    let raw_log = screened.log_or(&recorded);
+    let mut models = saved.models_for(raw_log, job.channels.as_deref(), job.vector.as_deref())?;
+    let sensor = choose_vector_sensor(raw_log, Some(&models[0].vector_sensor))?;
+    let channels: Vec<String> = models.iter().map(|m| m.channel.clone()).collect();
+    refuse_dead_columns(raw_log, &screened.screening, &sensor, Some(&channels))?;
+    let applied = saved.applied(raw_log.date());
+    let (mut warnings, mut notes) =
+        saved.age_and_aircraft(&applied, job.aircraft.as_deref(), options.model_max_age_days);
+    if let Some(fitted_on) = &applied.flight {
+        if fitted_on
+            .difference(&crate::flight_identity::FlightIdentity::of(&recorded)?)
+            .is_none()
+        {
+            notes.push(
+                "the model was fitted on this very flight: its compensation is that of the calibration run".into(),
+            );
+        }
+    }
+    warnings.splice(0..0, screened.warnings(&recorded));
+    let calibrated = saved
+        .vector_calibration()
+        .map(|c| c.apply(raw_log, &sensor))
+        .transpose()?;
+    let log = calibrated.as_ref().unwrap_or(raw_log);
+    // The flight's own manoeuvres, when it names them: the model, which
+    // never saw them, is held out there.
+    if !job.windows.is_empty() || !job.lines.is_empty() {
+        let (windows, _, heading_note) = calibration_windows(raw_log, job, options)?;
+        notes.extend(heading_note);
+        for model in &mut models {
+            model.windows = model.held_out(log, &sensor, &windows, &options.fit)?;
+        }
+        notes.push(format!(
+            "the model is held out on this flight's {} calibration window(s): its FOM and IR here are of a model fitted on another flight",
+            windows.len()
+        ));
+    }
+    let shared = SharedDesign::of_models(log, &models);
+    let mut compensation = crate::compensate::compensate_with(log, &models, options.level, &shared)?;
+    let mut quality: Vec<ChannelQuality> = models
+        .par_iter()
+        .zip(compensation.channels.par_iter_mut())
+        .map(|(model, channel)| {
+            let mut quality = assess_quality(log, model, channel);
+            if let Some(prediction) = model.prediction_sigma_with(log, &shared)? {
+                quality.uncertainty = crate::quality::uncertainty_of(log, model, &prediction);
+                if let Some(noise) = quality.white_noise_nt() {
+                    channel.set_sigma(&prediction, noise);
+                }
+            }
+            Ok(quality)
+        })
+        .collect::<Result<_>>()?;
+    drop(shared);
+    if models.iter().all(|m| m.windows.is_empty()) {
+        // No band here: the improvement ratio is the calibration's.
+        for q in &mut quality {
+            q.improvement_ratio = f64::NAN;
+        }
+    }
+    let next_step = "Fly a calibration box, compensate it with --model and apply that model, or compare with the calibration flight's report";
+    for (q, channel) in quality.iter().zip(&compensation.channels) {
+        warnings.extend(crate::quality::quality_warnings(q, options.fom_limit_nt, next_step));
+        if channel.sigma_nt.is_none() {
+            warnings.push(format!(
+                "{}: no sigma column: {}",
+                q.channel,
+                match q.uncertainty {
+                    None => "the model was saved without a jackknife (fitted on fewer than three windows, or with another solver)",
+                    Some(_) => "the compensated channel's noise cannot be measured (too few consecutive samples)",
+                }
+            ));
+        }
+    }
+    if options.vector.enabled {
+        notes.push("no vector compensation: its twelve constants are fitted on a calibration box, and the model holds the scalar models".into());
+    }
+    if !options.gradients.is_empty() {
+        warnings.push("the gradients asked for are not compensated: they are fitted on a calibration box, and the model holds the scalar models; compensate the gradients on a flight with its box".into());
+    }
+    warnings.extend(crate::formats::mcap::undated_warning(&recorded, compensated));
+    warnings.extend(crate::formats::write::text_columns_warning(
+        &recorded,
+        compensated,
+        true,
+    ));
+    warnings.extend(compensation.out_of_range_warnings(log.time_s()));
+    let added_columns = added_column_names(log, compensated, &compensation)?;
+    notes.splice(0..0, renaming_notes(&channels, &added_columns));
+    notes.extend(models.iter().filter(|m| !m.spec.is_plain()).map(|m| {
+        format!(
+            "{}: compensated with the saved model's findings: {}",
+            m.channel,
+            m.spec.describe()
+        )
+    }));
+    let applied_findings = saved.applied_findings(&channels);
+    let result = FlightResult {
+        flight: job.input.clone(),
+        rows: log.len(),
+        added_columns,
+        notes,
+        detection: None,
+        alignment: log.alignment().cloned(),
+        channels: quality,
+        vector_calibration: saved.vector_calibration().cloned(),
+        diagnosis_mode: crate::diagnose::ApplyDiagnosis::Never,
+        applied_findings,
+        warnings,
+        diagnosis: None,
+        models,
+        vector_models: Vec::new(),
+        gradients: Vec::new(),
+        gradient_models: Vec::new(),
+        plan: None,
+        model: Some(applied),
+        aircraft: job.aircraft.clone(),
+    };
     compensation.round_to(options.output_decimals);
     Ok(FlightRun {
         recorded,

@@ -371,6 +371,7 @@ fn reference_folder() -> tempfile::TempDir {
         "flights/f017.csv",
         "archive/f018.csv",
         "archive/f019.csv",
+        "flights/f020.csv",
         "more/f020.csv",
     ] {
         std::fs::copy(&flight, at(name)).unwrap();
@@ -386,7 +387,7 @@ fn the_reference_examples_load_and_a_key_the_parser_does_not_know_is_refused() {
     let folder = reference_folder();
     let path = folder.path().join("pipeline.toml");
     let pipeline = Pipeline::load(&path).unwrap_or_else(|e| panic!("the reference's examples do not load: {e}"));
-    assert_eq!(pipeline.flights.len(), 4, "three [[flight]] tables and a manifest row");
+    assert_eq!(pipeline.flights.len(), 5, "four [[flight]] tables and a manifest row");
 
     // A made-up key in each table is refused, and the error names it.
     let examples: toml::Table = toml::from_str(&reference_examples()).unwrap();

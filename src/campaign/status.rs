@@ -68,9 +68,10 @@ pub fn status_path(folder: &Path, output_name: &str) -> PathBuf {
 /// SHA-256 over what a flight's outputs depend on besides its input's
 /// bytes: the magcomp version, every validated setting, the flight's own
 /// choices (windows, channels, fluxgate, date, output name) and the bytes
-/// of the diagnosis it applies and the plan report it is set against.
-/// Neither where the input, diagnosis and plan files are (a campaign folder
-/// may move) nor `--force` count.
+/// of the diagnosis it applies, the plan report it is set against and the
+/// saved model it is compensated with. Neither where the input, diagnosis,
+/// plan and model files are (a campaign folder may move) nor `--force`
+/// count.
 pub fn settings_sha256(job: &FlightJob, settings: &Settings) -> Result<String> {
     let mut hasher = Sha256::new();
     hasher.update(concat!("magcomp ", env!("CARGO_PKG_VERSION"), "\n").as_bytes());
@@ -80,6 +81,7 @@ pub fn settings_sha256(job: &FlightJob, settings: &Settings) -> Result<String> {
         diagnosis: None,
         force_diagnosis: false,
         plan: None,
+        model: None,
         ..job.clone()
     };
     hasher.update(format!("{choices:?}\n").as_bytes());
@@ -89,6 +91,10 @@ pub fn settings_sha256(job: &FlightJob, settings: &Settings) -> Result<String> {
     if let Some(plan) = &job.plan {
         hasher.update(b"plan\n");
         hasher.update(crate::flight_identity::hash_file(plan)?.as_bytes());
+    }
+    if let Some(model) = &job.model {
+        hasher.update(b"model\n");
+        hasher.update(crate::flight_identity::hash_file(model)?.as_bytes());
     }
     Ok(hasher.finalize().iter().map(|b| format!("{b:02x}")).collect())
 }

@@ -46,6 +46,9 @@ pub struct ChannelFigures {
     pub band_std_after_nt: Option<f64>,
     /// Diagnosed effects applied, `effect` or `effect from source`.
     pub findings: Vec<String>,
+    /// The saved model the channel was compensated with (`--apply`), as
+    /// the quality JSON names it; `None` when fitted on its own flight.
+    pub model: Option<String>,
 }
 
 /// One coefficient of one channel's model.
@@ -198,7 +201,11 @@ fn summary_flight(folder: &Path, path: &Path) -> Result<SummaryFlight> {
         }
         Err(problem) => flight.problems.push(problem),
     }
+    // A flight compensated with a saved model fitted nothing: its
+    // coefficients are its calibration flight's, counted there.
+    let applied = flight.channels.iter().any(|c| c.model.is_some());
     match read_json(&folder.join(format!("{name}_model.json"))) {
+        _ if applied => {}
         Ok(model) => {
             flight.coefficients = coefficients(&model);
             flight.calibrations = (model["models"].as_array().into_iter().flatten())
@@ -218,6 +225,7 @@ fn read_json(path: &Path) -> std::result::Result<Value, String> {
 
 fn channel_figures(quality: &Value) -> Vec<ChannelFigures> {
     let findings = quality["applied_findings"].as_array().cloned().unwrap_or_default();
+    let model = quality["model"]["file"].as_str().map(str::to_string);
     let number = |value: &Value| value.as_f64();
     quality["channels"]
         .as_array()
@@ -241,6 +249,7 @@ fn channel_figures(quality: &Value) -> Vec<ChannelFigures> {
                         }
                     })
                     .collect(),
+                model: model.clone(),
                 channel: name,
             }
         })
@@ -418,6 +427,7 @@ impl CampaignSummary {
             "improvement_ratio",
             "band_std_after_nt",
             "findings",
+            "model",
             "problem",
         ];
         let mut rows = vec![header.map(String::from).to_vec()];
@@ -436,7 +446,7 @@ impl CampaignSummary {
                 rows.push(
                     head.iter()
                         .cloned()
-                        .chain(vec![String::new(); 6])
+                        .chain(vec![String::new(); 7])
                         .chain([flight.problem()])
                         .collect(),
                 );
@@ -449,6 +459,7 @@ impl CampaignSummary {
                     figure(channel.improvement_ratio),
                     figure(channel.band_std_after_nt),
                     channel.findings.join("; "),
+                    channel.model.clone().unwrap_or_default(),
                     flight.problem(),
                 ];
                 rows.push(head.iter().cloned().chain(figures).collect());
@@ -526,7 +537,7 @@ impl CampaignSummary {
             "<h1>Campaign summary</h1>\n<p>{} flights: {done} done, {failed} failed.</p>",
             self.flights.len()
         );
-        page += "<h2>Flights</h2>\n<table><tr><th class=\"text\">flight</th><th class=\"text\">aircraft</th><th class=\"text\">date</th><th class=\"text\">state</th><th>rows</th><th>warnings</th><th class=\"text\">channel</th><th>FOM before, nT</th><th>FOM after, nT</th><th>IR</th><th class=\"text\">findings applied</th><th class=\"text\">problem</th></tr>\n";
+        page += "<h2>Flights</h2>\n<table><tr><th class=\"text\">flight</th><th class=\"text\">aircraft</th><th class=\"text\">date</th><th class=\"text\">state</th><th>rows</th><th>warnings</th><th class=\"text\">channel</th><th>FOM before, nT</th><th>FOM after, nT</th><th>IR</th><th class=\"text\">findings applied</th><th class=\"text\">saved model applied</th><th class=\"text\">problem</th></tr>\n";
         for flight in &self.flights {
             let status = &flight.status;
             let problem = flight.problem();
@@ -546,19 +557,20 @@ impl CampaignSummary {
             if flight.channels.is_empty() {
                 let _ = writeln!(
                     page,
-                    "<tr{class}>{head}<td></td><td></td><td></td><td></td><td></td><td class=\"text\">{}</td></tr>",
+                    "<tr{class}>{head}<td></td><td></td><td></td><td></td><td></td><td></td><td class=\"text\">{}</td></tr>",
                     escape(&problem)
                 );
             }
             for channel in &flight.channels {
                 let _ = writeln!(
                     page,
-                    "<tr{class}>{head}<td class=\"text\">{}</td><td>{}</td><td>{}</td><td>{}</td><td class=\"text\">{}</td><td class=\"text\">{}</td></tr>",
+                    "<tr{class}>{head}<td class=\"text\">{}</td><td>{}</td><td>{}</td><td>{}</td><td class=\"text\">{}</td><td class=\"text\">{}</td><td class=\"text\">{}</td></tr>",
                     escape(&channel.channel),
                     figure(channel.fom_before_nt),
                     figure(channel.fom_after_nt),
                     figure(channel.improvement_ratio),
                     escape(&channel.findings.join("; ")),
+                    escape(channel.model.as_deref().unwrap_or("")),
                     escape(&problem)
                 );
             }

@@ -215,6 +215,12 @@ impl Default for RawOutput {
     }
 }
 
+/// Days after which a saved model is applied with a warning, by default
+/// (`[model] max_age_days`): an installation drifts (a battery moved, a
+/// repair, a new instrument), and most survey contracts ask for a box at
+/// least monthly.
+pub const DEFAULT_MAX_AGE_DAYS: u32 = 30;
+
 /// `[model]` as written: how a saved model is applied (`--apply`,
 /// `[[flight]] model`).
 #[derive(Debug, Clone, Deserialize)]
@@ -228,7 +234,7 @@ pub(crate) struct RawModel {
 impl Default for RawModel {
     fn default() -> Self {
         RawModel {
-            max_age_days: crate::apply::DEFAULT_MAX_AGE_DAYS,
+            max_age_days: DEFAULT_MAX_AGE_DAYS,
         }
     }
 }

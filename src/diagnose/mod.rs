@@ -99,6 +99,7 @@ pub use effect::{
     AuxCoupling, EddyTimeConstant, Effect, EffectKind, ExternalField, FluxgateErrors, SecondOrder, SensorLag,
     Unexplained,
 };
+pub use finding::AppliedFinding;
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
