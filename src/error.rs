@@ -249,6 +249,17 @@ pub enum Error {
         difference: String,
     },
 
+    /// A flight failed, and its columns are not in the units magcomp
+    /// reads: the likely cause, named first.
+    #[error("{problems}. That is the likely cause of what followed: {source}")]
+    UnitsLookWrong {
+        /// What the values show (`crate::formats::units`).
+        problems: String,
+        /// The error the stages raised.
+        #[source]
+        source: Box<Error>,
+    },
+
     /// A saved model (`--apply`) cannot compensate the flight it is given.
     #[error("{model}: cannot be applied to {flight}: {problem}. {hint}")]
     ModelMismatch {

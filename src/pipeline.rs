@@ -442,18 +442,42 @@ impl FlightRun {
 /// `compensated` is where the compensated flight will go: its format
 /// names the columns magcomp adds.
 pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<FlightRun> {
-    if let Some(model) = &job.model {
-        return run_applied(job, options, compensated, model);
-    }
+    // A plan report or a saved model that cannot be read fails before the
+    // flight's work.
+    let planned = (job.plan.as_deref())
+        .map(crate::against_plan::PlanPrediction::read)
+        .transpose()?;
+    let saved = (job.model.as_deref()).map(crate::apply::SavedModel::read).transpose()?;
     let ingest = crate::formats::IngestOptions {
         date: job.date.or(options.ingest.date),
         ..options.ingest.clone()
     };
-    // A plan report that cannot be read fails before the flight's work.
-    let planned = (job.plan.as_deref())
-        .map(crate::against_plan::PlanPrediction::read)
-        .transpose()?;
     let recorded = read_flight_log(&job.input, &ingest)?;
+    // Columns in units magcomp does not read (attitude in radians, time
+    // in milliseconds) make every later stage fail in its own words: the
+    // units are named first.
+    let units = crate::formats::units::unit_warnings(&job.input.display().to_string(), &recorded);
+    let run = match saved {
+        Some(saved) => run_applied(job, options, compensated, &saved, recorded),
+        None => run_fitted(job, options, compensated, planned, recorded),
+    };
+    run.map_err(|error| match units.is_empty() {
+        true => error,
+        false => Error::UnitsLookWrong {
+            problems: units.join("; "),
+            source: Box::new(error),
+        },
+    })
+}
+
+/// [`run`] for a flight fitted on its own calibration.
+fn run_fitted(
+    job: &FlightJob,
+    options: &Settings,
+    compensated: &Path,
+    planned: Option<crate::against_plan::PlanPrediction>,
+    recorded: FlightLog,
+) -> Result<FlightRun> {
     // Every stage works on the screened samples; the output copies the
     // recorded ones.
     let screened = crate::screen::screen_samples(&recorded)?;
@@ -744,13 +768,13 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
 /// nothing refitted; `compensated` is where the output will go (for the
 /// warnings that depend on its format). The flight's own windows or lines,
 /// when given, hold the model out.
-fn run_applied(job: &FlightJob, options: &Settings, compensated: &Path, model_path: &Path) -> Result<FlightRun> {
-    let saved = crate::apply::SavedModel::read(model_path)?;
-    let ingest = crate::formats::IngestOptions {
-        date: job.date.or(options.ingest.date),
-        ..options.ingest.clone()
-    };
-    let recorded = read_flight_log(&job.input, &ingest)?;
+fn run_applied(
+    job: &FlightJob,
+    options: &Settings,
+    compensated: &Path,
+    saved: &crate::apply::SavedModel,
+    recorded: FlightLog,
+) -> Result<FlightRun> {
     let screened = crate::screen::screen_samples(&recorded)?;
     let raw_log = screened.log_or(&recorded);
     let mut models = saved.models_for(raw_log, job.channels.as_deref(), job.vector.as_deref())?;

@@ -616,6 +616,34 @@ fn attitude_in_radians_is_named() {
         assert_eq!(code, 0, "{stderr}");
         assert_eq!(stdout.contains("the attitude looks like radians"), named, "{stdout}");
     }
+    // compensate finds no manoeuvre in it, and says why before anything
+    // else; so does the same flight with its time in milliseconds.
+    let milliseconds: Vec<String> = (text.lines().enumerate())
+        .map(|(i, line)| match i {
+            0 => line.to_string(),
+            _ => {
+                let (time, rest) = line.split_once(',').unwrap();
+                format!("{},{rest}", time.parse::<f64>().unwrap() * 1000.0)
+            }
+        })
+        .collect();
+    let milliseconds_csv = folder.path().join("milliseconds.csv");
+    std::fs::write(&milliseconds_csv, milliseconds.join("\n")).unwrap();
+    let out = folder.path().join("out.csv");
+    for (input, first) in [
+        (&radians_csv, "the attitude looks like radians"),
+        (&milliseconds_csv, "steps 100 between samples at the median"),
+    ] {
+        let (code, _, stderr) = magcomp(&["compensate", input.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+        println!("{stderr}");
+        assert_ne!(code, 0);
+        let at = stderr.find(first).unwrap_or_else(|| panic!("{stderr}"));
+        let cause = stderr.find("That is the likely cause of what followed").unwrap();
+        assert!(
+            at < cause && cause < stderr.find("no calibration windows").unwrap(),
+            "{stderr}"
+        );
+    }
 }
 
 /// A column of text (the compensated CSV's `flags`, a vendor's note)
