@@ -96,12 +96,16 @@ enum Command {
         #[arg(long)]
         lines: Option<String>,
     },
-    /// Rewrite a flight log in another format (CSV, XYZ or MCAP, by the
-    /// output's extension); MCAP inputs are aligned on one time base.
+    /// Rewrite a flight log in another format (CSV, Geosoft XYZ, MCAP or
+    /// HDF5, by the output's extension); MCAP inputs are aligned on one
+    /// time base.
     Convert {
-        /// The flight log to read.
+        /// The flight log to read (CSV or other delimited text, Geosoft XYZ,
+        /// MCAP, HDF5).
         flight: PathBuf,
-        /// Output file; its extension picks the format.
+        /// Output file; its extension picks the format: .xyz Geosoft XYZ,
+        /// .mcap MCAP, .h5 or .hdf5 HDF5, anything else (.csv) comma-separated
+        /// text.
         #[arg(long)]
         out: PathBuf,
         /// Settings file for columns and alignment (flights in it are ignored).
@@ -175,7 +179,10 @@ enum Command {
 struct CompensateArgs {
     /// The flight log.
     flight: PathBuf,
-    /// Compensated CSV to write.
+    /// Compensated flight to write, in the format its extension names:
+    /// .xyz Geosoft XYZ, .mcap MCAP, .h5 or .hdf5 HDF5, anything else
+    /// (.csv) comma-separated text. A CSV to a CSV, or an XYZ to an XYZ,
+    /// keeps the input's lines as they are and adds the columns.
     #[arg(long)]
     out: PathBuf,
     /// Quality JSON to write.

@@ -1286,11 +1286,36 @@ pub fn choose_vector_sensor(log: &FlightLog, wanted: Option<&str>) -> Result<Vec
             None => "flux_<s>_x, flux_<s>_y and flux_<s>_z".into(),
         },
         hint: format!(
-            "The Tolles-Lawson terms are built from a 3-axis fluxgate. Sensors present: [{}]. Choose one with --vector, or map columns in [[columns.vector]] in pipeline.toml.",
-            sensors.iter().map(|s| s.prefix.as_str()).collect::<Vec<_>>().join(", ")
+            "The Tolles-Lawson terms are built from a 3-axis fluxgate. {} Choose one with --vector, or map its columns in [[columns.vector]] in pipeline.toml.",
+            match sensors.is_empty() {
+                true => format!(
+                    "The flight has no fluxgate of three such columns; its columns are {}.",
+                    column_list(log)
+                ),
+                false => format!(
+                    "Fluxgates found: {}.",
+                    sensors.iter().map(|s| s.prefix.as_str()).collect::<Vec<_>>().join(", ")
+                ),
+            }
         ),
     })
 }
+
+/// The flight's column names for a message: the first
+/// [`LISTED_COLUMNS`], then how many more.
+fn column_list(log: &FlightLog) -> String {
+    let names: Vec<&str> = std::iter::once(log.time_column())
+        .chain(log.channels().iter().map(|c| c.name.as_str()))
+        .collect();
+    let shown: Vec<String> = names.iter().take(LISTED_COLUMNS).map(|n| format!("'{n}'")).collect();
+    match names.len() > LISTED_COLUMNS {
+        true => format!("{} and {} more", shown.join(", "), names.len() - LISTED_COLUMNS),
+        false => shown.join(", "),
+    }
+}
+
+/// Columns a message lists before "and N more".
+const LISTED_COLUMNS: usize = 20;
 
 /// The scalar channels to compensate: `wanted`, or every scalar channel.
 /// Channels with no valid sample are an error.

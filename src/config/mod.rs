@@ -543,7 +543,7 @@ impl Pipeline {
         let source_name = path.display().to_string();
         let raw: RawPipeline = toml::from_str(&text).map_err(|e| Error::Config {
             source_name: source_name.clone(),
-            message: e.to_string().trim().replace('\n', " "),
+            message: e.to_string().trim().to_string(),
         })?;
         let base = path.parent().unwrap_or(Path::new("."));
         let mut raw = raw;
