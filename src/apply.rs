@@ -65,6 +65,11 @@ pub struct CalibrationFigures {
     /// The compensation's uncertainty away from the calibration, nT.
     #[serde(default)]
     pub outside_calibration_sigma_nt: Option<f64>,
+    /// How far the diagnosed findings moved the survey from plain
+    /// Tolles-Lawson, when beyond the stated uncertainty: the calibration
+    /// flight's verdict was CHECK, not PASS, nT.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub unchecked_departure_nt: Option<f64>,
 }
 
 impl CalibrationFigures {
@@ -79,6 +84,7 @@ impl CalibrationFigures {
             improvement_ratio: finite(quality.improvement_ratio),
             held_out_fom_nt: (quality.transfer.as_ref()).map(|t| t.held_out_fom_nt),
             outside_calibration_sigma_nt: (quality.uncertainty.as_ref()).map(|u| u.outside_calibration_sigma_nt),
+            unchecked_departure_nt: quality.unchecked_departure().map(|(departure, _)| departure),
         }
     }
 
@@ -123,6 +129,8 @@ pub struct AppliedModel {
     /// calibration was flown later); absent when either day is unknown.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub age_days: Option<i64>,
+    /// The model was fitted on this very flight (same content).
+    pub fitted_on_this_flight: bool,
     /// The airframe it was flown on.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub aircraft: Option<String>,
@@ -212,6 +220,13 @@ impl SavedModel {
         if file.models.is_empty() {
             return Err(not_ours("it holds no fitted model".into()));
         }
+        if let Some(date) = file.date.filter(|d| FlightDate::parse(&d.to_string()).is_none()) {
+            return Err(not_ours(format!("its calibration day {date} is not a day")));
+        }
+        let channels: Vec<&str> = file.models.iter().map(|m| m.channel.as_str()).collect();
+        if let Some(twice) = (channels.iter().enumerate()).find_map(|(i, c)| channels[..i].contains(c).then_some(c)) {
+            return Err(not_ours(format!("it holds two models of '{twice}'")));
+        }
         for fit in &file.models {
             let channel = &fit.channel;
             if fit.calibration_level.is_none() {
@@ -264,6 +279,37 @@ impl SavedModel {
             .filter(|f| channels.contains(&f.channel))
             .cloned()
             .collect()
+    }
+
+    /// The model file.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Warnings for `channels` whose calibration did not pass: a FOM above
+    /// `fom_limit_nt`, or findings that moved the survey beyond the stated
+    /// uncertainty (the calibration flight's CHECK).
+    pub fn calibration_warnings(&self, channels: &[String], fom_limit_nt: f64) -> Vec<String> {
+        let model = self.path.display();
+        let mut warnings = Vec::new();
+        for figures in self.file.calibration.iter().filter(|c| channels.contains(&c.channel)) {
+            let channel = &figures.channel;
+            match figures.fom_after_nt {
+                Some(fom) if fom > fom_limit_nt => warnings.push(format!(
+                    "{channel}: the model {model} had a FOM of {fom:.2} nT on its calibration flight, above the {fom_limit_nt:.2} nT limit ([quality] fom_limit_nt): this flight is compensated with a calibration that failed; fly a new box, or accept the calibration flight's report first"
+                )),
+                Some(_) => {}
+                None => warnings.push(format!(
+                    "{channel}: the model {model} has no FOM from its calibration flight (no labelled manoeuvres): nothing says the calibration passed; check the calibration flight's report"
+                )),
+            }
+            if let Some(departure) = figures.unchecked_departure_nt {
+                warnings.push(format!(
+                    "{channel}: on its calibration flight the model's findings moved the survey {departure:.4} nT from plain Tolles-Lawson, beyond its stated uncertainty (verdict CHECK): compare with a plain model (--plain --model on the calibration flight) before using this channel"
+                ));
+            }
+        }
+        warnings
     }
 
     /// The channels the model compensates, in its order.
@@ -357,6 +403,24 @@ impl SavedModel {
                     "Its eddy-current terms are per sample and its band-pass was designed at its rate: record the survey at the calibration's rate, or calibrate at this one",
                 ));
             }
+            // The coefficients are read in the order of the terms the spec
+            // builds: a list that differs was edited, and would pair each
+            // coefficient with another term.
+            if let Some(sensor) = log.vector_sensor(&fit.vector_sensor) {
+                let columns = crate::model::term_names(log, &sensor, &fit.channel, &fit.spec);
+                if columns.as_ref().is_ok_and(|names| *names != fit.term_names) {
+                    return Err(self.mismatch(
+                        log,
+                        format!(
+                            "the model of '{}' lists the terms {} where its spec builds {}",
+                            fit.channel,
+                            fit.term_names.join(", "),
+                            columns.unwrap_or_default().join(", ")
+                        ),
+                        "The file was edited or damaged: save the model again from its calibration flight (--model)",
+                    ));
+                }
+            }
             let sources = fit.spec.extensions.sources.iter().map(|s| s.column());
             if let Some(column) = sources.into_iter().find(|c| log.channel(c).is_none()) {
                 return Err(self.mismatch(
@@ -425,11 +489,12 @@ impl SavedModel {
         }
     }
 
-    /// What the quality JSON says of the model applied to a flight of
-    /// `date`.
-    pub fn applied(&self, date: Option<FlightDate>) -> AppliedModel {
+    /// What the quality JSON says of the model applied to `flight`, flown
+    /// on `date`.
+    pub fn applied(&self, date: Option<FlightDate>, flight: &FlightIdentity) -> AppliedModel {
         let file = &self.file;
         AppliedModel {
+            fitted_on_this_flight: (file.flight_identity.as_ref()).is_some_and(|f| f.difference(flight).is_none()),
             file: self.path.clone(),
             fitted_on: file.flight.clone(),
             flight: file.flight_identity.clone(),
@@ -454,9 +519,8 @@ impl SavedModel {
         let model = self.path.display();
         match applied.age_days {
             Some(age) if age.unsigned_abs() > u64::from(max_age_days) => warnings.push(format!(
-                "the model {model} was calibrated {} days {} this flight, more than [model] max_age_days = {max_age_days}: an installation changes (equipment moved, repairs, a new instrument); fly a new calibration box, or check this flight's heading error and noise against the calibration flight's",
-                age.unsigned_abs(),
-                if age >= 0 { "before" } else { "after" }
+                "the model {model} was calibrated {}, more than [model] max_age_days = {max_age_days}: an installation changes (equipment moved, repairs, a new instrument); fly a new calibration box, or check this flight's heading error and noise against the calibration flight's",
+                days_from(age)
             )),
             Some(_) => {}
             None => notes.push(format!(
@@ -467,8 +531,9 @@ impl SavedModel {
                 }
             )),
         }
+        let same = |a: &str, b: &str| a.trim().eq_ignore_ascii_case(b.trim());
         match (applied.aircraft.as_deref(), aircraft) {
-            (Some(made), Some(used)) if made != used => warnings.push(format!(
+            (Some(made), Some(used)) if !same(made, used) => warnings.push(format!(
                 "the model {model} was calibrated on the aircraft '{made}' and this flight is '{used}': another airframe's magnetic signature does not compensate this one; apply a model of '{used}'"
             )),
             (Some(_), Some(_)) => {}
@@ -482,5 +547,30 @@ impl SavedModel {
             )),
         }
         (warnings, notes)
+    }
+}
+
+/// "3 days before this flight", "1 day after this flight", "the same day
+/// as this flight": `days` from the calibration to the flight.
+pub fn days_from(days: i64) -> String {
+    let count = days.unsigned_abs();
+    let unit = if count == 1 { "day" } else { "days" };
+    match days {
+        0 => "the same day as this flight".into(),
+        d if d > 0 => format!("{count} {unit} before this flight"),
+        _ => format!("{count} {unit} after this flight"),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::days_from;
+
+    #[test]
+    fn days_read_as_words() {
+        assert_eq!(days_from(3), "3 days before this flight");
+        assert_eq!(days_from(1), "1 day before this flight");
+        assert_eq!(days_from(0), "the same day as this flight");
+        assert_eq!(days_from(-45), "45 days after this flight");
     }
 }

@@ -260,6 +260,15 @@ pub enum Error {
         source: Box<Error>,
     },
 
+    /// A flight's saved model is not there to apply, and why.
+    #[error("{model}: {reason}")]
+    ModelUnavailable {
+        /// The model file the flight names.
+        model: PathBuf,
+        /// Why it is not (the flight that writes it failed, or none does).
+        reason: String,
+    },
+
     /// A saved model (`--apply`) cannot compensate the flight it is given.
     #[error("{model}: cannot be applied to {flight}: {problem}. {hint}")]
     ModelMismatch {

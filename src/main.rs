@@ -404,10 +404,15 @@ fn run(config: &Path, (plain, force, verbose): (bool, bool, bool), shard: Option
     // A flight compensated with the model another flight of this run
     // writes (a survey flight and its calibration flight) comes after it.
     let folder = &pipeline.output_directory;
-    let written_models: Vec<PathBuf> = (mine.iter())
-        .filter_map(|&i| FlightOutputs::for_job(folder, &pipeline.flights[i]).model_json)
+    // Each model JSON a flight of the run writes (a flight given a model
+    // writes none), with whether that flight fits on itself.
+    let model_outputs: Vec<(PathBuf, &FlightJob)> = (mine.iter())
+        .map(|&i| &pipeline.flights[i])
+        .filter_map(|job| Some((FlightOutputs::for_job(folder, job).model_json?, job)))
         .collect();
-    mine.sort_by_key(|&i| (pipeline.flights[i].model.as_ref()).is_some_and(|m| written_models.contains(m)));
+    let written_here = |model: &PathBuf| model_outputs.iter().any(|(m, job)| m == model && job.model.is_none());
+    mine.sort_by_key(|&i| pipeline.flights[i].model.as_ref().is_some_and(written_here));
+    let mut failed_models: Vec<PathBuf> = Vec::new();
     if shard.count > 1 {
         println!(
             "shard {shard}: {} of the campaign's {} flights",
@@ -428,8 +433,20 @@ fn run(config: &Path, (plain, force, verbose): (bool, bool, bool), shard: Option
         // same error, in its status like any other failure.
         let _ = prepare_flight_outputs(job, &outputs);
         let bar = spinner(format!("compensating {}", job.input.display()));
-        let flight = process_campaign_flight(job, &pipeline.settings, folder, shard, force);
+        let flight = match job
+            .model
+            .as_ref()
+            .and_then(|model| model_unavailable(model, &model_outputs, &failed_models))
+        {
+            Some(error) => magcomp::campaign::fail_campaign_flight(job, folder, shard, error),
+            None => process_campaign_flight(job, &pipeline.settings, folder, shard, force),
+        };
         bar.finish_and_clear();
+        let failed = !matches!(&flight, Ok(CampaignFlight::Processed { result, .. }) if result.is_ok())
+            && !matches!(&flight, Ok(CampaignFlight::UpToDate(_)));
+        if let (true, Some(model)) = (failed, outputs.model_json.clone()) {
+            failed_models.push(model);
+        }
         // A flight whose status cannot be written fails alone: the others
         // are still processed and the table still comes.
         let flight = match flight {
@@ -480,6 +497,35 @@ fn run(config: &Path, (plain, force, verbose): (bool, bool, bool), shard: Option
         statuses.len()
     );
     Ok(())
+}
+
+/// Why a flight's saved `model` cannot be applied in this run: the flight
+/// of the run that writes it failed (the file there, if any, is an
+/// earlier run's), or no flight writes it and it is not there, or the
+/// flight that would is given a model itself and writes none.
+fn model_unavailable(
+    model: &Path,
+    outputs: &[(PathBuf, &FlightJob)],
+    failed: &[PathBuf],
+) -> Option<magcomp::error::Error> {
+    let writer = outputs.iter().find(|(m, _)| m == model).map(|(_, job)| job);
+    let reason = match writer {
+        Some(job) if job.model.is_some() => format!(
+            "it is never written: {} is itself compensated with a saved model, and a flight given a model writes none; name the model of the flight that flew the calibration box",
+            job.input.display()
+        ),
+        Some(job) if failed.iter().any(|f| f == model) => format!(
+            "the flight that writes it, {}, failed in this run, so it is not that flight's model now (a file there is an earlier run's); fix that flight and run again",
+            job.input.display()
+        ),
+        Some(_) => return None,
+        None if model.is_file() => return None,
+        None => "no such file, and no flight of this run writes it: give the model JSON that `magcomp compensate --model` or a run wrote for the calibration flight".into(),
+    };
+    Some(magcomp::error::Error::ModelUnavailable {
+        model: model.to_path_buf(),
+        reason,
+    })
 }
 
 /// Checks a flight's outputs before its work and prints the folders made

@@ -780,18 +780,28 @@ fn run_applied(
     let mut models = saved.models_for(raw_log, job.channels.as_deref(), job.vector.as_deref())?;
     let sensor = choose_vector_sensor(raw_log, Some(&models[0].vector_sensor))?;
     let channels: Vec<String> = models.iter().map(|m| m.channel.clone()).collect();
+    choose_channels(raw_log, Some(&channels))?;
     refuse_dead_columns(raw_log, &screened.screening, &sensor, Some(&channels))?;
-    let applied = saved.applied(raw_log.date());
+    let this_flight = crate::flight_identity::FlightIdentity::of(&recorded)?;
+    let applied = saved.applied(raw_log.date(), &this_flight);
     let (mut warnings, mut notes) =
         saved.age_and_aircraft(&applied, job.aircraft.as_deref(), options.model_max_age_days);
-    if let Some(fitted_on) = &applied.flight {
-        if fitted_on
-            .difference(&crate::flight_identity::FlightIdentity::of(&recorded)?)
-            .is_none()
-        {
-            notes.push(
-                "the model was fitted on this very flight: its compensation is that of the calibration run".into(),
-            );
+    if applied.fitted_on_this_flight {
+        notes.push("the model was fitted on this very flight: its compensation is that of the calibration run".into());
+    }
+    warnings.extend(saved.calibration_warnings(&channels, options.fom_limit_nt));
+    if job.channels.is_none() {
+        // A magnetometer the model does not hold is written uncompensated.
+        let left: Vec<&str> = (raw_log.scalar_channels().into_iter())
+            .filter(|c| !channels.iter().any(|m| m == c))
+            .collect();
+        if !left.is_empty() {
+            let them = if left.len() == 1 { "it" } else { "them" };
+            warnings.push(format!(
+                "{} not compensated: the model {} holds no model of {them}; calibrate {them} on a flight with a box, or name this flight's channels with --channels",
+                left.join(", "),
+                saved.path().display(),
+            ));
         }
     }
     warnings.splice(0..0, screened.warnings(&recorded));
@@ -808,10 +818,16 @@ fn run_applied(
         for model in &mut models {
             model.windows = model.held_out(log, &sensor, &windows, &options.fit)?;
         }
-        notes.push(format!(
-            "the model is held out on this flight's {} calibration window(s): its FOM and IR here are of a model fitted on another flight",
-            windows.len()
-        ));
+        notes.push(match applied.fitted_on_this_flight {
+            true => format!(
+                "the model is set against {} calibration window(s) of the flight it was fitted on: its FOM and IR here are in sample",
+                windows.len()
+            ),
+            false => format!(
+                "the model is held out on this flight's {} calibration window(s): its FOM and IR here are of a model fitted on another flight",
+                windows.len()
+            ),
+        });
     }
     let shared = SharedDesign::of_models(log, &models);
     let mut compensation = crate::compensate::compensate_with(log, &models, options.level, &shared)?;
@@ -831,12 +847,15 @@ fn run_applied(
         .collect::<Result<_>>()?;
     drop(shared);
     if models.iter().all(|m| m.windows.is_empty()) {
-        // No band here: the improvement ratio is the calibration's.
+        // No calibration windows here: no band figures (the model's are
+        // its calibration flight's, in the model section).
         for q in &mut quality {
             q.improvement_ratio = f64::NAN;
+            q.band_std_before_nt = f64::NAN;
+            q.band_std_after_nt = f64::NAN;
         }
     }
-    let next_step = "Fly a calibration box, compensate it with --model and apply that model, or compare with the calibration flight's report";
+    let next_step = "The model is its calibration flight's: fly a new calibration box and apply its model, or compare with the calibration flight's report";
     for (q, channel) in quality.iter().zip(&compensation.channels) {
         warnings.extend(crate::quality::quality_warnings(q, options.fom_limit_nt, next_step));
         if channel.sigma_nt.is_none() {
@@ -1324,6 +1343,12 @@ pub fn choose_channels(log: &FlightLog, wanted: Option<&[String]>) -> Result<Vec
         Some(list) => list.to_vec(),
         None => log.scalar_channels().into_iter().map(String::from).collect(),
     };
+    if let Some(twice) = (channels.iter().enumerate()).find_map(|(i, c)| channels[..i].contains(c).then_some(c)) {
+        return Err(Error::Config {
+            source_name: log.source().display().to_string(),
+            message: format!("the channel '{twice}' is asked for twice; name each channel to compensate once"),
+        });
+    }
     if channels.is_empty() {
         return Err(Error::MissingColumn {
             path: log.source().to_path_buf(),
@@ -1364,7 +1389,7 @@ fn applied_summary(result: &FlightResult, applied: &crate::apply::AppliedModel) 
             .unwrap_or_default(),
         applied
             .age_days
-            .map(|d| format!(", {d} days before this flight"))
+            .map(|d| format!(", {}", crate::apply::days_from(d)))
             .unwrap_or_default(),
     );
     for (quality, model) in result.channels.iter().zip(&result.models) {
@@ -1378,11 +1403,18 @@ fn applied_summary(result: &FlightResult, applied: &crate::apply::AppliedModel) 
             quality.noise_4th_difference_before_nt,
             quality.noise_4th_difference_after_nt
         );
-        if let (Some(before), Some(after)) = (quality.fom_before_nt, quality.fom_after_nt) {
+        if !model.windows.is_empty() {
+            let how = match applied.fitted_on_this_flight {
+                true => "on the windows it was fitted on",
+                false => "held out on this flight's windows",
+            };
             text += &format!(
-                "; held out on this flight's manoeuvres: FOM {before:.2} → {after:.2} nT ({} of 12), IR {:.2}",
-                quality.fom_manoeuvres, quality.improvement_ratio
+                "; {how}: band std {:.3} → {:.3} nT, IR {:.2}",
+                quality.band_std_before_nt, quality.band_std_after_nt, quality.improvement_ratio
             );
+            if let (Some(before), Some(after)) = (quality.fom_before_nt, quality.fom_after_nt) {
+                text += &format!(", FOM {before:.2} → {after:.2} nT ({} of 12)", quality.fom_manoeuvres);
+            }
         }
         text += "\n";
         if let Some(error) = &quality.heading_error {

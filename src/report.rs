@@ -576,11 +576,21 @@ fn applied_verdict(quality: &ChannelQuality, applied: &crate::apply::AppliedMode
         escape(&applied.fitted_on.display().to_string()),
         saved.map_or("no calibration figures saved".into(), |c| c.describe())
     ));
+    let how = match applied.fitted_on_this_flight {
+        true => "on the windows it was fitted on",
+        false => "held out on this flight's windows",
+    };
     if let (Some(before), Some(after)) = (quality.fom_before_nt, quality.fom_after_nt) {
         let class = if after <= limit_nt { "pass" } else { "fail" };
         lines.push(format!(
-            "<span class=\"{class}\">held out on this flight's manoeuvres: FOM {before:.2} → {after:.2} nT</span> over {} of 12 (limit {limit_nt} nT), IR {:.1}",
-            quality.fom_manoeuvres, quality.improvement_ratio
+            "<span class=\"{class}\">{how}: FOM {before:.2} → {after:.2} nT</span> over {} of 12 (limit {limit_nt} nT)",
+            quality.fom_manoeuvres
+        ));
+    }
+    if quality.improvement_ratio.is_finite() {
+        lines.push(format!(
+            "{how}: IR {:.1}; band std {:.3} → {:.3} nT",
+            quality.improvement_ratio, quality.band_std_before_nt, quality.band_std_after_nt
         ));
     }
     lines.push(format!(
@@ -880,11 +890,21 @@ pub fn stage_diagnosis_report(path: &Path, flight: &Path, diagnosis: &Diagnosis)
 fn applied_findings_section(result: &FlightResult) -> String {
     use crate::diagnose::ApplyDiagnosis;
     let mut html = String::from("<section id=\"applied\"><h2>Model</h2>");
-    if result.diagnosis_mode == ApplyDiagnosis::Never {
-        html += "<p>Plain Tolles-Lawson: no diagnosis applied (<code>--plain</code> or <code>[diagnose] apply = \"never\"</code>).</p>";
-    } else if result.applied_findings.is_empty() {
-        html += "<p>Plain Tolles-Lawson: no diagnosed finding changes the model.</p>";
-    } else {
+    let empty = result.applied_findings.is_empty();
+    match (&result.model, result.diagnosis_mode) {
+        (Some(_), _) if empty => {
+            html += "<p>The saved model is plain Tolles-Lawson: its calibration flight applied no diagnosed finding.</p>"
+        }
+        (Some(_), _) => {
+            html += "<p>The saved model's findings, diagnosed and applied on its calibration flight (held-out RMS there):</p>"
+        }
+        (None, ApplyDiagnosis::Never) => {
+            html += "<p>Plain Tolles-Lawson: no diagnosis applied (<code>--plain</code> or <code>[diagnose] apply = \"never\"</code>).</p>"
+        }
+        (None, _) if empty => html += "<p>Plain Tolles-Lawson: no diagnosed finding changes the model.</p>",
+        (None, _) => {}
+    }
+    if !empty {
         html += "<table><tr><th>channel</th><th>effect</th><th>source</th><th>held-out RMS before, nT</th><th>with it, nT</th></tr>";
         for applied in &result.applied_findings {
             let _ = write!(
@@ -1063,7 +1083,15 @@ pub fn stage_report(path: &Path, flight: &FlightRun, fom_limit_nt: f64) -> Resul
             channel: model.channel.clone(),
             fom_after_nt: quality.fom_after_nt,
             fom_limit_nt,
-            fom_pass: quality.fom_after_nt.map(|f| f <= fom_limit_nt),
+            // A flight given a saved model passes or fails with its
+            // calibration flight's FOM (or its own, held out, when it has one).
+            fom_pass: (quality.fom_after_nt)
+                .or_else(|| {
+                    let applied = result.model.as_ref()?;
+                    let saved = applied.calibration.iter().find(|c| c.channel == quality.channel)?;
+                    saved.fom_after_nt
+                })
+                .map(|f| f <= fom_limit_nt),
             improvement_ratio: quality.improvement_ratio,
             line_noise: noise,
         });

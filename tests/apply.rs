@@ -384,6 +384,88 @@ fn a_model_that_does_not_fit_the_flight_is_refused_with_the_reason() {
     // Not a model at all.
     let text = refused(&at("f.csv"), &at("f.windows.json"), &at("out.csv"));
     assert!(text.contains("not a model JSON written by magcomp"), "{text}");
+    // A hand-edited term list would pair coefficients with other terms.
+    let mut edited: serde_json::Value =
+        serde_json::from_reader(std::fs::File::open(at("model.json")).unwrap()).unwrap();
+    edited["models"][0]["term_names"][3] = "wobble".into();
+    std::fs::write(at("edited_model.json"), edited.to_string()).unwrap();
+    let text = refused(&at("f.csv"), &at("edited_model.json"), &at("out.csv"));
+    assert!(text.contains("lists the terms") && text.contains("wobble"), "{text}");
+    // A channel with no sample at all, as when fitting on the flight.
+    let mut reader = csv::Reader::from_path(at("f.csv")).unwrap();
+    let header = reader.headers().unwrap().clone();
+    let blank = header.iter().position(|h| h == "mag_2_uc").unwrap();
+    let mut writer = csv::Writer::from_path(at("blank.csv")).unwrap();
+    writer.write_record(&header).unwrap();
+    for record in reader.records() {
+        let record = record.unwrap();
+        writer
+            .write_record(record.iter().enumerate().map(|(i, c)| if i == blank { "" } else { c }))
+            .unwrap();
+    }
+    writer.flush().unwrap();
+    let text = refused(&at("blank.csv"), &at("model.json"), &at("out.csv"));
+    assert!(text.contains("column 'mag_2_uc' has no valid sample"), "{text}");
+}
+
+#[test]
+fn what_the_model_cannot_vouch_for_is_a_warning() {
+    let folder = tempfile::tempdir().unwrap();
+    let at = |name: &str| folder.path().join(name);
+    run_ok(
+        magcomp()
+            .args(["sample-flight", "--out"])
+            .arg(at("f.csv"))
+            .arg("--windows")
+            .arg(at("f.windows.json")),
+    );
+    run_ok(
+        magcomp()
+            .arg("compensate")
+            .arg(at("f.csv"))
+            .arg("--out")
+            .arg(at("own.csv"))
+            .arg("--plain")
+            .args(["--channels", "mag_1_uc"])
+            .arg("--model")
+            .arg(at("model.json")),
+    );
+    // A FOM limit the calibration did not meet, and a magnetometer the
+    // model holds no model of.
+    std::fs::write(at("strict.toml"), "[quality]\nfom_limit_nt = 0.1\n").unwrap();
+    let stdout = run_ok(
+        magcomp()
+            .arg("compensate")
+            .arg(at("f.csv"))
+            .arg("--out")
+            .arg(at("applied.csv"))
+            .arg("--apply")
+            .arg(at("model.json"))
+            .arg("--config")
+            .arg(at("strict.toml")),
+    );
+    assert!(
+        stdout.contains("mag_1_uc: the model") && stdout.contains("above the 0.10 nT limit"),
+        "{stdout}"
+    );
+    assert!(stdout.contains("mag_2_uc not compensated: the model"), "{stdout}");
+    let quality = std::fs::read_to_string(at("applied_report.json")).unwrap();
+    let figures: serde_json::Value = serde_json::from_str(&quality).unwrap();
+    assert_eq!(figures["channels"][0]["fom_pass"], false, "{quality}");
+    // The channel asked for twice.
+    let output = magcomp()
+        .arg("compensate")
+        .arg(at("f.csv"))
+        .arg("--out")
+        .arg(at("twice.csv"))
+        .args(["--channels", "mag_1_uc,mag_1_uc", "--plain"])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&output.stderr);
+    assert!(
+        !output.status.success() && text.contains("'mag_1_uc' is asked for twice"),
+        "{text}"
+    );
 }
 
 #[test]
@@ -440,4 +522,18 @@ fn a_run_applies_the_model_its_calibration_flight_writes() {
     let survey_rows: Vec<&str> = summary.lines().filter(|l| l.starts_with("survey,")).collect();
     assert_eq!(survey_rows.len(), 2, "{summary}");
     assert!(survey_rows.iter().all(|r| r.contains("cal_model.json")), "{summary}");
+    // The calibration flight damaged: the survey flight fails with it,
+    // though the model JSON of the first run is still there.
+    std::fs::write(at("cal.csv"), lines[..lines.len() / 2].join("\n") + "\n1,2\n").unwrap();
+    let output = magcomp().arg("run").arg(at("pipeline.toml")).output().unwrap();
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success());
+    assert!(
+        stderr.contains("the flight that writes it") && stderr.contains("failed in this run"),
+        "{stdout}{stderr}"
+    );
+    let status: serde_json::Value =
+        serde_json::from_reader(std::fs::File::open(at("out/survey_status.json")).unwrap()).unwrap();
+    assert_eq!(status["state"], "failed", "{status}");
 }

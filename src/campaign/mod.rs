@@ -24,7 +24,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use crate::config::{FlightJob, Settings};
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::pipeline::FlightResult;
 use crate::sink::{process_flight_listing, FlightOutputs};
 
@@ -66,22 +66,7 @@ pub fn process_campaign_flight(
     let path = status_path(folder, &job.output_name);
     let hashes =
         crate::flight_identity::hash_file(&job.input).and_then(|input| Ok((input, settings_sha256(job, settings)?)));
-    let mut status = FlightStatus {
-        flight: job.output_name.clone(),
-        input: job.input.clone(),
-        input_sha256: String::new(),
-        settings_sha256: String::new(),
-        magcomp_version: env!("CARGO_PKG_VERSION").into(),
-        state: FlightState::Failed,
-        error: None,
-        outputs: Vec::new(),
-        rows: None,
-        warnings: Vec::new(),
-        aircraft: job.aircraft.clone(),
-        date: job.date.map(|d| d.to_string()),
-        elapsed_s: 0.0,
-        shard: shard.to_string(),
-    };
+    let mut status = failed_status(job, shard);
     let result = match hashes {
         Ok((input_sha256, settings_sha256)) => {
             if let Some(previous) = FlightStatus::read(&path) {
@@ -113,6 +98,39 @@ pub fn process_campaign_flight(
         status,
         result: Box::new(result),
     })
+}
+
+/// A flight of the campaign that cannot be processed for `error` (its
+/// calibration flight failed in this run, say): its status is written
+/// as failed, with the error, like any failure.
+pub fn fail_campaign_flight(job: &FlightJob, folder: &Path, shard: Shard, error: Error) -> Result<CampaignFlight> {
+    let mut status = failed_status(job, shard);
+    status.error = Some(error.to_string());
+    status.write(&status_path(folder, &job.output_name))?;
+    Ok(CampaignFlight::Processed {
+        status,
+        result: Box::new(Err(error)),
+    })
+}
+
+/// The status of `job` before its work: failed, with nothing written.
+fn failed_status(job: &FlightJob, shard: Shard) -> FlightStatus {
+    FlightStatus {
+        flight: job.output_name.clone(),
+        input: job.input.clone(),
+        input_sha256: String::new(),
+        settings_sha256: String::new(),
+        magcomp_version: env!("CARGO_PKG_VERSION").into(),
+        state: FlightState::Failed,
+        error: None,
+        outputs: Vec::new(),
+        rows: None,
+        warnings: Vec::new(),
+        aircraft: job.aircraft.clone(),
+        date: job.date.map(|d| d.to_string()),
+        elapsed_s: 0.0,
+        shard: shard.to_string(),
+    }
 }
 
 fn file_names(paths: &[PathBuf]) -> Vec<String> {

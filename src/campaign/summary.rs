@@ -292,11 +292,16 @@ impl CampaignSummary {
         (done, self.flights.len() - done)
     }
 
-    /// The named aircraft with two flights done or more, each with its flights
-    /// in date order (undated last, then by name).
+    /// The named aircraft with two calibrated flights done or more, each
+    /// with its flights in date order (undated last, then by name). A
+    /// flight compensated with a saved model is not a calibration.
     pub fn recurring_aircraft(&self) -> Vec<(String, Vec<&SummaryFlight>)> {
         let mut groups: std::collections::BTreeMap<String, Vec<&SummaryFlight>> = Default::default();
-        for flight in self.flights.iter().filter(|f| f.status.state == FlightState::Done) {
+        let calibrated = |f: &&SummaryFlight| !f.channels.iter().any(|c| c.model.is_some());
+        for flight in (self.flights.iter())
+            .filter(|f| f.status.state == FlightState::Done)
+            .filter(calibrated)
+        {
             if let Some(aircraft) = &flight.status.aircraft {
                 groups.entry(aircraft.clone()).or_default().push(flight);
             }

@@ -252,6 +252,16 @@ pub fn fit(
     Prepared::new(log, sensor, channel, spec)?.fit(windows, options, stores)
 }
 
+/// The term names a model of `spec` for `channel` fits, in coefficient
+/// order: the Tolles-Lawson terms, then the extension columns; an error
+/// when `log` lacks a column the spec takes.
+pub fn term_names(log: &FlightLog, sensor: &VectorSensor, channel: &str, spec: &ModelSpec) -> Result<Vec<String>> {
+    let prepared = Prepared::new(log, sensor, channel, spec)?;
+    Ok((spec.fitted_terms().names().into_iter())
+        .chain(prepared.extra.iter().map(|c| c.name.clone()))
+        .collect())
+}
+
 /// A model's prediction over a whole flight.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Prediction<'a> {
