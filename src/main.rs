@@ -372,6 +372,18 @@ fn print_notes(notes: &[String]) {
     }
 }
 
+/// "40 s", "3 min", "1 h 20 min": a time left, as a person says it.
+fn duration_words(duration: Duration) -> String {
+    let seconds = duration.as_secs();
+    match seconds {
+        0..=59 => format!("{seconds} s"),
+        60..=3599 => format!("{} min", seconds.div_ceil(60)),
+        _ => format!("{} h {} min", seconds / 3600, (seconds % 3600) / 60),
+    }
+}
+
+/// A spinner on stderr with `message` and the time elapsed; indicatif
+/// draws nothing when stderr is not a terminal (piped or redirected).
 fn spinner(message: String) -> ProgressBar {
     let bar = ProgressBar::new_spinner().with_message(message);
     bar.set_style(
@@ -426,13 +438,28 @@ fn run(config: &Path, (plain, force, verbose): (bool, bool, bool), shard: Option
         println!("created the output folder {}", folder.display());
     }
     let mut statuses = Vec::with_capacity(mine.len());
-    for &index in &mine {
+    // What the flights processed so far took, for the time left.
+    let mut spent = (Duration::ZERO, 0u32);
+    for (k, &index) in mine.iter().enumerate() {
         let job = &pipeline.flights[index];
         let outputs = FlightOutputs::for_job(folder, job);
         // Outputs that cannot be written fail the flight below, with the
         // same error, in its status like any other failure.
         let _ = prepare_flight_outputs(job, &outputs);
-        let bar = spinner(format!("compensating {}", job.input.display()));
+        let left = match spent {
+            (_, 0) => String::new(),
+            (total, done) => format!(
+                ", about {} left",
+                duration_words(total / done * (mine.len() - k) as u32)
+            ),
+        };
+        let bar = spinner(format!(
+            "flight {} of {}{left}: compensating {}",
+            k + 1,
+            mine.len(),
+            job.input.display()
+        ));
+        let started = std::time::Instant::now();
         let flight = match job
             .model
             .as_ref()
@@ -442,6 +469,9 @@ fn run(config: &Path, (plain, force, verbose): (bool, bool, bool), shard: Option
             None => process_campaign_flight(job, &pipeline.settings, folder, shard, force),
         };
         bar.finish_and_clear();
+        if !matches!(&flight, Ok(CampaignFlight::UpToDate(_))) {
+            spent = (spent.0 + started.elapsed(), spent.1 + 1);
+        }
         let failed = !matches!(&flight, Ok(CampaignFlight::Processed { result, .. }) if result.is_ok())
             && !matches!(&flight, Ok(CampaignFlight::UpToDate(_)));
         if let (true, Some(model)) = (failed, outputs.model_json.clone()) {
@@ -976,4 +1006,16 @@ fn diagnose(
         );
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn time_left_reads_as_a_person_says_it() {
+        assert_eq!(duration_words(Duration::from_secs(40)), "40 s");
+        assert_eq!(duration_words(Duration::from_secs(61)), "2 min");
+        assert_eq!(duration_words(Duration::from_secs(4_800)), "1 h 20 min");
+    }
 }
