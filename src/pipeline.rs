@@ -1515,7 +1515,7 @@ pub fn summary(result: &FlightResult, verbose: bool) -> String {
         }
         (false, count) => {
             text += &format!(
-                "  {count} note{} in the quality JSON and the report (-v prints them)\n",
+                "  {count} note{} in the report (-v prints them)\n",
                 if count == 1 { "" } else { "s" }
             )
         }

@@ -522,6 +522,13 @@ fn a_run_applies_the_model_its_calibration_flight_writes() {
     let survey_rows: Vec<&str> = summary.lines().filter(|l| l.starts_with("survey,")).collect();
     assert_eq!(survey_rows.len(), 2, "{summary}");
     assert!(survey_rows.iter().all(|r| r.contains("cal_model.json")), "{summary}");
+    // Each channel's verdict: the calibration's FOM passes the limit, so
+    // both flights' channels pass.
+    let header: Vec<&str> = summary.lines().next().unwrap().split(',').collect();
+    let verdict = header.iter().position(|h| *h == "verdict").unwrap();
+    for row in summary.lines().skip(1) {
+        assert_eq!(row.split(',').nth(verdict), Some("PASS"), "{summary}");
+    }
     // The calibration flight damaged: the survey flight fails with it,
     // though the model JSON of the first run is still there.
     std::fs::write(at("cal.csv"), lines[..lines.len() / 2].join("\n") + "\n1,2\n").unwrap();

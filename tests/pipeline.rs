@@ -583,10 +583,7 @@ fn compensate_lists_what_it_writes_and_prints_notes_with_verbose() {
     };
     let quiet = stdout_of(false);
     let notes: usize = (quiet.lines())
-        .find_map(|l| {
-            l.trim()
-                .strip_suffix(" in the quality JSON and the report (-v prints them)")
-        })
+        .find_map(|l| l.trim().strip_suffix(" in the report (-v prints them)"))
         .and_then(|l| l.split(' ').next()?.parse().ok())
         .unwrap_or_else(|| panic!("a count of the notes: {quiet}"));
     assert!(notes > 0 && !quiet.contains("note:"), "{quiet}");

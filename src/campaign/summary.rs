@@ -49,6 +49,12 @@ pub struct ChannelFigures {
     /// The saved model the channel was compensated with (`--apply`), as
     /// the quality JSON names it; `None` when fitted on its own flight.
     pub model: Option<String>,
+    /// The report's verdict: `PASS` or `FAIL` (FOM against the run's
+    /// `[quality] fom_limit_nt`; a flight given a model, its calibration
+    /// flight's FOM), `CHECK` (diagnosed findings moved the survey beyond
+    /// the stated uncertainty), `no FOM`, or empty when the report's
+    /// figures cannot be read.
+    pub verdict: String,
 }
 
 /// One coefficient of one channel's model.
@@ -193,6 +199,21 @@ fn summary_flight(folder: &Path, path: &Path) -> Result<SummaryFlight> {
     match read_json(&folder.join(format!("{name}_quality.json"))) {
         Ok(quality) => {
             flight.channels = channel_figures(&quality);
+            // The pass or fail the report gave, from its figures.
+            let report = read_json(&folder.join(format!("{name}_report.json"))).unwrap_or_default();
+            let passes = report["channels"].as_array().cloned().unwrap_or_default();
+            for channel in &mut flight.channels {
+                let pass = (passes.iter())
+                    .find(|c| c["channel"].as_str() == Some(&channel.channel))
+                    .map(|c| c["fom_pass"].as_bool());
+                channel.verdict = match (channel.verdict.as_str(), pass) {
+                    ("CHECK", _) => "CHECK".into(),
+                    (_, Some(Some(true))) => "PASS".into(),
+                    (_, Some(Some(false))) => "FAIL".into(),
+                    (_, Some(None)) => "no FOM".into(),
+                    (_, None) => String::new(),
+                };
+            }
             if flight.channels.is_empty() {
                 flight.problems.push(format!(
                     "{name}_quality.json lists no compensated channel although the flight is done: its row has no figures; read the flight's warnings and run it again"
@@ -226,6 +247,13 @@ fn read_json(path: &Path) -> std::result::Result<Value, String> {
 fn channel_figures(quality: &Value) -> Vec<ChannelFigures> {
     let findings = quality["applied_findings"].as_array().cloned().unwrap_or_default();
     let model = quality["model"]["file"].as_str().map(str::to_string);
+    // Findings that moved the survey beyond the stated uncertainty
+    // (`ChannelQuality::unchecked_departure`): no plain pass.
+    let unchecked = |channel: &Value| {
+        let departure = channel["survey_departure_from_plain_nt"].as_f64();
+        let stated = channel["uncertainty"]["outside_calibration_sigma_nt"].as_f64();
+        departure.is_some_and(|d| d > stated.unwrap_or(0.0).max(crate::quality::DEPARTURE_FLOOR_NT))
+    };
     let number = |value: &Value| value.as_f64();
     quality["channels"]
         .as_array()
@@ -250,6 +278,11 @@ fn channel_figures(quality: &Value) -> Vec<ChannelFigures> {
                     })
                     .collect(),
                 model: model.clone(),
+                verdict: if unchecked(channel) {
+                    "CHECK".into()
+                } else {
+                    String::new()
+                },
                 channel: name,
             }
         })
@@ -427,6 +460,7 @@ impl CampaignSummary {
             "rows",
             "warnings",
             "channel",
+            "verdict",
             "fom_before_nt",
             "fom_after_nt",
             "improvement_ratio",
@@ -451,7 +485,7 @@ impl CampaignSummary {
                 rows.push(
                     head.iter()
                         .cloned()
-                        .chain(vec![String::new(); 7])
+                        .chain(vec![String::new(); 8])
                         .chain([flight.problem()])
                         .collect(),
                 );
@@ -459,6 +493,7 @@ impl CampaignSummary {
             for channel in &flight.channels {
                 let figures = [
                     channel.channel.clone(),
+                    channel.verdict.clone(),
                     figure(channel.fom_before_nt),
                     figure(channel.fom_after_nt),
                     figure(channel.improvement_ratio),
@@ -542,7 +577,7 @@ impl CampaignSummary {
             "<h1>Campaign summary</h1>\n<p>{} flights: {done} done, {failed} failed.</p>",
             self.flights.len()
         );
-        page += "<h2>Flights</h2>\n<table><tr><th class=\"text\">flight</th><th class=\"text\">aircraft</th><th class=\"text\">date</th><th class=\"text\">state</th><th>rows</th><th>warnings</th><th class=\"text\">channel</th><th>FOM before, nT</th><th>FOM after, nT</th><th>IR</th><th class=\"text\">findings applied</th><th class=\"text\">saved model applied</th><th class=\"text\">problem</th></tr>\n";
+        page += "<h2>Flights</h2>\n<table><tr><th class=\"text\">flight</th><th class=\"text\">aircraft</th><th class=\"text\">date</th><th class=\"text\">state</th><th>rows</th><th>warnings</th><th class=\"text\">channel</th><th class=\"text\">verdict</th><th>FOM before, nT</th><th>FOM after, nT</th><th>IR</th><th class=\"text\">findings applied</th><th class=\"text\">saved model applied</th><th class=\"text\">problem</th></tr>\n";
         for flight in &self.flights {
             let status = &flight.status;
             let problem = flight.problem();
@@ -562,15 +597,16 @@ impl CampaignSummary {
             if flight.channels.is_empty() {
                 let _ = writeln!(
                     page,
-                    "<tr{class}>{head}<td></td><td></td><td></td><td></td><td></td><td></td><td class=\"text\">{}</td></tr>",
+                    "<tr{class}>{head}<td></td><td></td><td></td><td></td><td></td><td></td><td></td><td class=\"text\">{}</td></tr>",
                     escape(&problem)
                 );
             }
             for channel in &flight.channels {
                 let _ = writeln!(
                     page,
-                    "<tr{class}>{head}<td class=\"text\">{}</td><td>{}</td><td>{}</td><td>{}</td><td class=\"text\">{}</td><td class=\"text\">{}</td><td class=\"text\">{}</td></tr>",
+                    "<tr{class}>{head}<td class=\"text\">{}</td><td class=\"text\">{}</td><td>{}</td><td>{}</td><td>{}</td><td class=\"text\">{}</td><td class=\"text\">{}</td><td class=\"text\">{}</td></tr>",
                     escape(&channel.channel),
+                    escape(&channel.verdict),
                     figure(channel.fom_before_nt),
                     figure(channel.fom_after_nt),
                     figure(channel.improvement_ratio),
