@@ -1,6 +1,7 @@
 //! The default never makes a clean channel worse: clean simulated flights
 //! drawn the way a new user would draw them (1–8 scalar sensors in the
-//! tail, cabin, wings and nose; 5–50 Hz; 20–240 minutes; the simulator's
+//! tail, cabin, wings and nose; 5–50 Hz; 20–240 minutes; half the boxes
+//! flown back to back with the airframe's coupled motion; the simulator's
 //! auxiliary channels, which vary through the flight but couple to
 //! nothing; a base station with 10–100 nT of diurnal variation), each
 //! compensated by `compensate`'s default (`[diagnose] apply = "auto"`,
@@ -108,6 +109,27 @@ fn clean_plan(seed: u64) -> RawScenario {
     survey.altitude_m = draw.uniform(100.0, 400.0);
     survey.turbulence_deg = draw.uniform(0.2, 1.0);
     raw.crust.dipole_count = 12;
+    // Half the boxes flown as real crews fly them (measured on a survey
+    // aircraft): pitch, roll and yaw back to back, turns rolled into, and
+    // the airframe's cross-axis response to each manoeuvre (its own draws:
+    // the rest of the plan is unchanged).
+    let mut crew = Random::new(0x5AFE ^ seed).fork("clean flight crew");
+    if crew.uniform(0.0, 1.0) < 0.5 {
+        let box_ = &mut raw.calibration;
+        box_.pause_s = [0.0, crew.uniform(0.0, 1.5)];
+        let quickest = crew.uniform(1.5, 4.0);
+        box_.turn_entry_s = [quickest, crew.uniform(quickest, 6.0)];
+        let mut range = |low: f64, high: f64| {
+            let a = crew.uniform(low, high);
+            [a, crew.uniform(a, high)]
+        };
+        let coupling = &mut box_.coupling;
+        coupling.pitch_roll = range(0.1, 0.3);
+        coupling.roll_pitch = range(0.0, 0.1);
+        coupling.roll_yaw = range(0.2, 0.4);
+        coupling.yaw_roll = range(0.3, 0.55);
+        coupling.lag_deg = [0.0, 60.0];
+    }
     // The fluxgate mounted any way round, as on real aircraft (its own
     // draws: the rest of the plan is unchanged).
     let mut mount = Random::new(0x5AFE ^ seed).fork("clean flight mounting");
