@@ -489,12 +489,24 @@ impl SavedModel {
         }
     }
 
-    /// What the quality JSON says of the model applied to `flight`, flown
-    /// on `date`.
-    pub fn applied(&self, date: Option<FlightDate>, flight: &FlightIdentity) -> AppliedModel {
+    /// What the quality JSON says of the model applied to the flight
+    /// `log`, flown on `date`.
+    pub fn applied(&self, date: Option<FlightDate>, log: &FlightLog) -> Result<AppliedModel> {
         let file = &self.file;
-        AppliedModel {
-            fitted_on_this_flight: (file.flight_identity.as_ref()).is_some_and(|f| f.difference(flight).is_none()),
+        // The input is hashed only when its rows and time span are the
+        // calibration flight's: another flight is told apart for free.
+        let time = log.time_s();
+        let same_span = (file.flight_identity.as_ref()).is_some_and(|f| {
+            f.rows == log.len()
+                && time.first().is_some_and(|t| t.to_bits() == f.t_start.to_bits())
+                && time.last().is_some_and(|t| t.to_bits() == f.t_end.to_bits())
+        });
+        let fitted_on_this_flight = match (same_span, &file.flight_identity) {
+            (true, Some(saved)) => saved.difference(&FlightIdentity::of(log)?).is_none(),
+            _ => false,
+        };
+        Ok(AppliedModel {
+            fitted_on_this_flight,
             file: self.path.clone(),
             fitted_on: file.flight.clone(),
             flight: file.flight_identity.clone(),
@@ -504,7 +516,7 @@ impl SavedModel {
             aircraft: file.aircraft.clone(),
             written_by: file.written_by.clone().unwrap_or_else(|| "an earlier magcomp".into()),
             calibration: file.calibration.clone(),
-        }
+        })
     }
 
     /// Warnings and notes for applying the model to a flight of `date`

@@ -574,18 +574,7 @@ fn run_fitted(
         .par_iter()
         .zip(compensation.channels.par_iter_mut())
         .map(|(model, channel)| {
-            let mut quality = assess_quality(log, model, channel);
-            let mut jackknife_levels = Vec::new();
-            if let Some(prediction) = model.prediction_sigma_with(log, &shared)? {
-                jackknife_levels = prediction.levels_nt.clone();
-                quality.uncertainty = crate::quality::uncertainty_of(log, model, &prediction);
-                let noise = quality.white_noise_nt();
-                // Without a noise figure there is no sigma column; the
-                // run warns below.
-                if let Some(noise) = noise {
-                    channel.set_sigma(&prediction, noise);
-                }
-            }
+            let (mut quality, jackknife_levels) = assess_with_sigma(log, model, channel, &shared)?;
             quality.transfer = check_transfer(
                 log,
                 &sensor,
@@ -782,8 +771,7 @@ fn run_applied(
     let channels: Vec<String> = models.iter().map(|m| m.channel.clone()).collect();
     choose_channels(raw_log, Some(&channels))?;
     refuse_dead_columns(raw_log, &screened.screening, &sensor, Some(&channels))?;
-    let this_flight = crate::flight_identity::FlightIdentity::of(&recorded)?;
-    let applied = saved.applied(raw_log.date(), &this_flight);
+    let applied = saved.applied(raw_log.date(), &recorded)?;
     let (mut warnings, mut notes) =
         saved.age_and_aircraft(&applied, job.aircraft.as_deref(), options.model_max_age_days);
     if applied.fitted_on_this_flight {
@@ -834,16 +822,7 @@ fn run_applied(
     let mut quality: Vec<ChannelQuality> = models
         .par_iter()
         .zip(compensation.channels.par_iter_mut())
-        .map(|(model, channel)| {
-            let mut quality = assess_quality(log, model, channel);
-            if let Some(prediction) = model.prediction_sigma_with(log, &shared)? {
-                quality.uncertainty = crate::quality::uncertainty_of(log, model, &prediction);
-                if let Some(noise) = quality.white_noise_nt() {
-                    channel.set_sigma(&prediction, noise);
-                }
-            }
-            Ok(quality)
-        })
+        .map(|(model, channel)| assess_with_sigma(log, model, channel, &shared).map(|(quality, _)| quality))
         .collect::<Result<_>>()?;
     drop(shared);
     if models.iter().all(|m| m.windows.is_empty()) {
@@ -920,6 +899,27 @@ fn run_applied(
         compensation,
         result,
     })
+}
+
+/// A compensated channel's figures, its uncertainty and its sigma column
+/// (set on `channel`; none without a jackknife or a noise figure, which
+/// the run warns of), and each jackknife deviation's mean over the
+/// calibration (empty without a jackknife): the level saved with the model.
+fn assess_with_sigma(
+    log: &FlightLog,
+    model: &FittedModel,
+    channel: &mut crate::compensate::CompensatedChannel,
+    shared: &[SharedDesign],
+) -> Result<(ChannelQuality, Vec<f64>)> {
+    let mut quality = assess_quality(log, model, channel);
+    let Some(prediction) = model.prediction_sigma_with(log, shared)? else {
+        return Ok((quality, Vec::new()));
+    };
+    quality.uncertainty = crate::quality::uncertainty_of(log, model, &prediction);
+    if let Some(noise) = quality.white_noise_nt() {
+        channel.set_sigma(&prediction, noise);
+    }
+    Ok((quality, prediction.levels_nt))
 }
 
 /// What the fit takes from a diagnosis.

@@ -65,17 +65,23 @@ fn columns(path: &Path, wanted: &[&str]) -> Vec<Vec<String>> {
     out
 }
 
+/// Writes the sample flight (a box and survey lines) at `path`, its
+/// windows beside it.
+fn sample_flight(path: &Path) {
+    run_ok(
+        magcomp()
+            .args(["sample-flight", "--out"])
+            .arg(path)
+            .arg("--windows")
+            .arg(path.with_extension("windows.json")),
+    );
+}
+
 #[test]
 fn a_model_applied_to_its_own_flight_gives_its_compensation_bit_for_bit() {
     let folder = tempfile::tempdir().unwrap();
     let at = |name: &str| folder.path().join(name);
-    run_ok(
-        magcomp()
-            .args(["sample-flight", "--out"])
-            .arg(at("f.csv"))
-            .arg("--windows")
-            .arg(at("f.windows.json")),
-    );
+    sample_flight(&at("f.csv"));
     // The default: diagnosed, findings applied where they pay.
     run_ok(
         magcomp()
@@ -334,13 +340,7 @@ fn refused(flight: &Path, model: &Path, out: &Path) -> String {
 fn a_model_that_does_not_fit_the_flight_is_refused_with_the_reason() {
     let folder = tempfile::tempdir().unwrap();
     let at = |name: &str| folder.path().join(name);
-    run_ok(
-        magcomp()
-            .args(["sample-flight", "--out"])
-            .arg(at("f.csv"))
-            .arg("--windows")
-            .arg(at("f.windows.json")),
-    );
+    sample_flight(&at("f.csv"));
     run_ok(
         magcomp()
             .arg("compensate")
@@ -412,13 +412,7 @@ fn a_model_that_does_not_fit_the_flight_is_refused_with_the_reason() {
 fn what_the_model_cannot_vouch_for_is_a_warning() {
     let folder = tempfile::tempdir().unwrap();
     let at = |name: &str| folder.path().join(name);
-    run_ok(
-        magcomp()
-            .args(["sample-flight", "--out"])
-            .arg(at("f.csv"))
-            .arg("--windows")
-            .arg(at("f.windows.json")),
-    );
+    sample_flight(&at("f.csv"));
     run_ok(
         magcomp()
             .arg("compensate")
@@ -472,13 +466,7 @@ fn what_the_model_cannot_vouch_for_is_a_warning() {
 fn a_run_applies_the_model_its_calibration_flight_writes() {
     let folder = tempfile::tempdir().unwrap();
     let at = |name: &str| folder.path().join(name);
-    run_ok(
-        magcomp()
-            .args(["sample-flight", "--out"])
-            .arg(at("cal.csv"))
-            .arg("--windows")
-            .arg(at("cal.windows.json")),
-    );
+    sample_flight(&at("cal.csv"));
     // The survey flight: the same rows less the last ten, so another file.
     let text = std::fs::read_to_string(at("cal.csv")).unwrap();
     let lines: Vec<&str> = text.lines().collect();
