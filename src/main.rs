@@ -8,7 +8,7 @@ use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 
 use anyhow::Context as _;
-use magcomp::campaign::{process_campaign_flight, CampaignFlight, FlightState, Shard};
+use magcomp::campaign::{run_flights, CampaignFlight, FinishedFlight, FlightState, FlightsAtOnce, Progress, Shard};
 use magcomp::config::{FlightJob, Pipeline};
 use magcomp::diagnose::ApplyDiagnosis;
 use magcomp::formats::{prepare, Destination, OutputKind, OutputSet};
@@ -412,19 +412,10 @@ fn run(config: &Path, (plain, force, verbose): (bool, bool, bool), shard: Option
         Some(text) => Shard::parse(text, |name| std::env::var(name).ok())?,
         None => Shard::default(),
     };
-    let mut mine = shard.select(&pipeline.flights);
     // A flight compensated with the model another flight of this run
     // writes (a survey flight and its calibration flight) comes after it.
+    let mine = magcomp::campaign::dependency_order(&pipeline, shard.select(&pipeline.flights));
     let folder = &pipeline.output_directory;
-    // Each model JSON a flight of the run writes (a flight given a model
-    // writes none), with whether that flight fits on itself.
-    let model_outputs: Vec<(PathBuf, &FlightJob)> = (mine.iter())
-        .map(|&i| &pipeline.flights[i])
-        .filter_map(|job| Some((FlightOutputs::for_job(folder, job).model_json?, job)))
-        .collect();
-    let written_here = |model: &PathBuf| model_outputs.iter().any(|(m, job)| m == model && job.model.is_none());
-    mine.sort_by_key(|&i| pipeline.flights[i].model.as_ref().is_some_and(written_here));
-    let mut failed_models: Vec<PathBuf> = Vec::new();
     if shard.count > 1 {
         println!(
             "shard {shard}: {} of the campaign's {} flights",
@@ -437,84 +428,60 @@ fn run(config: &Path, (plain, force, verbose): (bool, bool, bool), shard: Option
             .with_context(|| format!("{}: creating the output folder {}", config.display(), folder.display()))?;
         println!("created the output folder {}", folder.display());
     }
-    let mut statuses = Vec::with_capacity(mine.len());
-    // What the flights processed so far took, for the time left.
-    let mut spent = (Duration::ZERO, 0u32);
-    for (k, &index) in mine.iter().enumerate() {
-        let job = &pipeline.flights[index];
-        let outputs = FlightOutputs::for_job(folder, job);
-        // Outputs that cannot be written fail the flight below, with the
-        // same error, in its status like any other failure.
-        let _ = prepare_flight_outputs(job, &outputs);
-        let left = match spent {
-            (_, 0) => String::new(),
-            (total, done) => format!(
-                ", about {} left",
-                duration_words(total / done * (mine.len() - k) as u32)
-            ),
-        };
-        let bar = spinner(format!(
-            "flight {} of {}{left}: compensating {}",
-            k + 1,
-            mine.len(),
+    let jobs: Vec<&FlightJob> = mine.iter().map(|&i| &pipeline.flights[i]).collect();
+    let at_once = FlightsAtOnce::for_jobs(&jobs);
+    if mine.len() > 1 {
+        println!("{} flights, {} at once: {}", mine.len(), at_once.count, at_once.reason);
+    }
+    let bar = spinner(format!("compensating {} flights", mine.len()));
+    let progress_words = |progress: Progress| {
+        let left = progress
+            .left
+            .map_or(String::new(), |left| format!(", about {} left", duration_words(left)));
+        format!(
+            "{} of {} flights done, {} in progress{left}",
+            progress.finished, progress.total, progress.running
+        )
+    };
+    // Outputs that cannot be written fail the flight, with the same error,
+    // in its status like any other failure.
+    let prepare_outputs =
+        |job: &FlightJob, outputs: &FlightOutputs| prepare_flight_outputs(job, outputs).unwrap_or_default();
+    let started = |job: &FlightJob, progress: Progress| {
+        bar.set_message(format!(
+            "{}: compensating {}",
+            progress_words(progress),
             job.input.display()
         ));
-        let started = std::time::Instant::now();
-        let flight = match job
-            .model
-            .as_ref()
-            .and_then(|model| model_unavailable(model, &model_outputs, &failed_models))
-        {
-            Some(error) => magcomp::campaign::fail_campaign_flight(job, folder, shard, error),
-            None => process_campaign_flight(job, &pipeline.settings, folder, shard, force),
-        };
-        bar.finish_and_clear();
-        if !matches!(&flight, Ok(CampaignFlight::UpToDate(_))) {
-            spent = (spent.0 + started.elapsed(), spent.1 + 1);
-        }
-        let failed = !matches!(&flight, Ok(CampaignFlight::Processed { result, .. }) if result.is_ok())
-            && !matches!(&flight, Ok(CampaignFlight::UpToDate(_)));
-        if let (true, Some(model)) = (failed, outputs.model_json.clone()) {
-            failed_models.push(model);
-        }
-        // A flight whose status cannot be written fails alone: the others
-        // are still processed and the table still comes.
-        let flight = match flight {
-            Ok(flight) => flight,
-            Err(error) => {
-                eprintln!(
-                    "magcomp: error: {}: writing the flight's status: {error}",
-                    job.input.display()
-                );
-                statuses.push((
-                    job.input.display().to_string(),
+    };
+    let finished = |done: &FinishedFlight, progress: Progress| {
+        bar.set_message(progress_words(progress));
+        bar.suspend(|| print_finished(&pipeline.flights[done.index], done, folder, verbose));
+    };
+    let flights = run_flights(
+        &pipeline,
+        &mine,
+        (shard, force, at_once.count),
+        &prepare_outputs,
+        &started,
+        &finished,
+    );
+    bar.finish_and_clear();
+    let statuses: Vec<(String, FlightState, String)> = flights
+        .iter()
+        .map(|done| {
+            let job = &pipeline.flights[done.index];
+            let (state, outcome) = match &done.flight {
+                Ok(CampaignFlight::UpToDate(status)) => (status.state, "up to date, skipped".to_string()),
+                Ok(CampaignFlight::Processed { status, .. }) => (status.state, status.outcome()),
+                Err(_) => (
                     FlightState::Failed,
                     "failed, and its status could not be written".to_string(),
-                ));
-                continue;
-            }
-        };
-        let outcome = match &flight {
-            CampaignFlight::UpToDate(_) => {
-                println!(
-                    "{}: outputs current (same input and settings), skipped; --force redoes it",
-                    job.input.display()
-                );
-                "up to date, skipped".to_string()
-            }
-            CampaignFlight::Processed { status, result } => {
-                match result.as_ref() {
-                    Ok(result) => {
-                        print!("{}", summary(result, verbose));
-                        println!("  wrote {}: {}", folder.display(), status.outputs.join(", "));
-                    }
-                    Err(error) => eprintln!("magcomp: error: processing {}: {error}", job.input.display()),
-                }
-                status.outcome()
-            }
-        };
-        statuses.push((job.input.display().to_string(), flight.status().state, outcome));
-    }
+                ),
+            };
+            (job.input.display().to_string(), state, outcome)
+        })
+        .collect();
     print!("{}", status_table(&statuses));
     let failed = statuses
         .iter()
@@ -529,45 +496,41 @@ fn run(config: &Path, (plain, force, verbose): (bool, bool, bool), shard: Option
     Ok(())
 }
 
-/// Why a flight's saved `model` cannot be applied in this run: the flight
-/// of the run that writes it failed (the file there, if any, is an
-/// earlier run's), or no flight writes it and it is not there, or the
-/// flight that would is given a model itself and writes none.
-fn model_unavailable(
-    model: &Path,
-    outputs: &[(PathBuf, &FlightJob)],
-    failed: &[PathBuf],
-) -> Option<magcomp::error::Error> {
-    let writer = outputs.iter().find(|(m, _)| m == model).map(|(_, job)| job);
-    let reason = match writer {
-        Some(job) if job.model.is_some() => format!(
-            "it is never written: {} is itself compensated with a saved model, and a flight given a model writes none; name the model of the flight that flew the calibration box",
+/// Prints what became of a flight of a run: its notes, its summary and
+/// the files written, or why it failed.
+fn print_finished(job: &FlightJob, done: &FinishedFlight, folder: &Path, verbose: bool) {
+    for note in &done.notes {
+        println!("  note: {note}");
+    }
+    match &done.flight {
+        // A flight whose status cannot be written fails alone: the others
+        // are still processed and the table still comes.
+        Err(error) => eprintln!(
+            "magcomp: error: {}: writing the flight's status: {error}",
             job.input.display()
         ),
-        Some(job) if failed.iter().any(|f| f == model) => format!(
-            "the flight that writes it, {}, failed in this run, so it is not that flight's model now (a file there is an earlier run's); fix that flight and run again",
+        Ok(CampaignFlight::UpToDate(_)) => println!(
+            "{}: outputs current (same input and settings), skipped; --force redoes it",
             job.input.display()
         ),
-        Some(_) => return None,
-        None if model.is_file() => return None,
-        None => "no such file, and no flight of this run writes it: give the model JSON that `magcomp compensate --model` or a run wrote for the calibration flight".into(),
-    };
-    Some(magcomp::error::Error::ModelUnavailable {
-        model: model.to_path_buf(),
-        reason,
-    })
+        Ok(CampaignFlight::Processed { status, result }) => match result.as_ref() {
+            Ok(result) => {
+                print!("{}", summary(result, verbose));
+                println!("  wrote {}: {}", folder.display(), status.outputs.join(", "));
+            }
+            Err(error) => eprintln!("magcomp: error: processing {}: {error}", job.input.display()),
+        },
+    }
 }
 
-/// Checks a flight's outputs before its work and prints the folders made
-/// for them (`process_flight` checks again, finding them there).
-fn prepare_flight_outputs(job: &FlightJob, outputs: &FlightOutputs) -> magcomp::error::Result<()> {
+/// Makes the folders of a flight's outputs; what it made, as notes.
+fn prepare_flight_outputs(job: &FlightJob, outputs: &FlightOutputs) -> magcomp::error::Result<Vec<String>> {
     let inputs: Vec<&Path> = std::iter::once(job.input.as_path())
         .chain(job.diagnosis.as_deref())
         .chain(job.plan.as_deref())
         .chain(job.model.as_deref())
         .collect();
-    print_notes(&prepare(&inputs, &outputs.destinations())?);
-    Ok(())
+    prepare(&inputs, &outputs.destinations())
 }
 
 /// The run's per-flight status table: flight, and how it ended.
@@ -653,7 +616,7 @@ fn compensate(args: CompensateArgs, verbose: bool) -> anyhow::Result<()> {
         .map(PathBuf::as_path)
         .collect();
     magcomp::formats::destination::refuse_inputs(&other_inputs, &outputs.destinations())?;
-    prepare_flight_outputs(&job, &outputs)?;
+    print_notes(&prepare_flight_outputs(&job, &outputs)?);
     let bar = spinner(format!("compensating {}", args.flight.display()));
     let result = process_flight_listing(&job, &pipeline.settings, &outputs);
     bar.finish_and_clear();

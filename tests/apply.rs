@@ -498,7 +498,14 @@ fn a_run_applies_the_model_its_calibration_flight_writes() {
     )
     .unwrap();
     std::fs::write(at("flights.csv"), "input,aircraft,date\ncal.csv,C-GMAG,2026-06-15\n").unwrap();
-    let stdout = run_ok(magcomp().arg("run").arg(at("pipeline.toml")).arg("--plain"));
+    // Three flights at once: the survey flight waits for its model.
+    let stdout = run_ok(
+        magcomp()
+            .arg("run")
+            .arg(at("pipeline.toml"))
+            .arg("--plain")
+            .env("RAYON_NUM_THREADS", "3"),
+    );
     let cal_at = stdout.find("cal.csv: ").unwrap();
     let survey_at = stdout.find("survey.csv: ").unwrap();
     assert!(cal_at < survey_at, "the calibration flight first:\n{stdout}");

@@ -113,7 +113,17 @@ fn three_shards_write_byte_for_byte_what_one_run_writes() {
     let folder = tempfile::tempdir().unwrap();
     let (one, three) = campaign(folder.path());
 
-    let single = magcomp(&["run", one.to_str().unwrap()], &[]);
+    // One flight at a time, and four at once: the same bytes.
+    let single = magcomp(&["run", one.to_str().unwrap()], &[("RAYON_NUM_THREADS", "1")]);
+    let four_config = folder.path().join("four.toml");
+    let one_text = std::fs::read_to_string(&one).unwrap();
+    std::fs::write(&four_config, one_text.replace("\"one\"", "\"four\"")).unwrap();
+    let four = magcomp(&["run", four_config.to_str().unwrap()], &[("RAYON_NUM_THREADS", "4")]);
+    assert!(
+        text(&four.stdout).contains("7 flights, 4 at once: one for each of the 4 worker threads"),
+        "{}",
+        text(&four.stdout)
+    );
     // The file that is no flight fails, alone, and says so.
     assert_ne!(single.status.code(), Some(0));
     assert!(
@@ -145,6 +155,21 @@ fn three_shards_write_byte_for_byte_what_one_run_writes() {
 
     let (one_out, three_out) = (folder.path().join("one"), folder.path().join("three"));
     let (single_files, sharded_files) = (contents(&one_out), contents(&three_out));
+    let four_files = contents(&folder.path().join("four"));
+    assert_eq!(
+        single_files.keys().collect::<Vec<_>>(),
+        four_files.keys().collect::<Vec<_>>()
+    );
+    for (name, bytes) in &single_files {
+        assert!(
+            bytes == &four_files[name],
+            "{name} differs between one and four flights at once"
+        );
+    }
+    // The run's table lists the flights in the campaign's order, however
+    // they finished.
+    let table = |stdout: &[u8]| text(stdout)[text(stdout).rfind("\nflight ").unwrap()..].to_string();
+    assert_eq!(table(&single.stdout), table(&four.stdout));
     assert_eq!(
         single_files.keys().collect::<Vec<_>>(),
         sharded_files.keys().collect::<Vec<_>>()

@@ -13,10 +13,12 @@
 //! quality and model JSONs into a campaign table.
 
 pub mod drift;
+mod runner;
 mod shard;
 mod status;
 pub mod summary;
 
+pub use runner::{dependency_order, run_flights, FinishedFlight, FlightsAtOnce, Progress};
 pub use shard::{Shard, SCHEDULER_INDEX_VARIABLES};
 pub use status::{settings_sha256, status_path, FlightState, FlightStatus};
 

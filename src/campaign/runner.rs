@@ -1,0 +1,347 @@
+//! A campaign's flights in one process: several flights at once, and
+//! within each, its channels and diagnosis candidates on the same worker
+//! threads.
+//!
+//! [`run_flights`] starts [`FlightsAtOnce`] flight slots. Each slot takes
+//! the next flight of the run's order and processes it; the flight's own
+//! parallel work (channels, candidates, survey lines) goes to the rayon
+//! pool, where every slot's work is stolen by whichever worker is free.
+//! So a machine of N cores holds N flights in memory, no more, and keeps
+//! its cores busy while one flight reads or writes. A flight's outputs do
+//! not depend on which slot or how many threads process it: each flight's
+//! work is the same whatever else runs beside it.
+//!
+//! A flight compensated with the model another flight of the run writes
+//! waits for that flight to finish; [`dependency_order`] puts such flights
+//! after every other, so the flight it waits for is always already taken.
+
+use std::path::{Path, PathBuf};
+use std::sync::{Condvar, Mutex};
+use std::time::{Duration, Instant};
+
+use super::{fail_campaign_flight, process_campaign_flight, CampaignFlight, Shard};
+use crate::config::{FlightJob, Pipeline};
+use crate::error::{Error, Result};
+use crate::sink::FlightOutputs;
+
+/// How many flights a run holds in memory at once, and why.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FlightsAtOnce {
+    /// Flights processed side by side (at least 1).
+    pub count: usize,
+    /// Why that many, for the user.
+    pub reason: String,
+}
+
+/// A flight's peak memory per byte of its input CSV (the numbers parsed
+/// to `f64`, the band-passed copies, the regressors of every model and
+/// diagnosis candidate, the outputs staged). `cargo bench --bench
+/// campaign` measures it: simulated flights of 1 and 3 hours at 10 and
+/// 20 Hz (8 to 40 MB of CSV) peak at 31 to 17 bytes per byte, falling with
+/// length as the fixed part below is shared out.
+const PEAK_BYTES_PER_INPUT_BYTE: f64 = 20.0;
+
+/// A process's own memory beside its flights' (code, worker stacks, the
+/// fixed part of the peaks above), bytes.
+const PROCESS_BYTES: f64 = 150e6;
+
+impl FlightsAtOnce {
+    /// One flight for each of `threads` worker threads, no more than the
+    /// `flights` to do, and no more than `available` bytes of memory hold
+    /// when each flight needs [`PEAK_BYTES_PER_INPUT_BYTE`] times its
+    /// largest input (`largest_input` bytes). `available` is `None` where
+    /// the system does not say.
+    pub fn choose(threads: usize, flights: usize, largest_input: u64, available: Option<u64>) -> Self {
+        let threads = threads.max(1);
+        let per_flight = PEAK_BYTES_PER_INPUT_BYTE * largest_input as f64;
+        let by_memory = available.map(|bytes| (((bytes as f64 - PROCESS_BYTES) / per_flight.max(1.0)) as usize).max(1));
+        let count = threads.min(flights.max(1)).min(by_memory.unwrap_or(usize::MAX));
+        let gigabytes = |bytes: f64| bytes / 1e9;
+        let reason = match (by_memory, available) {
+            (Some(cap), Some(bytes)) if cap < threads.min(flights.max(1)) => format!(
+                "{count} of {threads} worker threads' worth: the largest flight needs about {:.1} GB and {:.1} GB of memory is available",
+                gigabytes(per_flight),
+                gigabytes(bytes as f64)
+            ),
+            _ if flights < threads => format!("one for each flight (there are {threads} worker threads)"),
+            _ => format!("one for each of the {threads} worker threads (RAYON_NUM_THREADS sets them)"),
+        };
+        FlightsAtOnce { count, reason }
+    }
+
+    /// [`FlightsAtOnce::choose`] for `jobs` on this machine: the worker
+    /// threads of the rayon pool, and the memory the system has available.
+    pub fn for_jobs(jobs: &[&FlightJob]) -> Self {
+        let largest = jobs
+            .iter()
+            .filter_map(|job| std::fs::metadata(&job.input).ok())
+            .map(|meta| meta.len())
+            .max()
+            .unwrap_or(0);
+        FlightsAtOnce::choose(rayon::current_num_threads(), jobs.len(), largest, available_memory())
+    }
+}
+
+/// The memory the system can give without swapping (`MemAvailable` of
+/// `/proc/meminfo`), bytes; `None` elsewhere.
+fn available_memory() -> Option<u64> {
+    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let kilobytes: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kilobytes * 1024)
+}
+
+/// The model JSONs the flights `order` of `pipeline` write, each with the
+/// flight writing it (a flight given a model writes none).
+fn model_outputs<'a>(pipeline: &'a Pipeline, order: &[usize]) -> Vec<(PathBuf, &'a FlightJob)> {
+    order
+        .iter()
+        .map(|&i| &pipeline.flights[i])
+        .filter_map(|job| Some((FlightOutputs::for_job(&pipeline.output_directory, job).model_json?, job)))
+        .collect()
+}
+
+/// `order` with each flight compensated with the model another flight
+/// of `order` writes moved after every flight that is not, the rest kept
+/// in their order.
+pub fn dependency_order(pipeline: &Pipeline, mut order: Vec<usize>) -> Vec<usize> {
+    let outputs = model_outputs(pipeline, &order);
+    let written_here = |model: &PathBuf| outputs.iter().any(|(m, job)| m == model && job.model.is_none());
+    order.sort_by_key(|&i| pipeline.flights[i].model.as_ref().is_some_and(written_here));
+    order
+}
+
+/// A flight of the run, finished.
+#[derive(Debug)]
+pub struct FinishedFlight {
+    /// Its index in the pipeline's flights.
+    pub index: usize,
+    /// What preparing its outputs noted (folders created).
+    pub notes: Vec<String>,
+    /// How it ended; an error is a status that could not be written.
+    pub flight: Result<CampaignFlight>,
+}
+
+impl FinishedFlight {
+    /// Whether it failed (a failed flight, or a status not written).
+    pub fn failed(&self) -> bool {
+        match &self.flight {
+            Ok(CampaignFlight::UpToDate(_)) => false,
+            Ok(CampaignFlight::Processed { result, .. }) => result.is_err(),
+            Err(_) => true,
+        }
+    }
+}
+
+/// Where a run stands, for a progress line.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Progress {
+    /// Flights finished.
+    pub finished: usize,
+    /// Flights being processed now.
+    pub running: usize,
+    /// Flights in the run.
+    pub total: usize,
+    /// The time left at the rate of the flights processed so far (not
+    /// those found current); `None` before the first.
+    pub left: Option<Duration>,
+}
+
+/// What the slots share: the next flight to take, the models written and
+/// failed so far, and the finished flights.
+struct Board {
+    next: usize,
+    running: usize,
+    finished: Vec<Option<FinishedFlight>>,
+    written: Vec<PathBuf>,
+    failed: Vec<PathBuf>,
+    /// Time spent on processed flights, and how many.
+    spent: (Duration, u32),
+}
+
+impl Board {
+    fn progress(&self, total: usize, slots: usize) -> Progress {
+        let finished = self.finished.iter().filter(|f| f.is_some()).count();
+        let left = match self.spent {
+            (_, 0) => None,
+            (time, done) => {
+                let rounds = (total - finished).div_ceil(slots.max(1)) as u32;
+                Some(time / done * rounds)
+            }
+        };
+        Progress {
+            finished,
+            running: self.running,
+            total,
+            left,
+        }
+    }
+}
+
+/// Processes the flights `order` of `pipeline` (in [`dependency_order`]),
+/// `at_once` at a time, into its output folder; calls `started` as each
+/// begins and `finished` as each ends (from the slot that ran it), and
+/// returns every flight in `order`'s order. `prepare` makes a flight's
+/// output folders and says what it made; a failure there fails the flight
+/// with the same error when it writes.
+pub fn run_flights(
+    pipeline: &Pipeline,
+    order: &[usize],
+    (shard, force, at_once): (Shard, bool, usize),
+    prepare: &(dyn Fn(&FlightJob, &FlightOutputs) -> Vec<String> + Sync),
+    started: &(dyn Fn(&FlightJob, Progress) + Sync),
+    finished: &(dyn Fn(&FinishedFlight, Progress) + Sync),
+) -> Vec<FinishedFlight> {
+    let folder = &pipeline.output_directory;
+    let outputs = model_outputs(pipeline, order);
+    let board = Mutex::new(Board {
+        next: 0,
+        running: 0,
+        finished: order.iter().map(|_| None).collect(),
+        written: Vec::new(),
+        failed: Vec::new(),
+        spent: (Duration::ZERO, 0),
+    });
+    let changed = Condvar::new();
+    let slots = at_once.clamp(1, order.len().max(1));
+    let slot = || loop {
+        let (position, progress) = {
+            let mut board = lock(&board);
+            if board.next == order.len() {
+                return;
+            }
+            board.next += 1;
+            board.running += 1;
+            (board.next - 1, board.progress(order.len(), slots))
+        };
+        let job = &pipeline.flights[order[position]];
+        started(job, progress);
+        // A flight applying another's model waits for that flight, which
+        // was taken before it (the order puts it first).
+        let unavailable = job.model.as_ref().and_then(|model| {
+            let writer = outputs.iter().find(|(m, writer)| m == model && writer.model.is_none());
+            if writer.is_some() {
+                let mut board = lock(&board);
+                while !board.written.contains(model) && !board.failed.contains(model) {
+                    board = changed.wait(board).unwrap_or_else(|poisoned| poisoned.into_inner());
+                }
+            }
+            model_unavailable(model, &outputs, &lock(&board).failed)
+        });
+        let began = Instant::now();
+        let flight_outputs = FlightOutputs::for_job(folder, job);
+        let notes = prepare(job, &flight_outputs);
+        let flight = match unavailable {
+            Some(error) => fail_campaign_flight(job, folder, shard, error),
+            None => process_campaign_flight(job, &pipeline.settings, folder, shard, force),
+        };
+        let done = FinishedFlight {
+            index: order[position],
+            notes,
+            flight,
+        };
+        {
+            let mut board = lock(&board);
+            if !matches!(done.flight, Ok(CampaignFlight::UpToDate(_))) {
+                board.spent = (board.spent.0 + began.elapsed(), board.spent.1 + 1);
+            }
+            if let Some(model) = flight_outputs.model_json {
+                match done.failed() {
+                    true => board.failed.push(model),
+                    false => board.written.push(model),
+                }
+            }
+            board.running -= 1;
+            board.finished[position] = Some(done);
+            let progress = board.progress(order.len(), slots);
+            // Under the lock: one flight's lines are printed whole.
+            if let Some(done) = &board.finished[position] {
+                finished(done, progress);
+            }
+        }
+        changed.notify_all();
+    };
+    std::thread::scope(|scope| {
+        let handles: Vec<_> = (0..slots)
+            .map(|k| {
+                // The main thread's stack, as a flight processed alone has.
+                std::thread::Builder::new()
+                    .name(format!("flight slot {k}"))
+                    .stack_size(8 << 20)
+                    .spawn_scoped(scope, slot)
+            })
+            .collect();
+        for handle in handles {
+            match handle {
+                Ok(handle) => {
+                    if let Err(panic) = handle.join() {
+                        std::panic::resume_unwind(panic);
+                    }
+                }
+                // No thread to be had: this one processes the flights.
+                Err(_) => slot(),
+            }
+        }
+    });
+    let board = board.into_inner().unwrap_or_else(|poisoned| poisoned.into_inner());
+    board.finished.into_iter().flatten().collect()
+}
+
+fn lock(board: &Mutex<Board>) -> std::sync::MutexGuard<'_, Board> {
+    board.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
+/// Why a flight's saved `model` cannot be applied in this run: the flight
+/// of the run that writes it failed (the file there, if any, is an
+/// earlier run's), or no flight writes it and it is not there, or the
+/// flight that would is given a model itself and writes none.
+fn model_unavailable(model: &Path, outputs: &[(PathBuf, &FlightJob)], failed: &[PathBuf]) -> Option<Error> {
+    let writer = outputs.iter().find(|(m, _)| m == model).map(|(_, job)| job);
+    let reason = match writer {
+        Some(job) if job.model.is_some() => format!(
+            "it is never written: {} is itself compensated with a saved model, and a flight given a model writes none; name the model of the flight that flew the calibration box",
+            job.input.display()
+        ),
+        Some(job) if failed.iter().any(|f| f == model) => format!(
+            "the flight that writes it, {}, failed in this run, so it is not that flight's model now (a file there is an earlier run's); fix that flight and run again",
+            job.input.display()
+        ),
+        Some(_) => return None,
+        None if model.is_file() => return None,
+        None => "no such file, and no flight of this run writes it: give the model JSON that `magcomp compensate --model` or a run wrote for the calibration flight".into(),
+    };
+    Some(Error::ModelUnavailable {
+        model: model.to_path_buf(),
+        reason,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn one_flight_for_each_thread_unless_memory_or_the_flights_run_short() {
+        let gb = 1_000_000_000u64;
+        // 16 threads, 40 flights of 100 MB, plenty of memory: 16.
+        let plenty = FlightsAtOnce::choose(16, 40, 100_000_000, Some(64 * gb));
+        assert_eq!(plenty.count, 16);
+        assert!(plenty.reason.contains("16 worker threads"), "{}", plenty.reason);
+        // Three flights on 16 threads: 3.
+        assert_eq!(FlightsAtOnce::choose(16, 3, 100_000_000, Some(64 * gb)).count, 3);
+        // Flights of 500 MB need about 10 GB each: 24 GB holds two.
+        let short = FlightsAtOnce::choose(16, 40, gb / 2, Some(24 * gb));
+        assert_eq!(short.count, 2);
+        assert!(
+            short.reason.contains("10.0 GB") && short.reason.contains("24.0 GB"),
+            "{}",
+            short.reason
+        );
+        // 128 GB holds twelve of them.
+        assert_eq!(FlightsAtOnce::choose(16, 40, gb / 2, Some(128 * gb)).count, 12);
+        // Never none, whatever the memory; no memory figure, no cap.
+        assert_eq!(FlightsAtOnce::choose(16, 40, 2 * gb, Some(0)).count, 1);
+        assert_eq!(FlightsAtOnce::choose(0, 0, 0, None).count, 1);
+        assert_eq!(FlightsAtOnce::choose(8, 40, 2 * gb, None).count, 8);
+    }
+}
