@@ -42,24 +42,46 @@ fn magcomp_binary() -> String {
     std::env::var("MAGCOMP_BIN").unwrap_or_else(|_| env!("CARGO_BIN_EXE_magcomp").to_string())
 }
 
-/// Waits for `child` and returns its peak resident set, MB; panics with
-/// its error output if it failed.
-fn wait_peak_rss_mb(child: std::process::Child) -> f64 {
-    let pid = child.id() as libc::pid_t;
-    let mut stderr = child.stderr;
-    let mut status = 0;
-    // SAFETY: wait4 fills the status and the struct it is given.
-    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
-    let waited = unsafe { libc::wait4(pid, &mut status, 0, &mut usage) };
-    assert_eq!(waited, pid, "magcomp waited for");
-    if !(libc::WIFEXITED(status) && libc::WEXITSTATUS(status) == 0) {
-        let mut text = String::new();
-        if let Some(stderr) = stderr.as_mut() {
-            let _ = std::io::Read::read_to_string(stderr, &mut text);
+/// A process's peak resident set so far (`VmHWM` of its status), MB;
+/// `None` once it has ended.
+fn peak_so_far_mb(pid: u32) -> Option<f64> {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kilobytes: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kilobytes / 1024.0)
+}
+
+/// Waits for `children` and returns the largest peak resident set of one
+/// of them, MB; panics with the error output of one that failed.
+///
+/// The peak is read from `/proc` every few milliseconds while each runs,
+/// not from `wait4`: on Linux a child's `ru_maxrss` counts the memory of
+/// this process when it was forked, and the flights simulated here would
+/// be counted as the child's.
+fn wait_peak_rss_mb(mut children: Vec<std::process::Child>) -> f64 {
+    let mut peak: f64 = 0.0;
+    while !children.is_empty() {
+        let mut running = Vec::with_capacity(children.len());
+        for mut child in children {
+            if let Some(mb) = peak_so_far_mb(child.id()) {
+                peak = peak.max(mb);
+            }
+            match child.try_wait().expect("magcomp waited for") {
+                None => running.push(child),
+                Some(status) if status.success() => {}
+                Some(_) => {
+                    let mut text = String::new();
+                    if let Some(stderr) = child.stderr.as_mut() {
+                        let _ = std::io::Read::read_to_string(stderr, &mut text);
+                    }
+                    panic!("magcomp failed: {text}");
+                }
+            }
         }
-        panic!("magcomp failed: {text}");
+        children = running;
+        std::thread::sleep(std::time::Duration::from_millis(2));
     }
-    usage.ru_maxrss as f64 / 1024.0
+    peak
 }
 
 /// Runs `magcomp run config` as `shards` processes side by side (`--shard
@@ -80,7 +102,7 @@ fn run(config: &Path, shards: usize, threads: usize) -> (f64, f64) {
                 .expect("magcomp runs")
         })
         .collect();
-    let peak = children.into_iter().map(wait_peak_rss_mb).fold(0.0, f64::max);
+    let peak = wait_peak_rss_mb(children);
     (started.elapsed().as_secs_f64(), peak)
 }
 
@@ -113,7 +135,7 @@ fn compensate(flight: &Path, threads: usize) -> (f64, f64) {
         .stderr(std::process::Stdio::piped())
         .spawn()
         .expect("magcomp runs");
-    let peak = wait_peak_rss_mb(child);
+    let peak = wait_peak_rss_mb(vec![child]);
     (started.elapsed().as_secs_f64(), peak)
 }
 

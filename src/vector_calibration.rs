@@ -46,6 +46,7 @@
 use std::ops::Range;
 
 use faer::Mat;
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
@@ -426,8 +427,13 @@ fn rms(values: impl Iterator<Item = f64>) -> f64 {
     (sum / count.max(1) as f64).sqrt()
 }
 
+/// Sum of squared residuals (blocks of [`BLOCK_ROWS`] in parallel, added
+/// in order).
 fn cost(m: &[[f64; 3]], f: &[f64], p: &Parameters) -> f64 {
-    m.iter().zip(f).map(|(v, f)| p.residual(v, *f).powi(2)).sum()
+    let blocks: Vec<f64> = (m.par_chunks(BLOCK_ROWS).zip(f.par_chunks(BLOCK_ROWS)))
+        .map(|(m, f)| m.iter().zip(f).map(|(v, f)| p.residual(v, *f).powi(2)).sum())
+        .collect();
+    blocks.into_iter().sum()
 }
 
 /// The linear ellipsoid fit: the quadric $m^\top A m + b^\top m + c = 0$
@@ -492,8 +498,32 @@ fn ellipsoid_start(m: &[[f64; 3]], f: &[f64]) -> Option<Parameters> {
     ]))
 }
 
-/// $J^\top J$ and $J^\top r$ over every row, summed in row order.
+/// Rows are summed in blocks of this many, the blocks side by side and
+/// their sums added in block order: the same sums whatever the number of
+/// threads.
+const BLOCK_ROWS: usize = 4096;
+
+/// $J^\top J$ and $J^\top r$ over every row, and the sum of squared
+/// residuals (blocks of [`BLOCK_ROWS`] in parallel, added in order).
 fn normal_equations(m: &[[f64; 3]], f: &[f64], p: &Parameters) -> ([[f64; 9]; 9], [f64; 9], f64) {
+    let blocks: Vec<([[f64; 9]; 9], [f64; 9], f64)> = (m.par_chunks(BLOCK_ROWS).zip(f.par_chunks(BLOCK_ROWS)))
+        .map(|(m, f)| block_normal_equations(m, f, p))
+        .collect();
+    let mut sum = ([[0.0; 9]; 9], [0.0; 9], 0.0);
+    for (jtj, jtr, cost) in blocks {
+        for ((total_row, row), (total, value)) in sum.0.iter_mut().zip(&jtj).zip(sum.1.iter_mut().zip(&jtr)) {
+            *total += value;
+            for (t, v) in total_row.iter_mut().zip(row) {
+                *t += v;
+            }
+        }
+        sum.2 += cost;
+    }
+    sum
+}
+
+/// [`normal_equations`] of one block, summed in row order.
+fn block_normal_equations(m: &[[f64; 3]], f: &[f64], p: &Parameters) -> ([[f64; 9]; 9], [f64; 9], f64) {
     let mut jtj = [[0.0; 9]; 9];
     let mut jtr = [0.0; 9];
     let mut cost = 0.0;

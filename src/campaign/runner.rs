@@ -37,13 +37,13 @@ pub struct FlightsAtOnce {
 /// to `f64`, the band-passed copies, the regressors of every model and
 /// diagnosis candidate, the outputs staged). `cargo bench --bench
 /// campaign` measures it: simulated flights of 1 and 3 hours at 10 and
-/// 20 Hz (8 to 40 MB of CSV) peak at 31 to 17 bytes per byte, falling with
-/// length as the fixed part below is shared out.
-const PEAK_BYTES_PER_INPUT_BYTE: f64 = 20.0;
+/// 20 Hz (8 to 40 MB of CSV) peak at 46 to 165 MB alone, 5.8 to 4.1 bytes
+/// per byte, falling with length as a fixed part is shared out.
+const PEAK_BYTES_PER_INPUT_BYTE: f64 = 6.0;
 
-/// A process's own memory beside its flights' (code, worker stacks, the
-/// fixed part of the peaks above), bytes.
-const PROCESS_BYTES: f64 = 150e6;
+/// A process's own memory beside its flights' (code, worker stacks),
+/// bytes.
+const PROCESS_BYTES: f64 = 50e6;
 
 impl FlightsAtOnce {
     /// One flight for each of `threads` worker threads, no more than the
@@ -329,16 +329,16 @@ mod tests {
         assert!(plenty.reason.contains("16 worker threads"), "{}", plenty.reason);
         // Three flights on 16 threads: 3.
         assert_eq!(FlightsAtOnce::choose(16, 3, 100_000_000, Some(64 * gb)).count, 3);
-        // Flights of 500 MB need about 10 GB each: 24 GB holds two.
-        let short = FlightsAtOnce::choose(16, 40, gb / 2, Some(24 * gb));
+        // Flights of 2 GB need about 12 GB each: 30 GB holds two.
+        let short = FlightsAtOnce::choose(16, 40, 2 * gb, Some(30 * gb));
         assert_eq!(short.count, 2);
         assert!(
-            short.reason.contains("10.0 GB") && short.reason.contains("24.0 GB"),
+            short.reason.contains("12.0 GB") && short.reason.contains("30.0 GB"),
             "{}",
             short.reason
         );
-        // 128 GB holds twelve of them.
-        assert_eq!(FlightsAtOnce::choose(16, 40, gb / 2, Some(128 * gb)).count, 12);
+        // 128 GB holds ten of them.
+        assert_eq!(FlightsAtOnce::choose(16, 40, 2 * gb, Some(128 * gb)).count, 10);
         // Never none, whatever the memory; no memory figure, no cap.
         assert_eq!(FlightsAtOnce::choose(16, 40, 2 * gb, Some(0)).count, 1);
         assert_eq!(FlightsAtOnce::choose(0, 0, 0, None).count, 1);

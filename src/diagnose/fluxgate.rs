@@ -63,13 +63,39 @@ pub(super) fn check_fluxgate(
     settings: &DiagnoseOptions,
 ) -> std::result::Result<FluxgateCheck, String> {
     const ITERATIONS: usize = 100;
-    let calibration = calibrate(log, sensor, reference, &[], ITERATIONS).map_err(|e| e.to_string())?;
     let field = log.vector_components(sensor);
+    let time = log.time_s();
+    // Each heading's windows held out of a calibration on the rest of the
+    // flight, once the whole flight's stands; the folds side by side.
+    // (held-out rows, training rows) of each heading.
+    type Rows = Vec<std::ops::Range<usize>>;
+    let folds: Vec<(Rows, Rows)> = folds(windows)
+        .into_iter()
+        .map(|(out, _)| {
+            let held: Vec<std::ops::Range<usize>> = out.iter().map(|w| w.rows(time)).collect();
+            let mut train = Vec::new();
+            let mut next = 0;
+            let mut sorted = held.clone();
+            sorted.sort_by_key(|r| r.start);
+            for range in &sorted {
+                if range.start > next {
+                    train.push(next..range.start);
+                }
+                next = next.max(range.end);
+            }
+            train.push(next..log.len());
+            (held, train)
+        })
+        .collect();
+    let calibration = calibrate(log, sensor, reference, &[], ITERATIONS).map_err(|e| e.to_string())?;
+    let fold_calibrations: Vec<Option<VectorCalibration>> = folds
+        .par_iter()
+        .map(|(_, train)| calibrate(log, sensor, reference, train, ITERATIONS).ok())
+        .collect();
     let scalar = &log
         .channel(&calibration.reference)
         .ok_or_else(|| format!("the reference '{}' is not in the flight", calibration.reference))?
         .values;
-    let time = log.time_s();
     let (mut before, mut after) = (Vec::new(), Vec::new());
     let mut per_window: Vec<(f64, &CalibrationWindow)> = Vec::new();
     for window in windows {
@@ -92,20 +118,8 @@ pub(super) fn check_fluxgate(
             label: w.display_label(),
         })
         .collect();
-    for (out, _) in folds(windows) {
-        let held: Vec<std::ops::Range<usize>> = out.iter().map(|w| w.rows(time)).collect();
-        let mut train = Vec::new();
-        let mut next = 0;
-        let mut sorted = held.clone();
-        sorted.sort_by_key(|r| r.start);
-        for range in &sorted {
-            if range.start > next {
-                train.push(next..range.start);
-            }
-            next = next.max(range.end);
-        }
-        train.push(next..log.len());
-        let Ok(fold) = calibrate(log, sensor, &calibration.reference, &train, ITERATIONS) else {
+    for ((held, _), fold) in folds.into_iter().zip(fold_calibrations) {
+        let Some(fold) = fold else {
             continue;
         };
         for i in held.into_iter().flatten() {

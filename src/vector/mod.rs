@@ -67,6 +67,7 @@
 use std::ops::Range;
 
 use nalgebra::{Matrix3, Vector3};
+use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::error::{Error, Result};
@@ -425,7 +426,13 @@ pub fn fit(
     let readings = log.vector_components(sensor);
     let inputs = (&attitude, reference_nt, &turns, readings);
     let calibration = samples(log, inputs, rows.iter().cloned());
-    let mut model = fit_samples(&calibration, &angles).ok_or_else(|| Error::Vector {
+    // The fit on every heading and the held-out fits (each heading on the
+    // others) are independent: side by side.
+    let (model, held) = rayon::join(
+        || fit_samples(&calibration, &angles),
+        || held_out(log, windows, inputs, &angles),
+    );
+    let mut model = model.ok_or_else(|| Error::Vector {
         sensor: sensor.prefix.clone(),
         message: format!(
             "{} calibration rows with a fluxgate reading, an attitude and a '{reference_name}' reading: too few, or the attitudes too alike, to fit twelve constants",
@@ -437,7 +444,7 @@ pub fn fit(
     model.reference = reference_name.clone();
     model.reference_swing_nt = reference.swing_nt;
     model.start = start;
-    model.held_out = held_out(log, windows, inputs, &angles);
+    model.held_out = held;
     let Some(options) = tolles_lawson else {
         return Ok(model);
     };
@@ -1056,30 +1063,43 @@ fn held_out(log: &FlightLog, windows: &[CalibrationWindow], inputs: Inputs, star
     if headings.len() < 3 {
         return None;
     }
-    let (mut squares, mut count) = ([0.0; 3], 0usize);
-    for &heading in &headings {
-        let (held, kept): (Vec<CalibrationWindow>, Vec<CalibrationWindow>) = windows
-            .iter()
-            .cloned()
-            .partition(|w| w.heading_deg.is_some_and(|h| same_heading(h, heading)));
-        let training = samples(log, inputs, window_rows(log, &kept).into_iter());
-        let model = fit_samples(&training, start)?;
-        let parameters = Parameters {
-            k: Matrix3::from_fn(|j, c| model.soft_iron[j][c]),
-            h: Vector3::from(model.hard_iron_nt),
-            inclination: model.inclination_deg.to_radians(),
-            declination: model.declination_deg.to_radians(),
-            lag: model.fluxgate_lag_samples,
-            smoothing: model.fluxgate_smoothing,
-        };
-        let u = direction(parameters.inclination, parameters.declination)[0];
-        for s in samples(log, inputs, window_rows(log, &held).into_iter()) {
-            let r = parameters.residual(&s, &u);
-            for j in 0..3 {
-                squares[j] += r[j] * r[j];
+    // Each heading's squared residuals and count, from its own fit on the
+    // others; summed in heading order, whatever order they finish in.
+    let per_heading: Vec<Option<([f64; 3], usize)>> = headings
+        .par_iter()
+        .map(|&heading| {
+            let (held, kept): (Vec<CalibrationWindow>, Vec<CalibrationWindow>) = windows
+                .iter()
+                .cloned()
+                .partition(|w| w.heading_deg.is_some_and(|h| same_heading(h, heading)));
+            let training = samples(log, inputs, window_rows(log, &kept).into_iter());
+            let model = fit_samples(&training, start)?;
+            let parameters = Parameters {
+                k: Matrix3::from_fn(|j, c| model.soft_iron[j][c]),
+                h: Vector3::from(model.hard_iron_nt),
+                inclination: model.inclination_deg.to_radians(),
+                declination: model.declination_deg.to_radians(),
+                lag: model.fluxgate_lag_samples,
+                smoothing: model.fluxgate_smoothing,
+            };
+            let u = direction(parameters.inclination, parameters.declination)[0];
+            let (mut squares, mut count) = ([0.0; 3], 0usize);
+            for s in samples(log, inputs, window_rows(log, &held).into_iter()) {
+                let r = parameters.residual(&s, &u);
+                for j in 0..3 {
+                    squares[j] += r[j] * r[j];
+                }
+                count += 1;
             }
-            count += 1;
+            Some((squares, count))
+        })
+        .collect();
+    let (mut squares, mut count) = ([0.0; 3], 0usize);
+    for (heading_squares, heading_count) in per_heading.into_iter().collect::<Option<Vec<_>>>()? {
+        for j in 0..3 {
+            squares[j] += heading_squares[j];
         }
+        count += heading_count;
     }
     (count > 0).then(|| HeldOut {
         headings: headings.len(),
