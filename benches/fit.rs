@@ -2,7 +2,9 @@
 //!
 //! 1. Fit of one channel (design matrix, band-pass, PRESS over the λ grid
 //!    and the TSVD check) at 1e5 and 1e6 calibration rows, median of several
-//!    runs, with the peak resident set size after each size.
+//!    runs, with the peak resident set size after each size; then the same
+//!    fits in numpy and scipy (`anchors/ridge_numpy.py`, fixed λ and PRESS)
+//!    on this machine, when a `python3` with them is there.
 //! 2. A whole-file run: 200 000 rows × 100 columns with 5 scalar channels
 //!    and a fluxgate with INS attitude (vector compensation on; `-- file
 //!    novector` turns it off) and two gradients (`-- file nogradient`
@@ -361,6 +363,23 @@ fn bench_formats(rows: usize) {
     }
 }
 
+/// The same fits as a Python user writes them with numpy and scipy
+/// (`benches/anchors/ridge_numpy.py`), on this machine; says so when no
+/// `python3` with numpy and scipy is there (`MAGCOMP_BENCH_PYTHON` names
+/// another interpreter).
+fn numpy_anchor() {
+    let python = std::env::var("MAGCOMP_BENCH_PYTHON").unwrap_or_else(|_| "python3".into());
+    let script = concat!(env!("CARGO_MANIFEST_DIR"), "/benches/anchors/ridge_numpy.py");
+    match std::process::Command::new(&python).arg(script).output() {
+        Ok(output) if output.status.success() => print!("{}", String::from_utf8_lossy(&output.stdout)),
+        Ok(output) => println!(
+            "numpy anchor not run: {python} {script} failed (numpy and scipy installed?): {}",
+            String::from_utf8_lossy(&output.stderr).lines().last().unwrap_or("")
+        ),
+        Err(e) => println!("numpy anchor not run: {python}: {e}"),
+    }
+}
+
 fn main() {
     if std::env::args().any(|a| a == "--list") {
         return;
@@ -375,6 +394,7 @@ fn main() {
     if wanted("fit") {
         bench_fit(100_000, 9);
         bench_fit(1_000_000, 3);
+        numpy_anchor();
     }
     // Many repeats of the small fit alone, for a profiler.
     if only.iter().any(|o| o == "profile") {
