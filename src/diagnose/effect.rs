@@ -96,7 +96,9 @@ pub struct AuxCoupling {
 /// The scalar follows a base station's record with this gain.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ExternalField {
-    /// Dimensionless gain (1 for the same variation at both).
+    /// Dimensionless gain (1 for the same variation at both), measured
+    /// over the calibration windows; the model subtracts the station's
+    /// variation with gain 1 whatever it is.
     pub gain: f64,
 }
 

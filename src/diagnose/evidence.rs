@@ -118,8 +118,9 @@ pub fn departure(
 
 /// The channel's model with the findings the rule judges taken away: a
 /// fluxgate calibration (the flight's) and a base station's term are kept.
-/// The base station's term is fitted but never predicted (the compensated
-/// channel keeps the Earth's field): it acts on the survey only through
+/// The base station's term is subtracted before the fit but never
+/// predicted (the compensated channel keeps the Earth's field): it acts
+/// on the survey only through
 /// the coefficients it unbiases, so what the model moves there is plain
 /// Tolles-Lawson's own bias, not an effect carried beyond the box. With
 /// 6 nT of pulsations the plain fit was 1.7 nT wrong on the survey and the

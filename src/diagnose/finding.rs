@@ -235,12 +235,12 @@ pub(super) fn finding(
             );
         }
         Extension::External { source: column } => {
-            let coefficients = extension_coefficients(problem, &model, 1)?;
-            effect = Effect::ExternalField(ExternalField { gain: coefficients[0] });
+            let gain = station_gain(problem, &model, column)?;
+            effect = Effect::ExternalField(ExternalField { gain });
             source = Some(column.clone());
             explanation = format!(
-                "Geomagnetic variation recorded by the base station '{column}' is in the calibration band: {} follows it with a gain of {:.2}. Subtract it (or model it) before fitting.",
-                problem.channel, coefficients[0]
+                "Geomagnetic variation recorded by the base station '{column}' is in the calibration band: {} follows it with a gain of {gain:.2}. The model is fitted on the channel less the station's variation (gain 1), so the variation no longer biases the aircraft's coefficients; the compensated channel keeps it, for the survey's diurnal correction.",
+                problem.channel
             );
         }
     }
@@ -270,6 +270,64 @@ pub(super) fn extension_coefficients(problem: &Problem, model: &Model, count: us
     let spec = problem.spec(model);
     let fitted = prepare(problem, &spec)?.fit(problem.windows, problem.options, problem.stores)?;
     Ok(fitted.coefficients[fitted.coefficients.len() - count..].to_vec())
+}
+
+/// The gain with which the channel follows the base station `column`,
+/// measured, not fitted: what `model` (fitted on the channel less the
+/// station's variation) leaves of the channel, the station's variation
+/// added back, regressed on that variation over the calibration windows,
+/// each window's mean and trend taken out of both. 1 when the sensor
+/// reads the station's variation as the station does.
+fn station_gain(problem: &Problem, model: &Model, column: &str) -> Result<f64> {
+    let spec = problem.spec(model);
+    let fitted = prepare(problem, &spec)?.fit(problem.windows, problem.options, problem.stores)?;
+    let prediction = fitted.predict(problem.log)?;
+    let station = problem
+        .log
+        .channel(column)
+        .map(|c| c.values.as_slice())
+        .unwrap_or_default();
+    let time = problem.log.time_s();
+    let (mut cross, mut square) = (0.0, 0.0);
+    for window in problem.windows {
+        let rows: Vec<usize> = window
+            .rows(time)
+            .filter(|&r| prediction.scalar_nt[r].is_finite() && prediction.interference_nt[r].is_finite())
+            .filter(|&r| station.get(r).is_some_and(|v| v.is_finite()))
+            .collect();
+        let left: Vec<f64> = rows
+            .iter()
+            .map(|&r| prediction.scalar_nt[r] - prediction.interference_nt[r])
+            .collect();
+        let variation: Vec<f64> = rows.iter().map(|&r| station[r]).collect();
+        let times: Vec<f64> = rows.iter().map(|&r| time[r]).collect();
+        let (left, variation) = (detrended(&times, &left), detrended(&times, &variation));
+        cross += left.iter().zip(&variation).map(|(a, b)| a * b).sum::<f64>();
+        square += variation.iter().map(|b| b * b).sum::<f64>();
+    }
+    Ok(match square > 0.0 {
+        true => cross / square,
+        false => f64::NAN,
+    })
+}
+
+/// `values` less their least-squares line in `times`.
+fn detrended(times: &[f64], values: &[f64]) -> Vec<f64> {
+    let n = values.len().max(1) as f64;
+    let (t_mean, v_mean) = (times.iter().sum::<f64>() / n, values.iter().sum::<f64>() / n);
+    let spread: f64 = times.iter().map(|t| (t - t_mean).powi(2)).sum();
+    let slope = match spread > 0.0 {
+        true => {
+            (times.iter().zip(values))
+                .map(|(t, v)| (t - t_mean) * (v - v_mean))
+                .sum::<f64>()
+                / spread
+        }
+        false => 0.0,
+    };
+    (times.iter().zip(values))
+        .map(|(t, v)| v - v_mean - slope * (t - t_mean))
+        .collect()
 }
 
 /// RMS over the calibration windows of the second-order term of `model`

@@ -5,7 +5,8 @@
 //! whole design on every split, then picks λ by PRESS on each: a hundred
 //! candidates of thirty auxiliary columns cost a hundred times the fit.
 //! But most candidates add a few columns to the current model (a source's
-//! coupling) or change only its target (a lag), and the held-out residual
+//! coupling) or change only its target (a lag, a base station's variation
+//! subtracted), and the held-out residual
 //! of a linear fit is a function of moment matrices: with the current
 //! model's band-passed design X and target y on each held-out piece (a
 //! heading's windows, a window, a quarter), and a candidate's new columns
@@ -184,7 +185,15 @@ impl Screen {
         if kept.len() + new.len() != names.len() {
             return None;
         }
-        let retargeted = candidate.lag_s != model.lag_s;
+        // A lag reads the scalar at other times; a base station is
+        // subtracted from it: either changes the target.
+        let stations = |m: &Model| -> Vec<String> {
+            (m.sources.iter())
+                .filter(|s| matches!(s, crate::model::SourceTerm::ExternalField { .. }))
+                .map(|s| s.column().to_string())
+                .collect()
+        };
+        let retargeted = candidate.lag_s != model.lag_s || stations(candidate) != stations(model);
         let none = TermSet {
             permanent: false,
             induced: InducedTerms::None,

@@ -625,8 +625,7 @@ fn survey_moment(
 ) -> Result<(Mat<f64>, usize)> {
     let owned = model.flight_columns(log, shared)?;
     let p = scale.len();
-    // A column the model does not predict from (a base station) is 0.
-    let columns: Vec<Option<&[f64]>> = (0..p).map(|j| owned.get(j).and_then(|c| c.as_deref())).collect();
+    let columns: Vec<Option<&[f64]>> = (0..p).map(|j| owned.get(j).map(|c| c.as_ref())).collect();
     let value = |row: usize, j: usize| -> f64 { columns[j].map_or(0.0, |c| c[row]) };
     let finite = |row: usize| columns.iter().all(|c| c.is_none_or(|c| c[row].is_finite()));
     let calibration: Vec<usize> = (fits.iter())

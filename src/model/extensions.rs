@@ -20,7 +20,8 @@
 //!   ([`SECOND_ORDER_PASSES`]);
 //! - source terms, in the order they were accepted: an auxiliary column c
 //!   driving a body-fixed field, seen as $(c - \bar c)(k_x u_x + k_y u_y +
-//!   k_z u_z)$, or a base-station column regressed on, $g\,(c - \bar c)$.
+//!   k_z u_z)$, or a base-station column subtracted from the scalar
+//!   before the fit with gain 1, $c - \bar c$ (no coefficient).
 //!   The level $\bar c$ is the column's median on the flight the model was
 //!   fitted on: the steady part of a body-fixed field is the permanent
 //!   terms' already.
@@ -53,8 +54,8 @@ pub enum SourceTerm {
         /// The column.
         column: String,
     },
-    /// Geomagnetic variation recorded by a base station: one regressor
-    /// $c - \bar c$.
+    /// Geomagnetic variation recorded by a base station: $c - \bar c$
+    /// subtracted from the scalar before the fit, gain 1, no coefficient.
     ExternalField {
         /// The column.
         column: String,

@@ -269,8 +269,8 @@ pub struct Prediction<'a> {
     /// when the sensor lags, nT.
     pub scalar_nt: Cow<'a, [f64]>,
     /// The aircraft's interference $A\beta$ on every row, nT (`NaN` where
-    /// an input is missing). A base-station term is fitted but not part
-    /// of it (see [`FittedModel::predict`]).
+    /// an input is missing). A base station's variation is not part of
+    /// it (see [`FittedModel::predict`]).
     pub interference_nt: Vec<f64>,
 }
 
@@ -290,10 +290,9 @@ impl FittedModel {
 
     /// The interference on every row of `log`, with the terms' time
     /// derivatives taken inside contiguous runs of valid vector samples.
-    /// A base-station term is fitted (so geomagnetic variation in the
-    /// calibration band does not bias the aircraft's coefficients) but not
-    /// predicted: it is the Earth's field, which the compensated channel
-    /// keeps. A flight that lacks the model's channel, vector sensor or
+    /// A base station's variation is subtracted before the fit (so it
+    /// does not bias the aircraft's coefficients) but not predicted: it is
+    /// the Earth's field, which the compensated channel keeps. A flight that lacks the model's channel, vector sensor or
     /// source columns (a model fitted on another flight) is an error.
     pub fn predict<'a>(&self, log: &'a FlightLog) -> Result<Prediction<'a>> {
         self.predict_with(log, &[])
@@ -305,9 +304,15 @@ impl FittedModel {
     pub(crate) fn predict_with<'a>(&self, log: &'a FlightLog, shared: &[SharedDesign]) -> Result<Prediction<'a>> {
         let sensor = self.sensor_in(log)?;
         let prepared = Prepared::new(log, &sensor, &self.channel, &self.spec)?;
+        // The record as the model reads it, the base station's variation
+        // kept (the fit's target is without it).
         let scalar_nt = match self.spec.extensions.lag_s {
             0.0 => Cow::Borrowed(prepared::scalar_values(log, &self.channel)?),
-            _ => Cow::Owned(prepared.scalar.to_vec()),
+            lag_s => Cow::Owned(crate::model::extensions::advanced(
+                prepared::scalar_values(log, &self.channel)?,
+                log.time_s(),
+                lag_s,
+            )),
         };
         let terms = self.spec.fitted_terms();
         let built;
@@ -322,7 +327,6 @@ impl FittedModel {
             .coefficients
             .split_at(design.columns.len().min(self.coefficients.len()));
         let aircraft: Vec<(&[f64], f64)> = (prepared.extra.iter().zip(extra_part))
-            .filter(|(c, _)| !c.geomagnetic)
             .map(|(c, b)| (c.values.as_slice(), *b))
             .collect();
         let mut interference_nt: Vec<f64> = (0..log.len())
@@ -366,9 +370,7 @@ impl FittedModel {
             return Ok(None);
         }
         let columns = self.flight_columns(log, shared)?;
-        let aircraft: Vec<(usize, &[f64])> = (columns.iter().enumerate())
-            .filter_map(|(k, c)| Some((k, c.as_deref()?)))
-            .collect();
+        let aircraft: Vec<(usize, &[f64])> = (columns.iter().enumerate()).map(|(k, c)| (k, c.as_ref())).collect();
         let predict = |row: usize, d: &[f64]| aircraft.iter().map(|(k, c)| c[row] * d[*k]).sum::<f64>();
         let levels: Vec<f64> = match &self.calibration_level {
             Some(saved) => saved.jackknife_nt.clone(),
@@ -433,13 +435,12 @@ impl FittedModel {
     /// The columns the model predicts from over the whole of `log`, one
     /// per coefficient: the fitted terms (derivatives inside runs of valid
     /// vector samples; borrowed from `shared` when it holds them), then
-    /// the extension columns. A base-station column is `None`: it is
-    /// fitted but not predicted.
+    /// the extension columns.
     pub(crate) fn flight_columns<'s>(
         &self,
         log: &FlightLog,
         shared: &'s [SharedDesign],
-    ) -> Result<Vec<Option<Cow<'s, [f64]>>>> {
+    ) -> Result<Vec<Cow<'s, [f64]>>> {
         let sensor = self.sensor_in(log)?;
         let prepared = Prepared::new(log, &sensor, &self.channel, &self.spec)?;
         let terms = self.spec.fitted_terms();
@@ -449,13 +450,8 @@ impl FittedModel {
                 .map(Cow::Owned)
                 .collect(),
         };
-        Ok((design.into_iter().map(Some))
-            .chain(
-                prepared
-                    .extra
-                    .into_iter()
-                    .map(|c| (!c.geomagnetic).then_some(Cow::Owned(c.values))),
-            )
+        Ok((design.into_iter())
+            .chain(prepared.extra.into_iter().map(|c| Cow::Owned(c.values)))
             .collect())
     }
 

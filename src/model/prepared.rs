@@ -24,12 +24,6 @@ pub(crate) struct ExtraColumn {
     pub name: String,
     /// One value per row of the flight.
     pub values: Vec<f64>,
-    /// The Earth's field, not the aircraft's: a base-station column. It
-    /// is fitted, so geomagnetic variation in the band does not bias the
-    /// aircraft's coefficients, but not subtracted: the compensated
-    /// channel keeps the Earth's field, and removing its variation is the
-    /// survey's diurnal correction, a step of its own.
-    pub geomagnetic: bool,
 }
 
 /// What a model of one channel is fitted on and predicts from.
@@ -46,8 +40,9 @@ pub(crate) struct Prepared<'a> {
     pub spec: &'a ModelSpec,
     /// Extension columns, in the order their coefficients follow the terms'.
     pub extra: Vec<ExtraColumn>,
-    /// The scalar channel's readings, advanced by the lag (borrowed when
-    /// there is none): the flight itself is never copied for it.
+    /// What the model is fitted to: the scalar channel's readings,
+    /// advanced by the lag, less a base station's variation (borrowed when
+    /// neither applies): the flight itself is never copied for it.
     pub scalar: Cow<'a, [f64]>,
 }
 
@@ -82,13 +77,7 @@ impl<'a> Prepared<'a> {
         let extensions = &spec.extensions;
         let scale = spec.terms.bt_scale_nt;
         let mut extra = Vec::new();
-        let mut push = |name: String, values: Vec<f64>, geomagnetic: bool| {
-            extra.push(ExtraColumn {
-                name,
-                values,
-                geomagnetic,
-            })
-        };
+        let mut push = |name: String, values: Vec<f64>| extra.push(ExtraColumn { name, values });
         // Lagged eddy terms first: the newest source term stays last.
         if extensions.eddy_tau_s > 0.0 {
             let dt = log.median_interval_s();
@@ -104,7 +93,7 @@ impl<'a> Prepared<'a> {
                         .zip(&lagged[j])
                         .map(|(u, d)| u * d / scale)
                         .collect();
-                    push(format!("eddy_lagged_{axis_i}{axis_j}"), values, false);
+                    push(format!("eddy_lagged_{axis_i}{axis_j}"), values);
                 }
             }
         }
@@ -121,7 +110,7 @@ impl<'a> Prepared<'a> {
                 SourceTerm::AuxCoupling { column, level } => {
                     for (axis, u) in ["x", "y", "z"].iter().zip(direction) {
                         let coupled = values.iter().zip(u).map(|(c, u)| (c - level) * u).collect();
-                        push(format!("{column}_{axis}"), coupled, false);
+                        push(format!("{column}_{axis}"), coupled);
                     }
                 }
                 SourceTerm::AuxCouplingRate { column } => {
@@ -130,19 +119,39 @@ impl<'a> Prepared<'a> {
                         push(
                             format!("{column}_rate_{axis}"),
                             rate.iter().zip(u).map(|(r, u)| r * u).collect(),
-                            false,
                         );
                     }
                 }
-                SourceTerm::ExternalField { column, level } => {
-                    push(column.clone(), values.iter().map(|c| c - level).collect(), true);
-                }
+                // Subtracted from the scalar below, with gain 1.
+                SourceTerm::ExternalField { .. } => {}
             }
         }
         let scalar = match (&log, extensions.lag_s) {
             (_, lag_s) if lag_s != 0.0 => Cow::Owned(advanced(scalar_values(&log, channel)?, log.time_s(), lag_s)),
             (Cow::Borrowed(flight), _) => Cow::Borrowed(scalar_values(flight, channel)?),
             (Cow::Owned(flight), _) => Cow::Owned(scalar_values(flight, channel)?.to_vec()),
+        };
+        // A base station's variation is the Earth's field, which the
+        // aircraft's sensor reads as the station does: the model is fitted
+        // on the scalar less it, gain 1, so it cannot bias the aircraft's
+        // coefficients and no fitted gain can take up the aircraft's own
+        // field in its place. The compensated channel keeps it (removing
+        // it is the survey's diurnal correction, a step of its own).
+        let stations: Vec<(&[f64], f64)> = (extensions.sources.iter())
+            .filter_map(|source| match source {
+                SourceTerm::ExternalField { column, level } => {
+                    log.channel(column).map(|c| (c.values.as_slice(), *level))
+                }
+                _ => None,
+            })
+            .collect();
+        let scalar = match stations.is_empty() {
+            true => scalar,
+            false => Cow::Owned(
+                (scalar.iter().enumerate())
+                    .map(|(row, s)| s - stations.iter().map(|(c, level)| c[row] - level).sum::<f64>())
+                    .collect(),
+            ),
         };
         Ok(Prepared {
             log,
