@@ -409,15 +409,31 @@ impl SavedModel {
             if let Some(sensor) = log.vector_sensor(&fit.vector_sensor) {
                 let columns = crate::model::term_names(log, &sensor, &fit.channel, &fit.spec);
                 if columns.as_ref().is_ok_and(|names| *names != fit.term_names) {
+                    let built = columns.unwrap_or_default();
+                    // An earlier magcomp fitted a base station's gain: one
+                    // more term, named after the station's column.
+                    let stations: Vec<&str> = (fit.spec.extensions.sources.iter())
+                        .filter(|s| matches!(s, crate::model::SourceTerm::ExternalField { .. }))
+                        .map(|s| s.column())
+                        .collect();
+                    let fitted_gain = !stations.is_empty()
+                        && fit.term_names.len() == built.len() + stations.len()
+                        && (fit.term_names.iter())
+                            .filter(|n| !stations.contains(&n.as_str()))
+                            .eq(built.iter());
+                    let hint = match fitted_gain {
+                        true => "The model was saved by an earlier magcomp, which fitted the base station's gain; this one subtracts the station's variation with gain 1: save the model again from its calibration flight (--model)",
+                        false => "The file was edited or damaged: save the model again from its calibration flight (--model)",
+                    };
                     return Err(self.mismatch(
                         log,
                         format!(
                             "the model of '{}' lists the terms {} where its spec builds {}",
                             fit.channel,
                             fit.term_names.join(", "),
-                            columns.unwrap_or_default().join(", ")
+                            built.join(", ")
                         ),
-                        "The file was edited or damaged: save the model again from its calibration flight (--model)",
+                        hint,
                     ));
                 }
             }

@@ -558,3 +558,59 @@ fn a_run_applies_the_model_its_calibration_flight_writes() {
         serde_json::from_reader(std::fs::File::open(at("out/survey_status.json")).unwrap()).unwrap();
     assert_eq!(status["state"], "failed", "{status}");
 }
+
+#[test]
+fn a_model_that_fitted_the_base_stations_gain_is_refused_as_an_earlier_versions() {
+    // concealed_d: 6 nT of pulsations, which the base station records;
+    // the default finds them and subtracts the station's variation.
+    let folder = tempfile::tempdir().unwrap();
+    let at = |name: &str| folder.path().join(name);
+    let flight = Path::new(env!("CARGO_MANIFEST_DIR")).join("sample_flights/concealed_d.csv");
+    run_ok(
+        magcomp()
+            .arg("compensate")
+            .arg(&flight)
+            .arg("--out")
+            .arg(at("own.csv"))
+            .arg("--model")
+            .arg(at("model.json")),
+    );
+    let text = std::fs::read_to_string(at("model.json")).unwrap();
+    let mut model: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let fits = model["models"].as_array_mut().unwrap();
+    let with_station = fits
+        .iter_mut()
+        .find(|m| m["spec"]["extensions"]["sources"].to_string().contains("diurnal"))
+        .expect("a model subtracting the base station");
+    // The station's term as an earlier magcomp saved it: one more name,
+    // coefficient and jackknife entry.
+    let names = with_station["term_names"].as_array().unwrap();
+    assert!(!names.iter().any(|n| n == "diurnal"), "{names:?}");
+    with_station["term_names"]
+        .as_array_mut()
+        .unwrap()
+        .push("diurnal".into());
+    with_station["coefficients"].as_array_mut().unwrap().push(0.98.into());
+    if let Some(u) = with_station["coefficient_uncertainty"].as_array_mut() {
+        u.push(serde_json::Value::Null);
+    }
+    for deviation in with_station["solution"]["jackknife"].as_array_mut().unwrap() {
+        deviation.as_array_mut().unwrap().push(0.0.into());
+    }
+    std::fs::write(at("earlier.json"), serde_json::to_string(&model).unwrap()).unwrap();
+    let text = refused(&flight, &at("earlier.json"), &at("out.csv"));
+    assert!(
+        text.contains("saved by an earlier magcomp, which fitted the base station's gain"),
+        "{text}"
+    );
+    // The file as written applies to its own flight.
+    run_ok(
+        magcomp()
+            .arg("compensate")
+            .arg(&flight)
+            .arg("--out")
+            .arg(at("applied.csv"))
+            .arg("--apply")
+            .arg(at("model.json")),
+    );
+}
