@@ -15,6 +15,7 @@
 //! waits for that flight to finish; [`dependency_order`] puts such flights
 //! after every other, so the flight it waits for is always already taken.
 
+use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
 use std::sync::{Condvar, Mutex};
 use std::time::{Duration, Instant};
@@ -93,7 +94,7 @@ fn available_memory() -> Option<u64> {
 
 /// The model JSONs the flights `order` of `pipeline` write, each with the
 /// flight writing it (a flight given a model writes none).
-fn model_outputs<'a>(pipeline: &'a Pipeline, order: &[usize]) -> Vec<(PathBuf, &'a FlightJob)> {
+fn model_outputs<'a>(pipeline: &'a Pipeline, order: &[usize]) -> HashMap<PathBuf, &'a FlightJob> {
     order
         .iter()
         .map(|&i| &pipeline.flights[i])
@@ -106,7 +107,7 @@ fn model_outputs<'a>(pipeline: &'a Pipeline, order: &[usize]) -> Vec<(PathBuf, &
 /// in their order.
 pub fn dependency_order(pipeline: &Pipeline, mut order: Vec<usize>) -> Vec<usize> {
     let outputs = model_outputs(pipeline, &order);
-    let written_here = |model: &PathBuf| outputs.iter().any(|(m, job)| m == model && job.model.is_none());
+    let written_here = |model: &PathBuf| outputs.get(model).is_some_and(|job| job.model.is_none());
     order.sort_by_key(|&i| pipeline.flights[i].model.as_ref().is_some_and(written_here));
     order
 }
@@ -153,8 +154,8 @@ struct Board {
     next: usize,
     running: usize,
     finished: Vec<Option<FinishedFlight>>,
-    written: Vec<PathBuf>,
-    failed: Vec<PathBuf>,
+    written: HashSet<PathBuf>,
+    failed: HashSet<PathBuf>,
     /// Time spent on processed flights, and how many.
     spent: (Duration, u32),
 }
@@ -198,8 +199,8 @@ pub fn run_flights(
         next: 0,
         running: 0,
         finished: order.iter().map(|_| None).collect(),
-        written: Vec::new(),
-        failed: Vec::new(),
+        written: HashSet::new(),
+        failed: HashSet::new(),
         spent: (Duration::ZERO, 0),
     });
     let changed = Condvar::new();
@@ -219,7 +220,7 @@ pub fn run_flights(
         // A flight applying another's model waits for that flight, which
         // was taken before it (the order puts it first).
         let unavailable = job.model.as_ref().and_then(|model| {
-            let writer = outputs.iter().find(|(m, writer)| m == model && writer.model.is_none());
+            let writer = outputs.get(model).filter(|writer| writer.model.is_none());
             if writer.is_some() {
                 let mut board = lock(&board);
                 while !board.written.contains(model) && !board.failed.contains(model) {
@@ -246,9 +247,10 @@ pub fn run_flights(
                 board.spent = (board.spent.0 + began.elapsed(), board.spent.1 + 1);
             }
             if let Some(model) = flight_outputs.model_json {
-                match done.failed() {
-                    true => board.failed.push(model),
-                    false => board.written.push(model),
+                if done.failed() {
+                    board.failed.insert(model);
+                } else {
+                    board.written.insert(model);
                 }
             }
             board.running -= 1;
@@ -295,14 +297,14 @@ fn lock(board: &Mutex<Board>) -> std::sync::MutexGuard<'_, Board> {
 /// of the run that writes it failed (the file there, if any, is an
 /// earlier run's), or no flight writes it and it is not there, or the
 /// flight that would is given a model itself and writes none.
-fn model_unavailable(model: &Path, outputs: &[(PathBuf, &FlightJob)], failed: &[PathBuf]) -> Option<Error> {
-    let writer = outputs.iter().find(|(m, _)| m == model).map(|(_, job)| job);
+fn model_unavailable(model: &Path, outputs: &HashMap<PathBuf, &FlightJob>, failed: &HashSet<PathBuf>) -> Option<Error> {
+    let writer = outputs.get(model);
     let reason = match writer {
         Some(job) if job.model.is_some() => format!(
             "it is never written: {} is itself compensated with a saved model, and a flight given a model writes none; name the model of the flight that flew the calibration box",
             job.input.display()
         ),
-        Some(job) if failed.iter().any(|f| f == model) => format!(
+        Some(job) if failed.contains(model) => format!(
             "the flight that writes it, {}, failed in this run, so it is not that flight's model now (a file there is an earlier run's); fix that flight and run again",
             job.input.display()
         ),
