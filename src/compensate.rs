@@ -92,14 +92,18 @@ pub struct Compensation {
     /// Each compensated gradient, nT/m ([`crate::gradient`]); empty when
     /// none is asked for.
     pub gradients: Vec<CompensatedGradient>,
+    /// The compensated channels reduced for levelling and gridding
+    /// (`mag_<n>_dc`, `mag_<n>_igrf`; [`crate::reduce`]); empty unless
+    /// asked for.
+    pub reduced: Vec<crate::reduce::ReducedChannel>,
 }
 
 impl Compensation {
     /// Every column of values magcomp adds, in the order of the added
     /// column names: each compensated channel (and its sigma, when it has
     /// one), then each fluxgate's body
-    /// x, y, z and north, east, down, then each gradient (the flags column
-    /// follows them).
+    /// x, y, z and north, east, down, then each gradient, then each
+    /// reduced channel (the flags column follows them).
     pub fn value_columns(&self) -> Vec<&[f64]> {
         let channels = self
             .channels
@@ -110,7 +114,8 @@ impl Compensation {
             .iter()
             .flat_map(|v| v.body_nt.iter().chain(&v.ned_nt).map(Vec::as_slice));
         let gradients = self.gradients.iter().map(|g| g.values.as_slice());
-        channels.chain(vectors).chain(gradients).collect()
+        let reduced = self.reduced.iter().map(|r| r.values.as_slice());
+        channels.chain(vectors).chain(gradients).chain(reduced).collect()
     }
 
     /// Rounds every added column to `decimals` places of nT (gradients,
@@ -145,6 +150,9 @@ impl Compensation {
         }
         for gradient in &mut self.gradients {
             round(&mut gradient.values, decimals + 3);
+        }
+        for reduced in &mut self.reduced {
+            round(&mut reduced.values, decimals);
         }
     }
 
@@ -227,6 +235,7 @@ pub fn compensate_with(
         flags,
         vectors: Vec::new(),
         gradients: Vec::new(),
+        reduced: Vec::new(),
     })
 }
 
@@ -383,6 +392,7 @@ mod rounding_tests {
                 column: "grad_1_2_c".into(),
                 values: vec![0.012345678, 0.0, 1.0],
             }],
+            reduced: Vec::new(),
         };
         compensation.round_to(3);
         let channel = &compensation.channels[0];

@@ -30,7 +30,8 @@ pub enum FlagKind {
     MissingScalar,
     /// A component of the vector sample is missing.
     MissingVector,
-    /// A source column of the model is missing.
+    /// A source column of the model, or one a reduced column removes (the
+    /// base station; the position for IGRF), is missing.
     MissingSource,
     /// Beside a missing vector sample: the terms' time derivative is
     /// one-sided there, so the value stands, less accurately.

@@ -95,6 +95,7 @@ pub mod numerics;
 pub mod pipeline;
 pub mod plan;
 pub mod quality;
+pub mod reduce;
 pub mod report;
 pub mod sample_flight;
 pub mod screen;

@@ -256,6 +256,15 @@ struct CompensateArgs {
     /// says; MCAP output's log times count from its midnight.
     #[arg(long, value_parser = parse_date)]
     date: Option<magcomp::flight_date::FlightDate>,
+    /// Also write mag_<n>_dc: each compensated channel less the base
+    /// station's variation ([output] dc).
+    #[arg(long)]
+    dc: bool,
+    /// Also write mag_<n>_igrf: each compensated channel less the base
+    /// station's variation and IGRF-14 at the aircraft's position and the
+    /// flight's date ([output] igrf).
+    #[arg(long)]
+    igrf: bool,
 }
 
 /// `--date`: a day as YYYY-MM-DD.
@@ -584,6 +593,8 @@ fn compensate(args: CompensateArgs, verbose: bool) -> anyhow::Result<()> {
         pipeline.settings.diagnose.apply = ApplyDiagnosis::Never;
     }
     pipeline.settings.ingest.date = args.date.or(pipeline.settings.ingest.date);
+    pipeline.settings.reduced.dc |= args.dc;
+    pipeline.settings.reduced.igrf |= args.igrf;
     let job = FlightJob {
         diagnosis: args.diagnosis.clone(),
         force_diagnosis: args.force,

@@ -626,9 +626,11 @@ fn run_fitted(
         compensation.add_vector(compensated);
     }
     compensation.gradients = gradients.compensated;
+    let reduced_notes = crate::reduce::add_reduced(log, &mut compensation, options.reduced)?;
     warnings.extend(compensation.out_of_range_warnings(log.time_s()));
     let added_columns = added_column_names(log, compensated, &compensation)?;
     let mut notes = renaming_notes(&channels, &added_columns);
+    notes.extend(reduced_notes);
     // In channel order, whatever order the threads finished in.
     let mut transfer_notes = transfer_notes.into_inner().unwrap_or_default();
     transfer_notes.sort();
@@ -860,6 +862,7 @@ fn run_applied(
         compensated,
         true,
     ));
+    notes.extend(crate::reduce::add_reduced(log, &mut compensation, options.reduced)?);
     warnings.extend(compensation.out_of_range_warnings(log.time_s()));
     let added_columns = added_column_names(log, compensated, &compensation)?;
     notes.splice(0..0, renaming_notes(&channels, &added_columns));

@@ -204,6 +204,12 @@ pub(crate) struct RawOutput {
     /// Decimal places of the added nT columns (gradients, nT/m, get three
     /// more); the input's columns are copied as they are.
     pub decimals: u32,
+    /// Write `mag_<n>_dc`: compensated, the base station's variation
+    /// removed.
+    pub dc: bool,
+    /// Write `mag_<n>_igrf`: compensated, the base station's variation
+    /// and IGRF-14 removed.
+    pub igrf: bool,
 }
 
 impl Default for RawOutput {
@@ -211,6 +217,8 @@ impl Default for RawOutput {
         RawOutput {
             directory: "out".into(),
             decimals: DEFAULT_DECIMALS,
+            dc: false,
+            igrf: false,
         }
     }
 }
@@ -509,6 +517,8 @@ pub struct Settings {
     pub gradients: Vec<GradientPair>,
     /// Decimal places of the added nT columns (`[output] decimals`).
     pub output_decimals: u32,
+    /// The reduced columns to add (`[output] dc`, `[output] igrf`).
+    pub reduced: crate::reduce::ReducedColumns,
     /// Days after which an applied model is a warning (`[model]
     /// max_age_days`).
     pub model_max_age_days: u32,
@@ -604,6 +614,10 @@ impl Pipeline {
         }
         let settings = Settings {
             output_decimals: raw.output.decimals,
+            reduced: crate::reduce::ReducedColumns {
+                dc: raw.output.dc,
+                igrf: raw.output.igrf,
+            },
             ingest: IngestOptions {
                 columns: ColumnNames::try_from(raw.columns).map_err(bad)?,
                 alignment: AlignmentOptions::try_from(raw.alignment).map_err(bad)?,

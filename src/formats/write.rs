@@ -200,6 +200,12 @@ fn new_column_names(existing: &[String], compensation: &Compensation) -> Vec<Str
             false => gradient.column.clone(),
         });
     }
+    for reduced in &compensation.reduced {
+        added.push(match existing.iter().chain(&added).any(|n| *n == reduced.column) {
+            true => format!("{}_magcomp", reduced.column),
+            false => reduced.column.clone(),
+        });
+    }
     let taken: Vec<String> = existing.iter().chain(&added).cloned().collect();
     added.push(flags_column_name(&taken));
     added

@@ -402,6 +402,16 @@ fn plan_topics<'a>(log: &'a FlightLog, compensation: Option<&'a Compensation>) -
             "nT/m",
         ));
     }
+    for reduced in compensation.map(|c| c.reduced.as_slice()).unwrap_or_default() {
+        // `mag_1_dc` → /mag/1/dc, as the compensated channel's topic.
+        let (channel, kind) = reduced.column.rsplit_once('_').unwrap_or((&reduced.column, "reduced"));
+        let name = format!("{channel}_uc");
+        topics.push(sample_topic(
+            format!("/mag/{}/{kind}", scalar_label(&name)),
+            &reduced.values,
+            "nT",
+        ));
+    }
     if let Some(compensation) = compensation {
         let flags = &compensation.flags;
         topics.push(Topic {
