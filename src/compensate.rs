@@ -78,6 +78,16 @@ pub struct CompensatedGradient {
     pub values: Vec<f64>,
 }
 
+/// One compensated channel reduced for levelling and gridding
+/// ([`crate::reduce`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ReducedChannel {
+    /// The output column, `mag_<n>_dc` or `mag_<n>_igrf`.
+    pub column: String,
+    /// Values, nT (`NaN` where the row has none).
+    pub values: Vec<f64>,
+}
+
 /// All compensated channels of a flight, with per-row flags.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Compensation {
@@ -95,7 +105,7 @@ pub struct Compensation {
     /// The compensated channels reduced for levelling and gridding
     /// (`mag_<n>_dc`, `mag_<n>_igrf`; [`crate::reduce`]); empty unless
     /// asked for.
-    pub reduced: Vec<crate::reduce::ReducedChannel>,
+    pub reduced: Vec<ReducedChannel>,
 }
 
 impl Compensation {

@@ -19,7 +19,7 @@
 
 use serde::Serialize;
 
-use crate::compensate::Compensation;
+use crate::compensate::{Compensation, ReducedChannel};
 use crate::error::{Error, Result};
 use crate::flags::FlagKind;
 use crate::flight_log::{ChannelRole, FlightLog};
@@ -43,15 +43,6 @@ impl ReducedColumns {
     pub fn any(self) -> bool {
         self.dc || self.igrf
     }
-}
-
-/// One reduced column.
-#[derive(Debug, Clone, PartialEq)]
-pub struct ReducedChannel {
-    /// The output column, `mag_<n>_dc` or `mag_<n>_igrf`.
-    pub column: String,
-    /// Values, nT (`NaN` where the row has none).
-    pub values: Vec<f64>,
 }
 
 /// The reduced column's name for the compensated channel `channel`:
