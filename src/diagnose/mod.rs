@@ -505,6 +505,47 @@ struct Problem<'a> {
     stores: &'a StorePool,
 }
 
+/// Where a channel's search starts: plain Tolles-Lawson held out, with λ
+/// by the pipeline's criterion and by the other.
+struct ChannelStart {
+    /// Held-out RMS of plain Tolles-Lawson by the pipeline's criterion, nT.
+    raw_rms: f64,
+    /// The same by the other criterion, when it could be measured, nT.
+    other_rms: Option<f64>,
+    /// The model the search starts from (plain, λ by whichever criterion
+    /// predicts the held-out headings better).
+    start_model: Model,
+    /// Its held-out figures.
+    raw: HeldOut,
+}
+
+/// The start of `problem`'s search ([`ChannelStart`]), or why the channel
+/// cannot be diagnosed.
+fn channel_start(problem: &Problem) -> Result<std::result::Result<ChannelStart, String>> {
+    let raw = held_out(problem, &Model::default())?;
+    if let Some(why) = raw.unusable() {
+        return Ok(Err(format!(
+            "{}: not diagnosed: {why}, so no effect can be measured against it",
+            problem.channel
+        )));
+    }
+    let raw_rms = raw.rms_nt;
+    // λ by the other criterion: the search starts from whichever predicts
+    // the held-out headings better (see `criterion_trial`).
+    let other = criterion_trial(problem)?;
+    let other_rms = other.as_ref().map(|(_, h)| h.rms_nt);
+    let (start_model, raw) = match other {
+        Some((model, h)) if h.rms_nt < raw.rms_nt => (model, h),
+        _ => (Model::default(), raw),
+    };
+    Ok(Ok(ChannelStart {
+        raw_rms,
+        other_rms,
+        start_model,
+        raw,
+    }))
+}
+
 /// Diagnoses every channel on its calibration windows, starting from
 /// plain Tolles-Lawson on `terms`.
 pub fn diagnose(
@@ -525,11 +566,37 @@ pub fn diagnose(
     // left: a cabin sensor's hundreds of nT would otherwise count as
     // fluxgate offsets.
     let stores = StorePool::new();
-    let checked = quietest_reference(log, sensor, channels, windows, (terms, options), &stores)
-        .map_err(|e| e.to_string())
-        .and_then(|(reference, interference_nt)| {
-            check_fluxgate(log, sensor, &reference, windows, interference_nt, settings)
-        });
+    let raw_direction = field_directions(log, sensor);
+    let levels = source_levels(log);
+    let problem = |channel, log, direction| Problem {
+        log,
+        sensor,
+        channel,
+        windows,
+        terms: *terms,
+        options,
+        direction,
+        levels: &levels,
+        stores: &stores,
+    };
+    // The fluxgate check and each channel's plain fits held out (by
+    // either λ criterion) do not need each other: side by side.
+    let (checked, starts) = rayon::join(
+        || {
+            quietest_reference(log, sensor, channels, windows, (terms, options), &stores)
+                .map_err(|e| e.to_string())
+                .and_then(|(reference, interference_nt)| {
+                    check_fluxgate(log, sensor, &reference, windows, interference_nt, settings)
+                })
+        },
+        || {
+            channels
+                .par_iter()
+                .map(|channel| channel_start(&problem(channel, log, &raw_direction)))
+                .collect::<Result<Vec<_>>>()
+        },
+    );
+    let starts = starts?;
     let (fluxgate, mut notes) = match checked {
         Ok(check) => (Some(check), Vec::new()),
         Err(why) => (None, vec![format!("fluxgate calibration not checked: {why}")]),
@@ -541,45 +608,26 @@ pub fn diagnose(
         .filter(|check| mismatch_stands(check, settings))
         .map(|check| check.calibration.apply(log, sensor))
         .transpose()?;
-    let raw_direction = field_directions(log, sensor);
-    let levels = source_levels(log);
     let calibrated_direction = calibrated.as_ref().map(|l| field_directions(l, sensor));
     #[allow(clippy::type_complexity)]
-    let results: Vec<std::result::Result<(ChannelDiagnosis, Vec<Finding>), String>> = channels
-        .par_iter()
-        .map(|channel| {
-            let problem = |log, direction| Problem {
-                log,
-                sensor,
-                channel,
-                windows,
-                terms: *terms,
-                options,
-                direction,
-                levels: &levels,
-                stores: &stores,
+    let results: Vec<std::result::Result<(ChannelDiagnosis, Vec<Finding>), String>> = (channels.par_iter())
+        .zip(starts)
+        .map(|(channel, start)| {
+            let ChannelStart {
+                raw_rms,
+                other_rms,
+                start_model,
+                raw,
+            } = match start {
+                Ok(start) => start,
+                Err(why) => return Ok(Err(why)),
             };
-            let raw_problem = problem(log, &raw_direction);
-            let raw = held_out(&raw_problem, &Model::default())?;
-            if let Some(why) = raw.unusable() {
-                return Ok(Err(format!(
-                    "{channel}: not diagnosed: {why}, so no effect can be measured against it"
-                )));
-            }
-            let raw_rms = raw.rms_nt;
-            // λ by the other criterion: the search starts from whichever
-            // predicts the held-out headings better (see `criterion_trial`).
-            let other = criterion_trial(&raw_problem)?;
-            let other_rms = other.as_ref().map(|(_, h)| h.rms_nt);
-            let (start_model, raw) = match other {
-                Some((model, h)) if h.rms_nt < raw.rms_nt => (model, h),
-                _ => (Model::default(), raw),
-            };
+            let raw_problem = problem(channel, log, &raw_direction);
             // Plain Tolles-Lawson on the calibrated fluxgate; the search
             // starts from it where it fits better held out.
             let alternative = match (&calibrated, &calibrated_direction) {
                 (Some(l), Some(d)) => {
-                    let p = problem(l, d);
+                    let p = problem(channel, l, d);
                     held_out(&p, &start_model).ok().map(|h| (p, h))
                 }
                 _ => None,
