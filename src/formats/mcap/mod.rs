@@ -319,6 +319,7 @@ pub fn channel_name(topic: &str, field: &str, altitude_column: &str) -> String {
         (["mag", n, "scalar"], "total_nt") => Some(format!("mag_{n}_uc")),
         (["mag", n, "compensated"], "total_nt") => Some(format!("mag_{n}_c")),
         (["mag", n, "compensated_sigma"], "value") => Some(format!("mag_{n}_c_sigma")),
+        (["mag", n, kind @ ("dc" | "igrf")], "value") => Some(format!("mag_{n}_{kind}")),
         (["mag", s, "vector_compensated"], "x_nt" | "y_nt" | "z_nt") => Some(format!("flux_{s}_{}_c", &field[..1])),
         (["mag", s, "vector_compensated_ned"], "x_nt" | "y_nt" | "z_nt") => {
             let axis = match &field[..1] {
@@ -744,6 +745,8 @@ mod tests {
             ("/mag/1/scalar", "total_nt", "mag_1_uc"),
             ("/mag/1/compensated", "total_nt", "mag_1_c"),
             ("/mag/1/compensated_sigma", "value", "mag_1_c_sigma"),
+            ("/mag/1/dc", "value", "mag_1_dc"),
+            ("/mag/2/igrf", "value", "mag_2_igrf"),
             ("/mag/a/vector", "y_nt", "flux_a_y"),
             ("/mag/a/vector_compensated", "z_nt", "flux_a_z_c"),
             ("/mag/b/vector_compensated_ned", "x_nt", "flux_b_n_c"),

@@ -18,11 +18,12 @@
 //! | vector-compensated `flux_<s>`, body axes | `/mag/<s>/vector_compensated` | `magcomp.VectorMag` (frame `body`) |
 //! | the same in north-east-down | `/mag/<s>/vector_compensated_ned` | `magcomp.VectorMag` (x, y, z = n, e, d; frame `ned`) |
 //! | compensated gradient `grad_<a>_<b>_c` | `/grad/<a>_<b>/compensated` | `magcomp.Sample` (unit `nT/m`) |
+//! | on request, `mag_<n>_dc` and `mag_<n>_igrf` | `/mag/<n>/dc`, `/mag/<n>/igrf` | `magcomp.Sample` (unit `nT`) |
 //! | the row flags (`flags`) | `/magcomp/flags` | `magcomp.RowFlags` (empty when the row is fine) |
 //!
 //! Reading a compensated file back gives the CSV's column names:
 //! `mag_<n>_c`, `mag_<n>_c_sigma`, `flux_<s>_<x|y|z|n|e|d>_c`,
-//! `grad_<a>_<b>_c` ([`super::channel_name`]).
+//! `grad_<a>_<b>_c`, `mag_<n>_dc`, `mag_<n>_igrf` ([`super::channel_name`]).
 //!
 //! The fitted model and quality figures go in as metadata records and JSON
 //! attachments.
