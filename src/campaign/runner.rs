@@ -232,9 +232,22 @@ pub fn run_flights(
         let began = Instant::now();
         let flight_outputs = FlightOutputs::for_job(folder, job);
         let notes = prepare(job, &flight_outputs);
-        let flight = match unavailable {
+        // Should the flight panic (a fault of magcomp's, not of the data),
+        // a flight waiting for its model is told it failed before the
+        // panic goes on, so no slot waits for ever.
+        let processed = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| match unavailable {
             Some(error) => fail_campaign_flight(job, folder, shard, error),
             None => process_campaign_flight(job, &pipeline.settings, folder, shard, force),
+        }));
+        let flight = match processed {
+            Ok(flight) => flight,
+            Err(panic) => {
+                if let Some(model) = flight_outputs.model_json {
+                    lock(&board).failed.insert(model);
+                }
+                changed.notify_all();
+                std::panic::resume_unwind(panic);
+            }
         };
         let done = FinishedFlight {
             index: order[position],
