@@ -93,6 +93,15 @@ fn contents(folder: &Path) -> BTreeMap<String, Vec<u8>> {
     files
 }
 
+/// Asserts that two output folders' [`contents`] hold the same files,
+/// byte for byte.
+fn same_files(a: &BTreeMap<String, Vec<u8>>, b: &BTreeMap<String, Vec<u8>>, between: &str) {
+    assert_eq!(a.keys().collect::<Vec<_>>(), b.keys().collect::<Vec<_>>(), "{between}");
+    for (name, bytes) in a {
+        assert!(bytes == &b[name], "{name} differs between {between}");
+    }
+}
+
 fn status(folder: &Path, flight: &str) -> serde_json::Value {
     let text = std::fs::read_to_string(folder.join(format!("{flight}_status.json"))).unwrap();
     serde_json::from_str(&text).unwrap()
@@ -156,30 +165,15 @@ fn three_shards_write_byte_for_byte_what_one_run_writes() {
     let (one_out, three_out) = (folder.path().join("one"), folder.path().join("three"));
     let (single_files, sharded_files) = (contents(&one_out), contents(&three_out));
     let four_files = contents(&folder.path().join("four"));
-    assert_eq!(
-        single_files.keys().collect::<Vec<_>>(),
-        four_files.keys().collect::<Vec<_>>()
-    );
-    for (name, bytes) in &single_files {
-        assert!(
-            bytes == &four_files[name],
-            "{name} differs between one and four flights at once"
-        );
-    }
+    same_files(&single_files, &four_files, "one and four flights at once");
     // The run's table lists the flights in the campaign's order, however
     // they finished.
-    let table = |stdout: &[u8]| text(stdout)[text(stdout).rfind("\nflight ").unwrap()..].to_string();
+    let table = |stdout: &[u8]| {
+        let all = text(stdout);
+        all[all.rfind("\nflight ").unwrap()..].to_string()
+    };
     assert_eq!(table(&single.stdout), table(&four.stdout));
-    assert_eq!(
-        single_files.keys().collect::<Vec<_>>(),
-        sharded_files.keys().collect::<Vec<_>>()
-    );
-    for (name, bytes) in &single_files {
-        assert!(
-            bytes == &sharded_files[name],
-            "{name} differs between one run and three shards"
-        );
-    }
+    same_files(&single_files, &sharded_files, "one run and three shards");
     // Every flight has its status, done by exactly one shard; the split
     // is within one flight of even.
     let mut per_shard = [0usize; 3];

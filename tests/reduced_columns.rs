@@ -30,6 +30,16 @@ fn run(command: &mut Command) -> (bool, String) {
     (output.status.success(), text)
 }
 
+/// `magcomp compensate input --out out` with `options`.
+fn compensate(input: &Path, out: &Path, options: &[&str]) -> (bool, String) {
+    run(magcomp()
+        .arg("compensate")
+        .arg(input)
+        .arg("--out")
+        .arg(out)
+        .args(options))
+}
+
 /// Columns of a CSV by name, as numbers (`NaN` for an empty cell).
 fn read(path: &Path, names: &[&str]) -> Vec<Vec<f64>> {
     let mut reader = csv::Reader::from_path(path).unwrap();
@@ -85,14 +95,7 @@ fn the_reduced_columns_remove_the_station_and_igrf_as_the_truth_says() {
     for seed in 0..3u64 {
         let (path, diurnal) = flight(folder.path(), seed);
         let out = folder.path().join(format!("o{seed}.csv"));
-        let (ok, text) = run(magcomp().arg("compensate").arg(&path).arg("--out").arg(&out).args([
-            "--dc",
-            "--igrf",
-            "--plain",
-            "-v",
-            "--date",
-            &day(seed),
-        ]));
+        let (ok, text) = compensate(&path, &out, &["--dc", "--igrf", "--plain", "-v", "--date", &day(seed)]);
         assert!(ok, "{text}");
         assert!(text.contains("removed as recorded"), "{text}");
         let [c, dc, igrf, lat, lon, msl, line] = <[Vec<f64>; 7]>::try_from(read(
@@ -160,12 +163,7 @@ fn a_station_recording_the_total_field_is_taken_about_its_median() {
         let out = folder
             .path()
             .join(format!("{}_out.csv", input.file_stem().unwrap().to_string_lossy()));
-        let (ok, text) = run(magcomp()
-            .arg("compensate")
-            .arg(input)
-            .arg("--out")
-            .arg(&out)
-            .args(["--dc", "--plain", "-v"]));
+        let (ok, text) = compensate(input, &out, &["--dc", "--plain", "-v"]);
         assert!(ok, "{text}");
         assert!(text.contains(says), "{text}");
         let [dc, station] = <[Vec<f64>; 2]>::try_from(read(&out, &["mag_1_dc", "diurnal"])).unwrap();
@@ -207,12 +205,7 @@ fn what_the_reduced_columns_need_is_named_when_missing() {
     // No base station.
     let no_station = folder.path().join("no_station.csv");
     drop("diurnal", &no_station);
-    let (ok, text) = run(magcomp()
-        .arg("compensate")
-        .arg(&no_station)
-        .arg("--out")
-        .arg(&out)
-        .args(["--dc", "--plain"]));
+    let (ok, text) = compensate(&no_station, &out, &["--dc", "--plain"]);
     assert!(
         !ok && text.contains("base-station") && text.contains("leave out dc"),
         "{text}"
@@ -221,20 +214,10 @@ fn what_the_reduced_columns_need_is_named_when_missing() {
     // No latitude for IGRF.
     let no_lat = folder.path().join("no_lat.csv");
     drop("lat", &no_lat);
-    let (ok, text) = run(magcomp()
-        .arg("compensate")
-        .arg(&no_lat)
-        .arg("--out")
-        .arg(&out)
-        .args(["--igrf", "--plain"]));
+    let (ok, text) = compensate(&no_lat, &out, &["--igrf", "--plain"]);
     assert!(!ok && text.contains("latitude and longitude"), "{text}");
     // Without the option, neither is asked for.
-    let (ok, text) = run(magcomp()
-        .arg("compensate")
-        .arg(&no_station)
-        .arg("--out")
-        .arg(&out)
-        .arg("--plain"));
+    let (ok, text) = compensate(&no_station, &out, &["--plain"]);
     assert!(ok, "{text}");
     let header = std::fs::read_to_string(&out)
         .unwrap()
@@ -262,12 +245,7 @@ fn what_the_reduced_columns_need_is_named_when_missing() {
         .collect();
     std::fs::write(&blanked, edited).unwrap();
     let out = folder.path().join("blanked_out.csv");
-    let (ok, text) = run(magcomp()
-        .arg("compensate")
-        .arg(&blanked)
-        .arg("--out")
-        .arg(&out)
-        .args(["--dc", "--plain"]));
+    let (ok, text) = compensate(&blanked, &out, &["--dc", "--plain"]);
     assert!(ok, "{text}");
     let mut reader = csv::Reader::from_path(&out).unwrap();
     let header = reader.headers().unwrap().clone();

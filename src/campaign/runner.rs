@@ -152,6 +152,8 @@ pub struct Progress {
 /// failed so far, and the finished flights.
 struct Board {
     next: usize,
+    /// Flights finished so far.
+    done: usize,
     running: usize,
     finished: Vec<Option<FinishedFlight>>,
     written: HashSet<PathBuf>,
@@ -162,7 +164,7 @@ struct Board {
 
 impl Board {
     fn progress(&self, total: usize, slots: usize) -> Progress {
-        let finished = self.finished.iter().filter(|f| f.is_some()).count();
+        let finished = self.done;
         let left = match self.spent {
             (_, 0) => None,
             (time, done) => {
@@ -197,6 +199,7 @@ pub fn run_flights(
     let outputs = model_outputs(pipeline, order);
     let board = Mutex::new(Board {
         next: 0,
+        done: 0,
         running: 0,
         finished: order.iter().map(|_| None).collect(),
         written: HashSet::new(),
@@ -268,6 +271,7 @@ pub fn run_flights(
             }
             board.running -= 1;
             board.finished[position] = Some(done);
+            board.done += 1;
             let progress = board.progress(order.len(), slots);
             // Under the lock: one flight's lines are printed whole.
             if let Some(done) = &board.finished[position] {
