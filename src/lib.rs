@@ -36,6 +36,8 @@
 //!   ([`pipeline::run`] → [`pipeline::FlightRun`]); [`sink`] writes what a
 //!   run produced, and [`report`] is the HTML page.
 //! - [`simulate`]: flights with known truth, for tests and for users.
+//! - The command line (`src/main.rs`, the binary) is a thin layer over
+//!   these: `src/cli/` holds one module per subcommand.
 //!
 //! No module imports another that imports it back (`tests/architecture.rs`
 //! checks).

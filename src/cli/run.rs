@@ -1,0 +1,158 @@
+//! `magcomp run`: every flight of a pipeline.toml, several at once.
+
+use std::path::Path;
+
+use anyhow::Context as _;
+use magcomp::campaign::{run_flights, CampaignFlight, FinishedFlight, FlightState, FlightsAtOnce, Progress, Shard};
+use magcomp::config::{FlightJob, Pipeline};
+use magcomp::diagnose::ApplyDiagnosis;
+use magcomp::pipeline::summary;
+use magcomp::sink::FlightOutputs;
+
+use super::{duration_words, prepare_flight_outputs, print_notes, spinner};
+
+/// Runs every flight of the pipeline file `config` (this shard's), prints
+/// each as it finishes and the status table, and fails when any flight did.
+pub fn run(config: &Path, (plain, force, verbose): (bool, bool, bool), shard: Option<&str>) -> anyhow::Result<()> {
+    let mut pipeline = Pipeline::load(config)?;
+    print_notes(&pipeline.notes);
+    if plain {
+        pipeline.settings.diagnose.apply = ApplyDiagnosis::Never;
+    }
+    for job in &mut pipeline.flights {
+        job.force_diagnosis = force;
+    }
+    anyhow::ensure!(
+        !pipeline.flights.is_empty(),
+        "{}: no flights; add a [[flight]] with input = \"path/to/flight.csv\", or a [campaign] with inputs = [\"flights/*.csv\"] or a manifest",
+        config.display()
+    );
+    let shard = match shard {
+        Some(text) => Shard::parse(text, |name| std::env::var(name).ok())?,
+        None => Shard::default(),
+    };
+    // A flight compensated with the model another flight of this run
+    // writes (a survey flight and its calibration flight) comes after it.
+    let mine = magcomp::campaign::dependency_order(&pipeline, shard.select(&pipeline.flights));
+    let folder = &pipeline.output_directory;
+    if shard.count > 1 {
+        println!(
+            "shard {shard}: {} of the campaign's {} flights",
+            mine.len(),
+            pipeline.flights.len()
+        );
+    }
+    if !folder.as_os_str().is_empty() && !folder.is_dir() {
+        std::fs::create_dir_all(folder)
+            .with_context(|| format!("{}: creating the output folder {}", config.display(), folder.display()))?;
+        println!("created the output folder {}", folder.display());
+    }
+    let jobs: Vec<&FlightJob> = mine.iter().map(|&i| &pipeline.flights[i]).collect();
+    let at_once = FlightsAtOnce::for_jobs(&jobs);
+    if mine.len() > 1 {
+        println!("{} flights, {} at once: {}", mine.len(), at_once.count, at_once.reason);
+    }
+    let bar = spinner(format!("compensating {} flights", mine.len()));
+    let progress_words = |progress: Progress| {
+        let left = progress
+            .left
+            .map_or(String::new(), |left| format!(", about {} left", duration_words(left)));
+        format!(
+            "{} of {} flights done, {} in progress{left}",
+            progress.finished, progress.total, progress.running
+        )
+    };
+    // Outputs that cannot be written fail the flight, with the same error,
+    // in its status like any other failure.
+    let prepare_outputs =
+        |job: &FlightJob, outputs: &FlightOutputs| prepare_flight_outputs(job, outputs).unwrap_or_default();
+    let started = |job: &FlightJob, progress: Progress| {
+        bar.set_message(format!(
+            "{}: compensating {}",
+            progress_words(progress),
+            job.input.display()
+        ));
+    };
+    let finished = |done: &FinishedFlight, progress: Progress| {
+        bar.set_message(progress_words(progress));
+        bar.suspend(|| print_finished(&pipeline.flights[done.index], done, folder, verbose));
+    };
+    let flights = run_flights(
+        &pipeline,
+        &mine,
+        (shard, force, at_once.count),
+        &prepare_outputs,
+        &started,
+        &finished,
+    );
+    bar.finish_and_clear();
+    let statuses: Vec<(String, FlightState, String)> = flights
+        .iter()
+        .map(|done| {
+            let job = &pipeline.flights[done.index];
+            let (state, outcome) = match &done.flight {
+                Ok(CampaignFlight::UpToDate(status)) => (status.state, "up to date, skipped".to_string()),
+                Ok(CampaignFlight::Processed { status, .. }) => (status.state, status.outcome()),
+                Err(_) => (
+                    FlightState::Failed,
+                    "failed, and its status could not be written".to_string(),
+                ),
+            };
+            (job.input.display().to_string(), state, outcome)
+        })
+        .collect();
+    print!("{}", status_table(&statuses));
+    let failed = statuses
+        .iter()
+        .filter(|(_, state, _)| *state == FlightState::Failed)
+        .count();
+    anyhow::ensure!(
+        failed == 0,
+        "{}: {failed} of {} flights failed; each error is printed above and in its <flight>_status.json, and the other flights' outputs were written; run again to redo only the failed flights",
+        config.display(),
+        statuses.len()
+    );
+    Ok(())
+}
+
+/// Prints what became of a flight of a run: its notes, its summary and
+/// the files written, or why it failed.
+fn print_finished(job: &FlightJob, done: &FinishedFlight, folder: &Path, verbose: bool) {
+    for note in &done.notes {
+        println!("  note: {note}");
+    }
+    match &done.flight {
+        // A flight whose status cannot be written fails alone: the others
+        // are still processed and the table still comes.
+        Err(error) => eprintln!(
+            "magcomp: error: {}: writing the flight's status: {error}",
+            job.input.display()
+        ),
+        Ok(CampaignFlight::UpToDate(_)) => println!(
+            "{}: outputs current (same input and settings), skipped; --force redoes it",
+            job.input.display()
+        ),
+        Ok(CampaignFlight::Processed { status, result }) => match result.as_ref() {
+            Ok(result) => {
+                print!("{}", summary(result, verbose));
+                println!("  wrote {}: {}", folder.display(), status.outputs.join(", "));
+            }
+            Err(error) => eprintln!("magcomp: error: processing {}: {error}", job.input.display()),
+        },
+    }
+}
+
+/// The run's per-flight status table: flight, and how it ended.
+fn status_table(statuses: &[(String, FlightState, String)]) -> String {
+    let width = statuses
+        .iter()
+        .map(|(flight, _, _)| flight.chars().count())
+        .max()
+        .unwrap_or(0)
+        .max(6);
+    let mut table = format!("\n{:<width$}  status\n", "flight");
+    for (flight, _, outcome) in statuses {
+        table += &format!("{flight:<width$}  {outcome}\n");
+    }
+    table
+}
