@@ -1,0 +1,163 @@
+//! A flight compensated with a model saved from another flight.
+
+use std::path::Path;
+
+use rayon::prelude::*;
+
+use super::prepared::{calibration_windows, choose_channels, choose_vector_sensor, refuse_dead_columns};
+use super::{assess_with_sigma, renaming_notes, FlightResult, FlightRun};
+use crate::config::{FlightJob, Settings};
+use crate::error::Result;
+use crate::flight_log::FlightLog;
+use crate::formats::added_column_names;
+use crate::model::SharedDesign;
+use crate::quality::ChannelQuality;
+
+/// Compensates `job`'s flight with the saved model at `model_path`,
+/// nothing refitted; `compensated` is where the output will go (for the
+/// warnings that depend on its format). The flight's own windows or lines,
+/// when given, hold the model out.
+pub(super) fn run_applied(
+    job: &FlightJob,
+    options: &Settings,
+    compensated: &Path,
+    saved: &crate::apply::SavedModel,
+    recorded: FlightLog,
+) -> Result<FlightRun> {
+    let screened = crate::screen::screen_samples(&recorded)?;
+    let raw_log = screened.log_or(&recorded);
+    let mut models = saved.models_for(raw_log, job.channels.as_deref(), job.vector.as_deref())?;
+    let sensor = choose_vector_sensor(raw_log, Some(&models[0].vector_sensor))?;
+    let channels: Vec<String> = models.iter().map(|m| m.channel.clone()).collect();
+    choose_channels(raw_log, Some(&channels))?;
+    refuse_dead_columns(raw_log, &screened.screening, &sensor, Some(&channels))?;
+    let applied = saved.applied(raw_log.date(), &recorded)?;
+    let (mut warnings, mut notes) =
+        saved.age_and_aircraft(&applied, job.aircraft.as_deref(), options.model_max_age_days);
+    if applied.fitted_on_this_flight {
+        notes.push("the model was fitted on this very flight: its compensation is that of the calibration run".into());
+    }
+    warnings.extend(saved.calibration_warnings(&channels, options.fom_limit_nt));
+    if job.channels.is_none() {
+        // A magnetometer the model does not hold is written uncompensated.
+        let left: Vec<&str> = (raw_log.scalar_channels().into_iter())
+            .filter(|c| !channels.iter().any(|m| m == c))
+            .collect();
+        if !left.is_empty() {
+            let them = if left.len() == 1 { "it" } else { "them" };
+            warnings.push(format!(
+                "{} not compensated: the model {} holds no model of {them}; calibrate {them} on a flight with a box, or name this flight's channels with --channels",
+                left.join(", "),
+                saved.path().display(),
+            ));
+        }
+    }
+    warnings.splice(0..0, screened.warnings(&recorded));
+    let calibrated = saved
+        .vector_calibration()
+        .map(|c| c.apply(raw_log, &sensor))
+        .transpose()?;
+    let log = calibrated.as_ref().unwrap_or(raw_log);
+    // The flight's own manoeuvres, when it names them: the model, which
+    // never saw them, is held out there.
+    if !job.windows.is_empty() || !job.lines.is_empty() {
+        let (windows, _, heading_note) = calibration_windows(raw_log, job, options)?;
+        notes.extend(heading_note);
+        for model in &mut models {
+            model.windows = model.held_out(log, &sensor, &windows, &options.fit)?;
+        }
+        notes.push(match applied.fitted_on_this_flight {
+            true => format!(
+                "the model is set against {} calibration window(s) of the flight it was fitted on: its FOM and IR here are in sample",
+                windows.len()
+            ),
+            false => format!(
+                "the model is held out on this flight's {} calibration window(s): its FOM and IR here are of a model fitted on another flight",
+                windows.len()
+            ),
+        });
+    }
+    let shared = SharedDesign::of_models(log, &models);
+    let mut compensation = crate::compensate::compensate_with(log, &models, options.level, &shared)?;
+    let mut quality: Vec<ChannelQuality> = models
+        .par_iter()
+        .zip(compensation.channels.par_iter_mut())
+        .map(|(model, channel)| assess_with_sigma(log, model, channel, &shared).map(|(quality, _)| quality))
+        .collect::<Result<_>>()?;
+    drop(shared);
+    if models.iter().all(|m| m.windows.is_empty()) {
+        // No calibration windows here: no band figures (the model's are
+        // its calibration flight's, in the model section).
+        for q in &mut quality {
+            q.improvement_ratio = f64::NAN;
+            q.band_std_before_nt = f64::NAN;
+            q.band_std_after_nt = f64::NAN;
+        }
+    }
+    let next_step = "The model is its calibration flight's: fly a new calibration box and apply its model, or compare with the calibration flight's report";
+    for (q, channel) in quality.iter().zip(&compensation.channels) {
+        warnings.extend(crate::quality::quality_warnings(q, options.fom_limit_nt, next_step));
+        if channel.sigma_nt.is_none() {
+            warnings.push(format!(
+                "{}: no sigma column: {}",
+                q.channel,
+                match q.uncertainty {
+                    None => "the model was saved without a jackknife (fitted on fewer than three windows, or with another solver)",
+                    Some(_) => "the compensated channel's noise cannot be measured (too few consecutive samples)",
+                }
+            ));
+        }
+    }
+    if options.vector.enabled {
+        notes.push("no vector compensation: its twelve constants are fitted on a calibration box, and the model holds the scalar models".into());
+    }
+    if !options.gradients.is_empty() {
+        warnings.push("the gradients asked for are not compensated: they are fitted on a calibration box, and the model holds the scalar models; compensate the gradients on a flight with its box".into());
+    }
+    warnings.extend(crate::formats::mcap::undated_warning(&recorded, compensated));
+    warnings.extend(crate::formats::write::text_columns_warning(
+        &recorded,
+        compensated,
+        true,
+    ));
+    notes.extend(crate::reduce::add_reduced(log, &mut compensation, options.reduced)?);
+    warnings.extend(compensation.out_of_range_warnings(log.time_s()));
+    let added_columns = added_column_names(log, compensated, &compensation)?;
+    notes.splice(0..0, renaming_notes(&channels, &added_columns));
+    notes.extend(models.iter().filter(|m| !m.spec.is_plain()).map(|m| {
+        format!(
+            "{}: compensated with the saved model's findings: {}",
+            m.channel,
+            m.spec.describe()
+        )
+    }));
+    let applied_findings = saved.applied_findings(&channels);
+    let result = FlightResult {
+        flight: job.input.clone(),
+        rows: log.len(),
+        added_columns,
+        notes,
+        detection: None,
+        alignment: log.alignment().cloned(),
+        channels: quality,
+        vector_calibration: saved.vector_calibration().cloned(),
+        diagnosis_mode: crate::diagnose::ApplyDiagnosis::Never,
+        applied_findings,
+        warnings,
+        diagnosis: None,
+        models,
+        vector_models: Vec::new(),
+        gradients: Vec::new(),
+        gradient_models: Vec::new(),
+        plan: None,
+        model: Some(applied),
+        aircraft: job.aircraft.clone(),
+    };
+    compensation.round_to(options.output_decimals);
+    Ok(FlightRun {
+        recorded,
+        screened,
+        compensation,
+        result,
+    })
+}

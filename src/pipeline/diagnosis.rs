@@ -1,0 +1,247 @@
+//! What the fit takes from a diagnosis: a saved DIAGNOSIS.json, or one
+//! made now and judged by the evidence rule.
+
+use std::collections::BTreeMap;
+
+use crate::config::{FlightJob, Settings};
+use crate::diagnose::{AppliedFinding, EffectKind};
+use crate::error::{Error, Result};
+use crate::flight_log::{FlightLog, VectorSensor};
+use crate::model::Extensions;
+
+/// The findings of `diagnosis` that change the model of a channel whose
+/// diagnosed model is not plain (an `unexplained` finding changes none).
+pub(super) fn applied_findings(diagnosis: &crate::diagnose::Diagnosis) -> Vec<AppliedFinding> {
+    let changed = |channel: &str| {
+        diagnosis
+            .channels
+            .iter()
+            .any(|c| c.channel == channel && !c.model.is_plain())
+    };
+    let calibrated_channels: Vec<&str> = diagnosis
+        .channels
+        .iter()
+        .filter(|c| c.model.vector_calibration.is_some())
+        .map(|c| c.channel.as_str())
+        .collect();
+    diagnosis
+        .findings
+        .iter()
+        .filter(|f| f.effect.kind() != EffectKind::Unexplained && f.not_applied.is_none())
+        .filter(|f| f.effect.kind() == EffectKind::VectorCalibration || changed(&f.channel))
+        .filter(|f| f.effect.kind() != EffectKind::VectorCalibration || !calibrated_channels.is_empty())
+        .map(|f| AppliedFinding {
+            channel: match f.effect.kind() {
+                EffectKind::VectorCalibration => format!("{} (for {})", f.channel, calibrated_channels.join(", ")),
+                _ => f.channel.clone(),
+            },
+            effect: f.effect.kind(),
+            source: f.source.clone(),
+            heldout_rms_before_nt: f.heldout_rms_before_nt,
+            heldout_rms_after_nt: f.heldout_rms_after_nt,
+        })
+        .collect()
+}
+
+/// What the fit takes from a diagnosis.
+pub(super) struct ExtensionsPlan {
+    /// Each channel's diagnosed model (plain when absent).
+    pub(super) models: BTreeMap<String, Extensions>,
+    /// The diagnosis made now, if one was.
+    pub(super) diagnosis: Option<crate::diagnose::Diagnosis>,
+    /// What the user must know: a diagnosis that could not be made or
+    /// checked.
+    pub(super) warnings: Vec<String>,
+}
+
+/// The diagnosed model of each channel to fit with: from the flight's
+/// DIAGNOSIS.json (refused when made on another flight, unless forced), or
+/// from a diagnosis made now (`[diagnose] apply`, then returned too); empty
+/// otherwise. A saved diagnosis that calibrates the fluxgate while the
+/// `[vector_calibration]` stage already has is refused. `logs` are the
+/// flight as read and as fitted (fluxgate calibrated by the stage).
+pub(super) fn augmentation_plan(
+    job: &FlightJob,
+    (raw_log, log): (&FlightLog, &FlightLog),
+    sensor: &VectorSensor,
+    channels: &[String],
+    windows: &[crate::windows::CalibrationWindow],
+    options: &Settings,
+    stage_calibrated: bool,
+) -> Result<ExtensionsPlan> {
+    use crate::diagnose::ApplyDiagnosis;
+    if let Some(path) = &job.diagnosis {
+        let (models, remark) = crate::diagnose::read_saved(path)?.models_for(path, raw_log, job.force_diagnosis)?;
+        if stage_calibrated && models.values().any(|m| m.vector_calibration.is_some()) {
+            return Err(Error::Config {
+                source_name: path.display().to_string(),
+                message: "the diagnosis calibrates the fluxgate and so does the [vector_calibration] stage; turn the stage off (enabled = false) or diagnose the calibrated flight".into(),
+            });
+        }
+        return Ok(ExtensionsPlan {
+            models,
+            diagnosis: None,
+            warnings: remark.into_iter().collect(),
+        });
+    }
+    let plain = |warnings| ExtensionsPlan {
+        models: BTreeMap::new(),
+        diagnosis: None,
+        warnings,
+    };
+    if options.diagnose.apply == ApplyDiagnosis::Never {
+        return Ok(plain(Vec::new()));
+    }
+    match crate::diagnose::diagnose(
+        log,
+        sensor,
+        channels,
+        windows,
+        &options.terms,
+        &options.fit,
+        &options.diagnose,
+    ) {
+        Ok(mut diagnosis) => {
+            diagnosis.flight = Some(crate::flight_identity::FlightIdentity::of(raw_log)?);
+            Ok(ExtensionsPlan {
+                models: diagnosis.models(),
+                warnings: unexplained_warnings(&diagnosis),
+                diagnosis: Some(diagnosis),
+            })
+        }
+        // Under "auto" a flight that cannot be diagnosed is fitted plain,
+        // loudly; the plain fit then reports any fault of the data itself.
+        Err(error) if options.diagnose.apply == ApplyDiagnosis::Auto => Ok(plain(vec![format!(
+            "not diagnosed, so compensated with plain Tolles-Lawson: {error}"
+        )])),
+        Err(error) => Err(error),
+    }
+}
+
+/// Applies the evidence rule ([`crate::diagnose::evidence`]) to a fresh
+/// diagnosis's plan. A channel's findings are held back (fitted plain
+/// under `apply = "auto"`, its findings marked not applied with the
+/// reason, and a warning; only warned of under `"always"`) when
+///
+/// - with λ picked as compensation picks it, they do not lower the
+///   held-out RMS of plain Tolles-Lawson: the search may have measured
+///   them from the other criterion's fit, and what is applied is this one
+///   (on clean simulated flights, two sensor lags that made the survey
+///   three times worse held out 4–8 % worse this way); or
+/// - they would act on the survey beyond what the calibration saw.
+///
+/// Returns the plan and, per channel whose findings are applied, how far
+/// they move the survey from plain Tolles-Lawson (nT RMS).
+pub(super) fn evidence_rule(
+    log: &FlightLog,
+    sensor: &VectorSensor,
+    windows: &[crate::windows::CalibrationWindow],
+    mut plan: BTreeMap<String, Extensions>,
+    diagnosis: &mut crate::diagnose::Diagnosis,
+    options: &Settings,
+    warnings: &mut Vec<String>,
+) -> Result<(BTreeMap<String, Extensions>, BTreeMap<String, f64>)> {
+    use crate::diagnose::evidence::{departures, plain_of};
+    let mut refused: Vec<(String, String)> = (diagnosis.channels.iter())
+        .filter(|c| plan.get(&c.channel).is_some_and(|m| *m != plain_of(m)))
+        .filter(|c| c.heldout_rms_final_nt >= c.heldout_rms_baseline_nt)
+        .map(|c| {
+            (
+                c.channel.clone(),
+                format!(
+                    "with λ as compensation picks it{}, the findings do not lower the held-out RMS of plain Tolles-Lawson ({:.4} → {:.4} nT), so the channel is compensated with plain Tolles-Lawson",
+                    match options.fit.solve.lambda {
+                        crate::numerics::solve::LambdaChoice::Select => format!(" (by {})", options.fit.solve.criterion.describe()),
+                        _ => String::new(),
+                    },
+                    c.heldout_rms_baseline_nt,
+                    c.heldout_rms_final_nt
+                ),
+            )
+        })
+        .collect();
+    let measured = departures(log, sensor, windows, &plan, (options.terms, &options.fit))?;
+    let mut applied = BTreeMap::new();
+    for (channel, departure) in measured {
+        let Some(departure) = departure else {
+            continue;
+        };
+        applied.insert(channel.clone(), departure.survey_departure_nt);
+        if !departure.holds() && !refused.iter().any(|(c, _)| *c == channel) {
+            refused.push((channel, departure.reason()));
+        }
+    }
+    for (channel, reason) in refused {
+        let named: Vec<String> = (diagnosis.findings.iter())
+            .filter(|f| f.channel == channel && applies_to_model(f.effect.kind()))
+            .map(|f| {
+                format!(
+                    "{}{}",
+                    f.effect,
+                    f.source.as_ref().map(|s| format!(" from {s}")).unwrap_or_default()
+                )
+            })
+            .collect();
+        if options.diagnose.apply == crate::diagnose::ApplyDiagnosis::Always {
+            warnings.push(format!(
+                "{channel}: the diagnosis's {} applied as [diagnose] apply = \"always\" asks, though {}",
+                named.join(", "),
+                reason.replace(", so the channel is compensated with plain Tolles-Lawson", "")
+            ));
+            continue;
+        }
+        applied.remove(&channel);
+        for finding in
+            (diagnosis.findings.iter_mut()).filter(|f| f.channel == channel && applies_to_model(f.effect.kind()))
+        {
+            finding.not_applied = Some(reason.clone());
+        }
+        if let Some(model) = plan.get_mut(&channel) {
+            *model = plain_of(model);
+        }
+        if let Some(entry) = diagnosis.channels.iter_mut().find(|c| c.channel == channel) {
+            entry.model = plain_of(&entry.model);
+        }
+        warnings.push(format!(
+            "{channel}: the diagnosis's {} not applied: {reason}",
+            named.join(", ")
+        ));
+    }
+    Ok((plan, applied))
+}
+
+/// Whether a finding of `kind` changes a channel's own model (a fluxgate
+/// calibration is the flight's, an `unexplained` residual changes none).
+pub(super) fn applies_to_model(kind: EffectKind) -> bool {
+    !matches!(
+        kind,
+        EffectKind::Unexplained | EffectKind::VectorCalibration | EffectKind::ExternalField
+    )
+}
+
+/// One warning per channel the diagnosis left with an `unexplained`
+/// residual: its compensation is not to be trusted to the noise level.
+pub(super) fn unexplained_warnings(diagnosis: &crate::diagnose::Diagnosis) -> Vec<String> {
+    (diagnosis.findings.iter())
+        .filter_map(|f| match &f.effect {
+            crate::diagnose::Effect::Unexplained(u) => Some(format!(
+                "{}: the diagnosis leaves an unexplained residual of {:.4} nT held out, {:.0} times the sensor noise in the band, largest on {}: the compensation of this channel is not good to the noise level; see the diagnosis's unexplained finding",
+                f.channel,
+                f.heldout_rms_after_nt,
+                u.residual_to_noise,
+                f.located.iter().map(|l| l.label.as_str()).collect::<Vec<_>>().join(", ")
+            )),
+            _ => None,
+        })
+        .collect()
+}
+
+/// What a user can do about a failed quality check, given how the flight
+/// was fitted.
+pub(super) fn next_step(apply: crate::diagnose::ApplyDiagnosis, saved: bool, diagnosed: bool) -> &'static str {
+    match (saved || diagnosed, apply) {
+        (true, _) => "Look at the report's worst manoeuvres and the diagnosis's unexplained residual; refly the box if a manoeuvre is poor.",
+        (false, crate::diagnose::ApplyDiagnosis::Never) => "Fit with the diagnosis (drop --plain, or [diagnose] apply = \"auto\") to model the physics plain Tolles-Lawson leaves out, or run `magcomp diagnose` to see it.",
+        (false, _) => "The flight could not be diagnosed; fly a complete box (four headings, each with pitch, roll and yaw) to let the diagnosis model what plain Tolles-Lawson leaves out.",
+    }
+}

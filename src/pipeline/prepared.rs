@@ -1,0 +1,244 @@
+//! What every stage after reading shares: the flight's vector sensor,
+//! its channels and its calibration windows, chosen once.
+
+use crate::config::{FlightJob, Settings};
+use crate::detect::{detect_manoeuvres, Detection};
+use crate::error::{Error, Result};
+use crate::flight_log::{FlightLog, VectorSensor};
+
+/// Warnings from detection: every incomplete box, and every leg whose
+/// pitch and yaw the fluxgate could not tell apart.
+pub fn detection_warnings(detection: &Detection) -> Vec<String> {
+    let mut warnings: Vec<String> = detection
+        .boxes
+        .iter()
+        .enumerate()
+        .filter(|(_, b)| !b.missing.is_empty())
+        .map(|(index, b)| {
+            format!(
+                "box {} ({:.1}–{:.1}) is incomplete: {}; its FOM sums fewer than 12 manoeuvres",
+                index + 1,
+                b.t_start,
+                b.t_end,
+                b.missing.join(", ")
+            )
+        })
+        .collect();
+    warnings.extend(crate::detect::uncertain_kinds(detection));
+    warnings.extend(detection.steep_field_warning());
+    warnings.extend(detection.attitude_gap_warning());
+    warnings
+}
+
+/// The windows a flight is calibrated on, with the detection that gave
+/// them and a note on their headings: the windows given; else the
+/// manoeuvres detected (on the calibration lines only, when the job names
+/// lines); else, on lines where none is detected, each line's whole span.
+pub fn calibration_windows(
+    log: &FlightLog,
+    job: &FlightJob,
+    options: &Settings,
+) -> Result<(
+    Vec<crate::windows::CalibrationWindow>,
+    Option<Detection>,
+    Option<String>,
+)> {
+    let tolerance = options.detect.heading_tolerance_deg;
+    if !job.windows.is_empty() {
+        let (windows, note) = crate::windows::headings_from_ins(log, &job.windows, tolerance);
+        return Ok((windows, None, note));
+    }
+    let detection = detect_manoeuvres(log, &options.detect)?;
+    if job.lines.is_empty() {
+        return Ok((
+            detection.calibration_windows(options.detect.window_margin_s),
+            Some(detection),
+            None,
+        ));
+    }
+    let spans = crate::windows::line_spans(log, &job.lines)?;
+    let detection = detection.on_lines(&spans);
+    if !detection.manoeuvres.is_empty() {
+        return Ok((
+            detection.calibration_windows(options.detect.window_margin_s),
+            Some(detection),
+            None,
+        ));
+    }
+    // No manoeuvre seen on the lines: each line's span is a window, its
+    // heading from the INS where it holds one.
+    let whole: Vec<crate::windows::CalibrationWindow> = (spans.iter())
+        .filter(|(_, start, end)| start < end)
+        .map(|(line, start, end)| crate::windows::CalibrationWindow {
+            label: format!("line {line}"),
+            ..crate::windows::CalibrationWindow::new(*start, *end)
+        })
+        .collect();
+    let (windows, note) = crate::windows::headings_from_ins(log, &whole, tolerance);
+    let said = format!(
+        "no calibration manoeuvre was detected on line(s) {}: each line's whole span is a calibration window",
+        job.lines.iter().map(|l| l.to_string()).collect::<Vec<_>>().join(", ")
+    );
+    Ok((
+        windows,
+        None,
+        Some(note.map_or(said.clone(), |n| format!("{said}; {n}"))),
+    ))
+}
+
+/// Diagnoses a flight: its windows (given, or detected), its vector
+/// sensor and channels, then [`crate::diagnose::diagnose`].
+pub fn diagnose_flight(
+    log: &FlightLog,
+    job: &FlightJob,
+    options: &Settings,
+    settings: &crate::diagnose::DiagnoseOptions,
+) -> Result<crate::diagnose::Diagnosis> {
+    let sensor = choose_vector_sensor(log, job.vector.as_deref())?;
+    let channels = choose_channels(log, job.channels.as_deref())?;
+    let (windows, _, _) = calibration_windows(log, job, options)?;
+    let mut diagnosis = crate::diagnose::diagnose(
+        log,
+        &sensor,
+        &channels,
+        &windows,
+        &options.terms,
+        &options.fit,
+        settings,
+    )?;
+    diagnosis.flight = Some(crate::flight_identity::FlightIdentity::of(log)?);
+    Ok(diagnosis)
+}
+
+/// What detection found, in a sentence per box and per lack.
+pub fn detection_notes(detection: &Detection) -> Vec<String> {
+    let mut notes = vec![format!(
+        "calibration windows detected: {} manoeuvres in {} box(es), attitude from {}",
+        detection.manoeuvres.len(),
+        detection.boxes.len(),
+        match detection.attitude_source {
+            crate::detect::AttitudeSource::Ins => "the INS",
+            crate::detect::AttitudeSource::Fluxgate => "the fluxgate",
+        }
+    )];
+    notes.extend(detection.notes.iter().cloned());
+    notes
+}
+
+/// An error naming what screening found when it masked every sample of
+/// an axis of `sensor` or of a scalar channel to compensate (`wanted`, or
+/// every scalar channel): a dead axis or a stuck sensor is named as such,
+/// not as an empty column or a calibration window without samples.
+pub(super) fn refuse_dead_columns(
+    log: &FlightLog,
+    screening: &crate::screen::Screening,
+    sensor: &VectorSensor,
+    wanted: Option<&[String]>,
+) -> Result<()> {
+    let fluxgate_hint = format!(
+        "No Tolles-Lawson term can be built from '{}' without it. Repair the sensor or its export, or choose another fluxgate with --vector.",
+        sensor.prefix
+    );
+    let scalar_hint = "Leave the channel out with --channels (or [columns] in pipeline.toml) to compensate the others.";
+    let axes = sensor.axes.map(|axis| log.channels()[axis].name.clone());
+    let scalars: Vec<String> = match wanted {
+        Some(list) => list.to_vec(),
+        None => log.scalar_channels().into_iter().map(String::from).collect(),
+    };
+    let needed = (axes.iter().map(|c| (c, fluxgate_hint.as_str()))).chain(scalars.iter().map(|c| (c, scalar_hint)));
+    for (column, hint) in needed {
+        if let Some(reason) = screening.took_all(log, column) {
+            return Err(Error::AllMasked {
+                path: log.source().to_path_buf(),
+                column: column.clone(),
+                reason,
+                hint: hint.into(),
+            });
+        }
+    }
+    Ok(())
+}
+
+/// The vector magnetometer called `wanted`, or the first one found.
+pub fn choose_vector_sensor(log: &FlightLog, wanted: Option<&str>) -> Result<VectorSensor> {
+    let sensors = log.vector_sensors();
+    let found = match wanted {
+        Some(prefix) => sensors.iter().find(|s| s.prefix == prefix),
+        None => sensors.first(),
+    };
+    found.cloned().ok_or_else(|| Error::MissingColumn {
+        path: log.source().to_path_buf(),
+        role: "vector magnetometer",
+        looked_for: match wanted {
+            Some(prefix) => format!("{prefix}_x, {prefix}_y and {prefix}_z"),
+            None => "flux_<s>_x, flux_<s>_y and flux_<s>_z".into(),
+        },
+        hint: format!(
+            "The Tolles-Lawson terms are built from a 3-axis fluxgate. {} Choose one with --vector, or map its columns in [[columns.vector]] in pipeline.toml.",
+            match sensors.is_empty() {
+                true => format!(
+                    "The flight has no fluxgate of three such columns; its columns are {}.",
+                    column_list(log)
+                ),
+                false => format!(
+                    "Fluxgates found: {}.",
+                    sensors.iter().map(|s| s.prefix.as_str()).collect::<Vec<_>>().join(", ")
+                ),
+            }
+        ),
+    })
+}
+
+/// The flight's column names for a message: the first
+/// [`LISTED_COLUMNS`], then how many more.
+pub(super) fn column_list(log: &FlightLog) -> String {
+    let names: Vec<&str> = std::iter::once(log.time_column())
+        .chain(log.channels().iter().map(|c| c.name.as_str()))
+        .collect();
+    let shown: Vec<String> = names.iter().take(LISTED_COLUMNS).map(|n| format!("'{n}'")).collect();
+    match names.len() > LISTED_COLUMNS {
+        true => format!("{} and {} more", shown.join(", "), names.len() - LISTED_COLUMNS),
+        false => shown.join(", "),
+    }
+}
+
+/// Columns a message lists before "and N more".
+pub(super) const LISTED_COLUMNS: usize = 20;
+
+/// The scalar channels to compensate: `wanted`, or every scalar channel.
+/// Channels with no valid sample are an error.
+pub fn choose_channels(log: &FlightLog, wanted: Option<&[String]>) -> Result<Vec<String>> {
+    let channels: Vec<String> = match wanted {
+        Some(list) => list.to_vec(),
+        None => log.scalar_channels().into_iter().map(String::from).collect(),
+    };
+    if let Some(twice) = (channels.iter().enumerate()).find_map(|(i, c)| channels[..i].contains(c).then_some(c)) {
+        return Err(Error::Config {
+            source_name: log.source().display().to_string(),
+            message: format!("the channel '{twice}' is asked for twice; name each channel to compensate once"),
+        });
+    }
+    if channels.is_empty() {
+        return Err(Error::MissingColumn {
+            path: log.source().to_path_buf(),
+            role: "scalar magnetometer",
+            looked_for: "mag_<n>_uc".into(),
+            hint: "Name your scalar channels with --channels or [columns] scalar = [...] in pipeline.toml.".into(),
+        });
+    }
+    for name in &channels {
+        let channel = log.channel(name).ok_or_else(|| Error::MissingColumn {
+            path: log.source().to_path_buf(),
+            role: "scalar magnetometer",
+            looked_for: format!("'{name}'"),
+            hint: "Check the name given with --channels or in pipeline.toml.".into(),
+        })?;
+        if channel.values.iter().all(|v| v.is_nan()) {
+            return Err(Error::AllMissing {
+                path: log.source().to_path_buf(),
+                column: name.clone(),
+            });
+        }
+    }
+    Ok(channels)
+}

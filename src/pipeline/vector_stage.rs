@@ -1,0 +1,245 @@
+//! The vector stage: the twelve-constant model of each fluxgate, fitted
+//! on the calibration, and its compensated vectors.
+
+use crate::flight_log::FlightLog;
+use crate::model::FitOptions;
+
+/// What the vector stage produced: models, compensated vectors, words.
+pub(super) struct VectorStage {
+    pub(super) models: Vec<crate::vector::VectorModel>,
+    pub(super) compensated: Vec<crate::vector::CompensatedVector>,
+    pub(super) notes: Vec<String>,
+    pub(super) warnings: Vec<String>,
+}
+
+/// Fitted direction further than this from IGRF's, degrees: a warning (a
+/// wrong attitude convention, date or position, a box without pitches and
+/// rolls, or a fluxgate the twelve constants do not describe). IGRF's
+/// direction at survey height is good to about 0.1° away from strong
+/// anomalies, and on simulated flights the fit lands within 0.2° of it;
+/// 0.5° is F·sin 0.5° ≈ 450 nT across the field at 50 000 nT.
+pub(super) const VECTOR_DIRECTION_WARNING_DEG: f64 = 0.5;
+
+/// The reference channel's aircraft field swinging by more than this over
+/// the box (RMS, nT) is a warning: the vector's scale rests on its level.
+pub(super) const VECTOR_SWING_WARNING_NT: f64 = 10.0;
+
+/// Vector-compensates every fluxgate of `log` with the twelve-constant
+/// model fitted on `windows`, the field's size from the scalar channel
+/// with the least aircraft field over the box: when `[vector] enabled` and the flight records an
+/// INS attitude. A fluxgate whose fit fails is a warning, not an error:
+/// the scalar outputs stand.
+pub(super) fn vector_stage(
+    log: &FlightLog,
+    (windows, boxes): (&[crate::windows::CalibrationWindow], &[(f64, f64)]),
+    compensation: &crate::compensate::Compensation,
+    (options, fit_options): (&crate::vector::VectorOptions, &FitOptions),
+) -> VectorStage {
+    let mut stage = VectorStage {
+        models: Vec::new(),
+        compensated: Vec::new(),
+        notes: Vec::new(),
+        warnings: Vec::new(),
+    };
+    if !options.enabled {
+        return stage;
+    }
+    if log.attitude().is_none() {
+        stage
+            .notes
+            .push("no vector compensation: the flight records no INS attitude (roll, pitch and yaw)".into());
+        return stage;
+    }
+    // The reference is the channel with the least aircraft field over the
+    // box: its level, which the vector's scale rests on, is the surest.
+    let reference = compensation
+        .channels
+        .iter()
+        .filter_map(|c| {
+            let recorded = log.channel(&c.channel)?.values.as_slice();
+            crate::vector::Reference::levelled(log, &c.channel, (recorded, &c.interference_nt), (windows, boxes))
+        })
+        .filter(|r| r.swing_nt.is_finite())
+        .min_by(|a, b| a.swing_nt.total_cmp(&b.swing_nt));
+    let Some(reference) = reference else {
+        stage.warnings.push(
+            "no vector compensation: no compensated scalar channel has a reading on the calibration box to give the field's size"
+                .into(),
+        );
+        return stage;
+    };
+    for sensor in log.vector_sensors() {
+        let stage_options = options.tolles_lawson.then_some(fit_options);
+        let fitted = crate::vector::fit(
+            log,
+            &sensor,
+            (windows, boxes),
+            &reference,
+            (options.site.as_ref(), stage_options),
+        )
+        .and_then(|model| Ok((model.compensate(log)?, model)));
+        match fitted {
+            Ok((compensated, model)) => {
+                stage.notes.push(vector_note(&model));
+                if model.reference_swing_nt > VECTOR_SWING_WARNING_NT {
+                    stage.warnings.push(format!(
+                        "{}: the vector's scale rests on {}'s level over the box, where the aircraft's modelled field swings by {:.1} nT RMS: its mean there, which no manoeuvre pins, may be as large and is an error of up to that size on each vector component (a scalar sensor on a tail stinger gives a surer level)",
+                        model.sensor, model.reference, model.reference_swing_nt
+                    ));
+                }
+                if let Some(warning) = vector_direction_warning(&model) {
+                    stage.warnings.push(warning);
+                }
+                stage.warnings.extend(vector_sign_warning(&model));
+                if model.held_out.is_none() {
+                    stage.warnings.push(format!(
+                        "{}: the twelve-constant fit's windows do not give three headings (a window given by time that spans a turn has none), so no heading is held out and the vector's accuracy away from them is not checked; give the box's manoeuvres or legs as windows",
+                        model.sensor
+                    ));
+                }
+                if let Some(reason) = &model.tolles_lawson_warning {
+                    stage
+                        .warnings
+                        .push(format!("{}: vector Tolles-Lawson: {reason}", model.sensor));
+                }
+                stage.compensated.push(compensated);
+                stage.models.push(model);
+            }
+            Err(e) => stage
+                .warnings
+                .push(format!("{}: no vector compensation: {e}", sensor.prefix)),
+        }
+    }
+    stage
+}
+
+/// Windows closer than this are taken as one box's, and the flight
+/// between them (the turns between legs) as the box's too, s.
+pub(super) const BOX_GAP_S: f64 = 150.0;
+
+/// The spans of given windows (no detection): windows less than
+/// [`BOX_GAP_S`] apart joined, the flight between them included.
+pub(super) fn window_hulls(windows: &[crate::windows::CalibrationWindow]) -> Vec<(f64, f64)> {
+    let mut spans: Vec<(f64, f64)> = windows.iter().map(|w| (w.t_start, w.t_end)).collect();
+    spans.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mut hulls: Vec<(f64, f64)> = Vec::new();
+    for (t0, t1) in spans {
+        match hulls.last_mut() {
+            Some(last) if t0 - last.1 <= BOX_GAP_S => last.1 = last.1.max(t1),
+            _ => hulls.push((t0, t1)),
+        }
+    }
+    hulls
+}
+
+/// One line on a vector model.
+pub(super) fn vector_note(model: &crate::vector::VectorModel) -> String {
+    let [x, y, z] = model.residual_rms_nt;
+    let mut text = format!(
+        "{}: vector-compensated with the twelve-constant model on {} calibration rows, the field's size from {} levelled at its recorded mean over the box (the aircraft's mean field at that sensor, which no manoeuvre pins, scales the vector: δ nT there is up to δ nT on a component; its modelled interference swings by {:.2} nT RMS over the box): residual x/y/z {x:.2}/{y:.2}/{z:.2} nT",
+        model.sensor, model.rows, model.reference, model.reference_swing_nt
+    );
+    if let Some(held) = &model.held_out {
+        let [x, y, z] = held.rms_nt;
+        text += &format!(
+            ", held out by heading ({} headings) {x:.2}/{y:.2}/{z:.2} nT",
+            held.headings
+        );
+    }
+    text += &format!(
+        "; Earth field inclination {:.3}°, declination {:.3}°",
+        model.inclination_deg, model.declination_deg
+    );
+    if let crate::vector::FieldStart::Igrf {
+        inclination_deg,
+        declination_deg,
+        position,
+        ..
+    } = model.start
+    {
+        let at = match position {
+            crate::vector::PositionSource::Recorded => "",
+            crate::vector::PositionSource::Site => " at the [site]",
+        };
+        text += &format!(" (IGRF-14{at}: {inclination_deg:.3}°, {declination_deg:.3}°)");
+    }
+    text += &format!("; {}", model.mounting.describe());
+    if let Some(stage) = &model.tolles_lawson {
+        let axes = |v: [f64; 3]| format!("{:.2}/{:.2}/{:.2}", v[0], v[1], v[2]);
+        text += &format!(
+            "; vector Tolles-Lawson (eddy currents, per axis): band-passed residual x/y/z {} → {} nT",
+            axes(stage.band_rms_before_nt),
+            axes(stage.band_rms_after_nt)
+        );
+        if let Some(held) = &stage.held_out {
+            text += &format!(
+                ", held out by heading {} → {} nT",
+                axes(held.before_nt),
+                axes(held.after_nt)
+            );
+        }
+    }
+    text
+}
+
+/// A warning when the field's sign could not be checked (no position, no
+/// `[site]`), or when IGRF-14 fixed it and the fluxgate's axes came out
+/// left-handed.
+pub(super) fn vector_sign_warning(model: &crate::vector::VectorModel) -> Option<String> {
+    use crate::vector::FieldSign;
+    match model.field_sign {
+        FieldSign::RightHandedAxes => Some(format!(
+            "{}: the Earth field's direction is unverified: the flight records no position (lat, lon) and pipeline.toml sets no [site], and the data fix the direction only up to its sign (a fluxgate reading reversed on all three axes under a field pointing up reads as this one does); it is taken so that the fluxgate's axes are right-handed: inclination {:.2}°, declination {:.2}°, {}. Set [site] latitude, longitude and date to check it against IGRF-14. Without a position the field's turn across the box (about 0.01° a km) is not modelled either: expect tens of nT on each component",
+            model.sensor,
+            model.inclination_deg,
+            model.declination_deg,
+            model.mounting.describe()
+        )),
+        FieldSign::Igrf if !model.mounting.right_handed => Some(format!(
+            "{}: with the field's sign from IGRF-14, the fluxgate's axes are left-handed (det K < 0): one axis, or all three, read reversed (the wiring, or a sign in the file); the vector output is in the INS's body axes as fitted, but check the fluxgate's axis signs, and the position and date if its axes are known to be right-handed",
+            model.sensor
+        )),
+        FieldSign::Igrf => match model.start {
+            crate::vector::FieldStart::Igrf {
+                position: crate::vector::PositionSource::Site,
+                ..
+            } => Some(format!(
+                "{}: the flight records no position: the field's sign and direction are checked against IGRF-14 at the [site], but the field's turn across the box (about 0.01° a km) is not modelled: expect tens of nT on each component (a few with lat and lon columns)",
+                model.sensor
+            )),
+            _ => None,
+        },
+    }
+}
+
+/// A warning when the fitted field direction is further than
+/// [`VECTOR_DIRECTION_WARNING_DEG`] from IGRF's (the angle between them).
+pub(super) fn vector_direction_warning(model: &crate::vector::VectorModel) -> Option<String> {
+    let crate::vector::FieldStart::Igrf {
+        inclination_deg,
+        declination_deg,
+        dated,
+        total_nt,
+        ..
+    } = model.start
+    else {
+        return None;
+    };
+    let unit = |inclination: f64, declination: f64| {
+        let (i, d) = (inclination.to_radians(), declination.to_radians());
+        nalgebra::Vector3::new(i.cos() * d.cos(), i.cos() * d.sin(), i.sin())
+    };
+    let angle = unit(model.inclination_deg, model.declination_deg)
+        .angle(&unit(inclination_deg, declination_deg))
+        .to_degrees();
+    let d_incl = model.inclination_deg - inclination_deg;
+    let d_decl = (model.declination_deg - declination_deg + 540.0).rem_euclid(360.0) - 180.0;
+    (angle > VECTOR_DIRECTION_WARNING_DEG).then(|| {
+        format!(
+            "{}: the vector-compensated field's direction is {angle:.2}° from IGRF-14's ({d_incl:.2}° in inclination, {d_decl:.2}° in declination; more than {VECTOR_DIRECTION_WARNING_DEG}°){}: check the INS attitude convention (CONTRACT §1), the position columns and the flight's date; the vector may be rotated by as much, {:.0} nT across the field",
+            model.sensor,
+            if dated { "" } else { " with no flight date (IGRF taken at 2025.0)" },
+            total_nt * angle.to_radians().sin()
+        )
+    })
+}
