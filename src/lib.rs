@@ -33,8 +33,11 @@
 //!   scored held out; [`holdout`] is the leave-one-heading-out rule it
 //!   shares with [`quality::transfer`] and [`quality`].
 //! - [`pipeline`]: one flight through every stage, writing nothing
-//!   ([`pipeline::run`] → [`pipeline::FlightRun`]); [`sink`] writes what a
-//!   run produced, and [`report`] is the HTML page.
+//!   ([`pipeline::run`] → [`pipeline::FlightRun`]). A flight is read and
+//!   prepared once ([`pipeline::PreparedFlight`]: screened, its sensor,
+//!   channels and windows chosen); each stage after it takes the
+//!   [`model::Calibration`] it gives (log, sensor, channels, windows).
+//!   [`sink`] writes what a run produced, and [`report`] is the HTML page.
 //! - [`simulate`]: flights with known truth, for tests and for users.
 //! - The command line (`src/main.rs`, the binary) is a thin layer over
 //!   these: `src/cli/` holds one module per subcommand.

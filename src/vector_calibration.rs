@@ -51,6 +51,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 use crate::flight_log::{FlightLog, VectorSensor};
+use crate::model::Calibration;
 use crate::numerics::linalg::{solve_spd, tall_skinny_r};
 use crate::windows::CalibrationWindow;
 
@@ -311,12 +312,15 @@ pub fn calibrate_best(
 
 /// The `[vector_calibration]` stage: `None` when it is off.
 pub fn calibrate_stage(
-    log: &FlightLog,
-    sensor: &VectorSensor,
-    channels: &[String],
-    windows: &[CalibrationWindow],
+    calibration: &Calibration,
     options: &VectorCalibrationOptions,
 ) -> Result<Option<VectorCalibration>> {
+    let Calibration {
+        log,
+        sensor,
+        channels,
+        windows,
+    } = *calibration;
     if !options.enabled {
         return Ok(None);
     }

@@ -142,11 +142,14 @@ fn diagnosis_of_the_real_segment_finds_nothing_it_cannot_support() {
     let sensor = choose_vector_sensor(&log, Some("flux_a")).unwrap();
     let window = CalibrationWindow::new(log.time_s()[0], log.time_s()[log.len() - 1]);
     let options = FitOptions::default();
+    let calibration = magcomp::model::Calibration {
+        log: &log,
+        sensor: &sensor,
+        channels: &["mag_1_uc".to_string()],
+        windows: &[window],
+    };
     let diagnosis = magcomp::diagnose::diagnose(
-        &log,
-        &sensor,
-        &["mag_1_uc".to_string()],
-        &[window],
+        &calibration,
         &TermSet::default(),
         &options,
         &magcomp::diagnose::DiagnoseOptions::default(),

@@ -22,21 +22,21 @@ fn replayed(name: &str) -> Replay {
     let windows = detect_manoeuvres(&log, &pipeline.settings.detect)
         .unwrap()
         .calibration_windows(pipeline.settings.detect.window_margin_s);
+    let calibration = magcomp::model::Calibration {
+        log: &log,
+        sensor: &sensor,
+        channels: &channels,
+        windows: &windows,
+    };
     let diagnosis = diagnose(
-        &log,
-        &sensor,
-        &channels,
-        &windows,
+        &calibration,
         &pipeline.settings.terms,
         &pipeline.settings.fit,
         &pipeline.settings.diagnose,
     )
     .unwrap();
     let replay = replay(
-        &log,
-        &sensor,
-        &channels,
-        &windows,
+        &calibration,
         &pipeline.settings.terms,
         &pipeline.settings.fit,
         &diagnosis.models(),

@@ -81,11 +81,14 @@ fn replay(pipeline: &Pipeline, job: &magcomp::config::FlightJob) -> Expected {
     };
     let models = common::fit_channels(&log, &sensor, (&channels, &windows), pipeline, &Default::default());
     let compensated = compensate(&log, &models, pipeline.settings.level).unwrap();
+    let calibration = magcomp::model::Calibration {
+        log: &log,
+        sensor: &sensor,
+        channels: &channels,
+        windows: &windows,
+    };
     let diagnosis = magcomp::diagnose::diagnose(
-        &log,
-        &sensor,
-        &channels,
-        &windows,
+        &calibration,
         &pipeline.settings.terms,
         &pipeline.settings.fit,
         &pipeline.settings.diagnose,

@@ -7,7 +7,7 @@ use magcomp::config::{FlightJob, Pipeline};
 use magcomp::formats::{prepare, Destination, OutputKind, OutputSet};
 use magcomp::windows::CalibrationWindow;
 
-use super::{print_notes, read_screened, spinner};
+use super::{print_notes, read_prepared, spinner};
 
 /// Diagnoses `flight` and writes DIAGNOSIS.json and its HTML page.
 pub fn diagnose(
@@ -25,7 +25,6 @@ pub fn diagnose(
             Destination::new(html, OutputKind::Html, "--html"),
         ],
     )?);
-    let log = read_screened(flight, &pipeline)?;
     let job = FlightJob {
         diagnosis: None,
         force_diagnosis: false,
@@ -35,8 +34,9 @@ pub fn diagnose(
             .collect::<Result<_, _>>()?,
         ..FlightJob::new(flight)
     };
+    let prepared = read_prepared(&job, &pipeline)?;
     let bar = spinner(format!("diagnosing {}", flight.display()));
-    let diagnosis = magcomp::pipeline::diagnose_flight(&log, &job, &pipeline.settings, &pipeline.settings.diagnose);
+    let diagnosis = prepared.diagnose(&pipeline.settings, &pipeline.settings.diagnose);
     bar.finish_and_clear();
     let diagnosis = diagnosis?;
     let mut set = OutputSet::new();

@@ -36,6 +36,20 @@ pub fn read_screened(flight: &Path, pipeline: &Pipeline) -> magcomp::error::Resu
     Ok(screened.log.unwrap_or(recorded))
 }
 
+/// Reads `job`'s flight and prepares it for the stages (screened, its
+/// sensor, channels and windows chosen), printing what screening masked.
+pub fn read_prepared(
+    job: &FlightJob,
+    pipeline: &Pipeline,
+) -> magcomp::error::Result<magcomp::pipeline::PreparedFlight> {
+    let recorded = magcomp::formats::read_flight_log(&job.input, &pipeline.settings.ingest)?;
+    let prepared = magcomp::pipeline::PreparedFlight::new(recorded, job, &pipeline.settings)?;
+    for warning in prepared.warnings() {
+        println!("  warning: {warning}");
+    }
+    Ok(prepared)
+}
+
 /// `<stem of path><suffix>` in `path`'s folder.
 pub fn beside(path: &Path, suffix: &str) -> PathBuf {
     let stem = path

@@ -3,11 +3,11 @@
 
 use std::path::Path;
 
-use magcomp::config::Pipeline;
+use magcomp::config::{FlightJob, Pipeline};
 use magcomp::formats::{prepare, Destination, OutputKind, OutputSet};
 use magcomp::windows::CalibrationWindow;
 
-use super::{beside, print_notes, read_screened, spinner};
+use super::{beside, print_notes, read_prepared, spinner};
 
 /// `simulate --replay`: the recorded flight flown again with plain
 /// Tolles-Lawson and with the diagnosed models.
@@ -28,21 +28,18 @@ pub fn replay_flight(
             Destination::new(&report, OutputKind::Json, "the replay figures beside --out"),
         ],
     )?);
-    let log = read_screened(flight, &pipeline)?;
-    let sensor = magcomp::pipeline::choose_vector_sensor(&log, None)?;
-    let channels = magcomp::pipeline::choose_channels(&log, None)?;
-    let mut windows = windows
-        .iter()
-        .map(|w| CalibrationWindow::parse(w))
-        .collect::<Result<Vec<_>, _>>()?;
-    if windows.is_empty() {
-        windows = magcomp::detect::detect_manoeuvres(&log, &pipeline.settings.detect)?
-            .calibration_windows(pipeline.settings.detect.window_margin_s);
-    }
+    let job = FlightJob {
+        windows: (windows.iter())
+            .map(|w| CalibrationWindow::parse(w))
+            .collect::<Result<_, _>>()?,
+        ..FlightJob::new(flight)
+    };
+    let prepared = read_prepared(&job, &pipeline)?;
+    let log = prepared.log();
     let bar = spinner(format!("replaying {}", flight.display()));
     let plan = match diagnosis {
         Some(path) => magcomp::diagnose::read_saved(path)
-            .and_then(|saved| saved.models_for(path, &log, false))
+            .and_then(|saved| saved.models_for(path, log, false))
             .map(|(models, remark)| {
                 if let Some(remark) = remark {
                     println!("  warning: {remark}");
@@ -50,10 +47,7 @@ pub fn replay_flight(
                 models
             }),
         None => magcomp::diagnose::diagnose(
-            &log,
-            &sensor,
-            &channels,
-            &windows,
+            &prepared.calibration(),
             &pipeline.settings.terms,
             &pipeline.settings.fit,
             &pipeline.settings.diagnose,
@@ -62,10 +56,7 @@ pub fn replay_flight(
     };
     let replayed = plan.and_then(|plan| {
         magcomp::simulate::replay::replay(
-            &log,
-            &sensor,
-            &channels,
-            &windows,
+            &prepared.calibration(),
             &pipeline.settings.terms,
             &pipeline.settings.fit,
             &plan,

@@ -31,8 +31,8 @@
 use std::collections::BTreeMap;
 
 use crate::error::Result;
-use crate::flight_log::{FlightLog, VectorSensor};
-use crate::model::{fit, Extensions, FitOptions, ModelSpec};
+use crate::flight_log::FlightLog;
+use crate::model::{fit, Calibration, Extensions, FitOptions, ModelSpec};
 use crate::numerics::stacked::StorePool;
 use crate::tolles_lawson::TermSet;
 use crate::windows::CalibrationWindow;
@@ -140,12 +140,13 @@ pub fn plain_of(model: &Extensions) -> Extensions {
 /// channel with a model that is not plain, its [`Departure`] (`None` where
 /// it cannot be measured: no survey rows).
 pub fn departures(
-    log: &FlightLog,
-    sensor: &VectorSensor,
-    windows: &[CalibrationWindow],
+    calibration: &Calibration,
     plan: &BTreeMap<String, Extensions>,
     (terms, options): (TermSet, &FitOptions),
 ) -> Result<BTreeMap<String, Option<Departure>>> {
+    let Calibration {
+        log, sensor, windows, ..
+    } = *calibration;
     use rayon::prelude::*;
     let changed: Vec<(&String, &Extensions)> = plan.iter().filter(|(_, model)| *model != &plain_of(model)).collect();
     let stores = StorePool::new();

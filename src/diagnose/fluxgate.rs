@@ -8,13 +8,16 @@ use super::*;
 /// field's size: the standard deviation over the calibration windows of
 /// the interference plain Tolles-Lawson fitted on them predicts, nT.
 pub(super) fn quietest_reference(
-    log: &FlightLog,
-    sensor: &VectorSensor,
-    channels: &[String],
-    windows: &[CalibrationWindow],
+    calibration: &Calibration,
     (terms, options): (&TermSet, &FitOptions),
     stores: &StorePool,
 ) -> Result<(String, f64)> {
+    let Calibration {
+        log,
+        sensor,
+        channels,
+        windows,
+    } = *calibration;
     let plain = ModelSpec::plain(*terms);
     let models: Vec<FittedModel> = channels
         .par_iter()

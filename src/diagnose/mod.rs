@@ -111,8 +111,8 @@ use crate::error::Result;
 use crate::flight_log::{ChannelRole, FlightLog, VectorSensor};
 use crate::holdout::{distinct_headings, heading_splits};
 use crate::model::{
-    column_level, field_directions, fit, Extensions, FitOptions, FittedModel, ModelSpec, Prepared, SourceTerm,
-    WindowFit,
+    column_level, field_directions, fit, Calibration, Extensions, FitOptions, FittedModel, ModelSpec, Prepared,
+    SourceTerm, WindowFit,
 };
 use crate::numerics::solve::{Criterion, LambdaChoice};
 use crate::numerics::stacked::StorePool;
@@ -549,14 +549,17 @@ fn channel_start(problem: &Problem) -> Result<std::result::Result<ChannelStart, 
 /// Diagnoses every channel on its calibration windows, starting from
 /// plain Tolles-Lawson on `terms`.
 pub fn diagnose(
-    log: &FlightLog,
-    sensor: &VectorSensor,
-    channels: &[String],
-    windows: &[CalibrationWindow],
+    calibration: &Calibration,
     terms: &TermSet,
     options: &FitOptions,
     settings: &DiagnoseOptions,
 ) -> Result<Diagnosis> {
+    let Calibration {
+        log,
+        sensor,
+        channels,
+        windows,
+    } = *calibration;
     let hold_out = HoldOut::of(windows);
     if let Some(problem) = hold_out.insufficient() {
         return Err(not_enough_calibration(log, problem));
@@ -583,7 +586,7 @@ pub fn diagnose(
     // either λ criterion) do not need each other: side by side.
     let (checked, starts) = rayon::join(
         || {
-            quietest_reference(log, sensor, channels, windows, (terms, options), &stores)
+            quietest_reference(calibration, (terms, options), &stores)
                 .map_err(|e| e.to_string())
                 .and_then(|(reference, interference_nt)| {
                     check_fluxgate(log, sensor, &reference, windows, interference_nt, settings)

@@ -28,6 +28,7 @@
 //! compensation all go through these three functions.
 
 pub mod band;
+mod calibration;
 pub mod excitation;
 pub mod extensions;
 mod prepared;
@@ -47,6 +48,7 @@ use crate::tolles_lawson::{DesignMatrix, EddyTerms, TermSet};
 use crate::windows::CalibrationWindow;
 
 pub use band::{design_filter, FilterSettings, FitMagnitude, FitOptions, WindowFit};
+pub use calibration::Calibration;
 pub use extensions::{
     advanced, column_level, field_directions, rate_of_change, second_order_term, Extensions, SourceTerm,
     SECOND_ORDER_PASSES,

@@ -6,8 +6,8 @@ use std::collections::BTreeMap;
 use crate::config::{FlightJob, Settings};
 use crate::diagnose::{AppliedFinding, EffectKind};
 use crate::error::{Error, Result};
-use crate::flight_log::{FlightLog, VectorSensor};
-use crate::model::Extensions;
+use crate::flight_log::FlightLog;
+use crate::model::{Calibration, Extensions};
 
 /// The findings of `diagnosis` that change the model of a channel whose
 /// diagnosed model is not plain (an `unexplained` finding changes none).
@@ -62,10 +62,8 @@ pub(super) struct ExtensionsPlan {
 /// flight as read and as fitted (fluxgate calibrated by the stage).
 pub(super) fn augmentation_plan(
     job: &FlightJob,
-    (raw_log, log): (&FlightLog, &FlightLog),
-    sensor: &VectorSensor,
-    channels: &[String],
-    windows: &[crate::windows::CalibrationWindow],
+    raw_log: &FlightLog,
+    calibration: &Calibration,
     options: &Settings,
     stage_calibrated: bool,
 ) -> Result<ExtensionsPlan> {
@@ -92,15 +90,7 @@ pub(super) fn augmentation_plan(
     if options.diagnose.apply == ApplyDiagnosis::Never {
         return Ok(plain(Vec::new()));
     }
-    match crate::diagnose::diagnose(
-        log,
-        sensor,
-        channels,
-        windows,
-        &options.terms,
-        &options.fit,
-        &options.diagnose,
-    ) {
+    match crate::diagnose::diagnose(calibration, &options.terms, &options.fit, &options.diagnose) {
         Ok(mut diagnosis) => {
             diagnosis.flight = Some(crate::flight_identity::FlightIdentity::of(raw_log)?);
             Ok(ExtensionsPlan {
@@ -133,9 +123,7 @@ pub(super) fn augmentation_plan(
 /// Returns the plan and, per channel whose findings are applied, how far
 /// they move the survey from plain Tolles-Lawson (nT RMS).
 pub(super) fn evidence_rule(
-    log: &FlightLog,
-    sensor: &VectorSensor,
-    windows: &[crate::windows::CalibrationWindow],
+    calibration: &Calibration,
     mut plan: BTreeMap<String, Extensions>,
     diagnosis: &mut crate::diagnose::Diagnosis,
     options: &Settings,
@@ -160,7 +148,7 @@ pub(super) fn evidence_rule(
             )
         })
         .collect();
-    let measured = departures(log, sensor, windows, &plan, (options.terms, &options.fit))?;
+    let measured = departures(calibration, &plan, (options.terms, &options.fit))?;
     let mut applied = BTreeMap::new();
     for (channel, departure) in measured {
         let Some(departure) = departure else {

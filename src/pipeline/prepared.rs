@@ -5,6 +5,9 @@ use crate::config::{FlightJob, Settings};
 use crate::detect::{detect_manoeuvres, Detection};
 use crate::error::{Error, Result};
 use crate::flight_log::{FlightLog, VectorSensor};
+use crate::model::Calibration;
+use crate::screen::{Screened, Screening};
+use crate::windows::CalibrationWindow;
 
 /// Warnings from detection: every incomplete box, and every leg whose
 /// pitch and yaw the fluxgate could not tell apart.
@@ -86,28 +89,139 @@ pub fn calibration_windows(
     ))
 }
 
-/// Diagnoses a flight: its windows (given, or detected), its vector
-/// sensor and channels, then [`crate::diagnose::diagnose`].
+/// Diagnoses a screened flight `log`: its vector sensor and channels and
+/// its windows (given, or detected) chosen as `job` asks, then
+/// [`crate::diagnose::diagnose`].
 pub fn diagnose_flight(
     log: &FlightLog,
     job: &FlightJob,
     options: &Settings,
     settings: &crate::diagnose::DiagnoseOptions,
 ) -> Result<crate::diagnose::Diagnosis> {
-    let sensor = choose_vector_sensor(log, job.vector.as_deref())?;
-    let channels = choose_channels(log, job.channels.as_deref())?;
-    let (windows, _, _) = calibration_windows(log, job, options)?;
-    let mut diagnosis = crate::diagnose::diagnose(
-        log,
-        &sensor,
-        &channels,
-        &windows,
-        &options.terms,
-        &options.fit,
-        settings,
-    )?;
-    diagnosis.flight = Some(crate::flight_identity::FlightIdentity::of(log)?);
+    let chosen = Chosen::of(log, None, job, options)?;
+    diagnose_calibration(&chosen.calibration(log), options, settings)
+}
+
+/// [`crate::diagnose::diagnose`] on `calibration`, the diagnosis naming
+/// the flight it was made on.
+fn diagnose_calibration(
+    calibration: &Calibration,
+    options: &Settings,
+    settings: &crate::diagnose::DiagnoseOptions,
+) -> Result<crate::diagnose::Diagnosis> {
+    let mut diagnosis = crate::diagnose::diagnose(calibration, &options.terms, &options.fit, settings)?;
+    diagnosis.flight = Some(crate::flight_identity::FlightIdentity::of(calibration.log)?);
     Ok(diagnosis)
+}
+
+/// A flight read and made ready for the stages, once for `run`,
+/// `diagnose` and `simulate --replay`: its samples screened, its vector
+/// sensor and scalar channels chosen, its calibration windows given or
+/// detected.
+#[derive(Debug)]
+pub struct PreparedFlight {
+    /// The flight as recorded: the compensated output copies it.
+    pub recorded: FlightLog,
+    /// The samples no instrument can record, masked: what every stage
+    /// works on.
+    pub screened: Screened,
+    /// The vector magnetometer of the direction cosines.
+    pub sensor: VectorSensor,
+    /// The scalar channels to fit.
+    pub channels: Vec<String>,
+    /// The calibration windows.
+    pub windows: Vec<CalibrationWindow>,
+    /// The detection that gave the windows, when they were detected.
+    pub detection: Option<Detection>,
+    /// How the given windows' headings were found, when they were given.
+    pub headings_note: Option<String>,
+}
+
+impl PreparedFlight {
+    /// Screens `recorded` and chooses its sensor, channels and windows as
+    /// `job` asks. A fluxgate axis or a scalar channel that screening
+    /// masked whole is refused by name.
+    pub fn new(recorded: FlightLog, job: &FlightJob, options: &Settings) -> Result<Self> {
+        let screened = crate::screen::screen_samples(&recorded)?;
+        let log = screened.log_or(&recorded);
+        let chosen = Chosen::of(log, Some(&screened.screening), job, options)?;
+        Ok(PreparedFlight {
+            sensor: chosen.sensor,
+            channels: chosen.channels,
+            windows: chosen.windows,
+            detection: chosen.detection,
+            headings_note: chosen.headings_note,
+            recorded,
+            screened,
+        })
+    }
+
+    /// The log the stages work on (the screened samples).
+    pub fn log(&self) -> &FlightLog {
+        self.screened.log_or(&self.recorded)
+    }
+
+    /// The calibration on the screened samples.
+    pub fn calibration(&self) -> Calibration<'_> {
+        Calibration {
+            log: self.log(),
+            sensor: &self.sensor,
+            channels: &self.channels,
+            windows: &self.windows,
+        }
+    }
+
+    /// What screening masked, as warnings.
+    pub fn warnings(&self) -> Vec<String> {
+        self.screened.warnings(&self.recorded)
+    }
+
+    /// The flight diagnosed on its calibration.
+    pub fn diagnose(
+        &self,
+        options: &Settings,
+        settings: &crate::diagnose::DiagnoseOptions,
+    ) -> Result<crate::diagnose::Diagnosis> {
+        diagnose_calibration(&self.calibration(), options, settings)
+    }
+}
+
+/// The sensor, channels and windows `job` asks for on a screened log.
+struct Chosen {
+    sensor: VectorSensor,
+    channels: Vec<String>,
+    windows: Vec<CalibrationWindow>,
+    detection: Option<Detection>,
+    headings_note: Option<String>,
+}
+
+impl Chosen {
+    /// Chooses on `log`; with `screening`, a column it masked whole is
+    /// refused by name first.
+    fn of(log: &FlightLog, screening: Option<&Screening>, job: &FlightJob, options: &Settings) -> Result<Self> {
+        let sensor = choose_vector_sensor(log, job.vector.as_deref())?;
+        if let Some(screening) = screening {
+            refuse_dead_columns(log, screening, &sensor, job.channels.as_deref())?;
+        }
+        let channels = choose_channels(log, job.channels.as_deref())?;
+        let (windows, detection, headings_note) = calibration_windows(log, job, options)?;
+        Ok(Chosen {
+            sensor,
+            channels,
+            windows,
+            detection,
+            headings_note,
+        })
+    }
+
+    fn calibration<'a>(&'a self, log: &'a FlightLog) -> Calibration<'a> {
+        Calibration {
+            log,
+            sensor: &self.sensor,
+            channels: &self.channels,
+            windows: &self.windows,
+        }
+    }
 }
 
 /// What detection found, in a sentence per box and per lack.

@@ -30,8 +30,8 @@ use serde::Serialize;
 
 use crate::compensate::{compensate, LevelConvention};
 use crate::error::Result;
-use crate::flight_log::{FlightLog, VectorSensor};
-use crate::model::{advanced, fit, Extensions, FitOptions, FittedModel, ModelSpec};
+use crate::flight_log::FlightLog;
+use crate::model::{advanced, fit, Calibration, Extensions, FitOptions, FittedModel, ModelSpec};
 use crate::numerics::filter::FilterBand;
 use crate::numerics::segments::valid_runs;
 use crate::numerics::stacked::StorePool;
@@ -71,14 +71,17 @@ pub struct Replay {
 /// Replays `channels` of `log` with plain Tolles-Lawson on `terms` and
 /// with their extensions in `plan`, all fitted on `windows`.
 pub fn replay(
-    log: &FlightLog,
-    sensor: &VectorSensor,
-    channels: &[String],
-    windows: &[CalibrationWindow],
+    calibration: &Calibration,
     terms: &TermSet,
     options: &FitOptions,
     plan: &BTreeMap<String, Extensions>,
 ) -> Result<Replay> {
+    let Calibration {
+        log,
+        sensor,
+        channels,
+        windows,
+    } = *calibration;
     let results: Vec<(ReplayedChannel, Vec<f64>)> = channels
         .par_iter()
         .map(|channel| {

@@ -1,0 +1,401 @@
+//! A flight fitted on its own calibration: [`super::run`]'s stages when no
+//! saved model is applied. Prepare (screen, choose, windows); calibrate
+//! the fluxgate; diagnose and judge the findings; fit every channel;
+//! compensate; assess; the vector and gradient stages; the words.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use rayon::prelude::*;
+
+use super::diagnosis::{applied_findings, augmentation_plan, evidence_rule, next_step, ExtensionsPlan};
+use super::prepared::{detection_notes, detection_warnings, PreparedFlight};
+use super::vector_stage::{vector_stage, window_hulls, VectorStage};
+use super::{against_plan, assess_with_sigma, estimator_table_gap, renaming_notes, FlightResult, FlightRun};
+use crate::config::{FlightJob, Settings};
+use crate::error::Result;
+use crate::flight_log::FlightLog;
+use crate::formats::added_column_names;
+use crate::gradient::GradientStage;
+use crate::model::{compare_estimators, fit, Calibration, Extensions, FittedModel, ModelSpec, SharedDesign};
+use crate::numerics::stacked::StorePool;
+use crate::quality::transfer::check_transfer;
+use crate::quality::ChannelQuality;
+
+/// [`super::run`] for a flight fitted on its own calibration.
+pub(super) fn run_fitted(
+    job: &FlightJob,
+    options: &Settings,
+    compensated: &Path,
+    planned: Option<crate::against_plan::PlanPrediction>,
+    recorded: FlightLog,
+) -> Result<FlightRun> {
+    let flight = PreparedFlight::new(recorded, job, options)?;
+    // The fit (and everything after it) sees the calibrated fluxgate; the
+    // compensated file keeps the recorded columns.
+    let fluxgate = crate::vector_calibration::calibrate_stage(&flight.calibration(), &options.vector_calibration)?;
+    let calibrated = (fluxgate.as_ref())
+        .map(|c| c.apply(flight.log(), &flight.sensor))
+        .transpose()?;
+    let on = flight.calibration().on(calibrated.as_ref().unwrap_or(flight.log()));
+    let mut warnings = flight.warnings();
+    let (plan, mut diagnosis, departures) =
+        diagnosed_plan(job, (&flight, &on), options, fluxgate.is_some(), &mut warnings)?;
+    warnings.extend(input_warnings(job, &flight.recorded, compensated)?);
+    let mut fitted = fit_channels(&on, &plan, options)?;
+    let mut compensation = crate::compensate::compensate_with(on.log, &fitted.models, options.level, &fitted.shared)?;
+    let boxes: Vec<(f64, f64)> = match &flight.detection {
+        Some(detection) => detection.boxes.iter().map(|b| (b.t_start, b.t_end)).collect(),
+        None => window_hulls(&flight.windows),
+    };
+    let (mut quality, transfer_notes) = assess_channels(&on, &mut fitted, &mut compensation, &boxes, options)?;
+    let models = fitted.models;
+    let (vector, gradients) = vector_and_gradients(&on, &boxes, (&compensation, &models, &quality), options);
+    for compensated in vector.compensated {
+        compensation.add_vector(compensated);
+    }
+    compensation.gradients = gradients.compensated;
+    let reduced_notes = crate::reduce::add_reduced(on.log, &mut compensation, options.reduced)?;
+    warnings.extend(compensation.out_of_range_warnings(on.log.time_s()));
+    let added_columns = added_column_names(on.log, compensated, &compensation)?;
+    let mut notes = renaming_notes(&flight.channels, &added_columns);
+    notes.extend(reduced_notes);
+    notes.extend(transfer_notes);
+    notes.extend(flight.headings_note.clone());
+    notes.extend(fluxgate.iter().map(|c| c.summary()));
+    model_messages(&models, fitted.excitation_notes, (&mut notes, &mut warnings));
+    notes.extend(vector.notes);
+    warnings.extend(vector.warnings);
+    notes.extend(gradients.notes);
+    warnings.extend(gradients.warnings);
+    if let Some(detection) = &flight.detection {
+        notes.extend(detection_notes(detection));
+        warnings.extend(detection_warnings(detection));
+    }
+    warnings.extend(departure_warnings(&mut quality, &departures));
+    let next_step = next_step(options.diagnose.apply, job.diagnosis.is_some(), diagnosis.is_some());
+    warnings.extend(channel_warnings(&quality, &models, &compensation, options, next_step));
+    let plan = planned.map(|planned| against_plan(&planned, on.log, &models, &quality, &compensation));
+    if let Some(plan) = &plan {
+        notes.extend(plan.notes.iter().cloned());
+        warnings.extend(plan.warnings.iter().cloned());
+    }
+    let (rows, alignment) = (on.log.len(), on.log.alignment().cloned());
+    let PreparedFlight {
+        recorded,
+        screened,
+        detection,
+        ..
+    } = flight;
+    let result = FlightResult {
+        flight: job.input.clone(),
+        rows,
+        added_columns,
+        notes,
+        detection,
+        alignment,
+        channels: quality,
+        vector_calibration: fluxgate,
+        diagnosis_mode: match job.diagnosis {
+            Some(_) => crate::diagnose::ApplyDiagnosis::Always,
+            None => options.diagnose.apply,
+        },
+        applied_findings: diagnosis.as_mut().map(|d| applied_findings(d)).unwrap_or_default(),
+        warnings,
+        diagnosis,
+        models,
+        vector_models: vector.models,
+        gradients: gradients.results,
+        gradient_models: gradients.models,
+        plan,
+        model: None,
+        aircraft: job.aircraft.clone(),
+    };
+    // The figures above are of the full values; the outputs are written
+    // at the stated resolution.
+    compensation.round_to(options.output_decimals);
+    Ok(FlightRun {
+        recorded,
+        screened,
+        compensation,
+        result,
+    })
+}
+
+/// Each channel's model to fit: the saved diagnosis's, or a diagnosis's
+/// made now and judged by the evidence rule (its warnings added to
+/// `warnings`); with the diagnosis made now and how far each channel's
+/// applied findings move the survey from plain Tolles-Lawson.
+#[allow(clippy::type_complexity)]
+fn diagnosed_plan(
+    job: &FlightJob,
+    (flight, on): (&PreparedFlight, &Calibration),
+    options: &Settings,
+    stage_calibrated: bool,
+    warnings: &mut Vec<String>,
+) -> Result<(
+    BTreeMap<String, Extensions>,
+    Option<crate::diagnose::Diagnosis>,
+    BTreeMap<String, f64>,
+)> {
+    let ExtensionsPlan {
+        models: plan,
+        mut diagnosis,
+        warnings: said,
+    } = augmentation_plan(job, flight.log(), on, options, stage_calibrated)?;
+    warnings.extend(said);
+    let (plan, departures) = match diagnosis.as_mut() {
+        Some(diagnosis) => evidence_rule(on, plan, diagnosis, options, warnings)?,
+        None => (plan, BTreeMap::new()),
+    };
+    Ok((plan, diagnosis, departures))
+}
+
+/// Warnings about the input that depend on where the output goes: windows
+/// detected on another flight, an MCAP output without a date, text
+/// columns a format cannot hold.
+fn input_warnings(job: &FlightJob, recorded: &FlightLog, compensated: &Path) -> Result<Vec<String>> {
+    let mut warnings = Vec::new();
+    if let Some((path, detected_on)) = &job.windows_detected_on {
+        warnings.extend(crate::windows::other_flight_warning(path, detected_on, recorded)?);
+    }
+    warnings.extend(crate::formats::mcap::undated_warning(recorded, compensated));
+    warnings.extend(crate::formats::write::text_columns_warning(recorded, compensated, true));
+    Ok(warnings)
+}
+
+/// Every channel's fitted model, the whole flight's terms they share, and
+/// a note per channel whose excitation could not be analysed.
+struct Fitted {
+    models: Vec<FittedModel>,
+    shared: Vec<SharedDesign>,
+    excitation_notes: Vec<Option<String>>,
+}
+
+/// Fits every channel of `on` with its model of `plan`, its estimator
+/// table and its excitation analysis.
+fn fit_channels(on: &Calibration, plan: &BTreeMap<String, Extensions>, options: &Settings) -> Result<Fitted> {
+    let Calibration {
+        log,
+        sensor,
+        channels,
+        windows,
+    } = *on;
+    // The channels' fits share their stores; the stores are freed before
+    // compensating, which does not need them.
+    let stores = StorePool::new();
+    let fitted: Vec<FittedModel> = channels
+        .par_iter()
+        .map(|channel| {
+            let spec = ModelSpec::of_channel(options.terms, plan, channel);
+            let mut model = fit(log, sensor, channel, windows, &spec, &options.fit, &stores)?;
+            model.estimators = compare_estimators(log, sensor, channel, windows, &spec, &options.fit, &stores)?;
+            Ok(model)
+        })
+        .collect::<Result<_>>()?;
+    // The whole flight's terms, built once for every channel that uses
+    // them: the analysis, the compensation and the sigma column read them.
+    let shared = SharedDesign::of_models(log, &fitted);
+    let fitted: Vec<(FittedModel, Option<String>)> = fitted
+        .into_par_iter()
+        .map(|mut model| {
+            let channel = model.channel.clone();
+            // The analysis informs; a flight it cannot analyse is still
+            // compensated, and the run says why there is none.
+            let excitation =
+                crate::model::excitation::analyse(log, sensor, &model, windows, &options.fit, (&stores, &shared));
+            let note = match excitation {
+                Ok(Some(analysis)) => {
+                    model.excitation = Some(analysis);
+                    None
+                }
+                Ok(None) => Some(format!(
+                    "{channel}: no excitation analysis: a window's heading is unknown (none given and no INS yaw), or the windows leave the design singular"
+                )),
+                Err(e) => Some(format!("{channel}: no excitation analysis: {e}")),
+            };
+            Ok((model, note))
+        })
+        .collect::<Result<_>>()?;
+    let (models, excitation_notes) = fitted.into_iter().unzip();
+    Ok(Fitted {
+        models,
+        shared,
+        excitation_notes,
+    })
+}
+
+/// Each compensated channel's figures, its sigma column, its transfer
+/// checks held out (by heading and box to box), with the transfer notes
+/// in channel order; each model keeps its level over this calibration,
+/// for the flights it is applied to (the model JSON).
+fn assess_channels(
+    on: &Calibration,
+    fitted: &mut Fitted,
+    compensation: &mut crate::compensate::Compensation,
+    boxes: &[(f64, f64)],
+    options: &Settings,
+) -> Result<(Vec<ChannelQuality>, Vec<String>)> {
+    let Calibration {
+        log, sensor, windows, ..
+    } = *on;
+    let stores = StorePool::new();
+    let shared = std::mem::take(&mut fitted.shared);
+    let assessed: Vec<(ChannelQuality, Vec<f64>, Vec<String>)> = (fitted.models.par_iter())
+        .zip(compensation.channels.par_iter_mut())
+        .map(|(model, channel)| {
+            let (mut quality, jackknife_levels) = assess_with_sigma(log, model, channel, &shared)?;
+            quality.transfer = check_transfer(log, sensor, model, windows, (&options.fit, &options.transfer), &stores)?;
+            let (transfers, notes) =
+                crate::quality::transfer::box_transfer(log, sensor, model, windows, boxes, &options.fit, &stores)?;
+            quality.box_transfer = transfers;
+            Ok((quality, jackknife_levels, notes))
+        })
+        .collect::<Result<_>>()?;
+    drop(shared);
+    let mut quality = Vec::with_capacity(assessed.len());
+    let mut transfer_notes = Vec::new();
+    for ((model, (q, jackknife_nt, notes)), channel) in
+        (fitted.models.iter_mut()).zip(assessed).zip(&compensation.channels)
+    {
+        model.calibration_level = Some(crate::model::CalibrationLevel {
+            interference_nt: channel.calibration_interference_nt,
+            jackknife_nt,
+        });
+        quality.push(q);
+        transfer_notes.extend(notes);
+    }
+    // In channel order, as they always were sorted.
+    transfer_notes.sort();
+    Ok((quality, transfer_notes))
+}
+
+/// The vector stage and the gradients: they read the compensated channels
+/// and not each other, so they run side by side.
+fn vector_and_gradients(
+    on: &Calibration,
+    boxes: &[(f64, f64)],
+    (compensation, models, quality): (&crate::compensate::Compensation, &[FittedModel], &[ChannelQuality]),
+    options: &Settings,
+) -> (VectorStage, GradientStage) {
+    rayon::join(
+        || {
+            vector_stage(
+                on.log,
+                (on.windows, boxes),
+                compensation,
+                (&options.vector, &options.fit),
+            )
+        },
+        || {
+            crate::gradient::compensate_gradients(
+                &crate::gradient::GradientInputs {
+                    log: on.log,
+                    sensor: on.sensor,
+                    windows: on.windows,
+                    models,
+                    compensation,
+                    uncertain: &quality.iter().map(crate::quality::is_uncertain).collect::<Vec<_>>(),
+                },
+                &options.gradients,
+                (options.terms, &options.fit, options.level),
+            )
+        },
+    )
+}
+
+/// What the models say of themselves: a missing estimator table, an
+/// excitation not analysed and a diagnosed model, as notes; a gap in the
+/// box and a solver asked for and not used, as warnings.
+fn model_messages(
+    models: &[FittedModel],
+    excitation_notes: Vec<Option<String>>,
+    (notes, warnings): (&mut Vec<String>, &mut Vec<String>),
+) {
+    notes.extend(models.iter().filter_map(estimator_table_gap));
+    notes.extend(excitation_notes.into_iter().flatten());
+    // A gap in the box is a warning: the FOM lacks a manoeuvre and the
+    // coefficients it pins are less certain.
+    warnings.extend(models.iter().flat_map(|m| {
+        let gaps = m.excitation.iter().flat_map(|e| e.gaps());
+        gaps.map(|line| format!("{}: {line}", m.channel)).collect::<Vec<_>>()
+    }));
+    // A solver asked for and not used is a warning: the coefficients are
+    // not what the settings say.
+    warnings.extend(models.iter().filter_map(|m| {
+        let solver = m.solver.as_ref()?;
+        match solver.applied() {
+            true => None,
+            false => Some(format!("{}: {}", m.channel, solver.reason)),
+        }
+    }));
+    notes.extend(models.iter().filter(|m| !m.spec.is_plain()).map(|m| {
+        format!(
+            "{}: fitted and compensated with the diagnosed model: {}",
+            m.channel,
+            m.spec.describe()
+        )
+    }));
+}
+
+/// Sets each channel's departure from plain Tolles-Lawson on the survey;
+/// a warning for each that exceeds its stated uncertainty.
+fn departure_warnings(quality: &mut [ChannelQuality], departures: &BTreeMap<String, f64>) -> Vec<String> {
+    let mut warnings = Vec::new();
+    for q in quality {
+        q.survey_departure_from_plain_nt = departures.get(&q.channel).copied();
+        if let Some((departure, stated)) = q.unchecked_departure() {
+            warnings.push(format!(
+                "{}: the diagnosed findings move the survey {departure:.4} nT RMS from plain Tolles-Lawson, more than {}: the verdict is not a plain pass; compare with a plain run (--plain) before using this channel",
+                q.channel,
+                match stated {
+                    Some(sigma) => format!("its stated uncertainty ({sigma:.4} nT)"),
+                    None => "anything its uncertainty states (none is stated)".into(),
+                }
+            ));
+        }
+    }
+    warnings
+}
+
+/// Each channel's quality warnings, and a warning where it has no sigma
+/// column, too few windows to leave one out, or no uncertainty figure.
+fn channel_warnings(
+    quality: &[ChannelQuality],
+    models: &[FittedModel],
+    compensation: &crate::compensate::Compensation,
+    options: &Settings,
+    next_step: &str,
+) -> Vec<String> {
+    let mut warnings = Vec::new();
+    for ((q, model), channel) in quality.iter().zip(models).zip(&compensation.channels) {
+        warnings.extend(crate::quality::quality_warnings(q, options.fom_limit_nt, next_step));
+        if q.uncertainty.is_some() && channel.sigma_nt.is_none() {
+            warnings.push(format!(
+                "{}: no sigma column: the compensated channel's noise cannot be measured (too few consecutive samples)",
+                model.channel
+            ));
+        }
+        if model.windows.len() < 3 {
+            warnings.push(format!(
+                "{}: fitted on {} calibration window(s), too few to leave one out: the compensation away from the calibration is not checked and has no uncertainty figure or sigma column. Give three or more windows, one per manoeuvre or leg (a window spanning a whole box is one window; `magcomp detect` finds the manoeuvres)",
+                model.channel,
+                model.windows.len()
+            ));
+        }
+        if model.solution.jackknife.is_empty() && model.windows.len() >= 3 {
+            let why = match model.solver.as_ref().filter(|s| s.applied()) {
+                Some(solver) => format!(
+                    "the blocked jackknife is computed for ridge and truncated SVD, not for [fit] solver = \"{}\"",
+                    solver.requested.name()
+                ),
+                None => format!(
+                    "with one of the {} windows left out a term is no longer pinned (that window alone carries it), so the compensation away from the calibration rests on that one window",
+                    model.windows.len()
+                ),
+            };
+            warnings.push(format!("{}: no uncertainty figure: {why}", model.channel));
+        }
+    }
+    warnings
+}
