@@ -286,9 +286,9 @@ fn bare_mcap_decode(path: &Path) -> usize {
     for message in mcap::MessageStream::new(&bytes).unwrap() {
         let message = message.unwrap();
         let ok = match message.channel.topic.as_str() {
-            "/mag/1/scalar" => magcomp::messages::ScalarMag::decode(&message.data[..]).is_ok(),
-            "/mag/a/vector" => magcomp::messages::VectorMag::decode(&message.data[..]).is_ok(),
-            _ => magcomp::messages::Sample::decode(&message.data[..]).is_ok(),
+            "/mag/1/scalar" => magcomp::formats::mcap::messages::ScalarMag::decode(&message.data[..]).is_ok(),
+            "/mag/a/vector" => magcomp::formats::mcap::messages::VectorMag::decode(&message.data[..]).is_ok(),
+            _ => magcomp::formats::mcap::messages::Sample::decode(&message.data[..]).is_ok(),
         };
         decoded += usize::from(ok);
     }

@@ -51,8 +51,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 use crate::flight_log::{FlightLog, VectorSensor};
-use crate::model::Calibration;
 use crate::numerics::linalg::{solve_spd, tall_skinny_r};
+use crate::windows::Calibration;
 use crate::windows::CalibrationWindow;
 
 /// `[vector_calibration]` settings: a pipeline stage that calibrates the

@@ -295,7 +295,9 @@ fn the_gradient_is_written_in_every_output_format() {
                 .filter(|m| m.channel.topic == "/grad/4_5/compensated")
                 .map(|m| {
                     use prost::Message;
-                    magcomp::messages::Sample::decode(&m.data[..]).unwrap().value
+                    magcomp::formats::mcap::messages::Sample::decode(&m.data[..])
+                        .unwrap()
+                        .value
                 })
                 .collect();
             assert_eq!(values.len(), expected.len(), "one message a row");

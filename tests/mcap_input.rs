@@ -4,8 +4,8 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
+use magcomp::formats::mcap::messages::{descriptor_set, timestamp, Attitude, Sample, ScalarMag, VectorMag};
 use magcomp::formats::{read_flight_log, IngestOptions};
-use magcomp::messages::{descriptor_set, timestamp, Attitude, Sample, ScalarMag, VectorMag};
 use prost::Message;
 
 /// Which encoding and layout a test file uses.

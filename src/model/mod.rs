@@ -28,7 +28,6 @@
 //! compensation all go through these three functions.
 
 pub mod band;
-mod calibration;
 pub mod excitation;
 pub mod extensions;
 mod prepared;
@@ -47,8 +46,8 @@ use crate::numerics::stacked::StorePool;
 use crate::tolles_lawson::{DesignMatrix, EddyTerms, TermSet};
 use crate::windows::CalibrationWindow;
 
+pub use crate::windows::Calibration;
 pub use band::{design_filter, FilterSettings, FitMagnitude, FitOptions, WindowFit};
-pub use calibration::Calibration;
 pub use extensions::{
     advanced, column_level, field_directions, rate_of_change, second_order_term, Extensions, SourceTerm,
     SECOND_ORDER_PASSES,

@@ -29,6 +29,7 @@ use std::borrow::Cow;
 
 use rayon::prelude::*;
 
+pub mod messages;
 mod records;
 pub mod write;
 
@@ -42,7 +43,7 @@ use super::{IngestOptions, TopicMapping};
 use crate::error::{Error, Result};
 use crate::flight_date::FlightDate;
 use crate::flight_log::{AttitudeAngle, Channel, ChannelRole, FlightLog, VectorAxis};
-use crate::messages::MessageLayout;
+use messages::MessageLayout;
 
 /// Metadata key on a `/gps/fix` channel naming the height column.
 pub const ALTITUDE_COLUMN_KEY: &str = "magcomp.altitude_column";

@@ -34,13 +34,13 @@ use std::path::Path;
 
 use prost::Message;
 
+use super::messages::{descriptor_set, timestamp, Attitude, LocationFix, RowFlags, Sample, ScalarMag, VectorMag};
 use super::{ALTITUDE_COLUMN_KEY, DATE_KEY};
 use crate::compensate::Compensation;
 use crate::error::{Error, Result};
 use crate::flight_date::SECONDS_PER_DAY;
 use crate::flight_log::{AttitudeAngle, ChannelRole, FlightLog};
 use crate::formats::destination::{stage, Staged};
-use crate::messages::{descriptor_set, timestamp, Attitude, LocationFix, RowFlags, Sample, ScalarMag, VectorMag};
 
 /// JSON documents stored with the data.
 #[derive(Debug, Clone, Default)]
