@@ -140,8 +140,25 @@ fn clean_plan(seed: u64) -> RawScenario {
     raw
 }
 
-/// Per channel: (name, plain error, default error, applied, held back).
-type Outcome = Vec<(String, f64, f64, Vec<String>, Vec<String>)>;
+/// One channel of a clean flight, compensated by default and plain.
+struct ChannelOutcome {
+    /// The channel with the diagnosis's figures.
+    name: String,
+    /// Survey-line error against truth, plain, nT.
+    plain: f64,
+    /// The same by default, nT.
+    auto: f64,
+    /// Findings applied.
+    applied: Vec<String>,
+    /// Findings held back.
+    held: Vec<String>,
+    /// Whether the default run warned of the channel.
+    warned: bool,
+    /// The default's stated uncertainty outside the calibration, nT.
+    stated_sigma: Option<f64>,
+}
+
+type Outcome = Vec<ChannelOutcome>;
 
 fn fly(seed: u64) -> (String, Outcome) {
     let raw = clean_plan(seed);
@@ -197,14 +214,24 @@ fn fly(seed: u64) -> (String, Outcome) {
                 .and_then(|q| q.survey_departure_from_plain_nt)
                 .map(|d| format!(", survey departure {d:.4} nT"))
                 .unwrap_or_default();
-            let heldout = format!("{heldout}{departure}");
-            (
-                format!("{} ({heldout})", model.channel),
-                survey_line_error_nt(&p.values, truth, line),
-                survey_line_error_nt(&a.values, truth, line),
+            // Whether the default said so: a warning that names the
+            // channel (an uncertainty, a transfer, a departure from plain).
+            let warned = (auto.result.warnings.iter()).any(|w| w.starts_with(&format!("{}:", model.channel)));
+            let stated_sigma = (auto.result.channels.iter())
+                .find(|q| q.channel == model.channel)
+                .and_then(|q| q.uncertainty.as_ref())
+                .map(|u| u.outside_calibration_sigma_nt);
+            let stated = stated_sigma.map_or("; no stated σ".into(), |s| format!("; stated σ {s:.4} nT"));
+            let said = if warned { "; warned" } else { "; not warned" };
+            ChannelOutcome {
+                name: format!("{} ({heldout}{departure}{stated}{said})", model.channel),
+                plain: survey_line_error_nt(&p.values, truth, line),
+                auto: survey_line_error_nt(&a.values, truth, line),
                 applied,
                 held,
-            )
+                warned,
+                stated_sigma,
+            }
         })
         .collect();
     (describe, outcome)
@@ -253,14 +280,37 @@ fn keep_flight(
 /// and the evidence rule held back 129.)
 const HARMED_ALLOWED: usize = 2;
 
+// No channel of the first [`DEFAULT_FLIGHTS`] plans may be harmed with
+// nothing said: no warning naming the channel and an error beyond twice
+// the uncertainty it states (the sigma's coverage: 91.5 % of survey
+// samples within 2σ, `tests/uncertainty.rs`). Right, or loudly uncertain.
+// Over all 300 plans: 1 of the 28 harmed (plan 32, a lone tail sensor:
+// 0.0152 → 0.0401 nT against a stated 0.0150 nT, the base station's
+// variation subtracted); 23 of the 28 are warned of and 4 lie within twice
+// their stated uncertainty. What harms is the level per heading: the error
+// within a line is the same plain and by default, and lines flown the same
+// way carry the same level (plan 295, mag_4_uc: 0.21 nT between the two
+// line directions plain, 0.33 nT by default); a fit on a cleaner target
+// still draws the heading terms with their own scatter.
+
 #[test]
 fn the_default_never_makes_a_clean_channel_worse_than_plain() {
     let outcomes: Vec<(String, Outcome)> = seeds().into_par_iter().map(fly).collect();
     let (mut channels, mut harmed, mut held_back, mut worst) = (0, Vec::new(), 0, 1.0f64);
+    // Harmed with nothing said: no warning names the channel and its
+    // error lies beyond twice the uncertainty the default states for it.
+    let mut silent = Vec::new();
     // Per set of effects applied: channels, harmed, helped by more than 10 %.
     let mut by_effect: std::collections::BTreeMap<String, (usize, usize, usize)> = Default::default();
     for (flight, outcome) in &outcomes {
-        for (channel, plain, auto, applied, held) in outcome {
+        for outcome in outcome {
+            let (channel, plain, auto, applied, held) = (
+                &outcome.name,
+                &outcome.plain,
+                &outcome.auto,
+                &outcome.applied,
+                &outcome.held,
+            );
             channels += 1;
             held_back += held.len();
             worst = worst.max(auto / plain);
@@ -275,6 +325,10 @@ fn the_default_never_makes_a_clean_channel_worse_than_plain() {
             if *auto > 1.1 * plain + 0.01 {
                 harmed.push(format!("{flight} {channel}: {plain:.4} → {auto:.4} nT"));
                 entry.1 += 1;
+                let within_stated = outcome.stated_sigma.is_some_and(|sigma| *auto <= 2.0 * sigma);
+                if !outcome.warned && !within_stated {
+                    silent.push(format!("{flight} {channel}: {plain:.4} → {auto:.4} nT"));
+                }
             } else if *auto < 0.9 * plain {
                 entry.2 += 1;
             }
@@ -295,8 +349,13 @@ fn the_default_never_makes_a_clean_channel_worse_than_plain() {
         harmed.len()
     );
     println!("{harmed:#?}");
+    println!(
+        "harmed with nothing said (no warning, error beyond twice the stated uncertainty): {}\n{silent:#?}",
+        silent.len()
+    );
     if flights() == DEFAULT_FLIGHTS && std::env::var("MAGCOMP_SAFETY_SEEDS").is_err() {
         assert!(harmed.len() <= HARMED_ALLOWED, "{harmed:#?}");
+        assert!(silent.is_empty(), "harmed with nothing said: {silent:#?}");
     }
 }
 
