@@ -94,6 +94,7 @@ pub mod formats;
 pub mod gradient;
 pub mod holdout;
 pub mod igrf;
+pub mod messages;
 pub mod model;
 pub mod numerics;
 pub mod pipeline;

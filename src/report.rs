@@ -1002,7 +1002,11 @@ pub fn stage_report(path: &Path, flight: &FlightRun, fom_limit_nt: f64) -> Resul
     );
     let _ = write!(html, "<p>{} rows.</p>", result.rows);
     for warning in &result.warnings {
-        let _ = write!(html, "<p class=\"warning\">Warning: {}</p>", escape(warning));
+        let _ = write!(
+            html,
+            "<p class=\"warning\">Warning: {}</p>",
+            escape(&warning.to_string())
+        );
     }
     if let Some(applied) = &result.model {
         html += &applied_model_section(applied);

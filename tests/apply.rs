@@ -254,8 +254,11 @@ fn a_box_flown_once_compensates_the_survey_flights_of_that_aircraft() {
         job.date = survey_date;
         job.model = outputs.model_json.clone();
         let applied = magcomp::pipeline::run(&job, &settings, &folder.path().join("applied.csv")).unwrap();
-        let about_the_model = |w: &&String| w.contains("max_age_days") || w.contains("on the aircraft");
-        let warned: Vec<&String> = applied.result.warnings.iter().filter(about_the_model).collect();
+        let about_the_model = |w: &String| w.contains("max_age_days") || w.contains("on the aircraft");
+        let sentences = |run: &magcomp::pipeline::FlightRun| -> Vec<String> {
+            run.result.warnings.iter().map(ToString::to_string).collect()
+        };
+        let warned: Vec<String> = sentences(&applied).into_iter().filter(about_the_model).collect();
         assert!(warned.is_empty(), "this aircraft, three days on: {warned:#?}");
         assert_eq!(applied.result.model.as_ref().unwrap().age_days, Some(3));
         if seed == seeds().start {
@@ -263,7 +266,7 @@ fn a_box_flown_once_compensates_the_survey_flights_of_that_aircraft() {
             job.date = survey_date.map(|d| FlightDate::from_days_since_unix_epoch(d.days_since_unix_epoch() + 42));
             job.aircraft = Some("C-GXYZ".into());
             let late = magcomp::pipeline::run(&job, &settings, &folder.path().join("late.csv")).unwrap();
-            let warned: Vec<&String> = late.result.warnings.iter().filter(about_the_model).collect();
+            let warned: Vec<String> = sentences(&late).into_iter().filter(about_the_model).collect();
             assert_eq!(warned.len(), 2, "{:#?}", late.result.warnings);
             assert!(warned[0].contains("45 days before this flight"), "{}", warned[0]);
             assert!(

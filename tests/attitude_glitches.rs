@@ -122,7 +122,7 @@ fn heading_glitches_are_masked_and_change_nothing_else() {
                 .result
                 .warnings
                 .iter()
-                .any(|w| w.contains("samples of ins_yaw (glitches")),
+                .any(|w| w.to_string().contains("samples of ins_yaw (glitches")),
             "{:?}",
             dirty.result.warnings
         );

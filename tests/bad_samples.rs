@@ -84,7 +84,7 @@ fn compensate(input: &Path, windows: &Path, out: &Path) -> (Vec<String>, Vec<Vec
     let mut lines = text.lines();
     let header = lines.next().unwrap().split(',').map(String::from).collect();
     let rows = lines.map(|l| l.split(',').map(String::from).collect()).collect();
-    (header, rows, result.warnings)
+    (header, rows, result.warnings.iter().map(ToString::to_string).collect())
 }
 
 #[test]

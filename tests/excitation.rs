@@ -75,7 +75,8 @@ fn fitted_on(
         job.windows = simulated.truth.calibration_windows(settings.detect.window_margin_s);
     }
     let run = magcomp::pipeline::run(&job, &settings, &folder.join(format!("{name}_c.csv"))).unwrap();
-    (run.result.models.into_iter().next().unwrap(), run.result.warnings)
+    let warnings = run.result.warnings.iter().map(ToString::to_string).collect();
+    (run.result.models.into_iter().next().unwrap(), warnings)
 }
 
 /// The blocked jackknife's standard deviation of each coefficient.

@@ -103,7 +103,7 @@ fn compensated_gradients_match_the_true_gradients_on_flights_drawn_at_random() {
                 run.result
                     .warnings
                     .iter()
-                    .any(|w| w.starts_with("grad_4_5_c: the gradient's level")),
+                    .any(|w| w.to_string().starts_with("grad_4_5_c: the gradient's level")),
                 "the level's uncertainty is said: {:?}",
                 run.result.warnings
             );
@@ -151,7 +151,10 @@ fn compensated_gradients_match_the_true_gradients_on_flights_drawn_at_random() {
         let limit = budget(raw, separation);
         // Outputs 0 and 2 are the direct fit and auto's choice.
         let parted = |k: usize| {
-            (outputs[k].result.warnings.iter()).any(|w| w.starts_with("grad_4_5_c: the direct fit and the difference"))
+            (outputs[k].result.warnings.iter()).any(|w| {
+                w.to_string()
+                    .starts_with("grad_4_5_c: the direct fit and the difference")
+            })
         };
         for (what, error, k) in [("direct", direct, 0), ("auto", auto, 2)] {
             if error >= limit {
@@ -216,7 +219,7 @@ fn right_or_loudly_uncertain(
         assert_eq!(uncertainty.windows, 12);
         assert!(!uncertainty.lines.is_empty());
         let warning = run.result.warnings.iter().any(|w| {
-            w.starts_with(&format!(
+            w.to_string().starts_with(&format!(
                 "{}: the compensation away from the calibration is uncertain",
                 model.channel
             ))

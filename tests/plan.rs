@@ -417,6 +417,7 @@ fn a_flight_is_set_against_the_plan_it_was_flown_to() {
             run.result
                 .warnings
                 .iter()
+                .map(ToString::to_string)
                 .any(|w| w.contains("the flight lacks 1 of the plan's") && w.contains(&expected)),
             "seed {seed}: {:?}",
             run.result.warnings
@@ -450,6 +451,7 @@ fn a_flight_is_set_against_the_plan_it_was_flown_to() {
             run.result
                 .warnings
                 .iter()
+                .map(ToString::to_string)
                 .any(|w| w.starts_with("mag_1_uc: FOM") && w.contains("worse than planned")),
             "seed {seed}: {:?}",
             run.result.warnings

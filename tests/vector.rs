@@ -178,7 +178,7 @@ fn the_compensated_vector_matches_the_true_earth_field_on_flights_drawn_at_rando
         // No warning on the fluxgate: the fitted direction is near IGRF's
         // and the tail's field is small.
         assert!(
-            !run.result.warnings.iter().any(|w| w.contains("flux_a")),
+            !run.result.warnings.iter().any(|w| w.to_string().contains("flux_a")),
             "seed {seed}: {:?}",
             run.result.warnings
         );
@@ -487,11 +487,9 @@ fn the_field_keeps_its_sign_with_the_fluxgate_any_way_round() {
         let model = check(&unverified, "no position", 100.0);
         assert_eq!(model.field_sign, magcomp::vector::FieldSign::RightHandedAxes);
         assert!(
-            unverified
-                .result
-                .warnings
-                .iter()
-                .any(|w| w.starts_with("flux_a: the Earth field's direction is unverified")),
+            unverified.result.warnings.iter().any(|w| w
+                .to_string()
+                .starts_with("flux_a: the Earth field's direction is unverified")),
             "seed {seed}: {:?}",
             unverified.result.warnings
         );
@@ -513,10 +511,11 @@ fn the_field_keeps_its_sign_with_the_fluxgate_any_way_round() {
                 ..
             }
         ));
-        let fluxgate_warnings: Vec<&String> = at_site
+        let fluxgate_warnings: Vec<String> = at_site
             .result
             .warnings
             .iter()
+            .map(ToString::to_string)
             .filter(|w| w.starts_with("flux_a"))
             .collect();
         assert!(
@@ -541,7 +540,10 @@ fn the_field_keeps_its_sign_with_the_fluxgate_any_way_round() {
         let model = check(&left, "left-handed, positioned", 5.0);
         assert!(!model.mounting.right_handed);
         assert!(
-            left.result.warnings.iter().any(|w| w.contains("left-handed")),
+            left.result
+                .warnings
+                .iter()
+                .any(|w| w.to_string().contains("left-handed")),
             "seed {seed}: {:?}",
             left.result.warnings
         );

@@ -85,7 +85,7 @@ pub fn process_campaign_flight(
         Ok((result, written)) => {
             status.state = FlightState::Done;
             status.rows = Some(result.rows);
-            status.warnings = result.warnings.clone();
+            status.warnings = result.warnings.iter().map(ToString::to_string).collect();
             status.outputs = file_names(&written);
             Ok(result)
         }

@@ -32,6 +32,7 @@ use std::collections::BTreeMap;
 
 use crate::error::Result;
 use crate::flight_log::FlightLog;
+use crate::messages::HeldBack;
 use crate::model::{fit, Calibration, Extensions, FitOptions, ModelSpec};
 use crate::numerics::stacked::StorePool;
 use crate::tolles_lawson::TermSet;
@@ -62,12 +63,14 @@ impl Departure {
         self.survey_departure_nt <= SURVEY_FACTOR * self.calibration_spread_nt + SURVEY_FLOOR_NT
     }
 
-    /// The reason a finding is not applied, in words.
-    pub fn reason(&self) -> String {
-        format!(
-            "on the survey it would move the compensation by {:.4} nT RMS, more than {SURVEY_FACTOR} times what it does over the calibration ({:.4} nT) plus {SURVEY_FLOOR_NT} nT: it would act beyond anything the box tested, so the channel is compensated with plain Tolles-Lawson",
-            self.survey_departure_nt, self.calibration_spread_nt
-        )
+    /// Why the findings are held back when they fail.
+    pub fn held_back(&self) -> HeldBack {
+        HeldBack::BeyondCalibration {
+            survey_nt: self.survey_departure_nt,
+            calibration_nt: self.calibration_spread_nt,
+            factor: SURVEY_FACTOR,
+            floor_nt: SURVEY_FLOOR_NT,
+        }
     }
 }
 
@@ -190,7 +193,11 @@ mod tests {
             ..within
         };
         assert!(!beyond.holds());
-        assert!(beyond.reason().contains("0.3200 nT"), "{}", beyond.reason());
+        assert!(
+            matches!(beyond.held_back(), HeldBack::BeyondCalibration { survey_nt, .. } if survey_nt == 0.32),
+            "{:?}",
+            beyond.held_back()
+        );
         let tiny = Departure {
             calibration_spread_nt: 0.0,
             survey_departure_nt: 0.009,

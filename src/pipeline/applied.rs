@@ -143,7 +143,7 @@ pub(super) fn run_applied(
         vector_calibration: saved.vector_calibration().cloned(),
         diagnosis_mode: crate::diagnose::ApplyDiagnosis::Never,
         applied_findings,
-        warnings,
+        warnings: crate::messages::Warning::said(warnings).collect(),
         diagnosis: None,
         models,
         vector_models: Vec::new(),

@@ -7,6 +7,7 @@ use crate::config::{FlightJob, Settings};
 use crate::diagnose::{AppliedFinding, EffectKind};
 use crate::error::{Error, Result};
 use crate::flight_log::FlightLog;
+use crate::messages::{HeldBack, Warning, FITTED_PLAIN};
 use crate::model::{Calibration, Extensions};
 
 /// The findings of `diagnosis` that change the model of a channel whose
@@ -51,7 +52,7 @@ pub(super) struct ExtensionsPlan {
     pub(super) diagnosis: Option<crate::diagnose::Diagnosis>,
     /// What the user must know: a diagnosis that could not be made or
     /// checked.
-    pub(super) warnings: Vec<String>,
+    pub(super) warnings: Vec<Warning>,
 }
 
 /// The diagnosed model of each channel to fit with: from the flight's
@@ -79,7 +80,7 @@ pub(super) fn augmentation_plan(
         return Ok(ExtensionsPlan {
             models,
             diagnosis: None,
-            warnings: remark.into_iter().collect(),
+            warnings: Warning::said(remark).collect(),
         });
     }
     let plain = |warnings| ExtensionsPlan {
@@ -95,15 +96,15 @@ pub(super) fn augmentation_plan(
             diagnosis.flight = Some(crate::flight_identity::FlightIdentity::of(raw_log)?);
             Ok(ExtensionsPlan {
                 models: diagnosis.models(),
-                warnings: unexplained_warnings(&diagnosis),
+                warnings: Warning::said(unexplained_warnings(&diagnosis)).collect(),
                 diagnosis: Some(diagnosis),
             })
         }
         // Under "auto" a flight that cannot be diagnosed is fitted plain,
         // loudly; the plain fit then reports any fault of the data itself.
-        Err(error) if options.diagnose.apply == ApplyDiagnosis::Auto => Ok(plain(vec![format!(
-            "not diagnosed, so compensated with plain Tolles-Lawson: {error}"
-        )])),
+        Err(error) if options.diagnose.apply == ApplyDiagnosis::Auto => Ok(plain(vec![Warning::NotDiagnosed {
+            error: error.to_string(),
+        }])),
         Err(error) => Err(error),
     }
 }
@@ -127,25 +128,23 @@ pub(super) fn evidence_rule(
     mut plan: BTreeMap<String, Extensions>,
     diagnosis: &mut crate::diagnose::Diagnosis,
     options: &Settings,
-    warnings: &mut Vec<String>,
+    warnings: &mut Vec<Warning>,
 ) -> Result<(BTreeMap<String, Extensions>, BTreeMap<String, f64>)> {
     use crate::diagnose::evidence::{departures, plain_of};
-    let mut refused: Vec<(String, String)> = (diagnosis.channels.iter())
+    let criterion = match options.fit.solve.lambda {
+        crate::numerics::solve::LambdaChoice::Select => Some(options.fit.solve.criterion.describe().to_string()),
+        _ => None,
+    };
+    let mut refused: Vec<(String, HeldBack)> = (diagnosis.channels.iter())
         .filter(|c| plan.get(&c.channel).is_some_and(|m| *m != plain_of(m)))
         .filter(|c| c.heldout_rms_final_nt >= c.heldout_rms_baseline_nt)
         .map(|c| {
-            (
-                c.channel.clone(),
-                format!(
-                    "with λ as compensation picks it{}, the findings do not lower the held-out RMS of plain Tolles-Lawson ({:.4} → {:.4} nT), so the channel is compensated with plain Tolles-Lawson",
-                    match options.fit.solve.lambda {
-                        crate::numerics::solve::LambdaChoice::Select => format!(" (by {})", options.fit.solve.criterion.describe()),
-                        _ => String::new(),
-                    },
-                    c.heldout_rms_baseline_nt,
-                    c.heldout_rms_final_nt
-                ),
-            )
+            let reason = HeldBack::NoGainHeldOut {
+                criterion: criterion.clone(),
+                plain_nt: c.heldout_rms_baseline_nt,
+                diagnosed_nt: c.heldout_rms_final_nt,
+            };
+            (c.channel.clone(), reason)
         })
         .collect();
     let measured = departures(calibration, &plan, (options.terms, &options.fit))?;
@@ -156,7 +155,7 @@ pub(super) fn evidence_rule(
         };
         applied.insert(channel.clone(), departure.survey_departure_nt);
         if !departure.holds() && !refused.iter().any(|(c, _)| *c == channel) {
-            refused.push((channel, departure.reason()));
+            refused.push((channel, departure.held_back()));
         }
     }
     for (channel, reason) in refused {
@@ -171,18 +170,18 @@ pub(super) fn evidence_rule(
             })
             .collect();
         if options.diagnose.apply == crate::diagnose::ApplyDiagnosis::Always {
-            warnings.push(format!(
-                "{channel}: the diagnosis's {} applied as [diagnose] apply = \"always\" asks, though {}",
-                named.join(", "),
-                reason.replace(", so the channel is compensated with plain Tolles-Lawson", "")
-            ));
+            warnings.push(Warning::FindingsAppliedAnyway {
+                channel,
+                findings: named,
+                reason,
+            });
             continue;
         }
         applied.remove(&channel);
         for finding in
             (diagnosis.findings.iter_mut()).filter(|f| f.channel == channel && applies_to_model(f.effect.kind()))
         {
-            finding.not_applied = Some(reason.clone());
+            finding.not_applied = Some(format!("{reason}, {FITTED_PLAIN}"));
         }
         if let Some(model) = plan.get_mut(&channel) {
             *model = plain_of(model);
@@ -190,10 +189,11 @@ pub(super) fn evidence_rule(
         if let Some(entry) = diagnosis.channels.iter_mut().find(|c| c.channel == channel) {
             entry.model = plain_of(&entry.model);
         }
-        warnings.push(format!(
-            "{channel}: the diagnosis's {} not applied: {reason}",
-            named.join(", ")
-        ));
+        warnings.push(Warning::FindingsHeldBack {
+            channel,
+            findings: named,
+            reason,
+        });
     }
     Ok((plan, applied))
 }

@@ -17,6 +17,7 @@ use crate::error::Result;
 use crate::flight_log::FlightLog;
 use crate::formats::added_column_names;
 use crate::gradient::GradientStage;
+use crate::messages::Warning;
 use crate::model::{compare_estimators, fit, Calibration, Extensions, FittedModel, ModelSpec, SharedDesign};
 use crate::numerics::stacked::StorePool;
 use crate::quality::transfer::check_transfer;
@@ -38,10 +39,10 @@ pub(super) fn run_fitted(
         .map(|c| c.apply(flight.log(), &flight.sensor))
         .transpose()?;
     let on = flight.calibration().on(calibrated.as_ref().unwrap_or(flight.log()));
-    let mut warnings = flight.warnings();
+    let mut warnings: Vec<Warning> = Warning::said(flight.warnings()).collect();
     let (plan, mut diagnosis, departures) =
         diagnosed_plan(job, (&flight, &on), options, fluxgate.is_some(), &mut warnings)?;
-    warnings.extend(input_warnings(job, &flight.recorded, compensated)?);
+    warnings.extend(Warning::said(input_warnings(job, &flight.recorded, compensated)?));
     let mut fitted = fit_channels(&on, &plan, options)?;
     let mut compensation = crate::compensate::compensate_with(on.log, &fitted.models, options.level, &fitted.shared)?;
     let boxes: Vec<(f64, f64)> = match &flight.detection {
@@ -56,7 +57,7 @@ pub(super) fn run_fitted(
     }
     compensation.gradients = gradients.compensated;
     let reduced_notes = crate::reduce::add_reduced(on.log, &mut compensation, options.reduced)?;
-    warnings.extend(compensation.out_of_range_warnings(on.log.time_s()));
+    warnings.extend(Warning::said(compensation.out_of_range_warnings(on.log.time_s())));
     let added_columns = added_column_names(on.log, compensated, &compensation)?;
     let mut notes = renaming_notes(&flight.channels, &added_columns);
     notes.extend(reduced_notes);
@@ -65,12 +66,12 @@ pub(super) fn run_fitted(
     notes.extend(fluxgate.iter().map(|c| c.summary()));
     model_messages(&models, fitted.excitation_notes, (&mut notes, &mut warnings));
     notes.extend(vector.notes);
-    warnings.extend(vector.warnings);
+    warnings.extend(Warning::said(vector.warnings));
     notes.extend(gradients.notes);
-    warnings.extend(gradients.warnings);
+    warnings.extend(Warning::said(gradients.warnings));
     if let Some(detection) = &flight.detection {
         notes.extend(detection_notes(detection));
-        warnings.extend(detection_warnings(detection));
+        warnings.extend(Warning::said(detection_warnings(detection)));
     }
     warnings.extend(departure_warnings(&mut quality, &departures));
     let next_step = next_step(options.diagnose.apply, job.diagnosis.is_some(), diagnosis.is_some());
@@ -78,7 +79,7 @@ pub(super) fn run_fitted(
     let plan = planned.map(|planned| against_plan(&planned, on.log, &models, &quality, &compensation));
     if let Some(plan) = &plan {
         notes.extend(plan.notes.iter().cloned());
-        warnings.extend(plan.warnings.iter().cloned());
+        warnings.extend(Warning::said(plan.warnings.iter().cloned()));
     }
     let (rows, alignment) = (on.log.len(), on.log.alignment().cloned());
     let PreparedFlight {
@@ -132,7 +133,7 @@ fn diagnosed_plan(
     (flight, on): (&PreparedFlight, &Calibration),
     options: &Settings,
     stage_calibrated: bool,
-    warnings: &mut Vec<String>,
+    warnings: &mut Vec<Warning>,
 ) -> Result<(
     BTreeMap<String, Extensions>,
     Option<crate::diagnose::Diagnosis>,
@@ -310,7 +311,7 @@ fn vector_and_gradients(
 fn model_messages(
     models: &[FittedModel],
     excitation_notes: Vec<Option<String>>,
-    (notes, warnings): (&mut Vec<String>, &mut Vec<String>),
+    (notes, warnings): (&mut Vec<String>, &mut Vec<Warning>),
 ) {
     notes.extend(models.iter().filter_map(estimator_table_gap));
     notes.extend(excitation_notes.into_iter().flatten());
@@ -318,7 +319,11 @@ fn model_messages(
     // coefficients it pins are less certain.
     warnings.extend(models.iter().flat_map(|m| {
         let gaps = m.excitation.iter().flat_map(|e| e.gaps());
-        gaps.map(|line| format!("{}: {line}", m.channel)).collect::<Vec<_>>()
+        gaps.map(|gap| Warning::BoxGap {
+            channel: m.channel.clone(),
+            gap,
+        })
+        .collect::<Vec<_>>()
     }));
     // A solver asked for and not used is a warning: the coefficients are
     // not what the settings say.
@@ -326,7 +331,10 @@ fn model_messages(
         let solver = m.solver.as_ref()?;
         match solver.applied() {
             true => None,
-            false => Some(format!("{}: {}", m.channel, solver.reason)),
+            false => Some(Warning::SolverNotUsed {
+                channel: m.channel.clone(),
+                reason: solver.reason.clone(),
+            }),
         }
     }));
     notes.extend(models.iter().filter(|m| !m.spec.is_plain()).map(|m| {
@@ -340,19 +348,16 @@ fn model_messages(
 
 /// Sets each channel's departure from plain Tolles-Lawson on the survey;
 /// a warning for each that exceeds its stated uncertainty.
-fn departure_warnings(quality: &mut [ChannelQuality], departures: &BTreeMap<String, f64>) -> Vec<String> {
+fn departure_warnings(quality: &mut [ChannelQuality], departures: &BTreeMap<String, f64>) -> Vec<Warning> {
     let mut warnings = Vec::new();
     for q in quality {
         q.survey_departure_from_plain_nt = departures.get(&q.channel).copied();
-        if let Some((departure, stated)) = q.unchecked_departure() {
-            warnings.push(format!(
-                "{}: the diagnosed findings move the survey {departure:.4} nT RMS from plain Tolles-Lawson, more than {}: the verdict is not a plain pass; compare with a plain run (--plain) before using this channel",
-                q.channel,
-                match stated {
-                    Some(sigma) => format!("its stated uncertainty ({sigma:.4} nT)"),
-                    None => "anything its uncertainty states (none is stated)".into(),
-                }
-            ));
+        if let Some((departure_nt, stated_nt)) = q.unchecked_departure() {
+            warnings.push(Warning::SurveyDeparture {
+                channel: q.channel.clone(),
+                departure_nt,
+                stated_nt,
+            });
         }
     }
     warnings
@@ -366,22 +371,24 @@ fn channel_warnings(
     compensation: &crate::compensate::Compensation,
     options: &Settings,
     next_step: &str,
-) -> Vec<String> {
+) -> Vec<Warning> {
     let mut warnings = Vec::new();
     for ((q, model), channel) in quality.iter().zip(models).zip(&compensation.channels) {
-        warnings.extend(crate::quality::quality_warnings(q, options.fom_limit_nt, next_step));
+        warnings.extend(Warning::said(crate::quality::quality_warnings(
+            q,
+            options.fom_limit_nt,
+            next_step,
+        )));
         if q.uncertainty.is_some() && channel.sigma_nt.is_none() {
-            warnings.push(format!(
-                "{}: no sigma column: the compensated channel's noise cannot be measured (too few consecutive samples)",
-                model.channel
-            ));
+            warnings.push(Warning::NoSigmaColumn {
+                channel: model.channel.clone(),
+            });
         }
         if model.windows.len() < 3 {
-            warnings.push(format!(
-                "{}: fitted on {} calibration window(s), too few to leave one out: the compensation away from the calibration is not checked and has no uncertainty figure or sigma column. Give three or more windows, one per manoeuvre or leg (a window spanning a whole box is one window; `magcomp detect` finds the manoeuvres)",
-                model.channel,
-                model.windows.len()
-            ));
+            warnings.push(Warning::TooFewWindows {
+                channel: model.channel.clone(),
+                windows: model.windows.len(),
+            });
         }
         if model.solution.jackknife.is_empty() && model.windows.len() >= 3 {
             let why = match model.solver.as_ref().filter(|s| s.applied()) {
@@ -394,7 +401,10 @@ fn channel_warnings(
                     model.windows.len()
                 ),
             };
-            warnings.push(format!("{}: no uncertainty figure: {why}", model.channel));
+            warnings.push(Warning::NoUncertainty {
+                channel: model.channel.clone(),
+                why,
+            });
         }
     }
     warnings

@@ -62,7 +62,7 @@ pub struct FlightResult {
     pub applied_findings: Vec<AppliedFinding>,
     /// What the quality gate found wrong, each with the next step; also on
     /// stdout and in the report.
-    pub warnings: Vec<String>,
+    pub warnings: Vec<crate::messages::Warning>,
     /// The diagnosis made before the fit (`[diagnose] apply`); its
     /// DIAGNOSIS.json is written beside the other outputs.
     #[serde(skip)]
