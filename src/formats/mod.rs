@@ -10,7 +10,9 @@
 //!
 //! The input format is chosen from the file extension, with a look at the
 //! content as a fallback; the output format from the output path's
-//! extension ([`write`]). Every output is staged and renamed into place
+//! extension ([`write`]). [`table::FORMATS`] holds a row per format (its
+//! extensions, its signature, its reader and writers): a new format is a
+//! row there and its module. Every output is staged and renamed into place
 //! ([`destination`]), never over an input.
 
 pub mod align;
@@ -21,6 +23,7 @@ pub mod destination;
 pub mod hdf5;
 pub mod mcap;
 pub mod ros;
+pub mod table;
 pub mod units;
 pub mod write;
 pub mod xyz;
@@ -90,23 +93,15 @@ pub fn lowercase_extension(path: &Path) -> String {
 /// Chooses the format of `path` from its extension, or from its first bytes
 /// when the extension says nothing.
 pub fn detect_format(path: &Path) -> Result<Format> {
-    let extension = lowercase_extension(path);
-    match extension.as_str() {
-        "csv" | "txt" | "tsv" | "dat" => return Ok(Format::DelimitedText),
-        "xyz" => return Ok(Format::Xyz),
-        "mcap" => return Ok(Format::Mcap),
-        "h5" | "hdf5" => return Ok(Format::Hdf5),
-        _ => {}
+    if let Some(format) = Format::of_extension(&lowercase_extension(path)) {
+        return Ok(format);
     }
     let mut head = [0u8; 512];
     let mut file = std::fs::File::open(path).map_err(|e| Error::io(path, "opening", e))?;
     let read = file.read(&mut head).map_err(|e| Error::io(path, "reading", e))?;
     let head = &head[..read];
-    if head.starts_with(b"\x89MCAP") {
-        return Ok(Format::Mcap);
-    }
-    if head.starts_with(b"\x89HDF\r\n\x1a\n") {
-        return Ok(Format::Hdf5);
+    if let Some(format) = Format::of_magic(head) {
+        return Ok(format);
     }
     let head = head.strip_prefix(b"\xef\xbb\xbf").unwrap_or(head);
     let looks_textual = !head.is_empty() && head.iter().all(|b| b.is_ascii_graphic() || b.is_ascii_whitespace());
@@ -162,15 +157,7 @@ pub fn read_flight_log(path: &Path, options: &IngestOptions) -> Result<FlightLog
     if matches!(format, Format::DelimitedText | Format::Xyz) {
         check_line_ends(path)?;
     }
-    let log = match format {
-        Format::DelimitedText => csv::read_csv(path, &options.columns),
-        Format::Xyz => xyz::read_xyz(path, &options.columns),
-        Format::Mcap => mcap::read_mcap(path, options),
-        #[cfg(feature = "hdf5")]
-        Format::Hdf5 => hdf5::read_hdf5(path, &options.columns),
-        #[cfg(not(feature = "hdf5"))]
-        Format::Hdf5 => Err(unsupported(path, "hdf5 (this build has the 'hdf5' feature off)")),
-    }?;
+    let log = (format.row().read)(path, options)?;
     let recorded = log.date().or_else(|| date_from_columns(&log));
     let mut warnings = log.reading_warnings().to_vec();
     warnings.extend(options.columns.check_given(path, &log)?);
@@ -238,7 +225,7 @@ fn check_line_ends(path: &Path) -> Result<()> {
     }
 }
 
-fn unsupported(path: &Path, kind: &str) -> Error {
+pub(crate) fn unsupported(path: &Path, kind: &str) -> Error {
     Error::UnsupportedFormat {
         path: path.to_path_buf(),
         message: format!(

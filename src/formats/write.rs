@@ -14,7 +14,8 @@ use serde::Serialize;
 
 use super::csv::read_header;
 use super::destination::{stage, Staged};
-use super::{csv, detect_format, mcap, xyz, ColumnNames, Format};
+use super::table::StageRequest;
+use super::{detect_format, mcap, ColumnNames, Format};
 use crate::compensate::Compensation;
 use crate::error::{Error, Result};
 use crate::flight_log::FlightLog;
@@ -100,17 +101,17 @@ pub fn stage_compensated(
     added: &[String],
     extras: &mcap::McapExtras,
 ) -> Result<Staged> {
-    let input_format = detect_format(log.source()).ok();
-    match (detect_output_format(output), input_format) {
-        (Format::Mcap, _) => mcap::stage_mcap(log, output, Some(compensation), extras),
-        (Format::Xyz, Some(Format::Xyz)) => xyz::stage_xyz_copy(log, names, added, output, compensation),
-        (Format::Xyz, _) => xyz::stage_log_xyz(log, added, output, Some(compensation)),
-        #[cfg(feature = "hdf5")]
-        (Format::Hdf5, _) => super::hdf5::stage_hdf5(log, added, output, Some(compensation)),
-        (_, Some(Format::DelimitedText)) => {
-            csv::stage_compensated_csv(log.source(), log.source_row_offsets(), output, compensation, added)
-        }
-        _ => csv::stage_log_csv(log, added, output, Some(compensation)),
+    let format = detect_output_format(output);
+    let request = StageRequest {
+        added,
+        output,
+        compensation: Some(compensation),
+        extras,
+    };
+    match format.row().copy {
+        // An input of the output's own format is copied, its lines kept.
+        Some(copy) if detect_format(log.source()).ok() == Some(format) => copy(log, names, &request, compensation),
+        _ => (format.row().stage)(log, &request),
     }
 }
 
@@ -119,11 +120,8 @@ pub fn stage_compensated(
 /// the input: a CSV input to a CSV output, or an XYZ input to an XYZ
 /// output, of the compensated flight keeps them; `convert` never does.
 pub fn text_columns_warning(log: &FlightLog, output: &Path, copies_input: bool) -> Option<String> {
-    let copied = copies_input
-        && matches!(
-            (detect_output_format(output), detect_format(log.source()).ok()),
-            (Format::Xyz, Some(Format::Xyz)) | (Format::DelimitedText, Some(Format::DelimitedText))
-        );
+    let format = detect_output_format(output);
+    let copied = copies_input && format.row().copy.is_some() && detect_format(log.source()).ok() == Some(format);
     (!copied && !log.text_columns().is_empty()).then(|| {
         let names: Vec<String> = log.text_columns().iter().map(|n| format!("'{n}'")).collect();
         format!(
@@ -145,24 +143,18 @@ pub fn write_flight_log(log: &FlightLog, output: &Path) -> Result<()> {
 /// `.xyz` Geosoft XYZ, `.mcap` MCAP, `.h5` HDF5 in the MagNav layout,
 /// anything else comma-separated text.
 pub fn stage_flight_log(log: &FlightLog, output: &Path) -> Result<Staged> {
-    match detect_output_format(output) {
-        Format::Xyz => xyz::stage_log_xyz(log, &[], output, None),
-        Format::Mcap => mcap::stage_mcap(log, output, None, &mcap::McapExtras::default()),
-        #[cfg(feature = "hdf5")]
-        Format::Hdf5 => super::hdf5::stage_hdf5(log, &[], output, None),
-        _ => csv::stage_log_csv(log, &[], output, None),
-    }
+    let request = StageRequest {
+        added: &[],
+        output,
+        compensation: None,
+        extras: &mcap::McapExtras::default(),
+    };
+    (detect_output_format(output).row().stage)(log, &request)
 }
 
 /// The format an output path asks for, by extension (CSV by default).
 pub fn detect_output_format(output: &Path) -> Format {
-    let extension = super::lowercase_extension(output);
-    match extension.as_str() {
-        "xyz" => Format::Xyz,
-        "mcap" => Format::Mcap,
-        "h5" | "hdf5" => Format::Hdf5,
-        _ => Format::DelimitedText,
-    }
+    Format::of_extension(&super::lowercase_extension(output)).unwrap_or(Format::DelimitedText)
 }
 
 /// Names of the columns magcomp adds after `existing`: one per compensated
