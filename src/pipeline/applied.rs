@@ -32,26 +32,7 @@ pub(super) fn run_applied(
     choose_channels(raw_log, Some(&channels))?;
     refuse_dead_columns(raw_log, &screened.screening, &sensor, Some(&channels))?;
     let applied = saved.applied(raw_log.date(), &recorded)?;
-    let (mut warnings, mut notes) =
-        saved.age_and_aircraft(&applied, job.aircraft.as_deref(), options.model_max_age_days);
-    if applied.fitted_on_this_flight {
-        notes.push("the model was fitted on this very flight: its compensation is that of the calibration run".into());
-    }
-    warnings.extend(saved.calibration_warnings(&channels, options.fom_limit_nt));
-    if job.channels.is_none() {
-        // A magnetometer the model does not hold is written uncompensated.
-        let left: Vec<&str> = (raw_log.scalar_channels().into_iter())
-            .filter(|c| !channels.iter().any(|m| m == c))
-            .collect();
-        if !left.is_empty() {
-            let them = if left.len() == 1 { "it" } else { "them" };
-            warnings.push(format!(
-                "{} not compensated: the model {} holds no model of {them}; calibrate {them} on a flight with a box, or name this flight's channels with --channels",
-                left.join(", "),
-                saved.path().display(),
-            ));
-        }
-    }
+    let (mut warnings, mut notes) = model_words(job, options, saved, (&applied, &channels), raw_log);
     warnings.splice(0..0, screened.warnings(&recorded));
     let calibrated = saved
         .vector_calibration()
@@ -66,25 +47,120 @@ pub(super) fn run_applied(
         for model in &mut models {
             model.windows = model.held_out(log, &sensor, &windows, &options.fit)?;
         }
-        notes.push(match applied.fitted_on_this_flight {
-            true => format!(
-                "the model is set against {} calibration window(s) of the flight it was fitted on: its FOM and IR here are in sample",
-                windows.len()
-            ),
-            false => format!(
-                "the model is held out on this flight's {} calibration window(s): its FOM and IR here are of a model fitted on another flight",
-                windows.len()
-            ),
-        });
+        notes.push(held_out_note(applied.fitted_on_this_flight, windows.len()));
     }
     let shared = SharedDesign::of_models(log, &models);
     let mut compensation = crate::compensate::compensate_with(log, &models, options.level, &shared)?;
+    let quality = assess_applied(log, &models, &mut compensation, options, &shared, &mut warnings)?;
+    drop(shared);
+    stages_not_run(options, (&mut notes, &mut warnings));
+    warnings.extend(crate::formats::mcap::undated_warning(&recorded, compensated));
+    warnings.extend(crate::formats::write::text_columns_warning(
+        &recorded,
+        compensated,
+        true,
+    ));
+    notes.extend(crate::reduce::add_reduced(log, &mut compensation, options.reduced)?);
+    warnings.extend(compensation.out_of_range_warnings(log.time_s()));
+    let added_columns = added_column_names(log, compensated, &compensation)?;
+    notes.splice(0..0, renaming_notes(&channels, &added_columns));
+    notes.extend(models.iter().filter(|m| !m.spec.is_plain()).map(|m| {
+        format!(
+            "{}: compensated with the saved model's findings: {}",
+            m.channel,
+            m.spec.describe()
+        )
+    }));
+    let result = FlightResult {
+        flight: job.input.clone(),
+        rows: log.len(),
+        added_columns,
+        notes,
+        detection: None,
+        alignment: log.alignment().cloned(),
+        channels: quality,
+        vector_calibration: saved.vector_calibration().cloned(),
+        diagnosis_mode: crate::diagnose::ApplyDiagnosis::Never,
+        applied_findings: saved.applied_findings(&channels),
+        warnings: crate::messages::Warning::said(warnings).collect(),
+        diagnosis: None,
+        models,
+        vector_models: Vec::new(),
+        gradients: Vec::new(),
+        gradient_models: Vec::new(),
+        plan: None,
+        model: Some(applied),
+        aircraft: job.aircraft.clone(),
+    };
+    compensation.round_to(options.output_decimals);
+    Ok(FlightRun {
+        recorded,
+        screened,
+        compensation,
+        result,
+    })
+}
+
+/// What the saved model says of itself on this flight: its age and
+/// airframe, its calibration's figures, and the magnetometers it holds no
+/// model of (written uncompensated), as (warnings, notes).
+fn model_words(
+    job: &FlightJob,
+    options: &Settings,
+    saved: &crate::apply::SavedModel,
+    (applied, channels): (&crate::apply::AppliedModel, &[String]),
+    raw_log: &FlightLog,
+) -> (Vec<String>, Vec<String>) {
+    let (mut warnings, mut notes) =
+        saved.age_and_aircraft(applied, job.aircraft.as_deref(), options.model_max_age_days);
+    if applied.fitted_on_this_flight {
+        notes.push("the model was fitted on this very flight: its compensation is that of the calibration run".into());
+    }
+    warnings.extend(saved.calibration_warnings(channels, options.fom_limit_nt));
+    if job.channels.is_none() {
+        // A magnetometer the model does not hold is written uncompensated.
+        let left: Vec<&str> = (raw_log.scalar_channels().into_iter())
+            .filter(|c| !channels.iter().any(|m| m == c))
+            .collect();
+        if !left.is_empty() {
+            let them = if left.len() == 1 { "it" } else { "them" };
+            warnings.push(format!(
+                "{} not compensated: the model {} holds no model of {them}; calibrate {them} on a flight with a box, or name this flight's channels with --channels",
+                left.join(", "),
+                saved.path().display(),
+            ));
+        }
+    }
+    (warnings, notes)
+}
+
+/// What the figures on the flight's own windows are.
+fn held_out_note(fitted_on_this_flight: bool, windows: usize) -> String {
+    match fitted_on_this_flight {
+        true => format!(
+            "the model is set against {windows} calibration window(s) of the flight it was fitted on: its FOM and IR here are in sample"
+        ),
+        false => format!(
+            "the model is held out on this flight's {windows} calibration window(s): its FOM and IR here are of a model fitted on another flight"
+        ),
+    }
+}
+
+/// Each compensated channel's figures and sigma column, with the
+/// quality warnings and a warning where a channel has no sigma column.
+fn assess_applied(
+    log: &FlightLog,
+    models: &[crate::model::FittedModel],
+    compensation: &mut crate::compensate::Compensation,
+    options: &Settings,
+    shared: &[SharedDesign],
+    warnings: &mut Vec<String>,
+) -> Result<Vec<ChannelQuality>> {
     let mut quality: Vec<ChannelQuality> = models
         .par_iter()
         .zip(compensation.channels.par_iter_mut())
-        .map(|(model, channel)| assess_with_sigma(log, model, channel, &shared).map(|(quality, _)| quality))
+        .map(|(model, channel)| assess_with_sigma(log, model, channel, shared).map(|(quality, _)| quality))
         .collect::<Result<_>>()?;
-    drop(shared);
     if models.iter().all(|m| m.windows.is_empty()) {
         // No calibration windows here: no band figures (the model's are
         // its calibration flight's, in the model section).
@@ -108,56 +184,16 @@ pub(super) fn run_applied(
             ));
         }
     }
+    Ok(quality)
+}
+
+/// The stages a saved model cannot run (the vector and the gradients are
+/// fitted on a box), said when the settings ask for them.
+fn stages_not_run(options: &Settings, (notes, warnings): (&mut Vec<String>, &mut Vec<String>)) {
     if options.vector.enabled {
         notes.push("no vector compensation: its twelve constants are fitted on a calibration box, and the model holds the scalar models".into());
     }
     if !options.gradients.is_empty() {
         warnings.push("the gradients asked for are not compensated: they are fitted on a calibration box, and the model holds the scalar models; compensate the gradients on a flight with its box".into());
     }
-    warnings.extend(crate::formats::mcap::undated_warning(&recorded, compensated));
-    warnings.extend(crate::formats::write::text_columns_warning(
-        &recorded,
-        compensated,
-        true,
-    ));
-    notes.extend(crate::reduce::add_reduced(log, &mut compensation, options.reduced)?);
-    warnings.extend(compensation.out_of_range_warnings(log.time_s()));
-    let added_columns = added_column_names(log, compensated, &compensation)?;
-    notes.splice(0..0, renaming_notes(&channels, &added_columns));
-    notes.extend(models.iter().filter(|m| !m.spec.is_plain()).map(|m| {
-        format!(
-            "{}: compensated with the saved model's findings: {}",
-            m.channel,
-            m.spec.describe()
-        )
-    }));
-    let applied_findings = saved.applied_findings(&channels);
-    let result = FlightResult {
-        flight: job.input.clone(),
-        rows: log.len(),
-        added_columns,
-        notes,
-        detection: None,
-        alignment: log.alignment().cloned(),
-        channels: quality,
-        vector_calibration: saved.vector_calibration().cloned(),
-        diagnosis_mode: crate::diagnose::ApplyDiagnosis::Never,
-        applied_findings,
-        warnings: crate::messages::Warning::said(warnings).collect(),
-        diagnosis: None,
-        models,
-        vector_models: Vec::new(),
-        gradients: Vec::new(),
-        gradient_models: Vec::new(),
-        plan: None,
-        model: Some(applied),
-        aircraft: job.aircraft.clone(),
-    };
-    compensation.round_to(options.output_decimals);
-    Ok(FlightRun {
-        recorded,
-        screened,
-        compensation,
-        result,
-    })
 }
