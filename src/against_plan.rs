@@ -31,7 +31,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
-use crate::holdout::angle_apart;
+use crate::headings::angle_apart;
 use crate::windows::ManoeuvreKind;
 
 /// The factor within which the plan's medians are expected to hold on

@@ -38,7 +38,7 @@ use serde::Serialize;
 
 use crate::error::{Error, Result};
 use crate::flight_log::{AttitudeAngle, ChannelRole, FlightLog};
-use crate::holdout::heading_difference;
+use crate::headings::heading_difference;
 use crate::windows::{CalibrationWindow, ManoeuvreKind};
 
 /// Detection thresholds (`[detect]` in pipeline.toml).

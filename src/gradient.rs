@@ -428,7 +428,7 @@ fn held_out(
     (spec, options): (&ModelSpec, &FitOptions),
     (ia, ib, d): (usize, usize, f64),
 ) -> Result<Option<GradientHeldOut>> {
-    let Some(splits) = crate::holdout::heading_splits(inputs.windows) else {
+    let Some(splits) = crate::headings::heading_splits(inputs.windows) else {
         return Ok(None);
     };
     let stores = StorePool::new();

@@ -30,7 +30,7 @@
 //!   (ridge by PRESS, truncated SVD), [`numerics::segments`],
 //!   [`numerics::linalg`]; it imports nothing else of magcomp.
 //! - [`diagnose`]: the physics the model leaves out, found, named and
-//!   scored held out; [`holdout`] is the leave-one-heading-out rule it
+//!   scored held out; [`headings`] is the leave-one-heading-out rule it
 //!   shares with [`quality::transfer`] and [`quality`].
 //! - [`pipeline`]: one flight through every stage, writing nothing
 //!   ([`pipeline::run`] → [`pipeline::FlightRun`]). A flight is read and
@@ -92,7 +92,7 @@ pub mod flight_identity;
 pub mod flight_log;
 pub mod formats;
 pub mod gradient;
-pub mod holdout;
+pub mod headings;
 pub mod igrf;
 pub mod messages;
 pub mod model;

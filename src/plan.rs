@@ -50,7 +50,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::config::Settings;
 use crate::error::{Error, Result};
-use crate::holdout::angle_apart;
+use crate::headings::angle_apart;
 use crate::model::excitation::{analyse_design, Design, Excitation};
 use crate::model::{fit, FittedModel, ModelSpec, SharedDesign};
 use crate::numerics::stacked::StorePool;

@@ -7,7 +7,7 @@
 use std::path::PathBuf;
 
 use magcomp::formats::{read_flight_log, IngestOptions};
-use magcomp::holdout::heading_splits;
+use magcomp::headings::heading_splits;
 use magcomp::messages::Warning;
 use magcomp::model::{compare_estimators, fit, FitOptions, ModelSpec};
 use magcomp::numerics::estimators::{Estimator, Family};
@@ -300,13 +300,13 @@ fn a_solver_that_needs_three_headings_falls_back_to_ridge_and_warns() {
 fn clean_flight_on_two_headings() -> magcomp::config::FlightJob {
     let mut job = magcomp::config::FlightJob::new(sample("clean.csv"));
     let windows = read_detect_json(&sample("clean.windows.json"), 5.0).unwrap();
-    let headings = magcomp::holdout::distinct_headings(&windows);
+    let headings = magcomp::headings::distinct_headings(&windows);
     assert!(headings.len() >= 3);
     job.windows = windows
         .into_iter()
         .filter(|w| {
             w.heading_deg
-                .is_some_and(|h| headings[..2].iter().any(|k| magcomp::holdout::same_heading(h, *k)))
+                .is_some_and(|h| headings[..2].iter().any(|k| magcomp::headings::same_heading(h, *k)))
         })
         .collect();
     job

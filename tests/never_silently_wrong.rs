@@ -116,7 +116,7 @@ fn windows_given_by_time_are_tested_with_a_caveat() {
         .unwrap()
         .starts_with("12 window(s) given by time take their leg's heading from the INS yaw"));
     for (found, known) in headed.iter().zip(&labelled) {
-        let apart = magcomp::holdout::angle_apart(found.heading_deg.unwrap(), known.heading_deg.unwrap());
+        let apart = magcomp::headings::angle_apart(found.heading_deg.unwrap(), known.heading_deg.unwrap());
         assert!(apart < 2.0, "{found:?} against {known:?}");
     }
     let pipeline = Pipeline::default();

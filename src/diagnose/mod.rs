@@ -109,7 +109,7 @@ use std::collections::BTreeMap;
 
 use crate::error::Result;
 use crate::flight_log::{ChannelRole, FlightLog, VectorSensor};
-use crate::holdout::{distinct_headings, heading_splits};
+use crate::headings::{distinct_headings, heading_splits};
 use crate::model::{
     column_level, field_directions, fit, Calibration, Extensions, FitOptions, FittedModel, ModelSpec, Prepared,
     SourceTerm, WindowFit,

@@ -42,7 +42,7 @@ use serde::Serialize;
 
 use crate::error::Result;
 use crate::flight_log::{body_to_ned, Channel, ChannelRole, FlightLog, VectorSensor};
-use crate::holdout::{angle_apart, distinct_headings, same_heading};
+use crate::headings::{angle_apart, distinct_headings, same_heading};
 use crate::numerics::linalg::gram;
 use crate::numerics::stacked::StorePool;
 use crate::windows::{CalibrationWindow, ManoeuvreKind};

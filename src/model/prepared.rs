@@ -7,7 +7,7 @@ use std::borrow::Cow;
 
 use crate::error::{Error, Result};
 use crate::flight_log::{FlightLog, VectorSensor};
-use crate::holdout::{distinct_headings, same_heading};
+use crate::headings::{distinct_headings, same_heading};
 use crate::numerics::estimators::{compare, compare_families, Decomposed, Factor, Scored, Solver};
 use crate::numerics::solve::{solve_stacked, Solution};
 use crate::numerics::stacked::{Stacked, StorePool};

@@ -88,7 +88,7 @@ pub fn fom_table(windows: &[WindowQuality], fits: &[WindowFit]) -> Vec<FomRow> {
         let (Some(kind), Some(heading)) = (quality.kind, quality.heading_deg) else {
             continue;
         };
-        let near = |row: &FomRow| crate::holdout::same_heading(row.heading_deg, heading);
+        let near = |row: &FomRow| crate::headings::same_heading(row.heading_deg, heading);
         let index = match rows.iter().position(|(row, _, _)| near(row)) {
             Some(index) => index,
             None => {

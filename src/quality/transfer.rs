@@ -16,7 +16,7 @@ use serde::Serialize;
 
 use crate::error::Result;
 use crate::flight_log::{FlightLog, VectorSensor};
-use crate::holdout::{heading_splits, same_heading};
+use crate::headings::{heading_splits, same_heading};
 use crate::model::{FitOptions, FittedModel, Prepared, WindowFit};
 use crate::numerics::stacked::StorePool;
 use crate::quality::{figure_of_merit, fom_table, window_quality};
@@ -156,7 +156,7 @@ fn leave_one_heading_out(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::holdout::tests::window;
+    use crate::headings::tests::window;
 
     #[test]
     fn a_heading_flown_again_starts_the_next_box() {

@@ -72,7 +72,7 @@ use serde::Serialize;
 
 use crate::error::{Error, Result};
 use crate::flight_log::{ChannelRole, FlightLog, VectorSensor};
-use crate::holdout::{distinct_headings, same_heading};
+use crate::headings::{distinct_headings, same_heading};
 use crate::igrf::{decimal_year, Igrf};
 use crate::numerics::linalg::{small_svd, tall_skinny_r};
 use crate::windows::CalibrationWindow;

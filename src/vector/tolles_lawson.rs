@@ -29,7 +29,7 @@ use serde::Serialize;
 
 use crate::error::{Error, Result};
 use crate::flight_log::{Channel, ChannelRole, FlightLog, VectorAxis};
-use crate::holdout::{distinct_headings, same_heading};
+use crate::headings::{distinct_headings, same_heading};
 use crate::model::{fit, FitOptions, FittedModel, ModelSpec, WindowFit};
 use crate::numerics::stacked::StorePool;
 use crate::tolles_lawson::{EddyTerms, InducedTerms, TermSet};
