@@ -1,4 +1,4 @@
-//! What a run says to its user: typed warnings.
+//! What a run says to its user: typed warnings and notes.
 //!
 //! A [`Warning`] is something the user must look at before trusting an
 //! output: a finding held back, a channel's survey moved beyond its stated
@@ -12,6 +12,11 @@
 //! sigma column, the box and the solver). The other stages' warnings
 //! (reading, screening, detection, the vector and gradient stages, the
 //! plan) still come as their sentence: [`Warning::Said`].
+//!
+//! A [`Note`] is what the user may want to know (how a column was named,
+//! which model a channel was fitted with, an analysis not made); it is
+//! printed with `-v` and kept in the quality JSON and the report, and
+//! typed the same way.
 
 use std::fmt;
 
@@ -238,6 +243,87 @@ impl Serialize for Warning {
     }
 }
 
+/// What the user may want to know about a run.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Note {
+    /// A note of a stage not typed yet, as its sentence.
+    Said(String),
+    /// The input already has the column magcomp would add: the
+    /// compensation goes in a renamed one.
+    Renamed {
+        /// The scalar channel compensated.
+        channel: String,
+        /// The input's column of the same name, kept unchanged.
+        original: String,
+        /// The column the compensation is written in.
+        column: String,
+    },
+    /// The channel's excitation (what the box pins) was not analysed.
+    NoExcitationAnalysis {
+        /// The scalar channel.
+        channel: String,
+        /// Why, in words.
+        why: String,
+    },
+    /// The channel was fitted and compensated with its diagnosed model.
+    DiagnosedModel {
+        /// The scalar channel.
+        channel: String,
+        /// The model, in words.
+        model: String,
+    },
+    /// The channel was compensated with a saved model's findings.
+    SavedFindings {
+        /// The scalar channel.
+        channel: String,
+        /// The model, in words.
+        model: String,
+    },
+}
+
+impl Note {
+    /// Each sentence of an untyped stage as a [`Note::Said`].
+    pub fn said(sentences: impl IntoIterator<Item = String>) -> impl Iterator<Item = Note> {
+        sentences.into_iter().map(Note::Said)
+    }
+}
+
+impl From<String> for Note {
+    fn from(sentence: String) -> Self {
+        Note::Said(sentence)
+    }
+}
+
+impl fmt::Display for Note {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Note::Said(sentence) => f.write_str(sentence),
+            Note::Renamed {
+                channel,
+                original,
+                column,
+            } => write!(
+                f,
+                "the input already has a '{original}' column (kept unchanged); magcomp's compensation of '{channel}' is in '{column}'"
+            ),
+            Note::NoExcitationAnalysis { channel, why } => write!(f, "{channel}: no excitation analysis: {why}"),
+            Note::DiagnosedModel { channel, model } => {
+                write!(f, "{channel}: fitted and compensated with the diagnosed model: {model}")
+            }
+            Note::SavedFindings { channel, model } => {
+                write!(f, "{channel}: compensated with the saved model's findings: {model}")
+            }
+        }
+    }
+}
+
+impl Serialize for Note {
+    /// As its sentence: the quality JSON's `notes` are sentences.
+    fn serialize<S: Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        serializer.collect_str(self)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -262,6 +348,18 @@ mod tests {
         assert_eq!(warning.channel(), Some("mag_2_uc"));
         let json = serde_json::to_string(std::slice::from_ref(&warning)).unwrap();
         assert_eq!(json, serde_json::to_string(&[warning.to_string()]).unwrap());
+    }
+
+    #[test]
+    fn a_renamed_column_reads_as_the_run_has_always_said_it() {
+        let note = Note::Renamed {
+            channel: "mag_1_uc".into(),
+            original: "mag_1_c".into(),
+            column: "mag_1_c_magcomp".into(),
+        };
+        let sentence = "the input already has a 'mag_1_c' column (kept unchanged); magcomp's compensation of 'mag_1_uc' is in 'mag_1_c_magcomp'";
+        assert_eq!(note.to_string(), sentence);
+        assert_eq!(serde_json::to_value(&note).unwrap(), serde_json::json!(sentence));
     }
 
     #[test]

@@ -1016,7 +1016,7 @@ pub fn stage_report(path: &Path, flight: &FlightRun, fom_limit_nt: f64) -> Resul
         html += &plan_section(plan);
     }
     for note in &result.notes {
-        let _ = write!(html, "<p class=\"note\">{}</p>", escape(note));
+        let _ = write!(html, "<p class=\"note\">{}</p>", escape(&note.to_string()));
     }
     html += &format!("<section id=\"timeline\">{}</section>", attitude_timeline(log, result)?);
     let mut figures = Vec::new();

@@ -82,7 +82,7 @@ fn a_diagnosed_lag_compensates_closer_to_the_truth_than_plain_tolles_lawson() {
     assert!(augmented
         .notes
         .iter()
-        .any(|n| n.contains("mag_2_uc: fitted and compensated with the diagnosed model")));
+        .any(|n| matches!(n, magcomp::messages::Note::DiagnosedModel { channel, .. } if channel == "mag_2_uc")));
 
     // Against the Earth's field at the sensor, over the calibration
     // manoeuvres (where the interference changes fastest) and the whole

@@ -64,7 +64,7 @@ fn a_line_number_selects_its_box_and_nothing_else() {
             run.result
                 .notes
                 .iter()
-                .any(|n| n.contains(&format!("12 on line {line}"))),
+                .any(|n| n.to_string().contains(&format!("12 on line {line}"))),
             "line {line}: notes {:?}",
             run.result.notes
         );

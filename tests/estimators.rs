@@ -133,7 +133,7 @@ fn a_box_of_two_headings_says_it_has_no_estimator_table() {
         assert_eq!(model.estimators, None);
         let said = format!("{}: no estimator table", model.channel);
         assert!(
-            run.result.notes.iter().any(|n| n.starts_with(&said)),
+            run.result.notes.iter().any(|n| n.to_string().starts_with(&said)),
             "{:?}",
             run.result.notes
         );

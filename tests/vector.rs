@@ -368,7 +368,7 @@ fn vector_compensation_is_on_by_default_adds_six_columns_a_fluxgate_and_turns_of
         on.result
             .notes
             .iter()
-            .any(|n| n.starts_with("flux_a: vector-compensated")),
+            .any(|n| n.to_string().starts_with("flux_a: vector-compensated")),
         "{:?}",
         on.result.notes
     );

@@ -10,6 +10,7 @@ use crate::config::{FlightJob, Settings};
 use crate::error::Result;
 use crate::flight_log::FlightLog;
 use crate::formats::added_column_names;
+use crate::messages::{Note, Warning};
 use crate::model::SharedDesign;
 use crate::quality::ChannelQuality;
 
@@ -63,26 +64,29 @@ pub(super) fn run_applied(
     notes.extend(crate::reduce::add_reduced(log, &mut compensation, options.reduced)?);
     warnings.extend(compensation.out_of_range_warnings(log.time_s()));
     let added_columns = added_column_names(log, compensated, &compensation)?;
-    notes.splice(0..0, renaming_notes(&channels, &added_columns));
-    notes.extend(models.iter().filter(|m| !m.spec.is_plain()).map(|m| {
-        format!(
-            "{}: compensated with the saved model's findings: {}",
-            m.channel,
-            m.spec.describe()
-        )
-    }));
+    let mut said = renaming_notes(&channels, &added_columns);
+    said.extend(Note::said(notes));
+    said.extend(
+        models
+            .iter()
+            .filter(|m| !m.spec.is_plain())
+            .map(|m| Note::SavedFindings {
+                channel: m.channel.clone(),
+                model: m.spec.describe(),
+            }),
+    );
     let result = FlightResult {
         flight: job.input.clone(),
         rows: log.len(),
         added_columns,
-        notes,
+        notes: said,
         detection: None,
         alignment: log.alignment().cloned(),
         channels: quality,
         vector_calibration: saved.vector_calibration().cloned(),
         diagnosis_mode: crate::diagnose::ApplyDiagnosis::Never,
         applied_findings: saved.applied_findings(&channels),
-        warnings: crate::messages::Warning::said(warnings).collect(),
+        warnings: Warning::said(warnings).collect(),
         diagnosis: None,
         models,
         vector_models: Vec::new(),

@@ -17,7 +17,7 @@ use crate::error::Result;
 use crate::flight_log::FlightLog;
 use crate::formats::added_column_names;
 use crate::gradient::GradientStage;
-use crate::messages::Warning;
+use crate::messages::{Note, Warning};
 use crate::model::{compare_estimators, fit, Calibration, Extensions, FittedModel, ModelSpec, SharedDesign};
 use crate::numerics::stacked::StorePool;
 use crate::quality::transfer::check_transfer;
@@ -60,17 +60,17 @@ pub(super) fn run_fitted(
     warnings.extend(Warning::said(compensation.out_of_range_warnings(on.log.time_s())));
     let added_columns = added_column_names(on.log, compensated, &compensation)?;
     let mut notes = renaming_notes(&flight.channels, &added_columns);
-    notes.extend(reduced_notes);
-    notes.extend(transfer_notes);
-    notes.extend(flight.headings_note.clone());
-    notes.extend(fluxgate.iter().map(|c| c.summary()));
+    notes.extend(Note::said(reduced_notes));
+    notes.extend(Note::said(transfer_notes));
+    notes.extend(Note::said(flight.headings_note.clone()));
+    notes.extend(Note::said(fluxgate.iter().map(|c| c.summary())));
     model_messages(&models, fitted.excitation_notes, (&mut notes, &mut warnings));
-    notes.extend(vector.notes);
+    notes.extend(Note::said(vector.notes));
     warnings.extend(Warning::said(vector.warnings));
-    notes.extend(gradients.notes);
+    notes.extend(Note::said(gradients.notes));
     warnings.extend(Warning::said(gradients.warnings));
     if let Some(detection) = &flight.detection {
-        notes.extend(detection_notes(detection));
+        notes.extend(Note::said(detection_notes(detection)));
         warnings.extend(Warning::said(detection_warnings(detection)));
     }
     warnings.extend(departure_warnings(&mut quality, &departures));
@@ -78,7 +78,7 @@ pub(super) fn run_fitted(
     warnings.extend(channel_warnings(&quality, &models, &compensation, options, next_step));
     let plan = planned.map(|planned| against_plan(&planned, on.log, &models, &quality, &compensation));
     if let Some(plan) = &plan {
-        notes.extend(plan.notes.iter().cloned());
+        notes.extend(Note::said(plan.notes.iter().cloned()));
         warnings.extend(Warning::said(plan.warnings.iter().cloned()));
     }
     let (rows, alignment) = (on.log.len(), on.log.alignment().cloned());
@@ -170,7 +170,7 @@ fn input_warnings(job: &FlightJob, recorded: &FlightLog, compensated: &Path) -> 
 struct Fitted {
     models: Vec<FittedModel>,
     shared: Vec<SharedDesign>,
-    excitation_notes: Vec<Option<String>>,
+    excitation_notes: Vec<Option<Note>>,
 }
 
 /// Fits every channel of `on` with its model of `plan`, its estimator
@@ -197,7 +197,7 @@ fn fit_channels(on: &Calibration, plan: &BTreeMap<String, Extensions>, options: 
     // The whole flight's terms, built once for every channel that uses
     // them: the analysis, the compensation and the sigma column read them.
     let shared = SharedDesign::of_models(log, &fitted);
-    let fitted: Vec<(FittedModel, Option<String>)> = fitted
+    let fitted: Vec<(FittedModel, Option<Note>)> = fitted
         .into_par_iter()
         .map(|mut model| {
             let channel = model.channel.clone();
@@ -210,10 +210,14 @@ fn fit_channels(on: &Calibration, plan: &BTreeMap<String, Extensions>, options: 
                     model.excitation = Some(analysis);
                     None
                 }
-                Ok(None) => Some(format!(
-                    "{channel}: no excitation analysis: a window's heading is unknown (none given and no INS yaw), or the windows leave the design singular"
-                )),
-                Err(e) => Some(format!("{channel}: no excitation analysis: {e}")),
+                Ok(None) => Some(Note::NoExcitationAnalysis {
+                    channel,
+                    why: "a window's heading is unknown (none given and no INS yaw), or the windows leave the design singular".into(),
+                }),
+                Err(e) => Some(Note::NoExcitationAnalysis {
+                    channel,
+                    why: e.to_string(),
+                }),
             };
             Ok((model, note))
         })
@@ -310,10 +314,10 @@ fn vector_and_gradients(
 /// box and a solver asked for and not used, as warnings.
 fn model_messages(
     models: &[FittedModel],
-    excitation_notes: Vec<Option<String>>,
-    (notes, warnings): (&mut Vec<String>, &mut Vec<Warning>),
+    excitation_notes: Vec<Option<Note>>,
+    (notes, warnings): (&mut Vec<Note>, &mut Vec<Warning>),
 ) {
-    notes.extend(models.iter().filter_map(estimator_table_gap));
+    notes.extend(Note::said(models.iter().filter_map(estimator_table_gap)));
     notes.extend(excitation_notes.into_iter().flatten());
     // A gap in the box is a warning: the FOM lacks a manoeuvre and the
     // coefficients it pins are less certain.
@@ -337,13 +341,15 @@ fn model_messages(
             }),
         }
     }));
-    notes.extend(models.iter().filter(|m| !m.spec.is_plain()).map(|m| {
-        format!(
-            "{}: fitted and compensated with the diagnosed model: {}",
-            m.channel,
-            m.spec.describe()
-        )
-    }));
+    notes.extend(
+        models
+            .iter()
+            .filter(|m| !m.spec.is_plain())
+            .map(|m| Note::DiagnosedModel {
+                channel: m.channel.clone(),
+                model: m.spec.describe(),
+            }),
+    );
 }
 
 /// Sets each channel's departure from plain Tolles-Lawson on the survey;

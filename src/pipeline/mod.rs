@@ -43,7 +43,7 @@ pub struct FlightResult {
     /// Columns magcomp added to the compensated CSV.
     pub added_columns: Vec<String>,
     /// Remarks for the user (renamed outputs and the like).
-    pub notes: Vec<String>,
+    pub notes: Vec<crate::messages::Note>,
     /// The detected boxes and manoeuvres, when the flight gave no windows.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub detection: Option<Detection>,
@@ -227,14 +227,15 @@ fn assess_with_sigma(
     Ok((quality, prediction.levels_nt))
 }
 
-pub(crate) fn renaming_notes(channels: &[String], added: &[String]) -> Vec<String> {
+pub(crate) fn renaming_notes(channels: &[String], added: &[String]) -> Vec<crate::messages::Note> {
     channels
         .iter()
         .zip(added)
         .filter(|(_, column)| column.ends_with("_magcomp"))
-        .map(|(channel, column)| {
-            let original = column.trim_end_matches("_magcomp");
-            format!("the input already has a '{original}' column (kept unchanged); magcomp's compensation of '{channel}' is in '{column}'")
+        .map(|(channel, column)| crate::messages::Note::Renamed {
+            channel: channel.clone(),
+            original: column.trim_end_matches("_magcomp").to_string(),
+            column: column.clone(),
         })
         .collect()
 }
