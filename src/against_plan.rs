@@ -280,131 +280,32 @@ pub fn compare(
     channels: &[FlownChannel],
 ) -> PlanComparison {
     let factor = prediction.stated_factor;
-    let planned: Vec<(ManoeuvreKind, f64)> = (prediction.planned_manoeuvres.iter())
-        .map(|m| (m.kind, m.heading_deg))
-        .collect();
-    let additions: Vec<(ManoeuvreKind, f64)> = (prediction.additions.iter())
-        .flat_map(|a| std::iter::repeat_n((a.kind, a.heading_deg), a.count))
-        .collect();
-    let mut warnings = Vec::new();
-    let mut notes = Vec::new();
-    let report_name = prediction.path.display();
-    let (mut missing, mut unplanned, mut with_additions) = (Vec::new(), Vec::new(), false);
-    match flown_manoeuvres {
-        _ if planned.is_empty() => notes.push(format!(
-            "against the plan ({report_name}): the report lists no planned manoeuvres (made by an older magcomp), so the manoeuvres flown are not compared with it"
-        )),
-        None => notes.push(format!(
-            "against the plan ({report_name}): the calibration windows carry no manoeuvre kind and heading, so the manoeuvres flown are not compared with the plan's"
-        )),
-        Some(flown) => {
-            let (lacking, extra) = match_manoeuvres(&planned, flown);
-            let extra_flown: Vec<(ManoeuvreKind, f64)> = extra.iter().map(|&f| flown[f]).collect();
-            // The extras are the proposed additions when they hold all of
-            // them (and the box is whole); what is left is unplanned.
-            let (additions_lacking, beyond_additions) = match_manoeuvres(&additions, &extra_flown);
-            with_additions = lacking.is_empty() && !additions.is_empty() && additions_lacking.is_empty();
-            missing = lacking.iter().map(|&p| manoeuvre_words(planned[p].0, planned[p].1)).collect();
-            unplanned = match with_additions {
-                true => beyond_additions,
-                false => (0..extra_flown.len()).collect(),
-            }
-            .into_iter()
-            .map(|f| manoeuvre_words(extra_flown[f].0, extra_flown[f].1))
-            .collect();
-            if !missing.is_empty() {
-                warnings.push(format!(
-                    "against the plan ({report_name}): the flight lacks {} of the plan's {} manoeuvres ({}); the plan's prediction counted on them, so its figures are for a box this flight did not fly",
-                    missing.len(),
-                    planned.len(),
-                    missing.join(", ")
-                ));
-            }
-            if !unplanned.is_empty() {
-                notes.push(format!(
-                    "against the plan ({report_name}): the flight flew {} manoeuvre(s) the plan did not have ({})",
-                    unplanned.len(),
-                    unplanned.join(", ")
-                ));
-            }
-            if with_additions {
-                notes.push(format!(
-                    "against the plan ({report_name}): the flight flew the plan's {} proposed additions, so it is compared with the prediction with them",
-                    additions.len()
-                ));
-            }
-        }
-    }
-    let predictions = match with_additions && !prediction.with_additions.is_empty() {
+    let mut said = Said::default();
+    let manoeuvres = compare_manoeuvres(prediction, flown_manoeuvres, &mut said);
+    let predictions = match manoeuvres.with_additions && !prediction.with_additions.is_empty() {
         true => &prediction.with_additions,
         false => &prediction.channels,
     };
+    let report_name = prediction.path.display();
     let mut compared = Vec::new();
     for channel in channels {
         let Some(planned) = predictions.iter().find(|p| p.channel == channel.channel) else {
-            notes.push(format!(
+            said.notes.push(format!(
                 "{}: not in the plan ({report_name}), so not compared with it",
                 channel.channel
             ));
             continue;
         };
-        let figures = vec![
-            judge("fom_nt", planned.fom_nt, channel.fom_nt, factor),
-            judge(
-                "survey_sigma_nt",
-                planned.survey_sigma_nt,
-                channel.survey_sigma_nt,
-                factor,
-            ),
-            judge(
-                "sigma_column_nt",
-                planned.sigma_column_nt,
-                channel.sigma_column_nt,
-                factor,
-            ),
-        ];
-        let mut words = Vec::new();
-        for figure in &figures {
-            let what = figure_words(figure.figure);
-            let (Some(planned), Some(flown), Some(ratio)) = (figure.planned_nt, figure.flown_nt, figure.ratio) else {
-                words.push(format!("{what} not compared (the flight or the plan has none)"));
-                continue;
-            };
-            let range = match (figure.planned_low_nt, figure.planned_high_nt) {
-                (Some(low), Some(high)) => format!(" (range {low:.3}–{high:.3})"),
-                _ => String::new(),
-            };
-            words.push(format!("{what} {flown:.3} nT, planned {planned:.3}{range}"));
-            let why = match figure.verdict {
-                Verdict::Worse => "worse than planned: the aircraft's interference, the sensors' noise or the manoeuvres flown (amplitudes, periods, headings) differ from what the plan assumed",
-                Verdict::Better => "better than planned: the plan's installation overstates this aircraft's interference or noise, so additions it proposed may not be needed",
-                _ => continue,
-            };
-            warnings.push(format!(
-                "{}: {what} {flown:.3} nT against the plan's {planned:.3} nT{range}, {ratio:.2}×, outside the plan's range widened by its stated factor of {factor}: {why}; plan the next calibration with this flight's model (--model) as [plan] installation",
-                channel.channel
-            ));
-        }
-        let holds = figures
-            .iter()
-            .all(|f| matches!(f.verdict, Verdict::AsPlanned | Verdict::NotCompared));
-        notes.push(format!(
-            "{}: against the plan ({report_name}): {}; {}",
-            channel.channel,
-            words.join("; "),
-            match holds {
-                true => "as planned",
-                false => "not as planned (see the warnings)",
-            }
+        compared.push(compare_channel(
+            planned,
+            channel,
+            (factor, &report_name.to_string()),
+            &mut said,
         ));
-        compared.push(ChannelAgainstPlan {
-            channel: channel.channel.clone(),
-            figures,
-        });
     }
     for planned in predictions {
         if !channels.iter().any(|c| c.channel == planned.channel) {
-            notes.push(format!(
+            said.notes.push(format!(
                 "{}: planned ({report_name}) but not compensated on this flight",
                 planned.channel
             ));
@@ -414,13 +315,168 @@ pub fn compare(
         report: prediction.path.clone(),
         plan: prediction.plan.clone(),
         stated_factor: factor,
-        with_additions,
-        planned_manoeuvres: planned.len(),
-        missing,
-        unplanned,
+        with_additions: manoeuvres.with_additions,
+        planned_manoeuvres: prediction.planned_manoeuvres.len(),
+        missing: manoeuvres.missing,
+        unplanned: manoeuvres.unplanned,
         channels: compared,
-        warnings,
-        notes,
+        warnings: said.warnings,
+        notes: said.notes,
+    }
+}
+
+/// What a comparison says, as it goes.
+#[derive(Default)]
+struct Said {
+    warnings: Vec<String>,
+    notes: Vec<String>,
+}
+
+/// The manoeuvres flown against the plan's: those it lacks and those it
+/// did not have, in words, and whether the flight flew the plan's
+/// proposed additions too.
+struct ManoeuvresAgainstPlan {
+    missing: Vec<String>,
+    unplanned: Vec<String>,
+    with_additions: bool,
+}
+
+/// Sets the manoeuvres flown against the plan's (and its additions'),
+/// saying what differs.
+fn compare_manoeuvres(
+    prediction: &PlanPrediction,
+    flown_manoeuvres: Option<&[(ManoeuvreKind, f64)]>,
+    said: &mut Said,
+) -> ManoeuvresAgainstPlan {
+    let planned: Vec<(ManoeuvreKind, f64)> = (prediction.planned_manoeuvres.iter())
+        .map(|m| (m.kind, m.heading_deg))
+        .collect();
+    let additions: Vec<(ManoeuvreKind, f64)> = (prediction.additions.iter())
+        .flat_map(|a| std::iter::repeat_n((a.kind, a.heading_deg), a.count))
+        .collect();
+    let report_name = prediction.path.display();
+    let mut compared = ManoeuvresAgainstPlan {
+        missing: Vec::new(),
+        unplanned: Vec::new(),
+        with_additions: false,
+    };
+    let flown = match flown_manoeuvres {
+        _ if planned.is_empty() => {
+            said.notes.push(format!(
+                "against the plan ({report_name}): the report lists no planned manoeuvres (made by an older magcomp), so the manoeuvres flown are not compared with it"
+            ));
+            return compared;
+        }
+        None => {
+            said.notes.push(format!(
+                "against the plan ({report_name}): the calibration windows carry no manoeuvre kind and heading, so the manoeuvres flown are not compared with the plan's"
+            ));
+            return compared;
+        }
+        Some(flown) => flown,
+    };
+    let (lacking, extra) = match_manoeuvres(&planned, flown);
+    let extra_flown: Vec<(ManoeuvreKind, f64)> = extra.iter().map(|&f| flown[f]).collect();
+    // The extras are the proposed additions when they hold all of them
+    // (and the box is whole); what is left is unplanned.
+    let (additions_lacking, beyond_additions) = match_manoeuvres(&additions, &extra_flown);
+    let with_additions = lacking.is_empty() && !additions.is_empty() && additions_lacking.is_empty();
+    compared.with_additions = with_additions;
+    compared.missing = lacking
+        .iter()
+        .map(|&p| manoeuvre_words(planned[p].0, planned[p].1))
+        .collect();
+    compared.unplanned = match with_additions {
+        true => beyond_additions,
+        false => (0..extra_flown.len()).collect(),
+    }
+    .into_iter()
+    .map(|f| manoeuvre_words(extra_flown[f].0, extra_flown[f].1))
+    .collect();
+    if !compared.missing.is_empty() {
+        said.warnings.push(format!(
+            "against the plan ({report_name}): the flight lacks {} of the plan's {} manoeuvres ({}); the plan's prediction counted on them, so its figures are for a box this flight did not fly",
+            compared.missing.len(),
+            planned.len(),
+            compared.missing.join(", ")
+        ));
+    }
+    if !compared.unplanned.is_empty() {
+        said.notes.push(format!(
+            "against the plan ({report_name}): the flight flew {} manoeuvre(s) the plan did not have ({})",
+            compared.unplanned.len(),
+            compared.unplanned.join(", ")
+        ));
+    }
+    if with_additions {
+        said.notes.push(format!(
+            "against the plan ({report_name}): the flight flew the plan's {} proposed additions, so it is compared with the prediction with them",
+            additions.len()
+        ));
+    }
+    compared
+}
+
+/// One channel's figures against its prediction: a note of each, and a
+/// warning for each outside the plan's range widened by `factor`.
+fn compare_channel(
+    planned: &PlannedChannel,
+    channel: &FlownChannel,
+    (factor, report_name): (f64, &str),
+    said: &mut Said,
+) -> ChannelAgainstPlan {
+    let figures = vec![
+        judge("fom_nt", planned.fom_nt, channel.fom_nt, factor),
+        judge(
+            "survey_sigma_nt",
+            planned.survey_sigma_nt,
+            channel.survey_sigma_nt,
+            factor,
+        ),
+        judge(
+            "sigma_column_nt",
+            planned.sigma_column_nt,
+            channel.sigma_column_nt,
+            factor,
+        ),
+    ];
+    let mut words = Vec::new();
+    for figure in &figures {
+        let what = figure_words(figure.figure);
+        let (Some(planned), Some(flown), Some(ratio)) = (figure.planned_nt, figure.flown_nt, figure.ratio) else {
+            words.push(format!("{what} not compared (the flight or the plan has none)"));
+            continue;
+        };
+        let range = match (figure.planned_low_nt, figure.planned_high_nt) {
+            (Some(low), Some(high)) => format!(" (range {low:.3}–{high:.3})"),
+            _ => String::new(),
+        };
+        words.push(format!("{what} {flown:.3} nT, planned {planned:.3}{range}"));
+        let why = match figure.verdict {
+            Verdict::Worse => "worse than planned: the aircraft's interference, the sensors' noise or the manoeuvres flown (amplitudes, periods, headings) differ from what the plan assumed",
+            Verdict::Better => "better than planned: the plan's installation overstates this aircraft's interference or noise, so additions it proposed may not be needed",
+            _ => continue,
+        };
+        said.warnings.push(format!(
+            "{}: {what} {flown:.3} nT against the plan's {planned:.3} nT{range}, {ratio:.2}×, outside the plan's range widened by its stated factor of {factor}: {why}; plan the next calibration with this flight's model (--model) as [plan] installation",
+            channel.channel
+        ));
+    }
+    let holds = figures
+        .iter()
+        .all(|f| matches!(f.verdict, Verdict::AsPlanned | Verdict::NotCompared));
+    said.notes.push(format!(
+        "{}: against the plan ({report_name}): {}; {}",
+        channel.channel,
+        words.join("; "),
+        match holds {
+            true => "as planned",
+            false => "not as planned (see the warnings)",
+        }
+    ));
+    ChannelAgainstPlan {
+        channel: channel.channel.clone(),
+        figures,
     }
 }
 

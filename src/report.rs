@@ -996,28 +996,7 @@ pub fn figures_path(path: &Path) -> std::path::PathBuf {
 /// ([`figures_path`]).
 pub fn stage_report(path: &Path, flight: &FlightRun, fom_limit_nt: f64) -> Result<StagedReport> {
     let (log, result, compensation) = (flight.log(), &flight.result, &flight.compensation);
-    let mut html = format!(
-        "<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>magcomp report: {0}</title><style>{STYLE}</style></head><body><h1>Compensation report: {0}</h1>",
-        escape(&result.flight.display().to_string())
-    );
-    let _ = write!(html, "<p>{} rows.</p>", result.rows);
-    for warning in &result.warnings {
-        let _ = write!(
-            html,
-            "<p class=\"warning\">Warning: {}</p>",
-            escape(&warning.to_string())
-        );
-    }
-    if let Some(applied) = &result.model {
-        html += &applied_model_section(applied);
-    }
-    html += &applied_findings_section(result);
-    if let Some(plan) = &result.plan {
-        html += &plan_section(plan);
-    }
-    for note in &result.notes {
-        let _ = write!(html, "<p class=\"note\">{}</p>", escape(&note.to_string()));
-    }
+    let mut html = report_head(result);
     html += &format!("<section id=\"timeline\">{}</section>", attitude_timeline(log, result)?);
     let mut figures = Vec::new();
     for ((quality, model), channel) in result.channels.iter().zip(&result.models).zip(&compensation.channels) {
@@ -1026,63 +1005,7 @@ pub fn stage_report(path: &Path, flight: &FlightRun, fom_limit_nt: f64) -> Resul
             .map(|c| c.values.as_slice())
             .unwrap_or_default();
         let noise = line_noise(log, before, &channel.values);
-        let _ = write!(
-            html,
-            "<section class=\"channel\" id=\"{0}\"><h2>{0}</h2>",
-            escape(&model.channel)
-        );
-        if let Some(applied) = &result.model {
-            html += &applied_verdict(quality, applied, fom_limit_nt);
-        }
-        if result.model.is_none() || !model.windows.is_empty() {
-            if result.model.is_none() {
-                html += &verdict(quality, fom_limit_nt);
-            }
-            html += "<h3>FOM table (band-passed peak-to-peak, nT)</h3>";
-            html += &fom_section(quality, fom_limit_nt);
-            html += "<h3>Manoeuvres: before (grey) and after (blue), band-passed</h3><div class=\"grid\">";
-            for index in 0..model.windows.len() {
-                let _ = write!(
-                    html,
-                    "<figure class=\"manoeuvre\">{}</figure>",
-                    manoeuvre_plot(model, index)?
-                );
-            }
-            html += "</div>";
-        }
-        html += "<h3>Regularisation</h3>";
-        let _ = write!(html, "<p>{}</p>", escape(&model.solution.reason));
-        if result.model.is_none() {
-            let _ = write!(
-                html,
-                "<div class=\"grid\"><figure class=\"press\">{}</figure>",
-                press_plot(model)?
-            );
-            let _ = write!(
-                html,
-                "<figure class=\"singular\">{}</figure></div>",
-                singular_value_plot(model)?
-            );
-        }
-        html += "<h3>Coefficients</h3>";
-        html += &coefficient_table(model);
-        html += &estimator_table(model);
-        html += &excitation_section(model);
-        if let Some(map) = line_map(log, &channel.values)? {
-            let _ = write!(html, "<h3>Survey lines</h3><figure class=\"map\">{map}</figure>");
-        }
-        if !noise.is_empty() {
-            html += "<h3>Per-line noise (4th difference, nT)</h3><table class=\"noise\"><tr><th>line</th><th>before</th><th>after</th></tr>";
-            for line in &noise {
-                let _ = write!(
-                    html,
-                    "<tr><td>{}</td><td>{:.4}</td><td>{:.4}</td></tr>",
-                    line.line, line.before_nt, line.after_nt
-                );
-            }
-            html += "</table>";
-        }
-        html += "</section>";
+        html += &channel_section(log, result, (quality, model, channel), &noise, fom_limit_nt)?;
         figures.push(ChannelFigures {
             channel: model.channel.clone(),
             fom_after_nt: quality.fom_after_nt,
@@ -1115,6 +1038,103 @@ pub fn stage_report(path: &Path, flight: &FlightRun, fom_limit_nt: f64) -> Resul
         page,
         figures_json,
     })
+}
+
+/// The page's head and what it says of the whole flight: its rows, the
+/// warnings, the saved model, the findings applied, the plan, the notes.
+fn report_head(result: &crate::pipeline::FlightResult) -> String {
+    let mut html = format!(
+        "<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>magcomp report: {0}</title><style>{STYLE}</style></head><body><h1>Compensation report: {0}</h1>",
+        escape(&result.flight.display().to_string())
+    );
+    let _ = write!(html, "<p>{} rows.</p>", result.rows);
+    for warning in &result.warnings {
+        let _ = write!(
+            html,
+            "<p class=\"warning\">Warning: {}</p>",
+            escape(&warning.to_string())
+        );
+    }
+    if let Some(applied) = &result.model {
+        html += &applied_model_section(applied);
+    }
+    html += &applied_findings_section(result);
+    if let Some(plan) = &result.plan {
+        html += &plan_section(plan);
+    }
+    for note in &result.notes {
+        let _ = write!(html, "<p class=\"note\">{}</p>", escape(&note.to_string()));
+    }
+    html
+}
+
+/// One channel's section: its verdict, FOM table and manoeuvres (where it
+/// has windows), regularisation, coefficients, estimators, excitation,
+/// survey-line map and per-line noise.
+fn channel_section(
+    log: &FlightLog,
+    result: &crate::pipeline::FlightResult,
+    (quality, model, channel): (&ChannelQuality, &FittedModel, &crate::compensate::CompensatedChannel),
+    noise: &[LineNoise],
+    fom_limit_nt: f64,
+) -> Result<String> {
+    let mut html = format!(
+        "<section class=\"channel\" id=\"{0}\"><h2>{0}</h2>",
+        escape(&model.channel)
+    );
+    if let Some(applied) = &result.model {
+        html += &applied_verdict(quality, applied, fom_limit_nt);
+    }
+    if result.model.is_none() || !model.windows.is_empty() {
+        if result.model.is_none() {
+            html += &verdict(quality, fom_limit_nt);
+        }
+        html += "<h3>FOM table (band-passed peak-to-peak, nT)</h3>";
+        html += &fom_section(quality, fom_limit_nt);
+        html += "<h3>Manoeuvres: before (grey) and after (blue), band-passed</h3><div class=\"grid\">";
+        for index in 0..model.windows.len() {
+            let _ = write!(
+                html,
+                "<figure class=\"manoeuvre\">{}</figure>",
+                manoeuvre_plot(model, index)?
+            );
+        }
+        html += "</div>";
+    }
+    html += "<h3>Regularisation</h3>";
+    let _ = write!(html, "<p>{}</p>", escape(&model.solution.reason));
+    if result.model.is_none() {
+        let _ = write!(
+            html,
+            "<div class=\"grid\"><figure class=\"press\">{}</figure>",
+            press_plot(model)?
+        );
+        let _ = write!(
+            html,
+            "<figure class=\"singular\">{}</figure></div>",
+            singular_value_plot(model)?
+        );
+    }
+    html += "<h3>Coefficients</h3>";
+    html += &coefficient_table(model);
+    html += &estimator_table(model);
+    html += &excitation_section(model);
+    if let Some(map) = line_map(log, &channel.values)? {
+        let _ = write!(html, "<h3>Survey lines</h3><figure class=\"map\">{map}</figure>");
+    }
+    if !noise.is_empty() {
+        html += "<h3>Per-line noise (4th difference, nT)</h3><table class=\"noise\"><tr><th>line</th><th>before</th><th>after</th></tr>";
+        for line in noise {
+            let _ = write!(
+                html,
+                "<tr><td>{}</td><td>{:.4}</td><td>{:.4}</td></tr>",
+                line.line, line.before_nt, line.after_nt
+            );
+        }
+        html += "</table>";
+    }
+    html += "</section>";
+    Ok(html)
 }
 
 #[cfg(test)]
