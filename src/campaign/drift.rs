@@ -232,69 +232,22 @@ pub struct Drift {
 /// Compares the earlier calibration `a` with the later `b` of one channel.
 pub fn compare(a: &Calibration, b: &Calibration) -> Drift {
     let mut drift = Drift::unknown(String::new());
-    for (which, calibration) in [("earlier", a), ("later", b)] {
-        if let Some(why) = calibration.incomparable() {
-            drift.note = format!("not compared: the {which} model cannot be: {why}");
+    let shared = match Shared::of(a, b) {
+        Ok(shared) => shared,
+        Err(why) => {
+            drift.note = why;
             return drift;
         }
-    }
-    if a.bt_scale_nt != b.bt_scale_nt {
-        drift.note = format!(
-            "not compared: the models scale the induced and eddy terms differently (bt_scale_nt {} and {}); fit both with the same [fit] bt_scale_nt",
-            a.bt_scale_nt, b.bt_scale_nt
-        );
-        return drift;
-    }
-    // The shared Tolles-Lawson terms: (index in a, index in b, family).
-    // Coefficients and deviations in per-second units, the moments in
-    // their reciprocal, so each quadratic form is unchanged.
-    let shared: Vec<(usize, usize, usize)> = (a.terms.iter().enumerate())
-        .filter_map(|(i, term)| {
-            let f = family(term)?;
-            let j = b.terms.iter().position(|t| t == term)?;
-            Some((i, j, f))
-        })
-        .collect();
-    drift.compared_terms = shared.len();
-    if shared.is_empty() {
-        drift.note = "not compared: the two models share no Tolles-Lawson term".into();
-        return drift;
-    }
-    let n = shared.len();
-    let delta: Vec<f64> = (shared.iter())
-        .map(|&(i, j, _)| b.coefficients[j] * b.per_second(j) - a.coefficients[i] * a.per_second(i))
-        .collect();
-    let moment: Vec<Vec<f64>> = (shared.iter())
-        .map(|&(i, j, _)| {
-            (shared.iter())
-                .map(|&(k, l, _)| {
-                    let from_a = a.moment[i][k] / (a.per_second(i) * a.per_second(k));
-                    let from_b = b.moment[j][l] / (b.per_second(j) * b.per_second(l));
-                    0.5 * (from_a + from_b)
-                })
-                .collect()
-        })
-        .collect();
-    let deviations: Vec<Vec<f64>> = (a.jackknife.iter())
-        .map(|d| shared.iter().map(|&(i, _, _)| d[i] * a.per_second(i)).collect())
-        .chain((b.jackknife.iter()).map(|d| shared.iter().map(|&(_, j, _)| d[j] * b.per_second(j)).collect()))
-        .collect();
-    let form = |x: &[f64], y: &[f64], keep: &dyn Fn(usize) -> bool| -> f64 {
-        let mut total = 0.0;
-        for r in (0..n).filter(|&r| keep(r)) {
-            for c in (0..n).filter(|&c| keep(c)) {
-                total += x[r] * moment[r][c] * y[c];
-            }
-        }
-        total
     };
+    drift.compared_terms = shared.terms.len();
+    let n = shared.terms.len();
     let all = |_: usize| true;
-    let q = form(&delta, &delta, &all);
-    let expected: f64 = deviations.iter().map(|d| form(d, d, &all)).sum();
+    let q = shared.form(&shared.delta, &shared.delta, &all);
+    let expected: f64 = shared.deviations.iter().map(|d| shared.form(d, d, &all)).sum();
     let mut cross = 0.0;
-    for d in &deviations {
-        for e in &deviations {
-            cross += form(d, e, &all).powi(2);
+    for d in &shared.deviations {
+        for e in &shared.deviations {
+            cross += shared.form(d, e, &all).powi(2);
         }
     }
     if !(expected > 0.0 && cross > 0.0 && q.is_finite()) {
@@ -307,44 +260,23 @@ pub fn compare(a: &Calibration, b: &Calibration) -> Drift {
     drift.change_rms_nt = q.max(0.0).sqrt();
     drift.expected_rms_nt = expected.sqrt();
     drift.ratio = q / expected;
-    let m = deviations.len() as f64 - 2.0;
+    let m = shared.deviations.len() as f64 - 2.0;
     drift.degrees_of_freedom = nu;
     drift.covariance_dof = m;
     drift.limit = f_quantile(nu, m, 1.0 - FALSE_ALARM);
     for (f, slot) in drift.families.iter_mut().enumerate() {
-        let keep = |r: usize| shared[r].2 == f;
+        let keep = |r: usize| shared.terms[r].2 == f;
         if !(0..n).any(keep) {
             continue;
         }
-        let change = form(&delta, &delta, &keep);
-        let expected: f64 = BETWEEN_BOXES * deviations.iter().map(|d| form(d, d, &keep)).sum::<f64>();
+        let change = shared.form(&shared.delta, &shared.delta, &keep);
+        let expected: f64 = BETWEEN_BOXES * shared.deviations.iter().map(|d| shared.form(d, d, &keep)).sum::<f64>();
         *slot = Some(FamilyChange {
             change_rms_nt: change.max(0.0).sqrt(),
             expected_rms_nt: expected.max(0.0).sqrt(),
         });
     }
-    let permanent: Vec<usize> = ["perm_x", "perm_y", "perm_z"]
-        .iter()
-        .filter_map(|name| (0..n).find(|&r| a.terms[shared[r].0] == *name))
-        .collect();
-    if let [x, y, z] = permanent[..] {
-        let sigma = |r: usize| (BETWEEN_BOXES * deviations.iter().map(|d| d[r] * d[r]).sum::<f64>()).sqrt();
-        drift.permanent_change_nt = Some(([delta[x], delta[y], delta[z]], [sigma(x), sigma(y), sigma(z)]));
-        let index = [x, y, z];
-        let covariance = nalgebra::Matrix3::from_fn(|r, c| {
-            BETWEEN_BOXES * deviations.iter().map(|d| d[index[r]] * d[index[c]]).sum::<f64>()
-        });
-        let change = nalgebra::Vector3::new(delta[x], delta[y], delta[z]);
-        match covariance.try_inverse() {
-            Some(inverse) => {
-                drift.permanent_t2 = change.dot(&(inverse * change));
-                drift.permanent_limit = 3.0 * m / (m - 2.0) * f_quantile(3.0, m - 2.0, 1.0 - FALSE_ALARM);
-            }
-            None => {
-                drift.note = "the permanent field is not tested on its own: its jackknife covariance is singular".into()
-            }
-        }
-    }
+    test_permanent(a, &shared, m, &mut drift);
     drift.verdict = match drift.ratio > drift.limit || drift.permanent_t2 > drift.permanent_limit {
         true => Verdict::Changed,
         false => Verdict::Steady,
@@ -365,6 +297,115 @@ pub fn compare(a: &Calibration, b: &Calibration) -> Drift {
         );
     }
     drift
+}
+
+/// The Tolles-Lawson terms two calibrations share, in per-second units:
+/// the change of their coefficients, the mean of their moment matrices
+/// (in the reciprocal units, so each quadratic form is unchanged) and
+/// every jackknife deviation of either.
+struct Shared {
+    /// (index in a, index in b, family) of each shared term.
+    terms: Vec<(usize, usize, usize)>,
+    /// Later less earlier coefficient of each shared term.
+    delta: Vec<f64>,
+    /// The mean moment matrix over the shared terms.
+    moment: Vec<Vec<f64>>,
+    /// The jackknife deviations of both calibrations over the shared terms.
+    deviations: Vec<Vec<f64>>,
+}
+
+impl Shared {
+    /// The shared terms of `a` and `b`, or why they cannot be compared.
+    fn of(a: &Calibration, b: &Calibration) -> std::result::Result<Shared, String> {
+        for (which, calibration) in [("earlier", a), ("later", b)] {
+            if let Some(why) = calibration.incomparable() {
+                return Err(format!("not compared: the {which} model cannot be: {why}"));
+            }
+        }
+        if a.bt_scale_nt != b.bt_scale_nt {
+            return Err(format!(
+                "not compared: the models scale the induced and eddy terms differently (bt_scale_nt {} and {}); fit both with the same [fit] bt_scale_nt",
+                a.bt_scale_nt, b.bt_scale_nt
+            ));
+        }
+        let terms: Vec<(usize, usize, usize)> = (a.terms.iter().enumerate())
+            .filter_map(|(i, term)| {
+                let f = family(term)?;
+                let j = b.terms.iter().position(|t| t == term)?;
+                Some((i, j, f))
+            })
+            .collect();
+        if terms.is_empty() {
+            return Err("not compared: the two models share no Tolles-Lawson term".into());
+        }
+        let delta = (terms.iter())
+            .map(|&(i, j, _)| b.coefficients[j] * b.per_second(j) - a.coefficients[i] * a.per_second(i))
+            .collect();
+        let moment = (terms.iter())
+            .map(|&(i, j, _)| {
+                (terms.iter())
+                    .map(|&(k, l, _)| {
+                        let from_a = a.moment[i][k] / (a.per_second(i) * a.per_second(k));
+                        let from_b = b.moment[j][l] / (b.per_second(j) * b.per_second(l));
+                        0.5 * (from_a + from_b)
+                    })
+                    .collect()
+            })
+            .collect();
+        let deviations = (a.jackknife.iter())
+            .map(|d| terms.iter().map(|&(i, _, _)| d[i] * a.per_second(i)).collect())
+            .chain((b.jackknife.iter()).map(|d| terms.iter().map(|&(_, j, _)| d[j] * b.per_second(j)).collect()))
+            .collect();
+        Ok(Shared {
+            terms,
+            delta,
+            moment,
+            deviations,
+        })
+    }
+
+    /// $x^T M y$ over the shared terms `keep` holds.
+    fn form(&self, x: &[f64], y: &[f64], keep: &dyn Fn(usize) -> bool) -> f64 {
+        let n = self.terms.len();
+        let mut total = 0.0;
+        for r in (0..n).filter(|&r| keep(r)) {
+            for c in (0..n).filter(|&c| keep(c)) {
+                total += x[r] * self.moment[r][c] * y[c];
+            }
+        }
+        total
+    }
+}
+
+/// The permanent field's change on its own: Hotelling's $T^2$ of its
+/// three coefficients against their jackknife covariance (`m` its degrees
+/// of freedom), set on `drift`.
+fn test_permanent(a: &Calibration, shared: &Shared, m: f64, drift: &mut Drift) {
+    let n = shared.terms.len();
+    let (delta, deviations) = (&shared.delta, &shared.deviations);
+    let permanent: Vec<usize> = ["perm_x", "perm_y", "perm_z"]
+        .iter()
+        .filter_map(|name| (0..n).find(|&r| a.terms[shared.terms[r].0] == *name))
+        .collect();
+    let [x, y, z] = permanent[..] else {
+        return;
+    };
+    let sigma = |r: usize| (BETWEEN_BOXES * deviations.iter().map(|d| d[r] * d[r]).sum::<f64>()).sqrt();
+    drift.permanent_change_nt = Some(([delta[x], delta[y], delta[z]], [sigma(x), sigma(y), sigma(z)]));
+    let index = [x, y, z];
+    let covariance = nalgebra::Matrix3::from_fn(|r, c| {
+        BETWEEN_BOXES * deviations.iter().map(|d| d[index[r]] * d[index[c]]).sum::<f64>()
+    });
+    let change = nalgebra::Vector3::new(delta[x], delta[y], delta[z]);
+    match covariance.try_inverse() {
+        Some(inverse) => {
+            drift.permanent_t2 = change.dot(&(inverse * change));
+            drift.permanent_limit = 3.0 * m / (m - 2.0) * f_quantile(3.0, m - 2.0, 1.0 - FALSE_ALARM);
+        }
+        None => {
+            drift.note = "the permanent field is not tested on its own: its jackknife covariance is singular".into()
+        }
+    }
 }
 
 impl Drift {
