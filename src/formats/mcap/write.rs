@@ -227,8 +227,21 @@ fn sample_topic<'a>(topic: String, values: &'a [f64], unit: &'static str) -> Top
     }
 }
 
+/// Every topic of the output: the recorded channels', then the
+/// compensation's.
 fn plan_topics<'a>(log: &'a FlightLog, compensation: Option<&'a Compensation>) -> Vec<Topic<'a>> {
-    let mut topics: Vec<Topic<'a>> = Vec::new();
+    let mut topics = recorded_topics(log);
+    if let Some(compensation) = compensation {
+        topics.extend(compensated_topics(compensation));
+    }
+    topics
+}
+
+/// The recorded channels' topics: each scalar and vector magnetometer,
+/// the attitude and the position where the log holds them, and every
+/// other channel as a sample topic.
+fn recorded_topics(log: &FlightLog) -> Vec<Topic<'_>> {
+    let mut topics: Vec<Topic<'_>> = Vec::new();
     let mut covered = vec![false; log.channels().len()];
     let channel = |i: usize| &log.channels()[i].values;
     for (i, c) in log.channels().iter().enumerate() {
@@ -281,6 +294,22 @@ fn plan_topics<'a>(log: &'a FlightLog, compensation: Option<&'a Compensation>) -
             }),
         });
     }
+    topics.extend(navigation_topics(log, &mut covered));
+    for (i, c) in log.channels().iter().enumerate().filter(|(i, _)| !covered[*i]) {
+        topics.push(sample_topic(
+            format!("/aux/{}", c.name),
+            channel(i),
+            unit_of(&c.name, &c.role),
+        ));
+    }
+    topics
+}
+
+/// The attitude and position topics, where the log holds their channels
+/// (marked `covered`).
+fn navigation_topics<'a>(log: &'a FlightLog, covered: &mut [bool]) -> Vec<Topic<'a>> {
+    let mut topics: Vec<Topic<'a>> = Vec::new();
+    let channel = |i: usize| &log.channels()[i].values;
     let find = |role: ChannelRole, name: &str| {
         log.channels()
             .iter()
@@ -342,14 +371,15 @@ fn plan_topics<'a>(log: &'a FlightLog, compensation: Option<&'a Compensation>) -
             }),
         });
     }
-    for (i, c) in log.channels().iter().enumerate().filter(|(i, _)| !covered[*i]) {
-        topics.push(sample_topic(
-            format!("/aux/{}", c.name),
-            channel(i),
-            unit_of(&c.name, &c.role),
-        ));
-    }
-    for compensated in compensation.map(|c| c.channels.as_slice()).unwrap_or_default() {
+    topics
+}
+
+/// The compensation's topics: each compensated channel and its sigma,
+/// each compensated vector and gradient, the reduced channels and the row
+/// flags.
+fn compensated_topics(compensation: &Compensation) -> Vec<Topic<'_>> {
+    let mut topics: Vec<Topic<'_>> = Vec::new();
+    for compensated in &compensation.channels {
         let frame = compensated.channel.clone();
         let label = scalar_label(&compensated.channel);
         topics.push(Topic {
@@ -372,7 +402,7 @@ fn plan_topics<'a>(log: &'a FlightLog, compensation: Option<&'a Compensation>) -
             topics.push(sample_topic(format!("/mag/{label}/compensated_sigma"), sigma, "nT"));
         }
     }
-    for vector in compensation.map(|c| c.vectors.as_slice()).unwrap_or_default() {
+    for vector in &compensation.vectors {
         let label = vector.sensor.strip_prefix("flux_").unwrap_or(&vector.sensor);
         for (suffix, frame, values) in [("", "body", &vector.body_nt), ("_ned", "ned", &vector.ned_nt)] {
             topics.push(Topic {
@@ -394,7 +424,7 @@ fn plan_topics<'a>(log: &'a FlightLog, compensation: Option<&'a Compensation>) -
             });
         }
     }
-    for gradient in compensation.map(|c| c.gradients.as_slice()).unwrap_or_default() {
+    for gradient in &compensation.gradients {
         let label = gradient.column.strip_prefix("grad_").unwrap_or(&gradient.column);
         let label = label.strip_suffix("_c").unwrap_or(label);
         topics.push(sample_topic(
@@ -403,7 +433,7 @@ fn plan_topics<'a>(log: &'a FlightLog, compensation: Option<&'a Compensation>) -
             "nT/m",
         ));
     }
-    for reduced in compensation.map(|c| c.reduced.as_slice()).unwrap_or_default() {
+    for reduced in &compensation.reduced {
         // `mag_1_dc` → /mag/1/dc, as the compensated channel's topic.
         let (channel, kind) = reduced.column.rsplit_once('_').unwrap_or((&reduced.column, "reduced"));
         let name = format!("{channel}_uc");
@@ -413,23 +443,21 @@ fn plan_topics<'a>(log: &'a FlightLog, compensation: Option<&'a Compensation>) -
             "nT",
         ));
     }
-    if let Some(compensation) = compensation {
-        let flags = &compensation.flags;
-        topics.push(Topic {
-            topic: "/magcomp/flags".into(),
-            schema: "magcomp.RowFlags",
-            metadata: BTreeMap::new(),
-            encode: Box::new(move |row, time| {
-                Some(
-                    RowFlags {
-                        timestamp: Some(timestamp(time)),
-                        flags: flags.get(row).map(|f| f.to_string()).unwrap_or_default(),
-                    }
-                    .encode_to_vec(),
-                )
-            }),
-        });
-    }
+    let flags = &compensation.flags;
+    topics.push(Topic {
+        topic: "/magcomp/flags".into(),
+        schema: "magcomp.RowFlags",
+        metadata: BTreeMap::new(),
+        encode: Box::new(move |row, time| {
+            Some(
+                RowFlags {
+                    timestamp: Some(timestamp(time)),
+                    flags: flags.get(row).map(|f| f.to_string()).unwrap_or_default(),
+                }
+                .encode_to_vec(),
+            )
+        }),
+    });
     topics
 }
 
