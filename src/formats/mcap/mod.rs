@@ -520,6 +520,64 @@ fn build_log(
     (plans, decoded, mut notes, mut losses, cut_short): FileContents,
 ) -> Result<FlightLog> {
     let (names, alignment) = (&options.columns, &options.alignment);
+    let streams = decoded_streams(path, options, (&plans, decoded), (&mut notes, &mut losses))?;
+    let mut streams = joined_streams(streams, &mut notes, &mut losses);
+    let base = time_base(path, options, &streams)?;
+    if streams[base].times_ns.is_empty() {
+        return Err(Error::AllMissing {
+            path: path.to_path_buf(),
+            column: streams[base].name.clone(),
+        });
+    }
+    let date = time_of_day(&plans, &mut streams, &mut losses);
+    let roles: Vec<Option<ChannelRole>> = streams.iter().map(|s| s.role.clone()).collect();
+    for (stream, role) in streams.iter_mut().zip(&roles) {
+        let role = role.clone().or_else(|| names.role_of(&stream.name));
+        stream.angle = matches!(role, Some(ChannelRole::Attitude(_)));
+    }
+    let mut aligned = align(streams, base, alignment).map_err(|conflict| Error::BadTime {
+        path: path.to_path_buf(),
+        location: format!("topic {}", conflict.source),
+        column: conflict.channel.clone(),
+        problem: format!(
+            "has {} time(s) at which messages disagree, the first at {} s, so which row the time stands for cannot be decided",
+            conflict.times,
+            crate::error::Number(conflict.first_time_s)
+        ),
+    })?;
+    aligned.report.notes = notes;
+    aligned.report.warnings.splice(0..0, losses);
+    if let Some(cut) = cut_short {
+        aligned
+            .report
+            .warnings
+            .insert(0, cut_short_warning(&cut, &aligned.time_s));
+    }
+    let channels: Vec<Channel> = aligned
+        .channels
+        .into_iter()
+        .zip(roles)
+        .filter_map(|((name, values), role)| {
+            let role = role.or_else(|| names.role_of(&name))?;
+            Some(Channel { name, role, values })
+        })
+        .collect();
+    Ok(FlightLog::new(path, names.time.clone(), aligned.time_s, channels)?
+        .with_row_flags(aligned.row_flags)
+        .with_reading_warnings(aligned.report.warnings.clone())
+        .with_alignment(aligned.report)
+        .with_date(date))
+}
+
+/// The skipped topics in words, then one stream per decoded field (or per
+/// ROS message field), with what could not be decoded said.
+fn decoded_streams(
+    path: &Path,
+    options: &IngestOptions,
+    (plans, decoded): (&BTreeMap<u16, TopicPlan>, BTreeMap<u16, Decoded>),
+    (notes, losses): (&mut Vec<String>, &mut Vec<String>),
+) -> Result<Vec<Stream>> {
+    let names = &options.columns;
     let mut attitude_taken = false;
     for plan in plans.values() {
         match &plan.decoder {
@@ -575,8 +633,14 @@ fn build_log(
             });
         }
     }
-    let mut streams = joined_streams(streams, &mut notes, &mut losses);
-    let base = match &alignment.time_base {
+    Ok(streams)
+}
+
+/// The stream the others are aligned on: `[alignment] time_base`, or the
+/// first scalar magnetometer.
+fn time_base(path: &Path, options: &IngestOptions, streams: &[Stream]) -> Result<usize> {
+    let names = &options.columns;
+    Ok(match &options.alignment.time_base {
         Some(name) => streams.iter().position(|s| &s.name == name).ok_or_else(|| Error::Config {
             source_name: "[alignment] time_base".into(),
             message: format!(
@@ -594,51 +658,7 @@ fn build_log(
                 looked_for: "a /mag/<n>/scalar topic (or a ROS topic mapped with scalar = ...)".into(),
                 hint: "Record the scalar magnetometers on /mag/<n>/scalar, map a ROS MagneticField topic with [[topic]] scalar = \"mag_1_uc\", or name the time-base channel in [alignment] time_base.".into(),
             })?,
-    };
-    if streams[base].times_ns.is_empty() {
-        return Err(Error::AllMissing {
-            path: path.to_path_buf(),
-            column: streams[base].name.clone(),
-        });
-    }
-    let date = time_of_day(&plans, &mut streams, &mut losses);
-    let roles: Vec<Option<ChannelRole>> = streams.iter().map(|s| s.role.clone()).collect();
-    for (stream, role) in streams.iter_mut().zip(&roles) {
-        let role = role.clone().or_else(|| names.role_of(&stream.name));
-        stream.angle = matches!(role, Some(ChannelRole::Attitude(_)));
-    }
-    let mut aligned = align(streams, base, alignment).map_err(|conflict| Error::BadTime {
-        path: path.to_path_buf(),
-        location: format!("topic {}", conflict.source),
-        column: conflict.channel.clone(),
-        problem: format!(
-            "has {} time(s) at which messages disagree, the first at {} s, so which row the time stands for cannot be decided",
-            conflict.times,
-            crate::error::Number(conflict.first_time_s)
-        ),
-    })?;
-    aligned.report.notes = notes;
-    aligned.report.warnings.splice(0..0, losses);
-    if let Some(cut) = cut_short {
-        aligned
-            .report
-            .warnings
-            .insert(0, cut_short_warning(&cut, &aligned.time_s));
-    }
-    let channels: Vec<Channel> = aligned
-        .channels
-        .into_iter()
-        .zip(roles)
-        .filter_map(|((name, values), role)| {
-            let role = role.or_else(|| names.role_of(&name))?;
-            Some(Channel { name, role, values })
-        })
-        .collect();
-    Ok(FlightLog::new(path, names.time.clone(), aligned.time_s, channels)?
-        .with_row_flags(aligned.row_flags)
-        .with_reading_warnings(aligned.report.warnings.clone())
-        .with_alignment(aligned.report)
-        .with_date(date))
+    })
 }
 
 /// One stream per column name. Streams of one source (a topic recorded on
