@@ -517,7 +517,6 @@ pub fn predict(plan: &Plan, settings: &Settings) -> Result<PlanReport> {
     let target_fom = plan.settings.target_fom_nt;
     let channels = predictions(&realisations, target_survey, target_fom);
     let mut warnings = Vec::new();
-    let report_realisations = realisations.len();
     let headings = plan.scenario.raw.calibration.headings_deg.clone();
     let cost = |candidate: &crate::model::excitation::Candidate| -> (f64, bool) {
         let pause = plan.scenario.raw.calibration.pause_s;
@@ -558,7 +557,48 @@ pub fn predict(plan: &Plan, settings: &Settings) -> Result<PlanReport> {
         }
         None => candidates = candidate_values(&realisations, &cost),
     }
-    for channel in &channels {
+    warnings.extend(channel_warnings(&channels, &realisations, target_fom));
+    if additions_meet_target == Some(false) {
+        warnings.push(format!(
+            "no set of up to {} additions meets the survey target of {:.3} nT on every channel; the report lists the best found",
+            plan.settings.most_additions,
+            target_survey.unwrap_or(f64::NAN)
+        ));
+    }
+    let mut report = PlanReport {
+        plan: plan.path.clone(),
+        seeds,
+        installation: plan.installation.clone(),
+        headings_deg: headings.clone(),
+        manoeuvres: median_of(realisations.iter().map(|r| r.manoeuvres as f64)).round() as usize,
+        planned_manoeuvres: realisations.first().map(|r| r.flown.clone()).unwrap_or_default(),
+        calibration_s: median_of(realisations.iter().map(|r| r.calibration_s)),
+        target_fom_nt: target_fom,
+        target_survey_sigma_nt: target_survey,
+        stated_factor: STATED_FACTOR,
+        channels,
+        additions,
+        additions_meet_target,
+        with_additions,
+        candidates,
+        warnings,
+        summary: Vec::new(),
+    };
+    report.summary = summarise(&report);
+    Ok(report)
+}
+
+/// What each channel's prediction leaves short: a FOM above its target,
+/// simulated flights without an excitation analysis, gaps in the box, and
+/// flights whose compensation away from the calibration is uncertain.
+fn channel_warnings(
+    channels: &[ChannelPrediction],
+    realisations: &[Realisation],
+    target_fom: Option<f64>,
+) -> Vec<String> {
+    let report_realisations = realisations.len();
+    let mut warnings = Vec::new();
+    for channel in channels {
         if channel.meets_fom_target == Some(false) {
             warnings.push(format!(
                 "{}: the plan's predicted FOM, {}, is above the target of {:.2} nT; no addition to the box lowers it (it measures the compensated residual over the box's own manoeuvres, {} of it the compensated noise)",
@@ -592,34 +632,7 @@ pub fn predict(plan: &Plan, settings: &Settings) -> Result<PlanReport> {
             ));
         }
     }
-    if additions_meet_target == Some(false) {
-        warnings.push(format!(
-            "no set of up to {} additions meets the survey target of {:.3} nT on every channel; the report lists the best found",
-            plan.settings.most_additions,
-            target_survey.unwrap_or(f64::NAN)
-        ));
-    }
-    let mut report = PlanReport {
-        plan: plan.path.clone(),
-        seeds,
-        installation: plan.installation.clone(),
-        headings_deg: headings.clone(),
-        manoeuvres: median_of(realisations.iter().map(|r| r.manoeuvres as f64)).round() as usize,
-        planned_manoeuvres: realisations.first().map(|r| r.flown.clone()).unwrap_or_default(),
-        calibration_s: median_of(realisations.iter().map(|r| r.calibration_s)),
-        target_fom_nt: target_fom,
-        target_survey_sigma_nt: target_survey,
-        stated_factor: STATED_FACTOR,
-        channels,
-        additions,
-        additions_meet_target,
-        with_additions,
-        candidates,
-        warnings,
-        summary: Vec::new(),
-    };
-    report.summary = summarise(&report);
-    Ok(report)
+    warnings
 }
 
 /// Simulates and fits `scenario` once per seed, in parallel, in order.
