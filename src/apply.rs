@@ -371,85 +371,98 @@ impl SavedModel {
             ));
         }
         for fit in &chosen {
-            if let Some(wanted) = vector.filter(|v| *v != fit.vector_sensor) {
+            self.check_fit(log, fit, vector)?;
+        }
+        Ok(chosen.into_iter().map(|fit| self.fitted(fit)).collect())
+    }
+
+    /// Refuses `fit` on `log` when the flight cannot take it: another
+    /// fluxgate asked for, its fluxgate or a source column not recorded,
+    /// another sample rate, or a term list its spec does not build.
+    fn check_fit(&self, log: &FlightLog, fit: &SavedFit, vector: Option<&str>) -> Result<()> {
+        if let Some(wanted) = vector.filter(|v| *v != fit.vector_sensor) {
+            return Err(self.mismatch(
+                log,
+                format!(
+                    "the fluxgate '{wanted}' was asked for, and the model of '{}' is built on '{}'",
+                    fit.channel, fit.vector_sensor
+                ),
+                "A model's terms are of the fluxgate it was fitted with: leave the fluxgate to the model",
+            ));
+        }
+        if log.vector_sensor(&fit.vector_sensor).is_none() {
+            return Err(self.mismatch(
+                log,
+                format!(
+                    "the model of '{}' is built on the fluxgate '{}', which the flight does not record",
+                    fit.channel, fit.vector_sensor
+                ),
+                "Apply a model calibrated with this flight's fluxgate, or name its columns in [columns]",
+            ));
+        }
+        let rate = 1.0 / log.median_interval_s();
+        let same_rate = (rate / fit.sample_rate_hz - 1.0).abs() <= RATE_TOLERANCE;
+        if !same_rate {
+            return Err(self.mismatch(
+                log,
+                format!(
+                    "the model was fitted at {:.3} Hz and the flight is recorded at {rate:.3} Hz",
+                    fit.sample_rate_hz
+                ),
+                "Its eddy-current terms are per sample and its band-pass was designed at its rate: record the survey at the calibration's rate, or calibrate at this one",
+            ));
+        }
+        self.check_terms(log, fit)?;
+        let sources = fit.spec.extensions.sources.iter().map(|s| s.column());
+        if let Some(column) = sources.into_iter().find(|c| log.channel(c).is_none()) {
+            return Err(self.mismatch(
+                log,
+                format!(
+                    "the model of '{}' takes the column '{column}' (a finding of its calibration), which the flight does not record",
+                    fit.channel
+                ),
+                "Record that column on the survey flights too, or save a plain model from the calibration flight (compensate it with --plain --model)",
+            ));
+        }
+        Ok(())
+    }
+
+    /// The coefficients are read in the order of the terms the spec
+    /// builds: a list that differs was edited, and would pair each
+    /// coefficient with another term.
+    fn check_terms(&self, log: &FlightLog, fit: &SavedFit) -> Result<()> {
+        if let Some(sensor) = log.vector_sensor(&fit.vector_sensor) {
+            let columns = crate::model::term_names(log, &sensor, &fit.channel, &fit.spec);
+            if columns.as_ref().is_ok_and(|names| *names != fit.term_names) {
+                let built = columns.unwrap_or_default();
+                // An earlier magcomp fitted a base station's gain: one
+                // more term, named after the station's column.
+                let stations: Vec<&str> = (fit.spec.extensions.sources.iter())
+                    .filter(|s| matches!(s, crate::model::SourceTerm::ExternalField { .. }))
+                    .map(|s| s.column())
+                    .collect();
+                let fitted_gain = !stations.is_empty()
+                    && fit.term_names.len() == built.len() + stations.len()
+                    && (fit.term_names.iter())
+                        .filter(|n| !stations.contains(&n.as_str()))
+                        .eq(built.iter());
+                let hint = match fitted_gain {
+                    true => "The model was saved by an earlier magcomp, which fitted the base station's gain; this one subtracts the station's variation with gain 1: save the model again from its calibration flight (--model)",
+                    false => "The file was edited or damaged: save the model again from its calibration flight (--model)",
+                };
                 return Err(self.mismatch(
                     log,
                     format!(
-                        "the fluxgate '{wanted}' was asked for, and the model of '{}' is built on '{}'",
-                        fit.channel, fit.vector_sensor
+                        "the model of '{}' lists the terms {} where its spec builds {}",
+                        fit.channel,
+                        fit.term_names.join(", "),
+                        built.join(", ")
                     ),
-                    "A model's terms are of the fluxgate it was fitted with: leave the fluxgate to the model",
-                ));
-            }
-            if log.vector_sensor(&fit.vector_sensor).is_none() {
-                return Err(self.mismatch(
-                    log,
-                    format!(
-                        "the model of '{}' is built on the fluxgate '{}', which the flight does not record",
-                        fit.channel, fit.vector_sensor
-                    ),
-                    "Apply a model calibrated with this flight's fluxgate, or name its columns in [columns]",
-                ));
-            }
-            let rate = 1.0 / log.median_interval_s();
-            let same_rate = (rate / fit.sample_rate_hz - 1.0).abs() <= RATE_TOLERANCE;
-            if !same_rate {
-                return Err(self.mismatch(
-                    log,
-                    format!(
-                        "the model was fitted at {:.3} Hz and the flight is recorded at {rate:.3} Hz",
-                        fit.sample_rate_hz
-                    ),
-                    "Its eddy-current terms are per sample and its band-pass was designed at its rate: record the survey at the calibration's rate, or calibrate at this one",
-                ));
-            }
-            // The coefficients are read in the order of the terms the spec
-            // builds: a list that differs was edited, and would pair each
-            // coefficient with another term.
-            if let Some(sensor) = log.vector_sensor(&fit.vector_sensor) {
-                let columns = crate::model::term_names(log, &sensor, &fit.channel, &fit.spec);
-                if columns.as_ref().is_ok_and(|names| *names != fit.term_names) {
-                    let built = columns.unwrap_or_default();
-                    // An earlier magcomp fitted a base station's gain: one
-                    // more term, named after the station's column.
-                    let stations: Vec<&str> = (fit.spec.extensions.sources.iter())
-                        .filter(|s| matches!(s, crate::model::SourceTerm::ExternalField { .. }))
-                        .map(|s| s.column())
-                        .collect();
-                    let fitted_gain = !stations.is_empty()
-                        && fit.term_names.len() == built.len() + stations.len()
-                        && (fit.term_names.iter())
-                            .filter(|n| !stations.contains(&n.as_str()))
-                            .eq(built.iter());
-                    let hint = match fitted_gain {
-                        true => "The model was saved by an earlier magcomp, which fitted the base station's gain; this one subtracts the station's variation with gain 1: save the model again from its calibration flight (--model)",
-                        false => "The file was edited or damaged: save the model again from its calibration flight (--model)",
-                    };
-                    return Err(self.mismatch(
-                        log,
-                        format!(
-                            "the model of '{}' lists the terms {} where its spec builds {}",
-                            fit.channel,
-                            fit.term_names.join(", "),
-                            built.join(", ")
-                        ),
-                        hint,
-                    ));
-                }
-            }
-            let sources = fit.spec.extensions.sources.iter().map(|s| s.column());
-            if let Some(column) = sources.into_iter().find(|c| log.channel(c).is_none()) {
-                return Err(self.mismatch(
-                    log,
-                    format!(
-                        "the model of '{}' takes the column '{column}' (a finding of its calibration), which the flight does not record",
-                        fit.channel
-                    ),
-                    "Record that column on the survey flights too, or save a plain model from the calibration flight (compensate it with --plain --model)",
+                    hint,
                 ));
             }
         }
-        Ok(chosen.into_iter().map(|fit| self.fitted(fit)).collect())
+        Ok(())
     }
 
     /// A [`FittedModel`] of a saved fit: the coefficients, the spec, the
