@@ -283,22 +283,7 @@ fn sensor_columns(spec: &SampleFlightSpec, states: &[State], random: &mut Random
     let dt = 1.0 / spec.sample_rate_hz;
     let (inc, dec) = (spec.inclination_deg.to_radians(), spec.declination_deg.to_radians());
     let main = [inc.cos() * dec.cos(), inc.cos() * dec.sin(), inc.sin()].map(|c| c * spec.earth_total_nt);
-    let dipoles: Vec<(Vector, Vector)> = (0..6)
-        .map(|_| {
-            let position = [
-                random.uniform(-2000.0, 10_000.0),
-                random.uniform(-3000.0, 3000.0),
-                random.uniform(400.0, 900.0),
-            ];
-            let moment = [
-                random.uniform(-1.0, 1.0),
-                random.uniform(-1.0, 1.0),
-                random.uniform(0.5, 1.5),
-            ]
-            .map(|c| c * 2e8);
-            (position, moment)
-        })
-        .collect();
+    let dipoles = random_dipoles(random);
     let tail = AircraftField::random(random, 3.0, 6e-5, 3e-5);
     let cabin = AircraftField::random(random, 120.0, 2e-3, 5e-4);
     let fluxgate_own = AircraftField::random(random, 2.0, 5e-5, 0.0);
@@ -324,31 +309,9 @@ fn sensor_columns(spec: &SampleFlightSpec, states: &[State], random: &mut Random
     .iter()
     .map(|name| (name.to_string(), Vec::with_capacity(n)))
     .collect();
-    let body_fields: Vec<(Vector, f64)> = states
-        .iter()
-        .enumerate()
-        .map(|(k, state)| {
-            let (north, east, _) = heading_path[k];
-            let observer = [north, east, -state.altitude_m];
-            let crust = dipoles.iter().fold([0.0; 3], |acc, (position, moment)| {
-                let b = dipole_field_nt(*moment, [0, 1, 2].map(|i| observer[i] - position[i]));
-                [acc[0] + b[0], acc[1] + b[1], acc[2] + b[2]]
-            });
-            let t = k as f64 * dt;
-            let diurnal = 8.0 * (2.0 * PI * t / 3600.0 + diurnal_phase).sin() + 1.5 * (2.0 * PI * t / 600.0).sin();
-            let unit_main = main.map(|c| c / spec.earth_total_nt);
-            let ned = [0, 1, 2].map(|i| main[i] + crust[i] + diurnal * unit_main[i]);
-            (to_body(ned, state), diurnal)
-        })
-        .collect();
+    let body_fields = earth_field_in_body(spec, states, (&main, &dipoles), (&heading_path, diurnal_phase));
     let body: Vec<Vector> = body_fields.iter().map(|(b, _)| *b).collect();
-    let rate: Vec<Vector> = (0..n)
-        .map(|k| {
-            let (a, b) = (body[k.saturating_sub(1)], body[(k + 1).min(n - 1)]);
-            let span = ((k + 1).min(n - 1) - k.saturating_sub(1)) as f64 * dt;
-            [0, 1, 2].map(|i| (b[i] - a[i]) / span)
-        })
-        .collect();
+    let rate = rates(&body, dt);
     for k in 0..n {
         let (b, diurnal) = body_fields[k];
         let state = &states[k];
@@ -383,6 +346,68 @@ fn sensor_columns(spec: &SampleFlightSpec, states: &[State], random: &mut Random
         }
     }
     columns
+}
+
+/// Six crustal dipoles below the sample flight's area: position (m, north
+/// east down) and moment.
+fn random_dipoles(random: &mut Random) -> Vec<(Vector, Vector)> {
+    (0..6)
+        .map(|_| {
+            let position = [
+                random.uniform(-2000.0, 10_000.0),
+                random.uniform(-3000.0, 3000.0),
+                random.uniform(400.0, 900.0),
+            ];
+            let moment = [
+                random.uniform(-1.0, 1.0),
+                random.uniform(-1.0, 1.0),
+                random.uniform(0.5, 1.5),
+            ]
+            .map(|c| c * 2e8);
+            (position, moment)
+        })
+        .collect()
+}
+
+/// The Earth's field (main, crust and diurnal variation) in the body
+/// frame at each state, with the diurnal variation, nT.
+fn earth_field_in_body(
+    spec: &SampleFlightSpec,
+    states: &[State],
+    (main, dipoles): (&Vector, &[(Vector, Vector)]),
+    (heading_path, diurnal_phase): (&[(f64, f64, f64)], f64),
+) -> Vec<(Vector, f64)> {
+    let dt = 1.0 / spec.sample_rate_hz;
+    states
+        .iter()
+        .enumerate()
+        .map(|(k, state)| {
+            let (north, east, _) = heading_path[k];
+            let observer = [north, east, -state.altitude_m];
+            let crust = dipoles.iter().fold([0.0; 3], |acc, (position, moment)| {
+                let b = dipole_field_nt(*moment, [0, 1, 2].map(|i| observer[i] - position[i]));
+                [acc[0] + b[0], acc[1] + b[1], acc[2] + b[2]]
+            });
+            let t = k as f64 * dt;
+            let diurnal = 8.0 * (2.0 * PI * t / 3600.0 + diurnal_phase).sin() + 1.5 * (2.0 * PI * t / 600.0).sin();
+            let unit_main = main.map(|c| c / spec.earth_total_nt);
+            let ned = [0, 1, 2].map(|i| main[i] + crust[i] + diurnal * unit_main[i]);
+            (to_body(ned, state), diurnal)
+        })
+        .collect()
+}
+
+/// The rate of change of each body-frame field by central differences
+/// (one-sided at the ends), nT/s.
+fn rates(body: &[Vector], dt: f64) -> Vec<Vector> {
+    let n = body.len();
+    (0..n)
+        .map(|k| {
+            let (a, b) = (body[k.saturating_sub(1)], body[(k + 1).min(n - 1)]);
+            let span = ((k + 1).min(n - 1) - k.saturating_sub(1)) as f64 * dt;
+            [0, 1, 2].map(|i| (b[i] - a[i]) / span)
+        })
+        .collect()
 }
 
 /// North and east positions (m) integrated from heading and speed.
