@@ -222,16 +222,7 @@ pub fn run_flights(
         started(job, progress);
         // A flight applying another's model waits for that flight, which
         // was taken before it (the order puts it first).
-        let unavailable = job.model.as_ref().and_then(|model| {
-            let writer = outputs.get(model).filter(|writer| writer.model.is_none());
-            if writer.is_some() {
-                let mut board = lock(&board);
-                while !board.written.contains(model) && !board.failed.contains(model) {
-                    board = changed.wait(board).unwrap_or_else(|poisoned| poisoned.into_inner());
-                }
-            }
-            model_unavailable(model, &outputs, &lock(&board).failed)
-        });
+        let unavailable = (job.model.as_ref()).and_then(|model| await_model(model, &outputs, (&board, &changed)));
         let began = Instant::now();
         let flight_outputs = FlightOutputs::for_job(folder, job);
         let notes = prepare(job, &flight_outputs);
@@ -259,19 +250,7 @@ pub fn run_flights(
         };
         {
             let mut board = lock(&board);
-            if !matches!(done.flight, Ok(CampaignFlight::UpToDate(_))) {
-                board.spent = (board.spent.0 + began.elapsed(), board.spent.1 + 1);
-            }
-            if let Some(model) = flight_outputs.model_json {
-                if done.failed() {
-                    board.failed.insert(model);
-                } else {
-                    board.written.insert(model);
-                }
-            }
-            board.running -= 1;
-            board.finished[position] = Some(done);
-            board.done += 1;
+            board.finish(position, done, (began.elapsed(), flight_outputs.model_json));
             let progress = board.progress(order.len(), slots);
             // Under the lock: one flight's lines are printed whole.
             if let Some(done) = &board.finished[position] {
@@ -304,6 +283,43 @@ pub fn run_flights(
     });
     let board = board.into_inner().unwrap_or_else(|poisoned| poisoned.into_inner());
     board.finished.into_iter().flatten().collect()
+}
+
+/// Waits until the flight of this run that writes `model` has written it
+/// or failed; why the model cannot be applied, if it cannot.
+fn await_model(
+    model: &Path,
+    outputs: &HashMap<PathBuf, &FlightJob>,
+    (board, changed): (&Mutex<Board>, &Condvar),
+) -> Option<Error> {
+    let writer = outputs.get(model).filter(|writer| writer.model.is_none());
+    if writer.is_some() {
+        let mut board = lock(board);
+        while !board.written.contains(model) && !board.failed.contains(model) {
+            board = changed.wait(board).unwrap_or_else(|poisoned| poisoned.into_inner());
+        }
+    }
+    model_unavailable(model, outputs, &lock(board).failed)
+}
+
+impl Board {
+    /// Records the flight at `position` as done: its time (not counted
+    /// when it was up to date), and its model as written or failed.
+    fn finish(&mut self, position: usize, done: FinishedFlight, (took, model): (Duration, Option<PathBuf>)) {
+        if !matches!(done.flight, Ok(CampaignFlight::UpToDate(_))) {
+            self.spent = (self.spent.0 + took, self.spent.1 + 1);
+        }
+        if let Some(model) = model {
+            if done.failed() {
+                self.failed.insert(model);
+            } else {
+                self.written.insert(model);
+            }
+        }
+        self.running -= 1;
+        self.finished[position] = Some(done);
+        self.done += 1;
+    }
 }
 
 fn lock(board: &Mutex<Board>) -> std::sync::MutexGuard<'_, Board> {
