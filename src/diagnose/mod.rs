@@ -616,45 +616,17 @@ pub fn diagnose(
     let results: Vec<std::result::Result<(ChannelDiagnosis, Vec<Finding>), String>> = (channels.par_iter())
         .zip(starts)
         .map(|(channel, start)| {
-            let ChannelStart {
-                raw_rms,
-                other_rms,
-                start_model,
-                raw,
-            } = match start {
+            let start = match start {
                 Ok(start) => start,
                 Err(why) => return Ok(Err(why)),
             };
             let raw_problem = problem(channel, log, &raw_direction);
-            // Plain Tolles-Lawson on the calibrated fluxgate; the search
-            // starts from it where it fits better held out.
-            let alternative = match (&calibrated, &calibrated_direction) {
-                (Some(l), Some(d)) => {
-                    let p = problem(channel, l, d);
-                    held_out(&p, &start_model).ok().map(|h| (p, h))
-                }
+            let calibrated_problem = match (&calibrated, &calibrated_direction) {
+                (Some(l), Some(d)) => Some(problem(channel, l, d)),
                 _ => None,
             };
-            let calibrated_rms = alternative.as_ref().map(|(_, h)| h.rms_nt);
-            let (chosen, start, label) = match alternative {
-                Some((p, h)) if h.rms_nt < raw.rms_nt => (p, h, FluxgateReading::Calibrated),
-                _ => (raw_problem, raw, FluxgateReading::Raw),
-            };
-            let (mut summary, found) = diagnose_channel(&chosen, start_model, start, settings)?;
-            // The model compensation uses keeps the pipeline's criterion:
-            // the in-band held-out RMS says nothing of what a less
-            // regularised fit does outside the band (see `criterion_trial`).
-            if summary.model.lambda_criterion.take().is_some() {
-                summary.heldout_rms_final_nt = held_out(&chosen, &summary.model)?.rms_nt;
-            }
-            summary.heldout_rms_baseline_nt = raw_rms;
-            summary.heldout_rms_calibrated_fluxgate_nt = calibrated_rms;
-            summary.heldout_rms_other_criterion_nt = other_rms;
-            summary.fluxgate = label;
-            if label == FluxgateReading::Calibrated {
-                summary.model.vector_calibration = fluxgate.as_ref().map(|check| check.calibration.clone());
-            }
-            Ok(Ok((summary, found)))
+            let fluxgate_calibration = fluxgate.as_ref().map(|check| &check.calibration);
+            diagnose_from(start, (raw_problem, calibrated_problem), fluxgate_calibration, settings).map(Ok)
         })
         .collect::<Result<_>>()?;
     let (results, untestable): (Vec<_>, Vec<_>) = results.into_iter().partition(|r| r.is_ok());
@@ -665,7 +637,72 @@ pub fn diagnose(
     notes.extend(untestable);
     let results: Vec<(ChannelDiagnosis, Vec<Finding>)> = results.into_iter().filter_map(|r| r.ok()).collect();
     let (channel_results, findings): (Vec<_>, Vec<_>) = results.into_iter().unzip();
-    for c in &channel_results {
+    notes.extend(criterion_notes(&channel_results, options));
+    let fluxgate_found = fluxgate
+        .as_ref()
+        .filter(|_| calibrated.is_some())
+        .map(|check| fluxgate_finding(check, &channel_results));
+    let findings = fluxgate_found
+        .into_iter()
+        .chain(findings.into_iter().flatten())
+        .collect();
+    if let Some(check) = fluxgate.as_ref().filter(|_| calibrated.is_none()) {
+        notes.push(fluxgate_note(check, settings));
+    }
+    Ok(Diagnosis {
+        flight: None,
+        channels: channel_results,
+        findings,
+        fluxgate,
+        notes,
+    })
+}
+
+/// One channel's diagnosis from its plain start: the search runs on the
+/// calibrated fluxgate (`calibrated`) where plain Tolles-Lawson fits better
+/// held out there, else on the raw one, and its figures are set beside
+/// plain's.
+fn diagnose_from(
+    start: ChannelStart,
+    (raw_problem, calibrated): (Problem, Option<Problem>),
+    fluxgate: Option<&VectorCalibration>,
+    settings: &DiagnoseOptions,
+) -> Result<(ChannelDiagnosis, Vec<Finding>)> {
+    let ChannelStart {
+        raw_rms,
+        other_rms,
+        start_model,
+        raw,
+    } = start;
+    // Plain Tolles-Lawson on the calibrated fluxgate; the search starts
+    // from it where it fits better held out.
+    let alternative = calibrated.and_then(|p| held_out(&p, &start_model).ok().map(|h| (p, h)));
+    let calibrated_rms = alternative.as_ref().map(|(_, h)| h.rms_nt);
+    let (chosen, start, label) = match alternative {
+        Some((p, h)) if h.rms_nt < raw.rms_nt => (p, h, FluxgateReading::Calibrated),
+        _ => (raw_problem, raw, FluxgateReading::Raw),
+    };
+    let (mut summary, found) = diagnose_channel(&chosen, start_model, start, settings)?;
+    // The model compensation uses keeps the pipeline's criterion: the
+    // in-band held-out RMS says nothing of what a less regularised fit
+    // does outside the band (see `criterion_trial`).
+    if summary.model.lambda_criterion.take().is_some() {
+        summary.heldout_rms_final_nt = held_out(&chosen, &summary.model)?.rms_nt;
+    }
+    summary.heldout_rms_baseline_nt = raw_rms;
+    summary.heldout_rms_calibrated_fluxgate_nt = calibrated_rms;
+    summary.heldout_rms_other_criterion_nt = other_rms;
+    summary.fluxgate = label;
+    if label == FluxgateReading::Calibrated {
+        summary.model.vector_calibration = fluxgate.cloned();
+    }
+    Ok((summary, found))
+}
+
+/// A note for each channel whose search used the other λ criterion.
+fn criterion_notes(channel_results: &[ChannelDiagnosis], options: &FitOptions) -> Vec<String> {
+    let mut notes = Vec::new();
+    for c in channel_results {
         if let (true, Some(other)) = (
             c.search_criterion != options.solve.criterion,
             c.heldout_rms_other_criterion_nt,
@@ -682,33 +719,21 @@ pub fn diagnose(
             ));
         }
     }
-    let fluxgate_found = fluxgate
-        .as_ref()
-        .filter(|_| calibrated.is_some())
-        .map(|check| fluxgate_finding(check, &channel_results));
-    let findings = fluxgate_found
-        .into_iter()
-        .chain(findings.into_iter().flatten())
-        .collect();
-    if let Some(check) = fluxgate.as_ref().filter(|_| calibrated.is_none()) {
-        notes.push(format!(
-            "{}'s magnitude against {} (the scalar with the least aircraft field, {:.1} nT over the manoeuvres): held-out mismatch {:.1} nT raw, {:.1} nT calibrated; below the {:.0} nT a finding needs ({:.0} nT and three times that field), or not removed by the calibration",
-            check.calibration.sensor,
-            check.calibration.reference,
-            check.reference_interference_nt,
-            check.heldout_mismatch_before_nt,
-            check.heldout_mismatch_after_nt,
-            check.threshold_nt,
-            settings.vector_mismatch_nt
-        ));
-    }
-    Ok(Diagnosis {
-        flight: None,
-        channels: channel_results,
-        findings,
-        fluxgate,
-        notes,
-    })
+    notes
+}
+
+/// The fluxgate check's figures, when its finding does not stand.
+fn fluxgate_note(check: &FluxgateCheck, settings: &DiagnoseOptions) -> String {
+    format!(
+        "{}'s magnitude against {} (the scalar with the least aircraft field, {:.1} nT over the manoeuvres): held-out mismatch {:.1} nT raw, {:.1} nT calibrated; below the {:.0} nT a finding needs ({:.0} nT and three times that field), or not removed by the calibration",
+        check.calibration.sensor,
+        check.calibration.reference,
+        check.reference_interference_nt,
+        check.heldout_mismatch_before_nt,
+        check.heldout_mismatch_after_nt,
+        check.threshold_nt,
+        settings.vector_mismatch_nt
+    )
 }
 
 /// The held-out in-band RMS of `spec` on `channel`, nT, scored as the
