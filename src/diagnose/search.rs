@@ -46,6 +46,73 @@ pub(super) fn flip_criterion(problem: &Problem, model: &Model) -> Option<(Model,
     Some((flipped, result))
 }
 
+/// Every candidate extension of `model` the screen keeps, scored held out
+/// (the second-order one is the `control`, already scored), best first; a
+/// leading lag or eddy τ takes the other λ criterion where it predicts it
+/// better and still pays against the current model under it.
+fn score_candidates(
+    problem: &Problem,
+    (model, current_ridge): (&Model, &[f64]),
+    control: &HeldOut,
+    settings: &DiagnoseOptions,
+) -> Vec<(Model, Extension, HeldOut)> {
+    let keep = 1.0 - settings.min_improvement;
+    let candidates = candidates(problem, model, settings);
+    let candidates = match super::screen::Screen::new(problem, model, current_ridge) {
+        Some(screen) => screen.select(problem, candidates),
+        None => candidates,
+    };
+    // The second-order candidate is the control, already scored.
+    let mut scored: Vec<(Model, Extension, HeldOut)> = candidates
+        .into_par_iter()
+        .filter_map(|(next, extension)| {
+            let result = match extension {
+                Extension::SecondOrder if next == with_second_order(model) => Ok(control.clone()),
+                _ => held_out(problem, &next),
+            };
+            result.ok().map(|h| (next, extension, h))
+        })
+        // A candidate with more terms than its folds have samples
+        // measures nothing.
+        .filter(|(_, _, h)| h.unusable().is_none())
+        .collect();
+    drop_unearned_rates(&mut scored, keep);
+    scored.sort_by(|a, b| a.2.rms_nt.total_cmp(&b.2.rms_nt));
+    // A lag or an eddy τ changes the model's own regressors (the
+    // scalar shifted, the eddy terms lagged), so the λ criterion that
+    // suited the current model need not suit it: blocked PRESS can
+    // shrink the lagged eddy terms too hard, enough for a wing eddy τ to
+    // lose to a lag (figures: docs/measurements.md, section
+    // diagnose::search). Such leading candidates take the other
+    // criterion when it predicts them better and the effect pays by
+    // the threshold against the current model under that criterion
+    // too: a change of criterion alone is no finding. A source adds
+    // terms to an unchanged model and keeps its criterion (letting the
+    // 30 sources of the two-hour benchmark flight choose too named a
+    // slow one on a quiet sensor).
+    let current_other = flip_criterion(problem, model).map_or(f64::INFINITY, |(_, h)| h.rms_nt);
+    let flips: Vec<Option<(Model, HeldOut)>> = scored
+        .par_iter()
+        .take(CRITERION_CHECKS)
+        .map(|(next, extension, plain)| match extension {
+            Extension::Lag { .. } | Extension::Eddy { .. } => flip_criterion(problem, next)
+                .filter(|(_, h)| h.rms_nt < plain.rms_nt && h.rms_nt <= current_other * keep),
+            Extension::Coupling { .. }
+            | Extension::CouplingRate { .. }
+            | Extension::CouplingWithRate { .. }
+            | Extension::External { .. }
+            | Extension::SecondOrder => None,
+        })
+        .collect();
+    for (entry, flip) in scored.iter_mut().zip(flips) {
+        if let Some((flipped, result)) = flip {
+            (entry.0, entry.2) = (flipped, result);
+        }
+    }
+    scored.sort_by(|a, b| a.2.rms_nt.total_cmp(&b.2.rms_nt));
+    scored
+}
+
 pub(super) fn diagnose_channel(
     problem: &Problem,
     start: Model,
@@ -64,59 +131,7 @@ pub(super) fn diagnose_channel(
     let mut strongest_rejected = None;
     let keep = 1.0 - settings.min_improvement;
     while findings.len() < settings.max_findings {
-        let candidates = candidates(problem, &model, settings);
-        let candidates = match super::screen::Screen::new(problem, &model, &current_ridge) {
-            Some(screen) => screen.select(problem, candidates),
-            None => candidates,
-        };
-        // The second-order candidate is the control, already scored.
-        let mut scored: Vec<(Model, Extension, HeldOut)> = candidates
-            .into_par_iter()
-            .filter_map(|(next, extension)| {
-                let result = match extension {
-                    Extension::SecondOrder if next == with_second_order(&model) => Ok(control.clone()),
-                    _ => held_out(problem, &next),
-                };
-                result.ok().map(|h| (next, extension, h))
-            })
-            // A candidate with more terms than its folds have samples
-            // measures nothing.
-            .filter(|(_, _, h)| h.unusable().is_none())
-            .collect();
-        drop_unearned_rates(&mut scored, keep);
-        scored.sort_by(|a, b| a.2.rms_nt.total_cmp(&b.2.rms_nt));
-        // A lag or an eddy τ changes the model's own regressors (the
-        // scalar shifted, the eddy terms lagged), so the λ criterion that
-        // suited the current model need not suit it: blocked PRESS can
-        // shrink the lagged eddy terms too hard, enough for a wing eddy τ to
-        // lose to a lag (figures: docs/measurements.md, section
-        // diagnose::search). Such leading candidates take the other
-        // criterion when it predicts them better and the effect pays by
-        // the threshold against the current model under that criterion
-        // too: a change of criterion alone is no finding. A source adds
-        // terms to an unchanged model and keeps its criterion (letting the
-        // 30 sources of the two-hour benchmark flight choose too named a
-        // slow one on a quiet sensor).
-        let current_other = flip_criterion(problem, &model).map_or(f64::INFINITY, |(_, h)| h.rms_nt);
-        let flips: Vec<Option<(Model, HeldOut)>> = scored
-            .par_iter()
-            .take(CRITERION_CHECKS)
-            .map(|(next, extension, plain)| match extension {
-                Extension::Lag { .. } | Extension::Eddy { .. } => flip_criterion(problem, next)
-                    .filter(|(_, h)| h.rms_nt < plain.rms_nt && h.rms_nt <= current_other * keep),
-                Extension::Coupling { .. }
-                | Extension::CouplingRate { .. }
-                | Extension::CouplingWithRate { .. }
-                | Extension::External { .. }
-                | Extension::SecondOrder => None,
-            })
-            .collect();
-        for (entry, flip) in scored.iter_mut().zip(flips) {
-            if let Some((flipped, result)) = flip {
-                (entry.0, entry.2) = (flipped, result);
-            }
-        }
-        scored.sort_by(|a, b| a.2.rms_nt.total_cmp(&b.2.rms_nt));
+        let mut scored = score_candidates(problem, (&model, &current_ridge), &control, settings);
         let Some(best) = scored.first() else {
             break;
         };
