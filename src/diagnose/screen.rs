@@ -225,8 +225,7 @@ impl Screen {
         if !aligned {
             return None;
         }
-        let (p, all) = (kept.len(), self.columns.len());
-        let q = p + k;
+        let p = kept.len();
         // The model's regularisation on its own columns and on columns
         // that stand in for its terms (the lagged eddy terms); none on a
         // source's.
@@ -236,7 +235,24 @@ impl Screen {
             .collect();
         let y = target.as_deref().unwrap_or(&self.target);
         // Each piece's moments of [X C] and y′.
-        let moments: Vec<(Vec<f64>, Vec<f64>, f64)> = (self.rows.iter().enumerate())
+        let moments = self.piece_moments(&kept, &added, y, retargeted);
+        self.held_out_rms(&moments, &penalised)
+    }
+
+    /// Each piece's moments of the candidate's design [X C] (the model's
+    /// `kept` columns, then the `added` ones) and of its target `y`: the
+    /// Gram matrix (row-major), X′y and y′y. The model's own moments are
+    /// reused where the target is the model's.
+    fn piece_moments(
+        &self,
+        kept: &[usize],
+        added: &[Vec<f64>],
+        y: &[f64],
+        retargeted: bool,
+    ) -> Vec<(Vec<f64>, Vec<f64>, f64)> {
+        let (p, k, all) = (kept.len(), added.len(), self.columns.len());
+        let q = p + k;
+        (self.rows.iter().enumerate())
             .map(|(piece, range)| {
                 let x: Vec<&[f64]> = kept.iter().map(|&i| &self.columns[i][range.clone()]).collect();
                 let c: Vec<&[f64]> = added.iter().map(|c| &c[range.clone()]).collect();
@@ -270,7 +286,14 @@ impl Screen {
                 };
                 (g, b, squares)
             })
-            .collect();
+            .collect()
+    }
+
+    /// The held-out RMS of the ridge fit of each split's complement,
+    /// predicted on the split, from the pieces' `moments`: `penalised`
+    /// says which columns λ regularises.
+    fn held_out_rms(&self, moments: &[(Vec<f64>, Vec<f64>, f64)], penalised: &[bool]) -> Option<f64> {
+        let q = penalised.len();
         let (mut residual, mut samples) = (0.0, 0usize);
         for (split, &lambda) in self.ridge.iter().enumerate() {
             let (mut g, mut b) = (vec![0.0; q * q], vec![0.0; q]);
