@@ -360,49 +360,12 @@ pub fn analyse_design(
         .map(|j| total[(j, j)].sqrt())
         .map(|d| if d > 0.0 && d.is_finite() { d } else { 1.0 })
         .collect();
-    let scaled = |g: &Mat<f64>| Mat::from_fn(p, p, |i, j| g[(i, j)] / (scale[i] * scale[j]));
-    let flown: Vec<Mat<f64>> = per_window.iter().map(scaled).collect();
+    let flown: Vec<Mat<f64>> = per_window.iter().map(|g| scaled_by(g, &scale)).collect();
     let information = sum(flown.iter(), p);
 
     // One of each kind on each heading: the candidates, and together a
     // full box.
-    // Without manoeuvre kinds (windows given by time alone) no gap can be told.
-    let kinds_known = windows.iter().any(|w| w.kind.is_some());
-    let mut candidates: Vec<(Candidate, Mat<f64>)> = Vec::new();
-    for &heading_deg in &plan.headings {
-        for kind in [ManoeuvreKind::Pitch, ManoeuvreKind::Roll, ManoeuvreKind::Yaw] {
-            let shape = plan.shapes[kind_index(kind)];
-            let gram = candidate_gram(&prepared, model, options, plan.field_ned, (kind, heading_deg, shape))?;
-            let own: Vec<usize> = (0..fits.len())
-                .filter(|&k| {
-                    let w = &fits[k].window;
-                    w.kind == Some(kind) && w.heading_deg.is_some_and(|h| same_heading(h, heading_deg))
-                })
-                .collect();
-            let scaled_gram = scaled(&gram);
-            let candidate_trace: f64 = (0..p).map(|i| scaled_gram[(i, i)]).sum();
-            let flown_trace: f64 = own.iter().map(|&k| (0..p).map(|i| flown[k][(i, i)]).sum::<f64>()).sum();
-            let excitation_flown = match candidate_trace > 0.0 {
-                true => flown_trace / candidate_trace,
-                false => 0.0,
-            };
-            let candidate = Candidate {
-                kind,
-                heading_deg,
-                amplitude_deg: shape.amplitude_deg,
-                period_s: shape.period_s,
-                duration_s: shape.duration_s,
-                flown: !own.is_empty(),
-                excitation_flown,
-                gap: kinds_known && excitation_flown < WEAK_EXCITATION,
-                survey_sigma_nt: f64::NAN,
-                change: f64::NAN,
-                information_gain: f64::NAN,
-                variance_ratio: f64::NAN,
-            };
-            candidates.push((candidate, scaled_gram));
-        }
-    }
+    let candidates = box_candidates((&prepared, model, options), &plan, (&fits, &flown, windows), &scale)?;
     // The full box with the same total information as the flown windows.
     let box_information = sum(candidates.iter().map(|c| &c.1), p);
     let box_trace: f64 = (0..p).map(|i| box_information[(i, i)]).sum();
@@ -454,30 +417,12 @@ pub fn analyse_design(
     let reference_covariance = basis * &reference_inverse * basis.transpose();
 
     let labels: Vec<String> = fits.iter().map(|f| f.window.display_label()).collect();
-    let terms: Vec<TermPinning> = (0..p)
-        .map(|j| {
-            let inflation = flown_covariance[(j, j)] / reference_covariance[(j, j)];
-            let v: Vec<f64> = (0..p).map(|i| flown_covariance[(i, j)]).collect();
-            let whole = quadratic(information, &v);
-            let mut pinned_by: Vec<(String, f64)> = (labels.iter().zip(&flown))
-                .map(|(label, g)| (label.clone(), quadratic(g, &v) / whole))
-                .filter(|(_, share)| *share >= 0.05)
-                .collect();
-            pinned_by.sort_by(|a, b| b.1.total_cmp(&a.1));
-            let in_pinnable: f64 = (0..r).map(|k| basis[(j, k)].powi(2)).sum();
-            TermPinning {
-                term: model
-                    .term_names
-                    .get(j)
-                    .cloned()
-                    .unwrap_or_else(|| format!("column {j}")),
-                inflation,
-                unpinnable_fraction: (1.0 - in_pinnable).clamp(0.0, 1.0),
-                poorly_pinned: inflation > POOR_INFLATION,
-                pinned_by,
-            }
-        })
-        .collect();
+    let terms = term_pinning(
+        model,
+        (&labels, &flown, information),
+        basis,
+        (&flown_covariance, &reference_covariance),
+    );
     let trace: f64 = (0..p).map(|i| information[(i, i)]).sum();
     let window_shares = (labels.iter().zip(&flown))
         .map(|(label, g)| {
@@ -532,6 +477,95 @@ pub fn analyse_design(
     excitation.summary = summarise(&excitation);
     design.candidates = candidates;
     Ok(Some((excitation, design)))
+}
+
+/// One candidate of each kind on each of the box's headings, with its
+/// scaled information and how much of it the flown windows already gave.
+fn box_candidates(
+    (prepared, model, options): (&Prepared, &FittedModel, &FitOptions),
+    plan: &CandidatePlan,
+    (fits, flown, windows): (&[WindowFit], &[Mat<f64>], &[CalibrationWindow]),
+    scale: &[f64],
+) -> Result<Vec<(Candidate, Mat<f64>)>> {
+    let p = scale.len();
+    let kinds_known = windows.iter().any(|w| w.kind.is_some());
+    let mut candidates: Vec<(Candidate, Mat<f64>)> = Vec::new();
+    for &heading_deg in &plan.headings {
+        for kind in [ManoeuvreKind::Pitch, ManoeuvreKind::Roll, ManoeuvreKind::Yaw] {
+            let shape = plan.shapes[kind_index(kind)];
+            let gram = candidate_gram(prepared, model, options, plan.field_ned, (kind, heading_deg, shape))?;
+            let own: Vec<usize> = (0..fits.len())
+                .filter(|&k| {
+                    let w = &fits[k].window;
+                    w.kind == Some(kind) && w.heading_deg.is_some_and(|h| same_heading(h, heading_deg))
+                })
+                .collect();
+            let scaled_gram = scaled_by(&gram, scale);
+            let candidate_trace: f64 = (0..p).map(|i| scaled_gram[(i, i)]).sum();
+            let flown_trace: f64 = own.iter().map(|&k| (0..p).map(|i| flown[k][(i, i)]).sum::<f64>()).sum();
+            let excitation_flown = match candidate_trace > 0.0 {
+                true => flown_trace / candidate_trace,
+                false => 0.0,
+            };
+            let candidate = Candidate {
+                kind,
+                heading_deg,
+                amplitude_deg: shape.amplitude_deg,
+                period_s: shape.period_s,
+                duration_s: shape.duration_s,
+                flown: !own.is_empty(),
+                excitation_flown,
+                gap: kinds_known && excitation_flown < WEAK_EXCITATION,
+                survey_sigma_nt: f64::NAN,
+                change: f64::NAN,
+                information_gain: f64::NAN,
+                variance_ratio: f64::NAN,
+            };
+            candidates.push((candidate, scaled_gram));
+        }
+    }
+    Ok(candidates)
+}
+
+/// `g` with each row and column divided by its column's scale.
+fn scaled_by(g: &Mat<f64>, scale: &[f64]) -> Mat<f64> {
+    let p = scale.len();
+    Mat::from_fn(p, p, |i, j| g[(i, j)] / (scale[i] * scale[j]))
+}
+
+/// How well the flown windows pin each term: its variance against a full
+/// box's, the part of it no box pins, and the windows that pin it.
+fn term_pinning(
+    model: &FittedModel,
+    (labels, flown, information): (&[String], &[Mat<f64>], &Mat<f64>),
+    basis: &Mat<f64>,
+    (flown_covariance, reference_covariance): (&Mat<f64>, &Mat<f64>),
+) -> Vec<TermPinning> {
+    let (p, r) = (basis.nrows(), basis.ncols());
+    (0..p)
+        .map(|j| {
+            let inflation = flown_covariance[(j, j)] / reference_covariance[(j, j)];
+            let v: Vec<f64> = (0..p).map(|i| flown_covariance[(i, j)]).collect();
+            let whole = quadratic(information, &v);
+            let mut pinned_by: Vec<(String, f64)> = (labels.iter().zip(flown))
+                .map(|(label, g)| (label.clone(), quadratic(g, &v) / whole))
+                .filter(|(_, share)| *share >= 0.05)
+                .collect();
+            pinned_by.sort_by(|a, b| b.1.total_cmp(&a.1));
+            let in_pinnable: f64 = (0..r).map(|k| basis[(j, k)].powi(2)).sum();
+            TermPinning {
+                term: model
+                    .term_names
+                    .get(j)
+                    .cloned()
+                    .unwrap_or_else(|| format!("column {j}")),
+                inflation,
+                unpinnable_fraction: (1.0 - in_pinnable).clamp(0.0, 1.0),
+                poorly_pinned: inflation > POOR_INFLATION,
+                pinned_by,
+            }
+        })
+        .collect()
 }
 
 /// The directions of the scaled coefficients that no rotation of the
