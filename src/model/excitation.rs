@@ -308,6 +308,53 @@ impl Design {
         reduced
     }
 
+    /// Each flown window's share of the information, and the survey
+    /// uncertainty without it.
+    fn window_shares(&self, labels: &[String], flown: &[Mat<f64>], survey_sigma_nt: f64) -> Vec<WindowShare> {
+        let information = &self.flown;
+        let p = information.nrows();
+        let trace: f64 = (0..p).map(|i| information[(i, i)]).sum();
+        (labels.iter().zip(flown))
+            .map(|(label, g)| {
+                let sigma = self.survey_sigma(&(information - g));
+                WindowShare {
+                    label: label.clone(),
+                    information_share: (0..p).map(|i| g[(i, i)]).sum::<f64>() / trace,
+                    survey_sigma_without_nt: sigma,
+                    change: sigma / survey_sigma_nt - 1.0,
+                }
+            })
+            .collect()
+    }
+
+    /// Each candidate added to the flown windows: the survey uncertainty,
+    /// information gain and variance it leaves; the box's gaps first (the
+    /// FOM and the usual acceptance need the whole box), then the rest,
+    /// each by the survey uncertainty it leaves.
+    fn additions(
+        &self,
+        candidates: &[(Candidate, Mat<f64>)],
+        (survey_sigma_nt, flown_log_det, flown_variance): (f64, f64, f64),
+    ) -> Vec<Candidate> {
+        let (information, r) = (&self.flown, self.basis.ncols());
+        let mut additions: Vec<Candidate> = candidates
+            .iter()
+            .map(|(candidate, g)| {
+                let mut candidate = candidate.clone();
+                let with = information + g;
+                candidate.survey_sigma_nt = self.survey_sigma(&with);
+                candidate.change = candidate.survey_sigma_nt / survey_sigma_nt - 1.0;
+                candidate.information_gain = 0.5 * (log_det(&self.reduced(&with)) - flown_log_det);
+                candidate.variance_ratio = inverse_spd(&self.reduced(&with)).map_or(f64::NAN, |inverse| {
+                    (0..r).map(|k| inverse[(k, k)]).sum::<f64>() / flown_variance
+                });
+                candidate
+            })
+            .collect();
+        additions.sort_by(|a, b| (b.gap.cmp(&a.gap)).then(a.survey_sigma_nt.total_cmp(&b.survey_sigma_nt)));
+        additions
+    }
+
     /// The survey uncertainty of scaled information `g`, nT.
     fn survey_sigma(&self, g: &Mat<f64>) -> f64 {
         match inverse_spd(&self.reduced(g)) {
@@ -423,46 +470,9 @@ pub fn analyse_design(
         basis,
         (&flown_covariance, &reference_covariance),
     );
-    let trace: f64 = (0..p).map(|i| information[(i, i)]).sum();
-    let window_shares = (labels.iter().zip(&flown))
-        .map(|(label, g)| {
-            let sigma = survey_sigma(&(information - g));
-            WindowShare {
-                label: label.clone(),
-                information_share: (0..p).map(|i| g[(i, i)]).sum::<f64>() / trace,
-                survey_sigma_without_nt: sigma,
-                change: sigma / survey_sigma_nt - 1.0,
-            }
-        })
-        .collect();
-    let mut additions: Vec<Candidate> = candidates
-        .iter()
-        .map(|(candidate, g)| {
-            let mut candidate = candidate.clone();
-            let with = information + g;
-            candidate.survey_sigma_nt = survey_sigma(&with);
-            candidate.change = candidate.survey_sigma_nt / survey_sigma_nt - 1.0;
-            candidate.information_gain = 0.5 * (log_det(&reduce_floored(&with)) - flown_log_det);
-            candidate.variance_ratio = inverse_spd(&reduce_floored(&with)).map_or(f64::NAN, |inverse| {
-                (0..r).map(|k| inverse[(k, k)]).sum::<f64>() / flown_variance
-            });
-            candidate
-        })
-        .collect();
-    // The box's gaps first (the FOM and the usual acceptance need the whole
-    // box), then the rest; each by the survey uncertainty it leaves.
-    additions.sort_by(|a, b| (b.gap.cmp(&a.gap)).then(a.survey_sigma_nt.total_cmp(&b.survey_sigma_nt)));
-    let unpinnable = unpinnable
-        .iter()
-        .map(|&k| {
-            let mut loadings: Vec<(String, f64)> = (terms.iter().enumerate())
-                .map(|(i, t)| (t.term.clone(), vectors[(i, k)]))
-                .filter(|(_, v)| v.abs() >= 0.2)
-                .collect();
-            loadings.sort_by(|a, b| b.1.abs().total_cmp(&a.1.abs()));
-            loadings
-        })
-        .collect();
+    let window_shares = design.window_shares(&labels, &flown, survey_sigma_nt);
+    let additions = design.additions(&candidates, (survey_sigma_nt, flown_log_det, flown_variance));
+    let unpinnable = unpinnable_loadings(&terms, &unpinnable, |i, k| vectors[(i, k)]);
     let mut excitation = Excitation {
         terms,
         unpinnable,
@@ -477,6 +487,26 @@ pub fn analyse_design(
     excitation.summary = summarise(&excitation);
     design.candidates = candidates;
     Ok(Some((excitation, design)))
+}
+
+/// The terms each unpinnable direction `k` loads (|loading| ≥ 0.2, from
+/// `loading(term, k)`), largest first.
+fn unpinnable_loadings(
+    terms: &[TermPinning],
+    unpinnable: &[usize],
+    loading: impl Fn(usize, usize) -> f64,
+) -> Vec<Vec<(String, f64)>> {
+    unpinnable
+        .iter()
+        .map(|&k| {
+            let mut loadings: Vec<(String, f64)> = (terms.iter().enumerate())
+                .map(|(i, t)| (t.term.clone(), loading(i, k)))
+                .filter(|(_, v)| v.abs() >= 0.2)
+                .collect();
+            loadings.sort_by(|a, b| b.1.abs().total_cmp(&a.1.abs()));
+            loadings
+        })
+        .collect()
 }
 
 /// One candidate of each kind on each of the box's headings, with its
