@@ -46,6 +46,77 @@ pub(super) fn flip_criterion(problem: &Problem, model: &Model) -> Option<(Model,
     Some((flipped, result))
 }
 
+/// Where the residual left after the search stands out (its
+/// localisation), adding an `unexplained` finding to `findings` where it
+/// is structured, or far above the noise on a box held out by heading.
+/// `current` is the final model's held-out RMS; `control` its fit with
+/// the second-order term.
+fn residual_findings(
+    problem: &Problem,
+    model: &Model,
+    (baseline_windows, current_windows): (&[WindowFit], &[WindowFit]),
+    (current, control): (f64, &HeldOut),
+    findings: &mut Vec<Finding>,
+) -> Result<localise::Localisation> {
+    let localisation = localise::localise(
+        problem.log,
+        problem.channel,
+        (baseline_windows, current_windows),
+        problem.direction,
+        problem.options,
+    );
+    // What the total field's second-order term explains is physics the
+    // library knows, not `unexplained`: judge what is left after it where
+    // it lowers the held-out RMS (on a cabin sensor it can be most of the
+    // structured residual; figures: docs/measurements.md, section
+    // diagnose::search).
+    let localise_windows = |windows: &[WindowFit]| {
+        localise::localise(
+            problem.log,
+            problem.channel,
+            (baseline_windows, windows),
+            problem.direction,
+            problem.options,
+        )
+    };
+    let with_control = control.rms_nt < current;
+    let explained = with_control.then(|| (control.rms_nt, localise_windows(&control.windows)));
+    let (left_rms, left) = explained
+        .as_ref()
+        .map_or((current, &localisation), |(rms, l)| (*rms, l));
+    // Missing physics leaves its structure whether or not a heading is
+    // held out; what a fit on every heading removes was the held-out
+    // fit's extrapolation to the heading it never saw.
+    let in_sample_fit = || {
+        let model = match with_control {
+            true => with_second_order(model),
+            false => model.clone(),
+        };
+        in_sample(problem, &model)
+    };
+    let structured = unexplained(problem.channel, left_rms, left);
+    if let Some(found) = structured {
+        let fitted = in_sample_fit()?;
+        if is_structured(fitted.rms_nt, &localise_windows(&fitted.windows)) {
+            findings.push(found);
+        }
+    }
+    // Far above the noise, a residual is unexplained whether or not it
+    // stands out in stretches: "nothing to report" would be a claim.
+    // Only on a box held out by heading: a window of straight flight
+    // (held out by quarters) holds the survey's geology in the band,
+    // which is the Earth's field and no residual of the aircraft's.
+    let boxed = matches!(HoldOut::of(problem.windows), HoldOut::ByHeading(_));
+    if boxed
+        && !findings.iter().any(|f| f.effect.kind() == EffectKind::Unexplained)
+        && left_rms > FAR_ABOVE_NOISE * left.noise_floor_nt
+    {
+        let fitted = in_sample_fit()?;
+        findings.extend(far_above_noise(problem.channel, left_rms, fitted.rms_nt, left));
+    }
+    Ok(localisation)
+}
+
 /// Every candidate extension of `model` the screen keeps, scored held out
 /// (the second-order one is the `control`, already scored), best first; a
 /// leading lag or eddy τ takes the other λ criterion where it predicts it
@@ -206,62 +277,13 @@ pub(super) fn diagnose_channel(
         current_ridge = result.ridge.clone();
         (model, current, current_windows) = (next, result.rms_nt, result.windows);
     }
-    let localisation = localise::localise(
-        problem.log,
-        problem.channel,
+    let localisation = residual_findings(
+        problem,
+        &model,
         (&baseline_windows, &current_windows),
-        problem.direction,
-        problem.options,
-    );
-    // What the total field's second-order term explains is physics the
-    // library knows, not `unexplained`: judge what is left after it where
-    // it lowers the held-out RMS (on a cabin sensor it can be most of the
-    // structured residual; figures: docs/measurements.md, section
-    // diagnose::search).
-    let localise_windows = |windows: &[WindowFit]| {
-        localise::localise(
-            problem.log,
-            problem.channel,
-            (&baseline_windows, windows),
-            problem.direction,
-            problem.options,
-        )
-    };
-    let with_control = control.rms_nt < current;
-    let explained = with_control.then(|| (control.rms_nt, localise_windows(&control.windows)));
-    let (left_rms, left) = explained
-        .as_ref()
-        .map_or((current, &localisation), |(rms, l)| (*rms, l));
-    // Missing physics leaves its structure whether or not a heading is
-    // held out; what a fit on every heading removes was the held-out
-    // fit's extrapolation to the heading it never saw.
-    let in_sample_fit = || {
-        let model = match with_control {
-            true => with_second_order(&model),
-            false => model.clone(),
-        };
-        in_sample(problem, &model)
-    };
-    let structured = unexplained(problem.channel, left_rms, left);
-    if let Some(found) = structured {
-        let fitted = in_sample_fit()?;
-        if is_structured(fitted.rms_nt, &localise_windows(&fitted.windows)) {
-            findings.push(found);
-        }
-    }
-    // Far above the noise, a residual is unexplained whether or not it
-    // stands out in stretches: "nothing to report" would be a claim.
-    // Only on a box held out by heading: a window of straight flight
-    // (held out by quarters) holds the survey's geology in the band,
-    // which is the Earth's field and no residual of the aircraft's.
-    let boxed = matches!(HoldOut::of(problem.windows), HoldOut::ByHeading(_));
-    if boxed
-        && !findings.iter().any(|f| f.effect.kind() == EffectKind::Unexplained)
-        && left_rms > FAR_ABOVE_NOISE * left.noise_floor_nt
-    {
-        let fitted = in_sample_fit()?;
-        findings.extend(far_above_noise(problem.channel, left_rms, fitted.rms_nt, left));
-    }
+        (current, &control),
+        &mut findings,
+    )?;
     let summary = ChannelDiagnosis {
         channel: problem.channel.to_string(),
         heldout_rms_baseline_nt: baseline.rms_nt,
