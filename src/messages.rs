@@ -82,6 +82,18 @@ pub const FITTED_PLAIN: &str = "so the channel is compensated with plain Tolles-
 pub enum Warning {
     /// A warning of a stage not typed yet, as its sentence.
     Said(String),
+    /// A detected calibration box lacks manoeuvres: its FOM sums fewer
+    /// than 12.
+    IncompleteBox {
+        /// The box's number, from 1 in time order.
+        number: usize,
+        /// Its start, in the flight's time unit.
+        start: f64,
+        /// Its end, in the flight's time unit.
+        end: f64,
+        /// The manoeuvres it lacks, in words ("pitch at 90°").
+        missing: Vec<String>,
+    },
     /// The flight could not be diagnosed (`[diagnose] apply = "auto"`), so
     /// it is compensated with plain Tolles-Lawson.
     NotDiagnosed {
@@ -160,7 +172,7 @@ impl Warning {
     /// The scalar channel the warning is about, when it is about one.
     pub fn channel(&self) -> Option<&str> {
         match self {
-            Warning::Said(_) | Warning::NotDiagnosed { .. } => None,
+            Warning::Said(_) | Warning::NotDiagnosed { .. } | Warning::IncompleteBox { .. } => None,
             Warning::FindingsHeldBack { channel, .. }
             | Warning::FindingsAppliedAnyway { channel, .. }
             | Warning::SurveyDeparture { channel, .. }
@@ -188,6 +200,16 @@ impl fmt::Display for Warning {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             Warning::Said(sentence) => f.write_str(sentence),
+            Warning::IncompleteBox {
+                number,
+                start,
+                end,
+                missing,
+            } => write!(
+                f,
+                "box {number} ({start:.1}–{end:.1}) is incomplete: {}; its FOM sums fewer than 12 manoeuvres",
+                missing.join(", ")
+            ),
             Warning::NotDiagnosed { error } => {
                 write!(f, "not diagnosed, so compensated with plain Tolles-Lawson: {error}")
             }

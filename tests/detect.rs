@@ -189,6 +189,22 @@ fn a_missing_manoeuvre_is_reported_not_invented() {
         detection.boxes[0].missing,
         vec!["no pitch on heading 110", "no yaw on heading 290"]
     );
+    // The run warns of the box by number, with what it lacks.
+    let warnings = magcomp::pipeline::detection_warnings(&detection);
+    let named: Vec<_> = (warnings.iter())
+        .filter_map(|w| match w {
+            magcomp::messages::Warning::IncompleteBox { number, missing, .. } => Some((*number, missing.clone())),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(
+        named,
+        [(
+            1,
+            vec!["no pitch on heading 110".to_string(), "no yaw on heading 290".into()]
+        )],
+        "{warnings:?}"
+    );
 }
 
 #[test]
@@ -358,7 +374,9 @@ fn under_a_steep_field_the_fluxgate_says_what_it_cannot_see() {
     assert!(detection.manoeuvres.len() < 12, "{}", detection.manoeuvres.len());
     let warnings = magcomp::pipeline::detection_warnings(&detection);
     assert!(
-        warnings.iter().any(|w| w.contains("may have been flown and not seen")),
+        warnings
+            .iter()
+            .any(|w| w.to_string().contains("may have been flown and not seen")),
         "{warnings:?}"
     );
     // With the INS the same flight is whole and says nothing of the field.
@@ -503,15 +521,15 @@ fn the_fluxgate_flags_the_kinds_it_cannot_tell_apart() {
         }
         let warnings = magcomp::pipeline::detection_warnings(&detection);
         assert!(
-            warnings
-                .iter()
-                .any(|w| w.contains("a pitch and a yaw turn the field direction alike")),
+            warnings.iter().any(|w| w
+                .to_string()
+                .contains("a pitch and a yaw turn the field direction alike")),
             "seed {seed}: {warnings:?}"
         );
         assert!(
-            warnings
-                .iter()
-                .any(|w| w.contains("a roll and a yaw turn the field direction alike")),
+            warnings.iter().any(|w| w
+                .to_string()
+                .contains("a roll and a yaw turn the field direction alike")),
             "seed {seed}: {warnings:?}"
         );
     }

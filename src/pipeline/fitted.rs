@@ -71,7 +71,7 @@ pub(super) fn run_fitted(
     warnings.extend(Warning::said(gradients.warnings));
     if let Some(detection) = &flight.detection {
         notes.extend(Note::said(detection_notes(detection)));
-        warnings.extend(Warning::said(detection_warnings(detection)));
+        warnings.extend(detection_warnings(detection));
     }
     warnings.extend(departure_warnings(&mut quality, &departures));
     let next_step = next_step(options.diagnose.apply, job.diagnosis.is_some(), diagnosis.is_some());

@@ -5,31 +5,29 @@ use crate::config::{FlightJob, Settings};
 use crate::detect::{detect_manoeuvres, Detection};
 use crate::error::{Error, Result};
 use crate::flight_log::{FlightLog, VectorSensor};
+use crate::messages::Warning;
 use crate::model::Calibration;
 use crate::screen::{Screened, Screening};
 use crate::windows::CalibrationWindow;
 
 /// Warnings from detection: every incomplete box, and every leg whose
 /// pitch and yaw the fluxgate could not tell apart.
-pub fn detection_warnings(detection: &Detection) -> Vec<String> {
-    let mut warnings: Vec<String> = detection
+pub fn detection_warnings(detection: &Detection) -> Vec<Warning> {
+    let mut warnings: Vec<Warning> = detection
         .boxes
         .iter()
         .enumerate()
         .filter(|(_, b)| !b.missing.is_empty())
-        .map(|(index, b)| {
-            format!(
-                "box {} ({:.1}–{:.1}) is incomplete: {}; its FOM sums fewer than 12 manoeuvres",
-                index + 1,
-                b.t_start,
-                b.t_end,
-                b.missing.join(", ")
-            )
+        .map(|(index, b)| Warning::IncompleteBox {
+            number: index + 1,
+            start: b.t_start,
+            end: b.t_end,
+            missing: b.missing.clone(),
         })
         .collect();
-    warnings.extend(crate::detect::uncertain_kinds(detection));
-    warnings.extend(detection.steep_field_warning());
-    warnings.extend(detection.attitude_gap_warning());
+    warnings.extend(Warning::said(crate::detect::uncertain_kinds(detection)));
+    warnings.extend(Warning::said(detection.steep_field_warning()));
+    warnings.extend(Warning::said(detection.attitude_gap_warning()));
     warnings
 }
 
