@@ -706,3 +706,75 @@ fn a_topic_on_two_channel_records_is_read_whole() {
         "{notes:?}"
     );
 }
+
+/// `compensate` says what it could not read (issue: nothing lost): a
+/// second scalar magnetometer recorded in an encoding magcomp does not
+/// decode is named on stdout and in the quality JSON's warnings, and the
+/// magnetometers it reads are compensated on every row.
+#[test]
+fn compensate_names_a_magnetometer_it_cannot_read() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let bytes = std::fs::read(root.join("sample_flights/clean_mcap.mcap")).unwrap();
+    let messages: Vec<mcap::Message<'_>> = mcap::MessageStream::new(&bytes).unwrap().map(Result::unwrap).collect();
+    let times: Vec<u64> = (messages.iter())
+        .filter(|m| m.channel.topic == "/mag/1/scalar")
+        .map(|m| m.log_time)
+        .collect();
+    let folder = tempfile::tempdir().unwrap();
+    let path = folder.path().join("unread_magnetometer.mcap");
+    let mut writer = mcap::Writer::new(std::io::BufWriter::new(std::fs::File::create(&path).unwrap())).unwrap();
+    for message in &messages {
+        writer.write(message).unwrap();
+    }
+    let unread = writer
+        .add_channel(0, "/mag/7/scalar", "msgpack", &BTreeMap::new())
+        .unwrap();
+    for (sequence, &time_ns) in times.iter().enumerate() {
+        let header = mcap::records::MessageHeader {
+            channel_id: unread,
+            sequence: sequence as u32,
+            log_time: time_ns,
+            publish_time: time_ns,
+        };
+        writer
+            .write_to_known_channel(&header, &[0x81, 0xa1, 0x74, 0x01])
+            .unwrap();
+    }
+    writer.finish().unwrap();
+    drop(writer);
+    let out = folder.path().join("out.csv");
+    let quality = folder.path().join("quality.json");
+    let run = std::process::Command::new(env!("CARGO_BIN_EXE_magcomp"))
+        .arg("compensate")
+        .arg(&path)
+        .arg("--out")
+        .arg(&out)
+        .arg("--report")
+        .arg(&quality)
+        .arg("--plain")
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    assert!(
+        run.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let said = "topic '/mag/7/scalar' is not in the output";
+    assert!(
+        stdout
+            .lines()
+            .any(|l| l.contains("warning:") && l.contains(said) && l.contains("'msgpack'")),
+        "{stdout}"
+    );
+    let json: serde_json::Value = serde_json::from_slice(&std::fs::read(&quality).unwrap()).unwrap();
+    let warnings: Vec<&str> = (json["warnings"].as_array().unwrap().iter())
+        .filter_map(|w| w.as_str())
+        .collect();
+    assert!(warnings.iter().any(|w| w.contains(said)), "{warnings:?}");
+    // Every time-base row is written, compensated.
+    let text = std::fs::read_to_string(&out).unwrap();
+    assert_eq!(text.lines().count() - 1, times.len());
+    let header: Vec<&str> = text.lines().next().unwrap().split(',').collect();
+    assert!(header.contains(&"mag_1_c"), "{header:?}");
+}

@@ -150,6 +150,15 @@ fn assert_fails_with(folder: &Path, name: &str, text: &str, expected: &[&str]) {
     for fragment in expected {
         assert!(stderr.contains(fragment), "{name}: '{fragment}' missing from: {stderr}");
     }
+    // A fix that fits another fault is a wrong cause: the ragged-row
+    // advice only where the row is ragged.
+    let ragged = "one field per header column";
+    if !expected.iter().any(|e| e.contains(ragged)) {
+        assert!(
+            !stderr.contains(ragged),
+            "{name}: the ragged-row fix for another fault: {stderr}"
+        );
+    }
     assert!(!out.exists(), "{name}: no partial output may be left");
 }
 
@@ -162,7 +171,7 @@ fn bad_input_gives_the_documented_error_not_a_panic() {
         f,
         "ragged.csv",
         &format!("{header}0,50000,20000,5000,45000\n0.1,50000,20000,5000\n"),
-        &["line 3", "4 fields", "header has 5"],
+        &["line 3", "4 fields", "header has 5", "one field per header column"],
     );
     assert_fails_with(
         f,
@@ -451,6 +460,7 @@ fn a_file_that_is_not_text_or_not_a_regular_file_is_named_with_the_fix() {
     ] {
         assert!(stderr.contains(fragment), "'{fragment}' missing from: {stderr}");
     }
+    assert!(!stderr.contains("one field per header column"), "{stderr}");
     #[cfg(unix)]
     {
         let pipe = folder.path().join("pipe.csv");
@@ -462,6 +472,7 @@ fn a_file_that_is_not_text_or_not_a_regular_file_is_named_with_the_fix() {
                 for fragment in ["pipe.csv", "not a regular file", "write it to a file first"] {
                     assert!(stderr.contains(fragment), "'{fragment}' missing from: {stderr}");
                 }
+                assert!(!stderr.contains("is empty"), "a pipe is not an empty file: {stderr}");
             }
             _ => println!("mkfifo is not available here: the named-pipe case was not run"),
         }
@@ -496,6 +507,11 @@ fn run_makes_its_output_folder_and_a_missing_first_flight_fails_alone() {
     );
     assert!(
         stderr.contains("missing.csv") && stderr.contains("1 of 2 flights failed"),
+        "{stderr}"
+    );
+    // The cause is the missing input, not the output folder.
+    assert!(
+        stderr.contains("No such file") && !stderr.contains("made/here"),
         "{stderr}"
     );
     let table = stdout.split("\nflight ").nth(1).expect("the status table");
