@@ -750,3 +750,59 @@ fn the_heading_error_leaves_out_the_external_fields_drift() {
         run.result.warnings
     );
 }
+
+/// An output value outside what an instrument can read is never written
+/// unflagged: a model applied far from what it was fitted on (here its
+/// coefficients made a thousand times too large) puts compensated values
+/// beyond 1,000–100,000 nT; every such row carries
+/// `output_out_of_range:<channel>`, rows within the range do not, and the
+/// warning counts them.
+#[test]
+fn an_impossible_output_value_is_flagged_and_counted() {
+    use magcomp::compensate::{compensate, LevelConvention};
+    use magcomp::flags::FlagKind;
+    use magcomp::model::{fit, FitOptions, ModelSpec};
+    use magcomp::numerics::stacked::StorePool;
+    let folder = tempfile::tempdir().unwrap();
+    let (csv, windows) = (folder.path().join("flight.csv"), folder.path().join("windows.json"));
+    let spec = magcomp::sample_flight::SampleFlightSpec {
+        line_count: 1,
+        ..Default::default()
+    };
+    magcomp::sample_flight::write(&magcomp::sample_flight::generate(&spec, 4), &csv, &windows).unwrap();
+    let log = magcomp::formats::read_flight_log(&csv, &Default::default()).unwrap();
+    let sensor = magcomp::pipeline::choose_vector_sensor(&log, Some("flux_a")).unwrap();
+    let windows = magcomp::windows::read_detect_json(&windows, 5.0).unwrap();
+    let stores = StorePool::new();
+    let mut model = fit(
+        &log,
+        &sensor,
+        "mag_2_uc",
+        &windows,
+        &ModelSpec::default(),
+        &FitOptions::default(),
+        &stores,
+    )
+    .unwrap();
+    model.coefficients.iter_mut().for_each(|c| *c *= 1000.0);
+    let compensation = compensate(&log, &[model], LevelConvention::Absolute).unwrap();
+    let values = &compensation.channels[0].values;
+    let outside = |v: f64| v.is_finite() && !(1_000.0..=100_000.0).contains(&v);
+    let flagged = |row: usize| compensation.flags[row].has(FlagKind::OutputOutOfRange, "mag_2_uc");
+    let beyond: Vec<usize> = (0..values.len()).filter(|&row| outside(values[row])).collect();
+    assert!(
+        beyond.len() > 100,
+        "the inflated model must leave the range: {} rows",
+        beyond.len()
+    );
+    for row in 0..values.len() {
+        assert_eq!(flagged(row), outside(values[row]), "row {row}: {}", values[row]);
+    }
+    let warnings = compensation.out_of_range_warnings(log.time_s());
+    assert_eq!(warnings.len(), 1, "{warnings:?}");
+    assert!(
+        warnings[0].starts_with(&format!("mag_2_uc: {} compensated row", beyond.len()))
+            && warnings[0].contains("output_out_of_range:mag_2_uc"),
+        "{warnings:?}"
+    );
+}
