@@ -795,8 +795,8 @@ fn an_impossible_output_value_is_flagged_and_counted() {
         "the inflated model must leave the range: {} rows",
         beyond.len()
     );
-    for row in 0..values.len() {
-        assert_eq!(flagged(row), outside(values[row]), "row {row}: {}", values[row]);
+    for (row, &value) in values.iter().enumerate() {
+        assert_eq!(flagged(row), outside(value), "row {row}: {value}");
     }
     let warnings = compensation.out_of_range_warnings(log.time_s());
     assert_eq!(warnings.len(), 1, "{warnings:?}");
