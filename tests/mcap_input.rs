@@ -212,6 +212,9 @@ fn a_topic_magcomp_cannot_read_is_a_warning() {
         let mut records = records();
         records.extend((0..30).map(|k| (topic, 100.0 + k as f64, vec![("value", 1.0)])));
         write_records(&path, INDEXED, records);
+        if topic.starts_with("/msgpack/") {
+            keep_in_corpus("topic_in_an_unknown_encoding", &std::fs::read(&path).unwrap());
+        }
         let log = read_flight_log(&path, &IngestOptions::default()).unwrap();
         assert_eq!(log.len(), 300);
         assert!(
@@ -588,6 +591,7 @@ fn a_file_cut_at_a_record_boundary_says_so_with_what_was_read() {
     assert!(chunk_ends.len() >= 3, "{} chunks", chunk_ends.len());
     let cut = folder.path().join("cut.mcap");
     std::fs::write(&cut, &good[..chunk_ends[1]]).unwrap();
+    keep_in_corpus("cut_at_a_record_boundary", &good[..chunk_ends[1]]);
     let log = read_flight_log(&cut, &IngestOptions::default()).unwrap();
     assert!(
         log.len() < whole.len() && !log.is_empty(),
@@ -631,6 +635,7 @@ fn a_chunk_index_that_lost_an_entry_is_not_trusted() {
     bytes[at] = 0x7F;
     let damaged = folder.path().join("lost_entry.mcap");
     std::fs::write(&damaged, &bytes).unwrap();
+    keep_in_corpus("chunk_index_lost_an_entry", &bytes);
     let log = read_flight_log(&damaged, &IngestOptions::default()).unwrap();
     assert_same_log(&whole, &log, "lost index entry");
     let notes = &log.alignment().unwrap().notes;
@@ -665,6 +670,7 @@ fn an_edited_chunk_fails_its_crc_and_is_left_out_with_a_warning() {
     bytes[end - (end - start) / 3] ^= 0x10;
     let edited = folder.path().join("edited.mcap");
     std::fs::write(&edited, &bytes).unwrap();
+    keep_in_corpus("chunk_fails_its_crc", &bytes);
     let log = read_flight_log(&edited, &IngestOptions::default()).unwrap();
     let warnings = &log.alignment().unwrap().warnings;
     assert!(
@@ -696,6 +702,7 @@ fn a_topic_on_two_channel_records_is_read_whole() {
     let (_, whole) = whole_file(folder.path(), INDEXED);
     let path = folder.path().join("restarted.mcap");
     write_records_restarting(&path, INDEXED, records(), Some(("/mag/1/scalar", 115.0)));
+    keep_in_corpus("topic_on_two_channel_records", &std::fs::read(&path).unwrap());
     let log = read_flight_log(&path, &IngestOptions::default()).unwrap();
     assert_same_log(&whole, &log, "restarted");
     let notes = &log.alignment().unwrap().notes;
@@ -777,4 +784,16 @@ fn compensate_names_a_magnetometer_it_cannot_read() {
     assert_eq!(text.lines().count() - 1, times.len());
     let header: Vec<&str> = text.lines().next().unwrap().split(',').collect();
     assert!(header.contains(&"mag_1_c"), "{header:?}");
+}
+
+/// With `MAGCOMP_WRITE_CORPUS` set, writes a damaged recording a test built
+/// into the MCAP fuzz target's kept corpus as `kept_<name>.mcap`, where
+/// `tests/fuzz_corpus.rs` replays it through every stage.
+fn keep_in_corpus(name: &str, bytes: &[u8]) {
+    if std::env::var_os("MAGCOMP_WRITE_CORPUS").is_none() {
+        return;
+    }
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("fuzz/corpus/ingest_mcap/kept_{name}.mcap"));
+    std::fs::write(&path, bytes).unwrap();
+    println!("wrote {}", path.display());
 }
