@@ -60,15 +60,13 @@ pub(super) fn run_fitted(
     warnings.extend(Warning::said(compensation.out_of_range_warnings(on.log.time_s())));
     let added_columns = added_column_names(on.log, compensated, &compensation)?;
     let mut notes = renaming_notes(&flight.channels, &added_columns);
-    notes.extend(Note::said(reduced_notes));
-    notes.extend(Note::said(transfer_notes));
-    notes.extend(Note::said(flight.headings_note.clone()));
-    notes.extend(Note::said(fluxgate.iter().map(|c| c.summary())));
+    let stage_notes = (reduced_notes.into_iter().chain(transfer_notes))
+        .chain(flight.headings_note.clone())
+        .chain(fluxgate.iter().map(|c| c.summary()));
+    notes.extend(Note::said(stage_notes));
     model_messages(&models, fitted.excitation_notes, (&mut notes, &mut warnings));
-    notes.extend(Note::said(vector.notes));
-    warnings.extend(Warning::said(vector.warnings));
-    notes.extend(Note::said(gradients.notes));
-    warnings.extend(Warning::said(gradients.warnings));
+    notes.extend(Note::said(vector.notes.into_iter().chain(gradients.notes)));
+    warnings.extend(Warning::said(vector.warnings.into_iter().chain(gradients.warnings)));
     if let Some(detection) = &flight.detection {
         notes.extend(Note::said(detection_notes(detection)));
         warnings.extend(detection_warnings(detection));
