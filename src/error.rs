@@ -75,6 +75,19 @@ pub enum Error {
         value: String,
     },
 
+    /// The first row under the header holds units, not numbers.
+    #[error("{path}, line {line}, column '{}': '{}' is not a number; the line under the header looks like a row of units. magcomp reads one header line and numbers below it: delete the units line (for example `sed -i 2d FILE`), or export the flight without units.", Excerpt(.column), Excerpt(.value))]
+    UnitsRow {
+        /// The file concerned.
+        path: PathBuf,
+        /// 1-based line number in the file.
+        line: u64,
+        /// Column name from the header.
+        column: String,
+        /// The cell text.
+        value: String,
+    },
+
     /// The time column is missing, non-finite or not strictly increasing.
     #[error("{path}, {location}: time column '{column}' {problem}. Time must be finite and strictly increasing; sort the file by time and remove duplicated rows.")]
     BadTime {

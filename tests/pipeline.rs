@@ -179,6 +179,26 @@ fn bad_input_gives_the_documented_error_not_a_panic() {
         &format!("{header}0,50000,20000,5000,45000\n0.1,50000,20000,abc,45000\n"),
         &["line 3", "'flux_a_y'", "'abc'"],
     );
+    // A row of units under the header is named as such, with its fix; a
+    // word in another column of that line is a bad cell, not units.
+    assert_fails_with(
+        f,
+        "units.csv",
+        &format!("{header}s,nT,nT,nT,nT\n0,50000,20000,5000,45000\n0.1,50000,20000,5000,45000\n"),
+        &[
+            "units.csv",
+            "line 2",
+            "column 'tt'",
+            "row of units",
+            "delete the units line",
+        ],
+    );
+    assert_fails_with(
+        f,
+        "word_on_line_2.csv",
+        &format!("{header}0,50000,20000,abc,45000\n0.1,50000,20000,5000,45000\n"),
+        &["line 2", "'flux_a_y'", "'abc' is not a number. Correct the cell"],
+    );
     assert_fails_with(
         f,
         "backwards.csv",

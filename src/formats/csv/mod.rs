@@ -501,12 +501,27 @@ impl<'a> ColumnBuilder<'a> {
         }
     }
 
-    fn malformed(&self, column: usize, cell: &[u8], line: u64) -> Error {
-        Error::MalformedNumber {
-            path: self.path.to_path_buf(),
-            line,
-            column: self.names[column].clone(),
-            value: String::from_utf8_lossy(cell).into_owned(),
+    fn malformed(&self, index: usize, cell: &[u8], line: u64) -> Error {
+        let (path, column, value) = (
+            self.path.to_path_buf(),
+            self.names[index].clone(),
+            String::from_utf8_lossy(cell).into_owned(),
+        );
+        // The time cell of the line under the header reads as a unit: the
+        // line holds the columns' units.
+        match line == 2 && index == self.time_index && looks_like_a_unit(&value) {
+            true => Error::UnitsRow {
+                path,
+                line,
+                column,
+                value,
+            },
+            false => Error::MalformedNumber {
+                path,
+                line,
+                column,
+                value,
+            },
         }
     }
 
@@ -529,6 +544,17 @@ impl<'a> ColumnBuilder<'a> {
         }
         Ok(FlightLog::new(self.path, roles.time.clone(), time_s, channels)?.with_text_columns(text))
     }
+}
+
+/// Whether `cell` reads as a unit ("s", "nT", "deg", "m/s", "°", "%"):
+/// short, and letters or unit signs only.
+fn looks_like_a_unit(cell: &str) -> bool {
+    let cell = cell.trim().trim_matches(|c| matches!(c, '(' | ')' | '[' | ']'));
+    !cell.is_empty()
+        && cell.chars().count() <= 12
+        && cell.chars().any(|c| c.is_alphabetic() || matches!(c, '°' | '%'))
+        && (cell.chars())
+            .all(|c| c.is_alphanumeric() || matches!(c, '°' | '%' | '/' | '^' | '*' | '.' | '-' | '_' | 'µ' | ' '))
 }
 
 /// Parses one cell: `Some(NaN)` for a missing marker, `Some(value)` for a
