@@ -315,23 +315,18 @@ pub fn calibrate_stage(
     calibration: &Calibration,
     options: &VectorCalibrationOptions,
 ) -> Result<Option<VectorCalibration>> {
-    let Calibration {
-        log,
-        sensor,
-        channels,
-        windows,
-    } = *calibration;
     if !options.enabled {
         return Ok(None);
     }
     let rows = match options.whole_flight {
         true => Vec::new(),
-        false => window_rows(log, windows),
+        false => window_rows(calibration.log, calibration.windows),
     };
     let references = match &options.reference {
         Some(reference) => vec![reference.clone()],
-        None => channels.to_vec(),
+        None => calibration.channels.to_vec(),
     };
+    let (log, sensor) = (calibration.log, calibration.sensor);
     calibrate_best(log, sensor, &references, &rows, options.max_iterations).map(Some)
 }
 

@@ -109,8 +109,13 @@ pub const FORMATS: [FormatRow; 4] = [
 impl Format {
     /// The format's row of [`FORMATS`].
     pub fn row(self) -> &'static FormatRow {
-        // Every format has its row (the test below checks).
-        FORMATS.iter().find(|row| row.format == self).unwrap_or(&FORMATS[0])
+        // In the table's order (the test below checks each row's format).
+        match self {
+            Format::DelimitedText => &FORMATS[0],
+            Format::Xyz => &FORMATS[1],
+            Format::Mcap => &FORMATS[2],
+            Format::Hdf5 => &FORMATS[3],
+        }
     }
 
     /// The format an extension (lowercase, without the dot) names.

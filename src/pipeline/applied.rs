@@ -96,13 +96,13 @@ pub(super) fn run_applied(
         model: Some(applied),
         aircraft: job.aircraft.clone(),
     };
-    compensation.round_to(options.output_decimals);
-    Ok(FlightRun {
+    Ok(FlightRun::finished(
         recorded,
         screened,
         compensation,
         result,
-    })
+        options.output_decimals,
+    ))
 }
 
 /// What the saved model says of itself on this flight: its age and

@@ -110,15 +110,13 @@ pub(super) fn run_fitted(
         model: None,
         aircraft: job.aircraft.clone(),
     };
-    // The figures above are of the full values; the outputs are written
-    // at the stated resolution.
-    compensation.round_to(options.output_decimals);
-    Ok(FlightRun {
+    Ok(FlightRun::finished(
         recorded,
         screened,
         compensation,
         result,
-    })
+        options.output_decimals,
+    ))
 }
 
 /// Each channel's model to fit: the saved diagnosis's, or a diagnosis's

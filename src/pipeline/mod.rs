@@ -168,6 +168,25 @@ pub struct FlightRun {
 }
 
 impl FlightRun {
+    /// A finished run. The figures in `result` are of the full values;
+    /// the compensation's outputs are rounded here to the stated
+    /// resolution (`[output] decimals`), once for every format.
+    fn finished(
+        recorded: FlightLog,
+        screened: crate::screen::Screened,
+        mut compensation: crate::compensate::Compensation,
+        result: FlightResult,
+        decimals: u32,
+    ) -> FlightRun {
+        compensation.round_to(decimals);
+        FlightRun {
+            recorded,
+            screened,
+            compensation,
+            result,
+        }
+    }
+
     /// The log the stages worked on (the screened samples).
     pub fn log(&self) -> &FlightLog {
         self.screened.log_or(&self.recorded)
