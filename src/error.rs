@@ -75,8 +75,9 @@ pub enum Error {
         value: String,
     },
 
-    /// The first row under the header holds units, not numbers.
-    #[error("{path}, line {line}, column '{}': '{}' is not a number; the line under the header looks like a row of units. magcomp reads one header line and numbers below it: delete the units line (for example `sed -i 2d FILE`), or export the flight without units.", Excerpt(.column), Excerpt(.value))]
+    /// The line under the header gives time a unit but holds a number too:
+    /// neither a row of units nor data.
+    #[error("{path}, line {line}, column '{}': '{}' is not a number; the line under the header looks like a row of units but is not one: a row of units has one cell per column, each a unit or empty, and this line holds a number or another count of cells. Correct that line, or delete it (for example `sed -i 2d FILE`).", Excerpt(.column), Excerpt(.value))]
     UnitsRow {
         /// The file concerned.
         path: PathBuf,

@@ -106,6 +106,7 @@ pub struct FlightLog {
     date: Option<crate::flight_date::FlightDate>,
     reading_warnings: Vec<String>,
     text_columns: Vec<String>,
+    declared_units: Vec<(String, String)>,
 }
 
 impl FlightLog {
@@ -139,6 +140,7 @@ impl FlightLog {
             date: None,
             reading_warnings: Vec::new(),
             text_columns: Vec::new(),
+            declared_units: Vec::new(),
         })
     }
 
@@ -182,6 +184,7 @@ impl FlightLog {
             date: self.date,
             reading_warnings: Vec::new(),
             text_columns: Vec::new(),
+            declared_units: Vec::new(),
         })
     }
 
@@ -204,6 +207,19 @@ impl FlightLog {
     pub fn with_text_columns(mut self, names: Vec<String>) -> Self {
         self.text_columns = names;
         self
+    }
+
+    /// Records the units a row under the input's header gives, as (column,
+    /// unit) in the header's order.
+    pub fn with_declared_units(mut self, units: Vec<(String, String)>) -> Self {
+        self.declared_units = units;
+        self
+    }
+
+    /// The units the input's row under its header gives, as (column, unit);
+    /// empty when the input has no such row.
+    pub fn declared_units(&self) -> &[(String, String)] {
+        &self.declared_units
     }
 
     /// The input's columns of text, left out of the log.

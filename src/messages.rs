@@ -294,6 +294,14 @@ pub enum Note {
         /// The model, in words.
         model: String,
     },
+    /// The line under the input's header is a row of units: read as
+    /// units, not data, and kept in a compensated CSV.
+    UnitsRow {
+        /// The input.
+        path: std::path::PathBuf,
+        /// (column, unit), in the header's order.
+        units: Vec<(String, String)>,
+    },
     /// The channel was compensated with a saved model's findings.
     SavedFindings {
         /// The scalar channel.
@@ -331,6 +339,22 @@ impl fmt::Display for Note {
             Note::NoExcitationAnalysis { channel, why } => write!(f, "{channel}: no excitation analysis: {why}"),
             Note::DiagnosedModel { channel, model } => {
                 write!(f, "{channel}: fitted and compensated with the diagnosed model: {model}")
+            }
+            Note::UnitsRow { path, units } => {
+                const LISTED: usize = 6;
+                let listed: Vec<String> = (units.iter().take(LISTED))
+                    .map(|(column, unit)| format!("{column} {unit}"))
+                    .collect();
+                let more = match units.len().saturating_sub(LISTED) {
+                    0 => String::new(),
+                    n => format!(" and {n} more"),
+                };
+                write!(
+                    f,
+                    "line 2 of {} is a row of units ({}{more}): it is read as units, not data; a compensated CSV keeps it, with the added columns' units",
+                    path.display(),
+                    listed.join(", ")
+                )
             }
             Note::SavedFindings { channel, model } => {
                 write!(f, "{channel}: compensated with the saved model's findings: {model}")

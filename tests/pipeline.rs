@@ -179,19 +179,15 @@ fn bad_input_gives_the_documented_error_not_a_panic() {
         &format!("{header}0,50000,20000,5000,45000\n0.1,50000,20000,abc,45000\n"),
         &["line 3", "'flux_a_y'", "'abc'"],
     );
-    // A row of units under the header is named as such, with its fix; a
-    // word in another column of that line is a bad cell, not units.
+    // A line under the header with a unit for time and a number elsewhere
+    // is neither a row of units (read as such) nor data: it is named, with
+    // its fix; a word in another column of that line is a bad cell, not
+    // units.
     assert_fails_with(
         f,
         "units.csv",
-        &format!("{header}s,nT,nT,nT,nT\n0,50000,20000,5000,45000\n0.1,50000,20000,5000,45000\n"),
-        &[
-            "units.csv",
-            "line 2",
-            "column 'tt'",
-            "row of units",
-            "delete the units line",
-        ],
+        &format!("{header}s,nT,20000,nT,nT\n0,50000,20000,5000,45000\n0.1,50000,20000,5000,45000\n"),
+        &["units.csv", "line 2", "column 'tt'", "row of units", "holds a number"],
     );
     assert_fails_with(
         f,
@@ -632,4 +628,96 @@ fn compensate_lists_what_it_writes_and_prints_notes_with_verbose() {
     }
     let loud = stdout_of(true);
     assert_eq!(loud.matches("  note: ").count(), notes, "{loud}");
+}
+
+/// A row of units under the header is read as units, not data: the flight
+/// compensates exactly as without the row, the compensated CSV keeps the
+/// row with the added columns' units, the quality JSON's notes say so, and
+/// a unit other than the one magcomp reads (time in ms) is a warning. The
+/// same holds for a `;`-separated input, which is written comma-separated.
+#[test]
+fn a_row_of_units_under_the_header_is_read_as_units_and_kept() {
+    let folder = tempfile::tempdir().unwrap();
+    let plain = sample_flight_in(folder.path());
+    let text = std::fs::read_to_string(&plain).unwrap();
+    let (header, rows) = text.split_once('\n').unwrap();
+    let unit_of = |name: &str| match name {
+        "tt" => "s",
+        "diurnal" => "nT",
+        n if n.starts_with("mag_") || n.starts_with("flux_") => "nT",
+        n if n.starts_with("ins_") => "deg",
+        n if n.starts_with("cur_") => "A",
+        "vol_bus" => "V",
+        _ => "",
+    };
+    let units: Vec<&str> = header.split(',').map(unit_of).collect();
+    let compensate = |input: &Path, name: &str| -> (Vec<String>, serde_json::Value) {
+        let out = folder.path().join(format!("{name}_out.csv"));
+        let report = folder.path().join(format!("{name}_quality.json"));
+        let (ok, stderr) = magcomp(&[
+            "compensate",
+            input.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--report",
+            report.to_str().unwrap(),
+            "--plain",
+        ]);
+        assert!(ok, "{name}: {stderr}");
+        let lines = std::fs::read_to_string(&out)
+            .unwrap()
+            .lines()
+            .map(String::from)
+            .collect();
+        let json = serde_json::from_str(&std::fs::read_to_string(report).unwrap()).unwrap();
+        (lines, json)
+    };
+    let sentences = |json: &serde_json::Value, key: &str| -> Vec<String> {
+        (json[key].as_array().unwrap().iter())
+            .map(|s| s.as_str().unwrap().to_string())
+            .collect()
+    };
+    let (expected, plain_json) = compensate(&plain, "plain");
+    let added: Vec<&str> = expected[0].split(',').skip(units.len()).collect();
+    assert!(added.len() >= 3 && added.last() == Some(&"flags"), "{added:?}");
+    let added_units: Vec<&str> = (added.iter())
+        .map(|name| if *name == "flags" { "" } else { "nT" })
+        .collect();
+    assert!(sentences(&plain_json, "notes")
+        .iter()
+        .all(|n| !n.contains("row of units")));
+
+    for (name, separator, time_unit) in [("units", ",", "s"), ("units_ms", ";", "ms")] {
+        let mut declared = units.clone();
+        declared[0] = time_unit;
+        let body = format!("{header}\n{}\n{rows}", declared.join(","));
+        let input = write_file(folder.path(), &format!("{name}.csv"), &body.replace(',', separator));
+        let (lines, json) = compensate(&input, name);
+        assert_eq!(lines.len(), expected.len() + 1, "{name}: one line more, the units");
+        assert_eq!(lines[0], expected[0], "{name}: the header");
+        let units_line: Vec<&str> = declared.iter().chain(&added_units).copied().collect();
+        assert_eq!(
+            lines[1],
+            units_line.join(","),
+            "{name}: the units, with the added columns'"
+        );
+        let differing = (lines[2..].iter().zip(&expected[1..])).filter(|(a, b)| a != b).count();
+        assert_eq!(differing, 0, "{name}: every row as compensated without the units row");
+        let notes = sentences(&json, "notes");
+        assert!(
+            notes
+                .iter()
+                .any(|n| n.contains("line 2 of")
+                    && n.contains(&format!("is a row of units (tt {time_unit}, mag_1_uc nT"))),
+            "{name}: {notes:?}"
+        );
+        let warnings = sentences(&json, "warnings");
+        let about_time = warnings
+            .iter()
+            .filter(|w| w.contains("gives 'ms' for the column 'tt'"))
+            .count();
+        assert_eq!(about_time, usize::from(time_unit == "ms"), "{name}: {warnings:?}");
+        // Amperes, volts and an empty cell say nothing.
+        assert!(!warnings.iter().any(|w| w.contains("row of units gives '")) || time_unit == "ms");
+    }
 }

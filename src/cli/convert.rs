@@ -29,6 +29,16 @@ pub fn convert(
     for warning in warnings {
         println!("  warning: {warning}");
     }
+    if !log.declared_units().is_empty() {
+        let kept = match magcomp::formats::write::detect_output_format(out) {
+            magcomp::formats::Format::DelimitedText => "written under the header",
+            _ => "not written: this format keeps no row of units",
+        };
+        println!(
+            "  note: line 2 of {} is a row of units, read as units: {kept}",
+            flight.display()
+        );
+    }
     println!(
         "wrote {} ({} rows, {} channels)",
         out.display(),

@@ -57,9 +57,9 @@ pub const FORMATS: [FormatRow; 4] = [
         magic: None,
         read: |path, options| super::csv::read_csv(path, &options.columns),
         stage: |log, request| super::csv::stage_log_csv(log, request.added, request.output, request.compensation),
-        copy: Some(|log, _, request, compensation| {
+        copy: Some(|log, names, request, compensation| {
             super::csv::stage_compensated_csv(
-                log.source(),
+                (log.source(), names),
                 log.source_row_offsets(),
                 request.output,
                 compensation,

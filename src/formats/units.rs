@@ -35,7 +35,46 @@ pub fn unit_warnings(file: &str, log: &FlightLog) -> Vec<String> {
     if let Some(warning) = attitude_in_radians(file, log) {
         warnings.push(warning);
     }
+    warnings.extend(declared_unit_warnings(file, log));
     warnings
+}
+
+/// What a column of each kind is read in, and the ways a row of units
+/// writes that unit (compared without case).
+fn read_in(role: Option<&ChannelRole>) -> Option<(&'static str, &'static [&'static str])> {
+    match role {
+        None => Some(("seconds", &["s", "sec", "secs", "second", "seconds"])),
+        Some(ChannelRole::Attitude(_)) => Some(("degrees", &["deg", "degs", "degree", "degrees", "°"])),
+        Some(
+            ChannelRole::ScalarMagnetometer
+            | ChannelRole::VectorMagnetometer { .. }
+            | ChannelRole::VectorTotal { .. }
+            | ChannelRole::BaseStation,
+        ) => Some(("nT", &["nt", "nanotesla", "gamma"])),
+        _ => None,
+    }
+}
+
+/// A warning for each column whose unit, in the input's row of units, is
+/// not the one magcomp reads it in (time in ms, attitude in radians, a
+/// field in µT); an empty cell says nothing.
+fn declared_unit_warnings(file: &str, log: &FlightLog) -> Vec<String> {
+    log.declared_units()
+        .iter()
+        .filter_map(|(column, unit)| {
+            let role = match column == log.time_column() {
+                true => None,
+                false => Some(&log.channel(column)?.role),
+            };
+            let (wanted, spellings) = read_in(role)?;
+            let given = unit.trim().trim_matches(|c| matches!(c, '(' | ')' | '[' | ']')).to_lowercase();
+            (!given.is_empty() && !spellings.contains(&given.as_str())).then(|| {
+                format!(
+                    "{file}: the row of units gives '{unit}' for the column '{column}', which magcomp reads in {wanted}: if it is not in {wanted}, convert it, or the fit and the compensation are wrong"
+                )
+            })
+        })
+        .collect()
 }
 
 /// A warning when pitch and roll never leave ±π/2 although the aircraft

@@ -160,6 +160,22 @@ pub fn detect_output_format(output: &Path) -> Format {
 /// Names of the columns magcomp adds after `existing`: one per compensated
 /// channel, six per compensated fluxgate, one per gradient, then the flags
 /// column.
+/// The unit of each column [`new_column_names`] adds, in its order, for an
+/// input with a row of units: nT, nT/m for a gradient, none for the flags.
+pub(crate) fn added_column_units(compensation: &Compensation) -> Vec<&'static str> {
+    let scalars: usize = compensation
+        .channels
+        .iter()
+        .map(|c| 1 + usize::from(c.sigma_nt.is_some()))
+        .sum();
+    let vectors = 6 * compensation.vectors.len();
+    std::iter::repeat_n("nT", scalars + vectors)
+        .chain(std::iter::repeat_n("nT/m", compensation.gradients.len()))
+        .chain(std::iter::repeat_n("nT", compensation.reduced.len()))
+        .chain(std::iter::once(""))
+        .collect()
+}
+
 fn new_column_names(existing: &[String], compensation: &Compensation) -> Vec<String> {
     let mut added: Vec<String> = Vec::new();
     for channel in &compensation.channels {

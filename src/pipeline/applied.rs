@@ -5,7 +5,7 @@ use std::path::Path;
 use rayon::prelude::*;
 
 use super::prepared::{calibration_windows, choose_channels, choose_vector_sensor, refuse_dead_columns};
-use super::{assess_with_sigma, renaming_notes, FlightResult, FlightRun};
+use super::{assess_with_sigma, renaming_notes, units_row_note, FlightResult, FlightRun};
 use crate::config::{FlightJob, Settings};
 use crate::error::Result;
 use crate::flight_log::FlightLog;
@@ -64,7 +64,8 @@ pub(super) fn run_applied(
     notes.extend(crate::reduce::add_reduced(log, &mut compensation, options.reduced)?);
     warnings.extend(compensation.out_of_range_warnings(log.time_s()));
     let added_columns = added_column_names(log, compensated, &compensation)?;
-    let mut said = renaming_notes(&channels, &added_columns);
+    let mut said: Vec<Note> = units_row_note(&recorded).into_iter().collect();
+    said.extend(renaming_notes(&channels, &added_columns));
     said.extend(Note::said(notes));
     said.extend(
         models

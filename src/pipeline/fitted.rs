@@ -11,7 +11,9 @@ use rayon::prelude::*;
 use super::diagnosis::{applied_findings, augmentation_plan, evidence_rule, next_step, ExtensionsPlan};
 use super::prepared::{detection_notes, detection_warnings, PreparedFlight};
 use super::vector_stage::{vector_stage, window_hulls, VectorStage};
-use super::{against_plan, assess_with_sigma, estimator_table_gap, renaming_notes, FlightResult, FlightRun};
+use super::{
+    against_plan, assess_with_sigma, estimator_table_gap, renaming_notes, units_row_note, FlightResult, FlightRun,
+};
 use crate::config::{FlightJob, Settings};
 use crate::error::Result;
 use crate::flight_log::FlightLog;
@@ -59,7 +61,8 @@ pub(super) fn run_fitted(
     let reduced_notes = crate::reduce::add_reduced(on.log, &mut compensation, options.reduced)?;
     warnings.extend(Warning::said(compensation.out_of_range_warnings(on.log.time_s())));
     let added_columns = added_column_names(on.log, compensated, &compensation)?;
-    let mut notes = renaming_notes(&flight.channels, &added_columns);
+    let mut notes: Vec<Note> = units_row_note(&flight.recorded).into_iter().collect();
+    notes.extend(renaming_notes(&flight.channels, &added_columns));
     let stage_notes = (reduced_notes.into_iter().chain(transfer_notes))
         .chain(flight.headings_note.clone())
         .chain(fluxgate.iter().map(|c| c.summary()));

@@ -246,6 +246,14 @@ fn assess_with_sigma(
     Ok((quality, prediction.levels_nt))
 }
 
+/// The note saying the input's line under its header is a row of units.
+pub(crate) fn units_row_note(recorded: &FlightLog) -> Option<crate::messages::Note> {
+    (!recorded.declared_units().is_empty()).then(|| crate::messages::Note::UnitsRow {
+        path: recorded.source().to_path_buf(),
+        units: recorded.declared_units().to_vec(),
+    })
+}
+
 pub(crate) fn renaming_notes(channels: &[String], added: &[String]) -> Vec<crate::messages::Note> {
     channels
         .iter()

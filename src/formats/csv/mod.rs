@@ -67,21 +67,80 @@ pub fn read_csv(path: &Path, names: &ColumnNames) -> Result<FlightLog> {
 /// [`read_csv`], with the parallel path allowed or not.
 fn read_csv_with(path: &Path, names: &ColumnNames, allow_parallel: bool) -> Result<FlightLog> {
     let (separator, header) = read_header(path)?;
+    let units = read_units_row(path, separator, &header, names)?;
+    let declared: Vec<(String, String)> = match &units {
+        Some(cells) => header.iter().cloned().zip(cells.iter().cloned()).collect(),
+        None => Vec::new(),
+    };
+    let lines_before_data = 1 + usize::from(units.is_some());
     let mut builder = ColumnBuilder::new(path, header, names)?;
+    let read = |builder: ColumnBuilder| -> Result<FlightLog> {
+        let mut builder = builder;
+        let offsets = std::mem::take(&mut builder.row_offsets);
+        Ok(builder
+            .finish(names)?
+            .with_source_row_offsets(offsets)
+            .with_declared_units(declared.clone()))
+    };
     if let (Separator::Byte(delimiter), true) = (separator, allow_parallel) {
-        if let Some(parallel) = read_delimited_parallel(path, delimiter, &builder)? {
-            builder = parallel;
-            let offsets = std::mem::take(&mut builder.row_offsets);
-            return Ok(builder.finish(names)?.with_source_row_offsets(offsets));
+        if let Some(parallel) = read_delimited_parallel(path, delimiter, &builder, lines_before_data)? {
+            return read(parallel);
         }
     }
     let file = File::open(path).map_err(|e| Error::io(path, "opening", e))?;
     match separator {
-        Separator::Byte(delimiter) => read_delimited(path, file, delimiter, &mut builder)?,
-        Separator::Whitespace => read_whitespace(path, file, &mut builder)?,
+        Separator::Byte(delimiter) => read_delimited(path, file, delimiter, &mut builder, lines_before_data)?,
+        Separator::Whitespace => read_whitespace(path, file, &mut builder, lines_before_data)?,
     }
-    let offsets = std::mem::take(&mut builder.row_offsets);
-    Ok(builder.finish(names)?.with_source_row_offsets(offsets))
+    read(builder)
+}
+
+/// The cells of the line under the header when that line is a row of
+/// units (`s,nT,nT,deg`), one per header column; `None` when it is not.
+///
+/// It is one when its time cell reads as a unit and no cell is a number,
+/// with one cell per column. A line that is neither data nor units is left
+/// to the reader, whose error names it ([`Error::UnitsRow`] when its time
+/// cell reads as a unit).
+pub fn read_units_row(
+    path: &Path,
+    separator: Separator,
+    header: &[String],
+    roles: &ColumnNames,
+) -> Result<Option<Vec<String>>> {
+    let Some(time_index) = header.iter().position(|n| *n == roles.time) else {
+        return Ok(None);
+    };
+    let file = File::open(path).map_err(|e| Error::io(path, "opening", e))?;
+    let mut lines = BufReader::new(file).split(b'\n');
+    let line = match (lines.next(), lines.next()) {
+        (Some(_), Some(Ok(line))) => line,
+        _ => return Ok(None),
+    };
+    let cells: Vec<String> = match separator {
+        Separator::Byte(delimiter) => {
+            let mut reader = csv::ReaderBuilder::new()
+                .delimiter(delimiter)
+                .has_headers(false)
+                .from_reader(line.as_slice());
+            let mut record = csv::ByteRecord::new();
+            match reader.read_byte_record(&mut record) {
+                Ok(true) => record
+                    .iter()
+                    .map(|c| String::from_utf8_lossy(c).trim().to_string())
+                    .collect(),
+                _ => return Ok(None),
+            }
+        }
+        Separator::Whitespace => (line.split(u8::is_ascii_whitespace))
+            .filter(|f| !f.is_empty())
+            .map(|c| String::from_utf8_lossy(c).into_owned())
+            .collect(),
+    };
+    let units = cells.len() == header.len()
+        && looks_like_a_unit(&cells[time_index])
+        && cells.iter().all(|c| parse_cell(c.as_bytes()).is_none_or(f64::is_nan));
+    Ok(units.then_some(cells))
 }
 
 /// Opens a `csv` reader over a delimited file with magcomp's settings.
@@ -93,9 +152,19 @@ pub fn delimited_reader<R: Read>(reader: R, delimiter: u8) -> csv::Reader<R> {
         .from_reader(reader)
 }
 
-fn read_delimited(path: &Path, file: File, delimiter: u8, builder: &mut ColumnBuilder) -> Result<()> {
+fn read_delimited(
+    path: &Path,
+    file: File,
+    delimiter: u8,
+    builder: &mut ColumnBuilder,
+    lines_before_data: usize,
+) -> Result<()> {
     let mut reader = delimited_reader(BufReader::with_capacity(1 << 20, file), delimiter);
     let mut record = csv::ByteRecord::new();
+    // The units row, when there is one, is not data.
+    for _ in 1..lines_before_data {
+        reader.read_byte_record(&mut record).map_err(|e| csv_error(path, e))?;
+    }
     loop {
         match reader.read_byte_record(&mut record) {
             Ok(false) => return Ok(()),
@@ -123,6 +192,7 @@ fn read_delimited_parallel<'a>(
     path: &'a Path,
     delimiter: u8,
     template: &ColumnBuilder<'a>,
+    lines_before_data: usize,
 ) -> Result<Option<ColumnBuilder<'a>>> {
     let io = |e| Error::io(path, "reading", e);
     let parts_wanted = rayon::current_num_threads().max(1) * 4;
@@ -134,7 +204,9 @@ fn read_delimited_parallel<'a>(
     let mut head = vec![0u8; 1 << 16];
     let read = read_up_to(&mut file, &mut head).map_err(io)?;
     head.truncate(read);
-    let Some(header_end) = head.iter().position(|&b| b == b'\n').map(|p| p as u64 + 1) else {
+    // The header (and the units row, when there is one) ends here.
+    let line_ends = head.iter().enumerate().filter(|(_, &b)| b == b'\n');
+    let Some(header_end) = line_ends.map(|(p, _)| p as u64 + 1).nth(lines_before_data - 1) else {
         return Ok(None);
     };
     if head.contains(&b'"') {
@@ -269,7 +341,7 @@ fn read_part<'a>(
     Ok((!reader.into_inner().quoted).then_some(part))
 }
 
-fn read_whitespace(path: &Path, file: File, builder: &mut ColumnBuilder) -> Result<()> {
+fn read_whitespace(path: &Path, file: File, builder: &mut ColumnBuilder, lines_before_data: usize) -> Result<()> {
     let mut reader = BufReader::with_capacity(1 << 20, file);
     let mut line = Vec::new();
     let mut line_number = 0u64;
@@ -285,7 +357,7 @@ fn read_whitespace(path: &Path, file: File, builder: &mut ColumnBuilder) -> Resu
         line_number += 1;
         let start = offset;
         offset += read as u64;
-        if line_number == 1 || line.iter().all(u8::is_ascii_whitespace) {
+        if line_number <= lines_before_data as u64 || line.iter().all(u8::is_ascii_whitespace) {
             continue;
         }
         let fields = line.split(u8::is_ascii_whitespace).filter(|f| !f.is_empty());
@@ -617,10 +689,49 @@ mod tests {
         }
     }
 
+    #[test]
+    fn a_row_of_units_is_read_as_units_for_every_separator() {
+        for sep in [",", ";", "\t", "   "] {
+            let text = [
+                ["tt", "mag_1_uc", "cur_strb"],
+                ["s", "nT", "A"],
+                ["0.0", "50000.5", "*"],
+                ["0.1", "50001.25", "1.5"],
+            ]
+            .map(|row| row.join(sep) + "\n")
+            .concat();
+            let file = write_temp(&text);
+            let log = read_csv(file.path(), &ColumnNames::default()).unwrap();
+            assert_eq!(log.time_s(), &[0.0, 0.1], "separator {sep:?}");
+            assert_eq!(log.channel("mag_1_uc").unwrap().values, vec![50000.5, 50001.25]);
+            let units: Vec<(&str, &str)> = (log.declared_units().iter())
+                .map(|(c, u)| (c.as_str(), u.as_str()))
+                .collect();
+            assert_eq!(units, [("tt", "s"), ("mag_1_uc", "nT"), ("cur_strb", "A")], "{sep:?}");
+            let first_row = text.find("0.0").unwrap() as u64;
+            assert_eq!(log.source_row_offsets().unwrap()[0], first_row, "{sep:?}");
+        }
+        // No units row: nothing declared.
+        let file = write_temp("tt,mag_1_uc\n0,1\n1,2\n");
+        assert!(read_csv(file.path(), &ColumnNames::default())
+            .unwrap()
+            .declared_units()
+            .is_empty());
+    }
+
     /// A file big enough for the parallel path: `rows` rows, a text column
     /// that turns numeric-looking late, and a column empty in its first half.
     fn big_file(rows: usize, bad_row: Option<usize>) -> tempfile::NamedTempFile {
-        let mut text = String::from("tt,mag_1_uc,note,late,cur_a,flux_a_x,flux_a_y,flux_a_z\n");
+        big_file_under(
+            "tt,mag_1_uc,note,late,cur_a,flux_a_x,flux_a_y,flux_a_z\n",
+            rows,
+            bad_row,
+        )
+    }
+
+    /// [`big_file`]'s rows under `head` (the header, and a row of units).
+    fn big_file_under(head: &str, rows: usize, bad_row: Option<usize>) -> tempfile::NamedTempFile {
+        let mut text = String::from(head);
         for k in 0..rows {
             let t = 1000.0 + k as f64 * 0.1;
             let mag = if Some(k) == bad_row {
@@ -654,7 +765,7 @@ mod tests {
         let header = read_header(file.path()).unwrap().1;
         let template = ColumnBuilder::new(file.path(), header, &names).unwrap();
         let split = pool
-            .install(|| read_delimited_parallel(file.path(), b',', &template))
+            .install(|| read_delimited_parallel(file.path(), b',', &template, 1))
             .unwrap();
         assert!(split.is_some(), "this file takes the parallel path");
         let parallel = pool.install(|| read_csv_with(file.path(), &names, true)).unwrap();
@@ -673,6 +784,33 @@ mod tests {
         }
         let late = &parallel.channel("late").unwrap().values;
         assert!(late[0].is_nan() && late[159_999] == (159_999 % 13) as f64);
+    }
+
+    #[test]
+    fn parallel_read_skips_a_row_of_units_as_the_sequential_read_does() {
+        let head = "tt,mag_1_uc,note,late,cur_a,flux_a_x,flux_a_y,flux_a_z\ns,nT,,,A,nT,nT,nT\n";
+        let file = big_file_under(head, 160_000, None);
+        let names = ColumnNames::default();
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(3).build().unwrap();
+        let header = read_header(file.path()).unwrap().1;
+        let template = ColumnBuilder::new(file.path(), header, &names).unwrap();
+        let split = pool
+            .install(|| read_delimited_parallel(file.path(), b',', &template, 2))
+            .unwrap();
+        assert!(split.is_some(), "this file takes the parallel path");
+        let parallel = pool.install(|| read_csv_with(file.path(), &names, true)).unwrap();
+        let sequential = read_csv_with(file.path(), &names, false).unwrap();
+        assert_eq!(parallel.len(), 160_000);
+        assert_eq!(parallel.time_s()[0], 1000.0);
+        assert_eq!(parallel.time_s(), sequential.time_s());
+        assert_eq!(parallel.source_row_offsets(), sequential.source_row_offsets());
+        assert_eq!(parallel.source_row_offsets().unwrap()[0], head.len() as u64);
+        assert_eq!(parallel.declared_units(), sequential.declared_units());
+        assert_eq!(parallel.declared_units()[4], ("cur_a".to_string(), "A".to_string()));
+        // A bad cell far down is named at its line, the units row counted.
+        let bad = big_file_under(head, 160_000, Some(150_000));
+        let text = read_csv(bad.path(), &names).unwrap_err().to_string();
+        assert!(text.contains("line 150003") && text.contains("'5x1'"), "{text}");
     }
 
     #[test]

@@ -12,10 +12,11 @@ use std::path::Path;
 use crate::compensate::Compensation;
 use crate::error::Result;
 use crate::flight_log::FlightLog;
+use crate::formats::columns::ColumnNames;
 use crate::formats::destination::{stage, Staged};
-use crate::formats::write::{row_count_changed, write_cell, ExtraColumns};
+use crate::formats::write::{added_column_units, row_count_changed, write_cell, ExtraColumns};
 
-use super::{delimited_reader, read_header, Separator};
+use super::{delimited_reader, read_header, read_units_row, Separator};
 
 /// Stages the compensated CSV: every input row and column, then one column
 /// per compensated channel and the flags column.
@@ -23,40 +24,60 @@ use super::{delimited_reader, read_header, Separator};
 /// A comma-separated input whose row offsets are known (`row_offsets`, from
 /// the reader) is copied byte for byte, each row's text followed by the new
 /// cells; other inputs are re-read and written as comma-separated records.
+/// An input's row of units under its header is kept, with the added
+/// columns' units.
 pub fn stage_compensated_csv(
-    input: &Path,
+    (input, roles): (&Path, &ColumnNames),
     row_offsets: Option<&[u64]>,
     output: &Path,
     compensation: &Compensation,
     added: &[String],
 ) -> Result<Staged> {
     let (separator, header) = read_header(input)?;
+    let units = read_units_row(input, separator, &header, roles)?;
+    let added_units = added_column_units(compensation);
     let rows = compensation.flags.len();
     if let (Separator::Byte(b','), Some(offsets)) = (separator, row_offsets) {
         if offsets.len() == rows {
             return stage(output, |writer| {
-                copy_verbatim(input, offsets, added, writer, &mut ExtraColumns::new(compensation))
+                let head = Head {
+                    added,
+                    added_units: &added_units,
+                };
+                copy_verbatim(input, offsets, head, writer, &mut ExtraColumns::new(compensation))
             });
         }
     }
     stage(output, |writer| {
         let mut csv = csv::Writer::from_writer(writer);
         csv.write_record(header.iter().chain(added))?;
+        if let Some(units) = &units {
+            csv.write_record(units.iter().map(String::as_str).chain(added_units.iter().copied()))?;
+        }
         let mut extra = ExtraColumns::new(compensation);
+        let skip = 1 + usize::from(units.is_some());
         match separator {
-            Separator::Byte(delimiter) => copy_delimited(input, delimiter, &mut csv, &mut extra, rows)?,
-            Separator::Whitespace => copy_whitespace(input, &mut csv, &mut extra, rows)?,
+            Separator::Byte(delimiter) => copy_delimited(input, (delimiter, skip), &mut csv, &mut extra, rows)?,
+            Separator::Whitespace => copy_whitespace(input, skip, &mut csv, &mut extra, rows)?,
         }
         csv.flush()
     })
 }
 
-/// Copies the header and every row of a comma-separated `input` verbatim
-/// (without its line terminator), appending the added cells to each.
+/// What the copy adds to the lines above the data: the added columns'
+/// names, and their units for a row of units.
+struct Head<'a> {
+    added: &'a [String],
+    added_units: &'a [&'static str],
+}
+
+/// Copies the header (and the units row under it, if any) and every row of
+/// a comma-separated `input` verbatim (without its line terminator),
+/// appending the added cells to each.
 fn copy_verbatim<W: Write>(
     input: &Path,
     offsets: &[u64],
-    added: &[String],
+    head: Head,
     out: &mut W,
     extra: &mut ExtraColumns,
 ) -> std::io::Result<()> {
@@ -64,12 +85,28 @@ fn copy_verbatim<W: Write>(
     let mut text = Vec::new();
     let header_length = offsets.first().copied().unwrap_or(0);
     read_span(&mut file, Some(header_length), &mut text)?;
-    out.write_all(without_terminator(&text))?;
-    for name in added {
+    // The span before the first row: the header, then the units row when
+    // the reader found one (any other line there would have been a row).
+    let text = without_terminator(&text);
+    let (header, units) = match text.iter().position(|&b| b == b'\n') {
+        Some(end) => (&text[..end], Some(without_terminator(&text[end..]))),
+        None => (text, None),
+    };
+    out.write_all(without_terminator(header))?;
+    for name in head.added {
         out.write_all(b",")?;
         write_cell(out, name.as_bytes())?;
     }
     out.write_all(b"\n")?;
+    if let Some(units) = units {
+        out.write_all(units)?;
+        for unit in head.added_units {
+            out.write_all(b",")?;
+            write_cell(out, unit.as_bytes())?;
+        }
+        out.write_all(b"\n")?;
+    }
+    let mut text = Vec::new();
     for (i, start) in offsets.iter().enumerate() {
         let length = offsets.get(i + 1).map(|next| next - start);
         read_span(&mut file, length, &mut text)?;
@@ -105,15 +142,20 @@ fn without_terminator(text: &[u8]) -> &[u8] {
     &text[start..end]
 }
 
+/// Copies the records of a delimited `input` after its first `skip` lines
+/// (the header, and the units row when there is one).
 fn copy_delimited<W: Write>(
     input: &Path,
-    delimiter: u8,
+    (delimiter, skip): (u8, usize),
     csv: &mut csv::Writer<W>,
     extra: &mut ExtraColumns,
     rows: usize,
 ) -> std::io::Result<()> {
     let mut reader = delimited_reader(BufReader::with_capacity(1 << 20, File::open(input)?), delimiter);
     let mut record = csv::ByteRecord::new();
+    for _ in 1..skip {
+        reader.read_byte_record(&mut record)?;
+    }
     while reader.read_byte_record(&mut record)? {
         if extra.row >= rows {
             return Err(row_count_changed(rows));
@@ -127,15 +169,18 @@ fn copy_delimited<W: Write>(
     }
 }
 
+/// Copies the rows of a whitespace-aligned `input` after its first `skip`
+/// lines (the header, and the units row when there is one).
 fn copy_whitespace<W: Write>(
     input: &Path,
+    skip: usize,
     csv: &mut csv::Writer<W>,
     extra: &mut ExtraColumns,
     rows: usize,
 ) -> std::io::Result<()> {
     let reader = BufReader::with_capacity(1 << 20, File::open(input)?);
     let mut record = csv::ByteRecord::new();
-    for line in reader.split(b'\n').skip(1) {
+    for line in reader.split(b'\n').skip(skip) {
         let line = line?;
         if line.iter().all(u8::is_ascii_whitespace) {
             continue;
@@ -174,6 +219,11 @@ pub fn stage_log_csv(
             write_cell(out, name.as_bytes())?;
         }
         out.write_all(b"\n")?;
+        let added_units = match compensation {
+            Some(compensation) => added_column_units(compensation),
+            None => vec![""; added.len()],
+        };
+        write_declared_units(log, &added_units, out)?;
         let mut extra = compensation.map(ExtraColumns::new);
         let mut number = ryu::Buffer::new();
         for row in 0..log.len() {
@@ -192,4 +242,31 @@ pub fn stage_log_csv(
         }
         Ok(())
     })
+}
+
+/// The row of units of a log read with one, under the header of its
+/// written columns (time, then the channels), then the added columns'
+/// units. Nothing when the input had no row of units.
+fn write_declared_units(log: &FlightLog, added: &[&str], out: &mut impl Write) -> std::io::Result<()> {
+    let declared = log.declared_units();
+    if declared.is_empty() {
+        return Ok(());
+    }
+    let unit_of = |name: &str| {
+        (declared.iter())
+            .find(|(column, _)| column == name)
+            .map_or("", |(_, unit)| unit.as_str())
+    };
+    let columns = std::iter::once(log.time_column()).chain(log.channels().iter().map(|c| c.name.as_str()));
+    for (k, name) in columns.enumerate() {
+        if k > 0 {
+            out.write_all(b",")?;
+        }
+        write_cell(out, unit_of(name).as_bytes())?;
+    }
+    for unit in added {
+        out.write_all(b",")?;
+        write_cell(out, unit.as_bytes())?;
+    }
+    out.write_all(b"\n")
 }
