@@ -59,7 +59,7 @@ impl FlightOutputs {
         };
         FlightOutputs {
             compensated: directory.join(format!("{stem}_compensated.{extension}")),
-            model_json: Some(directory.join(format!("{stem}_model.json"))),
+            model_json: Some(crate::config::model_json_path(directory, stem)),
             quality_json: Some(directory.join(format!("{stem}_quality.json"))),
             report_html: Some(directory.join(format!("{stem}_report.html"))),
             diagnosis_json: Some(directory.join(format!("{stem}_diagnosis.json"))),

@@ -562,6 +562,77 @@ fn a_run_applies_the_model_its_calibration_flight_writes() {
     assert_eq!(status["state"], "failed", "{status}");
 }
 
+/// A campaign's calibration flight (`calibration = true`) compensates the
+/// flights of its aircraft that name no model or calibration data of
+/// their own, as naming its model would; two calibration flights the dates
+/// cannot choose between are refused before anything runs.
+#[test]
+fn a_campaign_gives_each_flight_its_aircraft_s_calibration() {
+    let folder = tempfile::tempdir().unwrap();
+    let at = |name: &str| folder.path().join(name);
+    sample_flight(&at("cal.csv"));
+    let text = std::fs::read_to_string(at("cal.csv")).unwrap();
+    let lines: Vec<&str> = text.lines().collect();
+    for (name, less) in [("survey_1.csv", 10), ("survey_2.csv", 20)] {
+        std::fs::write(at(name), lines[..lines.len() - less].join("\n") + "\n").unwrap();
+    }
+    std::fs::write(
+        at("pipeline.toml"),
+        "[output]\ndirectory = \"out\"\n\n[campaign]\nmanifest = \"flights.csv\"\n\n[[flight]]\ninput = \"survey_2.csv\"\naircraft = \"C-GMAG\"\n",
+    )
+    .unwrap();
+    std::fs::write(
+        at("flights.csv"),
+        "input,aircraft,date,calibration\nsurvey_1.csv, c-gmag,2026-06-20,\ncal.csv,C-GMAG,2026-06-15,yes\n",
+    )
+    .unwrap();
+    let stdout = run_ok(magcomp().arg("run").arg(at("pipeline.toml")).arg("--plain"));
+    assert!(
+        stdout.contains("aircraft 'C-GMAG': 2 flight(s) compensated with the model of its calibration flight")
+            && stdout.contains("survey_2, survey_1"),
+        "{stdout}"
+    );
+    assert!(at("out/cal_model.json").is_file());
+    for (name, age) in [("survey_1", Some(5)), ("survey_2", None)] {
+        assert!(!at(&format!("out/{name}_model.json")).exists(), "{name} fits no model");
+        let quality: serde_json::Value =
+            serde_json::from_reader(std::fs::File::open(at(&format!("out/{name}_quality.json"))).unwrap()).unwrap();
+        assert!(
+            quality["model"]["file"].as_str().unwrap().ends_with("cal_model.json"),
+            "{name}: {}",
+            quality["model"]
+        );
+        assert_eq!(quality["model"]["age_days"].as_i64(), age, "{name}");
+    }
+    // As compensated by naming the model: the same values, but at the
+    // end, where the shorter file's derivatives are one-sided.
+    let wanted = ["mag_1_c", "mag_2_c"];
+    let own = columns(&at("out/cal_compensated.csv"), &wanted);
+    let applied = columns(&at("out/survey_2_compensated.csv"), &wanted);
+    for (name, (a, b)) in wanted.iter().zip(own.iter().zip(&applied)) {
+        assert_eq!(b.len() + 20, a.len());
+        let differ = (a.iter().zip(b).take(b.len() - 2)).filter(|(x, y)| x != y).count();
+        assert_eq!(differ, 0, "{name}: {differ} rows differ");
+    }
+    // A second calibration flight of the aircraft, undated: which one
+    // compensates survey_1 is not guessed.
+    std::fs::write(
+        at("flights.csv"),
+        "input,aircraft,date,calibration\nsurvey_1.csv,C-GMAG,2026-06-20,\ncal.csv,C-GMAG,2026-06-15,yes\ncal_2.csv,C-GMAG,,true\n",
+    )
+    .unwrap();
+    std::fs::copy(at("cal.csv"), at("cal_2.csv")).unwrap();
+    let output = magcomp().arg("run").arg(at("pipeline.toml")).output().unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success());
+    assert!(
+        stderr.contains("survey_2.csv could take the model of 2 calibration flights")
+            && stderr.contains("give the dates"),
+        "{stderr}"
+    );
+    assert!(!at("out/cal_2_model.json").exists(), "nothing runs");
+}
+
 #[test]
 fn a_model_that_fitted_the_base_stations_gain_is_refused_as_an_earlier_versions() {
     // concealed_d: 6 nT of pulsations, which the base station records;

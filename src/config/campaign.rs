@@ -12,9 +12,11 @@
 //! only one required), `windows`, `diagnosis`, `plan` (the PLAN_REPORT.json
 //! of the plan the flight was flown to), `model` (a MODEL.json saved from a
 //! calibration flight, applied to this one: [`crate::apply`]), `lines`,
-//! `vector`, `channels`, `date`, and `aircraft`, the airframe a
+//! `vector`, `channels`, `date`, `aircraft`, the airframe a
 //! calibration belongs to (the campaign summary follows each aircraft's
-//! coefficients over time). In CSV,
+//! coefficients over time), and `calibration`, true for an aircraft's
+//! calibration flight, whose model compensates its other flights
+//! (`super::calibrations`). In CSV,
 //! `windows` is a DETECT.json path or `T0:T1` windows separated by spaces
 //! or `;`, and `channels` are names separated by spaces or `;`. In JSON
 //! lines, `windows` is a DETECT.json path or a list of `"T0:T1"` strings or
@@ -112,6 +114,17 @@ struct ManifestRow {
     aircraft: Option<String>,
     #[serde(default)]
     lines: Option<ManifestLines>,
+    #[serde(default)]
+    calibration: Option<ManifestFlag>,
+}
+
+/// A yes-or-no field of a manifest row: a JSON boolean, or in CSV `true`,
+/// `yes` or `1` against `false`, `no`, `0` or an empty cell.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(untagged)]
+enum ManifestFlag {
+    Bool(bool),
+    Text(String),
 }
 
 /// The calibration lines of a manifest row: numbers, or one string of
@@ -129,7 +142,7 @@ enum ManifestLines {
 }
 
 /// The columns a CSV manifest may have.
-const MANIFEST_COLUMNS: [&str; 10] = [
+const MANIFEST_COLUMNS: [&str; 11] = [
     "input",
     "windows",
     "diagnosis",
@@ -140,6 +153,7 @@ const MANIFEST_COLUMNS: [&str; 10] = [
     "date",
     "aircraft",
     "lines",
+    "calibration",
 ];
 
 /// The flights `campaign` names, after the `explicit` ones: the manifest's
@@ -260,6 +274,7 @@ fn raw_flight(input: PathBuf) -> RawFlight {
         model: None,
         date: None,
         aircraft: None,
+        calibration: false,
     }
 }
 
@@ -370,6 +385,7 @@ fn read_manifest_csv(path: &Path, text: &str) -> Result<Vec<RawFlight>> {
             date: cell("date"),
             aircraft: cell("aircraft"),
             lines: cell("lines").map(ManifestLines::Text),
+            calibration: cell("calibration").map(ManifestFlag::Text),
         };
         flights.push(from_row(row).map_err(|message| manifest_error(path, line, message))?);
     }
@@ -430,6 +446,19 @@ fn from_row(row: ManifestRow) -> std::result::Result<RawFlight, String> {
     });
     flight.date = row.date;
     flight.aircraft = row.aircraft;
+    flight.calibration = match row.calibration {
+        None => false,
+        Some(ManifestFlag::Bool(flag)) => flag,
+        Some(ManifestFlag::Text(text)) => match text.trim().to_lowercase().as_str() {
+            "true" | "yes" | "1" => true,
+            "false" | "no" | "0" | "" => false,
+            _ => {
+                return Err(format!(
+                    "calibration = {text:?}: give true (the aircraft's calibration flight) or false"
+                ))
+            }
+        },
+    };
     Ok(flight)
 }
 

@@ -66,6 +66,8 @@
 //! input = "sample_flights/box_and_lines.csv"
 //! windows_file = "sample_flights/box_and_lines.windows.json"
 //! aircraft = "C-GMAG"  # optional: the summary follows its coefficients
+//! calibration = true    # optional: its model compensates the aircraft's
+//!                       # other flights (`calibrations`)
 //!
 //! [campaign]           # more flights: see `campaign`
 //! inputs = ["flights/*.csv"]
@@ -93,6 +95,7 @@ use crate::vector::VectorOptions;
 use crate::vector_calibration::VectorCalibrationOptions;
 use crate::windows::{read_detect_file, CalibrationWindow};
 
+mod calibrations;
 mod campaign;
 mod keys;
 mod sections;
@@ -287,6 +290,11 @@ pub(crate) struct RawFlight {
     /// over a campaign.
     #[serde(default)]
     pub aircraft: Option<String>,
+    /// This flight is its aircraft's calibration: fitted on its own box,
+    /// its model compensates the aircraft's other flights
+    /// ([`calibrations`]).
+    #[serde(default)]
+    pub calibration: bool,
 }
 
 /// `[quality]` as written.
@@ -384,6 +392,9 @@ pub struct FlightJob {
     pub date: Option<crate::flight_date::FlightDate>,
     /// The airframe, when the campaign names it.
     pub aircraft: Option<String>,
+    /// The flight is its aircraft's calibration: its model compensates
+    /// the aircraft's flights that name none of their own ([`calibrations`]).
+    pub calibration: bool,
     /// What the flight's outputs are named after: the input's file stem,
     /// or, when two flights of a campaign share a stem, their path.
     pub output_name: String,
@@ -408,8 +419,20 @@ impl FlightJob {
             model: None,
             date: None,
             aircraft: None,
+            calibration: false,
         }
     }
+
+    /// The model JSON this flight's run writes in `directory`.
+    pub fn model_json_in(&self, directory: &Path) -> PathBuf {
+        model_json_path(directory, &self.output_name)
+    }
+}
+
+/// The model JSON of the flight whose outputs are named `stem`, in
+/// `directory`: `<stem>_model.json`.
+pub fn model_json_path(directory: &Path, stem: &str) -> PathBuf {
+    directory.join(format!("{stem}_model.json"))
 }
 
 /// The file name of `path` without its extension (`flight` when it has
@@ -561,7 +584,7 @@ impl Pipeline {
             campaign::campaign_flights(&raw.campaign, &raw.flights, (base, &raw.output.directory), &source_name)?;
         raw.flights = flights;
         let (mut pipeline, windows_files) = Pipeline::validate(raw, base, &source_name)?;
-        pipeline.notes = notes;
+        pipeline.notes.splice(0..0, notes);
         let margin_s = pipeline.settings.detect.window_margin_s;
         for file in windows_files {
             let detected = read_detect_file(&file.path, margin_s)?;
@@ -663,11 +686,13 @@ impl Pipeline {
             flights.push(flight_job(flight, base, source_name)?);
         }
         name_outputs(&mut flights, base);
+        let output_directory = base.join(raw.output.directory);
+        let notes = calibrations::assign_calibrations(&mut flights, &output_directory, source_name)?;
         let pipeline = Pipeline {
             settings,
-            output_directory: base.join(raw.output.directory),
+            output_directory,
             flights,
-            notes: Vec::new(),
+            notes,
         };
         Ok((pipeline, windows_files))
     }
@@ -819,6 +844,7 @@ fn flight_job(raw: RawFlight, base: &Path, source_name: &str) -> Result<FlightJo
         model: raw.model.map(|m| base.join(m)),
         date,
         aircraft: raw.aircraft,
+        calibration: raw.calibration,
         ..FlightJob::new(input)
     })
 }
