@@ -13,6 +13,7 @@
 use std::fmt::Write as _;
 use std::path::Path;
 
+use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 use serde::Serialize;
 
@@ -149,12 +150,17 @@ const MOST_LINE_POINTS: usize = 2000;
 /// that every spike still shows; fewer points are kept as they are.
 /// Non-finite points are dropped.
 fn decimated(points: impl Iterator<Item = (f64, f64)>) -> Vec<(f64, f64)> {
+    decimated_to(points, MOST_LINE_POINTS)
+}
+
+/// [`decimated`] to at most `most` points.
+fn decimated_to(points: impl Iterator<Item = (f64, f64)>, most: usize) -> Vec<(f64, f64)> {
     let points: Vec<(f64, f64)> = points.filter(|(x, y)| x.is_finite() && y.is_finite()).collect();
-    if points.len() <= MOST_LINE_POINTS {
+    if points.len() <= most {
         return points;
     }
-    let run = points.len().div_ceil(MOST_LINE_POINTS / 3);
-    let mut kept = Vec::with_capacity(MOST_LINE_POINTS);
+    let run = points.len().div_ceil((most / 3).max(1));
+    let mut kept = Vec::with_capacity(most);
     for chunk in points.chunks(run) {
         let lowest = chunk
             .iter()
@@ -179,60 +185,133 @@ fn decimated(points: impl Iterator<Item = (f64, f64)>) -> Vec<(f64, f64)> {
     kept
 }
 
-fn attitude_timeline(log: &FlightLog, result: &FlightResult) -> Result<String> {
-    let time = log.time_s();
-    let series: Vec<(&str, &[f64], RGBColor)> = [
-        (AttitudeAngle::Roll, "roll", RED),
-        (AttitudeAngle::Pitch, "pitch", BLUE),
-    ]
-    .into_iter()
-    .filter_map(|(angle, name, colour)| {
-        let channel = log.channels().iter().find(|c| c.role == ChannelRole::Attitude(angle))?;
-        Some((name, channel.values.as_slice(), colour))
-    })
-    .collect();
-    let windows: Vec<(f64, f64)> = result
-        .models
-        .first()
+/// The calibration windows of a flight's first model, as (start, end).
+fn calibration_spans(result: &FlightResult) -> Vec<(f64, f64)> {
+    (result.models.first())
         .map(|m| m.windows.iter().map(|w| (w.window.t_start, w.window.t_end)).collect())
-        .unwrap_or_default();
-    svg(WIDE, |root| {
-        let x = span(time.iter().copied());
-        let y = span(series.iter().flat_map(|(_, v, _)| v.iter().copied()));
-        let mut chart = ChartBuilder::on(root)
-            .caption("Attitude, with the calibration windows shaded", ("sans-serif", 15))
-            .margin(8)
+        .unwrap_or_default()
+}
+
+/// The attitude over the whole flight: heading above, pitch and roll
+/// below, the calibration windows shaded.
+fn attitude_timeline(log: &FlightLog, result: &FlightResult) -> Result<String> {
+    let time = span(log.time_s().iter().copied());
+    let caption = "Flight: heading (top), pitch (blue) and roll (red) below, calibration windows shaded";
+    attitude_panels(log, &calibration_spans(result), time, caption)
+}
+
+/// The calibration box on its own time axis (its first window's start to
+/// its last window's end, 2 % either side), as [`attitude_timeline`]
+/// draws the flight; `None` without windows.
+fn box_timeline(log: &FlightLog, result: &FlightResult) -> Result<Option<String>> {
+    let windows = calibration_spans(result);
+    let (Some(start), Some(end)) = (
+        windows.iter().map(|w| w.0).min_by(f64::total_cmp),
+        windows.iter().map(|w| w.1).max_by(f64::total_cmp),
+    ) else {
+        return Ok(None);
+    };
+    let margin = 0.02 * (end - start).max(1.0);
+    let caption = format!(
+        "Calibration box, {start:.0} to {end:.0} s: heading (top), pitch (blue) and roll (red), its {} windows shaded",
+        windows.len()
+    );
+    attitude_panels(log, &windows, (start - margin)..(end + margin), &caption).map(Some)
+}
+
+/// Heading (0–360°) in a panel above pitch and roll, over `time`, with
+/// `windows` shaded in both. Series are named in the caption, not in a
+/// legend box drawn over the data.
+fn attitude_panels(
+    log: &FlightLog,
+    windows: &[(f64, f64)],
+    time: std::ops::Range<f64>,
+    caption: &str,
+) -> Result<String> {
+    let t = log.time_s();
+    let angle = |wanted: AttitudeAngle| {
+        (log.channels().iter())
+            .find(|c| c.role == ChannelRole::Attitude(wanted))
+            .map(|c| c.values.as_slice())
+    };
+    let rows: Vec<usize> = (0..t.len()).filter(|&k| time.contains(&t[k])).collect();
+    let series: Vec<(&[f64], RGBColor)> = [(AttitudeAngle::Pitch, BLUE), (AttitudeAngle::Roll, RED)]
+        .into_iter()
+        .filter_map(|(wanted, colour)| Some((angle(wanted)?, colour)))
+        .collect();
+    let heading = angle(AttitudeAngle::Yaw);
+    svg((WIDE.0, 380), |root| {
+        let root = root.titled(caption, ("sans-serif", 15)).map_err(plot_error)?;
+        let (top, bottom) = root.split_vertically(150);
+        let shade = RGBColor(255, 200, 60).mix(0.35).filled();
+        // Heading, wrapped to 0–360° and broken where it crosses north.
+        let mut chart = ChartBuilder::on(&top)
+            .margin(6)
+            .x_label_area_size(18)
+            .y_label_area_size(45)
+            .build_cartesian_2d(time.clone(), 0.0..360.0)
+            .map_err(plot_error)?;
+        (chart.configure_mesh())
+            .y_desc("heading, °")
+            .y_labels(5)
+            .draw()
+            .map_err(plot_error)?;
+        chart
+            .draw_series(
+                windows
+                    .iter()
+                    .map(|&(a, b)| Rectangle::new([(near(&time, a), 0.0), (near(&time, b), 360.0)], shade)),
+            )
+            .map_err(plot_error)?;
+        if let Some(heading) = heading {
+            let points = decimated(rows.iter().map(|&k| (t[k], heading[k].rem_euclid(360.0))));
+            for piece in split_at_wraps(&points) {
+                chart
+                    .draw_series(LineSeries::new(piece.to_vec(), BLACK))
+                    .map_err(plot_error)?;
+            }
+        }
+        // Pitch and roll.
+        let y = span(series.iter().flat_map(|(v, _)| rows.iter().map(|&k| v[k])));
+        let mut chart = ChartBuilder::on(&bottom)
+            .margin(6)
             .x_label_area_size(30)
             .y_label_area_size(45)
-            .build_cartesian_2d(x.clone(), y.clone())
+            .build_cartesian_2d(time.clone(), y.clone())
             .map_err(plot_error)?;
-        chart
-            .configure_mesh()
+        (chart.configure_mesh())
             .x_desc("time, s")
-            .y_desc("degrees")
+            .y_desc("pitch, roll, °")
             .draw()
             .map_err(plot_error)?;
         chart
-            .draw_series(windows.iter().map(|&(a, b)| {
-                let (a, b) = (near(&x, a), near(&x, b));
-                Rectangle::new([(a, y.start), (b, y.end)], RGBColor(255, 200, 60).mix(0.35).filled())
-            }))
+            .draw_series(
+                windows
+                    .iter()
+                    .map(|&(a, b)| Rectangle::new([(near(&time, a), y.start), (near(&time, b), y.end)], shade)),
+            )
             .map_err(plot_error)?;
-        for (name, values, colour) in &series {
-            let points = on_canvas(decimated(time.iter().copied().zip(values.iter().copied())), &x, &y);
-            chart
-                .draw_series(LineSeries::new(points, colour))
-                .map_err(plot_error)?
-                .label(*name)
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], colour));
+        for (values, colour) in &series {
+            let points = on_canvas(decimated(rows.iter().map(|&k| (t[k], values[k]))), &time, &y);
+            chart.draw_series(LineSeries::new(points, colour)).map_err(plot_error)?;
         }
-        chart
-            .configure_series_labels()
-            .background_style(WHITE.mix(0.8))
-            .draw()
-            .map_err(plot_error)?;
         Ok(())
     })
+}
+
+/// A heading trace cut where it wraps across north (a step of more than
+/// 180°), so no line is drawn across the panel.
+fn split_at_wraps(points: &[(f64, f64)]) -> Vec<&[(f64, f64)]> {
+    let mut pieces = Vec::new();
+    let mut start = 0;
+    for k in 1..points.len() {
+        if (points[k].1 - points[k - 1].1).abs() > 180.0 {
+            pieces.push(&points[start..k]);
+            start = k;
+        }
+    }
+    pieces.push(&points[start..]);
+    pieces
 }
 
 /// One manoeuvre's band-passed signal before (grey) and after (blue).
@@ -347,8 +426,65 @@ fn singular_value_plot(model: &FittedModel) -> Result<String> {
     })
 }
 
+/// Metres east and north of (`lat0`, `lon0`), degrees: the equirectangular
+/// projection about `lat0`, within 0.1 % of the ground distance across a
+/// survey block of 100 km at mid latitudes: a map, not geodesy.
+fn local_metres((lat, lon): (f64, f64), (lat0, lon0): (f64, f64)) -> (f64, f64) {
+    const EARTH_RADIUS_M: f64 = 6_371_000.0;
+    let east = (lon - lon0).to_radians() * EARTH_RADIUS_M * lat0.to_radians().cos();
+    let north = (lat - lat0).to_radians() * EARTH_RADIUS_M;
+    (east, north)
+}
+
+/// The map's size and the width its colour bar takes from it, pixels.
+const MAP: (u32, u32) = (560, 460);
+const COLOUR_BAR_WIDTH: u32 = 95;
+
+/// The anomaly's colour, blue (`low`) to red (`high`), nT.
+fn anomaly_colour(v: f64, (low, high): (f64, f64)) -> RGBColor {
+    let f = ((v - low) / (high - low).max(1e-9)).clamp(0.0, 1.0);
+    RGBColor(
+        (255.0 * f) as u8,
+        (80.0 + 60.0 * (1.0 - (2.0 * f - 1.0).abs())) as u8,
+        (255.0 * (1.0 - f)) as u8,
+    )
+}
+
+/// A chart in metres east and north, drawn as SVG.
+type MapChart<'a, 'b> = ChartContext<'a, SVGBackend<'b>, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
+
+/// The map's chart over `x` × `y` (metres east, north) in `area`.
+fn map_chart<'a, 'b>(
+    area: &'a DrawingArea<SVGBackend<'b>, plotters::coord::Shift>,
+    x: std::ops::Range<f64>,
+    y: std::ops::Range<f64>,
+) -> Result<MapChart<'a, 'b>> {
+    ChartBuilder::on(area)
+        .caption("Survey lines: compensated anomaly", ("sans-serif", 13))
+        .margin(6)
+        .x_label_area_size(30)
+        .y_label_area_size(60)
+        .build_cartesian_2d(x, y)
+        .map_err(plot_error)
+}
+
+/// `x` and `y` widened about their centres to one scale, metres per pixel,
+/// for a plot of `pixels`: a kilometre east as long as one north.
+fn equal_scale(
+    (x, y): (std::ops::Range<f64>, std::ops::Range<f64>),
+    pixels: (u32, u32),
+) -> (std::ops::Range<f64>, std::ops::Range<f64>) {
+    let scale = ((x.end - x.start) / f64::from(pixels.0.max(1))).max((y.end - y.start) / f64::from(pixels.1.max(1)));
+    let about = |r: &std::ops::Range<f64>, px: u32| {
+        let (centre, half) = ((r.start + r.end) / 2.0, scale * f64::from(px) / 2.0);
+        (centre - half)..(centre + half)
+    };
+    (about(&x, pixels.0), about(&y, pixels.1))
+}
+
 /// Survey-line samples coloured by compensated anomaly (value less the
-/// lines' median), blue low to red high.
+/// lines' median), blue low to red high, in metres east and north of the
+/// survey's centre at one scale, with a colour bar in nT.
 fn line_map(log: &FlightLog, values: &[f64]) -> Result<Option<String>> {
     let (Some(lat), Some(lon), Some(line)) = (
         log.channel("lat"),
@@ -374,49 +510,101 @@ fn line_map(log: &FlightLog, values: &[f64]) -> Result<Option<String>> {
     // The anomaly: the value less the lines' median; colours span its 2nd to
     // 98th percentiles.
     let level = sorted[sorted.len() / 2];
-    let (low, high) = (
+    let range = (
         sorted[sorted.len() / 50] - level,
         sorted[sorted.len() - 1 - sorted.len() / 50] - level,
     );
-    let colour = |v: f64| {
-        let f = ((v - low) / (high - low).max(1e-9)).clamp(0.0, 1.0);
-        RGBColor(
-            (255.0 * f) as u8,
-            (80.0 + 60.0 * (1.0 - (2.0 * f - 1.0).abs())) as u8,
-            (255.0 * (1.0 - f)) as u8,
-        )
+    let centre = (
+        span(rows.iter().map(|&k| lat.values[k])),
+        span(rows.iter().map(|&k| lon.values[k])),
+    );
+    let centre = (
+        (centre.0.start + centre.0.end) / 2.0,
+        (centre.1.start + centre.1.end) / 2.0,
+    );
+    let (mut east, mut north) = (vec![f64::NAN; log.len()], vec![f64::NAN; log.len()]);
+    for &k in &rows {
+        (east[k], north[k]) = local_metres((lat.values[k], lon.values[k]), centre);
+    }
+    // The plot's size in pixels does not depend on its ranges: measured on
+    // a scratch canvas, it sets the one scale.
+    let pixels = {
+        let mut scratch = String::new();
+        let root = SVGBackend::with_string(&mut scratch, MAP).into_drawing_area();
+        let (area, _) = root.split_horizontally(MAP.0 - COLOUR_BAR_WIDTH);
+        let chart = map_chart(&area, 0.0..1.0, 0.0..1.0)?;
+        let pixels = chart.plotting_area().dim_in_pixel();
+        pixels
     };
-    let size = (520, 420);
-    let x = span(rows.iter().map(|&k| lon.values[k]));
-    let y = span(rows.iter().map(|&k| lat.values[k]));
-    let drawn = one_per_cell(&rows, (&lon.values, &lat.values), (&x, &y), (size.0 / 2, size.1 / 2));
-    let map = svg(size, |root| {
-        let mut chart = ChartBuilder::on(root)
-            .caption(
-                format!("Survey lines, compensated anomaly {low:.1} (blue) to {high:.1} nT (red)"),
-                ("sans-serif", 13),
-            )
-            .margin(6)
-            .x_label_area_size(28)
-            .y_label_area_size(55)
-            .build_cartesian_2d(x.clone(), y.clone())
-            .map_err(plot_error)?;
-        chart
-            .configure_mesh()
-            .x_desc("longitude, °")
-            .y_desc("latitude, °")
+    let (x, y) = equal_scale(
+        (
+            span(rows.iter().map(|&k| east[k])),
+            span(rows.iter().map(|&k| north[k])),
+        ),
+        pixels,
+    );
+    // One dot (4 px across) for each 6 × 6 pixel cell a line crosses.
+    let drawn = one_per_cell(&rows, (&east, &north), (&x, &y), (pixels.0 / 6, pixels.1 / 6));
+    let map = svg(MAP, |root| {
+        let (area, bar) = root.split_horizontally(MAP.0 - COLOUR_BAR_WIDTH);
+        let mut chart = map_chart(&area, x.clone(), y.clone())?;
+        (chart.configure_mesh())
+            .max_light_lines(0)
+            .x_labels(6)
+            .y_labels(8)
+            .x_label_formatter(&|v| format!("{v:.0}"))
+            .y_label_formatter(&|v| format!("{v:.0}"))
+            .x_desc("east, m")
+            .y_desc("north, m")
             .draw()
             .map_err(plot_error)?;
         chart
-            .draw_series(
-                drawn
-                    .iter()
-                    .map(|&k| Circle::new((lon.values[k], lat.values[k]), 2, colour(values[k] - level).filled())),
-            )
+            .draw_series((drawn.iter()).map(|&k| {
+                Circle::new(
+                    (east[k], north[k]),
+                    2,
+                    anomaly_colour(values[k] - level, range).filled(),
+                )
+            }))
             .map_err(plot_error)?;
-        Ok(())
+        colour_bar(&bar, range)
     })?;
     Ok(Some(map))
+}
+
+/// The map's colour bar: the anomaly's colours from `low` to `high`, nT.
+fn colour_bar(area: &DrawingArea<SVGBackend, plotters::coord::Shift>, (low, high): (f64, f64)) -> Result<()> {
+    let high = if high > low { high } else { low + 1e-9 };
+    let mut chart = ChartBuilder::on(area)
+        .margin_top(30)
+        .margin_bottom(36)
+        .margin_right(8)
+        .y_label_area_size(50)
+        .build_cartesian_2d(0.0..1.0, low..high)
+        .map_err(plot_error)?;
+    (chart.configure_mesh())
+        .disable_x_mesh()
+        .disable_y_mesh()
+        .disable_x_axis()
+        .y_desc("anomaly, nT")
+        .y_labels(6)
+        .y_label_style(("sans-serif", 11))
+        .axis_desc_style(("sans-serif", 11))
+        .draw()
+        .map_err(plot_error)?;
+    const STEPS: usize = 64;
+    let step = (high - low) / STEPS as f64;
+    chart
+        .draw_series((0..STEPS).map(|k| {
+            let v = low + (k as f64 + 0.5) * step;
+            let bottom = low + k as f64 * step;
+            Rectangle::new(
+                [(0.0, bottom), (1.0, bottom + step)],
+                anomaly_colour(v, (low, high)).filled(),
+            )
+        }))
+        .map_err(plot_error)?;
+    Ok(())
 }
 
 /// The `rows` a map of `cells` (columns, rows) over the ranges draws: the
@@ -447,6 +635,76 @@ fn one_per_cell(
             },
         )
         .collect()
+}
+
+/// Survey lines drawn as profiles at most; a flight of more draws this
+/// many spread evenly over them, and says so.
+const MOST_PROFILES: usize = 6;
+
+/// Points each profile's trace keeps at most: the lowest and highest of
+/// each of 150 runs, with its first, so every spike shows.
+const PROFILE_POINTS: usize = 450;
+
+/// Each survey line's profile (up to [`MOST_PROFILES`]): the channel before
+/// (grey) and after (blue) compensation, each less its median over the
+/// line, against the time since the line began; `None` without lines. The
+/// second value says how many lines the flight has.
+fn line_profiles(log: &FlightLog, before: &[f64], after: &[f64]) -> Result<Option<(String, usize)>> {
+    let lines = log.survey_lines();
+    let time = log.time_s();
+    if lines.is_empty() || before.len() != time.len() || after.len() != time.len() {
+        return Ok(None);
+    }
+    let shown: Vec<&(f64, Vec<usize>)> = match lines.len() {
+        n if n <= MOST_PROFILES => lines.iter().collect(),
+        n => (0..MOST_PROFILES)
+            .map(|k| &lines[k * (n - 1) / (MOST_PROFILES - 1)])
+            .collect(),
+    };
+    const PANEL_HEIGHT: u32 = 140;
+    let height = PANEL_HEIGHT * shown.len() as u32 + 24;
+    let plot = svg((WIDE.0, height), |root| {
+        let root = (root.titled(
+            "Survey lines: before (grey) and after (blue), each less its median on the line",
+            ("sans-serif", 14),
+        ))
+        .map_err(plot_error)?;
+        for (panel, (number, rows)) in root.split_evenly((shown.len(), 1)).iter().zip(&shown) {
+            let start = time[rows[0]];
+            let relative = |values: &[f64]| -> Vec<(f64, f64)> {
+                let mut finite: Vec<f64> = rows.iter().map(|&k| values[k]).filter(|v| v.is_finite()).collect();
+                finite.sort_by(f64::total_cmp);
+                let median = finite.get(finite.len() / 2).copied().unwrap_or(0.0);
+                decimated_to(
+                    rows.iter().map(|&k| (time[k] - start, values[k] - median)),
+                    PROFILE_POINTS,
+                )
+            };
+            let (was, now) = (relative(before), relative(after));
+            let x = span(was.iter().chain(&now).map(|p| p.0));
+            let y = span(was.iter().chain(&now).map(|p| p.1));
+            let mut chart = ChartBuilder::on(panel)
+                .margin(4)
+                .x_label_area_size(34)
+                .y_label_area_size(55)
+                .build_cartesian_2d(x.clone(), y.clone())
+                .map_err(plot_error)?;
+            (chart.configure_mesh())
+                .max_light_lines(0)
+                .x_desc(format!("line {number}: time since its start, s"))
+                .y_desc("nT")
+                .y_labels(4)
+                .draw()
+                .map_err(plot_error)?;
+            for (points, colour) in [(was, RGBColor(150, 150, 150)), (now, BLUE)] {
+                chart
+                    .draw_series(LineSeries::new(on_canvas(points, &x, &y), colour))
+                    .map_err(plot_error)?;
+            }
+        }
+        Ok(())
+    })?;
+    Ok(Some((plot, lines.len())))
 }
 
 /// Fourth-difference noise of each survey line, before and after.
@@ -540,8 +798,11 @@ fn verdict(quality: &ChannelQuality, limit_nt: f64) -> String {
     if let Some(check) = &quality.transfer {
         let class = if check.warning.is_some() { "fail" } else { "pass" };
         lines.push(format!(
-            "<span class=\"{class}\">held-out FOM {:.2} nT</span> against {:.2} nT in sample ({:.1}×, {:?})",
-            check.held_out_fom_nt, check.in_sample_fom_nt, check.ratio, check.method
+            "<span class=\"{class}\">held-out FOM {:.2} nT</span> against {:.2} nT in sample ({:.1}×; {})",
+            check.held_out_fom_nt,
+            check.in_sample_fom_nt,
+            check.ratio,
+            check.method.describe()
         ));
     }
     for transfer in &quality.box_transfer {
@@ -661,8 +922,8 @@ fn estimator_table(model: &FittedModel) -> String {
         };
         let _ = write!(
             html,
-            "<tr><td>{:?}</td><td>{}</td><td{mark}>{:.5}</td></tr>",
-            scored.family,
+            "<tr><td>{}</td><td>{}</td><td{mark}>{:.5}</td></tr>",
+            scored.family.name(),
             escape(&setting),
             scored.heldout_rms
         );
@@ -718,8 +979,10 @@ fn excitation_section(model: &FittedModel) -> String {
 }
 
 fn coefficient_table(model: &FittedModel) -> String {
-    let mut html = String::from(
-        "<table class=\"coefficients\"><tr><th>term</th><th>coefficient</th><th>± 1σ</th><th>|σ/coefficient|</th></tr>",
+    let scale = model.spec.terms.bt_scale_nt;
+    let mut html = format!(
+        "<p>A term's coefficient times the term is its interference in nT. The Tolles-Lawson terms are direction cosines u (permanent), u·B/s (induced) and u·Ḃ/s (eddy), with s = {scale} nT ([fit] bt_scale_nt) and Ḃ in nT per sample; so the permanent and induced coefficients are in nT and the eddy ones in nT·sample. ± 1σ is the fit's standard error, widened for the residual's bandwidth (√(f<sub>s</sub>/2B)).</p>\
+         <table class=\"coefficients\"><tr><th>term</th><th>coefficient</th><th>unit</th><th>± 1σ</th><th>|σ/coefficient|</th></tr>"
     );
     for ((name, value), sigma) in model
         .term_names
@@ -727,9 +990,14 @@ fn coefficient_table(model: &FittedModel) -> String {
         .zip(&model.coefficients)
         .zip(&model.coefficient_uncertainty)
     {
+        let unit = match name.split('_').next() {
+            Some("perm" | "ind") => "nT",
+            Some("eddy") => "nT·sample",
+            _ => "nT per unit of the term",
+        };
         let _ = write!(
             html,
-            "<tr><td>{}</td><td>{value:.6e}</td><td>{sigma:.2e}</td><td>{:.2}</td></tr>",
+            "<tr><td>{}</td><td>{value:.6e}</td><td>{unit}</td><td>{sigma:.2e}</td><td>{:.2}</td></tr>",
             escape(name),
             (sigma / value).abs()
         );
@@ -997,7 +1265,11 @@ pub fn figures_path(path: &Path) -> std::path::PathBuf {
 pub fn stage_report(path: &Path, flight: &FlightRun, fom_limit_nt: f64) -> Result<StagedReport> {
     let (log, result, compensation) = (flight.log(), &flight.result, &flight.compensation);
     let mut html = report_head(result);
-    html += &format!("<section id=\"timeline\">{}</section>", attitude_timeline(log, result)?);
+    html += &format!("<section id=\"timeline\">{}", attitude_timeline(log, result)?);
+    if let Some(calibration_box) = box_timeline(log, result)? {
+        html += &calibration_box;
+    }
+    html += "</section>";
     let mut figures = Vec::new();
     for ((quality, model), channel) in result.channels.iter().zip(&result.models).zip(&compensation.channels) {
         let before = log
@@ -1122,6 +1394,20 @@ fn channel_section(
     if let Some(map) = line_map(log, &channel.values)? {
         let _ = write!(html, "<h3>Survey lines</h3><figure class=\"map\">{map}</figure>");
     }
+    let before = log
+        .channel(&model.channel)
+        .map(|c| c.values.as_slice())
+        .unwrap_or_default();
+    if let Some((profiles, lines)) = line_profiles(log, before, &channel.values)? {
+        html += "<h3>Survey line profiles</h3>";
+        if lines > MOST_PROFILES {
+            let _ = write!(
+                html,
+                "<p>{MOST_PROFILES} of the flight's {lines} lines, spread over them; the per-line noise table lists every line.</p>"
+            );
+        }
+        let _ = write!(html, "<figure class=\"profiles\">{profiles}</figure>");
+    }
     if !noise.is_empty() {
         html += "<h3>Per-line noise (4th difference, nT)</h3><table class=\"noise\"><tr><th>line</th><th>before</th><th>after</th></tr>";
         for line in noise {
@@ -1163,6 +1449,26 @@ mod tests {
         receiver
             .recv_timeout(std::time::Duration::from_secs(1))
             .unwrap_or(false)
+    }
+
+    #[test]
+    fn the_map_is_in_metres_at_one_scale() {
+        // A degree of latitude is 111.19 km on the mean Earth; a degree of
+        // longitude at 60° half that.
+        let (east, north) = local_metres((46.0, -75.0), (45.0, -75.0));
+        assert!(east.abs() < 1e-9 && (north - 111_195.0).abs() < 1.0, "{north}");
+        let (east, north) = local_metres((60.0, 11.0), (60.0, 10.0));
+        assert!((east - 55_597.5).abs() < 1.0 && north.abs() < 1e-9, "{east}");
+        // 1 km east and 6 km north on a 400 × 300 pixel plot: one scale,
+        // both spans kept whole, centred where they were.
+        let (x, y) = equal_scale((0.0..1000.0, -3000.0..3000.0), (400, 300));
+        let scale = ((x.end - x.start) / 400.0, (y.end - y.start) / 300.0);
+        assert!(
+            (scale.0 - scale.1).abs() < 1e-12 && (scale.1 - 20.0).abs() < 1e-12,
+            "{scale:?}"
+        );
+        assert!(x.start <= 0.0 && x.end >= 1000.0 && ((x.start + x.end) / 2.0 - 500.0).abs() < 1e-9);
+        assert_eq!(y, -3000.0..3000.0);
     }
 
     #[test]

@@ -8,6 +8,38 @@ use std::process::Command;
 use magcomp::config::{FlightJob, Settings};
 use magcomp::sink::{process_flight, FlightOutputs};
 
+/// Each `<text>` of the page's figures whose anchor lies outside its
+/// figure, with the figure's number: a label drawn off the plot.
+fn labels_out_of_bounds(html: &str) -> Vec<String> {
+    let number = |tag: &str, name: &str| -> Option<f64> {
+        let start = tag.find(&format!(" {name}=\""))? + name.len() + 3;
+        tag[start..].split('"').next()?.parse().ok()
+    };
+    let mut outside = Vec::new();
+    for (figure, svg) in html.split("<svg").skip(1).enumerate() {
+        let svg = svg.split("</svg>").next().unwrap();
+        let head = svg.split('>').next().unwrap();
+        let (width, height) = (number(head, "width").unwrap(), number(head, "height").unwrap());
+        for text in svg.split("<text").skip(1) {
+            let tag = text.split('>').next().unwrap();
+            let (Some(x), Some(y)) = (number(tag, "x"), number(tag, "y")) else {
+                continue;
+            };
+            if !(0.0..=width).contains(&x) || !(0.0..=height).contains(&y) {
+                let label = text
+                    .split('>')
+                    .nth(1)
+                    .unwrap_or_default()
+                    .split('<')
+                    .next()
+                    .unwrap_or_default();
+                outside.push(format!("figure {figure} ({width}×{height}): '{label}' at ({x}, {y})"));
+            }
+        }
+    }
+    outside
+}
+
 fn report_of_clean_flight(folder: &Path) -> (PathBuf, magcomp::pipeline::FlightResult) {
     let input = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("sample_flights/clean.csv");
     let job = FlightJob::new(input.clone());
@@ -24,10 +56,27 @@ fn the_report_holds_every_section_and_its_figures_match_the_quality() {
     let folder = tempfile::tempdir().unwrap();
     let (html_path, result) = report_of_clean_flight(folder.path());
     let html = std::fs::read_to_string(&html_path).unwrap();
-    // One timeline, and per channel 12 manoeuvres, the PRESS curve, the
-    // singular values and the line map.
-    let per_channel = 12 + 3;
-    assert_eq!(html.matches("<svg").count(), 1 + per_channel * result.channels.len());
+    // The flight's and the box's attitude, and per channel 12 manoeuvres,
+    // the PRESS curve, the singular values, the line map and the lines'
+    // profiles.
+    let per_channel = 12 + 4;
+    assert_eq!(html.matches("<svg").count(), 2 + per_channel * result.channels.len());
+    assert_eq!(
+        html.matches("heading, °").count(),
+        2,
+        "a heading panel in both timelines"
+    );
+    assert_eq!(html.matches("Calibration box, ").count(), 1);
+    let channels = result.channels.len();
+    for label in [
+        "east, m",
+        "north, m",
+        "anomaly, nT",
+        "line 1002: time since its start, s",
+    ] {
+        assert_eq!(html.matches(label).count(), channels, "{label}");
+    }
+    assert_eq!(labels_out_of_bounds(&html), Vec::<String>::new());
     assert_eq!(html.matches("class=\"manoeuvre\"").count(), 12 * result.channels.len());
     // Four headings in each FOM table, and a PASS for this clean flight
     // (FOM 0.44 and 0.82 nT against the 1.5 nT limit).
@@ -98,7 +147,7 @@ fn headless_chromium_renders_the_report() {
         .collect();
     assert!(page_errors.is_empty(), "{page_errors:?}");
     // The rendered document holds every plot.
-    assert_eq!(dom.matches("<svg").count(), 1 + 15 * result.channels.len());
+    assert_eq!(dom.matches("<svg").count(), 2 + 16 * result.channels.len());
     assert!(dom.contains("id=\"timeline\"") && dom.contains("class=\"fom\""));
     let status = Command::new(&browser)
         .args(common)
@@ -137,7 +186,7 @@ fn a_diagnosed_flight_reports_its_findings_and_marks_where_they_helped() {
     assert_eq!(html.matches("class=\"diagnosis-manoeuvre\"").count(), manoeuvres);
     assert_eq!(
         html.matches("<svg").count(),
-        1 + 15 * result.channels.len() + manoeuvres
+        2 + 16 * result.channels.len() + manoeuvres
     );
     // Each window the lag helped most is shaded in its manoeuvre's plot.
     let finding = &diagnosis.findings[0];
@@ -160,4 +209,58 @@ fn a_diagnosed_flight_reports_its_findings_and_marks_where_they_helped() {
         assert!(html.contains(&row), "{row}");
         assert!(window.heldout_rms_final_nt < window.heldout_rms_baseline_nt);
     }
+}
+
+/// A 3-hour flight of five scalar sensors at 10 Hz, with thirteen survey
+/// lines: its report stays within 2 MB, every label lies inside its
+/// figure, the map is drawn at one scale with its colour bar, and six of
+/// the lines' profiles are drawn (the page says which share).
+#[test]
+fn a_three_hour_five_sensor_report_stays_within_its_size_budget() {
+    use magcomp::simulate::scenario::{RawScenario, ScalarSensor, Scenario, SensorLocation};
+    let mut raw = RawScenario {
+        seed: 31_000,
+        ..RawScenario::default()
+    };
+    raw.sample_rate_hz = 10.0;
+    raw.oversampling = 10;
+    let locations = [
+        SensorLocation::Tail,
+        SensorLocation::Cabin,
+        SensorLocation::Cabin,
+        SensorLocation::Wing,
+        SensorLocation::Wing,
+    ];
+    raw.scalar = (locations.iter().enumerate())
+        .map(|(k, &location)| ScalarSensor::new(&format!("mag_{}_uc", k + 1), location, 0.01))
+        .collect();
+    raw.survey.speed_m_s = 65.0;
+    raw.survey.line_length_m = 12.0 * 60.0 * 65.0;
+    raw.survey.line_count = 13;
+    let flight = magcomp::simulate::simulate(&Scenario::try_from(raw).unwrap()).unwrap();
+    let hours = (flight.log.time_s().last().unwrap() - flight.log.time_s()[0]) / 3600.0;
+    assert!(hours > 2.8, "{hours} h");
+    let folder = tempfile::tempdir().unwrap();
+    let input = folder.path().join("three_hours.csv");
+    magcomp::formats::write_flight_log(&flight.log, &input).unwrap();
+    let outputs = FlightOutputs::in_directory(folder.path(), &input);
+    let mut options = Settings::default();
+    options.diagnose.apply = magcomp::diagnose::ApplyDiagnosis::Never;
+    let result = process_flight(&FlightJob::new(&input), &options, &outputs).unwrap();
+    assert_eq!(result.channels.len(), 5);
+    let html = std::fs::read_to_string(outputs.report_html.unwrap()).unwrap();
+    println!(
+        "{:.1} h, {} rows, 5 sensors: report of {} bytes",
+        hours,
+        flight.log.len(),
+        html.len()
+    );
+    if let Some(keep) = std::env::var_os("MAGCOMP_KEEP_REPORT") {
+        std::fs::write(keep, &html).unwrap();
+    }
+    assert!(html.len() <= 2_000_000, "{} bytes", html.len());
+    assert_eq!(labels_out_of_bounds(&html), Vec::<String>::new());
+    assert_eq!(html.matches("6 of the flight's 13 lines").count(), 5);
+    assert_eq!(html.matches("class=\"profiles\"").count(), 5);
+    assert_eq!(html.matches("anomaly, nT").count(), 5);
 }

@@ -312,6 +312,18 @@ pub enum Family {
 }
 
 impl Family {
+    /// The family's name as a reader knows it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Family::Ls => "least squares",
+            Family::Ridge => "ridge",
+            Family::Tsvd => "truncated SVD",
+            Family::DampedTsvd => "damped truncated SVD",
+            Family::Tls => "total least squares",
+            Family::Ttls => "truncated total least squares",
+        }
+    }
+
     /// Every family, in the order a table lists them.
     pub const ALL: [Family; 6] = [
         Family::Ls,

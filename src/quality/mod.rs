@@ -506,6 +506,16 @@ pub enum TransferMethod {
     LeaveOneHeadingOut,
 }
 
+impl TransferMethod {
+    /// How the held-out figure was made, in words.
+    pub fn describe(self) -> &'static str {
+        match self {
+            TransferMethod::SecondBox => "fitted on the first box, measured on the second",
+            TransferMethod::LeaveOneHeadingOut => "each heading fitted on the other three",
+        }
+    }
+}
+
 /// In-sample and held-out FOM of one channel.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct TransferCheck {
