@@ -218,6 +218,54 @@ pub fn compensate_gradients(
     stage
 }
 
+/// The gradients of `pairs` on a flight compensated with a saved model
+/// (`models`, in the order of `compensation`'s channels): the difference of
+/// the two compensated channels over the separation. A direct fit needs a
+/// calibration box, and the model file holds the scalar models only: a
+/// pair asking for `method = "direct"`, or naming a channel the model does
+/// not compensate, is a warning and gets no column.
+pub fn gradients_from_saved_model(
+    models: &[FittedModel],
+    compensation: &Compensation,
+    pairs: &[GradientPair],
+) -> GradientStage {
+    let mut stage = GradientStage::default();
+    for pair in pairs {
+        let column = pair.column();
+        let index = |name: &str| models.iter().position(|m| m.channel == name);
+        let (Some(ia), Some(ib)) = (index(&pair.a), index(&pair.b)) else {
+            stage.warnings.push(format!(
+                "{column}: no gradient compensation: the saved model compensates {} and not both of '{}' and '{}'",
+                models.iter().map(|m| m.channel.as_str()).collect::<Vec<_>>().join(", "),
+                pair.a,
+                pair.b
+            ));
+            continue;
+        };
+        if pair.method == GradientMethod::Direct {
+            stage.warnings.push(format!(
+                "{column}: no gradient compensation: [[gradient]] method = \"direct\" fits a model to the difference on a calibration box, which a flight compensated with a saved model does not have; method = \"difference\" (or \"auto\") takes the difference of the compensated channels"
+            ));
+            continue;
+        }
+        let d = pair.separation_m;
+        let (a, b) = (&compensation.channels[ia], &compensation.channels[ib]);
+        stage.compensated.push(CompensatedGradient {
+            column: column.clone(),
+            values: a.values.iter().zip(&b.values).map(|(a, b)| (a - b) / d).collect(),
+        });
+        stage.notes.push(format!(
+            "{column}: ({} − {})/{d:.3} m, from the difference of the channels the saved model compensated (a direct fit needs a calibration box)",
+            pair.a, pair.b
+        ));
+        stage.warnings.push(format!(
+            "{column}: the gradient's level is not pinned by the calibration: the aircraft's steady field differs between {} and {} by an amount no manoeuvre reveals, up to the aircraft's field at the sensors over {d:.2} m; use its variation along the lines, or level it to tie lines",
+            pair.a, pair.b
+        ));
+    }
+    stage
+}
+
 /// Two methods whose gradients part on the survey lines by more than
 /// this, nT over the separation (the scalar channels' uncertainty
 /// warning), and by more than [`DISAGREEMENT_FACTOR`] times what either

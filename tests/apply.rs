@@ -633,6 +633,69 @@ fn a_campaign_gives_each_flight_its_aircraft_s_calibration() {
     assert!(!at("out/cal_2_model.json").exists(), "nothing runs");
 }
 
+/// A flight compensated with a saved model gets the gradients asked for
+/// as the difference of its compensated channels: on the calibration
+/// flight itself, the same column as its own run's `difference` gradient,
+/// bit for bit. A gradient asking for the direct fit (which needs a box)
+/// gets no column and a warning.
+#[test]
+fn a_saved_model_gives_the_gradients_from_its_compensated_channels() {
+    let folder = tempfile::tempdir().unwrap();
+    let at = |name: &str| folder.path().join(name);
+    sample_flight(&at("cal.csv"));
+    let gradient = |method: &str| {
+        format!("[[gradient]]\nchannels = [\"mag_1_uc\", \"mag_2_uc\"]\nseparation_m = 4.5\nmethod = \"{method}\"\n")
+    };
+    std::fs::write(at("difference.toml"), gradient("difference")).unwrap();
+    std::fs::write(at("direct.toml"), gradient("direct")).unwrap();
+    let windows = at("cal.windows.json");
+    run_ok(magcomp().arg("compensate").arg(at("cal.csv")).args([
+        "--out".as_ref(),
+        at("own.csv").as_os_str(),
+        "--windows-file".as_ref(),
+        windows.as_os_str(),
+        "--model".as_ref(),
+        at("model.json").as_os_str(),
+        "--config".as_ref(),
+        at("difference.toml").as_os_str(),
+        "--plain".as_ref(),
+    ]));
+    let applied = |config: &str, out: &str| {
+        run_ok(magcomp().arg("compensate").arg(at("cal.csv")).args([
+            "--out".as_ref(),
+            at(out).as_os_str(),
+            "--apply".as_ref(),
+            at("model.json").as_os_str(),
+            "--config".as_ref(),
+            at(config).as_os_str(),
+        ]))
+    };
+    let stdout = applied("difference.toml", "applied.csv");
+    assert!(
+        stdout.contains("grad_1_2_c: the gradient's level is not pinned"),
+        "{stdout}"
+    );
+    let own = columns(&at("own.csv"), &["grad_1_2_c", "mag_1_c", "mag_2_c"]);
+    let from_model = columns(&at("applied.csv"), &["grad_1_2_c"]);
+    assert!(own[0].len() > 10_000 && own[0].iter().filter(|v| v.is_empty()).count() < 100);
+    assert_eq!(own[0], from_model[0], "the same gradient, bit for bit");
+    let row = 5000;
+    let (a, b): (f64, f64) = (own[1][row].parse().unwrap(), own[2][row].parse().unwrap());
+    let gradient: f64 = own[0][row].parse().unwrap();
+    assert!(
+        (gradient - (a - b) / 4.5).abs() < 0.001,
+        "{gradient} against {}",
+        (a - b) / 4.5
+    );
+    let stdout = applied("direct.toml", "direct.csv");
+    assert!(
+        stdout.contains("grad_1_2_c: no gradient compensation: [[gradient]] method = \"direct\""),
+        "{stdout}"
+    );
+    let header = std::fs::read_to_string(at("direct.csv")).unwrap();
+    assert!(!header.lines().next().unwrap().contains("grad_1_2_c"));
+}
+
 #[test]
 fn a_model_that_fitted_the_base_stations_gain_is_refused_as_an_earlier_versions() {
     // concealed_d: 6 nT of pulsations, which the base station records;

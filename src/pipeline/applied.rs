@@ -54,7 +54,11 @@ pub(super) fn run_applied(
     let mut compensation = crate::compensate::compensate_with(log, &models, options.level, &shared)?;
     let quality = assess_applied(log, &models, &mut compensation, options, &shared, &mut warnings)?;
     drop(shared);
-    stages_not_run(options, (&mut notes, &mut warnings));
+    notes.extend(vector_not_run(options));
+    let gradients = crate::gradient::gradients_from_saved_model(&models, &compensation, &options.gradients);
+    compensation.gradients = gradients.compensated;
+    notes.extend(gradients.notes);
+    warnings.extend(gradients.warnings);
     warnings.extend(crate::formats::mcap::undated_warning(&recorded, compensated));
     warnings.extend(crate::formats::write::text_columns_warning(
         &recorded,
@@ -192,13 +196,8 @@ fn assess_applied(
     Ok(quality)
 }
 
-/// The stages a saved model cannot run (the vector and the gradients are
-/// fitted on a box), said when the settings ask for them.
-fn stages_not_run(options: &Settings, (notes, warnings): (&mut Vec<String>, &mut Vec<String>)) {
-    if options.vector.enabled {
-        notes.push("no vector compensation: its twelve constants are fitted on a calibration box, and the model holds the scalar models".into());
-    }
-    if !options.gradients.is_empty() {
-        warnings.push("the gradients asked for are not compensated: they are fitted on a calibration box, and the model holds the scalar models; compensate the gradients on a flight with its box".into());
-    }
+/// The note on the vector compensation a saved model cannot run (it is
+/// fitted on a box), when the settings ask for it.
+fn vector_not_run(options: &Settings) -> Option<String> {
+    options.vector.enabled.then(|| "no vector compensation: its twelve constants are fitted on a calibration box, and the model holds the scalar models".to_string())
 }
