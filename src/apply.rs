@@ -317,6 +317,37 @@ impl SavedModel {
         self.file.models.iter().map(|m| m.channel.as_str()).collect()
     }
 
+    /// The same model with its scalar channels under the flight's names
+    /// (`[model] channels`: model channel → the flight's column), in its
+    /// fits, calibration figures and findings alike. A name the model does
+    /// not hold is an error that lists those it does.
+    pub fn renamed(&self, names: &std::collections::BTreeMap<String, String>) -> Result<SavedModel> {
+        if let Some(unknown) = names.keys().find(|name| !self.channels().contains(&name.as_str())) {
+            return Err(Error::Config {
+                source_name: "[model] channels".into(),
+                message: format!(
+                    "'{unknown}' is not a channel of the model {} (it holds {}); give the model's channel names on the left",
+                    self.path.display(),
+                    self.channels().join(", ")
+                ),
+            });
+        }
+        let rename = |channel: &mut String| {
+            if let Some(column) = names.get(channel.as_str()) {
+                *channel = column.clone();
+            }
+        };
+        let mut renamed = self.clone();
+        renamed.file.models.iter_mut().for_each(|m| rename(&mut m.channel));
+        renamed.file.calibration.iter_mut().for_each(|c| rename(&mut c.channel));
+        renamed
+            .file
+            .applied_findings
+            .iter_mut()
+            .for_each(|f| rename(&mut f.channel));
+        Ok(renamed)
+    }
+
     /// A refusal: the model does not fit `log` because of `problem`.
     fn mismatch(&self, log: &FlightLog, problem: String, hint: &str) -> Error {
         Error::ModelMismatch {

@@ -633,6 +633,58 @@ fn a_campaign_gives_each_flight_its_aircraft_s_calibration() {
     assert!(!at("out/cal_2_model.json").exists(), "nothing runs");
 }
 
+/// A survey flight that names its magnetometers otherwise takes the model
+/// through `[model] channels`, as if it used the model's names: the same
+/// values, in the column its own name gives. A name the model does not
+/// hold is refused, and so is the flight without the mapping.
+#[test]
+fn a_model_s_channels_are_given_under_the_flight_s_names() {
+    let folder = tempfile::tempdir().unwrap();
+    let at = |name: &str| folder.path().join(name);
+    sample_flight(&at("cal.csv"));
+    run_ok(magcomp().arg("compensate").arg(at("cal.csv")).args([
+        "--out".as_ref(),
+        at("own.csv").as_os_str(),
+        "--windows-file".as_ref(),
+        at("cal.windows.json").as_os_str(),
+        "--model".as_ref(),
+        at("model.json").as_os_str(),
+        "--plain".as_ref(),
+    ]));
+    rewrite(&at("cal.csv"), &at("survey.csv"), &[], &[("mag_1_uc", "MAG1")], 1);
+    let apply = |config: Option<&str>| {
+        let mut command = magcomp();
+        command.arg("compensate").arg(at("survey.csv"));
+        command.arg("--out").arg(at("survey_out.csv"));
+        command.arg("--apply").arg(at("model.json"));
+        if let Some(text) = config {
+            std::fs::write(at("names.toml"), text).unwrap();
+            command.arg("--config").arg(at("names.toml"));
+        }
+        command.output().unwrap()
+    };
+    let output = apply(Some("[model]\nchannels = { mag_1_uc = \"MAG1\" }\n"));
+    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+    let own = columns(&at("own.csv"), &["mag_1_c", "mag_2_c"]);
+    let applied = columns(&at("survey_out.csv"), &["MAG1_c", "mag_2_c"]);
+    assert!(own[0].len() > 10_000);
+    assert_eq!(own, applied, "the same compensation under the flight's names");
+    let output = apply(Some("[model]\nchannels = { mag_3_uc = \"MAG1\" }\n"));
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(
+        !output.status.success()
+            && stderr.contains("'mag_3_uc' is not a channel of the model")
+            && stderr.contains("mag_1_uc, mag_2_uc"),
+        "{stderr}"
+    );
+    let output = apply(None);
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(
+        !output.status.success() && stderr.contains("does not record mag_1_uc"),
+        "{stderr}"
+    );
+}
+
 /// A flight compensated with a saved model gets the gradients asked for
 /// as the difference of its compensated channels: on the calibration
 /// flight itself, the same column as its own run's `difference` gradient,

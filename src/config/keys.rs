@@ -8,11 +8,15 @@ use super::sections::{
 };
 use super::{campaign::RawCampaign, RawFilter, RawFit, RawFlight, RawGradient, RawOutput, RawPipeline, RawQuality};
 
+/// The tables whose keys are names the user chooses, not settings.
+pub const MAP_TABLES: [&str; 2] = ["sensor_positions", "model.channels"];
+
 /// Every table of pipeline.toml with the keys it accepts: `""` for the top
 /// level (whose keys are the sections), then each section by its dotted
 /// path (`"fit"`, `"quality.transfer"`, `"columns.vector"`,
-/// `"flight.windows"`). `[sensor_positions]` maps sensor names, so it has
-/// no fixed keys and an empty list. Any other key is an error.
+/// `"flight.windows"`). `[sensor_positions]` maps sensor names and
+/// `[model] channels` the model's channels, so they have no fixed keys and
+/// an empty list ([`MAP_TABLES`]). Any other key is an error.
 pub fn accepted_keys() -> Vec<(&'static str, &'static [&'static str])> {
     vec![
         ("", field_names::<RawPipeline>()),
@@ -24,6 +28,7 @@ pub fn accepted_keys() -> Vec<(&'static str, &'static [&'static str])> {
         ("fit", field_names::<RawFit>()),
         ("output", field_names::<RawOutput>()),
         ("model", field_names::<super::RawModel>()),
+        ("model.channels", &[]),
         ("detect", field_names::<RawDetect>()),
         ("quality", field_names::<RawQuality>()),
         ("quality.transfer", field_names::<RawTransfer>()),

@@ -100,7 +100,7 @@ mod campaign;
 mod keys;
 mod sections;
 
-pub use keys::accepted_keys;
+pub use keys::{accepted_keys, MAP_TABLES};
 
 use sections::{
     RawAlignment, RawColumns, RawDetect, RawDiagnose, RawSite, RawTopic, RawTransfer, RawVector, RawVectorCalibration,
@@ -240,12 +240,16 @@ pub(crate) struct RawModel {
     /// A model calibrated more than this many days from the flight it is
     /// applied to is a warning.
     pub max_age_days: u32,
+    /// The model's scalar channels under this flight's names: model
+    /// channel → the flight's column.
+    pub channels: std::collections::BTreeMap<String, String>,
 }
 
 impl Default for RawModel {
     fn default() -> Self {
         RawModel {
             max_age_days: DEFAULT_MAX_AGE_DAYS,
+            channels: Default::default(),
         }
     }
 }
@@ -545,6 +549,9 @@ pub struct Settings {
     /// Days after which an applied model is a warning (`[model]
     /// max_age_days`).
     pub model_max_age_days: u32,
+    /// A saved model's scalar channels under the flight's own names
+    /// (`[model] channels`: model channel → the flight's column).
+    pub model_channels: std::collections::BTreeMap<String, String>,
 }
 
 impl Default for Settings {
@@ -661,6 +668,7 @@ impl Pipeline {
             },
             gradients: gradient_pairs(&raw.gradients, &raw.sensor_positions).map_err(bad)?,
             model_max_age_days: raw.model.max_age_days,
+            model_channels: model_channels(raw.model.channels).map_err(bad)?,
         };
         let mut windows_files = Vec::new();
         let mut flights = Vec::with_capacity(raw.flights.len());
@@ -696,6 +704,30 @@ impl Pipeline {
         };
         Ok((pipeline, windows_files))
     }
+}
+
+/// `[model] channels`, checked: every name given, and no column of the
+/// flight given to two of the model's channels.
+fn model_channels(
+    channels: std::collections::BTreeMap<String, String>,
+) -> std::result::Result<std::collections::BTreeMap<String, String>, String> {
+    if let Some((model, _)) = channels
+        .iter()
+        .find(|(m, c)| m.trim().is_empty() || c.trim().is_empty())
+    {
+        return Err(format!(
+            "[model] channels: {model:?} = ...: give each of the model's channels and the flight's column by name"
+        ));
+    }
+    let mut seen: std::collections::BTreeMap<&str, &str> = std::collections::BTreeMap::new();
+    for (model, column) in &channels {
+        if let Some(first) = seen.insert(column, model) {
+            return Err(format!(
+                "[model] channels: '{first}' and '{model}' are both given the column '{column}'; give each of the model's channels its own column"
+            ));
+        }
+    }
+    Ok(channels)
 }
 
 /// `[[gradient]]` as written.
@@ -984,6 +1016,29 @@ mod tests {
             message: e.to_string(),
         })?;
         Ok(Pipeline::validate(raw, Path::new("/data"), "test")?.0)
+    }
+
+    #[test]
+    fn a_model_s_channels_are_each_given_their_own_column() {
+        let pipeline = parse("[model]\nchannels = { mag_1_uc = \"MAG1\", mag_2_uc = \"MAG2\" }\n").unwrap();
+        assert_eq!(
+            pipeline.settings.model_channels.get("mag_2_uc").map(String::as_str),
+            Some("MAG2")
+        );
+        let text = parse("[model]\nchannels = { mag_1_uc = \"MAG1\", mag_2_uc = \"MAG1\" }\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            text.contains("'mag_1_uc' and 'mag_2_uc' are both given the column 'MAG1'"),
+            "{text}"
+        );
+        let text = parse("[model]\nchannels = { mag_1_uc = \" \" }\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            text.contains("give each of the model's channels and the flight's column by name"),
+            "{text}"
+        );
     }
 
     #[test]

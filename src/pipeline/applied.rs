@@ -25,6 +25,12 @@ pub(super) fn run_applied(
     saved: &crate::apply::SavedModel,
     recorded: FlightLog,
 ) -> Result<FlightRun> {
+    // The model's channels under this flight's names, when they differ.
+    let renamed = match options.model_channels.is_empty() {
+        true => None,
+        false => Some(saved.renamed(&options.model_channels)?),
+    };
+    let saved = renamed.as_ref().unwrap_or(saved);
     let screened = crate::screen::screen_samples(&recorded)?;
     let raw_log = screened.log_or(&recorded);
     let mut models = saved.models_for(raw_log, job.channels.as_deref(), job.vector.as_deref())?;
