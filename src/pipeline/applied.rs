@@ -187,7 +187,12 @@ fn assess_applied(
     }
     let next_step = "The model is its calibration flight's: fly a new calibration box and apply its model, or compare with the calibration flight's report";
     for (q, channel) in quality.iter().zip(&compensation.channels) {
-        warnings.extend(crate::quality::quality_warnings(q, options.fom_limit_nt, next_step));
+        // Nothing is refitted: no solver to suggest.
+        warnings.extend(crate::quality::quality_warnings(
+            q,
+            options.fom_limit_nt,
+            (next_step, false),
+        ));
         if channel.sigma_nt.is_none() {
             warnings.push(format!(
                 "{}: no sigma column: {}",

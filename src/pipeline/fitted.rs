@@ -379,10 +379,11 @@ fn channel_warnings(
 ) -> Vec<Warning> {
     let mut warnings = Vec::new();
     for ((q, model), channel) in quality.iter().zip(models).zip(&compensation.channels) {
+        let suggest_solver = options.fit.solver != crate::numerics::estimators::Solver::Auto;
         warnings.extend(Warning::said(crate::quality::quality_warnings(
             q,
             options.fom_limit_nt,
-            next_step,
+            (next_step, suggest_solver),
         )));
         if q.uncertainty.is_some() && channel.sigma_nt.is_none() {
             warnings.push(Warning::NoSigmaColumn {

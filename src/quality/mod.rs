@@ -410,7 +410,13 @@ pub const NOISE_RISE_WARNING: f64 = 1.25;
 /// fourth-difference noise or the level difference between reciprocal
 /// lines, or when the held-out FOM is far above the in-sample one.
 /// `next_step` ends each warning: what the user can do about it.
-pub fn quality_warnings(quality: &ChannelQuality, fom_limit_nt: f64, next_step: &str) -> Vec<String> {
+/// `suggest_solver`: whether `[fit] solver = "auto"` may be suggested (a
+/// flight fitted here whose solver is another).
+pub fn quality_warnings(
+    quality: &ChannelQuality,
+    fom_limit_nt: f64,
+    (next_step, suggest_solver): (&str, bool),
+) -> Vec<String> {
     let channel = &quality.channel;
     let mut warnings = Vec::new();
     if let Some(after) = quality.fom_after_nt.filter(|after| *after > fom_limit_nt) {
@@ -448,8 +454,10 @@ pub fn quality_warnings(quality: &ChannelQuality, fom_limit_nt: f64, next_step: 
         let limit = uncertainty_limit_nt(quality);
         if is_uncertain(quality) {
             warnings.push(format!(
-                "{channel}: the compensation away from the calibration is uncertain by {:.3} nT (one sigma, from how much each of the {} windows moves the fit), above {limit:.3} nT: the manoeuvres flown do not pin the model on the survey's headings and attitudes, and the survey lines can be wrong by that much or more. Try [fit] solver = \"auto\", fly a fuller box, or check the per-line figures in the quality JSON. {next_step}",
-                uncertainty.outside_calibration_sigma_nt, uncertainty.windows
+                "{channel}: the compensation away from the calibration is uncertain by {:.3} nT (one sigma, from how much each of the {} windows moves the fit), above {limit:.3} nT: the manoeuvres flown do not pin the model on the survey's headings and attitudes, and the survey lines can be wrong by that much or more. {} {next_step}",
+                uncertainty.outside_calibration_sigma_nt,
+                uncertainty.windows,
+                uncertainty_advice((!quality.fom_table.is_empty()).then_some(quality.fom_manoeuvres), suggest_solver)
             ));
         }
         if uncertainty.level_sigma_nt > LEVEL_UNCERTAINTY_WARNING_NT {
@@ -465,6 +473,28 @@ pub fn quality_warnings(quality: &ChannelQuality, fom_limit_nt: f64, next_step: 
         }
     }
     warnings
+}
+
+/// What to try for an uncertain compensation: `[fit] solver = "auto"` when
+/// it is not the solver already, a fuller box when the flight's box lacks
+/// manoeuvres (`manoeuvres` of 12; `None` when the flight has no FOM, as
+/// with a saved model, whose next step says what to fly), larger
+/// manoeuvres when all 12 were flown, and the per-line figures.
+fn uncertainty_advice(manoeuvres: Option<usize>, suggest_solver: bool) -> String {
+    let mut tries = Vec::new();
+    if suggest_solver {
+        tries.push("[fit] solver = \"auto\"".to_string());
+    }
+    match manoeuvres {
+        Some(flown) if flown < 12 => tries.push(format!("a fuller box (this one has {flown} of the 12 manoeuvres)")),
+        Some(_) => tries.push("larger pitch, roll and yaw in the box (all 12 manoeuvres were flown)".into()),
+        None => {}
+    }
+    let last = "check the per-line figures in the quality JSON";
+    match tries.is_empty() {
+        true => "Check the per-line figures in the quality JSON.".to_string(),
+        false => format!("Try {}, or {last}.", tries.join(", ")),
+    }
 }
 
 /// Fourth-difference noise over the survey lines: the RMS of the fourth
@@ -630,6 +660,24 @@ mod tests {
         let sigma = fourth_difference_noise(&noise) * WHITE_NOISE_PER_FOURTH_DIFFERENCE;
         assert!((sigma / 0.7 - 1.0).abs() < 0.01, "{sigma}");
         assert!((WHITE_NOISE_PER_FOURTH_DIFFERENCE - 16.0 / 70f64.sqrt()).abs() < 1e-14);
+    }
+
+    #[test]
+    fn the_advice_for_an_uncertain_compensation_is_what_can_still_change() {
+        assert_eq!(
+            uncertainty_advice(Some(9), true),
+            "Try [fit] solver = \"auto\", a fuller box (this one has 9 of the 12 manoeuvres), or check the per-line figures in the quality JSON."
+        );
+        // A complete box is not sent back for a fuller one, nor the auto
+        // solver to itself.
+        assert_eq!(
+            uncertainty_advice(Some(12), false),
+            "Try larger pitch, roll and yaw in the box (all 12 manoeuvres were flown), or check the per-line figures in the quality JSON."
+        );
+        assert_eq!(
+            uncertainty_advice(None, false),
+            "Check the per-line figures in the quality JSON."
+        );
     }
 
     #[test]
