@@ -613,13 +613,13 @@ fn run_in(folder: &Path, arguments: &[String], command: &Shown) {
 }
 
 /// A folder for one document's commands: the placeholders they use
-/// (`FLIGHT.csv`, `FLIGHT`, `survey.csv`) are the clean sample flight,
+/// (`FLIGHT.csv`, `FLIGHT`, `cal.csv`, `survey.csv`) are the clean sample flight,
 /// `PLAN.toml` a one-flight plan, and `pipeline.toml` the document's own
 /// pipeline.toml example (the README's) or the repository's.
 fn command_folder(document: &Path) -> tempfile::TempDir {
     let folder = tempfile::tempdir().unwrap();
     let flight = root().join("sample_flights/clean.csv");
-    for name in ["FLIGHT.csv", "FLIGHT", "survey.csv"] {
+    for name in ["FLIGHT.csv", "FLIGHT", "cal.csv", "survey.csv"] {
         std::fs::copy(&flight, folder.path().join(name)).unwrap();
     }
     std::fs::write(folder.path().join("PLAN.toml"), "[plan]\nrealisations = 2\n").unwrap();
