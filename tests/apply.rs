@@ -603,6 +603,12 @@ fn a_campaign_gives_each_flight_its_aircraft_s_calibration() {
             quality["model"]
         );
         assert_eq!(quality["model"]["age_days"].as_i64(), age, "{name}");
+        let said = (quality["notes"].as_array().unwrap().iter()).any(|n| {
+            n.as_str()
+                .unwrap()
+                .starts_with("compensated with the model of its aircraft's calibration flight")
+        });
+        assert!(said, "{name}: {}", quality["notes"]);
     }
     // As compensated by naming the model: the same values, but at the
     // end, where the shorter file's derivatives are one-sided.

@@ -54,15 +54,26 @@ pub(super) fn assign_calibrations(
     }
     let mut uses: BTreeMap<usize, Vec<usize>> = BTreeMap::new();
     let mut flown_before_any = Vec::new();
+    let mut uncalibrated: BTreeMap<String, Vec<usize>> = BTreeMap::new();
     for (index, flight) in flights.iter().enumerate() {
-        let own =
-            flight.calibration || flight.model.is_some() || !flight.windows.is_empty() || !flight.lines.is_empty();
-        let Some(calibrations) = (flight.aircraft.as_deref()).and_then(|a| by_aircraft.get(&aircraft_key(a))) else {
-            continue;
-        };
-        if own {
+        // A flight that names its own calibration data, diagnosis or plan
+        // is fitted on its own box.
+        let own = flight.calibration
+            || flight.model.is_some()
+            || !flight.windows.is_empty()
+            || !flight.lines.is_empty()
+            || flight.diagnosis.is_some()
+            || flight.plan.is_some();
+        if own || by_aircraft.is_empty() {
             continue;
         }
+        let Some(aircraft) = flight.aircraft.as_deref() else {
+            continue;
+        };
+        let Some(calibrations) = by_aircraft.get(&aircraft_key(aircraft)) else {
+            uncalibrated.entry(aircraft_key(aircraft)).or_default().push(index);
+            continue;
+        };
         let (chosen, before_any) = choose(flights, flight, calibrations).map_err(bad)?;
         uses.entry(chosen).or_default().push(index);
         if before_any {
@@ -72,13 +83,23 @@ pub(super) fn assign_calibrations(
     let mut notes = Vec::new();
     for (calibration, users) in &uses {
         let model = flights[*calibration].model_json_in(output_directory);
+        let said = format!(
+            "compensated with the model of its aircraft's calibration flight {} (calibration = true)",
+            flights[*calibration].input.display()
+        );
         for &user in users {
             flights[user].model = Some(model.clone());
+            flights[user].assigned_model = Some(match flown_before_any.contains(&user) {
+                true => {
+                    format!("{said}: it was flown before any calibration flight of its aircraft, so the first one's")
+                }
+                false => said.clone(),
+            });
         }
         let names: Vec<&str> = users.iter().map(|&u| flights[u].output_name.as_str()).collect();
         notes.push(format!(
             "aircraft '{}': {} flight(s) compensated with the model of its calibration flight {} ({}): {}",
-            flights[*calibration].aircraft.as_deref().unwrap_or_default(),
+            flights[*calibration].aircraft.as_deref().unwrap_or_default().trim(),
             users.len(),
             flights[*calibration].input.display(),
             model.display(),
@@ -89,6 +110,15 @@ pub(super) fn assign_calibrations(
         notes.push(format!(
             "{} was flown before any calibration flight of its aircraft: it is compensated with the first one's model",
             flights[index].input.display()
+        ));
+    }
+    for indices in uncalibrated.values() {
+        let names: Vec<&str> = indices.iter().map(|&i| flights[i].output_name.as_str()).collect();
+        notes.push(format!(
+            "aircraft '{}' has no calibration flight in this campaign (calibration = true): its {} flight(s) are fitted on their own boxes: {}",
+            flights[indices[0]].aircraft.as_deref().unwrap_or_default().trim(),
+            indices.len(),
+            listed(&names)
         ));
     }
     Ok(notes)
@@ -119,10 +149,26 @@ fn choose(
         ));
     };
     dated.sort();
-    Ok(match dated.iter().rev().find(|(d, _)| *d <= day) {
-        Some((_, c)) => (*c, false),
-        None => (dated[0].1, true),
-    })
+    let (chosen, before_any) = match dated.iter().rev().find(|(d, _)| *d <= day) {
+        Some(&(d, c)) => ((d, c), false),
+        None => (dated[0], true),
+    };
+    // Two boxes on one day: which one the flight followed is not in the
+    // dates.
+    let same_day: Vec<String> = (dated.iter())
+        .filter(|(d, _)| *d == chosen.0)
+        .map(|&(_, c)| flights[c].input.display().to_string())
+        .collect();
+    if same_day.len() > 1 {
+        return Err(format!(
+            "{} would take the model of a calibration flight of {}, and its aircraft flew {} then ({}); magcomp cannot tell which the flight followed: name the flight's model",
+            flight.input.display(),
+            chosen.0,
+            same_day.len(),
+            same_day.join(", ")
+        ));
+    }
+    Ok((chosen.1, before_any))
 }
 
 /// Names for a note: all of them up to eight, else the first eight and a
@@ -171,32 +217,48 @@ mod tests {
         let mut own = flight("s7", Some("C-GMAG"), Some("2026-06-05"), false);
         own.lines = vec![1002.2];
         flights.push(own);
+        let mut diagnosed = flight("s8", Some("C-GMAG"), Some("2026-06-05"), false);
+        diagnosed.diagnosis = Some("s8_diagnosis.json".into());
+        flights.push(diagnosed);
         let notes = assign_calibrations(&mut flights, Path::new("/out"), "pipeline.toml").unwrap();
         let m = |name: &str| Some(format!("/out/{name}_model.json"));
-        assert_eq!(
-            models(&flights),
-            [
-                None,
-                None,
-                None,
-                m("cal_a1"),
-                m("cal_a2"),
-                m("cal_a1"),
-                m("cal_b"),
-                None,
-                None,
-                None
-            ]
-        );
-        assert_eq!(notes.len(), 4, "{notes:?}");
+        let expected = [
+            None,
+            None,
+            None,
+            m("cal_a1"),
+            m("cal_a2"),
+            m("cal_a1"),
+            m("cal_b"),
+            None,
+            None,
+            None,
+            None,
+        ];
+        assert_eq!(models(&flights), expected);
+        assert_eq!(notes.len(), 5, "{notes:?}");
         assert!(
             notes[0].contains("aircraft 'C-GMAG': 2 flight(s)") && notes[0].contains("s1, s3"),
             "{notes:?}"
         );
+        assert!(notes[1].contains("aircraft 'c-gmag': 1 flight(s)"), "{notes:?}");
         assert!(
             notes[3].contains("s3.csv was flown before any calibration flight"),
             "{notes:?}"
         );
+        assert!(
+            notes[4].contains("aircraft 'C-OTHR' has no calibration flight in this campaign")
+                && notes[4].ends_with(": s6"),
+            "{notes:?}"
+        );
+        // Each flight given a model says why, in its own files.
+        assert_eq!(
+            flights[3].assigned_model.as_deref(),
+            Some("compensated with the model of its aircraft's calibration flight /season/cal_a1.csv (calibration = true)")
+        );
+        let before_any = flights[5].assigned_model.as_deref().unwrap();
+        assert!(before_any.ends_with("flown before any calibration flight of its aircraft, so the first one's"));
+        assert!(flights[0].assigned_model.is_none() && flights[9].assigned_model.is_none());
     }
 
     #[test]
@@ -212,6 +274,19 @@ mod tests {
             text.contains("s1.csv could take the model of 2 calibration flights")
                 && text.contains("cal_1.csv, /season/cal_2.csv")
                 && text.contains("give the dates"),
+            "{text}"
+        );
+        // Two boxes flown on the flight's day: which it followed is unknown.
+        let mut same_day = vec![
+            flight("cal_am", Some("C-GMAG"), Some("2026-06-05"), true),
+            flight("cal_pm", Some("C-GMAG"), Some("2026-06-05"), true),
+            flight("s1", Some("C-GMAG"), Some("2026-06-07"), false),
+        ];
+        let text = assign_calibrations(&mut same_day, Path::new("/out"), "p")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            text.contains("its aircraft flew 2 then (/season/cal_am.csv, /season/cal_pm.csv)"),
             "{text}"
         );
         let mut unnamed = vec![flight("cal", None, None, true), flight("s", None, None, false)];

@@ -399,6 +399,9 @@ pub struct FlightJob {
     /// The flight is its aircraft's calibration: its model compensates
     /// the aircraft's flights that name none of their own ([`calibrations`]).
     pub calibration: bool,
+    /// Why `model` is this flight's, when the campaign gave it (a note for
+    /// its quality JSON and report).
+    pub assigned_model: Option<String>,
     /// What the flight's outputs are named after: the input's file stem,
     /// or, when two flights of a campaign share a stem, their path.
     pub output_name: String,
@@ -424,6 +427,7 @@ impl FlightJob {
             date: None,
             aircraft: None,
             calibration: false,
+            assigned_model: None,
         }
     }
 

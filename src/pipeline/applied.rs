@@ -61,6 +61,7 @@ pub(super) fn run_applied(
     let quality = assess_applied(log, &models, &mut compensation, options, &shared, &mut warnings)?;
     drop(shared);
     notes.extend(vector_not_run(options));
+    notes.extend(job.assigned_model.clone());
     let gradients = crate::gradient::gradients_from_saved_model(&models, &compensation, &options.gradients);
     compensation.gradients = gradients.compensated;
     notes.extend(gradients.notes);
