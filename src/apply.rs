@@ -192,6 +192,21 @@ struct SavedSolution {
     jackknife: Vec<Vec<f64>>,
 }
 
+/// A column's role, as a sentence names it.
+fn role_words(role: &crate::flight_log::ChannelRole) -> &'static str {
+    use crate::flight_log::ChannelRole;
+    match role {
+        ChannelRole::Line => "line column",
+        ChannelRole::ScalarMagnetometer => "scalar magnetometer",
+        ChannelRole::VectorMagnetometer { .. } => "fluxgate axis",
+        ChannelRole::VectorTotal { .. } => "fluxgate's total field",
+        ChannelRole::Attitude(_) => "attitude angle",
+        ChannelRole::Position => "position",
+        ChannelRole::BaseStation => "base station",
+        ChannelRole::Auxiliary => "auxiliary column",
+    }
+}
+
 /// A saved model, read and checked, ready to apply.
 #[derive(Debug, Clone)]
 pub struct SavedModel {
@@ -317,6 +332,65 @@ impl SavedModel {
         self.file.models.iter().map(|m| m.channel.as_str()).collect()
     }
 
+    /// [`SavedModel::renamed`] for `log`: each of the model's channels
+    /// that `log` records under the name `names` gives it, and not under
+    /// its own, is renamed (with a note); one it records under its own
+    /// name only stays. Refused: a name the model does not hold, a column
+    /// `log` does not record, a column that is not a scalar's (a fluxgate
+    /// axis, attitude, position, line, base station or time), and a
+    /// channel `log` records under both names.
+    pub fn renamed_for(
+        &self,
+        log: &FlightLog,
+        names: &std::collections::BTreeMap<String, String>,
+    ) -> Result<(SavedModel, Vec<String>)> {
+        let refuse = |message: String| Error::Config {
+            source_name: "[model] channels".into(),
+            message,
+        };
+        let mut used = std::collections::BTreeMap::new();
+        let mut notes = Vec::new();
+        for (model, column) in names {
+            let own = log.channel(model).is_some();
+            if *column == log.time_column() {
+                return Err(refuse(format!(
+                    "'{model}' = '{column}': '{column}' is the flight's time column, not a scalar magnetometer"
+                )));
+            }
+            let Some(target) = log.channel(column) else {
+                if own || !self.channels().contains(&model.as_str()) {
+                    used.insert(model.clone(), column.clone());
+                    continue;
+                }
+                return Err(refuse(format!(
+                    "'{model}' = '{column}': the flight {} records no column '{column}' (its scalar channels: {})",
+                    log.source().display(),
+                    log.scalar_channels().join(", ")
+                )));
+            };
+            use crate::flight_log::ChannelRole;
+            if !matches!(target.role, ChannelRole::ScalarMagnetometer | ChannelRole::Auxiliary) {
+                return Err(refuse(format!(
+                    "'{model}' = '{column}': '{column}' is the flight's {}, not a scalar magnetometer",
+                    role_words(&target.role)
+                )));
+            }
+            if own {
+                return Err(refuse(format!(
+                    "'{model}' = '{column}': the flight records both '{model}' and '{column}', so which one the model compensates is not known; remove the line, or rename one column"
+                )));
+            }
+            notes.push(format!(
+                "the model's channel '{model}' compensates this flight's column '{column}' ([model] channels)"
+            ));
+            used.insert(model.clone(), column.clone());
+        }
+        // Names of the model the flight records under their own name are
+        // not renamed; the rest are, and an unknown one is refused.
+        used.retain(|model, _| log.channel(model).is_none() || !self.channels().contains(&model.as_str()));
+        Ok((self.renamed(&used)?, notes))
+    }
+
     /// The same model with its scalar channels under the flight's names
     /// (`[model] channels`: model channel → the flight's column), in its
     /// fits, calibration figures and findings alike. A name the model does
@@ -398,7 +472,7 @@ impl SavedModel {
                     missing.join(", "),
                     log.scalar_channels().join(", ")
                 ),
-                "Apply a model calibrated with this flight's magnetometers, or choose the channels both hold with --channels",
+                "Apply a model calibrated with this flight's magnetometers, choose the channels both hold with --channels, or, when this flight records them under other names, give them in [model] channels (model channel = this flight's column)",
             ));
         }
         for fit in &chosen {

@@ -686,9 +686,33 @@ fn a_model_s_channels_are_given_under_the_flight_s_names() {
     let output = apply(None);
     let stderr = String::from_utf8_lossy(&output.stderr);
     assert!(
-        !output.status.success() && stderr.contains("does not record mag_1_uc"),
+        !output.status.success() && stderr.contains("does not record mag_1_uc") && stderr.contains("[model] channels"),
         "{stderr}"
     );
+    // Refused: a fluxgate axis, a column the flight lacks, a channel the
+    // flight records under both names.
+    for (mapping, expected) in [
+        (
+            "mag_1_uc = \"flux_a_x\"",
+            "'flux_a_x' is the flight's fluxgate axis, not a scalar magnetometer",
+        ),
+        ("mag_1_uc = \"MAG9\"", "records no column 'MAG9'"),
+        ("mag_2_uc = \"MAG1\"", "records both 'mag_2_uc' and 'MAG1'"),
+    ] {
+        let output = apply(Some(&format!("[model]\nchannels = {{ {mapping} }}\n")));
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert!(
+            !output.status.success() && stderr.contains(expected),
+            "{mapping}: {stderr}"
+        );
+    }
+    // A mapping the flight does not need (it records the model's own
+    // name) leaves the channel as it is: one setting serves a campaign of
+    // both kinds of flight.
+    std::fs::copy(at("cal.csv"), at("survey.csv")).unwrap();
+    let output = apply(Some("[model]\nchannels = { mag_1_uc = \"MAG1\" }\n"));
+    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+    assert_eq!(columns(&at("survey_out.csv"), &["mag_1_c", "mag_2_c"]), own);
 }
 
 /// A flight compensated with a saved model gets the gradients asked for

@@ -26,9 +26,12 @@ pub(super) fn run_applied(
     recorded: FlightLog,
 ) -> Result<FlightRun> {
     // The model's channels under this flight's names, when they differ.
-    let renamed = match options.model_channels.is_empty() {
-        true => None,
-        false => Some(saved.renamed(&options.model_channels)?),
+    let (renamed, renaming) = match options.model_channels.is_empty() {
+        true => (None, Vec::new()),
+        false => {
+            let (renamed, notes) = saved.renamed_for(&recorded, &options.model_channels)?;
+            (Some(renamed), notes)
+        }
     };
     let saved = renamed.as_ref().unwrap_or(saved);
     let screened = crate::screen::screen_samples(&recorded)?;
@@ -62,6 +65,7 @@ pub(super) fn run_applied(
     drop(shared);
     notes.extend(vector_not_run(options));
     notes.extend(job.assigned_model.clone());
+    notes.extend(renaming);
     let gradients = crate::gradient::gradients_from_saved_model(&models, &compensation, &options.gradients);
     compensation.gradients = gradients.compensated;
     notes.extend(gradients.notes);
