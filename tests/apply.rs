@@ -586,6 +586,17 @@ fn a_campaign_gives_each_flight_its_aircraft_s_calibration() {
         "input,aircraft,date,calibration\nsurvey_1.csv, c-gmag,2026-06-20,\ncal.csv,C-GMAG,2026-06-15,yes\n",
     )
     .unwrap();
+    // Shard 1 of 2 (survey_1 alone, by output name) run first: its
+    // calibration flight is in the other shard, and it says so.
+    let output = (magcomp().arg("run").arg(at("pipeline.toml")))
+        .args(["--plain", "--shard", "1/2"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(
+        !output.status.success() && stderr.contains("cal.csv, is in another shard (--shard); run that shard first"),
+        "{stderr}"
+    );
     let stdout = run_ok(magcomp().arg("run").arg(at("pipeline.toml")).arg("--plain"));
     assert!(
         stdout.contains("aircraft 'C-GMAG': 2 flight(s) compensated with the model of its calibration flight")

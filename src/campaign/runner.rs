@@ -197,6 +197,9 @@ pub fn run_flights(
 ) -> Vec<FinishedFlight> {
     let folder = &pipeline.output_directory;
     let outputs = model_outputs(pipeline, order);
+    // The campaign's, for a model another shard writes.
+    let campaign: Vec<usize> = (0..pipeline.flights.len()).collect();
+    let everywhere = model_outputs(pipeline, &campaign);
     let board = Mutex::new(Board {
         next: 0,
         done: 0,
@@ -222,7 +225,8 @@ pub fn run_flights(
         started(job, progress);
         // A flight applying another's model waits for that flight, which
         // was taken before it (the order puts it first).
-        let unavailable = (job.model.as_ref()).and_then(|model| await_model(model, &outputs, (&board, &changed)));
+        let unavailable =
+            (job.model.as_ref()).and_then(|model| await_model(model, (&outputs, &everywhere), (&board, &changed)));
         let began = Instant::now();
         let flight_outputs = FlightOutputs::for_job(folder, job);
         let notes = prepare(job, &flight_outputs);
@@ -289,7 +293,7 @@ pub fn run_flights(
 /// or failed; why the model cannot be applied, if it cannot.
 fn await_model(
     model: &Path,
-    outputs: &HashMap<PathBuf, &FlightJob>,
+    (outputs, everywhere): (&HashMap<PathBuf, &FlightJob>, &HashMap<PathBuf, &FlightJob>),
     (board, changed): (&Mutex<Board>, &Condvar),
 ) -> Option<Error> {
     let writer = outputs.get(model).filter(|writer| writer.model.is_none());
@@ -299,7 +303,7 @@ fn await_model(
             board = changed.wait(board).unwrap_or_else(|poisoned| poisoned.into_inner());
         }
     }
-    model_unavailable(model, outputs, &lock(board).failed)
+    model_unavailable(model, (outputs, everywhere), &lock(board).failed)
 }
 
 impl Board {
@@ -330,7 +334,13 @@ fn lock(board: &Mutex<Board>) -> std::sync::MutexGuard<'_, Board> {
 /// of the run that writes it failed (the file there, if any, is an
 /// earlier run's), or no flight writes it and it is not there, or the
 /// flight that would is given a model itself and writes none.
-fn model_unavailable(model: &Path, outputs: &HashMap<PathBuf, &FlightJob>, failed: &HashSet<PathBuf>) -> Option<Error> {
+/// `everywhere` is every flight of the campaign's, for a model a flight
+/// of another shard writes.
+fn model_unavailable(
+    model: &Path,
+    (outputs, everywhere): (&HashMap<PathBuf, &FlightJob>, &HashMap<PathBuf, &FlightJob>),
+    failed: &HashSet<PathBuf>,
+) -> Option<Error> {
     let writer = outputs.get(model);
     let reason = match writer {
         Some(job) if job.model.is_some() => format!(
@@ -343,7 +353,13 @@ fn model_unavailable(model: &Path, outputs: &HashMap<PathBuf, &FlightJob>, faile
         ),
         Some(_) => return None,
         None if model.is_file() => return None,
-        None => "no such file, and no flight of this run writes it: give the model JSON that `magcomp compensate --model` or a run wrote for the calibration flight".into(),
+        None => match everywhere.get(model) {
+            Some(job) => format!(
+                "it is not written yet: the flight that writes it, {}, is in another shard (--shard); run that shard first (or the calibration flights before the rest), then this one",
+                job.input.display()
+            ),
+            None => "no such file, and no flight of this run writes it: give the model JSON that `magcomp compensate --model` or a run wrote for the calibration flight".into(),
+        },
     };
     Some(Error::ModelUnavailable {
         model: model.to_path_buf(),
