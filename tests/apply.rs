@@ -604,6 +604,20 @@ fn a_campaign_gives_each_flight_its_aircraft_s_calibration() {
         "{stdout}"
     );
     assert!(at("out/cal_model.json").is_file());
+    // The table in the campaign's order (tables, then the manifest's
+    // rows), though the calibration flight ran first.
+    let table: Vec<&str> = (stdout.lines())
+        .skip_while(|l| !l.starts_with("flight "))
+        .skip(1)
+        .filter_map(|l| l.split_whitespace().next())
+        .collect();
+    let named = |name: &str| table.iter().position(|l| l.ends_with(name));
+    assert!(
+        named("survey_2.csv").is_some()
+            && named("survey_2.csv") < named("survey_1.csv")
+            && named("survey_1.csv") < named("cal.csv"),
+        "{stdout}"
+    );
     for (name, age) in [("survey_1", Some(5)), ("survey_2", None)] {
         assert!(!at(&format!("out/{name}_model.json")).exists(), "{name} fits no model");
         let quality: serde_json::Value =

@@ -77,7 +77,7 @@ pub fn run(config: &Path, (plain, force, verbose): (bool, bool, bool), shard: Op
         bar.set_message(progress_words(progress));
         bar.suspend(|| print_finished(&pipeline.flights[done.index], done, folder, verbose));
     };
-    let flights = run_flights(
+    let mut flights = run_flights(
         &pipeline,
         &mine,
         (shard, force, at_once.count),
@@ -86,6 +86,9 @@ pub fn run(config: &Path, (plain, force, verbose): (bool, bool, bool), shard: Op
         &finished,
     );
     bar.finish_and_clear();
+    // The table in the campaign's order, whatever order the flights ran in
+    // (a flight given another's model runs after it).
+    flights.sort_by_key(|done| done.index);
     let statuses: Vec<(String, FlightState, String)> = flights
         .iter()
         .map(|done| {
