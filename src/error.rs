@@ -75,9 +75,9 @@ pub enum Error {
         value: String,
     },
 
-    /// The line under the header gives time a unit but holds a number too:
-    /// neither a row of units nor data.
-    #[error("{path}, line {line}, column '{}': '{}' is not a number; the line under the header looks like a row of units but is not one: a row of units has one cell per column, each a unit or empty, and this line holds a number or another count of cells. Correct that line, or delete it (for example `sed -i 2d FILE`).", Excerpt(.column), Excerpt(.value))]
+    /// The line under the header gives time a unit but is not a row of
+    /// units: it holds a number, or another count of cells.
+    #[error("{path}, line {line}, column '{}': '{}' {problem}; the line under the header looks like a row of units but is not one. A row of units has one cell per column, each a unit or empty: correct that line, or delete it (for example `sed -i 2d FILE`).", Excerpt(.column), Excerpt(.value))]
     UnitsRow {
         /// The file concerned.
         path: PathBuf,
@@ -87,6 +87,8 @@ pub enum Error {
         column: String,
         /// The cell text.
         value: String,
+        /// What is wrong with the cell or the line.
+        problem: String,
     },
 
     /// The time column is missing, non-finite or not strictly increasing.

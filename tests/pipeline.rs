@@ -187,7 +187,13 @@ fn bad_input_gives_the_documented_error_not_a_panic() {
         f,
         "units.csv",
         &format!("{header}s,nT,20000,nT,nT\n0,50000,20000,5000,45000\n0.1,50000,20000,5000,45000\n"),
-        &["units.csv", "line 2", "column 'tt'", "row of units", "holds a number"],
+        &[
+            "units.csv",
+            "line 2",
+            "column 'flux_a_x'",
+            "'20000' is a number",
+            "row of units",
+        ],
     );
     assert_fails_with(
         f,

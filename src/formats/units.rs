@@ -70,7 +70,7 @@ fn declared_unit_warnings(file: &str, log: &FlightLog) -> Vec<String> {
             let given = unit.trim().trim_matches(|c| matches!(c, '(' | ')' | '[' | ']')).to_lowercase();
             (!given.is_empty() && !spellings.contains(&given.as_str())).then(|| {
                 format!(
-                    "{file}: the row of units gives '{unit}' for the column '{column}', which magcomp reads in {wanted}: if it is not in {wanted}, convert it, or the fit and the compensation are wrong"
+                    "{file}: the row of units gives '{unit}' for the column '{column}', which magcomp reads in {wanted}: if it is not in {wanted}, convert it; magcomp's fits and compensation take it in {wanted}"
                 )
             })
         })

@@ -98,10 +98,11 @@ fn read_csv_with(path: &Path, names: &ColumnNames, allow_parallel: bool) -> Resu
 /// The cells of the line under the header when that line is a row of
 /// units (`s,nT,nT,deg`), one per header column; `None` when it is not.
 ///
-/// It is one when its time cell reads as a unit and no cell is a number,
-/// with one cell per column. A line that is neither data nor units is left
-/// to the reader, whose error names it ([`Error::UnitsRow`] when its time
-/// cell reads as a unit).
+/// It is one when its time cell reads as a unit (or is empty beside a unit
+/// elsewhere) and no cell is a number, with one cell per column. A line
+/// whose time cell reads as a unit but that holds a number, or another
+/// count of cells, is [`Error::UnitsRow`], naming the cell; any other line
+/// is the reader's (a data row).
 pub fn read_units_row(
     path: &Path,
     separator: Separator,
@@ -137,10 +138,41 @@ pub fn read_units_row(
             .map(|c| String::from_utf8_lossy(c).into_owned())
             .collect(),
     };
-    let units = cells.len() == header.len()
-        && looks_like_a_unit(&cells[time_index])
-        && cells.iter().all(|c| parse_cell(c.as_bytes()).is_none_or(f64::is_nan));
-    Ok(units.then_some(cells))
+    // The time cell a unit; or empty, with no number on the line and a
+    // unit elsewhere (a data row missing its time is the reader's to name).
+    let time_cell = cells.get(time_index).map_or("", |c| c.trim());
+    let numeric = cells
+        .iter()
+        .position(|c| parse_cell(c.as_bytes()).is_some_and(|v| !v.is_nan()));
+    let unit_like = match time_cell.is_empty() {
+        false => looks_like_a_unit(time_cell),
+        true => numeric.is_none() && cells.iter().any(|c| looks_like_a_unit(c)),
+    };
+    if !unit_like {
+        return Ok(None);
+    }
+    let units_row_error = |column: usize, value: &str, problem: String| Error::UnitsRow {
+        path: path.to_path_buf(),
+        line: 2,
+        column: header.get(column).cloned().unwrap_or_default(),
+        value: value.to_string(),
+        problem,
+    };
+    if let Some(k) = numeric {
+        return Err(units_row_error(k, &cells[k], "is a number".into()));
+    }
+    if cells.len() != header.len() {
+        return Err(units_row_error(
+            time_index,
+            time_cell,
+            format!(
+                "reads as a unit, but the line has {} cells and the header {} columns",
+                cells.len(),
+                header.len()
+            ),
+        ));
+    }
+    Ok(Some(cells))
 }
 
 /// Opens a `csv` reader over a delimited file with magcomp's settings.
@@ -587,6 +619,7 @@ impl<'a> ColumnBuilder<'a> {
                 line,
                 column,
                 value,
+                problem: "is not a number".into(),
             },
             false => Error::MalformedNumber {
                 path,
@@ -623,10 +656,15 @@ impl<'a> ColumnBuilder<'a> {
 fn looks_like_a_unit(cell: &str) -> bool {
     let cell = cell.trim().trim_matches(|c| matches!(c, '(' | ')' | '[' | ']'));
     !cell.is_empty()
-        && cell.chars().count() <= 12
+        && cell.chars().count() <= 16
         && cell.chars().any(|c| c.is_alphabetic() || matches!(c, '°' | '%'))
-        && (cell.chars())
-            .all(|c| c.is_alphanumeric() || matches!(c, '°' | '%' | '/' | '^' | '*' | '.' | '-' | '_' | 'µ' | ' '))
+        && (cell.chars()).all(|c| {
+            c.is_alphanumeric()
+                || matches!(
+                    c,
+                    '°' | '%' | '/' | '^' | '*' | '.' | '-' | '_' | 'µ' | ' ' | '(' | ')' | '[' | ']'
+                )
+        })
 }
 
 /// Parses one cell: `Some(NaN)` for a missing marker, `Some(value)` for a
@@ -711,6 +749,26 @@ mod tests {
             let first_row = text.find("0.0").unwrap() as u64;
             assert_eq!(log.source_row_offsets().unwrap()[0], first_row, "{sep:?}");
         }
+        // A unit with words and brackets, and an empty time cell beside
+        // units: still a row of units.
+        for units in ["seconds (UTC),nT,A", ",nT,A"] {
+            let file = write_temp(&format!("tt,mag_1_uc,cur_strb\n{units}\n0,1,2\n1,2,3\n"));
+            let log = read_csv(file.path(), &ColumnNames::default()).unwrap();
+            assert_eq!(log.len(), 2, "{units}");
+            assert_eq!(log.declared_units()[1].1, "nT", "{units}");
+        }
+        // Not one: the cell that holds a number is named; so is a count of
+        // cells the header does not have.
+        let file = write_temp("tt,mag_1_uc,cur_strb\ns,nT,5\n0,1,2\n");
+        let text = read_csv(file.path(), &ColumnNames::default()).unwrap_err().to_string();
+        assert!(text.contains("line 2, column 'cur_strb': '5' is a number"), "{text}");
+        let file = write_temp("tt,mag_1_uc,cur_strb\ns,nT\n0,1,2\n");
+        let text = read_csv(file.path(), &ColumnNames::default()).unwrap_err().to_string();
+        assert!(text.contains("the line has 2 cells and the header 3 columns"), "{text}");
+        // A data row missing its time, beside a text cell, is not units.
+        let file = write_temp("tt,mag_1_uc,note\n,1,leg\n1,2,leg\n");
+        let text = read_csv(file.path(), &ColumnNames::default()).unwrap_err().to_string();
+        assert!(!text.contains("row of units"), "{text}");
         // No units row: nothing declared.
         let file = write_temp("tt,mag_1_uc\n0,1\n1,2\n");
         assert!(read_csv(file.path(), &ColumnNames::default())

@@ -70,7 +70,11 @@ pub fn stage_log_xyz(
             .chain(log.channels().iter().map(|c| c.name.as_str()))
             .chain(added.iter().map(String::as_str))
             .collect();
-        writeln!(out, "/ magcomp compensated flight, from {}", log.source().display())?;
+        let what = match compensation {
+            Some(_) => "compensated flight",
+            None => "flight",
+        };
+        writeln!(out, "/ magcomp {what}, from {}", log.source().display())?;
         writeln!(out, "/ {}", names.join(" "))?;
         let mut extra = compensation.map(ExtraColumns::new);
         let mut current_line = f64::NAN;
