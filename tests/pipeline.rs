@@ -596,8 +596,9 @@ fn added_columns_are_written_at_the_stated_resolution() {
     );
 }
 
-/// `compensate` lists every file it writes, and prints a flight's notes
-/// only with `-v` (their count otherwise); the warnings always.
+/// `compensate` prints one line per channel, lists every file it writes,
+/// and prints the fits' details and a flight's notes only with `-v` (the
+/// notes' count otherwise); the warnings always.
 #[test]
 fn compensate_lists_what_it_writes_and_prints_notes_with_verbose() {
     let folder = tempfile::tempdir().unwrap();
@@ -632,8 +633,27 @@ fn compensate_lists_what_it_writes_and_prints_notes_with_verbose() {
     for path in &written {
         assert!(Path::new(path).is_file(), "{path} is listed but not there");
     }
+    // One line per channel: its verdict against the limit, FOM, IR and
+    // held-out FOM; the fit's details only with -v.
+    for channel in ["mag_1_uc", "mag_2_uc"] {
+        let lines: Vec<&str> = quiet
+            .lines()
+            .filter(|l| l.starts_with(&format!("  {channel}: ")))
+            .collect();
+        assert_eq!(lines.len(), 1, "{quiet}");
+        let line = lines[0];
+        assert!(
+            line.contains(": PASS  FOM ")
+                && line.contains("(limit 1.50; 12 of 12 manoeuvres)")
+                && line.contains(", IR ")
+                && line.contains(", held out "),
+            "{line}"
+        );
+    }
+    assert!(!quiet.contains("fit on flux_a"), "{quiet}");
     let loud = stdout_of(true);
     assert_eq!(loud.matches("  note: ").count(), notes, "{loud}");
+    assert_eq!(loud.matches("    fit on flux_a: ").count(), 2, "{loud}");
 }
 
 /// A row of units under the header is read as units, not data: the flight

@@ -170,7 +170,7 @@ pub fn compensate(args: CompensateArgs, verbose: bool) -> anyhow::Result<()> {
     let result = process_flight_listing(&job, &pipeline.settings, &outputs);
     bar.finish_and_clear();
     let (result, written) = result?;
-    print!("{}", summary(&result, verbose));
+    print!("{}", summary(&result, pipeline.settings.fom_limit_nt, verbose));
     for path in written {
         println!("  wrote {}", path.display());
     }

@@ -75,7 +75,8 @@ pub fn run(config: &Path, (plain, force, verbose): (bool, bool, bool), shard: Op
     };
     let finished = |done: &FinishedFlight, progress: Progress| {
         bar.set_message(progress_words(progress));
-        bar.suspend(|| print_finished(&pipeline.flights[done.index], done, folder, verbose));
+        let limit = pipeline.settings.fom_limit_nt;
+        bar.suspend(|| print_finished(&pipeline.flights[done.index], done, folder, (limit, verbose)));
     };
     let mut flights = run_flights(
         &pipeline,
@@ -119,8 +120,8 @@ pub fn run(config: &Path, (plain, force, verbose): (bool, bool, bool), shard: Op
 }
 
 /// Prints what became of a flight of a run: its notes, its summary and
-/// the files written, or why it failed.
-fn print_finished(job: &FlightJob, done: &FinishedFlight, folder: &Path, verbose: bool) {
+/// the files written, or why it failed; `limit` is the FOM limit.
+fn print_finished(job: &FlightJob, done: &FinishedFlight, folder: &Path, (limit, verbose): (f64, bool)) {
     for note in &done.notes {
         println!("  note: {note}");
     }
@@ -137,7 +138,7 @@ fn print_finished(job: &FlightJob, done: &FinishedFlight, folder: &Path, verbose
         ),
         Ok(CampaignFlight::Processed { status, result }) => match result.as_ref() {
             Ok(result) => {
-                print!("{}", summary(result, verbose));
+                print!("{}", summary(result, limit, verbose));
                 println!("  wrote {}: {}", folder.display(), status.outputs.join(", "));
             }
             Err(error) => eprintln!("magcomp: error: processing {}: {error}", job.input.display()),

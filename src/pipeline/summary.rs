@@ -55,10 +55,24 @@ pub(super) fn applied_summary(result: &FlightResult, applied: &crate::apply::App
     text
 }
 
-/// A few lines per channel for the terminal, and the warnings; the notes
-/// with `verbose`, else their count (the quality JSON and the report hold
-/// them all).
-pub fn summary(result: &FlightResult, verbose: bool) -> String {
+/// A channel's verdict against `limit_nt`: PASS or FAIL by its FOM, CHECK
+/// when its findings move the survey beyond the stated uncertainty
+/// unchecked, and "no FOM" without labelled manoeuvres.
+fn verdict(quality: &crate::quality::ChannelQuality, limit_nt: f64) -> &'static str {
+    match quality.fom_after_nt {
+        _ if quality.unchecked_departure().is_some() => "CHECK",
+        Some(fom) if fom <= limit_nt => "PASS",
+        Some(_) => "FAIL",
+        None => "no FOM",
+    }
+}
+
+/// One line per channel for the terminal (its verdict, FOM, IR, held-out
+/// FOM, heading error and the findings applied), then the warnings; with
+/// `verbose`, each channel's fit in detail and the notes, else the notes'
+/// count (the quality JSON and the report hold them all). `limit_nt` is
+/// the FOM limit (`[quality] fom_limit_nt`).
+pub fn summary(result: &FlightResult, limit_nt: f64, verbose: bool) -> String {
     let mut text = format!("{}: {} rows\n", result.flight.display(), result.rows);
     if let Some(applied) = &result.model {
         text += &applied_summary(result, applied);
@@ -67,56 +81,9 @@ pub fn summary(result: &FlightResult, verbose: bool) -> String {
         if result.model.is_some() {
             break;
         }
-        let solution = &model.solution;
-        let regulariser = match (
-            model.solver.as_ref().and_then(|s| s.estimator),
-            solution.lambda,
-            solution.rank,
-        ) {
-            (Some(estimator), _, _) => estimator.describe(),
-            (None, Some(lambda), _) => format!("ridge λ={lambda:.3e}"),
-            (None, _, Some(rank)) => format!("TSVD rank {rank}"),
-            _ => String::new(),
-        };
-        text += &format!(
-            "  {} vs {}: {} ({} samples, cond {:.2e}); band std {:.3} → {:.3} nT, IR {:.2}",
-            quality.channel,
-            model.vector_sensor,
-            regulariser,
-            solution.samples,
-            solution.condition_number,
-            quality.band_std_before_nt,
-            quality.band_std_after_nt,
-            quality.improvement_ratio
-        );
-        if let (Some(before), Some(after)) = (quality.fom_before_nt, quality.fom_after_nt) {
-            text += &format!(
-                "; FOM {before:.2} → {after:.2} nT ({} of 12 manoeuvres)",
-                quality.fom_manoeuvres
-            );
-        }
-        text += &format!("\n    {}\n", solution.reason);
-        if let Some(error) = &quality.heading_error {
-            text += &format!(
-                "    heading error ({} matched samples on reciprocal lines): {:.3} → {:.3} nT\n",
-                error.pairs, error.before_nt, error.after_nt
-            );
-        }
-        if let Some(check) = &quality.transfer {
-            let how = match check.method {
-                crate::quality::transfer::TransferMethod::SecondBox => "second box",
-                crate::quality::transfer::TransferMethod::LeaveOneHeadingOut => "leave one heading out",
-            };
-            text += &format!(
-                "    held-out FOM ({how}): {:.2} nT against {:.2} nT in sample ({:.1}×)\n",
-                check.held_out_fom_nt, check.in_sample_fom_nt, check.ratio
-            );
-        }
-        for transfer in &quality.box_transfer {
-            text += &format!(
-                "    box transfer: fitted on {}, {} residual {:.3} nT (fitted on itself {:.3} nT)\n",
-                transfer.fit, transfer.test, transfer.band_std_nt, transfer.own_fit_band_std_nt
-            );
+        text += &channel_line(result, quality, limit_nt);
+        if verbose {
+            text += &fit_details(quality, model);
         }
     }
     text += &match (result.diagnosis_mode, result.applied_findings.is_empty()) {
@@ -129,10 +96,16 @@ pub fn summary(result: &FlightResult, verbose: bool) -> String {
             "  diagnosis: no finding changes the model; plain Tolles-Lawson\n".to_string()
         }
         (_, true) => String::new(),
-        (_, false) => "  diagnosis applied:\n".to_string(),
+        (_, false) if verbose => "  diagnosis applied:\n".to_string(),
+        (_, false) => format!(
+            "  diagnosis applied: {} finding(s), named on each channel's line (-v details them)\n",
+            result.applied_findings.len()
+        ),
     };
-    for applied in &result.applied_findings {
-        text += &format!("    {}\n", applied.describe());
+    if verbose || result.model.is_some() {
+        for applied in &result.applied_findings {
+            text += &format!("    {}\n", applied.describe());
+        }
     }
     match (verbose, result.notes.len()) {
         (_, 0) => {}
@@ -150,6 +123,88 @@ pub fn summary(result: &FlightResult, verbose: bool) -> String {
     }
     for warning in &result.warnings {
         text += &format!("  warning: {warning}\n");
+    }
+    text
+}
+
+/// A fitted channel's line: verdict, FOM against the limit, IR, the
+/// held-out FOM, the heading error and the findings applied to it.
+fn channel_line(result: &FlightResult, quality: &crate::quality::ChannelQuality, limit_nt: f64) -> String {
+    let mut line = format!("  {}: {}", quality.channel, verdict(quality, limit_nt));
+    if let (Some(before), Some(after)) = (quality.fom_before_nt, quality.fom_after_nt) {
+        line += &format!(
+            "  FOM {before:.2} → {after:.2} nT (limit {limit_nt:.2}; {} of 12 manoeuvres)",
+            quality.fom_manoeuvres
+        );
+    }
+    line += &format!(", IR {:.1}", quality.improvement_ratio);
+    if let Some(check) = &quality.transfer {
+        line += &format!(", held out {:.2} nT", check.held_out_fom_nt);
+    }
+    if let Some(error) = &quality.heading_error {
+        line += &format!(", heading error {:.3} → {:.3} nT", error.before_nt, error.after_nt);
+    }
+    let findings: Vec<String> = (result.applied_findings.iter())
+        .filter(|f| f.channel == quality.channel)
+        .map(|f| {
+            format!(
+                "{}{}",
+                f.effect,
+                f.source.as_ref().map(|s| format!(" from {s}")).unwrap_or_default()
+            )
+        })
+        .collect();
+    if !findings.is_empty() {
+        line += &format!("; findings applied: {}", findings.join(", "));
+    }
+    line + "\n"
+}
+
+/// A fitted channel's fit in detail (`-v`): the solver, samples and
+/// conditioning, the band-passed residual, why this λ or rank, the held-out
+/// FOM, the heading error's matched samples and the box transfers.
+fn fit_details(quality: &crate::quality::ChannelQuality, model: &crate::model::FittedModel) -> String {
+    let solution = &model.solution;
+    let regulariser = match (
+        model.solver.as_ref().and_then(|s| s.estimator),
+        solution.lambda,
+        solution.rank,
+    ) {
+        (Some(estimator), _, _) => estimator.describe(),
+        (None, Some(lambda), _) => format!("ridge λ={lambda:.3e}"),
+        (None, _, Some(rank)) => format!("TSVD rank {rank}"),
+        _ => String::new(),
+    };
+    let mut text = format!(
+        "    fit on {}: {} ({} samples, cond {:.2e}); band std {:.3} → {:.3} nT\n    {}\n",
+        model.vector_sensor,
+        regulariser,
+        solution.samples,
+        solution.condition_number,
+        quality.band_std_before_nt,
+        quality.band_std_after_nt,
+        solution.reason
+    );
+    if let Some(check) = &quality.transfer {
+        text += &format!(
+            "    held-out FOM ({}): {:.2} nT against {:.2} nT in sample ({:.1}×)\n",
+            check.method.describe(),
+            check.held_out_fom_nt,
+            check.in_sample_fom_nt,
+            check.ratio
+        );
+    }
+    if let Some(error) = &quality.heading_error {
+        text += &format!(
+            "    heading error over {} matched samples of reciprocal lines\n",
+            error.pairs
+        );
+    }
+    for transfer in &quality.box_transfer {
+        text += &format!(
+            "    box transfer: fitted on {}, {} residual {:.3} nT (fitted on itself {:.3} nT)\n",
+            transfer.fit, transfer.test, transfer.band_std_nt, transfer.own_fit_band_std_nt
+        );
     }
     text
 }
