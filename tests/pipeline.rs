@@ -747,3 +747,34 @@ fn a_row_of_units_under_the_header_is_read_as_units_and_kept() {
         assert!(!warnings.iter().any(|w| w.contains("row of units gives '")) || time_unit == "ms");
     }
 }
+
+/// Each channel's line names the findings applied to it, a fluxgate
+/// calibration found against a channel included (concealed_c's fluxgate
+/// is miscalibrated, and its mag_2_uc has an eddy-current time constant).
+#[test]
+fn each_channel_line_names_the_findings_applied_to_it() {
+    let folder = tempfile::tempdir().unwrap();
+    let flight = Path::new(env!("CARGO_MANIFEST_DIR")).join("sample_flights/concealed_c.csv");
+    let out = folder.path().join("out.csv");
+    let output = Command::new(env!("CARGO_BIN_EXE_magcomp"))
+        .args(["compensate", flight.to_str().unwrap(), "--out", out.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    let line = |channel: &str| {
+        (stdout.lines())
+            .find(|l| l.starts_with(&format!("  {channel}: ")))
+            .unwrap_or_else(|| panic!("no line for {channel}: {stdout}"))
+            .to_string()
+    };
+    assert!(
+        line("mag_1_uc").ends_with("; findings applied: vector_calibration of flux_a"),
+        "{stdout}"
+    );
+    assert!(
+        line("mag_2_uc").contains("findings applied: eddy_time_constant"),
+        "{stdout}"
+    );
+    assert!(stdout.contains("  diagnosis applied: 2 finding(s)"), "{stdout}");
+}

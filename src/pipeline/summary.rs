@@ -144,16 +144,23 @@ fn channel_line(result: &FlightResult, quality: &crate::quality::ChannelQuality,
     if let Some(error) = &quality.heading_error {
         line += &format!(", heading error {:.3} → {:.3} nT", error.before_nt, error.after_nt);
     }
-    let findings: Vec<String> = (result.applied_findings.iter())
-        .filter(|f| f.channel == quality.channel)
-        .map(|f| {
-            format!(
-                "{}{}",
-                f.effect,
-                f.source.as_ref().map(|s| format!(" from {s}")).unwrap_or_default()
-            )
-        })
-        .collect();
+    // A fluxgate calibration is the fluxgate's ("flux_a (for mag_1_uc)"),
+    // found against the channel it names as its source.
+    use crate::diagnose::EffectKind;
+    let findings: Vec<String> =
+        (result.applied_findings.iter())
+            .filter_map(|f| match f.effect {
+                EffectKind::VectorCalibration if f.source.as_deref() == Some(quality.channel.as_str()) => Some(
+                    format!("{} of {}", f.effect, f.channel.split(' ').next().unwrap_or_default()),
+                ),
+                _ if f.channel == quality.channel => Some(format!(
+                    "{}{}",
+                    f.effect,
+                    f.source.as_ref().map(|s| format!(" from {s}")).unwrap_or_default()
+                )),
+                _ => None,
+            })
+            .collect();
     if !findings.is_empty() {
         line += &format!("; findings applied: {}", findings.join(", "));
     }
