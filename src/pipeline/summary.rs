@@ -96,16 +96,10 @@ pub fn summary(result: &FlightResult, limit_nt: f64, verbose: bool) -> String {
             "  diagnosis: no finding changes the model; plain Tolles-Lawson\n".to_string()
         }
         (_, true) => String::new(),
-        (_, false) if verbose => "  diagnosis applied:\n".to_string(),
-        (_, false) => format!(
-            "  diagnosis applied: {} finding(s), named on each channel's line (-v details them)\n",
-            result.applied_findings.len()
-        ),
+        (_, false) => "  diagnosis applied:\n".to_string(),
     };
-    if verbose || result.model.is_some() {
-        for applied in &result.applied_findings {
-            text += &format!("    {}\n", applied.describe());
-        }
+    for applied in &result.applied_findings {
+        text += &format!("    {}\n", applied.describe());
     }
     match (verbose, result.notes.len()) {
         (_, 0) => {}
