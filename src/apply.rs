@@ -358,6 +358,11 @@ impl SavedModel {
                 )));
             }
             let Some(target) = log.channel(column) else {
+                if own && self.channels().contains(&model.as_str()) {
+                    notes.push(format!(
+                        "the flight records the model's channel '{model}' under its own name: [model] channels' '{column}' is not used for it"
+                    ));
+                }
                 if own || !self.channels().contains(&model.as_str()) {
                     used.insert(model.clone(), column.clone());
                     continue;

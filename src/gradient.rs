@@ -190,17 +190,7 @@ pub fn compensate_gradients(
         match outcome {
             Ok((result, model, compensated)) => {
                 stage.notes.push(describe(&result));
-                stage.warnings.push(format!(
-                    "{}: the gradient's level is not pinned by the calibration: the aircraft's steady field differs between {} and {} by an amount no manoeuvre reveals, up to the aircraft's field at the sensors over {:.2} m{}; use its variation along the lines, or level it to tie lines",
-                    result.column,
-                    pair.a,
-                    pair.b,
-                    pair.separation_m,
-                    match result.level_offset_nt_per_m {
-                        0.0 => String::new(),
-                        offset => format!(" ([fit] level moved it by {offset:.4} nT/m)"),
-                    }
-                ));
+                stage.warnings.push(level_warning(pair, result.level_offset_nt_per_m));
                 match disagreement(&result) {
                     Some((true, warning)) => stage.warnings.push(warning),
                     Some((false, note)) => stage.notes.push(note),
@@ -258,12 +248,28 @@ pub fn gradients_from_saved_model(
             "{column}: ({} − {})/{d:.3} m, from the difference of the channels the saved model compensated (a direct fit needs a calibration box)",
             pair.a, pair.b
         ));
-        stage.warnings.push(format!(
-            "{column}: the gradient's level is not pinned by the calibration: the aircraft's steady field differs between {} and {} by an amount no manoeuvre reveals, up to the aircraft's field at the sensors over {d:.2} m; use its variation along the lines, or level it to tie lines",
-            pair.a, pair.b
-        ));
+        stage
+            .warnings
+            .push(level_warning(pair, (a.level_offset_nt - b.level_offset_nt) / d));
     }
     stage
+}
+
+/// The warning every compensated gradient carries: its level is not
+/// pinned by the calibration; `offset_nt_per_m` is what `[fit] level`
+/// moved it by.
+fn level_warning(pair: &GradientPair, offset_nt_per_m: f64) -> String {
+    format!(
+        "{}: the gradient's level is not pinned by the calibration: the aircraft's steady field differs between {} and {} by an amount no manoeuvre reveals, up to the aircraft's field at the sensors over {:.2} m{}; use its variation along the lines, or level it to tie lines",
+        pair.column(),
+        pair.a,
+        pair.b,
+        pair.separation_m,
+        match offset_nt_per_m {
+            0.0 => String::new(),
+            offset => format!(" ([fit] level moved it by {offset:.4} nT/m)"),
+        }
+    )
 }
 
 /// Two methods whose gradients part on the survey lines by more than

@@ -738,6 +738,23 @@ fn a_model_s_channels_are_given_under_the_flight_s_names() {
     let output = apply(Some("[model]\nchannels = { mag_1_uc = \"MAG1\" }\n"));
     assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
     assert_eq!(columns(&at("survey_out.csv"), &["mag_1_c", "mag_2_c"]), own);
+    let output = (magcomp().arg("compensate").arg(at("survey.csv")))
+        .arg("--out")
+        .arg(at("survey_out.csv"))
+        .arg("--apply")
+        .arg(at("model.json"))
+        .arg("--config")
+        .arg(at("names.toml"))
+        .arg("-v")
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    assert!(
+        stdout.contains(
+            "records the model's channel 'mag_1_uc' under its own name: [model] channels' 'MAG1' is not used"
+        ),
+        "{stdout}"
+    );
 }
 
 /// A flight compensated with a saved model gets the gradients asked for
