@@ -47,6 +47,22 @@ pub enum HeldBack {
         /// Departures below this always pass, nT.
         floor_nt: f64,
     },
+    /// Levelled at the crossovers of the survey's lines (ties across the
+    /// traverse lines), the findings leave the lines' levels more spread
+    /// than plain Tolles-Lawson: they compensate the survey's headings
+    /// worse.
+    WorseAtCrossovers {
+        /// Crossovers used.
+        crossovers: usize,
+        /// Lines levelled.
+        lines: usize,
+        /// Row-weighted spread of the line levels, plain, nT.
+        plain_nt: f64,
+        /// The same with the findings, nT.
+        diagnosed_nt: f64,
+        /// Standard error of the difference, nT.
+        standard_error_nt: f64,
+    },
 }
 
 impl fmt::Display for HeldBack {
@@ -69,6 +85,16 @@ impl fmt::Display for HeldBack {
             } => write!(
                 f,
                 "on the survey it would move the compensation by {survey_nt:.4} nT RMS, more than {factor} times what it does over the calibration ({calibration_nt:.4} nT) plus {floor_nt} nT: it would act beyond anything the box tested"
+            ),
+            HeldBack::WorseAtCrossovers {
+                crossovers,
+                lines,
+                plain_nt,
+                diagnosed_nt,
+                standard_error_nt,
+            } => write!(
+                f,
+                "levelled at the {crossovers} crossovers of {lines} survey lines (the base station's change between passes taken out), the lines' levels spread by {diagnosed_nt:.4} nT with the findings against {plain_nt:.4} nT plain (standard error {standard_error_nt:.4} nT): they compensate the survey's headings worse than plain Tolles-Lawson"
             ),
         }
     }

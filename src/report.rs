@@ -817,6 +817,9 @@ fn verdict(quality: &ChannelQuality, limit_nt: f64) -> String {
             error.before_nt, error.after_nt, error.pairs
         ));
     }
+    if let Some(figures) = &quality.crossovers {
+        lines.push(crossover_line(figures));
+    }
     lines.iter().map(|l| format!("<p>{l}</p>")).collect()
 }
 
@@ -864,7 +867,24 @@ fn applied_verdict(quality: &ChannelQuality, applied: &crate::apply::AppliedMode
             error.before_nt, error.after_nt, error.pairs
         ));
     }
+    if let Some(figures) = &quality.crossovers {
+        lines.push(crossover_line(figures));
+    }
     lines.iter().map(|l| format!("<p>{l}</p>")).collect()
+}
+
+/// The crossover differences of a channel, in words.
+fn crossover_line(figures: &crate::quality::crossovers::CrossoverFigures) -> String {
+    format!(
+        "crossovers {:.3} → {:.3} nT RMS over {} where survey lines cross{}",
+        figures.before_nt,
+        figures.after_nt,
+        figures.crossovers,
+        match figures.external_field_removed {
+            true => " (base station's change taken out)",
+            false => " (no base station: the external field's change between passes is in them)",
+        }
+    )
 }
 
 /// The saved model a flight was compensated with: where it comes from.

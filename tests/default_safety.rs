@@ -131,6 +131,12 @@ fn clean_plan(seed: u64) -> RawScenario {
         coupling.yaw_roll = range(0.3, 0.55);
         coupling.lag_deg = [0.0, 60.0];
     }
+    // Tie lines across the block, as most surveys fly them (their own
+    // draws: the rest of the plan is unchanged).
+    let mut ties = Random::new(0x5AFE ^ seed).fork("clean flight ties");
+    if ties.uniform(0.0, 1.0) < 0.8 {
+        raw.survey.tie_count = ties.integer(1, 4);
+    }
     // The fluxgate mounted any way round, as on real aircraft (its own
     // draws: the rest of the plan is unchanged).
     let mut mount = Random::new(0x5AFE ^ seed).fork("clean flight mounting");
@@ -164,10 +170,11 @@ type Outcome = Vec<ChannelOutcome>;
 fn fly(seed: u64) -> (String, Outcome) {
     let raw = clean_plan(seed);
     let describe = format!(
-        "seed {seed}: {} sensors, {} Hz, {} lines",
+        "seed {seed}: {} sensors, {} Hz, {} lines, {} ties",
         raw.scalar.len(),
         raw.sample_rate_hz,
-        raw.survey.line_count
+        raw.survey.line_count,
+        raw.survey.tie_count
     );
     let flight = simulate(&Scenario::try_from(raw).unwrap()).unwrap();
     let folder = tempfile::tempdir().unwrap();
@@ -184,6 +191,7 @@ fn fly(seed: u64) -> (String, Outcome) {
     let auto = magcomp::pipeline::run(&job, &default, &out).unwrap();
     let fitted_plain = magcomp::pipeline::run(&job, &plain, &out).unwrap();
     let line = &flight.log.channel("line").unwrap().values;
+    let ties = magcomp::quality::crossovers::Crossovers::of(&flight.log);
     let outcome = (auto.compensation.channels.iter())
         .zip(&fitted_plain.compensation.channels)
         .zip(&auto.result.models)
@@ -225,9 +233,17 @@ fn fly(seed: u64) -> (String, Outcome) {
                 .and_then(|q| q.uncertainty.as_ref())
                 .map(|u| u.outside_calibration_sigma_nt);
             let stated = stated_sigma.map_or("; no stated σ".into(), |s| format!("; stated σ {s:.4} nT"));
+            let crossovers = magcomp::quality::crossovers::compare_levels(&flight.log, &ties, (&p.values, &a.values), 1)
+                .map(|c| {
+                    format!(
+                        "; levelled at {} crossovers of {} lines: plain {:.4} default {:.4} nT (se {:.4})",
+                        c.crossovers, c.lines, c.reference_nt, c.candidate_nt, c.standard_error_nt
+                    )
+                })
+                .unwrap_or_else(|| "; no crossovers".into());
             let said = if warned { "; warned" } else { "; not warned" };
             ChannelOutcome {
-                name: format!("{} ({heldout}{departure}{stated}{said})", model.channel),
+                name: format!("{} ({heldout}{departure}{stated}{said}{crossovers})", model.channel),
                 plain: survey_line_error_nt(&p.values, truth, line),
                 auto: survey_line_error_nt(&a.values, truth, line),
                 applied,

@@ -155,3 +155,59 @@ fn reciprocal_lines_measure_the_heading_error_before_and_after() {
     );
     assert!(clean.channels.iter().all(|q| q.heading_error.is_none()));
 }
+
+/// A survey with tie lines: each tie crosses each line of the block once,
+/// the true Earth field agrees with itself at every crossover once the base
+/// station's change is taken out, and a level added on one heading (what a
+/// poorly estimated permanent term leaves on the survey) is found by
+/// levelling the lines at the crossovers, and judged worse.
+#[test]
+fn tie_lines_cross_every_line_and_the_crossovers_see_a_heading_level() {
+    let mut raw = RawScenario {
+        seed: 11,
+        ..RawScenario::default()
+    };
+    raw.survey.line_count = 6;
+    raw.survey.tie_count = 3;
+    raw.survey.line_heading_deg = 30.0;
+    raw.survey.line_length_m = 6000.0;
+    let flight = magcomp::simulate::simulate(&Scenario::try_from(raw).unwrap()).unwrap();
+    let ties = magcomp::quality::crossovers::Crossovers::of(&flight.log);
+    assert!(ties.external_field_removed());
+    assert_eq!(ties.points.len(), 18, "{:?}", ties.points);
+    for point in &ties.points {
+        let [a, b] = point.lines;
+        assert!(a < 9000.0 && b > 9000.0 || a > 9000.0 && b < 9000.0, "{point:?}");
+    }
+    let truth = flight.truth.earth_total_nt("mag_1_uc").unwrap();
+    let differences = ties.differences(truth);
+    let rms = (differences.iter().map(|d| d * d).sum::<f64>() / differences.len() as f64).sqrt();
+    // The base station's noise (0.02 nT) on each pass, and the two passes'
+    // height and position within a sample of each other.
+    assert!(rms < 0.05, "the truth's crossover RMS {rms:.4} nT: {differences:?}");
+    // 0.3 nT more on the lines flown on the first line's heading: half
+    // the traverse lines' rows, so a row-weighted spread of the levels
+    // a little under 0.15 nT (the ties' rows at level zero add to it).
+    let line = &flight.log.channel("line").unwrap().values;
+    let first_heading_lines: Vec<f64> = (1001..=1006).step_by(2).map(f64::from).collect();
+    let levelled: Vec<f64> = (truth.iter().zip(line))
+        .map(|(t, l)| t + if first_heading_lines.contains(l) { 0.3 } else { 0.0 })
+        .collect();
+    let rows = |numbers: &[f64]| line.iter().filter(|l| numbers.contains(l)).count() as f64;
+    let share = rows(&first_heading_lines) / line.iter().filter(|l| **l != 0.0).count() as f64;
+    let expected = 0.3 * (share * (1.0 - share)).sqrt();
+    use magcomp::quality::crossovers::{compare_levels, Levelling};
+    let truth_levels = Levelling::of(&flight.log, &ties, truth).unwrap();
+    assert_eq!((truth_levels.lines.len(), truth_levels.crossovers), (9, 18));
+    assert!(truth_levels.spread_nt() < 0.02, "{}", truth_levels.spread_nt());
+    let worse = compare_levels(&flight.log, &ties, (truth, &levelled), 8).unwrap();
+    assert_eq!(worse.crossovers, 18);
+    assert!(
+        (worse.candidate_nt - expected).abs() < 0.02 && worse.reference_nt < 0.02,
+        "{worse:?} against {expected:.4} nT"
+    );
+    assert!(magcomp::diagnose::evidence::levels_worse(&worse), "{worse:?}");
+    let better = compare_levels(&flight.log, &ties, (&levelled, truth), 8).unwrap();
+    assert!(!magcomp::diagnose::evidence::levels_worse(&better), "{better:?}");
+    assert!(compare_levels(&flight.log, &ties, (truth, &levelled), 19).is_none());
+}

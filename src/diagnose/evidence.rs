@@ -147,33 +147,99 @@ pub fn departures(
     plan: &BTreeMap<String, Extensions>,
     (terms, options): (TermSet, &FitOptions),
 ) -> Result<BTreeMap<String, Option<Departure>>> {
-    let Calibration {
-        log, sensor, windows, ..
-    } = *calibration;
+    let Calibration { log, windows, .. } = *calibration;
     use rayon::prelude::*;
     let changed: Vec<(&String, &Extensions)> = plan.iter().filter(|(_, model)| *model != &plain_of(model)).collect();
     let stores = StorePool::new();
     let measured: Vec<(String, Option<Departure>)> = changed
         .par_iter()
         .map(|(channel, model)| {
-            // The compensated channel, not the interference alone: a lag
-            // reads the record itself earlier, which moves the survey's
-            // geology along with it (τ × its rate, far more at survey height
-            // than at the box's).
-            let predict = |extensions: Extensions| -> Result<Vec<f64>> {
-                let spec = ModelSpec::new(terms, extensions);
-                let prediction = fit(log, sensor, channel, windows, &spec, options, &stores)?.predict(log)?;
-                Ok((prediction.scalar_nt.iter())
-                    .zip(&prediction.interference_nt)
-                    .map(|(scalar, interference)| scalar - interference)
-                    .collect())
-            };
+            let predict = |extensions| compensated(calibration, channel, extensions, (terms, options), &stores);
             let diagnosed = predict((*model).clone())?;
             let plain = predict(plain_of(model))?;
             Ok(((*channel).clone(), departure(log, windows, &plain, &diagnosed)))
         })
         .collect::<Result<_>>()?;
     Ok(measured.into_iter().collect())
+}
+
+/// `channel` compensated over the whole flight with `extensions` fitted on
+/// the calibration. The compensated channel, not the interference alone:
+/// a lag reads the record itself earlier, which moves the survey's geology
+/// along with it (τ × its rate, far more at survey height than at the
+/// box's).
+fn compensated(
+    calibration: &Calibration,
+    channel: &str,
+    extensions: Extensions,
+    (terms, options): (TermSet, &FitOptions),
+    stores: &StorePool,
+) -> Result<Vec<f64>> {
+    let Calibration {
+        log, sensor, windows, ..
+    } = *calibration;
+    let spec = ModelSpec::new(terms, extensions);
+    let prediction = fit(log, sensor, channel, windows, &spec, options, stores)?.predict(log)?;
+    Ok((prediction.scalar_nt.iter())
+        .zip(&prediction.interference_nt)
+        .map(|(scalar, interference)| scalar - interference)
+        .collect())
+}
+
+/// Fewest crossovers the survey-side comparison decides on.
+pub const LEAST_CROSSOVERS: usize = 8;
+
+/// How much more the findings may spread the survey's line levels than
+/// plain Tolles-Lawson, nT, beyond twice the comparison's standard error:
+/// below a two-hundredth of a nT no survey's levelling would notice.
+pub const LEVEL_TOLERANCE_NT: f64 = 0.005;
+
+/// Whether findings that spread the line levels as `comparison` says are
+/// worse on the survey than plain Tolles-Lawson.
+pub fn levels_worse(comparison: &crate::quality::crossovers::LevelComparison) -> bool {
+    comparison.candidate_nt > comparison.reference_nt + LEVEL_TOLERANCE_NT + 2.0 * comparison.standard_error_nt
+}
+
+/// Plain Tolles-Lawson for a channel whose model is `model`: nothing of
+/// the diagnosis but the flight's fluxgate calibration.
+pub fn tolles_lawson_of(model: &Extensions) -> Extensions {
+    Extensions {
+        vector_calibration: model.vector_calibration.clone(),
+        ..Extensions::default()
+    }
+}
+
+/// Survey-side evidence where the survey's lines cross: per channel of
+/// `plan` whose model is not plain Tolles-Lawson, the tie-line levelling
+/// of its compensation against plain Tolles-Lawson's. Empty when the
+/// survey has fewer than [`LEAST_CROSSOVERS`] crossovers or no base
+/// station.
+pub fn crossover_checks(
+    calibration: &Calibration,
+    plan: &BTreeMap<String, Extensions>,
+    (terms, options): (TermSet, &FitOptions),
+) -> Result<BTreeMap<String, crate::quality::crossovers::LevelComparison>> {
+    use crate::quality::crossovers::{compare_levels, Crossovers, LevelComparison};
+    use rayon::prelude::*;
+    let crossovers = Crossovers::of(calibration.log);
+    if crossovers.points.len() < LEAST_CROSSOVERS || !crossovers.external_field_removed() {
+        return Ok(BTreeMap::new());
+    }
+    let changed: Vec<(&String, &Extensions)> = (plan.iter())
+        .filter(|(_, model)| *model != &tolles_lawson_of(model))
+        .collect();
+    let stores = StorePool::new();
+    let compared: Vec<Option<(String, LevelComparison)>> = changed
+        .par_iter()
+        .map(|(channel, model)| {
+            let predict = |extensions| compensated(calibration, channel, extensions, (terms, options), &stores);
+            let diagnosed = predict((*model).clone())?;
+            let plain = predict(tolles_lawson_of(model))?;
+            let compared = compare_levels(calibration.log, &crossovers, (&plain, &diagnosed), LEAST_CROSSOVERS);
+            Ok(compared.map(|c| ((*channel).clone(), c)))
+        })
+        .collect::<Result<_>>()?;
+    Ok(compared.into_iter().flatten().collect())
 }
 
 #[cfg(test)]

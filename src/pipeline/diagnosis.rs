@@ -130,7 +130,7 @@ pub(super) fn evidence_rule(
     options: &Settings,
     warnings: &mut Vec<Warning>,
 ) -> Result<(BTreeMap<String, Extensions>, BTreeMap<String, f64>)> {
-    use crate::diagnose::evidence::{departures, plain_of};
+    use crate::diagnose::evidence::{crossover_checks, departures, levels_worse, plain_of};
     let criterion = match options.fit.solve.lambda {
         crate::numerics::solve::LambdaChoice::Select => Some(options.fit.solve.criterion.describe().to_string()),
         _ => None,
@@ -159,43 +159,88 @@ pub(super) fn evidence_rule(
         }
     }
     for (channel, reason) in refused {
-        let named: Vec<String> = (diagnosis.findings.iter())
-            .filter(|f| f.channel == channel && applies_to_model(f.effect.kind()))
-            .map(|f| {
-                format!(
-                    "{}{}",
-                    f.effect,
-                    f.source.as_ref().map(|s| format!(" from {s}")).unwrap_or_default()
-                )
-            })
-            .collect();
-        if options.diagnose.apply == crate::diagnose::ApplyDiagnosis::Always {
-            warnings.push(Warning::FindingsAppliedAnyway {
-                channel,
-                findings: named,
-                reason,
-            });
+        if hold_back(&mut plan, diagnosis, (options, warnings), (channel.clone(), reason), false) {
+            applied.remove(&channel);
+        }
+    }
+    // Survey-side evidence where the lines cross, on what the rules above
+    // left: against plain Tolles-Lawson with nothing of the diagnosis (the
+    // base station's term included: it unbiases the fit on the box, and
+    // the crossovers show whether the survey gains).
+    let compared = crossover_checks(calibration, &plan, (options.terms, &options.fit))?;
+    for (channel, comparison) in compared {
+        if !levels_worse(&comparison) {
             continue;
         }
-        applied.remove(&channel);
-        for finding in
-            (diagnosis.findings.iter_mut()).filter(|f| f.channel == channel && applies_to_model(f.effect.kind()))
-        {
-            finding.not_applied = Some(format!("{reason}, {FITTED_PLAIN}"));
+        let reason = HeldBack::WorseAtCrossovers {
+            crossovers: comparison.crossovers,
+            lines: comparison.lines,
+            plain_nt: comparison.reference_nt,
+            diagnosed_nt: comparison.candidate_nt,
+            standard_error_nt: comparison.standard_error_nt,
+        };
+        if hold_back(&mut plan, diagnosis, (options, warnings), (channel.clone(), reason), true) {
+            applied.remove(&channel);
         }
-        if let Some(model) = plan.get_mut(&channel) {
-            *model = plain_of(model);
-        }
-        if let Some(entry) = diagnosis.channels.iter_mut().find(|c| c.channel == channel) {
-            entry.model = plain_of(&entry.model);
-        }
-        warnings.push(Warning::FindingsHeldBack {
+    }
+    Ok((plan, applied))
+}
+
+/// Holds back `channel`'s findings for `reason` under `apply = "auto"`:
+/// marks them not applied, fits the channel plain (keeping the base
+/// station's term unless `entirely`) and warns; under `"always"` only
+/// warns. Returns whether they were held back.
+fn hold_back(
+    plan: &mut BTreeMap<String, Extensions>,
+    diagnosis: &mut crate::diagnose::Diagnosis,
+    (options, warnings): (&Settings, &mut Vec<Warning>),
+    (channel, reason): (String, HeldBack),
+    entirely: bool,
+) -> bool {
+    use crate::diagnose::evidence::{plain_of, tolles_lawson_of};
+    let judged = |kind: EffectKind| match entirely {
+        true => !matches!(kind, EffectKind::Unexplained | EffectKind::VectorCalibration),
+        false => applies_to_model(kind),
+    };
+    let named: Vec<String> = (diagnosis.findings.iter())
+        .filter(|f| f.channel == channel && judged(f.effect.kind()) && f.not_applied.is_none())
+        .map(|f| {
+            format!(
+                "{}{}",
+                f.effect,
+                f.source.as_ref().map(|s| format!(" from {s}")).unwrap_or_default()
+            )
+        })
+        .collect();
+    if options.diagnose.apply == crate::diagnose::ApplyDiagnosis::Always {
+        warnings.push(Warning::FindingsAppliedAnyway {
             channel,
             findings: named,
             reason,
         });
+        return false;
     }
-    Ok((plan, applied))
+    for finding in (diagnosis.findings.iter_mut())
+        .filter(|f| f.channel == channel && judged(f.effect.kind()) && f.not_applied.is_none())
+    {
+        finding.not_applied = Some(format!("{reason}, {FITTED_PLAIN}"));
+    }
+    let plainer = |model: &Extensions| match entirely {
+        true => tolles_lawson_of(model),
+        false => plain_of(model),
+    };
+    if let Some(model) = plan.get_mut(&channel) {
+        *model = plainer(model);
+    }
+    if let Some(entry) = diagnosis.channels.iter_mut().find(|c| c.channel == channel) {
+        entry.model = plainer(&entry.model);
+    }
+    warnings.push(Warning::FindingsHeldBack {
+        channel,
+        findings: named,
+        reason,
+    });
+    true
 }
 
 /// Whether a finding of `kind` changes a channel's own model (a fluxgate

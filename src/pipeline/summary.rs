@@ -51,6 +51,12 @@ pub(super) fn applied_summary(result: &FlightResult, applied: &crate::apply::App
                 error.pairs, error.before_nt, error.after_nt
             );
         }
+        if let Some(figures) = &quality.crossovers {
+            text += &format!(
+                "    crossovers ({} where lines cross): RMS {:.3} → {:.3} nT\n",
+                figures.crossovers, figures.before_nt, figures.after_nt
+            );
+        }
     }
     text
 }
@@ -138,6 +144,9 @@ fn channel_line(result: &FlightResult, quality: &crate::quality::ChannelQuality,
     if let Some(error) = &quality.heading_error {
         line += &format!(", heading error {:.3} → {:.3} nT", error.before_nt, error.after_nt);
     }
+    if let Some(figures) = &quality.crossovers {
+        line += &format!(", crossovers {:.3} → {:.3} nT", figures.before_nt, figures.after_nt);
+    }
     // A fluxgate calibration is the fluxgate's ("flux_a (for mag_1_uc)"),
     // found against the channel it names as its source.
     use crate::diagnose::EffectKind;
@@ -199,6 +208,16 @@ fn fit_details(quality: &crate::quality::ChannelQuality, model: &crate::model::F
         text += &format!(
             "    heading error over {} matched samples of reciprocal lines\n",
             error.pairs
+        );
+    }
+    if let Some(figures) = &quality.crossovers {
+        text += &format!(
+            "    crossovers: {} where survey lines cross{}\n",
+            figures.crossovers,
+            match figures.external_field_removed {
+                true => ", the base station's change between passes taken out",
+                false => ", no base station: the external field's change between passes is in them",
+            }
         );
     }
     for transfer in &quality.box_transfer {

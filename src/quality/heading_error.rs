@@ -41,13 +41,13 @@ pub struct HeadingError {
 }
 
 /// One survey line: its rows and its track.
-struct SurveyLine {
-    rows: Vec<usize>,
-    track_deg: f64,
+pub(crate) struct SurveyLine {
+    pub(crate) rows: Vec<usize>,
+    pub(crate) track_deg: f64,
 }
 
 /// Local north and east, m, of every row (NaN where unknown).
-fn local_positions(log: &FlightLog) -> Option<Vec<[f64; 2]>> {
+pub(crate) fn local_positions(log: &FlightLog) -> Option<Vec<[f64; 2]>> {
     let latitude = &log.channel("lat")?.values;
     let longitude = &log.channel("lon")?.values;
     let origin = latitude
@@ -64,7 +64,8 @@ fn local_positions(log: &FlightLog) -> Option<Vec<[f64; 2]>> {
     )
 }
 
-fn survey_lines(log: &FlightLog, positions: &[[f64; 2]]) -> Vec<SurveyLine> {
+/// The survey lines with at least ten positioned rows: number and line.
+pub(crate) fn survey_lines(log: &FlightLog, positions: &[[f64; 2]]) -> Vec<(f64, SurveyLine)> {
     log.survey_lines()
         .into_iter()
         .map(|(number, rows)| {
@@ -76,13 +77,13 @@ fn survey_lines(log: &FlightLog, positions: &[[f64; 2]]) -> Vec<SurveyLine> {
             )
         })
         .filter(|(_, rows)| rows.len() >= 10)
-        .map(|(_, rows)| {
+        .map(|(number, rows)| {
             let (first, last) = (positions[rows[0]], positions[rows[rows.len() - 1]]);
             let track_deg = (last[1] - first[1])
                 .atan2(last[0] - first[0])
                 .to_degrees()
                 .rem_euclid(360.0);
-            SurveyLine { rows, track_deg }
+            (number, SurveyLine { rows, track_deg })
         })
         .collect()
 }
@@ -91,7 +92,7 @@ fn survey_lines(log: &FlightLog, positions: &[[f64; 2]]) -> Vec<SurveyLine> {
 /// (compensated), or `None` when no opposite-direction lines overlap.
 pub fn heading_error(log: &FlightLog, before: &[f64], after: &[f64], match_distance_m: f64) -> Option<HeadingError> {
     let positions = local_positions(log)?;
-    let lines = survey_lines(log, &positions);
+    let lines: Vec<SurveyLine> = survey_lines(log, &positions).into_iter().map(|(_, line)| line).collect();
     let direction_deg = lines.first()?.track_deg;
     let (forward, back): (Vec<&SurveyLine>, Vec<&SurveyLine>) = lines
         .iter()

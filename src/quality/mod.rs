@@ -10,6 +10,7 @@
 //!   the manoeuvre signatures in the band (SEG dictionary, "figure of merit"),
 //!   whenever windows are labelled with manoeuvre kind and heading.
 
+pub mod crossovers;
 pub mod heading_error;
 pub mod transfer;
 
@@ -170,6 +171,10 @@ pub struct ChannelQuality {
     /// Level difference between opposite-direction survey lines over the
     /// same ground, when there are such lines.
     pub heading_error: Option<crate::quality::heading_error::HeadingError>,
+    /// RMS difference between the two passes where survey lines cross
+    /// (tie lines), when they do.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub crossovers: Option<crate::quality::crossovers::CrossoverFigures>,
     /// In-sample against held-out FOM (second box, or leave one heading out).
     pub transfer: Option<TransferCheck>,
     /// Each calibration box's model on every other box of the flight.
@@ -348,6 +353,7 @@ pub fn assess_quality(log: &FlightLog, model: &FittedModel, compensated: &Compen
         survey_departure_from_plain_nt: None,
         uncertainty: None,
         heading_error: crate::quality::heading_error::heading_error(log, scalar, &compensated.values, 25.0),
+        crossovers: crate::quality::crossovers::figures(log, scalar, &compensated.values),
         windows,
         rows_missing: compensated.values.iter().filter(|v| !v.is_finite()).count(),
     }
@@ -444,6 +450,20 @@ pub fn quality_warnings(
                 error.after_nt,
                 error.pairs,
                 match error.external_field_removed {
+                    true => " (the base station's change between the passes taken out)",
+                    false => " (the flight has no base station, so this includes the external field's change between the passes)",
+                }
+            ));
+        }
+    }
+    if let Some(figures) = &quality.crossovers {
+        if figures.after_nt > figures.before_nt.max(0.05) * NOISE_RISE_WARNING {
+            warnings.push(format!(
+                "{channel}: compensation raised the RMS difference between the passes where survey lines cross from {:.3} to {:.3} nT over {} crossovers{}. {next_step}",
+                figures.before_nt,
+                figures.after_nt,
+                figures.crossovers,
+                match figures.external_field_removed {
                     true => " (the base station's change between the passes taken out)",
                     false => " (the flight has no base station, so this includes the external field's change between the passes)",
                 }

@@ -37,6 +37,7 @@
 //! line_heading_deg = 0.0
 //! line_length_m = 9000.0
 //! line_spacing_m = 500.0
+//! tie_count = 0             # tie lines across the block after its last line
 //! altitude_m = 300.0
 //! turbulence_deg = 0.8
 //!
@@ -303,6 +304,11 @@ pub struct Survey {
     /// Distance between lines, m; 0 reflies one line in both directions
     /// (a heading test).
     pub line_spacing_m: f64,
+    /// Tie lines flown across the block of lines after its last line,
+    /// perpendicular to them and spread evenly along them (numbered from
+    /// 9001): where each crosses a line, the survey measures the same
+    /// ground on two headings.
+    pub tie_count: usize,
     /// Height above ground, m.
     pub altitude_m: f64,
     /// Attitude turbulence, degrees (standard deviation).
@@ -318,6 +324,7 @@ impl Default for Survey {
             line_heading_deg: 0.0,
             line_length_m: 9000.0,
             line_spacing_m: 500.0,
+            tie_count: 0,
             altitude_m: 300.0,
             turbulence_deg: 0.8,
             speed_m_s: 60.0,
@@ -826,6 +833,7 @@ fn check_sizes(raw: &RawScenario) -> std::result::Result<(), String> {
     for (name, value, most) in [
         ("[calibration] repeats", raw.calibration.repeats, 20),
         ("[survey] line_count", raw.survey.line_count, 1000),
+        ("[survey] tie_count", raw.survey.tie_count, 100),
         ("[crust] dipole_count", raw.crust.dipole_count, 10_000),
     ] {
         if value > most {
@@ -842,7 +850,10 @@ fn check_sizes(raw: &RawScenario) -> std::result::Result<(), String> {
     // The flight's length, roughly: the lines, and ten minutes per leg of
     // each box with the turns.
     let legs = raw.calibration.repeats * raw.calibration.headings_deg.len();
-    let seconds = survey.line_count as f64 * survey.line_length_m / survey.speed_m_s + 600.0 * (legs as f64 + 1.0);
+    let ties = survey.tie_count as f64
+        * ((survey.line_count as f64 + 2.0) * survey.line_spacing_m.max(200.0) / survey.speed_m_s + 300.0);
+    let seconds =
+        survey.line_count as f64 * survey.line_length_m / survey.speed_m_s + ties + 600.0 * (legs as f64 + 1.0);
     let samples = seconds * raw.sample_rate_hz * raw.oversampling as f64;
     if samples > MOST_INTERNAL_SAMPLES {
         return Err(format!(

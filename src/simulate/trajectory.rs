@@ -460,6 +460,8 @@ impl Pilot<'_> {
     /// across, with a standard bank shown.
     fn fly_lines(&mut self, scenario: &Scenario, lines: std::ops::Range<usize>, base_heading_deg: f64) {
         let survey = &scenario.raw.survey;
+        let last_block = lines.end == survey.line_count;
+        let first_pose = self.path.poses.len();
         for line in lines {
             let heading = (base_heading_deg + 180.0 * (line % 2) as f64).rem_euclid(360.0);
             let number = 1001.0 + line as f64;
@@ -484,6 +486,76 @@ impl Pilot<'_> {
             self.turn(heading, target, 3.0, turn_speed, 0.3);
             self.pose.yaw_deg = (heading + 180.0).rem_euclid(360.0);
         }
+        if last_block && survey.tie_count > 0 {
+            self.fly_ties(scenario, first_pose, base_heading_deg);
+        }
+    }
+
+    /// The tie lines across the block of lines flown since pose
+    /// `first_pose`: `tie_count` of them perpendicular to
+    /// `base_heading_deg`, spread evenly along the block and reaching past
+    /// its outer lines, flown in alternating directions, each reached by a
+    /// turn toward its start, a straight transit and a turn onto it.
+    fn fly_ties(&mut self, scenario: &Scenario, first_pose: usize, base_heading_deg: f64) {
+        let survey = &scenario.raw.survey;
+        let (sin, cos) = base_heading_deg.to_radians().sin_cos();
+        // Along and across the lines (across: to the right of the base heading).
+        let along = |p: &Pose| p.northing_m * cos + p.easting_m * sin;
+        let across = |p: &Pose| -p.northing_m * sin + p.easting_m * cos;
+        let on_lines = self.path.poses[first_pose..].iter().filter(|p| p.line != 0.0);
+        let (mut a_range, mut c_range) = ([f64::MAX, f64::MIN], [f64::MAX, f64::MIN]);
+        for pose in on_lines {
+            let (a, c) = (along(pose), across(pose));
+            a_range = [a_range[0].min(a), a_range[1].max(a)];
+            c_range = [c_range[0].min(c), c_range[1].max(c)];
+        }
+        if a_range[0] > a_range[1] {
+            return;
+        }
+        let reach = survey.line_spacing_m.max(200.0);
+        let count = survey.tie_count;
+        for tie in 0..count {
+            let a = a_range[0] + (a_range[1] - a_range[0]) * (tie + 1) as f64 / (count + 1) as f64;
+            let (from, to, heading) = match tie % 2 {
+                0 => (c_range[1] + reach, c_range[0] - reach, base_heading_deg - 90.0),
+                _ => (c_range[0] - reach, c_range[1] + reach, base_heading_deg + 90.0),
+            };
+            let start = (a * cos - from * sin, a * sin + from * cos);
+            self.fly_to(survey, start, heading);
+            let number = 9001.0 + tie as f64;
+            let t_start_s = self.now();
+            self.pose.line = number;
+            for _ in 0..self.samples((to - from).abs() / survey.speed_m_s) {
+                self.gust(survey.turbulence_deg);
+                self.step(heading, [0.0; 3], survey.speed_m_s);
+            }
+            self.path.lines.push((
+                number,
+                heading.rem_euclid(360.0),
+                Stretch {
+                    t_start_s,
+                    t_end_s: self.now() - self.dt_s,
+                },
+            ));
+            self.pose.line = 0.0;
+        }
+    }
+
+    /// To `(northing, easting)`, m, arriving on `heading_deg`: a tight turn
+    /// toward it, straight and level to it, and a tight turn onto the
+    /// heading (the turns are 50 m in radius, so the arrival is within
+    /// about that of the point).
+    fn fly_to(&mut self, survey: &crate::simulate::scenario::Survey, (north, east): (f64, f64), heading_deg: f64) {
+        const RATE_DEG_S: f64 = 3.0;
+        let tight = 50.0 * RATE_DEG_S.to_radians();
+        let bearing = |pose: &Pose| (east - pose.easting_m).atan2(north - pose.northing_m).to_degrees();
+        let now = self.pose.yaw_deg;
+        self.turn(now, bearing(&self.pose), RATE_DEG_S, tight, 0.3);
+        let track = bearing(&self.pose);
+        let distance = (north - self.pose.northing_m).hypot(east - self.pose.easting_m);
+        self.level(distance / survey.speed_m_s, track, 0.3, survey.speed_m_s);
+        self.turn(track, heading_deg, RATE_DEG_S, tight, 0.3);
+        self.pose.yaw_deg = heading_deg.rem_euclid(360.0);
     }
 }
 
@@ -513,6 +585,43 @@ mod tests {
             assert!((flown - m.cycles as f64 * m.period_s).abs() <= path.dt_s);
         }
         assert_eq!(path.boxes.len(), 1);
+    }
+
+    #[test]
+    fn tie_lines_cross_every_line_of_the_block_square_on() {
+        for (heading, position) in [(0.0, BoxPosition::Start), (37.0, BoxPosition::Middle), (120.0, BoxPosition::End)] {
+            let plan = scenario(|raw| {
+                raw.survey.line_count = 5;
+                raw.survey.tie_count = 3;
+                raw.survey.line_heading_deg = heading;
+                raw.calibration.position = position;
+            });
+            let path = fly(&plan, &mut Random::new(8));
+            let rows = |s: &Stretch| (s.t_start_s / path.dt_s).round() as usize..=(s.t_end_s / path.dt_s).round() as usize;
+            let (lines, ties): (Vec<_>, Vec<_>) = path.lines.iter().partition(|(n, _, _)| *n < 9000.0);
+            assert_eq!((lines.len(), ties.len()), (5, 3));
+            // The lines after the box form the block the ties cross.
+            let block: Vec<_> = match position {
+                BoxPosition::Middle => lines[2..].to_vec(),
+                _ => lines.clone(),
+            };
+            for (number, tie_heading, tie) in &ties {
+                let turn = (tie_heading - heading).rem_euclid(180.0);
+                assert!((turn - 90.0).abs() < 1e-9, "tie {number} on {tie_heading}° against lines on {heading}°");
+                let tie_points: Vec<&Pose> = rows(tie).map(|k| &path.poses[k]).collect();
+                for (line, _, stretch) in &block {
+                    // The tie passes within 40 m of some sample of the line.
+                    let closest = rows(stretch)
+                        .step_by(5)
+                        .flat_map(|k| {
+                            let p = &path.poses[k];
+                            tie_points.iter().map(move |q| (p.northing_m - q.northing_m).hypot(p.easting_m - q.easting_m))
+                        })
+                        .fold(f64::MAX, f64::min);
+                    assert!(closest < 40.0, "tie {number} misses line {line} by {closest:.0} m (heading {heading}°)");
+                }
+            }
+        }
     }
 
     #[test]
