@@ -233,14 +233,15 @@ fn fly(seed: u64) -> (String, Outcome) {
                 .and_then(|q| q.uncertainty.as_ref())
                 .map(|u| u.outside_calibration_sigma_nt);
             let stated = stated_sigma.map_or("; no stated σ".into(), |s| format!("; stated σ {s:.4} nT"));
-            let crossovers = magcomp::quality::crossovers::compare_levels(&flight.log, &ties, (&p.values, &a.values), 1)
-                .map(|c| {
-                    format!(
-                        "; levelled at {} crossovers of {} lines: plain {:.4} default {:.4} nT (se {:.4})",
-                        c.crossovers, c.lines, c.reference_nt, c.candidate_nt, c.standard_error_nt
-                    )
-                })
-                .unwrap_or_else(|| "; no crossovers".into());
+            let crossovers =
+                magcomp::quality::crossovers::compare_levels(&flight.log, &ties, (&p.values, &a.values), 1)
+                    .map(|c| {
+                        format!(
+                            "; levelled at {} crossovers of {} lines: plain {:.4} default {:.4} nT (se {:.4})",
+                            c.crossovers, c.lines, c.reference_nt, c.candidate_nt, c.standard_error_nt
+                        )
+                    })
+                    .unwrap_or_else(|| "; no crossovers".into());
             let said = if warned { "; warned" } else { "; not warned" };
             ChannelOutcome {
                 name: format!("{} ({heldout}{departure}{stated}{said}{crossovers})", model.channel),

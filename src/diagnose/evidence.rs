@@ -143,47 +143,76 @@ pub fn plain_of(model: &Extensions) -> Extensions {
 /// channel with a model that is not plain, its [`Departure`] (`None` where
 /// it cannot be measured: no survey rows).
 pub fn departures(
-    calibration: &Calibration,
+    compensations: &Compensations,
     plan: &BTreeMap<String, Extensions>,
-    (terms, options): (TermSet, &FitOptions),
 ) -> Result<BTreeMap<String, Option<Departure>>> {
-    let Calibration { log, windows, .. } = *calibration;
+    let Calibration { log, windows, .. } = *compensations.calibration;
     use rayon::prelude::*;
     let changed: Vec<(&String, &Extensions)> = plan.iter().filter(|(_, model)| *model != &plain_of(model)).collect();
-    let stores = StorePool::new();
     let measured: Vec<(String, Option<Departure>)> = changed
         .par_iter()
         .map(|(channel, model)| {
-            let predict = |extensions| compensated(calibration, channel, extensions, (terms, options), &stores);
-            let diagnosed = predict((*model).clone())?;
-            let plain = predict(plain_of(model))?;
+            let diagnosed = compensations.of(channel, model)?;
+            let plain = compensations.of(channel, &plain_of(model))?;
             Ok(((*channel).clone(), departure(log, windows, &plain, &diagnosed)))
         })
         .collect::<Result<_>>()?;
     Ok(measured.into_iter().collect())
 }
 
-/// `channel` compensated over the whole flight with `extensions` fitted on
-/// the calibration. The compensated channel, not the interference alone:
-/// a lag reads the record itself earlier, which moves the survey's geology
-/// along with it (τ × its rate, far more at survey height than at the
-/// box's).
-fn compensated(
-    calibration: &Calibration,
-    channel: &str,
-    extensions: Extensions,
-    (terms, options): (TermSet, &FitOptions),
-    stores: &StorePool,
-) -> Result<Vec<f64>> {
-    let Calibration {
-        log, sensor, windows, ..
-    } = *calibration;
-    let spec = ModelSpec::new(terms, extensions);
-    let prediction = fit(log, sensor, channel, windows, &spec, options, stores)?.predict(log)?;
-    Ok((prediction.scalar_nt.iter())
-        .zip(&prediction.interference_nt)
-        .map(|(scalar, interference)| scalar - interference)
-        .collect())
+/// The channels' compensations over the whole flight, each model fitted
+/// once: the evidence rule's checks ask for the same ones. The compensated
+/// channel, not the interference alone: a lag reads the record itself
+/// earlier, which moves the survey's geology along with it (τ × its rate,
+/// far more at survey height than at the box's).
+pub struct Compensations<'c, 'a> {
+    calibration: &'c Calibration<'a>,
+    terms: TermSet,
+    options: &'c FitOptions,
+    stores: StorePool,
+    done: std::sync::Mutex<Vec<Computed>>,
+}
+
+/// A channel, its model and its compensation.
+type Computed = (String, Extensions, std::sync::Arc<Vec<f64>>);
+
+impl<'c, 'a> Compensations<'c, 'a> {
+    /// None computed yet.
+    pub fn new(calibration: &'c Calibration<'a>, (terms, options): (TermSet, &'c FitOptions)) -> Self {
+        Compensations {
+            calibration,
+            terms,
+            options,
+            stores: StorePool::new(),
+            done: Default::default(),
+        }
+    }
+
+    /// `channel` compensated with `extensions` fitted on the calibration.
+    pub fn of(&self, channel: &str, extensions: &Extensions) -> Result<std::sync::Arc<Vec<f64>>> {
+        let done = |list: &[Computed]| {
+            (list.iter())
+                .find(|(c, e, _)| c == channel && e == extensions)
+                .map(|(_, _, values)| values.clone())
+        };
+        if let Some(values) = done(&self.done.lock().unwrap_or_else(|e| e.into_inner())) {
+            return Ok(values);
+        }
+        let Calibration {
+            log, sensor, windows, ..
+        } = *self.calibration;
+        let spec = ModelSpec::new(self.terms, extensions.clone());
+        let prediction = fit(log, sensor, channel, windows, &spec, self.options, &self.stores)?.predict(log)?;
+        let values: std::sync::Arc<Vec<f64>> = std::sync::Arc::new(
+            (prediction.scalar_nt.iter())
+                .zip(&prediction.interference_nt)
+                .map(|(scalar, interference)| scalar - interference)
+                .collect(),
+        );
+        let mut list = self.done.lock().unwrap_or_else(|e| e.into_inner());
+        list.push((channel.to_string(), extensions.clone(), values.clone()));
+        Ok(values)
+    }
 }
 
 /// Fewest crossovers the survey-side comparison decides on.
@@ -215,27 +244,25 @@ pub fn tolles_lawson_of(model: &Extensions) -> Extensions {
 /// survey has fewer than [`LEAST_CROSSOVERS`] crossovers or no base
 /// station.
 pub fn crossover_checks(
-    calibration: &Calibration,
+    compensations: &Compensations,
     plan: &BTreeMap<String, Extensions>,
-    (terms, options): (TermSet, &FitOptions),
 ) -> Result<BTreeMap<String, crate::quality::crossovers::LevelComparison>> {
     use crate::quality::crossovers::{compare_levels, Crossovers, LevelComparison};
     use rayon::prelude::*;
-    let crossovers = Crossovers::of(calibration.log);
+    let log = compensations.calibration.log;
+    let crossovers = Crossovers::of(log);
     if crossovers.points.len() < LEAST_CROSSOVERS || !crossovers.external_field_removed() {
         return Ok(BTreeMap::new());
     }
     let changed: Vec<(&String, &Extensions)> = (plan.iter())
         .filter(|(_, model)| *model != &tolles_lawson_of(model))
         .collect();
-    let stores = StorePool::new();
     let compared: Vec<Option<(String, LevelComparison)>> = changed
         .par_iter()
         .map(|(channel, model)| {
-            let predict = |extensions| compensated(calibration, channel, extensions, (terms, options), &stores);
-            let diagnosed = predict((*model).clone())?;
-            let plain = predict(tolles_lawson_of(model))?;
-            let compared = compare_levels(calibration.log, &crossovers, (&plain, &diagnosed), LEAST_CROSSOVERS);
+            let diagnosed = compensations.of(channel, model)?;
+            let plain = compensations.of(channel, &tolles_lawson_of(model))?;
+            let compared = compare_levels(log, &crossovers, (&plain, &diagnosed), LEAST_CROSSOVERS);
             Ok(compared.map(|c| ((*channel).clone(), c)))
         })
         .collect::<Result<_>>()?;

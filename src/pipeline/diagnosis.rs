@@ -130,7 +130,7 @@ pub(super) fn evidence_rule(
     options: &Settings,
     warnings: &mut Vec<Warning>,
 ) -> Result<(BTreeMap<String, Extensions>, BTreeMap<String, f64>)> {
-    use crate::diagnose::evidence::{crossover_checks, departures, levels_worse, plain_of};
+    use crate::diagnose::evidence::{crossover_checks, departures, levels_worse, plain_of, Compensations};
     let criterion = match options.fit.solve.lambda {
         crate::numerics::solve::LambdaChoice::Select => Some(options.fit.solve.criterion.describe().to_string()),
         _ => None,
@@ -147,7 +147,8 @@ pub(super) fn evidence_rule(
             (c.channel.clone(), reason)
         })
         .collect();
-    let measured = departures(calibration, &plan, (options.terms, &options.fit))?;
+    let compensations = Compensations::new(calibration, (options.terms, &options.fit));
+    let measured = departures(&compensations, &plan)?;
     let mut applied = BTreeMap::new();
     for (channel, departure) in measured {
         let Some(departure) = departure else {
@@ -159,7 +160,13 @@ pub(super) fn evidence_rule(
         }
     }
     for (channel, reason) in refused {
-        if hold_back(&mut plan, diagnosis, (options, warnings), (channel.clone(), reason), false) {
+        if hold_back(
+            &mut plan,
+            diagnosis,
+            (options, warnings),
+            (channel.clone(), reason),
+            false,
+        ) {
             applied.remove(&channel);
         }
     }
@@ -167,7 +174,7 @@ pub(super) fn evidence_rule(
     // left: against plain Tolles-Lawson with nothing of the diagnosis (the
     // base station's term included: it unbiases the fit on the box, and
     // the crossovers show whether the survey gains).
-    let compared = crossover_checks(calibration, &plan, (options.terms, &options.fit))?;
+    let compared = crossover_checks(&compensations, &plan)?;
     for (channel, comparison) in compared {
         if !levels_worse(&comparison) {
             continue;
@@ -179,7 +186,13 @@ pub(super) fn evidence_rule(
             diagnosed_nt: comparison.candidate_nt,
             standard_error_nt: comparison.standard_error_nt,
         };
-        if hold_back(&mut plan, diagnosis, (options, warnings), (channel.clone(), reason), true) {
+        if hold_back(
+            &mut plan,
+            diagnosis,
+            (options, warnings),
+            (channel.clone(), reason),
+            true,
+        ) {
             applied.remove(&channel);
         }
     }

@@ -128,7 +128,7 @@ fn find(log: &FlightLog, positions: &[[f64; 2]]) -> Vec<Crossover> {
                     continue;
                 }
                 let crossing = crate::headings::angle_apart(lines[index].1.track_deg, lines[other].1.track_deg);
-                if crossing < CROSSING_DEG || crossing > 180.0 - CROSSING_DEG {
+                if !(CROSSING_DEG..=180.0 - CROSSING_DEG).contains(&crossing) {
                     continue;
                 }
                 let segment = |r: usize| (positions[r], positions[r + 1]);
@@ -255,7 +255,13 @@ impl Levelling {
 fn weighted_spread(levels: &[f64], rows: &[usize]) -> f64 {
     let total: f64 = rows.iter().sum::<usize>().max(1) as f64;
     let mean = levels.iter().zip(rows).map(|(l, r)| l * *r as f64).sum::<f64>() / total;
-    (levels.iter().zip(rows).map(|(l, r)| (l - mean).powi(2) * *r as f64).sum::<f64>() / total).sqrt()
+    (levels
+        .iter()
+        .zip(rows)
+        .map(|(l, r)| (l - mean).powi(2) * *r as f64)
+        .sum::<f64>()
+        / total)
+        .sqrt()
 }
 
 /// How many connected sets `pairs` (edges) make of `m` lines.
@@ -365,9 +371,8 @@ pub fn figures(log: &FlightLog, before: &[f64], after: &[f64]) -> Option<Crossov
     if pairs.is_empty() {
         return None;
     }
-    let rms = |pick: fn(&(f64, f64)) -> f64| {
-        (pairs.iter().map(|p| pick(p).powi(2)).sum::<f64>() / pairs.len() as f64).sqrt()
-    };
+    let rms =
+        |pick: fn(&(f64, f64)) -> f64| (pairs.iter().map(|p| pick(p).powi(2)).sum::<f64>() / pairs.len() as f64).sqrt();
     Some(CrossoverFigures {
         crossovers: pairs.len(),
         before_nt: rms(|p| p.0),

@@ -92,7 +92,10 @@ pub(crate) fn survey_lines(log: &FlightLog, positions: &[[f64; 2]]) -> Vec<(f64,
 /// (compensated), or `None` when no opposite-direction lines overlap.
 pub fn heading_error(log: &FlightLog, before: &[f64], after: &[f64], match_distance_m: f64) -> Option<HeadingError> {
     let positions = local_positions(log)?;
-    let lines: Vec<SurveyLine> = survey_lines(log, &positions).into_iter().map(|(_, line)| line).collect();
+    let lines: Vec<SurveyLine> = survey_lines(log, &positions)
+        .into_iter()
+        .map(|(_, line)| line)
+        .collect();
     let direction_deg = lines.first()?.track_deg;
     let (forward, back): (Vec<&SurveyLine>, Vec<&SurveyLine>) = lines
         .iter()

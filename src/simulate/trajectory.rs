@@ -589,7 +589,11 @@ mod tests {
 
     #[test]
     fn tie_lines_cross_every_line_of_the_block_square_on() {
-        for (heading, position) in [(0.0, BoxPosition::Start), (37.0, BoxPosition::Middle), (120.0, BoxPosition::End)] {
+        for (heading, position) in [
+            (0.0, BoxPosition::Start),
+            (37.0, BoxPosition::Middle),
+            (120.0, BoxPosition::End),
+        ] {
             let plan = scenario(|raw| {
                 raw.survey.line_count = 5;
                 raw.survey.tie_count = 3;
@@ -597,7 +601,8 @@ mod tests {
                 raw.calibration.position = position;
             });
             let path = fly(&plan, &mut Random::new(8));
-            let rows = |s: &Stretch| (s.t_start_s / path.dt_s).round() as usize..=(s.t_end_s / path.dt_s).round() as usize;
+            let rows =
+                |s: &Stretch| (s.t_start_s / path.dt_s).round() as usize..=(s.t_end_s / path.dt_s).round() as usize;
             let (lines, ties): (Vec<_>, Vec<_>) = path.lines.iter().partition(|(n, _, _)| *n < 9000.0);
             assert_eq!((lines.len(), ties.len()), (5, 3));
             // The lines after the box form the block the ties cross.
@@ -607,7 +612,10 @@ mod tests {
             };
             for (number, tie_heading, tie) in &ties {
                 let turn = (tie_heading - heading).rem_euclid(180.0);
-                assert!((turn - 90.0).abs() < 1e-9, "tie {number} on {tie_heading}° against lines on {heading}°");
+                assert!(
+                    (turn - 90.0).abs() < 1e-9,
+                    "tie {number} on {tie_heading}° against lines on {heading}°"
+                );
                 let tie_points: Vec<&Pose> = rows(tie).map(|k| &path.poses[k]).collect();
                 for (line, _, stretch) in &block {
                     // The tie passes within 40 m of some sample of the line.
@@ -615,10 +623,15 @@ mod tests {
                         .step_by(5)
                         .flat_map(|k| {
                             let p = &path.poses[k];
-                            tie_points.iter().map(move |q| (p.northing_m - q.northing_m).hypot(p.easting_m - q.easting_m))
+                            tie_points
+                                .iter()
+                                .map(move |q| (p.northing_m - q.northing_m).hypot(p.easting_m - q.easting_m))
                         })
                         .fold(f64::MAX, f64::min);
-                    assert!(closest < 40.0, "tie {number} misses line {line} by {closest:.0} m (heading {heading}°)");
+                    assert!(
+                        closest < 40.0,
+                        "tie {number} misses line {line} by {closest:.0} m (heading {heading}°)"
+                    );
                 }
             }
         }
