@@ -10,8 +10,7 @@
 //! What is measured, on the survey lines against the simulator's true
 //! Earth field (standard deviation of compensated − truth over the line
 //! rows): the channels worse than plain by more than 10 % + 0.01 nT. The
-//! aim is none; the count is held as a floor ([`HARMED_ALLOWED`]) while
-//! the evidence rule is not yet enough. The figures of every channel
+//! aim is none; the first 30 plans must show none. The figures of every channel
 //! whose default differs from plain are printed, with the findings it
 //! applied and those it held back, and a table by what was applied.
 //!
@@ -285,18 +284,18 @@ fn keep_flight(
     std::fs::write(folder.join(format!("truth_{seed}.csv")), text).unwrap();
 }
 
-/// Channels harmed (default worse than plain by more than 10 % +
-/// 0.01 nT) allowed over the first [`DEFAULT_FLIGHTS`] plans: the figure
-/// measured, held as a floor so the default can only get safer. The aim is
-/// none. With 80 % of the plans flying 1–4 tie lines and the evidence rule
-/// levelling the lines at their crossovers: over all 300 plans (1,344
-/// channels) 16 harmed, worst 4.48×, 7 of them on flights with no tie
-/// (22 before the crossover levelling, with the same ties; 28 before the
-/// ties). On plans 300–449, drawn after the rule was set, with plans 0–29:
-/// 3 harmed of 844 channels, none on a flight with ties, worst 4.69×
-/// (plan 344, no tie: 0.19 → 0.89 nT). The first 30 plans: none (2 before
-/// the levelling: plans 7 and 15, both held back by it now).
-const HARMED_ALLOWED: usize = 0;
+// Channels harmed (default worse than plain by more than 10 % + 0.01 nT)
+// over the first [`DEFAULT_FLIGHTS`] plans: none, the aim. 80 % of the
+// plans fly 1–4 tie lines, and the evidence rule levels the lines at
+// their crossovers. Over all 300 plans (1,344 channels): 28 harmed before
+// the ties, 22 with them, 16 with the levelling at its first setting (8
+// crossovers, 2 standard errors; 7 of the 16 on flights with no tie). At
+// the setting kept (2 crossovers, half a standard error) it holds back 8
+// of those 9 with crossovers and none of the 109 channels the findings
+// helped. On plans 300–449, drawn after it was set, with plans 0–29: 3
+// harmed of 844 channels, none on a flight with ties, worst 4.69× (plan
+// 344, no tie: 0.19 → 0.89 nT). The first 30 plans: none (plans 7 and
+// 15 were harmed before the levelling; it holds both back now).
 
 // No channel of the first [`DEFAULT_FLIGHTS`] plans may be harmed with
 // nothing said: no warning naming the channel and an error beyond twice
@@ -372,7 +371,10 @@ fn the_default_never_makes_a_clean_channel_worse_than_plain() {
         silent.len()
     );
     if flights() == DEFAULT_FLIGHTS && std::env::var("MAGCOMP_SAFETY_SEEDS").is_err() {
-        assert!(harmed.len() <= HARMED_ALLOWED, "{harmed:#?}");
+        assert!(
+            harmed.is_empty(),
+            "the aim, and the figure measured: none harmed {harmed:#?}"
+        );
         assert!(silent.is_empty(), "harmed with nothing said: {silent:#?}");
     }
 }
