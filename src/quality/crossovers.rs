@@ -7,16 +7,21 @@
 //! heading: the permanent and induced terms' errors on straight lines), the
 //! external field's change between the passes, the sensor noise and what
 //! the two passes' small offsets in position and height put between them.
-//! With a base station the external field's change is taken out. Set two
-//! compensations of one channel against each other at the same crossovers
-//! and everything but their heading levels is common to both: which one's
-//! differences are smaller is survey-side evidence of which compensates the
-//! survey better, something the calibration box cannot show.
+//! With a base station the external field's change is taken out.
+//! Tie-line levelling ([`Levelling`]) turns the differences into one level
+//! per line; the levels' spread over the survey's rows is what the
+//! compensation leaves for a geophysicist to level out. Level two
+//! compensations of one channel at the same crossovers and everything but
+//! their heading levels is common to both: which one's levels spread less
+//! is survey-side evidence of which compensates the survey better,
+//! something the calibration box cannot show ([`compare_levels`]).
 //!
 //! A crossover is found where the straight segment between two consecutive
 //! samples of one line meets that of another line whose track differs by
 //! at least [`CROSSING_DEG`]; each pass's value is interpolated along its
-//! segment to the crossing point.
+//! segment to the crossing point. A segment longer than [`LONGEST_SEGMENT_M`]
+//! is a jump in the positions, not flight between two samples, and is not
+//! searched.
 
 use std::collections::HashMap;
 
@@ -27,9 +32,13 @@ use crate::quality::heading_error::{local_positions, survey_lines};
 /// crossed: near-parallel lines meet over a long, ill-defined stretch.
 pub const CROSSING_DEG: f64 = 30.0;
 
-/// Grid cell for the search, m: a segment between two samples is shorter
-/// at any survey speed and rate (70 m/s at 1 Hz).
+/// Smallest grid cell for the search, m; a cell is at least as wide as the
+/// longest segment searched (70 m at 70 m/s and 1 Hz).
 const CELL_M: f64 = 100.0;
+
+/// Longest segment between two consecutive samples searched, m: 5 s at
+/// 200 m/s.
+pub const LONGEST_SEGMENT_M: f64 = 1000.0;
 
 /// Where two lines cross: per pass, the row before the crossing point and
 /// the fraction of the way to the next row.
@@ -99,16 +108,27 @@ impl<'a> Crossovers<'a> {
 /// of a line being a segment.
 fn find(log: &FlightLog, positions: &[[f64; 2]]) -> Vec<Crossover> {
     let lines: Vec<(f64, crate::quality::heading_error::SurveyLine)> = survey_lines(log, positions);
-    let cell = |p: [f64; 2]| ((p[0] / CELL_M).floor() as i64, (p[1] / CELL_M).floor() as i64);
-    // Segment (line index, row) by the cell of its first sample.
-    let mut grid: HashMap<(i64, i64), Vec<(usize, usize)>> = HashMap::new();
+    let length =
+        |row: usize| (positions[row + 1][0] - positions[row][0]).hypot(positions[row + 1][1] - positions[row][1]);
     let segments = |rows: &[usize]| -> Vec<usize> {
         rows.windows(2)
-            .filter(|w| w[1] == w[0] + 1 && positions[w[1]][0].is_finite())
+            .filter(|w| w[1] == w[0] + 1 && length(w[0]) <= LONGEST_SEGMENT_M)
             .map(|w| w[0])
             .collect()
     };
     let line_segments: Vec<Vec<usize>> = lines.iter().map(|(_, line)| segments(&line.rows)).collect();
+    // A crossing lies within one segment's length of both segments' first
+    // samples, so within the 3 × 3 cells around either when a cell is at
+    // least that long.
+    let longest = line_segments
+        .iter()
+        .flatten()
+        .map(|&row| length(row))
+        .fold(0.0, f64::max);
+    let size = longest.max(CELL_M);
+    let cell = |p: [f64; 2]| ((p[0] / size).floor() as i64, (p[1] / size).floor() as i64);
+    // Segment (line index, row) by the cell of its first sample.
+    let mut grid: HashMap<(i64, i64), Vec<(usize, usize)>> = HashMap::new();
     for (index, rows) in line_segments.iter().enumerate() {
         for &row in rows {
             grid.entry(cell(positions[row])).or_default().push((index, row));
@@ -384,6 +404,91 @@ pub fn figures(log: &FlightLog, before: &[f64], after: &[f64]) -> Option<Crossov
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::flight_log::Channel;
+
+    /// Three east-west lines 1 km apart and two north-south ties, sampled
+    /// every 400 and 300 m (segments up to four times the smallest grid
+    /// cell), each line
+    /// carrying `level(line)` on top of a field that depends on position
+    /// only; a base station reading zero.
+    fn surveyed(level: impl Fn(f64) -> f64) -> FlightLog {
+        let mut rows: Vec<(f64, f64, f64)> = Vec::new();
+        for (k, north) in [0.0, 1000.0, 2000.0].into_iter().enumerate() {
+            let mut easts: Vec<f64> = (0..=10).map(|i| 400.0 * i as f64).collect();
+            if k % 2 == 1 {
+                easts.reverse();
+            }
+            rows.extend(easts.into_iter().map(|east| (north, east, 1001.0 + k as f64)));
+            rows.push((f64::NAN, f64::NAN, 0.0));
+        }
+        for (k, east) in [1500.0, 3300.0].into_iter().enumerate() {
+            rows.extend((0..10).map(|i| (-500.0 + 300.0 * i as f64, east, 9001.0 + k as f64)));
+        }
+        let degrees = |m: f64| m / 111_195.0;
+        let column = |name: &str, role: ChannelRole, values: Vec<f64>| Channel {
+            name: name.into(),
+            role,
+            values,
+        };
+        let field = |(north, east, line): &(f64, f64, f64)| 0.001 * north + 0.002 * east + level(*line);
+        let channels = vec![
+            column(
+                "lat",
+                ChannelRole::Position,
+                rows.iter().map(|r| degrees(r.0)).collect(),
+            ),
+            column(
+                "lon",
+                ChannelRole::Position,
+                rows.iter().map(|r| degrees(r.1)).collect(),
+            ),
+            column("line", ChannelRole::Line, rows.iter().map(|r| r.2).collect()),
+            column("diurnal", ChannelRole::BaseStation, vec![0.0; rows.len()]),
+            column(
+                "mag_1_uc",
+                ChannelRole::ScalarMagnetometer,
+                rows.iter().map(field).collect(),
+            ),
+        ];
+        let time = (0..rows.len()).map(|k| k as f64).collect();
+        FlightLog::new("survey.csv", "tt", time, channels).unwrap()
+    }
+
+    #[test]
+    fn long_segments_are_crossed_and_levelling_recovers_each_line_s_level() {
+        // 0.2 nT on the middle line, 0.1 nT on the ties.
+        let level = |line: f64| match line {
+            1002.0 => 0.2,
+            l if l > 9000.0 => 0.1,
+            _ => 0.0,
+        };
+        let log = surveyed(level);
+        let crossovers = Crossovers::of(&log);
+        assert_eq!(crossovers.points.len(), 6, "{:?}", crossovers.points);
+        let values = &log.channel("mag_1_uc").unwrap().values;
+        // The field is linear in position, so interpolation is exact and
+        // each difference is the two lines' levels apart.
+        for point in &crossovers.points {
+            let expected = level(point.lines[0]) - level(point.lines[1]);
+            assert!((point.difference(values) - expected).abs() < 1e-9, "{point:?}");
+        }
+        let levelling = Levelling::of(&log, &crossovers, values).unwrap();
+        assert_eq!(levelling.lines, vec![1001.0, 1002.0, 1003.0, 9001.0, 9002.0]);
+        assert!(levelling.misfit_nt.unwrap() < 1e-6, "{:?}", levelling.misfit_nt);
+        for (line, found) in levelling.lines.iter().zip(&levelling.levels) {
+            let relative = found - levelling.levels[0];
+            assert!((relative - level(*line)).abs() < 1e-6, "line {line}: {relative}");
+        }
+        // Row-weighted: 11 of 53 rows at 0.2, 20 at 0.1, 22 at 0.
+        let mean = (11.0 * 0.2 + 20.0 * 0.1) / 53.0;
+        let spread =
+            ((11.0 * (0.2f64 - mean).powi(2) + 20.0 * (0.1f64 - mean).powi(2) + 22.0 * mean * mean) / 53.0).sqrt();
+        assert!(
+            (levelling.spread_nt() - spread).abs() < 1e-6,
+            "{} against {spread}",
+            levelling.spread_nt()
+        );
+    }
 
     #[test]
     fn crossing_segments_meet_where_the_lines_cross_and_parallel_ones_do_not() {
