@@ -119,7 +119,11 @@ pub(super) fn augmentation_plan(
 ///   them from the other criterion's fit, and what is applied is this one
 ///   (on clean simulated flights, two sensor lags that made the survey
 ///   three times worse held out 4–8 % worse this way); or
-/// - they would act on the survey beyond what the calibration saw.
+/// - they would act on the survey beyond what the calibration saw; or
+/// - where the survey's lines cross and a base station takes out the
+///   external field's drift, tie-line levelling finds the lines' levels
+///   more spread with them than with plain Tolles-Lawson (then every
+///   finding of the channel is held back, the base station's term too).
 ///
 /// Returns the plan and, per channel whose findings are applied, how far
 /// they move the survey from plain Tolles-Lawson (nT RMS).
