@@ -63,6 +63,25 @@ pub enum HeldBack {
         /// Standard error of the difference, nT.
         standard_error_nt: f64,
     },
+    /// On the survey's block of parallel lines flown back and forth (no
+    /// ties cross it), the findings leave neighbouring lines flown in
+    /// opposite directions further apart in level than plain
+    /// Tolles-Lawson: they compensate the survey's headings worse.
+    WorseBetweenLines {
+        /// Lines in the block.
+        lines: usize,
+        /// Triples of neighbouring lines compared.
+        triples: usize,
+        /// A line flown one way less the same ground flown the other way,
+        /// its size, plain, nT.
+        plain_nt: f64,
+        /// The same with the findings, nT.
+        diagnosed_nt: f64,
+        /// Standard error of the heading level, nT.
+        standard_error_nt: f64,
+        /// Whether the base station's change between lines was taken out.
+        external_field_removed: bool,
+    },
 }
 
 impl fmt::Display for HeldBack {
@@ -95,6 +114,21 @@ impl fmt::Display for HeldBack {
             } => write!(
                 f,
                 "levelled at the {crossovers} crossovers of {lines} survey lines (the base station's change between passes taken out), the lines' levels spread by {diagnosed_nt:.4} nT with the findings against {plain_nt:.4} nT plain (standard error {standard_error_nt:.4} nT): they compensate the survey's headings worse than plain Tolles-Lawson"
+            ),
+            HeldBack::WorseBetweenLines {
+                lines,
+                triples,
+                plain_nt,
+                diagnosed_nt,
+                standard_error_nt,
+                external_field_removed,
+            } => write!(
+                f,
+                "on the survey's {lines} parallel lines flown back and forth, compared with their neighbours at {triples} lines{}, a line flown one way sits {diagnosed_nt:.4} nT from the same ground flown the other way with the findings against {plain_nt:.4} nT plain (standard error {standard_error_nt:.4} nT): they compensate the survey's headings worse than plain Tolles-Lawson",
+                match external_field_removed {
+                    true => " (the base station's change between lines taken out)",
+                    false => " (no base station: the external field's change between lines is in the comparison)",
+                }
             ),
         }
     }

@@ -16,7 +16,8 @@
 //! Seeds per effect: 2 in `cargo test`; `MAGCOMP_DEFAULT_SEEDS=10` prints
 //! the full table. Odd seeds fly four lines crossed by three tie lines, so
 //! the crossover levelling of the evidence rule is tested against real
-//! gains too.
+//! gains too; even seeds fly six lines back and forth with no tie, for the
+//! rule's comparison of neighbouring lines.
 
 mod common;
 
@@ -67,11 +68,14 @@ const EFFECTS: [(&str, &str, &str); 6] = [
 fn errors(seed: u64, effect: &str) -> BTreeMap<String, (f64, f64)> {
     let mut scenario = common::three_sensor_scenario(seed, effect);
     // Every other seed flies a survey with tie lines: four lines crossed by
-    // three ties, twelve crossovers for the evidence rule to level.
-    if seed % 2 == 1 {
-        let survey = &mut scenario.raw.survey;
-        (survey.line_count, survey.line_length_m, survey.tie_count) = (4, 3000.0, 3);
-    }
+    // three ties, twelve crossovers for the evidence rule to level. The
+    // others fly six lines back and forth with no tie, whose neighbours the
+    // rule compares instead.
+    let survey = &mut scenario.raw.survey;
+    (survey.line_count, survey.line_length_m, survey.tie_count) = match seed % 2 {
+        1 => (4, 3000.0, 3),
+        _ => (6, 3000.0, 0),
+    };
     let flight = simulate(&scenario).unwrap();
     let folder = tempfile::tempdir().unwrap();
     let csv = folder.path().join("flight.csv");

@@ -251,35 +251,104 @@ pub fn tolles_lawson_of(model: &Extensions) -> Extensions {
     }
 }
 
-/// Survey-side evidence where the survey's lines cross: per channel of
-/// `plan` whose model is not plain Tolles-Lawson, the tie-line levelling
-/// of its compensation against plain Tolles-Lawson's. Empty when the
-/// survey has fewer than [`LEAST_CROSSOVERS`] crossovers or no base
-/// station.
-pub fn crossover_checks(
+/// Which survey-side check judged a flight's findings.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SurveyCheck {
+    /// Tie-line levelling at the crossovers of the survey's lines.
+    Crossovers,
+    /// The heading level between neighbouring lines of a block flown back
+    /// and forth.
+    NeighbouringLines,
+    /// Neither could be made: fewer than [`LEAST_CROSSOVERS`] crossovers
+    /// (or no base station), and no block of at least
+    /// [`LEAST_TRIPLES`] + 2 parallel lines flown both ways.
+    NotMade,
+}
+
+/// Fewest triples of neighbouring lines the heading-level comparison
+/// decides on: two leave one second difference to judge the scatter by.
+pub const LEAST_TRIPLES: usize = 2;
+
+/// Whether findings that leave the heading level as `comparison` says
+/// are worse on the survey than plain Tolles-Lawson: the same tolerance
+/// and burden of proof as at the crossovers.
+pub fn heading_level_worse(comparison: &crate::quality::corrugation::HeadingLevelComparison) -> bool {
+    comparison.candidate_nt
+        > comparison.reference_nt + LEVEL_TOLERANCE_NT + LEVEL_STANDARD_ERRORS * comparison.standard_error_nt
+}
+
+/// Survey-side evidence, per channel of `plan` whose model is not plain
+/// Tolles-Lawson, against plain Tolles-Lawson's compensation (the base
+/// station's term and every finding taken away):
+/// - where the survey's lines cross at least [`LEAST_CROSSOVERS`] times
+///   and a base station takes out the external field's drift between the
+///   passes, the tie-line levelling of the two ([`levels_worse`]);
+/// - otherwise, where a block of parallel lines is flown back and forth,
+///   the heading level between neighbouring lines of the two
+///   ([`heading_level_worse`]).
+///
+/// Returns the check made and, per channel it finds worse, why its
+/// findings are held back.
+pub fn survey_checks(
     compensations: &Compensations,
     plan: &BTreeMap<String, Extensions>,
-) -> Result<BTreeMap<String, crate::quality::crossovers::LevelComparison>> {
-    use crate::quality::crossovers::{compare_levels, Crossovers, LevelComparison};
-    use rayon::prelude::*;
+) -> Result<(SurveyCheck, BTreeMap<String, HeldBack>)> {
+    use crate::quality::corrugation::{compare_heading_levels, Corrugation};
+    use crate::quality::crossovers::{compare_levels, Crossovers};
     let log = compensations.calibration.log;
-    let crossovers = Crossovers::of(log);
-    if crossovers.points.len() < LEAST_CROSSOVERS || !crossovers.external_field_removed() {
-        return Ok(BTreeMap::new());
-    }
     let changed: Vec<(&String, &Extensions)> = (plan.iter())
         .filter(|(_, model)| *model != &tolles_lawson_of(model))
         .collect();
-    let compared: Vec<Option<(String, LevelComparison)>> = changed
+    let crossovers = Crossovers::of(log);
+    if crossovers.points.len() >= LEAST_CROSSOVERS && crossovers.external_field_removed() {
+        let worse = judged(compensations, &changed, |plain, diagnosed| {
+            let comparison = compare_levels(log, &crossovers, (plain, diagnosed), LEAST_CROSSOVERS)?;
+            levels_worse(&comparison).then_some(HeldBack::WorseAtCrossovers {
+                crossovers: comparison.crossovers,
+                lines: comparison.lines,
+                plain_nt: comparison.reference_nt,
+                diagnosed_nt: comparison.candidate_nt,
+                standard_error_nt: comparison.standard_error_nt,
+            })
+        })?;
+        return Ok((SurveyCheck::Crossovers, worse));
+    }
+    let corrugation = Corrugation::of(log);
+    if corrugation.triples() < LEAST_TRIPLES || !corrugation.tells_heading_level() {
+        return Ok((SurveyCheck::NotMade, BTreeMap::new()));
+    }
+    let worse = judged(compensations, &changed, |plain, diagnosed| {
+        let comparison = compare_heading_levels(&corrugation, (plain, diagnosed), LEAST_TRIPLES)?;
+        heading_level_worse(&comparison).then_some(HeldBack::WorseBetweenLines {
+            lines: comparison.lines,
+            triples: comparison.triples,
+            plain_nt: comparison.reference_nt,
+            diagnosed_nt: comparison.candidate_nt,
+            standard_error_nt: comparison.standard_error_nt,
+            external_field_removed: corrugation.external_field_removed(),
+        })
+    })?;
+    Ok((SurveyCheck::NeighbouringLines, worse))
+}
+
+/// Each of the `changed` channels judged by `judge` on its two
+/// compensations (plain Tolles-Lawson's first): those it finds worse, and
+/// why.
+fn judged(
+    compensations: &Compensations,
+    changed: &[(&String, &Extensions)],
+    judge: impl Fn(&[f64], &[f64]) -> Option<HeldBack> + Sync,
+) -> Result<BTreeMap<String, HeldBack>> {
+    use rayon::prelude::*;
+    let found: Vec<Option<(String, HeldBack)>> = changed
         .par_iter()
         .map(|(channel, model)| {
             let diagnosed = compensations.of(channel, model)?;
             let plain = compensations.of(channel, &tolles_lawson_of(model))?;
-            let compared = compare_levels(log, &crossovers, (&plain, &diagnosed), LEAST_CROSSOVERS);
-            Ok(compared.map(|c| ((*channel).clone(), c)))
+            Ok(judge(&plain, &diagnosed).map(|reason| ((*channel).clone(), reason)))
         })
         .collect::<Result<_>>()?;
-    Ok(compared.into_iter().flatten().collect())
+    Ok(found.into_iter().flatten().collect())
 }
 
 #[cfg(test)]

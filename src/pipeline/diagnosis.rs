@@ -122,8 +122,11 @@ pub(super) fn augmentation_plan(
 /// - they would act on the survey beyond what the calibration saw; or
 /// - where the survey's lines cross and a base station takes out the
 ///   external field's drift, tie-line levelling finds the lines' levels
-///   more spread with them than with plain Tolles-Lawson (then every
-///   finding of the channel is held back, the base station's term too).
+///   more spread with them than with plain Tolles-Lawson; or, where no
+///   ties cross a block of lines flown back and forth, neighbouring lines
+///   flown in opposite directions sit further apart in level with them
+///   (either way every finding of the channel is held back, the base
+///   station's term too).
 ///
 /// Returns the plan and, per channel whose findings are applied, how far
 /// they move the survey from plain Tolles-Lawson (nT RMS).
@@ -134,7 +137,10 @@ pub(super) fn evidence_rule(
     options: &Settings,
     warnings: &mut Vec<Warning>,
 ) -> Result<(BTreeMap<String, Extensions>, BTreeMap<String, f64>)> {
-    use crate::diagnose::evidence::{crossover_checks, departures, levels_worse, plain_of, Compensations};
+    use crate::diagnose::evidence::{
+        departures, plain_of, survey_checks, tolles_lawson_of, Compensations, SurveyCheck, LEAST_CROSSOVERS,
+        LEAST_TRIPLES,
+    };
     let criterion = match options.fit.solve.lambda {
         crate::numerics::solve::LambdaChoice::Select => Some(options.fit.solve.criterion.describe().to_string()),
         _ => None,
@@ -164,41 +170,38 @@ pub(super) fn evidence_rule(
         }
     }
     for (channel, reason) in refused {
-        if hold_back(
-            &mut plan,
+        hold_back(
+            (&mut plan, &mut applied),
             diagnosis,
             (options, warnings),
-            (channel.clone(), reason),
+            (channel, reason),
             false,
-        ) {
-            applied.remove(&channel);
-        }
+        );
     }
-    // Survey-side evidence where the lines cross, on what the rules above
-    // left: against plain Tolles-Lawson with nothing of the diagnosis (the
-    // base station's term included: it unbiases the fit on the box, and
-    // the crossovers show whether the survey gains).
-    let compared = crossover_checks(&compensations, &plan)?;
-    for (channel, comparison) in compared {
-        if !levels_worse(&comparison) {
-            continue;
-        }
-        let reason = HeldBack::WorseAtCrossovers {
-            crossovers: comparison.crossovers,
-            lines: comparison.lines,
-            plain_nt: comparison.reference_nt,
-            diagnosed_nt: comparison.candidate_nt,
-            standard_error_nt: comparison.standard_error_nt,
-        };
-        if hold_back(
-            &mut plan,
+    // Survey-side evidence on what the rules above left: against plain
+    // Tolles-Lawson with nothing of the diagnosis (the base station's term
+    // included: it unbiases the fit on the box, and the survey shows
+    // whether the survey gains).
+    let (check, worse) = survey_checks(&compensations, &plan)?;
+    for (channel, reason) in worse {
+        hold_back(
+            (&mut plan, &mut applied),
             diagnosis,
             (options, warnings),
-            (channel.clone(), reason),
+            (channel, reason),
             true,
-        ) {
-            applied.remove(&channel);
-        }
+        );
+    }
+    let unchecked: Vec<&str> = (plan.iter())
+        .filter(|(_, model)| **model != tolles_lawson_of(model))
+        .map(|(channel, _)| channel.as_str())
+        .collect();
+    if check == SurveyCheck::NotMade && !unchecked.is_empty() {
+        diagnosis.notes.push(format!(
+            "the findings applied on {} were not checked against the survey's line levels: it has fewer than {LEAST_CROSSOVERS} crossovers with a base station, and no block of {} or more parallel lines flown both ways",
+            unchecked.join(", "),
+            LEAST_TRIPLES + 2
+        ));
     }
     Ok((plan, applied))
 }
@@ -206,14 +209,15 @@ pub(super) fn evidence_rule(
 /// Holds back `channel`'s findings for `reason` under `apply = "auto"`:
 /// marks them not applied, fits the channel plain (keeping the base
 /// station's term unless `entirely`) and warns; under `"always"` only
-/// warns. Returns whether they were held back.
+/// warns. A channel held back leaves `applied`, the departures of the
+/// channels whose findings are applied.
 fn hold_back(
-    plan: &mut BTreeMap<String, Extensions>,
+    (plan, applied): (&mut BTreeMap<String, Extensions>, &mut BTreeMap<String, f64>),
     diagnosis: &mut crate::diagnose::Diagnosis,
     (options, warnings): (&Settings, &mut Vec<Warning>),
     (channel, reason): (String, HeldBack),
     entirely: bool,
-) -> bool {
+) {
     use crate::diagnose::evidence::{plain_of, tolles_lawson_of};
     let judged = |kind: EffectKind| match entirely {
         true => !matches!(kind, EffectKind::Unexplained | EffectKind::VectorCalibration),
@@ -235,7 +239,7 @@ fn hold_back(
             findings: named,
             reason,
         });
-        return false;
+        return;
     }
     for finding in (diagnosis.findings.iter_mut())
         .filter(|f| f.channel == channel && judged(f.effect.kind()) && f.not_applied.is_none())
@@ -252,12 +256,12 @@ fn hold_back(
     if let Some(entry) = diagnosis.channels.iter_mut().find(|c| c.channel == channel) {
         entry.model = plainer(&entry.model);
     }
+    applied.remove(&channel);
     warnings.push(Warning::FindingsHeldBack {
         channel,
         findings: named,
         reason,
     });
-    true
 }
 
 /// Whether a finding of `kind` changes a channel's own model (a fluxgate

@@ -10,6 +10,7 @@
 //!   the manoeuvre signatures in the band (SEG dictionary, "figure of merit"),
 //!   whenever windows are labelled with manoeuvre kind and heading.
 
+pub mod corrugation;
 pub mod crossovers;
 pub mod heading_error;
 pub mod transfer;
