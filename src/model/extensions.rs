@@ -231,13 +231,20 @@ fn rate_between_finite(values: &[f64]) -> Vec<f64> {
 }
 
 /// The scalar read `lag_s` earlier: value at t + lag by linear
-/// interpolation; `NaN` where t + lag is outside the record.
+/// interpolation; `NaN` where t + lag is outside the record. `time_s`
+/// increases strictly, as a flight log's does.
 pub fn advanced(values: &[f64], time_s: &[f64], lag_s: f64) -> Vec<f64> {
+    // Time increases strictly, so the first sample at or after t + lag
+    // moves only forward: one walk through the record, not a search per
+    // row.
+    let mut upper = 0;
     time_s
         .iter()
         .map(|&t| {
             let at = t + lag_s;
-            let upper = time_s.partition_point(|&x| x < at);
+            while upper < time_s.len() && time_s[upper] < at {
+                upper += 1;
+            }
             if upper == 0 || upper >= time_s.len() {
                 return f64::NAN;
             }
