@@ -180,7 +180,7 @@ impl<'a> Prepared<'a> {
         let mut fitted = self.fit_once(&self.scalar, windows, options, stores)?;
         if self.spec.extensions.second_order {
             for _ in 0..SECOND_ORDER_PASSES {
-                let corrected = self.corrected(&fitted);
+                let corrected = self.corrected(&fitted, windows);
                 fitted = self.fit_once(&corrected, windows, options, stores)?;
             }
         }
@@ -298,7 +298,7 @@ impl<'a> Prepared<'a> {
         options: &FitOptions,
         stores: &StorePool,
     ) -> Result<Vec<WindowFit>> {
-        let corrected = self.corrected(fitted);
+        let corrected = self.corrected(fitted, windows);
         let data = band_data(
             &self.log,
             self.sensor,
@@ -320,17 +320,36 @@ impl<'a> Prepared<'a> {
     }
 
     /// The prepared flight with the channel less the second-order term of
-    /// `fitted`'s aircraft field (unchanged without the term).
-    fn corrected(&self, fitted: &FittedModel) -> Cow<'_, [f64]> {
+    /// `fitted`'s aircraft field over the rows of `windows` (the only rows
+    /// a fit or its residual reads; the rest unchanged), or unchanged
+    /// without the term. Each stretch of window rows is computed with one
+    /// row either side, so the field's rate at its ends is what the whole
+    /// flight gives.
+    fn corrected(&self, fitted: &FittedModel, windows: &[CalibrationWindow]) -> Cow<'_, [f64]> {
         if !self.spec.extensions.second_order {
             return Cow::Borrowed(&self.scalar);
         }
-        let term = second_order_term(
-            self.log.vector_components(self.sensor),
-            &self.spec.fitted_terms(),
-            &fitted.coefficients,
-        );
-        Cow::Owned(self.scalar.iter().zip(&term).map(|(s, q)| s - q).collect())
+        let time = self.log.time_s();
+        let mut stretches: Vec<std::ops::Range<usize>> = windows.iter().map(|w| w.rows(time)).collect();
+        stretches.sort_by_key(|r| r.start);
+        let mut merged: Vec<std::ops::Range<usize>> = Vec::new();
+        for stretch in stretches.into_iter().filter(|r| !r.is_empty()) {
+            match merged.last_mut() {
+                Some(last) if stretch.start <= last.end => last.end = last.end.max(stretch.end),
+                _ => merged.push(stretch),
+            }
+        }
+        let field = self.log.vector_components(self.sensor);
+        let terms = self.spec.fitted_terms();
+        let mut corrected = self.scalar.to_vec();
+        for rows in merged {
+            let (from, to) = (rows.start.saturating_sub(1), (rows.end + 1).min(corrected.len()));
+            let term = second_order_term(field.map(|axis| &axis[from..to]), &terms, &fitted.coefficients);
+            for (row, q) in (from..to).zip(term).filter(|(row, _)| rows.contains(row)) {
+                corrected[row] = self.scalar[row] - q;
+            }
+        }
+        Cow::Owned(corrected)
     }
 }
 
