@@ -13,7 +13,7 @@ use crate::flight_log::FlightLog;
 use crate::formats::align::AlignmentReport;
 use crate::formats::read_flight_log;
 use crate::model::{FittedModel, SharedDesign};
-use crate::quality::{assess_quality, ChannelQuality};
+use crate::quality::ChannelQuality;
 
 pub use crate::diagnose::AppliedFinding;
 
@@ -229,13 +229,14 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
 /// (set on `channel`; none without a jackknife or a noise figure, which
 /// the run warns of), and each jackknife deviation's mean over the
 /// calibration (empty without a jackknife): the level saved with the model.
+/// `crossovers` are the flight's, found once for all its channels.
 fn assess_with_sigma(
-    log: &FlightLog,
+    (log, crossovers): (&FlightLog, &crate::quality::crossovers::Crossovers),
     model: &FittedModel,
     channel: &mut crate::compensate::CompensatedChannel,
     shared: &[SharedDesign],
 ) -> Result<(ChannelQuality, Vec<f64>)> {
-    let mut quality = assess_quality(log, model, channel);
+    let mut quality = crate::quality::assess_quality_at(log, crossovers, model, channel);
     let Some(prediction) = model.prediction_sigma_with(log, shared)? else {
         return Ok((quality, Vec::new()));
     };

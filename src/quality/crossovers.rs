@@ -381,9 +381,8 @@ pub struct CrossoverFigures {
 }
 
 /// The crossover figures of `before` (uncompensated) and `after`
-/// (compensated) at `log`'s crossovers; `None` without any.
-pub fn figures(log: &FlightLog, before: &[f64], after: &[f64]) -> Option<CrossoverFigures> {
-    let crossovers = Crossovers::of(log);
+/// (compensated) at `crossovers`; `None` without any.
+pub fn figures(crossovers: &Crossovers, before: &[f64], after: &[f64]) -> Option<CrossoverFigures> {
     let pairs: Vec<(f64, f64)> = (crossovers.differences(before).into_iter())
         .zip(crossovers.differences(after))
         .filter(|(b, a)| b.is_finite() && a.is_finite())

@@ -318,6 +318,22 @@ impl ChannelQuality {
 
 /// Quality figures of one channel's fit and compensation.
 pub fn assess_quality(log: &FlightLog, model: &FittedModel, compensated: &CompensatedChannel) -> ChannelQuality {
+    assess_quality_at(
+        log,
+        &crate::quality::crossovers::Crossovers::of(log),
+        model,
+        compensated,
+    )
+}
+
+/// [`assess_quality`] with the flight's crossovers found once for all its
+/// channels.
+pub fn assess_quality_at(
+    log: &FlightLog,
+    crossovers: &crate::quality::crossovers::Crossovers,
+    model: &FittedModel,
+    compensated: &CompensatedChannel,
+) -> ChannelQuality {
     let before: Vec<f64> = model
         .windows
         .iter()
@@ -354,7 +370,7 @@ pub fn assess_quality(log: &FlightLog, model: &FittedModel, compensated: &Compen
         survey_departure_from_plain_nt: None,
         uncertainty: None,
         heading_error: crate::quality::heading_error::heading_error(log, scalar, &compensated.values, 25.0),
-        crossovers: crate::quality::crossovers::figures(log, scalar, &compensated.values),
+        crossovers: crate::quality::crossovers::figures(crossovers, scalar, &compensated.values),
         windows,
         rows_missing: compensated.values.iter().filter(|v| !v.is_finite()).count(),
     }
