@@ -820,6 +820,9 @@ fn verdict(quality: &ChannelQuality, limit_nt: f64) -> String {
     if let Some(figures) = &quality.crossovers {
         lines.push(crossover_line(figures));
     }
+    if let Some(figures) = &quality.heading_level {
+        lines.push(heading_level_line(figures));
+    }
     lines.iter().map(|l| format!("<p>{l}</p>")).collect()
 }
 
@@ -870,6 +873,9 @@ fn applied_verdict(quality: &ChannelQuality, applied: &crate::apply::AppliedMode
     if let Some(figures) = &quality.crossovers {
         lines.push(crossover_line(figures));
     }
+    if let Some(figures) = &quality.heading_level {
+        lines.push(heading_level_line(figures));
+    }
     lines.iter().map(|l| format!("<p>{l}</p>")).collect()
 }
 
@@ -883,6 +889,21 @@ fn crossover_line(figures: &crate::quality::crossovers::CrossoverFigures) -> Str
         match figures.external_field_removed {
             true => " (base station's change taken out)",
             false => " (no base station: the external field's change between passes is in them)",
+        }
+    )
+}
+
+/// The heading level between a channel's neighbouring lines, in words.
+fn heading_level_line(figures: &crate::quality::corrugation::HeadingLevelFigures) -> String {
+    format!(
+        "lines' heading level {:.3} → {:.3} nT (± {:.3} nT) between neighbouring lines flown in opposite directions, {} lines{}",
+        figures.before_nt,
+        figures.after_nt,
+        figures.standard_error_nt,
+        figures.lines,
+        match figures.external_field_removed {
+            true => " (base station's change taken out)",
+            false => " (no base station: the external field's change between lines is in it)",
         }
     )
 }

@@ -480,6 +480,15 @@ fn a_finding_that_corrugates_a_survey_without_ties_is_held_back() {
     // flown one way sit 0.36 nT from the others, the term's 1.77 nT.
     assert!((plain_nt - 0.36).abs() < 0.1, "{plain_nt}");
     assert!((diagnosed_nt - 1.77).abs() < 0.2, "{diagnosed_nt}");
+    // The channel's quality figures show the level the survey keeps: plain
+    // Tolles-Lawson's, against the uncompensated lines'.
+    let shown = (auto.result.channels.iter())
+        .find(|q| q.channel == "mag_4_uc")
+        .and_then(|q| q.heading_level)
+        .expect("the lines' heading level is measured");
+    assert_eq!((shown.lines, shown.triples), (8, 6), "{shown:?}");
+    assert!((shown.after_nt - plain_nt).abs() < 0.01, "{shown:?} against {plain_nt}");
+    assert!(shown.before_nt > 10.0 * shown.after_nt, "{shown:?}");
     let line = &flight.log.channel("line").unwrap().values;
     let truth = flight.truth.earth_total_nt("mag_4_uc").unwrap();
     let (a, p) = (&auto.compensation.channels[3], &plain.compensation.channels[3]);

@@ -176,13 +176,11 @@ fn assess_applied(
     shared: &[SharedDesign],
     warnings: &mut Vec<String>,
 ) -> Result<Vec<ChannelQuality>> {
-    let crossovers = crate::quality::crossovers::Crossovers::of(log);
+    let geometry = crate::quality::SurveyGeometry::of(log);
     let mut quality: Vec<ChannelQuality> = models
         .par_iter()
         .zip(compensation.channels.par_iter_mut())
-        .map(|(model, channel)| {
-            assess_with_sigma((log, &crossovers), model, channel, shared).map(|(quality, _)| quality)
-        })
+        .map(|(model, channel)| assess_with_sigma((log, &geometry), model, channel, shared).map(|(quality, _)| quality))
         .collect::<Result<_>>()?;
     if models.iter().all(|m| m.windows.is_empty()) {
         // No calibration windows here: no band figures (the model's are

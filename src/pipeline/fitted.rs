@@ -245,11 +245,11 @@ fn assess_channels(
     } = *on;
     let stores = StorePool::new();
     let shared = std::mem::take(&mut fitted.shared);
-    let crossovers = crate::quality::crossovers::Crossovers::of(log);
+    let geometry = crate::quality::SurveyGeometry::of(log);
     let assessed: Vec<(ChannelQuality, Vec<f64>, Vec<String>)> = (fitted.models.par_iter())
         .zip(compensation.channels.par_iter_mut())
         .map(|(model, channel)| {
-            let (mut quality, jackknife_levels) = assess_with_sigma((log, &crossovers), model, channel, &shared)?;
+            let (mut quality, jackknife_levels) = assess_with_sigma((log, &geometry), model, channel, &shared)?;
             quality.transfer = check_transfer(log, sensor, model, windows, (&options.fit, &options.transfer), &stores)?;
             let (transfers, notes) =
                 crate::quality::transfer::box_transfer(log, sensor, model, windows, boxes, &options.fit, &stores)?;

@@ -229,14 +229,15 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
 /// (set on `channel`; none without a jackknife or a noise figure, which
 /// the run warns of), and each jackknife deviation's mean over the
 /// calibration (empty without a jackknife): the level saved with the model.
-/// `crossovers` are the flight's, found once for all its channels.
+/// `geometry` is the flight's survey lines', found once for all its
+/// channels.
 fn assess_with_sigma(
-    (log, crossovers): (&FlightLog, &crate::quality::crossovers::Crossovers),
+    (log, geometry): (&FlightLog, &crate::quality::SurveyGeometry),
     model: &FittedModel,
     channel: &mut crate::compensate::CompensatedChannel,
     shared: &[SharedDesign],
 ) -> Result<(ChannelQuality, Vec<f64>)> {
-    let mut quality = crate::quality::assess_quality_at(log, crossovers, model, channel);
+    let mut quality = crate::quality::assess_quality_at(log, geometry, model, channel);
     let Some(prediction) = model.prediction_sigma_with(log, shared)? else {
         return Ok((quality, Vec::new()));
     };

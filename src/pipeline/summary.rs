@@ -57,6 +57,12 @@ pub(super) fn applied_summary(result: &FlightResult, applied: &crate::apply::App
                 figures.crossovers, figures.before_nt, figures.after_nt
             );
         }
+        if let Some(figures) = &quality.heading_level {
+            text += &format!(
+                "    heading level between neighbouring lines ({} lines flown both ways): {:.3} → {:.3} nT\n",
+                figures.lines, figures.before_nt, figures.after_nt
+            );
+        }
     }
     text
 }
@@ -147,6 +153,12 @@ fn channel_line(result: &FlightResult, quality: &crate::quality::ChannelQuality,
     if let Some(figures) = &quality.crossovers {
         line += &format!(", crossovers {:.3} → {:.3} nT", figures.before_nt, figures.after_nt);
     }
+    if let Some(figures) = &quality.heading_level {
+        line += &format!(
+            ", lines' heading level {:.3} → {:.3} nT",
+            figures.before_nt, figures.after_nt
+        );
+    }
     // A fluxgate calibration is the fluxgate's ("flux_a (for mag_1_uc)"),
     // found against the channel it names as its source.
     use crate::diagnose::EffectKind;
@@ -217,6 +229,18 @@ fn fit_details(quality: &crate::quality::ChannelQuality, model: &crate::model::F
             match figures.external_field_removed {
                 true => ", the base station's change between passes taken out",
                 false => ", no base station: the external field's change between passes is in them",
+            }
+        );
+    }
+    if let Some(figures) = &quality.heading_level {
+        text += &format!(
+            "    lines' heading level: {} lines flown both ways, each against its neighbours at {} lines, standard error {:.3} nT{}\n",
+            figures.lines,
+            figures.triples,
+            figures.standard_error_nt,
+            match figures.external_field_removed {
+                true => ", the base station's change between lines taken out",
+                false => ", no base station: the external field's change between lines is in it",
             }
         );
     }

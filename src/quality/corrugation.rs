@@ -324,6 +324,40 @@ pub fn compare_heading_levels(
     })
 }
 
+/// A channel's heading level between neighbouring lines before and after
+/// compensation: the survey's own measure of what compensation leaves per
+/// heading where no ties cross its lines.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct HeadingLevelFigures {
+    /// Lines in the block.
+    pub lines: usize,
+    /// Triples of neighbouring lines compared.
+    pub triples: usize,
+    /// A line flown one way less the same ground flown the other way,
+    /// uncompensated, its size, nT.
+    pub before_nt: f64,
+    /// The same, compensated, nT.
+    pub after_nt: f64,
+    /// The compensated level's standard error (zero with two triples), nT.
+    pub standard_error_nt: f64,
+    /// Whether the base station's change between lines was taken out.
+    pub external_field_removed: bool,
+}
+
+/// The heading level of `before` (uncompensated) and `after`
+/// (compensated) on `corrugation`'s block; `None` where it cannot tell one.
+pub fn figures(corrugation: &Corrugation, before: &[f64], after: &[f64]) -> Option<HeadingLevelFigures> {
+    let (plain, compensated) = (corrugation.heading_level(before)?, corrugation.heading_level(after)?);
+    Some(HeadingLevelFigures {
+        lines: compensated.lines,
+        triples: compensated.triples,
+        before_nt: plain.level_nt.abs(),
+        after_nt: compensated.level_nt.abs(),
+        standard_error_nt: compensated.standard_error_nt,
+        external_field_removed: corrugation.external_field_removed(),
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -463,6 +497,13 @@ mod tests {
         assert!((compared.reference_nt - 0.5).abs() < 1e-9, "{compared:?}");
         assert!((compared.candidate_nt - 0.2).abs() < 1e-9, "{compared:?}");
         assert!((compared.standard_error_nt - expected).abs() < 1e-9, "{compared:?}");
+        let shown = figures(&Corrugation::of(&log), values, &candidate).unwrap();
+        assert_eq!((shown.lines, shown.triples, shown.external_field_removed), (8, 6, true));
+        assert!(
+            (shown.before_nt - 0.5).abs() < 1e-9 && (shown.after_nt - 0.2).abs() < 1e-9,
+            "{shown:?}"
+        );
+        assert!((shown.standard_error_nt - expected).abs() < 1e-9, "{shown:?}");
     }
 
     #[test]

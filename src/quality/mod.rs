@@ -176,6 +176,10 @@ pub struct ChannelQuality {
     /// (tie lines), when they do.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub crossovers: Option<crate::quality::crossovers::CrossoverFigures>,
+    /// The level between neighbouring survey lines flown in opposite
+    /// directions, when a block of at least four is flown back and forth.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub heading_level: Option<crate::quality::corrugation::HeadingLevelFigures>,
     /// In-sample against held-out FOM (second box, or leave one heading out).
     pub transfer: Option<TransferCheck>,
     /// Each calibration box's model on every other box of the flight.
@@ -318,19 +322,33 @@ impl ChannelQuality {
 
 /// Quality figures of one channel's fit and compensation.
 pub fn assess_quality(log: &FlightLog, model: &FittedModel, compensated: &CompensatedChannel) -> ChannelQuality {
-    assess_quality_at(
-        log,
-        &crate::quality::crossovers::Crossovers::of(log),
-        model,
-        compensated,
-    )
+    assess_quality_at(log, &SurveyGeometry::of(log), model, compensated)
 }
 
-/// [`assess_quality`] with the flight's crossovers found once for all its
-/// channels.
+/// Where the survey's lines cross and which are neighbours in a block,
+/// found once per flight for all its channels' figures.
+pub struct SurveyGeometry<'a> {
+    /// The crossovers of the survey's lines.
+    pub crossovers: crate::quality::crossovers::Crossovers<'a>,
+    /// The block of parallel lines and its triples of neighbours.
+    pub neighbours: crate::quality::corrugation::Corrugation<'a>,
+}
+
+impl<'a> SurveyGeometry<'a> {
+    /// The geometry of `log`'s survey lines.
+    pub fn of(log: &'a FlightLog) -> Self {
+        SurveyGeometry {
+            crossovers: crate::quality::crossovers::Crossovers::of(log),
+            neighbours: crate::quality::corrugation::Corrugation::of(log),
+        }
+    }
+}
+
+/// [`assess_quality`] with the survey's geometry found once for all the
+/// flight's channels.
 pub fn assess_quality_at(
     log: &FlightLog,
-    crossovers: &crate::quality::crossovers::Crossovers,
+    geometry: &SurveyGeometry,
     model: &FittedModel,
     compensated: &CompensatedChannel,
 ) -> ChannelQuality {
@@ -370,7 +388,8 @@ pub fn assess_quality_at(
         survey_departure_from_plain_nt: None,
         uncertainty: None,
         heading_error: crate::quality::heading_error::heading_error(log, scalar, &compensated.values, 25.0),
-        crossovers: crate::quality::crossovers::figures(crossovers, scalar, &compensated.values),
+        crossovers: crate::quality::crossovers::figures(&geometry.crossovers, scalar, &compensated.values),
+        heading_level: crate::quality::corrugation::figures(&geometry.neighbours, scalar, &compensated.values),
         windows,
         rows_missing: compensated.values.iter().filter(|v| !v.is_finite()).count(),
     }
