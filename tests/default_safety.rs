@@ -385,15 +385,15 @@ fn the_default_never_makes_a_clean_channel_worse_than_plain() {
     }
 }
 
-/// Plan 242 (two sensors, 10 Hz): the diagnosis finds a sensor lag on the
-/// tail sensor from the fit with λ by PRESS (held out 0.0222 → 0.0136 nT),
-/// but with λ as compensation picks it (blocked PRESS) the lag does not
-/// lower the held-out RMS (0.0297 → 0.0310 nT). Applied, it made the
-/// survey three times worse against truth (0.0205 → 0.0629 nT). The
-/// evidence rule must hold it back, say why, and compensate plain.
-#[test]
-fn a_finding_that_does_not_pay_with_the_compensations_lambda_is_held_back() {
-    let flight = simulate(&Scenario::try_from(clean_plan(242)).unwrap()).unwrap();
+/// The clean flight of `raw`, compensated by default and plain.
+fn default_and_plain(
+    raw: RawScenario,
+) -> (
+    magcomp::simulate::SimulatedFlight,
+    magcomp::pipeline::FlightRun,
+    magcomp::pipeline::FlightRun,
+) {
+    let flight = simulate(&Scenario::try_from(raw).unwrap()).unwrap();
     let folder = tempfile::tempdir().unwrap();
     let csv = folder.path().join("clean.csv");
     magcomp::formats::write_flight_log(&flight.log, &csv).unwrap();
@@ -403,6 +403,39 @@ fn a_finding_that_does_not_pay_with_the_compensations_lambda_is_held_back() {
     let out = folder.path().join("out.csv");
     let auto = magcomp::pipeline::run(&job, &default, &out).unwrap();
     let plain = magcomp::pipeline::run(&job, &common::plain(), &out).unwrap();
+    (flight, auto, plain)
+}
+
+/// The default's channel `index` (`name`) is plain Tolles-Lawson's on the
+/// survey lines: the same error against truth.
+fn assert_compensated_plain(
+    flight: &magcomp::simulate::SimulatedFlight,
+    (auto, plain): (&magcomp::pipeline::FlightRun, &magcomp::pipeline::FlightRun),
+    (index, name): (usize, &str),
+) {
+    let line = &flight.log.channel("line").unwrap().values;
+    let truth = flight.truth.earth_total_nt(name).unwrap();
+    let (a, p) = (&auto.compensation.channels[index], &plain.compensation.channels[index]);
+    assert_eq!(a.channel, name);
+    let (auto_error, plain_error) = (
+        survey_line_error_nt(&a.values, truth, line),
+        survey_line_error_nt(&p.values, truth, line),
+    );
+    assert!(
+        (auto_error - plain_error).abs() < 1e-9,
+        "{name}: {plain_error} → {auto_error} nT"
+    );
+}
+
+/// Plan 242 (two sensors, 10 Hz): the diagnosis finds a sensor lag on the
+/// tail sensor from the fit with λ by PRESS (held out 0.0222 → 0.0136 nT),
+/// but with λ as compensation picks it (blocked PRESS) the lag does not
+/// lower the held-out RMS (0.0297 → 0.0310 nT). Applied, it made the
+/// survey three times worse against truth (0.0205 → 0.0629 nT). The
+/// evidence rule must hold it back, say why, and compensate plain.
+#[test]
+fn a_finding_that_does_not_pay_with_the_compensations_lambda_is_held_back() {
+    let (flight, auto, plain) = default_and_plain(clean_plan(242));
     let diagnosis = auto.result.diagnosis.as_ref().expect("the default diagnoses");
     let lag = (diagnosis.findings.iter())
         .find(|f| f.channel == "mag_1_uc" && f.effect.kind() == magcomp::diagnose::EffectKind::SensorLag)
@@ -418,18 +451,7 @@ fn a_finding_that_does_not_pay_with_the_compensations_lambda_is_held_back() {
         "{:#?}",
         auto.result.warnings
     );
-    let line = &flight.log.channel("line").unwrap().values;
-    let truth = flight.truth.earth_total_nt("mag_1_uc").unwrap();
-    let (a, p) = (&auto.compensation.channels[0], &plain.compensation.channels[0]);
-    assert_eq!(a.channel, "mag_1_uc");
-    let (auto_error, plain_error) = (
-        survey_line_error_nt(&a.values, truth, line),
-        survey_line_error_nt(&p.values, truth, line),
-    );
-    assert!(
-        (auto_error - plain_error).abs() < 1e-9,
-        "{plain_error} → {auto_error} nT"
-    );
+    assert_compensated_plain(&flight, (&auto, &plain), (0, "mag_1_uc"));
 }
 
 /// Plan 344 (four sensors, 10 Hz, eight lines flown back and forth, no
@@ -448,16 +470,7 @@ fn a_finding_that_corrugates_a_survey_without_ties_is_held_back() {
         (8, 0),
         "the plan as measured"
     );
-    let flight = simulate(&Scenario::try_from(raw).unwrap()).unwrap();
-    let folder = tempfile::tempdir().unwrap();
-    let csv = folder.path().join("clean.csv");
-    magcomp::formats::write_flight_log(&flight.log, &csv).unwrap();
-    let job = FlightJob::new(&csv);
-    let mut default = Settings::default();
-    default.vector.enabled = false;
-    let out = folder.path().join("out.csv");
-    let auto = magcomp::pipeline::run(&job, &default, &out).unwrap();
-    let plain = magcomp::pipeline::run(&job, &common::plain(), &out).unwrap();
+    let (flight, auto, plain) = default_and_plain(raw);
     let held = (auto.result.warnings.iter()).find_map(|w| match w {
         Warning::FindingsHeldBack {
             channel,
@@ -489,16 +502,5 @@ fn a_finding_that_corrugates_a_survey_without_ties_is_held_back() {
     assert_eq!((shown.lines, shown.triples), (8, 6), "{shown:?}");
     assert!((shown.after_nt - plain_nt).abs() < 0.01, "{shown:?} against {plain_nt}");
     assert!(shown.before_nt > 10.0 * shown.after_nt, "{shown:?}");
-    let line = &flight.log.channel("line").unwrap().values;
-    let truth = flight.truth.earth_total_nt("mag_4_uc").unwrap();
-    let (a, p) = (&auto.compensation.channels[3], &plain.compensation.channels[3]);
-    assert_eq!(a.channel, "mag_4_uc");
-    let (auto_error, plain_error) = (
-        survey_line_error_nt(&a.values, truth, line),
-        survey_line_error_nt(&p.values, truth, line),
-    );
-    assert!(
-        (auto_error - plain_error).abs() < 1e-9,
-        "{plain_error} → {auto_error} nT"
-    );
+    assert_compensated_plain(&flight, (&auto, &plain), (3, "mag_4_uc"));
 }
