@@ -64,9 +64,11 @@ pub enum HeldBack {
         standard_error_nt: f64,
     },
     /// On the survey's block of parallel lines flown back and forth (no
-    /// ties cross it), the findings leave neighbouring lines flown in
-    /// opposite directions further apart in level than plain
-    /// Tolles-Lawson: they compensate the survey's headings worse.
+    /// ties cross it), the findings move the level between neighbouring
+    /// lines flown in opposite directions by more than the lines can show
+    /// to be a correction: they may compensate the survey's headings
+    /// worse than plain Tolles-Lawson
+    /// ([`crate::diagnose::evidence::heading_level_risk_nt`]).
     WorseBetweenLines {
         /// Lines in the block.
         lines: usize,
@@ -77,6 +79,9 @@ pub enum HeldBack {
         plain_nt: f64,
         /// The same with the findings, nT.
         diagnosed_nt: f64,
+        /// How far the findings move the level, nT (exact: the geology
+        /// cancels between the two compensations).
+        moved_nt: f64,
         /// Standard error of the heading level, nT.
         standard_error_nt: f64,
         /// Whether the base station's change between lines was taken out.
@@ -120,11 +125,12 @@ impl fmt::Display for HeldBack {
                 triples,
                 plain_nt,
                 diagnosed_nt,
+                moved_nt,
                 standard_error_nt,
                 external_field_removed,
             } => write!(
                 f,
-                "on the survey's {lines} parallel lines flown back and forth, compared with their neighbours at {triples} lines{}, a line flown one way sits {diagnosed_nt:.4} nT from the same ground flown the other way with the findings against {plain_nt:.4} nT plain (standard error {standard_error_nt:.4} nT): they compensate the survey's headings worse than plain Tolles-Lawson",
+                "on the survey's {lines} parallel lines flown back and forth, compared with their neighbours at {triples} lines{}, a line flown one way sits {diagnosed_nt:.4} nT from the same ground flown the other way with the findings against {plain_nt:.4} nT plain (standard error {standard_error_nt:.4} nT): the findings move that heading level by {moved_nt:.4} nT, which the lines cannot show to be a correction rather than an error of their own",
                 match external_field_removed {
                     true => " (the base station's change between lines taken out)",
                     false => " (no base station: the external field's change between lines is in the comparison)",

@@ -273,8 +273,68 @@ pub const LEAST_TRIPLES: usize = 2;
 /// are worse on the survey than plain Tolles-Lawson: the same tolerance
 /// and burden of proof as at the crossovers.
 pub fn heading_level_worse(comparison: &crate::quality::corrugation::HeadingLevelComparison) -> bool {
-    comparison.candidate_nt
-        > comparison.reference_nt + LEVEL_TOLERANCE_NT + LEVEL_STANDARD_ERRORS * comparison.standard_error_nt
+    comparison.candidate_nt.abs()
+        > comparison.reference_nt.abs() + LEVEL_TOLERANCE_NT + LEVEL_STANDARD_ERRORS * comparison.standard_error_nt
+}
+
+/// How far fitted findings may risk raising the survey's heading level,
+/// nT: a level of 0.02 nT puts 0.01 nT on every line, half of it each way,
+/// the least harm the clean campaign counts.
+pub const HEADING_LEVEL_RISK_NT: f64 = 0.02;
+
+/// The most the findings could raise the size of the survey's heading
+/// level, nT, with the reference's true level anywhere from its estimate
+/// to [`LEVEL_STANDARD_ERRORS`] standard errors short of it, toward the
+/// side the findings move the level to.
+///
+/// The findings move the level by Δ, known exactly: the geology is the
+/// same under both compensations and cancels in their difference. The
+/// reference's own level L is known only to its standard error, the
+/// geology's curvature across lines a few hundred metres apart. The size
+/// rises, |L + Δ| > |L|, unless L lies beyond −Δ/2: where the standard
+/// error is as large as Δ the lines cannot tell a finding that corrects a
+/// level from one that makes it. On a clean simulated flight with lines
+/// 500 m apart (seed 581) a spurious lag moved the level by 0.083 nT
+/// against a standard error of 0.043 nT; compared on their estimates
+/// alone (0.040 and 0.043 nT) the two looked alike, and the survey's
+/// error against the truth nearly doubled (0.021 → 0.038 nT).
+pub fn heading_level_risk_nt(comparison: &crate::quality::corrugation::HeadingLevelComparison) -> f64 {
+    let change = comparison.candidate_nt - comparison.reference_nt;
+    // The reference's level where the findings would take it back toward
+    // zero.
+    let against = -change.signum() * comparison.reference_nt;
+    let least = (against - LEVEL_STANDARD_ERRORS * comparison.standard_error_nt).clamp(0.0, change.abs());
+    change.abs() - 2.0 * least
+}
+
+/// Whether findings that move the heading level as `comparison` says
+/// risk the survey more than [`HEADING_LEVEL_RISK_NT`]
+/// ([`heading_level_risk_nt`]): the burden of proof is heavier than at
+/// the crossovers, where two lines' levels are tied, while neighbouring
+/// lines only bound the geology between them.
+pub fn heading_level_risky(comparison: &crate::quality::corrugation::HeadingLevelComparison) -> bool {
+    heading_level_risk_nt(comparison) > HEADING_LEVEL_RISK_NT
+}
+
+/// The part of `model` that is recorded rather than fitted: plain
+/// Tolles-Lawson with the base station's term, which subtracts the
+/// external field a second instrument recorded, with gain 1, from what the
+/// aircraft's coefficients are fitted to. Its move of the survey's
+/// heading level is judged as at the crossovers ([`heading_level_worse`]);
+/// what the fitted findings (a lag, an eddy τ, the second-order term, a
+/// coupling) add to it must show itself a correction
+/// ([`heading_level_risky`]). On 180 clean simulated flights the base
+/// station's term, applied alone, helped 31 of 62 channels by more than
+/// 10 % and harmed none, three of them on a flight whose lines' geology
+/// left their heading level uncertain by 1.3 nT.
+pub fn recorded_part(model: &Extensions) -> Extensions {
+    Extensions {
+        sources: (model.sources.iter())
+            .filter(|s| matches!(s, crate::model::SourceTerm::ExternalField { .. }))
+            .cloned()
+            .collect(),
+        ..tolles_lawson_of(model)
+    }
 }
 
 /// Survey-side evidence, per channel of `plan` whose model is not plain
@@ -285,7 +345,9 @@ pub fn heading_level_worse(comparison: &crate::quality::corrugation::HeadingLeve
 ///   passes, the tie-line levelling of the two ([`levels_worse`]);
 /// - otherwise, where a block of parallel lines is flown back and forth,
 ///   the heading level between neighbouring lines of the two
-///   ([`heading_level_worse`]).
+///   ([`heading_level_worse`]), and the move the fitted findings make in
+///   it beyond the base station's term ([`recorded_part`],
+///   [`heading_level_risky`]).
 ///
 /// Returns the check made and, per channel it finds worse, why its
 /// findings are held back.
@@ -301,7 +363,7 @@ pub fn survey_checks(
         .collect();
     let crossovers = Crossovers::of(log);
     if crossovers.points.len() >= LEAST_CROSSOVERS && crossovers.external_field_removed() {
-        let worse = judged(compensations, &changed, |plain, diagnosed| {
+        let worse = judged(compensations, (&changed, false), |[plain, _, diagnosed]| {
             let comparison = compare_levels(log, &crossovers, (plain, diagnosed), LEAST_CROSSOVERS)?;
             levels_worse(&comparison).then_some(HeldBack::WorseAtCrossovers {
                 crossovers: comparison.crossovers,
@@ -317,27 +379,36 @@ pub fn survey_checks(
     if corrugation.triples() < LEAST_TRIPLES || !corrugation.tells_heading_level() {
         return Ok((SurveyCheck::NotMade, BTreeMap::new()));
     }
-    let worse = judged(compensations, &changed, |plain, diagnosed| {
-        let comparison = compare_heading_levels(&corrugation, (plain, diagnosed), LEAST_TRIPLES)?;
-        heading_level_worse(&comparison).then_some(HeldBack::WorseBetweenLines {
-            lines: comparison.lines,
-            triples: comparison.triples,
-            plain_nt: comparison.reference_nt,
-            diagnosed_nt: comparison.candidate_nt,
-            standard_error_nt: comparison.standard_error_nt,
+    let worse = judged(compensations, (&changed, true), |[plain, recorded, diagnosed]| {
+        let whole = compare_heading_levels(&corrugation, (plain, diagnosed), LEAST_TRIPLES)?;
+        let fitted = compare_heading_levels(&corrugation, (recorded, diagnosed), LEAST_TRIPLES)?;
+        let moved_nt = match heading_level_risky(&fitted) {
+            true => fitted.candidate_nt - fitted.reference_nt,
+            false if heading_level_worse(&whole) => whole.candidate_nt - whole.reference_nt,
+            false => return None,
+        };
+        Some(HeldBack::WorseBetweenLines {
+            lines: whole.lines,
+            triples: whole.triples,
+            plain_nt: whole.reference_nt.abs(),
+            diagnosed_nt: whole.candidate_nt.abs(),
+            moved_nt: moved_nt.abs(),
+            standard_error_nt: whole.standard_error_nt,
             external_field_removed: corrugation.external_field_removed(),
         })
     })?;
     Ok((SurveyCheck::NeighbouringLines, worse))
 }
 
-/// Each of the `changed` channels judged by `judge` on its two
-/// compensations (plain Tolles-Lawson's first): those it finds worse, and
-/// why.
+/// Each of the `changed` channels judged by `judge` on its compensations
+/// by plain Tolles-Lawson, by the model's recorded part
+/// ([`recorded_part`]; plain's own where the model has no base station,
+/// or where `recorded` is false) and by the model: those it finds worse,
+/// and why.
 fn judged(
     compensations: &Compensations,
-    changed: &[(&String, &Extensions)],
-    judge: impl Fn(&[f64], &[f64]) -> Option<HeldBack> + Sync,
+    (changed, recorded): (&[(&String, &Extensions)], bool),
+    judge: impl Fn([&[f64]; 3]) -> Option<HeldBack> + Sync,
 ) -> Result<BTreeMap<String, HeldBack>> {
     use rayon::prelude::*;
     let found: Vec<Option<(String, HeldBack)>> = changed
@@ -345,7 +416,11 @@ fn judged(
         .map(|(channel, model)| {
             let diagnosed = compensations.of(channel, model)?;
             let plain = compensations.of(channel, &tolles_lawson_of(model))?;
-            Ok(judge(&plain, &diagnosed).map(|reason| ((*channel).clone(), reason)))
+            let recorded = match recorded {
+                true => compensations.of(channel, &recorded_part(model))?,
+                false => plain.clone(),
+            };
+            Ok(judge([&plain, &recorded, &diagnosed]).map(|reason| ((*channel).clone(), reason)))
         })
         .collect::<Result<_>>()?;
     Ok(found.into_iter().flatten().collect())
@@ -379,5 +454,86 @@ mod tests {
             survey_rows: 100,
         };
         assert!(tiny.holds());
+    }
+
+    /// The recorded part keeps the base station's term and the fluxgate's
+    /// calibration, and nothing fitted.
+    #[test]
+    fn the_recorded_part_is_the_base_stations_term_alone() {
+        use crate::model::SourceTerm;
+        let station = SourceTerm::ExternalField {
+            column: "diurnal".into(),
+            level: 12.0,
+        };
+        let model = Extensions {
+            lag_s: 0.2,
+            second_order: true,
+            sources: vec![
+                SourceTerm::AuxCoupling {
+                    column: "cur_ail".into(),
+                    level: 0.5,
+                },
+                station.clone(),
+            ],
+            ..Extensions::default()
+        };
+        let recorded = recorded_part(&model);
+        assert_eq!(
+            recorded,
+            Extensions {
+                sources: vec![station],
+                ..Extensions::default()
+            }
+        );
+        assert_eq!(recorded_part(&recorded), recorded);
+        assert!(recorded_part(&Extensions {
+            lag_s: 0.2,
+            ..Extensions::default()
+        })
+        .is_plain());
+    }
+
+    /// The risk is the most the level's size could rise with plain's true
+    /// level half a standard error short of its estimate, toward the
+    /// findings' side.
+    #[test]
+    fn a_heading_level_move_the_lines_cannot_show_to_be_a_correction_is_a_risk() {
+        use crate::quality::corrugation::HeadingLevelComparison;
+        let compared = |reference_nt: f64, candidate_nt: f64, standard_error_nt: f64| HeadingLevelComparison {
+            triples: 7,
+            lines: 9,
+            reference_nt,
+            candidate_nt,
+            standard_error_nt,
+        };
+        // Seed 581's figures: the move of 0.083 nT against plain's level of
+        // 0.040 ± 0.043 nT. Half a standard error short of 0.040 is 0.0185:
+        // the risk is 0.083 − 2 × 0.0185.
+        let seed_581 = compared(0.040, -0.043, 0.043);
+        assert!((heading_level_risk_nt(&seed_581) - 0.046).abs() < 1e-12);
+        assert!(heading_level_risky(&seed_581));
+        // Judged on the sizes, as at the crossovers, it passes.
+        assert!(!heading_level_worse(&seed_581));
+        // The same move with plain's level pinned (standard error 0.004):
+        // the findings take a level of 0.083 nT to zero.
+        let correction = compared(0.083, 0.0, 0.004);
+        assert!((heading_level_risk_nt(&correction) - (0.083 - 2.0 * 0.081)).abs() < 1e-12);
+        assert!(!heading_level_risky(&correction));
+        // A move away from zero is its own size, whatever the error.
+        let away = compared(0.01, 0.04, 0.0);
+        assert!((heading_level_risk_nt(&away) - 0.03).abs() < 1e-12);
+        assert!(heading_level_risky(&away));
+        // A move smaller than the tolerance is never a risk.
+        let small = compared(-0.002, 0.015, 0.5);
+        assert!((heading_level_risk_nt(&small) - 0.017).abs() < 1e-12);
+        assert!(!heading_level_risky(&small));
+        // Past zero to a larger size on the other side: the move less twice
+        // plain's level half a standard error short.
+        let beyond = compared(-0.05, 0.06, 0.01);
+        assert!((heading_level_risk_nt(&beyond) - (0.11 - 2.0 * 0.045)).abs() < 1e-12);
+        // A move that halves a level well clear of zero: the whole move is
+        // a gain.
+        let halved = compared(0.2, 0.1, 0.0);
+        assert!((heading_level_risk_nt(&halved) + 0.1).abs() < 1e-12);
     }
 }

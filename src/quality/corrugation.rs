@@ -291,7 +291,8 @@ pub struct HeadingLevelComparison {
     pub triples: usize,
     /// Lines in the block.
     pub lines: usize,
-    /// The first's (the reference's) heading level, its size, nT.
+    /// The first's (the reference's) heading level, signed as
+    /// [`HeadingLevel::level_nt`], nT.
     pub reference_nt: f64,
     /// The same of the second, nT.
     pub candidate_nt: f64,
@@ -318,8 +319,8 @@ pub fn compare_heading_levels(
     Some(HeadingLevelComparison {
         triples: plain.triples,
         lines: plain.lines,
-        reference_nt: plain.level_nt.abs(),
-        candidate_nt: other.level_nt.abs(),
+        reference_nt: plain.level_nt,
+        candidate_nt: other.level_nt,
         standard_error_nt: plain.standard_error_nt,
     })
 }
@@ -485,7 +486,7 @@ mod tests {
             "{level:?} against {expected}"
         );
         // Compared with a candidate whose lines alternate 0.3 nT less:
-        // the same standard error, the sizes of both.
+        // the same standard error, the levels of both.
         let candidate: Vec<f64> = (values.iter().zip(&log.channel("line").unwrap().values))
             .map(|(v, line)| match *line as i64 {
                 l if l > 9000 => *v,
