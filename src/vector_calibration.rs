@@ -147,6 +147,29 @@ pub fn calibrate(
     rows: &[Range<usize>],
     max_iterations: usize,
 ) -> Result<VectorCalibration> {
+    calibrate_from(log, sensor, (reference, rows), max_iterations, None)
+}
+
+/// [`calibrate`], starting from `near`: a calibration of the same sensor
+/// on much the same rows (the whole flight's, for a calibration with one
+/// heading's windows held out), whose optimum lies a few steps away.
+pub fn calibrate_near(
+    log: &FlightLog,
+    sensor: &VectorSensor,
+    (reference, rows): (&str, &[Range<usize>]),
+    max_iterations: usize,
+    near: &VectorCalibration,
+) -> Result<VectorCalibration> {
+    calibrate_from(log, sensor, (reference, rows), max_iterations, Some(near))
+}
+
+fn calibrate_from(
+    log: &FlightLog,
+    sensor: &VectorSensor,
+    (reference, rows): (&str, &[Range<usize>]),
+    max_iterations: usize,
+    near: Option<&VectorCalibration>,
+) -> Result<VectorCalibration> {
     let fail = |message: String| Error::Fit {
         path: log.source().to_path_buf(),
         channel: sensor.prefix.clone(),
@@ -185,10 +208,15 @@ pub fn calibrate(
     let m: Vec<[f64; 3]> = used.iter().map(|&i| [0, 1, 2].map(|a| field[a][i] / unit)).collect();
     let f: Vec<f64> = used.iter().map(|&i| scalar[i] / unit).collect();
 
-    let start = ellipsoid_start(&m, &f)
-        .filter(|p| cost(&m, &f, p) < cost(&m, &f, &Parameters::IDENTITY))
-        .unwrap_or(Parameters::IDENTITY);
-    let (fitted, iterations) = levenberg_marquardt(&m, &f, start, max_iterations);
+    let (fitted, iterations) = match near {
+        Some(near) => {
+            let c = near.correction;
+            let o = near.offset_nt.map(|o| o / unit);
+            let start = Parameters([c[0][0], c[1][0], c[1][1], c[2][0], c[2][1], c[2][2], o[0], o[1], o[2]]);
+            levenberg_marquardt(&m, &f, (start, NEAR_DAMPING), max_iterations)
+        }
+        None => fit_from_best_start(&m, &f, max_iterations),
+    };
     let condition_number = jacobian_condition(&m, &fitted);
     if condition_number.is_nan() || condition_number >= CONDITION_LIMIT {
         return Err(fail(format!(
@@ -540,11 +568,52 @@ fn block_normal_equations(m: &[[f64; 3]], f: &[f64], p: &Parameters) -> ([[f64; 
     (full, jtr, cost)
 }
 
-/// Levenberg-Marquardt with Marquardt's diagonal scaling; returns the
+/// Levenberg-Marquardt's first damping from a start of unknown distance
+/// (a fraction of each parameter's curvature): cautious steps, the damping
+/// shrinking threefold with each success.
+const COLD_DAMPING: f64 = 1e-3;
+
+/// The first damping from a start a few steps from the optimum (the
+/// whole flight's calibration, for one with a heading's windows held
+/// out): Gauss-Newton at once, as near the optimum it converges fastest.
+/// On a 2.2-hour survey flight the four held-out calibrations took 5 or 6
+/// iterations from it against 13 to 16 from [`COLD_DAMPING`] (whose
+/// steps barely move a flight's weakly pinned directions until it has
+/// shrunk), to the same optimum.
+const NEAR_DAMPING: f64 = 1e-9;
+
+/// Levenberg-Marquardt from the better of two starts: the identity (a
+/// fluxgate is built and calibrated near it) and the linear ellipsoid fit
+/// (closer where the sensor's errors are large). Where the flight's
+/// attitudes shape the ellipsoid poorly, its fit can start thousands of
+/// nT from the identity's optimum, and the iterations walk the long
+/// valley back: 44 of them against 14 from the identity, to the same
+/// minimum, on a 2.2-hour survey flight with its box. One step from each,
+/// and the rest from the one that went further down; returns the
+/// parameters and the iterations taken (the first step counted once).
+fn fit_from_best_start(m: &[[f64; 3]], f: &[f64], max_iterations: usize) -> (Parameters, usize) {
+    let first = [Some(Parameters::IDENTITY), ellipsoid_start(m, f)]
+        .into_iter()
+        .flatten()
+        .map(|start| levenberg_marquardt(m, f, (start, COLD_DAMPING), 1).0)
+        .map(|p| (cost(m, f, &p), p))
+        .min_by(|a, b| a.0.total_cmp(&b.0))
+        .map_or(Parameters::IDENTITY, |(_, p)| p);
+    let (fitted, iterations) =
+        levenberg_marquardt(m, f, (first, COLD_DAMPING), max_iterations.saturating_sub(1).max(1));
+    (fitted, iterations + 1)
+}
+
+/// Levenberg-Marquardt with Marquardt's diagonal scaling from a start and
+/// its first damping; returns the
 /// parameters and the iterations taken.
-fn levenberg_marquardt(m: &[[f64; 3]], f: &[f64], start: Parameters, max_iterations: usize) -> (Parameters, usize) {
-    let mut p = start;
-    let mut damping = 1e-3;
+fn levenberg_marquardt(
+    m: &[[f64; 3]],
+    f: &[f64],
+    (start, damping): (Parameters, f64),
+    max_iterations: usize,
+) -> (Parameters, usize) {
+    let (mut p, mut damping) = (start, damping);
     let (mut jtj, mut jtr, mut current) = normal_equations(m, f, &p);
     for iteration in 1..=max_iterations {
         let mut improved = false;
@@ -661,7 +730,7 @@ mod tests {
         let errors = FluxgateErrors::new([1.015, 0.985, 1.01], [0.6, -0.4, 0.8], [120.0, -80.0, 45.0]);
         let (m, f) = readings(&errors, 3000);
         let start = ellipsoid_start(&m, &f).expect("a positive-definite ellipsoid");
-        let (p, _) = levenberg_marquardt(&m, &f, start, 100);
+        let (p, _) = levenberg_marquardt(&m, &f, (start, COLD_DAMPING), 100);
         let (scale, angles) = error_model(&p.matrix());
         for axis in 0..3 {
             assert!(
@@ -787,5 +856,37 @@ mod tests {
                 assert!((field[axis][k] - b[axis]).abs() < 1e-5);
             }
         }
+    }
+
+    /// Held out a stretch, the calibration started from the whole
+    /// flight's lands where a cold start does, in fewer iterations.
+    #[test]
+    fn a_calibration_started_near_lands_where_a_cold_one_does() {
+        let earth = [19_000.0, -1_500.0, 47_000.0];
+        let fields: Vec<[f64; 3]> = (0..2000)
+            .map(|k| {
+                let t = k as f64 * 0.1;
+                crate::simulate::physics::to_body(earth, 15.0 * (t * 0.3).sin(), 8.0 * (t * 0.2).cos(), t * 1.7)
+            })
+            .collect();
+        let (log, sensor) = log_of(&fields);
+        let whole = calibrate(&log, &sensor, "mag_1_uc", &[], 100).unwrap();
+        let rest = [0..600, 900..2000];
+        let cold = calibrate(&log, &sensor, "mag_1_uc", &rest, 100).unwrap();
+        let near = calibrate_near(&log, &sensor, ("mag_1_uc", &rest), 100, &whole).unwrap();
+        for axis in 0..3 {
+            assert!((near.scale[axis] - cold.scale[axis]).abs() < 1e-9, "{near:?} {cold:?}");
+            assert!(
+                (near.offset_nt[axis] - cold.offset_nt[axis]).abs() < 1e-5,
+                "{near:?} {cold:?}"
+            );
+        }
+        assert_eq!(near.samples, 1700);
+        assert!(
+            near.iterations < cold.iterations,
+            "{} against {}",
+            near.iterations,
+            cold.iterations
+        );
     }
 }

@@ -93,7 +93,7 @@ pub(super) fn check_fluxgate(
     let calibration = calibrate(log, sensor, reference, &[], ITERATIONS).map_err(|e| e.to_string())?;
     let fold_calibrations: Vec<Option<VectorCalibration>> = folds
         .par_iter()
-        .map(|(_, train)| calibrate(log, sensor, reference, train, ITERATIONS).ok())
+        .map(|(_, train)| calibrate_near(log, sensor, (reference, train), ITERATIONS, &calibration).ok())
         .collect();
     let scalar = &log
         .channel(&calibration.reference)

@@ -118,7 +118,7 @@ use crate::numerics::solve::{Criterion, LambdaChoice};
 use crate::numerics::stacked::StorePool;
 use crate::quality::root_mean_square;
 use crate::tolles_lawson::TermSet;
-use crate::vector_calibration::{calibrate, VectorCalibration};
+use crate::vector_calibration::{calibrate, calibrate_near, VectorCalibration};
 use crate::windows::CalibrationWindow;
 
 /// `[diagnose]` settings.
