@@ -80,7 +80,9 @@ pub enum HeldBack {
         /// The same with the findings, nT.
         diagnosed_nt: f64,
         /// How far the findings move the level, nT (exact: the geology
-        /// cancels between the two compensations).
+        /// cancels between the two compensations): the fitted findings'
+        /// move from the base station's term alone (plain without one)
+        /// where that is the risk, else the whole diagnosis's from plain.
         moved_nt: f64,
         /// Standard error of the heading level, nT.
         standard_error_nt: f64,

@@ -19,9 +19,12 @@
 //!    a quadric in m, linear in its ten coefficients; the quadric closest
 //!    to the readings comes from the SVD of the R factor of the ten
 //!    monomial columns (never their normal equations), on readings scaled
-//!    to about one. It gives the starting point when $A$ comes out
-//!    positive definite and fits better than the identity; otherwise the
-//!    identity does (a factory-calibrated fluxgate is close to it).
+//!    to about one. One step of Levenberg-Marquardt is taken from it (when
+//!    $A$ comes out positive definite) and one from the identity (a
+//!    factory-calibrated fluxgate is close to it); the rest go on from the
+//!    one that went further down. A calibration of nearly the same rows
+//!    (a heading's windows held out of the whole flight's) starts from
+//!    the whole flight's instead.
 //! 2. **Levenberg-Marquardt** on the residuals $|C(m_i - o)| - F_i$ for the
 //!    nine parameters, with the analytic Jacobian: Marquardt's diagonal
 //!    scaling on the 9×9 normal equations, accumulated in one streaming
@@ -592,15 +595,18 @@ const NEAR_DAMPING: f64 = 1e-9;
 /// and the rest from the one that went further down; returns the
 /// parameters and the iterations taken (the first step counted once).
 fn fit_from_best_start(m: &[[f64; 3]], f: &[f64], max_iterations: usize) -> (Parameters, usize) {
+    let first_steps = max_iterations.min(1);
     let first = [Some(Parameters::IDENTITY), ellipsoid_start(m, f)]
         .into_iter()
         .flatten()
-        .map(|start| levenberg_marquardt(m, f, (start, COLD_DAMPING), 1).0)
+        .map(|start| levenberg_marquardt(m, f, (start, COLD_DAMPING), first_steps).0)
         .map(|p| (cost(m, f, &p), p))
         .min_by(|a, b| a.0.total_cmp(&b.0))
         .map_or(Parameters::IDENTITY, |(_, p)| p);
-    let (fitted, iterations) =
-        levenberg_marquardt(m, f, (first, COLD_DAMPING), max_iterations.saturating_sub(1).max(1));
+    if max_iterations <= 1 {
+        return (first, max_iterations);
+    }
+    let (fitted, iterations) = levenberg_marquardt(m, f, (first, COLD_DAMPING), max_iterations - 1);
     (fitted, iterations + 1)
 }
 

@@ -298,8 +298,19 @@ pub const HEADING_LEVEL_RISK_NT: f64 = 0.02;
 /// against a standard error of 0.043 nT; compared on their estimates
 /// alone (0.040 and 0.043 nT) the two looked alike, and the survey's
 /// error against the truth nearly doubled (0.021 → 0.038 nT).
+///
+/// With two triples the level has no scatter to judge it by (a standard
+/// error of zero): the reference's level could be anything, and the risk
+/// is the whole move. A level or standard error that is not a number is
+/// an infinite risk.
 pub fn heading_level_risk_nt(comparison: &crate::quality::corrugation::HeadingLevelComparison) -> f64 {
     let change = comparison.candidate_nt - comparison.reference_nt;
+    if !(change.is_finite() && comparison.standard_error_nt.is_finite()) {
+        return f64::INFINITY;
+    }
+    if comparison.triples <= 2 {
+        return change.abs();
+    }
     // The reference's level where the findings would take it back toward
     // zero.
     let against = -change.signum() * comparison.reference_nt;
@@ -319,14 +330,16 @@ pub fn heading_level_risky(comparison: &crate::quality::corrugation::HeadingLeve
 /// The part of `model` that is recorded rather than fitted: plain
 /// Tolles-Lawson with the base station's term, which subtracts the
 /// external field a second instrument recorded, with gain 1, from what the
-/// aircraft's coefficients are fitted to. Its move of the survey's
-/// heading level is judged as at the crossovers ([`heading_level_worse`]);
-/// what the fitted findings (a lag, an eddy τ, the second-order term, a
-/// coupling) add to it must show itself a correction
-/// ([`heading_level_risky`]). On 180 clean simulated flights the base
-/// station's term, applied alone, helped 31 of 62 channels by more than
-/// 10 % and harmed none, three of them on a flight whose lines' geology
-/// left their heading level uncertain by 1.3 nT.
+/// aircraft's coefficients are fitted to. On the neighbouring lines the
+/// whole diagnosis is judged against plain as at the crossovers
+/// ([`heading_level_worse`]); what the fitted findings (a lag, an eddy τ,
+/// the second-order term, a coupling, another λ criterion) add to the
+/// recorded part must show itself a correction ([`heading_level_risky`]).
+/// On 180 clean simulated flights the base station's term, applied
+/// alone, helped 31 of 62 channels by more than 10 % and harmed none;
+/// three of them on a flight whose lines' geology left their heading
+/// level uncertain by 1.3 nT, where judged by risk it would have been
+/// held back.
 pub fn recorded_part(model: &Extensions) -> Extensions {
     Extensions {
         sources: (model.sources.iter())
@@ -381,11 +394,12 @@ pub fn survey_checks(
     }
     let worse = judged(compensations, (&changed, true), |[plain, recorded, diagnosed]| {
         let whole = compare_heading_levels(&corrugation, (plain, diagnosed), LEAST_TRIPLES)?;
-        let fitted = compare_heading_levels(&corrugation, (recorded, diagnosed), LEAST_TRIPLES)?;
-        let moved_nt = match heading_level_risky(&fitted) {
-            true => fitted.candidate_nt - fitted.reference_nt,
-            false if heading_level_worse(&whole) => whole.candidate_nt - whole.reference_nt,
-            false => return None,
+        let risky =
+            compare_heading_levels(&corrugation, (recorded, diagnosed), LEAST_TRIPLES).filter(heading_level_risky);
+        let moved_nt = match risky {
+            Some(fitted) => fitted.candidate_nt - fitted.reference_nt,
+            None if heading_level_worse(&whole) => whole.candidate_nt - whole.reference_nt,
+            None => return None,
         };
         Some(HeldBack::WorseBetweenLines {
             lines: whole.lines,
@@ -456,8 +470,8 @@ mod tests {
         assert!(tiny.holds());
     }
 
-    /// The recorded part keeps the base station's term and the fluxgate's
-    /// calibration, and nothing fitted.
+    /// The recorded part keeps the base station's term, and nothing
+    /// fitted.
     #[test]
     fn the_recorded_part_is_the_base_stations_term_alone() {
         use crate::model::SourceTerm;
@@ -535,5 +549,14 @@ mod tests {
         // a gain.
         let halved = compared(0.2, 0.1, 0.0);
         assert!((heading_level_risk_nt(&halved) + 0.1).abs() < 1e-12);
+        // Two triples leave no scatter to judge the level by: the whole
+        // move is the risk.
+        let two = HeadingLevelComparison { triples: 2, ..halved };
+        assert!((heading_level_risk_nt(&two) - 0.1).abs() < 1e-12);
+        assert!(heading_level_risky(&two));
+        // Not a number: held back.
+        let unknown = compared(f64::NAN, 0.1, 0.01);
+        assert_eq!(heading_level_risk_nt(&unknown), f64::INFINITY);
+        assert!(heading_level_risky(&compared(0.2, 0.1, f64::NAN)));
     }
 }
