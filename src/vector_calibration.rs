@@ -829,15 +829,21 @@ mod tests {
         assert!(error.contains("do not pin the fluxgate calibration"), "{error}");
     }
 
-    #[test]
-    fn calibrated_flight_reads_the_scalar_total_field() {
+    /// The body-axis field of 200 s of turning through every heading
+    /// with pitch and roll swinging, at 10 Hz.
+    fn turning_fields() -> Vec<[f64; 3]> {
         let earth = [19_000.0, -1_500.0, 47_000.0];
-        let fields: Vec<[f64; 3]> = (0..2000)
+        (0..2000)
             .map(|k| {
                 let t = k as f64 * 0.1;
                 crate::simulate::physics::to_body(earth, 15.0 * (t * 0.3).sin(), 8.0 * (t * 0.2).cos(), t * 1.7)
             })
-            .collect();
+            .collect()
+    }
+
+    #[test]
+    fn calibrated_flight_reads_the_scalar_total_field() {
+        let fields = turning_fields();
         let (log, sensor) = log_of(&fields);
         let calibration = calibrate(&log, &sensor, "mag_1_uc", &[], 100).unwrap();
         // Readings 1.01 b + 30 nT: scale 1.01 and offset 30 nT on each axis.
@@ -868,13 +874,7 @@ mod tests {
     /// flight's lands where a cold start does, in fewer iterations.
     #[test]
     fn a_calibration_started_near_lands_where_a_cold_one_does() {
-        let earth = [19_000.0, -1_500.0, 47_000.0];
-        let fields: Vec<[f64; 3]> = (0..2000)
-            .map(|k| {
-                let t = k as f64 * 0.1;
-                crate::simulate::physics::to_body(earth, 15.0 * (t * 0.3).sin(), 8.0 * (t * 0.2).cos(), t * 1.7)
-            })
-            .collect();
+        let fields = turning_fields();
         let (log, sensor) = log_of(&fields);
         let whole = calibrate(&log, &sensor, "mag_1_uc", &[], 100).unwrap();
         let rest = [0..600, 900..2000];
