@@ -89,11 +89,20 @@ pub(super) fn residuals(
 ) -> Result<HeldOut> {
     let spec = problem.spec(model);
     let prepared = prepare(problem, &spec)?;
+    // A score keeps the coefficients and the λ that chose them, nothing
+    // the fit would report beside them.
+    let options = FitOptions {
+        solve: SolveOptions {
+            figures: Figures::Choice,
+            ..problem.options.solve.clone()
+        },
+        ..problem.options.clone()
+    };
     let mut windows = Vec::new();
     let (mut terms, mut fewest_training_samples) = (0, usize::MAX);
     let mut ridge = Vec::new();
     for (out, rest) in splits {
-        let fitted = prepared.fit(&rest, problem.options, problem.stores)?;
+        let fitted = prepared.fit(&rest, &options, problem.stores)?;
         let solution = &fitted.solution;
         ridge.push(solution.lambda.unwrap_or_else(|| {
             let sigma = &solution.singular_values;
@@ -104,7 +113,7 @@ pub(super) fn residuals(
         }));
         terms = terms.max(fitted.coefficients.len());
         fewest_training_samples = fewest_training_samples.min(fitted.solution.samples);
-        windows.extend(prepared.held_out(&fitted, &out, problem.options, problem.stores)?);
+        windows.extend(prepared.held_out(&fitted, &out, &options, problem.stores)?);
     }
     let all: Vec<f64> = windows.iter().flat_map(|w| w.band_after_nt.iter().copied()).collect();
     Ok(HeldOut {

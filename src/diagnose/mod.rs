@@ -114,7 +114,7 @@ use crate::model::{
     column_level, field_directions, fit, Calibration, Extensions, FitOptions, FittedModel, ModelSpec, Prepared,
     SourceTerm, WindowFit,
 };
-use crate::numerics::solve::{Criterion, LambdaChoice};
+use crate::numerics::solve::{Criterion, Figures, LambdaChoice, SolveOptions};
 use crate::numerics::stacked::StorePool;
 use crate::quality::root_mean_square;
 use crate::tolles_lawson::TermSet;

@@ -91,6 +91,23 @@ pub struct SolveOptions {
     pub grid_decades: (f64, f64),
     /// Above this condition number ridge is not trusted and TSVD is used.
     pub tsvd_condition_limit: f64,
+    /// What the solve computes beyond the coefficients.
+    pub figures: Figures,
+}
+
+/// What a solve computes beyond its coefficients and the curve that
+/// chooses them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Figures {
+    /// Both PRESS curves, the standard errors and the blocked jackknife:
+    /// what a fit reports.
+    #[default]
+    All,
+    /// Only the curve of the criterion that picks λ (both when λ is
+    /// fixed): what a held-out score needs, which keeps the coefficients
+    /// and nothing else. The other curve reads NaN, and the standard
+    /// errors and the jackknife are empty.
+    Choice,
 }
 
 impl Default for SolveOptions {
@@ -104,6 +121,7 @@ impl Default for SolveOptions {
             grid_points: 50,
             grid_decades: (-11.0, 1.0),
             tsvd_condition_limit: 1e10,
+            figures: Figures::All,
         }
     }
 }
@@ -300,8 +318,12 @@ pub fn solve_stacked(design: &Stacked, options: &SolveOptions) -> Result<Solutio
     let (spectrum, fold_statistics) = decompose(design, fold_count)?;
     let grid = lambda_grid(&spectrum, options);
     let weights = candidate_weights(&spectrum, &grid);
-    let press = leave_one_out_press(design, &spectrum, &weights);
-    let blocked = (fold_count >= 2).then(|| blocked_press(&fold_statistics, &spectrum, &grid));
+    let (press_needed, blocked_needed) = curves_needed(options, fold_count);
+    let press = match press_needed {
+        true => leave_one_out_press(design, &spectrum, &weights),
+        false => vec![f64::NAN; weights.len()],
+    };
+    let blocked = blocked_needed.then(|| blocked_press(&fold_statistics, &spectrum, &grid));
     let ridge_curve: Vec<RidgePoint> = (0..grid.len())
         .map(|l| RidgePoint {
             lambda: grid[l],
@@ -317,7 +339,7 @@ pub fn solve_stacked(design: &Stacked, options: &SolveOptions) -> Result<Solutio
             blocked_press: blocked.as_ref().map(|b| b[grid.len() + r]),
         })
         .collect();
-    let (mut solution, chosen_weights) = choose(&spectrum, ridge_curve, tsvd_curve, options, rows)?;
+    let (mut solution, chosen_weights) = choose(&spectrum, (ridge_curve, tsvd_curve), (options, press_needed), rows)?;
     solution.fitted = design.predict(&solution.coefficients);
     let residual_ss: f64 = (design.target_pieces().flatten().zip(&solution.fitted))
         .map(|(y, f)| (y - f) * (y - f))
@@ -325,11 +347,33 @@ pub fn solve_stacked(design: &Stacked, options: &SolveOptions) -> Result<Solutio
     let samples = rows as f64;
     let noise = (residual_ss / (samples - solution.effective_dof).max(1.0)).sqrt();
     solution.residual_rms = (residual_ss / samples).sqrt();
+    if options.figures == Figures::Choice {
+        return Ok(solution);
+    }
     solution.standard_errors = standard_errors(&spectrum, &chosen_weights, noise);
     if fold_count >= 3 {
         solution.jackknife = jackknife(&spectrum, &fold_statistics, solution.lambda, solution.rank);
     }
     Ok(solution)
+}
+
+/// Which PRESS curves a solve computes: (leave-one-out, blocked). Both
+/// for [`Figures::All`] (blocked only with two folds or more); for
+/// [`Figures::Choice`] only the one whose minimum picks λ (blocked PRESS
+/// falls back to leave-one-out with fewer than two folds), and
+/// leave-one-out for a fixed λ, which picks nothing but still reports
+/// where PRESS would have put it.
+fn curves_needed(options: &SolveOptions, fold_count: usize) -> (bool, bool) {
+    let blocked_possible = fold_count >= 2;
+    match options.figures {
+        Figures::All => (true, blocked_possible),
+        Figures::Choice => {
+            let by_blocked = options.lambda == LambdaChoice::Select
+                && options.criterion == Criterion::BlockedPress
+                && blocked_possible;
+            (!by_blocked, by_blocked)
+        }
+    }
 }
 
 /// The deviations of [`Solution::jackknife`], in the spectral basis
@@ -1121,18 +1165,21 @@ fn criterion_value(press: f64, blocked: Option<f64>, criterion: Criterion) -> f6
 
 /// Picks the regulariser; returns the solution (residual figures still to
 /// fill in) and the spectral weights of the choice.
+/// `press_computed` says whether the leave-one-out curve was computed
+/// ([`curves_needed`]).
 fn choose(
     spectrum: &Spectrum,
-    ridge: Vec<RidgePoint>,
-    tsvd: Vec<RankPoint>,
-    options: &SolveOptions,
+    (ridge, tsvd): (Vec<RidgePoint>, Vec<RankPoint>),
+    (options, press_computed): (&SolveOptions, bool),
     samples: usize,
 ) -> Result<(Solution, Vec<f64>), SolveError> {
     let p = spectrum.singular_values.len();
     let condition_number = spectrum.singular_values[0] / spectrum.singular_values[p - 1];
-    let lambda_by_press = argmin(ridge.iter().map(|r| r.press))
-        .map(|i| ridge[i].lambda)
-        .ok_or(SolveError::NoFiniteCriterion)?;
+    let lambda_by_press = match argmin(ridge.iter().map(|r| r.press)) {
+        Some(i) => ridge[i].lambda,
+        None if !press_computed => f64::NAN,
+        None => return Err(SolveError::NoFiniteCriterion),
+    };
     let lambda_by_blocked_press = argmin(ridge.iter().filter_map(|r| r.blocked_press)).map(|i| ridge[i].lambda);
     let criterion = match (options.criterion, lambda_by_blocked_press) {
         (Criterion::BlockedPress, None) => Criterion::Press,
@@ -1352,6 +1399,71 @@ mod tests {
     /// fit (λ negligible), to 1e-7 of the coefficients; and each fold's
     /// deviation is smaller than its refit difference (the plain jackknife)
     /// wherever the fold has leverage.
+    /// A solve for a held-out score ([`Figures::Choice`]) picks the same λ
+    /// or rank and the same coefficients, to the bit, as the full solve,
+    /// by either criterion and with λ fixed; it leaves out the other
+    /// curve, the standard errors and the jackknife.
+    #[test]
+    fn a_choice_only_solve_keeps_the_choice_to_the_bit() {
+        let (p, lengths) = (5, [40usize, 35, 50, 45]);
+        let rows: usize = lengths.iter().sum();
+        let columns: Vec<Vec<f64>> = (0..p)
+            .map(|k| {
+                (0..rows)
+                    .map(|i| ((i * (k + 2)) as f64 * 0.29 + k as f64).sin() + 0.3 * (i as f64 * 0.011).cos())
+                    .collect()
+            })
+            .collect();
+        let y: Vec<f64> = (0..rows)
+            .map(|i| (0..p).map(|k| (k as f64 - 2.0) * columns[k][i]).sum::<f64>() + 0.4 * (i as f64 * 1.3).sin())
+            .collect();
+        let design = Stacked::from_columns(&columns, &y, &lengths);
+        for (criterion, lambda) in [
+            (Criterion::BlockedPress, LambdaChoice::Select),
+            (Criterion::Press, LambdaChoice::Select),
+            (Criterion::BlockedPress, LambdaChoice::Fixed(1e-3)),
+        ] {
+            let all = SolveOptions {
+                criterion,
+                lambda,
+                ..SolveOptions::default()
+            };
+            let full = solve_stacked(&design, &all).unwrap();
+            let lean = solve_stacked(
+                &design,
+                &SolveOptions {
+                    figures: Figures::Choice,
+                    ..all.clone()
+                },
+            )
+            .unwrap();
+            let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(
+                bits(&lean.coefficients),
+                bits(&full.coefficients),
+                "{criterion:?} {lambda:?}"
+            );
+            assert_eq!(
+                (lean.lambda, lean.rank),
+                (full.lambda, full.rank),
+                "{criterion:?} {lambda:?}"
+            );
+            assert_eq!(lean.residual_rms.to_bits(), full.residual_rms.to_bits());
+            assert_eq!(full.standard_errors.len(), p);
+            assert_eq!(full.jackknife.len(), lengths.len());
+            assert!(lean.standard_errors.is_empty() && lean.jackknife.is_empty());
+            let blocked = lean.ridge_curve.iter().all(|r| r.blocked_press.is_some());
+            let press = lean.ridge_curve.iter().all(|r| r.press.is_finite());
+            match (criterion, lambda) {
+                (Criterion::BlockedPress, LambdaChoice::Select) => {
+                    assert!(blocked && lean.ridge_curve.iter().all(|r| r.press.is_nan()));
+                    assert!(lean.lambda_by_press.is_nan());
+                }
+                _ => assert!(press && lean.ridge_curve.iter().all(|r| r.blocked_press.is_none())),
+            }
+        }
+    }
+
     #[test]
     fn the_jackknife_is_the_bias_reduced_cluster_formula() {
         let (p, lengths) = (4, [20usize, 25, 30, 15]);
