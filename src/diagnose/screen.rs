@@ -324,7 +324,8 @@ impl Screen {
     /// The candidates worth the full score: the best [`SCREENED_KEEP`] by
     /// the screen, every one it cannot judge, and the column alone of a
     /// column kept with its rate (the rate must earn its place against it,
-    /// [`drop_unearned_rates`]). In `candidates`' order.
+    /// [`drop_unearned_rates`]). The screen's best first, in its order,
+    /// then the rest in `candidates`' order.
     pub(super) fn select(&self, problem: &Problem, candidates: Vec<(Model, Extension)>) -> Vec<(Model, Extension)> {
         let scores: Vec<Option<f64>> = candidates.par_iter().map(|(m, _)| self.score(problem, m)).collect();
         let mut ranked: Vec<usize> = (0..candidates.len()).filter(|&i| scores[i].is_some()).collect();
@@ -349,11 +350,14 @@ impl Screen {
                 keep[i] |= partners.contains(source);
             }
         }
-        candidates
-            .into_iter()
-            .zip(keep)
-            .filter_map(|(candidate, kept)| kept.then_some(candidate))
-            .collect()
+        let mut place = vec![usize::MAX; candidates.len()];
+        for (rank, &i) in ranked.iter().take(SCREENED_KEEP).enumerate() {
+            place[i] = rank;
+        }
+        let mut kept: Vec<(usize, (Model, Extension))> =
+            (candidates.into_iter().enumerate()).filter(|(i, _)| keep[*i]).collect();
+        kept.sort_by_key(|(i, _)| (place[*i], *i));
+        kept.into_iter().map(|(_, candidate)| candidate).collect()
     }
 }
 

@@ -232,7 +232,7 @@ pub(super) fn diagnose_channel(
         let paying: Vec<usize> = (0..passing).filter(|&i| controlled[i] <= bar(&scored[i].1)).collect();
         let accepted = paying.iter().copied().find(|&i| {
             consistent_across_headings(&current_windows, &scored[i].2.windows)
-                && beats_shifted_sources(problem, &model, &scored[i].1, scored[i].2.rms_nt)
+                && beats_shifted_sources(problem, (&model, &current_ridge), &scored[i].1, scored[i].2.rms_nt)
         });
         let Some(index) = accepted else {
             let (_, extension, result) = best;

@@ -29,7 +29,18 @@ pub(super) const SOURCE_SHIFTS: usize = 9;
 /// (correlation above 0.5 with the original over the calibration
 /// windows, as a periodic column is about every half-period). Other
 /// effects always pass.
-pub(super) fn beats_shifted_sources(problem: &Problem, model: &Model, extension: &Extension, rms_nt: f64) -> bool {
+///
+/// Each shift's candidates go through the search's own screen
+/// ([`super::screen`], on the model's `ridge`) first, and only those it
+/// keeps are scored in full, as in the search: the real column was chosen
+/// from a screened list too, so both sides of the comparison are picked
+/// alike.
+pub(super) fn beats_shifted_sources(
+    problem: &Problem,
+    (model, ridge): (&Model, &[f64]),
+    extension: &Extension,
+    rms_nt: f64,
+) -> bool {
     let (tested, with_rate) = match extension {
         // A rate refines a coupling whose timing already stood this test.
         // The second-order term has no source column to shift.
@@ -44,6 +55,8 @@ pub(super) fn beats_shifted_sources(problem: &Problem, model: &Model, extension:
         .collect();
     let rows = problem.log.len();
     let in_windows = window_rows(problem.log.time_s(), problem.windows);
+    // The model's columns are not shifted: one screen serves every shift.
+    let screen = super::screen::Screen::new(problem, model, ridge);
     (1..=SOURCE_SHIFTS).all(|k| {
         let shift = k * rows / (SOURCE_SHIFTS + 1);
         let channels = problem.log.channels().iter().map(|channel| {
@@ -68,8 +81,8 @@ pub(super) fn beats_shifted_sources(problem: &Problem, model: &Model, extension:
             _ => false,
         };
         let shifted = Problem { log: &log, ..*problem };
-        let best = candidates(&shifted, model, &DiagnoseOptions::default())
-            .into_par_iter()
+        let surrogates: Vec<(Model, Extension)> = candidates(&shifted, model, &DiagnoseOptions::default())
+            .into_iter()
             .filter(|(_, e)| {
                 let itself_again = |source: &String| realigned && source == tested;
                 match e {
@@ -79,9 +92,14 @@ pub(super) fn beats_shifted_sources(problem: &Problem, model: &Model, extension:
                     _ => false,
                 }
             })
-            .filter_map(|(next, _)| held_out(&shifted, &next).ok().map(|h| h.rms_nt))
-            .reduce(|| f64::INFINITY, f64::min);
-        rms_nt < best
+            .collect();
+        let surrogates = match &screen {
+            Some(screen) => screen.select(&shifted, surrogates),
+            None => surrogates,
+        };
+        // The real column fails as soon as one surrogate explains as
+        // much; the screen's order puts the likeliest first.
+        !(surrogates.into_par_iter()).any(|(next, _)| held_out(&shifted, &next).is_ok_and(|h| h.rms_nt <= rms_nt))
     })
 }
 
