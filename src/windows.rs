@@ -145,6 +145,21 @@ impl CalibrationWindow {
     }
 }
 
+/// The rows of all `windows` in `time_s` as stretches in order, those
+/// that overlap or touch merged into one.
+pub fn merged_rows(windows: &[CalibrationWindow], time_s: &[f64]) -> Vec<Range<usize>> {
+    let mut stretches: Vec<Range<usize>> = windows.iter().map(|w| w.rows(time_s)).collect();
+    stretches.sort_by_key(|r| r.start);
+    let mut merged: Vec<Range<usize>> = Vec::with_capacity(stretches.len());
+    for stretch in stretches.into_iter().filter(|r| !r.is_empty()) {
+        match merged.last_mut() {
+            Some(last) if stretch.start <= last.end => last.end = last.end.max(stretch.end),
+            _ => merged.push(stretch),
+        }
+    }
+    merged
+}
+
 /// The manoeuvre list of a DETECT.json file (CONTRACT §3).
 #[derive(Debug, Deserialize, Serialize)]
 pub struct DetectFile {

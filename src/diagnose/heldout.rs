@@ -54,14 +54,16 @@ impl Problem<'_> {
 }
 
 /// The flight and extension columns `spec` fits on: the problem's flight
-/// is already calibrated as the model wants it.
+/// is already calibrated as the model wants it. Every score fits and
+/// predicts on the problem's windows, so the columns are built on their
+/// rows alone.
 pub(super) fn prepare<'a>(problem: &Problem<'a>, spec: &'a ModelSpec) -> Result<Prepared<'a>> {
-    Prepared::with_directions(
+    Prepared::on_rows(
         Cow::Borrowed(problem.log),
-        problem.sensor,
-        problem.channel,
+        (problem.sensor, problem.channel),
         spec,
         problem.direction,
+        crate::windows::merged_rows(problem.windows, problem.log.time_s()),
     )
 }
 

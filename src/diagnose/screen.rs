@@ -112,6 +112,9 @@ impl Screen {
         }
         let spec = problem.spec(model);
         let prepared = prepare(problem, &spec).ok()?;
+        if !prepared.covers(&pieces) {
+            return None;
+        }
         let data = band_data(
             &prepared.log,
             problem.sensor,
@@ -170,6 +173,9 @@ impl Screen {
         }
         let spec = problem.spec(candidate);
         let prepared = prepare(problem, &spec).ok()?;
+        if !prepared.covers(&self.pieces) {
+            return None;
+        }
         // The candidate's design: the model's columns it keeps (an eddy
         // time constant drops the nine instantaneous eddy terms), then its
         // new ones.

@@ -140,16 +140,17 @@ impl Extensions {
 /// $(c_{k+1} - c_{k-1})/(t_{k+1} - t_{k-1})$, one-sided at the ends; a
 /// missing neighbour gives a missing rate.
 pub fn rate_of_change(values: &[f64], time_s: &[f64]) -> Vec<f64> {
+    (0..values.len()).map(|k| rate_at(values, time_s, k)).collect()
+}
+
+/// [`rate_of_change`] at row `k` alone.
+pub(crate) fn rate_at(values: &[f64], time_s: &[f64], k: usize) -> f64 {
     let n = values.len();
-    (0..n)
-        .map(|k| {
-            let (a, b) = (k.saturating_sub(1), (k + 1).min(n.saturating_sub(1)));
-            match a == b {
-                true => 0.0,
-                false => (values[b] - values[a]) / (time_s[b] - time_s[a]),
-            }
-        })
-        .collect()
+    let (a, b) = (k.saturating_sub(1), (k + 1).min(n.saturating_sub(1)));
+    match a == b {
+        true => 0.0,
+        false => (values[b] - values[a]) / (time_s[b] - time_s[a]),
+    }
 }
 
 /// Unit field direction per row.
@@ -234,25 +235,43 @@ fn rate_between_finite(values: &[f64]) -> Vec<f64> {
 /// interpolation; `NaN` where t + lag is outside the record. `time_s`
 /// increases strictly, as a flight log's does.
 pub fn advanced(values: &[f64], time_s: &[f64], lag_s: f64) -> Vec<f64> {
+    let mut column = vec![0.0; values.len()];
+    advance_into(values, time_s, lag_s, 0..values.len(), &mut column);
+    column
+}
+
+/// [`advanced`] on `rows` alone, zero elsewhere; each value is the one
+/// the whole column would have.
+pub(crate) fn advanced_on(values: &[f64], time_s: &[f64], lag_s: f64, rows: &[std::ops::Range<usize>]) -> Vec<f64> {
+    let mut column = vec![0.0; values.len()];
+    for range in rows {
+        let range = range.start.min(values.len())..range.end.min(values.len());
+        advance_into(values, time_s, lag_s, range, &mut column);
+    }
+    column
+}
+
+/// Fills `column` over `rows` with `values` read `lag_s` later.
+fn advance_into(values: &[f64], time_s: &[f64], lag_s: f64, rows: std::ops::Range<usize>, column: &mut [f64]) {
+    let Some(&first) = time_s.get(rows.start) else {
+        return;
+    };
     // Time increases strictly, so the first sample at or after t + lag
-    // moves only forward: one walk through the record, not a search per
-    // row.
-    let mut upper = 0;
-    time_s
-        .iter()
-        .map(|&t| {
-            let at = t + lag_s;
-            while upper < time_s.len() && time_s[upper] < at {
-                upper += 1;
-            }
-            if upper == 0 || upper >= time_s.len() {
-                return f64::NAN;
-            }
+    // moves only forward: one search for the first row, then one walk.
+    let mut upper = time_s.partition_point(|&t| t < first + lag_s);
+    for k in rows {
+        let at = time_s[k] + lag_s;
+        while upper < time_s.len() && time_s[upper] < at {
+            upper += 1;
+        }
+        column[k] = if upper == 0 || upper >= time_s.len() {
+            f64::NAN
+        } else {
             let (t0, t1) = (time_s[upper - 1], time_s[upper]);
             let weight = (at - t0) / (t1 - t0);
             values[upper - 1] + weight * (values[upper] - values[upper - 1])
-        })
-        .collect()
+        };
+    }
 }
 
 /// Per-sample central difference of `values` passed through a first-order

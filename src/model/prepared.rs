@@ -4,6 +4,7 @@
 //! see the same data.
 
 use std::borrow::Cow;
+use std::ops::Range;
 
 use crate::error::{Error, Result};
 use crate::flight_log::{FlightLog, VectorSensor};
@@ -11,10 +12,10 @@ use crate::headings::{distinct_headings, same_heading};
 use crate::numerics::estimators::{compare, compare_families, Decomposed, Factor, Scored, Solver};
 use crate::numerics::solve::{solve_stacked, Solution};
 use crate::numerics::stacked::{Stacked, StorePool};
-use crate::windows::CalibrationWindow;
+use crate::windows::{merged_rows, CalibrationWindow};
 
 use super::band::{band_data, BandData, FitOptions, WindowFit};
-use super::extensions::{advanced, field_directions, lagged_rate, rate_of_change, second_order_term, SourceTerm};
+use super::extensions::{advanced, advanced_on, field_directions, lagged_rate, rate_at, second_order_term, SourceTerm};
 use super::{FittedModel, ModelSpec, SolverUse, SECOND_ORDER_PASSES};
 
 /// One extension column: a regressor beside the Tolles-Lawson terms.
@@ -44,6 +45,10 @@ pub(crate) struct Prepared<'a> {
     /// advanced by the lag, less a base station's variation (borrowed when
     /// neither applies): the flight itself is never copied for it.
     pub scalar: Cow<'a, [f64]>,
+    /// The rows the extension columns and a changed scalar hold values on
+    /// (zero elsewhere), for a fit and its held-out residual on windows
+    /// within them ([`Self::on_rows`]); `None`: every row.
+    filled: Option<Vec<Range<usize>>>,
 }
 
 impl<'a> Prepared<'a> {
@@ -74,8 +79,35 @@ impl<'a> Prepared<'a> {
         spec: &'a ModelSpec,
         direction: &[Vec<f64>; 3],
     ) -> Result<Self> {
+        Self::build((log, sensor, channel), spec, direction, None)
+    }
+
+    /// [`Self::with_directions`] for fits and held-out residuals on windows
+    /// within `rows` alone (the diagnosis scores hundreds of candidates on
+    /// a box that is a fraction of the flight): the extension columns and
+    /// a lagged or station-corrected scalar are computed on those rows,
+    /// each value as on the whole flight, and are zero elsewhere. A fit or
+    /// residual on a window beyond them is an error.
+    pub fn on_rows(
+        log: Cow<'a, FlightLog>,
+        (sensor, channel): (&'a VectorSensor, &'a str),
+        spec: &'a ModelSpec,
+        direction: &[Vec<f64>; 3],
+        rows: Vec<Range<usize>>,
+    ) -> Result<Self> {
+        Self::build((log, sensor, channel), spec, direction, Some(rows))
+    }
+
+    fn build(
+        (log, sensor, channel): (Cow<'a, FlightLog>, &'a VectorSensor, &'a str),
+        spec: &'a ModelSpec,
+        direction: &[Vec<f64>; 3],
+        filled: Option<Vec<Range<usize>>>,
+    ) -> Result<Self> {
         let extensions = &spec.extensions;
         let scale = spec.terms.bt_scale_nt;
+        let rows = filled.as_deref();
+        let n = log.len();
         let mut extra = Vec::new();
         let mut push = |name: String, values: Vec<f64>| extra.push(ExtraColumn { name, values });
         // Lagged eddy terms first: the newest source term stays last.
@@ -88,11 +120,7 @@ impl<'a> Prepared<'a> {
                 .collect();
             for (i, axis_i) in ["x", "y", "z"].iter().enumerate() {
                 for (j, axis_j) in ["x", "y", "z"].iter().enumerate() {
-                    let values = direction[i]
-                        .iter()
-                        .zip(&lagged[j])
-                        .map(|(u, d)| u * d / scale)
-                        .collect();
+                    let values = column_on(n, rows, |k| direction[i][k] * lagged[j][k] / scale);
                     push(format!("eddy_lagged_{axis_i}{axis_j}"), values);
                 }
             }
@@ -109,17 +137,14 @@ impl<'a> Prepared<'a> {
             match source {
                 SourceTerm::AuxCoupling { column, level } => {
                     for (axis, u) in ["x", "y", "z"].iter().zip(direction) {
-                        let coupled = values.iter().zip(u).map(|(c, u)| (c - level) * u).collect();
+                        let coupled = column_on(n, rows, |k| (values[k] - level) * u[k]);
                         push(format!("{column}_{axis}"), coupled);
                     }
                 }
                 SourceTerm::AuxCouplingRate { column } => {
-                    let rate = rate_of_change(values, log.time_s());
+                    let rate = column_on(n, rows, |k| rate_at(values, log.time_s(), k));
                     for (axis, u) in ["x", "y", "z"].iter().zip(direction) {
-                        push(
-                            format!("{column}_rate_{axis}"),
-                            rate.iter().zip(u).map(|(r, u)| r * u).collect(),
-                        );
+                        push(format!("{column}_rate_{axis}"), column_on(n, rows, |k| rate[k] * u[k]));
                     }
                 }
                 // Subtracted from the scalar below, with gain 1.
@@ -127,7 +152,13 @@ impl<'a> Prepared<'a> {
             }
         }
         let scalar = match (&log, extensions.lag_s) {
-            (_, lag_s) if lag_s != 0.0 => Cow::Owned(advanced(scalar_values(&log, channel)?, log.time_s(), lag_s)),
+            (_, lag_s) if lag_s != 0.0 => {
+                let recorded = scalar_values(&log, channel)?;
+                Cow::Owned(match rows {
+                    None => advanced(recorded, log.time_s(), lag_s),
+                    Some(rows) => advanced_on(recorded, log.time_s(), lag_s, rows),
+                })
+            }
             (Cow::Borrowed(flight), _) => Cow::Borrowed(scalar_values(flight, channel)?),
             (Cow::Owned(flight), _) => Cow::Owned(scalar_values(flight, channel)?.to_vec()),
         };
@@ -147,11 +178,9 @@ impl<'a> Prepared<'a> {
             .collect();
         let scalar = match stations.is_empty() {
             true => scalar,
-            false => Cow::Owned(
-                (scalar.iter().enumerate())
-                    .map(|(row, s)| s - stations.iter().map(|(c, level)| c[row] - level).sum::<f64>())
-                    .collect(),
-            ),
+            false => Cow::Owned(column_on(n, rows, |row| {
+                scalar[row] - stations.iter().map(|(c, level)| c[row] - level).sum::<f64>()
+            })),
         };
         Ok(Prepared {
             log,
@@ -160,7 +189,36 @@ impl<'a> Prepared<'a> {
             spec,
             extra,
             scalar,
+            filled,
         })
+    }
+
+    /// An error when `windows` reach beyond the rows this preparation
+    /// holds values on ([`Self::on_rows`]).
+    fn check_filled(&self, windows: &[CalibrationWindow]) -> Result<()> {
+        let Some(filled) = &self.filled else {
+            return Ok(());
+        };
+        let time = self.log.time_s();
+        match windows.iter().map(|w| w.rows(time)).all(|r| {
+            r.is_empty() || filled.iter().any(|f| f.start <= r.start && r.end <= f.end)
+        }) {
+            true => Ok(()),
+            false => Err(Error::Fit {
+                path: self.log.source().to_path_buf(),
+                channel: self.channel.into(),
+                source: crate::error::FitFailure::Other(
+                    "a window reaches beyond the rows its columns were prepared on (a fault of magcomp's, not of the flight)".into(),
+                ),
+            }),
+        }
+    }
+
+    /// Whether `windows` lie within the rows this preparation holds values
+    /// on: what band data built from its columns outside [`Self::fit`] and
+    /// [`Self::held_out`] must check.
+    pub(crate) fn covers(&self, windows: &[CalibrationWindow]) -> bool {
+        self.check_filled(windows).is_ok()
     }
 
     /// The extension columns as the band data takes them.
@@ -177,6 +235,7 @@ impl<'a> Prepared<'a> {
                 path: self.log.source().to_path_buf(),
             });
         }
+        self.check_filled(windows)?;
         let mut fitted = self.fit_once(&self.scalar, windows, options, stores)?;
         if self.spec.extensions.second_order {
             for _ in 0..SECOND_ORDER_PASSES {
@@ -273,6 +332,7 @@ impl<'a> Prepared<'a> {
         if headings.len() < 3 || windows.iter().any(|w| w.heading_deg.is_none()) {
             return Ok(None);
         }
+        self.check_filled(windows)?;
         let BandData {
             stacked, windows: fits, ..
         } = band_data(
@@ -298,6 +358,7 @@ impl<'a> Prepared<'a> {
         options: &FitOptions,
         stores: &StorePool,
     ) -> Result<Vec<WindowFit>> {
+        self.check_filled(windows)?;
         let corrected = self.corrected(fitted, windows);
         let data = band_data(
             &self.log,
@@ -329,16 +390,7 @@ impl<'a> Prepared<'a> {
         if !self.spec.extensions.second_order {
             return Cow::Borrowed(&self.scalar);
         }
-        let time = self.log.time_s();
-        let mut stretches: Vec<std::ops::Range<usize>> = windows.iter().map(|w| w.rows(time)).collect();
-        stretches.sort_by_key(|r| r.start);
-        let mut merged: Vec<std::ops::Range<usize>> = Vec::new();
-        for stretch in stretches.into_iter().filter(|r| !r.is_empty()) {
-            match merged.last_mut() {
-                Some(last) if stretch.start <= last.end => last.end = last.end.max(stretch.end),
-                _ => merged.push(stretch),
-            }
-        }
+        let merged = merged_rows(windows, self.log.time_s());
         let field = self.log.vector_components(self.sensor);
         let terms = self.spec.fitted_terms();
         let mut corrected = self.scalar.to_vec();
@@ -350,6 +402,21 @@ impl<'a> Prepared<'a> {
             }
         }
         Cow::Owned(corrected)
+    }
+}
+
+/// `value(k)` for every row of a column `n` long, or only for `rows`
+/// with zero elsewhere.
+fn column_on(n: usize, rows: Option<&[Range<usize>]>, value: impl Fn(usize) -> f64) -> Vec<f64> {
+    match rows {
+        None => (0..n).map(value).collect(),
+        Some(rows) => {
+            let mut column = vec![0.0; n];
+            for row in rows.iter().flat_map(Clone::clone).filter(|&k| k < n) {
+                column[row] = value(row);
+            }
+            column
+        }
     }
 }
 
@@ -456,5 +523,107 @@ fn solve_on_headings(stacked: &Stacked, fits: &[WindowFit], requested: Solver, s
         estimator: Some(best.estimator),
         heldout_rms: Some(best.heldout_rms),
         reason,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::flight_log::{Channel, ChannelRole};
+    use crate::model::{Extensions, FitOptions};
+    use crate::simulate::scenario::{RawScenario, Scenario};
+    use crate::tolles_lawson::TermSet;
+
+    /// A simulated box and line with a current and a base station of its
+    /// own, and the box's detected windows.
+    fn flight() -> (FlightLog, Vec<CalibrationWindow>) {
+        let raw: RawScenario = toml::from_str("[survey]\nline_count = 1\nline_length_m = 3000.0\n").unwrap();
+        let flight = crate::simulate::simulate(&Scenario::try_from(raw).unwrap()).unwrap();
+        let log = flight.log;
+        let mut channels = log.channels().to_vec();
+        let wave = |period: f64| -> Vec<f64> { log.time_s().iter().map(|t| 3.0 + (t / period).sin()).collect() };
+        channels.push(Channel {
+            name: "cur_test".into(),
+            role: ChannelRole::Auxiliary,
+            values: wave(7.0),
+        });
+        channels.push(Channel {
+            name: "station".into(),
+            role: ChannelRole::BaseStation,
+            values: wave(300.0),
+        });
+        let log = FlightLog::new(log.source(), log.time_column(), log.time_s().to_vec(), channels).unwrap();
+        let windows = crate::detect::detect_manoeuvres(&log, &Default::default())
+            .unwrap()
+            .calibration_windows(1.0);
+        (log, windows)
+    }
+
+    /// Prepared on the windows' rows alone, every extension column and the
+    /// lagged, station-corrected scalar hold on those rows the bits the
+    /// whole flight's preparation gives, and so does the fit; a window
+    /// beyond those rows is refused.
+    #[test]
+    fn columns_prepared_on_the_windows_rows_are_the_whole_flights_there() {
+        let (log, windows) = flight();
+        let sensor = log.vector_sensor("flux_a").unwrap();
+        let direction = field_directions(&log, &sensor);
+        let spec = ModelSpec::new(
+            TermSet::default(),
+            Extensions {
+                lag_s: 0.13,
+                eddy_tau_s: 0.4,
+                sources: vec![
+                    SourceTerm::AuxCoupling {
+                        column: "cur_test".into(),
+                        level: 3.0,
+                    },
+                    SourceTerm::AuxCouplingRate {
+                        column: "cur_test".into(),
+                    },
+                    SourceTerm::ExternalField {
+                        column: "station".into(),
+                        level: 3.0,
+                    },
+                ],
+                ..Extensions::default()
+            },
+        );
+        let channel = "mag_1_uc";
+        let whole = Prepared::with_directions(Cow::Borrowed(&log), &sensor, channel, &spec, &direction).unwrap();
+        let rows = merged_rows(&windows, log.time_s());
+        assert!(
+            rows.iter().map(Range::len).sum::<usize>() < log.len() / 2,
+            "the box is not a part of the flight"
+        );
+        let part = Prepared::on_rows(Cow::Borrowed(&log), (&sensor, channel), &spec, &direction, rows.clone()).unwrap();
+        assert_eq!(part.extra.len(), whole.extra.len());
+        assert_eq!(part.extra.len(), 9 + 3 + 3);
+        let bits = |values: &[f64]| -> Vec<u64> {
+            rows.iter()
+                .flat_map(Clone::clone)
+                .map(|k| values[k].to_bits())
+                .collect()
+        };
+        for (a, b) in part.extra.iter().zip(&whole.extra) {
+            assert_eq!(a.name, b.name);
+            assert_eq!(bits(&a.values), bits(&b.values), "{}", a.name);
+        }
+        assert_eq!(bits(&part.scalar), bits(&whole.scalar));
+        let options = FitOptions::default();
+        let stores = StorePool::new();
+        let (fitted_part, fitted_whole) = (
+            part.fit(&windows, &options, &stores).unwrap(),
+            whole.fit(&windows, &options, &stores).unwrap(),
+        );
+        let coefficients = |m: &FittedModel| m.coefficients.iter().map(|c| c.to_bits()).collect::<Vec<_>>();
+        assert_eq!(coefficients(&fitted_part), coefficients(&fitted_whole));
+        let time = log.time_s();
+        let beyond = CalibrationWindow::new(time[log.len() - 400], time[log.len() - 10]);
+        assert!(part.fit(std::slice::from_ref(&beyond), &options, &stores).is_err());
+        assert!(part
+            .held_out(&fitted_part, std::slice::from_ref(&beyond), &options, &stores)
+            .is_err());
+        assert!(whole.fit(&[beyond], &options, &stores).is_ok());
     }
 }
