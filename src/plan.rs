@@ -377,6 +377,9 @@ pub struct ChannelPrediction {
     /// Gaps in the box the analysis names in at least half the
     /// realisations.
     pub gaps: Vec<String>,
+    /// Their labels, in the same order.
+    #[serde(skip)]
+    pub gap_labels: Vec<String>,
     /// Whether the median FOM meets `[plan] target_fom_nt`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub meets_fom_target: Option<bool>,
@@ -531,14 +534,17 @@ pub fn predict(plan: &Plan, settings: &Settings) -> Result<PlanReport> {
     match target_survey {
         Some(target) => {
             let chosen = choose_additions(&realisations, target, plan.settings.most_additions, &cost);
-            for (channel, outcome) in channels.iter().zip(&realisations[0].outcomes) {
-                let floor = median_of(realisations.iter().map(|r| noise_of(r, &outcome.channel)));
-                if floor >= target {
-                    warnings.push(format!(
-                        "{}: no manoeuvre can meet the survey target of {target:.3} nT: the compensated channel's noise alone is {floor:.3} nT",
-                        channel.channel
-                    ));
-                }
+            let floored: Vec<String> = (channels.iter().zip(&realisations[0].outcomes))
+                .filter_map(|(channel, outcome)| {
+                    let floor = median_of(realisations.iter().map(|r| noise_of(r, &outcome.channel)));
+                    (floor >= target).then(|| format!("{} ({floor:.3} nT)", channel.channel))
+                })
+                .collect();
+            if !floored.is_empty() {
+                warnings.push(format!(
+                    "no manoeuvre can meet the survey target of {target:.3} nT on {}: the compensated channel's noise alone is above it",
+                    floored.join(", ")
+                ));
             }
             if let Some((list, met)) = chosen {
                 additions = list;
@@ -588,51 +594,100 @@ pub fn predict(plan: &Plan, settings: &Settings) -> Result<PlanReport> {
     Ok(report)
 }
 
-/// What each channel's prediction leaves short: a FOM above its target,
-/// simulated flights without an excitation analysis, gaps in the box, and
+/// What the channels' predictions leave short, one warning per kind
+/// naming every channel it concerns: a FOM above its target, simulated
+/// flights without an excitation analysis, each gap in the box, and
 /// flights whose compensation away from the calibration is uncertain.
 fn channel_warnings(
     channels: &[ChannelPrediction],
     realisations: &[Realisation],
     target_fom: Option<f64>,
 ) -> Vec<String> {
-    let report_realisations = realisations.len();
+    let flights = realisations.len();
     let mut warnings = Vec::new();
-    for channel in channels {
-        if channel.meets_fom_target == Some(false) {
-            warnings.push(format!(
-                "{}: the plan's predicted FOM, {}, is above the target of {:.2} nT; no addition to the box lowers it (it measures the compensated residual over the box's own manoeuvres, {} of it the compensated noise)",
-                channel.channel,
-                channel.fom_nt.words(2),
-                target_fom.unwrap_or(f64::NAN),
-                format_args!("{:.3} nT", channel.noise_nt.median),
-            ));
-        }
-        let unanalysed = (realisations.iter())
-            .filter(|r| (r.outcomes.iter()).any(|o| o.channel == channel.channel && o.design.is_none()))
-            .count();
-        if unanalysed > 0 {
-            warnings.push(format!(
-                "{}: {unanalysed} of the {report_realisations} simulated flights have no excitation analysis (the windows leave the design singular): the survey uncertainty and the additions rest on the others",
-                channel.channel
-            ));
-        }
-        for gap in &channel.gaps {
-            warnings.push(format!("{}: {gap}", channel.channel));
-        }
-        if channel.uncertain_flights > 0 {
-            warnings.push(format!(
-                "{}: in {} of the {} simulated flights the compensation away from the calibration is uncertain by more than {:.3} nT (the blocked jackknife, up to {:.3} nT; the survey lines' error up to {:.3} nT): the planned manoeuvres leave the fit open on the survey's headings and attitudes on some flights, and compensate would warn on them",
-                channel.channel,
-                channel.uncertain_flights,
-                report_realisations,
-                crate::quality::UNCERTAINTY_WARNING_NT,
-                channel.jackknife_sigma_nt.high,
-                channel.survey_error_nt.high,
-            ));
-        }
+    let listed = |items: Vec<String>| items.join(", ");
+    let above: Vec<String> = (channels.iter())
+        .filter(|c| c.meets_fom_target == Some(false))
+        .map(|c| {
+            format!(
+                "{} (FOM {}, its compensated noise {:.3} nT)",
+                c.channel,
+                c.fom_nt.words(2),
+                c.noise_nt.median
+            )
+        })
+        .collect();
+    if !above.is_empty() {
+        warnings.push(format!(
+            "the plan's predicted FOM is above the target of {:.2} nT on {}; no addition to the box lowers it (it measures the compensated residual over the box's own manoeuvres)",
+            target_fom.unwrap_or(f64::NAN),
+            listed(above)
+        ));
+    }
+    let unanalysed: Vec<String> = (channels.iter())
+        .filter_map(|channel| {
+            let count = (realisations.iter())
+                .filter(|r| (r.outcomes.iter()).any(|o| o.channel == channel.channel && o.design.is_none()))
+                .count();
+            (count > 0).then(|| format!("{} ({count} of {flights})", channel.channel))
+        })
+        .collect();
+    if !unanalysed.is_empty() {
+        warnings.push(format!(
+            "simulated flights without an excitation analysis (the windows leave the design singular) on {}: the survey uncertainty and the additions rest on the others",
+            listed(unanalysed)
+        ));
+    }
+    warnings.extend(gap_warnings(channels, realisations));
+    let uncertain: Vec<String> = (channels.iter())
+        .filter(|c| c.uncertain_flights > 0)
+        .map(|c| {
+            format!(
+                "{} in {} of the {flights} (the blocked jackknife up to {:.3} nT, the survey lines' error up to {:.3} nT)",
+                c.channel, c.uncertain_flights, c.jackknife_sigma_nt.high, c.survey_error_nt.high,
+            )
+        })
+        .collect();
+    if !uncertain.is_empty() {
+        warnings.push(format!(
+            "on some simulated flights the compensation away from the calibration is uncertain by more than {:.3} nT: {}; the planned manoeuvres leave the fit open on the survey's headings and attitudes on some flights, and compensate would warn on them",
+            crate::quality::UNCERTAINTY_WARNING_NT,
+            listed(uncertain)
+        ));
     }
     warnings
+}
+
+/// One warning per gap in the box that most realisations name on some
+/// channel: what the plan lacks, how to fly it, and the median change it
+/// would make on each channel that names it.
+fn gap_warnings(channels: &[ChannelPrediction], realisations: &[Realisation]) -> Vec<String> {
+    let mut labels: Vec<&str> = Vec::new();
+    for label in channels.iter().flat_map(|c| &c.gap_labels) {
+        if !labels.contains(&label.as_str()) {
+            labels.push(label);
+        }
+    }
+    labels
+        .into_iter()
+        .filter_map(|label| {
+            let named: Vec<(usize, GapFigures)> = (channels.iter().enumerate())
+                .filter(|(_, c)| c.gap_labels.iter().any(|l| l == label))
+                .filter_map(|(c, _)| gap_figures(realisations, c, label).map(|g| (c, g)))
+                .collect();
+            let (_, first) = named.first()?;
+            let changes: Vec<String> = (named.iter())
+                .map(|(c, g)| format!("{:+.0} % on {}", g.change_percent, channels[*c].channel))
+                .collect();
+            Some(format!(
+                "{}: flying it ({}) changes the survey uncertainty the coefficients leave by {} (medians of the {} simulated flights that name it).",
+                first.state,
+                first.shape,
+                changes.join(", "),
+                first.flights
+            ))
+        })
+        .collect()
 }
 
 /// Simulates and fits `scenario` once per seed, in parallel, in order.
@@ -777,6 +832,7 @@ fn predictions(
             let uncertain_flights = (realisations.iter())
                 .filter(|r| r.outcomes[c].jackknife_sigma_nt > crate::quality::UNCERTAINTY_WARNING_NT)
                 .count();
+            let gap_labels = majority(&|o| o.gaps.iter().map(|g| (g.label(), g.label())).collect());
             let fom_nt = figure(&|o| o.fom.map_or(f64::NAN, |f| f.1));
             let survey_sigma_nt = figure(&|o| o.coefficient_sigma_nt.hypot(o.noise_nt));
             ChannelPrediction {
@@ -796,10 +852,11 @@ fn predictions(
                 sigma_column_nt: figure(&|o| o.sigma_column_nt),
                 uncertain_flights,
                 poorly_pinned: majority(&|o| o.poorly_pinned.iter().map(|t| (t.clone(), t.clone())).collect()),
-                gaps: majority(&|o| o.gaps.iter().map(|g| (g.label(), g.label())).collect())
-                    .into_iter()
-                    .map(|label| gap_words(realisations, c, &label))
+                gaps: gap_labels
+                    .iter()
+                    .map(|label| gap_words(realisations, c, label))
                     .collect(),
+                gap_labels,
                 meets_fom_target: target_fom.map(|t| fom_nt.median <= t),
                 meets_survey_target: target_survey.map(|t| survey_sigma_nt.median <= t),
             }
@@ -807,15 +864,21 @@ fn predictions(
         .collect()
 }
 
-/// The sentence of a gap named `label` in channel `c`'s analyses: what
-/// the plan lacks, how to fly it and the median change it would make.
-fn gap_words(realisations: &[Realisation], c: usize, label: &str) -> String {
+/// A gap named `label` in channel `c`'s analyses: what the plan lacks,
+/// how to fly it, and the median change it would make.
+struct GapFigures {
+    state: String,
+    shape: String,
+    change_percent: f64,
+    /// Realisations that name it.
+    flights: usize,
+}
+
+fn gap_figures(realisations: &[Realisation], c: usize, label: &str) -> Option<GapFigures> {
     let gaps: Vec<&crate::model::excitation::Candidate> = (realisations.iter())
         .flat_map(|r| r.outcomes[c].gaps.iter().filter(|g| g.label() == label))
         .collect();
-    let Some(first) = gaps.first() else {
-        return format!("the plan's box lacks {label}");
-    };
+    let first = gaps.first()?;
     let state = match first.flown {
         false => format!("the plan's box has no {label}"),
         true => format!(
@@ -823,12 +886,23 @@ fn gap_words(realisations: &[Realisation], c: usize, label: &str) -> String {
             100.0 * median_of(gaps.iter().map(|g| g.excitation_flown))
         ),
     };
-    format!(
-        "{state}: flying it ({}) changes the survey uncertainty the coefficients leave by {:+.0} % (median of {} simulated flights).",
-        first.shape_words(),
-        100.0 * median_of(gaps.iter().map(|g| g.change)),
-        gaps.len()
-    )
+    Some(GapFigures {
+        state,
+        shape: first.shape_words(),
+        change_percent: 100.0 * median_of(gaps.iter().map(|g| g.change)),
+        flights: gaps.len(),
+    })
+}
+
+/// The sentence of a gap named `label` in channel `c`'s analyses.
+fn gap_words(realisations: &[Realisation], c: usize, label: &str) -> String {
+    match gap_figures(realisations, c, label) {
+        None => format!("the plan's box lacks {label}"),
+        Some(g) => format!(
+            "{}: flying it ({}) changes the survey uncertainty the coefficients leave by {:+.0} % (median of {} simulated flights).",
+            g.state, g.shape, g.change_percent, g.flights
+        ),
+    }
 }
 
 /// The median of the finite values; NaN without one.
@@ -951,28 +1025,38 @@ fn choose_additions(
         };
         chosen.push(m);
         sigmas = after;
-        let candidate = &index[m].0;
-        let (cost_s, new_leg) = cost(candidate);
-        let survey_sigma_nt: BTreeMap<String, f64> = names.iter().cloned().zip(sigmas.iter().copied()).collect();
-        if let Some(last) = additions
-            .last_mut()
-            .filter(|a: &&mut Addition| a.kind == candidate.kind && a.heading_deg == candidate.heading_deg)
-        {
-            last.count += 1;
-            last.cost_s += cost_s - if new_leg { NEW_LEG_S } else { 0.0 };
-            last.survey_sigma_nt = survey_sigma_nt;
-            continue;
+    }
+    // A manoeuvre chosen again later is listed once, flown that many
+    // times: the list keeps the order of first choice, and each entry's
+    // figures are those of it and the entries before it.
+    let mut groups: Vec<Vec<usize>> = Vec::new();
+    for &m in &chosen {
+        let same = |group: &&mut Vec<usize>| {
+            let first = &index[group[0]].0;
+            first.kind == index[m].0.kind && first.heading_deg == index[m].0.heading_deg
+        };
+        match groups.iter_mut().find(|g| same(g)) {
+            Some(group) => group.push(m),
+            None => groups.push(vec![m]),
         }
+    }
+    let mut flown: Vec<usize> = Vec::new();
+    for group in groups {
+        flown.extend(&group);
+        let candidate = &index[group[0]].0;
+        let (cost_s, new_leg) = cost(candidate);
+        let repeat_s = cost_s - if new_leg { NEW_LEG_S } else { 0.0 };
+        let after = sigma_with(realisations, &index, &flown);
         additions.push(Addition {
             kind: candidate.kind,
             heading_deg: candidate.heading_deg,
             amplitude_deg: candidate.amplitude_deg,
             period_s: candidate.period_s,
             duration_s: candidate.duration_s,
-            count: 1,
-            cost_s,
+            count: group.len(),
+            cost_s: cost_s + (group.len() - 1) as f64 * repeat_s,
             new_leg,
-            survey_sigma_nt,
+            survey_sigma_nt: names.iter().cloned().zip(after).collect(),
         });
     }
     Some((additions, met(&sigmas)))
