@@ -3,6 +3,7 @@
 //! timing against the manoeuvres.
 
 use super::*;
+use crate::flight_log::Channel;
 
 /// Circular time shifts of the source columns a source finding must beat.
 pub(super) const SOURCE_SHIFTS: usize = 9;
@@ -57,14 +58,36 @@ pub(super) fn beats_shifted_sources(
     let in_windows = window_rows(problem.log.time_s(), problem.windows);
     // The model's columns are not shifted: one screen serves every shift.
     let screen = super::screen::Screen::new(problem, model, ridge);
+    // A score reads the windows' rows alone ([`prepare`]): the shifted
+    // flight carries the sensor, the channel and the model's sources as
+    // recorded, each scanned column shifted, on those rows; every other
+    // value is zero.
+    let stretches = crate::windows::merged_rows(problem.windows, problem.log.time_s());
+    let index_of = |name: &str| problem.log.channels().iter().position(|c| c.name == name);
+    let read: Vec<usize> = (problem.sensor.axes.iter().copied())
+        .chain(index_of(problem.channel))
+        .chain((model.sources.iter()).filter_map(|s| index_of(s.column())))
+        .collect();
     (1..=SOURCE_SHIFTS).all(|k| {
         let shift = k * rows / (SOURCE_SHIFTS + 1);
-        let channels = problem.log.channels().iter().map(|channel| {
-            let mut channel = channel.clone();
-            if scanned.contains(&&channel.name) {
-                channel.values.rotate_right(shift);
+        let channels = problem.log.channels().iter().enumerate().map(|(index, channel)| {
+            let scanned = scanned.contains(&&channel.name);
+            let named = |values| Channel {
+                name: channel.name.clone(),
+                role: channel.role.clone(),
+                values,
+            };
+            if !scanned && !read.contains(&index) {
+                return named(vec![0.0; rows]);
             }
-            channel
+            let mut values = vec![0.0; rows];
+            for row in stretches.iter().flat_map(Clone::clone) {
+                values[row] = match scanned {
+                    true => channel.values[(row + rows - shift) % rows],
+                    false => channel.values[row],
+                };
+            }
+            named(values)
         });
         let Ok(log) = FlightLog::new(
             problem.log.source(),
