@@ -13,11 +13,13 @@
 //! for bit.
 //!
 //! A model is refused, with the reason, when the flight lacks one of its
-//! channels, its fluxgate or a source column, when the flight records at
-//! another rate (the eddy-current terms are per sample and the fit's band
-//! was designed at that rate), or when the file is not a magcomp model or
-//! predates the saved calibration level. It is applied with a warning when
-//! it is older than `[model] max_age_days` or belongs to another aircraft.
+//! channels, its fluxgate or a source column, or when the file is not a
+//! magcomp model or predates the saved calibration level. It is applied
+//! with a warning when it is older than `[model] max_age_days`, belongs to
+//! another aircraft, or was fitted at another sample rate: its per-sample
+//! coefficients (the eddy-current terms and the field's derivative, a
+//! central difference per sample) then take the rates' ratio, the same
+//! physics at the flight's rate.
 //! When the flight names manoeuvres of its own (windows or calibration
 //! lines), the model is held out on them: the FOM and improvement ratio are
 //! then this flight's, of a model that never saw it.
@@ -438,10 +440,10 @@ impl SavedModel {
     }
 
     /// The fitted models to compensate `log` with: those of the channels
-    /// `wanted` (every channel of the model when `None`). Refused when the
-    /// flight lacks a channel, the fluxgate or a source column, records at
-    /// another rate, or a wanted channel has no model, or `vector` names
-    /// another fluxgate.
+    /// `wanted` (every channel of the model when `None`), at the flight's
+    /// sample rate. Refused when the flight lacks a channel, the fluxgate
+    /// or a source column, or a wanted channel has no model, or `vector`
+    /// names another fluxgate.
     pub fn models_for(
         &self,
         log: &FlightLog,
@@ -483,12 +485,13 @@ impl SavedModel {
         for fit in &chosen {
             self.check_fit(log, fit, vector)?;
         }
-        Ok(chosen.into_iter().map(|fit| self.fitted(fit)).collect())
+        let rate = 1.0 / log.median_interval_s();
+        Ok(chosen.into_iter().map(|fit| self.fitted(fit, rate)).collect())
     }
 
     /// Refuses `fit` on `log` when the flight cannot take it: another
     /// fluxgate asked for, its fluxgate or a source column not recorded,
-    /// another sample rate, or a term list its spec does not build.
+    /// no sample rate, or a term list its spec does not build.
     fn check_fit(&self, log: &FlightLog, fit: &SavedFit, vector: Option<&str>) -> Result<()> {
         if let Some(wanted) = vector.filter(|v| *v != fit.vector_sensor) {
             return Err(self.mismatch(
@@ -511,15 +514,11 @@ impl SavedModel {
             ));
         }
         let rate = 1.0 / log.median_interval_s();
-        let same_rate = (rate / fit.sample_rate_hz - 1.0).abs() <= RATE_TOLERANCE;
-        if !same_rate {
+        if !(rate.is_finite() && rate > 0.0) {
             return Err(self.mismatch(
                 log,
-                format!(
-                    "the model was fitted at {:.3} Hz and the flight is recorded at {rate:.3} Hz",
-                    fit.sample_rate_hz
-                ),
-                "Its eddy-current terms are per sample and its band-pass was designed at its rate: record the survey at the calibration's rate, or calibrate at this one",
+                format!("the flight's sample rate is {rate} Hz"),
+                "Give the flight a time column that increases with every row",
             ));
         }
         self.check_terms(log, fit)?;
@@ -575,26 +574,45 @@ impl SavedModel {
         Ok(())
     }
 
-    /// A [`FittedModel`] of a saved fit: the coefficients, the spec, the
-    /// jackknife and the calibration level; no windows (they are the
-    /// calibration flight's) and no curves.
-    fn fitted(&self, fit: &SavedFit) -> FittedModel {
+    /// A [`FittedModel`] of a saved fit for a flight recorded at
+    /// `rate_hz`: the coefficients, the spec, the jackknife and the
+    /// calibration level; no windows (they are the calibration flight's)
+    /// and no curves. At another rate than the model's, its per-sample
+    /// coefficients ([`crate::model::per_sample`]), their jackknife and
+    /// uncertainty take the rates' ratio.
+    fn fitted(&self, fit: &SavedFit, rate_hz: f64) -> FittedModel {
         let reason = format!(
             "applied from {} (fitted on {}{}): nothing refitted",
             self.path.display(),
             self.file.flight.display(),
             self.file.date.map(|d| format!(", {d}")).unwrap_or_default()
         );
+        let (factor, sample_rate_hz) = match same_rate(fit.sample_rate_hz, rate_hz) {
+            true => (None, fit.sample_rate_hz),
+            false => (Some(rate_hz / fit.sample_rate_hz), rate_hz),
+        };
+        let scaled = |values: &[f64]| -> Vec<f64> {
+            (values.iter().zip(&fit.term_names))
+                .map(|(v, name)| match factor {
+                    Some(factor) if crate::model::per_sample(name) => v * factor,
+                    _ => *v,
+                })
+                .collect()
+        };
+        let coefficients = scaled(&fit.coefficients);
+        let uncertainty: Vec<f64> = (fit.coefficient_uncertainty.iter())
+            .map(|u| u.unwrap_or(f64::NAN))
+            .collect();
         FittedModel {
             channel: fit.channel.clone(),
             vector_sensor: fit.vector_sensor.clone(),
             spec: fit.spec.clone(),
             term_names: fit.term_names.clone(),
-            coefficients: fit.coefficients.clone(),
+            coefficients: coefficients.clone(),
             filter: fit.filter,
-            sample_rate_hz: fit.sample_rate_hz,
+            sample_rate_hz,
             solution: Solution {
-                coefficients: fit.coefficients.clone(),
+                coefficients,
                 method: match fit.solution.rank {
                     Some(_) => Method::TruncatedSvd,
                     None => Method::Ridge,
@@ -615,11 +633,9 @@ impl SavedModel {
                 residual_rms: f64::NAN,
                 standard_errors: Vec::new(),
                 fitted: Vec::new(),
-                jackknife: fit.solution.jackknife.clone(),
+                jackknife: fit.solution.jackknife.iter().map(|d| scaled(d)).collect(),
             },
-            coefficient_uncertainty: (fit.coefficient_uncertainty.iter())
-                .map(|u| u.unwrap_or(f64::NAN))
-                .collect(),
+            coefficient_uncertainty: scaled(&uncertainty),
             windows: Vec::new(),
             estimators: None,
             excitation: None,
@@ -656,6 +672,39 @@ impl SavedModel {
             written_by: file.written_by.clone().unwrap_or_else(|| "an earlier magcomp".into()),
             calibration: file.calibration.clone(),
         })
+    }
+
+    /// The warning for applying the models of `channels` to `log` when it
+    /// records at another rate than they were fitted at: which terms were
+    /// rescaled, and what that leaves unchecked.
+    pub fn rate_warning(&self, log: &FlightLog, channels: &[String]) -> Option<String> {
+        let rate = 1.0 / log.median_interval_s();
+        let fits: Vec<&SavedFit> = (self.file.models.iter())
+            .filter(|m| channels.contains(&m.channel) && !same_rate(m.sample_rate_hz, rate))
+            .collect();
+        let first = fits.first()?;
+        let rescaled: Vec<String> = (fits.iter())
+            .filter_map(|fit| {
+                let terms: Vec<&str> = (fit.term_names.iter())
+                    .filter(|name| crate::model::per_sample(name))
+                    .map(String::as_str)
+                    .collect();
+                (!terms.is_empty()).then(|| format!("{} ({})", fit.channel, terms.join(", ")))
+            })
+            .collect();
+        let factor = rate / first.sample_rate_hz;
+        let what = match rescaled.is_empty() {
+            true => "it has no per-sample term to rescale".to_string(),
+            false => format!(
+                "its per-sample terms (eddy currents, the field's derivative) were rescaled by the rates' ratio, {factor:.3}: {}; they carry the fluxgate's noise {factor:.2}× as strongly as on the calibration flight",
+                rescaled.join("; ")
+            ),
+        };
+        Some(format!(
+            "the model {} was fitted at {:.3} Hz and this flight is recorded at {rate:.3} Hz: {what}. The fit's band and its per-sample differences were those of the calibration's rate, and nothing on this flight checks the transfer: compare its noise and heading error with the calibration flight's, or calibrate at this rate",
+            self.path.display(),
+            first.sample_rate_hz,
+        ))
     }
 
     /// Warnings and notes for applying the model to a flight of `date`
@@ -699,6 +748,12 @@ impl SavedModel {
         }
         (warnings, notes)
     }
+}
+
+/// Whether a flight at `flight_hz` records at the rate of a model fitted
+/// at `model_hz`, within [`RATE_TOLERANCE`].
+fn same_rate(model_hz: f64, flight_hz: f64) -> bool {
+    (flight_hz / model_hz - 1.0).abs() <= RATE_TOLERANCE
 }
 
 /// "3 days before this flight", "1 day after this flight", "the same day

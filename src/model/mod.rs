@@ -263,6 +263,15 @@ pub fn term_names(log: &FlightLog, sensor: &VectorSensor, channel: &str, spec: &
         .collect())
 }
 
+/// Whether the column named `name` is per sample: a central difference
+/// per sample (the eddy-current terms, lagged or not, and the field's
+/// derivative), whose coefficient holds the sample rate it was fitted at.
+/// At another rate the same physics takes the coefficient times the
+/// rates' ratio.
+pub fn per_sample(name: &str) -> bool {
+    name.starts_with("eddy_") || name.starts_with("dB_")
+}
+
 /// A model's prediction over a whole flight.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Prediction<'a> {

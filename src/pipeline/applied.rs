@@ -137,6 +137,7 @@ fn model_words(
         notes.push("the model was fitted on this very flight: its compensation is that of the calibration run".into());
     }
     warnings.extend(saved.calibration_warnings(channels, options.fom_limit_nt));
+    warnings.extend(saved.rate_warning(raw_log, channels));
     if job.channels.is_none() {
         // A magnetometer the model does not hold is written uncompensated.
         let left: Vec<&str> = (raw_log.scalar_channels().into_iter())
