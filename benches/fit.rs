@@ -425,11 +425,11 @@ fn main() {
 
 /// `compensate` with the default settings against `--plain` on a whole
 /// calibration flight given as one window: the two-hour, five-magnetometer
-/// flight at 20 Hz (about 200,000 rows, 30 auxiliary columns), fitted over
+/// flight at 25 Hz (about 200,000 rows, 30 auxiliary columns), fitted over
 /// one window spanning it (held out by quarters).
 fn bench_run_one_window() {
     let mut scenario = two_hour_scenario();
-    scenario.raw.sample_rate_hz = 20.0;
+    scenario.raw.sample_rate_hz = 25.0;
     let flight = magcomp::simulate::simulate(&scenario).unwrap();
     let log = common::with_unrelated_columns(&flight.log, 22);
     let folder = tempfile::tempdir().unwrap();
