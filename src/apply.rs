@@ -161,6 +161,25 @@ struct SavedFile {
     #[serde(default)]
     vector_calibration: Option<crate::vector_calibration::VectorCalibration>,
     models: Vec<SavedFit>,
+    #[serde(default)]
+    vector_models: Vec<SavedVector>,
+}
+
+/// A fluxgate's vector model as the model JSON holds it: what its
+/// compensation needs ([`crate::vector::compensate_with`]).
+#[derive(Debug, Clone, Deserialize)]
+struct SavedVector {
+    sensor: String,
+    soft_iron: [[f64; 3]; 3],
+    hard_iron_nt: [f64; 3],
+    #[serde(default)]
+    tolles_lawson: Option<SavedVectorStage>,
+}
+
+/// The vector Tolles-Lawson stage: a model of each body axis's residual.
+#[derive(Debug, Clone, Deserialize)]
+struct SavedVectorStage {
+    components: Vec<SavedFit>,
 }
 
 /// One channel's fitted model as the model JSON holds it.
@@ -674,13 +693,46 @@ impl SavedModel {
         })
     }
 
+    /// Each saved fluxgate's vector compensation on `log` (its fluxgate
+    /// calibrated as the model's was), at the flight's rate, and a warning
+    /// for each the flight cannot take: none when the model holds no
+    /// vector model.
+    pub fn vector_compensations(&self, log: &FlightLog) -> (Vec<crate::vector::CompensatedVector>, Vec<String>) {
+        let rate = 1.0 / log.median_interval_s();
+        let (mut compensated, mut warnings) = (Vec::new(), Vec::new());
+        for saved in &self.file.vector_models {
+            let stage: Option<Vec<FittedModel>> = (saved.tolles_lawson.as_ref())
+                .map(|stage| stage.components.iter().map(|fit| self.fitted(fit, rate)).collect());
+            let iron = (&saved.soft_iron, &saved.hard_iron_nt);
+            match crate::vector::compensate_with(log, &saved.sensor, iron, stage.as_deref()) {
+                Ok(vector) => compensated.push(vector),
+                Err(e) => warnings.push(format!(
+                    "{}: no vector compensation from the model {}: {e}",
+                    saved.sensor,
+                    self.path.display()
+                )),
+            }
+        }
+        (compensated, warnings)
+    }
+
+    /// Whether the model holds a vector model of any fluxgate.
+    pub fn has_vector_models(&self) -> bool {
+        !self.file.vector_models.is_empty()
+    }
+
     /// The warning for applying the models of `channels` to `log` when it
     /// records at another rate than they were fitted at: which terms were
     /// rescaled, and what that leaves unchecked.
     pub fn rate_warning(&self, log: &FlightLog, channels: &[String]) -> Option<String> {
         let rate = 1.0 / log.median_interval_s();
+        let vector_stages = (self.file.vector_models.iter())
+            .filter_map(|v| v.tolles_lawson.as_ref())
+            .flat_map(|stage| &stage.components);
         let fits: Vec<&SavedFit> = (self.file.models.iter())
-            .filter(|m| channels.contains(&m.channel) && !same_rate(m.sample_rate_hz, rate))
+            .filter(|m| channels.contains(&m.channel))
+            .chain(vector_stages)
+            .filter(|m| !same_rate(m.sample_rate_hz, rate))
             .collect();
         let first = fits.first()?;
         let rescaled: Vec<String> = (fits.iter())

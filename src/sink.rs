@@ -199,6 +199,10 @@ struct ModelFile<'a> {
     #[serde(skip_serializing_if = "Option::is_none")]
     vector_calibration: Option<&'a crate::vector_calibration::VectorCalibration>,
     models: &'a [FittedModel],
+    /// The fluxgates' vector models: the twelve constants and the vector
+    /// Tolles-Lawson stage.
+    #[serde(skip_serializing_if = "<[_]>::is_empty")]
+    vector_models: &'a [crate::vector::VectorModel],
     /// The direct models of the compensated gradients.
     #[serde(skip_serializing_if = "<[_]>::is_empty")]
     gradient_models: &'a [FittedModel],
@@ -221,6 +225,7 @@ impl<'a> ModelFile<'a> {
             applied_findings: &result.applied_findings,
             vector_calibration: result.vector_calibration.as_ref(),
             models: &result.models,
+            vector_models: &result.vector_models,
             gradient_models: &result.gradient_models,
         })
     }

@@ -63,7 +63,14 @@ pub(super) fn run_applied(
     let mut compensation = crate::compensate::compensate_with(log, &models, options.level, &shared)?;
     let quality = assess_applied(log, &models, &mut compensation, options, &shared, &mut warnings)?;
     drop(shared);
-    notes.extend(vector_not_run(options));
+    if options.vector.enabled {
+        let (vectors, vector_warnings) = saved.vector_compensations(log);
+        for vector in vectors {
+            compensation.add_vector(vector);
+        }
+        warnings.extend(vector_warnings);
+    }
+    notes.extend(vector_not_run(options, saved, log));
     notes.extend(job.assigned_model.clone());
     notes.extend(renaming);
     let gradients = crate::gradient::gradients_from_saved_model(&models, &compensation, &options.gradients);
@@ -214,8 +221,10 @@ fn assess_applied(
     Ok(quality)
 }
 
-/// The note on the vector compensation a saved model cannot run (it is
-/// fitted on a box), when the settings ask for it.
-fn vector_not_run(options: &Settings) -> Option<String> {
-    options.vector.enabled.then(|| "no vector compensation: its twelve constants are fitted on a calibration box, and the model holds the scalar models".to_string())
+/// The note on the vector compensation a saved model cannot run (it holds
+/// no vector model), when the settings ask for it and the flight records a
+/// fluxgate.
+fn vector_not_run(options: &Settings, saved: &crate::apply::SavedModel, log: &FlightLog) -> Option<String> {
+    let wanted = options.vector.enabled && !saved.has_vector_models() && !log.vector_sensors().is_empty();
+    wanted.then(|| "no vector compensation: the model holds no vector model (its calibration flight fitted none: no INS attitude, or [vector] enabled = false there)".to_string())
 }

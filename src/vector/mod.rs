@@ -457,7 +457,7 @@ pub fn fit(
         let expected = model.expected_body(log, inputs, windows);
         tolles_lawson::fit_stage(log, &sensor.prefix, (body, &expected), windows, options)
     };
-    let raw = model.twelve_constant_body(log)?;
+    let raw = twelve_constant_body(log, &model.sensor, (&model.soft_iron, &model.hard_iron_nt))?;
     let first = match stage(&model, &raw) {
         Ok(first) => first,
         Err(e) => {
@@ -496,7 +496,7 @@ pub fn fit(
             return Ok(model);
         }
     }
-    let body = model.twelve_constant_body(log)?;
+    let body = twelve_constant_body(log, &model.sensor, (&model.soft_iron, &model.hard_iron_nt))?;
     match stage(&model, &body) {
         Ok(second) => model.tolles_lawson = Some(second),
         Err(e) => {
@@ -1147,63 +1147,81 @@ impl VectorModel {
         expected
     }
 
-    /// $K^{-1}(m_i - h)$ on every row of `log` (`NaN` without a reading).
-    fn twelve_constant_body(&self, log: &FlightLog) -> Result<[Vec<f64>; 3]> {
-        let sensor = log.vector_sensor(&self.sensor).ok_or_else(|| Error::Vector {
-            sensor: self.sensor.clone(),
-            message: "the flight does not record this fluxgate".into(),
-        })?;
-        let k = Matrix3::from_fn(|j, c| self.soft_iron[j][c]);
-        let inverse = k.try_inverse().ok_or_else(|| Error::Vector {
-            sensor: self.sensor.clone(),
-            message: "the fitted K is singular".into(),
-        })?;
-        let h = Vector3::from(self.hard_iron_nt);
-        let field = log.vector_components(&sensor);
-        let mut body_nt: [Vec<f64>; 3] = std::array::from_fn(|_| vec![f64::NAN; log.len()]);
-        for i in 0..log.len() {
-            let reading = Vector3::new(field[0][i], field[1][i], field[2][i]);
-            if !reading.iter().all(|v| v.is_finite()) {
-                continue;
-            }
-            let body = inverse * (reading - h);
-            for j in 0..3 {
-                body_nt[j][i] = body[j];
-            }
-        }
-        Ok(body_nt)
-    }
-
     /// The Earth's field in body axes and north-east-down on every row of
     /// `log`: $K^{-1}(m_i - h)$ less the vector Tolles-Lawson stage's
     /// prediction where it is fitted, rotated with the INS attitude where
     /// that is recorded.
     pub fn compensate(&self, log: &FlightLog) -> Result<CompensatedVector> {
-        let mut body_nt = self.twelve_constant_body(log)?;
-        if let Some(stage) = &self.tolles_lawson {
-            stage.apply(log, &self.sensor, &mut body_nt)?;
-        }
-        let attitude = log.attitude();
-        let rows = log.len();
-        let mut ned_nt: [Vec<f64>; 3] = std::array::from_fn(|_| vec![f64::NAN; rows]);
-        for i in 0..rows {
-            let body = Vector3::new(body_nt[0][i], body_nt[1][i], body_nt[2][i]);
-            if !body.iter().all(|v| v.is_finite()) {
-                continue;
-            }
-            if let Some(to_body) = attitude.as_ref().and_then(|a| ned_to_body(a, i)) {
-                let ned = to_body.transpose() * body;
-                for j in 0..3 {
-                    ned_nt[j][i] = ned[j];
-                }
-            }
-        }
-        Ok(CompensatedVector {
-            sensor: self.sensor.clone(),
-            body_nt,
-            ned_nt,
-        })
+        let stage = self.tolles_lawson.as_ref().map(|s| s.components.as_slice());
+        compensate_with(log, &self.sensor, (&self.soft_iron, &self.hard_iron_nt), stage)
     }
+}
+
+/// [`VectorModel::compensate`] from its constants: fluxgate `sensor`'s
+/// reading per unit body-axis field K and its reading with no field h,
+/// and the vector Tolles-Lawson stage's models of each body axis when
+/// there is one (a model saved from another flight holds these).
+pub fn compensate_with(
+    log: &FlightLog,
+    sensor: &str,
+    (soft_iron, hard_iron_nt): (&[[f64; 3]; 3], &[f64; 3]),
+    stage: Option<&[crate::model::FittedModel]>,
+) -> Result<CompensatedVector> {
+    let mut body_nt = twelve_constant_body(log, sensor, (soft_iron, hard_iron_nt))?;
+    if let Some(components) = stage {
+        tolles_lawson::apply_components(components, log, sensor, &mut body_nt)?;
+    }
+    let attitude = log.attitude();
+    let rows = log.len();
+    let mut ned_nt: [Vec<f64>; 3] = std::array::from_fn(|_| vec![f64::NAN; rows]);
+    for i in 0..rows {
+        let body = Vector3::new(body_nt[0][i], body_nt[1][i], body_nt[2][i]);
+        if !body.iter().all(|v| v.is_finite()) {
+            continue;
+        }
+        if let Some(to_body) = attitude.as_ref().and_then(|a| ned_to_body(a, i)) {
+            let ned = to_body.transpose() * body;
+            for j in 0..3 {
+                ned_nt[j][i] = ned[j];
+            }
+        }
+    }
+    Ok(CompensatedVector {
+        sensor: sensor.to_string(),
+        body_nt,
+        ned_nt,
+    })
+}
+
+/// $K^{-1}(m_i - h)$ on every row of `log` (`NaN` without a reading).
+fn twelve_constant_body(
+    log: &FlightLog,
+    prefix: &str,
+    (soft_iron, hard_iron_nt): (&[[f64; 3]; 3], &[f64; 3]),
+) -> Result<[Vec<f64>; 3]> {
+    let sensor = log.vector_sensor(prefix).ok_or_else(|| Error::Vector {
+        sensor: prefix.to_string(),
+        message: "the flight does not record this fluxgate".into(),
+    })?;
+    let k = Matrix3::from_fn(|j, c| soft_iron[j][c]);
+    let inverse = k.try_inverse().ok_or_else(|| Error::Vector {
+        sensor: prefix.to_string(),
+        message: "the fitted K is singular".into(),
+    })?;
+    let h = Vector3::from(*hard_iron_nt);
+    let field = log.vector_components(&sensor);
+    let mut body_nt: [Vec<f64>; 3] = std::array::from_fn(|_| vec![f64::NAN; log.len()]);
+    for i in 0..log.len() {
+        let reading = Vector3::new(field[0][i], field[1][i], field[2][i]);
+        if !reading.iter().all(|v| v.is_finite()) {
+            continue;
+        }
+        let body = inverse * (reading - h);
+        for j in 0..3 {
+            body_nt[j][i] = body[j];
+        }
+    }
+    Ok(body_nt)
 }
 
 #[cfg(test)]

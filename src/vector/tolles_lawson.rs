@@ -236,16 +236,27 @@ impl VectorTollesLawson {
     /// `body` (the twelve-constant output of fluxgate `prefix` on every row
     /// of `log`) less each axis's predicted residual, where predicted.
     pub fn apply(&self, log: &FlightLog, prefix: &str, body: &mut [Vec<f64>; 3]) -> Result<()> {
-        let empty = || vec![f64::NAN; log.len()];
-        let lean = lean_log(log, prefix, body, [empty(), empty(), empty()])?;
-        for (k, model) in self.components.iter().enumerate() {
-            let prediction = model.predict(&lean)?;
-            for (value, h) in body[k].iter_mut().zip(&prediction.interference_nt) {
-                if h.is_finite() {
-                    *value -= h;
-                }
+        apply_components(&self.components, log, prefix, body)
+    }
+}
+
+/// [`VectorTollesLawson::apply`] with its models of each body axis,
+/// `components` (a model saved from another flight holds them).
+pub(crate) fn apply_components(
+    components: &[FittedModel],
+    log: &FlightLog,
+    prefix: &str,
+    body: &mut [Vec<f64>; 3],
+) -> Result<()> {
+    let empty = || vec![f64::NAN; log.len()];
+    let lean = lean_log(log, prefix, body, [empty(), empty(), empty()])?;
+    for (k, model) in components.iter().enumerate() {
+        let prediction = model.predict(&lean)?;
+        for (value, h) in body[k].iter_mut().zip(&prediction.interference_nt) {
+            if h.is_finite() {
+                *value -= h;
             }
         }
-        Ok(())
     }
+    Ok(())
 }
