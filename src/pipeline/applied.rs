@@ -63,53 +63,30 @@ pub(super) fn run_applied(
     let mut compensation = crate::compensate::compensate_with(log, &models, options.level, &shared)?;
     let quality = assess_applied(log, &models, &mut compensation, options, &shared, &mut warnings)?;
     drop(shared);
-    if options.vector.enabled {
-        let (vectors, vector_warnings) = saved.vector_compensations(log);
-        for vector in vectors {
-            compensation.add_vector(vector);
-        }
-        warnings.extend(vector_warnings);
-    }
-    notes.extend(vector_not_run(options, saved, log));
     notes.extend(job.assigned_model.clone());
     notes.extend(renaming);
-    let gradients = crate::gradient::gradients_from_saved_model(&models, &compensation, &options.gradients);
-    compensation.gradients = gradients.compensated;
-    notes.extend(gradients.notes);
-    warnings.extend(gradients.warnings);
-    warnings.extend(crate::formats::mcap::undated_warning(&recorded, compensated));
-    warnings.extend(crate::formats::write::text_columns_warning(
-        &recorded,
-        compensated,
-        true,
-    ));
-    notes.extend(crate::reduce::add_reduced(log, &mut compensation, options.reduced)?);
-    warnings.extend(compensation.out_of_range_warnings(log.time_s()));
+    let said = Said { warnings, notes };
+    let said = beside_the_scalars(
+        (log, &recorded, compensated),
+        saved,
+        (&models, &mut compensation),
+        options,
+        said,
+    )?;
     let added_columns = added_column_names(log, compensated, &compensation)?;
-    let mut said: Vec<Note> = units_row_note(&recorded).into_iter().collect();
-    said.extend(renaming_notes(&channels, &added_columns));
-    said.extend(Note::said(notes));
-    said.extend(
-        models
-            .iter()
-            .filter(|m| !m.spec.is_plain())
-            .map(|m| Note::SavedFindings {
-                channel: m.channel.clone(),
-                model: m.spec.describe(),
-            }),
-    );
+    let notes = applied_notes((&recorded, &channels, &added_columns), &models, said.notes);
     let result = FlightResult {
         flight: job.input.clone(),
         rows: log.len(),
         added_columns,
-        notes: said,
+        notes,
         detection: None,
         alignment: log.alignment().cloned(),
         channels: quality,
         vector_calibration: saved.vector_calibration().cloned(),
         diagnosis_mode: crate::diagnose::ApplyDiagnosis::Never,
         applied_findings: saved.applied_findings(&channels),
-        warnings: Warning::said(warnings).collect(),
+        warnings: Warning::said(said.warnings).collect(),
         diagnosis: None,
         models,
         vector_models: Vec::new(),
@@ -126,6 +103,69 @@ pub(super) fn run_applied(
         result,
         options.output_decimals,
     ))
+}
+
+/// Warnings and notes gathered along the way, as sentences.
+struct Said {
+    warnings: Vec<String>,
+    notes: Vec<String>,
+}
+
+/// What the compensated channels carry beside themselves on a flight given
+/// a saved model: the fluxgates' vector compensation, the gradients, the
+/// reduced columns, and the warnings on the output's format and range.
+/// `log` is the flight as compensated (its fluxgate calibrated as the
+/// model's), `recorded` as read, `compensated` where the output goes.
+fn beside_the_scalars(
+    (log, recorded, compensated): (&FlightLog, &FlightLog, &Path),
+    saved: &crate::apply::SavedModel,
+    (models, compensation): (&[crate::model::FittedModel], &mut crate::compensate::Compensation),
+    options: &Settings,
+    mut said: Said,
+) -> Result<Said> {
+    if options.vector.enabled {
+        let (vectors, vector_warnings) = saved.vector_compensations(log);
+        for vector in vectors {
+            compensation.add_vector(vector);
+        }
+        said.warnings.extend(vector_warnings);
+    }
+    said.notes.extend(vector_not_run(options, saved, log));
+    let gradients = crate::gradient::gradients_from_saved_model(models, compensation, &options.gradients);
+    compensation.gradients = gradients.compensated;
+    said.notes.extend(gradients.notes);
+    said.warnings.extend(gradients.warnings);
+    said.warnings
+        .extend(crate::formats::mcap::undated_warning(recorded, compensated));
+    said.warnings
+        .extend(crate::formats::write::text_columns_warning(recorded, compensated, true));
+    said.notes
+        .extend(crate::reduce::add_reduced(log, compensation, options.reduced)?);
+    said.warnings.extend(compensation.out_of_range_warnings(log.time_s()));
+    Ok(said)
+}
+
+/// The flight's notes: the units row skipped, the output's renamed
+/// columns, what was said along the way, and the findings each saved
+/// model carries.
+fn applied_notes(
+    (recorded, channels, added_columns): (&FlightLog, &[String], &[String]),
+    models: &[crate::model::FittedModel],
+    notes: Vec<String>,
+) -> Vec<Note> {
+    let mut said: Vec<Note> = units_row_note(recorded).into_iter().collect();
+    said.extend(renaming_notes(channels, added_columns));
+    said.extend(Note::said(notes));
+    said.extend(
+        models
+            .iter()
+            .filter(|m| !m.spec.is_plain())
+            .map(|m| Note::SavedFindings {
+                channel: m.channel.clone(),
+                model: m.spec.describe(),
+            }),
+    );
+    said
 }
 
 /// What the saved model says of itself on this flight: its age and
