@@ -597,7 +597,7 @@ impl SavedModel {
     /// `rate_hz`: the coefficients, the spec, the jackknife and the
     /// calibration level; no windows (they are the calibration flight's)
     /// and no curves. At another rate than the model's, its per-sample
-    /// coefficients ([`crate::model::per_sample`]), their jackknife and
+    /// coefficients ([`crate::model::per_sample_columns`]), their jackknife and
     /// uncertainty take the rates' ratio.
     fn fitted(&self, fit: &SavedFit, rate_hz: f64) -> FittedModel {
         let reason = format!(
@@ -610,10 +610,11 @@ impl SavedModel {
             true => (None, fit.sample_rate_hz),
             false => (Some(rate_hz / fit.sample_rate_hz), rate_hz),
         };
+        let per_sample = crate::model::per_sample_columns(&fit.spec);
         let scaled = |values: &[f64]| -> Vec<f64> {
-            (values.iter().zip(&fit.term_names))
-                .map(|(v, name)| match factor {
-                    Some(factor) if crate::model::per_sample(name) => v * factor,
+            (values.iter().enumerate())
+                .map(|(k, v)| match factor {
+                    Some(factor) if per_sample.get(k).copied().unwrap_or(false) => v * factor,
                     _ => *v,
                 })
                 .collect()
@@ -724,9 +725,10 @@ impl SavedModel {
     /// The warning for applying the models of `channels` to `log` when it
     /// records at another rate than they were fitted at: which terms were
     /// rescaled, and what that leaves unchecked.
-    pub fn rate_warning(&self, log: &FlightLog, channels: &[String]) -> Option<String> {
+    pub fn rate_warning(&self, log: &FlightLog, (channels, vector): (&[String], bool)) -> Option<String> {
         let rate = 1.0 / log.median_interval_s();
         let vector_stages = (self.file.vector_models.iter())
+            .filter(|_| vector)
             .filter_map(|v| v.tolles_lawson.as_ref())
             .flat_map(|stage| &stage.components);
         let fits: Vec<&SavedFit> = (self.file.models.iter())
@@ -737,9 +739,10 @@ impl SavedModel {
         let first = fits.first()?;
         let rescaled: Vec<String> = (fits.iter())
             .filter_map(|fit| {
-                let terms: Vec<&str> = (fit.term_names.iter())
-                    .filter(|name| crate::model::per_sample(name))
-                    .map(String::as_str)
+                let per_sample = crate::model::per_sample_columns(&fit.spec);
+                let terms: Vec<&str> = (fit.term_names.iter().enumerate())
+                    .filter(|(k, _)| per_sample.get(*k).copied().unwrap_or(false))
+                    .map(|(_, name)| name.as_str())
                     .collect();
                 (!terms.is_empty()).then(|| format!("{} ({})", fit.channel, terms.join(", ")))
             })

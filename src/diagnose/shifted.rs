@@ -58,43 +58,10 @@ pub(super) fn beats_shifted_sources(
     let in_windows = window_rows(problem.log.time_s(), problem.windows);
     // The model's columns are not shifted: one screen serves every shift.
     let screen = super::screen::Screen::new(problem, model, ridge);
-    // A score reads the windows' rows alone ([`prepare`]): the shifted
-    // flight carries the sensor, the channel and the model's sources as
-    // recorded, each scanned column shifted, on those rows; every other
-    // value is zero.
     let stretches = crate::windows::merged_rows(problem.windows, problem.log.time_s());
-    let index_of = |name: &str| problem.log.channels().iter().position(|c| c.name == name);
-    let read: Vec<usize> = (problem.sensor.axes.iter().copied())
-        .chain(index_of(problem.channel))
-        .chain((model.sources.iter()).filter_map(|s| index_of(s.column())))
-        .collect();
     (1..=SOURCE_SHIFTS).all(|k| {
         let shift = k * rows / (SOURCE_SHIFTS + 1);
-        let channels = problem.log.channels().iter().enumerate().map(|(index, channel)| {
-            let scanned = scanned.contains(&&channel.name);
-            let named = |values| Channel {
-                name: channel.name.clone(),
-                role: channel.role.clone(),
-                values,
-            };
-            if !scanned && !read.contains(&index) {
-                return named(vec![0.0; rows]);
-            }
-            let mut values = vec![0.0; rows];
-            for row in stretches.iter().flat_map(Clone::clone) {
-                values[row] = match scanned {
-                    true => channel.values[(row + rows - shift) % rows],
-                    false => channel.values[row],
-                };
-            }
-            named(values)
-        });
-        let Ok(log) = FlightLog::new(
-            problem.log.source(),
-            problem.log.time_column(),
-            problem.log.time_s().to_vec(),
-            channels.collect(),
-        ) else {
+        let Ok(log) = shifted_flight(problem, &scanned, shift, &stretches) else {
             return true;
         };
         // A periodic column (a fan's ripple) shifted by about a whole
@@ -122,8 +89,50 @@ pub(super) fn beats_shifted_sources(
         };
         // The real column fails as soon as one surrogate explains as
         // much; the screen's order puts the likeliest first.
-        !(surrogates.into_par_iter()).any(|(next, _)| held_out(&shifted, &next).is_ok_and(|h| h.rms_nt <= rms_nt))
+        rms_nt.is_finite()
+            && !(surrogates.into_par_iter())
+                .any(|(next, _)| held_out(&shifted, &next).is_ok_and(|h| h.rms_nt <= rms_nt))
     })
+}
+
+/// The problem's flight with each `scanned` column shifted circularly by
+/// `shift` rows (as `rotate_right`), for scores that read the windows'
+/// rows, `stretches`, alone: a scanned column is shifted on those rows
+/// and one row either side (a rate's central difference reads them) and
+/// zero elsewhere; every other column is copied whole (the model's lag,
+/// eddy τ, rates and second-order term read the sensor, the channel and
+/// its sources beyond the windows).
+fn shifted_flight(
+    problem: &Problem,
+    scanned: &[&String],
+    shift: usize,
+    stretches: &[std::ops::Range<usize>],
+) -> Result<FlightLog> {
+    let rows = problem.log.len();
+    let channels = problem.log.channels().iter().map(|channel| {
+        if !scanned.contains(&&channel.name) {
+            return channel.clone();
+        }
+        let mut values = vec![0.0; rows];
+        for stretch in stretches {
+            let from = stretch.start.saturating_sub(1);
+            let to = (stretch.end + 1).min(rows);
+            for (row, value) in (from..to).zip(&mut values[from..to]) {
+                *value = channel.values[(row + rows - shift) % rows];
+            }
+        }
+        Channel {
+            name: channel.name.clone(),
+            role: channel.role.clone(),
+            values,
+        }
+    });
+    FlightLog::new(
+        problem.log.source(),
+        problem.log.time_column(),
+        problem.log.time_s().to_vec(),
+        channels.collect(),
+    )
 }
 
 /// The rows whose times fall in any of `windows`.
@@ -152,5 +161,107 @@ pub(super) fn correlation(a: &[f64], b: &[f64], rows: &[usize]) -> f64 {
     match aa > 0.0 && bb > 0.0 {
         true => ab / (aa * bb).sqrt(),
         false => 0.0,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::SourceTerm;
+    use crate::simulate::scenario::{RawScenario, Scenario};
+
+    /// A surrogate scored on the shifted flight built for the windows'
+    /// rows scores what it scores on the flight shifted whole, to the bit,
+    /// with a model whose lag, eddy τ, source rate and second-order term
+    /// read beyond the windows.
+    #[test]
+    fn a_flight_shifted_on_the_windows_rows_scores_as_one_shifted_whole() {
+        let raw: RawScenario = toml::from_str("[survey]\nline_count = 1\nline_length_m = 3000.0\n").unwrap();
+        let flight = crate::simulate::simulate(&Scenario::try_from(raw).unwrap()).unwrap();
+        let mut channels = flight.log.channels().to_vec();
+        for (name, period) in [("cur_one", 7.0), ("cur_two", 23.0)] {
+            channels.push(Channel {
+                name: name.into(),
+                role: ChannelRole::Auxiliary,
+                values: flight.log.time_s().iter().map(|t| 3.0 + (t / period).sin()).collect(),
+            });
+        }
+        let log = FlightLog::new(
+            flight.log.source(),
+            flight.log.time_column(),
+            flight.log.time_s().to_vec(),
+            channels,
+        )
+        .unwrap();
+        let windows = crate::detect::detect_manoeuvres(&log, &Default::default())
+            .unwrap()
+            .calibration_windows(1.0);
+        let sensor = log.vector_sensor("flux_a").unwrap();
+        let direction = field_directions(&log, &sensor);
+        let levels = source_levels(&log);
+        let (options, stores) = (FitOptions::default(), StorePool::new());
+        let problem = Problem {
+            log: &log,
+            sensor: &sensor,
+            channel: "mag_1_uc",
+            windows: &windows,
+            terms: TermSet::default(),
+            options: &options,
+            direction: &direction,
+            levels: &levels,
+            stores: &stores,
+        };
+        let model = Model {
+            lag_s: 0.15,
+            eddy_tau_s: 0.3,
+            second_order: true,
+            sources: vec![
+                SourceTerm::AuxCoupling {
+                    column: "cur_one".into(),
+                    level: levels["cur_one"],
+                },
+                SourceTerm::AuxCouplingRate {
+                    column: "cur_one".into(),
+                },
+            ],
+            ..Model::default()
+        };
+        let mut surrogate = model.clone();
+        surrogate.sources.push(SourceTerm::AuxCoupling {
+            column: "cur_two".into(),
+            level: levels["cur_two"],
+        });
+        surrogate.sources.push(SourceTerm::AuxCouplingRate {
+            column: "cur_two".into(),
+        });
+        let scanned: Vec<&String> = levels.keys().filter(|c| c.as_str() != "cur_one").collect();
+        let shift = 3 * log.len() / 10;
+        let stretches = crate::windows::merged_rows(&windows, log.time_s());
+        let part = shifted_flight(&problem, &scanned, shift, &stretches).unwrap();
+        let whole_channels = log.channels().iter().map(|c| {
+            let mut c = c.clone();
+            if scanned.contains(&&c.name) {
+                c.values.rotate_right(shift);
+            }
+            c
+        });
+        let whole = FlightLog::new(
+            log.source(),
+            log.time_column(),
+            log.time_s().to_vec(),
+            whole_channels.collect(),
+        )
+        .unwrap();
+        let score = |log: &FlightLog| {
+            let shifted = Problem { log, ..problem };
+            held_out(&shifted, &surrogate).unwrap().rms_nt
+        };
+        let (on_rows, shifted_whole) = (score(&part), score(&whole));
+        assert!(on_rows.is_finite() && on_rows > 0.0, "{on_rows}");
+        assert_eq!(
+            on_rows.to_bits(),
+            shifted_whole.to_bits(),
+            "{on_rows} against {shifted_whole}"
+        );
     }
 }

@@ -263,13 +263,39 @@ pub fn term_names(log: &FlightLog, sensor: &VectorSensor, channel: &str, spec: &
         .collect())
 }
 
-/// Whether the column named `name` is per sample: a central difference
-/// per sample (the eddy-current terms, lagged or not, and the field's
-/// derivative), whose coefficient holds the sample rate it was fitted at.
-/// At another rate the same physics takes the coefficient times the
-/// rates' ratio.
-pub fn per_sample(name: &str) -> bool {
-    name.starts_with("eddy_") || name.starts_with("dB_")
+/// Which of the columns of a model of `spec` are per sample, in
+/// coefficient order: a central difference per sample (the eddy-current
+/// terms, lagged or not, and the field's derivative), whose coefficient
+/// holds the sample rate it was fitted at; at another rate the same
+/// physics takes the coefficient times the rates' ratio. Decided from the
+/// spec, not from the names, which a source column's name could mimic;
+/// the source columns after them are not per sample.
+pub fn per_sample_columns(spec: &ModelSpec) -> Vec<bool> {
+    use crate::tolles_lawson::{EddyTerms, TermSet};
+    let terms = spec.fitted_terms();
+    let without = |t: TermSet| t.len();
+    let (eddy, derivative) = (terms.eddy != EddyTerms::None, terms.field_derivative);
+    // The terms in their order: permanent, induced, eddy, derivative, bias.
+    let before_eddy = without(TermSet {
+        eddy: EddyTerms::None,
+        field_derivative: false,
+        bias: false,
+        ..terms
+    });
+    let eddy_count = without(TermSet {
+        field_derivative: false,
+        bias: false,
+        ..terms
+    }) - before_eddy;
+    let derivative_count = if derivative { 3 } else { 0 };
+    let mut columns = vec![false; before_eddy];
+    columns.extend(std::iter::repeat_n(eddy, eddy_count));
+    columns.extend(std::iter::repeat_n(true, derivative_count));
+    columns.extend(std::iter::repeat_n(false, terms.len() - columns.len()));
+    if spec.extensions.eddy_tau_s > 0.0 {
+        columns.extend([true; 9]);
+    }
+    columns
 }
 
 /// A model's prediction over a whole flight.

@@ -559,6 +559,47 @@ mod tests {
         (log, windows)
     }
 
+    /// The per-sample columns, decided from the spec, are the eddy and
+    /// field-derivative terms by name, and the nine lagged eddy columns of
+    /// an eddy τ; a source column named like one is not.
+    #[test]
+    fn per_sample_columns_are_the_eddy_and_derivative_terms() {
+        for terms in [
+            TermSet::default(),
+            TermSet::magnav(),
+            TermSet {
+                field_derivative: true,
+                bias: true,
+                ..TermSet::default()
+            },
+            crate::vector::tolles_lawson::terms(),
+        ] {
+            for eddy_tau_s in [0.0, 0.4] {
+                let spec = ModelSpec::new(
+                    terms,
+                    Extensions {
+                        eddy_tau_s,
+                        sources: vec![SourceTerm::AuxCoupling {
+                            column: "eddy_pump".into(),
+                            level: 0.0,
+                        }],
+                        ..Extensions::default()
+                    },
+                );
+                let names = spec.fitted_terms().names();
+                let mut expected: Vec<bool> = (names.iter())
+                    .map(|n| n.starts_with("eddy_") || n.starts_with("dB_"))
+                    .collect();
+                if eddy_tau_s > 0.0 {
+                    expected.extend([true; 9]);
+                }
+                let flags = crate::model::per_sample_columns(&spec);
+                assert_eq!(flags, expected, "{terms:?} τ {eddy_tau_s}");
+                assert!(flags.iter().any(|f| *f), "{terms:?}");
+            }
+        }
+    }
+
     /// Prepared on the windows' rows alone, every extension column and the
     /// lagged, station-corrected scalar hold on those rows the bits the
     /// whole flight's preparation gives, and so does the fit; a window

@@ -319,11 +319,17 @@ pub fn solve_stacked(design: &Stacked, options: &SolveOptions) -> Result<Solutio
     let grid = lambda_grid(&spectrum, options);
     let weights = candidate_weights(&spectrum, &grid);
     let (press_needed, blocked_needed) = curves_needed(options, fold_count);
+    let blocked = blocked_needed.then(|| blocked_press(&fold_statistics, &spectrum, &grid));
+    // Blocked PRESS with no finite value on the ridge grid gives way to
+    // leave-one-out PRESS ([`choose`]), which is then needed.
+    let no_blocked_choice = blocked
+        .as_ref()
+        .is_some_and(|b| !b[..grid.len()].iter().any(|v| v.is_finite()));
+    let press_needed = press_needed || no_blocked_choice;
     let press = match press_needed {
         true => leave_one_out_press(design, &spectrum, &weights),
         false => vec![f64::NAN; weights.len()],
     };
-    let blocked = blocked_needed.then(|| blocked_press(&fold_statistics, &spectrum, &grid));
     let ridge_curve: Vec<RidgePoint> = (0..grid.len())
         .map(|l| RidgePoint {
             lambda: grid[l],

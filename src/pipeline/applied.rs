@@ -123,7 +123,7 @@ fn beside_the_scalars(
     options: &Settings,
     mut said: Said,
 ) -> Result<Said> {
-    if options.vector.enabled {
+    if options.vector.enabled && log.attitude().is_some() {
         let (vectors, vector_warnings) = saved.vector_compensations(log);
         for vector in vectors {
             compensation.add_vector(vector);
@@ -184,7 +184,8 @@ fn model_words(
         notes.push("the model was fitted on this very flight: its compensation is that of the calibration run".into());
     }
     warnings.extend(saved.calibration_warnings(channels, options.fom_limit_nt));
-    warnings.extend(saved.rate_warning(raw_log, channels));
+    let vector = options.vector.enabled && raw_log.attitude().is_some();
+    warnings.extend(saved.rate_warning(raw_log, (channels, vector)));
     if job.channels.is_none() {
         // A magnetometer the model does not hold is written uncompensated.
         let left: Vec<&str> = (raw_log.scalar_channels().into_iter())
@@ -265,6 +266,12 @@ fn assess_applied(
 /// no vector model), when the settings ask for it and the flight records a
 /// fluxgate.
 fn vector_not_run(options: &Settings, saved: &crate::apply::SavedModel, log: &FlightLog) -> Option<String> {
-    let wanted = options.vector.enabled && !saved.has_vector_models() && !log.vector_sensors().is_empty();
-    wanted.then(|| "no vector compensation: the model holds no vector model (its calibration flight fitted none: no INS attitude, or [vector] enabled = false there)".to_string())
+    if !options.vector.enabled || log.vector_sensors().is_empty() {
+        return None;
+    }
+    match (log.attitude().is_some(), saved.has_vector_models()) {
+        (false, _) => Some("no vector compensation: the flight records no INS attitude (roll, pitch and yaw)".into()),
+        (true, false) => Some("no vector compensation: the model holds no vector model (its calibration flight fitted none: no INS attitude, or [vector] enabled = false there)".into()),
+        (true, true) => None,
+    }
 }
