@@ -297,6 +297,31 @@ impl SavedModel {
                 return Err(not_ours(format!("the model of '{channel}' has no sample rate")));
             }
         }
+        for vector in &file.vector_models {
+            let sensor = &vector.sensor;
+            let constants = vector.soft_iron.iter().flatten().chain(&vector.hard_iron_nt);
+            if !constants.into_iter().all(|v| v.is_finite()) {
+                return Err(not_ours(format!(
+                    "the vector model of '{sensor}' has constants that are not numbers"
+                )));
+            }
+            let stage = vector.tolles_lawson.iter().flat_map(|s| &s.components);
+            for fit in stage {
+                let whole = fit.coefficients.len() == fit.term_names.len()
+                    && fit.coefficients.iter().all(|c| c.is_finite())
+                    && fit.sample_rate_hz.is_finite()
+                    && fit.sample_rate_hz > 0.0;
+                if !whole {
+                    return Err(not_ours(format!(
+                        "the vector Tolles-Lawson model of '{}' ({sensor}) is incomplete: {} coefficients for {} terms, sample rate {} Hz",
+                        fit.channel,
+                        fit.coefficients.len(),
+                        fit.term_names.len(),
+                        fit.sample_rate_hz
+                    )));
+                }
+            }
+        }
         Ok(SavedModel {
             path: path.to_path_buf(),
             file,
