@@ -66,30 +66,9 @@ pub(super) fn check_fluxgate(
     settings: &DiagnoseOptions,
 ) -> std::result::Result<FluxgateCheck, String> {
     const ITERATIONS: usize = 100;
-    let field = log.vector_components(sensor);
-    let time = log.time_s();
+    let folds = fold_rows(windows, log.time_s(), log.len());
     // Each heading's windows held out of a calibration on the rest of the
     // flight, once the whole flight's stands; the folds side by side.
-    // (held-out rows, training rows) of each heading.
-    type Rows = Vec<std::ops::Range<usize>>;
-    let folds: Vec<(Rows, Rows)> = folds(windows)
-        .into_iter()
-        .map(|(out, _)| {
-            let held: Vec<std::ops::Range<usize>> = out.iter().map(|w| w.rows(time)).collect();
-            let mut train = Vec::new();
-            let mut next = 0;
-            let mut sorted = held.clone();
-            sorted.sort_by_key(|r| r.start);
-            for range in &sorted {
-                if range.start > next {
-                    train.push(next..range.start);
-                }
-                next = next.max(range.end);
-            }
-            train.push(next..log.len());
-            (held, train)
-        })
-        .collect();
     let calibration = calibrate(log, sensor, reference, &[], ITERATIONS).map_err(|e| e.to_string())?;
     let fold_calibrations: Vec<Option<VectorCalibration>> = folds
         .par_iter()
@@ -99,28 +78,9 @@ pub(super) fn check_fluxgate(
         .channel(&calibration.reference)
         .ok_or_else(|| format!("the reference '{}' is not in the flight", calibration.reference))?
         .values;
+    let field = log.vector_components(sensor);
+    let located = worst_windows(windows, log.time_s(), (field, scalar));
     let (mut before, mut after) = (Vec::new(), Vec::new());
-    let mut per_window: Vec<(f64, &CalibrationWindow)> = Vec::new();
-    for window in windows {
-        let misses: Vec<f64> = window
-            .rows(time)
-            .filter(|&i| scalar[i].is_finite() && field.iter().all(|c| c[i].is_finite()))
-            .map(|i| (field[0][i].powi(2) + field[1][i].powi(2) + field[2][i].powi(2)).sqrt() - scalar[i])
-            .collect();
-        if !misses.is_empty() {
-            per_window.push((root_mean_square(&misses), window));
-        }
-    }
-    per_window.sort_by(|a, b| b.0.total_cmp(&a.0));
-    let located = per_window
-        .iter()
-        .take(3)
-        .map(|(_, w)| Located {
-            t_start: w.t_start,
-            t_end: w.t_end,
-            label: w.display_label(),
-        })
-        .collect();
     for ((held, _), fold) in folds.into_iter().zip(fold_calibrations) {
         let Some(fold) = fold else {
             continue;
@@ -145,6 +105,58 @@ pub(super) fn check_fluxgate(
         threshold_nt: mismatch_threshold(settings, reference_interference_nt),
         located,
     })
+}
+
+/// Rows of a flight `rows` long.
+type Rows = Vec<std::ops::Range<usize>>;
+
+/// Each heading's (held-out rows, training rows): the heading's windows,
+/// and the rest of the flight around them.
+fn fold_rows(windows: &[CalibrationWindow], time: &[f64], rows: usize) -> Vec<(Rows, Rows)> {
+    folds(windows)
+        .into_iter()
+        .map(|(out, _)| {
+            let held: Rows = out.iter().map(|w| w.rows(time)).collect();
+            let mut train = Vec::new();
+            let mut next = 0;
+            let mut sorted = held.clone();
+            sorted.sort_by_key(|r| r.start);
+            for range in &sorted {
+                if range.start > next {
+                    train.push(next..range.start);
+                }
+                next = next.max(range.end);
+            }
+            train.push(next..rows);
+            (held, train)
+        })
+        .collect()
+}
+
+/// The three windows where the fluxgate's magnitude misses the scalar
+/// most (RMS), worst first.
+fn worst_windows(windows: &[CalibrationWindow], time: &[f64], (field, scalar): ([&[f64]; 3], &[f64])) -> Vec<Located> {
+    let mut per_window: Vec<(f64, &CalibrationWindow)> = Vec::new();
+    for window in windows {
+        let misses: Vec<f64> = window
+            .rows(time)
+            .filter(|&i| scalar[i].is_finite() && field.iter().all(|c| c[i].is_finite()))
+            .map(|i| (field[0][i].powi(2) + field[1][i].powi(2) + field[2][i].powi(2)).sqrt() - scalar[i])
+            .collect();
+        if !misses.is_empty() {
+            per_window.push((root_mean_square(&misses), window));
+        }
+    }
+    per_window.sort_by(|a, b| b.0.total_cmp(&a.0));
+    per_window
+        .iter()
+        .take(3)
+        .map(|(_, w)| Located {
+            t_start: w.t_start,
+            t_end: w.t_end,
+            label: w.display_label(),
+        })
+        .collect()
 }
 
 /// Whether the fluxgate's magnitude misses the scalar total field by more

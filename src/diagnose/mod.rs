@@ -585,13 +585,7 @@ pub fn diagnose(
     // The fluxgate check and each channel's plain fits held out (by
     // either λ criterion) do not need each other: side by side.
     let (checked, starts) = rayon::join(
-        || {
-            quietest_reference(calibration, (terms, options), &stores)
-                .map_err(|e| e.to_string())
-                .and_then(|(reference, interference_nt)| {
-                    check_fluxgate(log, sensor, &reference, windows, interference_nt, settings)
-                })
-        },
+        || fluxgate_check(calibration, (terms, options), &stores, settings),
         || {
             channels
                 .par_iter()
@@ -612,8 +606,7 @@ pub fn diagnose(
         .map(|check| check.calibration.apply(log, sensor))
         .transpose()?;
     let calibrated_direction = calibrated.as_ref().map(|l| field_directions(l, sensor));
-    #[allow(clippy::type_complexity)]
-    let results: Vec<std::result::Result<(ChannelDiagnosis, Vec<Finding>), String>> = (channels.par_iter())
+    let results: Vec<Searched> = (channels.par_iter())
         .zip(starts)
         .map(|(channel, start)| {
             let start = match start {
@@ -629,33 +622,83 @@ pub fn diagnose(
             diagnose_from(start, (raw_problem, calibrated_problem), fluxgate_calibration, settings).map(Ok)
         })
         .collect::<Result<_>>()?;
+    let (channel_results, findings, untestable) = searched_channels(log, results)?;
+    notes.extend(untestable);
+    notes.extend(criterion_notes(&channel_results, options));
+    Ok(with_fluxgate(
+        (channel_results, findings, notes),
+        fluxgate,
+        calibrated.is_some(),
+        settings,
+    ))
+}
+
+/// The fluxgate checked against the scalar channel with the least
+/// aircraft field of its own; why not, when it cannot be.
+fn fluxgate_check(
+    calibration: &Calibration,
+    (terms, options): (&TermSet, &FitOptions),
+    stores: &StorePool,
+    settings: &DiagnoseOptions,
+) -> std::result::Result<FluxgateCheck, String> {
+    let Calibration {
+        log, sensor, windows, ..
+    } = *calibration;
+    quietest_reference(calibration, (terms, options), stores)
+        .map_err(|e| e.to_string())
+        .and_then(|(reference, interference_nt)| {
+            check_fluxgate(log, sensor, &reference, windows, interference_nt, settings)
+        })
+}
+
+/// The diagnosis of the channels' results with the fluxgate's: its finding
+/// first where it stands (`calibrated`: the search ran on the calibrated
+/// fluxgate), else a note of its figures.
+fn with_fluxgate(
+    (channels, findings, mut notes): (Vec<ChannelDiagnosis>, Vec<Vec<Finding>>, Vec<String>),
+    fluxgate: Option<FluxgateCheck>,
+    calibrated: bool,
+    settings: &DiagnoseOptions,
+) -> Diagnosis {
+    let fluxgate_found = fluxgate
+        .as_ref()
+        .filter(|_| calibrated)
+        .map(|check| fluxgate_finding(check, &channels));
+    let findings = fluxgate_found
+        .into_iter()
+        .chain(findings.into_iter().flatten())
+        .collect();
+    if let Some(check) = fluxgate.as_ref().filter(|_| !calibrated) {
+        notes.push(fluxgate_note(check, settings));
+    }
+    Diagnosis {
+        flight: None,
+        channels,
+        findings,
+        fluxgate,
+        notes,
+    }
+}
+
+/// One channel's search: its summary and findings, or why its calibration
+/// cannot be tested.
+type Searched = std::result::Result<(ChannelDiagnosis, Vec<Finding>), String>;
+
+/// The channels' summaries and findings, and a note for each channel that
+/// could not be tested; an error when none could.
+#[allow(clippy::type_complexity)]
+fn searched_channels(
+    log: &FlightLog,
+    results: Vec<Searched>,
+) -> Result<(Vec<ChannelDiagnosis>, Vec<Vec<Finding>>, Vec<String>)> {
     let (results, untestable): (Vec<_>, Vec<_>) = results.into_iter().partition(|r| r.is_ok());
     let untestable: Vec<String> = untestable.into_iter().filter_map(|r| r.err()).collect();
     if results.is_empty() {
         return Err(not_enough_calibration(log, untestable.join("; ")));
     }
-    notes.extend(untestable);
     let results: Vec<(ChannelDiagnosis, Vec<Finding>)> = results.into_iter().filter_map(|r| r.ok()).collect();
     let (channel_results, findings): (Vec<_>, Vec<_>) = results.into_iter().unzip();
-    notes.extend(criterion_notes(&channel_results, options));
-    let fluxgate_found = fluxgate
-        .as_ref()
-        .filter(|_| calibrated.is_some())
-        .map(|check| fluxgate_finding(check, &channel_results));
-    let findings = fluxgate_found
-        .into_iter()
-        .chain(findings.into_iter().flatten())
-        .collect();
-    if let Some(check) = fluxgate.as_ref().filter(|_| calibrated.is_none()) {
-        notes.push(fluxgate_note(check, settings));
-    }
-    Ok(Diagnosis {
-        flight: None,
-        channels: channel_results,
-        findings,
-        fluxgate,
-        notes,
-    })
+    Ok((channel_results, findings, untestable))
 }
 
 /// One channel's diagnosis from its plain start: the search runs on the

@@ -203,75 +203,22 @@ pub(super) fn diagnose_channel(
     let keep = 1.0 - settings.min_improvement;
     while findings.len() < settings.max_findings {
         let mut scored = score_candidates(problem, (&model, &current_ridge), &control, settings);
-        let Some(best) = scored.first() else {
-            break;
+        let state = SearchState {
+            model: &model,
+            ridge: &current_ridge,
+            rms_nt: current,
+            windows: &current_windows,
+            control: &control,
         };
-        // The best few that pass, each checked against the control: with
-        // the second-order term in both, does the effect still pay?
-        let passing = scored
-            .iter()
-            .take(CONTROL_CHECKS)
-            .take_while(|(_, _, h)| h.rms_nt <= current * keep)
-            .count();
-        // Each side takes the second-order term only where it helps on
-        // held-out data (it is only as good as the fitted aircraft field).
-        let reference = current.min(control.rms_nt);
-        let controlled: Vec<f64> = scored[..passing]
-            .par_iter()
-            .map(|(next, _, plain)| {
-                let with = held_out(problem, &with_second_order(next)).map_or(f64::INFINITY, |h| h.rms_nt);
-                plain.rms_nt.min(with)
-            })
-            .collect();
-        // The second-order term is the control itself: it pays against
-        // the model before it, like any effect without a control.
-        let bar = |extension: &Extension| match extension {
-            Extension::SecondOrder => current * keep,
-            _ => reference * keep,
-        };
-        let paying: Vec<usize> = (0..passing).filter(|&i| controlled[i] <= bar(&scored[i].1)).collect();
-        let accepted = paying.iter().copied().find(|&i| {
-            consistent_across_headings(&current_windows, &scored[i].2.windows)
-                && beats_shifted_sources(problem, (&model, &current_ridge), &scored[i].1, scored[i].2.rms_nt)
-        });
-        let Some(index) = accepted else {
-            let (_, extension, result) = best;
-            let why = match (paying.is_empty(), passing > 0) {
-                (false, _) => "; with every source column shifted in time, one explains as much, so the recorded timing does not single it out".into(),
-                (true, true) => {
-                    format!("; explained as well by the total field's second-order term (held-out {reference:.4} nT)")
-                }
-                (true, false) => String::new(),
-            };
-            strongest_rejected = Some(format!(
-                "{}: held-out RMS {:.4} nT ({:+.1} % against {current:.4} nT, the model before it){why}",
-                describe(extension),
-                result.rms_nt,
-                100.0 * (result.rms_nt / current - 1.0)
-            ));
-            break;
+        let index = match step(problem, &state, &scored, keep) {
+            Step::Accept(index) => index,
+            Step::Stop(rejected) => {
+                strongest_rejected = rejected;
+                break;
+            }
         };
         let (next, extension, result) = scored.swap_remove(index);
-        let (mut found, next, result) = finding(problem, next, &extension, (current, &current_windows), result)?;
-        // The λ criterion that predicted plain Tolles-Lawson better need
-        // not predict the extended model better: try the other again. The
-        // second-order term adds no coefficient (it is computed from the
-        // fitted ones), so the criterion that suited the model suits it
-        // still; letting it flip to the less regularised one opened the
-        // next step to a servo current standing in for residual on a
-        // clean cabin sensor (seed 509: −38 % held out with the flip,
-        // −19 % without).
-        let flipped = match extension {
-            Extension::SecondOrder => None,
-            _ => flip_criterion(problem, &next),
-        };
-        let (next, result) = match flipped {
-            Some((flipped, h)) if h.rms_nt < result.rms_nt => {
-                found.heldout_rms_after_nt = h.rms_nt;
-                (flipped, h)
-            }
-            _ => (next, result),
-        };
+        let (found, next, result) = accept(problem, (next, &extension, result), (current, &current_windows))?;
         findings.push(found);
         control = held_out(problem, &with_second_order(&next))?;
         current_ridge = result.ridge.clone();
@@ -298,6 +245,109 @@ pub(super) fn diagnose_channel(
         localisation,
     };
     Ok((summary, findings))
+}
+
+/// Where the search stands before a step: the model, each split's ridge
+/// λ, its held-out RMS and windows, and its second-order control.
+struct SearchState<'a> {
+    model: &'a Model,
+    ridge: &'a [f64],
+    rms_nt: f64,
+    windows: &'a [WindowFit],
+    control: &'a HeldOut,
+}
+
+/// What a step of the search does: accept the scored candidate at this
+/// index, or stop, with the strongest candidate rejected and why.
+enum Step {
+    Accept(usize),
+    Stop(Option<String>),
+}
+
+/// The step the `scored` candidates (best first) allow: the first of the
+/// best few that lowers the held-out RMS by the threshold, pays against
+/// the second-order control, holds across headings and beats its shifted
+/// sources.
+fn step(problem: &Problem, state: &SearchState, scored: &[(Model, Extension, HeldOut)], keep: f64) -> Step {
+    let Some(best) = scored.first() else {
+        return Step::Stop(None);
+    };
+    let current = state.rms_nt;
+    // The best few that pass, each checked against the control: with
+    // the second-order term in both, does the effect still pay?
+    let passing = scored
+        .iter()
+        .take(CONTROL_CHECKS)
+        .take_while(|(_, _, h)| h.rms_nt <= current * keep)
+        .count();
+    // Each side takes the second-order term only where it helps on
+    // held-out data (it is only as good as the fitted aircraft field).
+    let reference = current.min(state.control.rms_nt);
+    let controlled: Vec<f64> = scored[..passing]
+        .par_iter()
+        .map(|(next, _, plain)| {
+            let with = held_out(problem, &with_second_order(next)).map_or(f64::INFINITY, |h| h.rms_nt);
+            plain.rms_nt.min(with)
+        })
+        .collect();
+    // The second-order term is the control itself: it pays against
+    // the model before it, like any effect without a control.
+    let bar = |extension: &Extension| match extension {
+        Extension::SecondOrder => current * keep,
+        _ => reference * keep,
+    };
+    let paying: Vec<usize> = (0..passing).filter(|&i| controlled[i] <= bar(&scored[i].1)).collect();
+    let accepted = paying.iter().copied().find(|&i| {
+        consistent_across_headings(state.windows, &scored[i].2.windows)
+            && beats_shifted_sources(problem, (state.model, state.ridge), &scored[i].1, scored[i].2.rms_nt)
+    });
+    if let Some(index) = accepted {
+        return Step::Accept(index);
+    }
+    let (_, extension, result) = best;
+    let why = match (paying.is_empty(), passing > 0) {
+        (false, _) => "; with every source column shifted in time, one explains as much, so the recorded timing does not single it out".into(),
+        (true, true) => {
+            format!("; explained as well by the total field's second-order term (held-out {reference:.4} nT)")
+        }
+        (true, false) => String::new(),
+    };
+    Step::Stop(Some(format!(
+        "{}: held-out RMS {:.4} nT ({:+.1} % against {current:.4} nT, the model before it){why}",
+        describe(extension),
+        result.rms_nt,
+        100.0 * (result.rms_nt / current - 1.0)
+    )))
+}
+
+/// The finding of an accepted candidate, and the model it makes with its
+/// held-out figures: under the other λ criterion where that predicts it
+/// better. `current` is the model before it, held out.
+fn accept(
+    problem: &Problem,
+    (next, extension, result): (Model, &Extension, HeldOut),
+    current: (f64, &[WindowFit]),
+) -> Result<(Finding, Model, HeldOut)> {
+    let (mut found, next, result) = finding(problem, next, extension, current, result)?;
+    // The λ criterion that predicted plain Tolles-Lawson better need
+    // not predict the extended model better: try the other again. The
+    // second-order term adds no coefficient (it is computed from the
+    // fitted ones), so the criterion that suited the model suits it
+    // still; letting it flip to the less regularised one opened the
+    // next step to a servo current standing in for residual on a
+    // clean cabin sensor (seed 509: −38 % held out with the flip,
+    // −19 % without).
+    let flipped = match extension {
+        Extension::SecondOrder => None,
+        _ => flip_criterion(problem, &next),
+    };
+    Ok(match flipped {
+        Some((flipped, h)) if h.rms_nt < result.rms_nt => {
+            found.heldout_rms_after_nt = h.rms_nt;
+            (found, flipped, h)
+        }
+        _ => (found, next, result),
+    })
 }
 
 /// Whether an extension's held-out gain holds across the calibration and
