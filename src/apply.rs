@@ -305,18 +305,29 @@ impl SavedModel {
                     "the vector model of '{sensor}' has constants that are not numbers"
                 )));
             }
-            let stage = vector.tolles_lawson.iter().flat_map(|s| &s.components);
-            for fit in stage {
-                let whole = fit.coefficients.len() == fit.term_names.len()
+            let Some(stage) = &vector.tolles_lawson else {
+                continue;
+            };
+            if stage.components.len() != 3 {
+                return Err(not_ours(format!(
+                    "the vector Tolles-Lawson stage of '{sensor}' holds {} models, not one per body axis",
+                    stage.components.len()
+                )));
+            }
+            let terms = crate::vector::tolles_lawson::terms();
+            for fit in &stage.components {
+                let whole = fit.spec == ModelSpec::plain(terms)
+                    && fit.term_names == terms.names()
+                    && fit.coefficients.len() == fit.term_names.len()
                     && fit.coefficients.iter().all(|c| c.is_finite())
                     && fit.sample_rate_hz.is_finite()
                     && fit.sample_rate_hz > 0.0;
                 if !whole {
                     return Err(not_ours(format!(
-                        "the vector Tolles-Lawson model of '{}' ({sensor}) is incomplete: {} coefficients for {} terms, sample rate {} Hz",
+                        "the vector Tolles-Lawson model of '{}' ({sensor}) is not the stage magcomp fits, or incomplete: terms {}, {} coefficients, sample rate {} Hz",
                         fit.channel,
+                        fit.term_names.join(", "),
                         fit.coefficients.len(),
-                        fit.term_names.len(),
                         fit.sample_rate_hz
                     )));
                 }

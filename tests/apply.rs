@@ -434,6 +434,15 @@ fn a_model_that_does_not_fit_the_flight_is_refused_with_the_reason() {
     std::fs::write(at("edited_model.json"), edited.to_string()).unwrap();
     let text = refused(&at("f.csv"), &at("edited_model.json"), &at("out.csv"));
     assert!(text.contains("lists the terms") && text.contains("wobble"), "{text}");
+    // A vector Tolles-Lawson stage with a model too many.
+    let mut edited: serde_json::Value =
+        serde_json::from_reader(std::fs::File::open(at("model.json")).unwrap()).unwrap();
+    let components = &mut edited["vector_models"][0]["tolles_lawson"]["components"];
+    let extra = components[0].clone();
+    components.as_array_mut().unwrap().push(extra);
+    std::fs::write(at("four_axes.json"), edited.to_string()).unwrap();
+    let text = refused(&at("f.csv"), &at("four_axes.json"), &at("out.csv"));
+    assert!(text.contains("holds 4 models, not one per body axis"), "{text}");
     // A vector Tolles-Lawson model with a coefficient lost.
     let mut edited: serde_json::Value =
         serde_json::from_reader(std::fs::File::open(at("model.json")).unwrap()).unwrap();
@@ -441,8 +450,11 @@ fn a_model_that_does_not_fit_the_flight_is_refused_with_the_reason() {
     components[0]["coefficients"].as_array_mut().unwrap().pop();
     std::fs::write(at("edited_vector.json"), edited.to_string()).unwrap();
     let text = refused(&at("f.csv"), &at("edited_vector.json"), &at("out.csv"));
+    assert!(text.contains("terms dB_x, dB_y, dB_z, 2 coefficients"), "{text}");
     assert!(
-        text.contains("vector Tolles-Lawson model of 'flux_a_residual_x' (flux_a) is incomplete"),
+        text.contains(
+            "vector Tolles-Lawson model of 'flux_a_residual_x' (flux_a) is not the stage magcomp fits, or incomplete"
+        ),
         "{text}"
     );
     // A channel with no sample at all, as when fitting on the flight.

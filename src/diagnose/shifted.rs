@@ -54,6 +54,10 @@ pub(super) fn beats_shifted_sources(
     let scanned: Vec<&String> = (problem.levels.keys())
         .filter(|column| !model.sources.iter().any(|s| s.column() == column.as_str()))
         .collect();
+    // A figure that is not a number beats nothing.
+    if !rms_nt.is_finite() {
+        return false;
+    }
     let rows = problem.log.len();
     let in_windows = window_rows(problem.log.time_s(), problem.windows);
     // The model's columns are not shifted: one screen serves every shift.
@@ -89,9 +93,7 @@ pub(super) fn beats_shifted_sources(
         };
         // The real column fails as soon as one surrogate explains as
         // much; the screen's order puts the likeliest first.
-        rms_nt.is_finite()
-            && !(surrogates.into_par_iter())
-                .any(|(next, _)| held_out(&shifted, &next).is_ok_and(|h| h.rms_nt <= rms_nt))
+        !(surrogates.into_par_iter()).any(|(next, _)| held_out(&shifted, &next).is_ok_and(|h| h.rms_nt <= rms_nt))
     })
 }
 
