@@ -67,6 +67,23 @@ fn columns(path: &Path, wanted: &[&str]) -> Vec<Vec<String>> {
     out
 }
 
+/// Writes the sample flight in `folder` (f.csv), compensated plain on
+/// itself (own.csv) with its model saved (model.json).
+fn plain_model_of_sample_flight(folder: &Path) {
+    let at = |name: &str| folder.join(name);
+    sample_flight(&at("f.csv"));
+    run_ok(
+        magcomp()
+            .arg("compensate")
+            .arg(at("f.csv"))
+            .arg("--out")
+            .arg(at("own.csv"))
+            .arg("--plain")
+            .arg("--model")
+            .arg(at("model.json")),
+    );
+}
+
 /// Writes the sample flight (a box and survey lines) at `path`, its
 /// windows beside it.
 fn sample_flight(path: &Path) {
@@ -389,17 +406,7 @@ fn refused(flight: &Path, model: &Path, out: &Path) -> String {
 fn a_model_that_does_not_fit_the_flight_is_refused_with_the_reason() {
     let folder = tempfile::tempdir().unwrap();
     let at = |name: &str| folder.path().join(name);
-    sample_flight(&at("f.csv"));
-    run_ok(
-        magcomp()
-            .arg("compensate")
-            .arg(at("f.csv"))
-            .arg("--out")
-            .arg(at("own.csv"))
-            .arg("--plain")
-            .arg("--model")
-            .arg(at("model.json")),
-    );
+    plain_model_of_sample_flight(folder.path());
     rewrite(&at("f.csv"), &at("one_sensor.csv"), &["mag_2_uc"], &[], 1);
     let text = refused(&at("one_sensor.csv"), &at("model.json"), &at("out.csv"));
     assert!(text.contains("does not record mag_2_uc"), "{text}");
@@ -486,17 +493,7 @@ fn a_model_that_does_not_fit_the_flight_is_refused_with_the_reason() {
 fn a_model_applied_at_another_rate_rescales_its_per_sample_terms() {
     let folder = tempfile::tempdir().unwrap();
     let at = |name: &str| folder.path().join(name);
-    sample_flight(&at("f.csv"));
-    run_ok(
-        magcomp()
-            .arg("compensate")
-            .arg(at("f.csv"))
-            .arg("--out")
-            .arg(at("own.csv"))
-            .arg("--plain")
-            .arg("--model")
-            .arg(at("model.json")),
-    );
+    plain_model_of_sample_flight(folder.path());
     rewrite(&at("f.csv"), &at("half_rate.csv"), &[], &[], 2);
     let stdout = run_ok(
         magcomp()

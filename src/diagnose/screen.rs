@@ -370,16 +370,6 @@ impl Screen {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::simulate::scenario::{RawScenario, Scenario};
-
-    /// A simulated box with a tail sensor, its detected windows, and a
-    /// problem over them.
-    fn flight() -> (FlightLog, Vec<CalibrationWindow>) {
-        let raw: RawScenario = toml::from_str("[survey]\nline_count = 1\nline_length_m = 3000.0\n").unwrap();
-        let flight = crate::simulate::simulate(&Scenario::try_from(raw).unwrap()).unwrap();
-        let detection = crate::detect::detect_manoeuvres(&flight.log, &Default::default()).unwrap();
-        (flight.log, detection.calibration_windows(1.0))
-    }
 
     /// With no new column and the same target, the screen's figure is the
     /// model's own held-out RMS: the moments give what the rows give, so
@@ -388,22 +378,8 @@ mod tests {
     /// λ).
     #[test]
     fn the_screen_of_the_model_itself_is_its_held_out_rms() {
-        let (log, windows) = flight();
-        let sensor = log.vector_sensor("flux_a").unwrap();
-        let direction = field_directions(&log, &sensor);
-        let levels = source_levels(&log);
-        let (options, stores) = (FitOptions::default(), StorePool::new());
-        let problem = Problem {
-            log: &log,
-            sensor: &sensor,
-            channel: "mag_1_uc",
-            windows: &windows,
-            terms: TermSet::default(),
-            options: &options,
-            direction: &direction,
-            levels: &levels,
-            stores: &stores,
-        };
+        let flight = TestFlight::new(&[]);
+        let problem = flight.problem();
         let model = Model::default();
         let full = held_out(&problem, &model).unwrap();
         let screen = Screen::new(&problem, &model, &full.ridge).unwrap();

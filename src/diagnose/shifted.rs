@@ -170,7 +170,6 @@ pub(super) fn correlation(a: &[f64], b: &[f64], rows: &[usize]) -> f64 {
 mod tests {
     use super::*;
     use crate::model::SourceTerm;
-    use crate::simulate::scenario::{RawScenario, Scenario};
 
     /// A surrogate scored on the shifted flight built for the windows'
     /// rows scores what it scores on the flight shifted whole, to the bit,
@@ -178,41 +177,9 @@ mod tests {
     /// read beyond the windows.
     #[test]
     fn a_flight_shifted_on_the_windows_rows_scores_as_one_shifted_whole() {
-        let raw: RawScenario = toml::from_str("[survey]\nline_count = 1\nline_length_m = 3000.0\n").unwrap();
-        let flight = crate::simulate::simulate(&Scenario::try_from(raw).unwrap()).unwrap();
-        let mut channels = flight.log.channels().to_vec();
-        for (name, period) in [("cur_one", 7.0), ("cur_two", 23.0)] {
-            channels.push(Channel {
-                name: name.into(),
-                role: ChannelRole::Auxiliary,
-                values: flight.log.time_s().iter().map(|t| 3.0 + (t / period).sin()).collect(),
-            });
-        }
-        let log = FlightLog::new(
-            flight.log.source(),
-            flight.log.time_column(),
-            flight.log.time_s().to_vec(),
-            channels,
-        )
-        .unwrap();
-        let windows = crate::detect::detect_manoeuvres(&log, &Default::default())
-            .unwrap()
-            .calibration_windows(1.0);
-        let sensor = log.vector_sensor("flux_a").unwrap();
-        let direction = field_directions(&log, &sensor);
-        let levels = source_levels(&log);
-        let (options, stores) = (FitOptions::default(), StorePool::new());
-        let problem = Problem {
-            log: &log,
-            sensor: &sensor,
-            channel: "mag_1_uc",
-            windows: &windows,
-            terms: TermSet::default(),
-            options: &options,
-            direction: &direction,
-            levels: &levels,
-            stores: &stores,
-        };
+        let flight = TestFlight::new(&[("cur_one", 7.0), ("cur_two", 23.0)]);
+        let problem = flight.problem();
+        let (log, windows, levels) = (&flight.log, &flight.windows, &flight.levels);
         let model = Model {
             lag_s: 0.15,
             eddy_tau_s: 0.3,
@@ -238,7 +205,7 @@ mod tests {
         });
         let scanned: Vec<&String> = levels.keys().filter(|c| c.as_str() != "cur_one").collect();
         let shift = 3 * log.len() / 10;
-        let stretches = crate::windows::merged_rows(&windows, log.time_s());
+        let stretches = crate::windows::merged_rows(windows, log.time_s());
         let part = shifted_flight(&problem, &scanned, shift, &stretches).unwrap();
         let whole_channels = log.channels().iter().map(|c| {
             let mut c = c.clone();
