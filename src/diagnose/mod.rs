@@ -816,67 +816,70 @@ pub fn heldout_rms(
     Ok(held_out(&problem, &uncalibrated)?.rms_nt)
 }
 
-/// A simulated box and line to score candidates on in unit tests.
 #[cfg(test)]
-struct TestFlight {
-    log: FlightLog,
-    windows: Vec<CalibrationWindow>,
-    sensor: VectorSensor,
-    direction: [Vec<f64>; 3],
-    levels: BTreeMap<String, f64>,
-    options: FitOptions,
-    stores: StorePool,
-}
+mod tests {
+    use super::*;
 
-#[cfg(test)]
-impl TestFlight {
-    /// The simulator's one-line flight with a tail sensor, with `extra`
-    /// auxiliary columns (name, period in s: 3 + sin(t / period)), and
-    /// its detected windows.
-    fn new(extra: &[(&str, f64)]) -> Self {
-        use crate::flight_log::Channel;
-        use crate::simulate::scenario::{RawScenario, Scenario};
-        let raw: RawScenario = toml::from_str("[survey]\nline_count = 1\nline_length_m = 3000.0\n").unwrap();
-        let flight = crate::simulate::simulate(&Scenario::try_from(raw).unwrap()).unwrap();
-        let mut channels = flight.log.channels().to_vec();
-        for &(name, period) in extra {
-            channels.push(Channel {
-                name: name.into(),
-                role: ChannelRole::Auxiliary,
-                values: flight.log.time_s().iter().map(|t| 3.0 + (t / period).sin()).collect(),
-            });
-        }
-        let time = flight.log.time_s().to_vec();
-        let log = FlightLog::new(flight.log.source(), flight.log.time_column(), time, channels).unwrap();
-        let windows = crate::detect::detect_manoeuvres(&log, &Default::default())
-            .unwrap()
-            .calibration_windows(1.0);
-        let sensor = log.vector_sensor("flux_a").unwrap();
-        let direction = field_directions(&log, &sensor);
-        let levels = source_levels(&log);
-        TestFlight {
-            log,
-            windows,
-            sensor,
-            direction,
-            levels,
-            options: FitOptions::default(),
-            stores: StorePool::new(),
-        }
+    /// A simulated box and line to score candidates on in unit tests.
+    pub(in crate::diagnose) struct TestFlight {
+        pub(in crate::diagnose) log: FlightLog,
+        pub(in crate::diagnose) windows: Vec<CalibrationWindow>,
+        sensor: VectorSensor,
+        direction: [Vec<f64>; 3],
+        pub(in crate::diagnose) levels: BTreeMap<String, f64>,
+        options: FitOptions,
+        stores: StorePool,
     }
 
-    /// The problem of channel mag_1_uc on it, on the default terms.
-    fn problem(&self) -> Problem<'_> {
-        Problem {
-            log: &self.log,
-            sensor: &self.sensor,
-            channel: "mag_1_uc",
-            windows: &self.windows,
-            terms: TermSet::default(),
-            options: &self.options,
-            direction: &self.direction,
-            levels: &self.levels,
-            stores: &self.stores,
+    impl TestFlight {
+        /// The simulator's one-line flight with a tail sensor, with `extra`
+        /// auxiliary columns (name, period in s: 3 + sin(t / period)), and
+        /// its detected windows.
+        pub(in crate::diagnose) fn new(extra: &[(&str, f64)]) -> Self {
+            use crate::flight_log::Channel;
+            use crate::simulate::scenario::{RawScenario, Scenario};
+            let raw: RawScenario = toml::from_str("[survey]\nline_count = 1\nline_length_m = 3000.0\n").unwrap();
+            let flight = crate::simulate::simulate(&Scenario::try_from(raw).unwrap()).unwrap();
+            let mut channels = flight.log.channels().to_vec();
+            for &(name, period) in extra {
+                channels.push(Channel {
+                    name: name.into(),
+                    role: ChannelRole::Auxiliary,
+                    values: flight.log.time_s().iter().map(|t| 3.0 + (t / period).sin()).collect(),
+                });
+            }
+            let time = flight.log.time_s().to_vec();
+            let log = FlightLog::new(flight.log.source(), flight.log.time_column(), time, channels).unwrap();
+            let windows = crate::detect::detect_manoeuvres(&log, &Default::default())
+                .unwrap()
+                .calibration_windows(1.0);
+            let sensor = log.vector_sensor("flux_a").unwrap();
+            let direction = field_directions(&log, &sensor);
+            let levels = source_levels(&log);
+            TestFlight {
+                log,
+                windows,
+                sensor,
+                direction,
+                levels,
+                options: FitOptions::default(),
+                stores: StorePool::new(),
+            }
+        }
+
+        /// The problem of channel mag_1_uc on it, on the default terms.
+        pub(in crate::diagnose) fn problem(&self) -> Problem<'_> {
+            Problem {
+                log: &self.log,
+                sensor: &self.sensor,
+                channel: "mag_1_uc",
+                windows: &self.windows,
+                terms: TermSet::default(),
+                options: &self.options,
+                direction: &self.direction,
+                levels: &self.levels,
+                stores: &self.stores,
+            }
         }
     }
 }

@@ -370,6 +370,7 @@ impl Screen {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::diagnose::tests::TestFlight;
 
     /// With no new column and the same target, the screen's figure is the
     /// model's own held-out RMS: the moments give what the rows give, so

@@ -169,6 +169,7 @@ pub(super) fn correlation(a: &[f64], b: &[f64], rows: &[usize]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::diagnose::tests::TestFlight;
     use crate::model::SourceTerm;
 
     /// A surrogate scored on the shifted flight built for the windows'
