@@ -38,6 +38,7 @@
 //!   channels and windows chosen); each stage after it takes the
 //!   [`model::Calibration`] it gives (log, sensor, channels, windows).
 //!   [`sink`] writes what a run produced, and [`report`] is the HTML page.
+//!   A [`progress::Meter`] hears each stage begin and each channel done.
 //! - [`simulate`]: flights with known truth, for tests and for users.
 //! - The command line (`src/main.rs`, the binary) is a thin layer over
 //!   these: `src/cli/` holds one module per subcommand.
@@ -99,6 +100,7 @@ pub mod model;
 pub mod numerics;
 pub mod pipeline;
 pub mod plan;
+pub mod progress;
 pub mod quality;
 pub mod reduce;
 pub mod report;

@@ -16,7 +16,7 @@ use crate::error::{Error, Result};
 use crate::formats::mcap::McapExtras;
 use crate::formats::{detect_format, stage, stage_compensated, Destination, Format, OutputKind, OutputSet};
 use crate::model::FittedModel;
-use crate::pipeline::{run, FlightResult, FlightRun};
+use crate::pipeline::{FlightResult, FlightRun};
 
 /// Where one flight's outputs go.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -98,14 +98,16 @@ impl FlightOutputs {
 /// Reads, fits, compensates and assesses one flight ([`run`]) and writes
 /// its outputs ([`write`]).
 pub fn process_flight(job: &FlightJob, options: &Settings, outputs: &FlightOutputs) -> Result<FlightResult> {
-    process_flight_listing(job, options, outputs).map(|(result, _)| result)
+    process_flight_listing(job, options, outputs, &crate::progress::Silent).map(|(result, _)| result)
 }
 
-/// [`process_flight`], also returning the files written.
+/// [`process_flight`], also returning the files written, telling `meter`
+/// as each stage begins ([`crate::pipeline::run_metered`]).
 pub fn process_flight_listing(
     job: &FlightJob,
     options: &Settings,
     outputs: &FlightOutputs,
+    meter: &dyn crate::progress::Meter,
 ) -> Result<(FlightResult, Vec<PathBuf>)> {
     let inputs: Vec<&Path> = std::iter::once(job.input.as_path())
         .chain(job.diagnosis.as_deref())
@@ -115,7 +117,8 @@ pub fn process_flight_listing(
     // Folders created here are not noted in the outputs: a caller that
     // tells its user calls `prepare` first.
     crate::formats::prepare(&inputs, &outputs.destinations())?;
-    let flight = run(job, options, &outputs.compensated)?;
+    let flight = crate::pipeline::run_metered(job, options, &outputs.compensated, meter)?;
+    meter.begin(crate::progress::Stage::Writing, 0);
     let written = write(&flight, options, outputs)?;
     Ok((flight.result, written))
 }

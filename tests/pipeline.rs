@@ -5,8 +5,9 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use magcomp::config::{FlightJob, Settings};
+use magcomp::progress::{Meter, Stage};
 use magcomp::sample_flight::{generate, write, SampleFlightSpec};
-use magcomp::sink::{process_flight, FlightOutputs};
+use magcomp::sink::{process_flight, process_flight_listing, FlightOutputs};
 use magcomp::windows::read_detect_json;
 
 fn small_flight(folder: &Path) -> (PathBuf, PathBuf) {
@@ -37,6 +38,63 @@ fn run_with_threads(threads: usize, csv: &Path, windows: &Path, out: &Path) -> V
     bytes.extend(std::fs::read(outputs.model_json.unwrap()).unwrap());
     bytes.extend(std::fs::read(outputs.quality_json.unwrap()).unwrap());
     bytes
+}
+
+/// Each stage a flight's meter heard begin, with its steps to do and the
+/// steps it heard done.
+#[derive(Default)]
+struct Recorder(std::sync::Mutex<Vec<(Stage, u64, u64)>>);
+
+impl Meter for Recorder {
+    fn begin(&self, stage: Stage, steps: u64) {
+        self.0.lock().unwrap().push((stage, steps, 0));
+    }
+    fn step(&self) {
+        let mut stages = self.0.lock().unwrap();
+        let last = stages.last_mut().expect("a step before any stage");
+        last.2 += 1;
+    }
+}
+
+#[test]
+fn the_meter_hears_every_stage_in_order_and_every_channel_done() {
+    let folder = tempfile::tempdir().unwrap();
+    let (csv, windows) = small_flight(folder.path());
+    let job = FlightJob {
+        windows: read_detect_json(&windows, 5.0).unwrap(),
+        ..FlightJob::new(csv.clone())
+    };
+    let metered = FlightOutputs::in_directory(&folder.path().join("metered"), &csv);
+    let recorder = Recorder::default();
+    let (result, _) = process_flight_listing(&job, &options(), &metered, &recorder).unwrap();
+    let stages = recorder.0.into_inner().unwrap();
+    let channels = result.channels.len() as u64;
+    assert_eq!(channels, 2, "the sample flight's scalar channels");
+    let expected = [
+        (Stage::Reading, 0),
+        (Stage::Preparing, 0),
+        (Stage::Diagnosing, 2 * channels),
+        (Stage::Checking, 0),
+        (Stage::Fitting, channels),
+        (Stage::Assessing, channels),
+        (Stage::Writing, 0),
+    ];
+    let heard: Vec<(Stage, u64)> = stages.iter().map(|&(stage, steps, _)| (stage, steps)).collect();
+    assert_eq!(heard, expected);
+    for (stage, steps, done) in stages {
+        assert_eq!(done, steps, "{stage:?}: {done} of {steps} steps heard done");
+    }
+    // The meter changes nothing the flight computes.
+    let silent = FlightOutputs::in_directory(&folder.path().join("silent"), &csv);
+    process_flight(&job, &options(), &silent).unwrap();
+    let pairs = [
+        (metered.compensated, silent.compensated),
+        (metered.quality_json.unwrap(), silent.quality_json.unwrap()),
+    ];
+    for (a, b) in pairs {
+        let same = std::fs::read(&a).unwrap() == std::fs::read(&b).unwrap();
+        assert!(same, "{} differs from {}", a.display(), b.display());
+    }
 }
 
 /// The vector-compensated columns of the sample flights' fluxgate (it has

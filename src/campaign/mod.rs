@@ -57,14 +57,16 @@ impl CampaignFlight {
 /// Processes `job` into `folder` unless its outputs are current (or
 /// `force`), then writes its status. A flight that fails is a failed
 /// status, not an error; the error is for a status that cannot be written.
+/// `meter` hears each stage begin.
 pub fn process_campaign_flight(
     job: &FlightJob,
     settings: &Settings,
     folder: &Path,
-    shard: Shard,
-    force: bool,
+    (shard, force): (Shard, bool),
+    meter: &dyn crate::progress::Meter,
 ) -> Result<CampaignFlight> {
     let started = Instant::now();
+    meter.begin(crate::progress::Stage::Reading, 0);
     let path = status_path(folder, &job.output_name);
     let hashes =
         crate::flight_identity::hash_file(&job.input).and_then(|input| Ok((input, settings_sha256(job, settings)?)));
@@ -77,7 +79,7 @@ pub fn process_campaign_flight(
                 }
             }
             (status.input_sha256, status.settings_sha256) = (input_sha256, settings_sha256);
-            process_flight_listing(job, settings, &FlightOutputs::for_job(folder, job))
+            process_flight_listing(job, settings, &FlightOutputs::for_job(folder, job), meter)
         }
         Err(error) => Err(error),
     };

@@ -23,6 +23,7 @@ use std::time::{Duration, Instant};
 use super::{fail_campaign_flight, process_campaign_flight, CampaignFlight, Shard};
 use crate::config::{FlightJob, Pipeline};
 use crate::error::{Error, Result};
+use crate::progress::Meter;
 use crate::sink::FlightOutputs;
 
 /// How many flights a run holds in memory at once, and why.
@@ -183,8 +184,9 @@ impl Board {
 
 /// Processes the flights `order` of `pipeline` (in [`dependency_order`]),
 /// `at_once` at a time, into its output folder; calls `started` as each
-/// begins and `finished` as each ends (from the slot that ran it), and
-/// returns every flight in `order`'s order. `prepare` makes a flight's
+/// begins (the meter it returns hears the flight's stages, and is dropped
+/// as the flight ends) and `finished` as each ends (from the slot that ran
+/// it), and returns every flight in `order`'s order. `prepare` makes a flight's
 /// output folders and says what it made; a failure there fails the flight
 /// with the same error when it writes.
 pub fn run_flights(
@@ -192,7 +194,7 @@ pub fn run_flights(
     order: &[usize],
     (shard, force, at_once): (Shard, bool, usize),
     prepare: &(dyn Fn(&FlightJob, &FlightOutputs) -> Vec<String> + Sync),
-    started: &(dyn Fn(&FlightJob, Progress) + Sync),
+    started: &(dyn Fn(&FlightJob, Progress) -> Box<dyn Meter> + Sync),
     finished: &(dyn Fn(&FinishedFlight, Progress) + Sync),
 ) -> Vec<FinishedFlight> {
     let folder = &pipeline.output_directory;
@@ -222,7 +224,7 @@ pub fn run_flights(
             (board.next - 1, board.progress(order.len(), slots))
         };
         let job = &pipeline.flights[order[position]];
-        started(job, progress);
+        let meter = started(job, progress);
         // A flight applying another's model waits for that flight, which
         // was taken before it (the order puts it first).
         let unavailable =
@@ -235,8 +237,9 @@ pub fn run_flights(
         // panic goes on, so no slot waits for ever.
         let processed = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| match unavailable {
             Some(error) => fail_campaign_flight(job, folder, shard, error),
-            None => process_campaign_flight(job, &pipeline.settings, folder, shard, force),
+            None => process_campaign_flight(job, &pipeline.settings, folder, (shard, force), meter.as_ref()),
         }));
+        drop(meter);
         let flight = match processed {
             Ok(flight) => flight,
             Err(panic) => {

@@ -9,7 +9,8 @@ use magcomp::pipeline::summary;
 use magcomp::sink::{process_flight_listing, FlightOutputs};
 use magcomp::windows::CalibrationWindow;
 
-use super::{beside, parse_date, prepare_flight_outputs, print_notes, spinner};
+use super::progress::FlightBar;
+use super::{beside, parse_date, prepare_flight_outputs, print_notes};
 
 #[derive(clap::Args)]
 pub struct CompensateArgs {
@@ -166,9 +167,9 @@ pub fn compensate(args: CompensateArgs, verbose: bool) -> anyhow::Result<()> {
         .collect();
     magcomp::formats::destination::refuse_inputs(&other_inputs, &outputs.destinations())?;
     print_notes(&prepare_flight_outputs(&job, &outputs)?);
-    let bar = spinner(format!("compensating {}", args.flight.display()));
-    let result = process_flight_listing(&job, &pipeline.settings, &outputs);
-    bar.finish_and_clear();
+    let bar = FlightBar::alone(&args.flight, "starting");
+    let result = process_flight_listing(&job, &pipeline.settings, &outputs, &bar);
+    drop(bar);
     let (result, written) = result?;
     print!("{}", summary(&result, pipeline.settings.fom_limit_nt, verbose));
     for path in written {

@@ -7,7 +7,8 @@ use magcomp::config::{FlightJob, Pipeline};
 use magcomp::formats::{prepare, Destination, OutputKind, OutputSet};
 use magcomp::windows::CalibrationWindow;
 
-use super::{print_notes, read_prepared, spinner};
+use super::progress::FlightBar;
+use super::{print_notes, read_prepared};
 
 /// Diagnoses `flight` and writes DIAGNOSIS.json and its HTML page.
 pub fn diagnose(
@@ -35,9 +36,9 @@ pub fn diagnose(
         ..FlightJob::new(flight)
     };
     let prepared = read_prepared(&job, &pipeline)?;
-    let bar = spinner(format!("diagnosing {}", flight.display()));
-    let diagnosis = prepared.diagnose(&pipeline.settings, &pipeline.settings.diagnose);
-    bar.finish_and_clear();
+    let bar = FlightBar::alone(flight, "diagnosing");
+    let diagnosis = prepared.diagnose((&pipeline.settings, &pipeline.settings.diagnose), &bar);
+    drop(bar);
     let diagnosis = diagnosis?;
     let mut set = OutputSet::new();
     set.add(magcomp::formats::stage_json(out, "the diagnosis", &diagnosis)?);

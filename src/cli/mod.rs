@@ -15,6 +15,7 @@ pub mod convert;
 pub mod detect;
 pub mod diagnose;
 pub mod plan;
+pub mod progress;
 pub mod run;
 pub mod sample_flight;
 pub mod simulate;

@@ -7,9 +7,11 @@ use magcomp::campaign::{run_flights, CampaignFlight, FinishedFlight, FlightState
 use magcomp::config::{FlightJob, Pipeline};
 use magcomp::diagnose::ApplyDiagnosis;
 use magcomp::pipeline::summary;
+use magcomp::progress::Meter;
 use magcomp::sink::FlightOutputs;
 
-use super::{duration_words, prepare_flight_outputs, print_notes, spinner};
+use super::progress::{CampaignBar, FlightBar};
+use super::{prepare_flight_outputs, print_notes};
 
 /// Runs every flight of the pipeline file `config` (this shard's), prints
 /// each as it finishes and the status table, and fails when any flight did.
@@ -52,31 +54,24 @@ pub fn run(config: &Path, (plain, force, verbose): (bool, bool, bool), shard: Op
     if mine.len() > 1 {
         println!("{} flights, {} at once: {}", mine.len(), at_once.count, at_once.reason);
     }
-    let bar = spinner(format!("compensating {} flights", mine.len()));
-    let progress_words = |progress: Progress| {
-        let left = progress
-            .left
-            .map_or(String::new(), |left| format!(", about {} left", duration_words(left)));
-        format!(
-            "{} of {} flights done, {} in progress{left}",
-            progress.finished, progress.total, progress.running
-        )
-    };
+    let display = CampaignBar::new(mine.len());
     // Outputs that cannot be written fail the flight, with the same error,
     // in its status like any other failure.
     let prepare_outputs =
         |job: &FlightJob, outputs: &FlightOutputs| prepare_flight_outputs(job, outputs).unwrap_or_default();
-    let started = |job: &FlightJob, progress: Progress| {
-        bar.set_message(format!(
-            "{}: compensating {}",
-            progress_words(progress),
-            job.input.display()
-        ));
+    let started = |job: &FlightJob, progress: Progress| -> Box<dyn Meter> {
+        display.show(progress);
+        // A flight given another's model may wait for it before it starts.
+        let first = match job.model {
+            Some(_) => "waiting for its model",
+            None => "starting",
+        };
+        Box::new(FlightBar::in_campaign(&display, &job.input, first))
     };
     let finished = |done: &FinishedFlight, progress: Progress| {
-        bar.set_message(progress_words(progress));
+        display.show(progress);
         let limit = pipeline.settings.fom_limit_nt;
-        bar.suspend(|| print_finished(&pipeline.flights[done.index], done, folder, (limit, verbose)));
+        display.suspend(|| print_finished(&pipeline.flights[done.index], done, folder, (limit, verbose)));
     };
     let mut flights = run_flights(
         &pipeline,
@@ -86,7 +81,7 @@ pub fn run(config: &Path, (plain, force, verbose): (bool, bool, bool), shard: Op
         &started,
         &finished,
     );
-    bar.finish_and_clear();
+    display.clear();
     // The table in the campaign's order, whatever order the flights ran in
     // (a flight given another's model runs after it).
     flights.sort_by_key(|done| done.index);

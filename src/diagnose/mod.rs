@@ -116,6 +116,7 @@ use crate::model::{
 };
 use crate::numerics::solve::{Criterion, Figures, LambdaChoice, SolveOptions};
 use crate::numerics::stacked::StorePool;
+use crate::progress::{Meter, Stage};
 use crate::quality::root_mean_square;
 use crate::tolles_lawson::TermSet;
 use crate::vector_calibration::{calibrate, calibrate_near, VectorCalibration};
@@ -554,6 +555,16 @@ pub fn diagnose(
     options: &FitOptions,
     settings: &DiagnoseOptions,
 ) -> Result<Diagnosis> {
+    diagnose_metered(calibration, (terms, options, settings), &crate::progress::Silent)
+}
+
+/// [`diagnose`], telling `meter` of two steps a channel: its plain fits
+/// held out, then its search.
+pub fn diagnose_metered(
+    calibration: &Calibration,
+    (terms, options, settings): (&TermSet, &FitOptions, &DiagnoseOptions),
+    meter: &dyn Meter,
+) -> Result<Diagnosis> {
     let Calibration {
         log,
         sensor,
@@ -564,6 +575,7 @@ pub fn diagnose(
     if let Some(problem) = hold_out.insufficient() {
         return Err(not_enough_calibration(log, problem));
     }
+    meter.begin(Stage::Diagnosing, 2 * channels.len() as u64);
     // The fluxgate is judged against the scalar channel with the least
     // aircraft field of its own, and the threshold grows with what is
     // left: a cabin sensor's hundreds of nT would otherwise count as
@@ -589,7 +601,11 @@ pub fn diagnose(
         || {
             channels
                 .par_iter()
-                .map(|channel| channel_start(&problem(channel, log, &raw_direction)))
+                .map(|channel| {
+                    let start = channel_start(&problem(channel, log, &raw_direction));
+                    meter.step();
+                    start
+                })
                 .collect::<Result<Vec<_>>>()
         },
     );
@@ -611,7 +627,10 @@ pub fn diagnose(
         .map(|(channel, start)| {
             let start = match start {
                 Ok(start) => start,
-                Err(why) => return Ok(Err(why)),
+                Err(why) => {
+                    meter.step();
+                    return Ok(Err(why));
+                }
             };
             let raw_problem = problem(channel, log, &raw_direction);
             let calibrated_problem = match (&calibrated, &calibrated_direction) {
@@ -619,7 +638,9 @@ pub fn diagnose(
                 _ => None,
             };
             let fluxgate_calibration = fluxgate.as_ref().map(|check| &check.calibration);
-            diagnose_from(start, (raw_problem, calibrated_problem), fluxgate_calibration, settings).map(Ok)
+            let searched = diagnose_from(start, (raw_problem, calibrated_problem), fluxgate_calibration, settings);
+            meter.step();
+            searched.map(Ok)
         })
         .collect::<Result<_>>()?;
     let (channel_results, findings, untestable) = searched_channels(log, results)?;

@@ -12,6 +12,7 @@ use crate::flight_log::FlightLog;
 use crate::formats::added_column_names;
 use crate::messages::{Note, Warning};
 use crate::model::SharedDesign;
+use crate::progress::{Meter, Stage};
 use crate::quality::ChannelQuality;
 
 /// Compensates `job`'s flight with the saved model at `model_path`,
@@ -24,6 +25,7 @@ pub(super) fn run_applied(
     compensated: &Path,
     saved: &crate::apply::SavedModel,
     recorded: FlightLog,
+    meter: &dyn Meter,
 ) -> Result<FlightRun> {
     // The model's channels under this flight's names, when they differ.
     let (renamed, renaming) = match options.model_channels.is_empty() {
@@ -34,6 +36,7 @@ pub(super) fn run_applied(
         }
     };
     let saved = renamed.as_ref().unwrap_or(saved);
+    meter.begin(Stage::Preparing, 0);
     let screened = crate::screen::screen_samples(&recorded)?;
     let raw_log = screened.log_or(&recorded);
     let mut models = saved.models_for(raw_log, job.channels.as_deref(), job.vector.as_deref())?;
@@ -61,7 +64,14 @@ pub(super) fn run_applied(
     }
     let shared = SharedDesign::of_models(log, &models);
     let mut compensation = crate::compensate::compensate_with(log, &models, options.level, &shared)?;
-    let quality = assess_applied(log, &models, &mut compensation, options, &shared, &mut warnings)?;
+    let quality = assess_applied(
+        log,
+        &models,
+        &mut compensation,
+        (options, meter),
+        &shared,
+        &mut warnings,
+    )?;
     drop(shared);
     notes.extend(job.assigned_model.clone());
     notes.extend(renaming);
@@ -221,15 +231,20 @@ fn assess_applied(
     log: &FlightLog,
     models: &[crate::model::FittedModel],
     compensation: &mut crate::compensate::Compensation,
-    options: &Settings,
+    (options, meter): (&Settings, &dyn Meter),
     shared: &[SharedDesign],
     warnings: &mut Vec<String>,
 ) -> Result<Vec<ChannelQuality>> {
+    meter.begin(Stage::Assessing, models.len() as u64);
     let geometry = crate::quality::SurveyGeometry::of(log);
     let mut quality: Vec<ChannelQuality> = models
         .par_iter()
         .zip(compensation.channels.par_iter_mut())
-        .map(|(model, channel)| assess_with_sigma((log, &geometry), model, channel, shared).map(|(quality, _)| quality))
+        .map(|(model, channel)| {
+            let assessed = assess_with_sigma((log, &geometry), model, channel, shared);
+            meter.step();
+            assessed.map(|(quality, _)| quality)
+        })
         .collect::<Result<_>>()?;
     if models.iter().all(|m| m.windows.is_empty()) {
         // No calibration windows here: no band figures (the model's are

@@ -65,7 +65,7 @@ pub(super) fn augmentation_plan(
     job: &FlightJob,
     raw_log: &FlightLog,
     calibration: &Calibration,
-    options: &Settings,
+    (options, meter): (&Settings, &dyn crate::progress::Meter),
     stage_calibrated: bool,
 ) -> Result<ExtensionsPlan> {
     use crate::diagnose::ApplyDiagnosis;
@@ -91,7 +91,8 @@ pub(super) fn augmentation_plan(
     if options.diagnose.apply == ApplyDiagnosis::Never {
         return Ok(plain(Vec::new()));
     }
-    match crate::diagnose::diagnose(calibration, &options.terms, &options.fit, &options.diagnose) {
+    let settings = (&options.terms, &options.fit, &options.diagnose);
+    match crate::diagnose::diagnose_metered(calibration, settings, meter) {
         Ok(mut diagnosis) => {
             diagnosis.flight = Some(crate::flight_identity::FlightIdentity::of(raw_log)?);
             Ok(ExtensionsPlan {

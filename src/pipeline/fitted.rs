@@ -22,6 +22,7 @@ use crate::gradient::GradientStage;
 use crate::messages::{Note, Warning};
 use crate::model::{compare_estimators, fit, Calibration, Extensions, FittedModel, ModelSpec, SharedDesign};
 use crate::numerics::stacked::StorePool;
+use crate::progress::{Meter, Stage};
 use crate::quality::transfer::check_transfer;
 use crate::quality::ChannelQuality;
 
@@ -32,7 +33,9 @@ pub(super) fn run_fitted(
     compensated: &Path,
     planned: Option<crate::against_plan::PlanPrediction>,
     recorded: FlightLog,
+    meter: &dyn Meter,
 ) -> Result<FlightRun> {
+    meter.begin(Stage::Preparing, 0);
     let flight = PreparedFlight::new(recorded, job, options)?;
     // The fit (and everything after it) sees the calibrated fluxgate; the
     // compensated file keeps the recorded columns.
@@ -43,15 +46,15 @@ pub(super) fn run_fitted(
     let on = flight.calibration().on(calibrated.as_ref().unwrap_or(flight.log()));
     let mut warnings: Vec<Warning> = Warning::said(flight.warnings()).collect();
     let (plan, mut diagnosis, departures) =
-        diagnosed_plan(job, (&flight, &on), options, fluxgate.is_some(), &mut warnings)?;
+        diagnosed_plan(job, (&flight, &on), (options, meter), fluxgate.is_some(), &mut warnings)?;
     warnings.extend(Warning::said(input_warnings(job, &flight.recorded, compensated)?));
-    let mut fitted = fit_channels(&on, &plan, options)?;
+    let mut fitted = fit_channels(&on, &plan, options, meter)?;
     let mut compensation = crate::compensate::compensate_with(on.log, &fitted.models, options.level, &fitted.shared)?;
     let boxes: Vec<(f64, f64)> = match &flight.detection {
         Some(detection) => detection.boxes.iter().map(|b| (b.t_start, b.t_end)).collect(),
         None => window_hulls(&flight.windows),
     };
-    let (mut quality, transfer_notes) = assess_channels(&on, &mut fitted, &mut compensation, &boxes, options)?;
+    let (mut quality, transfer_notes) = assess_channels(&on, &mut fitted, &mut compensation, &boxes, (options, meter))?;
     let models = fitted.models;
     let (vector, gradients) = vector_and_gradients(&on, &boxes, (&compensation, &models, &quality), options);
     for compensated in vector.compensated {
@@ -130,7 +133,7 @@ pub(super) fn run_fitted(
 fn diagnosed_plan(
     job: &FlightJob,
     (flight, on): (&PreparedFlight, &Calibration),
-    options: &Settings,
+    (options, meter): (&Settings, &dyn Meter),
     stage_calibrated: bool,
     warnings: &mut Vec<Warning>,
 ) -> Result<(
@@ -142,10 +145,13 @@ fn diagnosed_plan(
         models: plan,
         mut diagnosis,
         warnings: said,
-    } = augmentation_plan(job, flight.log(), on, options, stage_calibrated)?;
+    } = augmentation_plan(job, flight.log(), on, (options, meter), stage_calibrated)?;
     warnings.extend(said);
     let (plan, departures) = match diagnosis.as_mut() {
-        Some(diagnosis) => evidence_rule(on, plan, diagnosis, options, warnings)?,
+        Some(diagnosis) => {
+            meter.begin(Stage::Checking, 0);
+            evidence_rule(on, plan, diagnosis, options, warnings)?
+        }
         None => (plan, BTreeMap::new()),
     };
     Ok((plan, diagnosis, departures))
@@ -174,7 +180,12 @@ struct Fitted {
 
 /// Fits every channel of `on` with its model of `plan`, its estimator
 /// table and its excitation analysis.
-fn fit_channels(on: &Calibration, plan: &BTreeMap<String, Extensions>, options: &Settings) -> Result<Fitted> {
+fn fit_channels(
+    on: &Calibration,
+    plan: &BTreeMap<String, Extensions>,
+    options: &Settings,
+    meter: &dyn Meter,
+) -> Result<Fitted> {
     let Calibration {
         log,
         sensor,
@@ -184,12 +195,14 @@ fn fit_channels(on: &Calibration, plan: &BTreeMap<String, Extensions>, options: 
     // The channels' fits share their stores; the stores are freed before
     // compensating, which does not need them.
     let stores = StorePool::new();
+    meter.begin(Stage::Fitting, channels.len() as u64);
     let fitted: Vec<FittedModel> = channels
         .par_iter()
         .map(|channel| {
             let spec = ModelSpec::of_channel(options.terms, plan, channel);
             let mut model = fit(log, sensor, channel, windows, &spec, &options.fit, &stores)?;
             model.estimators = compare_estimators(log, sensor, channel, windows, &spec, &options.fit, &stores)?;
+            meter.step();
             Ok(model)
         })
         .collect::<Result<_>>()?;
@@ -238,11 +251,12 @@ fn assess_channels(
     fitted: &mut Fitted,
     compensation: &mut crate::compensate::Compensation,
     boxes: &[(f64, f64)],
-    options: &Settings,
+    (options, meter): (&Settings, &dyn Meter),
 ) -> Result<(Vec<ChannelQuality>, Vec<String>)> {
     let Calibration {
         log, sensor, windows, ..
     } = *on;
+    meter.begin(Stage::Assessing, fitted.models.len() as u64);
     let stores = StorePool::new();
     let shared = std::mem::take(&mut fitted.shared);
     let geometry = crate::quality::SurveyGeometry::of(log);
@@ -254,6 +268,7 @@ fn assess_channels(
             let (transfers, notes) =
                 crate::quality::transfer::box_transfer(log, sensor, model, windows, boxes, &options.fit, &stores)?;
             quality.box_transfer = transfers;
+            meter.step();
             Ok((quality, jackknife_levels, notes))
         })
         .collect::<Result<_>>()?;

@@ -13,6 +13,7 @@ use crate::flight_log::FlightLog;
 use crate::formats::align::AlignmentReport;
 use crate::formats::read_flight_log;
 use crate::model::{FittedModel, SharedDesign};
+use crate::progress::{Meter, Stage};
 use crate::quality::ChannelQuality;
 
 pub use crate::diagnose::AppliedFinding;
@@ -197,6 +198,13 @@ impl FlightRun {
 /// `compensated` is where the compensated flight will go: its format
 /// names the columns magcomp adds.
 pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<FlightRun> {
+    run_metered(job, options, compensated, &crate::progress::Silent)
+}
+
+/// [`run`], telling `meter` as each stage begins and each channel of a
+/// long stage is done.
+pub fn run_metered(job: &FlightJob, options: &Settings, compensated: &Path, meter: &dyn Meter) -> Result<FlightRun> {
+    meter.begin(Stage::Reading, 0);
     // A plan report or a saved model that cannot be read fails before the
     // flight's work.
     let planned = (job.plan.as_deref())
@@ -213,8 +221,8 @@ pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<Fl
     // units are named first.
     let units = crate::formats::units::unit_warnings(&job.input.display().to_string(), &recorded);
     let run = match saved {
-        Some(saved) => run_applied(job, options, compensated, &saved, recorded),
-        None => run_fitted(job, options, compensated, planned, recorded),
+        Some(saved) => run_applied(job, options, compensated, &saved, recorded, meter),
+        None => run_fitted(job, options, compensated, planned, recorded, meter),
     };
     run.map_err(|error| match units.is_empty() {
         true => error,

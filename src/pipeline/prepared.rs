@@ -97,17 +97,18 @@ pub fn diagnose_flight(
     settings: &crate::diagnose::DiagnoseOptions,
 ) -> Result<crate::diagnose::Diagnosis> {
     let chosen = Chosen::of(log, None, job, options)?;
-    diagnose_calibration(&chosen.calibration(log), options, settings)
+    diagnose_calibration(&chosen.calibration(log), (options, settings), &crate::progress::Silent)
 }
 
 /// [`crate::diagnose::diagnose`] on `calibration`, the diagnosis naming
-/// the flight it was made on.
+/// the flight it was made on; `meter` hears its channels done.
 fn diagnose_calibration(
     calibration: &Calibration,
-    options: &Settings,
-    settings: &crate::diagnose::DiagnoseOptions,
+    (options, settings): (&Settings, &crate::diagnose::DiagnoseOptions),
+    meter: &dyn crate::progress::Meter,
 ) -> Result<crate::diagnose::Diagnosis> {
-    let mut diagnosis = crate::diagnose::diagnose(calibration, &options.terms, &options.fit, settings)?;
+    let settings = (&options.terms, &options.fit, settings);
+    let mut diagnosis = crate::diagnose::diagnose_metered(calibration, settings, meter)?;
     diagnosis.flight = Some(crate::flight_identity::FlightIdentity::of(calibration.log)?);
     Ok(diagnosis)
 }
@@ -174,13 +175,14 @@ impl PreparedFlight {
         self.screened.warnings(&self.recorded)
     }
 
-    /// The flight diagnosed on its calibration.
+    /// The flight diagnosed on its calibration; `meter` hears its
+    /// channels done.
     pub fn diagnose(
         &self,
-        options: &Settings,
-        settings: &crate::diagnose::DiagnoseOptions,
+        (options, settings): (&Settings, &crate::diagnose::DiagnoseOptions),
+        meter: &dyn crate::progress::Meter,
     ) -> Result<crate::diagnose::Diagnosis> {
-        diagnose_calibration(&self.calibration(), options, settings)
+        diagnose_calibration(&self.calibration(), (options, settings), meter)
     }
 }
 
