@@ -109,7 +109,74 @@ fn hex(digest: &[u8]) -> String {
 }
 
 /// SHA-256 of a file's bytes, read in 1 MiB blocks.
+///
+/// A run hashes its input up to three times (the campaign's status, the
+/// diagnosis, the model file), each a pass over the whole file on one
+/// core, so the process keeps the hashes of the files it read: a file
+/// whose path, device, inode, size and modification time are all
+/// unchanged is not read again. Any write to the file (or a file renamed
+/// over it) changes one of them.
 pub fn hash_file(path: &Path) -> Result<String> {
+    let key = FileKey::of(path).map_err(|e| Error::io(path, "reading (to hash)", e))?;
+    if key.modified.is_none() {
+        // Without a modification time a change may go unseen.
+        return hash_bytes(path);
+    }
+    if let Some(hash) = HASHED.lock().ok().and_then(|known| known.get(&key).cloned()) {
+        return Ok(hash);
+    }
+    let hash = hash_bytes(path)?;
+    // A file changed while it was hashed gets no entry: the next call
+    // hashes it again.
+    if FileKey::of(path).is_ok_and(|after| after == key) {
+        if let Ok(mut known) = HASHED.lock() {
+            if known.len() >= HASHES_KEPT {
+                known.clear();
+            }
+            known.insert(key, hash.clone());
+        }
+    }
+    Ok(hash)
+}
+
+/// Files whose hashes a process keeps ([`hash_file`]).
+const HASHES_KEPT: usize = 256;
+
+static HASHED: std::sync::Mutex<std::collections::BTreeMap<FileKey, String>> =
+    std::sync::Mutex::new(std::collections::BTreeMap::new());
+
+/// What tells a file's content has not changed since it was hashed.
+#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord)]
+struct FileKey {
+    path: std::path::PathBuf,
+    device: u64,
+    inode: u64,
+    size: u64,
+    modified: Option<std::time::SystemTime>,
+}
+
+impl FileKey {
+    fn of(path: &Path) -> std::io::Result<Self> {
+        let metadata = std::fs::metadata(path)?;
+        #[cfg(unix)]
+        let (device, inode) = {
+            use std::os::unix::fs::MetadataExt;
+            (metadata.dev(), metadata.ino())
+        };
+        #[cfg(not(unix))]
+        let (device, inode) = (0, 0);
+        Ok(FileKey {
+            path: std::path::absolute(path)?,
+            device,
+            inode,
+            size: metadata.len(),
+            modified: metadata.modified().ok(),
+        })
+    }
+}
+
+/// SHA-256 of a file's bytes, read now.
+fn hash_bytes(path: &Path) -> Result<String> {
     let mut file = std::fs::File::open(path).map_err(|e| Error::io(path, "reading (to hash)", e))?;
     let mut hasher = Sha256::new();
     let mut block = vec![0u8; 1 << 20];
@@ -146,6 +213,29 @@ fn hash_log(log: &FlightLog) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_file_changed_since_it_was_hashed_is_hashed_again() -> std::result::Result<(), Box<dyn std::error::Error>> {
+        let folder = tempfile::tempdir()?;
+        let path = folder.path().join("flight.csv");
+        std::fs::write(&path, "abc")?;
+        let abc = "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad";
+        assert_eq!(hash_file(&path)?, abc);
+        assert_eq!(hash_file(&path)?, abc, "the kept hash");
+        // The same size, written in place, its time moved on.
+        std::fs::write(&path, "abd")?;
+        let file = std::fs::File::options().write(true).open(&path)?;
+        file.set_modified(std::time::SystemTime::now() + std::time::Duration::from_secs(5))?;
+        drop(file);
+        let abd = "a52d159f262b2c6ddb724a61840befc36eb30c88877a4030b65cbe86298449c9";
+        assert_eq!(hash_file(&path)?, abd);
+        // Another file renamed over it.
+        let other = folder.path().join("other.csv");
+        std::fs::write(&other, "abc")?;
+        std::fs::rename(&other, &path)?;
+        assert_eq!(hash_file(&path)?, abc);
+        Ok(())
+    }
 
     #[test]
     fn the_hash_of_a_file_is_the_standard_sha256() -> std::result::Result<(), Box<dyn std::error::Error>> {

@@ -14,7 +14,9 @@ use crate::config::FlightJob;
 use crate::config::Settings;
 use crate::error::{Error, Result};
 use crate::formats::mcap::McapExtras;
-use crate::formats::{detect_format, stage, stage_compensated, Destination, Format, OutputKind, OutputSet};
+use crate::formats::{
+    detect_format, detect_output_format, stage, stage_compensated, Destination, Format, OutputKind, OutputSet,
+};
 use crate::model::FittedModel;
 use crate::pipeline::{FlightResult, FlightRun};
 
@@ -134,29 +136,49 @@ pub fn write(flight: &FlightRun, options: &Settings, outputs: &FlightOutputs) ->
     // A flight compensated with a saved model fitted nothing: the model
     // is the file it was given, and its MCAP holds that model's name.
     let model_json = outputs.model_json.as_ref().filter(|_| result.model.is_none());
-    let model_text = match &result.model {
-        Some(applied) => to_json(None, "the applied model", applied)?,
-        None => to_json(
-            model_json.map(PathBuf::as_path),
-            "the fitted models",
-            &ModelFile::new(flight)?,
-        )?,
+    let texts = || -> Result<(String, String)> {
+        let model_text = match &result.model {
+            Some(applied) => to_json(None, "the applied model", applied)?,
+            None => to_json(
+                model_json.map(PathBuf::as_path),
+                "the fitted models",
+                &ModelFile::new(flight)?,
+            )?,
+        };
+        let quality_text = to_json(outputs.quality_json.as_deref(), "the quality figures", result)?;
+        Ok((model_text, quality_text))
     };
-    let quality_text = to_json(outputs.quality_json.as_deref(), "the quality figures", result)?;
-    let extras = McapExtras {
-        documents: vec![
-            ("model".into(), model_text.clone()),
-            ("quality".into(), quality_text.clone()),
-        ],
+    let compensated = |extras: &McapExtras| {
+        stage_compensated(
+            &flight.recorded,
+            &options.ingest.columns,
+            &outputs.compensated,
+            &flight.compensation,
+            &result.added_columns,
+            extras,
+        )
     };
-    written.add(stage_compensated(
-        &flight.recorded,
-        &options.ingest.columns,
-        &outputs.compensated,
-        &flight.compensation,
-        &result.added_columns,
-        &extras,
-    )?);
+    // An MCAP output holds the model and quality documents; any other is
+    // written beside them (the model's text hashes the input, which then
+    // takes a core the copy's writes leave idle).
+    let ((model_text, quality_text), staged) = match detect_output_format(&outputs.compensated) {
+        Format::Mcap => {
+            let (model_text, quality_text) = texts()?;
+            let extras = McapExtras {
+                documents: vec![
+                    ("model".into(), model_text.clone()),
+                    ("quality".into(), quality_text.clone()),
+                ],
+            };
+            let staged = compensated(&extras)?;
+            ((model_text, quality_text), staged)
+        }
+        _ => {
+            let (texts, staged) = rayon::join(texts, || compensated(&McapExtras::default()));
+            (texts?, staged?)
+        }
+    };
+    written.add(staged);
     for (path, text) in [
         (&model_json.cloned(), model_text),
         (&outputs.quality_json, quality_text),

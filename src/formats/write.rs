@@ -242,6 +242,23 @@ impl<'a> ExtraColumns<'a> {
         }
     }
 
+    /// The same columns, the next row `row`: for a part of the rows
+    /// written apart.
+    pub(crate) fn at(&self, row: usize) -> Self {
+        ExtraColumns {
+            compensation: self.compensation,
+            values: self.values.clone(),
+            row,
+            buffer: number_text::Buffer::default(),
+            flags: String::new(),
+        }
+    }
+
+    /// Cells a row gets: the value columns and the flags.
+    pub(crate) fn width(&self) -> usize {
+        self.values.len() + 1
+    }
+
     /// The flags cell of the next row (empty when it is fine).
     fn flags_text(&mut self) -> &[u8] {
         use std::fmt::Write as _;

@@ -9,6 +9,8 @@ use std::fs::File;
 use std::io::{BufRead, BufReader, Read, Write};
 use std::path::Path;
 
+use rayon::prelude::*;
+
 use crate::compensate::Compensation;
 use crate::error::Result;
 use crate::flight_log::FlightLog;
@@ -44,7 +46,7 @@ pub fn stage_compensated_csv(
                     added,
                     added_units: &added_units,
                 };
-                copy_verbatim(input, offsets, head, writer, &mut ExtraColumns::new(compensation))
+                copy_verbatim(input, offsets, head, writer, &ExtraColumns::new(compensation))
             });
         }
     }
@@ -79,7 +81,7 @@ fn copy_verbatim<W: Write>(
     offsets: &[u64],
     head: Head,
     out: &mut W,
-    extra: &mut ExtraColumns,
+    extra: &ExtraColumns,
 ) -> std::io::Result<()> {
     let mut file = BufReader::with_capacity(1 << 20, File::open(input)?);
     let mut text = Vec::new();
@@ -106,15 +108,69 @@ fn copy_verbatim<W: Write>(
         }
         out.write_all(b"\n")?;
     }
+    // Rows go in waves: each wave's text is read whole, its chunks of rows
+    // get their cells side by side, and the chunks are written in order, so
+    // the bytes are the same whatever the thread count and at most a wave
+    // is in memory.
+    let wave_rows = COPY_CHUNK_ROWS * 2 * rayon::current_num_threads();
     let mut text = Vec::new();
-    for (i, start) in offsets.iter().enumerate() {
-        let length = offsets.get(i + 1).map(|next| next - start);
+    for wave in (0..offsets.len()).step_by(wave_rows) {
+        let end = (wave + wave_rows).min(offsets.len());
+        let length = offsets.get(end).map(|next| next - offsets[wave]);
         read_span(&mut file, length, &mut text)?;
-        out.write_all(without_terminator(&text))?;
-        extra.write_cells(out)?;
-        out.write_all(b"\n")?;
+        let rows = Wave {
+            text: &text,
+            offsets: &offsets[wave..end],
+            first_row: wave,
+        };
+        let chunks: Vec<std::io::Result<Vec<u8>>> = (wave..end)
+            .step_by(COPY_CHUNK_ROWS)
+            .collect::<Vec<_>>()
+            .into_par_iter()
+            .map(|start| rows.chunk(start..(start + COPY_CHUNK_ROWS).min(end), extra))
+            .collect();
+        for chunk in chunks {
+            out.write_all(&chunk?)?;
+        }
     }
     Ok(())
+}
+
+/// Rows a task of the verbatim copy gives its cells.
+const COPY_CHUNK_ROWS: usize = 2048;
+
+/// The text of consecutive rows of the input, read whole.
+struct Wave<'a> {
+    text: &'a [u8],
+    /// The rows' offsets in the file; the first is the text's start.
+    offsets: &'a [u64],
+    /// The index of the first row.
+    first_row: usize,
+}
+
+impl Wave<'_> {
+    /// The rows `rows` (indices in the file) as the output has them: each
+    /// row's text without its terminator, then magcomp's cells.
+    fn chunk(&self, rows: std::ops::Range<usize>, extra: &ExtraColumns) -> std::io::Result<Vec<u8>> {
+        let base = self.offsets[0];
+        let span = |row: usize| {
+            let local = row - self.first_row;
+            let start = (self.offsets[local] - base) as usize;
+            let end = self
+                .offsets
+                .get(local + 1)
+                .map_or(self.text.len(), |next| (next - base) as usize);
+            &self.text[start..end]
+        };
+        let mut out = Vec::with_capacity(rows.len() * (span(rows.start).len() + 16 * extra.width()));
+        let mut cells = extra.at(rows.start);
+        for row in rows {
+            out.extend_from_slice(without_terminator(span(row)));
+            cells.write_cells(&mut out)?;
+            out.push(b'\n');
+        }
+        Ok(out)
+    }
 }
 
 /// Reads the next `length` bytes, or up to the end when `None`.
