@@ -12,6 +12,10 @@
 //!    crate needs to read and write the same file. Its windows carry no
 //!    heading, so nothing is held out by heading (no estimator table, no
 //!    held-out comparison of the gradient methods).
+//!    The same job in Python (`anchors/whole_file_python.py`: pandas and
+//!    pyarrow, numpy fits with a fixed λ) runs on the same file when a
+//!    `python3` with them is there, and the speed-up over the faster is
+//!    printed.
 //! 3. Format ingest: 1e6 protobuf messages from MCAP against the bare mcap +
 //!    prost decode, and CSV / XYZ against the bare csv crate parse.
 
@@ -255,6 +259,47 @@ fn bench_whole_file(rows: usize) {
         peak_rss_mb()
     );
     println!("  where the time goes (the last run): {}", clock.shares());
+    python_whole_file_anchor(&input, folder.path(), full);
+}
+
+/// The whole job in Python (`anchors/whole_file_python.py`: pandas and
+/// pyarrow readers and writers, numpy fits) on the same file, and magcomp's
+/// speed-up over the faster, when a `python3` with them is there.
+fn python_whole_file_anchor(input: &Path, folder: &Path, magcomp_s: f64) {
+    let python = std::env::var("MAGCOMP_BENCH_PYTHON").unwrap_or_else(|_| "python3".into());
+    let script = concat!(env!("CARGO_MANIFEST_DIR"), "/benches/anchors/whole_file_python.py");
+    let output = match std::process::Command::new(&python)
+        .arg(script)
+        .arg(input)
+        .arg(folder)
+        .output()
+    {
+        Ok(output) if output.status.success() => String::from_utf8_lossy(&output.stdout).into_owned(),
+        Ok(output) => {
+            let why = String::from_utf8_lossy(&output.stderr);
+            println!(
+                "  Python anchor not run: {python} {script} failed (numpy, scipy and pandas or pyarrow installed?): {}",
+                why.lines().last().unwrap_or("")
+            );
+            return;
+        }
+        Err(e) => {
+            println!("  Python anchor not run: {python}: {e}");
+            return;
+        }
+    };
+    for line in output.lines().filter(|l| !l.starts_with("fastest")) {
+        println!("  Python anchor, {line}");
+    }
+    let fastest = output
+        .lines()
+        .find_map(|l| l.strip_prefix("fastest ")?.trim().parse::<f64>().ok());
+    if let Some(ms) = fastest {
+        println!(
+            "  magcomp is {:.1}× the fastest Python anchor ({ms:.0} ms)",
+            ms / (magcomp_s * 1e3)
+        );
+    }
 }
 
 /// A meter that keeps when each stage of a flight began: the wall time of
