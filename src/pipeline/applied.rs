@@ -107,8 +107,7 @@ pub(super) fn run_applied(
         aircraft: job.aircraft.clone(),
     };
     Ok(FlightRun::finished(
-        recorded,
-        screened,
+        (recorded, screened),
         compensation,
         result,
         options.output_decimals,

@@ -26,7 +26,9 @@ use crate::progress::{Meter, Stage};
 use crate::quality::transfer::check_transfer;
 use crate::quality::ChannelQuality;
 
-/// [`super::run`] for a flight fitted on its own calibration.
+/// [`super::run`] for a flight fitted on its own calibration: prepared,
+/// its fluxgate calibrated, diagnosed, fitted, compensated and assessed,
+/// then what it says gathered.
 pub(super) fn run_fitted(
     job: &FlightJob,
     options: &Settings,
@@ -48,43 +50,17 @@ pub(super) fn run_fitted(
     let (plan, mut diagnosis, departures) =
         diagnosed_plan(job, (&flight, &on), (options, meter), fluxgate.is_some(), &mut warnings)?;
     warnings.extend(Warning::said(input_warnings(job, &flight.recorded, compensated)?));
-    let mut fitted = fit_channels(&on, &plan, options, meter)?;
-    let mut compensation = crate::compensate::compensate_with(on.log, &fitted.models, options.level, &fitted.shared)?;
-    let boxes: Vec<(f64, f64)> = match &flight.detection {
-        Some(detection) => detection.boxes.iter().map(|b| (b.t_start, b.t_end)).collect(),
-        None => window_hulls(&flight.windows),
-    };
-    let (mut quality, transfer_notes) = assess_channels(&on, &mut fitted, &mut compensation, &boxes, (options, meter))?;
-    let models = fitted.models;
-    let (vector, gradients) = vector_and_gradients(&on, &boxes, (&compensation, &models, &quality), options);
-    for compensated in vector.compensated {
-        compensation.add_vector(compensated);
-    }
-    compensation.gradients = gradients.compensated;
-    let reduced_notes = crate::reduce::add_reduced(on.log, &mut compensation, options.reduced)?;
-    warnings.extend(Warning::said(compensation.out_of_range_warnings(on.log.time_s())));
-    let added_columns = added_column_names(on.log, compensated, &compensation)?;
-    let mut notes: Vec<Note> = units_row_note(&flight.recorded).into_iter().collect();
-    notes.extend(renaming_notes(&flight.channels, &added_columns));
-    let stage_notes = (reduced_notes.into_iter().chain(transfer_notes))
-        .chain(flight.headings_note.clone())
-        .chain(fluxgate.iter().map(|c| c.summary()));
-    notes.extend(Note::said(stage_notes));
-    model_messages(&models, fitted.excitation_notes, (&mut notes, &mut warnings));
-    notes.extend(Note::said(vector.notes.into_iter().chain(gradients.notes)));
-    warnings.extend(Warning::said(vector.warnings.into_iter().chain(gradients.warnings)));
-    if let Some(detection) = &flight.detection {
-        notes.extend(Note::said(detection_notes(detection)));
-        warnings.extend(detection_warnings(detection));
-    }
-    warnings.extend(departure_warnings(&mut quality, &departures));
+    let fitted = fit_channels(&on, &plan, options, meter)?;
+    let mut assessed = compensate_and_assess(&flight, &on, fitted, (options, meter))?;
+    let added_columns = added_column_names(on.log, compensated, &assessed.compensation)?;
+    let stage_notes: Vec<String> = (flight.headings_note.iter().cloned())
+        .chain(fluxgate.iter().map(|c| c.summary()))
+        .collect();
     let next_step = next_step(options.diagnose.apply, job.diagnosis.is_some(), diagnosis.is_some());
-    warnings.extend(channel_warnings(&quality, &models, &compensation, options, next_step));
-    let plan = planned.map(|planned| against_plan(&planned, on.log, &models, &quality, &compensation));
-    if let Some(plan) = &plan {
-        notes.extend(Note::said(plan.notes.iter().cloned()));
-        warnings.extend(Warning::said(plan.warnings.iter().cloned()));
-    }
+    let mut notes = Vec::new();
+    let flown = (&flight, added_columns.as_slice(), stage_notes);
+    assessed.messages(flown, (&departures, next_step), options, (&mut notes, &mut warnings));
+    let plan = planned.map(|planned| assessed.against(&planned, on.log, (&mut notes, &mut warnings)));
     let (rows, alignment) = (on.log.len(), on.log.alignment().cloned());
     let PreparedFlight {
         recorded,
@@ -99,7 +75,7 @@ pub(super) fn run_fitted(
         notes,
         detection,
         alignment,
-        channels: quality,
+        channels: assessed.quality,
         vector_calibration: fluxgate,
         diagnosis_mode: match job.diagnosis {
             Some(_) => crate::diagnose::ApplyDiagnosis::Always,
@@ -108,21 +84,127 @@ pub(super) fn run_fitted(
         applied_findings: diagnosis.as_mut().map(|d| applied_findings(d)).unwrap_or_default(),
         warnings,
         diagnosis,
-        models,
-        vector_models: vector.models,
-        gradients: gradients.results,
-        gradient_models: gradients.models,
+        models: assessed.models,
+        vector_models: assessed.vector.models,
+        gradients: assessed.gradients.results,
+        gradient_models: assessed.gradients.models,
         plan,
         model: None,
         aircraft: job.aircraft.clone(),
     };
+    let decimals = options.output_decimals;
     Ok(FlightRun::finished(
-        recorded,
-        screened,
-        compensation,
+        (recorded, screened),
+        assessed.compensation,
         result,
-        options.output_decimals,
+        decimals,
     ))
+}
+
+/// A fitted flight compensated and assessed: its channels, their figures,
+/// the vector stage and the gradients, and what these stages said.
+struct Assessed {
+    models: Vec<FittedModel>,
+    compensation: crate::compensate::Compensation,
+    quality: Vec<ChannelQuality>,
+    vector: VectorStage,
+    gradients: GradientStage,
+    /// The notes of the stages (reduced columns, transfer, excitation).
+    notes: Vec<String>,
+    excitation_notes: Vec<Option<Note>>,
+}
+
+/// Compensates every row of every fitted channel, assesses each, then runs
+/// the vector stage, the gradients and the reduced columns on them.
+fn compensate_and_assess(
+    flight: &PreparedFlight,
+    on: &Calibration,
+    mut fitted: Fitted,
+    (options, meter): (&Settings, &dyn Meter),
+) -> Result<Assessed> {
+    let mut compensation = crate::compensate::compensate_with(on.log, &fitted.models, options.level, &fitted.shared)?;
+    let boxes: Vec<(f64, f64)> = match &flight.detection {
+        Some(detection) => detection.boxes.iter().map(|b| (b.t_start, b.t_end)).collect(),
+        None => window_hulls(&flight.windows),
+    };
+    let (quality, transfer_notes) = assess_channels(on, &mut fitted, &mut compensation, &boxes, (options, meter))?;
+    let models = fitted.models;
+    let (mut vector, mut gradients) = vector_and_gradients(on, &boxes, (&compensation, &models, &quality), options);
+    for compensated in std::mem::take(&mut vector.compensated) {
+        compensation.add_vector(compensated);
+    }
+    compensation.gradients = std::mem::take(&mut gradients.compensated);
+    let reduced_notes = crate::reduce::add_reduced(on.log, &mut compensation, options.reduced)?;
+    Ok(Assessed {
+        models,
+        compensation,
+        quality,
+        vector,
+        gradients,
+        notes: reduced_notes.into_iter().chain(transfer_notes).collect(),
+        excitation_notes: fitted.excitation_notes,
+    })
+}
+
+impl Assessed {
+    /// The flight set against the plan it was flown to ([`against_plan`]),
+    /// with the comparison's notes and warnings added.
+    fn against(
+        &self,
+        planned: &crate::against_plan::PlanPrediction,
+        log: &FlightLog,
+        (notes, warnings): (&mut Vec<Note>, &mut Vec<Warning>),
+    ) -> crate::against_plan::PlanComparison {
+        let plan = against_plan(planned, log, &self.models, &self.quality, &self.compensation);
+        notes.extend(Note::said(plan.notes.iter().cloned()));
+        warnings.extend(Warning::said(plan.warnings.iter().cloned()));
+        plan
+    }
+
+    /// Adds what the input's columns say (a row of units, the added
+    /// columns' names), what the stages said (with `stage_notes`, the
+    /// flight's own), the detection's words, and the warnings of each
+    /// channel's figures (`departures`: how far its findings move the
+    /// survey; `next_step`: what to do about a poor fit) to `notes` and
+    /// `warnings`.
+    fn messages(
+        &mut self,
+        (flight, added_columns, stage_notes): (&PreparedFlight, &[String], Vec<String>),
+        (departures, next_step): (&BTreeMap<String, f64>, &str),
+        options: &Settings,
+        (notes, warnings): (&mut Vec<Note>, &mut Vec<Warning>),
+    ) {
+        notes.extend(units_row_note(&flight.recorded));
+        notes.extend(renaming_notes(&flight.channels, added_columns));
+        let log = flight.calibration().log;
+        warnings.extend(Warning::said(self.compensation.out_of_range_warnings(log.time_s())));
+        notes.extend(Note::said(
+            std::mem::take(&mut self.notes).into_iter().chain(stage_notes),
+        ));
+        let excitation = std::mem::take(&mut self.excitation_notes);
+        model_messages(&self.models, excitation, (notes, warnings));
+        let (vector, gradients) = (&mut self.vector, &mut self.gradients);
+        let stage_notes = std::mem::take(&mut vector.notes)
+            .into_iter()
+            .chain(std::mem::take(&mut gradients.notes));
+        notes.extend(Note::said(stage_notes));
+        let stage_warnings = std::mem::take(&mut vector.warnings)
+            .into_iter()
+            .chain(std::mem::take(&mut gradients.warnings));
+        warnings.extend(Warning::said(stage_warnings));
+        if let Some(detection) = &flight.detection {
+            notes.extend(Note::said(detection_notes(detection)));
+            warnings.extend(detection_warnings(detection));
+        }
+        warnings.extend(departure_warnings(&mut self.quality, departures));
+        warnings.extend(channel_warnings(
+            &self.quality,
+            &self.models,
+            &self.compensation,
+            options,
+            next_step,
+        ));
+    }
 }
 
 /// Each channel's model to fit: the saved diagnosis's, or a diagnosis's

@@ -173,8 +173,7 @@ impl FlightRun {
     /// the compensation's outputs are rounded here to the stated
     /// resolution (`[output] decimals`), once for every format.
     fn finished(
-        recorded: FlightLog,
-        screened: crate::screen::Screened,
+        (recorded, screened): (FlightLog, crate::screen::Screened),
         mut compensation: crate::compensate::Compensation,
         result: FlightResult,
         decimals: u32,
