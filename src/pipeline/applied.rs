@@ -27,14 +27,7 @@ pub(super) fn run_applied(
     recorded: FlightLog,
     meter: &dyn Meter,
 ) -> Result<FlightRun> {
-    // The model's channels under this flight's names, when they differ.
-    let (renamed, renaming) = match options.model_channels.is_empty() {
-        true => (None, Vec::new()),
-        false => {
-            let (renamed, notes) = saved.renamed_for(&recorded, &options.model_channels)?;
-            (Some(renamed), notes)
-        }
-    };
+    let (renamed, renaming) = renamed_model(saved, &recorded, options)?;
     let saved = renamed.as_ref().unwrap_or(saved);
     meter.begin(Stage::Preparing, 0);
     let screened = crate::screen::screen_samples(&recorded)?;
@@ -52,16 +45,8 @@ pub(super) fn run_applied(
         .map(|c| c.apply(raw_log, &sensor))
         .transpose()?;
     let log = calibrated.as_ref().unwrap_or(raw_log);
-    // The flight's own manoeuvres, when it names them: the model, which
-    // never saw them, is held out there.
-    if !job.windows.is_empty() || !job.lines.is_empty() {
-        let (windows, _, heading_note) = calibration_windows(raw_log, job, options)?;
-        notes.extend(heading_note);
-        for model in &mut models {
-            model.windows = model.held_out(log, &sensor, &windows, &options.fit)?;
-        }
-        notes.push(held_out_note(applied.fitted_on_this_flight, windows.len()));
-    }
+    let flight = (job, raw_log, log);
+    hold_out_on_own_windows(flight, (&sensor, &mut models), (options, &applied), &mut notes)?;
     let shared = SharedDesign::of_models(log, &models);
     let mut compensation = crate::compensate::compensate_with(log, &models, options.level, &shared)?;
     let quality = assess_applied(
@@ -112,6 +97,42 @@ pub(super) fn run_applied(
         result,
         options.output_decimals,
     ))
+}
+
+/// The saved model with its channels under this flight's names
+/// (`[model] channels`), and the notes saying so; `None` when the names
+/// are the same.
+fn renamed_model(
+    saved: &crate::apply::SavedModel,
+    recorded: &FlightLog,
+    options: &Settings,
+) -> Result<(Option<crate::apply::SavedModel>, Vec<String>)> {
+    if options.model_channels.is_empty() {
+        return Ok((None, Vec::new()));
+    }
+    let (renamed, notes) = saved.renamed_for(recorded, &options.model_channels)?;
+    Ok((Some(renamed), notes))
+}
+
+/// The flight's own manoeuvres, when it names them (windows or lines):
+/// each model, which never saw them, is held out there, on `log` (the
+/// fluxgate calibrated as the model says; `raw_log` gives the windows).
+fn hold_out_on_own_windows(
+    (job, raw_log, log): (&FlightJob, &FlightLog, &FlightLog),
+    (sensor, models): (&crate::flight_log::VectorSensor, &mut [crate::model::FittedModel]),
+    (options, applied): (&Settings, &crate::apply::AppliedModel),
+    notes: &mut Vec<String>,
+) -> Result<()> {
+    if job.windows.is_empty() && job.lines.is_empty() {
+        return Ok(());
+    }
+    let (windows, _, heading_note) = calibration_windows(raw_log, job, options)?;
+    notes.extend(heading_note);
+    for model in models {
+        model.windows = model.held_out(log, sensor, &windows, &options.fit)?;
+    }
+    notes.push(held_out_note(applied.fitted_on_this_flight, windows.len()));
+    Ok(())
 }
 
 /// Warnings and notes gathered along the way, as sentences.
