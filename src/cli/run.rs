@@ -16,19 +16,7 @@ use super::{prepare_flight_outputs, print_notes};
 /// Runs every flight of the pipeline file `config` (this shard's), prints
 /// each as it finishes and the status table, and fails when any flight did.
 pub fn run(config: &Path, (plain, force, verbose): (bool, bool, bool), shard: Option<&str>) -> anyhow::Result<()> {
-    let mut pipeline = Pipeline::load(config)?;
-    print_notes(&pipeline.notes);
-    if plain {
-        pipeline.settings.diagnose.apply = ApplyDiagnosis::Never;
-    }
-    for job in &mut pipeline.flights {
-        job.force_diagnosis = force;
-    }
-    anyhow::ensure!(
-        !pipeline.flights.is_empty(),
-        "{}: no flights; add a [[flight]] with input = \"path/to/flight.csv\", or a [campaign] with inputs = [\"flights/*.csv\"] or a manifest",
-        config.display()
-    );
+    let pipeline = load(config, (plain, force))?;
     let shard = match shard {
         Some(text) => Shard::parse(text, |name| std::env::var(name).ok())?,
         None => Shard::default(),
@@ -85,7 +73,44 @@ pub fn run(config: &Path, (plain, force, verbose): (bool, bool, bool), shard: Op
     // The table in the campaign's order, whatever order the flights ran in
     // (a flight given another's model runs after it).
     flights.sort_by_key(|done| done.index);
-    let statuses: Vec<(String, FlightState, String)> = flights
+    let statuses = statuses(&pipeline, &flights);
+    print!("{}", status_table(&statuses));
+    let failed = statuses
+        .iter()
+        .filter(|(_, state, _)| *state == FlightState::Failed)
+        .count();
+    anyhow::ensure!(
+        failed == 0,
+        "{}: {failed} of {} flights failed; each error is printed above and in its <flight>_status.json, and the other flights' outputs were written; run again to redo only the failed flights",
+        config.display(),
+        statuses.len()
+    );
+    Ok(())
+}
+
+/// The pipeline file `config`, its notes printed, with `--plain` and
+/// `--force` set on it; an error when it names no flight.
+fn load(config: &Path, (plain, force): (bool, bool)) -> anyhow::Result<Pipeline> {
+    let mut pipeline = Pipeline::load(config)?;
+    print_notes(&pipeline.notes);
+    if plain {
+        pipeline.settings.diagnose.apply = ApplyDiagnosis::Never;
+    }
+    for job in &mut pipeline.flights {
+        job.force_diagnosis = force;
+    }
+    anyhow::ensure!(
+        !pipeline.flights.is_empty(),
+        "{}: no flights; add a [[flight]] with input = \"path/to/flight.csv\", or a [campaign] with inputs = [\"flights/*.csv\"] or a manifest",
+        config.display()
+    );
+    Ok(pipeline)
+}
+
+/// Each finished flight's input, state and outcome in words, for the
+/// status table.
+fn statuses(pipeline: &Pipeline, flights: &[FinishedFlight]) -> Vec<(String, FlightState, String)> {
+    flights
         .iter()
         .map(|done| {
             let job = &pipeline.flights[done.index];
@@ -99,19 +124,7 @@ pub fn run(config: &Path, (plain, force, verbose): (bool, bool, bool), shard: Op
             };
             (job.input.display().to_string(), state, outcome)
         })
-        .collect();
-    print!("{}", status_table(&statuses));
-    let failed = statuses
-        .iter()
-        .filter(|(_, state, _)| *state == FlightState::Failed)
-        .count();
-    anyhow::ensure!(
-        failed == 0,
-        "{}: {failed} of {} flights failed; each error is printed above and in its <flight>_status.json, and the other flights' outputs were written; run again to redo only the failed flights",
-        config.display(),
-        statuses.len()
-    );
-    Ok(())
+        .collect()
 }
 
 /// Prints what became of a flight of a run: its notes, its summary and
