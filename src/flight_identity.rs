@@ -114,8 +114,11 @@ fn hex(digest: &[u8]) -> String {
 /// diagnosis, the model file), each a pass over the whole file on one
 /// core, so the process keeps the hashes of the files it read: a file
 /// whose path, device, inode, size and modification time are all
-/// unchanged is not read again. Any write to the file (or a file renamed
-/// over it) changes one of them.
+/// unchanged is not read again. A write to the file moves its
+/// modification time, and a file renamed over it has another inode; a
+/// file modified less than [`SETTLED`] before it was hashed is not kept,
+/// since a write within the file system's clock tick (milliseconds here,
+/// seconds on some) may leave the time as it was.
 pub fn hash_file(path: &Path) -> Result<String> {
     let key = FileKey::of(path).map_err(|e| Error::io(path, "reading (to hash)", e))?;
     if key.modified.is_none() {
@@ -125,10 +128,12 @@ pub fn hash_file(path: &Path) -> Result<String> {
     if let Some(hash) = HASHED.lock().ok().and_then(|known| known.get(&key).cloned()) {
         return Ok(hash);
     }
+    let hashing = std::time::SystemTime::now();
     let hash = hash_bytes(path)?;
-    // A file changed while it was hashed gets no entry: the next call
-    // hashes it again.
-    if FileKey::of(path).is_ok_and(|after| after == key) {
+    // A file changed while it was hashed, or modified just before, gets no
+    // entry: the next call hashes it again.
+    let settled = key.modified.is_some_and(|m| m + SETTLED < hashing);
+    if settled && FileKey::of(path).is_ok_and(|after| after == key) {
         if let Ok(mut known) = HASHED.lock() {
             if known.len() >= HASHES_KEPT {
                 known.clear();
@@ -138,6 +143,10 @@ pub fn hash_file(path: &Path) -> Result<String> {
     }
     Ok(hash)
 }
+
+/// How long before it is hashed a file must have been last modified for
+/// its hash to be kept ([`hash_file`]).
+const SETTLED: std::time::Duration = std::time::Duration::from_secs(3);
 
 /// Files whose hashes a process keeps ([`hash_file`]).
 const HASHES_KEPT: usize = 256;
@@ -218,17 +227,31 @@ mod tests {
     fn a_file_changed_since_it_was_hashed_is_hashed_again() -> std::result::Result<(), Box<dyn std::error::Error>> {
         let folder = tempfile::tempdir()?;
         let path = folder.path().join("flight.csv");
-        std::fs::write(&path, "abc")?;
+        let touch = |path: &Path, seconds: i64| -> std::io::Result<()> {
+            let now = std::time::SystemTime::now();
+            let shift = std::time::Duration::from_secs(seconds.unsigned_abs());
+            let time = if seconds < 0 { now - shift } else { now + shift };
+            std::fs::File::options().write(true).open(path)?.set_modified(time)
+        };
         let abc = "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad";
+        let abd = "a52d159f262b2c6ddb724a61840befc36eb30c88877a4030b65cbe86298449c9";
+        // A file last modified an hour ago: its hash is kept.
+        std::fs::write(&path, "abc")?;
+        touch(&path, -3600)?;
         assert_eq!(hash_file(&path)?, abc);
         assert_eq!(hash_file(&path)?, abc, "the kept hash");
         // The same size, written in place, its time moved on.
         std::fs::write(&path, "abd")?;
-        let file = std::fs::File::options().write(true).open(&path)?;
-        file.set_modified(std::time::SystemTime::now() + std::time::Duration::from_secs(5))?;
-        drop(file);
-        let abd = "a52d159f262b2c6ddb724a61840befc36eb30c88877a4030b65cbe86298449c9";
+        touch(&path, -1800)?;
         assert_eq!(hash_file(&path)?, abd);
+        // Written in place within the same time, just now: not kept, so a
+        // write within the clock's tick cannot leave a stale hash.
+        std::fs::write(&path, "abc")?;
+        let now = std::fs::metadata(&path)?.modified()?;
+        assert_eq!(hash_file(&path)?, abc);
+        std::fs::write(&path, "abd")?;
+        std::fs::File::options().write(true).open(&path)?.set_modified(now)?;
+        assert_eq!(hash_file(&path)?, abd, "a hash kept while the file was fresh");
         // Another file renamed over it.
         let other = folder.path().join("other.csv");
         std::fs::write(&other, "abc")?;

@@ -20,10 +20,12 @@ pub enum Stage {
     /// The evidence rule: whether each channel's findings would help the
     /// survey.
     Checking,
-    /// Fitting each channel's model.
+    /// Fitting each channel's model (a step each), then the analysis of
+    /// each fit's excitation.
     Fitting,
-    /// Compensating every row and assessing each channel: figures, held-out
-    /// transfer, the sigma column.
+    /// Compensating every row and assessing each channel (a step each:
+    /// figures, held-out transfer, the sigma column), then the vector
+    /// stage, the gradients and the reduced columns.
     Assessing,
     /// Writing the outputs.
     Writing,

@@ -97,7 +97,8 @@ impl FlightOutputs {
     }
 }
 
-/// Reads, fits, compensates and assesses one flight ([`run`]) and writes
+/// Reads, fits, compensates and assesses one flight
+/// ([`crate::pipeline::run`]) and writes
 /// its outputs ([`write`]).
 pub fn process_flight(job: &FlightJob, options: &Settings, outputs: &FlightOutputs) -> Result<FlightResult> {
     process_flight_listing(job, options, outputs, &crate::progress::Silent).map(|(result, _)| result)

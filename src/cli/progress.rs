@@ -95,7 +95,12 @@ impl CampaignBar {
     }
 
     /// Shows `progress`: the flights done, how many run now, the time left.
+    /// A view older than the one shown (taken by a slot before another
+    /// finished its flight) is not shown.
     pub fn show(&self, progress: Progress) {
+        if (progress.finished as u64) < self.flights.position() {
+            return;
+        }
         self.flights.set_position(progress.finished as u64);
         self.flights.set_message(progress_words(progress));
     }

@@ -48,6 +48,7 @@ pub(super) fn run_applied(
     let flight = (job, raw_log, log);
     hold_out_on_own_windows(flight, (&sensor, &mut models), (options, &applied), &mut notes)?;
     let shared = SharedDesign::of_models(log, &models);
+    meter.begin(Stage::Assessing, models.len() as u64);
     let mut compensation = crate::compensate::compensate_with(log, &models, options.level, &shared)?;
     let quality = assess_applied(
         log,
@@ -255,7 +256,6 @@ fn assess_applied(
     shared: &[SharedDesign],
     warnings: &mut Vec<String>,
 ) -> Result<Vec<ChannelQuality>> {
-    meter.begin(Stage::Assessing, models.len() as u64);
     let geometry = crate::quality::SurveyGeometry::of(log);
     let mut quality: Vec<ChannelQuality> = models
         .par_iter()

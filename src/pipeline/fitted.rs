@@ -58,7 +58,7 @@ pub(super) fn run_fitted(
         .collect();
     let next_step = next_step(options.diagnose.apply, job.diagnosis.is_some(), diagnosis.is_some());
     let mut notes = Vec::new();
-    let flown = (&flight, added_columns.as_slice(), stage_notes);
+    let flown = (&flight, on.log, added_columns.as_slice(), stage_notes);
     assessed.messages(flown, (&departures, next_step), options, (&mut notes, &mut warnings));
     let plan = planned.map(|planned| assessed.against(&planned, on.log, (&mut notes, &mut warnings)));
     let (rows, alignment) = (on.log.len(), on.log.alignment().cloned());
@@ -109,7 +109,7 @@ struct Assessed {
     quality: Vec<ChannelQuality>,
     vector: VectorStage,
     gradients: GradientStage,
-    /// The notes of the stages (reduced columns, transfer, excitation).
+    /// The notes of the stages (reduced columns, transfer).
     notes: Vec<String>,
     excitation_notes: Vec<Option<Note>>,
 }
@@ -122,6 +122,7 @@ fn compensate_and_assess(
     mut fitted: Fitted,
     (options, meter): (&Settings, &dyn Meter),
 ) -> Result<Assessed> {
+    meter.begin(Stage::Assessing, fitted.models.len() as u64);
     let mut compensation = crate::compensate::compensate_with(on.log, &fitted.models, options.level, &fitted.shared)?;
     let boxes: Vec<(f64, f64)> = match &flight.detection {
         Some(detection) => detection.boxes.iter().map(|b| (b.t_start, b.t_end)).collect(),
@@ -169,14 +170,13 @@ impl Assessed {
     /// `warnings`.
     fn messages(
         &mut self,
-        (flight, added_columns, stage_notes): (&PreparedFlight, &[String], Vec<String>),
+        (flight, log, added_columns, stage_notes): (&PreparedFlight, &FlightLog, &[String], Vec<String>),
         (departures, next_step): (&BTreeMap<String, f64>, &str),
         options: &Settings,
         (notes, warnings): (&mut Vec<Note>, &mut Vec<Warning>),
     ) {
         notes.extend(units_row_note(&flight.recorded));
         notes.extend(renaming_notes(&flight.channels, added_columns));
-        let log = flight.calibration().log;
         warnings.extend(Warning::said(self.compensation.out_of_range_warnings(log.time_s())));
         notes.extend(Note::said(
             std::mem::take(&mut self.notes).into_iter().chain(stage_notes),
@@ -338,7 +338,6 @@ fn assess_channels(
     let Calibration {
         log, sensor, windows, ..
     } = *on;
-    meter.begin(Stage::Assessing, fitted.models.len() as u64);
     let stores = StorePool::new();
     let shared = std::mem::take(&mut fitted.shared);
     let geometry = crate::quality::SurveyGeometry::of(log);
