@@ -164,6 +164,30 @@ struct Board {
 }
 
 impl Board {
+    /// The board of a run of `total` flights, none taken.
+    fn new(total: usize) -> Self {
+        Board {
+            next: 0,
+            done: 0,
+            running: 0,
+            finished: (0..total).map(|_| None).collect(),
+            written: HashSet::new(),
+            failed: HashSet::new(),
+            spent: (Duration::ZERO, 0),
+        }
+    }
+
+    /// Takes the next of the `total` flights: its position, and the run's
+    /// progress as it starts; `None` when every flight has been taken.
+    fn take(&mut self, total: usize, slots: usize) -> Option<(usize, Progress)> {
+        if self.next == total {
+            return None;
+        }
+        self.next += 1;
+        self.running += 1;
+        Some((self.next - 1, self.progress(total, slots)))
+    }
+
     fn progress(&self, total: usize, slots: usize) -> Progress {
         let finished = self.done;
         let left = match self.spent {
@@ -202,26 +226,12 @@ pub fn run_flights(
     // The campaign's, for a model another shard writes.
     let campaign: Vec<usize> = (0..pipeline.flights.len()).collect();
     let everywhere = model_outputs(pipeline, &campaign);
-    let board = Mutex::new(Board {
-        next: 0,
-        done: 0,
-        running: 0,
-        finished: order.iter().map(|_| None).collect(),
-        written: HashSet::new(),
-        failed: HashSet::new(),
-        spent: (Duration::ZERO, 0),
-    });
+    let board = Mutex::new(Board::new(order.len()));
     let changed = Condvar::new();
     let slots = at_once.clamp(1, order.len().max(1));
     let slot = || loop {
-        let (position, progress) = {
-            let mut board = lock(&board);
-            if board.next == order.len() {
-                return;
-            }
-            board.next += 1;
-            board.running += 1;
-            (board.next - 1, board.progress(order.len(), slots))
+        let Some((position, progress)) = lock(&board).take(order.len(), slots) else {
+            return;
         };
         let job = &pipeline.flights[order[position]];
         let meter = started(job, progress);
@@ -266,6 +276,14 @@ pub fn run_flights(
         }
         changed.notify_all();
     };
+    on_threads(slots, &slot);
+    let board = board.into_inner().unwrap_or_else(|poisoned| poisoned.into_inner());
+    board.finished.into_iter().flatten().collect()
+}
+
+/// Runs `slot` on `slots` threads of their own until each returns; a
+/// panic on one goes on here once the threads are joined.
+fn on_threads(slots: usize, slot: &(dyn Fn() + Sync)) {
     std::thread::scope(|scope| {
         let handles: Vec<_> = (0..slots)
             .map(|k| {
@@ -288,8 +306,6 @@ pub fn run_flights(
             }
         }
     });
-    let board = board.into_inner().unwrap_or_else(|poisoned| poisoned.into_inner());
-    board.finished.into_iter().flatten().collect()
 }
 
 /// Waits until the flight of this run that writes `model` has written it
