@@ -622,27 +622,15 @@ pub fn diagnose_metered(
         .map(|check| check.calibration.apply(log, sensor))
         .transpose()?;
     let calibrated_direction = calibrated.as_ref().map(|l| field_directions(l, sensor));
-    let results: Vec<Searched> = (channels.par_iter())
-        .zip(starts)
-        .map(|(channel, start)| {
-            let start = match start {
-                Ok(start) => start,
-                Err(why) => {
-                    meter.step();
-                    return Ok(Err(why));
-                }
-            };
-            let raw_problem = problem(channel, log, &raw_direction);
-            let calibrated_problem = match (&calibrated, &calibrated_direction) {
-                (Some(l), Some(d)) => Some(problem(channel, l, d)),
-                _ => None,
-            };
-            let fluxgate_calibration = fluxgate.as_ref().map(|check| &check.calibration);
-            let searched = diagnose_from(start, (raw_problem, calibrated_problem), fluxgate_calibration, settings);
-            meter.step();
-            searched.map(Ok)
-        })
-        .collect::<Result<_>>()?;
+    let on_calibrated = calibrated.as_ref().zip(calibrated_direction.as_ref());
+    let fluxgate_calibration = fluxgate.as_ref().map(|check| &check.calibration);
+    let search = |k: usize, start: ChannelStart| {
+        let channel = &channels[k];
+        let raw = problem(channel, log, &raw_direction);
+        let calibrated = on_calibrated.map(|(l, d)| problem(channel, l, d));
+        diagnose_from(start, (raw, calibrated), fluxgate_calibration, settings)
+    };
+    let results = search_each(starts, &search, meter)?;
     let (channel_results, findings, untestable) = searched_channels(log, results)?;
     notes.extend(untestable);
     notes.extend(criterion_notes(&channel_results, options));
@@ -652,6 +640,26 @@ pub fn diagnose_metered(
         calibrated.is_some(),
         settings,
     ))
+}
+
+/// Each channel's search (`search`, given the channel's index) from its
+/// start, side by side; a channel whose start failed keeps why. `meter`
+/// hears each channel done.
+fn search_each(
+    starts: Vec<std::result::Result<ChannelStart, String>>,
+    search: &(dyn Fn(usize, ChannelStart) -> Result<(ChannelDiagnosis, Vec<Finding>)> + Sync),
+    meter: &dyn Meter,
+) -> Result<Vec<Searched>> {
+    (starts.into_par_iter().enumerate())
+        .map(|(k, start)| {
+            let searched = match start {
+                Ok(start) => search(k, start).map(Ok),
+                Err(why) => Ok(Err(why)),
+            };
+            meter.step();
+            searched
+        })
+        .collect()
 }
 
 /// The fluxgate checked against the scalar channel with the least
