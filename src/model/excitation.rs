@@ -366,6 +366,71 @@ impl Design {
     }
 }
 
+/// The flown windows' information in the design's columns.
+struct Flown {
+    /// Each window's, scaled by `scale`.
+    per_window: Vec<Mat<f64>>,
+    /// Their sum.
+    information: Mat<f64>,
+    /// Each column's norm over the windows (1 for an empty column).
+    scale: Vec<f64>,
+    /// The calibration's moment matrix, unscaled, per row.
+    calibration_moment: Vec<Vec<f64>>,
+}
+
+impl Flown {
+    /// The information of each window of `fits` in the band-passed design
+    /// `stacked`.
+    fn of(stacked: &crate::numerics::stacked::Stacked, fits: &[WindowFit]) -> Self {
+        let p = stacked.columns();
+        let rows: usize = fits.iter().map(|f| f.stacked_rows.len()).sum();
+        let per_window: Vec<Mat<f64>> = fits
+            .iter()
+            .map(|f| rows_gram(|j| stacked.column_range(j, f.stacked_rows.clone()), p))
+            .collect();
+        let total = sum(per_window.iter(), p);
+        let calibration_moment = (0..p)
+            .map(|i| (0..p).map(|j| total[(i, j)] / rows.max(1) as f64).collect())
+            .collect();
+        let scale: Vec<f64> = (0..p)
+            .map(|j| total[(j, j)].sqrt())
+            .map(|d| if d > 0.0 && d.is_finite() { d } else { 1.0 })
+            .collect();
+        let per_window: Vec<Mat<f64>> = per_window.iter().map(|g| scaled_by(g, &scale)).collect();
+        Flown {
+            information: sum(per_window.iter(), p),
+            per_window,
+            scale,
+            calibration_moment,
+        }
+    }
+}
+
+/// The pinnable directions: those a full box (`reference`, scaled
+/// information) sees, less the sums no rotation can change (see
+/// [`structural_null`]). Their basis, every eigenvector, and the indices
+/// of those left unpinnable; `None` when the eigendecomposition fails.
+fn pinnable_basis(
+    term_names: &[String],
+    scale: &[f64],
+    reference: &Mat<f64>,
+) -> Option<(Mat<f64>, Mat<f64>, Vec<usize>)> {
+    let p = scale.len();
+    let null = structural_null(term_names, scale);
+    let project = Mat::from_fn(p, p, |i, j| {
+        f64::from(i == j) - null.iter().map(|n| n[i] * n[j]).sum::<f64>()
+    });
+    let eigen = (&project * reference * &project)
+        .self_adjoint_eigen(faer::Side::Lower)
+        .ok()?;
+    let (vectors, values) = (eigen.U(), eigen.S());
+    let largest = (0..p).map(|k| values[k]).fold(0.0, f64::max);
+    let (pinnable, unpinnable): (Vec<usize>, Vec<usize>) =
+        (0..p).partition(|&k| values[k] > UNPINNABLE_FRACTION * largest);
+    let basis = Mat::from_fn(p, pinnable.len(), |i, k| vectors[(i, pinnable[k])]);
+    Some((basis, vectors.to_owned(), unpinnable))
+}
+
 /// [`analyse`], and the information it rests on.
 pub fn analyse_design(
     log: &FlightLog,
@@ -393,22 +458,13 @@ pub fn analyse_design(
         stores,
     )?;
     let p = stacked.columns();
-    let rows: usize = fits.iter().map(|f| f.stacked_rows.len()).sum();
-    let per_window: Vec<Mat<f64>> = fits
-        .iter()
-        .map(|f| rows_gram(|j| stacked.column_range(j, f.stacked_rows.clone()), p))
-        .collect();
+    let Flown {
+        per_window: flown,
+        information,
+        scale,
+        calibration_moment,
+    } = Flown::of(&stacked, &fits);
     stores.recycle(stacked);
-    let total = sum(per_window.iter(), p);
-    let calibration_moment = (0..p)
-        .map(|i| (0..p).map(|j| total[(i, j)] / rows.max(1) as f64).collect())
-        .collect();
-    let scale: Vec<f64> = (0..p)
-        .map(|j| total[(j, j)].sqrt())
-        .map(|d| if d > 0.0 && d.is_finite() { d } else { 1.0 })
-        .collect();
-    let flown: Vec<Mat<f64>> = per_window.iter().map(|g| scaled_by(g, &scale)).collect();
-    let information = sum(flown.iter(), p);
 
     // One of each kind on each heading: the candidates, and together a
     // full box.
@@ -419,21 +475,10 @@ pub fn analyse_design(
     let flown_trace: f64 = (0..p).map(|i| information[(i, i)]).sum();
     let reference = Mat::from_fn(p, p, |i, j| box_information[(i, j)] * flown_trace / box_trace);
 
-    // The pinnable directions: those a full box sees, less the sums no
-    // rotation can change (see [`structural_null`]).
-    let null = structural_null(&model.term_names, &scale);
-    let project = Mat::from_fn(p, p, |i, j| {
-        f64::from(i == j) - null.iter().map(|n| n[i] * n[j]).sum::<f64>()
-    });
-    let Ok(eigen) = (&project * &reference * &project).self_adjoint_eigen(faer::Side::Lower) else {
+    let Some((basis, vectors, unpinnable)) = pinnable_basis(&model.term_names, &scale, &reference) else {
         return Ok(None);
     };
-    let (vectors, values) = (eigen.U(), eigen.S());
-    let largest = (0..p).map(|k| values[k]).fold(0.0, f64::max);
-    let (pinnable, unpinnable): (Vec<usize>, Vec<usize>) =
-        (0..p).partition(|&k| values[k] > UNPINNABLE_FRACTION * largest);
-    let r = pinnable.len();
-    let basis = Mat::from_fn(p, r, |i, k| vectors[(i, pinnable[k])]);
+    let r = basis.ncols();
 
     let (survey_moment, survey_rows) = survey_moment(log, model, (&fits, shared), &scale)?;
     // σ² per unit information: the band-passed residual's variance times
