@@ -235,6 +235,84 @@ pub struct SavedModel {
     file: SavedFile,
 }
 
+/// What makes a saved channel model unusable, if anything: no calibration
+/// level, coefficients that do not match their terms or are not numbers,
+/// an incomplete jackknife, no sample rate.
+fn scalar_model_problem(fit: &SavedFit) -> Option<String> {
+    let channel = &fit.channel;
+    if fit.calibration_level.is_none() {
+        return Some(format!(
+            "the model of '{channel}' has no calibration level (a model JSON written before magcomp kept one): compensate the calibration flight again with --model to save it"
+        ));
+    }
+    if fit.coefficients.len() != fit.term_names.len() {
+        return Some(format!(
+            "the model of '{channel}' has {} coefficients for {} term names",
+            fit.coefficients.len(),
+            fit.term_names.len()
+        ));
+    }
+    if let Some(k) = fit.coefficients.iter().position(|c| !c.is_finite()) {
+        return Some(format!(
+            "the model of '{channel}' has no finite value for its coefficient '{}'",
+            fit.term_names[k]
+        ));
+    }
+    let jackknife = &fit.solution.jackknife;
+    let levels = fit.calibration_level.as_ref().map_or(0, |l| l.jackknife_nt.len());
+    let whole = jackknife.iter().flatten().all(|v| v.is_finite())
+        && jackknife.iter().all(|d| d.len() == fit.coefficients.len());
+    if !whole || levels != jackknife.len() {
+        return Some(format!(
+            "the jackknife of the model of '{channel}' is incomplete ({} deviations, {levels} levels for them)",
+            jackknife.len()
+        ));
+    }
+    if !(fit.sample_rate_hz.is_finite() && fit.sample_rate_hz > 0.0) {
+        return Some(format!("the model of '{channel}' has no sample rate"));
+    }
+    None
+}
+
+/// What makes a saved vector model unusable, if anything: constants that
+/// are not numbers, or a vector Tolles-Lawson stage that is not the one
+/// magcomp fits (one model per body axis, each of the field-derivative
+/// terms) or is incomplete.
+fn vector_model_problem(vector: &SavedVector) -> Option<String> {
+    let sensor = &vector.sensor;
+    let constants = vector.soft_iron.iter().flatten().chain(&vector.hard_iron_nt);
+    if !constants.into_iter().all(|v| v.is_finite()) {
+        return Some(format!(
+            "the vector model of '{sensor}' has constants that are not numbers"
+        ));
+    }
+    let stage = vector.tolles_lawson.as_ref()?;
+    if stage.components.len() != 3 {
+        return Some(format!(
+            "the vector Tolles-Lawson stage of '{sensor}' holds {} models, not one per body axis",
+            stage.components.len()
+        ));
+    }
+    let terms = crate::vector::tolles_lawson::terms();
+    stage.components.iter().find_map(|fit| {
+        let whole = fit.spec == ModelSpec::plain(terms)
+            && fit.term_names == terms.names()
+            && fit.coefficients.len() == fit.term_names.len()
+            && fit.coefficients.iter().all(|c| c.is_finite())
+            && fit.sample_rate_hz.is_finite()
+            && fit.sample_rate_hz > 0.0;
+        (!whole).then(|| {
+            format!(
+                "the vector Tolles-Lawson model of '{}' ({sensor}) is not the stage magcomp fits, or incomplete: terms {}, {} coefficients, sample rate {} Hz",
+                fit.channel,
+                fit.term_names.join(", "),
+                fit.coefficients.len(),
+                fit.sample_rate_hz
+            )
+        })
+    })
+}
+
 impl SavedModel {
     /// Reads the model JSON at `path`; an error when it is not one, is
     /// damaged, or predates the saved calibration level.
@@ -263,75 +341,10 @@ impl SavedModel {
         if let Some(twice) = (channels.iter().enumerate()).find_map(|(i, c)| channels[..i].contains(c).then_some(c)) {
             return Err(not_ours(format!("it holds two models of '{twice}'")));
         }
-        for fit in &file.models {
-            let channel = &fit.channel;
-            if fit.calibration_level.is_none() {
-                return Err(not_ours(format!(
-                    "the model of '{channel}' has no calibration level (a model JSON written before magcomp kept one): compensate the calibration flight again with --model to save it"
-                )));
-            }
-            if fit.coefficients.len() != fit.term_names.len() {
-                return Err(not_ours(format!(
-                    "the model of '{channel}' has {} coefficients for {} term names",
-                    fit.coefficients.len(),
-                    fit.term_names.len()
-                )));
-            }
-            if let Some(k) = fit.coefficients.iter().position(|c| !c.is_finite()) {
-                return Err(not_ours(format!(
-                    "the model of '{channel}' has no finite value for its coefficient '{}'",
-                    fit.term_names[k]
-                )));
-            }
-            let jackknife = &fit.solution.jackknife;
-            let levels = fit.calibration_level.as_ref().map_or(0, |l| l.jackknife_nt.len());
-            let whole = jackknife.iter().flatten().all(|v| v.is_finite())
-                && jackknife.iter().all(|d| d.len() == fit.coefficients.len());
-            if !whole || levels != jackknife.len() {
-                return Err(not_ours(format!(
-                    "the jackknife of the model of '{channel}' is incomplete ({} deviations, {levels} levels for them)",
-                    jackknife.len()
-                )));
-            }
-            if !(fit.sample_rate_hz.is_finite() && fit.sample_rate_hz > 0.0) {
-                return Err(not_ours(format!("the model of '{channel}' has no sample rate")));
-            }
-        }
-        for vector in &file.vector_models {
-            let sensor = &vector.sensor;
-            let constants = vector.soft_iron.iter().flatten().chain(&vector.hard_iron_nt);
-            if !constants.into_iter().all(|v| v.is_finite()) {
-                return Err(not_ours(format!(
-                    "the vector model of '{sensor}' has constants that are not numbers"
-                )));
-            }
-            let Some(stage) = &vector.tolles_lawson else {
-                continue;
-            };
-            if stage.components.len() != 3 {
-                return Err(not_ours(format!(
-                    "the vector Tolles-Lawson stage of '{sensor}' holds {} models, not one per body axis",
-                    stage.components.len()
-                )));
-            }
-            let terms = crate::vector::tolles_lawson::terms();
-            for fit in &stage.components {
-                let whole = fit.spec == ModelSpec::plain(terms)
-                    && fit.term_names == terms.names()
-                    && fit.coefficients.len() == fit.term_names.len()
-                    && fit.coefficients.iter().all(|c| c.is_finite())
-                    && fit.sample_rate_hz.is_finite()
-                    && fit.sample_rate_hz > 0.0;
-                if !whole {
-                    return Err(not_ours(format!(
-                        "the vector Tolles-Lawson model of '{}' ({sensor}) is not the stage magcomp fits, or incomplete: terms {}, {} coefficients, sample rate {} Hz",
-                        fit.channel,
-                        fit.term_names.join(", "),
-                        fit.coefficients.len(),
-                        fit.sample_rate_hz
-                    )));
-                }
-            }
+        let problem = (file.models.iter().find_map(scalar_model_problem))
+            .or_else(|| file.vector_models.iter().find_map(vector_model_problem));
+        if let Some(problem) = problem {
+            return Err(not_ours(problem));
         }
         Ok(SavedModel {
             path: path.to_path_buf(),
