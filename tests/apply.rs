@@ -70,17 +70,22 @@ fn columns(path: &Path, wanted: &[&str]) -> Vec<Vec<String>> {
 /// Writes the sample flight in `folder` (f.csv), compensated plain on
 /// itself (own.csv) with its model saved (model.json).
 fn plain_model_of_sample_flight(folder: &Path) {
-    let at = |name: &str| folder.join(name);
-    sample_flight(&at("f.csv"));
+    sample_flight(&folder.join("f.csv"));
+    calibrate_on(&folder.join("f.csv"), folder, &["--plain"]);
+}
+
+/// Compensates `flight` on itself with `options` into `folder` (own.csv),
+/// its model saved there (model.json).
+fn calibrate_on(flight: &Path, folder: &Path, options: &[&str]) {
     run_ok(
         magcomp()
             .arg("compensate")
-            .arg(at("f.csv"))
+            .arg(flight)
             .arg("--out")
-            .arg(at("own.csv"))
-            .arg("--plain")
+            .arg(folder.join("own.csv"))
+            .args(options)
             .arg("--model")
-            .arg(at("model.json")),
+            .arg(folder.join("model.json")),
     );
 }
 
@@ -102,16 +107,7 @@ fn a_model_applied_to_its_own_flight_gives_its_compensation_bit_for_bit() {
     let at = |name: &str| folder.path().join(name);
     sample_flight(&at("f.csv"));
     // The default: diagnosed, findings applied where they pay.
-    run_ok(
-        magcomp()
-            .arg("compensate")
-            .arg(at("f.csv"))
-            .arg("--out")
-            .arg(at("own.csv"))
-            .arg("--model")
-            .arg(at("model.json"))
-            .args(["--aircraft", "C-GMAG"]),
-    );
+    calibrate_on(&at("f.csv"), folder.path(), &["--aircraft", "C-GMAG"]);
     // The fluxgate's vector compensation too: the model JSON holds its
     // twelve constants and vector Tolles-Lawson stage.
     let wanted = [
@@ -540,17 +536,7 @@ fn what_the_model_cannot_vouch_for_is_a_warning() {
     let folder = tempfile::tempdir().unwrap();
     let at = |name: &str| folder.path().join(name);
     sample_flight(&at("f.csv"));
-    run_ok(
-        magcomp()
-            .arg("compensate")
-            .arg(at("f.csv"))
-            .arg("--out")
-            .arg(at("own.csv"))
-            .arg("--plain")
-            .args(["--channels", "mag_1_uc"])
-            .arg("--model")
-            .arg(at("model.json")),
-    );
+    calibrate_on(&at("f.csv"), folder.path(), &["--plain", "--channels", "mag_1_uc"]);
     // A FOM limit the calibration did not meet, and a magnetometer the
     // model holds no model of.
     std::fs::write(at("strict.toml"), "[quality]\nfom_limit_nt = 0.1\n").unwrap();
@@ -932,15 +918,7 @@ fn a_model_that_fitted_the_base_stations_gain_is_refused_as_an_earlier_versions(
     let folder = tempfile::tempdir().unwrap();
     let at = |name: &str| folder.path().join(name);
     let flight = Path::new(env!("CARGO_MANIFEST_DIR")).join("sample_flights/concealed_d.csv");
-    run_ok(
-        magcomp()
-            .arg("compensate")
-            .arg(&flight)
-            .arg("--out")
-            .arg(at("own.csv"))
-            .arg("--model")
-            .arg(at("model.json")),
-    );
+    calibrate_on(&flight, folder.path(), &[]);
     let text = std::fs::read_to_string(at("model.json")).unwrap();
     let mut model: serde_json::Value = serde_json::from_str(&text).unwrap();
     let fits = model["models"].as_array_mut().unwrap();
