@@ -87,6 +87,11 @@ impl Igrf {
             .filter(|l| !l.trim_start().starts_with('#') && !l.trim().is_empty());
         let header: Vec<f64> = numbers(lines.next().ok_or("no parameter line")?)?;
         let degree = *header.get(1).ok_or("parameter line has no maximum degree")? as usize;
+        if !(1..=MAX_DEGREE).contains(&degree) {
+            return Err(format!(
+                "maximum degree {degree}: this evaluator takes 1 to {MAX_DEGREE}"
+            ));
+        }
         let epochs = numbers(lines.next().ok_or("no epoch line")?)?;
         let size = index(degree, degree) + 1;
         let mut g_nt = vec![vec![0.0; size]; epochs.len()];
@@ -140,6 +145,7 @@ impl Igrf {
             degree: self.degree,
             g_nt: blend(&self.g_nt),
             h_nt: blend(&self.h_nt),
+            roots: RecursionRoots::new(self.degree),
         }
     }
 
@@ -156,6 +162,48 @@ pub struct IgrfEpoch {
     degree: usize,
     g_nt: Vec<f64>,
     h_nt: Vec<f64>,
+    /// The square roots of the Legendre recursions, the same at every
+    /// place.
+    roots: RecursionRoots,
+}
+
+/// The largest degree a model may have: IGRF-14's. The evaluation keeps
+/// its tables on the stack.
+const MAX_DEGREE: usize = 13;
+/// Coefficients up to [`MAX_DEGREE`].
+const MAX_TERMS: usize = (MAX_DEGREE + 1) * (MAX_DEGREE + 2) / 2;
+
+/// The square roots the Legendre recursions take, by `index(n, m)`: each
+/// is what the recursion would compute in place, computed once.
+#[derive(Debug, Clone, PartialEq)]
+struct RecursionRoots {
+    /// $\sqrt{(2n-1)/2n}$ at `index(n, n)` (1 for $n = 1$).
+    diagonal: Vec<f64>,
+    /// $\sqrt{n^2-m^2}$ at `index(n, m)`, $m < n$.
+    norm: Vec<f64>,
+    /// $\sqrt{(n-1)^2-m^2}$ at `index(n, m)`, $m + 2 \le n$.
+    weight: Vec<f64>,
+}
+
+impl RecursionRoots {
+    fn new(degree: usize) -> Self {
+        let size = index(degree, degree) + 1;
+        let (mut diagonal, mut norm, mut weight) = (vec![0.0; size], vec![0.0; size], vec![0.0; size]);
+        for n in 1..=degree {
+            diagonal[index(n, n)] = if n == 1 {
+                1.0
+            } else {
+                ((2 * n - 1) as f64 / (2 * n) as f64).sqrt()
+            };
+            for m in 0..n {
+                norm[index(n, m)] = ((n * n - m * m) as f64).sqrt();
+                if n >= m + 2 {
+                    weight[index(n, m)] = (((n - 1) * (n - 1) - m * m) as f64).sqrt();
+                }
+            }
+        }
+        RecursionRoots { diagonal, norm, weight }
+    }
 }
 
 impl IgrfEpoch {
@@ -173,16 +221,21 @@ impl IgrfEpoch {
 
     /// $(B_r, B_\theta, B_\phi)$ in nT from the gradient of the potential.
     fn spherical_components(&self, place: &Geocentric, longitude_rad: f64) -> [f64; 3] {
-        let legendre = SchmidtLegendre::new(self.degree, place.colatitude_rad);
+        let legendre = SchmidtLegendre::new(self.degree, &self.roots, place.colatitude_rad);
         let sin_theta = place.colatitude_rad.sin();
         let ratio = REFERENCE_RADIUS_KM / place.radius_km;
+        // sin mφ and cos mφ, each order once.
+        let mut turns = [(0.0, 0.0); MAX_DEGREE + 1];
+        for (m, turn) in turns.iter_mut().enumerate().take(self.degree + 1) {
+            *turn = (m as f64 * longitude_rad).sin_cos();
+        }
         let mut field = [0.0; 3];
         let mut scale = ratio * ratio;
         for n in 1..=self.degree {
             scale *= ratio;
             for m in 0..=n {
                 let k = index(n, m);
-                let (sin_m, cos_m) = (m as f64 * longitude_rad).sin_cos();
+                let (sin_m, cos_m) = turns[m];
                 let along = self.g_nt[k] * cos_m + self.h_nt[k] * sin_m;
                 let across = m as f64 * (self.h_nt[k] * cos_m - self.g_nt[k] * sin_m);
                 field[0] += scale * (n + 1) as f64 * along * legendre.value[k];
@@ -230,8 +283,8 @@ impl Geocentric {
 
 /// Schmidt semi-normalised $P_n^m(\cos\theta)$ and $dP_n^m/d\theta$.
 struct SchmidtLegendre {
-    value: Vec<f64>,
-    derivative: Vec<f64>,
+    value: [f64; MAX_TERMS],
+    derivative: [f64; MAX_TERMS],
 }
 
 impl SchmidtLegendre {
@@ -239,19 +292,14 @@ impl SchmidtLegendre {
     /// $P_n^n = \sqrt{(2n-1)/2n}\,\sin\theta\,P_{n-1}^{n-1}$ ($P_1^1 = \sin\theta$),
     /// then down each order
     /// $P_n^m = [(2n-1)\cos\theta P_{n-1}^m - \sqrt{(n-1)^2-m^2}\,P_{n-2}^m]/\sqrt{n^2-m^2}$.
-    fn new(degree: usize, colatitude_rad: f64) -> Self {
-        let size = index(degree, degree) + 1;
+    fn new(degree: usize, roots: &RecursionRoots, colatitude_rad: f64) -> Self {
         let (s, c) = colatitude_rad.sin_cos();
-        let mut value = vec![0.0; size];
-        let mut derivative = vec![0.0; size];
+        let mut value = [0.0; MAX_TERMS];
+        let mut derivative = [0.0; MAX_TERMS];
         value[0] = 1.0;
         for n in 1..=degree {
             let (k, previous) = (index(n, n), index(n - 1, n - 1));
-            let factor = if n == 1 {
-                1.0
-            } else {
-                ((2 * n - 1) as f64 / (2 * n) as f64).sqrt()
-            };
+            let factor = roots.diagonal[k];
             value[k] = factor * s * value[previous];
             derivative[k] = factor * (c * value[previous] + s * derivative[previous]);
         }
@@ -259,12 +307,12 @@ impl SchmidtLegendre {
             for n in (m + 1)..=degree {
                 let k = index(n, m);
                 let one_back = index(n - 1, m);
-                let norm = ((n * n - m * m) as f64).sqrt();
+                let norm = roots.norm[k];
                 let mut p = (2 * n - 1) as f64 * c * value[one_back];
                 let mut dp = (2 * n - 1) as f64 * (c * derivative[one_back] - s * value[one_back]);
                 if n >= m + 2 {
                     let two_back = index(n - 2, m);
-                    let weight = (((n - 1) * (n - 1) - m * m) as f64).sqrt();
+                    let weight = roots.weight[k];
                     p -= weight * value[two_back];
                     dp -= weight * derivative[two_back];
                 }
@@ -303,7 +351,7 @@ mod tests {
         // P_2^0 = (3cos²θ − 1)/2, P_2^1 = √3 cosθ sinθ, P_2^2 = √3/2 sin²θ (Schmidt).
         let theta: f64 = 0.7;
         let (s, c) = theta.sin_cos();
-        let table = SchmidtLegendre::new(3, theta);
+        let table = SchmidtLegendre::new(3, &RecursionRoots::new(3), theta);
         let expected = [(1.5 * c * c - 0.5), 3f64.sqrt() * c * s, 3f64.sqrt() / 2.0 * s * s];
         for (m, value) in expected.iter().enumerate() {
             assert!((table.value[index(2, m)] - value).abs() < 1e-15);
