@@ -233,9 +233,8 @@ impl IgrfEpoch {
         let mut scale = ratio * ratio;
         for n in 1..=self.degree {
             scale *= ratio;
-            for m in 0..=n {
+            for (m, &(sin_m, cos_m)) in turns.iter().enumerate().take(n + 1) {
                 let k = index(n, m);
-                let (sin_m, cos_m) = turns[m];
                 let along = self.g_nt[k] * cos_m + self.h_nt[k] * sin_m;
                 let across = m as f64 * (self.h_nt[k] * cos_m - self.g_nt[k] * sin_m);
                 field[0] += scale * (n + 1) as f64 * along * legendre.value[k];
