@@ -103,8 +103,20 @@ pub(super) fn residuals(
     let mut windows = Vec::new();
     let (mut terms, mut fewest_training_samples) = (0, usize::MAX);
     let mut ridge = Vec::new();
-    for (out, rest) in splits {
-        let fitted = prepared.fit(&rest, &options, problem.stores)?;
+    // Every window of the splits band-passed once, each split's fit and
+    // residual taken from it, when the model allows it.
+    let shared = match prepared.reads_scalar_as_prepared() {
+        true => {
+            let (every, places) = every_window(&splits);
+            Some((prepared.band(&every, &options, problem.stores)?, places))
+        }
+        false => None,
+    };
+    for (split, (out, rest)) in splits.into_iter().enumerate() {
+        let fitted = match &shared {
+            Some((band, places)) => prepared.fit_within(band, &places[split][1], &options, problem.stores)?,
+            None => prepared.fit(&rest, &options, problem.stores)?,
+        };
         let solution = &fitted.solution;
         ridge.push(solution.lambda.unwrap_or_else(|| {
             let sigma = &solution.singular_values;
@@ -115,7 +127,13 @@ pub(super) fn residuals(
         }));
         terms = terms.max(fitted.coefficients.len());
         fewest_training_samples = fewest_training_samples.min(fitted.solution.samples);
-        windows.extend(prepared.held_out(&fitted, &out, &options, problem.stores)?);
+        windows.extend(match &shared {
+            Some((band, places)) => prepared.held_out_within(band, &fitted, &places[split][0], problem.stores),
+            None => prepared.held_out(&fitted, &out, &options, problem.stores)?,
+        });
+    }
+    if let Some((band, _)) = shared {
+        problem.stores.recycle(band.stacked);
     }
     let all: Vec<f64> = windows.iter().flat_map(|w| w.band_after_nt.iter().copied()).collect();
     Ok(HeldOut {
@@ -126,6 +144,30 @@ pub(super) fn residuals(
         fewest_training_samples,
         ridge,
     })
+}
+
+/// The windows of `splits`, each once in the order first met, and where
+/// each split's windows (held out, trained on) are among them.
+fn every_window(
+    splits: &[(Vec<CalibrationWindow>, Vec<CalibrationWindow>)],
+) -> (Vec<CalibrationWindow>, Vec<[Vec<usize>; 2]>) {
+    let mut every: Vec<CalibrationWindow> = Vec::new();
+    let mut place = |window: &CalibrationWindow| match every.iter().position(|w| w == window) {
+        Some(index) => index,
+        None => {
+            every.push(window.clone());
+            every.len() - 1
+        }
+    };
+    let places = (splits.iter())
+        .map(|(out, rest)| {
+            [
+                out.iter().map(&mut place).collect(),
+                rest.iter().map(&mut place).collect(),
+            ]
+        })
+        .collect();
+    (every, places)
 }
 
 /// How the calibration windows are held out.

@@ -121,6 +121,31 @@ pub(crate) struct BandData {
     pub sample_rate_hz: f64,
 }
 
+impl BandData {
+    /// The band data of some of these windows (indices, in the order
+    /// given): bit for bit what [`band_data`] gives on those windows alone,
+    /// each window being band-passed on its own rows only.
+    pub(crate) fn windows_subset(&self, indices: &[usize], stores: &StorePool) -> BandData {
+        let mut start = 0;
+        let windows = (indices.iter())
+            .map(|&k| {
+                let fit = &self.windows[k];
+                let rows = start..start + fit.stacked_rows.len();
+                start = rows.end;
+                WindowFit {
+                    stacked_rows: rows,
+                    ..fit.clone()
+                }
+            })
+            .collect();
+        BandData {
+            stacked: self.stacked.folds_subset(indices, stores),
+            windows,
+            sample_rate_hz: self.sample_rate_hz,
+        }
+    }
+}
+
 /// Band-passes and stacks `windows` of one channel: the columns of
 /// `terms`, then `extra` (one value per row of the flight each), then the
 /// channel's readings `scalar` (one per row: the recorded ones, or those

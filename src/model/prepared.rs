@@ -255,20 +255,26 @@ impl<'a> Prepared<'a> {
         options: &FitOptions,
         stores: &StorePool,
     ) -> Result<FittedModel> {
+        let band = band_data(
+            &self.log,
+            self.sensor,
+            (self.channel, scalar),
+            windows,
+            (self.spec.fitted_terms(), &options.filter),
+            &self.extra_columns(),
+            stores,
+        )?;
+        self.fit_band(band, options, stores)
+    }
+
+    /// The fit on band data of this preparation's columns.
+    fn fit_band(&self, band: BandData, options: &FitOptions, stores: &StorePool) -> Result<FittedModel> {
         let terms = self.spec.fitted_terms();
         let BandData {
             stacked,
             windows: mut fits,
             sample_rate_hz,
-        } = band_data(
-            &self.log,
-            self.sensor,
-            (self.channel, scalar),
-            windows,
-            (terms, &options.filter),
-            &self.extra_columns(),
-            stores,
-        )?;
+        } = band;
         let solve = self.spec.solve_options(&options.solve);
         let solution = solve_stacked(&stacked, &solve);
         let mut solution = solution.map_err(|e| Error::Fit {
@@ -369,6 +375,71 @@ impl<'a> Prepared<'a> {
             &self.extra_columns(),
             stores,
         )?;
+        Ok(Self::residual_on(data, fitted, stores))
+    }
+
+    /// Whether every fit and held-out residual of this model reads the
+    /// scalar as prepared, so that each is made from a part of one band
+    /// data ([`Self::band`]): true unless the model has the second-order
+    /// term, whose passes change the scalar with each fit.
+    pub(crate) fn reads_scalar_as_prepared(&self) -> bool {
+        !self.spec.extensions.second_order
+    }
+
+    /// Band data of `windows` with the scalar as prepared: each window
+    /// band-passed once, for [`Self::fit_within`] and
+    /// [`Self::held_out_within`] on any part of them.
+    pub(crate) fn band(
+        &self,
+        windows: &[CalibrationWindow],
+        options: &FitOptions,
+        stores: &StorePool,
+    ) -> Result<BandData> {
+        self.check_filled(windows)?;
+        band_data(
+            &self.log,
+            self.sensor,
+            (self.channel, &self.scalar),
+            windows,
+            (self.spec.fitted_terms(), &options.filter),
+            &self.extra_columns(),
+            stores,
+        )
+    }
+
+    /// [`Self::fit`] on the windows `indices` of `band`: the same fit, bit
+    /// for bit, without band-passing them again. Only for a model that
+    /// [reads the scalar as prepared](Self::reads_scalar_as_prepared).
+    pub(crate) fn fit_within(
+        &self,
+        band: &BandData,
+        indices: &[usize],
+        options: &FitOptions,
+        stores: &StorePool,
+    ) -> Result<FittedModel> {
+        if indices.is_empty() {
+            return Err(Error::NoCalibrationWindows {
+                path: self.log.source().to_path_buf(),
+            });
+        }
+        debug_assert!(self.reads_scalar_as_prepared());
+        self.fit_band(band.windows_subset(indices, stores), options, stores)
+    }
+
+    /// [`Self::held_out`] on the windows `indices` of `band`, bit for bit.
+    pub(crate) fn held_out_within(
+        &self,
+        band: &BandData,
+        fitted: &FittedModel,
+        indices: &[usize],
+        stores: &StorePool,
+    ) -> Vec<WindowFit> {
+        debug_assert!(self.reads_scalar_as_prepared());
+        Self::residual_on(band.windows_subset(indices, stores), fitted, stores)
+    }
+
+    /// Each window's band-passed residual from `fitted`'s prediction.
+    fn residual_on(data: BandData, fitted: &FittedModel, stores: &StorePool) -> Vec<WindowFit> {
         let mut fits = data.windows;
         let predicted = data.stacked.predict(&fitted.coefficients);
         stores.recycle(data.stacked);
@@ -377,7 +448,7 @@ impl<'a> Prepared<'a> {
                 .map(|(y, f)| y - f)
                 .collect();
         }
-        Ok(fits)
+        fits
     }
 
     /// The prepared flight with the channel less the second-order term of
@@ -666,5 +737,56 @@ mod tests {
             .held_out(&fitted_part, std::slice::from_ref(&beyond), &options, &stores)
             .is_err());
         assert!(whole.fit(&[beyond], &options, &stores).is_ok());
+    }
+
+    #[test]
+    fn a_fit_and_residual_on_part_of_one_band_data_are_those_made_afresh() {
+        let (log, windows) = flight();
+        let sensor = log.vector_sensor("flux_a").unwrap();
+        let spec = ModelSpec::new(
+            TermSet::default(),
+            Extensions {
+                sources: vec![SourceTerm::AuxCoupling {
+                    column: "cur_test".into(),
+                    level: 3.0,
+                }],
+                ..Extensions::default()
+            },
+        );
+        let prepared = Prepared::new(&log, &sensor, "mag_1_uc", &spec).unwrap();
+        assert!(prepared.reads_scalar_as_prepared());
+        let options = FitOptions::default();
+        let stores = StorePool::new();
+        let band = prepared.band(&windows, &options, &stores).unwrap();
+        // Trained on every other window in reverse, held out on the rest.
+        let trained: Vec<usize> = (0..windows.len()).rev().step_by(2).collect();
+        let out: Vec<usize> = (0..windows.len()).filter(|k| !trained.contains(k)).collect();
+        let pick = |indices: &[usize]| indices.iter().map(|&k| windows[k].clone()).collect::<Vec<_>>();
+        let afresh = prepared.fit(&pick(&trained), &options, &stores).unwrap();
+        let within = prepared.fit_within(&band, &trained, &options, &stores).unwrap();
+        let bits = |values: &[f64]| values.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&within.coefficients), bits(&afresh.coefficients));
+        assert_eq!(
+            within.solution.lambda.map(f64::to_bits),
+            afresh.solution.lambda.map(f64::to_bits)
+        );
+        assert_eq!(bits(&within.solution.fitted), bits(&afresh.solution.fitted));
+        assert_eq!(within.windows, afresh.windows);
+        let held_afresh = prepared.held_out(&afresh, &pick(&out), &options, &stores).unwrap();
+        let held_within = prepared.held_out_within(&band, &within, &out, &stores);
+        assert!(held_within.iter().all(|w| !w.band_after_nt.is_empty()));
+        assert_eq!(held_within, held_afresh);
+        assert!(prepared.fit_within(&band, &[], &options, &stores).is_err());
+        // The second-order term changes the scalar with each pass.
+        let second = ModelSpec::new(
+            TermSet::default(),
+            Extensions {
+                second_order: true,
+                ..Extensions::default()
+            },
+        );
+        assert!(!Prepared::new(&log, &sensor, "mag_1_uc", &second)
+            .unwrap()
+            .reads_scalar_as_prepared());
     }
 }

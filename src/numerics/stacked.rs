@@ -301,6 +301,36 @@ impl Stacked {
         stacked
     }
 
+    /// The stack of some of this one's folds, in the order given: bit for
+    /// bit what band-passing and stacking those folds' windows alone gives,
+    /// since a fold's blocks, their storage and their Gram matrices depend
+    /// on its own rows only. Nothing is filtered again.
+    pub fn folds_subset(&self, folds: &[usize], stores: &StorePool) -> Stacked {
+        let lengths: Vec<usize> = folds.iter().map(|&f| self.layout.folds[f].len()).collect();
+        let (layout, size) = Layout::new(&lengths, self.layout.columns);
+        let rows = size / LANES;
+        let mut data = match stores.take(rows) {
+            Some(mut data) => {
+                data.truncate(rows);
+                data.resize(rows, [0.0; LANES]);
+                data
+            }
+            None => vec![[0.0; LANES]; rows],
+        };
+        let mut grams = Vec::with_capacity(layout.blocks.len());
+        let sources =
+            (folds.iter()).flat_map(|&f| (self.layout.blocks.iter().enumerate()).filter(move |(_, b)| b.fold == f));
+        let (from, to) = (self.data.as_flattened(), data.as_flattened_mut());
+        // The blocks of a fold tile its storage in the same strides here and
+        // there, padding included, so each block is one copy.
+        for (target, (index, source)) in layout.blocks.iter().zip(sources) {
+            let length = source.stride * layout.panels * LANES;
+            to[target.offset..target.offset + length].copy_from_slice(&from[source.offset..source.offset + length]);
+            grams.push(self.grams[index].clone());
+        }
+        Stacked { data, layout, grams }
+    }
+
     /// $A^\top A$ of the design columns: the blocks' Gram matrices summed in
     /// block order.
     pub fn gram(&self) -> Mat<f64> {
