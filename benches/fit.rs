@@ -22,12 +22,12 @@
 use std::path::Path;
 use std::time::Instant;
 
+use magcomp::calibration::windows::CalibrationWindow;
 use magcomp::config::{FlightJob, Pipeline, Settings};
-use magcomp::flight_log::{Channel, ChannelRole, FlightLog, VectorAxis};
+use magcomp::ingest::flight_log::{Channel, ChannelRole, FlightLog, VectorAxis};
 use magcomp::model::{fit, FitOptions, ModelSpec};
+use magcomp::output::sink::{process_flight, FlightOutputs};
 use magcomp::pipeline::choose_vector_sensor;
-use magcomp::sink::{process_flight, FlightOutputs};
-use magcomp::windows::CalibrationWindow;
 
 /// The diagnosis tests' flight helpers (the unrelated columns).
 #[path = "../tests/common/mod.rs"]
@@ -244,7 +244,7 @@ fn bench_whole_file(rows: usize) {
         file.set_modified(std::time::SystemTime::now()).unwrap();
         drop(file);
         clock.restart();
-        magcomp::sink::process_flight_listing(&job, &options, &outputs, &clock).unwrap();
+        magcomp::output::sink::process_flight_listing(&job, &options, &outputs, &clock).unwrap();
         clock.stop();
     });
     let megabytes = std::fs::metadata(&input).unwrap().len() as f64 / 1e6;

@@ -30,9 +30,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::diagnose::AppliedFinding;
 use crate::error::{Error, Result};
-use crate::flight_date::FlightDate;
-use crate::flight_identity::FlightIdentity;
-use crate::flight_log::FlightLog;
+use crate::ingest::flight_date::FlightDate;
+use crate::ingest::flight_identity::FlightIdentity;
+use crate::ingest::flight_log::FlightLog;
 use crate::model::{CalibrationLevel, FittedModel, ModelSpec};
 use crate::numerics::solve::{Decomposition, Method, Solution};
 use crate::quality::ChannelQuality;
@@ -159,7 +159,7 @@ struct SavedFile {
     #[serde(default)]
     applied_findings: Vec<AppliedFinding>,
     #[serde(default)]
-    vector_calibration: Option<crate::vector_calibration::VectorCalibration>,
+    vector_calibration: Option<crate::calibration::fluxgate::VectorCalibration>,
     models: Vec<SavedFit>,
     #[serde(default)]
     vector_models: Vec<SavedVector>,
@@ -214,8 +214,8 @@ struct SavedSolution {
 }
 
 /// A column's role, as a sentence names it.
-fn role_words(role: &crate::flight_log::ChannelRole) -> &'static str {
-    use crate::flight_log::ChannelRole;
+fn role_words(role: &crate::ingest::flight_log::ChannelRole) -> &'static str {
+    use crate::ingest::flight_log::ChannelRole;
     match role {
         ChannelRole::Line => "line column",
         ChannelRole::ScalarMagnetometer => "scalar magnetometer",
@@ -354,7 +354,7 @@ impl SavedModel {
 
     /// The fluxgate calibration the models' terms are built on, when the
     /// calibration flight's `[vector_calibration]` stage made one.
-    pub fn vector_calibration(&self) -> Option<&crate::vector_calibration::VectorCalibration> {
+    pub fn vector_calibration(&self) -> Option<&crate::calibration::fluxgate::VectorCalibration> {
         self.file.vector_calibration.as_ref()
     }
 
@@ -443,7 +443,7 @@ impl SavedModel {
                     log.scalar_channels().join(", ")
                 )));
             };
-            use crate::flight_log::ChannelRole;
+            use crate::ingest::flight_log::ChannelRole;
             if !matches!(target.role, ChannelRole::ScalarMagnetometer | ChannelRole::Auxiliary) {
                 return Err(refuse(format!(
                     "'{model}' = '{column}': '{column}' is the flight's {}, not a scalar magnetometer",

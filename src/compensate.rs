@@ -21,8 +21,8 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::error::Result;
-use crate::flags::{FlagKind, RowFlags};
-use crate::flight_log::FlightLog;
+use crate::ingest::flags::{FlagKind, RowFlags};
+use crate::ingest::flight_log::FlightLog;
 use crate::model::{FittedModel, SharedDesign};
 
 /// Which DC level the compensated channel keeps.
@@ -171,7 +171,7 @@ impl Compensation {
     /// and those where a component lies beyond what a fluxgate reads
     /// (`output_out_of_range:<sensor>`).
     pub fn add_vector(&mut self, vector: crate::vector::CompensatedVector) {
-        let most = crate::screen::MOST_VECTOR_COMPONENT_NT;
+        let most = crate::ingest::screen::MOST_VECTOR_COMPONENT_NT;
         for (row, flags) in self.flags.iter_mut().enumerate() {
             if vector.body_nt[0][row].is_nan() {
                 flags.raise(FlagKind::MissingVector, &vector.sensor);
@@ -337,7 +337,7 @@ fn row_flags(log: &FlightLog, models: &[FittedModel], channels: &[CompensatedCha
             .filter_map(|s| Some((s.column(), log.channel(s.column())?.values.as_slice())))
             .collect();
         let terms = model.spec.fitted_terms();
-        let derivatives = terms.eddy != crate::tolles_lawson::EddyTerms::None || terms.field_derivative;
+        let derivatives = terms.eddy != crate::model::terms::EddyTerms::None || terms.field_derivative;
         for row in 0..log.len() {
             let mut explained = false;
             if !scalar[row].is_finite() {
@@ -362,7 +362,7 @@ fn row_flags(log: &FlightLog, models: &[FittedModel], channels: &[CompensatedCha
                 flags[row].raise(FlagKind::BesideGap, &model.vector_sensor);
             }
             let value = compensated.values[row];
-            let (lowest, highest) = crate::screen::TOTAL_FIELD_RANGE_NT;
+            let (lowest, highest) = crate::ingest::screen::TOTAL_FIELD_RANGE_NT;
             if value.is_finite() && !(lowest..=highest).contains(&value) {
                 flags[row].raise(FlagKind::OutputOutOfRange, &model.channel);
             }

@@ -31,13 +31,13 @@
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use crate::calibration::windows::CalibrationWindow;
 use crate::compensate::{compensate, CompensatedGradient, Compensation, LevelConvention};
 use crate::error::{Error, Result};
-use crate::flight_log::{Channel, ChannelRole, FlightLog, VectorSensor};
+use crate::ingest::flight_log::{Channel, ChannelRole, FlightLog, VectorSensor};
+use crate::model::terms::TermSet;
 use crate::model::{fit, FitOptions, FittedModel, ModelSpec, WindowFit};
 use crate::numerics::stacked::StorePool;
-use crate::tolles_lawson::TermSet;
-use crate::windows::CalibrationWindow;
 
 /// How a gradient is compensated (`[[gradient]] method`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -482,7 +482,7 @@ fn held_out(
     (spec, options): (&ModelSpec, &FitOptions),
     (ia, ib, d): (usize, usize, f64),
 ) -> Result<Option<GradientHeldOut>> {
-    let Some(splits) = crate::headings::heading_splits(inputs.windows) else {
+    let Some(splits) = crate::calibration::headings::heading_splits(inputs.windows) else {
         return Ok(None);
     };
     let stores = StorePool::new();

@@ -17,29 +17,45 @@
 //!
 //! ## Layout
 //!
-//! - [`formats`]: every file format, one module each that both reads and
-//!   writes it (CSV, Geosoft XYZ, MCAP, HDF5), and atomic, staged writes.
-//! - [`screen`], [`detect`], [`windows`]: the samples no instrument can
-//!   record, the calibration box and its manoeuvres, calibration windows.
-//! - [`model`]: one model type. A [`model::ModelSpec`] (Tolles-Lawson terms
-//!   and the physics a diagnosis adds) is fitted by [`model::fit`] into a
-//!   [`model::FittedModel`] that predicts the interference and its held-out
-//!   residual; [`compensate`] subtracts the prediction.
-//! - [`tolles_lawson`]: the terms. [`numerics`]: [`numerics::filter`]
-//!   (zero-phase band-pass), [`numerics::stacked`] and [`numerics::solve`]
-//!   (ridge by PRESS, truncated SVD), [`numerics::segments`],
-//!   [`numerics::linalg`]; it imports nothing else of magcomp.
+//! The top level follows a flight through its stages.
+//!
+//! - [`ingest`]: the flight log and its channels ([`ingest::flight_log`]),
+//!   its date and identity, the row flags, and the screen for samples no
+//!   instrument can record ([`ingest::screen`]). [`formats`]: every file
+//!   format, one module each that both reads and writes it (CSV, Geosoft
+//!   XYZ, MCAP, HDF5), and atomic, staged writes.
+//! - [`calibration`]: the box and its manoeuvres ([`calibration::detect`]),
+//!   calibration windows ([`calibration::windows`]), the
+//!   leave-one-heading-out rule ([`calibration::headings`]) and the
+//!   fluxgate's own calibration ([`calibration::fluxgate`]).
+//! - [`model`]: one model type. A [`model::ModelSpec`] (the Tolles-Lawson
+//!   terms of [`model::terms`] and the physics a diagnosis adds) is fitted
+//!   by [`model::fit`] into a [`model::FittedModel`] that predicts the
+//!   interference and its held-out residual; [`compensate`] subtracts the
+//!   prediction, [`apply`] applies a saved model to another flight,
+//!   [`vector`] compensates the fluxgate itself, [`gradient`] forms
+//!   gradients, and [`reduce`] adds the DC-shifted and IGRF-reduced
+//!   columns ([`igrf`]). [`numerics`]: [`numerics::filter`] (zero-phase
+//!   band-pass), [`numerics::stacked`] and [`numerics::solve`] (ridge by
+//!   PRESS, truncated SVD), [`numerics::segments`], [`numerics::linalg`];
+//!   it imports nothing else of magcomp.
 //! - [`diagnose`]: the physics the model leaves out, found, named and
-//!   scored held out; [`headings`] is the leave-one-heading-out rule it
-//!   shares with [`quality::transfer`] and [`quality`].
+//!   scored held out. [`quality`]: the figures of a compensation, the
+//!   transfer check, crossovers and corrugation, and the flight against
+//!   the plan it was flown to ([`quality::against_plan`]).
 //! - [`pipeline`]: one flight through every stage, writing nothing
 //!   ([`pipeline::run`] → [`pipeline::FlightRun`]). A flight is read and
 //!   prepared once ([`pipeline::PreparedFlight`]: screened, its sensor,
 //!   channels and windows chosen); each stage after it takes the
 //!   [`model::Calibration`] it gives (log, sensor, channels, windows).
-//!   [`sink`] writes what a run produced, and [`report`] is the HTML page.
 //!   A [`progress::Meter`] hears each stage begin and each channel done.
-//! - [`simulate`]: flights with known truth, for tests and for users.
+//!   [`campaign`] runs many flights, [`config`] reads `pipeline.toml`.
+//! - [`output`]: [`output::sink`] writes what a run produced, and
+//!   [`output::report`] is the HTML page.
+//! - [`plan`]: a calibration planned before the flight, and what it
+//!   would achieve.
+//! - [`simulate`] and [`sample_flight`]: flights with known truth, for
+//!   tests and for users.
 //! - The command line (`src/main.rs`, the binary) is a thin layer over
 //!   these: `src/cli/` holds one module per subcommand.
 //!
@@ -58,7 +74,7 @@
 //! ```
 //! use magcomp::{compensate::{compensate, LevelConvention}, model::{fit, FitOptions, ModelSpec}};
 //! use magcomp::{formats::{read_flight_log, IngestOptions}, pipeline::choose_vector_sensor};
-//! use magcomp::{quality::assess_quality, sample_flight, numerics::stacked::StorePool, windows::read_detect_json};
+//! use magcomp::{quality::assess_quality, sample_flight, numerics::stacked::StorePool, calibration::windows::read_detect_json};
 //!
 //! let folder = tempfile::tempdir()?;
 //! let (csv, windows) = (folder.path().join("flight.csv"), folder.path().join("windows.json"));
@@ -79,38 +95,28 @@
 //! ```
 #![deny(missing_docs)]
 
-pub mod against_plan;
 pub mod apply;
+pub mod calibration;
 pub mod campaign;
 pub mod compensate;
 pub mod config;
-pub mod detect;
 pub mod diagnose;
 pub mod error;
-pub mod flags;
-pub mod flight_date;
-pub mod flight_identity;
-pub mod flight_log;
 pub mod formats;
 pub mod gradient;
-pub mod headings;
 pub mod igrf;
+pub mod ingest;
 pub mod messages;
 pub mod model;
 pub mod numerics;
+pub mod output;
 pub mod pipeline;
 pub mod plan;
 pub mod progress;
 pub mod quality;
 pub mod reduce;
-pub mod report;
 pub mod sample_flight;
-pub mod screen;
 pub mod simulate;
-pub mod sink;
-pub mod tolles_lawson;
 pub mod vector;
-pub mod vector_calibration;
-pub mod windows;
 
 pub use error::{Error, Result};

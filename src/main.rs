@@ -107,7 +107,7 @@ enum Command {
         /// The day the flight was flown, YYYY-MM-DD (UTC), over what the
         /// file says; MCAP output's log times count from its midnight.
         #[arg(long, value_parser = parse_date)]
-        date: Option<magcomp::flight_date::FlightDate>,
+        date: Option<magcomp::ingest::flight_date::FlightDate>,
     },
     /// Simulate a flight from a scenario: the recording (CSV, MCAP, XYZ or
     /// HDF5 by extension), and beside it the truth and calibration windows.

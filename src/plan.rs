@@ -40,7 +40,7 @@
 //! without `[[scalar]]` tables takes the model file's channels.
 //!
 //! A flight flown to the plan is set against the report by
-//! [`crate::against_plan`] (`compensate --plan PLAN_REPORT.json`).
+//! [`crate::quality::against_plan`] (`compensate --plan PLAN_REPORT.json`).
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -48,16 +48,16 @@ use std::path::{Path, PathBuf};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use crate::calibration::headings::angle_apart;
+use crate::calibration::windows::ManoeuvreKind;
 use crate::config::Settings;
 use crate::error::{Error, Result};
-use crate::headings::angle_apart;
 use crate::model::excitation::{analyse_design, Design, Excitation};
 use crate::model::{fit, FittedModel, ModelSpec, SharedDesign};
 use crate::numerics::stacked::StorePool;
 use crate::simulate::physics::AircraftField;
 use crate::simulate::scenario::{RawScenario, ScalarSensor, Scenario, SensorLocation};
 use crate::simulate::{simulate, SimulatedFlight};
-use crate::windows::ManoeuvreKind;
 
 /// Realisations when `[plan]` gives none.
 const DEFAULT_REALISATIONS: usize = 8;
@@ -73,7 +73,7 @@ const LEAST_GAIN: f64 = 0.005;
 /// the plan: a lead-in and two 90° turns at 3°/s, s.
 const NEW_LEG_S: f64 = 80.0;
 
-pub use crate::against_plan::STATED_FACTOR;
+pub use crate::quality::against_plan::STATED_FACTOR;
 
 /// `[plan]`: how to predict.
 #[derive(Debug, Clone, Deserialize)]

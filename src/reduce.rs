@@ -21,9 +21,9 @@ use serde::Serialize;
 
 use crate::compensate::{Compensation, ReducedChannel};
 use crate::error::{Error, Result};
-use crate::flags::FlagKind;
-use crate::flight_log::{ChannelRole, FlightLog};
 use crate::igrf::{decimal_year, Igrf};
+use crate::ingest::flags::FlagKind;
+use crate::ingest::flight_log::{ChannelRole, FlightLog};
 
 /// A base-station column whose median is within this of zero records the
 /// variation, not the total field, nT.

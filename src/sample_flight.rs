@@ -26,12 +26,12 @@ use std::f64::consts::PI;
 use std::io::Write;
 use std::path::Path;
 
+use crate::calibration::windows::{CalibrationWindow, ManoeuvreKind};
 use crate::error::Result;
 use crate::formats::stage_detect_json;
 use crate::formats::{stage, OutputSet};
 use crate::simulate::physics::{dipole_field_nt, Vector};
 use crate::simulate::random::Random;
-use crate::windows::{CalibrationWindow, ManoeuvreKind};
 
 /// What to fly.
 #[derive(Debug, Clone, PartialEq)]

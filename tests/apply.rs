@@ -22,13 +22,13 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use magcomp::config::{FlightJob, Settings};
-use magcomp::flight_date::FlightDate;
 use magcomp::formats::write_flight_log;
+use magcomp::ingest::flight_date::FlightDate;
+use magcomp::output::sink::FlightOutputs;
 use magcomp::simulate::random::Random;
 use magcomp::simulate::scenario::{RawScenario, Scenario};
 use magcomp::simulate::simulate;
 use magcomp::simulate::truth::{survey_line_error_nt, Truth};
-use magcomp::sink::FlightOutputs;
 
 fn magcomp() -> Command {
     Command::new(env!("CARGO_BIN_EXE_magcomp"))
@@ -281,7 +281,7 @@ fn a_box_flown_once_compensates_the_survey_flights_of_that_aircraft() {
             diagnosis_json: None,
         };
         let own_run = magcomp::pipeline::run(&job, &settings, &outputs.compensated).unwrap();
-        magcomp::sink::write(&own_run, &settings, &outputs).unwrap();
+        magcomp::output::sink::write(&own_run, &settings, &outputs).unwrap();
         let own = &own_run.result;
         // The survey flight, compensated with it.
         let mut job = FlightJob::new(&survey_input);

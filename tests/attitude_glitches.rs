@@ -14,10 +14,10 @@
 mod common;
 
 use magcomp::config::FlightJob;
-use magcomp::flags::FlagKind;
-use magcomp::flight_date::FlightDate;
-use magcomp::flight_log::FlightLog;
 use magcomp::formats::write_flight_log;
+use magcomp::ingest::flags::FlagKind;
+use magcomp::ingest::flight_date::FlightDate;
+use magcomp::ingest::flight_log::FlightLog;
 use magcomp::simulate::random::Random;
 
 /// The values a glitching INS writes for the heading.
@@ -79,8 +79,8 @@ fn heading_glitches_are_masked_and_change_nothing_else() {
         // Far: more than three times what the aircraft can turn in one
         // interval (the screen masks beyond twice from most neighbours;
         // a fast turn moves the neighbours by up to three intervals' turn).
-        let jump = (magcomp::screen::FASTEST_ATTITUDE_DEG_S * simulated.log.median_interval_s())
-            .max(magcomp::screen::LEAST_ATTITUDE_GLITCH_DEG);
+        let jump = (magcomp::ingest::screen::FASTEST_ATTITUDE_DEG_S * simulated.log.median_interval_s())
+            .max(magcomp::ingest::screen::LEAST_ATTITUDE_GLITCH_DEG);
         let truth = &simulated.log.channel("ins_yaw").unwrap().values;
         let far: Vec<usize> = (rows.iter().copied())
             .filter(|&k| {

@@ -7,8 +7,8 @@
 use std::path::{Path, PathBuf};
 
 use magcomp::config::{FlightJob, Settings};
+use magcomp::output::sink::{process_flight, FlightOutputs};
 use magcomp::pipeline::FlightResult;
-use magcomp::sink::{process_flight, FlightOutputs};
 
 fn sample(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))

@@ -37,9 +37,9 @@ use std::sync::{mpsc, Mutex};
 use std::time::{Duration, Instant};
 
 use magcomp::config::Settings;
-use magcomp::flight_log::{Channel, FlightLog};
 use magcomp::formats::read_flight_log;
 use magcomp::formats::write_flight_log;
+use magcomp::ingest::flight_log::{Channel, FlightLog};
 use magcomp::sample_flight::{generate, write, SampleFlightSpec};
 
 /// Seed of the flight and of every random choice in the corpus.

@@ -4,11 +4,11 @@
 
 use std::path::{Path, PathBuf};
 
+use magcomp::calibration::windows::read_detect_json;
 use magcomp::config::{FlightJob, Pipeline};
 use magcomp::diagnose::ApplyDiagnosis;
+use magcomp::output::sink::{process_flight, FlightOutputs};
 use magcomp::sample_flight::{generate, write, SampleFlightSpec};
-use magcomp::sink::{process_flight, FlightOutputs};
-use magcomp::windows::read_detect_json;
 
 /// The sample flight as rows of cells, with its calibration windows.
 struct Flight {

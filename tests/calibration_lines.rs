@@ -51,7 +51,8 @@ fn a_line_number_selects_its_box_and_nothing_else() {
         let run = magcomp::pipeline::run(&job, &common::plain(), &folder.path().join("out.csv")).unwrap();
         let model = &run.result.models[0];
         let margin = 5.0 + 1e-6;
-        let within = |span: &magcomp::simulate::truth::TimeSpan, w: &magcomp::windows::CalibrationWindow| {
+        let within = |span: &magcomp::simulate::truth::TimeSpan,
+                      w: &magcomp::calibration::windows::CalibrationWindow| {
             w.t_start >= span.t_start - margin && w.t_end <= span.t_end + margin
         };
         let windows: Vec<_> = model.windows.iter().map(|w| &w.window).collect();

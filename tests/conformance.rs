@@ -6,16 +6,16 @@
 
 use std::path::{Path, PathBuf};
 
+use magcomp::calibration::windows::CalibrationWindow;
 use magcomp::compensate::{compensate, LevelConvention};
 use magcomp::formats::{read_flight_log, IngestOptions};
+use magcomp::model::terms::TermSet;
 use magcomp::model::{fit, FilterSettings, FitMagnitude, FitOptions, ModelSpec};
 use magcomp::numerics::estimators::Solver;
 use magcomp::numerics::filter::{EdgePadding, FilterBand};
 use magcomp::numerics::solve::{LambdaChoice, SolveOptions};
 use magcomp::pipeline::choose_vector_sensor;
 use magcomp::quality::standard_deviation;
-use magcomp::tolles_lawson::TermSet;
-use magcomp::windows::CalibrationWindow;
 
 fn reference_folder() -> Option<PathBuf> {
     let folder = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/reference");

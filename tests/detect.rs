@@ -2,12 +2,12 @@
 //! pilots, headings, turbulence levels and seeds, and each edge case of the
 //! detection on its own (gaps, no INS, steep fields, missing manoeuvres).
 
-use magcomp::detect::{detect_manoeuvres, AttitudeSource, DetectOptions, Detection, STEEP_DIP_DEG};
-use magcomp::flight_log::{Channel, FlightLog};
+use magcomp::calibration::detect::{detect_manoeuvres, AttitudeSource, DetectOptions, Detection, STEEP_DIP_DEG};
+use magcomp::calibration::windows::ManoeuvreKind;
+use magcomp::ingest::flight_log::{Channel, FlightLog};
 use magcomp::simulate::scenario::{RawScenario, Scenario};
 use magcomp::simulate::truth::TrueManoeuvre;
 use magcomp::simulate::{simulate, SimulatedFlight};
-use magcomp::windows::ManoeuvreKind;
 use rayon::prelude::*;
 
 /// Intersection over union of two time windows on a 0.1 s grid.

@@ -264,8 +264,13 @@ fn an_effect_outside_the_library_is_reported_as_unexplained_where_it_happens() {
         .filter(|c| c.name != "cur_com1")
         .cloned()
         .collect();
-    let log = magcomp::flight_log::FlightLog::new(full.source(), full.time_column(), full.time_s().to_vec(), channels)
-        .unwrap();
+    let log = magcomp::ingest::flight_log::FlightLog::new(
+        full.source(),
+        full.time_column(),
+        full.time_s().to_vec(),
+        channels,
+    )
+    .unwrap();
     let job = FlightJob::new(input);
     let diagnosis = diagnose_flight(&log, &job, &pipeline.settings, &pipeline.settings.diagnose).unwrap();
     let tail: Vec<&magcomp::diagnose::Finding> =
@@ -311,7 +316,7 @@ fn a_diagnosis_does_not_depend_on_the_thread_count() {
 fn diagnosed_and_by_hand(
     name: &str,
     channel: &str,
-    truth: impl Fn(&magcomp::flight_log::FlightLog) -> magcomp::model::Extensions,
+    truth: impl Fn(&magcomp::ingest::flight_log::FlightLog) -> magcomp::model::Extensions,
 ) -> [f64; 3] {
     use magcomp::pipeline::choose_vector_sensor;
     let diagnosis = diagnose(name);
@@ -321,7 +326,7 @@ fn diagnosed_and_by_hand(
         .join("sample_flights")
         .join(name);
     let log = read_flight_log(&input, &pipeline.settings.ingest).unwrap();
-    let windows = magcomp::detect::detect_manoeuvres(&log, &options.detect)
+    let windows = magcomp::calibration::detect::detect_manoeuvres(&log, &options.detect)
         .unwrap()
         .calibration_windows(options.detect.window_margin_s);
     let sensor = choose_vector_sensor(&log, None).unwrap();
@@ -346,7 +351,7 @@ fn diagnosed_and_by_hand(
 fn a_diagnosed_model_holds_out_about_as_well_as_the_truth_modelled_by_hand() {
     use magcomp::model::{column_level, Extensions, SourceTerm};
     let coupling = |column: &'static str| {
-        move |log: &magcomp::flight_log::FlightLog| Extensions {
+        move |log: &magcomp::ingest::flight_log::FlightLog| Extensions {
             sources: vec![SourceTerm::AuxCoupling {
                 column: column.into(),
                 level: column_level(&log.channel(column).unwrap().values),

@@ -184,7 +184,7 @@ fn scenario(seed: u64, effects: &str) -> Scenario {
 
 /// The concealed effect modelled by hand with its true parameters, on
 /// the channel it is on (the fluxgate's has none).
-fn by_hand(truth: &Truth, log: &magcomp::flight_log::FlightLog) -> Option<(String, Extensions)> {
+fn by_hand(truth: &Truth, log: &magcomp::ingest::flight_log::FlightLog) -> Option<(String, Extensions)> {
     let level = |column: &str| column_level(&log.channel(column).unwrap().values);
     let (channel, model) = match truth {
         Truth::Lag { channel, lag_s } => (

@@ -270,7 +270,7 @@ fn a_residual_far_above_the_noise_is_unexplained_even_when_spread() {
             .filter(|c| c.name != "cur_ail")
             .cloned()
             .collect();
-        let log = magcomp::flight_log::FlightLog::new(
+        let log = magcomp::ingest::flight_log::FlightLog::new(
             flight.log.source(),
             flight.log.time_column(),
             flight.log.time_s().to_vec(),

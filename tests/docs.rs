@@ -186,7 +186,7 @@ fn every_relative_link_and_file_named_in_the_docs_exists() {
                 broken.push(format!("{}: link to {target}: no such heading", shown(&document)));
             }
         }
-        // Repository files named in code spans (`src/detect.rs`,
+        // Repository files named in code spans (`src/calibration/detect.rs`,
         // `tests/vector.rs`, …), relative to the repository root.
         let folders = [
             "src/",

@@ -14,8 +14,8 @@ use std::path::Path;
 
 use magcomp::campaign::drift::{compare, Calibration, Verdict};
 use magcomp::config::FlightJob;
-use magcomp::flight_date::FlightDate;
 use magcomp::formats::write_flight_log;
+use magcomp::ingest::flight_date::FlightDate;
 use magcomp::simulate::random::Random;
 use magcomp::simulate::scenario::{RawScenario, Scenario};
 use magcomp::simulate::simulate;

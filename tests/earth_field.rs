@@ -18,10 +18,10 @@
 //! MagNav.jl's 18 terms on the field as measured are printed beside.
 
 use magcomp::config::{FlightJob, Settings};
+use magcomp::model::terms::TermSet;
 use magcomp::simulate::random::Random;
 use magcomp::simulate::scenario::{RawScenario, ScalarSensor, Scenario, SensorLocation};
 use magcomp::simulate::simulate;
-use magcomp::tolles_lawson::TermSet;
 use rayon::prelude::*;
 
 /// Largest distance of the slope from the aircraft's isotropic k: the

@@ -6,15 +6,15 @@
 
 use std::path::PathBuf;
 
+use magcomp::calibration::headings::heading_splits;
+use magcomp::calibration::windows::read_detect_json;
 use magcomp::formats::{read_flight_log, IngestOptions};
-use magcomp::headings::heading_splits;
 use magcomp::messages::Warning;
 use magcomp::model::{compare_estimators, fit, FitOptions, ModelSpec};
 use magcomp::numerics::estimators::{Estimator, Family};
 use magcomp::numerics::solve::LambdaChoice;
 use magcomp::numerics::stacked::StorePool;
 use magcomp::pipeline::choose_vector_sensor;
-use magcomp::windows::read_detect_json;
 
 fn sample(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -110,7 +110,7 @@ fn the_pipeline_reports_the_table_for_every_channel_it_compensates() {
     );
     assert_eq!(json["estimators"][4]["family"], "tls");
     let report = folder.path().join("report.html");
-    magcomp::report::stage_report(&report, &run, 1.5)
+    magcomp::output::report::stage_report(&report, &run, 1.5)
         .unwrap()
         .page
         .commit()
@@ -300,13 +300,16 @@ fn a_solver_that_needs_three_headings_falls_back_to_ridge_and_warns() {
 fn clean_flight_on_two_headings() -> magcomp::config::FlightJob {
     let mut job = magcomp::config::FlightJob::new(sample("clean.csv"));
     let windows = read_detect_json(&sample("clean.windows.json"), 5.0).unwrap();
-    let headings = magcomp::headings::distinct_headings(&windows);
+    let headings = magcomp::calibration::headings::distinct_headings(&windows);
     assert!(headings.len() >= 3);
     job.windows = windows
         .into_iter()
         .filter(|w| {
-            w.heading_deg
-                .is_some_and(|h| headings[..2].iter().any(|k| magcomp::headings::same_heading(h, *k)))
+            w.heading_deg.is_some_and(|h| {
+                headings[..2]
+                    .iter()
+                    .any(|k| magcomp::calibration::headings::same_heading(h, *k))
+            })
         })
         .collect();
     job
@@ -402,7 +405,7 @@ fn noisy_fluxgate_box(
     settings.vector.enabled = false;
     settings.fit.solver = solver;
     let mut job = magcomp::config::FlightJob::new(&input);
-    job.date = magcomp::flight_date::FlightDate::parse("2026-06-15");
+    job.date = magcomp::ingest::flight_date::FlightDate::parse("2026-06-15");
     job.windows = simulated.truth.calibration_windows(settings.detect.window_margin_s);
     let run = magcomp::pipeline::run(&job, &settings, &folder.path().join("box_c.csv")).unwrap();
     let line = &run.log().channel("line").unwrap().values;

@@ -18,15 +18,15 @@
 
 mod common;
 
+use magcomp::calibration::windows::ManoeuvreKind;
 use magcomp::config::{FlightJob, Settings};
 use magcomp::diagnose::ApplyDiagnosis;
-use magcomp::flight_date::FlightDate;
 use magcomp::formats::write_flight_log;
+use magcomp::ingest::flight_date::FlightDate;
 use magcomp::model::FittedModel;
 use magcomp::simulate::random::Random;
 use magcomp::simulate::scenario::{RawScenario, Scenario};
 use magcomp::simulate::simulate;
-use magcomp::windows::ManoeuvreKind;
 
 /// A flight plan drawn from `seed`, with `change` added to its
 /// `[calibration]` table.
@@ -196,7 +196,7 @@ fn a_weak_manoeuvre_among_the_windows_is_a_gap() {
             (model.windows.iter()).any(|w| w.window.kind == Some(kind)
                 && w.window
                     .heading_deg
-                    .is_some_and(|h| magcomp::headings::same_heading(h, heading))),
+                    .is_some_and(|h| magcomp::calibration::headings::same_heading(h, heading))),
             "seed {seed}: the weak manoeuvre is among the windows"
         );
         let analysis = model.excitation.as_ref().expect("labelled windows: an analysis");
@@ -208,7 +208,7 @@ fn a_weak_manoeuvre_among_the_windows_is_a_gap() {
             first.gap,
             100.0 * first.excitation_flown
         );
-        if first.kind == kind && magcomp::headings::same_heading(first.heading_deg, heading) && first.gap {
+        if first.kind == kind && magcomp::calibration::headings::same_heading(first.heading_deg, heading) && first.gap {
             named += 1;
             assert!(first.flown, "seed {seed}: the weak manoeuvre was flown");
             assert!(

@@ -34,8 +34,8 @@
 //!    the other kind it could be (`could_be`). A manoeuvre found under the
 //!    flagged name counts as found, as a fault of accuracy.
 
-use magcomp::detect::{detect_manoeuvres, DetectOptions, Detection};
-use magcomp::flight_log::FlightLog;
+use magcomp::calibration::detect::{detect_manoeuvres, DetectOptions, Detection};
+use magcomp::ingest::flight_log::FlightLog;
 use magcomp::simulate::random::Random;
 use magcomp::simulate::scenario::{BoxPosition, RawScenario, Scenario};
 use magcomp::simulate::simulate;
@@ -262,11 +262,12 @@ fn judge(plan: &Plan, detection: &Detection, truth: &[TrueManoeuvre], dt: f64, d
         .iter()
         .flat_map(|b| b.missing.iter().filter_map(|text| parse_missing(text)))
         .collect();
-    let kind_name = |kind: magcomp::windows::ManoeuvreKind| format!("{kind:?}").to_lowercase();
+    let kind_name = |kind: magcomp::calibration::windows::ManoeuvreKind| format!("{kind:?}").to_lowercase();
     // A name the detector flagged as uncertain (`could_be`) counts as found,
     // but as a fault of accuracy, never as silent.
-    let names =
-        |k: &str, kind: magcomp::windows::ManoeuvreKind| k == "leg" || k.split('|').any(|part| part == kind_name(kind));
+    let names = |k: &str, kind: magcomp::calibration::windows::ManoeuvreKind| {
+        k == "leg" || k.split('|').any(|part| part == kind_name(kind))
+    };
     for m in truth {
         let best_of = |flagged: bool| {
             detection

@@ -3,13 +3,13 @@
 
 use std::path::{Path, PathBuf};
 
+use magcomp::calibration::windows::read_detect_json;
 use magcomp::config::{FlightJob, Settings};
-use magcomp::flight_log::FlightLog;
 use magcomp::formats::write_flight_log;
 use magcomp::formats::{read_flight_log, IngestOptions};
+use magcomp::ingest::flight_log::FlightLog;
+use magcomp::output::sink::{process_flight, FlightOutputs};
 use magcomp::sample_flight::{generate, write, SampleFlightSpec};
-use magcomp::sink::{process_flight, FlightOutputs};
-use magcomp::windows::read_detect_json;
 
 fn small_flight(folder: &Path) -> (PathBuf, PathBuf) {
     let spec = SampleFlightSpec {

@@ -18,9 +18,9 @@ mod common;
 
 use magcomp::config::{FlightJob, Settings};
 use magcomp::diagnose::ApplyDiagnosis;
-use magcomp::flight_date::FlightDate;
 use magcomp::formats::write_flight_log;
 use magcomp::gradient::{GradientMethod, GradientPair};
+use magcomp::ingest::flight_date::FlightDate;
 use magcomp::simulate::SimulatedFlight;
 
 /// Standard deviation of `errors` (one level taken out).
@@ -287,9 +287,9 @@ fn the_gradient_is_written_in_every_output_format() {
         .values
         .clone();
     for extension in ["csv", "xyz", "h5", "mcap"] {
-        let mut outputs = magcomp::sink::FlightOutputs::in_directory(folder.path(), &input);
+        let mut outputs = magcomp::output::sink::FlightOutputs::in_directory(folder.path(), &input);
         outputs.compensated = folder.path().join(format!("out.{extension}"));
-        magcomp::sink::process_flight(&job, &settings, &outputs).unwrap();
+        magcomp::output::sink::process_flight(&job, &settings, &outputs).unwrap();
         if extension == "mcap" {
             let bytes = std::fs::read(&outputs.compensated).unwrap();
             let values: Vec<f64> = mcap::MessageStream::new(&bytes)

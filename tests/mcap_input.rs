@@ -283,8 +283,9 @@ fn every_layout_and_encoding_reads_to_the_same_log() {
     let reference = folder.path().join("reference.mcap");
     write_file(&reference, INDEXED);
     let expected = read_flight_log(&reference, &IngestOptions::default()).unwrap();
-    let scanned =
-        |log: &magcomp::flight_log::FlightLog| log.alignment().unwrap().notes.iter().any(|n| n.contains("linear scan"));
+    let scanned = |log: &magcomp::ingest::flight_log::FlightLog| {
+        log.alignment().unwrap().notes.iter().any(|n| n.contains("linear scan"))
+    };
     assert!(!scanned(&expected), "an indexed file is read through its chunk index");
     let layouts = [
         (
@@ -483,7 +484,7 @@ fn log_times_are_absolute_and_read_back_as_times_of_day() {
     let folder = tempfile::tempdir().unwrap();
     let path = folder.path().join("multirate.mcap");
     write_file(&path, INDEXED);
-    let date = magcomp::flight_date::FlightDate::parse("2020-06-20").unwrap();
+    let date = magcomp::ingest::flight_date::FlightDate::parse("2020-06-20").unwrap();
     let options = IngestOptions {
         date: Some(date),
         ..IngestOptions::default()
@@ -513,7 +514,7 @@ fn log_times_are_absolute_and_read_back_as_times_of_day() {
     );
     // Another day given over the recorded one is used, and said.
     let other = IngestOptions {
-        date: magcomp::flight_date::FlightDate::parse("2021-01-01"),
+        date: magcomp::ingest::flight_date::FlightDate::parse("2021-01-01"),
         ..IngestOptions::default()
     };
     let overridden = read_flight_log(&written, &other).unwrap();
@@ -529,7 +530,7 @@ fn log_times_are_absolute_and_read_back_as_times_of_day() {
 
 /// The flight written in `layout` to `whole.mcap` in `folder`: its bytes
 /// and the log read from it.
-fn whole_file(folder: &Path, layout: Layout) -> (Vec<u8>, magcomp::flight_log::FlightLog) {
+fn whole_file(folder: &Path, layout: Layout) -> (Vec<u8>, magcomp::ingest::flight_log::FlightLog) {
     let path = folder.join("whole.mcap");
     write_file(&path, layout);
     let log = read_flight_log(&path, &IngestOptions::default()).unwrap();
@@ -537,7 +538,11 @@ fn whole_file(folder: &Path, layout: Layout) -> (Vec<u8>, magcomp::flight_log::F
 }
 
 /// Asserts that `log` has `expected`'s rows and channels, bit for bit.
-fn assert_same_log(expected: &magcomp::flight_log::FlightLog, log: &magcomp::flight_log::FlightLog, name: &str) {
+fn assert_same_log(
+    expected: &magcomp::ingest::flight_log::FlightLog,
+    log: &magcomp::ingest::flight_log::FlightLog,
+    name: &str,
+) {
     assert_eq!(log.time_s(), expected.time_s(), "{name}");
     for channel in expected.channels() {
         let other = log

@@ -6,11 +6,11 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+use magcomp::calibration::windows::CalibrationWindow;
 use magcomp::config::{FlightJob, Pipeline, Settings};
 use magcomp::diagnose::ApplyDiagnosis;
+use magcomp::output::sink::{process_flight, FlightOutputs};
 use magcomp::simulate::scenario::{RawScenario, Scenario};
-use magcomp::sink::{process_flight, FlightOutputs};
-use magcomp::windows::CalibrationWindow;
 use magcomp::Error;
 
 fn sample(name: &str) -> PathBuf {
@@ -107,16 +107,16 @@ fn a_box_on_two_headings_is_not_diagnosed() {
 #[test]
 fn windows_given_by_time_are_tested_with_a_caveat() {
     let log = magcomp::formats::read_flight_log(&sample("clean.csv"), &Default::default()).unwrap();
-    let labelled = magcomp::windows::read_detect_json(&sample("clean.windows.json"), 5.0).unwrap();
+    let labelled = magcomp::calibration::windows::read_detect_json(&sample("clean.windows.json"), 5.0).unwrap();
     let windows: Vec<CalibrationWindow> = (labelled.iter())
         .map(|w| CalibrationWindow::new(w.t_start, w.t_end))
         .collect();
-    let (headed, note) = magcomp::windows::headings_from_ins(&log, &windows, 15.0);
+    let (headed, note) = magcomp::calibration::windows::headings_from_ins(&log, &windows, 15.0);
     assert!(note
         .unwrap()
         .starts_with("12 window(s) given by time take their leg's heading from the INS yaw"));
     for (found, known) in headed.iter().zip(&labelled) {
-        let apart = magcomp::headings::angle_apart(found.heading_deg.unwrap(), known.heading_deg.unwrap());
+        let apart = magcomp::calibration::headings::angle_apart(found.heading_deg.unwrap(), known.heading_deg.unwrap());
         assert!(apart < 2.0, "{found:?} against {known:?}");
     }
     let pipeline = Pipeline::default();
@@ -124,7 +124,7 @@ fn windows_given_by_time_are_tested_with_a_caveat() {
         windows,
         ..FlightJob::new(sample("clean.csv"))
     };
-    let diagnose = |log: &magcomp::flight_log::FlightLog| {
+    let diagnose = |log: &magcomp::ingest::flight_log::FlightLog| {
         magcomp::pipeline::diagnose_flight(log, &job, &pipeline.settings, &pipeline.settings.diagnose).unwrap()
     };
     let with_ins = diagnose(&log);
@@ -138,7 +138,8 @@ fn windows_given_by_time_are_tested_with_a_caveat() {
         .cloned()
         .collect();
     let without_ins =
-        magcomp::flight_log::FlightLog::new(log.source(), log.time_column(), log.time_s().to_vec(), channels).unwrap();
+        magcomp::ingest::flight_log::FlightLog::new(log.source(), log.time_column(), log.time_s().to_vec(), channels)
+            .unwrap();
     let diagnosis = diagnose(&without_ins);
     assert!(
         diagnosis.notes.iter().any(|n| n.contains("held out window by window")),
@@ -359,7 +360,7 @@ fn a_flight_that_cannot_be_diagnosed_is_compensated_plain_with_a_warning() {
 
 /// A cabin-only flight whose one concealed effect is an eddy time
 /// constant; `fluxgate` adds a `[[effect]]` of fluxgate errors.
-fn cabin_only(seed: u64, fluxgate: &str) -> magcomp::flight_log::FlightLog {
+fn cabin_only(seed: u64, fluxgate: &str) -> magcomp::ingest::flight_log::FlightLog {
     let text = format!(
         r#"
         seed = {seed}
@@ -383,7 +384,7 @@ fn cabin_only(seed: u64, fluxgate: &str) -> magcomp::flight_log::FlightLog {
         .log
 }
 
-fn diagnose_log(log: &magcomp::flight_log::FlightLog) -> magcomp::diagnose::Diagnosis {
+fn diagnose_log(log: &magcomp::ingest::flight_log::FlightLog) -> magcomp::diagnose::Diagnosis {
     let pipeline = Pipeline::default();
     magcomp::pipeline::diagnose_flight(
         log,
@@ -760,7 +761,7 @@ fn the_heading_error_leaves_out_the_external_fields_drift() {
 #[test]
 fn an_impossible_output_value_is_flagged_and_counted() {
     use magcomp::compensate::{compensate, LevelConvention};
-    use magcomp::flags::FlagKind;
+    use magcomp::ingest::flags::FlagKind;
     use magcomp::model::{fit, FitOptions, ModelSpec};
     use magcomp::numerics::stacked::StorePool;
     let folder = tempfile::tempdir().unwrap();
@@ -772,7 +773,7 @@ fn an_impossible_output_value_is_flagged_and_counted() {
     magcomp::sample_flight::write(&magcomp::sample_flight::generate(&spec, 4), &csv, &windows).unwrap();
     let log = magcomp::formats::read_flight_log(&csv, &Default::default()).unwrap();
     let sensor = magcomp::pipeline::choose_vector_sensor(&log, Some("flux_a")).unwrap();
-    let windows = magcomp::windows::read_detect_json(&windows, 5.0).unwrap();
+    let windows = magcomp::calibration::windows::read_detect_json(&windows, 5.0).unwrap();
     let stores = StorePool::new();
     let mut model = fit(
         &log,

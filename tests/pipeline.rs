@@ -4,11 +4,11 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+use magcomp::calibration::windows::read_detect_json;
 use magcomp::config::{FlightJob, Settings};
+use magcomp::output::sink::{process_flight, process_flight_listing, FlightOutputs};
 use magcomp::progress::{Meter, Stage};
 use magcomp::sample_flight::{generate, write, SampleFlightSpec};
-use magcomp::sink::{process_flight, process_flight_listing, FlightOutputs};
-use magcomp::windows::read_detect_json;
 
 fn small_flight(folder: &Path) -> (PathBuf, PathBuf) {
     let spec = SampleFlightSpec {
@@ -488,7 +488,7 @@ fn the_vector_calibration_stage_calibrates_the_fluxgate_before_the_fit() {
 #[test]
 fn compensating_a_flight_without_the_models_channel_is_an_error() {
     use magcomp::compensate::{compensate, LevelConvention};
-    use magcomp::flight_log::FlightLog;
+    use magcomp::ingest::flight_log::FlightLog;
     use magcomp::model::{fit, FitOptions, ModelSpec};
     let folder = tempfile::tempdir().unwrap();
     let (csv, windows) = small_flight(folder.path());

@@ -24,8 +24,8 @@ mod common;
 use std::path::Path;
 
 use magcomp::config::FlightJob;
-use magcomp::flight_date::FlightDate;
 use magcomp::formats::write_flight_log;
+use magcomp::ingest::flight_date::FlightDate;
 use magcomp::plan::{predict, Plan, PlanReport, STATED_FACTOR};
 use magcomp::simulate::random::Random;
 use magcomp::simulate::scenario::Scenario;
@@ -287,7 +287,7 @@ fn additions_proposed_for_a_target_meet_it_when_flown() {
         report
             .additions
             .iter()
-            .any(|a| a.kind == magcomp::windows::ManoeuvreKind::Roll),
+            .any(|a| a.kind == magcomp::calibration::windows::ManoeuvreKind::Roll),
         "{:?}",
         report.additions
     );
@@ -381,7 +381,7 @@ fn changed(scenario: &Scenario, change: impl FnOnce(&mut magcomp::simulate::scen
 ///   the run warns of it, while the wing magnetometer still holds.
 #[test]
 fn a_flight_is_set_against_the_plan_it_was_flown_to() {
-    use magcomp::against_plan::Verdict;
+    use magcomp::quality::against_plan::Verdict;
     let folder = tempfile::tempdir().unwrap();
     let (mut figures, mut held) = (0, 0);
     for seed in compare_seeds() {

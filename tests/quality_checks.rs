@@ -5,10 +5,10 @@ use std::path::{Path, PathBuf};
 
 use magcomp::config::{FlightJob, Settings};
 use magcomp::messages::{HeldBack, Warning};
+use magcomp::output::sink::{process_flight, FlightOutputs};
 use magcomp::pipeline::FlightResult;
 use magcomp::quality::transfer::TransferMethod;
 use magcomp::simulate::scenario::{RawScenario, Scenario};
-use magcomp::sink::{process_flight, FlightOutputs};
 
 fn run(input: &Path, out: &Path) -> FlightResult {
     run_with(input, out, Settings::default())

@@ -108,7 +108,7 @@ fn the_reduced_columns_remove_the_station_and_igrf_as_the_truth_says() {
             &["mag_1_uc_earth_nt", "external_nt"],
         ))
         .unwrap();
-        let date = magcomp::flight_date::FlightDate::parse(&day(seed)).unwrap();
+        let date = magcomp::ingest::flight_date::FlightDate::parse(&day(seed)).unwrap();
         let year = magcomp::igrf::decimal_year(date.year, date.month, date.day, 43_200.0);
         let main = magcomp::igrf::Igrf::fourteenth().at_year(year);
         let survey: Vec<usize> = (0..c.len()).filter(|&r| line[r].is_finite() && line[r] > 0.0).collect();

@@ -1,12 +1,12 @@
 //! Extension columns beside the Tolles-Lawson terms: a coupled current's
 //! field recovered as a body-frame vector.
 
+use magcomp::model::terms::TermSet;
 use magcomp::model::{fit, Extensions, FitOptions, FittedModel, ModelSpec, SourceTerm};
 use magcomp::pipeline::choose_vector_sensor;
 use magcomp::quality::standard_deviation;
 use magcomp::simulate::scenario::{Effect, RawScenario, Scenario};
 use magcomp::simulate::simulate;
-use magcomp::tolles_lawson::TermSet;
 
 #[test]
 fn a_coupled_current_is_recovered_as_its_body_frame_vector() {

@@ -4,8 +4,8 @@
 
 use std::path::PathBuf;
 
+use magcomp::calibration::detect::detect_manoeuvres;
 use magcomp::config::Pipeline;
-use magcomp::detect::detect_manoeuvres;
 use magcomp::diagnose::diagnose;
 use magcomp::formats::read_flight_log;
 use magcomp::pipeline::{choose_channels, choose_vector_sensor};

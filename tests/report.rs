@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use magcomp::config::{FlightJob, Settings};
-use magcomp::sink::{process_flight, FlightOutputs};
+use magcomp::output::sink::{process_flight, FlightOutputs};
 
 /// Each `<text>` of the page's figures whose anchor lies outside its
 /// figure, with the figure's number: a label drawn off the plot.

@@ -19,9 +19,9 @@ mod common;
 
 use std::path::{Path, PathBuf};
 
+use magcomp::calibration::detect::detect_manoeuvres;
 use magcomp::compensate::compensate;
 use magcomp::config::Pipeline;
-use magcomp::detect::detect_manoeuvres;
 use magcomp::formats::read_flight_log;
 use magcomp::pipeline::{choose_channels, choose_vector_sensor};
 use magcomp::quality::assess_quality;

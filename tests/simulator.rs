@@ -4,8 +4,10 @@
 
 use std::ops::Range;
 
+use magcomp::calibration::windows::CalibrationWindow;
 use magcomp::compensate::{compensate, LevelConvention};
-use magcomp::flight_log::{Channel, FlightLog};
+use magcomp::ingest::flight_log::{Channel, FlightLog};
+use magcomp::model::terms::TermSet;
 use magcomp::model::{fit, FitOptions, ModelSpec};
 use magcomp::numerics::filter::{EdgePadding, FilterBand, ZeroPhaseFilter};
 use magcomp::numerics::solve::{solve, SolveOptions};
@@ -17,8 +19,6 @@ use magcomp::simulate::recording::first_order_lag;
 use magcomp::simulate::scenario::{Effect, RawScenario, Scenario};
 use magcomp::simulate::truth::survey_line_error_nt;
 use magcomp::simulate::{simulate, SimulatedFlight};
-use magcomp::tolles_lawson::TermSet;
-use magcomp::windows::CalibrationWindow;
 
 /// IGRF-14 north, east, down (nT) from ppigrf 2.1.0, an independent
 /// implementation; `tests/reference_scripts/igrf_reference.py` printed
@@ -397,13 +397,7 @@ fn eddy_lag_fit(flight: &SimulatedFlight, channel: &str, tau_s: Option<f64>) -> 
                 .collect();
             let rates: Vec<Vec<f64>> = field
                 .iter()
-                .map(|c| {
-                    first_order_lag(
-                        &magcomp::tolles_lawson::central_difference(&c[rows.clone()]),
-                        0.1,
-                        tau_s,
-                    )
-                })
+                .map(|c| first_order_lag(&magcomp::model::terms::central_difference(&c[rows.clone()]), 0.1, tau_s))
                 .collect();
             for i in 0..3 {
                 for j in 0..3 {

@@ -23,8 +23,8 @@
 mod common;
 
 use magcomp::config::FlightJob;
-use magcomp::flight_date::FlightDate;
 use magcomp::formats::write_flight_log;
+use magcomp::ingest::flight_date::FlightDate;
 
 /// A channel whose survey lines lie more than this from the truth
 /// (RMS of the error from the calibration's level) is wrong: it must

@@ -28,8 +28,8 @@ mod common;
 
 use magcomp::config::{FlightJob, Settings};
 use magcomp::diagnose::ApplyDiagnosis;
-use magcomp::flight_date::FlightDate;
 use magcomp::formats::write_flight_log;
+use magcomp::ingest::flight_date::FlightDate;
 use magcomp::simulate::random::Random;
 use magcomp::simulate::scenario::{RawScenario, Scenario};
 use magcomp::simulate::{simulate, SimulatedFlight};
@@ -126,7 +126,7 @@ fn mean(values: impl Iterator<Item = f64>) -> f64 {
 }
 
 /// The rows of `log` inside the true boxes.
-fn box_rows(log: &magcomp::flight_log::FlightLog, simulated: &SimulatedFlight) -> Vec<usize> {
+fn box_rows(log: &magcomp::ingest::flight_log::FlightLog, simulated: &SimulatedFlight) -> Vec<usize> {
     let time = log.time_s();
     simulated
         .truth
@@ -319,7 +319,7 @@ fn the_compensated_vector_matches_the_true_earth_field_on_flights_drawn_at_rando
 /// with the recorded INS attitude, less the true north-east-down field:
 /// what the attitude's noise alone costs the north-east-down output.
 fn ins_floor(
-    log: &magcomp::flight_log::FlightLog,
+    log: &magcomp::ingest::flight_log::FlightLog,
     truth: &magcomp::simulate::FluxgateTruth,
     rows: &[usize],
 ) -> [f64; 3] {

@@ -10,11 +10,11 @@
 
 use std::path::Path;
 
+use magcomp::calibration::windows::CalibrationWindow;
 use magcomp::config::{FlightJob, Settings};
 use magcomp::diagnose::ApplyDiagnosis;
 use magcomp::formats::read_flight_log;
-use magcomp::sink::{process_flight, FlightOutputs};
-use magcomp::windows::CalibrationWindow;
+use magcomp::output::sink::{process_flight, FlightOutputs};
 
 /// Runs the bytes of a `.<extension>` flight file through every stage;
 /// returns whether a run got to the end (the report written).

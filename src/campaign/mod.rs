@@ -27,8 +27,8 @@ use std::time::Instant;
 
 use crate::config::{FlightJob, Settings};
 use crate::error::{Error, Result};
+use crate::output::sink::{process_flight_listing, FlightOutputs};
 use crate::pipeline::FlightResult;
-use crate::sink::{process_flight_listing, FlightOutputs};
 
 /// What became of one flight of a campaign run.
 #[derive(Debug)]
@@ -68,8 +68,8 @@ pub fn process_campaign_flight(
     let started = Instant::now();
     meter.begin(crate::progress::Stage::Reading, 0);
     let path = status_path(folder, &job.output_name);
-    let hashes =
-        crate::flight_identity::hash_file(&job.input).and_then(|input| Ok((input, settings_sha256(job, settings)?)));
+    let hashes = crate::ingest::flight_identity::hash_file(&job.input)
+        .and_then(|input| Ok((input, settings_sha256(job, settings)?)));
     let mut status = failed_status(job, shard);
     let result = match hashes {
         Ok((input_sha256, settings_sha256)) => {

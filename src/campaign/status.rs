@@ -86,15 +86,15 @@ pub fn settings_sha256(job: &FlightJob, settings: &Settings) -> Result<String> {
     };
     hasher.update(format!("{choices:?}\n").as_bytes());
     if let Some(diagnosis) = &job.diagnosis {
-        hasher.update(crate::flight_identity::hash_file(diagnosis)?.as_bytes());
+        hasher.update(crate::ingest::flight_identity::hash_file(diagnosis)?.as_bytes());
     }
     if let Some(plan) = &job.plan {
         hasher.update(b"plan\n");
-        hasher.update(crate::flight_identity::hash_file(plan)?.as_bytes());
+        hasher.update(crate::ingest::flight_identity::hash_file(plan)?.as_bytes());
     }
     if let Some(model) = &job.model {
         hasher.update(b"model\n");
-        hasher.update(crate::flight_identity::hash_file(model)?.as_bytes());
+        hasher.update(crate::ingest::flight_identity::hash_file(model)?.as_bytes());
     }
     Ok(hasher.finalize().iter().map(|b| format!("{b:02x}")).collect())
 }

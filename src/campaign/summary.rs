@@ -567,7 +567,7 @@ impl CampaignSummary {
 
     /// `campaign_summary.html`.
     pub fn html(&self) -> String {
-        let escape = crate::report::escape;
+        let escape = crate::output::report::escape;
         let (done, failed) = self.counts();
         let mut page = String::from(
             "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>magcomp campaign summary</title>\n<style>body{font-family:sans-serif;margin:2em}table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #bbb;padding:2px 6px;text-align:right}td.text,th.text{text-align:left}tr.failed td{background:#fdd}</style></head><body>\n",
@@ -629,7 +629,7 @@ impl CampaignSummary {
     /// The drift table: each channel against the aircraft's previous
     /// calibration, a change the uncertainties do not explain in red.
     fn drift_html(&self) -> String {
-        let escape = crate::report::escape;
+        let escape = crate::output::report::escape;
         let rows = self.drifts();
         if rows.is_empty() {
             return String::new();
@@ -675,7 +675,7 @@ impl CampaignSummary {
     /// One table per recurring aircraft and channel: a row per term, a
     /// column per flight in date order, value ± one sigma.
     fn coefficients_html(&self) -> String {
-        let escape = crate::report::escape;
+        let escape = crate::output::report::escape;
         let mut html = String::new();
         for (aircraft, flights) in self.recurring_aircraft() {
             let _ = writeln!(html, "<h2>Coefficients over time: {}</h2>", escape(&aircraft));

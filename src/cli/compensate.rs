@@ -2,12 +2,12 @@
 
 use std::path::{Path, PathBuf};
 
+use magcomp::calibration::windows::CalibrationWindow;
 use magcomp::config::{FlightJob, Pipeline};
 use magcomp::diagnose::ApplyDiagnosis;
 use magcomp::numerics::solve::LambdaChoice;
+use magcomp::output::sink::{process_flight_listing, FlightOutputs};
 use magcomp::pipeline::summary;
-use magcomp::sink::{process_flight_listing, FlightOutputs};
-use magcomp::windows::CalibrationWindow;
 
 use super::progress::FlightBar;
 use super::{beside, parse_date, prepare_flight_outputs, print_notes};
@@ -92,7 +92,7 @@ pub struct CompensateArgs {
     /// The day the flight was flown, YYYY-MM-DD (UTC), over what the file
     /// says; MCAP output's log times count from its midnight.
     #[arg(long, value_parser = parse_date)]
-    date: Option<magcomp::flight_date::FlightDate>,
+    date: Option<magcomp::ingest::flight_date::FlightDate>,
     /// Also write mag_<n>_dc: each compensated channel less the base
     /// station's variation ([output] dc).
     #[arg(long)]
@@ -121,7 +121,7 @@ pub fn compensate(args: CompensateArgs, verbose: bool) -> anyhow::Result<()> {
         .collect::<Result<Vec<_>, _>>()?;
     let mut windows_detected_on = None;
     if let Some(file) = &args.windows_file {
-        let detected = magcomp::windows::read_detect_file(file, pipeline.settings.detect.window_margin_s)?;
+        let detected = magcomp::calibration::windows::read_detect_file(file, pipeline.settings.detect.window_margin_s)?;
         windows.extend(detected.windows);
         windows_detected_on = detected.flight.map(|identity| (file.clone(), identity));
     }
@@ -144,7 +144,7 @@ pub fn compensate(args: CompensateArgs, verbose: bool) -> anyhow::Result<()> {
         lines: args
             .lines
             .as_deref()
-            .map(magcomp::windows::parse_lines)
+            .map(magcomp::calibration::windows::parse_lines)
             .transpose()?
             .unwrap_or_default(),
         windows_detected_on,

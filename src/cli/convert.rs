@@ -12,7 +12,7 @@ pub fn convert(
     flight: &Path,
     out: &Path,
     config: Option<&Path>,
-    date: Option<magcomp::flight_date::FlightDate>,
+    date: Option<magcomp::ingest::flight_date::FlightDate>,
 ) -> anyhow::Result<()> {
     let mut pipeline = Pipeline::load_or_default(config)?;
     pipeline.settings.ingest.date = date.or(pipeline.settings.ingest.date);

@@ -10,25 +10,25 @@ use super::{print_notes, read_screened};
 /// Detects the boxes and manoeuvres of `flight` and writes DETECT.json.
 pub fn detect(flight: &Path, out: &Path, config: Option<&Path>, lines: Option<&str>) -> anyhow::Result<()> {
     let pipeline = Pipeline::load_or_default(config)?;
-    let lines = lines.map(magcomp::windows::parse_lines).transpose()?;
+    let lines = lines.map(magcomp::calibration::windows::parse_lines).transpose()?;
     let inputs: Vec<&Path> = std::iter::once(flight).chain(config).collect();
     print_notes(&prepare(&inputs, &[Destination::new(out, OutputKind::Json, "--out")])?);
     let log = read_screened(flight, &pipeline)?;
-    let mut detection = magcomp::detect::detect_manoeuvres(&log, &pipeline.settings.detect)?;
+    let mut detection = magcomp::calibration::detect::detect_manoeuvres(&log, &pipeline.settings.detect)?;
     if let Some(lines) = lines {
-        let spans = magcomp::windows::line_spans(&log, &lines)?;
+        let spans = magcomp::calibration::windows::line_spans(&log, &lines)?;
         detection = detection.on_lines(&spans);
     }
     /// DETECT.json: the detection and the flight it was made on.
     #[derive(serde::Serialize)]
     struct DetectJson<'a> {
         #[serde(flatten)]
-        detection: &'a magcomp::detect::Detection,
-        flight: magcomp::flight_identity::FlightIdentity,
+        detection: &'a magcomp::calibration::detect::Detection,
+        flight: magcomp::ingest::flight_identity::FlightIdentity,
     }
     let file = DetectJson {
         detection: &detection,
-        flight: magcomp::flight_identity::FlightIdentity::of(&log)?,
+        flight: magcomp::ingest::flight_identity::FlightIdentity::of(&log)?,
     };
     magcomp::formats::write_json(out, "the detected manoeuvres", &file)?;
     for note in magcomp::pipeline::detection_notes(&detection) {

@@ -3,9 +3,9 @@
 
 use std::path::Path;
 
+use magcomp::calibration::windows::CalibrationWindow;
 use magcomp::config::{FlightJob, Pipeline};
 use magcomp::formats::{prepare, Destination, OutputKind, OutputSet};
-use magcomp::windows::CalibrationWindow;
 
 use super::progress::FlightBar;
 use super::{print_notes, read_prepared};
@@ -42,7 +42,9 @@ pub fn diagnose(
     let diagnosis = diagnosis?;
     let mut set = OutputSet::new();
     set.add(magcomp::formats::stage_json(out, "the diagnosis", &diagnosis)?);
-    set.add_last(magcomp::report::stage_diagnosis_report(html, flight, &diagnosis)?);
+    set.add_last(magcomp::output::report::stage_diagnosis_report(
+        html, flight, &diagnosis,
+    )?);
     set.commit()?;
     for channel in &diagnosis.channels {
         println!(

@@ -8,7 +8,7 @@ use std::time::Duration;
 use indicatif::{ProgressBar, ProgressStyle};
 use magcomp::config::{FlightJob, Pipeline};
 use magcomp::formats::prepare;
-use magcomp::sink::FlightOutputs;
+use magcomp::output::sink::FlightOutputs;
 
 pub mod compensate;
 pub mod convert;
@@ -22,15 +22,18 @@ pub mod simulate;
 pub mod summarize;
 
 /// `--date`: a day as YYYY-MM-DD.
-pub fn parse_date(text: &str) -> Result<magcomp::flight_date::FlightDate, String> {
-    magcomp::flight_date::FlightDate::parse(text)
+pub fn parse_date(text: &str) -> Result<magcomp::ingest::flight_date::FlightDate, String> {
+    magcomp::ingest::flight_date::FlightDate::parse(text)
         .ok_or_else(|| format!("'{text}' is not a day; write it as YYYY-MM-DD, e.g. 2020-06-20"))
 }
 
 /// Reads a flight and screens its samples, printing what was masked.
-pub fn read_screened(flight: &Path, pipeline: &Pipeline) -> magcomp::error::Result<magcomp::flight_log::FlightLog> {
+pub fn read_screened(
+    flight: &Path,
+    pipeline: &Pipeline,
+) -> magcomp::error::Result<magcomp::ingest::flight_log::FlightLog> {
     let recorded = magcomp::formats::read_flight_log(flight, &pipeline.settings.ingest)?;
-    let screened = magcomp::screen::screen_samples(&recorded)?;
+    let screened = magcomp::ingest::screen::screen_samples(&recorded)?;
     for warning in screened.warnings(&recorded) {
         println!("  warning: {warning}");
     }

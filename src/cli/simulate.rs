@@ -3,9 +3,9 @@
 
 use std::path::Path;
 
+use magcomp::calibration::windows::CalibrationWindow;
 use magcomp::config::{FlightJob, Pipeline};
 use magcomp::formats::{prepare, Destination, OutputKind, OutputSet};
-use magcomp::windows::CalibrationWindow;
 
 use super::{beside, print_notes, read_prepared, spinner};
 

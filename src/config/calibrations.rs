@@ -134,7 +134,7 @@ fn choose(
     if let [only] = calibrations {
         return Ok((*only, false));
     }
-    let dated: Option<Vec<(crate::flight_date::FlightDate, usize)>> =
+    let dated: Option<Vec<(crate::ingest::flight_date::FlightDate, usize)>> =
         calibrations.iter().map(|&c| Some((flights[c].date?, c))).collect();
     let (Some(day), Some(mut dated)) = (flight.date, dated) else {
         let names: Vec<String> = calibrations
@@ -184,7 +184,7 @@ fn listed(names: &[&str]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::flight_date::FlightDate;
+    use crate::ingest::flight_date::FlightDate;
 
     fn flight(name: &str, aircraft: Option<&str>, date: Option<&str>, calibration: bool) -> FlightJob {
         FlightJob {

@@ -38,8 +38,8 @@ use std::path::{Path, PathBuf};
 use serde::Deserialize;
 
 use super::RawFlight;
+use crate::calibration::windows::CalibrationWindow;
 use crate::error::{Error, Result};
-use crate::windows::CalibrationWindow;
 
 /// `[campaign]` as written.
 #[derive(Debug, Clone, Default, Deserialize)]
@@ -425,7 +425,7 @@ fn from_row(row: ManifestRow) -> std::result::Result<RawFlight, String> {
     }
     flight.lines = match row.lines {
         Some(ManifestLines::List(list)) => list,
-        Some(ManifestLines::Text(text)) => crate::windows::parse_lines(&text).map_err(|_| {
+        Some(ManifestLines::Text(text)) => crate::calibration::windows::parse_lines(&text).map_err(|_| {
             format!(
                 "lines = {text:?}: give the calibration line numbers separated by spaces or ';', e.g. 1002.20;1002.21"
             )

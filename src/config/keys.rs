@@ -39,7 +39,10 @@ pub fn accepted_keys() -> Vec<(&'static str, &'static [&'static str])> {
         ("gradient", field_names::<RawGradient>()),
         ("sensor_positions", &[]),
         ("flight", field_names::<RawFlight>()),
-        ("flight.windows", field_names::<crate::windows::CalibrationWindow>()),
+        (
+            "flight.windows",
+            field_names::<crate::calibration::windows::CalibrationWindow>(),
+        ),
         ("campaign", field_names::<RawCampaign>()),
     ]
 }

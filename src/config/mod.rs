@@ -78,22 +78,22 @@ use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
+use crate::calibration::detect::DetectOptions;
+use crate::calibration::fluxgate::VectorCalibrationOptions;
+use crate::calibration::windows::{read_detect_file, CalibrationWindow};
 use crate::compensate::LevelConvention;
-use crate::detect::DetectOptions;
 use crate::diagnose::DiagnoseOptions;
 use crate::error::{Error, Result};
 use crate::formats::align::AlignmentOptions;
 use crate::formats::{ColumnNames, IngestOptions};
 use crate::gradient::{GradientMethod, GradientPair, LEAST_SEPARATION_M};
+use crate::model::terms::{EddyTerms, InducedTerms, TermSet};
 use crate::model::{FilterSettings, FitOptions};
 use crate::numerics::estimators::Solver;
 use crate::numerics::filter::{EdgePadding, FilterBand};
 use crate::numerics::solve::{Criterion, LambdaChoice, SolveOptions};
 use crate::quality::transfer::TransferOptions;
-use crate::tolles_lawson::{EddyTerms, InducedTerms, TermSet};
 use crate::vector::VectorOptions;
-use crate::vector_calibration::VectorCalibrationOptions;
-use crate::windows::{read_detect_file, CalibrationWindow};
 
 mod calibrations;
 mod campaign;
@@ -379,7 +379,7 @@ pub struct FlightJob {
     pub lines: Vec<f64>,
     /// The DETECT.json that gave windows, and the flight it was detected
     /// on: windows of another flight are a warning.
-    pub windows_detected_on: Option<(PathBuf, crate::flight_identity::FlightIdentity)>,
+    pub windows_detected_on: Option<(PathBuf, crate::ingest::flight_identity::FlightIdentity)>,
     /// A DIAGNOSIS.json to accept: each channel it lists is fitted and
     /// compensated with the model it found.
     pub diagnosis: Option<PathBuf>,
@@ -387,13 +387,13 @@ pub struct FlightJob {
     pub force_diagnosis: bool,
     /// The PLAN_REPORT.json of the plan the flight was flown to: the
     /// compensation is set against its prediction
-    /// ([`crate::against_plan`]).
+    /// ([`crate::quality::against_plan`]).
     pub plan: Option<PathBuf>,
     /// A MODEL.json saved from another flight to compensate this one with,
     /// nothing refitted ([`crate::apply`]).
     pub model: Option<PathBuf>,
     /// The day the flight was flown, over what the file says.
-    pub date: Option<crate::flight_date::FlightDate>,
+    pub date: Option<crate::ingest::flight_date::FlightDate>,
     /// The airframe, when the campaign names it.
     pub aircraft: Option<String>,
     /// The flight is its aircraft's calibration: its model compensates
@@ -824,7 +824,7 @@ fn flight_job(raw: RawFlight, base: &Path, source_name: &str) -> Result<FlightJo
     let date = raw
         .date
         .map(|text| {
-            crate::flight_date::FlightDate::parse(&text).ok_or_else(|| Error::Config {
+            crate::ingest::flight_date::FlightDate::parse(&text).ok_or_else(|| Error::Config {
                 source_name: source_name.into(),
                 message: format!(
                     "[[flight]] input = {:?}: date = {text:?} is not a day; write it as YYYY-MM-DD, e.g. \"2020-06-20\"",
@@ -1258,7 +1258,7 @@ mod tests {
                 latitude_deg: -33.5,
                 longitude_deg: 151.25,
                 height_m: 0.0,
-                date: crate::flight_date::FlightDate::parse("2026-06-15"),
+                date: crate::ingest::flight_date::FlightDate::parse("2026-06-15"),
             })
         );
     }

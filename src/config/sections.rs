@@ -10,13 +10,13 @@
 
 use serde::Deserialize;
 
-use crate::detect::DetectOptions;
+use crate::calibration::detect::DetectOptions;
+use crate::calibration::fluxgate::VectorCalibrationOptions;
 use crate::diagnose::{ApplyDiagnosis, DiagnoseOptions};
 use crate::formats::align::AlignmentOptions;
 use crate::formats::{ColumnNames, GivenColumn, TopicMapping, VectorColumns};
 use crate::quality::transfer::TransferOptions;
 use crate::vector::VectorOptions;
-use crate::vector_calibration::VectorCalibrationOptions;
 
 /// A section as written: one optional field per field of the validated
 /// section `$validated`, which fills in its defaults for the absent ones.
@@ -145,7 +145,7 @@ impl TryFrom<RawSite> for crate::vector::Site {
         let date = match raw.date {
             None => None,
             Some(text) => Some(
-                crate::flight_date::FlightDate::parse(&text)
+                crate::ingest::flight_date::FlightDate::parse(&text)
                     .ok_or_else(|| format!("[site] date = {text:?}: write the survey's date as YYYY-MM-DD"))?,
             ),
         };

@@ -110,7 +110,7 @@ pub struct EddyTimeConstant {
 }
 
 /// The fluxgate's calibration errors (see
-/// [`crate::vector_calibration::VectorCalibration`]).
+/// [`crate::calibration::fluxgate::VectorCalibration`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FluxgateErrors {
     /// Scale factor of each axis (x, y, z), dimensionless.

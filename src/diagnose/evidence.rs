@@ -30,13 +30,13 @@
 
 use std::collections::BTreeMap;
 
+use crate::calibration::windows::CalibrationWindow;
 use crate::error::Result;
-use crate::flight_log::FlightLog;
+use crate::ingest::flight_log::FlightLog;
 use crate::messages::HeldBack;
+use crate::model::terms::TermSet;
 use crate::model::{fit, Calibration, Extensions, FitOptions, ModelSpec};
 use crate::numerics::stacked::StorePool;
-use crate::tolles_lawson::TermSet;
-use crate::windows::CalibrationWindow;
 
 /// How far the survey departure may exceed the calibration's spread.
 pub const SURVEY_FACTOR: f64 = 3.0;

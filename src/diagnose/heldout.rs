@@ -63,7 +63,7 @@ pub(super) fn prepare<'a>(problem: &Problem<'a>, spec: &'a ModelSpec) -> Result<
         (problem.sensor, problem.channel),
         spec,
         problem.direction,
-        crate::windows::merged_rows(problem.windows, problem.log.time_s()),
+        crate::calibration::windows::merged_rows(problem.windows, problem.log.time_s()),
     )
 }
 

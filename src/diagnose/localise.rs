@@ -22,7 +22,7 @@ use std::ops::Range;
 
 use serde::Serialize;
 
-use crate::flight_log::{ChannelRole, FlightLog};
+use crate::ingest::flight_log::{ChannelRole, FlightLog};
 use crate::model::{FitOptions, WindowFit};
 use crate::numerics::filter::ZeroPhaseFilter;
 use crate::numerics::linalg::solve_spd;
@@ -357,7 +357,7 @@ fn coherence(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::windows::CalibrationWindow;
+    use crate::calibration::windows::CalibrationWindow;
 
     fn window_of(values: Vec<f64>) -> WindowFit {
         WindowFit {

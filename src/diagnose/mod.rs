@@ -28,7 +28,7 @@
 //! - `vector_calibration` (per flight, not per channel): the fluxgate's
 //!   scale, non-orthogonality and offsets from $|m|$ against the total
 //!   field of the scalar with the least aircraft field of its own
-//!   ([`crate::vector_calibration`]), held out by heading (each heading's
+//!   ([`crate::calibration::fluxgate`]), held out by heading (each heading's
 //!   windows against a calibration fitted on the rest of the flight).
 //!   Reported when that mismatch exceeds `vector_mismatch_nt` (200 nT,
 //!   0.4 % of the Earth's field: the factory residuals and the aircraft's
@@ -107,9 +107,12 @@ use serde::{Deserialize, Serialize};
 use std::borrow::Cow;
 use std::collections::BTreeMap;
 
+use crate::calibration::fluxgate::{calibrate, calibrate_near, VectorCalibration};
+use crate::calibration::headings::{distinct_headings, heading_splits};
+use crate::calibration::windows::CalibrationWindow;
 use crate::error::Result;
-use crate::flight_log::{ChannelRole, FlightLog, VectorSensor};
-use crate::headings::{distinct_headings, heading_splits};
+use crate::ingest::flight_log::{ChannelRole, FlightLog, VectorSensor};
+use crate::model::terms::TermSet;
 use crate::model::{
     column_level, field_directions, fit, Calibration, Extensions, FitOptions, FittedModel, ModelSpec, Prepared,
     SourceTerm, WindowFit,
@@ -118,9 +121,6 @@ use crate::numerics::solve::{Criterion, Figures, LambdaChoice, SolveOptions};
 use crate::numerics::stacked::StorePool;
 use crate::progress::{Meter, Stage};
 use crate::quality::root_mean_square;
-use crate::tolles_lawson::TermSet;
-use crate::vector_calibration::{calibrate, calibrate_near, VectorCalibration};
-use crate::windows::CalibrationWindow;
 
 /// `[diagnose]` settings.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -316,7 +316,7 @@ pub enum FluxgateReading {
 pub struct Diagnosis {
     /// The flight diagnosed: a saved diagnosis is applied to it alone.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub flight: Option<crate::flight_identity::FlightIdentity>,
+    pub flight: Option<crate::ingest::flight_identity::FlightIdentity>,
     /// Per channel.
     pub channels: Vec<ChannelDiagnosis>,
     /// Accepted effects.
@@ -345,7 +345,7 @@ impl Diagnosis {
 #[derive(Debug, Clone, PartialEq)]
 pub struct SavedDiagnosis {
     /// The flight diagnosed (absent in files of older versions).
-    pub flight: Option<crate::flight_identity::FlightIdentity>,
+    pub flight: Option<crate::ingest::flight_identity::FlightIdentity>,
     /// Each channel's diagnosed model.
     pub models: BTreeMap<String, Extensions>,
 }
@@ -369,7 +369,7 @@ impl SavedDiagnosis {
             );
             return Ok((self.models, Some(remark)));
         };
-        let applied_to = crate::flight_identity::FlightIdentity::of(log)?;
+        let applied_to = crate::ingest::flight_identity::FlightIdentity::of(log)?;
         let Some(difference) = made_on.difference(&applied_to) else {
             return Ok((self.models, None));
         };
@@ -398,7 +398,7 @@ pub fn read_saved(path: &std::path::Path) -> Result<SavedDiagnosis> {
     #[derive(Deserialize)]
     struct File {
         #[serde(default)]
-        flight: Option<crate::flight_identity::FlightIdentity>,
+        flight: Option<crate::ingest::flight_identity::FlightIdentity>,
         channels: Vec<Entry>,
     }
     #[derive(Deserialize)]
@@ -865,7 +865,7 @@ mod tests {
         /// auxiliary columns (name, period in s: 3 + sin(t / period)), and
         /// its detected windows.
         pub(in crate::diagnose) fn new(extra: &[(&str, f64)]) -> Self {
-            use crate::flight_log::Channel;
+            use crate::ingest::flight_log::Channel;
             use crate::simulate::scenario::{RawScenario, Scenario};
             let raw: RawScenario = toml::from_str("[survey]\nline_count = 1\nline_length_m = 3000.0\n").unwrap();
             let flight = crate::simulate::simulate(&Scenario::try_from(raw).unwrap()).unwrap();
@@ -879,7 +879,7 @@ mod tests {
             }
             let time = flight.log.time_s().to_vec();
             let log = FlightLog::new(flight.log.source(), flight.log.time_column(), time, channels).unwrap();
-            let windows = crate::detect::detect_manoeuvres(&log, &Default::default())
+            let windows = crate::calibration::detect::detect_manoeuvres(&log, &Default::default())
                 .unwrap()
                 .calibration_windows(1.0);
             let sensor = log.vector_sensor("flux_a").unwrap();

@@ -37,8 +37,8 @@ use faer::Mat;
 
 use super::*;
 use crate::model::band::band_data;
+use crate::model::terms::{EddyTerms, InducedTerms};
 use crate::model::ExtraColumn;
-use crate::tolles_lawson::{EddyTerms, InducedTerms};
 
 /// Candidates the screen passes on to the full score, besides those it
 /// cannot judge. The search checks the best few of the full scores against

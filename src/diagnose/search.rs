@@ -402,7 +402,7 @@ pub(super) fn candidates(problem: &Problem, model: &Model, settings: &DiagnoseOp
             list.push((Model { lag_s, ..model.clone() }, Extension::Lag { lag_s }));
         }
     }
-    if model.eddy_tau_s == 0.0 && problem.terms.eddy != crate::tolles_lawson::EddyTerms::None {
+    if model.eddy_tau_s == 0.0 && problem.terms.eddy != crate::model::terms::EddyTerms::None {
         for tau_s in [0.1, 0.2, 0.3, 0.45, 0.6, 0.8, 1.1, 1.5] {
             list.push((
                 Model {

@@ -3,7 +3,7 @@
 //! timing against the manoeuvres.
 
 use super::*;
-use crate::flight_log::Channel;
+use crate::ingest::flight_log::Channel;
 
 /// Circular time shifts of the source columns a source finding must beat.
 pub(super) const SOURCE_SHIFTS: usize = 9;
@@ -62,7 +62,7 @@ pub(super) fn beats_shifted_sources(
     let in_windows = window_rows(problem.log.time_s(), problem.windows);
     // The model's columns are not shifted: one screen serves every shift.
     let screen = super::screen::Screen::new(problem, model, ridge);
-    let stretches = crate::windows::merged_rows(problem.windows, problem.log.time_s());
+    let stretches = crate::calibration::windows::merged_rows(problem.windows, problem.log.time_s());
     (1..=SOURCE_SHIFTS).all(|k| {
         let shift = k * rows / (SOURCE_SHIFTS + 1);
         let Ok(log) = shifted_flight(problem, &scanned, shift, &stretches) else {
@@ -206,7 +206,7 @@ mod tests {
         });
         let scanned: Vec<&String> = levels.keys().filter(|c| c.as_str() != "cur_one").collect();
         let shift = 3 * log.len() / 10;
-        let stretches = crate::windows::merged_rows(windows, log.time_s());
+        let stretches = crate::calibration::windows::merged_rows(windows, log.time_s());
         let part = shifted_flight(&problem, &scanned, shift, &stretches).unwrap();
         let whole_channels = log.channels().iter().map(|c| {
             let mut c = c.clone();

@@ -24,8 +24,8 @@
 //!
 //! What was done to each channel is recorded in an [`AlignmentReport`].
 
-use crate::flags::{FlagKind, RowFlags};
-pub use crate::flight_log::{AlignmentReport, ResampledChannel};
+use crate::ingest::flags::{FlagKind, RowFlags};
+pub use crate::ingest::flight_log::{AlignmentReport, ResampledChannel};
 
 /// One recorded series before alignment.
 #[derive(Debug, Clone)]
@@ -40,7 +40,7 @@ pub struct Stream {
     pub angle: bool,
     /// Role given by the source (e.g. a configured ROS topic); `None` to
     /// take it from the channel name.
-    pub role: Option<crate::flight_log::ChannelRole>,
+    pub role: Option<crate::ingest::flight_log::ChannelRole>,
     /// Sample times, nanoseconds.
     pub times_ns: Vec<u64>,
     /// Sample values.

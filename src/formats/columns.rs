@@ -11,7 +11,7 @@ use serde::Deserialize;
 use std::path::Path;
 
 use crate::error::{Error, Result};
-use crate::flight_log::{AttitudeAngle, ChannelRole, FlightLog, VectorAxis};
+use crate::ingest::flight_log::{AttitudeAngle, ChannelRole, FlightLog, VectorAxis};
 
 /// The names of `log`'s columns, time first, for a message (at most 40).
 fn column_list(log: &FlightLog) -> String {

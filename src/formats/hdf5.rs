@@ -16,7 +16,7 @@ use super::columns::ColumnNames;
 use super::destination::{stage, Staged};
 use crate::compensate::Compensation;
 use crate::error::{Error, Result};
-use crate::flight_log::{Channel, FlightLog};
+use crate::ingest::flight_log::{Channel, FlightLog};
 
 /// Older MagNav files' names for CONTRACT names.
 const ALIASES: [(&str, &str); 1] = [("ins_azim", "ins_yaw")];

@@ -1,5 +1,5 @@
 //! The file formats: reading a flight log into a
-//! [`FlightLog`](crate::flight_log::FlightLog) and writing it back with
+//! [`FlightLog`](crate::ingest::flight_log::FlightLog) and writing it back with
 //! magcomp's columns, one module per format that does both.
 //!
 //! - [`csv`]: delimited text (CSV, `;`, tab, whitespace-aligned);
@@ -40,7 +40,7 @@ use std::path::Path;
 pub use columns::{ColumnNames, GivenColumn, VectorColumns};
 
 use crate::error::{Error, Result};
-use crate::flight_log::FlightLog;
+use crate::ingest::flight_log::FlightLog;
 
 /// Options for reading a flight log.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -52,7 +52,7 @@ pub struct IngestOptions {
     /// What ROS 2 topics of an MCAP recording become (`[[topic]]`).
     pub topics: Vec<TopicMapping>,
     /// The day the flight was flown (`--date`), over what the file says.
-    pub date: Option<crate::flight_date::FlightDate>,
+    pub date: Option<crate::ingest::flight_date::FlightDate>,
 }
 
 /// A `[[topic]]` entry: what a ROS 2 `sensor_msgs/msg/MagneticField` topic
@@ -176,11 +176,11 @@ pub fn read_flight_log(path: &Path, options: &IngestOptions) -> Result<FlightLog
 
 /// The flight's day from SGL's `year` and `doy` (day of year) columns: the
 /// first row where both hold a valid day.
-fn date_from_columns(log: &FlightLog) -> Option<crate::flight_date::FlightDate> {
+fn date_from_columns(log: &FlightLog) -> Option<crate::ingest::flight_date::FlightDate> {
     let (year, doy) = (log.channel("year")?, log.channel("doy")?);
     year.values.iter().zip(&doy.values).find_map(|(&year, &day)| {
         let whole = |v: f64| (v.is_finite() && v.fract() == 0.0 && (1.0..1e4).contains(&v)).then_some(v as u32);
-        crate::flight_date::FlightDate::from_day_of_year(whole(year)? as i32, whole(day)?)
+        crate::ingest::flight_date::FlightDate::from_day_of_year(whole(year)? as i32, whole(day)?)
     })
 }
 

@@ -9,7 +9,7 @@ use super::mcap::McapExtras;
 use super::{ColumnNames, Format, IngestOptions, Staged};
 use crate::compensate::Compensation;
 use crate::error::Result;
-use crate::flight_log::FlightLog;
+use crate::ingest::flight_log::FlightLog;
 
 /// What is staged: the columns magcomp adds (from
 /// [`super::added_column_names`]), the compensation they hold (none for a

@@ -10,7 +10,7 @@
 
 use std::f64::consts::FRAC_PI_2;
 
-use crate::flight_log::{AttitudeAngle, ChannelRole, FlightLog};
+use crate::ingest::flight_log::{AttitudeAngle, ChannelRole, FlightLog};
 
 /// A median step above this, s, is no survey recording: calibration needs
 /// several samples per manoeuvre period (5–20 s), and magnetometers and
@@ -150,7 +150,7 @@ fn horizontal_turn_deg([x, y, _]: [&[f64]; 3]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::flight_log::{Channel, VectorAxis};
+    use crate::ingest::flight_log::{Channel, VectorAxis};
 
     /// A flight turning once through 360° at 10 Hz: the fluxgate's
     /// horizontal field turns with it, and the attitude is written in

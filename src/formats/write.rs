@@ -18,7 +18,7 @@ use super::table::StageRequest;
 use super::{detect_format, mcap, ColumnNames, Format};
 use crate::compensate::Compensation;
 use crate::error::{Error, Result};
-use crate::flight_log::FlightLog;
+use crate::ingest::flight_log::FlightLog;
 
 /// Writes one file atomically: staged beside `path` (whose folder must
 /// exist), then renamed over it.
@@ -35,10 +35,10 @@ pub fn write_json<T: Serialize>(path: &Path, what: &'static str, value: &T) -> R
 /// boxes (start, end) for `path`; unlabelled windows are left out.
 pub fn stage_detect_json(
     path: &Path,
-    manoeuvres: &[crate::windows::CalibrationWindow],
+    manoeuvres: &[crate::calibration::windows::CalibrationWindow],
     boxes: &[(f64, f64)],
 ) -> Result<Staged> {
-    let file = crate::windows::DetectFile::new(manoeuvres, boxes);
+    let file = crate::calibration::windows::DetectFile::new(manoeuvres, boxes);
     stage_json(path, "the calibration windows", &file)
 }
 

@@ -11,14 +11,14 @@ use std::ops::Range;
 use rayon::prelude::*;
 use serde::Serialize;
 
+use crate::calibration::windows::CalibrationWindow;
 use crate::error::{Error, Number, Result};
-use crate::flight_log::{FlightLog, VectorSensor};
+use crate::ingest::flight_log::{FlightLog, VectorSensor};
+use crate::model::terms::TermSet;
 use crate::numerics::filter::{EdgePadding, FilterBand, FilterError, ZeroPhaseFilter, LANES};
 use crate::numerics::segments::valid_runs;
 use crate::numerics::solve::SolveOptions;
 use crate::numerics::stacked::{Stacked, StackedBuilder, StorePool};
-use crate::tolles_lawson::TermSet;
-use crate::windows::CalibrationWindow;
 
 /// Settings of the band-pass applied before fitting.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, serde::Deserialize)]
@@ -42,7 +42,7 @@ pub struct FilterSettings {
 /// field under the box) into the band, where the scalar reads it too. A
 /// fit free to weight it subtracts part of the Earth's field. The
 /// traceless terms leave out the two isotropic directions that carry most
-/// of it ([`crate::tolles_lawson::TermSet`]); built with each run's mean
+/// of it ([`crate::model::terms::TermSet`]); built with each run's mean
 /// strength and the recorded direction, the design holds the aircraft's
 /// attitude alone, and the fitted coefficients still predict with the
 /// field as recorded. That is not recommended: a miscalibrated fluxgate's

@@ -40,12 +40,12 @@ use std::ops::Range;
 use faer::Mat;
 use serde::Serialize;
 
+use crate::calibration::headings::{angle_apart, distinct_headings, same_heading};
+use crate::calibration::windows::{CalibrationWindow, ManoeuvreKind};
 use crate::error::Result;
-use crate::flight_log::{body_to_ned, Channel, ChannelRole, FlightLog, VectorSensor};
-use crate::headings::{angle_apart, distinct_headings, same_heading};
+use crate::ingest::flight_log::{body_to_ned, Channel, ChannelRole, FlightLog, VectorSensor};
 use crate::numerics::linalg::gram;
 use crate::numerics::stacked::StorePool;
-use crate::windows::{CalibrationWindow, ManoeuvreKind};
 
 use super::band::{band_data, BandData, FitOptions};
 use super::extensions::SourceTerm;

@@ -28,10 +28,10 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::flight_log::{FlightLog, VectorSensor};
+use crate::calibration::fluxgate::VectorCalibration;
+use crate::ingest::flight_log::{FlightLog, VectorSensor};
+use crate::model::terms::TermSet;
 use crate::numerics::solve::Criterion;
-use crate::tolles_lawson::TermSet;
-use crate::vector_calibration::VectorCalibration;
 
 /// A recorded column whose variation enters the model.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -286,7 +286,7 @@ fn advance_into(values: &[f64], time_s: &[f64], lag_s: f64, rows: std::ops::Rang
 /// $y_k = \alpha y_{k-1} + (1-\alpha) x_k$ delays by only $\tau - \Delta t/2$, so a
 /// τ fitted with it comes out half a sample (0.05 s at 10 Hz) too long.
 pub(crate) fn lagged_rate(values: &[f64], dt: f64, tau_s: f64) -> Vec<f64> {
-    let rate = crate::tolles_lawson::central_difference(values);
+    let rate = crate::model::terms::central_difference(values);
     let alpha = (-dt / tau_s).exp();
     let ratio = tau_s / dt;
     let (b0, b1) = (1.0 - ratio * (1.0 - alpha), ratio * (1.0 - alpha) - alpha);

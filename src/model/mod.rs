@@ -31,22 +31,23 @@ pub mod band;
 pub mod excitation;
 pub mod extensions;
 mod prepared;
+pub mod terms;
 
 use std::borrow::Cow;
 use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
 
+use crate::calibration::windows::CalibrationWindow;
 use crate::error::{Error, Result};
-use crate::flight_log::{FlightLog, VectorSensor};
+use crate::ingest::flight_log::{FlightLog, VectorSensor};
+use crate::model::terms::{DesignMatrix, EddyTerms, TermSet};
 use crate::numerics::estimators::{Estimator, Family, Solver};
 use crate::numerics::segments::valid_runs;
 use crate::numerics::solve::{Solution, SolveOptions};
 use crate::numerics::stacked::StorePool;
-use crate::tolles_lawson::{DesignMatrix, EddyTerms, TermSet};
-use crate::windows::CalibrationWindow;
 
-pub use crate::windows::Calibration;
+pub use crate::calibration::windows::Calibration;
 pub use band::{design_filter, FilterSettings, FitMagnitude, FitOptions, WindowFit};
 pub use extensions::{
     advanced, column_level, field_directions, rate_of_change, second_order_term, Extensions, SourceTerm,
@@ -271,7 +272,7 @@ pub fn term_names(log: &FlightLog, sensor: &VectorSensor, channel: &str, spec: &
 /// spec, not from the names, which a source column's name could mimic;
 /// the source columns after them are not per sample.
 pub fn per_sample_columns(spec: &ModelSpec) -> Vec<bool> {
-    use crate::tolles_lawson::{EddyTerms, TermSet};
+    use crate::model::terms::{EddyTerms, TermSet};
     let terms = spec.fitted_terms();
     let without = |t: TermSet| t.len();
     let (eddy, derivative) = (terms.eddy != EddyTerms::None, terms.field_derivative);

@@ -6,13 +6,13 @@
 use std::borrow::Cow;
 use std::ops::Range;
 
+use crate::calibration::headings::{distinct_headings, same_heading};
+use crate::calibration::windows::{merged_rows, CalibrationWindow};
 use crate::error::{Error, Result};
-use crate::flight_log::{FlightLog, VectorSensor};
-use crate::headings::{distinct_headings, same_heading};
+use crate::ingest::flight_log::{FlightLog, VectorSensor};
 use crate::numerics::estimators::{compare, compare_families, Decomposed, Factor, Scored, Solver};
 use crate::numerics::solve::{solve_stacked, Solution};
 use crate::numerics::stacked::{Stacked, StorePool};
-use crate::windows::{merged_rows, CalibrationWindow};
 
 use super::band::{band_data, BandData, FitOptions, WindowFit};
 use super::extensions::{advanced, advanced_on, field_directions, lagged_rate, rate_at, second_order_term, SourceTerm};
@@ -600,10 +600,10 @@ fn solve_on_headings(stacked: &Stacked, fits: &[WindowFit], requested: Solver, s
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::flight_log::{Channel, ChannelRole};
+    use crate::ingest::flight_log::{Channel, ChannelRole};
+    use crate::model::terms::TermSet;
     use crate::model::{Extensions, FitOptions};
     use crate::simulate::scenario::{RawScenario, Scenario};
-    use crate::tolles_lawson::TermSet;
 
     /// A simulated box and line with a current and a base station of its
     /// own, and the box's detected windows.
@@ -624,7 +624,7 @@ mod tests {
             values: wave(300.0),
         });
         let log = FlightLog::new(log.source(), log.time_column(), log.time_s().to_vec(), channels).unwrap();
-        let windows = crate::detect::detect_manoeuvres(&log, &Default::default())
+        let windows = crate::calibration::detect::detect_manoeuvres(&log, &Default::default())
             .unwrap()
             .calibration_windows(1.0);
         (log, windows)

@@ -8,8 +8,8 @@ use super::prepared::{calibration_windows, choose_channels, choose_vector_sensor
 use super::{assess_with_sigma, renaming_notes, units_row_note, FlightResult, FlightRun};
 use crate::config::{FlightJob, Settings};
 use crate::error::Result;
-use crate::flight_log::FlightLog;
 use crate::formats::added_column_names;
+use crate::ingest::flight_log::FlightLog;
 use crate::messages::{Note, Warning};
 use crate::model::SharedDesign;
 use crate::progress::{Meter, Stage};
@@ -30,7 +30,7 @@ pub(super) fn run_applied(
     let (renamed, renaming) = renamed_model(saved, &recorded, options)?;
     let saved = renamed.as_ref().unwrap_or(saved);
     meter.begin(Stage::Preparing, 0);
-    let screened = crate::screen::screen_samples(&recorded)?;
+    let screened = crate::ingest::screen::screen_samples(&recorded)?;
     let raw_log = screened.log_or(&recorded);
     let mut models = saved.models_for(raw_log, job.channels.as_deref(), job.vector.as_deref())?;
     let sensor = choose_vector_sensor(raw_log, Some(&models[0].vector_sensor))?;
@@ -120,7 +120,10 @@ fn renamed_model(
 /// fluxgate calibrated as the model says; `raw_log` gives the windows).
 fn hold_out_on_own_windows(
     (job, raw_log, log): (&FlightJob, &FlightLog, &FlightLog),
-    (sensor, models): (&crate::flight_log::VectorSensor, &mut [crate::model::FittedModel]),
+    (sensor, models): (
+        &crate::ingest::flight_log::VectorSensor,
+        &mut [crate::model::FittedModel],
+    ),
     (options, applied): (&Settings, &crate::apply::AppliedModel),
     notes: &mut Vec<String>,
 ) -> Result<()> {

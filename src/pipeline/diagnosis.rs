@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 use crate::config::{FlightJob, Settings};
 use crate::diagnose::{AppliedFinding, EffectKind};
 use crate::error::{Error, Result};
-use crate::flight_log::FlightLog;
+use crate::ingest::flight_log::FlightLog;
 use crate::messages::{HeldBack, Warning, FITTED_PLAIN};
 use crate::model::{Calibration, Extensions};
 
@@ -94,7 +94,7 @@ pub(super) fn augmentation_plan(
     let settings = (&options.terms, &options.fit, &options.diagnose);
     match crate::diagnose::diagnose_metered(calibration, settings, meter) {
         Ok(mut diagnosis) => {
-            diagnosis.flight = Some(crate::flight_identity::FlightIdentity::of(raw_log)?);
+            diagnosis.flight = Some(crate::ingest::flight_identity::FlightIdentity::of(raw_log)?);
             Ok(ExtensionsPlan {
                 models: diagnosis.models(),
                 warnings: Warning::said(unexplained_warnings(&diagnosis)).collect(),

@@ -16,9 +16,9 @@ use super::{
 };
 use crate::config::{FlightJob, Settings};
 use crate::error::Result;
-use crate::flight_log::FlightLog;
 use crate::formats::added_column_names;
 use crate::gradient::GradientStage;
+use crate::ingest::flight_log::FlightLog;
 use crate::messages::{Note, Warning};
 use crate::model::{compare_estimators, fit, Calibration, Extensions, FittedModel, ModelSpec, SharedDesign};
 use crate::numerics::stacked::StorePool;
@@ -33,7 +33,7 @@ pub(super) fn run_fitted(
     job: &FlightJob,
     options: &Settings,
     compensated: &Path,
-    planned: Option<crate::against_plan::PlanPrediction>,
+    planned: Option<crate::quality::against_plan::PlanPrediction>,
     recorded: FlightLog,
     meter: &dyn Meter,
 ) -> Result<FlightRun> {
@@ -41,7 +41,7 @@ pub(super) fn run_fitted(
     let flight = PreparedFlight::new(recorded, job, options)?;
     // The fit (and everything after it) sees the calibrated fluxgate; the
     // compensated file keeps the recorded columns.
-    let fluxgate = crate::vector_calibration::calibrate_stage(&flight.calibration(), &options.vector_calibration)?;
+    let fluxgate = crate::calibration::fluxgate::calibrate_stage(&flight.calibration(), &options.vector_calibration)?;
     let calibrated = (fluxgate.as_ref())
         .map(|c| c.apply(flight.log(), &flight.sensor))
         .transpose()?;
@@ -152,10 +152,10 @@ impl Assessed {
     /// with the comparison's notes and warnings added.
     fn against(
         &self,
-        planned: &crate::against_plan::PlanPrediction,
+        planned: &crate::quality::against_plan::PlanPrediction,
         log: &FlightLog,
         (notes, warnings): (&mut Vec<Note>, &mut Vec<Warning>),
-    ) -> crate::against_plan::PlanComparison {
+    ) -> crate::quality::against_plan::PlanComparison {
         let plan = against_plan(planned, log, &self.models, &self.quality, &self.compensation);
         notes.extend(Note::said(plan.notes.iter().cloned()));
         warnings.extend(Warning::said(plan.warnings.iter().cloned()));
@@ -245,7 +245,11 @@ fn diagnosed_plan(
 fn input_warnings(job: &FlightJob, recorded: &FlightLog, compensated: &Path) -> Result<Vec<String>> {
     let mut warnings = Vec::new();
     if let Some((path, detected_on)) = &job.windows_detected_on {
-        warnings.extend(crate::windows::other_flight_warning(path, detected_on, recorded)?);
+        warnings.extend(crate::calibration::windows::other_flight_warning(
+            path,
+            detected_on,
+            recorded,
+        )?);
     }
     warnings.extend(crate::formats::mcap::undated_warning(recorded, compensated));
     warnings.extend(crate::formats::write::text_columns_warning(recorded, compensated, true));

@@ -1,17 +1,17 @@
 //! One flight through every stage: read, screen, detect, diagnose, fit,
-//! compensate, assess. [`run`] writes nothing; [`crate::sink`] writes what
+//! compensate, assess. [`run`] writes nothing; [`crate::output::sink`] writes what
 //! it produced.
 
 use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
+use crate::calibration::detect::Detection;
 use crate::config::{FlightJob, Settings};
-use crate::detect::Detection;
 use crate::error::{Error, Result};
-use crate::flight_log::FlightLog;
 use crate::formats::align::AlignmentReport;
 use crate::formats::read_flight_log;
+use crate::ingest::flight_log::FlightLog;
 use crate::model::{FittedModel, SharedDesign};
 use crate::progress::{Meter, Stage};
 use crate::quality::ChannelQuality;
@@ -55,7 +55,7 @@ pub struct FlightResult {
     pub channels: Vec<ChannelQuality>,
     /// The fluxgate calibration the fit used (`[vector_calibration]`).
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub vector_calibration: Option<crate::vector_calibration::VectorCalibration>,
+    pub vector_calibration: Option<crate::calibration::fluxgate::VectorCalibration>,
     /// Whether the diagnosis was applied (`[diagnose] apply`, `--plain`).
     pub diagnosis_mode: crate::diagnose::ApplyDiagnosis,
     /// The diagnosed findings the fit applied, each with what it bought
@@ -83,7 +83,7 @@ pub struct FlightResult {
     pub gradient_models: Vec<FittedModel>,
     /// The flight against the plan it was flown to (`--plan`).
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub plan: Option<crate::against_plan::PlanComparison>,
+    pub plan: Option<crate::quality::against_plan::PlanComparison>,
     /// The saved model the flight was compensated with (`--apply`),
     /// nothing refitted; `None` when it was fitted on its own calibration.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -97,35 +97,37 @@ pub struct FlightResult {
 /// the survey uncertainty the excitation analysis states (with the noise
 /// the sigma column takes) and the sigma column over the survey lines.
 fn against_plan(
-    planned: &crate::against_plan::PlanPrediction,
+    planned: &crate::quality::against_plan::PlanPrediction,
     log: &FlightLog,
     models: &[FittedModel],
     quality: &[ChannelQuality],
     compensation: &crate::compensate::Compensation,
-) -> crate::against_plan::PlanComparison {
+) -> crate::quality::against_plan::PlanComparison {
     let line = log.channel("line").map(|c| c.values.as_slice()).unwrap_or_default();
-    let channels: Vec<crate::against_plan::FlownChannel> = (models.iter().zip(quality).zip(&compensation.channels))
-        .map(|((model, quality), channel)| {
-            let noise = quality.white_noise_nt();
-            crate::against_plan::FlownChannel {
-                channel: model.channel.clone(),
-                fom_nt: quality.fom_after_nt,
-                survey_sigma_nt: (model.excitation.as_ref())
-                    .zip(noise)
-                    .map(|(e, noise)| e.survey_sigma_nt.hypot(noise)),
-                sigma_column_nt: (channel.sigma_nt.as_deref()).and_then(|s| crate::against_plan::survey_rms(s, line)),
-            }
-        })
-        .collect();
+    let channels: Vec<crate::quality::against_plan::FlownChannel> =
+        (models.iter().zip(quality).zip(&compensation.channels))
+            .map(|((model, quality), channel)| {
+                let noise = quality.white_noise_nt();
+                crate::quality::against_plan::FlownChannel {
+                    channel: model.channel.clone(),
+                    fom_nt: quality.fom_after_nt,
+                    survey_sigma_nt: (model.excitation.as_ref())
+                        .zip(noise)
+                        .map(|(e, noise)| e.survey_sigma_nt.hypot(noise)),
+                    sigma_column_nt: (channel.sigma_nt.as_deref())
+                        .and_then(|s| crate::quality::against_plan::survey_rms(s, line)),
+                }
+            })
+            .collect();
     // The windows every channel was fitted on; labelled by kind and
     // heading when detected (or given so).
-    let manoeuvres: Option<Vec<(crate::windows::ManoeuvreKind, f64)>> = (models.first()).and_then(|m| {
+    let manoeuvres: Option<Vec<(crate::calibration::windows::ManoeuvreKind, f64)>> = (models.first()).and_then(|m| {
         m.windows
             .iter()
             .map(|w| w.window.kind.zip(w.window.heading_deg))
             .collect()
     });
-    crate::against_plan::compare(planned, manoeuvres.as_deref(), &channels)
+    crate::quality::against_plan::compare(planned, manoeuvres.as_deref(), &channels)
 }
 
 /// What a channel's estimator table leaves out, in words: the whole table
@@ -154,14 +156,14 @@ fn estimator_table_gap(model: &FittedModel) -> Option<String> {
 }
 
 /// One flight through every stage: what [`run`] produced, for the sinks
-/// ([`crate::sink`]) to write.
+/// ([`crate::output::sink`]) to write.
 #[derive(Debug, Clone)]
 pub struct FlightRun {
     /// The flight as recorded: the compensated output copies it.
     pub recorded: FlightLog,
     /// The samples no instrument can record, masked: what every stage
     /// worked on.
-    pub screened: crate::screen::Screened,
+    pub screened: crate::ingest::screen::Screened,
     /// The compensated channels and row flags.
     pub compensation: crate::compensate::Compensation,
     /// Quality figures, notes, warnings, models and diagnosis.
@@ -173,7 +175,7 @@ impl FlightRun {
     /// the compensation's outputs are rounded here to the stated
     /// resolution (`[output] decimals`), once for every format.
     fn finished(
-        (recorded, screened): (FlightLog, crate::screen::Screened),
+        (recorded, screened): (FlightLog, crate::ingest::screen::Screened),
         mut compensation: crate::compensate::Compensation,
         result: FlightResult,
         decimals: u32,
@@ -207,7 +209,7 @@ pub fn run_metered(job: &FlightJob, options: &Settings, compensated: &Path, mete
     // A plan report or a saved model that cannot be read fails before the
     // flight's work.
     let planned = (job.plan.as_deref())
-        .map(crate::against_plan::PlanPrediction::read)
+        .map(crate::quality::against_plan::PlanPrediction::read)
         .transpose()?;
     let saved = (job.model.as_deref()).map(crate::apply::SavedModel::read).transpose()?;
     let ingest = crate::formats::IngestOptions {

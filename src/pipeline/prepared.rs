@@ -1,14 +1,14 @@
 //! What every stage after reading shares: the flight's vector sensor,
 //! its channels and its calibration windows, chosen once.
 
+use crate::calibration::detect::{detect_manoeuvres, Detection};
+use crate::calibration::windows::CalibrationWindow;
 use crate::config::{FlightJob, Settings};
-use crate::detect::{detect_manoeuvres, Detection};
 use crate::error::{Error, Result};
-use crate::flight_log::{FlightLog, VectorSensor};
+use crate::ingest::flight_log::{FlightLog, VectorSensor};
+use crate::ingest::screen::{Screened, Screening};
 use crate::messages::Warning;
 use crate::model::Calibration;
-use crate::screen::{Screened, Screening};
-use crate::windows::CalibrationWindow;
 
 /// Warnings from detection: every incomplete box, and every leg whose
 /// pitch and yaw the fluxgate could not tell apart.
@@ -25,7 +25,7 @@ pub fn detection_warnings(detection: &Detection) -> Vec<Warning> {
             missing: b.missing.clone(),
         })
         .collect();
-    warnings.extend(Warning::said(crate::detect::uncertain_kinds(detection)));
+    warnings.extend(Warning::said(crate::calibration::detect::uncertain_kinds(detection)));
     warnings.extend(Warning::said(detection.steep_field_warning()));
     warnings.extend(Warning::said(detection.attitude_gap_warning()));
     warnings
@@ -40,13 +40,13 @@ pub fn calibration_windows(
     job: &FlightJob,
     options: &Settings,
 ) -> Result<(
-    Vec<crate::windows::CalibrationWindow>,
+    Vec<crate::calibration::windows::CalibrationWindow>,
     Option<Detection>,
     Option<String>,
 )> {
     let tolerance = options.detect.heading_tolerance_deg;
     if !job.windows.is_empty() {
-        let (windows, note) = crate::windows::headings_from_ins(log, &job.windows, tolerance);
+        let (windows, note) = crate::calibration::windows::headings_from_ins(log, &job.windows, tolerance);
         return Ok((windows, None, note));
     }
     let detection = detect_manoeuvres(log, &options.detect)?;
@@ -57,7 +57,7 @@ pub fn calibration_windows(
             None,
         ));
     }
-    let spans = crate::windows::line_spans(log, &job.lines)?;
+    let spans = crate::calibration::windows::line_spans(log, &job.lines)?;
     let detection = detection.on_lines(&spans);
     if !detection.manoeuvres.is_empty() {
         return Ok((
@@ -68,14 +68,14 @@ pub fn calibration_windows(
     }
     // No manoeuvre seen on the lines: each line's span is a window, its
     // heading from the INS where it holds one.
-    let whole: Vec<crate::windows::CalibrationWindow> = (spans.iter())
+    let whole: Vec<crate::calibration::windows::CalibrationWindow> = (spans.iter())
         .filter(|(_, start, end)| start < end)
-        .map(|(line, start, end)| crate::windows::CalibrationWindow {
+        .map(|(line, start, end)| crate::calibration::windows::CalibrationWindow {
             label: format!("line {line}"),
-            ..crate::windows::CalibrationWindow::new(*start, *end)
+            ..crate::calibration::windows::CalibrationWindow::new(*start, *end)
         })
         .collect();
-    let (windows, note) = crate::windows::headings_from_ins(log, &whole, tolerance);
+    let (windows, note) = crate::calibration::windows::headings_from_ins(log, &whole, tolerance);
     let said = format!(
         "no calibration manoeuvre was detected on line(s) {}: each line's whole span is a calibration window",
         job.lines.iter().map(|l| l.to_string()).collect::<Vec<_>>().join(", ")
@@ -109,7 +109,7 @@ fn diagnose_calibration(
 ) -> Result<crate::diagnose::Diagnosis> {
     let settings = (&options.terms, &options.fit, settings);
     let mut diagnosis = crate::diagnose::diagnose_metered(calibration, settings, meter)?;
-    diagnosis.flight = Some(crate::flight_identity::FlightIdentity::of(calibration.log)?);
+    diagnosis.flight = Some(crate::ingest::flight_identity::FlightIdentity::of(calibration.log)?);
     Ok(diagnosis)
 }
 
@@ -141,7 +141,7 @@ impl PreparedFlight {
     /// `job` asks. A fluxgate axis or a scalar channel that screening
     /// masked whole is refused by name.
     pub fn new(recorded: FlightLog, job: &FlightJob, options: &Settings) -> Result<Self> {
-        let screened = crate::screen::screen_samples(&recorded)?;
+        let screened = crate::ingest::screen::screen_samples(&recorded)?;
         let log = screened.log_or(&recorded);
         let chosen = Chosen::of(log, Some(&screened.screening), job, options)?;
         Ok(PreparedFlight {
@@ -231,8 +231,8 @@ pub fn detection_notes(detection: &Detection) -> Vec<String> {
         detection.manoeuvres.len(),
         detection.boxes.len(),
         match detection.attitude_source {
-            crate::detect::AttitudeSource::Ins => "the INS",
-            crate::detect::AttitudeSource::Fluxgate => "the fluxgate",
+            crate::calibration::detect::AttitudeSource::Ins => "the INS",
+            crate::calibration::detect::AttitudeSource::Fluxgate => "the fluxgate",
         }
     )];
     notes.extend(detection.notes.iter().cloned());
@@ -245,7 +245,7 @@ pub fn detection_notes(detection: &Detection) -> Vec<String> {
 /// not as an empty column or a calibration window without samples.
 pub(super) fn refuse_dead_columns(
     log: &FlightLog,
-    screening: &crate::screen::Screening,
+    screening: &crate::ingest::screen::Screening,
     sensor: &VectorSensor,
     wanted: Option<&[String]>,
 ) -> Result<()> {

@@ -1,7 +1,7 @@
 //! The vector stage: the twelve-constant model of each fluxgate, fitted
 //! on the calibration, and its compensated vectors.
 
-use crate::flight_log::FlightLog;
+use crate::ingest::flight_log::FlightLog;
 use crate::model::FitOptions;
 
 /// What the vector stage produced: models, compensated vectors, words.
@@ -31,7 +31,7 @@ pub(super) const VECTOR_SWING_WARNING_NT: f64 = 10.0;
 /// the scalar outputs stand.
 pub(super) fn vector_stage(
     log: &FlightLog,
-    (windows, boxes): (&[crate::windows::CalibrationWindow], &[(f64, f64)]),
+    (windows, boxes): (&[crate::calibration::windows::CalibrationWindow], &[(f64, f64)]),
     compensation: &crate::compensate::Compensation,
     (options, fit_options): (&crate::vector::VectorOptions, &FitOptions),
 ) -> VectorStage {
@@ -119,7 +119,7 @@ pub(super) const BOX_GAP_S: f64 = 150.0;
 
 /// The spans of given windows (no detection): windows less than
 /// [`BOX_GAP_S`] apart joined, the flight between them included.
-pub(super) fn window_hulls(windows: &[crate::windows::CalibrationWindow]) -> Vec<(f64, f64)> {
+pub(super) fn window_hulls(windows: &[crate::calibration::windows::CalibrationWindow]) -> Vec<(f64, f64)> {
     let mut spans: Vec<(f64, f64)> = windows.iter().map(|w| (w.t_start, w.t_end)).collect();
     spans.sort_by(|a, b| a.0.total_cmp(&b.0));
     let mut hulls: Vec<(f64, f64)> = Vec::new();

@@ -16,8 +16,8 @@
 //! taken out with the base station where the flight records one; without
 //! one, its steady drift cancels in the second differences.
 
-use crate::flight_log::{ChannelRole, FlightLog};
-use crate::headings::angle_apart;
+use crate::calibration::headings::angle_apart;
+use crate::ingest::flight_log::{ChannelRole, FlightLog};
 use crate::quality::heading_error::{local_positions, survey_lines, SurveyLine};
 
 /// Lines whose tracks lie within this of the block's direction, or of its
@@ -362,7 +362,7 @@ pub fn figures(corrugation: &Corrugation, before: &[f64], after: &[f64]) -> Opti
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::flight_log::Channel;
+    use crate::ingest::flight_log::Channel;
 
     /// `count` lines 500 m apart flown back and forth along 30°, sampled
     /// every 50 m, each over `field(along, across)` plus `heading` on the

@@ -25,7 +25,7 @@
 
 use std::collections::HashMap;
 
-use crate::flight_log::{ChannelRole, FlightLog};
+use crate::ingest::flight_log::{ChannelRole, FlightLog};
 use crate::quality::heading_error::{local_positions, survey_lines};
 
 /// Lines whose tracks differ by less than this (either way round) are not
@@ -147,7 +147,8 @@ fn find(log: &FlightLog, positions: &[[f64; 2]]) -> Vec<Crossover> {
                 if other_row <= row || other == index {
                     continue;
                 }
-                let crossing = crate::headings::angle_apart(lines[index].1.track_deg, lines[other].1.track_deg);
+                let crossing =
+                    crate::calibration::headings::angle_apart(lines[index].1.track_deg, lines[other].1.track_deg);
                 if !(CROSSING_DEG..=180.0 - CROSSING_DEG).contains(&crossing) {
                     continue;
                 }
@@ -403,7 +404,7 @@ pub fn figures(crossovers: &Crossovers, before: &[f64], after: &[f64]) -> Option
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::flight_log::Channel;
+    use crate::ingest::flight_log::Channel;
 
     /// Three east-west lines 1 km apart and two north-south ties, sampled
     /// every 400 and 300 m (segments up to four times the smallest grid

@@ -15,7 +15,7 @@ use std::collections::HashMap;
 
 use serde::Serialize;
 
-use crate::flight_log::{ChannelRole, FlightLog};
+use crate::ingest::flight_log::{ChannelRole, FlightLog};
 
 /// Metres per degree of latitude (mean).
 const METRES_PER_DEGREE: f64 = 111_195.0;
@@ -100,10 +100,10 @@ pub fn heading_error(log: &FlightLog, before: &[f64], after: &[f64], match_dista
     let (forward, back): (Vec<&SurveyLine>, Vec<&SurveyLine>) = lines
         .iter()
         .filter(|l| {
-            crate::headings::angle_apart(l.track_deg, direction_deg) < OPPOSITE_WITHIN_DEG
-                || crate::headings::angle_apart(l.track_deg, direction_deg + 180.0) < OPPOSITE_WITHIN_DEG
+            crate::calibration::headings::angle_apart(l.track_deg, direction_deg) < OPPOSITE_WITHIN_DEG
+                || crate::calibration::headings::angle_apart(l.track_deg, direction_deg + 180.0) < OPPOSITE_WITHIN_DEG
         })
-        .partition(|l| crate::headings::angle_apart(l.track_deg, direction_deg) < OPPOSITE_WITHIN_DEG);
+        .partition(|l| crate::calibration::headings::angle_apart(l.track_deg, direction_deg) < OPPOSITE_WITHIN_DEG);
     // The opposite direction's samples on a grid of cells one match
     // distance wide: a match lies in the 3 × 3 cells around a sample.
     let cell = |p: [f64; 2]| {

@@ -10,6 +10,7 @@
 //!   the manoeuvre signatures in the band (SEG dictionary, "figure of merit"),
 //!   whenever windows are labelled with manoeuvre kind and heading.
 
+pub mod against_plan;
 pub mod corrugation;
 pub mod crossovers;
 pub mod heading_error;
@@ -17,10 +18,10 @@ pub mod transfer;
 
 use serde::Serialize;
 
+use crate::calibration::windows::ManoeuvreKind;
 use crate::compensate::CompensatedChannel;
-use crate::flight_log::FlightLog;
+use crate::ingest::flight_log::FlightLog;
 use crate::model::{FittedModel, PredictionSigma, WindowFit};
-use crate::windows::ManoeuvreKind;
 
 /// Figures for one calibration window.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -90,7 +91,7 @@ pub fn fom_table(windows: &[WindowQuality], fits: &[WindowFit]) -> Vec<FomRow> {
         let (Some(kind), Some(heading)) = (quality.kind, quality.heading_deg) else {
             continue;
         };
-        let near = |row: &FomRow| crate::headings::same_heading(row.heading_deg, heading);
+        let near = |row: &FomRow| crate::calibration::headings::same_heading(row.heading_deg, heading);
         let index = match rows.iter().position(|(row, _, _)| near(row)) {
             Some(index) => index,
             None => {
@@ -622,7 +623,7 @@ pub struct TransferCheck {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::windows::CalibrationWindow;
+    use crate::calibration::windows::CalibrationWindow;
 
     /// A window whose band-passed signature is a sine of peak-to-peak
     /// `before` and whose residual is one of `after`.

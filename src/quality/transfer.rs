@@ -14,14 +14,14 @@
 
 use serde::Serialize;
 
+use crate::calibration::headings::{heading_splits, same_heading};
+use crate::calibration::windows::CalibrationWindow;
 use crate::error::Result;
-use crate::flight_log::{FlightLog, VectorSensor};
-use crate::headings::{heading_splits, same_heading};
+use crate::ingest::flight_log::{FlightLog, VectorSensor};
 use crate::model::{FitOptions, FittedModel, Prepared, WindowFit};
 use crate::numerics::stacked::StorePool;
 use crate::quality::{figure_of_merit, fom_table, window_quality};
 pub use crate::quality::{TransferCheck, TransferMethod};
-use crate::windows::CalibrationWindow;
 
 /// `[quality]` settings of the transfer check.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -156,7 +156,7 @@ fn leave_one_heading_out(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::headings::tests::window;
+    use crate::calibration::headings::tests::window;
 
     #[test]
     fn a_heading_flown_again_starts_the_next_box() {

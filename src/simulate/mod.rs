@@ -39,8 +39,8 @@ pub mod truth;
 use rayon::prelude::*;
 
 use crate::error::Result;
-use crate::flight_log::{Channel, FlightLog};
 use crate::formats::ColumnNames;
+use crate::ingest::flight_log::{Channel, FlightLog};
 use physics::{add, norm, to_body, to_ned, AircraftField, Crust, ExternalField, FluxgateCalibration, Vector};
 use random::Random;
 use recording::{auxiliary_channels, average_down, central_rate, delayed, first_order_lag, quantise};
@@ -120,7 +120,7 @@ pub fn simulate(scenario: &Scenario) -> Result<SimulatedFlight> {
             )
         })
         .collect();
-    let date = crate::flight_date::FlightDate::parse(&scenario.raw.date);
+    let date = crate::ingest::flight_date::FlightDate::parse(&scenario.raw.date);
     let log = flight_log(time_s.clone(), columns)?.with_date(date);
     let truth = Truth::new(scenario, &path, time_s, (sensors, fluxgates), external_nt);
     Ok(SimulatedFlight { log, truth })
@@ -133,7 +133,7 @@ fn flight_log(time_s: Vec<f64>, columns: Vec<(String, Vec<f64>)>) -> Result<Flig
         .map(|(name, values)| Channel {
             role: names
                 .role_of(&name)
-                .unwrap_or(crate::flight_log::ChannelRole::Auxiliary),
+                .unwrap_or(crate::ingest::flight_log::ChannelRole::Auxiliary),
             name,
             values,
         })

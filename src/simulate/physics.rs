@@ -35,7 +35,7 @@ pub fn apply(matrix: &[Vector; 3], v: Vector) -> Vector {
     (Matrix3::from_fn(|i, j| matrix[i][j]) * vector3(v)).into()
 }
 
-pub use crate::flight_log::body_to_ned;
+pub use crate::ingest::flight_log::body_to_ned;
 
 /// Rotates a north-east-down vector into body axes: $v_b = R^\top v_{NED}$.
 pub fn to_body(ned: Vector, roll_deg: f64, pitch_deg: f64, yaw_deg: f64) -> Vector {

@@ -28,16 +28,16 @@ use std::collections::BTreeMap;
 use rayon::prelude::*;
 use serde::Serialize;
 
+use crate::calibration::windows::CalibrationWindow;
 use crate::compensate::{compensate, LevelConvention};
 use crate::error::Result;
-use crate::flight_log::FlightLog;
+use crate::ingest::flight_log::FlightLog;
+use crate::model::terms::TermSet;
 use crate::model::{advanced, fit, Calibration, Extensions, FitOptions, FittedModel, ModelSpec};
 use crate::numerics::filter::FilterBand;
 use crate::numerics::segments::valid_runs;
 use crate::numerics::stacked::StorePool;
 use crate::quality::root_mean_square;
-use crate::tolles_lawson::TermSet;
-use crate::windows::CalibrationWindow;
 
 /// How well one channel's replays reproduce its recording.
 #[derive(Debug, Clone, PartialEq, Serialize)]

@@ -874,8 +874,8 @@ fn check_sizes(raw: &RawScenario) -> std::result::Result<(), String> {
 }
 
 /// Parses `kind@heading` (e.g. `yaw@290`) into the kind and heading.
-pub fn parse_omission(text: &str) -> std::result::Result<(crate::windows::ManoeuvreKind, f64), String> {
-    use crate::windows::ManoeuvreKind;
+pub fn parse_omission(text: &str) -> std::result::Result<(crate::calibration::windows::ManoeuvreKind, f64), String> {
+    use crate::calibration::windows::ManoeuvreKind;
     let bad = || format!("[calibration] omit = \"{text}\": write kind@heading, e.g. \"yaw@290\"");
     let (kind, heading) = text.split_once('@').ok_or_else(bad)?;
     let kind = match kind.trim() {
@@ -889,7 +889,9 @@ pub fn parse_omission(text: &str) -> std::result::Result<(crate::windows::Manoeu
 
 /// Parses `kind@heading=fraction` (e.g. `roll@110=0.2`) into the kind,
 /// heading and the fraction of the amplitude flown (0 to 1).
-pub fn parse_weakening(text: &str) -> std::result::Result<(crate::windows::ManoeuvreKind, f64, f64), String> {
+pub fn parse_weakening(
+    text: &str,
+) -> std::result::Result<(crate::calibration::windows::ManoeuvreKind, f64, f64), String> {
     let bad = || {
         format!("[calibration] weaken = \"{text}\": write kind@heading=fraction, e.g. \"roll@110=0.2\", the fraction from 0 to 1")
     };

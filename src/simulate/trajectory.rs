@@ -8,9 +8,9 @@
 
 use std::f64::consts::PI;
 
+use crate::calibration::windows::ManoeuvreKind;
 use crate::simulate::random::Random;
 use crate::simulate::scenario::{parse_omission, parse_weakening, BoxPosition, Coupling, Scenario};
-use crate::windows::ManoeuvreKind;
 
 /// Where the aircraft is and how it is oriented at one internal sample.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]

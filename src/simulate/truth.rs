@@ -17,13 +17,13 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
+use crate::calibration::windows::{CalibrationWindow, ManoeuvreKind};
 use crate::error::Result;
 use crate::formats::stage_detect_json;
 use crate::formats::{stage, stage_json, OutputSet, Staged};
 use crate::simulate::physics::{AircraftField, FluxgateCalibration};
 use crate::simulate::scenario::{Effect, Scenario, SensorLocation};
 use crate::simulate::trajectory::FlightPath;
-use crate::windows::{CalibrationWindow, ManoeuvreKind};
 
 /// What one scalar sensor would have read without the aircraft.
 #[derive(Debug, Clone, PartialEq, Serialize)]

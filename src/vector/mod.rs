@@ -70,12 +70,12 @@ use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 use serde::Serialize;
 
+use crate::calibration::headings::{distinct_headings, same_heading};
+use crate::calibration::windows::CalibrationWindow;
 use crate::error::{Error, Result};
-use crate::flight_log::{ChannelRole, FlightLog, VectorSensor};
-use crate::headings::{distinct_headings, same_heading};
 use crate::igrf::{decimal_year, Igrf};
+use crate::ingest::flight_log::{ChannelRole, FlightLog, VectorSensor};
 use crate::numerics::linalg::{small_svd, tall_skinny_r};
-use crate::windows::CalibrationWindow;
 
 pub mod tolles_lawson;
 
@@ -110,7 +110,7 @@ impl Default for VectorOptions {
 /// Most Gauss-Newton iterations.
 const MOST_ITERATIONS: usize = 50;
 
-pub use crate::flight_log::body_to_ned;
+pub use crate::ingest::flight_log::body_to_ned;
 
 /// Unit vector of inclination `inclination` and declination `declination`
 /// (radians) in north-east-down, and its derivatives by each.
@@ -171,7 +171,7 @@ pub struct Site {
     /// Height above mean sea level, m.
     pub height_m: f64,
     /// The survey's date, used when the flight has none of its own.
-    pub date: Option<crate::flight_date::FlightDate>,
+    pub date: Option<crate::ingest::flight_date::FlightDate>,
 }
 
 /// How the fit chose the sign of the Earth field's direction.

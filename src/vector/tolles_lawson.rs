@@ -27,13 +27,13 @@
 
 use serde::Serialize;
 
+use crate::calibration::headings::{distinct_headings, same_heading};
+use crate::calibration::windows::CalibrationWindow;
 use crate::error::{Error, Result};
-use crate::flight_log::{Channel, ChannelRole, FlightLog, VectorAxis};
-use crate::headings::{distinct_headings, same_heading};
+use crate::ingest::flight_log::{Channel, ChannelRole, FlightLog, VectorAxis};
+use crate::model::terms::{EddyTerms, InducedTerms, TermSet};
 use crate::model::{fit, FitOptions, FittedModel, ModelSpec, WindowFit};
 use crate::numerics::stacked::StorePool;
-use crate::tolles_lawson::{EddyTerms, InducedTerms, TermSet};
-use crate::windows::CalibrationWindow;
 
 /// The terms of each axis: the direction's three components (induced
 /// corrections) and the field's three rates (eddy currents).
@@ -195,7 +195,7 @@ fn peak_to_peaks(parts: &[&[f64]]) -> f64 {
 /// `None` with fewer than three headings or a window without one.
 fn held_out(
     lean: &FlightLog,
-    (sensor, prefix): (&crate::flight_log::VectorSensor, &str),
+    (sensor, prefix): (&crate::ingest::flight_log::VectorSensor, &str),
     windows: &[CalibrationWindow],
     (spec, options): (&ModelSpec, &FitOptions),
 ) -> Result<Option<HeldOutAxes>> {

@@ -7,14 +7,14 @@
 
 use std::collections::BTreeMap;
 
+use magcomp::calibration::windows::CalibrationWindow;
 use magcomp::config::{FlightJob, Pipeline};
 use magcomp::diagnose::Diagnosis;
-use magcomp::flight_log::{FlightLog, VectorSensor};
+use magcomp::ingest::flight_log::{FlightLog, VectorSensor};
 use magcomp::model::{Extensions, FittedModel, ModelSpec};
 use magcomp::pipeline::diagnose_flight;
 use magcomp::simulate::scenario::{RawScenario, Scenario};
 use magcomp::simulate::simulate;
-use magcomp::windows::CalibrationWindow;
 
 /// A short box-and-one-line flight with a tail (`mag_1_uc`), a cabin
 /// (`mag_2_uc`) and a wing (`mag_3_uc`) sensor, plus `effects` (TOML
@@ -50,8 +50,11 @@ pub fn diagnose_simulated(scenario: &Scenario) -> Diagnosis {
 /// `log` with `count` slow auxiliary columns that nothing magnetic
 /// follows (temperatures, pressures, settings): sines of periods 2π·40 s,
 /// 2π·57 s, 2π·74 s, … with a faint 2π·3.1 s ripple.
-pub fn with_unrelated_columns(log: &magcomp::flight_log::FlightLog, count: usize) -> magcomp::flight_log::FlightLog {
-    use magcomp::flight_log::{Channel, ChannelRole, FlightLog};
+pub fn with_unrelated_columns(
+    log: &magcomp::ingest::flight_log::FlightLog,
+    count: usize,
+) -> magcomp::ingest::flight_log::FlightLog {
+    use magcomp::ingest::flight_log::{Channel, ChannelRole, FlightLog};
     let mut channels = log.channels().to_vec();
     for extra in 0..count {
         let period = 40.0 + 17.0 * extra as f64;
@@ -70,7 +73,7 @@ pub fn with_unrelated_columns(log: &magcomp::flight_log::FlightLog, count: usize
 }
 
 /// Diagnoses `log` on its detected box with the default settings.
-pub fn diagnose_log(log: &magcomp::flight_log::FlightLog) -> Diagnosis {
+pub fn diagnose_log(log: &magcomp::ingest::flight_log::FlightLog) -> Diagnosis {
     let pipeline = Pipeline::default();
     let job = FlightJob::new("simulated");
     diagnose_flight(log, &job, &pipeline.settings, &pipeline.settings.diagnose).unwrap()
@@ -78,10 +81,14 @@ pub fn diagnose_log(log: &magcomp::flight_log::FlightLog) -> Diagnosis {
 
 /// The held-out RMS of `model` on `channel`, scored as the diagnosis
 /// scores its candidates, on `log`'s detected box.
-pub fn heldout_rms(log: &magcomp::flight_log::FlightLog, channel: &str, model: &magcomp::model::Extensions) -> f64 {
+pub fn heldout_rms(
+    log: &magcomp::ingest::flight_log::FlightLog,
+    channel: &str,
+    model: &magcomp::model::Extensions,
+) -> f64 {
     let pipeline = Pipeline::default();
     let options = pipeline.settings.clone();
-    let windows = magcomp::detect::detect_manoeuvres(log, &options.detect)
+    let windows = magcomp::calibration::detect::detect_manoeuvres(log, &options.detect)
         .unwrap()
         .calibration_windows(options.detect.window_margin_s);
     let sensor = magcomp::pipeline::choose_vector_sensor(log, None).unwrap();

@@ -18,7 +18,7 @@ pub use write::{stage_compensated_csv, stage_log_csv};
 
 use super::columns::ColumnNames;
 use crate::error::{Error, Number, Result};
-use crate::flight_log::{Channel, FlightLog};
+use crate::ingest::flight_log::{Channel, FlightLog};
 
 /// How the fields of a row are separated.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -13,10 +13,10 @@ use rayon::prelude::*;
 
 use crate::compensate::Compensation;
 use crate::error::Result;
-use crate::flight_log::FlightLog;
 use crate::formats::columns::ColumnNames;
 use crate::formats::destination::{stage, Staged};
 use crate::formats::write::{added_column_units, row_count_changed, write_cell, ExtraColumns};
+use crate::ingest::flight_log::FlightLog;
 
 use super::{delimited_reader, read_header, read_units_row, Separator};
 

@@ -41,8 +41,8 @@ use super::columns::ColumnNames;
 use super::ros::{self, RosType};
 use super::{IngestOptions, TopicMapping};
 use crate::error::{Error, Result};
-use crate::flight_date::FlightDate;
-use crate::flight_log::{AttitudeAngle, Channel, ChannelRole, FlightLog, VectorAxis};
+use crate::ingest::flight_date::FlightDate;
+use crate::ingest::flight_log::{AttitudeAngle, Channel, ChannelRole, FlightLog, VectorAxis};
 use messages::MessageLayout;
 
 /// Metadata key on a `/gps/fix` channel naming the height column.

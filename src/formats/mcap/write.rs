@@ -38,9 +38,9 @@ use super::messages::{descriptor_set, timestamp, Attitude, LocationFix, RowFlags
 use super::{ALTITUDE_COLUMN_KEY, DATE_KEY};
 use crate::compensate::Compensation;
 use crate::error::{Error, Result};
-use crate::flight_date::SECONDS_PER_DAY;
-use crate::flight_log::{AttitudeAngle, ChannelRole, FlightLog};
 use crate::formats::destination::{stage, Staged};
+use crate::ingest::flight_date::SECONDS_PER_DAY;
+use crate::ingest::flight_log::{AttitudeAngle, ChannelRole, FlightLog};
 
 /// JSON documents stored with the data.
 #[derive(Debug, Clone, Default)]

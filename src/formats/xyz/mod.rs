@@ -23,7 +23,7 @@ pub use write::{stage_log_xyz, stage_xyz_copy};
 use super::columns::{sgl_uppercase_alias, ColumnNames};
 use super::csv::{next_line_start, ColumnBuilder, PARALLEL_MIN_BYTES};
 use crate::error::{Error, Result};
-use crate::flight_log::FlightLog;
+use crate::ingest::flight_log::FlightLog;
 
 /// The kind of a line of an XYZ file.
 #[derive(Debug, Clone, PartialEq)]
@@ -304,7 +304,7 @@ pub fn looks_like_xyz(head: &[u8]) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::flight_log::ChannelRole;
+    use crate::ingest::flight_log::ChannelRole;
     use std::io::Write;
 
     fn write_temp(text: &str) -> tempfile::NamedTempFile {

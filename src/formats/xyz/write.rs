@@ -12,10 +12,10 @@ use std::path::Path;
 use super::{classify, find_header, XyzLine};
 use crate::compensate::Compensation;
 use crate::error::Result;
-use crate::flight_log::{ChannelRole, FlightLog};
 use crate::formats::destination::{stage, Staged};
 use crate::formats::write::ExtraColumns;
 use crate::formats::ColumnNames;
+use crate::ingest::flight_log::{ChannelRole, FlightLog};
 
 /// Stages a copy of an XYZ input with the added columns appended. `names` are the column
 /// names the input was read with.

@@ -6,7 +6,7 @@
 //! (equal lengths, finite and strictly increasing time) are checked once, in
 //! [`FlightLog::new`], so later stages can rely on them.
 
-use crate::flags::RowFlags;
+use crate::ingest::flags::RowFlags;
 use std::path::{Path, PathBuf};
 
 use serde::Serialize;
@@ -103,7 +103,7 @@ pub struct FlightLog {
     source_row_offsets: Option<Vec<u64>>,
     row_flags: Vec<RowFlags>,
     alignment: Option<AlignmentReport>,
-    date: Option<crate::flight_date::FlightDate>,
+    date: Option<crate::ingest::flight_date::FlightDate>,
     reading_warnings: Vec<String>,
     text_columns: Vec<String>,
     declared_units: Vec<(String, String)>,
@@ -241,14 +241,14 @@ impl FlightLog {
     }
 
     /// Records the day the flight was flown (UTC).
-    pub fn with_date(mut self, date: Option<crate::flight_date::FlightDate>) -> Self {
+    pub fn with_date(mut self, date: Option<crate::ingest::flight_date::FlightDate>) -> Self {
         self.date = date;
         self
     }
 
     /// The day the flight was flown, when known: its time column is then
     /// seconds of that day.
-    pub fn date(&self) -> Option<crate::flight_date::FlightDate> {
+    pub fn date(&self) -> Option<crate::ingest::flight_date::FlightDate> {
         self.date
     }
 

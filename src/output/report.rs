@@ -20,8 +20,8 @@ use serde::Serialize;
 use crate::diagnose::localise::ResidualTrace;
 use crate::diagnose::{Diagnosis, Located};
 use crate::error::{Error, Result};
-use crate::flight_log::{AttitudeAngle, ChannelRole, FlightLog};
 use crate::formats::{stage, stage_json, Staged};
+use crate::ingest::flight_log::{AttitudeAngle, ChannelRole, FlightLog};
 use crate::model::FittedModel;
 use crate::pipeline::{FlightResult, FlightRun};
 use crate::quality::{fourth_difference_noise, ChannelQuality, FomCell};
@@ -1233,8 +1233,8 @@ fn applied_findings_section(result: &FlightResult) -> String {
 
 /// The flight against the plan it was flown to: each channel's figures,
 /// planned and flown, and the manoeuvres the flight lacks.
-fn plan_section(plan: &crate::against_plan::PlanComparison) -> String {
-    use crate::against_plan::Verdict;
+fn plan_section(plan: &crate::quality::against_plan::PlanComparison) -> String {
+    use crate::quality::against_plan::Verdict;
     let mut html = format!(
         "<section id=\"plan\"><h2>Against the plan</h2><p>Plan report <code>{}</code> (plan <code>{}</code>){}; a figure holds inside the range of the plan's simulated flights widened ×{}.</p>",
         escape(&plan.report.display().to_string()),

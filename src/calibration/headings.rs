@@ -8,7 +8,7 @@
 //! a heading the fit never saw must be predicted from the others, which is
 //! what the survey lines ask of a calibration.
 
-use crate::windows::CalibrationWindow;
+use crate::calibration::windows::CalibrationWindow;
 
 /// Headings closer than this are one heading (one leg of a box, one row of
 /// the FOM table), degrees.

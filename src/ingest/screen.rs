@@ -39,13 +39,13 @@
 //!
 //! A missing or non-finite sample is not screened: it is already missing.
 
-use crate::flags::{FlagKind, RowFlags};
+use crate::ingest::flags::{FlagKind, RowFlags};
 use std::collections::BTreeMap;
 
 use serde::Serialize;
 
 use crate::error::Result;
-use crate::flight_log::{AttitudeAngle, ChannelRole, FlightLog};
+use crate::ingest::flight_log::{AttitudeAngle, ChannelRole, FlightLog};
 
 /// Lowest and highest total field a scalar magnetometer can read, nT.
 pub const TOTAL_FIELD_RANGE_NT: (f64, f64) = (1_000.0, 100_000.0);
@@ -463,7 +463,7 @@ fn apply_masks(log: &FlightLog, masks: BTreeMap<usize, Vec<(usize, MaskReason)>>
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::flight_log::Channel;
+    use crate::ingest::flight_log::Channel;
 
     fn flight(scalar: Vec<f64>, fluxgate: [Vec<f64>; 3], roll: Vec<f64>) -> FlightLog {
         let rows = scalar.len();
@@ -479,7 +479,7 @@ mod tests {
                 name: "flux_a_x".into(),
                 role: ChannelRole::VectorMagnetometer {
                     sensor: "flux_a".into(),
-                    axis: crate::flight_log::VectorAxis::X,
+                    axis: crate::ingest::flight_log::VectorAxis::X,
                 },
                 values: x,
             },
@@ -487,7 +487,7 @@ mod tests {
                 name: "flux_a_y".into(),
                 role: ChannelRole::VectorMagnetometer {
                     sensor: "flux_a".into(),
-                    axis: crate::flight_log::VectorAxis::Y,
+                    axis: crate::ingest::flight_log::VectorAxis::Y,
                 },
                 values: y,
             },
@@ -495,7 +495,7 @@ mod tests {
                 name: "flux_a_z".into(),
                 role: ChannelRole::VectorMagnetometer {
                     sensor: "flux_a".into(),
-                    axis: crate::flight_log::VectorAxis::Z,
+                    axis: crate::ingest::flight_log::VectorAxis::Z,
                 },
                 values: z,
             },

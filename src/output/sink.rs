@@ -88,7 +88,7 @@ impl FlightOutputs {
         }
         if let Some(path) = &self.report_html {
             destinations.push(Destination::new(
-                crate::report::figures_path(path),
+                crate::output::report::figures_path(path),
                 OutputKind::Json,
                 "the HTML report's figures JSON",
             ));
@@ -189,7 +189,7 @@ pub fn write(flight: &FlightRun, options: &Settings, outputs: &FlightOutputs) ->
         }
     }
     if let Some(path) = &outputs.report_html {
-        let report = crate::report::stage_report(path, flight, options.fom_limit_nt)?;
+        let report = crate::output::report::stage_report(path, flight, options.fom_limit_nt)?;
         written.add(report.figures_json);
         written.add_last(report.page);
     }
@@ -214,16 +214,16 @@ struct ModelFile<'a> {
     /// "magcomp 1.2.3".
     written_by: String,
     flight: &'a Path,
-    flight_identity: crate::flight_identity::FlightIdentity,
+    flight_identity: crate::ingest::flight_identity::FlightIdentity,
     #[serde(skip_serializing_if = "Option::is_none")]
-    date: Option<crate::flight_date::FlightDate>,
+    date: Option<crate::ingest::flight_date::FlightDate>,
     #[serde(skip_serializing_if = "Option::is_none")]
     aircraft: Option<&'a str>,
     calibration: Vec<crate::apply::CalibrationFigures>,
     #[serde(skip_serializing_if = "<[_]>::is_empty")]
     applied_findings: &'a [crate::pipeline::AppliedFinding],
     #[serde(skip_serializing_if = "Option::is_none")]
-    vector_calibration: Option<&'a crate::vector_calibration::VectorCalibration>,
+    vector_calibration: Option<&'a crate::calibration::fluxgate::VectorCalibration>,
     models: &'a [FittedModel],
     /// The fluxgates' vector models: the twelve constants and the vector
     /// Tolles-Lawson stage.
@@ -240,7 +240,7 @@ impl<'a> ModelFile<'a> {
         Ok(ModelFile {
             written_by: format!("magcomp {}", env!("CARGO_PKG_VERSION")),
             flight: &result.flight,
-            flight_identity: crate::flight_identity::FlightIdentity::of(&flight.recorded)?,
+            flight_identity: crate::ingest::flight_identity::FlightIdentity::of(&flight.recorded)?,
             date: flight.recorded.date(),
             aircraft: result.aircraft.as_deref(),
             calibration: result

@@ -52,11 +52,11 @@ use faer::Mat;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use crate::calibration::windows::Calibration;
+use crate::calibration::windows::CalibrationWindow;
 use crate::error::{Error, Result};
-use crate::flight_log::{FlightLog, VectorSensor};
+use crate::ingest::flight_log::{FlightLog, VectorSensor};
 use crate::numerics::linalg::{solve_spd, tall_skinny_r};
-use crate::windows::Calibration;
-use crate::windows::CalibrationWindow;
 
 /// `[vector_calibration]` settings: a pipeline stage that calibrates the
 /// fluxgate against a scalar channel before the Tolles-Lawson fit.
@@ -771,7 +771,7 @@ mod tests {
 
     /// A flight log of a fluxgate and a scalar over the given body-frame fields.
     fn log_of(fields: &[[f64; 3]]) -> (FlightLog, VectorSensor) {
-        use crate::flight_log::{Channel, ChannelRole, VectorAxis};
+        use crate::ingest::flight_log::{Channel, ChannelRole, VectorAxis};
         let mut channels = vec![Channel {
             name: "mag_1_uc".into(),
             role: ChannelRole::ScalarMagnetometer,

@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
 use crate::error::{Error, Result};
-use crate::flight_log::FlightLog;
+use crate::ingest::flight_log::FlightLog;
 
 /// What was hashed for [`FlightIdentity::sha256`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

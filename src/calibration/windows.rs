@@ -11,8 +11,8 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
-use crate::flight_identity::FlightIdentity;
-use crate::flight_log::{FlightLog, VectorSensor};
+use crate::ingest::flight_identity::FlightIdentity;
+use crate::ingest::flight_log::{FlightLog, VectorSensor};
 
 /// The three manoeuvres of the FOM box.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

@@ -30,9 +30,9 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
+use crate::calibration::headings::angle_apart;
+use crate::calibration::windows::ManoeuvreKind;
 use crate::error::{Error, Result};
-use crate::headings::angle_apart;
-use crate::windows::ManoeuvreKind;
 
 /// The factor within which the plan's medians are expected to hold on
 /// flights of the plan (FOM and survey figures); `tests/plan.rs` measures it.

@@ -36,10 +36,10 @@ use std::ops::Range;
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 use serde::Serialize;
 
+use crate::calibration::headings::heading_difference;
+use crate::calibration::windows::{CalibrationWindow, ManoeuvreKind};
 use crate::error::{Error, Result};
-use crate::flight_log::{AttitudeAngle, ChannelRole, FlightLog};
-use crate::headings::heading_difference;
-use crate::windows::{CalibrationWindow, ManoeuvreKind};
+use crate::ingest::flight_log::{AttitudeAngle, ChannelRole, FlightLog};
 
 /// Detection thresholds (`[detect]` in pipeline.toml).
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -396,7 +396,7 @@ pub fn detect_manoeuvres(log: &FlightLog, options: &DetectOptions) -> Result<Det
 }
 
 /// Longest run of missing attitude samples detection bridges, s: glitches
-/// screened out of the INS record (`crate::screen`) leave holes of a
+/// screened out of the INS record (`crate::ingest::screen`) leave holes of a
 /// sample or three, which would otherwise cut every manoeuvre they fall
 /// in.
 pub const BRIDGED_ATTITUDE_GAP_S: f64 = 1.0;

@@ -1,0 +1,19 @@
+//! Reading a flight: what every later stage starts from.
+//!
+//! - [`flight_log`]: the flight log, its channels and their roles, and the
+//!   vector magnetometers found by their columns.
+//! - [`flight_date`]: the flight's date, from the file or the user.
+//! - [`flight_identity`]: the flight's identity (the hash of its input),
+//!   which the model and the campaign's status name.
+//! - [`flags`]: the row flags every output carries.
+//! - [`screen`]: the samples no instrument can record, flagged before any
+//!   fit.
+//!
+//! The file formats themselves are [`crate::formats`], which both reads
+//! and writes.
+
+pub mod flags;
+pub mod flight_date;
+pub mod flight_identity;
+pub mod flight_log;
+pub mod screen;
