@@ -54,8 +54,8 @@
 //!   [`output::report`] is the HTML page.
 //! - [`plan`]: a calibration planned before the flight, and what it
 //!   would achieve.
-//! - [`simulate`] and [`sample_flight`]: flights with known truth, for
-//!   tests and for users.
+//! - [`simulate`]: flights with known truth, for tests and for users,
+//!   and the sample flights ([`simulate::sample_flight`]).
 //! - The command line (`src/main.rs`, the binary) is a thin layer over
 //!   these: `src/cli/` holds one module per subcommand.
 //!
@@ -74,7 +74,7 @@
 //! ```
 //! use magcomp::{compensate::{compensate, LevelConvention}, model::{fit, FitOptions, ModelSpec}};
 //! use magcomp::{formats::{read_flight_log, IngestOptions}, pipeline::choose_vector_sensor};
-//! use magcomp::{quality::assess_quality, sample_flight, numerics::stacked::StorePool, calibration::windows::read_detect_json};
+//! use magcomp::{quality::assess_quality, simulate::sample_flight, numerics::stacked::StorePool, calibration::windows::read_detect_json};
 //!
 //! let folder = tempfile::tempdir()?;
 //! let (csv, windows) = (folder.path().join("flight.csv"), folder.path().join("windows.json"));
@@ -115,7 +115,6 @@ pub mod plan;
 pub mod progress;
 pub mod quality;
 pub mod reduce;
-pub mod sample_flight;
 pub mod simulate;
 pub mod vector;
 

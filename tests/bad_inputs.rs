@@ -40,7 +40,7 @@ use magcomp::config::Settings;
 use magcomp::formats::read_flight_log;
 use magcomp::formats::write_flight_log;
 use magcomp::ingest::flight_log::{Channel, FlightLog};
-use magcomp::sample_flight::{generate, write, SampleFlightSpec};
+use magcomp::simulate::sample_flight::{generate, write, SampleFlightSpec};
 
 /// Seed of the flight and of every random choice in the corpus.
 const SEED: u64 = 19;

@@ -8,7 +8,7 @@ use magcomp::calibration::windows::read_detect_json;
 use magcomp::config::{FlightJob, Pipeline};
 use magcomp::diagnose::ApplyDiagnosis;
 use magcomp::output::sink::{process_flight, FlightOutputs};
-use magcomp::sample_flight::{generate, write, SampleFlightSpec};
+use magcomp::simulate::sample_flight::{generate, write, SampleFlightSpec};
 
 /// The sample flight as rows of cells, with its calibration windows.
 struct Flight {

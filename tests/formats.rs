@@ -9,7 +9,7 @@ use magcomp::formats::write_flight_log;
 use magcomp::formats::{read_flight_log, IngestOptions};
 use magcomp::ingest::flight_log::FlightLog;
 use magcomp::output::sink::{process_flight, FlightOutputs};
-use magcomp::sample_flight::{generate, write, SampleFlightSpec};
+use magcomp::simulate::sample_flight::{generate, write, SampleFlightSpec};
 
 fn small_flight(folder: &Path) -> (PathBuf, PathBuf) {
     let spec = SampleFlightSpec {

@@ -766,11 +766,12 @@ fn an_impossible_output_value_is_flagged_and_counted() {
     use magcomp::numerics::stacked::StorePool;
     let folder = tempfile::tempdir().unwrap();
     let (csv, windows) = (folder.path().join("flight.csv"), folder.path().join("windows.json"));
-    let spec = magcomp::sample_flight::SampleFlightSpec {
+    let spec = magcomp::simulate::sample_flight::SampleFlightSpec {
         line_count: 1,
         ..Default::default()
     };
-    magcomp::sample_flight::write(&magcomp::sample_flight::generate(&spec, 4), &csv, &windows).unwrap();
+    magcomp::simulate::sample_flight::write(&magcomp::simulate::sample_flight::generate(&spec, 4), &csv, &windows)
+        .unwrap();
     let log = magcomp::formats::read_flight_log(&csv, &Default::default()).unwrap();
     let sensor = magcomp::pipeline::choose_vector_sensor(&log, Some("flux_a")).unwrap();
     let windows = magcomp::calibration::windows::read_detect_json(&windows, 5.0).unwrap();

@@ -10,7 +10,7 @@ use std::path::Path;
 use std::process::Command;
 
 use magcomp::formats::{read_flight_log, IngestOptions};
-use magcomp::sample_flight::{generate, write, SampleFlightSpec};
+use magcomp::simulate::sample_flight::{generate, write, SampleFlightSpec};
 
 fn python() -> Option<String> {
     let python = std::env::var("MAGCOMP_PYTHON").ok();

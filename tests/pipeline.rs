@@ -8,7 +8,7 @@ use magcomp::calibration::windows::read_detect_json;
 use magcomp::config::{FlightJob, Settings};
 use magcomp::output::sink::{process_flight, process_flight_listing, FlightOutputs};
 use magcomp::progress::{Meter, Stage};
-use magcomp::sample_flight::{generate, write, SampleFlightSpec};
+use magcomp::simulate::sample_flight::{generate, write, SampleFlightSpec};
 
 fn small_flight(folder: &Path) -> (PathBuf, PathBuf) {
     let spec = SampleFlightSpec {

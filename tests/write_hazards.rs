@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use magcomp::sample_flight::{generate, write, SampleFlightSpec};
+use magcomp::simulate::sample_flight::{generate, write, SampleFlightSpec};
 
 fn small_flight(folder: &Path) -> PathBuf {
     let spec = SampleFlightSpec {

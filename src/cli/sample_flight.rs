@@ -3,6 +3,7 @@
 use std::path::Path;
 
 use magcomp::formats::{prepare, Destination, OutputKind};
+use magcomp::simulate::sample_flight;
 
 use super::print_notes;
 
@@ -15,8 +16,8 @@ pub fn sample_flight(out: &Path, windows: &Path, seed: u64) -> anyhow::Result<()
             Destination::new(windows, OutputKind::Json, "--windows"),
         ],
     )?);
-    let flight = magcomp::sample_flight::generate(&magcomp::sample_flight::SampleFlightSpec::default(), seed);
-    magcomp::sample_flight::write(&flight, out, windows)?;
+    let flight = sample_flight::generate(&sample_flight::SampleFlightSpec::default(), seed);
+    sample_flight::write(&flight, out, windows)?;
     println!(
         "wrote {} ({} rows) and {}",
         out.display(),

@@ -32,6 +32,7 @@ pub mod physics;
 pub mod random;
 pub mod recording;
 pub mod replay;
+pub mod sample_flight;
 pub mod scenario;
 pub mod trajectory;
 pub mod truth;

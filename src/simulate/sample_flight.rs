@@ -1,8 +1,10 @@
 //! A small physics-based sample flight: a calibration box and survey lines.
 //!
-//! This generator fills `sample_flights/` until the full simulator (IGRF,
-//! concealed effects, sensor models) exists. It simulates fields, not
-//! Tolles-Lawson regressors, so the fit is not trivially perfect:
+//! `magcomp sample-flight` writes it, and examples and tests use it where a
+//! quick flight will do; the sample flights in `sample_flights/` come from
+//! the full simulator ([`crate::simulate`]: IGRF, concealed effects,
+//! sensor models). It simulates fields, not Tolles-Lawson regressors, so
+//! the fit is not trivially perfect:
 //!
 //! - Earth's field: a uniform main field (total `earth_total_nt`, given
 //!   inclination and declination) in north-east-down axes, plus buried
