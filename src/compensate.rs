@@ -23,6 +23,7 @@ use serde::{Deserialize, Serialize};
 use crate::error::Result;
 use crate::ingest::flags::{FlagKind, RowFlags};
 use crate::ingest::flight_log::FlightLog;
+use crate::messages::Warning;
 use crate::model::{FittedModel, SharedDesign};
 
 /// Which DC level the compensated channel keeps.
@@ -189,21 +190,19 @@ impl Compensation {
     /// One warning per scalar channel or fluxgate with compensated values
     /// beyond what the instrument reads (rows flagged
     /// `output_out_of_range`): how many, the first row's time and value.
-    pub fn out_of_range_warnings(&self, time_s: &[f64]) -> Vec<String> {
+    pub fn out_of_range_warnings(&self, time_s: &[f64]) -> Vec<Warning> {
         let subjects =
             (self.channels.iter().map(|c| c.channel.as_str())).chain(self.vectors.iter().map(|v| v.sensor.as_str()));
         subjects
             .filter_map(|subject| {
-                let rows: Vec<usize> = (0..self.flags.len())
-                    .filter(|&row| self.flags[row].has(FlagKind::OutputOutOfRange, subject))
-                    .collect();
-                let first = *rows.first()?;
-                Some(format!(
-                    "{subject}: {} compensated row{} lie beyond what the instrument reads (a total field outside 1,000-100,000 nT, a component beyond ±100,000 nT), the first at {} s; they are written and flagged output_out_of_range:{subject}. The model was applied far from what it was fitted on: look at the attitude and fluxgate there, and at the calibration windows",
-                    rows.len(),
-                    if rows.len() == 1 { "" } else { "s" },
-                    crate::error::Number(time_s[first]),
-                ))
+                let rows =
+                    (0..self.flags.len()).filter(|&row| self.flags[row].has(FlagKind::OutputOutOfRange, subject));
+                let (first, count) = rows.fold((None, 0), |(first, count), row| (first.or(Some(row)), count + 1));
+                Some(Warning::OutputOutOfRange {
+                    subject: subject.to_string(),
+                    rows: count,
+                    first: time_s[first?],
+                })
             })
             .collect()
     }

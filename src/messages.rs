@@ -162,6 +162,132 @@ pub enum Warning {
         /// The manoeuvres it lacks, in words ("pitch at 90°").
         missing: Vec<String>,
     },
+    /// With the fluxgate standing in for the INS, manoeuvres on a heading
+    /// turn the field direction alike, so detection named them by size
+    /// only.
+    NamedBySize {
+        /// The leg's magnetic heading, degrees.
+        heading_deg: f64,
+        /// The kinds that look alike there, in pairs ("pitch", "yaw").
+        alike: Vec<(String, String)>,
+        /// The manoeuvres so named: start, end (s) and the kind given.
+        manoeuvres: Vec<(f64, f64, String)>,
+    },
+    /// The fluxgate stood in for the INS under a steep field, and
+    /// manoeuvres were reported missing: they may have been flown and not
+    /// seen.
+    SteepField {
+        /// The field's dip at the fluxgate, degrees (its size).
+        dip_deg: f64,
+    },
+    /// The INS attitude is missing near a box that lacks manoeuvres (or
+    /// anywhere, with none found): what is missing may have been flown
+    /// there.
+    AttitudeGaps {
+        /// The gaps, start and end (s).
+        spans: Vec<(f64, f64)>,
+    },
+    /// Compensated rows lie beyond what the instrument reads: the model
+    /// was applied far from what it was fitted on.
+    OutputOutOfRange {
+        /// The scalar channel or vector magnetometer.
+        subject: String,
+        /// Rows beyond the range.
+        rows: usize,
+        /// Time of the first, in the flight's time unit.
+        first: f64,
+    },
+    /// The FOM after compensation is above the limit.
+    FomAboveLimit {
+        /// The scalar channel.
+        channel: String,
+        /// FOM after compensation, nT.
+        fom_nt: f64,
+        /// Manoeuvres it sums, of 12.
+        manoeuvres: usize,
+        /// `[quality] fom_limit_nt`.
+        limit_nt: f64,
+        /// What to do, as a sentence.
+        next_step: String,
+    },
+    /// Compensation raised the survey lines' fourth-difference noise.
+    NoiseRaised {
+        /// The scalar channel.
+        channel: String,
+        /// Before compensation, nT.
+        before_nt: f64,
+        /// After, nT.
+        after_nt: f64,
+        /// What to do, as a sentence.
+        next_step: String,
+    },
+    /// Compensation raised the level difference between reciprocal
+    /// survey lines (the heading error).
+    HeadingErrorRaised {
+        /// The scalar channel.
+        channel: String,
+        /// Before compensation, nT.
+        before_nt: f64,
+        /// After, nT.
+        after_nt: f64,
+        /// Samples matched between the lines.
+        pairs: usize,
+        /// Whether the base station's change between the passes was
+        /// taken out.
+        station_removed: bool,
+        /// What to do, as a sentence.
+        next_step: String,
+    },
+    /// Compensation raised the difference between passes where survey
+    /// lines cross.
+    CrossoversRaised {
+        /// The scalar channel.
+        channel: String,
+        /// RMS before compensation, nT.
+        before_nt: f64,
+        /// RMS after, nT.
+        after_nt: f64,
+        /// Crossovers compared.
+        crossovers: usize,
+        /// Whether the base station's change between the passes was
+        /// taken out.
+        station_removed: bool,
+        /// What to do, as a sentence.
+        next_step: String,
+    },
+    /// The compensation away from the calibration is uncertain beyond
+    /// the channel's limit.
+    UncertainAwayFromCalibration {
+        /// The scalar channel.
+        channel: String,
+        /// One sigma outside the calibration, nT.
+        sigma_nt: f64,
+        /// Windows the jackknife moves.
+        windows: usize,
+        /// The limit, nT.
+        limit_nt: f64,
+        /// What to try, as sentences.
+        advice: String,
+        /// What to do, as a sentence.
+        next_step: String,
+    },
+    /// The compensated level is uncertain by more than a few nT.
+    UncertainLevel {
+        /// The scalar channel.
+        channel: String,
+        /// One sigma of the level, nT.
+        sigma_nt: f64,
+    },
+    /// The transfer check's warning: fitted without each heading in turn,
+    /// the model does worse on it.
+    PoorTransfer {
+        /// The scalar channel.
+        channel: String,
+        /// The check's sentence.
+        sentence: String,
+        /// What to do, as a sentence.
+        next_step: String,
+    },
     /// The flight could not be diagnosed (`[diagnose] apply = "auto"`), so
     /// it is compensated with plain Tolles-Lawson.
     NotDiagnosed {
@@ -240,7 +366,12 @@ impl Warning {
     /// The scalar channel the warning is about, when it is about one.
     pub fn channel(&self) -> Option<&str> {
         match self {
-            Warning::Said(_) | Warning::NotDiagnosed { .. } | Warning::IncompleteBox { .. } => None,
+            Warning::Said(_)
+            | Warning::NotDiagnosed { .. }
+            | Warning::IncompleteBox { .. }
+            | Warning::NamedBySize { .. }
+            | Warning::SteepField { .. }
+            | Warning::AttitudeGaps { .. } => None,
             Warning::FindingsHeldBack { channel, .. }
             | Warning::FindingsAppliedAnyway { channel, .. }
             | Warning::SurveyDeparture { channel, .. }
@@ -248,7 +379,15 @@ impl Warning {
             | Warning::TooFewWindows { channel, .. }
             | Warning::NoUncertainty { channel, .. }
             | Warning::BoxGap { channel, .. }
-            | Warning::SolverNotUsed { channel, .. } => Some(channel),
+            | Warning::SolverNotUsed { channel, .. }
+            | Warning::FomAboveLimit { channel, .. }
+            | Warning::NoiseRaised { channel, .. }
+            | Warning::HeadingErrorRaised { channel, .. }
+            | Warning::CrossoversRaised { channel, .. }
+            | Warning::UncertainAwayFromCalibration { channel, .. }
+            | Warning::UncertainLevel { channel, .. }
+            | Warning::PoorTransfer { channel, .. } => Some(channel),
+            Warning::OutputOutOfRange { subject, .. } => Some(subject),
         }
     }
 
@@ -268,16 +407,18 @@ impl fmt::Display for Warning {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             Warning::Said(sentence) => f.write_str(sentence),
-            Warning::IncompleteBox {
-                number,
-                start,
-                end,
-                missing,
-            } => write!(
-                f,
-                "box {number} ({start:.1}–{end:.1}) is incomplete: {}; its FOM sums fewer than 12 manoeuvres",
-                missing.join(", ")
-            ),
+            Warning::IncompleteBox { .. }
+            | Warning::NamedBySize { .. }
+            | Warning::SteepField { .. }
+            | Warning::AttitudeGaps { .. } => self.write_detection(f),
+            Warning::OutputOutOfRange { .. }
+            | Warning::FomAboveLimit { .. }
+            | Warning::NoiseRaised { .. }
+            | Warning::HeadingErrorRaised { .. }
+            | Warning::CrossoversRaised { .. }
+            | Warning::UncertainAwayFromCalibration { .. }
+            | Warning::UncertainLevel { .. }
+            | Warning::PoorTransfer { .. } => self.write_quality(f),
             Warning::NotDiagnosed { error } => {
                 write!(f, "not diagnosed, so compensated with plain Tolles-Lawson: {error}")
             }
@@ -323,6 +464,140 @@ impl fmt::Display for Warning {
             Warning::BoxGap { channel, gap } => write!(f, "{channel}: {gap}"),
             Warning::SolverNotUsed { channel, reason } => write!(f, "{channel}: {reason}"),
         }
+    }
+}
+
+impl Warning {
+    /// The sentence of a warning of the box's detection.
+    fn write_detection(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Warning::IncompleteBox {
+                number,
+                start,
+                end,
+                missing,
+            } => write!(
+                f,
+                "box {number} ({start:.1}–{end:.1}) is incomplete: {}; its FOM sums fewer than 12 manoeuvres",
+                missing.join(", ")
+            ),
+            Warning::NamedBySize {
+                heading_deg,
+                alike,
+                manoeuvres,
+            } => {
+                let alike: Vec<String> = alike.iter().map(|(a, b)| format!("a {a} and a {b}")).collect();
+                let named: Vec<String> = (manoeuvres.iter())
+                    .map(|(start, end, kind)| format!("{start:.1}–{end:.1} s as {kind}"))
+                    .collect();
+                write!(
+                    f,
+                    "heading {heading_deg:.0}° (magnetic): with the fluxgate alone {} turn the field direction alike on this heading, so the manoeuvre(s) at {} are named by size only; check them against the flight notes, or give the windows with --window",
+                    alike.join(", and "),
+                    named.join(" and ")
+                )
+            }
+            Warning::SteepField { dip_deg } => write!(
+                f,
+                "the field dips {dip_deg:.0}° at the fluxgate, which stands in for the INS: its horizontal part gives the heading weakly and a yaw barely turns the field direction, so manoeuvres reported missing may have been flown and not seen. Give the INS attitude (ins_pitch, ins_roll, ins_yaw) or the windows with --window"
+            ),
+            Warning::AttitudeGaps { spans } => {
+                let spans: Vec<String> = (spans.iter())
+                    .map(|(start, end)| format!("{start:.1}–{end:.1} s"))
+                    .collect();
+                write!(
+                    f,
+                    "the INS attitude is missing over {}: legs or manoeuvres flown there cannot be seen, so what is reported missing may have been flown there; give the windows with --window if so",
+                    spans.join(", ")
+                )
+            }
+            // The other variants are written by `fmt`, which sends only these here.
+            _ => Ok(()),
+        }
+    }
+
+    /// The sentence of a warning of the compensation's quality figures.
+    fn write_quality(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Warning::OutputOutOfRange { subject, rows, first } => write!(
+                f,
+                "{subject}: {rows} compensated row{} lie beyond what the instrument reads (a total field outside 1,000-100,000 nT, a component beyond ±100,000 nT), the first at {} s; they are written and flagged output_out_of_range:{subject}. The model was applied far from what it was fitted on: look at the attitude and fluxgate there, and at the calibration windows",
+                if *rows == 1 { "" } else { "s" },
+                crate::error::Number(*first),
+            ),
+            Warning::FomAboveLimit {
+                channel,
+                fom_nt,
+                manoeuvres,
+                limit_nt,
+                next_step,
+            } => write!(
+                f,
+                "{channel}: FOM {fom_nt:.2} nT after compensation ({manoeuvres} of 12 manoeuvres), above the {limit_nt:.2} nT limit ([quality] fom_limit_nt). {next_step}"
+            ),
+            Warning::NoiseRaised {
+                channel,
+                before_nt,
+                after_nt,
+                next_step,
+            } => write!(
+                f,
+                "{channel}: compensation raised the survey lines' fourth-difference noise from {before_nt:.4} to {after_nt:.4} nT ({:.2}×): the model adds more than it removes there. {next_step}",
+                after_nt / before_nt
+            ),
+            Warning::HeadingErrorRaised {
+                channel,
+                before_nt,
+                after_nt,
+                pairs,
+                station_removed,
+                next_step,
+            } => write!(
+                f,
+                "{channel}: compensation raised the level difference between reciprocal survey lines (heading error) from {before_nt:.3} to {after_nt:.3} nT over {pairs} matched samples{}. {next_step}",
+                between_passes(*station_removed)
+            ),
+            Warning::CrossoversRaised {
+                channel,
+                before_nt,
+                after_nt,
+                crossovers,
+                station_removed,
+                next_step,
+            } => write!(
+                f,
+                "{channel}: compensation raised the RMS difference between the passes where survey lines cross from {before_nt:.3} to {after_nt:.3} nT over {crossovers} crossovers{}. {next_step}",
+                between_passes(*station_removed)
+            ),
+            Warning::UncertainAwayFromCalibration {
+                channel,
+                sigma_nt,
+                windows,
+                limit_nt,
+                advice,
+                next_step,
+            } => write!(
+                f,
+                "{channel}: the compensation away from the calibration is uncertain by {sigma_nt:.3} nT (one sigma, from how much each of the {windows} windows moves the fit), above {limit_nt:.3} nT: the manoeuvres flown do not pin the model on the survey's headings and attitudes, and the survey lines can be wrong by that much or more. {advice} {next_step}"
+            ),
+            Warning::UncertainLevel { channel, sigma_nt } => write!(
+                f,
+                "{channel}: the compensated level is uncertain by {sigma_nt:.1} nT (one sigma, from how much each window moves the fit): the band-passed fit does not pin it; level the channel to a base station or tie lines before using absolute values"
+            ),
+            Warning::PoorTransfer {
+                sentence, next_step, ..
+            } => write!(f, "{sentence}. {next_step}"),
+            // The other variants are written by `fmt`, which sends only these here.
+            _ => Ok(()),
+        }
+    }
+}
+
+/// What a comparison between two passes over the same ground took out.
+fn between_passes(station_removed: bool) -> &'static str {
+    match station_removed {
+        true => " (the base station's change between the passes taken out)",
+        false => " (the flight has no base station, so this includes the external field's change between the passes)",
     }
 }
 
@@ -462,6 +737,89 @@ mod tests {
         assert_eq!(warning.channel(), Some("mag_2_uc"));
         let json = serde_json::to_string(std::slice::from_ref(&warning)).unwrap();
         assert_eq!(json, serde_json::to_string(&[warning.to_string()]).unwrap());
+    }
+
+    #[test]
+    fn the_detections_warnings_read_as_the_run_has_always_said_them() {
+        let named = Warning::NamedBySize {
+            heading_deg: 91.6,
+            alike: vec![("pitch".into(), "yaw".into())],
+            manoeuvres: vec![(120.04, 151.0, "pitch".into()), (160.0, 190.96, "yaw".into())],
+        };
+        assert_eq!(
+            named.to_string(),
+            "heading 92° (magnetic): with the fluxgate alone a pitch and a yaw turn the field direction alike on this heading, so the manoeuvre(s) at 120.0–151.0 s as pitch and 160.0–191.0 s as yaw are named by size only; check them against the flight notes, or give the windows with --window"
+        );
+        assert_eq!(
+            Warning::SteepField { dip_deg: 81.4 }.to_string(),
+            "the field dips 81° at the fluxgate, which stands in for the INS: its horizontal part gives the heading weakly and a yaw barely turns the field direction, so manoeuvres reported missing may have been flown and not seen. Give the INS attitude (ins_pitch, ins_roll, ins_yaw) or the windows with --window"
+        );
+        let gaps = Warning::AttitudeGaps {
+            spans: vec![(10.0, 12.24), (300.0, 301.0)],
+        };
+        assert_eq!(
+            gaps.to_string(),
+            "the INS attitude is missing over 10.0–12.2 s, 300.0–301.0 s: legs or manoeuvres flown there cannot be seen, so what is reported missing may have been flown there; give the windows with --window if so"
+        );
+        assert!([named, gaps].iter().all(|w| w.channel().is_none()));
+    }
+
+    #[test]
+    fn the_quality_warnings_read_as_the_run_has_always_said_them() {
+        let step = "Refly the box".to_string();
+        let cases = [
+            (
+                Warning::FomAboveLimit {
+                    channel: "mag_1_uc".into(),
+                    fom_nt: 1.234,
+                    manoeuvres: 11,
+                    limit_nt: 1.5 - 0.25,
+                    next_step: step.clone(),
+                },
+                "mag_1_uc: FOM 1.23 nT after compensation (11 of 12 manoeuvres), above the 1.25 nT limit ([quality] fom_limit_nt). Refly the box",
+            ),
+            (
+                Warning::NoiseRaised {
+                    channel: "mag_1_uc".into(),
+                    before_nt: 0.01,
+                    after_nt: 0.025,
+                    next_step: step.clone(),
+                },
+                "mag_1_uc: compensation raised the survey lines' fourth-difference noise from 0.0100 to 0.0250 nT (2.50×): the model adds more than it removes there. Refly the box",
+            ),
+            (
+                Warning::CrossoversRaised {
+                    channel: "mag_3_uc".into(),
+                    before_nt: 0.1,
+                    after_nt: 0.3,
+                    crossovers: 7,
+                    station_removed: false,
+                    next_step: step.clone(),
+                },
+                "mag_3_uc: compensation raised the RMS difference between the passes where survey lines cross from 0.100 to 0.300 nT over 7 crossovers (the flight has no base station, so this includes the external field's change between the passes). Refly the box",
+            ),
+            (
+                Warning::OutputOutOfRange {
+                    subject: "flux_b".into(),
+                    rows: 1,
+                    first: 12.5,
+                },
+                "flux_b: 1 compensated row lie beyond what the instrument reads (a total field outside 1,000-100,000 nT, a component beyond ±100,000 nT), the first at 12.5 s; they are written and flagged output_out_of_range:flux_b. The model was applied far from what it was fitted on: look at the attitude and fluxgate there, and at the calibration windows",
+            ),
+        ];
+        for (warning, sentence) in cases {
+            assert_eq!(warning.to_string(), sentence);
+        }
+        let transfer = Warning::PoorTransfer {
+            channel: "mag_2_uc".into(),
+            sentence: "mag_2_uc: fitted without each heading in turn, worse".into(),
+            next_step: step,
+        };
+        assert_eq!(
+            transfer.to_string(),
+            "mag_2_uc: fitted without each heading in turn, worse. Refly the box"
+        );
+        assert_eq!(transfer.channel(), Some("mag_2_uc"));
     }
 
     #[test]

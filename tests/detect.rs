@@ -5,6 +5,7 @@
 use magcomp::calibration::detect::{detect_manoeuvres, AttitudeSource, DetectOptions, Detection, STEEP_DIP_DEG};
 use magcomp::calibration::windows::ManoeuvreKind;
 use magcomp::ingest::flight_log::{Channel, FlightLog};
+use magcomp::messages::Warning;
 use magcomp::simulate::scenario::{RawScenario, Scenario};
 use magcomp::simulate::truth::TrueManoeuvre;
 use magcomp::simulate::{simulate, SimulatedFlight};
@@ -300,7 +301,16 @@ fn an_attitude_gap_over_a_leg_is_named_with_what_is_missing() {
     );
     assert_eq!(detection.attitude_gaps, vec![(first, last)]);
     let warning = detection.attitude_gap_warning().expect("a warning");
-    assert!(warning.contains(&format!("{first:.1}–{last:.1} s")), "{warning}");
+    assert_eq!(
+        warning,
+        Warning::AttitudeGaps {
+            spans: vec![(first, last)]
+        }
+    );
+    assert!(
+        warning.to_string().contains(&format!("{first:.1}–{last:.1} s")),
+        "{warning}"
+    );
     // A gap on the survey lines, far from a box that lacks a manoeuvre,
     // is listed but not blamed.
     let omitted = fly(13, |raw| {
@@ -373,6 +383,11 @@ fn under_a_steep_field_the_fluxgate_says_what_it_cannot_see() {
     assert!((dip - inclination).abs() < 2.0, "dip {dip} against {inclination}");
     assert!(detection.manoeuvres.len() < 12, "{}", detection.manoeuvres.len());
     let warnings = magcomp::pipeline::detection_warnings(&detection);
+    let steep = (warnings.iter()).find_map(|w| match w {
+        Warning::SteepField { dip_deg } => Some(*dip_deg),
+        _ => None,
+    });
+    assert_eq!(steep, Some(dip.abs()), "{warnings:?}");
     assert!(
         warnings
             .iter()

@@ -802,9 +802,18 @@ fn an_impossible_output_value_is_flagged_and_counted() {
     }
     let warnings = compensation.out_of_range_warnings(log.time_s());
     assert_eq!(warnings.len(), 1, "{warnings:?}");
+    assert_eq!(
+        warnings[0],
+        magcomp::messages::Warning::OutputOutOfRange {
+            subject: "mag_2_uc".into(),
+            rows: beyond.len(),
+            first: log.time_s()[beyond[0]],
+        }
+    );
+    let sentence = warnings[0].to_string();
     assert!(
-        warnings[0].starts_with(&format!("mag_2_uc: {} compensated row", beyond.len()))
-            && warnings[0].contains("output_out_of_range:mag_2_uc"),
-        "{warnings:?}"
+        sentence.starts_with(&format!("mag_2_uc: {} compensated rows", beyond.len()))
+            && sentence.contains("output_out_of_range:mag_2_uc"),
+        "{sentence}"
     );
 }

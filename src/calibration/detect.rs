@@ -40,6 +40,7 @@ use crate::calibration::headings::heading_difference;
 use crate::calibration::windows::{CalibrationWindow, ManoeuvreKind};
 use crate::error::{Error, Result};
 use crate::ingest::flight_log::{AttitudeAngle, ChannelRole, FlightLog};
+use crate::messages::Warning;
 
 /// Detection thresholds (`[detect]` in pipeline.toml).
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -235,7 +236,7 @@ pub const STEEP_DIP_DEG: f64 = 75.0;
 impl Detection {
     /// A warning when the INS attitude has gaps and the detection found
     /// manoeuvres missing (or none): what was flown in a gap is not seen.
-    pub fn attitude_gap_warning(&self) -> Option<String> {
+    pub fn attitude_gap_warning(&self) -> Option<Warning> {
         // A gap can hide what an incomplete box lacks when it lies in the
         // box or the turns around it; with no manoeuvre found, anywhere.
         let near = |&&(start, end): &&(f64, f64)| {
@@ -243,30 +244,17 @@ impl Detection {
                 || (self.boxes.iter())
                     .any(|b| !b.missing.is_empty() && start <= b.t_end + GAP_REACH_S && end >= b.t_start - GAP_REACH_S)
         };
-        let gaps: Vec<&(f64, f64)> = self.attitude_gaps.iter().filter(near).collect();
-        (!gaps.is_empty()).then(|| {
-            let spans: Vec<String> = (gaps.iter())
-                .map(|(start, end)| format!("{start:.1}–{end:.1} s"))
-                .collect();
-            format!(
-                "the INS attitude is missing over {}: legs or manoeuvres flown there cannot be seen, so what is reported missing may have been flown there; give the windows with --window if so",
-                spans.join(", ")
-            )
-        })
+        let spans: Vec<(f64, f64)> = self.attitude_gaps.iter().filter(near).copied().collect();
+        (!spans.is_empty()).then_some(Warning::AttitudeGaps { spans })
     }
 
     /// A warning when the fluxgate stood in for the INS under a steep field
     /// and the detection found manoeuvres missing (or none): they may have
     /// been flown and not seen.
-    pub fn steep_field_warning(&self) -> Option<String> {
+    pub fn steep_field_warning(&self) -> Option<Warning> {
         let dip_deg = self.fluxgate_dip_deg?;
         let incomplete = self.manoeuvres.is_empty() || self.boxes.iter().any(|b| !b.missing.is_empty());
-        (dip_deg.abs() > STEEP_DIP_DEG && incomplete).then(|| {
-            format!(
-                "the field dips {:.0}° at the fluxgate, which stands in for the INS: its horizontal part gives the heading weakly and a yaw barely turns the field direction, so manoeuvres reported missing may have been flown and not seen. Give the INS attitude (ins_pitch, ins_roll, ins_yaw) or the windows with --window",
-                dip_deg.abs()
-            )
-        })
+        (dip_deg.abs() > STEEP_DIP_DEG && incomplete).then(|| Warning::SteepField { dip_deg: dip_deg.abs() })
     }
 
     /// What was found on the calibration lines `spans` (line, start, end)
@@ -1523,7 +1511,7 @@ fn missing_manoeuvres(legs: &[&Leg], manoeuvres: &[DetectedManoeuvre]) -> Vec<St
 }
 
 /// One sentence per leg whose manoeuvres the fluxgate could not tell apart.
-pub fn uncertain_kinds(detection: &Detection) -> Vec<String> {
+pub fn uncertain_kinds(detection: &Detection) -> Vec<Warning> {
     detection
         .legs
         .iter()
@@ -1533,21 +1521,16 @@ pub fn uncertain_kinds(detection: &Detection) -> Vec<String> {
                 .iter()
                 .filter(|m| m.could_be.is_some() && m.t_start >= leg.t_start && m.t_end <= leg.t_end)
                 .collect();
-            let kinds: Vec<String> = alike_pairs(&uncertain)
-                .into_iter()
-                .map(|(a, b)| format!("a {} and a {}", kind_name(a), kind_name(b)))
+            let alike = (alike_pairs(&uncertain).into_iter())
+                .map(|(a, b)| (kind_name(a), kind_name(b)))
                 .collect();
-            let named: Vec<String> = uncertain
-                .iter()
-                .map(|m| format!("{:.1}–{:.1} s as {}", m.t_start, m.t_end, kind_name(m.kind)))
+            let manoeuvres: Vec<(f64, f64, String)> = (uncertain.iter())
+                .map(|m| (m.t_start, m.t_end, kind_name(m.kind)))
                 .collect();
-            (!named.is_empty()).then(|| {
-                format!(
-                    "heading {:.0}° (magnetic): with the fluxgate alone {} turn the field direction alike on this heading, so the manoeuvre(s) at {} are named by size only; check them against the flight notes, or give the windows with --window",
-                    leg.heading_deg,
-                    kinds.join(", and "),
-                    named.join(" and ")
-                )
+            (!manoeuvres.is_empty()).then_some(Warning::NamedBySize {
+                heading_deg: leg.heading_deg,
+                alike,
+                manoeuvres,
             })
         })
         .collect()

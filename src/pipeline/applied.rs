@@ -38,8 +38,8 @@ pub(super) fn run_applied(
     choose_channels(raw_log, Some(&channels))?;
     refuse_dead_columns(raw_log, &screened.screening, &sensor, Some(&channels))?;
     let applied = saved.applied(raw_log.date(), &recorded)?;
-    let (mut warnings, mut notes) = model_words(job, options, saved, (&applied, &channels), raw_log);
-    warnings.splice(0..0, screened.warnings(&recorded));
+    let (warnings, mut notes) = model_words(job, options, saved, (&applied, &channels), raw_log);
+    let mut warnings: Vec<Warning> = Warning::said(screened.warnings(&recorded).into_iter().chain(warnings)).collect();
     let calibrated = saved
         .vector_calibration()
         .map(|c| c.apply(raw_log, &sensor))
@@ -82,7 +82,7 @@ pub(super) fn run_applied(
         vector_calibration: saved.vector_calibration().cloned(),
         diagnosis_mode: crate::diagnose::ApplyDiagnosis::Never,
         applied_findings: saved.applied_findings(&channels),
-        warnings: Warning::said(said.warnings).collect(),
+        warnings: said.warnings,
         diagnosis: None,
         models,
         vector_models: Vec::new(),
@@ -141,7 +141,7 @@ fn hold_out_on_own_windows(
 
 /// Warnings and notes gathered along the way, as sentences.
 struct Said {
-    warnings: Vec<String>,
+    warnings: Vec<Warning>,
     notes: Vec<String>,
 }
 
@@ -162,17 +162,24 @@ fn beside_the_scalars(
         for vector in vectors {
             compensation.add_vector(vector);
         }
-        said.warnings.extend(vector_warnings);
+        said.warnings.extend(Warning::said(vector_warnings));
     }
     said.notes.extend(vector_not_run(options, saved, log));
     let gradients = crate::gradient::gradients_from_saved_model(models, compensation, &options.gradients);
     compensation.gradients = gradients.compensated;
     said.notes.extend(gradients.notes);
-    said.warnings.extend(gradients.warnings);
+    said.warnings.extend(Warning::said(gradients.warnings));
     said.warnings
-        .extend(crate::formats::mcap::undated_warning(recorded, compensated));
+        .extend(Warning::said(crate::formats::mcap::undated_warning(
+            recorded,
+            compensated,
+        )));
     said.warnings
-        .extend(crate::formats::write::text_columns_warning(recorded, compensated, true));
+        .extend(Warning::said(crate::formats::write::text_columns_warning(
+            recorded,
+            compensated,
+            true,
+        )));
     said.notes
         .extend(crate::reduce::add_reduced(log, compensation, options.reduced)?);
     said.warnings.extend(compensation.out_of_range_warnings(log.time_s()));
@@ -257,7 +264,7 @@ fn assess_applied(
     compensation: &mut crate::compensate::Compensation,
     (options, meter): (&Settings, &dyn Meter),
     shared: &[SharedDesign],
-    warnings: &mut Vec<String>,
+    warnings: &mut Vec<Warning>,
 ) -> Result<Vec<ChannelQuality>> {
     let geometry = crate::quality::SurveyGeometry::of(log);
     let mut quality: Vec<ChannelQuality> = models
@@ -287,14 +294,14 @@ fn assess_applied(
             (next_step, false),
         ));
         if channel.sigma_nt.is_none() {
-            warnings.push(format!(
+            warnings.push(Warning::Said(format!(
                 "{}: no sigma column: {}",
                 q.channel,
                 match q.uncertainty {
                     None => "the model was saved without a jackknife (fitted on fewer than three windows, or with another solver)",
                     Some(_) => "the compensated channel's noise cannot be measured (too few consecutive samples)",
                 }
-            ));
+            )));
         }
     }
     Ok(quality)

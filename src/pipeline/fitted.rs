@@ -177,7 +177,7 @@ impl Assessed {
     ) {
         notes.extend(units_row_note(&flight.recorded));
         notes.extend(renaming_notes(&flight.channels, added_columns));
-        warnings.extend(Warning::said(self.compensation.out_of_range_warnings(log.time_s())));
+        warnings.extend(self.compensation.out_of_range_warnings(log.time_s()));
         notes.extend(Note::said(
             std::mem::take(&mut self.notes).into_iter().chain(stage_notes),
         ));
@@ -481,11 +481,11 @@ fn channel_warnings(
     let mut warnings = Vec::new();
     for ((q, model), channel) in quality.iter().zip(models).zip(&compensation.channels) {
         let suggest_solver = options.fit.solver != crate::numerics::estimators::Solver::Auto;
-        warnings.extend(Warning::said(crate::quality::quality_warnings(
+        warnings.extend(crate::quality::quality_warnings(
             q,
             options.fom_limit_nt,
             (next_step, suggest_solver),
-        )));
+        ));
         if q.uncertainty.is_some() && channel.sigma_nt.is_none() {
             warnings.push(Warning::NoSigmaColumn {
                 channel: model.channel.clone(),

@@ -25,9 +25,9 @@ pub fn detection_warnings(detection: &Detection) -> Vec<Warning> {
             missing: b.missing.clone(),
         })
         .collect();
-    warnings.extend(Warning::said(crate::calibration::detect::uncertain_kinds(detection)));
-    warnings.extend(Warning::said(detection.steep_field_warning()));
-    warnings.extend(Warning::said(detection.attitude_gap_warning()));
+    warnings.extend(crate::calibration::detect::uncertain_kinds(detection));
+    warnings.extend(detection.steep_field_warning());
+    warnings.extend(detection.attitude_gap_warning());
     warnings
 }
 

@@ -21,6 +21,7 @@ use serde::Serialize;
 use crate::calibration::windows::ManoeuvreKind;
 use crate::compensate::CompensatedChannel;
 use crate::ingest::flight_log::FlightLog;
+use crate::messages::Warning;
 use crate::model::{FittedModel, PredictionSigma, WindowFit};
 
 /// Figures for one calibration window.
@@ -459,75 +460,83 @@ pub fn quality_warnings(
     quality: &ChannelQuality,
     fom_limit_nt: f64,
     (next_step, suggest_solver): (&str, bool),
-) -> Vec<String> {
-    let channel = &quality.channel;
+) -> Vec<Warning> {
+    let channel = || quality.channel.clone();
+    let next_step = || next_step.to_string();
     let mut warnings = Vec::new();
     if let Some(after) = quality.fom_after_nt.filter(|after| *after > fom_limit_nt) {
-        warnings.push(format!(
-            "{channel}: FOM {after:.2} nT after compensation ({} of 12 manoeuvres), above the {fom_limit_nt:.2} nT limit ([quality] fom_limit_nt). {next_step}",
-            quality.fom_manoeuvres
-        ));
+        warnings.push(Warning::FomAboveLimit {
+            channel: channel(),
+            fom_nt: after,
+            manoeuvres: quality.fom_manoeuvres,
+            limit_nt: fom_limit_nt,
+            next_step: next_step(),
+        });
     }
     if let (Some(before), Some(after)) = (
         quality.survey_noise_4th_difference_before_nt,
         quality.survey_noise_4th_difference_after_nt,
     ) {
         if after > NOISE_RISE_WARNING * before {
-            warnings.push(format!(
-                "{channel}: compensation raised the survey lines' fourth-difference noise from {before:.4} to {after:.4} nT ({:.2}×): the model adds more than it removes there. {next_step}",
-                after / before
-            ));
+            warnings.push(Warning::NoiseRaised {
+                channel: channel(),
+                before_nt: before,
+                after_nt: after,
+                next_step: next_step(),
+            });
         }
     }
     if let Some(error) = &quality.heading_error {
         if error.after_nt.abs() > error.before_nt.abs().max(0.05) * NOISE_RISE_WARNING {
-            warnings.push(format!(
-                "{channel}: compensation raised the level difference between reciprocal survey lines (heading error) from {:.3} to {:.3} nT over {} matched samples{}. {next_step}",
-                error.before_nt,
-                error.after_nt,
-                error.pairs,
-                match error.external_field_removed {
-                    true => " (the base station's change between the passes taken out)",
-                    false => " (the flight has no base station, so this includes the external field's change between the passes)",
-                }
-            ));
+            warnings.push(Warning::HeadingErrorRaised {
+                channel: channel(),
+                before_nt: error.before_nt,
+                after_nt: error.after_nt,
+                pairs: error.pairs,
+                station_removed: error.external_field_removed,
+                next_step: next_step(),
+            });
         }
     }
     if let Some(figures) = &quality.crossovers {
         if figures.after_nt > figures.before_nt.max(0.05) * NOISE_RISE_WARNING {
-            warnings.push(format!(
-                "{channel}: compensation raised the RMS difference between the passes where survey lines cross from {:.3} to {:.3} nT over {} crossovers{}. {next_step}",
-                figures.before_nt,
-                figures.after_nt,
-                figures.crossovers,
-                match figures.external_field_removed {
-                    true => " (the base station's change between the passes taken out)",
-                    false => " (the flight has no base station, so this includes the external field's change between the passes)",
-                }
-            ));
+            warnings.push(Warning::CrossoversRaised {
+                channel: channel(),
+                before_nt: figures.before_nt,
+                after_nt: figures.after_nt,
+                crossovers: figures.crossovers,
+                station_removed: figures.external_field_removed,
+                next_step: next_step(),
+            });
         }
     }
     if let Some(uncertainty) = &quality.uncertainty {
-        let limit = uncertainty_limit_nt(quality);
         if is_uncertain(quality) {
-            warnings.push(format!(
-                "{channel}: the compensation away from the calibration is uncertain by {:.3} nT (one sigma, from how much each of the {} windows moves the fit), above {limit:.3} nT: the manoeuvres flown do not pin the model on the survey's headings and attitudes, and the survey lines can be wrong by that much or more. {} {next_step}",
-                uncertainty.outside_calibration_sigma_nt,
-                uncertainty.windows,
-                uncertainty_advice((!quality.fom_table.is_empty()).then_some(quality.fom_manoeuvres), suggest_solver)
-            ));
+            warnings.push(Warning::UncertainAwayFromCalibration {
+                channel: channel(),
+                sigma_nt: uncertainty.outside_calibration_sigma_nt,
+                windows: uncertainty.windows,
+                limit_nt: uncertainty_limit_nt(quality),
+                advice: uncertainty_advice(
+                    (!quality.fom_table.is_empty()).then_some(quality.fom_manoeuvres),
+                    suggest_solver,
+                ),
+                next_step: next_step(),
+            });
         }
         if uncertainty.level_sigma_nt > LEVEL_UNCERTAINTY_WARNING_NT {
-            warnings.push(format!(
-                "{channel}: the compensated level is uncertain by {:.1} nT (one sigma, from how much each window moves the fit): the band-passed fit does not pin it; level the channel to a base station or tie lines before using absolute values",
-                uncertainty.level_sigma_nt
-            ));
+            warnings.push(Warning::UncertainLevel {
+                channel: channel(),
+                sigma_nt: uncertainty.level_sigma_nt,
+            });
         }
     }
-    if let Some(check) = &quality.transfer {
-        if let Some(warning) = &check.warning {
-            warnings.push(format!("{warning}. {next_step}"));
-        }
+    if let Some(sentence) = quality.transfer.as_ref().and_then(|check| check.warning.clone()) {
+        warnings.push(Warning::PoorTransfer {
+            channel: channel(),
+            sentence,
+            next_step: next_step(),
+        });
     }
     warnings
 }
