@@ -219,10 +219,7 @@ fn right_or_loudly_uncertain(
         assert_eq!(uncertainty.windows, 12);
         assert!(!uncertainty.lines.is_empty());
         let warning = run.result.warnings.iter().any(|w| {
-            w.to_string().starts_with(&format!(
-                "{}: the compensation away from the calibration is uncertain",
-                model.channel
-            ))
+            matches!(w, magcomp::messages::Warning::UncertainAwayFromCalibration { channel, .. } if *channel == model.channel)
         });
         let column = common::SigmaColumn::of(model, channel, truth, line);
         let (sigma_rms_nt, error_rms_nt) = (

@@ -94,10 +94,7 @@ fn the_sigma_column_is_calibrated_and_the_wrong_channels_are_warned_on_random_pl
             let quality = run.result.channels.iter().find(|q| q.channel == model.channel).unwrap();
             let stated = quality.uncertainty.as_ref().expect("twelve windows: a jackknife");
             let warned = run.result.warnings.iter().any(|w| {
-                w.to_string().starts_with(&format!(
-                    "{}: the compensation away from the calibration is uncertain",
-                    model.channel
-                ))
+                matches!(w, magcomp::messages::Warning::UncertainAwayFromCalibration { channel, .. } if *channel == model.channel)
             });
             assert_eq!(
                 warned,

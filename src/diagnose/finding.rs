@@ -200,30 +200,8 @@ pub(super) fn finding(
         Extension::Coupling { source: column }
         | Extension::CouplingRate { source: column }
         | Extension::CouplingWithRate { source: column } => {
-            let direct = !matches!(extension, Extension::CouplingRate { .. });
-            let rate = !matches!(extension, Extension::Coupling { .. });
-            let coefficients = extension_coefficients(problem, &model, 3 * (direct as usize + rate as usize))?;
-            let (k, kdot) = coefficients.split_at(if direct { 3 } else { 0 });
-            let mut parts = Vec::new();
-            let axes = |v: &[f64]| [v[0], v[1], v[2]];
-            if direct {
-                parts.push(format!(
-                    "the field of whatever '{column}' measures reaches {}: a body-fixed field proportional to it ({:.3}, {:.3}, {:.3} nT per unit along x, y, z), which the scalar sees through the direction cosines",
-                    problem.channel, k[0], k[1], k[2]
-                ));
-            }
-            if rate {
-                parts.push(format!(
-                    "'{column}' acts through its rate of change too: a field proportional to d{column}/dt ({:.3}, {:.3}, {:.3} nT per unit/s along x, y, z), as from eddy currents a changing current induces in conductors near {}",
-                    kdot[0], kdot[1], kdot[2], problem.channel
-                ));
-            }
-            effect = Effect::AuxCoupling(AuxCoupling {
-                k_nt_per_unit: direct.then(|| axes(k)),
-                kdot_nt_s_per_unit: rate.then(|| axes(kdot)),
-            });
+            (effect, explanation) = coupling(problem, &model, extension, column)?;
             source = Some(column.clone());
-            explanation = capitalised(&parts.join("; ")) + ".";
         }
         Extension::SecondOrder => {
             let term_rms_nt = second_order_rms(problem, &model)?;
@@ -255,6 +233,34 @@ pub(super) fn finding(
         not_applied: None,
     };
     Ok((found, model, result))
+}
+
+/// The coupling of `column` that `extension` adds to `model`, fitted: its
+/// effect and the explanation in words.
+fn coupling(problem: &Problem, model: &Model, extension: &Extension, column: &str) -> Result<(Effect, String)> {
+    let direct = !matches!(extension, Extension::CouplingRate { .. });
+    let rate = !matches!(extension, Extension::Coupling { .. });
+    let coefficients = extension_coefficients(problem, model, 3 * (direct as usize + rate as usize))?;
+    let (k, kdot) = coefficients.split_at(if direct { 3 } else { 0 });
+    let mut parts = Vec::new();
+    let axes = |v: &[f64]| [v[0], v[1], v[2]];
+    if direct {
+        parts.push(format!(
+            "the field of whatever '{column}' measures reaches {}: a body-fixed field proportional to it ({:.3}, {:.3}, {:.3} nT per unit along x, y, z), which the scalar sees through the direction cosines",
+            problem.channel, k[0], k[1], k[2]
+        ));
+    }
+    if rate {
+        parts.push(format!(
+            "'{column}' acts through its rate of change too: a field proportional to d{column}/dt ({:.3}, {:.3}, {:.3} nT per unit/s along x, y, z), as from eddy currents a changing current induces in conductors near {}",
+            kdot[0], kdot[1], kdot[2], problem.channel
+        ));
+    }
+    let effect = Effect::AuxCoupling(AuxCoupling {
+        k_nt_per_unit: direct.then(|| axes(k)),
+        kdot_nt_s_per_unit: rate.then(|| axes(kdot)),
+    });
+    Ok((effect, capitalised(&parts.join("; ")) + "."))
 }
 
 /// `text` with its first letter in upper case.
