@@ -288,6 +288,18 @@ pub enum Warning {
         /// What to do, as a sentence.
         next_step: String,
     },
+    /// The diagnosis leaves a residual well above the sensor's noise that
+    /// no effect it knows explains.
+    Unexplained {
+        /// The scalar channel.
+        channel: String,
+        /// Held-out RMS of the residual, nT.
+        heldout_rms_nt: f64,
+        /// The residual against the sensor noise in the band.
+        residual_to_noise: f64,
+        /// The windows where it is largest, by label.
+        largest_on: Vec<String>,
+    },
     /// The flight could not be diagnosed (`[diagnose] apply = "auto"`), so
     /// it is compensated with plain Tolles-Lawson.
     NotDiagnosed {
@@ -386,7 +398,8 @@ impl Warning {
             | Warning::CrossoversRaised { channel, .. }
             | Warning::UncertainAwayFromCalibration { channel, .. }
             | Warning::UncertainLevel { channel, .. }
-            | Warning::PoorTransfer { channel, .. } => Some(channel),
+            | Warning::PoorTransfer { channel, .. }
+            | Warning::Unexplained { channel, .. } => Some(channel),
             Warning::OutputOutOfRange { subject, .. } => Some(subject),
         }
     }
@@ -419,6 +432,16 @@ impl fmt::Display for Warning {
             | Warning::UncertainAwayFromCalibration { .. }
             | Warning::UncertainLevel { .. }
             | Warning::PoorTransfer { .. } => self.write_quality(f),
+            Warning::Unexplained {
+                channel,
+                heldout_rms_nt,
+                residual_to_noise,
+                largest_on,
+            } => write!(
+                f,
+                "{channel}: the diagnosis leaves an unexplained residual of {heldout_rms_nt:.4} nT held out, {residual_to_noise:.0} times the sensor noise in the band, largest on {}: the compensation of this channel is not good to the noise level; see the diagnosis's unexplained finding",
+                largest_on.join(", ")
+            ),
             Warning::NotDiagnosed { error } => {
                 write!(f, "not diagnosed, so compensated with plain Tolles-Lawson: {error}")
             }
@@ -820,6 +843,21 @@ mod tests {
             "mag_2_uc: fitted without each heading in turn, worse. Refly the box"
         );
         assert_eq!(transfer.channel(), Some("mag_2_uc"));
+    }
+
+    #[test]
+    fn an_unexplained_residual_reads_as_the_run_has_always_said_it() {
+        let warning = Warning::Unexplained {
+            channel: "mag_3_uc".into(),
+            heldout_rms_nt: 0.12345,
+            residual_to_noise: 1712.4,
+            largest_on: vec!["roll@90".into(), "yaw@180".into()],
+        };
+        assert_eq!(
+            warning.to_string(),
+            "mag_3_uc: the diagnosis leaves an unexplained residual of 0.1235 nT held out, 1712 times the sensor noise in the band, largest on roll@90, yaw@180: the compensation of this channel is not good to the noise level; see the diagnosis's unexplained finding"
+        );
+        assert_eq!(warning.channel(), Some("mag_3_uc"));
     }
 
     #[test]

@@ -287,6 +287,33 @@ fn an_effect_outside_the_library_is_reported_as_unexplained_where_it_happens() {
         });
         assert!(switches, "no radio switching near {stretch:?}");
     }
+    // The default run says so, with the finding's figures and where.
+    let folder = tempfile::tempdir().unwrap();
+    let without = folder.path().join("without_radio.csv");
+    magcomp::formats::write_flight_log(&log, &without).unwrap();
+    let run = magcomp::pipeline::run(
+        &FlightJob::new(&without),
+        &pipeline.settings,
+        &folder.path().join("out.csv"),
+    )
+    .unwrap();
+    let said: Vec<&magcomp::messages::Warning> = (run.result.warnings.iter())
+        .filter(|w| matches!(w, magcomp::messages::Warning::Unexplained { .. }))
+        .collect();
+    assert_eq!(
+        said,
+        [&magcomp::messages::Warning::Unexplained {
+            channel: "mag_1_uc".into(),
+            heldout_rms_nt: tail[0].heldout_rms_after_nt,
+            residual_to_noise: match &tail[0].effect {
+                magcomp::diagnose::Effect::Unexplained(u) => u.residual_to_noise,
+                other => panic!("{other:?}"),
+            },
+            largest_on: tail[0].located.iter().map(|l| l.label.clone()).collect(),
+        }],
+        "{:#?}",
+        run.result.warnings
+    );
     // The clean flight and the flight with the column keep no such finding.
     assert!(diagnose("clean.csv")
         .findings

@@ -97,7 +97,7 @@ pub(super) fn augmentation_plan(
             diagnosis.flight = Some(crate::ingest::flight_identity::FlightIdentity::of(raw_log)?);
             Ok(ExtensionsPlan {
                 models: diagnosis.models(),
-                warnings: Warning::said(unexplained_warnings(&diagnosis)).collect(),
+                warnings: unexplained_warnings(&diagnosis),
                 diagnosis: Some(diagnosis),
             })
         }
@@ -276,16 +276,15 @@ pub(super) fn applies_to_model(kind: EffectKind) -> bool {
 
 /// One warning per channel the diagnosis left with an `unexplained`
 /// residual: its compensation is not to be trusted to the noise level.
-pub(super) fn unexplained_warnings(diagnosis: &crate::diagnose::Diagnosis) -> Vec<String> {
+pub(super) fn unexplained_warnings(diagnosis: &crate::diagnose::Diagnosis) -> Vec<Warning> {
     (diagnosis.findings.iter())
         .filter_map(|f| match &f.effect {
-            crate::diagnose::Effect::Unexplained(u) => Some(format!(
-                "{}: the diagnosis leaves an unexplained residual of {:.4} nT held out, {:.0} times the sensor noise in the band, largest on {}: the compensation of this channel is not good to the noise level; see the diagnosis's unexplained finding",
-                f.channel,
-                f.heldout_rms_after_nt,
-                u.residual_to_noise,
-                f.located.iter().map(|l| l.label.as_str()).collect::<Vec<_>>().join(", ")
-            )),
+            crate::diagnose::Effect::Unexplained(u) => Some(Warning::Unexplained {
+                channel: f.channel.clone(),
+                heldout_rms_nt: f.heldout_rms_after_nt,
+                residual_to_noise: u.residual_to_noise,
+                largest_on: f.located.iter().map(|l| l.label.clone()).collect(),
+            }),
             _ => None,
         })
         .collect()
