@@ -7,11 +7,13 @@
 //! report and in the quality JSON (serialised as that sentence, so the
 //! JSON reads as it always has). Tests match the variants, not the words.
 //!
-//! The stages typed so far are the fit's own (the diagnosis's evidence
-//! rule, the departure from plain Tolles-Lawson, the uncertainty and the
-//! sigma column, the box and the solver). The other stages' warnings
-//! (reading, screening, detection, the vector and gradient stages, the
-//! plan) still come as their sentence: [`Warning::Said`].
+//! The stages typed so far: the box's detection, the fit's own (the
+//! diagnosis's evidence rule and its unexplained residual, the departure
+//! from plain Tolles-Lawson, the uncertainty and the sigma column, the box
+//! and the solver), the quality figures and the output's range. The other
+//! stages' warnings (reading, screening, the vector and gradient stages,
+//! the plan, a saved model's) still come as their sentence:
+//! [`Warning::Said`].
 //!
 //! A [`Note`] is what the user may want to know (how a column was named,
 //! which model a channel was fitted with, an analysis not made); it is
@@ -375,7 +377,8 @@ pub enum Warning {
 }
 
 impl Warning {
-    /// The scalar channel the warning is about, when it is about one.
+    /// The scalar channel the warning is about, when it is about one (for
+    /// [`Warning::OutputOutOfRange`], the channel or vector magnetometer).
     pub fn channel(&self) -> Option<&str> {
         match self {
             Warning::Said(_)

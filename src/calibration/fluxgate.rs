@@ -40,7 +40,7 @@
 //! Jacobian where this solver streams one 9×9 sum. The diagnosis was 15
 //! times slower with the crate's own stopping rule, and a fifth slower
 //! with the same budget of 100 (figures: docs/measurements.md, section
-//! vector_calibration).
+//! calibration::fluxgate: the Levenberg-Marquardt solver).
 //!
 //! The scalar reference carries its own aircraft interference (a few nT on
 //! a tail stinger), which sets the floor of the residual; the quietest
@@ -133,12 +133,12 @@ const CONDITION_LIMIT: f64 = 1e8;
 /// sensor through many attitudes, pins them an order of magnitude or more
 /// below it; a short stretch of straight survey flight leaves them far
 /// above it (measured figures: docs/measurements.md, section
-/// vector_calibration).
+/// calibration::fluxgate).
 const MAX_MATRIX_UNCERTAINTY: f64 = 0.01;
 
 /// Largest one-sigma uncertainty of an offset for a usable calibration, nT
 /// (1 % of the Earth's field; measured figures: docs/measurements.md,
-/// section vector_calibration).
+/// section calibration::fluxgate).
 const MAX_OFFSET_UNCERTAINTY_NT: f64 = 500.0;
 
 /// Fits the calibration of `sensor` against scalar channel `reference` on
