@@ -152,6 +152,22 @@ pub const FITTED_PLAIN: &str = "so the channel is compensated with plain Tolles-
 pub enum Warning {
     /// A warning of a stage not typed yet, as its sentence.
     Said(String),
+    /// Screening masked samples no instrument can record, and flagged
+    /// their rows.
+    Masked {
+        /// The column.
+        column: String,
+        /// Samples masked.
+        samples: usize,
+        /// Why, in words.
+        reason: String,
+        /// Time of the first, in the flight's time unit.
+        first_time: f64,
+        /// Its value as read.
+        first_value: f64,
+        /// The row flag's name.
+        flag: String,
+    },
     /// A detected calibration box lacks manoeuvres: its FOM sums fewer
     /// than 12.
     IncompleteBox {
@@ -382,6 +398,7 @@ impl Warning {
     pub fn channel(&self) -> Option<&str> {
         match self {
             Warning::Said(_)
+            | Warning::Masked { .. }
             | Warning::NotDiagnosed { .. }
             | Warning::IncompleteBox { .. }
             | Warning::NamedBySize { .. }
@@ -423,6 +440,25 @@ impl fmt::Display for Warning {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             Warning::Said(sentence) => f.write_str(sentence),
+            Warning::Masked {
+                column,
+                samples,
+                reason,
+                first_time,
+                first_value,
+                flag,
+            } => {
+                let one = *samples == 1;
+                write!(
+                    f,
+                    "masked {samples} sample{} of {column} ({reason}), the first at {} s ({}); every stage treats {} as missing, and {} flagged {flag}:{column}",
+                    if one { "" } else { "s" },
+                    crate::error::Number(*first_time),
+                    crate::error::Number(*first_value),
+                    if one { "it" } else { "them" },
+                    if one { "its row is" } else { "their rows are" },
+                )
+            }
             Warning::IncompleteBox { .. }
             | Warning::NamedBySize { .. }
             | Warning::SteepField { .. }
@@ -846,6 +882,27 @@ mod tests {
             "mag_2_uc: fitted without each heading in turn, worse. Refly the box"
         );
         assert_eq!(transfer.channel(), Some("mag_2_uc"));
+    }
+
+    #[test]
+    fn masked_samples_read_as_the_run_has_always_said_them() {
+        let masked = |samples: usize| Warning::Masked {
+            column: "flux_a_x".into(),
+            samples,
+            reason: "values beyond what the instrument reads".into(),
+            first_time: 46012.3,
+            first_value: 1e308,
+            flag: "out_of_range".into(),
+        };
+        assert_eq!(
+            masked(2).to_string(),
+            "masked 2 samples of flux_a_x (values beyond what the instrument reads), the first at 46012.3 s (1e308); every stage treats them as missing, and their rows are flagged out_of_range:flux_a_x"
+        );
+        assert_eq!(
+            masked(1).to_string(),
+            "masked 1 sample of flux_a_x (values beyond what the instrument reads), the first at 46012.3 s (1e308); every stage treats it as missing, and its row is flagged out_of_range:flux_a_x"
+        );
+        assert_eq!(masked(1).channel(), None);
     }
 
     #[test]

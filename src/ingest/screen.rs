@@ -46,6 +46,7 @@ use serde::Serialize;
 
 use crate::error::Result;
 use crate::ingest::flight_log::{AttitudeAngle, ChannelRole, FlightLog};
+use crate::messages::Warning;
 
 /// Lowest and highest total field a scalar magnetometer can read, nT.
 pub const TOTAL_FIELD_RANGE_NT: (f64, f64) = (1_000.0, 100_000.0);
@@ -158,22 +159,18 @@ pub struct MaskedSamples {
 }
 
 impl MaskedSamples {
-    /// "masked 2 samples of flux_a_x (…), the first at 46012.3 s (1e308);
-    /// their rows are flagged out_of_range:flux_a_x".
-    pub fn describe(&self) -> String {
-        format!(
-            "masked {} sample{} of {} ({}), the first at {} s ({}); every stage treats {} as missing, and {} flagged {}:{}",
-            self.samples,
-            if self.samples == 1 { "" } else { "s" },
-            self.column,
-            self.reason.describe(),
-            crate::error::Number(self.first_time_s),
-            crate::error::Number(self.first_value),
-            if self.samples == 1 { "it" } else { "them" },
-            if self.samples == 1 { "its row is" } else { "their rows are" },
-            self.reason.flag().name(),
-            self.column
-        )
+    /// The warning that says what was masked: "masked 2 samples of
+    /// flux_a_x (…), the first at 46012.3 s (1e308); … their rows are
+    /// flagged out_of_range:flux_a_x".
+    pub fn warning(&self) -> Warning {
+        Warning::Masked {
+            column: self.column.clone(),
+            samples: self.samples,
+            reason: self.reason.describe().into(),
+            first_time: self.first_time_s,
+            first_value: self.first_value,
+            flag: self.reason.flag().name().into(),
+        }
     }
 }
 
@@ -202,9 +199,9 @@ impl Screening {
         (!left && !reasons.is_empty()).then(|| reasons.join("; "))
     }
 
-    /// One sentence per column and reason, for stdout and the report.
-    pub fn warnings(&self) -> Vec<String> {
-        self.masked.iter().map(MaskedSamples::describe).collect()
+    /// One warning per column and reason, for stdout and the report.
+    pub fn warnings(&self) -> Vec<Warning> {
+        self.masked.iter().map(MaskedSamples::warning).collect()
     }
 }
 
@@ -221,8 +218,8 @@ pub struct Screened {
 impl Screened {
     /// What reading `recorded` lost and what screening masked, one line
     /// each, for stdout and the report.
-    pub fn warnings(&self, recorded: &FlightLog) -> Vec<String> {
-        let reading = recorded.reading_warnings().iter().cloned();
+    pub fn warnings(&self, recorded: &FlightLog) -> Vec<Warning> {
+        let reading = Warning::said(recorded.reading_warnings().iter().cloned());
         reading.chain(self.screening.warnings()).collect()
     }
 
@@ -572,7 +569,7 @@ mod tests {
             .screening
             .warnings()
             .iter()
-            .any(|w| w.contains("masked 9 samples of ins_yaw")));
+            .any(|w| w.to_string().contains("masked 9 samples of ins_yaw")));
     }
 
     /// A fluxgate axis that reads 0 throughout and a scalar that repeats
@@ -604,11 +601,14 @@ mod tests {
         assert!(
             warnings
                 .iter()
+                .map(ToString::to_string)
                 .any(|w| w.contains("masked 500 samples of flux_a_y") && w.contains("stuck or its axis dead")),
             "{warnings:?}"
         );
         assert!(
-            warnings.iter().any(|w| w.contains("masked 80 samples of mag_1_uc")),
+            warnings
+                .iter()
+                .any(|w| w.to_string().contains("masked 80 samples of mag_1_uc")),
             "{warnings:?}"
         );
     }
@@ -676,10 +676,14 @@ mod tests {
         assert!(
             warnings
                 .iter()
+                .map(ToString::to_string)
                 .any(|w| w.contains("masked 10 samples of flux_a_x") && w.contains("110 s")),
             "{warnings:?}"
         );
-        assert!(warnings.iter().any(|w| w.contains("(1e308)")), "{warnings:?}");
+        assert!(
+            warnings.iter().any(|w| w.to_string().contains("(1e308)")),
+            "{warnings:?}"
+        );
     }
 
     #[test]

@@ -38,8 +38,9 @@ pub(super) fn run_applied(
     choose_channels(raw_log, Some(&channels))?;
     refuse_dead_columns(raw_log, &screened.screening, &sensor, Some(&channels))?;
     let applied = saved.applied(raw_log.date(), &recorded)?;
-    let (warnings, mut notes) = model_words(job, options, saved, (&applied, &channels), raw_log);
-    let mut warnings: Vec<Warning> = Warning::said(screened.warnings(&recorded).into_iter().chain(warnings)).collect();
+    let (model_said, mut notes) = model_words(job, options, saved, (&applied, &channels), raw_log);
+    let mut warnings: Vec<Warning> = screened.warnings(&recorded);
+    warnings.extend(Warning::said(model_said));
     let calibrated = saved
         .vector_calibration()
         .map(|c| c.apply(raw_log, &sensor))

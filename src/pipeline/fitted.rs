@@ -46,7 +46,7 @@ pub(super) fn run_fitted(
         .map(|c| c.apply(flight.log(), &flight.sensor))
         .transpose()?;
     let on = flight.calibration().on(calibrated.as_ref().unwrap_or(flight.log()));
-    let mut warnings: Vec<Warning> = Warning::said(flight.warnings()).collect();
+    let mut warnings: Vec<Warning> = flight.warnings();
     let (plan, mut diagnosis, departures) =
         diagnosed_plan(job, (&flight, &on), (options, meter), fluxgate.is_some(), &mut warnings)?;
     warnings.extend(Warning::said(input_warnings(job, &flight.recorded, compensated)?));

@@ -171,7 +171,7 @@ impl PreparedFlight {
     }
 
     /// What screening masked, as warnings.
-    pub fn warnings(&self) -> Vec<String> {
+    pub fn warnings(&self) -> Vec<Warning> {
         self.screened.warnings(&self.recorded)
     }
 
