@@ -255,15 +255,7 @@ impl<'a> Prepared<'a> {
         options: &FitOptions,
         stores: &StorePool,
     ) -> Result<FittedModel> {
-        let band = band_data(
-            &self.log,
-            self.sensor,
-            (self.channel, scalar),
-            windows,
-            (self.spec.fitted_terms(), &options.filter),
-            &self.extra_columns(),
-            stores,
-        )?;
+        let band = self.band_with(scalar, windows, options, stores)?;
         self.fit_band(band, options, stores)
     }
 
@@ -341,15 +333,7 @@ impl<'a> Prepared<'a> {
         self.check_filled(windows)?;
         let BandData {
             stacked, windows: fits, ..
-        } = band_data(
-            &self.log,
-            self.sensor,
-            (self.channel, &self.scalar),
-            windows,
-            (self.spec.fitted_terms(), &options.filter),
-            &self.extra_columns(),
-            stores,
-        )?;
+        } = self.band_with(&self.scalar, windows, options, stores)?;
         let factors = heading_factors(&stacked, &fits);
         stores.recycle(stacked);
         Ok(factors.map(|f| compare(&f)))
@@ -366,15 +350,7 @@ impl<'a> Prepared<'a> {
     ) -> Result<Vec<WindowFit>> {
         self.check_filled(windows)?;
         let corrected = self.corrected(fitted, windows);
-        let data = band_data(
-            &self.log,
-            self.sensor,
-            (self.channel, &corrected),
-            windows,
-            (self.spec.fitted_terms(), &options.filter),
-            &self.extra_columns(),
-            stores,
-        )?;
+        let data = self.band_with(&corrected, windows, options, stores)?;
         Ok(Self::residual_on(data, fitted, stores))
     }
 
@@ -396,10 +372,21 @@ impl<'a> Prepared<'a> {
         stores: &StorePool,
     ) -> Result<BandData> {
         self.check_filled(windows)?;
+        self.band_with(&self.scalar, windows, options, stores)
+    }
+
+    /// Band data of `windows` with `scalar` as the target.
+    fn band_with(
+        &self,
+        scalar: &[f64],
+        windows: &[CalibrationWindow],
+        options: &FitOptions,
+        stores: &StorePool,
+    ) -> Result<BandData> {
         band_data(
             &self.log,
             self.sensor,
-            (self.channel, &self.scalar),
+            (self.channel, scalar),
             windows,
             (self.spec.fitted_terms(), &options.filter),
             &self.extra_columns(),
