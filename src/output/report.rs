@@ -811,18 +811,7 @@ fn verdict(quality: &ChannelQuality, limit_nt: f64) -> String {
             transfer.fit, transfer.test, transfer.band_std_nt, transfer.own_fit_band_std_nt
         ));
     }
-    if let Some(error) = &quality.heading_error {
-        lines.push(format!(
-            "heading error {:.3} → {:.3} nT over {} matched samples of reciprocal lines",
-            error.before_nt, error.after_nt, error.pairs
-        ));
-    }
-    if let Some(figures) = &quality.crossovers {
-        lines.push(crossover_line(figures));
-    }
-    if let Some(figures) = &quality.heading_level {
-        lines.push(heading_level_line(figures));
-    }
+    lines.extend(survey_lines(quality));
     lines.iter().map(|l| format!("<p>{l}</p>")).collect()
 }
 
@@ -864,6 +853,14 @@ fn applied_verdict(quality: &ChannelQuality, applied: &crate::apply::AppliedMode
         "4th-difference noise {:.4} → {:.4} nT",
         quality.noise_4th_difference_before_nt, quality.noise_4th_difference_after_nt
     ));
+    lines.extend(survey_lines(quality));
+    lines.iter().map(|l| format!("<p>{l}</p>")).collect()
+}
+
+/// The survey's own figures, where the flight has them: the heading error
+/// of reciprocal lines, the crossovers and the heading level.
+fn survey_lines(quality: &ChannelQuality) -> Vec<String> {
+    let mut lines = Vec::new();
     if let Some(error) = &quality.heading_error {
         lines.push(format!(
             "heading error {:.3} → {:.3} nT over {} matched samples of reciprocal lines",
@@ -876,7 +873,7 @@ fn applied_verdict(quality: &ChannelQuality, applied: &crate::apply::AppliedMode
     if let Some(figures) = &quality.heading_level {
         lines.push(heading_level_line(figures));
     }
-    lines.iter().map(|l| format!("<p>{l}</p>")).collect()
+    lines
 }
 
 /// The crossover differences of a channel, in words.
