@@ -2,12 +2,14 @@
 //! within each, its channels and diagnosis candidates on the same worker
 //! threads.
 //!
-//! [`run_flights`] starts [`FlightsAtOnce`] flight slots. Each slot takes
-//! the next flight of the run's order and processes it; the flight's own
-//! parallel work (channels, candidates, survey lines) goes to the rayon
-//! pool, where every slot's work is stolen by whichever worker is free.
-//! So a machine of N cores holds N flights in memory, no more, and keeps
-//! its cores busy while one flight reads or writes. A flight's outputs do
+//! [`run_flights`] starts [`FlightsAtOnce`] flight slots, one on each of
+//! as many of the rayon pool's workers. Each slot takes the next flight of
+//! the run's order and processes it; the flight's own parallel work
+//! (channels, candidates, survey lines) goes to the same pool, where every
+//! slot's work is stolen by whichever worker is free, the slots' own
+//! workers among them while their flights wait on it. So a machine of N
+//! cores holds N flights in memory, no more, runs N threads, and keeps its
+//! cores busy while one flight reads or writes. A flight's outputs do
 //! not depend on which slot or how many threads process it: each flight's
 //! work is the same whatever else runs beside it.
 //!
@@ -281,29 +283,20 @@ pub fn run_flights(
     board.finished.into_iter().flatten().collect()
 }
 
-/// Runs `slot` on `slots` threads of their own until each returns; a
-/// panic on one goes on here once the threads are joined.
+/// Runs `slot` on `slots` worker threads of the rayon pool, one each,
+/// until each returns; a panic on one goes on here once all have returned.
+///
+/// A slot is a worker, not a thread beside the pool: while its flight
+/// waits on its own parallel work (channels, candidates, lines) it takes
+/// part in that work and in other flights', instead of sleeping while the
+/// pool's workers spin for work, and the process runs as many threads as
+/// the pool has. A broadcast job runs once on each worker and cannot be
+/// stolen, so no worker starts a second flight while one of its own waits:
+/// flights in memory stay at most `slots`.
 fn on_threads(slots: usize, slot: &(dyn Fn() + Sync)) {
-    std::thread::scope(|scope| {
-        let handles: Vec<_> = (0..slots)
-            .map(|k| {
-                // The main thread's stack, as a flight processed alone has.
-                std::thread::Builder::new()
-                    .name(format!("flight slot {k}"))
-                    .stack_size(8 << 20)
-                    .spawn_scoped(scope, slot)
-            })
-            .collect();
-        for handle in handles {
-            match handle {
-                Ok(handle) => {
-                    if let Err(panic) = handle.join() {
-                        std::panic::resume_unwind(panic);
-                    }
-                }
-                // No thread to be had: this one processes the flights.
-                Err(_) => slot(),
-            }
+    rayon::broadcast(|context| {
+        if context.index() < slots {
+            slot();
         }
     });
 }
