@@ -91,6 +91,20 @@ pub enum HeldBack {
         /// Whether the base station's change between lines was taken out.
         external_field_removed: bool,
     },
+    /// Nothing on the survey can check the findings (too few crossovers
+    /// with a base station to level at, no block of parallel lines flown
+    /// both ways), and on it they would move the compensation by more than
+    /// the uncertainty the channel states: the box alone cannot show that
+    /// such a move helps the survey.
+    UncheckedOnSurvey {
+        /// RMS of the findings' change on the survey, nT.
+        survey_nt: f64,
+        /// The uncertainty stated outside the calibration with the
+        /// findings, nT, where one is stated.
+        stated_nt: Option<f64>,
+        /// Departures below this always pass, nT.
+        floor_nt: f64,
+    },
 }
 
 impl fmt::Display for HeldBack {
@@ -138,6 +152,18 @@ impl fmt::Display for HeldBack {
                 match external_field_removed {
                     true => " (the base station's change between lines taken out)",
                     false => " (no base station: the external field's change between lines is in the comparison)",
+                }
+            ),
+            HeldBack::UncheckedOnSurvey {
+                survey_nt,
+                stated_nt,
+                floor_nt,
+            } => write!(
+                f,
+                "on the survey it would move the compensation by {survey_nt:.4} nT RMS, more than {}, and the survey has nothing to check that move against (no crossovers with a base station to level at, no block of parallel lines flown both ways): the box alone cannot show it helps the survey",
+                match stated_nt {
+                    Some(stated) if *stated >= *floor_nt => format!("the uncertainty the channel states outside the calibration ({stated:.4} nT)"),
+                    _ => format!("{floor_nt} nT"),
                 }
             ),
         }
@@ -799,6 +825,28 @@ mod tests {
         assert_eq!(warning.channel(), Some("mag_2_uc"));
         let json = serde_json::to_string(std::slice::from_ref(&warning)).unwrap();
         assert_eq!(json, serde_json::to_string(&[warning.to_string()]).unwrap());
+    }
+
+    #[test]
+    fn a_move_nothing_on_the_survey_checks_names_the_stated_uncertainty_or_the_floor() {
+        let said = |stated_nt| {
+            HeldBack::UncheckedOnSurvey {
+                survey_nt: 0.1022,
+                stated_nt,
+                floor_nt: 0.01,
+            }
+            .to_string()
+        };
+        let tail = "and the survey has nothing to check that move against (no crossovers with a base station to level at, no block of parallel lines flown both ways): the box alone cannot show it helps the survey";
+        assert_eq!(
+            said(Some(0.0545)),
+            format!("on the survey it would move the compensation by 0.1022 nT RMS, more than the uncertainty the channel states outside the calibration (0.0545 nT), {tail}")
+        );
+        assert_eq!(
+            said(Some(0.004)),
+            format!("on the survey it would move the compensation by 0.1022 nT RMS, more than 0.01 nT, {tail}")
+        );
+        assert_eq!(said(None), said(Some(0.004)));
     }
 
     #[test]

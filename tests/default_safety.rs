@@ -553,3 +553,59 @@ fn held_between_lines(auto: &magcomp::pipeline::FlightRun, (channel, effect): (&
             )
         })
 }
+
+/// Plan 733 (four sensors, three of them in the tail, 50 Hz, two survey
+/// lines 500 m apart, no tie): the diagnosis finds a lag of 0.099 s on
+/// mag_1_uc (held out 0.0302 → 0.0155 nT) on a box flown with the
+/// airframe's coupled motion, where the simulator has none. It passes the
+/// departure check, since a lag moves the box's record too, and two lines
+/// neither cross nor form a block to compare. Applied, it moved the survey
+/// 0.102 nT from plain against a stated uncertainty of 0.054 nT, and made
+/// it 5.6 times worse against truth (0.017 → 0.096 nT). A move beyond the
+/// stated uncertainty that nothing on the survey can check must be held
+/// back, with its figures.
+#[test]
+fn a_move_beyond_the_stated_uncertainty_that_no_survey_line_can_check_is_held_back() {
+    let raw = clean_plan(733);
+    assert_eq!(
+        (
+            raw.scalar.len(),
+            raw.sample_rate_hz,
+            raw.survey.line_count,
+            raw.survey.tie_count
+        ),
+        (4, 50.0, 2, 0),
+        "the plan as measured"
+    );
+    let (flight, auto, plain) = default_and_plain(raw);
+    let reason = (auto.result.warnings.iter())
+        .find_map(|w| match w {
+            Warning::FindingsHeldBack {
+                channel,
+                findings,
+                reason: reason @ HeldBack::UncheckedOnSurvey { .. },
+            } if channel == "mag_1_uc" && findings.iter().any(|f| f.starts_with("sensor_lag")) => Some(reason.clone()),
+            _ => None,
+        })
+        .unwrap_or_else(|| panic!("mag_1_uc's lag is not held back: {:#?}", auto.result.warnings));
+    let HeldBack::UncheckedOnSurvey {
+        survey_nt, stated_nt, ..
+    } = reason
+    else {
+        unreachable!()
+    };
+    assert!((survey_nt - 0.102).abs() < 0.01, "{survey_nt}");
+    let stated = stated_nt.expect("a stated uncertainty");
+    assert!((stated - 0.054).abs() < 0.01, "{stated}");
+    // The diagnosis keeps the lag as a candidate with the same reason.
+    let diagnosis = auto.result.diagnosis.as_ref().expect("the default diagnoses");
+    let lag = (diagnosis.findings.iter())
+        .find(|f| f.channel == "mag_1_uc" && f.effect.kind() == magcomp::diagnose::EffectKind::SensorLag)
+        .expect("the diagnosis finds the lag on mag_1_uc");
+    let not_applied = lag.not_applied.as_deref().expect("the lag is not applied");
+    assert!(
+        not_applied.contains("nothing to check that move against"),
+        "{not_applied}"
+    );
+    assert_compensated_plain(&flight, (&auto, &plain), (0, "mag_1_uc"));
+}

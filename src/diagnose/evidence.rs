@@ -35,7 +35,7 @@ use crate::error::Result;
 use crate::ingest::flight_log::FlightLog;
 use crate::messages::HeldBack;
 use crate::model::terms::TermSet;
-use crate::model::{fit, Calibration, Extensions, FitOptions, ModelSpec};
+use crate::model::{fit, Calibration, Extensions, FitOptions, FittedModel, ModelSpec};
 use crate::numerics::stacked::StorePool;
 
 /// How far the survey departure may exceed the calibration's spread.
@@ -173,8 +173,13 @@ pub struct Compensations<'c, 'a> {
     done: std::sync::Mutex<Vec<Computed>>,
 }
 
-/// A channel, its model and its compensation.
-type Computed = (String, Extensions, std::sync::Arc<Vec<f64>>);
+/// A channel, its model fitted, and its compensation.
+type Computed = (
+    String,
+    Extensions,
+    std::sync::Arc<Vec<f64>>,
+    std::sync::Arc<FittedModel>,
+);
 
 impl<'c, 'a> Compensations<'c, 'a> {
     /// None computed yet.
@@ -190,28 +195,50 @@ impl<'c, 'a> Compensations<'c, 'a> {
 
     /// `channel` compensated with `extensions` fitted on the calibration.
     pub fn of(&self, channel: &str, extensions: &Extensions) -> Result<std::sync::Arc<Vec<f64>>> {
+        Ok(self.computed(channel, extensions)?.2)
+    }
+
+    /// The uncertainty `channel` compensated with `extensions` states
+    /// outside the calibration ([`crate::quality::Uncertainty`]'s
+    /// `outside_calibration_sigma_nt`, as the quality file gives it), nT;
+    /// `None` where it states none.
+    pub fn stated_nt(&self, channel: &str, extensions: &Extensions) -> Result<Option<f64>> {
+        let model = self.computed(channel, extensions)?.3;
+        let uncertainty = crate::quality::uncertainty(self.calibration.log, &model)?;
+        Ok(uncertainty.map(|u| u.outside_calibration_sigma_nt))
+    }
+
+    /// `channel` fitted with `extensions` and compensated, once.
+    fn computed(&self, channel: &str, extensions: &Extensions) -> Result<Computed> {
         let done = |list: &[Computed]| {
             (list.iter())
-                .find(|(c, e, _)| c == channel && e == extensions)
-                .map(|(_, _, values)| values.clone())
+                .find(|(c, e, _, _)| c == channel && e == extensions)
+                .cloned()
         };
-        if let Some(values) = done(&self.done.lock().unwrap_or_else(|e| e.into_inner())) {
-            return Ok(values);
+        if let Some(found) = done(&self.done.lock().unwrap_or_else(|e| e.into_inner())) {
+            return Ok(found);
         }
         let Calibration {
             log, sensor, windows, ..
         } = *self.calibration;
         let spec = ModelSpec::new(self.terms, extensions.clone());
-        let prediction = fit(log, sensor, channel, windows, &spec, self.options, &self.stores)?.predict(log)?;
+        let model = fit(log, sensor, channel, windows, &spec, self.options, &self.stores)?;
+        let prediction = model.predict(log)?;
         let values: std::sync::Arc<Vec<f64>> = std::sync::Arc::new(
             (prediction.scalar_nt.iter())
                 .zip(&prediction.interference_nt)
                 .map(|(scalar, interference)| scalar - interference)
                 .collect(),
         );
+        let found = (
+            channel.to_string(),
+            extensions.clone(),
+            values,
+            std::sync::Arc::new(model),
+        );
         let mut list = self.done.lock().unwrap_or_else(|e| e.into_inner());
-        list.push((channel.to_string(), extensions.clone(), values.clone()));
-        Ok(values)
+        list.push(found.clone());
+        Ok(found)
     }
 }
 

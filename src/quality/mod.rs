@@ -285,6 +285,14 @@ pub fn uncertainty_of(log: &FlightLog, model: &FittedModel, prediction: &Predict
     })
 }
 
+/// Whether findings that move the survey by `departure_nt` (RMS from
+/// plain Tolles-Lawson) move it beyond the uncertainty stated outside the
+/// calibration, `stated_nt` (or [`DEPARTURE_FLOOR_NT`] where none is stated
+/// or it is smaller).
+pub fn departs_beyond_stated(departure_nt: f64, stated_nt: Option<f64>) -> bool {
+    departure_nt > stated_nt.unwrap_or(0.0).max(DEPARTURE_FLOOR_NT)
+}
+
 /// The standard deviation of white noise over the RMS of its fourth
 /// difference with the Seequent QCNOISE normalisation: the difference
 /// $(x_{-2} - 4x_{-1} + 6x_0 - 4x_{+1} + x_{+2})/16$ of white noise of
@@ -300,8 +308,7 @@ impl ChannelQuality {
     pub fn unchecked_departure(&self) -> Option<(f64, Option<f64>)> {
         let departure = self.survey_departure_from_plain_nt?;
         let stated = self.uncertainty.as_ref().map(|u| u.outside_calibration_sigma_nt);
-        let bound = stated.unwrap_or(0.0).max(DEPARTURE_FLOOR_NT);
-        (departure > bound).then_some((departure, stated))
+        departs_beyond_stated(departure, stated).then_some((departure, stated))
     }
 
     /// The compensated channel's noise as one sigma of white noise, nT:
