@@ -35,6 +35,7 @@ use crate::calibration::windows::CalibrationWindow;
 use crate::compensate::{compensate, CompensatedGradient, Compensation, LevelConvention};
 use crate::error::{Error, Result};
 use crate::ingest::flight_log::{Channel, ChannelRole, FlightLog, VectorSensor};
+use crate::messages::{GradientParting, Warning};
 use crate::model::terms::TermSet;
 use crate::model::{fit, FitOptions, FittedModel, ModelSpec, WindowFit};
 use crate::numerics::stacked::StorePool;
@@ -152,7 +153,7 @@ pub struct GradientStage {
     /// Lines for the summary.
     pub notes: Vec<String>,
     /// What the user must know.
-    pub warnings: Vec<String>,
+    pub warnings: Vec<Warning>,
 }
 
 /// What the stage reads from the run: the flight as fitted, the fluxgate,
@@ -192,17 +193,18 @@ pub fn compensate_gradients(
                 stage.notes.push(describe(&result));
                 stage.warnings.push(level_warning(pair, result.level_offset_nt_per_m));
                 match disagreement(&result) {
-                    Some((true, warning)) => stage.warnings.push(warning),
-                    Some((false, note)) => stage.notes.push(note),
+                    Some(AtOdds::Warning(warning)) => stage.warnings.push(warning),
+                    Some(AtOdds::Note(note)) => stage.notes.push(note),
                     None => {}
                 }
                 stage.results.push(result);
                 stage.models.push(model);
                 stage.compensated.push(compensated);
             }
-            Err(e) => stage
-                .warnings
-                .push(format!("{}: no gradient compensation: {e}", pair.column())),
+            Err(e) => stage.warnings.push(Warning::GradientNotCompensated {
+                column: pair.column(),
+                reason: e.to_string(),
+            }),
         }
     }
     stage
@@ -224,18 +226,22 @@ pub fn gradients_from_saved_model(
         let column = pair.column();
         let index = |name: &str| models.iter().position(|m| m.channel == name);
         let (Some(ia), Some(ib)) = (index(&pair.a), index(&pair.b)) else {
-            stage.warnings.push(format!(
-                "{column}: no gradient compensation: the saved model compensates {} and not both of '{}' and '{}'",
-                models.iter().map(|m| m.channel.as_str()).collect::<Vec<_>>().join(", "),
-                pair.a,
-                pair.b
-            ));
+            stage.warnings.push(Warning::GradientNotCompensated {
+                column,
+                reason: format!(
+                    "the saved model compensates {} and not both of '{}' and '{}'",
+                    models.iter().map(|m| m.channel.as_str()).collect::<Vec<_>>().join(", "),
+                    pair.a,
+                    pair.b
+                ),
+            });
             continue;
         };
         if pair.method == GradientMethod::Direct {
-            stage.warnings.push(format!(
-                "{column}: no gradient compensation: [[gradient]] method = \"direct\" fits a model to the difference on a calibration box, which a flight compensated with a saved model does not have; method = \"difference\" (or \"auto\") takes the difference of the compensated channels"
-            ));
+            stage.warnings.push(Warning::GradientNotCompensated {
+                column,
+                reason: "[[gradient]] method = \"direct\" fits a model to the difference on a calibration box, which a flight compensated with a saved model does not have; method = \"difference\" (or \"auto\") takes the difference of the compensated channels".into(),
+            });
             continue;
         }
         let d = pair.separation_m;
@@ -258,18 +264,13 @@ pub fn gradients_from_saved_model(
 /// The warning every compensated gradient carries: its level is not
 /// pinned by the calibration; `offset_nt_per_m` is what `[fit] level`
 /// moved it by.
-fn level_warning(pair: &GradientPair, offset_nt_per_m: f64) -> String {
-    format!(
-        "{}: the gradient's level is not pinned by the calibration: the aircraft's steady field differs between {} and {} by an amount no manoeuvre reveals, up to the aircraft's field at the sensors over {:.2} m{}; use its variation along the lines, or level it to tie lines",
-        pair.column(),
-        pair.a,
-        pair.b,
-        pair.separation_m,
-        match offset_nt_per_m {
-            0.0 => String::new(),
-            offset => format!(" ([fit] level moved it by {offset:.4} nT/m)"),
-        }
-    )
+fn level_warning(pair: &GradientPair, offset_nt_per_m: f64) -> Warning {
+    Warning::GradientLevelUnpinned {
+        column: pair.column(),
+        channels: [pair.a.clone(), pair.b.clone()],
+        separation_m: pair.separation_m,
+        moved_nt_per_m: offset_nt_per_m,
+    }
 }
 
 /// Two methods whose gradients part on the survey lines by more than
@@ -300,27 +301,32 @@ fn direct_at_odds(
         && !uncertain(ib)
 }
 
-/// The words on a direct fit at odds ([`direct_at_odds`]): a warning when
-/// the output is the direct fit (`true`: `method = "direct"` asked for
-/// it), a note when it is the difference (`false`); `None` otherwise.
-fn disagreement(result: &GradientResult) -> Option<(bool, String)> {
+/// What a run says of a direct fit at odds.
+enum AtOdds {
+    /// The output is the direct fit.
+    Warning(Warning),
+    /// The output is the difference.
+    Note(String),
+}
+
+/// A direct fit at odds ([`direct_at_odds`]): a warning when the output
+/// is the direct fit (`method = "direct"` asked for it), a note when it is
+/// the difference; `None` otherwise.
+fn disagreement(result: &GradientResult) -> Option<AtOdds> {
     if !result.direct_at_odds {
         return None;
     }
-    let (apart, d) = (result.methods_disagree_nt_per_m?, result.pair.separation_m);
-    let words = format!(
-        "{}: the direct fit and the difference of the compensated channels part on the survey lines by {apart:.4} nT/m (RMS about their mean difference, {:.3} nT over {d:.2} m), more than they differ held out, while neither {} nor {} is marked uncertain",
-        result.column,
-        apart * d,
-        result.pair.a,
-        result.pair.b
-    );
+    let parting = GradientParting {
+        column: result.column.clone(),
+        channels: [result.pair.a.clone(), result.pair.b.clone()],
+        apart_nt_per_m: result.methods_disagree_nt_per_m?,
+        separation_m: result.pair.separation_m,
+    };
     Some(match result.method_used {
-        GradientMethod::Direct => (
-            true,
-            format!("{words}: the direct fit, which the output uses, is likely wrong there by about that much; use [[gradient]] method = \"auto\" or \"difference\", or fly a fuller box"),
-        ),
-        _ => (false, format!("{words}: the direct fit is at odds, and the output uses the difference")),
+        GradientMethod::Direct => AtOdds::Warning(Warning::GradientDirectAtOdds { parting }),
+        _ => AtOdds::Note(format!(
+            "{parting}: the direct fit is at odds, and the output uses the difference"
+        )),
     })
 }
 

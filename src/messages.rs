@@ -421,6 +421,63 @@ pub enum Warning {
         /// Why, and what was used instead.
         reason: String,
     },
+    /// A compensated gradient's level is not pinned by the calibration
+    /// (every compensated gradient carries it).
+    GradientLevelUnpinned {
+        /// The gradient column.
+        column: String,
+        /// Its two scalar channels.
+        channels: [String; 2],
+        /// Their separation, m.
+        separation_m: f64,
+        /// What `[fit] level` moved the gradient by, nT/m (0: nothing).
+        moved_nt_per_m: f64,
+    },
+    /// The direct fit, which the gradient's output uses, and the
+    /// difference of the compensated channels part on the survey lines
+    /// beyond what they differ held out.
+    GradientDirectAtOdds {
+        /// The gradient column, its two channels and their separation, m.
+        parting: GradientParting,
+    },
+    /// A gradient could not be compensated; the other outputs stand.
+    GradientNotCompensated {
+        /// The gradient column.
+        column: String,
+        /// Why, in words.
+        reason: String,
+    },
+}
+
+/// How a gradient's direct fit and the difference of its compensated
+/// channels part on the survey lines ([`Warning::GradientDirectAtOdds`],
+/// and the note where the output uses the difference).
+#[derive(Debug, Clone, PartialEq)]
+pub struct GradientParting {
+    /// The gradient column.
+    pub column: String,
+    /// Its two scalar channels.
+    pub channels: [String; 2],
+    /// RMS about their mean difference, nT/m.
+    pub apart_nt_per_m: f64,
+    /// The channels' separation, m.
+    pub separation_m: f64,
+}
+
+impl fmt::Display for GradientParting {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let GradientParting {
+            column,
+            channels: [a, b],
+            apart_nt_per_m: apart,
+            separation_m: d,
+        } = self;
+        write!(
+            f,
+            "{column}: the direct fit and the difference of the compensated channels part on the survey lines by {apart:.4} nT/m (RMS about their mean difference, {:.3} nT over {d:.2} m), more than they differ held out, while neither {a} nor {b} is marked uncertain",
+            apart * d
+        )
+    }
 }
 
 impl Warning {
@@ -434,7 +491,10 @@ impl Warning {
             | Warning::IncompleteBox { .. }
             | Warning::NamedBySize { .. }
             | Warning::SteepField { .. }
-            | Warning::AttitudeGaps { .. } => None,
+            | Warning::AttitudeGaps { .. }
+            | Warning::GradientLevelUnpinned { .. }
+            | Warning::GradientDirectAtOdds { .. }
+            | Warning::GradientNotCompensated { .. } => None,
             Warning::FindingsHeldBack { channel, .. }
             | Warning::FindingsAppliedAnyway { channel, .. }
             | Warning::SurveyDeparture { channel, .. }
@@ -502,6 +562,9 @@ impl fmt::Display for Warning {
             | Warning::UncertainAwayFromCalibration { .. }
             | Warning::UncertainLevel { .. }
             | Warning::PoorTransfer { .. } => self.write_quality(f),
+            Warning::GradientLevelUnpinned { .. }
+            | Warning::GradientDirectAtOdds { .. }
+            | Warning::GradientNotCompensated { .. } => self.write_gradient(f),
             Warning::Unexplained {
                 channel,
                 heldout_rms_nt,
@@ -603,6 +666,34 @@ impl Warning {
                     "the INS attitude is missing over {}: legs or manoeuvres flown there cannot be seen, so what is reported missing may have been flown there; give the windows with --window if so",
                     spans.join(", ")
                 )
+            }
+            // The other variants are written by `fmt`, which sends only these here.
+            _ => Ok(()),
+        }
+    }
+
+    /// The gradient stage's warnings.
+    fn write_gradient(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Warning::GradientLevelUnpinned {
+                column,
+                channels: [a, b],
+                separation_m,
+                moved_nt_per_m,
+            } => write!(
+                f,
+                "{column}: the gradient's level is not pinned by the calibration: the aircraft's steady field differs between {a} and {b} by an amount no manoeuvre reveals, up to the aircraft's field at the sensors over {separation_m:.2} m{}; use its variation along the lines, or level it to tie lines",
+                match moved_nt_per_m {
+                    0.0 => String::new(),
+                    offset => format!(" ([fit] level moved it by {offset:.4} nT/m)"),
+                }
+            ),
+            Warning::GradientDirectAtOdds { parting } => write!(
+                f,
+                "{parting}: the direct fit, which the output uses, is likely wrong there by about that much; use [[gradient]] method = \"auto\" or \"difference\", or fly a fuller box"
+            ),
+            Warning::GradientNotCompensated { column, reason } => {
+                write!(f, "{column}: no gradient compensation: {reason}")
             }
             // The other variants are written by `fmt`, which sends only these here.
             _ => Ok(()),
@@ -830,6 +921,46 @@ mod tests {
         assert_eq!(warning.channel(), Some("mag_2_uc"));
         let json = serde_json::to_string(std::slice::from_ref(&warning)).unwrap();
         assert_eq!(json, serde_json::to_string(&[warning.to_string()]).unwrap());
+    }
+
+    #[test]
+    fn a_gradients_warnings_read_as_the_run_has_always_said_them() {
+        let level = |moved_nt_per_m| {
+            Warning::GradientLevelUnpinned {
+                column: "grad_4_5_c".into(),
+                channels: ["mag_4_uc".into(), "mag_5_uc".into()],
+                separation_m: 15.0,
+                moved_nt_per_m,
+            }
+            .to_string()
+        };
+        let unpinned = "grad_4_5_c: the gradient's level is not pinned by the calibration: the aircraft's steady field differs between mag_4_uc and mag_5_uc by an amount no manoeuvre reveals, up to the aircraft's field at the sensors over 15.00 m";
+        let advice = "; use its variation along the lines, or level it to tie lines";
+        assert_eq!(level(0.0), format!("{unpinned}{advice}"));
+        assert_eq!(
+            level(-0.0123),
+            format!("{unpinned} ([fit] level moved it by -0.0123 nT/m){advice}")
+        );
+        let parting = GradientParting {
+            column: "grad_4_5_c".into(),
+            channels: ["mag_4_uc".into(), "mag_5_uc".into()],
+            apart_nt_per_m: 0.02,
+            separation_m: 15.0,
+        };
+        let at_odds = Warning::GradientDirectAtOdds { parting };
+        assert_eq!(
+            at_odds.to_string(),
+            "grad_4_5_c: the direct fit and the difference of the compensated channels part on the survey lines by 0.0200 nT/m (RMS about their mean difference, 0.300 nT over 15.00 m), more than they differ held out, while neither mag_4_uc nor mag_5_uc is marked uncertain: the direct fit, which the output uses, is likely wrong there by about that much; use [[gradient]] method = \"auto\" or \"difference\", or fly a fuller box"
+        );
+        let none = Warning::GradientNotCompensated {
+            column: "grad_4_5_c".into(),
+            reason: "the saved model compensates mag_4_uc and not both of 'mag_4_uc' and 'mag_5_uc'".into(),
+        };
+        assert_eq!(
+            none.to_string(),
+            "grad_4_5_c: no gradient compensation: the saved model compensates mag_4_uc and not both of 'mag_4_uc' and 'mag_5_uc'"
+        );
+        assert!(at_odds.channel().is_none() && none.channel().is_none());
     }
 
     #[test]

@@ -169,7 +169,7 @@ fn beside_the_scalars(
     let gradients = crate::gradient::gradients_from_saved_model(models, compensation, &options.gradients);
     compensation.gradients = gradients.compensated;
     said.notes.extend(gradients.notes);
-    said.warnings.extend(Warning::said(gradients.warnings));
+    said.warnings.extend(gradients.warnings);
     said.warnings
         .extend(Warning::said(crate::formats::mcap::undated_warning(
             recorded,

@@ -188,10 +188,8 @@ impl Assessed {
             .into_iter()
             .chain(std::mem::take(&mut gradients.notes));
         notes.extend(Note::said(stage_notes));
-        let stage_warnings = std::mem::take(&mut vector.warnings)
-            .into_iter()
-            .chain(std::mem::take(&mut gradients.warnings));
-        warnings.extend(Warning::said(stage_warnings));
+        warnings.extend(Warning::said(std::mem::take(&mut vector.warnings)));
+        warnings.append(&mut gradients.warnings);
         if let Some(detection) = &flight.detection {
             notes.extend(Note::said(detection_notes(detection)));
             warnings.extend(detection_warnings(detection));
