@@ -178,9 +178,6 @@ fn main() -> ExitCode {
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
-    // The workers' stacks as large as the main thread's: `run` processes
-    // a whole flight on each of them.
-    let _ = rayon::ThreadPoolBuilder::new().stack_size(8 << 20).build_global();
     let cli = Cli::parse();
     let outcome = match cli.command {
         Command::Run {

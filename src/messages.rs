@@ -103,8 +103,8 @@ pub enum HeldBack {
         /// The uncertainty stated outside the calibration with the
         /// findings, nT, where one is stated.
         stated_nt: Option<f64>,
-        /// What the findings explain of the held-out RMS on the box,
-        /// √(plain² − diagnosed²), nT.
+        /// What the lag explains of the held-out RMS on the box at the
+        /// step the search accepted it, √(before² − after²), nT.
         explained_nt: f64,
         /// Departures below this always pass, nT.
         floor_nt: f64,
@@ -969,13 +969,13 @@ mod tests {
             HeldBack::UncheckedOnSurvey {
                 survey_nt: 0.1022,
                 stated_nt,
-                explained_nt: 0.0216,
+                explained_nt: 0.0259,
                 floor_nt: 0.01,
             }
             .to_string()
         };
         let head = "on the survey it would move the compensation by 0.1022 nT RMS, beyond";
-        let tail = "while on the box it explains only 0.0216 nT of the held-out RMS, within it; and the survey has nothing to check that move against (no crossovers with a base station to level at, no block of parallel lines flown both ways)";
+        let tail = "while on the box it explains only 0.0259 nT of the held-out RMS, within it; and the survey has nothing to check that move against (no crossovers with a base station to level at, no block of parallel lines flown both ways)";
         assert_eq!(
             said(Some(0.0545)),
             format!("{head} the uncertainty the channel states outside the calibration (0.0545 nT), {tail}")

@@ -3,7 +3,7 @@
 //! threads.
 //!
 //! [`run_flights`] starts [`FlightsAtOnce`] flight slots, one on each of
-//! as many of the rayon pool's workers. Each slot takes the next flight of
+//! as many workers of a rayon pool of the run's own. Each slot takes the next flight of
 //! the run's order and processes it; the flight's own parallel work
 //! (channels, candidates, survey lines) goes to the same pool, where every
 //! slot's work is stolen by whichever worker is free, the slots' own
@@ -283,7 +283,8 @@ pub fn run_flights(
     board.finished.into_iter().flatten().collect()
 }
 
-/// Runs `slot` on `slots` worker threads of the rayon pool, one each,
+/// Runs `slot` on `slots` worker threads of a rayon pool of the run's own
+/// (as many workers as the current pool, `RAYON_NUM_THREADS`), one each,
 /// until each returns; a panic on one goes on here once all have returned.
 ///
 /// A slot is a worker, not a thread beside the pool: while its flight
@@ -292,13 +293,27 @@ pub fn run_flights(
 /// pool's workers spin for work, and the process runs as many threads as
 /// the pool has. A broadcast job runs once on each worker and cannot be
 /// stolen, so no worker starts a second flight while one of its own waits:
-/// flights in memory stay at most `slots`.
+/// flights in memory stay at most `slots`. The pool is the run's own, so
+/// no other work on the caller's pool (another run among it) can be
+/// stolen under a slot's flight, and its workers have the main thread's
+/// stack, since each processes whole flights.
 fn on_threads(slots: usize, slot: &(dyn Fn() + Sync)) {
-    rayon::broadcast(|context| {
-        if context.index() < slots {
-            slot();
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(rayon::current_num_threads())
+        .stack_size(8 << 20)
+        .thread_name(|k| format!("flight worker {k}"))
+        .build();
+    match pool {
+        Ok(pool) => {
+            pool.broadcast(|context| {
+                if context.index() < slots {
+                    slot();
+                }
+            });
         }
-    });
+        // No threads to be had: this one processes the flights.
+        Err(_) => slot(),
+    }
 }
 
 /// Waits until the flight of this run that writes `model` has written it

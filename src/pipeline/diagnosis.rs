@@ -194,7 +194,7 @@ pub(super) fn evidence_rule(
         );
     }
     if check == SurveyCheck::NotMade {
-        for (channel, reason) in unchecked_moves(&compensations, &plan, (&applied, &diagnosis.channels))? {
+        for (channel, reason) in unchecked_moves(&compensations, &plan, (&applied, &diagnosis.findings))? {
             hold_back(
                 (&mut plan, &mut applied),
                 diagnosis,
@@ -221,10 +221,10 @@ pub(super) fn evidence_rule(
 /// The channels of `plan` with a sensor lag whose findings, on a survey
 /// nothing can check them against, move the compensation by more than the
 /// uncertainty the channel states with them (`departures`: each channel's
-/// move, RMS from plain Tolles-Lawson) on evidence within it: what they
-/// explain of the held-out RMS on the box (`diagnosed`), √(plain² −
-/// diagnosed²), is no larger than that uncertainty. Returns why each is
-/// held back.
+/// move, RMS from plain Tolles-Lawson) on evidence within it: what the
+/// lag explains of the held-out RMS on the box (its finding among
+/// `findings`), √(before² − after²), is no larger than that uncertainty.
+/// Returns why each is held back.
 ///
 /// A lag alone: the other findings change only the interference
 /// predicted, and the departure check bounds how far beyond the box they
@@ -241,16 +241,16 @@ pub(super) fn evidence_rule(
 /// of 0.099 s halved the tail sensor's held-out RMS on a box flown with
 /// the airframe's coupled motion (0.0302 → 0.0155 nT) and moved the survey
 /// by 0.10 nT, against a stated uncertainty of 0.054 nT; against truth the
-/// survey went from 0.017 to 0.096 nT. The lag explained 0.022 nT of the
+/// survey went from 0.017 to 0.096 nT. The lag explained 0.026 nT of the
 /// held-out RMS, under the stated 0.054 nT. On the concealed-effect flights
 /// (`tests/default_compensation.rs`) flown with two lines and no tie, a
-/// true lag of 0.15 s on a cabin sensor explained 0.25–1.13 nT on the box
-/// against stated uncertainties of 0.015–0.086 nT (7.5 to 48 times), and
+/// true lag of 0.15 s on a cabin sensor explained 0.24–1.09 nT on the box
+/// against stated uncertainties of 0.015–0.086 nT (7.4 to 46 times), and
 /// took the survey from 2.34 to 0.24 nT against truth (mean of ten).
 fn unchecked_moves(
     compensations: &crate::diagnose::evidence::Compensations,
     plan: &BTreeMap<String, Extensions>,
-    (departures, diagnosed): (&BTreeMap<String, f64>, &[crate::diagnose::ChannelDiagnosis]),
+    (departures, findings): (&BTreeMap<String, f64>, &[crate::diagnose::Finding]),
 ) -> Result<Vec<(String, HeldBack)>> {
     use rayon::prelude::*;
     let moved: Vec<(&String, &Extensions, f64)> = (plan.iter())
@@ -262,11 +262,13 @@ fn unchecked_moves(
         .par_iter()
         .map(|(channel, model, departure)| {
             let stated = compensations.stated_nt(channel, model)?;
-            // What the findings explain of the held-out RMS, with λ as
-            // compensation picks it.
-            let explained = (diagnosed.iter().find(|c| c.channel == **channel))
-                .map(|c| {
-                    (c.heldout_rms_baseline_nt.powi(2) - c.heldout_rms_final_nt.powi(2))
+            // What the lag itself explains of the held-out RMS, at the
+            // step the search accepted it (the channel's figures would
+            // count a base station's gain, which holding back keeps).
+            let explained = (findings.iter())
+                .find(|f| f.channel == **channel && f.effect.kind() == EffectKind::SensorLag)
+                .map(|f| {
+                    (f.heldout_rms_before_nt.powi(2) - f.heldout_rms_after_nt.powi(2))
                         .max(0.0)
                         .sqrt()
                 })
