@@ -170,39 +170,28 @@ pub(super) fn evidence_rule(
             refused.push((channel, departure.held_back()));
         }
     }
-    for (channel, reason) in refused {
-        hold_back(
-            (&mut plan, &mut applied),
-            diagnosis,
-            (options, warnings),
-            (channel, reason),
-            false,
-        );
-    }
+    hold_back(
+        (&mut plan, &mut applied),
+        diagnosis,
+        (options, warnings),
+        refused,
+        false,
+    );
     // Survey-side evidence on what the rules above left: against plain
     // Tolles-Lawson with nothing of the diagnosis (the base station's term
     // included: it unbiases the fit on the box, and the survey shows
     // whether the survey gains).
     let (check, worse) = survey_checks(&compensations, &plan)?;
-    for (channel, reason) in worse {
+    hold_back((&mut plan, &mut applied), diagnosis, (options, warnings), worse, true);
+    if check == SurveyCheck::NotMade {
+        let unsupported = unchecked_moves(&compensations, &plan, (&applied, &diagnosis.findings))?;
         hold_back(
             (&mut plan, &mut applied),
             diagnosis,
             (options, warnings),
-            (channel, reason),
-            true,
+            unsupported,
+            false,
         );
-    }
-    if check == SurveyCheck::NotMade {
-        for (channel, reason) in unchecked_moves(&compensations, &plan, (&applied, &diagnosis.findings))? {
-            hold_back(
-                (&mut plan, &mut applied),
-                diagnosis,
-                (options, warnings),
-                (channel, reason),
-                false,
-            );
-        }
     }
     let unchecked: Vec<&str> = (plan.iter())
         .filter(|(_, model)| **model != tolles_lawson_of(model))
@@ -289,12 +278,25 @@ fn unchecked_moves(
     Ok(judged.into_iter().flatten().collect())
 }
 
+/// [`hold_back_one`] for each channel of `held`, with its reason.
+fn hold_back(
+    (plan, applied): (&mut BTreeMap<String, Extensions>, &mut BTreeMap<String, f64>),
+    diagnosis: &mut crate::diagnose::Diagnosis,
+    (options, warnings): (&Settings, &mut Vec<Warning>),
+    held: impl IntoIterator<Item = (String, HeldBack)>,
+    entirely: bool,
+) {
+    for one in held {
+        hold_back_one((plan, applied), diagnosis, (options, warnings), one, entirely);
+    }
+}
+
 /// Holds back `channel`'s findings for `reason` under `apply = "auto"`:
 /// marks them not applied, fits the channel plain (keeping the base
 /// station's term unless `entirely`) and warns; under `"always"` only
 /// warns. A channel held back leaves `applied`, the departures of the
 /// channels whose findings are applied.
-fn hold_back(
+fn hold_back_one(
     (plan, applied): (&mut BTreeMap<String, Extensions>, &mut BTreeMap<String, f64>),
     diagnosis: &mut crate::diagnose::Diagnosis,
     (options, warnings): (&Settings, &mut Vec<Warning>),
