@@ -747,7 +747,10 @@ impl SavedModel {
     /// calibrated as the model's was), at the flight's rate, and a warning
     /// for each the flight cannot take: none when the model holds no
     /// vector model.
-    pub fn vector_compensations(&self, log: &FlightLog) -> (Vec<crate::vector::CompensatedVector>, Vec<String>) {
+    pub fn vector_compensations(
+        &self,
+        log: &FlightLog,
+    ) -> (Vec<crate::vector::CompensatedVector>, Vec<crate::messages::Warning>) {
         let rate = 1.0 / log.median_interval_s();
         let (mut compensated, mut warnings) = (Vec::new(), Vec::new());
         for saved in &self.file.vector_models {
@@ -756,11 +759,11 @@ impl SavedModel {
             let iron = (&saved.soft_iron, &saved.hard_iron_nt);
             match crate::vector::compensate_with(log, &saved.sensor, iron, stage.as_deref()) {
                 Ok(vector) => compensated.push(vector),
-                Err(e) => warnings.push(format!(
-                    "{}: no vector compensation from the model {}: {e}",
-                    saved.sensor,
-                    self.path.display()
-                )),
+                Err(e) => warnings.push(crate::messages::Warning::VectorNotCompensated {
+                    sensor: saved.sensor.clone(),
+                    model: Some(self.path.clone()),
+                    reason: e.to_string(),
+                }),
             }
         }
         (compensated, warnings)

@@ -10,9 +10,9 @@
 //! The stages typed so far: the box's detection, the fit's own (the
 //! diagnosis's evidence rule and its unexplained residual, the departure
 //! from plain Tolles-Lawson, the uncertainty and the sigma column, the box
-//! and the solver), the quality figures and the output's range. The other
-//! stages' warnings (reading, screening, the vector and gradient stages,
-//! the plan, a saved model's) still come as their sentence:
+//! and the solver), the quality figures, the output's range, and the
+//! vector and gradient stages. The other stages' warnings (reading,
+//! screening, the plan, a saved model's) still come as their sentence:
 //! [`Warning::Said`].
 //!
 //! A [`Note`] is what the user may want to know (how a column was named,
@@ -447,6 +447,84 @@ pub enum Warning {
         /// Why, in words.
         reason: String,
     },
+    /// No compensated scalar channel reads on the calibration box, so no
+    /// fluxgate's vector can be given the field's size.
+    VectorNoReference,
+    /// A fluxgate could not be vector-compensated; the scalar outputs
+    /// stand.
+    VectorNotCompensated {
+        /// The fluxgate (its column prefix).
+        sensor: String,
+        /// The saved model it was applied from, when it was.
+        model: Option<std::path::PathBuf>,
+        /// Why, in words.
+        reason: String,
+    },
+    /// The vector's scale rests on a scalar channel's level over the box,
+    /// where that channel's modelled aircraft field swings widely.
+    VectorScaleSwings {
+        /// The fluxgate.
+        sensor: String,
+        /// The scalar channel giving the field's size.
+        reference: String,
+        /// Its modelled aircraft field's swing over the box, RMS, nT.
+        swing_nt: f64,
+    },
+    /// The vector-compensated field's direction is far from IGRF-14's.
+    VectorDirectionOff {
+        /// The fluxgate.
+        sensor: String,
+        /// The angle between the two directions, degrees.
+        angle_deg: f64,
+        /// Fitted minus IGRF-14's inclination, degrees.
+        inclination_off_deg: f64,
+        /// Fitted minus IGRF-14's declination, degrees, within ±180.
+        declination_off_deg: f64,
+        /// The angle beyond which this is said, degrees.
+        bound_deg: f64,
+        /// Whether the flight is dated (else IGRF-14 at 2025.0).
+        dated: bool,
+        /// What the angle is across the field, nT.
+        across_nt: f64,
+    },
+    /// No position and no `[site]`: the field's sign is taken so that the
+    /// fluxgate's axes are right-handed, unchecked.
+    VectorSignUnverified {
+        /// The fluxgate.
+        sensor: String,
+        /// The fitted field's inclination, degrees.
+        inclination_deg: f64,
+        /// Its declination, degrees.
+        declination_deg: f64,
+        /// The fluxgate's mounting, in words.
+        mounting: String,
+    },
+    /// With the field's sign from IGRF-14, the fluxgate's axes are
+    /// left-handed.
+    VectorLeftHanded {
+        /// The fluxgate.
+        sensor: String,
+    },
+    /// The field is checked against IGRF-14 at the `[site]` only: the
+    /// flight records no position, so its turn across the box is not
+    /// modelled.
+    VectorAtSiteOnly {
+        /// The fluxgate.
+        sensor: String,
+    },
+    /// The twelve-constant fit's windows give fewer than three headings:
+    /// none is held out.
+    VectorNotHeldOut {
+        /// The fluxgate.
+        sensor: String,
+    },
+    /// The vector Tolles-Lawson stage's own warning.
+    VectorTollesLawson {
+        /// The fluxgate.
+        sensor: String,
+        /// What it says.
+        reason: String,
+    },
 }
 
 /// How a gradient's direct fit and the difference of its compensated
@@ -494,7 +572,16 @@ impl Warning {
             | Warning::AttitudeGaps { .. }
             | Warning::GradientLevelUnpinned { .. }
             | Warning::GradientDirectAtOdds { .. }
-            | Warning::GradientNotCompensated { .. } => None,
+            | Warning::GradientNotCompensated { .. }
+            | Warning::VectorNoReference
+            | Warning::VectorNotCompensated { .. }
+            | Warning::VectorScaleSwings { .. }
+            | Warning::VectorDirectionOff { .. }
+            | Warning::VectorSignUnverified { .. }
+            | Warning::VectorLeftHanded { .. }
+            | Warning::VectorAtSiteOnly { .. }
+            | Warning::VectorNotHeldOut { .. }
+            | Warning::VectorTollesLawson { .. } => None,
             Warning::FindingsHeldBack { channel, .. }
             | Warning::FindingsAppliedAnyway { channel, .. }
             | Warning::SurveyDeparture { channel, .. }
@@ -565,6 +652,15 @@ impl fmt::Display for Warning {
             Warning::GradientLevelUnpinned { .. }
             | Warning::GradientDirectAtOdds { .. }
             | Warning::GradientNotCompensated { .. } => self.write_gradient(f),
+            Warning::VectorNoReference
+            | Warning::VectorNotCompensated { .. }
+            | Warning::VectorScaleSwings { .. }
+            | Warning::VectorDirectionOff { .. }
+            | Warning::VectorSignUnverified { .. }
+            | Warning::VectorLeftHanded { .. }
+            | Warning::VectorAtSiteOnly { .. }
+            | Warning::VectorNotHeldOut { .. }
+            | Warning::VectorTollesLawson { .. } => self.write_vector(f),
             Warning::Unexplained {
                 channel,
                 heldout_rms_nt,
@@ -695,6 +791,64 @@ impl Warning {
             Warning::GradientNotCompensated { column, reason } => {
                 write!(f, "{column}: no gradient compensation: {reason}")
             }
+            // The other variants are written by `fmt`, which sends only these here.
+            _ => Ok(()),
+        }
+    }
+
+    /// The sentence of a warning of the vector stage.
+    fn write_vector(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Warning::VectorNoReference => f.write_str(
+                "no vector compensation: no compensated scalar channel has a reading on the calibration box to give the field's size",
+            ),
+            Warning::VectorNotCompensated { sensor, model, reason } => match model {
+                Some(path) => write!(f, "{sensor}: no vector compensation from the model {}: {reason}", path.display()),
+                None => write!(f, "{sensor}: no vector compensation: {reason}"),
+            },
+            Warning::VectorScaleSwings {
+                sensor,
+                reference,
+                swing_nt,
+            } => write!(
+                f,
+                "{sensor}: the vector's scale rests on {reference}'s level over the box, where the aircraft's modelled field swings by {swing_nt:.1} nT RMS: its mean there, which no manoeuvre pins, may be as large and is an error of up to that size on each vector component (a scalar sensor on a tail stinger gives a surer level)"
+            ),
+            Warning::VectorDirectionOff {
+                sensor,
+                angle_deg,
+                inclination_off_deg,
+                declination_off_deg,
+                bound_deg,
+                dated,
+                across_nt,
+            } => write!(
+                f,
+                "{sensor}: the vector-compensated field's direction is {angle_deg:.2}° from IGRF-14's ({inclination_off_deg:.2}° in inclination, {declination_off_deg:.2}° in declination; more than {bound_deg}°){}: check the INS attitude convention (CONTRACT §1), the position columns and the flight's date; the vector may be rotated by as much, {across_nt:.0} nT across the field",
+                if *dated { "" } else { " with no flight date (IGRF taken at 2025.0)" },
+            ),
+            Warning::VectorSignUnverified {
+                sensor,
+                inclination_deg,
+                declination_deg,
+                mounting,
+            } => write!(
+                f,
+                "{sensor}: the Earth field's direction is unverified: the flight records no position (lat, lon) and pipeline.toml sets no [site], and the data fix the direction only up to its sign (a fluxgate reading reversed on all three axes under a field pointing up reads as this one does); it is taken so that the fluxgate's axes are right-handed: inclination {inclination_deg:.2}°, declination {declination_deg:.2}°, {mounting}. Set [site] latitude, longitude and date to check it against IGRF-14. Without a position the field's turn across the box (about 0.01° a km) is not modelled either: expect tens of nT on each component"
+            ),
+            Warning::VectorLeftHanded { sensor } => write!(
+                f,
+                "{sensor}: with the field's sign from IGRF-14, the fluxgate's axes are left-handed (det K < 0): one axis, or all three, read reversed (the wiring, or a sign in the file); the vector output is in the INS's body axes as fitted, but check the fluxgate's axis signs, and the position and date if its axes are known to be right-handed"
+            ),
+            Warning::VectorAtSiteOnly { sensor } => write!(
+                f,
+                "{sensor}: the flight records no position: the field's sign and direction are checked against IGRF-14 at the [site], but the field's turn across the box (about 0.01° a km) is not modelled: expect tens of nT on each component (a few with lat and lon columns)"
+            ),
+            Warning::VectorNotHeldOut { sensor } => write!(
+                f,
+                "{sensor}: the twelve-constant fit's windows do not give three headings (a window given by time that spans a turn has none), so no heading is held out and the vector's accuracy away from them is not checked; give the box's manoeuvres or legs as windows"
+            ),
+            Warning::VectorTollesLawson { sensor, reason } => write!(f, "{sensor}: vector Tolles-Lawson: {reason}"),
             // The other variants are written by `fmt`, which sends only these here.
             _ => Ok(()),
         }
@@ -961,6 +1115,66 @@ mod tests {
             "grad_4_5_c: no gradient compensation: the saved model compensates mag_4_uc and not both of 'mag_4_uc' and 'mag_5_uc'"
         );
         assert!(at_odds.channel().is_none() && none.channel().is_none());
+    }
+
+    #[test]
+    fn the_vector_stages_warnings_read_as_the_run_has_always_said_them() {
+        let off = |dated| {
+            Warning::VectorDirectionOff {
+                sensor: "flux_b".into(),
+                angle_deg: 0.734,
+                inclination_off_deg: -0.61,
+                declination_off_deg: 0.4,
+                bound_deg: 0.5,
+                dated,
+                across_nt: 640.6,
+            }
+            .to_string()
+        };
+        let angle = "flux_b: the vector-compensated field's direction is 0.73° from IGRF-14's (-0.61° in inclination, 0.40° in declination; more than 0.5°)";
+        let advice = ": check the INS attitude convention (CONTRACT §1), the position columns and the flight's date; the vector may be rotated by as much, 641 nT across the field";
+        assert_eq!(off(true), format!("{angle}{advice}"));
+        assert_eq!(
+            off(false),
+            format!("{angle} with no flight date (IGRF taken at 2025.0){advice}")
+        );
+        let swings = Warning::VectorScaleSwings {
+            sensor: "flux_b".into(),
+            reference: "mag_1_uc".into(),
+            swing_nt: 12.34,
+        };
+        assert!(swings
+            .to_string()
+            .starts_with("flux_b: the vector's scale rests on mag_1_uc's level over the box, where the aircraft's modelled field swings by 12.3 nT RMS: "));
+        let unverified = Warning::VectorSignUnverified {
+            sensor: "flux_b".into(),
+            inclination_deg: 71.234,
+            declination_deg: -3.456,
+            mounting: "axes x/y/z".into(),
+        };
+        assert!(unverified
+            .to_string()
+            .contains("right-handed: inclination 71.23°, declination -3.46°, axes x/y/z. Set [site]"));
+        let failed = |model: Option<&str>| {
+            Warning::VectorNotCompensated {
+                sensor: "flux_b".into(),
+                model: model.map(std::path::PathBuf::from),
+                reason: "no column flux_b_x".into(),
+            }
+            .to_string()
+        };
+        assert_eq!(failed(None), "flux_b: no vector compensation: no column flux_b_x");
+        assert_eq!(
+            failed(Some("out/model.json")),
+            "flux_b: no vector compensation from the model out/model.json: no column flux_b_x"
+        );
+        let stage = Warning::VectorTollesLawson {
+            sensor: "flux_b".into(),
+            reason: "fewer rows than terms".into(),
+        };
+        assert_eq!(stage.to_string(), "flux_b: vector Tolles-Lawson: fewer rows than terms");
+        // A fluxgate is not a scalar channel.
+        assert!(stage.channel().is_none() && Warning::VectorNoReference.channel().is_none());
     }
 
     #[test]

@@ -163,7 +163,7 @@ fn beside_the_scalars(
         for vector in vectors {
             compensation.add_vector(vector);
         }
-        said.warnings.extend(Warning::said(vector_warnings));
+        said.warnings.extend(vector_warnings);
     }
     said.notes.extend(vector_not_run(options, saved, log));
     let gradients = crate::gradient::gradients_from_saved_model(models, compensation, &options.gradients);

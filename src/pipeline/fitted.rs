@@ -188,7 +188,7 @@ impl Assessed {
             .into_iter()
             .chain(std::mem::take(&mut gradients.notes));
         notes.extend(Note::said(stage_notes));
-        warnings.extend(Warning::said(std::mem::take(&mut vector.warnings)));
+        warnings.append(&mut vector.warnings);
         warnings.append(&mut gradients.warnings);
         if let Some(detection) = &flight.detection {
             notes.extend(Note::said(detection_notes(detection)));

@@ -2,6 +2,7 @@
 //! on the calibration, and its compensated vectors.
 
 use crate::ingest::flight_log::FlightLog;
+use crate::messages::Warning;
 use crate::model::FitOptions;
 
 /// What the vector stage produced: models, compensated vectors, words.
@@ -9,7 +10,7 @@ pub(super) struct VectorStage {
     pub(super) models: Vec<crate::vector::VectorModel>,
     pub(super) compensated: Vec<crate::vector::CompensatedVector>,
     pub(super) notes: Vec<String>,
-    pub(super) warnings: Vec<String>,
+    pub(super) warnings: Vec<Warning>,
 }
 
 /// Fitted direction further than this from IGRF's, degrees: a warning (a
@@ -62,10 +63,7 @@ pub(super) fn vector_stage(
         .filter(|r| r.swing_nt.is_finite())
         .min_by(|a, b| a.swing_nt.total_cmp(&b.swing_nt));
     let Some(reference) = reference else {
-        stage.warnings.push(
-            "no vector compensation: no compensated scalar channel has a reading on the calibration box to give the field's size"
-                .into(),
-        );
+        stage.warnings.push(Warning::VectorNoReference);
         return stage;
     };
     for sensor in log.vector_sensors() {
@@ -82,32 +80,35 @@ pub(super) fn vector_stage(
             Ok((compensated, model)) => {
                 stage.notes.push(vector_note(&model));
                 if model.reference_swing_nt > VECTOR_SWING_WARNING_NT {
-                    stage.warnings.push(format!(
-                        "{}: the vector's scale rests on {}'s level over the box, where the aircraft's modelled field swings by {:.1} nT RMS: its mean there, which no manoeuvre pins, may be as large and is an error of up to that size on each vector component (a scalar sensor on a tail stinger gives a surer level)",
-                        model.sensor, model.reference, model.reference_swing_nt
-                    ));
+                    stage.warnings.push(Warning::VectorScaleSwings {
+                        sensor: model.sensor.clone(),
+                        reference: model.reference.clone(),
+                        swing_nt: model.reference_swing_nt,
+                    });
                 }
                 if let Some(warning) = vector_direction_warning(&model) {
                     stage.warnings.push(warning);
                 }
                 stage.warnings.extend(vector_sign_warning(&model));
                 if model.held_out.is_none() {
-                    stage.warnings.push(format!(
-                        "{}: the twelve-constant fit's windows do not give three headings (a window given by time that spans a turn has none), so no heading is held out and the vector's accuracy away from them is not checked; give the box's manoeuvres or legs as windows",
-                        model.sensor
-                    ));
+                    stage.warnings.push(Warning::VectorNotHeldOut {
+                        sensor: model.sensor.clone(),
+                    });
                 }
                 if let Some(reason) = &model.tolles_lawson_warning {
-                    stage
-                        .warnings
-                        .push(format!("{}: vector Tolles-Lawson: {reason}", model.sensor));
+                    stage.warnings.push(Warning::VectorTollesLawson {
+                        sensor: model.sensor.clone(),
+                        reason: reason.clone(),
+                    });
                 }
                 stage.compensated.push(compensated);
                 stage.models.push(model);
             }
-            Err(e) => stage
-                .warnings
-                .push(format!("{}: no vector compensation: {e}", sensor.prefix)),
+            Err(e) => stage.warnings.push(Warning::VectorNotCompensated {
+                sensor: sensor.prefix.clone(),
+                model: None,
+                reason: e.to_string(),
+            }),
         }
     }
     stage
@@ -185,28 +186,22 @@ pub(super) fn vector_note(model: &crate::vector::VectorModel) -> String {
 /// A warning when the field's sign could not be checked (no position, no
 /// `[site]`), or when IGRF-14 fixed it and the fluxgate's axes came out
 /// left-handed.
-pub(super) fn vector_sign_warning(model: &crate::vector::VectorModel) -> Option<String> {
+pub(super) fn vector_sign_warning(model: &crate::vector::VectorModel) -> Option<Warning> {
     use crate::vector::FieldSign;
+    let sensor = model.sensor.clone();
     match model.field_sign {
-        FieldSign::RightHandedAxes => Some(format!(
-            "{}: the Earth field's direction is unverified: the flight records no position (lat, lon) and pipeline.toml sets no [site], and the data fix the direction only up to its sign (a fluxgate reading reversed on all three axes under a field pointing up reads as this one does); it is taken so that the fluxgate's axes are right-handed: inclination {:.2}°, declination {:.2}°, {}. Set [site] latitude, longitude and date to check it against IGRF-14. Without a position the field's turn across the box (about 0.01° a km) is not modelled either: expect tens of nT on each component",
-            model.sensor,
-            model.inclination_deg,
-            model.declination_deg,
-            model.mounting.describe()
-        )),
-        FieldSign::Igrf if !model.mounting.right_handed => Some(format!(
-            "{}: with the field's sign from IGRF-14, the fluxgate's axes are left-handed (det K < 0): one axis, or all three, read reversed (the wiring, or a sign in the file); the vector output is in the INS's body axes as fitted, but check the fluxgate's axis signs, and the position and date if its axes are known to be right-handed",
-            model.sensor
-        )),
+        FieldSign::RightHandedAxes => Some(Warning::VectorSignUnverified {
+            sensor,
+            inclination_deg: model.inclination_deg,
+            declination_deg: model.declination_deg,
+            mounting: model.mounting.describe(),
+        }),
+        FieldSign::Igrf if !model.mounting.right_handed => Some(Warning::VectorLeftHanded { sensor }),
         FieldSign::Igrf => match model.start {
             crate::vector::FieldStart::Igrf {
                 position: crate::vector::PositionSource::Site,
                 ..
-            } => Some(format!(
-                "{}: the flight records no position: the field's sign and direction are checked against IGRF-14 at the [site], but the field's turn across the box (about 0.01° a km) is not modelled: expect tens of nT on each component (a few with lat and lon columns)",
-                model.sensor
-            )),
+            } => Some(Warning::VectorAtSiteOnly { sensor }),
             _ => None,
         },
     }
@@ -214,7 +209,7 @@ pub(super) fn vector_sign_warning(model: &crate::vector::VectorModel) -> Option<
 
 /// A warning when the fitted field direction is further than
 /// [`VECTOR_DIRECTION_WARNING_DEG`] from IGRF's (the angle between them).
-pub(super) fn vector_direction_warning(model: &crate::vector::VectorModel) -> Option<String> {
+pub(super) fn vector_direction_warning(model: &crate::vector::VectorModel) -> Option<Warning> {
     let crate::vector::FieldStart::Igrf {
         inclination_deg,
         declination_deg,
@@ -234,12 +229,13 @@ pub(super) fn vector_direction_warning(model: &crate::vector::VectorModel) -> Op
         .to_degrees();
     let d_incl = model.inclination_deg - inclination_deg;
     let d_decl = (model.declination_deg - declination_deg + 540.0).rem_euclid(360.0) - 180.0;
-    (angle > VECTOR_DIRECTION_WARNING_DEG).then(|| {
-        format!(
-            "{}: the vector-compensated field's direction is {angle:.2}° from IGRF-14's ({d_incl:.2}° in inclination, {d_decl:.2}° in declination; more than {VECTOR_DIRECTION_WARNING_DEG}°){}: check the INS attitude convention (CONTRACT §1), the position columns and the flight's date; the vector may be rotated by as much, {:.0} nT across the field",
-            model.sensor,
-            if dated { "" } else { " with no flight date (IGRF taken at 2025.0)" },
-            total_nt * angle.to_radians().sin()
-        )
+    (angle > VECTOR_DIRECTION_WARNING_DEG).then(|| Warning::VectorDirectionOff {
+        sensor: model.sensor.clone(),
+        angle_deg: angle,
+        inclination_off_deg: d_incl,
+        declination_off_deg: d_decl,
+        bound_deg: VECTOR_DIRECTION_WARNING_DEG,
+        dated,
+        across_nt: total_nt * angle.to_radians().sin(),
     })
 }
