@@ -10,9 +10,11 @@
 //! The stages typed so far: the box's detection, the fit's own (the
 //! diagnosis's evidence rule and its unexplained residual, the departure
 //! from plain Tolles-Lawson, the uncertainty and the sigma column, the box
-//! and the solver), the quality figures, the output's range, and the
-//! vector and gradient stages. The other stages' warnings (reading,
-//! screening, the plan, a saved model's) still come as their sentence:
+//! and the solver), the quality figures, the output's range, the vector
+//! and gradient stages, and the run's inputs and outputs (windows from
+//! another flight, an undated MCAP output, text columns not written). The
+//! other stages' warnings (the readers', the plan's, a saved model's and
+//! a saved diagnosis's words) still come as their sentence:
 //! [`Warning::Said`].
 //!
 //! A [`Note`] is what the user may want to know (how a column was named,
@@ -525,6 +527,41 @@ pub enum Warning {
         /// What it says.
         reason: String,
     },
+    /// A saved model applied without a jackknife: the compensated channel
+    /// has no sigma column.
+    SavedWithoutJackknife {
+        /// The channel.
+        channel: String,
+    },
+    /// The calibration windows given were detected on another flight.
+    WindowsFromOtherFlight {
+        /// The windows file.
+        windows_file: std::path::PathBuf,
+        /// The flight they were detected on, in words.
+        detected_on: String,
+        /// This flight, in words.
+        flight: String,
+        /// How the two differ, in words.
+        difference: String,
+    },
+    /// An MCAP output of a flight whose day is unknown: its log times
+    /// count from 1970-01-01.
+    McapUndated {
+        /// The MCAP output.
+        output: std::path::PathBuf,
+        /// The flight's time column.
+        time_column: String,
+    },
+    /// The input's text columns are not written to an output that holds
+    /// numeric columns only.
+    TextColumnsNotWritten {
+        /// The input.
+        input: std::path::PathBuf,
+        /// The text columns.
+        columns: Vec<String>,
+        /// The output.
+        output: std::path::PathBuf,
+    },
 }
 
 /// How a gradient's direct fit and the difference of its compensated
@@ -581,11 +618,15 @@ impl Warning {
             | Warning::VectorLeftHanded { .. }
             | Warning::VectorAtSiteOnly { .. }
             | Warning::VectorNotHeldOut { .. }
-            | Warning::VectorTollesLawson { .. } => None,
+            | Warning::VectorTollesLawson { .. }
+            | Warning::WindowsFromOtherFlight { .. }
+            | Warning::McapUndated { .. }
+            | Warning::TextColumnsNotWritten { .. } => None,
             Warning::FindingsHeldBack { channel, .. }
             | Warning::FindingsAppliedAnyway { channel, .. }
             | Warning::SurveyDeparture { channel, .. }
             | Warning::NoSigmaColumn { channel }
+            | Warning::SavedWithoutJackknife { channel }
             | Warning::TooFewWindows { channel, .. }
             | Warning::NoUncertainty { channel, .. }
             | Warning::BoxGap { channel, .. }
@@ -661,6 +702,9 @@ impl fmt::Display for Warning {
             | Warning::VectorAtSiteOnly { .. }
             | Warning::VectorNotHeldOut { .. }
             | Warning::VectorTollesLawson { .. } => self.write_vector(f),
+            Warning::WindowsFromOtherFlight { .. } | Warning::McapUndated { .. } | Warning::TextColumnsNotWritten { .. } => {
+                self.write_input(f)
+            }
             Warning::Unexplained {
                 channel,
                 heldout_rms_nt,
@@ -704,17 +748,12 @@ impl fmt::Display for Warning {
                     None => "anything its uncertainty states (none is stated)".into(),
                 }
             ),
-            Warning::NoSigmaColumn { channel } => write!(
-                f,
-                "{channel}: no sigma column: the compensated channel's noise cannot be measured (too few consecutive samples)"
-            ),
-            Warning::TooFewWindows { channel, windows } => write!(
-                f,
-                "{channel}: fitted on {windows} calibration window(s), too few to leave one out: the compensation away from the calibration is not checked and has no uncertainty figure or sigma column. Give three or more windows, one per manoeuvre or leg (a window spanning a whole box is one window; `magcomp detect` finds the manoeuvres)"
-            ),
-            Warning::NoUncertainty { channel, why } => write!(f, "{channel}: no uncertainty figure: {why}"),
-            Warning::BoxGap { channel, gap } => write!(f, "{channel}: {gap}"),
-            Warning::SolverNotUsed { channel, reason } => write!(f, "{channel}: {reason}"),
+            Warning::NoSigmaColumn { .. }
+            | Warning::SavedWithoutJackknife { .. }
+            | Warning::TooFewWindows { .. }
+            | Warning::NoUncertainty { .. }
+            | Warning::BoxGap { .. }
+            | Warning::SolverNotUsed { .. } => self.write_fit(f),
         }
     }
 }
@@ -791,6 +830,60 @@ impl Warning {
             Warning::GradientNotCompensated { column, reason } => {
                 write!(f, "{column}: no gradient compensation: {reason}")
             }
+            // The other variants are written by `fmt`, which sends only these here.
+            _ => Ok(()),
+        }
+    }
+
+    /// The sentence of a warning on a channel's fit: its sigma column,
+    /// windows, uncertainty, box and solver.
+    fn write_fit(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Warning::NoSigmaColumn { channel } => write!(
+                f,
+                "{channel}: no sigma column: the compensated channel's noise cannot be measured (too few consecutive samples)"
+            ),
+            Warning::TooFewWindows { channel, windows } => write!(
+                f,
+                "{channel}: fitted on {windows} calibration window(s), too few to leave one out: the compensation away from the calibration is not checked and has no uncertainty figure or sigma column. Give three or more windows, one per manoeuvre or leg (a window spanning a whole box is one window; `magcomp detect` finds the manoeuvres)"
+            ),
+            Warning::SavedWithoutJackknife { channel } => write!(
+                f,
+                "{channel}: no sigma column: the model was saved without a jackknife (fitted on fewer than three windows, or with another solver)"
+            ),
+            Warning::NoUncertainty { channel, why } => write!(f, "{channel}: no uncertainty figure: {why}"),
+            Warning::BoxGap { channel, gap } => write!(f, "{channel}: {gap}"),
+            Warning::SolverNotUsed { channel, reason } => write!(f, "{channel}: {reason}"),
+            // The other variants are written by `fmt`, which sends only these here.
+            _ => Ok(()),
+        }
+    }
+
+    /// The sentence of a warning on the run's inputs and outputs.
+    fn write_input(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Warning::WindowsFromOtherFlight {
+                windows_file,
+                detected_on,
+                flight,
+                difference,
+            } => write!(
+                f,
+                "the calibration windows of {} were detected on {detected_on}, not on this flight {flight} ({difference}): check that they lie on this flight's manoeuvres, or detect them on it with `magcomp detect`",
+                windows_file.display()
+            ),
+            Warning::McapUndated { output, time_column } => write!(
+                f,
+                "{}: the flight's day is unknown (no year and doy columns, no --date), so its MCAP log times count '{time_column}' from 1970-01-01; give the day with --date YYYY-MM-DD",
+                output.display()
+            ),
+            Warning::TextColumnsNotWritten { input, columns, output } => write!(
+                f,
+                "{}: the input's text column(s) {} are not written to {}, which holds the numeric columns only; a compensated CSV or XYZ written from an input of the same format keeps them",
+                input.display(),
+                columns.iter().map(|n| format!("'{n}'")).collect::<Vec<_>>().join(", "),
+                output.display()
+            ),
             // The other variants are written by `fmt`, which sends only these here.
             _ => Ok(()),
         }
@@ -1175,6 +1268,46 @@ mod tests {
         assert_eq!(stage.to_string(), "flux_b: vector Tolles-Lawson: fewer rows than terms");
         // A fluxgate is not a scalar channel.
         assert!(stage.channel().is_none() && Warning::VectorNoReference.channel().is_none());
+    }
+
+    #[test]
+    fn the_inputs_and_outputs_warnings_read_as_the_run_has_always_said_them() {
+        let other = Warning::WindowsFromOtherFlight {
+            windows_file: "w.json".into(),
+            detected_on: "flight.csv (100 rows)".into(),
+            flight: "other.csv (90 rows)".into(),
+            difference: "10 rows fewer".into(),
+        };
+        assert_eq!(
+            other.to_string(),
+            "the calibration windows of w.json were detected on flight.csv (100 rows), not on this flight other.csv (90 rows) (10 rows fewer): check that they lie on this flight's manoeuvres, or detect them on it with `magcomp detect`"
+        );
+        let undated = Warning::McapUndated {
+            output: "out.mcap".into(),
+            time_column: "tt".into(),
+        };
+        assert_eq!(
+            undated.to_string(),
+            "out.mcap: the flight's day is unknown (no year and doy columns, no --date), so its MCAP log times count 'tt' from 1970-01-01; give the day with --date YYYY-MM-DD"
+        );
+        let text = Warning::TextColumnsNotWritten {
+            input: "in.csv".into(),
+            columns: vec!["remark".into(), "pilot".into()],
+            output: "out.h5".into(),
+        };
+        assert_eq!(
+            text.to_string(),
+            "in.csv: the input's text column(s) 'remark', 'pilot' are not written to out.h5, which holds the numeric columns only; a compensated CSV or XYZ written from an input of the same format keeps them"
+        );
+        let saved = Warning::SavedWithoutJackknife {
+            channel: "mag_1_uc".into(),
+        };
+        assert_eq!(
+            saved.to_string(),
+            "mag_1_uc: no sigma column: the model was saved without a jackknife (fitted on fewer than three windows, or with another solver)"
+        );
+        assert_eq!(saved.channel(), Some("mag_1_uc"));
+        assert!(other.channel().is_none() && undated.channel().is_none() && text.channel().is_none());
     }
 
     #[test]

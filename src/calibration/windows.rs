@@ -319,7 +319,11 @@ fn steady_heading_deg(yaw_deg: &[f64], tolerance_deg: f64) -> Option<f64> {
 /// flight than `log`: they still set the fit, but may not lie on its
 /// manoeuvres. The same rows over the same times are the same flight
 /// (another format or a re-saved copy of it), whatever its bytes.
-pub fn other_flight_warning(path: &Path, detected_on: &FlightIdentity, log: &FlightLog) -> Result<Option<String>> {
+pub fn other_flight_warning(
+    path: &Path,
+    detected_on: &FlightIdentity,
+    log: &FlightLog,
+) -> Result<Option<crate::messages::Warning>> {
     let flight = FlightIdentity::of(log)?;
     let same_rows = flight.rows == detected_on.rows
         && flight.t_start.to_bits() == detected_on.t_start.to_bits()
@@ -327,14 +331,14 @@ pub fn other_flight_warning(path: &Path, detected_on: &FlightIdentity, log: &Fli
     if same_rows {
         return Ok(None);
     }
-    Ok(detected_on.difference(&flight).map(|difference| {
-        format!(
-            "the calibration windows of {} were detected on {}, not on this flight {} ({difference}): check that they lie on this flight's manoeuvres, or detect them on it with `magcomp detect`",
-            path.display(),
-            detected_on.describe(),
-            flight.describe()
-        )
-    }))
+    Ok(detected_on
+        .difference(&flight)
+        .map(|difference| crate::messages::Warning::WindowsFromOtherFlight {
+            windows_file: path.to_path_buf(),
+            detected_on: detected_on.describe(),
+            flight: flight.describe(),
+            difference,
+        }))
 }
 
 /// The calibration data a flight's `lines` select: per line number given,

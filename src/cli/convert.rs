@@ -24,8 +24,8 @@ pub fn convert(
     let log = magcomp::formats::read_flight_log(flight, &pipeline.settings.ingest)?;
     magcomp::formats::write_flight_log(&log, out)?;
     let warnings = (log.reading_warnings().iter().cloned())
-        .chain(magcomp::formats::mcap::undated_warning(&log, out))
-        .chain(magcomp::formats::write::text_columns_warning(&log, out, false));
+        .chain(magcomp::formats::mcap::undated_warning(&log, out).map(|w| w.to_string()))
+        .chain(magcomp::formats::write::text_columns_warning(&log, out, false).map(|w| w.to_string()));
     for warning in warnings {
         println!("  warning: {warning}");
     }

@@ -119,17 +119,13 @@ pub fn stage_compensated(
 /// from the flight log (which holds numbers only) rather than copied from
 /// the input: a CSV input to a CSV output, or an XYZ input to an XYZ
 /// output, of the compensated flight keeps them; `convert` never does.
-pub fn text_columns_warning(log: &FlightLog, output: &Path, copies_input: bool) -> Option<String> {
+pub fn text_columns_warning(log: &FlightLog, output: &Path, copies_input: bool) -> Option<crate::messages::Warning> {
     let format = detect_output_format(output);
     let copied = copies_input && format.row().copy.is_some() && detect_format(log.source()).ok() == Some(format);
-    (!copied && !log.text_columns().is_empty()).then(|| {
-        let names: Vec<String> = log.text_columns().iter().map(|n| format!("'{n}'")).collect();
-        format!(
-            "{}: the input's text column(s) {} are not written to {}, which holds the numeric columns only; a compensated CSV or XYZ written from an input of the same format keeps them",
-            log.source().display(),
-            names.join(", "),
-            output.display()
-        )
+    (!copied && !log.text_columns().is_empty()).then(|| crate::messages::Warning::TextColumnsNotWritten {
+        input: log.source().to_path_buf(),
+        columns: log.text_columns().to_vec(),
+        output: output.to_path_buf(),
     })
 }
 

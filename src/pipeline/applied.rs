@@ -171,16 +171,9 @@ fn beside_the_scalars(
     said.notes.extend(gradients.notes);
     said.warnings.extend(gradients.warnings);
     said.warnings
-        .extend(Warning::said(crate::formats::mcap::undated_warning(
-            recorded,
-            compensated,
-        )));
+        .extend(crate::formats::mcap::undated_warning(recorded, compensated));
     said.warnings
-        .extend(Warning::said(crate::formats::write::text_columns_warning(
-            recorded,
-            compensated,
-            true,
-        )));
+        .extend(crate::formats::write::text_columns_warning(recorded, compensated, true));
     said.notes
         .extend(crate::reduce::add_reduced(log, compensation, options.reduced)?);
     said.warnings.extend(compensation.out_of_range_warnings(log.time_s()));
@@ -295,14 +288,11 @@ fn assess_applied(
             (next_step, false),
         ));
         if channel.sigma_nt.is_none() {
-            warnings.push(Warning::Said(format!(
-                "{}: no sigma column: {}",
-                q.channel,
-                match q.uncertainty {
-                    None => "the model was saved without a jackknife (fitted on fewer than three windows, or with another solver)",
-                    Some(_) => "the compensated channel's noise cannot be measured (too few consecutive samples)",
-                }
-            )));
+            let channel = q.channel.clone();
+            warnings.push(match q.uncertainty {
+                None => Warning::SavedWithoutJackknife { channel },
+                Some(_) => Warning::NoSigmaColumn { channel },
+            });
         }
     }
     Ok(quality)

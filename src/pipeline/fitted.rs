@@ -49,7 +49,7 @@ pub(super) fn run_fitted(
     let mut warnings: Vec<Warning> = flight.warnings();
     let (plan, mut diagnosis, departures) =
         diagnosed_plan(job, (&flight, &on), (options, meter), fluxgate.is_some(), &mut warnings)?;
-    warnings.extend(Warning::said(input_warnings(job, &flight.recorded, compensated)?));
+    warnings.extend(input_warnings(job, &flight.recorded, compensated)?);
     let fitted = fit_channels(&on, &plan, options, meter)?;
     let mut assessed = compensate_and_assess(&flight, &on, fitted, (options, meter))?;
     let added_columns = added_column_names(on.log, compensated, &assessed.compensation)?;
@@ -240,7 +240,7 @@ fn diagnosed_plan(
 /// Warnings about the input that depend on where the output goes: windows
 /// detected on another flight, an MCAP output without a date, text
 /// columns a format cannot hold.
-fn input_warnings(job: &FlightJob, recorded: &FlightLog, compensated: &Path) -> Result<Vec<String>> {
+fn input_warnings(job: &FlightJob, recorded: &FlightLog, compensated: &Path) -> Result<Vec<Warning>> {
     let mut warnings = Vec::new();
     if let Some((path, detected_on)) = &job.windows_detected_on {
         warnings.extend(crate::calibration::windows::other_flight_warning(

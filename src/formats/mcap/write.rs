@@ -103,15 +103,12 @@ pub fn midnight_of_flight_ns(log: &FlightLog) -> Option<u64> {
 
 /// The warning for an MCAP `output` of `log` whose log times cannot be
 /// absolute (the flight's day is unknown); `None` for other outputs.
-pub fn undated_warning(log: &FlightLog, output: &Path) -> Option<String> {
+pub fn undated_warning(log: &FlightLog, output: &Path) -> Option<crate::messages::Warning> {
     let mcap = crate::formats::detect_output_format(output) == crate::formats::Format::Mcap;
     let absolute = log.time_s().first().is_some_and(|&t| t >= 2.0 * SECONDS_PER_DAY);
-    (mcap && !absolute && midnight_of_flight_ns(log).is_none()).then(|| {
-        format!(
-            "{}: the flight's day is unknown (no year and doy columns, no --date), so its MCAP log times count '{}' from 1970-01-01; give the day with --date YYYY-MM-DD",
-            output.display(),
-            log.time_column()
-        )
+    (mcap && !absolute && midnight_of_flight_ns(log).is_none()).then(|| crate::messages::Warning::McapUndated {
+        output: output.to_path_buf(),
+        time_column: log.time_column().to_string(),
     })
 }
 
