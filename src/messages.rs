@@ -552,6 +552,36 @@ pub enum Warning {
         /// The flight's time column.
         time_column: String,
     },
+    /// The flight lacks some of the manoeuvres of the plan it was flown
+    /// to.
+    PlanManoeuvresMissing {
+        /// The `PLAN_REPORT.json` given.
+        report: std::path::PathBuf,
+        /// The planned manoeuvres lacking, in words ("roll on heading 127°").
+        missing: Vec<String>,
+        /// How many the plan has.
+        planned: usize,
+    },
+    /// A channel's figure lies outside the plan's range widened by its
+    /// stated factor.
+    PlanFigureOutside {
+        /// The channel.
+        channel: String,
+        /// The figure, in words ("FOM").
+        figure: &'static str,
+        /// This flight's, nT.
+        flown_nt: f64,
+        /// The plan's median, nT.
+        planned_nt: f64,
+        /// The plan's simulated range, nT, when it has one.
+        range: Option<(f64, f64)>,
+        /// Flown over planned.
+        ratio: f64,
+        /// The factor the plan states.
+        factor: f64,
+        /// Worse than planned (else better).
+        worse: bool,
+    },
     /// The input's text columns are not written to an output that holds
     /// numeric columns only.
     TextColumnsNotWritten {
@@ -621,11 +651,13 @@ impl Warning {
             | Warning::VectorTollesLawson { .. }
             | Warning::WindowsFromOtherFlight { .. }
             | Warning::McapUndated { .. }
-            | Warning::TextColumnsNotWritten { .. } => None,
+            | Warning::TextColumnsNotWritten { .. }
+            | Warning::PlanManoeuvresMissing { .. } => None,
             Warning::FindingsHeldBack { channel, .. }
             | Warning::FindingsAppliedAnyway { channel, .. }
             | Warning::SurveyDeparture { channel, .. }
             | Warning::NoSigmaColumn { channel }
+            | Warning::PlanFigureOutside { channel, .. }
             | Warning::SavedWithoutJackknife { channel }
             | Warning::TooFewWindows { channel, .. }
             | Warning::NoUncertainty { channel, .. }
@@ -702,9 +734,11 @@ impl fmt::Display for Warning {
             | Warning::VectorAtSiteOnly { .. }
             | Warning::VectorNotHeldOut { .. }
             | Warning::VectorTollesLawson { .. } => self.write_vector(f),
-            Warning::WindowsFromOtherFlight { .. } | Warning::McapUndated { .. } | Warning::TextColumnsNotWritten { .. } => {
-                self.write_input(f)
-            }
+            Warning::WindowsFromOtherFlight { .. }
+            | Warning::McapUndated { .. }
+            | Warning::TextColumnsNotWritten { .. }
+            | Warning::PlanManoeuvresMissing { .. }
+            | Warning::PlanFigureOutside { .. } => self.write_input(f),
             Warning::Unexplained {
                 channel,
                 heldout_rms_nt,
@@ -883,6 +917,38 @@ impl Warning {
                 input.display(),
                 columns.iter().map(|n| format!("'{n}'")).collect::<Vec<_>>().join(", "),
                 output.display()
+            ),
+            Warning::PlanManoeuvresMissing {
+                report,
+                missing,
+                planned,
+            } => write!(
+                f,
+                "against the plan ({}): the flight lacks {} of the plan's {planned} manoeuvres ({}); the plan's prediction counted on them, so its figures are for a box this flight did not fly",
+                report.display(),
+                missing.len(),
+                missing.join(", ")
+            ),
+            Warning::PlanFigureOutside {
+                channel,
+                figure,
+                flown_nt,
+                planned_nt,
+                range,
+                ratio,
+                factor,
+                worse,
+            } => write!(
+                f,
+                "{channel}: {figure} {flown_nt:.3} nT against the plan's {planned_nt:.3} nT{}, {ratio:.2}×, outside the plan's range widened by its stated factor of {factor}: {}; plan the next calibration with this flight's model (--model) as [plan] installation",
+                match range {
+                    Some((low, high)) => format!(" (range {low:.3}–{high:.3})"),
+                    None => String::new(),
+                },
+                match worse {
+                    true => "worse than planned: the aircraft's interference, the sensors' noise or the manoeuvres flown (amplitudes, periods, headings) differ from what the plan assumed",
+                    false => "better than planned: the plan's installation overstates this aircraft's interference or noise, so additions it proposed may not be needed",
+                }
             ),
             // The other variants are written by `fmt`, which sends only these here.
             _ => Ok(()),

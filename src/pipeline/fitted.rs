@@ -158,7 +158,7 @@ impl Assessed {
     ) -> crate::quality::against_plan::PlanComparison {
         let plan = against_plan(planned, log, &self.models, &self.quality, &self.compensation);
         notes.extend(Note::said(plan.notes.iter().cloned()));
-        warnings.extend(Warning::said(plan.warnings.iter().cloned()));
+        warnings.extend(plan.warnings.iter().cloned());
         plan
     }
 

@@ -202,7 +202,7 @@ pub struct PlanComparison {
     /// Each channel both the flight and the plan have.
     pub channels: Vec<ChannelAgainstPlan>,
     /// What the user must know (also in the run's warnings).
-    pub warnings: Vec<String>,
+    pub warnings: Vec<crate::messages::Warning>,
     /// The comparison in words (also in the run's notes).
     pub notes: Vec<String>,
 }
@@ -328,7 +328,7 @@ pub fn compare(
 /// What a comparison says, as it goes.
 #[derive(Default)]
 struct Said {
-    warnings: Vec<String>,
+    warnings: Vec<crate::messages::Warning>,
     notes: Vec<String>,
 }
 
@@ -394,12 +394,11 @@ fn compare_manoeuvres(
     .map(|f| manoeuvre_words(extra_flown[f].0, extra_flown[f].1))
     .collect();
     if !compared.missing.is_empty() {
-        said.warnings.push(format!(
-            "against the plan ({report_name}): the flight lacks {} of the plan's {} manoeuvres ({}); the plan's prediction counted on them, so its figures are for a box this flight did not fly",
-            compared.missing.len(),
-            planned.len(),
-            compared.missing.join(", ")
-        ));
+        said.warnings.push(crate::messages::Warning::PlanManoeuvresMissing {
+            report: prediction.path.clone(),
+            missing: compared.missing.clone(),
+            planned: planned.len(),
+        });
     }
     if !compared.unplanned.is_empty() {
         said.notes.push(format!(
@@ -452,15 +451,21 @@ fn compare_channel(
             _ => String::new(),
         };
         words.push(format!("{what} {flown:.3} nT, planned {planned:.3}{range}"));
-        let why = match figure.verdict {
-            Verdict::Worse => "worse than planned: the aircraft's interference, the sensors' noise or the manoeuvres flown (amplitudes, periods, headings) differ from what the plan assumed",
-            Verdict::Better => "better than planned: the plan's installation overstates this aircraft's interference or noise, so additions it proposed may not be needed",
+        let worse = match figure.verdict {
+            Verdict::Worse => true,
+            Verdict::Better => false,
             _ => continue,
         };
-        said.warnings.push(format!(
-            "{}: {what} {flown:.3} nT against the plan's {planned:.3} nT{range}, {ratio:.2}×, outside the plan's range widened by its stated factor of {factor}: {why}; plan the next calibration with this flight's model (--model) as [plan] installation",
-            channel.channel
-        ));
+        said.warnings.push(crate::messages::Warning::PlanFigureOutside {
+            channel: channel.channel.clone(),
+            figure: what,
+            flown_nt: flown,
+            planned_nt: planned,
+            range: figure.planned_low_nt.zip(figure.planned_high_nt),
+            ratio,
+            factor,
+            worse,
+        });
     }
     let holds = figures
         .iter()
@@ -591,10 +596,16 @@ mod tests {
         assert_eq!(lacking.missing, vec!["roll on heading 97°".to_string()]);
         assert_eq!(lacking.warnings.len(), 1);
         assert!(
-            lacking.warnings[0].contains("lacks 1 of the plan's 12"),
+            matches!(
+                &lacking.warnings[0],
+                crate::messages::Warning::PlanManoeuvresMissing { missing, planned: 12, .. } if *missing == lacking.missing
+            ),
             "{}",
             lacking.warnings[0]
         );
+        assert!(lacking.warnings[0]
+            .to_string()
+            .contains("the flight lacks 1 of the plan's 12 manoeuvres (roll on heading 97°); the plan's prediction counted on them"));
     }
 
     #[test]
@@ -617,8 +628,25 @@ mod tests {
             vec![vec![Worse, AsPlanned, AsPlanned], vec![AsPlanned, Better, AsPlanned]]
         );
         assert_eq!(result.warnings.len(), 2, "{:?}", result.warnings);
-        assert!(result.warnings[0].starts_with("mag_1_uc: FOM 3.100 nT against the plan's 1.000 nT"));
-        assert!(result.warnings[1].starts_with("mag_2_uc: stated survey uncertainty 0.005 nT"));
+        let outside = |w: &crate::messages::Warning| match w {
+            crate::messages::Warning::PlanFigureOutside {
+                channel, figure, worse, ..
+            } => Some((channel.clone(), *figure, *worse)),
+            _ => None,
+        };
+        assert_eq!(
+            result.warnings.iter().map(outside).collect::<Vec<_>>(),
+            vec![
+                Some(("mag_1_uc".to_string(), "FOM", true)),
+                Some(("mag_2_uc".to_string(), "stated survey uncertainty", false))
+            ]
+        );
+        assert!(result.warnings[0].to_string().starts_with(
+            "mag_1_uc: FOM 3.100 nT against the plan's 1.000 nT (range 0.800–1.300), 3.10×, outside the plan's range widened by its stated factor of 2: worse than planned: "
+        ));
+        assert!(result.warnings[1]
+            .to_string()
+            .starts_with("mag_2_uc: stated survey uncertainty 0.005 nT"));
         assert!(result.notes.iter().any(|n| n.starts_with("mag_3_uc: not in the plan")));
     }
 
