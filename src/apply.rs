@@ -33,6 +33,7 @@ use crate::error::{Error, Result};
 use crate::ingest::flight_date::FlightDate;
 use crate::ingest::flight_identity::FlightIdentity;
 use crate::ingest::flight_log::FlightLog;
+use crate::messages::Warning;
 use crate::model::{CalibrationLevel, FittedModel, ModelSpec};
 use crate::numerics::solve::{Decomposition, Method, Solution};
 use crate::quality::ChannelQuality;
@@ -374,24 +375,26 @@ impl SavedModel {
     /// Warnings for `channels` whose calibration did not pass: a FOM above
     /// `fom_limit_nt`, or findings that moved the survey beyond the stated
     /// uncertainty (the calibration flight's CHECK).
-    pub fn calibration_warnings(&self, channels: &[String], fom_limit_nt: f64) -> Vec<String> {
-        let model = self.path.display();
+    pub fn calibration_warnings(&self, channels: &[String], fom_limit_nt: f64) -> Vec<Warning> {
+        let model = &self.path;
         let mut warnings = Vec::new();
         for figures in self.file.calibration.iter().filter(|c| channels.contains(&c.channel)) {
-            let channel = &figures.channel;
+            let channel = figures.channel.clone();
             match figures.fom_after_nt {
-                Some(fom) if fom > fom_limit_nt => warnings.push(format!(
-                    "{channel}: the model {model} had a FOM of {fom:.2} nT on its calibration flight, above the {fom_limit_nt:.2} nT limit ([quality] fom_limit_nt): this flight is compensated with a calibration that failed; fly a new box, or accept the calibration flight's report first"
-                )),
+                Some(fom) if fom > fom_limit_nt => warnings.push(Warning::ModelCalibrationFailed {
+                    channel: channel.clone(),
+                    model: model.clone(),
+                    fom_nt: fom,
+                    limit_nt: fom_limit_nt,
+                }),
                 Some(_) => {}
-                None => warnings.push(format!(
-                    "{channel}: the model {model} has no FOM from its calibration flight (no labelled manoeuvres): nothing says the calibration passed; check the calibration flight's report"
-                )),
+                None => warnings.push(Warning::ModelCalibrationNoFom {
+                    channel: channel.clone(),
+                    model: model.clone(),
+                }),
             }
-            if let Some(departure) = figures.unchecked_departure_nt {
-                warnings.push(format!(
-                    "{channel}: on its calibration flight the model's findings moved the survey {departure:.4} nT from plain Tolles-Lawson, beyond its stated uncertainty (verdict CHECK): compare with a plain model (--plain --model on the calibration flight) before using this channel"
-                ));
+            if let Some(departure_nt) = figures.unchecked_departure_nt {
+                warnings.push(Warning::ModelCalibrationDeparted { channel, departure_nt });
             }
         }
         warnings
@@ -747,10 +750,7 @@ impl SavedModel {
     /// calibrated as the model's was), at the flight's rate, and a warning
     /// for each the flight cannot take: none when the model holds no
     /// vector model.
-    pub fn vector_compensations(
-        &self,
-        log: &FlightLog,
-    ) -> (Vec<crate::vector::CompensatedVector>, Vec<crate::messages::Warning>) {
+    pub fn vector_compensations(&self, log: &FlightLog) -> (Vec<crate::vector::CompensatedVector>, Vec<Warning>) {
         let rate = 1.0 / log.median_interval_s();
         let (mut compensated, mut warnings) = (Vec::new(), Vec::new());
         for saved in &self.file.vector_models {
@@ -759,7 +759,7 @@ impl SavedModel {
             let iron = (&saved.soft_iron, &saved.hard_iron_nt);
             match crate::vector::compensate_with(log, &saved.sensor, iron, stage.as_deref()) {
                 Ok(vector) => compensated.push(vector),
-                Err(e) => warnings.push(crate::messages::Warning::VectorNotCompensated {
+                Err(e) => warnings.push(Warning::VectorNotCompensated {
                     sensor: saved.sensor.clone(),
                     model: Some(self.path.clone()),
                     reason: e.to_string(),
@@ -777,7 +777,7 @@ impl SavedModel {
     /// The warning for applying the models of `channels` to `log` when it
     /// records at another rate than they were fitted at: which terms were
     /// rescaled, and what that leaves unchecked.
-    pub fn rate_warning(&self, log: &FlightLog, (channels, vector): (&[String], bool)) -> Option<String> {
+    pub fn rate_warning(&self, log: &FlightLog, (channels, vector): (&[String], bool)) -> Option<Warning> {
         let rate = 1.0 / log.median_interval_s();
         let vector_stages = (self.file.vector_models.iter())
             .filter(|_| vector)
@@ -799,19 +799,12 @@ impl SavedModel {
                 (!terms.is_empty()).then(|| format!("{} ({})", fit.channel, terms.join(", ")))
             })
             .collect();
-        let factor = rate / first.sample_rate_hz;
-        let what = match rescaled.is_empty() {
-            true => "it has no per-sample term to rescale".to_string(),
-            false => format!(
-                "its per-sample terms (eddy currents, the field's derivative) were rescaled by the rates' ratio, {factor:.3}: {}; they carry the fluxgate's noise {factor:.2}× as strongly as on the calibration flight",
-                rescaled.join("; ")
-            ),
-        };
-        Some(format!(
-            "the model {} was fitted at {:.3} Hz and this flight is recorded at {rate:.3} Hz: {what}. The fit's band and its per-sample differences were those of the calibration's rate, and nothing on this flight checks the transfer: compare its noise and heading error with the calibration flight's, or calibrate at this rate",
-            self.path.display(),
-            first.sample_rate_hz,
-        ))
+        Some(Warning::ModelRateDiffers {
+            model: self.path.clone(),
+            fitted_hz: first.sample_rate_hz,
+            flight_hz: rate,
+            rescaled,
+        })
     }
 
     /// Warnings and notes for applying the model to a flight of `date`
@@ -821,14 +814,16 @@ impl SavedModel {
         applied: &AppliedModel,
         aircraft: Option<&str>,
         max_age_days: u32,
-    ) -> (Vec<String>, Vec<String>) {
+    ) -> (Vec<Warning>, Vec<String>) {
         let (mut warnings, mut notes) = (Vec::new(), Vec::new());
-        let model = self.path.display();
         match applied.age_days {
-            Some(age) if age.unsigned_abs() > u64::from(max_age_days) => warnings.push(format!(
-                "the model {model} was calibrated {}, more than [model] max_age_days = {max_age_days}: an installation changes (equipment moved, repairs, a new instrument); fly a new calibration box, or check this flight's heading error and noise against the calibration flight's",
-                days_from(age)
-            )),
+            Some(age_days) if age_days.unsigned_abs() > u64::from(max_age_days) => {
+                warnings.push(Warning::ModelTooOld {
+                    model: self.path.clone(),
+                    age_days,
+                    max_age_days,
+                })
+            }
             Some(_) => {}
             None => notes.push(format!(
                 "the model's age is not known: {} has no date (give [[flight]] date, or record year and doy columns)",
@@ -840,9 +835,11 @@ impl SavedModel {
         }
         let same = |a: &str, b: &str| a.trim().eq_ignore_ascii_case(b.trim());
         match (applied.aircraft.as_deref(), aircraft) {
-            (Some(made), Some(used)) if !same(made, used) => warnings.push(format!(
-                "the model {model} was calibrated on the aircraft '{made}' and this flight is '{used}': another airframe's magnetic signature does not compensate this one; apply a model of '{used}'"
-            )),
+            (Some(made), Some(used)) if !same(made, used) => warnings.push(Warning::ModelOtherAircraft {
+                model: self.path.clone(),
+                made: made.to_string(),
+                used: used.to_string(),
+            }),
             (Some(_), Some(_)) => {}
             (made, used) => notes.push(format!(
                 "the aircraft is not named for {}: magcomp cannot check that the model is this airframe's (name it with [[flight]] aircraft)",
@@ -861,29 +858,4 @@ impl SavedModel {
 /// at `model_hz`, within [`RATE_TOLERANCE`].
 fn same_rate(model_hz: f64, flight_hz: f64) -> bool {
     (flight_hz / model_hz - 1.0).abs() <= RATE_TOLERANCE
-}
-
-/// "3 days before this flight", "1 day after this flight", "the same day
-/// as this flight": `days` from the calibration to the flight.
-pub fn days_from(days: i64) -> String {
-    let count = days.unsigned_abs();
-    let unit = if count == 1 { "day" } else { "days" };
-    match days {
-        0 => "the same day as this flight".into(),
-        d if d > 0 => format!("{count} {unit} before this flight"),
-        _ => format!("{count} {unit} after this flight"),
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::days_from;
-
-    #[test]
-    fn days_read_as_words() {
-        assert_eq!(days_from(3), "3 days before this flight");
-        assert_eq!(days_from(1), "1 day before this flight");
-        assert_eq!(days_from(0), "the same day as this flight");
-        assert_eq!(days_from(-45), "45 days after this flight");
-    }
 }

@@ -12,9 +12,9 @@
 //! from plain Tolles-Lawson, the uncertainty and the sigma column, the box
 //! and the solver), the quality figures, the output's range, the vector
 //! and gradient stages, and the run's inputs and outputs (windows from
-//! another flight, an undated MCAP output, text columns not written). The
-//! other stages' warnings (the readers', the plan's, a saved model's and
-//! a saved diagnosis's words) still come as their sentence:
+//! another flight, an undated MCAP output, text columns not written), the
+//! comparison with a flight plan, and a saved model's or diagnosis's
+//! words. The format readers' warnings still come as their sentence:
 //! [`Warning::Said`].
 //!
 //! A [`Note`] is what the user may want to know (how a column was named,
@@ -552,6 +552,88 @@ pub enum Warning {
         /// The flight's time column.
         time_column: String,
     },
+    /// A saved diagnosis that does not record the flight it was made on,
+    /// applied unchecked.
+    DiagnosisUnchecked {
+        /// The DIAGNOSIS.json.
+        diagnosis: std::path::PathBuf,
+        /// The flight it was applied to.
+        flight: std::path::PathBuf,
+    },
+    /// A saved diagnosis of another flight, applied because of `--force`.
+    DiagnosisForced {
+        /// The DIAGNOSIS.json.
+        diagnosis: std::path::PathBuf,
+        /// The flight it was made on, in words.
+        made_on: String,
+        /// The flight it was applied to, in words.
+        applied_to: String,
+        /// How the two differ, in words.
+        difference: String,
+    },
+    /// A saved model older (or younger) than `[model] max_age_days`.
+    ModelTooOld {
+        /// The model file.
+        model: std::path::PathBuf,
+        /// Days from its calibration to this flight (negative: after).
+        age_days: i64,
+        /// `[model] max_age_days`.
+        max_age_days: u32,
+    },
+    /// A saved model calibrated on another airframe.
+    ModelOtherAircraft {
+        /// The model file.
+        model: std::path::PathBuf,
+        /// The aircraft it was calibrated on.
+        made: String,
+        /// This flight's.
+        used: String,
+    },
+    /// A saved model's channel failed its calibration's FOM limit.
+    ModelCalibrationFailed {
+        /// The channel.
+        channel: String,
+        /// The model file.
+        model: std::path::PathBuf,
+        /// Its FOM on the calibration flight, nT.
+        fom_nt: f64,
+        /// `[quality] fom_limit_nt`.
+        limit_nt: f64,
+    },
+    /// A saved model's channel has no FOM from its calibration flight.
+    ModelCalibrationNoFom {
+        /// The channel.
+        channel: String,
+        /// The model file.
+        model: std::path::PathBuf,
+    },
+    /// On its calibration flight a saved model's findings moved the
+    /// survey beyond the stated uncertainty (verdict CHECK).
+    ModelCalibrationDeparted {
+        /// The channel.
+        channel: String,
+        /// The move, RMS, nT.
+        departure_nt: f64,
+    },
+    /// A saved model applied to a flight recorded at another rate.
+    ModelRateDiffers {
+        /// The model file.
+        model: std::path::PathBuf,
+        /// The rate it was fitted at, Hz.
+        fitted_hz: f64,
+        /// This flight's, Hz.
+        flight_hz: f64,
+        /// Each fit's rescaled per-sample terms: "channel (terms)".
+        rescaled: Vec<String>,
+    },
+    /// Magnetometers of the flight the saved model holds no model of,
+    /// written uncompensated.
+    ModelLacksChannels {
+        /// The model file.
+        model: std::path::PathBuf,
+        /// The channels.
+        channels: Vec<String>,
+    },
     /// The flight lacks some of the manoeuvres of the plan it was flown
     /// to.
     PlanManoeuvresMissing {
@@ -652,12 +734,21 @@ impl Warning {
             | Warning::WindowsFromOtherFlight { .. }
             | Warning::McapUndated { .. }
             | Warning::TextColumnsNotWritten { .. }
-            | Warning::PlanManoeuvresMissing { .. } => None,
+            | Warning::PlanManoeuvresMissing { .. }
+            | Warning::ModelTooOld { .. }
+            | Warning::ModelOtherAircraft { .. }
+            | Warning::ModelRateDiffers { .. }
+            | Warning::ModelLacksChannels { .. }
+            | Warning::DiagnosisUnchecked { .. }
+            | Warning::DiagnosisForced { .. } => None,
             Warning::FindingsHeldBack { channel, .. }
             | Warning::FindingsAppliedAnyway { channel, .. }
             | Warning::SurveyDeparture { channel, .. }
             | Warning::NoSigmaColumn { channel }
             | Warning::PlanFigureOutside { channel, .. }
+            | Warning::ModelCalibrationFailed { channel, .. }
+            | Warning::ModelCalibrationNoFom { channel, .. }
+            | Warning::ModelCalibrationDeparted { channel, .. }
             | Warning::SavedWithoutJackknife { channel }
             | Warning::TooFewWindows { channel, .. }
             | Warning::NoUncertainty { channel, .. }
@@ -739,49 +830,20 @@ impl fmt::Display for Warning {
             | Warning::TextColumnsNotWritten { .. }
             | Warning::PlanManoeuvresMissing { .. }
             | Warning::PlanFigureOutside { .. } => self.write_input(f),
-            Warning::Unexplained {
-                channel,
-                heldout_rms_nt,
-                residual_to_noise,
-                largest_on,
-            } => write!(
-                f,
-                "{channel}: the diagnosis leaves an unexplained residual of {heldout_rms_nt:.4} nT held out, {residual_to_noise:.0} times the sensor noise in the band, largest on {}: the compensation of this channel is not good to the noise level; see the diagnosis's unexplained finding",
-                largest_on.join(", ")
-            ),
-            Warning::NotDiagnosed { error } => {
-                write!(f, "not diagnosed, so compensated with plain Tolles-Lawson: {error}")
-            }
-            Warning::FindingsHeldBack {
-                channel,
-                findings,
-                reason,
-            } => write!(
-                f,
-                "{channel}: the diagnosis's {} not applied: {reason}, {FITTED_PLAIN}",
-                findings.join(", ")
-            ),
-            Warning::FindingsAppliedAnyway {
-                channel,
-                findings,
-                reason,
-            } => write!(
-                f,
-                "{channel}: the diagnosis's {} applied as [diagnose] apply = \"always\" asks, though {reason}",
-                findings.join(", ")
-            ),
-            Warning::SurveyDeparture {
-                channel,
-                departure_nt,
-                stated_nt,
-            } => write!(
-                f,
-                "{channel}: the diagnosed findings move the survey {departure_nt:.4} nT RMS from plain Tolles-Lawson, more than {}: the verdict is not a plain pass; compare with a plain run (--plain) before using this channel",
-                match stated_nt {
-                    Some(sigma) => format!("its stated uncertainty ({sigma:.4} nT)"),
-                    None => "anything its uncertainty states (none is stated)".into(),
-                }
-            ),
+            Warning::ModelTooOld { .. }
+            | Warning::ModelOtherAircraft { .. }
+            | Warning::ModelCalibrationFailed { .. }
+            | Warning::ModelCalibrationNoFom { .. }
+            | Warning::ModelCalibrationDeparted { .. }
+            | Warning::ModelRateDiffers { .. }
+            | Warning::ModelLacksChannels { .. }
+            | Warning::DiagnosisUnchecked { .. }
+            | Warning::DiagnosisForced { .. } => self.write_saved_model(f),
+            Warning::Unexplained { .. }
+            | Warning::NotDiagnosed { .. }
+            | Warning::FindingsHeldBack { .. }
+            | Warning::FindingsAppliedAnyway { .. }
+            | Warning::SurveyDeparture { .. } => self.write_diagnosis(f),
             Warning::NoSigmaColumn { .. }
             | Warning::SavedWithoutJackknife { .. }
             | Warning::TooFewWindows { .. }
@@ -869,6 +931,58 @@ impl Warning {
         }
     }
 
+    /// The sentence of a warning of the diagnosis: a finding held back or
+    /// applied anyway, the survey moved, the residual left unexplained.
+    fn write_diagnosis(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Warning::Unexplained {
+                channel,
+                heldout_rms_nt,
+                residual_to_noise,
+                largest_on,
+            } => write!(
+                f,
+                "{channel}: the diagnosis leaves an unexplained residual of {heldout_rms_nt:.4} nT held out, {residual_to_noise:.0} times the sensor noise in the band, largest on {}: the compensation of this channel is not good to the noise level; see the diagnosis's unexplained finding",
+                largest_on.join(", ")
+            ),
+            Warning::NotDiagnosed { error } => {
+                write!(f, "not diagnosed, so compensated with plain Tolles-Lawson: {error}")
+            }
+            Warning::FindingsHeldBack {
+                channel,
+                findings,
+                reason,
+            } => write!(
+                f,
+                "{channel}: the diagnosis's {} not applied: {reason}, {FITTED_PLAIN}",
+                findings.join(", ")
+            ),
+            Warning::FindingsAppliedAnyway {
+                channel,
+                findings,
+                reason,
+            } => write!(
+                f,
+                "{channel}: the diagnosis's {} applied as [diagnose] apply = \"always\" asks, though {reason}",
+                findings.join(", ")
+            ),
+            Warning::SurveyDeparture {
+                channel,
+                departure_nt,
+                stated_nt,
+            } => write!(
+                f,
+                "{channel}: the diagnosed findings move the survey {departure_nt:.4} nT RMS from plain Tolles-Lawson, more than {}: the verdict is not a plain pass; compare with a plain run (--plain) before using this channel",
+                match stated_nt {
+                    Some(sigma) => format!("its stated uncertainty ({sigma:.4} nT)"),
+                    None => "anything its uncertainty states (none is stated)".into(),
+                }
+            ),
+            // The other variants are written by `fmt`, which sends only these here.
+            _ => Ok(()),
+        }
+    }
+
     /// The sentence of a warning on a channel's fit: its sigma column,
     /// windows, uncertainty, box and solver.
     fn write_fit(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
@@ -949,6 +1063,93 @@ impl Warning {
                     true => "worse than planned: the aircraft's interference, the sensors' noise or the manoeuvres flown (amplitudes, periods, headings) differ from what the plan assumed",
                     false => "better than planned: the plan's installation overstates this aircraft's interference or noise, so additions it proposed may not be needed",
                 }
+            ),
+            // The other variants are written by `fmt`, which sends only these here.
+            _ => Ok(()),
+        }
+    }
+
+    /// The sentence of a warning on a saved model or diagnosis applied.
+    fn write_saved_model(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Warning::ModelTooOld {
+                model,
+                age_days,
+                max_age_days,
+            } => write!(
+                f,
+                "the model {} was calibrated {}, more than [model] max_age_days = {max_age_days}: an installation changes (equipment moved, repairs, a new instrument); fly a new calibration box, or check this flight's heading error and noise against the calibration flight's",
+                model.display(),
+                days_from(*age_days)
+            ),
+            Warning::ModelOtherAircraft { model, made, used } => write!(
+                f,
+                "the model {} was calibrated on the aircraft '{made}' and this flight is '{used}': another airframe's magnetic signature does not compensate this one; apply a model of '{used}'",
+                model.display()
+            ),
+            Warning::ModelCalibrationFailed {
+                channel,
+                model,
+                fom_nt,
+                limit_nt,
+            } => write!(
+                f,
+                "{channel}: the model {} had a FOM of {fom_nt:.2} nT on its calibration flight, above the {limit_nt:.2} nT limit ([quality] fom_limit_nt): this flight is compensated with a calibration that failed; fly a new box, or accept the calibration flight's report first",
+                model.display()
+            ),
+            Warning::ModelCalibrationNoFom { channel, model } => write!(
+                f,
+                "{channel}: the model {} has no FOM from its calibration flight (no labelled manoeuvres): nothing says the calibration passed; check the calibration flight's report",
+                model.display()
+            ),
+            Warning::ModelCalibrationDeparted { channel, departure_nt } => write!(
+                f,
+                "{channel}: on its calibration flight the model's findings moved the survey {departure_nt:.4} nT from plain Tolles-Lawson, beyond its stated uncertainty (verdict CHECK): compare with a plain model (--plain --model on the calibration flight) before using this channel"
+            ),
+            Warning::ModelRateDiffers {
+                model,
+                fitted_hz,
+                flight_hz,
+                rescaled,
+            } => {
+                let factor = flight_hz / fitted_hz;
+                write!(
+                    f,
+                    "the model {} was fitted at {fitted_hz:.3} Hz and this flight is recorded at {flight_hz:.3} Hz: {}. The fit's band and its per-sample differences were those of the calibration's rate, and nothing on this flight checks the transfer: compare its noise and heading error with the calibration flight's, or calibrate at this rate",
+                    model.display(),
+                    match rescaled.is_empty() {
+                        true => "it has no per-sample term to rescale".to_string(),
+                        false => format!(
+                            "its per-sample terms (eddy currents, the field's derivative) were rescaled by the rates' ratio, {factor:.3}: {}; they carry the fluxgate's noise {factor:.2}× as strongly as on the calibration flight",
+                            rescaled.join("; ")
+                        ),
+                    }
+                )
+            }
+            Warning::ModelLacksChannels { model, channels } => {
+                let them = if channels.len() == 1 { "it" } else { "them" };
+                write!(
+                    f,
+                    "{} not compensated: the model {} holds no model of {them}; calibrate {them} on a flight with a box, or name this flight's channels with --channels",
+                    channels.join(", "),
+                    model.display()
+                )
+            }
+            Warning::DiagnosisUnchecked { diagnosis, flight } => write!(
+                f,
+                "{} does not record the flight it was made on (an older magcomp wrote it), so it was applied to {} without checking that it belongs to it",
+                diagnosis.display(),
+                flight.display()
+            ),
+            Warning::DiagnosisForced {
+                diagnosis,
+                made_on,
+                applied_to,
+                difference,
+            } => write!(
+                f,
+                "{} was made on {made_on}, not on {applied_to} ({difference}); applied anyway because of --force",
+                diagnosis.display()
             ),
             // The other variants are written by `fmt`, which sends only these here.
             _ => Ok(()),
@@ -1210,6 +1411,18 @@ impl Serialize for Note {
     }
 }
 
+/// "3 days before this flight", "1 day after this flight", "the same day
+/// as this flight": `days` from the calibration to the flight.
+pub fn days_from(days: i64) -> String {
+    let count = days.unsigned_abs();
+    let unit = if count == 1 { "day" } else { "days" };
+    match days {
+        0 => "the same day as this flight".into(),
+        d if d > 0 => format!("{count} {unit} before this flight"),
+        _ => format!("{count} {unit} after this flight"),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1334,6 +1547,83 @@ mod tests {
         assert_eq!(stage.to_string(), "flux_b: vector Tolles-Lawson: fewer rows than terms");
         // A fluxgate is not a scalar channel.
         assert!(stage.channel().is_none() && Warning::VectorNoReference.channel().is_none());
+    }
+
+    #[test]
+    fn a_saved_models_warnings_read_as_the_run_has_always_said_them() {
+        let model = std::path::PathBuf::from("cal/model.json");
+        let old = Warning::ModelTooOld {
+            model: model.clone(),
+            age_days: 45,
+            max_age_days: 30,
+        };
+        assert_eq!(
+            old.to_string(),
+            "the model cal/model.json was calibrated 45 days before this flight, more than [model] max_age_days = 30: an installation changes (equipment moved, repairs, a new instrument); fly a new calibration box, or check this flight's heading error and noise against the calibration flight's"
+        );
+        let failed = Warning::ModelCalibrationFailed {
+            channel: "mag_1_uc".into(),
+            model: model.clone(),
+            fom_nt: 1.234,
+            limit_nt: 0.1,
+        };
+        assert!(failed.to_string().starts_with(
+            "mag_1_uc: the model cal/model.json had a FOM of 1.23 nT on its calibration flight, above the 0.10 nT limit ([quality] fom_limit_nt)"
+        ));
+        let rate = |rescaled: Vec<String>| {
+            Warning::ModelRateDiffers {
+                model: model.clone(),
+                fitted_hz: 10.0,
+                flight_hz: 20.0,
+                rescaled,
+            }
+            .to_string()
+        };
+        assert!(rate(vec!["mag_1_uc (eddy_xy, eddy_xz)".into()]).starts_with(
+            "the model cal/model.json was fitted at 10.000 Hz and this flight is recorded at 20.000 Hz: its per-sample terms (eddy currents, the field's derivative) were rescaled by the rates' ratio, 2.000: mag_1_uc (eddy_xy, eddy_xz); they carry the fluxgate's noise 2.00× as strongly as on the calibration flight. The fit's band"
+        ));
+        assert!(rate(Vec::new()).contains("20.000 Hz: it has no per-sample term to rescale. The fit's band"));
+        let lacks = |channels: &[&str]| {
+            Warning::ModelLacksChannels {
+                model: model.clone(),
+                channels: channels.iter().map(|c| c.to_string()).collect(),
+            }
+            .to_string()
+        };
+        assert!(lacks(&["mag_2_uc"]).starts_with(
+            "mag_2_uc not compensated: the model cal/model.json holds no model of it; calibrate it on a flight with a box"
+        ));
+        assert!(lacks(&["mag_2_uc", "mag_3_uc"]).starts_with(
+            "mag_2_uc, mag_3_uc not compensated: the model cal/model.json holds no model of them; calibrate them"
+        ));
+        assert_eq!(failed.channel(), Some("mag_1_uc"));
+        assert!(old.channel().is_none());
+        let forced = Warning::DiagnosisForced {
+            diagnosis: "d.json".into(),
+            made_on: "a.csv (10 rows)".into(),
+            applied_to: "b.csv (12 rows)".into(),
+            difference: "2 rows more".into(),
+        };
+        assert_eq!(
+            forced.to_string(),
+            "d.json was made on a.csv (10 rows), not on b.csv (12 rows) (2 rows more); applied anyway because of --force"
+        );
+        let unchecked = Warning::DiagnosisUnchecked {
+            diagnosis: "d.json".into(),
+            flight: "b.csv".into(),
+        };
+        assert_eq!(
+            unchecked.to_string(),
+            "d.json does not record the flight it was made on (an older magcomp wrote it), so it was applied to b.csv without checking that it belongs to it"
+        );
+    }
+
+    #[test]
+    fn days_read_as_words() {
+        assert_eq!(days_from(3), "3 days before this flight");
+        assert_eq!(days_from(1), "1 day before this flight");
+        assert_eq!(days_from(0), "the same day as this flight");
+        assert_eq!(days_from(-45), "45 days after this flight");
     }
 
     #[test]

@@ -289,15 +289,13 @@ fn a_box_flown_once_compensates_the_survey_flights_of_that_aircraft() {
         job.date = survey_date;
         job.model = outputs.model_json.clone();
         let applied = magcomp::pipeline::run(&job, &settings, &folder.path().join("applied.csv")).unwrap();
-        let about_the_model = |w: &String| w.contains("max_age_days") || w.contains("on the aircraft");
-        let sentences = |run: &magcomp::pipeline::FlightRun| -> Vec<String> {
-            run.result.warnings.iter().map(ToString::to_string).collect()
-        };
-        let warned: Vec<String> = sentences(&applied).into_iter().filter(about_the_model).collect();
+        use magcomp::messages::Warning;
+        let about_the_model =
+            |w: &&Warning| matches!(w, Warning::ModelTooOld { .. } | Warning::ModelOtherAircraft { .. });
+        let warned: Vec<&Warning> = applied.result.warnings.iter().filter(about_the_model).collect();
         assert!(warned.is_empty(), "this aircraft, three days on: {warned:#?}");
-        let rate_said = sentences(&applied)
-            .iter()
-            .any(|w| w.contains("this flight is recorded at") && w.contains("rescaled by the rates' ratio"));
+        let rate_said = (applied.result.warnings.iter())
+            .any(|w| matches!(w, Warning::ModelRateDiffers { rescaled, .. } if !rescaled.is_empty()));
         assert_eq!(rate_said, other_rate, "seed {seed}: {:#?}", applied.result.warnings);
         assert_eq!(applied.result.model.as_ref().unwrap().age_days, Some(3));
         if seed == seeds().start {
@@ -305,11 +303,20 @@ fn a_box_flown_once_compensates_the_survey_flights_of_that_aircraft() {
             job.date = survey_date.map(|d| FlightDate::from_days_since_unix_epoch(d.days_since_unix_epoch() + 42));
             job.aircraft = Some("C-GXYZ".into());
             let late = magcomp::pipeline::run(&job, &settings, &folder.path().join("late.csv")).unwrap();
-            let warned: Vec<String> = sentences(&late).into_iter().filter(about_the_model).collect();
+            let warned: Vec<&Warning> = late.result.warnings.iter().filter(about_the_model).collect();
             assert_eq!(warned.len(), 2, "{:#?}", late.result.warnings);
-            assert!(warned[0].contains("45 days before this flight"), "{}", warned[0]);
             assert!(
-                warned[1].contains("'C-FTLL'") && warned[1].contains("'C-GXYZ'"),
+                matches!(warned[0], Warning::ModelTooOld { age_days: 45, .. }),
+                "{}",
+                warned[0]
+            );
+            assert!(
+                warned[0].to_string().contains("45 days before this flight"),
+                "{}",
+                warned[0]
+            );
+            assert!(
+                matches!(warned[1], Warning::ModelOtherAircraft { made, used, .. } if made == "C-FTLL" && used == "C-GXYZ"),
                 "{}",
                 warned[1]
             );

@@ -360,13 +360,12 @@ impl SavedDiagnosis {
         path: &std::path::Path,
         log: &FlightLog,
         force: bool,
-    ) -> Result<(BTreeMap<String, Extensions>, Option<String>)> {
+    ) -> Result<(BTreeMap<String, Extensions>, Option<crate::messages::Warning>)> {
         let Some(made_on) = &self.flight else {
-            let remark = format!(
-                "{} does not record the flight it was made on (an older magcomp wrote it), so it was applied to {} without checking that it belongs to it",
-                path.display(),
-                log.source().display()
-            );
+            let remark = crate::messages::Warning::DiagnosisUnchecked {
+                diagnosis: path.to_path_buf(),
+                flight: log.source().to_path_buf(),
+            };
             return Ok((self.models, Some(remark)));
         };
         let applied_to = crate::ingest::flight_identity::FlightIdentity::of(log)?;
@@ -382,12 +381,12 @@ impl SavedDiagnosis {
                 difference,
             });
         }
-        let remark = format!(
-            "{} was made on {}, not on {} ({difference}); applied anyway because of --force",
-            path.display(),
-            made_on.describe(),
-            applied_to.describe()
-        );
+        let remark = crate::messages::Warning::DiagnosisForced {
+            diagnosis: path.to_path_buf(),
+            made_on: made_on.describe(),
+            applied_to: applied_to.describe(),
+            difference,
+        };
         Ok((self.models, Some(remark)))
     }
 }

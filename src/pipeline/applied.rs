@@ -40,7 +40,7 @@ pub(super) fn run_applied(
     let applied = saved.applied(raw_log.date(), &recorded)?;
     let (model_said, mut notes) = model_words(job, options, saved, (&applied, &channels), raw_log);
     let mut warnings: Vec<Warning> = screened.warnings(&recorded);
-    warnings.extend(Warning::said(model_said));
+    warnings.extend(model_said);
     let calibrated = saved
         .vector_calibration()
         .map(|c| c.apply(raw_log, &sensor))
@@ -212,7 +212,7 @@ fn model_words(
     saved: &crate::apply::SavedModel,
     (applied, channels): (&crate::apply::AppliedModel, &[String]),
     raw_log: &FlightLog,
-) -> (Vec<String>, Vec<String>) {
+) -> (Vec<Warning>, Vec<String>) {
     let (mut warnings, mut notes) =
         saved.age_and_aircraft(applied, job.aircraft.as_deref(), options.model_max_age_days);
     if applied.fitted_on_this_flight {
@@ -227,12 +227,10 @@ fn model_words(
             .filter(|c| !channels.iter().any(|m| m == c))
             .collect();
         if !left.is_empty() {
-            let them = if left.len() == 1 { "it" } else { "them" };
-            warnings.push(format!(
-                "{} not compensated: the model {} holds no model of {them}; calibrate {them} on a flight with a box, or name this flight's channels with --channels",
-                left.join(", "),
-                saved.path().display(),
-            ));
+            warnings.push(Warning::ModelLacksChannels {
+                model: saved.path().to_path_buf(),
+                channels: left.iter().map(|c| c.to_string()).collect(),
+            });
         }
     }
     (warnings, notes)

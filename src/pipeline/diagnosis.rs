@@ -80,7 +80,7 @@ pub(super) fn augmentation_plan(
         return Ok(ExtensionsPlan {
             models,
             diagnosis: None,
-            warnings: Warning::said(remark).collect(),
+            warnings: remark.into_iter().collect(),
         });
     }
     let plain = |warnings| ExtensionsPlan {

@@ -17,7 +17,7 @@ pub(super) fn applied_summary(result: &FlightResult, applied: &crate::apply::App
             .unwrap_or_default(),
         applied
             .age_days
-            .map(|d| format!(", {}", crate::apply::days_from(d)))
+            .map(|d| format!(", {}", crate::messages::days_from(d)))
             .unwrap_or_default(),
     );
     for (quality, model) in result.channels.iter().zip(&result.models) {
