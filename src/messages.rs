@@ -836,9 +836,8 @@ impl fmt::Display for Warning {
             | Warning::ModelCalibrationNoFom { .. }
             | Warning::ModelCalibrationDeparted { .. }
             | Warning::ModelRateDiffers { .. }
-            | Warning::ModelLacksChannels { .. }
-            | Warning::DiagnosisUnchecked { .. }
-            | Warning::DiagnosisForced { .. } => self.write_saved_model(f),
+            | Warning::ModelLacksChannels { .. } => self.write_saved_model(f),
+            Warning::DiagnosisUnchecked { .. } | Warning::DiagnosisForced { .. } => self.write_saved_diagnosis(f),
             Warning::Unexplained { .. }
             | Warning::NotDiagnosed { .. }
             | Warning::FindingsHeldBack { .. }
@@ -1069,7 +1068,31 @@ impl Warning {
         }
     }
 
-    /// The sentence of a warning on a saved model or diagnosis applied.
+    /// The sentence of a warning on a saved diagnosis applied.
+    fn write_saved_diagnosis(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Warning::DiagnosisUnchecked { diagnosis, flight } => write!(
+                f,
+                "{} does not record the flight it was made on (an older magcomp wrote it), so it was applied to {} without checking that it belongs to it",
+                diagnosis.display(),
+                flight.display()
+            ),
+            Warning::DiagnosisForced {
+                diagnosis,
+                made_on,
+                applied_to,
+                difference,
+            } => write!(
+                f,
+                "{} was made on {made_on}, not on {applied_to} ({difference}); applied anyway because of --force",
+                diagnosis.display()
+            ),
+            // The other variants are written by `fmt`, which sends only these here.
+            _ => Ok(()),
+        }
+    }
+
+    /// The sentence of a warning on a saved model applied.
     fn write_saved_model(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             Warning::ModelTooOld {
@@ -1135,22 +1158,6 @@ impl Warning {
                     model.display()
                 )
             }
-            Warning::DiagnosisUnchecked { diagnosis, flight } => write!(
-                f,
-                "{} does not record the flight it was made on (an older magcomp wrote it), so it was applied to {} without checking that it belongs to it",
-                diagnosis.display(),
-                flight.display()
-            ),
-            Warning::DiagnosisForced {
-                diagnosis,
-                made_on,
-                applied_to,
-                difference,
-            } => write!(
-                f,
-                "{} was made on {made_on}, not on {applied_to} ({difference}); applied anyway because of --force",
-                diagnosis.display()
-            ),
             // The other variants are written by `fmt`, which sends only these here.
             _ => Ok(()),
         }

@@ -55,15 +55,11 @@ fn column_name(channel: &str, suffix: &str) -> String {
     format!("{stem}_{suffix}")
 }
 
-/// Adds the reduced columns `wanted` of every compensated channel of
-/// `compensation` (each channel's `_dc`, then its `_igrf`), flagging the
-/// rows that have none; returns the notes that say how they were made.
-/// No base station, or for IGRF no latitude and longitude or no date, is
-/// an error naming what is missing.
-pub fn add_reduced(log: &FlightLog, compensation: &mut Compensation, wanted: ReducedColumns) -> Result<Vec<String>> {
-    if !wanted.any() || compensation.channels.is_empty() {
-        return Ok(Vec::new());
-    }
+/// The flight's base station, its variation on every row (the recorded
+/// values less their median when the station records the total field),
+/// and a note saying which; an error when there is no station or it has
+/// no reading.
+fn station_variation(log: &FlightLog) -> Result<(&str, Vec<f64>, String)> {
     let missing = |looked_for: String, hint: &str| Error::MissingColumn {
         path: log.source().to_path_buf(),
         role: "base-station (for dc and igrf)",
@@ -91,7 +87,7 @@ pub fn add_reduced(log: &FlightLog, compensation: &mut Compensation, wanted: Red
         true => 0.0,
         false => median,
     };
-    let mut notes = vec![match datum {
+    let note = match datum {
         0.0 => format!(
             "reduced columns: the base station '{}' records the variation (median {median:.1} nT), removed as recorded",
             station.name
@@ -100,8 +96,22 @@ pub fn add_reduced(log: &FlightLog, compensation: &mut Compensation, wanted: Red
             "reduced columns: the base station '{}' records the total field; its variation about its median over the flight ({datum:.1} nT) is removed",
             station.name
         ),
-    }];
+    };
     let variation: Vec<f64> = station.values.iter().map(|v| v - datum).collect();
+    Ok((&station.name, variation, note))
+}
+
+/// Adds the reduced columns `wanted` of every compensated channel of
+/// `compensation` (each channel's `_dc`, then its `_igrf`), flagging the
+/// rows that have none; returns the notes that say how they were made.
+/// No base station, or for IGRF no latitude and longitude or no date, is
+/// an error naming what is missing.
+pub fn add_reduced(log: &FlightLog, compensation: &mut Compensation, wanted: ReducedColumns) -> Result<Vec<String>> {
+    if !wanted.any() || compensation.channels.is_empty() {
+        return Ok(Vec::new());
+    }
+    let (station, variation, note) = station_variation(log)?;
+    let mut notes = vec![note];
     let main_field = match wanted.igrf {
         true => {
             let (field, note) = main_field(log)?;
@@ -139,7 +149,7 @@ pub fn add_reduced(log: &FlightLog, compensation: &mut Compensation, wanted: Red
             continue;
         }
         if !variation[row].is_finite() {
-            flags.raise(FlagKind::MissingSource, &station.name);
+            flags.raise(FlagKind::MissingSource, station);
         }
         if let Some(field) = &main_field {
             if !field.total_nt[row].is_finite() {

@@ -988,6 +988,34 @@ fn principal_direction(points: &[Vector3<f64>]) -> Vector3<f64> {
     }
 }
 
+/// A leg flies one manoeuvre about each axis: two uncertain candidates
+/// between the same two axes are told apart by size, the larger rotation
+/// on the axis that turns the field more for its nominal amplitude
+/// (`expected`, by axis).
+fn tell_alike_apart(candidates: &mut [Candidate], expected: impl Fn(usize) -> f64) {
+    let pair = |c: &Candidate| c.could_be.map(|other| (c.axis.min(other), c.axis.max(other)));
+    for (a, b) in [(0, 1), (0, 2), (1, 2)] {
+        let members: Vec<usize> = (0..candidates.len())
+            .filter(|i| pair(&candidates[*i]) == Some((a, b)))
+            .collect();
+        let [first, second] = members[..] else {
+            continue;
+        };
+        let (larger, smaller) = match candidates[first].strength >= candidates[second].strength {
+            true => (first, second),
+            false => (second, first),
+        };
+        let (big, small) = match expected(a) >= expected(b) {
+            true => (a, b),
+            false => (b, a),
+        };
+        for (index, axis, other) in [(larger, big, small), (smaller, small, big)] {
+            candidates[index].axis = axis;
+            candidates[index].could_be = Some(other);
+        }
+    }
+}
+
 /// Fluxgate fallback: the small rotation $u_{ref} \times u$ of the field
 /// direction from the leg's mean direction, in degrees. A rotation θ about
 /// body axis a gives $-θ\,(a - (a\cdot u)u)$: the direction of the
@@ -1059,31 +1087,8 @@ fn fluxgate_candidates(unit: &[Vector3<f64>], leg: &Leg, options: &DetectOptions
         (candidate, direction)
     })
     .unzip();
-    // A leg flies one manoeuvre about each axis: two uncertain ones between
-    // the same two axes are told apart by size, the larger rotation on the
-    // axis that turns the field more for its nominal amplitude.
     let expected = |axis: usize| visible[axis].norm() * options.nominal_amplitude_deg[axis];
-    let pair = |c: &Candidate| c.could_be.map(|other| (c.axis.min(other), c.axis.max(other)));
-    for (a, b) in [(0, 1), (0, 2), (1, 2)] {
-        let members: Vec<usize> = (0..candidates.len())
-            .filter(|i| pair(&candidates[*i]) == Some((a, b)))
-            .collect();
-        let [first, second] = members[..] else {
-            continue;
-        };
-        let (larger, smaller) = match candidates[first].strength >= candidates[second].strength {
-            true => (first, second),
-            false => (second, first),
-        };
-        let (big, small) = match expected(a) >= expected(b) {
-            true => (a, b),
-            false => (b, a),
-        };
-        for (index, axis, other) in [(larger, big, small), (smaller, small, big)] {
-            candidates[index].axis = axis;
-            candidates[index].could_be = Some(other);
-        }
-    }
+    tell_alike_apart(&mut candidates, expected);
     for (candidate, direction) in candidates.iter_mut().zip(&directions) {
         let scale = visible[candidate.axis].norm().max(1e-3);
         candidate.series = std::rc::Rc::new(rotation.iter().map(|w| w.dot(direction) / scale).collect());

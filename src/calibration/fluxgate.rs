@@ -166,6 +166,34 @@ pub fn calibrate_near(
     calibrate_from(log, sensor, (reference, rows), max_iterations, Some(near))
 }
 
+/// The fit's one-sigma parameter uncertainty (offsets in nT), or an error
+/// in words when it is too large to use (the flight's attitudes do not pin
+/// the parameters); `unit` is the field's unit the samples `m` and `f`
+/// were scaled by.
+fn pinned_uncertainty(
+    m: &[[f64; 3]],
+    f: &[f64],
+    fitted: &Parameters,
+    unit: f64,
+) -> std::result::Result<[f64; 9], String> {
+    let uncertainty = parameter_uncertainty(m, f, fitted).map(|u| {
+        let mut u = u;
+        for o in &mut u[6..] {
+            *o *= unit;
+        }
+        u
+    });
+    let uncertainty = uncertainty.unwrap_or([f64::INFINITY; 9]);
+    let worst_matrix = uncertainty[..6].iter().fold(0.0f64, |a, &b| a.max(b));
+    let worst_offset = uncertainty[6..].iter().fold(0.0f64, |a, &b| a.max(b));
+    if !(worst_matrix <= MAX_MATRIX_UNCERTAINTY && worst_offset <= MAX_OFFSET_UNCERTAINTY_NT) {
+        return Err(format!(
+            "the flight's attitudes do not pin the fluxgate calibration: its correction is uncertain by up to ±{worst_matrix:.3} and its offsets by up to ±{worst_offset:.0} nT (one sigma; at most ±{MAX_MATRIX_UNCERTAINTY} and ±{MAX_OFFSET_UNCERTAINTY_NT} nT are usable); calibrate on a flight with turns through all headings and pitch and roll manoeuvres"
+        ));
+    }
+    Ok(uncertainty)
+}
+
 fn calibrate_from(
     log: &FlightLog,
     sensor: &VectorSensor,
@@ -226,21 +254,7 @@ fn calibrate_from(
             "the flight's attitudes do not determine the fluxgate calibration (condition number {condition_number:.1e}); calibrate on a flight with turns through all headings and pitch and roll manoeuvres"
         )));
     }
-    let uncertainty = parameter_uncertainty(&m, &f, &fitted).map(|u| {
-        let mut u = u;
-        for o in &mut u[6..] {
-            *o *= unit;
-        }
-        u
-    });
-    let uncertainty = uncertainty.unwrap_or([f64::INFINITY; 9]);
-    let worst_matrix = uncertainty[..6].iter().fold(0.0f64, |a, &b| a.max(b));
-    let worst_offset = uncertainty[6..].iter().fold(0.0f64, |a, &b| a.max(b));
-    if !(worst_matrix <= MAX_MATRIX_UNCERTAINTY && worst_offset <= MAX_OFFSET_UNCERTAINTY_NT) {
-        return Err(fail(format!(
-            "the flight's attitudes do not pin the fluxgate calibration: its correction is uncertain by up to ±{worst_matrix:.3} and its offsets by up to ±{worst_offset:.0} nT (one sigma; at most ±{MAX_MATRIX_UNCERTAINTY} and ±{MAX_OFFSET_UNCERTAINTY_NT} nT are usable); calibrate on a flight with turns through all headings and pitch and roll manoeuvres"
-        )));
-    }
+    let uncertainty = pinned_uncertainty(&m, &f, &fitted, unit).map_err(fail)?;
     let before: Vec<f64> = m.iter().zip(&f).map(|(v, f)| (norm(*v) - f) * unit).collect();
     let mean = before.iter().sum::<f64>() / before.len() as f64;
     let mismatch_rms_before_nt = rms(before.iter().map(|v| v - mean));

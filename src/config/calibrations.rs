@@ -22,6 +22,30 @@ fn aircraft_key(aircraft: &str) -> String {
     aircraft.trim().to_lowercase()
 }
 
+/// The calibration flights (`calibration = true`) of each aircraft, by
+/// [`aircraft_key`]; an error for one that names no aircraft or gives a
+/// model of its own.
+fn calibration_flights(flights: &[FlightJob]) -> std::result::Result<BTreeMap<String, Vec<usize>>, String> {
+    let mut by_aircraft: BTreeMap<String, Vec<usize>> = BTreeMap::new();
+    for (index, flight) in flights.iter().enumerate().filter(|(_, f)| f.calibration) {
+        let Some(aircraft) = &flight.aircraft else {
+            return Err(format!(
+                "{}: calibration = true, but the flight names no aircraft; name it (aircraft = \"...\"): its model compensates that aircraft's other flights",
+                flight.input.display()
+            ));
+        };
+        if let Some(model) = &flight.model {
+            return Err(format!(
+                "{}: calibration = true and model = {:?}: a calibration flight is fitted on its own box; give it one or the other",
+                flight.input.display(),
+                model.display().to_string()
+            ));
+        }
+        by_aircraft.entry(aircraft_key(aircraft)).or_default().push(index);
+    }
+    Ok(by_aircraft)
+}
+
 /// Gives each flight of an aircraft with calibration flights the model of
 /// one of them (see the module documentation), as the path that flight's
 /// run writes in `output_directory`. Returns one note per calibration
@@ -35,23 +59,7 @@ pub(super) fn assign_calibrations(
         source_name: source_name.into(),
         message,
     };
-    let mut by_aircraft: BTreeMap<String, Vec<usize>> = BTreeMap::new();
-    for (index, flight) in flights.iter().enumerate().filter(|(_, f)| f.calibration) {
-        let Some(aircraft) = &flight.aircraft else {
-            return Err(bad(format!(
-                "{}: calibration = true, but the flight names no aircraft; name it (aircraft = \"...\"): its model compensates that aircraft's other flights",
-                flight.input.display()
-            )));
-        };
-        if let Some(model) = &flight.model {
-            return Err(bad(format!(
-                "{}: calibration = true and model = {:?}: a calibration flight is fitted on its own box; give it one or the other",
-                flight.input.display(),
-                model.display().to_string()
-            )));
-        }
-        by_aircraft.entry(aircraft_key(aircraft)).or_default().push(index);
-    }
+    let by_aircraft = calibration_flights(flights).map_err(bad)?;
     let mut uses: BTreeMap<usize, Vec<usize>> = BTreeMap::new();
     let mut flown_before_any = Vec::new();
     let mut uncalibrated: BTreeMap<String, Vec<usize>> = BTreeMap::new();

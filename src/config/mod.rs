@@ -674,29 +674,7 @@ impl Pipeline {
             model_max_age_days: raw.model.max_age_days,
             model_channels: model_channels(raw.model.channels).map_err(bad)?,
         };
-        let mut windows_files = Vec::new();
-        let mut flights = Vec::with_capacity(raw.flights.len());
-        for (index, mut flight) in raw.flights.into_iter().enumerate() {
-            // The calibration data given two ways: which one wins would be a guess.
-            let twice = match (flight.windows_file.is_some(), flight.lines.is_empty(), flight.windows.is_empty()) {
-                (true, false, _) => Some("both lines and windows_file are given; give the calibration data one way, by lines or by windows"),
-                (true, true, false) => Some("both windows and windows_file are given; give the calibration windows one way, inline or in the file"),
-                _ => None,
-            };
-            if let Some(problem) = twice {
-                return Err(Error::Config {
-                    source_name: source_name.into(),
-                    message: format!("[[flight]] input = {:?}: {problem}", flight.input),
-                });
-            }
-            if let Some(file) = flight.windows_file.take() {
-                windows_files.push(WindowsFile {
-                    flight: index,
-                    path: base.join(file),
-                });
-            }
-            flights.push(flight_job(flight, base, source_name)?);
-        }
+        let (mut flights, windows_files) = flight_jobs(raw.flights, base, source_name)?;
         name_outputs(&mut flights, base);
         let output_directory = base.join(raw.output.directory);
         let notes = calibrations::assign_calibrations(&mut flights, &output_directory, source_name)?;
@@ -816,6 +794,48 @@ fn gradient_pairs(
         }
     }
     Ok(pairs)
+}
+
+/// The `[[flight]]`s' jobs, paths resolved against `base`, and the
+/// windows files still to read; an error for a flight that gives its
+/// calibration data two ways.
+fn flight_jobs(
+    raw_flights: Vec<RawFlight>,
+    base: &Path,
+    source_name: &str,
+) -> Result<(Vec<FlightJob>, Vec<WindowsFile>)> {
+    let mut windows_files = Vec::new();
+    let mut flights = Vec::with_capacity(raw_flights.len());
+    for (index, mut flight) in raw_flights.into_iter().enumerate() {
+        // The calibration data given two ways: which one wins would be a guess.
+        let twice = match (
+            flight.windows_file.is_some(),
+            flight.lines.is_empty(),
+            flight.windows.is_empty(),
+        ) {
+            (true, false, _) => {
+                Some("both lines and windows_file are given; give the calibration data one way, by lines or by windows")
+            }
+            (true, true, false) => Some(
+                "both windows and windows_file are given; give the calibration windows one way, inline or in the file",
+            ),
+            _ => None,
+        };
+        if let Some(problem) = twice {
+            return Err(Error::Config {
+                source_name: source_name.into(),
+                message: format!("[[flight]] input = {:?}: {problem}", flight.input),
+            });
+        }
+        if let Some(file) = flight.windows_file.take() {
+            windows_files.push(WindowsFile {
+                flight: index,
+                path: base.join(file),
+            });
+        }
+        flights.push(flight_job(flight, base, source_name)?);
+    }
+    Ok((flights, windows_files))
 }
 
 fn flight_job(raw: RawFlight, base: &Path, source_name: &str) -> Result<FlightJob> {

@@ -122,25 +122,7 @@ pub fn align(mut streams: Vec<Stream>, base: usize, options: &AlignmentOptions) 
                 row_flags[row].raise(flag, &stream.name);
             }
         }
-        if repeats.dropped > 0 {
-            warnings.push(format!(
-                "{}: {} samples repeat an earlier one exactly (same time, same value) and were read once; the {} rows that use them are flagged duplicate_time:{}",
-                stream.source,
-                repeats.dropped,
-                resampled.repeat_rows.len(),
-                stream.name
-            ));
-        }
-        if !repeats.conflicts.is_empty() {
-            warnings.push(format!(
-                "{}: {} times carry samples that disagree (the first at {} s); the {} rows that would use them are left missing and flagged duplicate_time:{}",
-                stream.source,
-                repeats.conflicts.len(),
-                crate::error::Number(stream.times_ns[repeats.conflicts[0]] as f64 / 1e9),
-                resampled.conflict_rows.len(),
-                stream.name
-            ));
-        }
+        warnings.extend(repeat_warnings(&stream, &repeats, &resampled));
         report.push(ResampledChannel {
             channel: stream.name.clone(),
             source: stream.source.clone(),
@@ -170,6 +152,32 @@ pub fn align(mut streams: Vec<Stream>, base: usize, options: &AlignmentOptions) 
         channels,
         row_flags,
     })
+}
+
+/// The warnings on a stream's repeated samples: exact repeats read once,
+/// and times whose samples disagree, left missing.
+fn repeat_warnings(stream: &Stream, repeats: &Repeats, resampled: &Resampled) -> Vec<String> {
+    let mut warnings = Vec::new();
+    if repeats.dropped > 0 {
+        warnings.push(format!(
+            "{}: {} samples repeat an earlier one exactly (same time, same value) and were read once; the {} rows that use them are flagged duplicate_time:{}",
+            stream.source,
+            repeats.dropped,
+            resampled.repeat_rows.len(),
+            stream.name
+        ));
+    }
+    if !repeats.conflicts.is_empty() {
+        warnings.push(format!(
+            "{}: {} times carry samples that disagree (the first at {} s); the {} rows that would use them are left missing and flagged duplicate_time:{}",
+            stream.source,
+            repeats.conflicts.len(),
+            crate::error::Number(stream.times_ns[repeats.conflicts[0]] as f64 / 1e9),
+            resampled.conflict_rows.len(),
+            stream.name
+        ));
+    }
+    warnings
 }
 
 /// What [`collapse_repeats`] found in one stream.

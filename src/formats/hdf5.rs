@@ -77,8 +77,48 @@ fn read_datasets(path: &Path, time_name: &str) -> Result<Datasets> {
             problem: format!("the time dataset '{time_name}' is empty"),
         });
     }
-    let mut series = Vec::new();
     let mut not_read: Vec<String> = Vec::new();
+    let series = sampled_series(&file, names, time_name, &mut not_read);
+    check_time_length(path, time_name, time_s.len(), &series)?;
+    let mut datasets = Vec::new();
+    for (name, samples) in series {
+        if samples != time_s.len() {
+            not_read.push(format!("'{name}' ({samples} samples, not {})", time_s.len()));
+            continue;
+        }
+        let values = file
+            .dataset(&name)
+            .and_then(|d| d.read_f64())
+            .map_err(|e| {
+                corrupt(
+                    path,
+                    format!("dataset '{name}' cannot be read ({e}); the file is damaged or cut short: copy it again from its source"),
+                )
+            })?;
+        datasets.push((name, values));
+    }
+    let warnings = match not_read.is_empty() {
+        true => Vec::new(),
+        false => vec![format!(
+            "{}: {} dataset(s) not read, as they are not one number per '{time_name}' sample: {}",
+            path.display(),
+            not_read.len(),
+            not_read.join(", ")
+        )],
+    };
+    Ok((time_s, datasets, warnings))
+}
+
+/// The root datasets `names` (but the time) that hold one number per
+/// sample, with their lengths; single values (MagNav's N and dt) are
+/// passed over, and the others named in `not_read` with why.
+fn sampled_series(
+    file: &File,
+    names: Vec<String>,
+    time_name: &str,
+    not_read: &mut Vec<String>,
+) -> Vec<(String, usize)> {
+    let mut series = Vec::new();
     for name in names.into_iter().filter(|n| n != time_name) {
         let Ok(dataset) = file.dataset(&name) else {
             not_read.push(format!("'{name}' (unreadable)"));
@@ -116,34 +156,7 @@ fn read_datasets(path: &Path, time_name: &str) -> Result<Datasets> {
         }
         series.push((name, samples));
     }
-    check_time_length(path, time_name, time_s.len(), &series)?;
-    let mut datasets = Vec::new();
-    for (name, samples) in series {
-        if samples != time_s.len() {
-            not_read.push(format!("'{name}' ({samples} samples, not {})", time_s.len()));
-            continue;
-        }
-        let values = file
-            .dataset(&name)
-            .and_then(|d| d.read_f64())
-            .map_err(|e| {
-                corrupt(
-                    path,
-                    format!("dataset '{name}' cannot be read ({e}); the file is damaged or cut short: copy it again from its source"),
-                )
-            })?;
-        datasets.push((name, values));
-    }
-    let warnings = match not_read.is_empty() {
-        true => Vec::new(),
-        false => vec![format!(
-            "{}: {} dataset(s) not read, as they are not one number per '{time_name}' sample: {}",
-            path.display(),
-            not_read.len(),
-            not_read.join(", ")
-        )],
-    };
-    Ok((time_s, datasets, warnings))
+    series
 }
 
 /// Refuses a time dataset whose length most of the file's series do not

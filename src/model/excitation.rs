@@ -469,11 +469,7 @@ pub fn analyse_design(
     // One of each kind on each heading: the candidates, and together a
     // full box.
     let candidates = box_candidates((&prepared, model, options), &plan, (&fits, &flown, windows), &scale)?;
-    // The full box with the same total information as the flown windows.
-    let box_information = sum(candidates.iter().map(|c| &c.1), p);
-    let box_trace: f64 = (0..p).map(|i| box_information[(i, i)]).sum();
-    let flown_trace: f64 = (0..p).map(|i| information[(i, i)]).sum();
-    let reference = Mat::from_fn(p, p, |i, j| box_information[(i, j)] * flown_trace / box_trace);
+    let (reference, flown_trace) = reference_box(&candidates, &information);
 
     let Some((basis, vectors, unpinnable)) = pinnable_basis(&model.term_names, &scale, &reference) else {
         return Ok(None);
@@ -552,6 +548,18 @@ fn unpinnable_loadings(
             loadings
         })
         .collect()
+}
+
+/// The full box the `candidates` make together, scaled to the same total
+/// information (trace) as the flown windows' `information`; and that
+/// trace.
+fn reference_box(candidates: &[(Candidate, Mat<f64>)], information: &Mat<f64>) -> (Mat<f64>, f64) {
+    let p = information.nrows();
+    let box_information = sum(candidates.iter().map(|c| &c.1), p);
+    let box_trace: f64 = (0..p).map(|i| box_information[(i, i)]).sum();
+    let flown_trace: f64 = (0..p).map(|i| information[(i, i)]).sum();
+    let reference = Mat::from_fn(p, p, |i, j| box_information[(i, j)] * flown_trace / box_trace);
+    (reference, flown_trace)
 }
 
 /// One candidate of each kind on each of the box's headings, with its
@@ -831,36 +839,7 @@ impl CandidatePlan {
             }
         }
         let field_ned = earth_field_ned(log, sensor, &headed)?;
-        let all_durations: Vec<f64> = windows.iter().map(|w| w.t_end - w.t_start).collect();
-        let typical_duration = median(all_durations).unwrap_or(30.0);
-        let mut measured = false;
-        let shapes = [ManoeuvreKind::Pitch, ManoeuvreKind::Roll, ManoeuvreKind::Yaw].map(|kind| {
-            let own: Vec<&CalibrationWindow> = headed.iter().filter(|w| w.kind == Some(kind)).collect();
-            let window_duration = median(own.iter().map(|w| w.t_end - w.t_start).collect()).unwrap_or(typical_duration);
-            let swings: Vec<(f64, f64, f64)> = match attitude {
-                Some(angles) => own
-                    .iter()
-                    .filter_map(|w| swing(angles[kind_index_in_attitude(kind)], w.rows(time), time, kind))
-                    .collect(),
-                None => Vec::new(),
-            };
-            let typical = |k: usize| median(swings.iter().map(|s| [s.0, s.1, s.2][k]).collect());
-            match (typical(0), typical(1), typical(2)) {
-                (Some(amplitude_deg), Some(period_s), Some(duration_s)) => {
-                    measured = true;
-                    Shape {
-                        amplitude_deg,
-                        period_s,
-                        duration_s,
-                    }
-                }
-                _ => Shape {
-                    amplitude_deg: NOMINAL_AMPLITUDE_DEG[kind_index(kind)],
-                    period_s: NOMINAL_PERIOD_S,
-                    duration_s: window_duration,
-                },
-            }
-        });
+        let (shapes, measured) = manoeuvre_shapes(attitude, (&headed, windows), time);
         let shape_words = [ManoeuvreKind::Pitch, ManoeuvreKind::Roll, ManoeuvreKind::Yaw]
             .map(|kind| {
                 let s = shapes[kind_index(kind)];
@@ -892,6 +871,48 @@ impl CandidatePlan {
             described,
         })
     }
+}
+
+/// Each kind's shape (pitch, roll, yaw): the median amplitude, period and
+/// length the INS `attitude` recorded over the `headed` windows of that
+/// kind, else the simulator's defaults (and the median length of all
+/// `windows`); and whether any kind was measured.
+fn manoeuvre_shapes(
+    attitude: Option<[&[f64]; 3]>,
+    (headed, windows): (&[CalibrationWindow], &[CalibrationWindow]),
+    time: &[f64],
+) -> ([Shape; 3], bool) {
+    let all_durations: Vec<f64> = windows.iter().map(|w| w.t_end - w.t_start).collect();
+    let typical_duration = median(all_durations).unwrap_or(30.0);
+    let mut measured = false;
+    let shapes = [ManoeuvreKind::Pitch, ManoeuvreKind::Roll, ManoeuvreKind::Yaw].map(|kind| {
+        let own: Vec<&CalibrationWindow> = headed.iter().filter(|w| w.kind == Some(kind)).collect();
+        let window_duration = median(own.iter().map(|w| w.t_end - w.t_start).collect()).unwrap_or(typical_duration);
+        let swings: Vec<(f64, f64, f64)> = match attitude {
+            Some(angles) => own
+                .iter()
+                .filter_map(|w| swing(angles[kind_index_in_attitude(kind)], w.rows(time), time, kind))
+                .collect(),
+            None => Vec::new(),
+        };
+        let typical = |k: usize| median(swings.iter().map(|s| [s.0, s.1, s.2][k]).collect());
+        match (typical(0), typical(1), typical(2)) {
+            (Some(amplitude_deg), Some(period_s), Some(duration_s)) => {
+                measured = true;
+                Shape {
+                    amplitude_deg,
+                    period_s,
+                    duration_s,
+                }
+            }
+            _ => Shape {
+                amplitude_deg: NOMINAL_AMPLITUDE_DEG[kind_index(kind)],
+                period_s: NOMINAL_PERIOD_S,
+                duration_s: window_duration,
+            },
+        }
+    });
+    (shapes, measured)
 }
 
 fn kind_index(kind: ManoeuvreKind) -> usize {

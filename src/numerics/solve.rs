@@ -1074,24 +1074,9 @@ fn fold_held_out(fold: &FoldStatistics, spectrum: &Spectrum, grid: &[f64]) -> Ve
     let m = Mat::from_fn(active, active, |i, j| {
         sigma[i] * (f64::from(i == j) - gram[i * active + j]) * sigma[j]
     });
-    let eigen = (active > 0)
-        .then(|| m.self_adjoint_eigen(faer::Side::Lower).ok())
-        .flatten();
-    // Eigenvectors row-major (`vectors[k * active + i]` = Q[k, i]) and as
-    // rows of Qᵀ, and the eigenvalues.
-    let (vectors, vectors_t, values) = match &eigen {
-        Some(eigen) => {
-            let (q, s) = (eigen.U(), eigen.S());
-            let vectors: Vec<f64> = (0..active * active)
-                .map(|index| q[(index / active, index % active)])
-                .collect();
-            let vectors_t = (0..active * active)
-                .map(|index| q[(index % active, index / active)])
-                .collect();
-            (vectors, vectors_t, (0..active).map(|i| s[i]).collect())
-        }
-        None => (Vec::new(), Vec::new(), Vec::new()),
-    };
+    let eigen = row_major_eigen(&m, active);
+    let decomposed = eigen.is_some();
+    let (vectors, vectors_t, values) = eigen.unwrap_or_default();
     let ridge = grid.iter().map(|&lambda| {
         let shrunk: Vec<f64> = (0..active)
             .map(|k| sigma[k].powi(2) / (sigma[k].powi(2) + lambda) * spectrum.uty[k])
@@ -1100,7 +1085,7 @@ fn fold_held_out(fold: &FoldStatistics, spectrum: &Spectrum, grid: &[f64]) -> Ve
         if active == 0 {
             return held_out(residual_ss, &projected, &[]);
         }
-        if eigen.is_none() || values.iter().any(|v: &f64| v + lambda <= 0.0) {
+        if !decomposed || values.iter().any(|v: &f64| v + lambda <= 0.0) {
             return f64::INFINITY;
         }
         let scaled: Vec<f64> = (0..active).map(|k| sigma[k] * projected[k]).collect();
@@ -1137,6 +1122,24 @@ fn fold_held_out(fold: &FoldStatistics, spectrum: &Spectrum, grid: &[f64]) -> Ve
         held_out(residual_ss, &projected, &correction)
     }));
     scores
+}
+
+/// The eigendecomposition of the symmetric `active`×`active` matrix `m`:
+/// its eigenvectors row-major (`vectors[k * active + i]` = Q[k, i]) and as
+/// rows of Qᵀ, and its eigenvalues; `None` for an empty matrix or when the
+/// decomposition fails.
+fn row_major_eigen(m: &Mat<f64>, active: usize) -> Option<(Vec<f64>, Vec<f64>, Vec<f64>)> {
+    let eigen = (active > 0)
+        .then(|| m.self_adjoint_eigen(faer::Side::Lower).ok())
+        .flatten()?;
+    let (q, s) = (eigen.U(), eigen.S());
+    let vectors: Vec<f64> = (0..active * active)
+        .map(|index| q[(index / active, index % active)])
+        .collect();
+    let vectors_t = (0..active * active)
+        .map(|index| q[(index % active, index / active)])
+        .collect();
+    Some((vectors, vectors_t, (0..active).map(|i| s[i]).collect()))
 }
 
 /// The lower Cholesky factor of the largest leading block of `a` that is
@@ -1202,36 +1205,12 @@ fn choose(
             .map(|r| criterion_value(r.press, r.blocked_press, criterion)),
     )
     .unwrap_or(spectrum.rank.saturating_sub(1));
-    let name = criterion.describe();
-    let (method, lambda, rank, reason) = match options.lambda {
-        LambdaChoice::Fixed(lambda) => (
-            Method::Ridge,
-            Some(lambda),
-            None,
-            format!("λ = {lambda:e} fixed by the user"),
-        ),
-        LambdaChoice::Select if condition_number > options.tsvd_condition_limit => {
-            let reason = format!("condition number {condition_number:.3e} exceeds the limit {:.1e} that ridge is trusted with; truncated SVD rank chosen by {name}", options.tsvd_condition_limit);
-            (Method::TruncatedSvd, None, Some(rank_best + 1), reason)
-        }
-        LambdaChoice::Select if ridge_best == 0 || ridge_best == ridge.len() - 1 => {
-            let reason = if ridge_best == 0 {
-                format!("{name} minimum lies at the lower edge of the λ grid: the calibration pins every direction and needs no regularisation; truncated SVD by {name} keeps {} of {p} components", rank_best + 1)
-            } else {
-                format!("{name} minimum lies at the upper edge of the λ grid, so ridge cannot locate an optimum; truncated SVD rank chosen by {name}")
-            };
-            (Method::TruncatedSvd, None, Some(rank_best + 1), reason)
-        }
-        LambdaChoice::Select => {
-            let lambda = ridge[ridge_best].lambda;
-            (
-                Method::Ridge,
-                Some(lambda),
-                None,
-                format!("{name} minimum at λ = {lambda:.3e} inside the grid"),
-            )
-        }
-    };
+    let (method, lambda, rank, reason) = regulariser(
+        options,
+        (condition_number, p),
+        (&ridge, ridge_best, rank_best),
+        criterion.describe(),
+    );
     let weights: Vec<f64> = match (lambda, rank) {
         (Some(lambda), _) => candidate_weights(spectrum, &[lambda]).remove(0),
         (None, Some(rank)) => (0..p).map(|k| f64::from(u8::from(k < rank))).collect(),
@@ -1260,6 +1239,48 @@ fn choose(
         jackknife: Vec::new(),
     };
     Ok((solution, weights))
+}
+
+/// The regulariser `options` ask for, or the one the curves call for:
+/// ridge at the minimum of the criterion `name` inside the λ grid,
+/// truncated SVD when the design is too ill-conditioned for ridge
+/// (`condition_number` of `p` columns) or the minimum lies at the grid's
+/// edge. Gives the method, λ or rank, and why, in words.
+fn regulariser(
+    options: &SolveOptions,
+    (condition_number, p): (f64, usize),
+    (ridge, ridge_best, rank_best): (&[RidgePoint], usize, usize),
+    name: &str,
+) -> (Method, Option<f64>, Option<usize>, String) {
+    match options.lambda {
+        LambdaChoice::Fixed(lambda) => (
+            Method::Ridge,
+            Some(lambda),
+            None,
+            format!("λ = {lambda:e} fixed by the user"),
+        ),
+        LambdaChoice::Select if condition_number > options.tsvd_condition_limit => {
+            let reason = format!("condition number {condition_number:.3e} exceeds the limit {:.1e} that ridge is trusted with; truncated SVD rank chosen by {name}", options.tsvd_condition_limit);
+            (Method::TruncatedSvd, None, Some(rank_best + 1), reason)
+        }
+        LambdaChoice::Select if ridge_best == 0 || ridge_best == ridge.len() - 1 => {
+            let reason = if ridge_best == 0 {
+                format!("{name} minimum lies at the lower edge of the λ grid: the calibration pins every direction and needs no regularisation; truncated SVD by {name} keeps {} of {p} components", rank_best + 1)
+            } else {
+                format!("{name} minimum lies at the upper edge of the λ grid, so ridge cannot locate an optimum; truncated SVD rank chosen by {name}")
+            };
+            (Method::TruncatedSvd, None, Some(rank_best + 1), reason)
+        }
+        LambdaChoice::Select => {
+            let lambda = ridge[ridge_best].lambda;
+            (
+                Method::Ridge,
+                Some(lambda),
+                None,
+                format!("{name} minimum at λ = {lambda:.3e} inside the grid"),
+            )
+        }
+    }
 }
 
 /// $\hat\sigma \sqrt{\sum_k v_{jk}^2 (w_k/\sigma_k)^2}$ per coefficient.

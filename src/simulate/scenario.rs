@@ -723,6 +723,45 @@ fn check_flight_plan(raw: &RawScenario) -> std::result::Result<(), String> {
             box_.period_s
         ));
     }
+    check_box_manoeuvres(box_)?;
+    for (name, range) in [("lead_in_s", box_.lead_in_s), ("pause_s", box_.pause_s)] {
+        if !(range[0] >= 0.0 && range[0] <= range[1] && range[1] < 3600.0) {
+            return Err(format!(
+                "[calibration] {name} = {range:?}: give [shortest, longest] in seconds, 0 ≤ shortest ≤ longest"
+            ));
+        }
+    }
+    if let Some(number) = box_.line_numbers.iter().find(|n| !n.is_finite() || **n < 0.0) {
+        return Err(format!(
+            "[calibration] line_numbers holds {number}: give each box's line number as a non-negative number (0 for none)"
+        ));
+    }
+    let rates = box_.turn_rate_deg_s;
+    if !(rates[0] >= 0.5 && rates[0] <= rates[1] && rates[1] <= 10.0) {
+        return Err(format!(
+            "[calibration] turn_rate_deg_s = {rates:?}: give [slowest, fastest] between 0.5 and 10 degrees/s"
+        ));
+    }
+    let entry = box_.turn_entry_s;
+    if !(entry[0] >= 0.0 && entry[0] <= entry[1] && entry[1] <= 30.0) {
+        return Err(format!(
+            "[calibration] turn_entry_s = {entry:?}: give [shortest, longest] between 0 and 30 s"
+        ));
+    }
+    check_coupling(&box_.coupling)?;
+    let speeds = [box_.speed_m_s, raw.survey.speed_m_s];
+    if speeds.iter().any(|s| !(*s > 1.0 && *s < 400.0)) {
+        return Err("speed_m_s must lie between 1 and 400 m/s".into());
+    }
+    if raw.survey.line_count > 0 && !(raw.survey.line_length_m > 0.0 && raw.survey.line_spacing_m >= 0.0) {
+        return Err("[survey] line_length_m must be positive and line_spacing_m not negative (0 reflies the same line both ways)".into());
+    }
+    Ok(())
+}
+
+/// Each manoeuvre the box omits, weakens or flies again names one of its
+/// legs.
+fn check_box_manoeuvres(box_: &Calibration) -> std::result::Result<(), String> {
     let on_a_leg = |heading: f64| box_.headings_deg.iter().any(|h| (h - heading).abs() < 0.5);
     for omitted in &box_.omit {
         let (_, heading) = parse_omission(omitted)?;
@@ -752,31 +791,12 @@ fn check_flight_plan(raw: &RawScenario) -> std::result::Result<(), String> {
             ));
         }
     }
-    for (name, range) in [("lead_in_s", box_.lead_in_s), ("pause_s", box_.pause_s)] {
-        if !(range[0] >= 0.0 && range[0] <= range[1] && range[1] < 3600.0) {
-            return Err(format!(
-                "[calibration] {name} = {range:?}: give [shortest, longest] in seconds, 0 ≤ shortest ≤ longest"
-            ));
-        }
-    }
-    if let Some(number) = box_.line_numbers.iter().find(|n| !n.is_finite() || **n < 0.0) {
-        return Err(format!(
-            "[calibration] line_numbers holds {number}: give each box's line number as a non-negative number (0 for none)"
-        ));
-    }
-    let rates = box_.turn_rate_deg_s;
-    if !(rates[0] >= 0.5 && rates[0] <= rates[1] && rates[1] <= 10.0) {
-        return Err(format!(
-            "[calibration] turn_rate_deg_s = {rates:?}: give [slowest, fastest] between 0.5 and 10 degrees/s"
-        ));
-    }
-    let entry = box_.turn_entry_s;
-    if !(entry[0] >= 0.0 && entry[0] <= entry[1] && entry[1] <= 30.0) {
-        return Err(format!(
-            "[calibration] turn_entry_s = {entry:?}: give [shortest, longest] between 0 and 30 s"
-        ));
-    }
-    let coupling = &box_.coupling;
+    Ok(())
+}
+
+/// The airframe's coupled motion: fractions within [0, 1], lags within
+/// ±180°.
+fn check_coupling(coupling: &Coupling) -> std::result::Result<(), String> {
     for (name, range) in [
         ("pitch_roll", coupling.pitch_roll),
         ("roll_pitch", coupling.roll_pitch),
@@ -794,13 +814,6 @@ fn check_flight_plan(raw: &RawScenario) -> std::result::Result<(), String> {
         return Err(format!(
             "[calibration.coupling] lag_deg = {lag:?}: give [least, most] in degrees within ±180"
         ));
-    }
-    let speeds = [box_.speed_m_s, raw.survey.speed_m_s];
-    if speeds.iter().any(|s| !(*s > 1.0 && *s < 400.0)) {
-        return Err("speed_m_s must lie between 1 and 400 m/s".into());
-    }
-    if raw.survey.line_count > 0 && !(raw.survey.line_length_m > 0.0 && raw.survey.line_spacing_m >= 0.0) {
-        return Err("[survey] line_length_m must be positive and line_spacing_m not negative (0 reflies the same line both ways)".into());
     }
     Ok(())
 }

@@ -457,34 +457,26 @@ pub fn fit(
         let expected = model.expected_body(log, inputs, windows);
         tolles_lawson::fit_stage(log, &sensor.prefix, (body, &expected), windows, options)
     };
+    let no_stage = |e: Error| format!("no stage (the eddy currents' field is left in the vector): {e}");
     let raw = twelve_constant_body(log, &model.sensor, (&model.soft_iron, &model.hard_iron_nt))?;
     let first = match stage(&model, &raw) {
         Ok(first) => first,
         Err(e) => {
-            model.tolles_lawson_warning = Some(format!(
-                "no stage (the eddy currents' field is left in the vector): {e}"
-            ));
+            model.tolles_lawson_warning = Some(no_stage(e));
             return Ok(model);
         }
     };
     let mut body = raw.clone();
     first.apply(log, &sensor.prefix, &mut body)?;
-    let k = Matrix3::from_fn(|j, c| model.soft_iron[j][c]);
-    let mut corrected: [Vec<f64>; 3] = readings.map(<[f64]>::to_vec);
-    for i in 0..log.len() {
-        let eddy = k * Vector3::new(raw[0][i] - body[0][i], raw[1][i] - body[1][i], raw[2][i] - body[2][i]);
-        for j in 0..3 {
-            corrected[j][i] -= eddy[j];
-        }
-    }
+    let corrected = without_eddy_field(readings, &model.soft_iron, (&raw, &body));
     let corrected_inputs = (&attitude, reference_nt, &turns, corrected.each_ref().map(Vec::as_slice));
     match fit_samples(&samples(log, corrected_inputs, rows.iter().cloned()), &angles) {
         Some(mut refitted) => {
             refitted.orient(igrf);
-            refitted.sensor = model.sensor.clone();
-            refitted.reference = model.reference.clone();
+            refitted.sensor = std::mem::take(&mut model.sensor);
+            refitted.reference = std::mem::take(&mut model.reference);
             refitted.reference_swing_nt = model.reference_swing_nt;
-            refitted.start = model.start.clone();
+            refitted.start = model.start;
             refitted.held_out = held_out(log, windows, corrected_inputs, &angles);
             model = refitted;
         }
@@ -499,13 +491,29 @@ pub fn fit(
     let body = twelve_constant_body(log, &model.sensor, (&model.soft_iron, &model.hard_iron_nt))?;
     match stage(&model, &body) {
         Ok(second) => model.tolles_lawson = Some(second),
-        Err(e) => {
-            model.tolles_lawson_warning = Some(format!(
-                "no stage (the eddy currents' field is left in the vector): {e}"
-            ))
-        }
+        Err(e) => model.tolles_lawson_warning = Some(no_stage(e)),
     }
     Ok(model)
+}
+
+/// The fluxgate's `readings` less the eddy currents' field the vector
+/// Tolles-Lawson stage took out of the twelve constants' output (`raw`
+/// before the stage, `body` after it), brought back into the fluxgate's
+/// axes by the soft-iron matrix.
+fn without_eddy_field(
+    readings: [&[f64]; 3],
+    soft_iron: &[[f64; 3]; 3],
+    (raw, body): (&[Vec<f64>; 3], &[Vec<f64>; 3]),
+) -> [Vec<f64>; 3] {
+    let k = Matrix3::from_fn(|j, c| soft_iron[j][c]);
+    let mut corrected: [Vec<f64>; 3] = readings.map(<[f64]>::to_vec);
+    for i in 0..corrected[0].len() {
+        let eddy = k * Vector3::new(raw[0][i] - body[0][i], raw[1][i] - body[1][i], raw[2][i] - body[2][i]);
+        for j in 0..3 {
+            corrected[j][i] -= eddy[j];
+        }
+    }
+    corrected
 }
 
 /// The Earth field's size on every row, from one scalar channel.
