@@ -805,8 +805,7 @@ impl fmt::Display for Warning {
             | Warning::NamedBySize { .. }
             | Warning::SteepField { .. }
             | Warning::AttitudeGaps { .. } => self.write_detection(f),
-            Warning::OutputOutOfRange { .. }
-            | Warning::FomAboveLimit { .. }
+            Warning::FomAboveLimit { .. }
             | Warning::NoiseRaised { .. }
             | Warning::HeadingErrorRaised { .. }
             | Warning::CrossoversRaised { .. }
@@ -826,6 +825,7 @@ impl fmt::Display for Warning {
             | Warning::VectorNotHeldOut { .. }
             | Warning::VectorTollesLawson { .. } => self.write_vector(f),
             Warning::WindowsFromOtherFlight { .. }
+            | Warning::OutputOutOfRange { .. }
             | Warning::McapUndated { .. }
             | Warning::TextColumnsNotWritten { .. }
             | Warning::PlanManoeuvresMissing { .. }
@@ -1009,6 +1009,12 @@ impl Warning {
     /// The sentence of a warning on the run's inputs and outputs.
     fn write_input(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
+            Warning::OutputOutOfRange { subject, rows, first } => write!(
+                f,
+                "{subject}: {rows} compensated row{} lie beyond what the instrument reads (a total field outside 1,000-100,000 nT, a component beyond ±100,000 nT), the first at {} s; they are written and flagged output_out_of_range:{subject}. The model was applied far from what it was fitted on: look at the attitude and fluxgate there, and at the calibration windows",
+                if *rows == 1 { "" } else { "s" },
+                crate::error::Number(*first),
+            ),
             Warning::WindowsFromOtherFlight {
                 windows_file,
                 detected_on,
@@ -1224,12 +1230,6 @@ impl Warning {
     /// The sentence of a warning of the compensation's quality figures.
     fn write_quality(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            Warning::OutputOutOfRange { subject, rows, first } => write!(
-                f,
-                "{subject}: {rows} compensated row{} lie beyond what the instrument reads (a total field outside 1,000-100,000 nT, a component beyond ±100,000 nT), the first at {} s; they are written and flagged output_out_of_range:{subject}. The model was applied far from what it was fitted on: look at the attitude and fluxgate there, and at the calibration windows",
-                if *rows == 1 { "" } else { "s" },
-                crate::error::Number(*first),
-            ),
             Warning::FomAboveLimit {
                 channel,
                 fom_nt,

@@ -508,6 +508,39 @@ struct Realisation {
     calibration_s: f64,
 }
 
+/// The warning naming the channels whose compensated noise alone is at or
+/// above the survey `target`, nT, which no manoeuvre can meet.
+fn noise_above_target(channels: &[ChannelPrediction], realisations: &[Realisation], target: f64) -> Option<String> {
+    let floored: Vec<String> = (channels.iter().zip(&realisations[0].outcomes))
+        .filter_map(|(channel, outcome)| {
+            let floor = median_of(realisations.iter().map(|r| noise_of(r, &outcome.channel)));
+            (floor >= target).then(|| format!("{} ({floor:.3} nT)", channel.channel))
+        })
+        .collect();
+    (!floored.is_empty()).then(|| {
+        format!(
+            "no manoeuvre can meet the survey target of {target:.3} nT on {}: the compensated channel's noise alone is above it",
+            floored.join(", ")
+        )
+    })
+}
+
+/// The flights of `plan` with its proposed `additions` flown too, one per
+/// seed.
+fn realise_with(
+    plan: &Plan,
+    additions: &[Addition],
+    (seeds, settings): (&[u64], &Settings),
+) -> Result<Vec<Realisation>> {
+    let mut scenario = plan.scenario.clone();
+    add_to_scenario(&mut scenario.raw, additions);
+    let scenario = Scenario::try_from(scenario.raw).map_err(|message| Error::Config {
+        source_name: plan.path.display().to_string(),
+        message,
+    })?;
+    realise_all(&scenario, seeds, settings)
+}
+
 /// Predicts what flights of `plan` would achieve (see the module doc).
 /// Results do not depend on the number of threads: each realisation is
 /// simulated and fitted on its own seed, and they are gathered in order.
@@ -534,29 +567,12 @@ pub fn predict(plan: &Plan, settings: &Settings) -> Result<PlanReport> {
     match target_survey {
         Some(target) => {
             let chosen = choose_additions(&realisations, target, plan.settings.most_additions, &cost);
-            let floored: Vec<String> = (channels.iter().zip(&realisations[0].outcomes))
-                .filter_map(|(channel, outcome)| {
-                    let floor = median_of(realisations.iter().map(|r| noise_of(r, &outcome.channel)));
-                    (floor >= target).then(|| format!("{} ({floor:.3} nT)", channel.channel))
-                })
-                .collect();
-            if !floored.is_empty() {
-                warnings.push(format!(
-                    "no manoeuvre can meet the survey target of {target:.3} nT on {}: the compensated channel's noise alone is above it",
-                    floored.join(", ")
-                ));
-            }
+            warnings.extend(noise_above_target(&channels, &realisations, target));
             if let Some((list, met)) = chosen {
                 additions = list;
                 additions_meet_target = Some(met);
                 if !additions.is_empty() {
-                    let mut scenario = plan.scenario.clone();
-                    add_to_scenario(&mut scenario.raw, &additions);
-                    let scenario = Scenario::try_from(scenario.raw).map_err(|message| Error::Config {
-                        source_name: plan.path.display().to_string(),
-                        message,
-                    })?;
-                    let again = realise_all(&scenario, &seeds, settings)?;
+                    let again = realise_with(plan, &additions, (&seeds, settings))?;
                     with_additions = predictions(&again, target_survey, target_fom);
                 }
             }
@@ -703,6 +719,30 @@ fn realise_all(scenario: &Scenario, seeds: &[u64], settings: &Settings) -> Resul
         .collect()
 }
 
+/// What `model` states of its compensation on `log`: the jackknife's
+/// sigma outside the calibration, and the sigma column's RMS over the
+/// survey lines (rows whose `line` is positive, the white noise
+/// `noise_nt` added), nT; NaN for both without a jackknife.
+fn stated_sigmas(
+    log: &crate::ingest::flight_log::FlightLog,
+    model: &FittedModel,
+    (shared, line): (&[SharedDesign], &[f64]),
+    noise_nt: f64,
+) -> Result<(f64, f64)> {
+    let Some(prediction) = model.prediction_sigma_with(log, shared)? else {
+        return Ok((f64::NAN, f64::NAN));
+    };
+    let column: Vec<f64> = (0..line.len())
+        .filter(|&i| line[i] > 0.0)
+        .map(|i| prediction.relative_nt[i].hypot(noise_nt))
+        .filter(|v| v.is_finite())
+        .collect();
+    Ok((
+        crate::quality::uncertainty_of(log, model, &prediction).map_or(f64::NAN, |u| u.outside_calibration_sigma_nt),
+        (column.iter().map(|v| v * v).sum::<f64>() / column.len() as f64).sqrt(),
+    ))
+}
+
 /// Fits and measures one simulated flight as `compensate --plain` would,
 /// on its planned manoeuvres.
 fn realise(flight: &SimulatedFlight, settings: &Settings) -> Result<Realisation> {
@@ -727,21 +767,7 @@ fn realise(flight: &SimulatedFlight, settings: &Settings) -> Result<Realisation>
             let noise_nt = quality.white_noise_nt().unwrap_or(f64::NAN);
             let truth = flight.truth.earth_total_nt(&model.channel).unwrap_or_default();
             let (excitation, design) = design.unzip();
-            let (jackknife_sigma_nt, sigma_column_nt) = match model.prediction_sigma_with(log, &shared)? {
-                Some(prediction) => {
-                    let column: Vec<f64> = (0..line.len())
-                        .filter(|&i| line[i] > 0.0)
-                        .map(|i| prediction.relative_nt[i].hypot(noise_nt))
-                        .filter(|v| v.is_finite())
-                        .collect();
-                    (
-                        crate::quality::uncertainty_of(log, model, &prediction)
-                            .map_or(f64::NAN, |u| u.outside_calibration_sigma_nt),
-                        (column.iter().map(|v| v * v).sum::<f64>() / column.len() as f64).sqrt(),
-                    )
-                }
-                None => (f64::NAN, f64::NAN),
-            };
+            let (jackknife_sigma_nt, sigma_column_nt) = stated_sigmas(log, model, (&shared, line), noise_nt)?;
             Ok(Outcome {
                 channel: model.channel.clone(),
                 fom: quality
@@ -1132,6 +1158,62 @@ fn add_to_scenario(raw: &mut RawScenario, additions: &[Addition]) {
     }
 }
 
+/// The summary's sentences on the survey `target`, nT: met as the plan
+/// stands, or the cheapest additions that meet it (or come closest) and
+/// the channels flown with them.
+fn target_summary(report: &PlanReport, target: f64) -> Vec<String> {
+    let mut lines = Vec::new();
+    let meeting: Vec<&str> = (report.channels.iter())
+        .filter(|c| c.meets_survey_target == Some(true))
+        .map(|c| c.channel.as_str())
+        .collect();
+    match (report.additions.is_empty(), report.additions_meet_target) {
+        (true, Some(true)) => lines.push(format!(
+            "The plan meets the survey target of {target:.3} nT as it stands on {} (a channel whose noise alone exceeds it is warned).",
+            match meeting.is_empty() {
+                true => "no channel".to_string(),
+                false => meeting.join(", "),
+            }
+        )),
+        (true, _) => lines.push(format!(
+            "No addition lowers the survey uncertainty towards the target of {target:.3} nT."
+        )),
+        (false, met) => {
+            let list: Vec<String> = (report.additions.iter())
+                .map(|a| {
+                    format!(
+                        "{} on heading {:.0}{}{} ({:.0} s)",
+                        a.kind.name(),
+                        a.heading_deg,
+                        if a.count > 1 { format!(" ×{}", a.count) } else { String::new() },
+                        if a.new_leg { ", a new leg" } else { "" },
+                        a.cost_s
+                    )
+                })
+                .collect();
+            let total: f64 = report.additions.iter().map(|a| a.cost_s).sum();
+            let verdict = match met {
+                Some(true) => "meet",
+                _ => "come closest to",
+            };
+            lines.push(format!(
+                "The cheapest additions that {verdict} the survey target of {target:.3} nT: {} ({total:.0} s of flight in all).",
+                list.join(", ")
+            ));
+            for channel in &report.with_additions {
+                lines.push(format!(
+                    "Flown with them, {}: survey uncertainty {}, simulated error {}, FOM {}.",
+                    channel.channel,
+                    channel.survey_sigma_nt.words(3),
+                    channel.survey_error_nt.words(3),
+                    channel.fom_nt.words(2)
+                ));
+            }
+        }
+    }
+    lines
+}
+
 /// The prediction in a few sentences.
 fn summarise(report: &PlanReport) -> Vec<String> {
     let mut lines = vec![format!(
@@ -1158,54 +1240,7 @@ fn summarise(report: &PlanReport) -> Vec<String> {
         ));
     }
     if let Some(target) = report.target_survey_sigma_nt {
-        let meeting: Vec<&str> = (report.channels.iter())
-            .filter(|c| c.meets_survey_target == Some(true))
-            .map(|c| c.channel.as_str())
-            .collect();
-        match (report.additions.is_empty(), report.additions_meet_target) {
-            (true, Some(true)) => lines.push(format!(
-                "The plan meets the survey target of {target:.3} nT as it stands on {} (a channel whose noise alone exceeds it is warned).",
-                match meeting.is_empty() {
-                    true => "no channel".to_string(),
-                    false => meeting.join(", "),
-                }
-            )),
-            (true, _) => lines.push(format!(
-                "No addition lowers the survey uncertainty towards the target of {target:.3} nT."
-            )),
-            (false, met) => {
-                let list: Vec<String> = (report.additions.iter())
-                    .map(|a| {
-                        format!(
-                            "{} on heading {:.0}{}{} ({:.0} s)",
-                            a.kind.name(),
-                            a.heading_deg,
-                            if a.count > 1 { format!(" ×{}", a.count) } else { String::new() },
-                            if a.new_leg { ", a new leg" } else { "" },
-                            a.cost_s
-                        )
-                    })
-                    .collect();
-                let total: f64 = report.additions.iter().map(|a| a.cost_s).sum();
-                let verdict = match met {
-                    Some(true) => "meet",
-                    _ => "come closest to",
-                };
-                lines.push(format!(
-                    "The cheapest additions that {verdict} the survey target of {target:.3} nT: {} ({total:.0} s of flight in all).",
-                    list.join(", ")
-                ));
-                for channel in &report.with_additions {
-                    lines.push(format!(
-                        "Flown with them, {}: survey uncertainty {}, simulated error {}, FOM {}.",
-                        channel.channel,
-                        channel.survey_sigma_nt.words(3),
-                        channel.survey_error_nt.words(3),
-                        channel.fom_nt.words(2)
-                    ));
-                }
-            }
-        }
+        lines.extend(target_summary(report, target));
     }
     lines
 }

@@ -194,6 +194,22 @@ fn pinned_uncertainty(
     Ok(uncertainty)
 }
 
+/// The rows of `rows` (every row when empty) where the scalar reads a
+/// positive field and the fluxgate reads all three axes.
+fn usable_rows(scalar: &[f64], field: [&[f64]; 3], rows: &[Range<usize>]) -> Vec<usize> {
+    let every = 0..scalar.len();
+    let ranges = if rows.is_empty() {
+        std::slice::from_ref(&every)
+    } else {
+        rows
+    };
+    ranges
+        .iter()
+        .flat_map(Clone::clone)
+        .filter(|&i| scalar[i].is_finite() && field.iter().all(|c| c[i].is_finite()) && scalar[i] > 0.0)
+        .collect()
+}
+
 fn calibrate_from(
     log: &FlightLog,
     sensor: &VectorSensor,
@@ -215,17 +231,7 @@ fn calibrate_from(
         })?
         .values;
     let field = log.vector_components(sensor);
-    let every = 0..log.len();
-    let ranges = if rows.is_empty() {
-        std::slice::from_ref(&every)
-    } else {
-        rows
-    };
-    let used: Vec<usize> = ranges
-        .iter()
-        .flat_map(Clone::clone)
-        .filter(|&i| scalar[i].is_finite() && field.iter().all(|c| c[i].is_finite()) && scalar[i] > 0.0)
-        .collect();
+    let used = usable_rows(scalar, field, rows);
     if used.len() < MIN_SAMPLES {
         return Err(fail(format!(
             "calibrating against '{reference}' needs at least {MIN_SAMPLES} rows where both are valid, found {}",

@@ -46,16 +46,32 @@ pub fn diagnose(
         html, flight, &diagnosis,
     )?);
     set.commit()?;
+    print_diagnosis(&diagnosis, pipeline.settings.fit.solve.criterion);
+    println!("wrote {} and {}", out.display(), html.display());
+    if diagnosis.channels.iter().any(|c| !c.model.is_plain()) {
+        println!(
+            "to compensate with these models: magcomp compensate {} --out OUT.csv --diagnosis {}",
+            flight.display(),
+            out.display()
+        );
+    }
+    Ok(())
+}
+
+/// The diagnosis on the terminal: each channel's held-out RMS (λ by
+/// `criterion`, as compensation picks it), the notes, and each finding
+/// with what it means.
+fn print_diagnosis(diagnosis: &magcomp::diagnose::Diagnosis, criterion: magcomp::numerics::solve::Criterion) {
     for channel in &diagnosis.channels {
         println!(
             "  {}: held-out RMS {:.4} nT with plain Tolles-Lawson, {:.4} nT with the findings and λ by {} as compensation picks it",
             channel.channel,
             channel.heldout_rms_baseline_nt,
             channel.heldout_rms_final_nt,
-            pipeline.settings.fit.solve.criterion.describe()
+            criterion.describe()
         );
         if let (true, Some(start)) = (
-            channel.search_criterion != pipeline.settings.fit.solve.criterion,
+            channel.search_criterion != criterion,
             channel.heldout_rms_other_criterion_nt,
         ) {
             println!(
@@ -88,13 +104,4 @@ pub fn diagnose(
         );
         println!("    {}", finding.explanation);
     }
-    println!("wrote {} and {}", out.display(), html.display());
-    if diagnosis.channels.iter().any(|c| !c.model.is_plain()) {
-        println!(
-            "to compensate with these models: magcomp compensate {} --out OUT.csv --diagnosis {}",
-            flight.display(),
-            out.display()
-        );
-    }
-    Ok(())
 }

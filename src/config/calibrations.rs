@@ -46,6 +46,34 @@ fn calibration_flights(flights: &[FlightJob]) -> std::result::Result<BTreeMap<St
     Ok(by_aircraft)
 }
 
+/// The notes on the flights not simply given their aircraft's calibration:
+/// those `flown_before_any` of its calibration flights (given the first
+/// one's model), and those of an aircraft with none, by aircraft
+/// (`uncalibrated`, fitted on their own boxes).
+fn notes_on_the_rest(
+    flights: &[FlightJob],
+    flown_before_any: &[usize],
+    uncalibrated: &BTreeMap<String, Vec<usize>>,
+) -> Vec<String> {
+    let mut notes = Vec::new();
+    for &index in flown_before_any {
+        notes.push(format!(
+            "{} was flown before any calibration flight of its aircraft: it is compensated with the first one's model",
+            flights[index].input.display()
+        ));
+    }
+    for indices in uncalibrated.values() {
+        let names: Vec<&str> = indices.iter().map(|&i| flights[i].output_name.as_str()).collect();
+        notes.push(format!(
+            "aircraft '{}' has no calibration flight in this campaign (calibration = true): its {} flight(s) are fitted on their own boxes: {}",
+            flights[indices[0]].aircraft.as_deref().unwrap_or_default().trim(),
+            indices.len(),
+            listed(&names)
+        ));
+    }
+    notes
+}
+
 /// Gives each flight of an aircraft with calibration flights the model of
 /// one of them (see the module documentation), as the path that flight's
 /// run writes in `output_directory`. Returns one note per calibration
@@ -114,21 +142,7 @@ pub(super) fn assign_calibrations(
             listed(&names)
         ));
     }
-    for index in flown_before_any {
-        notes.push(format!(
-            "{} was flown before any calibration flight of its aircraft: it is compensated with the first one's model",
-            flights[index].input.display()
-        ));
-    }
-    for indices in uncalibrated.values() {
-        let names: Vec<&str> = indices.iter().map(|&i| flights[i].output_name.as_str()).collect();
-        notes.push(format!(
-            "aircraft '{}' has no calibration flight in this campaign (calibration = true): its {} flight(s) are fitted on their own boxes: {}",
-            flights[indices[0]].aircraft.as_deref().unwrap_or_default().trim(),
-            indices.len(),
-            listed(&names)
-        ));
-    }
+    notes.extend(notes_on_the_rest(flights, &flown_before_any, &uncalibrated));
     Ok(notes)
 }
 

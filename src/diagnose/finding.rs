@@ -149,6 +149,53 @@ pub(super) fn describe(extension: &Extension) -> String {
     }
 }
 
+/// A sensor lag found near `lag_s`, refined in steps of 0.01 s (a tenth
+/// of a sample at 10 Hz) around that grid point: its effect and words,
+/// `model` set to it, and the held-out residuals it leaves.
+fn lag_finding(problem: &Problem, model: &mut Model, lag_s: f64) -> Result<(Effect, String, HeldOut)> {
+    let base = Model {
+        lag_s: 0.0,
+        ..model.clone()
+    };
+    let refined = refine(problem, (lag_s, 0.01, 5), |lag_s| Model { lag_s, ..base.clone() })?;
+    let explanation = format!(
+        "{} reads the field {:.3} s {} the fluxgate and attitude: its record is shifted in time against the regressors, which leaves a residual proportional to the rate of change during every manoeuvre.",
+        problem.channel,
+        refined.0.abs(),
+        if refined.0 > 0.0 { "later than" } else { "earlier than" }
+    );
+    model.lag_s = refined.0;
+    Ok((
+        Effect::SensorLag(SensorLag { lag_s: refined.0 }),
+        explanation,
+        refined.1,
+    ))
+}
+
+/// An eddy time constant found near `tau_s`, refined in steps of a tenth
+/// of τ around that grid point: its effect and words, `model` set to it,
+/// and the held-out residuals it leaves.
+fn eddy_finding(problem: &Problem, model: &mut Model, tau_s: f64) -> Result<(Effect, String, HeldOut)> {
+    let base = Model {
+        eddy_tau_s: 0.0,
+        ..model.clone()
+    };
+    let refined = refine(problem, (tau_s, 0.1 * tau_s, 4), |eddy_tau_s| Model {
+        eddy_tau_s,
+        ..base.clone()
+    })?;
+    let explanation = format!(
+        "Eddy currents in the airframe near {} build up and decay with a time constant of about {:.2} s instead of following the field's rate of change at once: the eddy terms, lagged by it, explain the residual that plain Tolles-Lawson leaves in the faster manoeuvres.",
+        problem.channel, refined.0
+    );
+    model.eddy_tau_s = refined.0;
+    Ok((
+        Effect::EddyTimeConstant(EddyTimeConstant { tau_s: refined.0 }),
+        explanation,
+        refined.1,
+    ))
+}
+
 /// Describes an accepted extension; a lag is refined first. Returns the
 /// finding with the model and held-out residuals it ends with.
 pub(super) fn finding(
@@ -161,41 +208,12 @@ pub(super) fn finding(
     let (effect, source, explanation);
     match extension {
         Extension::Lag { lag_s } => {
-            let base = Model {
-                lag_s: 0.0,
-                ..model.clone()
-            };
-            // Steps of 0.01 s (a tenth of a sample at 10 Hz) around the 0.05 s grid point.
-            let refined = refine(problem, (*lag_s, 0.01, 5), |lag_s| Model { lag_s, ..base.clone() })?;
-            effect = Effect::SensorLag(SensorLag { lag_s: refined.0 });
+            (effect, explanation, result) = lag_finding(problem, &mut model, *lag_s)?;
             source = None;
-            explanation = format!(
-                "{} reads the field {:.3} s {} the fluxgate and attitude: its record is shifted in time against the regressors, which leaves a residual proportional to the rate of change during every manoeuvre.",
-                problem.channel,
-                refined.0.abs(),
-                if refined.0 > 0.0 { "later than" } else { "earlier than" }
-            );
-            model.lag_s = refined.0;
-            result = refined.1;
         }
         Extension::Eddy { tau_s } => {
-            let base = Model {
-                eddy_tau_s: 0.0,
-                ..model.clone()
-            };
-            // Steps of a tenth of τ around the grid point.
-            let refined = refine(problem, (*tau_s, 0.1 * tau_s, 4), |eddy_tau_s| Model {
-                eddy_tau_s,
-                ..base.clone()
-            })?;
-            effect = Effect::EddyTimeConstant(EddyTimeConstant { tau_s: refined.0 });
+            (effect, explanation, result) = eddy_finding(problem, &mut model, *tau_s)?;
             source = None;
-            explanation = format!(
-                "Eddy currents in the airframe near {} build up and decay with a time constant of about {:.2} s instead of following the field's rate of change at once: the eddy terms, lagged by it, explain the residual that plain Tolles-Lawson leaves in the faster manoeuvres.",
-                problem.channel, refined.0
-            );
-            model.eddy_tau_s = refined.0;
-            result = refined.1;
         }
         Extension::Coupling { source: column }
         | Extension::CouplingRate { source: column }

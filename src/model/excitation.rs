@@ -431,19 +431,15 @@ fn pinnable_basis(
     Some((basis, vectors.to_owned(), unpinnable))
 }
 
-/// [`analyse`], and the information it rests on.
-pub fn analyse_design(
-    log: &FlightLog,
-    sensor: &VectorSensor,
-    model: &FittedModel,
-    windows: &[CalibrationWindow],
+/// The calibration `windows`' fits in the band-passed design of `model`
+/// (on `prepared`, its flight with its extension columns), the sample
+/// rate, and the information each window holds.
+fn flown_windows(
+    prepared: &Prepared,
+    (sensor, model, windows): (&VectorSensor, &FittedModel, &[CalibrationWindow]),
     options: &FitOptions,
-    (stores, shared): (&StorePool, &[SharedDesign]),
-) -> Result<Option<(Excitation, Design)>> {
-    let prepared = Prepared::new(log, sensor, &model.channel, &model.spec)?;
-    let Some(plan) = CandidatePlan::of_flight(&prepared.log, sensor, windows) else {
-        return Ok(None);
-    };
+    stores: &StorePool,
+) -> Result<(Vec<WindowFit>, f64, Flown)> {
     let BandData {
         stacked,
         windows: fits,
@@ -457,14 +453,32 @@ pub fn analyse_design(
         &prepared.extra_columns(),
         stores,
     )?;
-    let p = stacked.columns();
+    let flown = Flown::of(&stacked, &fits);
+    stores.recycle(stacked);
+    Ok((fits, sample_rate_hz, flown))
+}
+
+/// [`analyse`], and the information it rests on.
+pub fn analyse_design(
+    log: &FlightLog,
+    sensor: &VectorSensor,
+    model: &FittedModel,
+    windows: &[CalibrationWindow],
+    options: &FitOptions,
+    (stores, shared): (&StorePool, &[SharedDesign]),
+) -> Result<Option<(Excitation, Design)>> {
+    let prepared = Prepared::new(log, sensor, &model.channel, &model.spec)?;
+    let Some(plan) = CandidatePlan::of_flight(&prepared.log, sensor, windows) else {
+        return Ok(None);
+    };
+    let (fits, sample_rate_hz, flown) = flown_windows(&prepared, (sensor, model, windows), options, stores)?;
+    let p = flown.scale.len();
     let Flown {
         per_window: flown,
         information,
         scale,
         calibration_moment,
-    } = Flown::of(&stacked, &fits);
-    stores.recycle(stacked);
+    } = flown;
 
     // One of each kind on each heading: the candidates, and together a
     // full box.

@@ -162,26 +162,7 @@ impl<'a> Prepared<'a> {
             (Cow::Borrowed(flight), _) => Cow::Borrowed(scalar_values(flight, channel)?),
             (Cow::Owned(flight), _) => Cow::Owned(scalar_values(flight, channel)?.to_vec()),
         };
-        // A base station's variation is the Earth's field, which the
-        // aircraft's sensor reads as the station does: the model is fitted
-        // on the scalar less it, gain 1, so it cannot bias the aircraft's
-        // coefficients and no fitted gain can take up the aircraft's own
-        // field in its place. The compensated channel keeps it (removing
-        // it is the survey's diurnal correction, a step of its own).
-        let stations: Vec<(&[f64], f64)> = (extensions.sources.iter())
-            .filter_map(|source| match source {
-                SourceTerm::ExternalField { column, level } => {
-                    log.channel(column).map(|c| (c.values.as_slice(), *level))
-                }
-                _ => None,
-            })
-            .collect();
-        let scalar = match stations.is_empty() {
-            true => scalar,
-            false => Cow::Owned(column_on(n, rows, |row| {
-                scalar[row] - stations.iter().map(|(c, level)| c[row] - level).sum::<f64>()
-            })),
-        };
+        let scalar = less_base_stations(scalar, &log, &extensions.sources, (n, rows));
         Ok(Prepared {
             log,
             sensor,
@@ -460,6 +441,34 @@ impl<'a> Prepared<'a> {
             }
         }
         Cow::Owned(corrected)
+    }
+}
+
+/// The scalar less each base station's variation among `sources` (its
+/// column less its level), on `rows` of the flight's `n` (all without).
+/// A base station's variation is the Earth's field, which the aircraft's
+/// sensor reads as the station does: the model is fitted on the scalar
+/// less it, gain 1, so it cannot bias the aircraft's coefficients and no
+/// fitted gain can take up the aircraft's own field in its place. The
+/// compensated channel keeps it (removing it is the survey's diurnal
+/// correction, a step of its own).
+fn less_base_stations<'s>(
+    scalar: Cow<'s, [f64]>,
+    log: &FlightLog,
+    sources: &[SourceTerm],
+    (n, rows): (usize, Option<&[Range<usize>]>),
+) -> Cow<'s, [f64]> {
+    let stations: Vec<(&[f64], f64)> = (sources.iter())
+        .filter_map(|source| match source {
+            SourceTerm::ExternalField { column, level } => log.channel(column).map(|c| (c.values.as_slice(), *level)),
+            _ => None,
+        })
+        .collect();
+    match stations.is_empty() {
+        true => scalar,
+        false => Cow::Owned(column_on(n, rows, |row| {
+            scalar[row] - stations.iter().map(|(c, level)| c[row] - level).sum::<f64>()
+        })),
     }
 }
 

@@ -1044,15 +1044,6 @@ fn fold_held_out(fold: &FoldStatistics, spectrum: &Spectrum, grid: &[f64]) -> Ve
     let gram: Vec<f64> = (0..active * active)
         .map(|index| fold.gram[(index / active, index % active)])
         .collect();
-    let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
-    // `matrix` (row-major, `columns` wide) times `v`, over its first `v.len()` rows and columns.
-    let times = |matrix: &[f64], columns: usize, v: &[f64]| -> Vec<f64> {
-        matrix
-            .chunks_exact(columns)
-            .take(v.len())
-            .map(|row| dot(&row[..v.len()], v))
-            .collect()
-    };
     // The fit's residual on the fold, and the projection p, for the
     // shrunk coefficients of the first `shrunk.len()` components.
     let parts = |shrunk: &[f64]| -> (f64, Vec<f64>) {
@@ -1122,6 +1113,21 @@ fn fold_held_out(fold: &FoldStatistics, spectrum: &Spectrum, grid: &[f64]) -> Ve
         held_out(residual_ss, &projected, &correction)
     }));
     scores
+}
+
+/// $a \cdot b$ over the shorter of the two.
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>()
+}
+
+/// `matrix` (row-major, `columns` wide) times `v`, over its first
+/// `v.len()` rows and columns.
+fn times(matrix: &[f64], columns: usize, v: &[f64]) -> Vec<f64> {
+    matrix
+        .chunks_exact(columns)
+        .take(v.len())
+        .map(|row| dot(&row[..v.len()], v))
+        .collect()
 }
 
 /// The eigendecomposition of the symmetric `active`×`active` matrix `m`:

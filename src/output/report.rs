@@ -482,6 +482,21 @@ fn equal_scale(
     (about(&x, pixels.0), about(&y, pixels.1))
 }
 
+/// Metres east and north of the centre of `rows`' positions (latitude and
+/// longitude, degrees), on every row of the flight; NaN off `rows`.
+fn east_north(rows: &[usize], (lat, lon): (&[f64], &[f64])) -> (Vec<f64>, Vec<f64>) {
+    let centre = (span(rows.iter().map(|&k| lat[k])), span(rows.iter().map(|&k| lon[k])));
+    let centre = (
+        (centre.0.start + centre.0.end) / 2.0,
+        (centre.1.start + centre.1.end) / 2.0,
+    );
+    let (mut east, mut north) = (vec![f64::NAN; lat.len()], vec![f64::NAN; lat.len()]);
+    for &k in rows {
+        (east[k], north[k]) = local_metres((lat[k], lon[k]), centre);
+    }
+    (east, north)
+}
+
 /// Survey-line samples coloured by compensated anomaly (value less the
 /// lines' median), blue low to red high, in metres east and north of the
 /// survey's centre at one scale, with a colour bar in nT.
@@ -514,18 +529,7 @@ fn line_map(log: &FlightLog, values: &[f64]) -> Result<Option<String>> {
         sorted[sorted.len() / 50] - level,
         sorted[sorted.len() - 1 - sorted.len() / 50] - level,
     );
-    let centre = (
-        span(rows.iter().map(|&k| lat.values[k])),
-        span(rows.iter().map(|&k| lon.values[k])),
-    );
-    let centre = (
-        (centre.0.start + centre.0.end) / 2.0,
-        (centre.1.start + centre.1.end) / 2.0,
-    );
-    let (mut east, mut north) = (vec![f64::NAN; log.len()], vec![f64::NAN; log.len()]);
-    for &k in &rows {
-        (east[k], north[k]) = local_metres((lat.values[k], lon.values[k]), centre);
-    }
+    let (east, north) = east_north(&rows, (&lat.values, &lon.values));
     // The plot's size in pixels does not depend on its ranges: measured on
     // a scratch canvas, it sets the one scale.
     let pixels = {
@@ -1098,20 +1102,16 @@ fn residual_plot(trace: &ResidualTrace, marked: &[(f64, f64)]) -> Result<String>
     })
 }
 
-/// The diagnosis: what was found, and per channel each manoeuvre's
-/// held-out residual before and after, with the windows the findings
-/// improved most and the structured stretches shaded.
-pub fn diagnosis_section(diagnosis: &Diagnosis) -> Result<String> {
-    let mut html = String::from("<section id=\"diagnosis\"><h2>Diagnosis: physics the model left out</h2>");
-    for note in &diagnosis.notes {
-        let _ = write!(html, "<p class=\"note\">{}</p>", escape(note));
-    }
-    if diagnosis.findings.is_empty() {
+/// The diagnosis's findings as a table, or the sentence that there is
+/// none.
+fn findings_table(findings: &[crate::diagnose::Finding]) -> String {
+    let mut html = String::new();
+    if findings.is_empty() {
         html +=
             "<p>No finding: nothing in the library explains the held-out residual better than plain Tolles-Lawson.</p>";
     } else {
         html += "<table class=\"findings\"><tr><th>effect</th><th>channel</th><th>source</th><th>parameters</th><th>held-out RMS, nT</th><th>what it means</th></tr>";
-        for finding in &diagnosis.findings {
+        for finding in findings {
             let parameters: Vec<String> = finding
                 .effect
                 .parameters()
@@ -1132,6 +1132,18 @@ pub fn diagnosis_section(diagnosis: &Diagnosis) -> Result<String> {
         }
         html += "</table>";
     }
+    html
+}
+
+/// The diagnosis: what was found, and per channel each manoeuvre's
+/// held-out residual before and after, with the windows the findings
+/// improved most and the structured stretches shaded.
+pub fn diagnosis_section(diagnosis: &Diagnosis) -> Result<String> {
+    let mut html = String::from("<section id=\"diagnosis\"><h2>Diagnosis: physics the model left out</h2>");
+    for note in &diagnosis.notes {
+        let _ = write!(html, "<p class=\"note\">{}</p>", escape(note));
+    }
+    html += &findings_table(&diagnosis.findings);
     for channel in &diagnosis.channels {
         let located: Vec<&Located> = diagnosis
             .findings
@@ -1378,6 +1390,23 @@ fn report_head(result: &crate::pipeline::FlightResult) -> String {
     html
 }
 
+/// The per-line noise table (nothing without lines).
+fn noise_table(noise: &[LineNoise]) -> String {
+    let mut html = String::new();
+    if !noise.is_empty() {
+        html += "<h3>Per-line noise (4th difference, nT)</h3><table class=\"noise\"><tr><th>line</th><th>before</th><th>after</th></tr>";
+        for line in noise {
+            let _ = write!(
+                html,
+                "<tr><td>{}</td><td>{:.4}</td><td>{:.4}</td></tr>",
+                line.line, line.before_nt, line.after_nt
+            );
+        }
+        html += "</table>";
+    }
+    html
+}
+
 /// One channel's section: its verdict, FOM table and manoeuvres (where it
 /// has windows), regularisation, coefficients, estimators, excitation,
 /// survey-line map and per-line noise.
@@ -1446,17 +1475,7 @@ fn channel_section(
         }
         let _ = write!(html, "<figure class=\"profiles\">{profiles}</figure>");
     }
-    if !noise.is_empty() {
-        html += "<h3>Per-line noise (4th difference, nT)</h3><table class=\"noise\"><tr><th>line</th><th>before</th><th>after</th></tr>";
-        for line in noise {
-            let _ = write!(
-                html,
-                "<tr><td>{}</td><td>{:.4}</td><td>{:.4}</td></tr>",
-                line.line, line.before_nt, line.after_nt
-            );
-        }
-        html += "</table>";
-    }
+    html += &noise_table(noise);
     html += "</section>";
     Ok(html)
 }

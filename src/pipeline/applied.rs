@@ -32,11 +32,7 @@ pub(super) fn run_applied(
     meter.begin(Stage::Preparing, 0);
     let screened = crate::ingest::screen::screen_samples(&recorded)?;
     let raw_log = screened.log_or(&recorded);
-    let mut models = saved.models_for(raw_log, job.channels.as_deref(), job.vector.as_deref())?;
-    let sensor = choose_vector_sensor(raw_log, Some(&models[0].vector_sensor))?;
-    let channels: Vec<String> = models.iter().map(|m| m.channel.clone()).collect();
-    choose_channels(raw_log, Some(&channels))?;
-    refuse_dead_columns(raw_log, &screened.screening, &sensor, Some(&channels))?;
+    let (mut models, sensor, channels) = models_on_flight(saved, job, (raw_log, &screened.screening))?;
     let applied = saved.applied(raw_log.date(), &recorded)?;
     let (model_said, mut notes) = model_words(job, options, saved, (&applied, &channels), raw_log);
     let mut warnings: Vec<Warning> = screened.warnings(&recorded);
@@ -99,6 +95,27 @@ pub(super) fn run_applied(
         result,
         options.output_decimals,
     ))
+}
+
+/// The saved model's models of the channels `job` asks for (every one by
+/// default), their fluxgate and channels, checked against the flight
+/// `raw_log` and its `screening`: an error for a column it lacks or that
+/// carries no reading.
+fn models_on_flight(
+    saved: &crate::apply::SavedModel,
+    job: &FlightJob,
+    (raw_log, screening): (&FlightLog, &crate::ingest::screen::Screening),
+) -> Result<(
+    Vec<crate::model::FittedModel>,
+    crate::ingest::flight_log::VectorSensor,
+    Vec<String>,
+)> {
+    let models = saved.models_for(raw_log, job.channels.as_deref(), job.vector.as_deref())?;
+    let sensor = choose_vector_sensor(raw_log, Some(&models[0].vector_sensor))?;
+    let channels: Vec<String> = models.iter().map(|m| m.channel.clone()).collect();
+    choose_channels(raw_log, Some(&channels))?;
+    refuse_dead_columns(raw_log, screening, &sensor, Some(&channels))?;
+    Ok((models, sensor, channels))
 }
 
 /// The saved model with its channels under this flight's names

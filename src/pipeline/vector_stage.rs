@@ -79,28 +79,7 @@ pub(super) fn vector_stage(
         match fitted {
             Ok((compensated, model)) => {
                 stage.notes.push(vector_note(&model));
-                if model.reference_swing_nt > VECTOR_SWING_WARNING_NT {
-                    stage.warnings.push(Warning::VectorScaleSwings {
-                        sensor: model.sensor.clone(),
-                        reference: model.reference.clone(),
-                        swing_nt: model.reference_swing_nt,
-                    });
-                }
-                if let Some(warning) = vector_direction_warning(&model) {
-                    stage.warnings.push(warning);
-                }
-                stage.warnings.extend(vector_sign_warning(&model));
-                if model.held_out.is_none() {
-                    stage.warnings.push(Warning::VectorNotHeldOut {
-                        sensor: model.sensor.clone(),
-                    });
-                }
-                if let Some(reason) = &model.tolles_lawson_warning {
-                    stage.warnings.push(Warning::VectorTollesLawson {
-                        sensor: model.sensor.clone(),
-                        reason: reason.clone(),
-                    });
-                }
+                stage.warnings.extend(vector_model_warnings(&model));
                 stage.compensated.push(compensated);
                 stage.models.push(model);
             }
@@ -112,6 +91,36 @@ pub(super) fn vector_stage(
         }
     }
     stage
+}
+
+/// What a fitted vector model must say: a scale resting on a swinging
+/// level, a direction far from IGRF-14's, a sign unverified or axes
+/// left-handed, no heading held out, the eddy stage's own warning.
+fn vector_model_warnings(model: &crate::vector::VectorModel) -> Vec<Warning> {
+    let mut warnings = Vec::new();
+    if model.reference_swing_nt > VECTOR_SWING_WARNING_NT {
+        warnings.push(Warning::VectorScaleSwings {
+            sensor: model.sensor.clone(),
+            reference: model.reference.clone(),
+            swing_nt: model.reference_swing_nt,
+        });
+    }
+    if let Some(warning) = vector_direction_warning(model) {
+        warnings.push(warning);
+    }
+    warnings.extend(vector_sign_warning(model));
+    if model.held_out.is_none() {
+        warnings.push(Warning::VectorNotHeldOut {
+            sensor: model.sensor.clone(),
+        });
+    }
+    if let Some(reason) = &model.tolles_lawson_warning {
+        warnings.push(Warning::VectorTollesLawson {
+            sensor: model.sensor.clone(),
+            reason: reason.clone(),
+        });
+    }
+    warnings
 }
 
 /// Windows closer than this are taken as one box's, and the flight

@@ -456,30 +456,13 @@ pub fn peak_to_peak(values: &[f64]) -> f64 {
 /// field that alone can add a few per cent.
 pub const NOISE_RISE_WARNING: f64 = 1.25;
 
-/// The quality gate of one channel: a warning, with the next step, when
-/// the FOM fails its limit, when compensation raised the survey lines'
-/// fourth-difference noise or the level difference between reciprocal
-/// lines, or when the held-out FOM is far above the in-sample one.
-/// `next_step` ends each warning: what the user can do about it.
-/// `suggest_solver`: whether `[fit] solver = "auto"` may be suggested (a
-/// flight fitted here whose solver is another).
-pub fn quality_warnings(
-    quality: &ChannelQuality,
-    fom_limit_nt: f64,
-    (next_step, suggest_solver): (&str, bool),
-) -> Vec<Warning> {
+/// The survey's side of the quality gate: a warning, ending with
+/// `next_step`, where compensation raised the survey lines'
+/// fourth-difference noise, the level difference between reciprocal
+/// lines, or the misties at the crossovers.
+fn survey_warnings(quality: &ChannelQuality, next_step: impl Fn() -> String) -> Vec<Warning> {
     let channel = || quality.channel.clone();
-    let next_step = || next_step.to_string();
     let mut warnings = Vec::new();
-    if let Some(after) = quality.fom_after_nt.filter(|after| *after > fom_limit_nt) {
-        warnings.push(Warning::FomAboveLimit {
-            channel: channel(),
-            fom_nt: after,
-            manoeuvres: quality.fom_manoeuvres,
-            limit_nt: fom_limit_nt,
-            next_step: next_step(),
-        });
-    }
     if let (Some(before), Some(after)) = (
         quality.survey_noise_4th_difference_before_nt,
         quality.survey_noise_4th_difference_after_nt,
@@ -517,6 +500,34 @@ pub fn quality_warnings(
             });
         }
     }
+    warnings
+}
+
+/// The quality gate of one channel: a warning, with the next step, when
+/// the FOM fails its limit, when compensation raised the survey lines'
+/// fourth-difference noise or the level difference between reciprocal
+/// lines, or when the held-out FOM is far above the in-sample one.
+/// `next_step` ends each warning: what the user can do about it.
+/// `suggest_solver`: whether `[fit] solver = "auto"` may be suggested (a
+/// flight fitted here whose solver is another).
+pub fn quality_warnings(
+    quality: &ChannelQuality,
+    fom_limit_nt: f64,
+    (next_step, suggest_solver): (&str, bool),
+) -> Vec<Warning> {
+    let channel = || quality.channel.clone();
+    let next_step = || next_step.to_string();
+    let mut warnings = Vec::new();
+    if let Some(after) = quality.fom_after_nt.filter(|after| *after > fom_limit_nt) {
+        warnings.push(Warning::FomAboveLimit {
+            channel: channel(),
+            fom_nt: after,
+            manoeuvres: quality.fom_manoeuvres,
+            limit_nt: fom_limit_nt,
+            next_step: next_step(),
+        });
+    }
+    warnings.extend(survey_warnings(quality, next_step));
     if let Some(uncertainty) = &quality.uncertainty {
         if is_uncertain(quality) {
             warnings.push(Warning::UncertainAwayFromCalibration {

@@ -236,6 +236,46 @@ fn field_sizes(location: SensorLocation) -> (f64, f64, f64) {
     }
 }
 
+/// A scalar sensor's auxiliary couplings: the columns coupled, with their
+/// gain vectors, and the rates of change coupled, with theirs.
+type Couplings = (Vec<(usize, Vector)>, Vec<(Vec<f64>, Vector)>);
+
+/// What the scenario's effects do to `sensor`: an eddy time constant
+/// lags the eddy currents' `drive` in place; returns the sensor's lag, s,
+/// and its auxiliary couplings.
+fn sensor_effects(
+    scenario: &Scenario,
+    sensor: &ScalarSensor,
+    (dt_s, auxiliary): (f64, &[Vec<f64>]),
+    drive: &mut [Vec<f64>; 3],
+) -> (f64, Couplings) {
+    let mut lag_s = 0.0;
+    let mut couplings: Vec<(usize, Vector)> = Vec::new();
+    let mut rate_couplings: Vec<(Vec<f64>, Vector)> = Vec::new();
+    for effect in &scenario.raw.effect {
+        match effect {
+            Effect::EddyTimeConstant { channel, tau_s } if *channel == sensor.name => {
+                *drive = drive.each_ref().map(|rate| first_order_lag(rate, dt_s, *tau_s));
+            }
+            Effect::SensorLag { channel, lag_s: lag } if *channel == sensor.name => lag_s += lag,
+            Effect::AuxCoupling {
+                channel,
+                source,
+                nt_per_unit,
+                nt_per_unit_per_s,
+            } if *channel == sensor.name => {
+                let column = AUXILIARY_CHANNELS.iter().position(|c| c == source).unwrap_or(0);
+                couplings.push((column, *nt_per_unit));
+                if nt_per_unit_per_s.iter().any(|v| *v != 0.0) {
+                    rate_couplings.push((central_rate(&auxiliary[column], dt_s), *nt_per_unit_per_s));
+                }
+            }
+            _ => {}
+        }
+    }
+    (lag_s, (couplings, rate_couplings))
+}
+
 fn record_scalar(
     scenario: &Scenario,
     path: &FlightPath,
@@ -253,30 +293,7 @@ fn record_scalar(
     let earth = earth_field_at(path, environment, sensor.position_m);
     let mut drive: [Vec<f64>; 3] =
         [0, 1, 2].map(|i| central_rate(&earth.iter().map(|b| b[i]).collect::<Vec<_>>(), path.dt_s));
-    let mut lag_s = 0.0;
-    let mut couplings: Vec<(usize, Vector)> = Vec::new();
-    let mut rate_couplings: Vec<(Vec<f64>, Vector)> = Vec::new();
-    for effect in &scenario.raw.effect {
-        match effect {
-            Effect::EddyTimeConstant { channel, tau_s } if *channel == sensor.name => {
-                drive = drive.map(|rate| first_order_lag(&rate, path.dt_s, *tau_s));
-            }
-            Effect::SensorLag { channel, lag_s: lag } if *channel == sensor.name => lag_s += lag,
-            Effect::AuxCoupling {
-                channel,
-                source,
-                nt_per_unit,
-                nt_per_unit_per_s,
-            } if *channel == sensor.name => {
-                let column = AUXILIARY_CHANNELS.iter().position(|c| c == source).unwrap_or(0);
-                couplings.push((column, *nt_per_unit));
-                if nt_per_unit_per_s.iter().any(|v| *v != 0.0) {
-                    rate_couplings.push((central_rate(&auxiliary[column], path.dt_s), *nt_per_unit_per_s));
-                }
-            }
-            _ => {}
-        }
-    }
+    let (lag_s, (couplings, rate_couplings)) = sensor_effects(scenario, sensor, (path.dt_s, auxiliary), &mut drive);
     let axis_norm = norm(sensor.dead_zone_axis).max(1e-12);
     let dead_cos = sensor.dead_zone_deg.to_radians().cos();
     let mut dead = vec![false; earth.len()];
@@ -326,25 +343,11 @@ fn record_scalar(
     (recorded, truth)
 }
 
-fn record_fluxgate(
-    scenario: &Scenario,
-    path: &FlightPath,
-    environment: &Environment,
-    fluxgate: &scenario::Fluxgate,
-    random: &mut Random,
-) -> (Vec<(String, Vec<f64>)>, FluxgateTruth) {
-    // Drawn even when the scenario gives the field, so the draws after it
-    // do not depend on whether it does.
-    let drawn = AircraftField::draw(random, fluxgate.permanent_nt, fluxgate.induced, fluxgate.eddy_s);
-    let own = fluxgate.aircraft.clone().unwrap_or(drawn);
-    let residual = FluxgateCalibration::draw(
-        random,
-        fluxgate.scale_error,
-        fluxgate.non_orthogonality_deg,
-        fluxgate.offset_nt,
-    );
-    // A vector_calibration effect replaces the small residual errors.
-    let calibration = scenario
+/// The fluxgate's own errors when the scenario gives them: a
+/// `vector_calibration` effect on it, else its `calibration`; `None`
+/// leaves it the small residual errors drawn for it.
+fn fluxgate_errors(scenario: &Scenario, fluxgate: &scenario::Fluxgate) -> Option<FluxgateCalibration> {
+    scenario
         .raw
         .effect
         .iter()
@@ -362,7 +365,26 @@ fn record_fluxgate(
             _ => None,
         })
         .or(fluxgate.calibration)
-        .unwrap_or(residual);
+}
+
+fn record_fluxgate(
+    scenario: &Scenario,
+    path: &FlightPath,
+    environment: &Environment,
+    fluxgate: &scenario::Fluxgate,
+    random: &mut Random,
+) -> (Vec<(String, Vec<f64>)>, FluxgateTruth) {
+    // Drawn even when the scenario gives the field, so the draws after it
+    // do not depend on whether it does.
+    let drawn = AircraftField::draw(random, fluxgate.permanent_nt, fluxgate.induced, fluxgate.eddy_s);
+    let own = fluxgate.aircraft.clone().unwrap_or(drawn);
+    let residual = FluxgateCalibration::draw(
+        random,
+        fluxgate.scale_error,
+        fluxgate.non_orthogonality_deg,
+        fluxgate.offset_nt,
+    );
+    let calibration = fluxgate_errors(scenario, fluxgate).unwrap_or(residual);
     let errors = calibration.errors();
     let mounting = fluxgate
         .mounting()

@@ -149,6 +149,21 @@ pub enum FieldStart {
     Grid,
 }
 
+impl FieldStart {
+    /// IGRF-14's unit direction of the field (north, east, down), when the
+    /// fit started from it.
+    fn igrf_direction(&self) -> Option<Vector3<f64>> {
+        match *self {
+            FieldStart::Igrf {
+                inclination_deg,
+                declination_deg,
+                ..
+            } => Some(direction(inclination_deg.to_radians(), declination_deg.to_radians())[0]),
+            FieldStart::Grid => None,
+        }
+    }
+}
+
 /// Where the position IGRF-14 is evaluated at came from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
@@ -415,14 +430,7 @@ pub fn fit(
     })?;
     let rows = union(window_rows(log, &spanned(windows, spans)));
     let (angles, start, turns) = start_direction(log, sensor, &rows, (&attitude, reference_nt), site);
-    let igrf = match start {
-        FieldStart::Igrf {
-            inclination_deg,
-            declination_deg,
-            ..
-        } => Some(direction(inclination_deg.to_radians(), declination_deg.to_radians())[0]),
-        FieldStart::Grid => None,
-    };
+    let igrf = start.igrf_direction();
     let readings = log.vector_components(sensor);
     let inputs = (&attitude, reference_nt, &turns, readings);
     let calibration = samples(log, inputs, rows.iter().cloned());
@@ -481,9 +489,7 @@ pub fn fit(
             model = refitted;
         }
         None => {
-            model.tolles_lawson_warning = Some(
-                "the twelve constants could not be refitted without the eddy currents' field, so they keep its bias; the stage is the first fit's".into(),
-            );
+            model.tolles_lawson_warning = Some(NOT_REFITTED.into());
             model.tolles_lawson = Some(first);
             return Ok(model);
         }
@@ -515,6 +521,10 @@ fn without_eddy_field(
     }
     corrected
 }
+
+/// The vector Tolles-Lawson stage's warning when the twelve constants
+/// cannot be refitted on the readings without the eddy currents' field.
+const NOT_REFITTED: &str = "the twelve constants could not be refitted without the eddy currents' field, so they keep its bias; the stage is the first fit's";
 
 /// The Earth field's size on every row, from one scalar channel.
 #[derive(Debug, Clone, PartialEq)]
@@ -738,19 +748,24 @@ fn start_direction(
     }
     let field = log.vector_components(sensor);
     let samples = samples(log, (attitude, reference, &turns, field), rows.iter().cloned());
-    let score = GridScore::new(&samples);
+    (best_on_grid(GridScore::new(&samples).as_ref()), FieldStart::Grid, turns)
+}
+
+/// The direction (inclination, declination, radians) of the 5° grid that
+/// `score` costs least; (0, 0) without a score.
+fn best_on_grid(score: Option<&GridScore>) -> (f64, f64) {
     let mut best = (f64::INFINITY, (0.0, 0.0));
     for i in -17..=17 {
         for d in 0..72 {
             let angles = ((i as f64 * 5.0).to_radians(), (d as f64 * 5.0).to_radians());
-            if let Some(cost) = score.as_ref().and_then(|s| s.cost(&direction(angles.0, angles.1)[0])) {
+            if let Some(cost) = score.and_then(|s| s.cost(&direction(angles.0, angles.1)[0])) {
                 if cost < best.0 {
                     best = (cost, angles);
                 }
             }
         }
     }
-    (best.1, FieldStart::Grid, turns)
+    best.1
 }
 
 /// The cost of [`linear_fit`] at any direction u, from sums over the

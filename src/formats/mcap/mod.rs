@@ -161,6 +161,42 @@ type FileContents = (
     Option<records::CutShort>,
 );
 
+/// Every message of the decompressed `chunks` (in parallel) and those
+/// outside chunks, decoded by their topic's plan, by channel id; each
+/// channel's in file order.
+fn decode_messages(
+    plans: &BTreeMap<u16, TopicPlan>,
+    chunks: &[Cow<'_, [u8]>],
+    loose_messages: &[records::MessageRef<'_>],
+) -> BTreeMap<u16, Decoded> {
+    let parts: Vec<BTreeMap<u16, Decoded>> = chunks
+        .par_iter()
+        .map(|records| {
+            let mut part = BTreeMap::new();
+            let mut ignored = Definitions::default();
+            // Already walked once without error, so this cannot fail.
+            let _ = records::chunk_messages(records, &mut ignored, |m| {
+                add_message(plans, &mut part, m.channel_id, m.log_time, m.data);
+            });
+            part
+        })
+        .collect();
+    let mut merged: BTreeMap<u16, Decoded> = BTreeMap::new();
+    for part in parts {
+        for (id, decoded) in part {
+            merged.entry(id).or_default().append(decoded);
+        }
+    }
+    let mut loose = BTreeMap::new();
+    for m in loose_messages {
+        add_message(plans, &mut loose, m.channel_id, m.log_time, m.data);
+    }
+    for (id, decoded) in loose {
+        merged.entry(id).or_default().append(decoded);
+    }
+    merged
+}
+
 /// A decompressed chunk and the schemas and channels it defines.
 type OpenedChunk<'a> = (Cow<'a, [u8]>, Definitions);
 
@@ -221,31 +257,7 @@ fn decode_file(bytes: &[u8], names: &ColumnNames) -> std::result::Result<FileCon
             )
         })
         .collect();
-    let parts: Vec<BTreeMap<u16, Decoded>> = chunks
-        .par_iter()
-        .map(|records| {
-            let mut part = BTreeMap::new();
-            let mut ignored = Definitions::default();
-            // Already walked once without error, so this cannot fail.
-            let _ = records::chunk_messages(records, &mut ignored, |m| {
-                add_message(&plans, &mut part, m.channel_id, m.log_time, m.data);
-            });
-            part
-        })
-        .collect();
-    let mut merged: BTreeMap<u16, Decoded> = BTreeMap::new();
-    for part in parts {
-        for (id, decoded) in part {
-            merged.entry(id).or_default().append(decoded);
-        }
-    }
-    let mut loose = BTreeMap::new();
-    for m in &section.messages {
-        add_message(&plans, &mut loose, m.channel_id, m.log_time, m.data);
-    }
-    for (id, decoded) in loose {
-        merged.entry(id).or_default().append(decoded);
-    }
+    let merged = decode_messages(&plans, &chunks, &section.messages);
     Ok((plans, merged, notes, losses, cut_short))
 }
 

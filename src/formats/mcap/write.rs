@@ -371,6 +371,32 @@ fn navigation_topics<'a>(log: &'a FlightLog, covered: &mut [bool]) -> Vec<Topic<
     topics
 }
 
+/// A compensated vector's two topics: in body axes and north-east-down.
+fn vector_topics(vector: &crate::vector::CompensatedVector) -> Vec<Topic<'_>> {
+    let mut topics: Vec<Topic<'_>> = Vec::new();
+    let label = vector.sensor.strip_prefix("flux_").unwrap_or(&vector.sensor);
+    for (suffix, frame, values) in [("", "body", &vector.body_nt), ("_ned", "ned", &vector.ned_nt)] {
+        topics.push(Topic {
+            topic: format!("/mag/{label}/vector_compensated{suffix}"),
+            schema: "magcomp.VectorMag",
+            metadata: BTreeMap::new(),
+            encode: Box::new(move |row, time| {
+                Some(
+                    VectorMag {
+                        timestamp: Some(timestamp(time)),
+                        frame_id: frame.into(),
+                        x_nt: values[0][row],
+                        y_nt: values[1][row],
+                        z_nt: values[2][row],
+                    }
+                    .encode_to_vec(),
+                )
+            }),
+        });
+    }
+    topics
+}
+
 /// The compensation's topics: each compensated channel and its sigma,
 /// each compensated vector and gradient, the reduced channels and the row
 /// flags.
@@ -399,28 +425,7 @@ fn compensated_topics(compensation: &Compensation) -> Vec<Topic<'_>> {
             topics.push(sample_topic(format!("/mag/{label}/compensated_sigma"), sigma, "nT"));
         }
     }
-    for vector in &compensation.vectors {
-        let label = vector.sensor.strip_prefix("flux_").unwrap_or(&vector.sensor);
-        for (suffix, frame, values) in [("", "body", &vector.body_nt), ("_ned", "ned", &vector.ned_nt)] {
-            topics.push(Topic {
-                topic: format!("/mag/{label}/vector_compensated{suffix}"),
-                schema: "magcomp.VectorMag",
-                metadata: BTreeMap::new(),
-                encode: Box::new(move |row, time| {
-                    Some(
-                        VectorMag {
-                            timestamp: Some(timestamp(time)),
-                            frame_id: frame.into(),
-                            x_nt: values[0][row],
-                            y_nt: values[1][row],
-                            z_nt: values[2][row],
-                        }
-                        .encode_to_vec(),
-                    )
-                }),
-            });
-        }
-    }
+    topics.extend(compensation.vectors.iter().flat_map(vector_topics));
     for gradient in &compensation.gradients {
         let label = gradient.column.strip_prefix("grad_").unwrap_or(&gradient.column);
         let label = label.strip_suffix("_c").unwrap_or(label);
