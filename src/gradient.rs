@@ -353,12 +353,9 @@ fn describe(result: &GradientResult) -> String {
     text
 }
 
-fn compensate_pair(
-    inputs: &GradientInputs,
-    pair: &GradientPair,
-    (terms, options, level): (TermSet, &FitOptions, LevelConvention),
-) -> Result<(GradientResult, FittedModel, CompensatedGradient)> {
-    let log = inputs.log;
+/// Where the pair's two channels are among the compensated ones; an error
+/// for a channel not compensated or a separation that is not positive.
+fn pair_indices(inputs: &GradientInputs, pair: &GradientPair) -> Result<(usize, usize)> {
     let index = |name: &str| {
         inputs
             .models
@@ -369,13 +366,23 @@ fn compensate_pair(
                 message: format!("'{name}' is not a compensated scalar channel of this flight"),
             })
     };
-    let (ia, ib) = (index(&pair.a)?, index(&pair.b)?);
+    let indices = (index(&pair.a)?, index(&pair.b)?);
     if !(pair.separation_m.is_finite() && pair.separation_m > 0.0) {
         return Err(Error::Config {
             source_name: "[[gradient]]".into(),
             message: format!("separation {} m: it must be positive", pair.separation_m),
         });
     }
+    Ok(indices)
+}
+
+fn compensate_pair(
+    inputs: &GradientInputs,
+    pair: &GradientPair,
+    (terms, options, level): (TermSet, &FitOptions, LevelConvention),
+) -> Result<(GradientResult, FittedModel, CompensatedGradient)> {
+    let log = inputs.log;
+    let (ia, ib) = pair_indices(inputs, pair)?;
     let name = gradient_name(&pair.a, &pair.b);
     let lean = difference_log(log, inputs.sensor, pair, &name)?;
     let sensor = lean.vector_sensor(&inputs.sensor.prefix).ok_or_else(|| Error::Vector {

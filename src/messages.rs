@@ -782,25 +782,6 @@ impl fmt::Display for Warning {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             Warning::Said(sentence) => f.write_str(sentence),
-            Warning::Masked {
-                column,
-                samples,
-                reason,
-                first_time,
-                first_value,
-                flag,
-            } => {
-                let one = *samples == 1;
-                write!(
-                    f,
-                    "masked {samples} sample{} of {column} ({reason}), the first at {} s ({}); every stage treats {} as missing, and {} flagged {flag}:{column}",
-                    if one { "" } else { "s" },
-                    crate::error::Number(*first_time),
-                    crate::error::Number(*first_value),
-                    if one { "it" } else { "them" },
-                    if one { "its row is" } else { "their rows are" },
-                )
-            }
             Warning::IncompleteBox { .. }
             | Warning::NamedBySize { .. }
             | Warning::SteepField { .. }
@@ -824,20 +805,20 @@ impl fmt::Display for Warning {
             | Warning::VectorAtSiteOnly { .. }
             | Warning::VectorNotHeldOut { .. }
             | Warning::VectorTollesLawson { .. } => self.write_vector(f),
-            Warning::WindowsFromOtherFlight { .. }
+            Warning::Masked { .. }
+            | Warning::WindowsFromOtherFlight { .. }
             | Warning::OutputOutOfRange { .. }
             | Warning::McapUndated { .. }
-            | Warning::TextColumnsNotWritten { .. }
-            | Warning::PlanManoeuvresMissing { .. }
-            | Warning::PlanFigureOutside { .. } => self.write_input(f),
+            | Warning::TextColumnsNotWritten { .. } => self.write_input(f),
+            Warning::PlanManoeuvresMissing { .. } | Warning::PlanFigureOutside { .. } => self.write_plan(f),
             Warning::ModelTooOld { .. }
             | Warning::ModelOtherAircraft { .. }
-            | Warning::ModelCalibrationFailed { .. }
-            | Warning::ModelCalibrationNoFom { .. }
-            | Warning::ModelCalibrationDeparted { .. }
             | Warning::ModelRateDiffers { .. }
             | Warning::ModelLacksChannels { .. } => self.write_saved_model(f),
             Warning::DiagnosisUnchecked { .. } | Warning::DiagnosisForced { .. } => self.write_saved_diagnosis(f),
+            Warning::ModelCalibrationFailed { .. }
+            | Warning::ModelCalibrationNoFom { .. }
+            | Warning::ModelCalibrationDeparted { .. } => self.write_saved_calibration(f),
             Warning::Unexplained { .. }
             | Warning::NotDiagnosed { .. }
             | Warning::FindingsHeldBack { .. }
@@ -897,8 +878,9 @@ impl Warning {
                     spans.join(", ")
                 )
             }
-            // The other variants are written by `fmt`, which sends only these here.
-            _ => Ok(()),
+            // `fmt` sends only the variants above here; were another sent,
+            // its data would still be said.
+            _ => write!(f, "{self:?}"),
         }
     }
 
@@ -925,8 +907,9 @@ impl Warning {
             Warning::GradientNotCompensated { column, reason } => {
                 write!(f, "{column}: no gradient compensation: {reason}")
             }
-            // The other variants are written by `fmt`, which sends only these here.
-            _ => Ok(()),
+            // `fmt` sends only the variants above here; were another sent,
+            // its data would still be said.
+            _ => write!(f, "{self:?}"),
         }
     }
 
@@ -977,8 +960,9 @@ impl Warning {
                     None => "anything its uncertainty states (none is stated)".into(),
                 }
             ),
-            // The other variants are written by `fmt`, which sends only these here.
-            _ => Ok(()),
+            // `fmt` sends only the variants above here; were another sent,
+            // its data would still be said.
+            _ => write!(f, "{self:?}"),
         }
     }
 
@@ -1001,14 +985,36 @@ impl Warning {
             Warning::NoUncertainty { channel, why } => write!(f, "{channel}: no uncertainty figure: {why}"),
             Warning::BoxGap { channel, gap } => write!(f, "{channel}: {gap}"),
             Warning::SolverNotUsed { channel, reason } => write!(f, "{channel}: {reason}"),
-            // The other variants are written by `fmt`, which sends only these here.
-            _ => Ok(()),
+            // `fmt` sends only the variants above here; were another sent,
+            // its data would still be said.
+            _ => write!(f, "{self:?}"),
         }
     }
 
-    /// The sentence of a warning on the run's inputs and outputs.
+    /// The sentence of a warning on the run's inputs and outputs: samples
+    /// masked, windows from another flight, rows out of range, an undated
+    /// MCAP output, text columns not written.
     fn write_input(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
+            Warning::Masked {
+                column,
+                samples,
+                reason,
+                first_time,
+                first_value,
+                flag,
+            } => {
+                let one = *samples == 1;
+                write!(
+                    f,
+                    "masked {samples} sample{} of {column} ({reason}), the first at {} s ({}); every stage treats {} as missing, and {} flagged {flag}:{column}",
+                    if one { "" } else { "s" },
+                    crate::error::Number(*first_time),
+                    crate::error::Number(*first_value),
+                    if one { "it" } else { "them" },
+                    if one { "its row is" } else { "their rows are" },
+                )
+            }
             Warning::OutputOutOfRange { subject, rows, first } => write!(
                 f,
                 "{subject}: {rows} compensated row{} lie beyond what the instrument reads (a total field outside 1,000-100,000 nT, a component beyond ±100,000 nT), the first at {} s; they are written and flagged output_out_of_range:{subject}. The model was applied far from what it was fitted on: look at the attitude and fluxgate there, and at the calibration windows",
@@ -1037,6 +1043,40 @@ impl Warning {
                 columns.iter().map(|n| format!("'{n}'")).collect::<Vec<_>>().join(", "),
                 output.display()
             ),
+            // `fmt` sends only the variants above here; were another sent,
+            // its data would still be said.
+            _ => write!(f, "{self:?}"),
+        }
+    }
+
+    /// The sentence of a warning on a saved diagnosis applied.
+    fn write_saved_diagnosis(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Warning::DiagnosisUnchecked { diagnosis, flight } => write!(
+                f,
+                "{} does not record the flight it was made on (an older magcomp wrote it), so it was applied to {} without checking that it belongs to it",
+                diagnosis.display(),
+                flight.display()
+            ),
+            Warning::DiagnosisForced {
+                diagnosis,
+                made_on,
+                applied_to,
+                difference,
+            } => write!(
+                f,
+                "{} was made on {made_on}, not on {applied_to} ({difference}); applied anyway because of --force",
+                diagnosis.display()
+            ),
+            // `fmt` sends only the variants above here; were another sent,
+            // its data would still be said.
+            _ => write!(f, "{self:?}"),
+        }
+    }
+
+    /// The sentence of a warning on the comparison with a flight plan.
+    fn write_plan(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
             Warning::PlanManoeuvresMissing {
                 report,
                 missing,
@@ -1069,32 +1109,38 @@ impl Warning {
                     false => "better than planned: the plan's installation overstates this aircraft's interference or noise, so additions it proposed may not be needed",
                 }
             ),
-            // The other variants are written by `fmt`, which sends only these here.
-            _ => Ok(()),
+            // `fmt` sends only the variants above here; were another sent,
+            // its data would still be said.
+            _ => write!(f, "{self:?}"),
         }
     }
 
-    /// The sentence of a warning on a saved diagnosis applied.
-    fn write_saved_diagnosis(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+    /// The sentence of a warning on how a saved model's calibration
+    /// flight went.
+    fn write_saved_calibration(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            Warning::DiagnosisUnchecked { diagnosis, flight } => write!(
-                f,
-                "{} does not record the flight it was made on (an older magcomp wrote it), so it was applied to {} without checking that it belongs to it",
-                diagnosis.display(),
-                flight.display()
-            ),
-            Warning::DiagnosisForced {
-                diagnosis,
-                made_on,
-                applied_to,
-                difference,
+            Warning::ModelCalibrationFailed {
+                channel,
+                model,
+                fom_nt,
+                limit_nt,
             } => write!(
                 f,
-                "{} was made on {made_on}, not on {applied_to} ({difference}); applied anyway because of --force",
-                diagnosis.display()
+                "{channel}: the model {} had a FOM of {fom_nt:.2} nT on its calibration flight, above the {limit_nt:.2} nT limit ([quality] fom_limit_nt): this flight is compensated with a calibration that failed; fly a new box, or accept the calibration flight's report first",
+                model.display()
             ),
-            // The other variants are written by `fmt`, which sends only these here.
-            _ => Ok(()),
+            Warning::ModelCalibrationNoFom { channel, model } => write!(
+                f,
+                "{channel}: the model {} has no FOM from its calibration flight (no labelled manoeuvres): nothing says the calibration passed; check the calibration flight's report",
+                model.display()
+            ),
+            Warning::ModelCalibrationDeparted { channel, departure_nt } => write!(
+                f,
+                "{channel}: on its calibration flight the model's findings moved the survey {departure_nt:.4} nT from plain Tolles-Lawson, beyond its stated uncertainty (verdict CHECK): compare with a plain model (--plain --model on the calibration flight) before using this channel"
+            ),
+            // `fmt` sends only the variants above here; were another sent,
+            // its data would still be said.
+            _ => write!(f, "{self:?}"),
         }
     }
 
@@ -1115,25 +1161,6 @@ impl Warning {
                 f,
                 "the model {} was calibrated on the aircraft '{made}' and this flight is '{used}': another airframe's magnetic signature does not compensate this one; apply a model of '{used}'",
                 model.display()
-            ),
-            Warning::ModelCalibrationFailed {
-                channel,
-                model,
-                fom_nt,
-                limit_nt,
-            } => write!(
-                f,
-                "{channel}: the model {} had a FOM of {fom_nt:.2} nT on its calibration flight, above the {limit_nt:.2} nT limit ([quality] fom_limit_nt): this flight is compensated with a calibration that failed; fly a new box, or accept the calibration flight's report first",
-                model.display()
-            ),
-            Warning::ModelCalibrationNoFom { channel, model } => write!(
-                f,
-                "{channel}: the model {} has no FOM from its calibration flight (no labelled manoeuvres): nothing says the calibration passed; check the calibration flight's report",
-                model.display()
-            ),
-            Warning::ModelCalibrationDeparted { channel, departure_nt } => write!(
-                f,
-                "{channel}: on its calibration flight the model's findings moved the survey {departure_nt:.4} nT from plain Tolles-Lawson, beyond its stated uncertainty (verdict CHECK): compare with a plain model (--plain --model on the calibration flight) before using this channel"
             ),
             Warning::ModelRateDiffers {
                 model,
@@ -1164,8 +1191,9 @@ impl Warning {
                     model.display()
                 )
             }
-            // The other variants are written by `fmt`, which sends only these here.
-            _ => Ok(()),
+            // `fmt` sends only the variants above here; were another sent,
+            // its data would still be said.
+            _ => write!(f, "{self:?}"),
         }
     }
 
@@ -1222,8 +1250,9 @@ impl Warning {
                 "{sensor}: the twelve-constant fit's windows do not give three headings (a window given by time that spans a turn has none), so no heading is held out and the vector's accuracy away from them is not checked; give the box's manoeuvres or legs as windows"
             ),
             Warning::VectorTollesLawson { sensor, reason } => write!(f, "{sensor}: vector Tolles-Lawson: {reason}"),
-            // The other variants are written by `fmt`, which sends only these here.
-            _ => Ok(()),
+            // `fmt` sends only the variants above here; were another sent,
+            // its data would still be said.
+            _ => write!(f, "{self:?}"),
         }
     }
 
@@ -1292,8 +1321,9 @@ impl Warning {
             Warning::PoorTransfer {
                 sentence, next_step, ..
             } => write!(f, "{sentence}. {next_step}"),
-            // The other variants are written by `fmt`, which sends only these here.
-            _ => Ok(()),
+            // `fmt` sends only the variants above here; were another sent,
+            // its data would still be said.
+            _ => write!(f, "{self:?}"),
         }
     }
 }

@@ -173,6 +173,27 @@ impl Plan {
     }
 }
 
+/// The aircraft field of each mag_<n>_uc channel of a model JSON's
+/// `models`, and the terms each leaves out (in words).
+fn aircraft_fields(models: &[serde_json::Value]) -> (BTreeMap<String, AircraftField>, Vec<String>) {
+    let mut fields: BTreeMap<String, AircraftField> = BTreeMap::new();
+    let mut left_out: Vec<String> = Vec::new();
+    for model in models {
+        let (Some(channel), Some((field, unused))) =
+            (model.get("channel").and_then(|c| c.as_str()), aircraft_field(model))
+        else {
+            continue;
+        };
+        if channel.starts_with("mag_") && channel.ends_with("_uc") {
+            fields.insert(channel.to_string(), field);
+            if !unused.is_empty() {
+                left_out.push(format!("{channel}'s {}", unused.join(", ")));
+            }
+        }
+    }
+    (fields, left_out)
+}
+
 /// Sets the aircraft field of each scalar sensor of `raw` that the model
 /// file at `file` compensates (all of the file's channels when the plan
 /// names no sensor); says what was taken.
@@ -191,21 +212,7 @@ fn install(raw: &mut RawScenario, file: &Path, has_scalars: bool) -> Result<Stri
         .get("models")
         .and_then(|m| m.as_array())
         .ok_or_else(|| not_ours("it has no \"models\" list".into()))?;
-    let mut fields: BTreeMap<String, AircraftField> = BTreeMap::new();
-    let mut left_out: Vec<String> = Vec::new();
-    for model in models {
-        let (Some(channel), Some((field, unused))) =
-            (model.get("channel").and_then(|c| c.as_str()), aircraft_field(model))
-        else {
-            continue;
-        };
-        if channel.starts_with("mag_") && channel.ends_with("_uc") {
-            fields.insert(channel.to_string(), field);
-            if !unused.is_empty() {
-                left_out.push(format!("{channel}'s {}", unused.join(", ")));
-            }
-        }
-    }
+    let (fields, left_out) = aircraft_fields(models);
     if fields.is_empty() {
         return Err(not_ours(
             "no model of a mag_<n>_uc channel with Tolles-Lawson coefficients and a sample rate".into(),

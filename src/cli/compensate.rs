@@ -104,16 +104,32 @@ pub struct CompensateArgs {
     igrf: bool,
 }
 
-/// Fits and compensates one flight and writes its outputs.
-pub fn compensate(args: CompensateArgs, verbose: bool) -> anyhow::Result<()> {
-    let mut pipeline = Pipeline::load_or_default(args.config.as_deref())?;
+/// The settings `args`' flags change: a fixed λ, the diagnosis always or
+/// never applied, the flight's date, the reduced columns.
+fn apply_flags(settings: &mut magcomp::config::Settings, args: &CompensateArgs) -> anyhow::Result<()> {
     if let Some(lambda) = args.lambda {
         anyhow::ensure!(
             lambda.is_finite() && lambda >= 0.0,
             "--lambda {lambda}: λ must be a non-negative number (0 for no regularisation); leave --lambda out to choose λ by PRESS"
         );
-        pipeline.settings.fit.solve.lambda = LambdaChoice::Fixed(lambda);
+        settings.fit.solve.lambda = LambdaChoice::Fixed(lambda);
     }
+    if args.augment {
+        settings.diagnose.apply = ApplyDiagnosis::Always;
+    }
+    if args.plain {
+        settings.diagnose.apply = ApplyDiagnosis::Never;
+    }
+    settings.ingest.date = args.date.or(settings.ingest.date);
+    settings.reduced.dc |= args.dc;
+    settings.reduced.igrf |= args.igrf;
+    Ok(())
+}
+
+/// Fits and compensates one flight and writes its outputs.
+pub fn compensate(args: CompensateArgs, verbose: bool) -> anyhow::Result<()> {
+    let mut pipeline = Pipeline::load_or_default(args.config.as_deref())?;
+    apply_flags(&mut pipeline.settings, &args)?;
     let mut windows = args
         .windows
         .iter()
@@ -125,15 +141,6 @@ pub fn compensate(args: CompensateArgs, verbose: bool) -> anyhow::Result<()> {
         windows.extend(detected.windows);
         windows_detected_on = detected.flight.map(|identity| (file.clone(), identity));
     }
-    if args.augment {
-        pipeline.settings.diagnose.apply = ApplyDiagnosis::Always;
-    }
-    if args.plain {
-        pipeline.settings.diagnose.apply = ApplyDiagnosis::Never;
-    }
-    pipeline.settings.ingest.date = args.date.or(pipeline.settings.ingest.date);
-    pipeline.settings.reduced.dc |= args.dc;
-    pipeline.settings.reduced.igrf |= args.igrf;
     let job = FlightJob {
         diagnosis: args.diagnosis.clone(),
         force_diagnosis: args.force,

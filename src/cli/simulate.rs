@@ -35,25 +35,8 @@ pub fn replay_flight(
         ..FlightJob::new(flight)
     };
     let prepared = read_prepared(&job, &pipeline)?;
-    let log = prepared.log();
     let bar = spinner(format!("replaying {}", flight.display()));
-    let plan = match diagnosis {
-        Some(path) => magcomp::diagnose::read_saved(path)
-            .and_then(|saved| saved.models_for(path, log, false))
-            .map(|(models, remark)| {
-                if let Some(remark) = remark {
-                    println!("  warning: {remark}");
-                }
-                models
-            }),
-        None => magcomp::diagnose::diagnose(
-            &prepared.calibration(),
-            &pipeline.settings.terms,
-            &pipeline.settings.fit,
-            &pipeline.settings.diagnose,
-        )
-        .map(|d| d.models()),
-    };
+    let plan = replay_plan(&prepared, diagnosis, &pipeline);
     let replayed = plan.and_then(|plan| {
         magcomp::simulate::replay::replay(
             &prepared.calibration(),
@@ -85,6 +68,33 @@ pub fn replay_flight(
     }
     println!("wrote {} and {}", out.display(), report.display());
     Ok(())
+}
+
+/// The models to replay the flight with: each channel's in the saved
+/// `diagnosis` (its remark said as a warning), or from diagnosing it.
+fn replay_plan(
+    prepared: &magcomp::pipeline::PreparedFlight,
+    diagnosis: Option<&Path>,
+    pipeline: &Pipeline,
+) -> magcomp::error::Result<std::collections::BTreeMap<String, magcomp::model::Extensions>> {
+    let log = prepared.log();
+    match diagnosis {
+        Some(path) => magcomp::diagnose::read_saved(path)
+            .and_then(|saved| saved.models_for(path, log, false))
+            .map(|(models, remark)| {
+                if let Some(remark) = remark {
+                    println!("  warning: {remark}");
+                }
+                models
+            }),
+        None => magcomp::diagnose::diagnose(
+            &prepared.calibration(),
+            &pipeline.settings.terms,
+            &pipeline.settings.fit,
+            &pipeline.settings.diagnose,
+        )
+        .map(|d| d.models()),
+    }
 }
 
 /// Simulates the scenario and writes the flight, its truth and its windows.

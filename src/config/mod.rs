@@ -634,18 +634,7 @@ impl Pipeline {
                 ))
             })?,
         };
-        if !(raw.quality.fom_limit_nt.is_finite() && raw.quality.fom_limit_nt > 0.0) {
-            return Err(bad(format!(
-                "[quality] fom_limit_nt = {}: give a positive number of nT (1.5 is usual)",
-                raw.quality.fom_limit_nt
-            )));
-        }
-        if raw.output.decimals > MOST_DECIMALS {
-            return Err(bad(format!(
-                "[output] decimals = {}: give 0 to {MOST_DECIMALS} decimal places of nT (3, 0.001 nT, is the default)",
-                raw.output.decimals
-            )));
-        }
+        check_limits(&raw).map_err(bad)?;
         let settings = Settings {
             output_decimals: raw.output.decimals,
             reduced: crate::reduce::ReducedColumns {
@@ -686,6 +675,24 @@ impl Pipeline {
         };
         Ok((pipeline, windows_files))
     }
+}
+
+/// `[quality] fom_limit_nt` positive and `[output] decimals` within
+/// [`MOST_DECIMALS`].
+fn check_limits(raw: &RawPipeline) -> std::result::Result<(), String> {
+    if !(raw.quality.fom_limit_nt.is_finite() && raw.quality.fom_limit_nt > 0.0) {
+        return Err(format!(
+            "[quality] fom_limit_nt = {}: give a positive number of nT (1.5 is usual)",
+            raw.quality.fom_limit_nt
+        ));
+    }
+    if raw.output.decimals > MOST_DECIMALS {
+        return Err(format!(
+            "[output] decimals = {}: give 0 to {MOST_DECIMALS} decimal places of nT (3, 0.001 nT, is the default)",
+            raw.output.decimals
+        ));
+    }
+    Ok(())
 }
 
 /// `[model] channels`, checked: every name given, and no column of the

@@ -609,10 +609,7 @@ pub fn diagnose_metered(
         },
     );
     let starts = starts?;
-    let (fluxgate, mut notes) = match checked {
-        Ok(check) => (Some(check), Vec::new()),
-        Err(why) => (None, vec![format!("fluxgate calibration not checked: {why}")]),
-    };
+    let (fluxgate, mut notes) = checked_or_said(checked);
     notes.extend(hold_out.caveat());
     // The calibrated fluxgate is tried only once its finding stands.
     let calibrated = fluxgate
@@ -659,6 +656,14 @@ fn search_each(
             searched
         })
         .collect()
+}
+
+/// The fluxgate's check, or a note saying why it was not made.
+fn checked_or_said(checked: std::result::Result<FluxgateCheck, String>) -> (Option<FluxgateCheck>, Vec<String>) {
+    match checked {
+        Ok(check) => (Some(check), Vec::new()),
+        Err(why) => (None, vec![format!("fluxgate calibration not checked: {why}")]),
+    }
 }
 
 /// The fluxgate checked against the scalar channel with the least

@@ -193,13 +193,7 @@ impl Screen {
         }
         // A lag reads the scalar at other times; a base station is
         // subtracted from it: either changes the target.
-        let stations = |m: &Model| -> Vec<String> {
-            (m.sources.iter())
-                .filter(|s| matches!(s, crate::model::SourceTerm::ExternalField { .. }))
-                .map(|s| s.column().to_string())
-                .collect()
-        };
-        let retargeted = candidate.lag_s != model.lag_s || stations(candidate) != stations(model);
+        let retargeted = candidate.lag_s != model.lag_s || station_columns(candidate) != station_columns(model);
         let none = TermSet {
             permanent: false,
             induced: InducedTerms::None,
@@ -365,6 +359,14 @@ impl Screen {
         kept.sort_by_key(|(i, _)| (place[*i], *i));
         kept.into_iter().map(|(_, candidate)| candidate).collect()
     }
+}
+
+/// The base-station columns `model` subtracts from the scalar.
+fn station_columns(model: &Model) -> Vec<String> {
+    (model.sources.iter())
+        .filter(|s| matches!(s, crate::model::SourceTerm::ExternalField { .. }))
+        .map(|s| s.column().to_string())
+        .collect()
 }
 
 #[cfg(test)]

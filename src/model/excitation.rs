@@ -488,7 +488,6 @@ pub fn analyse_design(
     let Some((basis, vectors, unpinnable)) = pinnable_basis(&model.term_names, &scale, &reference) else {
         return Ok(None);
     };
-    let r = basis.ncols();
 
     let (survey_moment, survey_rows) = survey_moment(log, model, (&fits, shared), &scale)?;
     // σ² per unit information: the band-passed residual's variance times
@@ -505,16 +504,15 @@ pub fn analyse_design(
     };
     let (basis, information) = (&design.basis, &design.flown);
     let reduce_floored = |g: &Mat<f64>| design.reduced(g);
-    let survey_sigma = |g: &Mat<f64>| design.survey_sigma(g);
     let (Some(flown_inverse), Some(reference_inverse)) = (
         inverse_spd(&reduce_floored(information)),
         inverse_spd(&reduce_floored(&reference)),
     ) else {
         return Ok(None);
     };
-    let survey_sigma_nt = survey_sigma(information);
+    let survey_sigma_nt = design.survey_sigma(information);
     let flown_log_det = log_det(&reduce_floored(information));
-    let flown_variance: f64 = (0..r).map(|k| flown_inverse[(k, k)]).sum();
+    let flown_variance: f64 = (0..flown_inverse.nrows()).map(|k| flown_inverse[(k, k)]).sum();
     let flown_covariance = basis * &flown_inverse * basis.transpose();
     let reference_covariance = basis * &reference_inverse * basis.transpose();
 
@@ -889,8 +887,9 @@ impl CandidatePlan {
 
 /// Each kind's shape (pitch, roll, yaw): the median amplitude, period and
 /// length the INS `attitude` recorded over the `headed` windows of that
-/// kind, else the simulator's defaults (and the median length of all
-/// `windows`); and whether any kind was measured.
+/// kind; else the simulator's amplitude and period, with the median length
+/// of that kind's windows (of all `windows` for a kind not flown, 30 s
+/// without any); and whether any kind was measured.
 fn manoeuvre_shapes(
     attitude: Option<[&[f64]; 3]>,
     (headed, windows): (&[CalibrationWindow], &[CalibrationWindow]),
@@ -1124,13 +1123,11 @@ fn candidate_gram(
     Ok(rows_gram(|j| data.stacked.column(j), p))
 }
 
-/// The analysis in a few sentences for people.
-fn summarise(excitation: &Excitation) -> Vec<String> {
+/// The summary's words on how well the `terms` are pinned: every one, or
+/// the first six poorly pinned with what pins them, and how many more.
+fn pinning_lines(terms: &[TermPinning]) -> Vec<String> {
     let mut lines = Vec::new();
-    if excitation.survey_rows == 0 {
-        lines.push("The flight has no survey rows (every row lies in a calibration window): the survey uncertainties below are taken over the calibration rows.".to_string());
-    }
-    let poor: Vec<&TermPinning> = excitation.terms.iter().filter(|t| t.poorly_pinned).collect();
+    let poor: Vec<&TermPinning> = terms.iter().filter(|t| t.poorly_pinned).collect();
     match poor.is_empty() {
         true => lines.push(format!(
             "Every coefficient is pinned within {:.0}× the standard error a full box of the same length would give.",
@@ -1158,6 +1155,16 @@ fn summarise(excitation: &Excitation) -> Vec<String> {
             }
         }
     }
+    lines
+}
+
+/// The analysis in a few sentences for people.
+fn summarise(excitation: &Excitation) -> Vec<String> {
+    let mut lines = Vec::new();
+    if excitation.survey_rows == 0 {
+        lines.push("The flight has no survey rows (every row lies in a calibration window): the survey uncertainties below are taken over the calibration rows.".to_string());
+    }
+    lines.extend(pinning_lines(&excitation.terms));
     for combination in &excitation.unpinnable {
         let named: Vec<String> = combination
             .iter()

@@ -108,23 +108,12 @@ impl<'a> Prepared<'a> {
         let scale = spec.terms.bt_scale_nt;
         let rows = filled.as_deref();
         let n = log.len();
-        let mut extra = Vec::new();
-        let mut push = |name: String, values: Vec<f64>| extra.push(ExtraColumn { name, values });
         // Lagged eddy terms first: the newest source term stays last.
-        if extensions.eddy_tau_s > 0.0 {
-            let dt = log.median_interval_s();
-            let field = log.vector_components(sensor);
-            let lagged: Vec<Vec<f64>> = field
-                .iter()
-                .map(|b| lagged_rate(b, dt, extensions.eddy_tau_s))
-                .collect();
-            for (i, axis_i) in ["x", "y", "z"].iter().enumerate() {
-                for (j, axis_j) in ["x", "y", "z"].iter().enumerate() {
-                    let values = column_on(n, rows, |k| direction[i][k] * lagged[j][k] / scale);
-                    push(format!("eddy_lagged_{axis_i}{axis_j}"), values);
-                }
-            }
-        }
+        let mut extra = match extensions.eddy_tau_s > 0.0 {
+            true => lagged_eddy_columns(&log, sensor, direction, (extensions.eddy_tau_s, scale), rows),
+            false => Vec::new(),
+        };
+        let mut push = |name: String, values: Vec<f64>| extra.push(ExtraColumn { name, values });
         for source in &extensions.sources {
             let Some(values) = log.channel(source.column()).map(|c| &c.values) else {
                 return Err(Error::MissingColumn {
@@ -442,6 +431,32 @@ impl<'a> Prepared<'a> {
         }
         Cow::Owned(corrected)
     }
+}
+
+/// The nine eddy terms with the field's rate lagged by `tau_s`:
+/// $u_i \dot B_j^{(\tau)} / s$ for the `direction` cosines u, on `rows`
+/// (every row without).
+fn lagged_eddy_columns(
+    log: &FlightLog,
+    sensor: &VectorSensor,
+    direction: &[Vec<f64>; 3],
+    (tau_s, scale): (f64, f64),
+    rows: Option<&[Range<usize>]>,
+) -> Vec<ExtraColumn> {
+    let dt = log.median_interval_s();
+    let lagged: Vec<Vec<f64>> = (log.vector_components(sensor).iter())
+        .map(|b| lagged_rate(b, dt, tau_s))
+        .collect();
+    let mut columns = Vec::with_capacity(9);
+    for (i, axis_i) in ["x", "y", "z"].iter().enumerate() {
+        for (j, axis_j) in ["x", "y", "z"].iter().enumerate() {
+            columns.push(ExtraColumn {
+                name: format!("eddy_lagged_{axis_i}{axis_j}"),
+                values: column_on(log.len(), rows, |k| direction[i][k] * lagged[j][k] / scale),
+            });
+        }
+    }
+    columns
 }
 
 /// The scalar less each base station's variation among `sources` (its

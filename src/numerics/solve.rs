@@ -1101,18 +1101,18 @@ fn fold_held_out(fold: &FoldStatistics, spectrum: &Spectrum, grid: &[f64]) -> Ve
         if rank > positive {
             return f64::INFINITY;
         }
-        let factor = lower.as_ref().get(..rank, ..rank);
-        let mut correction = Mat::from_fn(rank, 1, |k, _| projected[k]);
-        faer::linalg::triangular_solve::solve_lower_triangular_in_place(factor, correction.as_mut(), faer::Par::Seq);
-        faer::linalg::triangular_solve::solve_upper_triangular_in_place(
-            factor.transpose(),
-            correction.as_mut(),
-            faer::Par::Seq,
-        );
-        let correction: Vec<f64> = (0..rank).map(|k| correction[(k, 0)]).collect();
+        let correction = cholesky_solve(lower.as_ref().get(..rank, ..rank), &projected);
         held_out(residual_ss, &projected, &correction)
     }));
     scores
+}
+
+/// $x$ with $L L^\top x = b$, `factor` the lower Cholesky factor $L$.
+fn cholesky_solve(factor: MatRef<'_, f64>, b: &[f64]) -> Vec<f64> {
+    let mut x = Mat::from_fn(b.len(), 1, |k, _| b[k]);
+    faer::linalg::triangular_solve::solve_lower_triangular_in_place(factor, x.as_mut(), faer::Par::Seq);
+    faer::linalg::triangular_solve::solve_upper_triangular_in_place(factor.transpose(), x.as_mut(), faer::Par::Seq);
+    (0..b.len()).map(|k| x[(k, 0)]).collect()
 }
 
 /// $a \cdot b$ over the shorter of the two.

@@ -219,6 +219,43 @@ fn box_timeline(log: &FlightLog, result: &FlightResult) -> Result<Option<String>
     attitude_panels(log, &windows, (start - margin)..(end + margin), &caption).map(Some)
 }
 
+/// The heading panel over `time`: the `windows` shaded, the heading of
+/// `rows` wrapped to 0–360° and broken where it crosses north.
+fn heading_panel(
+    area: &DrawingArea<SVGBackend, plotters::coord::Shift>,
+    (time, windows): (&std::ops::Range<f64>, &[(f64, f64)]),
+    (t, rows, heading): (&[f64], &[usize], Option<&[f64]>),
+    shade: &ShapeStyle,
+) -> Result<()> {
+    let mut chart = ChartBuilder::on(area)
+        .margin(6)
+        .x_label_area_size(18)
+        .y_label_area_size(45)
+        .build_cartesian_2d(time.clone(), 0.0..360.0)
+        .map_err(plot_error)?;
+    (chart.configure_mesh())
+        .y_desc("heading, °")
+        .y_labels(5)
+        .draw()
+        .map_err(plot_error)?;
+    chart
+        .draw_series(
+            windows
+                .iter()
+                .map(|&(a, b)| Rectangle::new([(near(time, a), 0.0), (near(time, b), 360.0)], *shade)),
+        )
+        .map_err(plot_error)?;
+    if let Some(heading) = heading {
+        let points = decimated(rows.iter().map(|&k| (t[k], heading[k].rem_euclid(360.0))));
+        for piece in split_at_wraps(&points) {
+            chart
+                .draw_series(LineSeries::new(piece.to_vec(), BLACK))
+                .map_err(plot_error)?;
+        }
+    }
+    Ok(())
+}
+
 /// Heading (0–360°) in a panel above pitch and roll, over `time`, with
 /// `windows` shaded in both. Series are named in the caption, not in a
 /// legend box drawn over the data.
@@ -244,33 +281,7 @@ fn attitude_panels(
         let root = root.titled(caption, ("sans-serif", 15)).map_err(plot_error)?;
         let (top, bottom) = root.split_vertically(150);
         let shade = RGBColor(255, 200, 60).mix(0.35).filled();
-        // Heading, wrapped to 0–360° and broken where it crosses north.
-        let mut chart = ChartBuilder::on(&top)
-            .margin(6)
-            .x_label_area_size(18)
-            .y_label_area_size(45)
-            .build_cartesian_2d(time.clone(), 0.0..360.0)
-            .map_err(plot_error)?;
-        (chart.configure_mesh())
-            .y_desc("heading, °")
-            .y_labels(5)
-            .draw()
-            .map_err(plot_error)?;
-        chart
-            .draw_series(
-                windows
-                    .iter()
-                    .map(|&(a, b)| Rectangle::new([(near(&time, a), 0.0), (near(&time, b), 360.0)], shade)),
-            )
-            .map_err(plot_error)?;
-        if let Some(heading) = heading {
-            let points = decimated(rows.iter().map(|&k| (t[k], heading[k].rem_euclid(360.0))));
-            for piece in split_at_wraps(&points) {
-                chart
-                    .draw_series(LineSeries::new(piece.to_vec(), BLACK))
-                    .map_err(plot_error)?;
-            }
-        }
+        heading_panel(&top, (&time, windows), (t, &rows, heading), &shade)?;
         // Pitch and roll.
         let y = span(series.iter().flat_map(|(v, _)| rows.iter().map(|&k| v[k])));
         let mut chart = ChartBuilder::on(&bottom)
@@ -497,6 +508,17 @@ fn east_north(rows: &[usize], (lat, lon): (&[f64], &[f64])) -> (Vec<f64>, Vec<f6
     (east, north)
 }
 
+/// The map's plotting area in pixels. It does not depend on the map's
+/// ranges: measured on a scratch canvas, it sets the one scale.
+fn map_pixels() -> Result<(u32, u32)> {
+    let mut scratch = String::new();
+    let root = SVGBackend::with_string(&mut scratch, MAP).into_drawing_area();
+    let (area, _) = root.split_horizontally(MAP.0 - COLOUR_BAR_WIDTH);
+    let chart = map_chart(&area, 0.0..1.0, 0.0..1.0)?;
+    let pixels = chart.plotting_area().dim_in_pixel();
+    Ok(pixels)
+}
+
 /// Survey-line samples coloured by compensated anomaly (value less the
 /// lines' median), blue low to red high, in metres east and north of the
 /// survey's centre at one scale, with a colour bar in nT.
@@ -530,16 +552,7 @@ fn line_map(log: &FlightLog, values: &[f64]) -> Result<Option<String>> {
         sorted[sorted.len() - 1 - sorted.len() / 50] - level,
     );
     let (east, north) = east_north(&rows, (&lat.values, &lon.values));
-    // The plot's size in pixels does not depend on its ranges: measured on
-    // a scratch canvas, it sets the one scale.
-    let pixels = {
-        let mut scratch = String::new();
-        let root = SVGBackend::with_string(&mut scratch, MAP).into_drawing_area();
-        let (area, _) = root.split_horizontally(MAP.0 - COLOUR_BAR_WIDTH);
-        let chart = map_chart(&area, 0.0..1.0, 0.0..1.0)?;
-        let pixels = chart.plotting_area().dim_in_pixel();
-        pixels
-    };
+    let pixels = map_pixels()?;
     let (x, y) = equal_scale(
         (
             span(rows.iter().map(|&k| east[k])),

@@ -44,18 +44,7 @@ pub(super) fn run_applied(
     let log = calibrated.as_ref().unwrap_or(raw_log);
     let flight = (job, raw_log, log);
     hold_out_on_own_windows(flight, (&sensor, &mut models), (options, &applied), &mut notes)?;
-    let shared = SharedDesign::of_models(log, &models);
-    meter.begin(Stage::Assessing, models.len() as u64);
-    let mut compensation = crate::compensate::compensate_with(log, &models, options.level, &shared)?;
-    let quality = assess_applied(
-        log,
-        &models,
-        &mut compensation,
-        (options, meter),
-        &shared,
-        &mut warnings,
-    )?;
-    drop(shared);
+    let (mut compensation, quality) = compensate_applied(log, &models, (options, meter), &mut warnings)?;
     notes.extend(job.assigned_model.clone());
     notes.extend(renaming);
     let said = Said { warnings, notes };
@@ -116,6 +105,21 @@ fn models_on_flight(
     choose_channels(raw_log, Some(&channels))?;
     refuse_dead_columns(raw_log, screening, &sensor, Some(&channels))?;
     Ok((models, sensor, channels))
+}
+
+/// `log` compensated with the saved `models`, and each channel's figures
+/// (its warnings added to `warnings`).
+fn compensate_applied(
+    log: &FlightLog,
+    models: &[crate::model::FittedModel],
+    (options, meter): (&Settings, &dyn Meter),
+    warnings: &mut Vec<Warning>,
+) -> Result<(crate::compensate::Compensation, Vec<ChannelQuality>)> {
+    let shared = SharedDesign::of_models(log, models);
+    meter.begin(Stage::Assessing, models.len() as u64);
+    let mut compensation = crate::compensate::compensate_with(log, models, options.level, &shared)?;
+    let quality = assess_applied(log, models, &mut compensation, (options, meter), &shared, warnings)?;
+    Ok((compensation, quality))
 }
 
 /// The saved model with its channels under this flight's names

@@ -280,6 +280,26 @@ impl AircraftField {
     }
 }
 
+/// The sample flight's columns, in the order [`sensor_columns`] fills
+/// them.
+const SAMPLE_COLUMNS: [&str; 15] = [
+    "mag_1_uc",
+    "mag_2_uc",
+    "flux_a_x",
+    "flux_a_y",
+    "flux_a_z",
+    "ins_pitch",
+    "ins_roll",
+    "ins_yaw",
+    "lat",
+    "lon",
+    "msl",
+    "line",
+    "diurnal",
+    "cur_strb",
+    "vol_bus",
+];
+
 fn sensor_columns(spec: &SampleFlightSpec, states: &[State], random: &mut Random) -> Vec<(String, Vec<f64>)> {
     let n = states.len();
     let dt = 1.0 / spec.sample_rate_hz;
@@ -291,26 +311,9 @@ fn sensor_columns(spec: &SampleFlightSpec, states: &[State], random: &mut Random
     let fluxgate_own = AircraftField::random(random, 2.0, 5e-5, 0.0);
     let diurnal_phase = random.uniform(0.0, 2.0 * PI);
     let heading_path = path_positions(spec, states);
-    let mut columns: Vec<(String, Vec<f64>)> = [
-        "mag_1_uc",
-        "mag_2_uc",
-        "flux_a_x",
-        "flux_a_y",
-        "flux_a_z",
-        "ins_pitch",
-        "ins_roll",
-        "ins_yaw",
-        "lat",
-        "lon",
-        "msl",
-        "line",
-        "diurnal",
-        "cur_strb",
-        "vol_bus",
-    ]
-    .iter()
-    .map(|name| (name.to_string(), Vec::with_capacity(n)))
-    .collect();
+    let mut columns: Vec<(String, Vec<f64>)> = (SAMPLE_COLUMNS.iter())
+        .map(|name| (name.to_string(), Vec::with_capacity(n)))
+        .collect();
     let body_fields = earth_field_in_body(spec, states, (&main, &dipoles), (&heading_path, diurnal_phase));
     let body: Vec<Vector> = body_fields.iter().map(|(b, _)| *b).collect();
     let rate = rates(&body, dt);

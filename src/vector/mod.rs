@@ -440,13 +440,7 @@ pub fn fit(
         || fit_samples(&calibration, &angles),
         || held_out(log, windows, inputs, &angles),
     );
-    let mut model = model.ok_or_else(|| Error::Vector {
-        sensor: sensor.prefix.clone(),
-        message: format!(
-            "{} calibration rows with a fluxgate reading, an attitude and a '{reference_name}' reading: too few, or the attitudes too alike, to fit twelve constants",
-            calibration.len()
-        ),
-    })?;
+    let mut model = model.ok_or_else(|| too_few_rows(sensor, reference_name, calibration.len()))?;
     model.orient(igrf);
     model.sensor = sensor.prefix.clone();
     model.reference = reference_name.clone();
@@ -520,6 +514,17 @@ fn without_eddy_field(
         }
     }
     corrected
+}
+
+/// The error for a fluxgate whose `rows` calibration samples cannot fit
+/// the twelve constants against the `reference` channel.
+fn too_few_rows(sensor: &VectorSensor, reference: &str, rows: usize) -> Error {
+    Error::Vector {
+        sensor: sensor.prefix.clone(),
+        message: format!(
+            "{rows} calibration rows with a fluxgate reading, an attitude and a '{reference}' reading: too few, or the attitudes too alike, to fit twelve constants"
+        ),
+    }
 }
 
 /// The vector Tolles-Lawson stage's warning when the twelve constants
@@ -729,26 +734,34 @@ fn start_direction(
     }
     let turns = Turns::default();
     if let Some(site) = site {
-        let field = Vector3::from(
-            epoch
-                .field(site.latitude_deg, site.longitude_deg, site.height_m)
-                .north_east_down_nt,
-        );
-        let unit = field.normalize();
-        let (inclination, declination) = (unit[2].asin(), unit[1].atan2(unit[0]));
-        let start = FieldStart::Igrf {
-            position: PositionSource::Site,
-            year,
-            dated,
-            inclination_deg: inclination.to_degrees(),
-            declination_deg: declination.to_degrees(),
-            total_nt: field.norm(),
-        };
-        return ((inclination, declination), start, turns);
+        let (angles, start) = at_site(&epoch, site, (year, dated));
+        return (angles, start, turns);
     }
     let field = log.vector_components(sensor);
     let samples = samples(log, (attitude, reference, &turns, field), rows.iter().cloned());
     (best_on_grid(GridScore::new(&samples).as_ref()), FieldStart::Grid, turns)
+}
+
+/// IGRF-14's field direction (inclination, declination, radians) at the
+/// `[site]`, and the start it makes; `year` decimal, `dated` whether it is
+/// the flight's own date.
+fn at_site(epoch: &crate::igrf::IgrfEpoch, site: &Site, (year, dated): (f64, bool)) -> ((f64, f64), FieldStart) {
+    let field = Vector3::from(
+        epoch
+            .field(site.latitude_deg, site.longitude_deg, site.height_m)
+            .north_east_down_nt,
+    );
+    let unit = field.normalize();
+    let (inclination, declination) = (unit[2].asin(), unit[1].atan2(unit[0]));
+    let start = FieldStart::Igrf {
+        position: PositionSource::Site,
+        year,
+        dated,
+        inclination_deg: inclination.to_degrees(),
+        declination_deg: declination.to_degrees(),
+        total_nt: field.norm(),
+    };
+    ((inclination, declination), start)
 }
 
 /// The direction (inclination, declination, radians) of the 5° grid that
@@ -956,6 +969,29 @@ impl Parameters {
 /// is about 3.9σ and leaves clean rows alone.
 const HUBER_SPREAD: f64 = 2.5;
 
+impl Parameters {
+    /// The step along `delta` halved until the weighted cost on `samples`
+    /// is no more than `cost` (at most 30 halvings), with its cost; `None`
+    /// when none is.
+    fn halving_step(
+        &self,
+        delta: &[f64],
+        (samples, weights): (&[Sample], &[f64]),
+        cost: f64,
+    ) -> Option<(Parameters, f64)> {
+        let mut scale = 1.0;
+        for _ in 0..30 {
+            let candidate = self.step(delta, scale);
+            let candidate_cost = candidate.cost(samples, weights);
+            if candidate_cost <= cost {
+                return Some((candidate, candidate_cost));
+            }
+            scale *= 0.5;
+        }
+        None
+    }
+}
+
 /// Iteratively reweighted Gauss-Newton from the linear fit at `start`;
 /// `None` when the samples cannot determine the parameters.
 fn fit_samples(samples: &[Sample], start: &(f64, f64)) -> Option<VectorModel> {
@@ -976,18 +1012,7 @@ fn fit_samples(samples: &[Sample], start: &(f64, f64)) -> Option<VectorModel> {
         let cost = parameters.cost(samples, &weights);
         let (delta, condition) = gauss_newton_step(samples, &weights, &parameters)?;
         condition_number = condition;
-        let mut scale = 1.0;
-        let mut improved = None;
-        for _ in 0..30 {
-            let candidate = parameters.step(&delta, scale);
-            let candidate_cost = candidate.cost(samples, &weights);
-            if candidate_cost <= cost {
-                improved = Some((candidate, candidate_cost));
-                break;
-            }
-            scale *= 0.5;
-        }
-        let Some((next, next_cost)) = improved else {
+        let Some((next, next_cost)) = parameters.halving_step(&delta, (samples, &weights), cost) else {
             break;
         };
         parameters = next;

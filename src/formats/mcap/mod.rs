@@ -162,8 +162,8 @@ type FileContents = (
 );
 
 /// Every message of the decompressed `chunks` (in parallel) and those
-/// outside chunks, decoded by their topic's plan, by channel id; each
-/// channel's in file order.
+/// outside chunks, decoded by their topic's plan, by channel id: each
+/// channel's messages in chunk order, then those outside chunks.
 fn decode_messages(
     plans: &BTreeMap<u16, TopicPlan>,
     chunks: &[Cow<'_, [u8]>],
