@@ -687,30 +687,11 @@ impl SavedModel {
             coefficients: coefficients.clone(),
             filter: fit.filter,
             sample_rate_hz,
-            solution: Solution {
-                coefficients,
-                method: match fit.solution.rank {
-                    Some(_) => Method::TruncatedSvd,
-                    None => Method::Ridge,
-                },
-                reason,
-                lambda: fit.solution.lambda,
-                rank: fit.solution.rank,
-                effective_dof: f64::NAN,
-                lambda_by_press: f64::NAN,
-                lambda_by_blocked_press: None,
-                singular_values: Vec::new(),
-                condition_number: f64::NAN,
-                decomposition: Decomposition::CholeskyQr2,
-                scaled_condition_number: f64::NAN,
-                ridge_curve: Vec::new(),
-                tsvd_curve: Vec::new(),
-                samples: fit.solution.samples,
-                residual_rms: f64::NAN,
-                standard_errors: Vec::new(),
-                fitted: Vec::new(),
-                jackknife: fit.solution.jackknife.iter().map(|d| scaled(d)).collect(),
-            },
+            solution: saved_solution(
+                fit,
+                (coefficients, reason),
+                fit.solution.jackknife.iter().map(|d| scaled(d)).collect(),
+            ),
             coefficient_uncertainty: scaled(&uncertainty),
             windows: Vec::new(),
             estimators: None,
@@ -862,4 +843,34 @@ impl SavedModel {
 /// at `model_hz`, within [`RATE_TOLERANCE`].
 fn same_rate(model_hz: f64, flight_hz: f64) -> bool {
     (flight_hz / model_hz - 1.0).abs() <= RATE_TOLERANCE
+}
+
+/// The solver's record of a saved fit: its λ or rank, rows and jackknife
+/// (taken at this flight's rate), `coefficients` and `reason`; no curves,
+/// and NaN for what a saved model does not keep.
+fn saved_solution(fit: &SavedFit, (coefficients, reason): (Vec<f64>, String), jackknife: Vec<Vec<f64>>) -> Solution {
+    Solution {
+        coefficients,
+        method: match fit.solution.rank {
+            Some(_) => Method::TruncatedSvd,
+            None => Method::Ridge,
+        },
+        reason,
+        lambda: fit.solution.lambda,
+        rank: fit.solution.rank,
+        effective_dof: f64::NAN,
+        lambda_by_press: f64::NAN,
+        lambda_by_blocked_press: None,
+        singular_values: Vec::new(),
+        condition_number: f64::NAN,
+        decomposition: Decomposition::CholeskyQr2,
+        scaled_condition_number: f64::NAN,
+        ridge_curve: Vec::new(),
+        tsvd_curve: Vec::new(),
+        samples: fit.solution.samples,
+        residual_rms: f64::NAN,
+        standard_errors: Vec::new(),
+        fitted: Vec::new(),
+        jackknife,
+    }
 }

@@ -179,15 +179,27 @@ fn main() -> ExitCode {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
     let cli = Cli::parse();
-    let outcome = match cli.command {
+    let outcome = dispatch(cli.command, cli.verbose);
+    match outcome {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(error) => {
+            eprintln!("magcomp: error: {}", error_paragraph(&error));
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// Runs the subcommand `command` (`verbose`: with `-v`).
+fn dispatch(command: Command, verbose: bool) -> anyhow::Result<()> {
+    match command {
         Command::Run {
             config,
             plain,
             force,
             shard,
-        } => cli::run::run(&config, (plain, force, cli.verbose), shard.as_deref()),
+        } => cli::run::run(&config, (plain, force, verbose), shard.as_deref()),
         Command::Summarize { outdir } => cli::summarize::summarize(&outdir),
-        Command::Compensate(args) => cli::compensate::compensate(*args, cli.verbose),
+        Command::Compensate(args) => cli::compensate::compensate(*args, verbose),
         Command::Detect {
             flight,
             out,
@@ -227,13 +239,6 @@ fn main() -> ExitCode {
             (Some(scenario), None) => cli::simulate::simulate(&scenario, &out, seed),
             (None, None) => Err(anyhow::anyhow!("give a SCENARIO.toml to simulate, or --replay FLIGHT")),
         },
-    };
-    match outcome {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(error) => {
-            eprintln!("magcomp: error: {}", error_paragraph(&error));
-            ExitCode::FAILURE
-        }
     }
 }
 

@@ -790,8 +790,6 @@ impl fmt::Display for Warning {
             | Warning::NoiseRaised { .. }
             | Warning::HeadingErrorRaised { .. }
             | Warning::CrossoversRaised { .. }
-            | Warning::UncertainAwayFromCalibration { .. }
-            | Warning::UncertainLevel { .. }
             | Warning::PoorTransfer { .. } => self.write_quality(f),
             Warning::GradientLevelUnpinned { .. }
             | Warning::GradientDirectAtOdds { .. }
@@ -824,7 +822,9 @@ impl fmt::Display for Warning {
             | Warning::FindingsHeldBack { .. }
             | Warning::FindingsAppliedAnyway { .. }
             | Warning::SurveyDeparture { .. } => self.write_diagnosis(f),
-            Warning::NoSigmaColumn { .. }
+            Warning::UncertainAwayFromCalibration { .. }
+            | Warning::UncertainLevel { .. }
+            | Warning::NoSigmaColumn { .. }
             | Warning::SavedWithoutJackknife { .. }
             | Warning::TooFewWindows { .. }
             | Warning::NoUncertainty { .. }
@@ -970,6 +970,21 @@ impl Warning {
     /// windows, uncertainty, box and solver.
     fn write_fit(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
+            Warning::UncertainAwayFromCalibration {
+                channel,
+                sigma_nt,
+                windows,
+                limit_nt,
+                advice,
+                next_step,
+            } => write!(
+                f,
+                "{channel}: the compensation away from the calibration is uncertain by {sigma_nt:.3} nT (one sigma, from how much each of the {windows} windows moves the fit), above {limit_nt:.3} nT: the manoeuvres flown do not pin the model on the survey's headings and attitudes, and the survey lines can be wrong by that much or more. {advice} {next_step}"
+            ),
+            Warning::UncertainLevel { channel, sigma_nt } => write!(
+                f,
+                "{channel}: the compensated level is uncertain by {sigma_nt:.1} nT (one sigma, from how much each window moves the fit): the band-passed fit does not pin it; level the channel to a base station or tie lines before using absolute values"
+            ),
             Warning::NoSigmaColumn { channel } => write!(
                 f,
                 "{channel}: no sigma column: the compensated channel's noise cannot be measured (too few consecutive samples)"
@@ -1302,21 +1317,6 @@ impl Warning {
                 f,
                 "{channel}: compensation raised the RMS difference between the passes where survey lines cross from {before_nt:.3} to {after_nt:.3} nT over {crossovers} crossovers{}. {next_step}",
                 between_passes(*station_removed)
-            ),
-            Warning::UncertainAwayFromCalibration {
-                channel,
-                sigma_nt,
-                windows,
-                limit_nt,
-                advice,
-                next_step,
-            } => write!(
-                f,
-                "{channel}: the compensation away from the calibration is uncertain by {sigma_nt:.3} nT (one sigma, from how much each of the {windows} windows moves the fit), above {limit_nt:.3} nT: the manoeuvres flown do not pin the model on the survey's headings and attitudes, and the survey lines can be wrong by that much or more. {advice} {next_step}"
-            ),
-            Warning::UncertainLevel { channel, sigma_nt } => write!(
-                f,
-                "{channel}: the compensated level is uncertain by {sigma_nt:.1} nT (one sigma, from how much each window moves the fit): the band-passed fit does not pin it; level the channel to a base station or tie lines before using absolute values"
             ),
             Warning::PoorTransfer {
                 sentence, next_step, ..

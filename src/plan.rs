@@ -548,6 +548,17 @@ fn realise_with(
     realise_all(&scenario, seeds, settings)
 }
 
+/// What flying `candidate` costs, s (the manoeuvre, a mean pause, and on
+/// a heading that is not one of the plan's legs a new leg), and whether it
+/// needs a new leg.
+fn addition_cost(plan: &Plan, candidate: &crate::model::excitation::Candidate) -> (f64, bool) {
+    let pause = plan.scenario.raw.calibration.pause_s;
+    let headings = &plan.scenario.raw.calibration.headings_deg;
+    let new_leg = !headings.iter().any(|h| angle_apart(*h, candidate.heading_deg) < 1.0);
+    let extra = if new_leg { NEW_LEG_S } else { 0.0 };
+    (candidate.duration_s + 0.5 * (pause[0] + pause[1]) + extra, new_leg)
+}
+
 /// Predicts what flights of `plan` would achieve (see the module doc).
 /// Results do not depend on the number of threads: each realisation is
 /// simulated and fitted on its own seed, and they are gathered in order.
@@ -561,12 +572,7 @@ pub fn predict(plan: &Plan, settings: &Settings) -> Result<PlanReport> {
     let channels = predictions(&realisations, target_survey, target_fom);
     let mut warnings = Vec::new();
     let headings = plan.scenario.raw.calibration.headings_deg.clone();
-    let cost = |candidate: &crate::model::excitation::Candidate| -> (f64, bool) {
-        let pause = plan.scenario.raw.calibration.pause_s;
-        let new_leg = !headings.iter().any(|h| angle_apart(*h, candidate.heading_deg) < 1.0);
-        let extra = if new_leg { NEW_LEG_S } else { 0.0 };
-        (candidate.duration_s + 0.5 * (pause[0] + pause[1]) + extra, new_leg)
-    };
+    let cost = |candidate: &crate::model::excitation::Candidate| addition_cost(plan, candidate);
     let mut additions = Vec::new();
     let mut additions_meet_target = None;
     let mut with_additions = Vec::new();
@@ -1019,6 +1025,19 @@ fn excess(sigmas: &[f64], reachable: &[bool], target: f64) -> f64 {
         .sum()
 }
 
+/// `chosen` grouped by the manoeuvre each is (`same` of two), in the
+/// order of first choice.
+fn grouped(chosen: &[usize], same: impl Fn(usize, usize) -> bool) -> Vec<Vec<usize>> {
+    let mut groups: Vec<Vec<usize>> = Vec::new();
+    for &m in chosen {
+        match groups.iter_mut().find(|g| same(g[0], m)) {
+            Some(group) => group.push(m),
+            None => groups.push(vec![m]),
+        }
+    }
+    groups
+}
+
 /// Greedy additions towards `target` (see the module doc): the list and
 /// whether it meets the target on every channel that can meet it. `None`
 /// when no realisation could be analysed.
@@ -1062,17 +1081,9 @@ fn choose_additions(
     // A manoeuvre chosen again later is listed once, flown that many
     // times: the list keeps the order of first choice, and each entry's
     // figures are those of it and the entries before it.
-    let mut groups: Vec<Vec<usize>> = Vec::new();
-    for &m in &chosen {
-        let same = |group: &&mut Vec<usize>| {
-            let first = &index[group[0]].0;
-            first.kind == index[m].0.kind && first.heading_deg == index[m].0.heading_deg
-        };
-        match groups.iter_mut().find(|g| same(g)) {
-            Some(group) => group.push(m),
-            None => groups.push(vec![m]),
-        }
-    }
+    let groups = grouped(&chosen, |a, b| {
+        index[a].0.kind == index[b].0.kind && index[a].0.heading_deg == index[b].0.heading_deg
+    });
     let mut flown: Vec<usize> = Vec::new();
     for group in groups {
         flown.extend(&group);

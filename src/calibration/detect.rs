@@ -308,6 +308,20 @@ struct Attitude {
     field_unit: Option<Vec<Vector3<f64>>>,
 }
 
+/// The calibration `piece` of a leg (of rows `leg_rows`) widened by one
+/// manoeuvre and its pause (60 s) each way, within the leg.
+fn widened(log: &FlightLog, piece: &Leg, leg_rows: &Range<usize>) -> Leg {
+    let time = log.time_s();
+    let reach = samples(60.0, log.median_interval_s());
+    let rows = piece.rows.start.saturating_sub(reach).max(leg_rows.start)..(piece.rows.end + reach).min(leg_rows.end);
+    Leg {
+        heading_deg: piece.heading_deg,
+        t_start: time[rows.start],
+        t_end: time[rows.end - 1],
+        rows,
+    }
+}
+
 /// Finds the calibration boxes and manoeuvres of a flight.
 pub fn detect_manoeuvres(log: &FlightLog, options: &DetectOptions) -> Result<Detection> {
     let attitude = read_attitude(log)?;
@@ -330,17 +344,7 @@ pub fn detect_manoeuvres(log: &FlightLog, options: &DetectOptions) -> Result<Det
                 .iter()
                 .find(|p| found.iter().any(|m| m.t_start >= p.t_start && m.t_end <= p.t_end))
             {
-                let time = log.time_s();
-                let reach = samples(60.0, log.median_interval_s());
-                let rows = piece.rows.start.saturating_sub(reach).max(leg_rows.start)
-                    ..(piece.rows.end + reach).min(leg_rows.end);
-                let widened = Leg {
-                    heading_deg: piece.heading_deg,
-                    t_start: time[rows.start],
-                    t_end: time[rows.end - 1],
-                    rows,
-                };
-                let again = leg_manoeuvres(log, &attitude, &widened, options);
+                let again = leg_manoeuvres(log, &attitude, &widened(log, piece, &leg_rows), options);
                 if again.len() > found.len() {
                     found = again;
                 }
@@ -1016,25 +1020,24 @@ fn tell_alike_apart(candidates: &mut [Candidate], expected: impl Fn(usize) -> f6
     }
 }
 
+/// Level flight's field direction over a leg's `unit` directions: their
+/// component-wise median (manoeuvres swing both ways about it), normalised.
+fn level_direction(unit: &[Vector3<f64>]) -> Vector3<f64> {
+    let median_of = |i: usize| {
+        let mut values: Vec<f64> = unit.iter().map(|u| u[i]).filter(|v| v.is_finite()).collect();
+        median(&mut values).unwrap_or(0.0)
+    };
+    let level = Vector3::new(median_of(0), median_of(1), median_of(2));
+    level / level.norm()
+}
+
 /// Fluxgate fallback: the small rotation $u_{ref} \times u$ of the field
 /// direction from the leg's mean direction, in degrees. A rotation θ about
 /// body axis a gives $-θ\,(a - (a\cdot u)u)$: the direction of the
 /// rotation vector tells the axis, its size over $|a - (a\cdot u)u|$ the angle.
 fn fluxgate_candidates(unit: &[Vector3<f64>], leg: &Leg, options: &DetectOptions, dt: f64) -> Vec<Candidate> {
-    let rows = leg.rows.clone();
-    // Level flight's direction: the component-wise median over the leg
-    // (manoeuvres swing both ways about it).
-    let median_of = |i: usize| {
-        let mut values: Vec<f64> = unit[rows.clone()]
-            .iter()
-            .map(|u| u[i])
-            .filter(|v| v.is_finite())
-            .collect();
-        median(&mut values).unwrap_or(0.0)
-    };
-    let level = Vector3::new(median_of(0), median_of(1), median_of(2));
-    let reference = level / level.norm();
-    let rotation: Vec<Vector3<f64>> = unit[rows]
+    let reference = level_direction(&unit[leg.rows.clone()]);
+    let rotation: Vec<Vector3<f64>> = unit[leg.rows.clone()]
         .iter()
         .map(|u| reference.cross(u).map(f64::to_degrees))
         .collect();

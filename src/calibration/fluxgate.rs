@@ -210,6 +210,16 @@ fn usable_rows(scalar: &[f64], field: [&[f64]; 3], rows: &[Range<usize>]) -> Vec
         .collect()
 }
 
+impl VectorCalibration {
+    /// This calibration as the fit's parameters, offsets in `unit`s of the
+    /// field: the start of a refit near it.
+    fn start(&self, unit: f64) -> Parameters {
+        let c = self.correction;
+        let o = self.offset_nt.map(|o| o / unit);
+        Parameters([c[0][0], c[1][0], c[1][1], c[2][0], c[2][1], c[2][2], o[0], o[1], o[2]])
+    }
+}
+
 fn calibrate_from(
     log: &FlightLog,
     sensor: &VectorSensor,
@@ -246,12 +256,7 @@ fn calibrate_from(
     let f: Vec<f64> = used.iter().map(|&i| scalar[i] / unit).collect();
 
     let (fitted, iterations) = match near {
-        Some(near) => {
-            let c = near.correction;
-            let o = near.offset_nt.map(|o| o / unit);
-            let start = Parameters([c[0][0], c[1][0], c[1][1], c[2][0], c[2][1], c[2][2], o[0], o[1], o[2]]);
-            levenberg_marquardt(&m, &f, (start, NEAR_DAMPING), max_iterations)
-        }
+        Some(near) => levenberg_marquardt(&m, &f, (near.start(unit), NEAR_DAMPING), max_iterations),
         None => fit_from_best_start(&m, &f, max_iterations),
     };
     let condition_number = jacobian_condition(&m, &fitted);

@@ -229,6 +229,24 @@ pub struct Drift {
     pub note: String,
 }
 
+impl Shared {
+    /// The change of the terms of family `f` and what the jackknife
+    /// expects of it between two boxes, RMS, nT; `None` when no shared
+    /// term is of that family.
+    fn family_change(&self, f: usize) -> Option<FamilyChange> {
+        let keep = |r: usize| self.terms[r].2 == f;
+        if !(0..self.terms.len()).any(keep) {
+            return None;
+        }
+        let change = self.form(&self.delta, &self.delta, &keep);
+        let expected: f64 = BETWEEN_BOXES * self.deviations.iter().map(|d| self.form(d, d, &keep)).sum::<f64>();
+        Some(FamilyChange {
+            change_rms_nt: change.max(0.0).sqrt(),
+            expected_rms_nt: expected.max(0.0).sqrt(),
+        })
+    }
+}
+
 /// Compares the earlier calibration `a` with the later `b` of one channel.
 pub fn compare(a: &Calibration, b: &Calibration) -> Drift {
     let mut drift = Drift::unknown(String::new());
@@ -240,7 +258,6 @@ pub fn compare(a: &Calibration, b: &Calibration) -> Drift {
         }
     };
     drift.compared_terms = shared.terms.len();
-    let n = shared.terms.len();
     let all = |_: usize| true;
     let q = shared.form(&shared.delta, &shared.delta, &all);
     let expected: f64 = shared.deviations.iter().map(|d| shared.form(d, d, &all)).sum();
@@ -265,16 +282,7 @@ pub fn compare(a: &Calibration, b: &Calibration) -> Drift {
     drift.covariance_dof = m;
     drift.limit = f_quantile(nu, m, 1.0 - FALSE_ALARM);
     for (f, slot) in drift.families.iter_mut().enumerate() {
-        let keep = |r: usize| shared.terms[r].2 == f;
-        if !(0..n).any(keep) {
-            continue;
-        }
-        let change = shared.form(&shared.delta, &shared.delta, &keep);
-        let expected: f64 = BETWEEN_BOXES * shared.deviations.iter().map(|d| shared.form(d, d, &keep)).sum::<f64>();
-        *slot = Some(FamilyChange {
-            change_rms_nt: change.max(0.0).sqrt(),
-            expected_rms_nt: expected.max(0.0).sqrt(),
-        });
+        *slot = shared.family_change(f);
     }
     test_permanent(a, &shared, m, &mut drift);
     drift.verdict = match drift.ratio > drift.limit || drift.permanent_t2 > drift.permanent_limit {

@@ -13,6 +13,17 @@ use magcomp::progress::Meter;
 use super::progress::{CampaignBar, FlightBar};
 use super::{prepare_flight_outputs, print_notes};
 
+/// Creates the run's output `folder` (named in `config`) when it does not
+/// exist yet, saying so.
+fn create_output_folder(config: &Path, folder: &Path) -> anyhow::Result<()> {
+    if !folder.as_os_str().is_empty() && !folder.is_dir() {
+        std::fs::create_dir_all(folder)
+            .with_context(|| format!("{}: creating the output folder {}", config.display(), folder.display()))?;
+        println!("created the output folder {}", folder.display());
+    }
+    Ok(())
+}
+
 /// Runs every flight of the pipeline file `config` (this shard's), prints
 /// each as it finishes and the status table, and fails when any flight did.
 pub fn run(config: &Path, (plain, force, verbose): (bool, bool, bool), shard: Option<&str>) -> anyhow::Result<()> {
@@ -32,11 +43,7 @@ pub fn run(config: &Path, (plain, force, verbose): (bool, bool, bool), shard: Op
             pipeline.flights.len()
         );
     }
-    if !folder.as_os_str().is_empty() && !folder.is_dir() {
-        std::fs::create_dir_all(folder)
-            .with_context(|| format!("{}: creating the output folder {}", config.display(), folder.display()))?;
-        println!("created the output folder {}", folder.display());
-    }
+    create_output_folder(config, folder)?;
     let jobs: Vec<&FlightJob> = mine.iter().map(|&i| &pipeline.flights[i]).collect();
     let at_once = FlightsAtOnce::for_jobs(&jobs);
     if mine.len() > 1 {

@@ -845,13 +845,30 @@ fn flight_jobs(
     Ok((flights, windows_files))
 }
 
+/// What a `[[flight]]` gives that cannot go together, or a line number
+/// that is none, in words.
+fn flight_conflict(raw: &RawFlight) -> Option<String> {
+    if let Some(line) = raw.lines.iter().find(|l| !(l.is_finite() && **l != 0.0)) {
+        return Some(format!(
+            "lines holds {line}, which is no line number; give the calibration lines as numbers, e.g. lines = [1002.20]"
+        ));
+    }
+    let problem = match () {
+        _ if raw.model.is_some() && raw.diagnosis.is_some() => "both model and diagnosis are given; a saved model carries its own findings: give the model alone, or the diagnosis alone to fit on this flight's calibration",
+        _ if raw.model.is_some() && raw.plan.is_some() => "both model and plan are given; a plan is set against the calibration box the flight fits on, and a flight given a model fits nothing: set the plan against the model's calibration flight",
+        _ if !raw.lines.is_empty() && (!raw.windows.is_empty() || raw.windows_file.is_some()) => "both lines and windows are given; give the calibration data one way, by lines or by windows",
+        _ => return None,
+    };
+    Some(problem.to_string())
+}
+
 fn flight_job(raw: RawFlight, base: &Path, source_name: &str) -> Result<FlightJob> {
-    let windows = raw.windows;
-    windows.iter().try_for_each(|w| w.validate(source_name))?;
+    raw.windows.iter().try_for_each(|w| w.validate(source_name))?;
     let date = raw
         .date
+        .as_deref()
         .map(|text| {
-            crate::ingest::flight_date::FlightDate::parse(&text).ok_or_else(|| Error::Config {
+            crate::ingest::flight_date::FlightDate::parse(text).ok_or_else(|| Error::Config {
                 source_name: source_name.into(),
                 message: format!(
                     "[[flight]] input = {:?}: date = {text:?} is not a day; write it as YYYY-MM-DD, e.g. \"2020-06-20\"",
@@ -860,42 +877,13 @@ fn flight_job(raw: RawFlight, base: &Path, source_name: &str) -> Result<FlightJo
             })
         })
         .transpose()?;
-    if let Some(line) = raw.lines.iter().find(|l| !(l.is_finite() && **l != 0.0)) {
+    if let Some(problem) = flight_conflict(&raw) {
         return Err(Error::Config {
             source_name: source_name.into(),
-            message: format!(
-                "[[flight]] input = {:?}: lines holds {line}, which is no line number; give the calibration lines as numbers, e.g. lines = [1002.20]",
-                raw.input
-            ),
+            message: format!("[[flight]] input = {:?}: {problem}", raw.input),
         });
     }
-    if raw.model.is_some() && raw.diagnosis.is_some() {
-        return Err(Error::Config {
-            source_name: source_name.into(),
-            message: format!(
-                "[[flight]] input = {:?}: both model and diagnosis are given; a saved model carries its own findings: give the model alone, or the diagnosis alone to fit on this flight's calibration",
-                raw.input
-            ),
-        });
-    }
-    if raw.model.is_some() && raw.plan.is_some() {
-        return Err(Error::Config {
-            source_name: source_name.into(),
-            message: format!(
-                "[[flight]] input = {:?}: both model and plan are given; a plan is set against the calibration box the flight fits on, and a flight given a model fits nothing: set the plan against the model's calibration flight",
-                raw.input
-            ),
-        });
-    }
-    if !raw.lines.is_empty() && (!windows.is_empty() || raw.windows_file.is_some()) {
-        return Err(Error::Config {
-            source_name: source_name.into(),
-            message: format!(
-                "[[flight]] input = {:?}: both lines and windows are given; give the calibration data one way, by lines or by windows",
-                raw.input
-            ),
-        });
-    }
+    let windows = raw.windows;
     let input = base.join(raw.input);
     Ok(FlightJob {
         vector: raw.vector,

@@ -612,13 +612,8 @@ pub fn diagnose_metered(
     let (fluxgate, mut notes) = checked_or_said(checked);
     notes.extend(hold_out.caveat());
     // The calibrated fluxgate is tried only once its finding stands.
-    let calibrated = fluxgate
-        .as_ref()
-        .filter(|check| mismatch_stands(check, settings))
-        .map(|check| check.calibration.apply(log, sensor))
-        .transpose()?;
-    let calibrated_direction = calibrated.as_ref().map(|l| field_directions(l, sensor));
-    let on_calibrated = calibrated.as_ref().zip(calibrated_direction.as_ref());
+    let calibrated = calibrated_flight(fluxgate.as_ref(), settings, (log, sensor))?;
+    let on_calibrated = calibrated.as_ref().map(|(l, d)| (l, d));
     let fluxgate_calibration = fluxgate.as_ref().map(|check| &check.calibration);
     let search = |k: usize, start: ChannelStart| {
         let channel = &channels[k];
@@ -656,6 +651,21 @@ fn search_each(
             searched
         })
         .collect()
+}
+
+/// The flight with the fluxgate calibrated by the check's calibration,
+/// and its field directions, when its mismatch finding stands.
+fn calibrated_flight(
+    fluxgate: Option<&FluxgateCheck>,
+    settings: &DiagnoseOptions,
+    (log, sensor): (&FlightLog, &VectorSensor),
+) -> Result<Option<(FlightLog, [Vec<f64>; 3])>> {
+    let Some(check) = fluxgate.filter(|check| mismatch_stands(check, settings)) else {
+        return Ok(None);
+    };
+    let calibrated = check.calibration.apply(log, sensor)?;
+    let directions = field_directions(&calibrated, sensor);
+    Ok(Some((calibrated, directions)))
 }
 
 /// The fluxgate's check, or a note saying why it was not made.

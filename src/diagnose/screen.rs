@@ -130,22 +130,7 @@ impl Screen {
         let target = data.stacked.target();
         problem.stores.recycle(data.stacked);
         let rows: Vec<_> = data.windows.iter().map(|w| w.stacked_rows.clone()).collect();
-        let (mut gram, mut cross, mut squares) = (Vec::new(), Vec::new(), Vec::new());
-        for range in &rows {
-            let piece: Vec<&[f64]> = columns.iter().map(|c| &c[range.clone()]).collect();
-            let y = &target[range.clone()];
-            let mut g = vec![0.0; p * p];
-            for i in 0..p {
-                for j in i..p {
-                    let value = dot(piece[i], piece[j]);
-                    g[i * p + j] = value;
-                    g[j * p + i] = value;
-                }
-            }
-            gram.push(g);
-            cross.push(piece.iter().map(|c| dot(c, y)).collect());
-            squares.push(dot(y, y));
-        }
+        let (gram, cross, squares) = piece_moments(&columns, &target, &rows);
         Some(Screen {
             pieces,
             split_of,
@@ -367,6 +352,33 @@ fn station_columns(model: &Model) -> Vec<String> {
         .filter(|s| matches!(s, crate::model::SourceTerm::ExternalField { .. }))
         .map(|s| s.column().to_string())
         .collect()
+}
+
+/// Per row range of `rows`: the columns' Gram matrix (row-major), their
+/// products with the target, and the target's sum of squares.
+type PieceMoments = (Vec<Vec<f64>>, Vec<Vec<f64>>, Vec<f64>);
+
+/// The [`PieceMoments`] of `columns` and `target` over each range of
+/// `rows`.
+fn piece_moments(columns: &[Vec<f64>], target: &[f64], rows: &[std::ops::Range<usize>]) -> PieceMoments {
+    let p = columns.len();
+    let (mut gram, mut cross, mut squares) = (Vec::new(), Vec::new(), Vec::new());
+    for range in rows {
+        let piece: Vec<&[f64]> = columns.iter().map(|c| &c[range.clone()]).collect();
+        let y = &target[range.clone()];
+        let mut g = vec![0.0; p * p];
+        for i in 0..p {
+            for j in i..p {
+                let value = dot(piece[i], piece[j]);
+                g[i * p + j] = value;
+                g[j * p + i] = value;
+            }
+        }
+        gram.push(g);
+        cross.push(piece.iter().map(|c| dot(c, y)).collect());
+        squares.push(dot(y, y));
+    }
+    (gram, cross, squares)
 }
 
 #[cfg(test)]

@@ -392,8 +392,11 @@ pub(super) fn drop_unearned_rates(scored: &mut Vec<(Model, Extension, HeldOut)>,
     });
 }
 
-/// Every extension of `model` worth scoring.
-pub(super) fn candidates(problem: &Problem, model: &Model, settings: &DiagnoseOptions) -> Vec<(Model, Extension)> {
+/// The candidates that change the model's timing: a sensor lag on the
+/// 0.05 s grid up to `[diagnose] max_lag_s` either way, and an eddy time
+/// constant from 0.1 to 1.5 s (where the model has eddy terms), each
+/// where the model has none yet.
+fn timing_candidates(problem: &Problem, model: &Model, settings: &DiagnoseOptions) -> Vec<(Model, Extension)> {
     let mut list = Vec::new();
     if model.lag_s == 0.0 {
         let steps = (settings.max_lag_s / 0.05).round() as i64;
@@ -413,6 +416,12 @@ pub(super) fn candidates(problem: &Problem, model: &Model, settings: &DiagnoseOp
             ));
         }
     }
+    list
+}
+
+/// Every extension of `model` worth scoring.
+pub(super) fn candidates(problem: &Problem, model: &Model, settings: &DiagnoseOptions) -> Vec<(Model, Extension)> {
+    let mut list = timing_candidates(problem, model, settings);
     for channel in problem.log.channels() {
         let Some(&level) = problem.levels.get(&channel.name) else {
             continue;

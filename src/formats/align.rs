@@ -85,6 +85,19 @@ pub struct Aligned {
     pub report: AlignmentReport,
 }
 
+impl Stream {
+    /// How the stream is resampled onto the time base, in words (it is the
+    /// time base when `is_base`).
+    fn method(&self, is_base: bool) -> &'static str {
+        match (is_base, self.hold, self.angle) {
+            (true, _, _) => "time base",
+            (false, true, _) => "previous value",
+            (false, false, true) => "linear on the circle",
+            (false, false, false) => "linear",
+        }
+    }
+}
+
 /// Aligns `streams` on the timestamps of stream `base` (an index).
 pub fn align(mut streams: Vec<Stream>, base: usize, options: &AlignmentOptions) -> Result<Aligned, ConflictingTimes> {
     streams.iter_mut().for_each(sort_by_time);
@@ -106,12 +119,7 @@ pub fn align(mut streams: Vec<Stream>, base: usize, options: &AlignmentOptions) 
     for (index, (stream, repeats)) in streams.into_iter().zip(repeats).enumerate() {
         let interval_s = median_interval_ns(&stream.times_ns) / 1e9;
         let tolerance_s = options.gap_tolerance_s.unwrap_or(2.5 * interval_s);
-        let method = match (index == base, stream.hold, stream.angle) {
-            (true, _, _) => "time base",
-            (false, true, _) => "previous value",
-            (false, false, true) => "linear on the circle",
-            (false, false, false) => "linear",
-        };
+        let method = stream.method(index == base);
         let resampled = resample(&stream, &repeats, &base_times, (tolerance_s * 1e9) as u64);
         for (rows, flag) in [
             (&resampled.gap_rows, FlagKind::Gap),

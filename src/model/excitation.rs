@@ -299,6 +299,13 @@ impl Design {
         self.survey_sigma(&information)
     }
 
+    /// The inverses of the reduced, floored informations `g`; `None` when
+    /// one is not positive definite.
+    fn reduced_inverses<const N: usize>(&self, g: [&Mat<f64>; N]) -> Option<[Mat<f64>; N]> {
+        let inverses: Vec<Mat<f64>> = g.iter().map(|g| inverse_spd(&self.reduced(g))).collect::<Option<_>>()?;
+        inverses.try_into().ok()
+    }
+
     /// The reduced, floored information.
     fn reduced(&self, g: &Mat<f64>) -> Mat<f64> {
         let mut reduced = self.basis.transpose() * g * &self.basis;
@@ -503,15 +510,11 @@ pub fn analyse_design(
         candidates: Vec::new(),
     };
     let (basis, information) = (&design.basis, &design.flown);
-    let reduce_floored = |g: &Mat<f64>| design.reduced(g);
-    let (Some(flown_inverse), Some(reference_inverse)) = (
-        inverse_spd(&reduce_floored(information)),
-        inverse_spd(&reduce_floored(&reference)),
-    ) else {
+    let Some([flown_inverse, reference_inverse]) = design.reduced_inverses([information, &reference]) else {
         return Ok(None);
     };
     let survey_sigma_nt = design.survey_sigma(information);
-    let flown_log_det = log_det(&reduce_floored(information));
+    let flown_log_det = log_det(&design.reduced(information));
     let flown_variance: f64 = (0..flown_inverse.nrows()).map(|k| flown_inverse[(k, k)]).sum();
     let flown_covariance = basis * &flown_inverse * basis.transpose();
     let reference_covariance = basis * &reference_inverse * basis.transpose();
@@ -1043,6 +1046,29 @@ fn earth_field_ned(log: &FlightLog, sensor: &VectorSensor, windows: &[Calibratio
     (count > 0).then(|| [total[0], total[1], total[2]].map(|t| t / count as f64))
 }
 
+/// The Earth's field `field_ned` in body axes, per axis, through one
+/// manoeuvre of `kind` on `heading_deg` with `shape`: `margin` rows of
+/// level flight, `swinging` rows of its sine swing, `margin` more, `dt`
+/// apart.
+fn swung_field(
+    field_ned: [f64; 3],
+    (kind, heading_deg, shape): (ManoeuvreKind, f64, Shape),
+    (margin, swinging, dt): (usize, usize, f64),
+) -> [Vec<f64>; 3] {
+    let b = nalgebra::Vector3::from(field_ned);
+    let readings: Vec<nalgebra::Vector3<f64>> = (0..swinging + 2 * margin)
+        .map(|k| {
+            let angle = match k.checked_sub(margin).filter(|&m| m < swinging) {
+                Some(m) => shape.amplitude_deg * (2.0 * std::f64::consts::PI * m as f64 * dt / shape.period_s).sin(),
+                None => 0.0,
+            };
+            let [roll, pitch, yaw] = kind.attitude_offset(angle);
+            body_to_ned(roll, pitch, heading_deg + yaw).inverse() * b
+        })
+        .collect();
+    [0, 1, 2].map(|axis| readings.iter().map(|r| r[axis]).collect::<Vec<f64>>())
+}
+
 /// The unscaled information of one candidate manoeuvre, band-passed and
 /// trimmed as a flown window is: the manoeuvre
 /// flown through `field_ned` with level flight either side, the vector
@@ -1061,18 +1087,7 @@ fn candidate_gram(
     let margin = (CANDIDATE_MARGIN_S / dt).ceil() as usize + options.filter.trim_samples;
     let swinging = (shape.duration_s / dt).round().max(1.0) as usize;
     let rows = swinging + 2 * margin;
-    let b = nalgebra::Vector3::from(field_ned);
-    let readings: Vec<nalgebra::Vector3<f64>> = (0..rows)
-        .map(|k| {
-            let angle = match k.checked_sub(margin).filter(|&m| m < swinging) {
-                Some(m) => shape.amplitude_deg * (2.0 * std::f64::consts::PI * m as f64 * dt / shape.period_s).sin(),
-                None => 0.0,
-            };
-            let [roll, pitch, yaw] = kind.attitude_offset(angle);
-            body_to_ned(roll, pitch, heading_deg + yaw).inverse() * b
-        })
-        .collect();
-    let axes = [0, 1, 2].map(|axis| readings.iter().map(|r| r[axis]).collect::<Vec<f64>>());
+    let axes = swung_field(field_ned, (kind, heading_deg, shape), (margin, swinging, dt));
     let sensor = prepared.sensor;
     let mut channels: Vec<Channel> = (sensor.axes.iter().zip(axes))
         .map(|(&index, values)| Channel {

@@ -399,6 +399,24 @@ impl FittedModel {
         self.prediction_sigma_with(log, &[])
     }
 
+    /// Each jackknife deviation's mean change over the calibration
+    /// windows' rows (its level there), `predict(row, deviation)` its
+    /// change on a row; rows where it is not finite left out.
+    fn calibration_levels(&self, predict: &dyn Fn(usize, &[f64]) -> f64) -> Vec<f64> {
+        let calibration: Vec<usize> = (self.windows.iter())
+            .flat_map(|w| w.flight_rows.iter().cloned().flatten())
+            .collect();
+        (self.solution.jackknife.iter())
+            .map(|d| {
+                let (sum, n) = (calibration.iter())
+                    .map(|&row| predict(row, d))
+                    .filter(|v| v.is_finite())
+                    .fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
+                sum / n.max(1) as f64
+            })
+            .collect()
+    }
+
     /// [`Self::prediction_sigma`], taking the terms from `shared` when it
     /// holds this model's (see [`SharedDesign`]).
     pub fn prediction_sigma_with(&self, log: &FlightLog, shared: &[SharedDesign]) -> Result<Option<PredictionSigma>> {
@@ -411,20 +429,7 @@ impl FittedModel {
         let predict = |row: usize, d: &[f64]| aircraft.iter().map(|(k, c)| c[row] * d[*k]).sum::<f64>();
         let levels: Vec<f64> = match &self.calibration_level {
             Some(saved) => saved.jackknife_nt.clone(),
-            None => {
-                let calibration: Vec<usize> = (self.windows.iter())
-                    .flat_map(|w| w.flight_rows.iter().cloned().flatten())
-                    .collect();
-                (deviations.iter())
-                    .map(|d| {
-                        let (sum, n) = (calibration.iter())
-                            .map(|&row| predict(row, d))
-                            .filter(|v| v.is_finite())
-                            .fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
-                        sum / n.max(1) as f64
-                    })
-                    .collect()
-            }
+            None => self.calibration_levels(&predict),
         };
         if levels.len() != deviations.len() {
             return Err(Error::ModelMismatch {

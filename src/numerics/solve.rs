@@ -730,6 +730,25 @@ const LANES: usize = 8;
 /// Candidates handled together by the PRESS kernel.
 const CANDIDATES: usize = 4;
 
+/// `value(l, k)` of the first `ridge` candidates l and `p` components k,
+/// candidate-major in chunks of [`CANDIDATES`], zero-padded:
+/// `[chunk * p + k][c]`.
+fn packed((ridge, p): (usize, usize), value: impl Fn(usize, usize) -> f64) -> Vec<[f64; CANDIDATES]> {
+    (0..ridge.div_ceil(CANDIDATES) * p)
+        .map(|index| {
+            let (chunk, k) = (index / p, index % p);
+            std::array::from_fn(|c| {
+                let l = chunk * CANDIDATES + c;
+                if l < ridge {
+                    value(l, k)
+                } else {
+                    0.0
+                }
+            })
+        })
+        .collect()
+}
+
 /// Leave-one-out PRESS of every candidate. Row blocks run in parallel and
 /// their sums are added in block order, so the result does not depend on
 /// the number of threads.
@@ -738,25 +757,8 @@ fn leave_one_out_press(design: &Stacked, spectrum: &Spectrum, weights: &[Vec<f64
     let m = weights.len();
     // Truncated-SVD candidates (the last `rank`) are cumulative sums, done apart.
     let ridge = m - spectrum.rank;
-    // Candidate-major chunks of CANDIDATES, zero-padded: [chunk][k][c].
-    let chunks = ridge.div_ceil(CANDIDATES);
-    let pack = |value: &dyn Fn(usize, usize) -> f64| -> Vec<[f64; CANDIDATES]> {
-        (0..chunks * p)
-            .map(|index| {
-                let (chunk, k) = (index / p, index % p);
-                std::array::from_fn(|c| {
-                    let l = chunk * CANDIDATES + c;
-                    if l < ridge {
-                        value(l, k)
-                    } else {
-                        0.0
-                    }
-                })
-            })
-            .collect()
-    };
-    let leverage_weights = pack(&|l, k| weights[l][k]);
-    let fitted_weights = pack(&|l, k| weights[l][k] * spectrum.uty[k]);
+    let leverage_weights = packed((ridge, p), |l, k| weights[l][k]);
+    let fitted_weights = packed((ridge, p), |l, k| weights[l][k] * spectrum.uty[k]);
     let run = |track_all: bool| {
         let partials: Vec<Vec<(f64, f64)>> = design
             .blocks()
@@ -1054,12 +1056,9 @@ fn fold_held_out(fold: &FoldStatistics, spectrum: &Spectrum, grid: &[f64]) -> Ve
         (residual_ss, projected)
     };
     let held_out = |residual_ss: f64, projected: &[f64], correction: &[f64]| -> f64 {
-        let value = residual_ss + 2.0 * dot(projected, correction) + dot(correction, &times(&gram, active, correction));
-        if value.is_finite() {
-            value
-        } else {
-            f64::INFINITY
-        }
+        finite_or_infinite(
+            residual_ss + 2.0 * dot(projected, correction) + dot(correction, &times(&gram, active, correction)),
+        )
     };
 
     let m = Mat::from_fn(active, active, |i, j| {
@@ -1113,6 +1112,15 @@ fn cholesky_solve(factor: MatRef<'_, f64>, b: &[f64]) -> Vec<f64> {
     faer::linalg::triangular_solve::solve_lower_triangular_in_place(factor, x.as_mut(), faer::Par::Seq);
     faer::linalg::triangular_solve::solve_upper_triangular_in_place(factor.transpose(), x.as_mut(), faer::Par::Seq);
     (0..b.len()).map(|k| x[(k, 0)]).collect()
+}
+
+/// `value`, or infinity where it is not finite (a score that cannot win).
+fn finite_or_infinite(value: f64) -> f64 {
+    if value.is_finite() {
+        value
+    } else {
+        f64::INFINITY
+    }
 }
 
 /// $a \cdot b$ over the shorter of the two.

@@ -519,6 +519,19 @@ fn map_pixels() -> Result<(u32, u32)> {
     Ok(pixels)
 }
 
+/// The anomaly's level (the `values`' median, which it is measured from)
+/// and the range its colours span (its 2nd to 98th percentiles), nT;
+/// `values` not empty.
+fn anomaly_scale(mut sorted: Vec<f64>) -> (f64, (f64, f64)) {
+    sorted.sort_by(f64::total_cmp);
+    let level = sorted[sorted.len() / 2];
+    let range = (
+        sorted[sorted.len() / 50] - level,
+        sorted[sorted.len() - 1 - sorted.len() / 50] - level,
+    );
+    (level, range)
+}
+
 /// Survey-line samples coloured by compensated anomaly (value less the
 /// lines' median), blue low to red high, in metres east and north of the
 /// survey's centre at one scale, with a colour bar in nT.
@@ -542,15 +555,7 @@ fn line_map(log: &FlightLog, values: &[f64]) -> Result<Option<String>> {
     if rows.is_empty() {
         return Ok(None);
     }
-    let mut sorted: Vec<f64> = rows.iter().map(|&k| values[k]).collect();
-    sorted.sort_by(f64::total_cmp);
-    // The anomaly: the value less the lines' median; colours span its 2nd to
-    // 98th percentiles.
-    let level = sorted[sorted.len() / 2];
-    let range = (
-        sorted[sorted.len() / 50] - level,
-        sorted[sorted.len() - 1 - sorted.len() / 50] - level,
-    );
+    let (level, range) = anomaly_scale(rows.iter().map(|&k| values[k]).collect());
     let (east, north) = east_north(&rows, (&lat.values, &lon.values));
     let pixels = map_pixels()?;
     let (x, y) = equal_scale(
@@ -1420,6 +1425,26 @@ fn noise_table(noise: &[LineNoise]) -> String {
     html
 }
 
+/// The regularisation's reason, and for a model `fitted_here` (not
+/// applied from a saved one) its PRESS and singular-value plots.
+fn regularisation(model: &FittedModel, fitted_here: bool) -> Result<String> {
+    let mut html = String::from("<h3>Regularisation</h3>");
+    let _ = write!(html, "<p>{}</p>", escape(&model.solution.reason));
+    if fitted_here {
+        let _ = write!(
+            html,
+            "<div class=\"grid\"><figure class=\"press\">{}</figure>",
+            press_plot(model)?
+        );
+        let _ = write!(
+            html,
+            "<figure class=\"singular\">{}</figure></div>",
+            singular_value_plot(model)?
+        );
+    }
+    Ok(html)
+}
+
 /// One channel's section: its verdict, FOM table and manoeuvres (where it
 /// has windows), regularisation, coefficients, estimators, excitation,
 /// survey-line map and per-line noise.
@@ -1453,20 +1478,7 @@ fn channel_section(
         }
         html += "</div>";
     }
-    html += "<h3>Regularisation</h3>";
-    let _ = write!(html, "<p>{}</p>", escape(&model.solution.reason));
-    if result.model.is_none() {
-        let _ = write!(
-            html,
-            "<div class=\"grid\"><figure class=\"press\">{}</figure>",
-            press_plot(model)?
-        );
-        let _ = write!(
-            html,
-            "<figure class=\"singular\">{}</figure></div>",
-            singular_value_plot(model)?
-        );
-    }
+    html += &regularisation(model, result.model.is_none())?;
     html += "<h3>Coefficients</h3>";
     html += &coefficient_table(model);
     html += &estimator_table(model);

@@ -110,6 +110,35 @@ pub(super) fn augmentation_plan(
     }
 }
 
+/// The channels whose diagnosed model (beyond what is kept of plain)
+/// does not lower the held-out RMS of plain Tolles-Lawson with λ picked as
+/// compensation picks it, held back.
+fn no_gain_held_out(
+    diagnosis: &crate::diagnose::Diagnosis,
+    plan: &BTreeMap<String, Extensions>,
+    options: &Settings,
+) -> Vec<(String, HeldBack)> {
+    let criterion = match options.fit.solve.lambda {
+        crate::numerics::solve::LambdaChoice::Select => Some(options.fit.solve.criterion.describe().to_string()),
+        _ => None,
+    };
+    (diagnosis.channels.iter())
+        .filter(|c| {
+            plan.get(&c.channel)
+                .is_some_and(|m| *m != crate::diagnose::evidence::plain_of(m))
+        })
+        .filter(|c| c.heldout_rms_final_nt >= c.heldout_rms_baseline_nt)
+        .map(|c| {
+            let reason = HeldBack::NoGainHeldOut {
+                criterion: criterion.clone(),
+                plain_nt: c.heldout_rms_baseline_nt,
+                diagnosed_nt: c.heldout_rms_final_nt,
+            };
+            (c.channel.clone(), reason)
+        })
+        .collect()
+}
+
 /// Applies the evidence rule ([`crate::diagnose::evidence`]) to a fresh
 /// diagnosis's plan. A channel's findings are held back (fitted plain
 /// under `apply = "auto"`, its findings marked not applied with the
@@ -139,25 +168,9 @@ pub(super) fn evidence_rule(
     warnings: &mut Vec<Warning>,
 ) -> Result<(BTreeMap<String, Extensions>, BTreeMap<String, f64>)> {
     use crate::diagnose::evidence::{
-        departures, plain_of, survey_checks, tolles_lawson_of, Compensations, SurveyCheck, LEAST_CROSSOVERS,
-        LEAST_TRIPLES,
+        departures, survey_checks, tolles_lawson_of, Compensations, SurveyCheck, LEAST_CROSSOVERS, LEAST_TRIPLES,
     };
-    let criterion = match options.fit.solve.lambda {
-        crate::numerics::solve::LambdaChoice::Select => Some(options.fit.solve.criterion.describe().to_string()),
-        _ => None,
-    };
-    let mut refused: Vec<(String, HeldBack)> = (diagnosis.channels.iter())
-        .filter(|c| plan.get(&c.channel).is_some_and(|m| *m != plain_of(m)))
-        .filter(|c| c.heldout_rms_final_nt >= c.heldout_rms_baseline_nt)
-        .map(|c| {
-            let reason = HeldBack::NoGainHeldOut {
-                criterion: criterion.clone(),
-                plain_nt: c.heldout_rms_baseline_nt,
-                diagnosed_nt: c.heldout_rms_final_nt,
-            };
-            (c.channel.clone(), reason)
-        })
-        .collect();
+    let mut refused = no_gain_held_out(diagnosis, &plan, options);
     let compensations = Compensations::new(calibration, (options.terms, &options.fit));
     let measured = departures(&compensations, &plan)?;
     let mut applied = BTreeMap::new();

@@ -182,12 +182,11 @@ fn channel_line(result: &FlightResult, quality: &crate::quality::ChannelQuality,
     line + "\n"
 }
 
-/// A fitted channel's fit in detail (`-v`): the solver, samples and
-/// conditioning, the band-passed residual, why this λ or rank, the held-out
-/// FOM, the heading error's matched samples and the box transfers.
-fn fit_details(quality: &crate::quality::ChannelQuality, model: &crate::model::FittedModel) -> String {
+/// The regulariser a channel was fitted with, in words: its estimator
+/// when chosen by the solver, else ridge's λ or truncated SVD's rank.
+fn regulariser_words(model: &crate::model::FittedModel) -> String {
     let solution = &model.solution;
-    let regulariser = match (
+    match (
         model.solver.as_ref().and_then(|s| s.estimator),
         solution.lambda,
         solution.rank,
@@ -196,7 +195,15 @@ fn fit_details(quality: &crate::quality::ChannelQuality, model: &crate::model::F
         (None, Some(lambda), _) => format!("ridge λ={lambda:.3e}"),
         (None, _, Some(rank)) => format!("TSVD rank {rank}"),
         _ => String::new(),
-    };
+    }
+}
+
+/// A fitted channel's fit in detail (`-v`): the solver, samples and
+/// conditioning, the band-passed residual, why this λ or rank, the held-out
+/// FOM, the heading error's matched samples and the box transfers.
+fn fit_details(quality: &crate::quality::ChannelQuality, model: &crate::model::FittedModel) -> String {
+    let solution = &model.solution;
+    let regulariser = regulariser_words(model);
     let mut text = format!(
         "    fit on {}: {} ({} samples, cond {:.2e}); band std {:.3} → {:.3} nT\n    {}\n",
         model.vector_sensor,

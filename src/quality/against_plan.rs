@@ -341,6 +341,20 @@ struct ManoeuvresAgainstPlan {
     with_additions: bool,
 }
 
+/// The note that the manoeuvres flown are not compared with the plan's
+/// (`report_name`): it lists none (`no_plan`), or the windows carry no
+/// kind and heading.
+fn not_compared(report_name: &std::path::Display<'_>, no_plan: bool) -> String {
+    match no_plan {
+        true => format!(
+            "against the plan ({report_name}): the report lists no planned manoeuvres (made by an older magcomp), so the manoeuvres flown are not compared with it"
+        ),
+        false => format!(
+            "against the plan ({report_name}): the calibration windows carry no manoeuvre kind and heading, so the manoeuvres flown are not compared with the plan's"
+        ),
+    }
+}
+
 /// Sets the manoeuvres flown against the plan's (and its additions'),
 /// saying what differs.
 fn compare_manoeuvres(
@@ -361,19 +375,11 @@ fn compare_manoeuvres(
         with_additions: false,
     };
     let flown = match flown_manoeuvres {
-        _ if planned.is_empty() => {
-            said.notes.push(format!(
-                "against the plan ({report_name}): the report lists no planned manoeuvres (made by an older magcomp), so the manoeuvres flown are not compared with it"
-            ));
+        Some(flown) if !planned.is_empty() => flown,
+        _ => {
+            said.notes.push(not_compared(&report_name, planned.is_empty()));
             return compared;
         }
-        None => {
-            said.notes.push(format!(
-                "against the plan ({report_name}): the calibration windows carry no manoeuvre kind and heading, so the manoeuvres flown are not compared with the plan's"
-            ));
-            return compared;
-        }
-        Some(flown) => flown,
     };
     let (lacking, extra) = match_manoeuvres(&planned, flown);
     let extra_flown: Vec<(ManoeuvreKind, f64)> = extra.iter().map(|&f| flown[f]).collect();

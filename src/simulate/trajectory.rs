@@ -88,23 +88,12 @@ pub fn fly(scenario: &Scenario, random: &mut Random) -> FlightPath {
         (BoxPosition::Middle, _) => lines / 2,
         (BoxPosition::End, _) => lines,
     };
-    let starts_in_box = lines_before == 0 && box_.repeats > 0 && !box_.climb_before;
     let mut pilot = Pilot {
         dt_s,
         random,
         turbulence: [[0.0; 3]; 2],
         wander: (0.0, 0.0),
-        pose: Pose {
-            height_agl_m: match starts_in_box {
-                true => box_.altitude_m,
-                false => survey.altitude_m,
-            },
-            yaw_deg: match lines_before {
-                0 => box_.headings_deg.first().copied().unwrap_or(0.0),
-                _ => survey.line_heading_deg,
-            },
-            ..Pose::default()
-        },
+        pose: starting_pose(scenario, lines_before),
         path: FlightPath {
             dt_s,
             poses: Vec::new(),
@@ -143,6 +132,25 @@ pub fn fly(scenario: &Scenario, random: &mut Random) -> FlightPath {
         }
     }
     pilot.path
+}
+
+/// Where the flight starts: at the box's height when it starts in the box
+/// (else at survey height), heading along the box's first leg when no line
+/// is flown before it (`lines_before`; else along the lines).
+fn starting_pose(scenario: &Scenario, lines_before: usize) -> Pose {
+    let (box_, survey) = (&scenario.raw.calibration, &scenario.raw.survey);
+    let starts_in_box = lines_before == 0 && box_.repeats > 0 && !box_.climb_before;
+    Pose {
+        height_agl_m: match starts_in_box {
+            true => box_.altitude_m,
+            false => survey.altitude_m,
+        },
+        yaw_deg: match lines_before {
+            0 => box_.headings_deg.first().copied().unwrap_or(0.0),
+            _ => survey.line_heading_deg,
+        },
+        ..Pose::default()
+    }
 }
 
 /// The pilot: appends poses to the path.

@@ -440,13 +440,9 @@ pub fn fit(
         || fit_samples(&calibration, &angles),
         || held_out(log, windows, inputs, &angles),
     );
-    let mut model = model.ok_or_else(|| too_few_rows(sensor, reference_name, calibration.len()))?;
-    model.orient(igrf);
-    model.sensor = sensor.prefix.clone();
-    model.reference = reference_name.clone();
-    model.reference_swing_nt = reference.swing_nt;
-    model.start = start;
-    model.held_out = held;
+    let named = (sensor.prefix.clone(), reference_name.clone(), reference.swing_nt);
+    let fitted = model.ok_or_else(|| too_few_rows(sensor, reference_name, calibration.len()))?;
+    let mut model = fitted.identified(igrf, named, (start, held));
     let Some(options) = tolles_lawson else {
         return Ok(model);
     };
@@ -473,14 +469,10 @@ pub fn fit(
     let corrected = without_eddy_field(readings, &model.soft_iron, (&raw, &body));
     let corrected_inputs = (&attitude, reference_nt, &turns, corrected.each_ref().map(Vec::as_slice));
     match fit_samples(&samples(log, corrected_inputs, rows.iter().cloned()), &angles) {
-        Some(mut refitted) => {
-            refitted.orient(igrf);
-            refitted.sensor = std::mem::take(&mut model.sensor);
-            refitted.reference = std::mem::take(&mut model.reference);
-            refitted.reference_swing_nt = model.reference_swing_nt;
-            refitted.start = model.start;
-            refitted.held_out = held_out(log, windows, corrected_inputs, &angles);
-            model = refitted;
+        Some(refitted) => {
+            let named = (model.sensor, model.reference, model.reference_swing_nt);
+            let held = held_out(log, windows, corrected_inputs, &angles);
+            model = refitted.identified(igrf, named, (model.start, held));
         }
         None => {
             model.tolles_lawson_warning = Some(NOT_REFITTED.into());
@@ -1156,6 +1148,24 @@ fn held_out(log: &FlightLog, windows: &[CalibrationWindow], inputs: Inputs, star
 }
 
 impl VectorModel {
+    /// This fit oriented by IGRF-14's direction `igrf` (when it started
+    /// from it), named by its fluxgate, reference channel and that
+    /// channel's swing, with its start and held-out residual.
+    fn identified(
+        mut self,
+        igrf: Option<Vector3<f64>>,
+        (sensor, reference, swing_nt): (String, String, f64),
+        (start, held_out): (FieldStart, Option<HeldOut>),
+    ) -> Self {
+        self.orient(igrf);
+        self.sensor = sensor;
+        self.reference = reference;
+        self.reference_swing_nt = swing_nt;
+        self.start = start;
+        self.held_out = held_out;
+        self
+    }
+
     /// Chooses the sign of the field's direction, which the data leave
     /// free (see [`FieldSign`]): the one nearer IGRF-14's direction `igrf`
     /// when there is one, else the one that makes K's axes right-handed;

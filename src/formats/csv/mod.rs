@@ -95,6 +95,31 @@ fn read_csv_with(path: &Path, names: &ColumnNames, allow_parallel: bool) -> Resu
     read(builder)
 }
 
+/// The cells of one `line`, trimmed, split as the file is; `None` where
+/// the CSV reader cannot read it.
+fn line_cells(line: &[u8], separator: Separator) -> Option<Vec<String>> {
+    Some(match separator {
+        Separator::Byte(delimiter) => {
+            let mut reader = csv::ReaderBuilder::new()
+                .delimiter(delimiter)
+                .has_headers(false)
+                .from_reader(line);
+            let mut record = csv::ByteRecord::new();
+            match reader.read_byte_record(&mut record) {
+                Ok(true) => record
+                    .iter()
+                    .map(|c| String::from_utf8_lossy(c).trim().to_string())
+                    .collect(),
+                _ => return None,
+            }
+        }
+        Separator::Whitespace => (line.split(u8::is_ascii_whitespace))
+            .filter(|f| !f.is_empty())
+            .map(|c| String::from_utf8_lossy(c).into_owned())
+            .collect(),
+    })
+}
+
 /// The cells of the line under the header when that line is a row of
 /// units (`s,nT,nT,deg`), one per header column; `None` when it is not.
 ///
@@ -118,25 +143,8 @@ pub fn read_units_row(
         (Some(_), Some(Ok(line))) => line,
         _ => return Ok(None),
     };
-    let cells: Vec<String> = match separator {
-        Separator::Byte(delimiter) => {
-            let mut reader = csv::ReaderBuilder::new()
-                .delimiter(delimiter)
-                .has_headers(false)
-                .from_reader(line.as_slice());
-            let mut record = csv::ByteRecord::new();
-            match reader.read_byte_record(&mut record) {
-                Ok(true) => record
-                    .iter()
-                    .map(|c| String::from_utf8_lossy(c).trim().to_string())
-                    .collect(),
-                _ => return Ok(None),
-            }
-        }
-        Separator::Whitespace => (line.split(u8::is_ascii_whitespace))
-            .filter(|f| !f.is_empty())
-            .map(|c| String::from_utf8_lossy(c).into_owned())
-            .collect(),
+    let Some(cells) = line_cells(&line, separator) else {
+        return Ok(None);
     };
     // The time cell a unit; or empty, with no number on the line and a
     // unit elsewhere (a data row missing its time is the reader's to name).

@@ -452,6 +452,13 @@ fn topic_stem(topic: &str) -> String {
         .collect()
 }
 
+/// The magnitude of a vector given by its three components' series.
+fn magnitude([x, y, z]: [&[f64]; 3]) -> Vec<f64> {
+    (0..x.len())
+        .map(|i| (x[i] * x[i] + y[i] * y[i] + z[i] * z[i]).sqrt())
+        .collect()
+}
+
 /// The streams of a ROS 2 topic, with their roles.
 fn ros_streams(
     kind: RosType,
@@ -475,15 +482,8 @@ fn ros_streams(
         RosType::MagneticField => {
             let [x, y, z] = [next(), next(), next()];
             if let Some(scalar) = mapping.and_then(|m| m.scalar.clone()) {
-                let norm = (0..x.len())
-                    .map(|i| (x[i] * x[i] + y[i] * y[i] + z[i] * z[i]).sqrt())
-                    .collect();
-                return vec![stream(
-                    scalar,
-                    "|magnetic_field|",
-                    Some(ChannelRole::ScalarMagnetometer),
-                    norm,
-                )];
+                let role = Some(ChannelRole::ScalarMagnetometer);
+                return vec![stream(scalar, "|magnetic_field|", role, magnitude([&x, &y, &z]))];
             }
             let prefix = mapping
                 .and_then(|m| m.vector.clone())

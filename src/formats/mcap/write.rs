@@ -265,31 +265,7 @@ fn recorded_topics(log: &FlightLog) -> Vec<Topic<'_>> {
     }
     for sensor in log.vector_sensors() {
         sensor.axes.iter().for_each(|&i| covered[i] = true);
-        let [x, y, z] = sensor.axes;
-        let label = sensor
-            .prefix
-            .strip_prefix("flux_")
-            .unwrap_or(&sensor.prefix)
-            .to_string();
-        let frame = sensor.prefix.clone();
-        topics.push(Topic {
-            topic: format!("/mag/{label}/vector"),
-            schema: "magcomp.VectorMag",
-            metadata: BTreeMap::new(),
-            encode: Box::new(move |row, time| {
-                let v = [channel(x)[row], channel(y)[row], channel(z)[row]];
-                Some({
-                    VectorMag {
-                        timestamp: Some(timestamp(time)),
-                        frame_id: frame.clone(),
-                        x_nt: v[0],
-                        y_nt: v[1],
-                        z_nt: v[2],
-                    }
-                    .encode_to_vec()
-                })
-            }),
-        });
+        topics.push(recorded_vector_topic(log, &sensor));
     }
     topics.extend(navigation_topics(log, &mut covered));
     for (i, c) in log.channels().iter().enumerate().filter(|(i, _)| !covered[*i]) {
@@ -300,6 +276,58 @@ fn recorded_topics(log: &FlightLog) -> Vec<Topic<'_>> {
         ));
     }
     topics
+}
+
+/// A fluxgate's recorded vector topic.
+fn recorded_vector_topic<'a>(log: &'a FlightLog, sensor: &crate::ingest::flight_log::VectorSensor) -> Topic<'a> {
+    let channel = |i: usize| &log.channels()[i].values;
+    let [x, y, z] = sensor.axes;
+    let label = sensor
+        .prefix
+        .strip_prefix("flux_")
+        .unwrap_or(&sensor.prefix)
+        .to_string();
+    let frame = sensor.prefix.clone();
+    Topic {
+        topic: format!("/mag/{label}/vector"),
+        schema: "magcomp.VectorMag",
+        metadata: BTreeMap::new(),
+        encode: Box::new(move |row, time| {
+            let v = [channel(x)[row], channel(y)[row], channel(z)[row]];
+            Some({
+                VectorMag {
+                    timestamp: Some(timestamp(time)),
+                    frame_id: frame.clone(),
+                    x_nt: v[0],
+                    y_nt: v[1],
+                    z_nt: v[2],
+                }
+                .encode_to_vec()
+            })
+        }),
+    }
+}
+
+/// The INS attitude topic of the channels `[roll, pitch, yaw]`.
+fn attitude_topic(log: &FlightLog, [roll, pitch, yaw]: [usize; 3]) -> Topic<'_> {
+    let channel = |i: usize| &log.channels()[i].values;
+    Topic {
+        topic: "/ins/attitude".into(),
+        schema: "magcomp.Attitude",
+        metadata: BTreeMap::new(),
+        encode: Box::new(move |row, time| {
+            let a = [channel(roll)[row], channel(pitch)[row], channel(yaw)[row]];
+            Some({
+                Attitude {
+                    timestamp: Some(timestamp(time)),
+                    roll_deg: a[0],
+                    pitch_deg: a[1],
+                    yaw_deg: a[2],
+                }
+                .encode_to_vec()
+            })
+        }),
+    }
 }
 
 /// The attitude and position topics, where the log holds their channels
@@ -322,23 +350,7 @@ fn navigation_topics<'a>(log: &'a FlightLog, covered: &mut [bool]) -> Vec<Topic<
             .all(|(&i, n)| log.channels()[i].name == n)
         {
             [roll, pitch, yaw].iter().for_each(|&i| covered[i] = true);
-            topics.push(Topic {
-                topic: "/ins/attitude".into(),
-                schema: "magcomp.Attitude",
-                metadata: BTreeMap::new(),
-                encode: Box::new(move |row, time| {
-                    let a = [channel(roll)[row], channel(pitch)[row], channel(yaw)[row]];
-                    Some({
-                        Attitude {
-                            timestamp: Some(timestamp(time)),
-                            roll_deg: a[0],
-                            pitch_deg: a[1],
-                            yaw_deg: a[2],
-                        }
-                        .encode_to_vec()
-                    })
-                }),
-            });
+            topics.push(attitude_topic(log, [roll, pitch, yaw]));
         }
     }
     let lat = find(ChannelRole::Position, "lat");
