@@ -354,8 +354,8 @@ fn station_columns(model: &Model) -> Vec<String> {
         .collect()
 }
 
-/// Per row range of `rows`: the columns' Gram matrix (row-major), their
-/// products with the target, and the target's sum of squares.
+/// Per row range: the columns' Gram matrix (row-major), their products
+/// with the target, and the target's sum of squares.
 type PieceMoments = (Vec<Vec<f64>>, Vec<Vec<f64>>, Vec<f64>);
 
 /// The [`PieceMoments`] of `columns` and `target` over each range of

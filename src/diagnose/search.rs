@@ -394,8 +394,8 @@ pub(super) fn drop_unearned_rates(scored: &mut Vec<(Model, Extension, HeldOut)>,
 
 /// The candidates that change the model's timing: a sensor lag on the
 /// 0.05 s grid up to `[diagnose] max_lag_s` either way, and an eddy time
-/// constant from 0.1 to 1.5 s (where the model has eddy terms), each
-/// where the model has none yet.
+/// constant from 0.1 to 1.5 s (where the diagnosis's term set has eddy
+/// terms), each where the model has none yet.
 fn timing_candidates(problem: &Problem, model: &Model, settings: &DiagnoseOptions) -> Vec<(Model, Extension)> {
     let mut list = Vec::new();
     if model.lag_s == 0.0 {

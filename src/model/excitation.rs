@@ -891,8 +891,8 @@ impl CandidatePlan {
 /// Each kind's shape (pitch, roll, yaw): the median amplitude, period and
 /// length the INS `attitude` recorded over the `headed` windows of that
 /// kind; else the simulator's amplitude and period, with the median length
-/// of that kind's windows (of all `windows` for a kind not flown, 30 s
-/// without any); and whether any kind was measured.
+/// of that kind's `headed` windows (of all `windows` where none is of that
+/// kind, 30 s without any); and whether any kind was measured.
 fn manoeuvre_shapes(
     attitude: Option<[&[f64]; 3]>,
     (headed, windows): (&[CalibrationWindow], &[CalibrationWindow]),

@@ -521,8 +521,9 @@ fn map_pixels() -> Result<(u32, u32)> {
 
 /// The anomaly's level (the `values`' median, which it is measured from)
 /// and the range its colours span (its 2nd to 98th percentiles), nT;
-/// `values` not empty.
-fn anomaly_scale(mut sorted: Vec<f64>) -> (f64, (f64, f64)) {
+/// `values` not empty, in any order.
+fn anomaly_scale(values: Vec<f64>) -> (f64, (f64, f64)) {
+    let mut sorted = values;
     sorted.sort_by(f64::total_cmp);
     let level = sorted[sorted.len() / 2];
     let range = (

@@ -736,7 +736,7 @@ fn start_direction(
 
 /// IGRF-14's field direction (inclination, declination, radians) at the
 /// `[site]`, and the start it makes; `year` decimal, `dated` whether it is
-/// the flight's own date.
+/// a date given (the flight's, or the `[site]`'s) rather than the default.
 fn at_site(epoch: &crate::igrf::IgrfEpoch, site: &Site, (year, dated): (f64, bool)) -> ((f64, f64), FieldStart) {
     let field = Vector3::from(
         epoch
@@ -1148,9 +1148,10 @@ fn held_out(log: &FlightLog, windows: &[CalibrationWindow], inputs: Inputs, star
 }
 
 impl VectorModel {
-    /// This fit oriented by IGRF-14's direction `igrf` (when it started
-    /// from it), named by its fluxgate, reference channel and that
-    /// channel's swing, with its start and held-out residual.
+    /// This fit oriented ([`Self::orient`]: by IGRF-14's direction `igrf`
+    /// when there is one, else so that K's axes are right-handed), named
+    /// by its fluxgate, reference channel and that channel's swing, with
+    /// its start and held-out residual.
     fn identified(
         mut self,
         igrf: Option<Vector3<f64>>,

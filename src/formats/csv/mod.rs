@@ -96,7 +96,7 @@ fn read_csv_with(path: &Path, names: &ColumnNames, allow_parallel: bool) -> Resu
 }
 
 /// The cells of one `line`, trimmed, split as the file is; `None` where
-/// the CSV reader cannot read it.
+/// the CSV reader reads no record from it.
 fn line_cells(line: &[u8], separator: Separator) -> Option<Vec<String>> {
     Some(match separator {
         Separator::Byte(delimiter) => {
