@@ -835,6 +835,12 @@ impl fmt::Display for Warning {
 }
 
 impl Warning {
+    /// A variant `fmt` sent to a helper that does not write it (none does
+    /// today): its data, rather than nothing.
+    fn write_unrouted(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{self:?}")
+    }
+
     /// The sentence of a warning of the box's detection.
     fn write_detection(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
@@ -878,9 +884,7 @@ impl Warning {
                     spans.join(", ")
                 )
             }
-            // `fmt` sends only the variants above here; were another sent,
-            // its data would still be said.
-            _ => write!(f, "{self:?}"),
+            _ => self.write_unrouted(f),
         }
     }
 
@@ -907,9 +911,7 @@ impl Warning {
             Warning::GradientNotCompensated { column, reason } => {
                 write!(f, "{column}: no gradient compensation: {reason}")
             }
-            // `fmt` sends only the variants above here; were another sent,
-            // its data would still be said.
-            _ => write!(f, "{self:?}"),
+            _ => self.write_unrouted(f),
         }
     }
 
@@ -960,9 +962,7 @@ impl Warning {
                     None => "anything its uncertainty states (none is stated)".into(),
                 }
             ),
-            // `fmt` sends only the variants above here; were another sent,
-            // its data would still be said.
-            _ => write!(f, "{self:?}"),
+            _ => self.write_unrouted(f),
         }
     }
 
@@ -1000,9 +1000,7 @@ impl Warning {
             Warning::NoUncertainty { channel, why } => write!(f, "{channel}: no uncertainty figure: {why}"),
             Warning::BoxGap { channel, gap } => write!(f, "{channel}: {gap}"),
             Warning::SolverNotUsed { channel, reason } => write!(f, "{channel}: {reason}"),
-            // `fmt` sends only the variants above here; were another sent,
-            // its data would still be said.
-            _ => write!(f, "{self:?}"),
+            _ => self.write_unrouted(f),
         }
     }
 
@@ -1058,9 +1056,7 @@ impl Warning {
                 columns.iter().map(|n| format!("'{n}'")).collect::<Vec<_>>().join(", "),
                 output.display()
             ),
-            // `fmt` sends only the variants above here; were another sent,
-            // its data would still be said.
-            _ => write!(f, "{self:?}"),
+            _ => self.write_unrouted(f),
         }
     }
 
@@ -1083,9 +1079,7 @@ impl Warning {
                 "{} was made on {made_on}, not on {applied_to} ({difference}); applied anyway because of --force",
                 diagnosis.display()
             ),
-            // `fmt` sends only the variants above here; were another sent,
-            // its data would still be said.
-            _ => write!(f, "{self:?}"),
+            _ => self.write_unrouted(f),
         }
     }
 
@@ -1124,9 +1118,7 @@ impl Warning {
                     false => "better than planned: the plan's installation overstates this aircraft's interference or noise, so additions it proposed may not be needed",
                 }
             ),
-            // `fmt` sends only the variants above here; were another sent,
-            // its data would still be said.
-            _ => write!(f, "{self:?}"),
+            _ => self.write_unrouted(f),
         }
     }
 
@@ -1153,9 +1145,7 @@ impl Warning {
                 f,
                 "{channel}: on its calibration flight the model's findings moved the survey {departure_nt:.4} nT from plain Tolles-Lawson, beyond its stated uncertainty (verdict CHECK): compare with a plain model (--plain --model on the calibration flight) before using this channel"
             ),
-            // `fmt` sends only the variants above here; were another sent,
-            // its data would still be said.
-            _ => write!(f, "{self:?}"),
+            _ => self.write_unrouted(f),
         }
     }
 
@@ -1206,9 +1196,7 @@ impl Warning {
                     model.display()
                 )
             }
-            // `fmt` sends only the variants above here; were another sent,
-            // its data would still be said.
-            _ => write!(f, "{self:?}"),
+            _ => self.write_unrouted(f),
         }
     }
 
@@ -1265,9 +1253,7 @@ impl Warning {
                 "{sensor}: the twelve-constant fit's windows do not give three headings (a window given by time that spans a turn has none), so no heading is held out and the vector's accuracy away from them is not checked; give the box's manoeuvres or legs as windows"
             ),
             Warning::VectorTollesLawson { sensor, reason } => write!(f, "{sensor}: vector Tolles-Lawson: {reason}"),
-            // `fmt` sends only the variants above here; were another sent,
-            // its data would still be said.
-            _ => write!(f, "{self:?}"),
+            _ => self.write_unrouted(f),
         }
     }
 
@@ -1321,9 +1307,7 @@ impl Warning {
             Warning::PoorTransfer {
                 sentence, next_step, ..
             } => write!(f, "{sentence}. {next_step}"),
-            // `fmt` sends only the variants above here; were another sent,
-            // its data would still be said.
-            _ => write!(f, "{self:?}"),
+            _ => self.write_unrouted(f),
         }
     }
 }
