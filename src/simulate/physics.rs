@@ -54,10 +54,10 @@ pub fn to_ned(body: Vector, roll_deg: f64, pitch_deg: f64, yaw_deg: f64) -> Vect
 /// $B = \frac{\mu_0}{4\pi} \frac{3(m\cdot\hat r)\hat r - m}{r^3}$.
 pub fn dipole_field_nt(moment_a_m2: Vector, offset_m: Vector) -> Vector {
     let (moment, offset) = (vector3(moment_a_m2), vector3(offset_m));
-    let distance = offset.norm();
-    let unit = offset / distance;
+    let inverse = 1.0 / offset.norm();
+    let unit = offset * inverse;
     // μ0/4π = 1e-7 T·m/A = 100 nT·m/A.
-    ((3.0 * moment.dot(&unit) * unit - moment) * (100.0 / distance.powi(3))).into()
+    ((3.0 * moment.dot(&unit) * unit - moment) * (100.0 * inverse * inverse * inverse)).into()
 }
 
 /// Buried dipoles: the crustal anomaly.
