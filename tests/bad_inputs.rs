@@ -996,7 +996,9 @@ fn read_in_process(input: &Path) -> Result<Option<ReaderView>, (Kind, String)> {
     let path = input.to_path_buf();
     std::thread::spawn(move || {
         let read = read_flight_log(&path, &Settings::default().ingest).ok().map(|log| {
-            let warnings = log.alignment().map(|a| a.warnings.clone()).unwrap_or_default();
+            let warnings = (log.alignment())
+                .map(|a| a.warnings.iter().map(ToString::to_string).collect())
+                .unwrap_or_default();
             (log.len(), warnings)
         });
         let _ = sender.send(read);

@@ -6,6 +6,7 @@ use std::path::Path;
 
 use magcomp::formats::mcap::messages::{descriptor_set, timestamp, Attitude, Sample, ScalarMag, VectorMag};
 use magcomp::formats::{read_flight_log, IngestOptions};
+use magcomp::messages::{Reading, Warning};
 use prost::Message;
 
 /// Which encoding and layout a test file uses.
@@ -218,9 +219,11 @@ fn a_topic_magcomp_cannot_read_is_a_warning() {
         let log = read_flight_log(&path, &IngestOptions::default()).unwrap();
         assert_eq!(log.len(), 300);
         assert!(
-            log.reading_warnings()
-                .iter()
-                .any(|w| w.contains(&format!("topic '{topic}' is not in the output")) && w.contains(why)),
+            log.reading_warnings().iter().any(|w| matches!(
+                w,
+                Warning::Reading(Reading::McapTopicLost { topic: lost, why: said })
+                    if lost == topic && said.contains(why)
+            )),
             "{topic}: {:?}",
             log.reading_warnings()
         );
@@ -366,7 +369,7 @@ fn damaged_files_give_errors_not_panics() {
                 assert!(log.len() < 300);
                 let warnings = &log.alignment().unwrap().warnings;
                 assert!(
-                    warnings.iter().any(|n| n.contains("cut short")),
+                    (warnings.iter()).any(|w| matches!(w, Warning::Reading(Reading::McapCutShort { .. }))),
                     "cut at {k}/40: {warnings:?}"
                 );
                 partial += 1;
@@ -458,9 +461,10 @@ fn repeated_log_times_are_dropped_flagged_or_refused() {
     assert_eq!(log.row_flags()[row(102.0)].to_string(), "duplicate_time:cur_a");
     let warnings = &log.alignment().unwrap().warnings;
     assert!(
-        warnings
-            .iter()
-            .any(|w| w.contains("1 times carry samples that disagree")),
+        warnings.iter().any(|w| matches!(
+            w,
+            Warning::Reading(Reading::RepeatsDisagree { times: 1, column, .. }) if column == "cur_a"
+        )),
         "{warnings:?}"
     );
 
@@ -521,9 +525,11 @@ fn log_times_are_absolute_and_read_back_as_times_of_day() {
     assert_eq!(overridden.date(), other.date);
     let warnings = overridden.reading_warnings();
     assert!(
-        warnings
-            .iter()
-            .any(|w| w.contains("2021-01-01") && w.contains("(2020-06-20)")),
+        warnings.iter().any(|w| matches!(
+            w,
+            Warning::Reading(Reading::DayGivenOverRecorded { given, recorded, .. })
+                if given == "2021-01-01" && recorded == "2020-06-20"
+        )),
         "{warnings:?}"
     );
 }
@@ -582,12 +588,8 @@ fn records_of(bytes: &[u8]) -> Vec<(u8, usize, usize)> {
 fn a_file_cut_at_a_record_boundary_says_so_with_what_was_read() {
     let folder = tempfile::tempdir().unwrap();
     let (good, whole) = whole_file(folder.path(), INDEXED);
-    assert!(!whole
-        .alignment()
-        .unwrap()
-        .warnings
-        .iter()
-        .any(|w| w.contains("cut short")));
+    assert!(!(whole.alignment().unwrap().warnings.iter())
+        .any(|w| matches!(w, Warning::Reading(Reading::McapCutShort { .. }))));
     let chunk_ends: Vec<usize> = records_of(&good)
         .into_iter()
         .filter(|(opcode, _, _)| *opcode == 0x06)
@@ -605,15 +607,27 @@ fn a_file_cut_at_a_record_boundary_says_so_with_what_was_read() {
         whole.len()
     );
     let warnings = &log.alignment().unwrap().warnings;
-    let said = warnings
-        .iter()
-        .find(|w| w.contains("cut short"))
+    let said = (warnings.iter())
+        .find_map(|w| match w {
+            Warning::Reading(cut @ Reading::McapCutShort { .. }) => Some(cut),
+            _ => None,
+        })
         .unwrap_or_else(|| panic!("{warnings:?}"));
-    assert!(
-        said.contains(&format!("ends at byte {} between two records", chunk_ends[1]))
-            && said.contains(&format!("read {} rows from", log.len())),
+    let Reading::McapCutShort {
+        at_byte,
+        inside_record_of,
+        read: Some((rows, first_s, last_s)),
+    } = said
+    else {
+        panic!("{said:?}")
+    };
+    assert_eq!(
+        (*at_byte, *inside_record_of, *rows),
+        (chunk_ends[1] as u64, None, log.len()),
         "{said}"
     );
+    assert_eq!((*first_s, *last_s), (log.time_s()[0], log.time_s()[log.len() - 1]));
+    assert!(said.to_string().contains("between two records"), "{said}");
 }
 
 /// A summary whose chunk index lost an entry is not trusted: the file is
@@ -664,7 +678,7 @@ fn an_edited_chunk_fails_its_crc_and_is_left_out_with_a_warning() {
         ..INDEXED
     };
     let (mut bytes, whole) = whole_file(folder.path(), layout);
-    assert!(!whole.alignment().unwrap().warnings.iter().any(|w| w.contains("CRC")));
+    assert!(whole.alignment().unwrap().warnings.is_empty());
     let chunks: Vec<(usize, usize)> = records_of(&bytes)
         .into_iter()
         .filter(|(opcode, _, _)| *opcode == 0x06)
@@ -679,21 +693,21 @@ fn an_edited_chunk_fails_its_crc_and_is_left_out_with_a_warning() {
     let log = read_flight_log(&edited, &IngestOptions::default()).unwrap();
     let warnings = &log.alignment().unwrap().warnings;
     assert!(
-        warnings
-            .iter()
-            .any(|w| w.contains("a damaged chunk was left out") && w.contains("do not match their CRC")),
+        warnings.iter().any(|w| matches!(
+            w,
+            Warning::Reading(Reading::McapChunkDamaged { why }) if why.contains("do not match their CRC")
+        )),
         "{warnings:?}"
     );
     assert!(
-        warnings
-            .iter()
-            .any(|w| w.contains("1 of") && w.contains("chunks were damaged") && w.contains("Copy the recording again")),
+        warnings.iter().any(|w| matches!(
+            w,
+            Warning::Reading(Reading::McapChunksLeftOut { damaged: 1, of }) if *of == chunks.len()
+        )),
         "{warnings:?}"
     );
     assert!(
-        warnings
-            .iter()
-            .any(|w| w.contains("the data section does not match the CRC")),
+        (warnings.iter()).any(|w| matches!(w, Warning::Reading(Reading::McapCrcFails))),
         "{warnings:?}"
     );
 }

@@ -711,6 +711,27 @@ fn text_columns_left_out_of_an_output_are_named() {
     assert!(stdout.contains("topic '/magcomp/flags' skipped"), "{stdout}");
 }
 
+/// `convert` says each thing reading lost once: an MCAP recording cut
+/// short (from the fuzz corpus) is said to be cut short in one line, with
+/// the rows read, not once as a reading warning and again as the
+/// alignment's.
+#[test]
+fn convert_says_what_reading_lost_once() {
+    let folder = tempfile::tempdir().unwrap();
+    let cut = Path::new(env!("CARGO_MANIFEST_DIR")).join("fuzz/corpus/ingest_mcap/kept_cut_short.mcap");
+    let out = folder.path().join("cut.csv");
+    let (code, stdout, stderr) = magcomp(&["convert", cut.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    assert_eq!(code, 0, "{stderr}");
+    let said: Vec<&str> = stdout.lines().filter(|l| l.contains("cut short")).collect();
+    assert_eq!(said.len(), 1, "{stdout}");
+    assert!(
+        said[0].starts_with("  warning: the file is cut short at byte"),
+        "{}",
+        said[0]
+    );
+    assert!(said[0].contains("read 200 rows from"), "{}", said[0]);
+}
+
 /// The heading error compares passes flown minutes apart, so the external
 /// field's change between them is taken out with the base station. On a
 /// line flown both ways four times under 150 nT of diurnal variation, the

@@ -24,8 +24,8 @@ pub fn convert(
     let log = magcomp::formats::read_flight_log(flight, &pipeline.settings.ingest)?;
     magcomp::formats::write_flight_log(&log, out)?;
     let warnings = (log.reading_warnings().iter().cloned())
-        .chain(magcomp::formats::mcap::undated_warning(&log, out).map(|w| w.to_string()))
-        .chain(magcomp::formats::write::text_columns_warning(&log, out, false).map(|w| w.to_string()));
+        .chain(magcomp::formats::mcap::undated_warning(&log, out))
+        .chain(magcomp::formats::write::text_columns_warning(&log, out, false));
     for warning in warnings {
         println!("  warning: {warning}");
     }
@@ -47,11 +47,9 @@ pub fn convert(
     );
     if let Some(report) = log.alignment() {
         println!("  time base: {} ({} rows)", report.time_base, report.rows);
+        // The alignment's warnings are among the reading warnings above.
         for note in &report.notes {
             println!("  note: {note}");
-        }
-        for warning in &report.warnings {
-            println!("  warning: {warning}");
         }
     }
     Ok(())

@@ -26,6 +26,7 @@
 
 use crate::ingest::flags::{FlagKind, RowFlags};
 pub use crate::ingest::flight_log::{AlignmentReport, ResampledChannel};
+use crate::messages::{Reading, Warning};
 
 /// One recorded series before alignment.
 #[derive(Debug, Clone)]
@@ -164,26 +165,30 @@ pub fn align(mut streams: Vec<Stream>, base: usize, options: &AlignmentOptions) 
 
 /// The warnings on a stream's repeated samples: exact repeats read once,
 /// and times whose samples disagree, left missing.
-fn repeat_warnings(stream: &Stream, repeats: &Repeats, resampled: &Resampled) -> Vec<String> {
+fn repeat_warnings(stream: &Stream, repeats: &Repeats, resampled: &Resampled) -> Vec<Warning> {
     let mut warnings = Vec::new();
     if repeats.dropped > 0 {
-        warnings.push(format!(
-            "{}: {} samples repeat an earlier one exactly (same time, same value) and were read once; the {} rows that use them are flagged duplicate_time:{}",
-            stream.source,
-            repeats.dropped,
-            resampled.repeat_rows.len(),
-            stream.name
-        ));
+        warnings.push(
+            Reading::RepeatsReadOnce {
+                source: stream.source.clone(),
+                samples: repeats.dropped,
+                rows: resampled.repeat_rows.len(),
+                column: stream.name.clone(),
+            }
+            .into(),
+        );
     }
     if !repeats.conflicts.is_empty() {
-        warnings.push(format!(
-            "{}: {} times carry samples that disagree (the first at {} s); the {} rows that would use them are left missing and flagged duplicate_time:{}",
-            stream.source,
-            repeats.conflicts.len(),
-            crate::error::Number(stream.times_ns[repeats.conflicts[0]] as f64 / 1e9),
-            resampled.conflict_rows.len(),
-            stream.name
-        ));
+        warnings.push(
+            Reading::RepeatsDisagree {
+                source: stream.source.clone(),
+                times: repeats.conflicts.len(),
+                first_s: stream.times_ns[repeats.conflicts[0]] as f64 / 1e9,
+                rows: resampled.conflict_rows.len(),
+                column: stream.name.clone(),
+            }
+            .into(),
+        );
     }
     warnings
 }

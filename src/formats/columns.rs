@@ -12,6 +12,7 @@ use std::path::Path;
 
 use crate::error::{Error, Result};
 use crate::ingest::flight_log::{AttitudeAngle, ChannelRole, FlightLog, VectorAxis};
+use crate::messages::{Reading, Warning};
 
 /// The names of `log`'s columns, time first, for a message (at most 40).
 fn column_list(log: &FlightLog) -> String {
@@ -102,7 +103,7 @@ impl ColumnNames {
     /// a missing line, base-station or position column, and attitude
     /// columns missing where the flight has no attitude at all (flown
     /// without INS).
-    pub fn check_given(&self, path: &Path, log: &FlightLog) -> Result<Vec<String>> {
+    pub fn check_given(&self, path: &Path, log: &FlightLog) -> Result<Vec<Warning>> {
         let missing: Vec<&GivenColumn> = (self.given.iter())
             .filter(|g| g.column != log.time_column() && log.channel(&g.column).is_none())
             .collect();
@@ -121,14 +122,15 @@ impl ColumnNames {
             match g.setting {
                 "scalar" => return Err(error(g, "scalar magnetometer")),
                 "vector" => return Err(error(g, "vector magnetometer")),
-                "pitch" | "roll" | "yaw" if some_attitude => {
-                    return Err(error(g, "INS attitude"))
-                }
-                setting => warnings.push(format!(
-                    "{}: the column '{}' named by [columns] {setting} is not in the file, so the flight is read without it",
-                    path.display(),
-                    g.column
-                )),
+                "pitch" | "roll" | "yaw" if some_attitude => return Err(error(g, "INS attitude")),
+                setting => warnings.push(
+                    Reading::NamedColumnMissing {
+                        file: path.to_path_buf(),
+                        column: g.column.to_string(),
+                        setting: setting.to_string(),
+                    }
+                    .into(),
+                ),
             }
         }
         Ok(warnings)

@@ -17,6 +17,7 @@ use super::destination::{stage, Staged};
 use crate::compensate::Compensation;
 use crate::error::{Error, Result};
 use crate::ingest::flight_log::{Channel, FlightLog};
+use crate::messages::{Reading, Warning};
 
 /// Older MagNav files' names for CONTRACT names.
 const ALIASES: [(&str, &str); 1] = [("ins_azim", "ins_yaw")];
@@ -53,7 +54,7 @@ pub fn read_hdf5(path: &Path, names: &ColumnNames) -> Result<FlightLog> {
 }
 
 /// The time dataset, the channels' datasets, and what was not read.
-type Datasets = (Vec<f64>, Vec<(String, Vec<f64>)>, Vec<String>);
+type Datasets = (Vec<f64>, Vec<(String, Vec<f64>)>, Vec<Warning>);
 
 fn read_datasets(path: &Path, time_name: &str) -> Result<Datasets> {
     let file = File::open(path).map_err(|e| corrupt(path, format!("not a readable HDF5 file: {e}")))?;
@@ -99,12 +100,12 @@ fn read_datasets(path: &Path, time_name: &str) -> Result<Datasets> {
     }
     let warnings = match not_read.is_empty() {
         true => Vec::new(),
-        false => vec![format!(
-            "{}: {} dataset(s) not read, as they are not one number per '{time_name}' sample: {}",
-            path.display(),
-            not_read.len(),
-            not_read.join(", ")
-        )],
+        false => vec![Reading::DatasetsNotRead {
+            file: path.to_path_buf(),
+            time: time_name.to_string(),
+            datasets: not_read,
+        }
+        .into()],
     };
     Ok((time_s, datasets, warnings))
 }

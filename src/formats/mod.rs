@@ -41,6 +41,7 @@ pub use columns::{ColumnNames, GivenColumn, VectorColumns};
 
 use crate::error::{Error, Result};
 use crate::ingest::flight_log::FlightLog;
+use crate::messages::{Reading, Warning};
 
 /// Options for reading a flight log.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -120,32 +121,32 @@ pub const LONGEST_TIME_STEP_S: f64 = 86_400.0;
 /// A warning for each step of the time column longer than
 /// [`LONGEST_TIME_STEP_S`] (the first three, then their count). The rows
 /// are kept: the step splits the flight as any gap does.
-fn time_jumps(path: &Path, log: &FlightLog) -> Vec<String> {
+fn time_jumps(path: &Path, log: &FlightLog) -> Vec<Warning> {
     let time = log.time_s();
     let jumps: Vec<usize> = (1..time.len())
         .filter(|&k| time[k] - time[k - 1] > LONGEST_TIME_STEP_S)
         .collect();
-    let mut warnings: Vec<String> = (jumps.iter().take(3))
+    let mut warnings: Vec<Warning> = (jumps.iter().take(3))
         .map(|&k| {
-            format!(
-                "{}: the time column '{}' jumps by {} s ({:.1} days) from {} to {} s (row {} of the flight): the rows after it are kept, as after any gap, but a flight this long is most likely a damaged time column or two flights joined; check the times, or split the file",
-                path.display(),
-                log.time_column(),
-                crate::error::Number(time[k] - time[k - 1]),
-                (time[k] - time[k - 1]) / 86_400.0,
-                crate::error::Number(time[k - 1]),
-                crate::error::Number(time[k]),
-                k + 1
-            )
+            Reading::TimeJump {
+                file: path.to_path_buf(),
+                column: log.time_column().to_string(),
+                from_s: time[k - 1],
+                to_s: time[k],
+                row: k + 1,
+            }
+            .into()
         })
         .collect();
     if jumps.len() > 3 {
-        warnings.push(format!(
-            "{}: the time column '{}' jumps by more than a day {} times in all",
-            path.display(),
-            log.time_column(),
-            jumps.len()
-        ));
+        warnings.push(
+            Reading::TimeJumps {
+                file: path.to_path_buf(),
+                column: log.time_column().to_string(),
+                count: jumps.len(),
+            }
+            .into(),
+        );
     }
     warnings
 }
@@ -161,14 +162,18 @@ pub fn read_flight_log(path: &Path, options: &IngestOptions) -> Result<FlightLog
     let recorded = log.date().or_else(|| date_from_columns(&log));
     let mut warnings = log.reading_warnings().to_vec();
     warnings.extend(options.columns.check_given(path, &log)?);
-    warnings.extend(units::unit_warnings(&path.display().to_string(), &log));
+    warnings.extend(units::unit_warnings(path, &log));
     warnings.extend(time_jumps(path, &log));
     if let (Some(given), Some(recorded)) = (options.date, recorded) {
         if given != recorded {
-            warnings.push(format!(
-                "{}: the day given ({given}, --date or [[flight]] date) is used over the day the file records ({recorded})",
-                path.display()
-            ));
+            warnings.push(
+                Reading::DayGivenOverRecorded {
+                    file: path.to_path_buf(),
+                    given: given.to_string(),
+                    recorded: recorded.to_string(),
+                }
+                .into(),
+            );
         }
     }
     Ok(log.with_date(options.date.or(recorded)).with_reading_warnings(warnings))

@@ -9,8 +9,10 @@
 //! convert.
 
 use std::f64::consts::FRAC_PI_2;
+use std::path::Path;
 
 use crate::ingest::flight_log::{AttitudeAngle, ChannelRole, FlightLog};
+use crate::messages::{Reading, Warning};
 
 /// A median step above this, s, is no survey recording: calibration needs
 /// several samples per manoeuvre period (5–20 s), and magnetometers and
@@ -23,17 +25,21 @@ const TURNED_DEG: f64 = 60.0;
 
 /// Warnings for columns whose values show they are not in the units
 /// magcomp reads; `file` names the flight in them.
-pub fn unit_warnings(file: &str, log: &FlightLog) -> Vec<String> {
+pub fn unit_warnings(file: &Path, log: &FlightLog) -> Vec<Warning> {
     let mut warnings = Vec::new();
     let step_s = log.median_interval_s();
     if step_s > MAX_MEDIAN_INTERVAL_S {
-        warnings.push(format!(
-            "{file}: the time column '{}' steps {step_s} between samples at the median, and magcomp reads it in seconds: no survey records {step_s} s apart. If it is in milliseconds (or another unit), convert it to seconds",
-            log.time_column()
-        ));
+        warnings.push(
+            Reading::TimeNotInSeconds {
+                file: file.to_path_buf(),
+                column: log.time_column().to_string(),
+                step: step_s,
+            }
+            .into(),
+        );
     }
     if let Some(warning) = attitude_in_radians(file, log) {
-        warnings.push(warning);
+        warnings.push(warning.into());
     }
     warnings.extend(declared_unit_warnings(file, log));
     warnings
@@ -58,7 +64,7 @@ fn read_in(role: Option<&ChannelRole>) -> Option<(&'static str, &'static [&'stat
 /// A warning for each column whose unit, in the input's row of units, is
 /// not the one magcomp reads it in (time in ms, attitude in radians, a
 /// field in µT); an empty cell says nothing.
-fn declared_unit_warnings(file: &str, log: &FlightLog) -> Vec<String> {
+fn declared_unit_warnings(file: &Path, log: &FlightLog) -> Vec<Warning> {
     log.declared_units()
         .iter()
         .filter_map(|(column, unit)| {
@@ -67,11 +73,18 @@ fn declared_unit_warnings(file: &str, log: &FlightLog) -> Vec<String> {
                 false => Some(&log.channel(column)?.role),
             };
             let (wanted, spellings) = read_in(role)?;
-            let given = unit.trim().trim_matches(|c| matches!(c, '(' | ')' | '[' | ']')).to_lowercase();
+            let given = unit
+                .trim()
+                .trim_matches(|c| matches!(c, '(' | ')' | '[' | ']'))
+                .to_lowercase();
             (!given.is_empty() && !spellings.contains(&given.as_str())).then(|| {
-                format!(
-                    "{file}: the row of units gives '{unit}' for the column '{column}', which magcomp reads in {wanted}: if it is not in {wanted}, convert it; magcomp's fits and compensation take it in {wanted}"
-                )
+                Reading::UnitNotRead {
+                    file: file.to_path_buf(),
+                    unit: unit.clone(),
+                    column: column.clone(),
+                    read_in: wanted.to_string(),
+                }
+                .into()
             })
         })
         .collect()
@@ -85,7 +98,7 @@ fn declared_unit_warnings(file: &str, log: &FlightLog) -> Vec<String> {
 /// of that size banks the aircraft beyond 1.6°; a calm straight line under
 /// a near-vertical field, where roll alone swings the horizontal field,
 /// turns its yaw by neither.
-fn attitude_in_radians(file: &str, log: &FlightLog) -> Option<String> {
+fn attitude_in_radians(file: &Path, log: &FlightLog) -> Option<Reading> {
     let angle = |wanted: AttitudeAngle| {
         let channel = (log.channels().iter()).find(|c| c.role == ChannelRole::Attitude(wanted))?;
         let finite: Vec<f64> = channel.values.iter().copied().filter(|v| v.is_finite()).collect();
@@ -102,19 +115,20 @@ fn attitude_in_radians(file: &str, log: &FlightLog) -> Option<String> {
     }
     let yaw_turn_deg = unwrapped_range(yaw.iter().copied(), 360.0);
     if yaw_turn_deg > TURNED_DEG {
-        return Some(format!(
-            "{file}: the INS pitch and roll never exceed π/2 in size although the yaw turned through {yaw_turn_deg:.0}°: they look like radians, and magcomp reads degrees. Convert them to degrees"
-        ));
+        return Some(Reading::PitchRollInRadians {
+            file: file.to_path_buf(),
+            yaw_turn_deg,
+        });
     }
     let yaw_range =
         yaw.iter().copied().fold(f64::NEG_INFINITY, f64::max) - yaw.iter().copied().fold(f64::INFINITY, f64::min);
     let field_turn_deg = (log.vector_sensors().iter())
         .map(|sensor| horizontal_turn_deg(sensor.axes.map(|axis| log.channels()[axis].values.as_slice())))
         .fold(0.0, f64::max);
-    (yaw_range > 1.0 && field_turn_deg > TURNED_DEG).then(|| {
-        format!(
-            "{file}: the INS attitude never exceeds π/2 in pitch and roll, and its yaw spans {yaw_range:.2}, while the fluxgate's field turned through {field_turn_deg:.0}° in the aircraft's axes: the attitude looks like radians, and magcomp reads degrees. Convert it to degrees"
-        )
+    (yaw_range > 1.0 && field_turn_deg > TURNED_DEG).then(|| Reading::AttitudeInRadians {
+        file: file.to_path_buf(),
+        yaw_span: yaw_range,
+        field_turn_deg,
     })
 }
 
@@ -196,16 +210,23 @@ mod tests {
 
     #[test]
     fn attitude_in_radians_through_a_turn_is_named() {
-        let warnings = unit_warnings("turn.csv", &turning_flight(true, 0.1));
+        let warnings = unit_warnings(Path::new("turn.csv"), &turning_flight(true, 0.1));
         assert_eq!(warnings.len(), 1, "{warnings:?}");
-        assert!(warnings[0].contains("looks like radians"), "{}", warnings[0]);
         // The fluxgate turned through the whole circle: 359.4° of 600 steps.
-        assert!(warnings[0].contains("turned through 359°"), "{}", warnings[0]);
+        let Warning::Reading(Reading::AttitudeInRadians { field_turn_deg, .. }) = warnings[0] else {
+            panic!("{warnings:?}")
+        };
+        assert!((field_turn_deg - 359.4).abs() < 0.05, "{field_turn_deg}");
+        assert!(
+            warnings[0].to_string().contains("looks like radians"),
+            "{}",
+            warnings[0]
+        );
     }
 
     #[test]
     fn attitude_in_degrees_is_not_named() {
-        assert!(unit_warnings("turn.csv", &turning_flight(false, 0.1)).is_empty());
+        assert!(unit_warnings(Path::new("turn.csv"), &turning_flight(false, 0.1)).is_empty());
     }
 
     /// `log` with the attitude channel `name` set to `value(row)`.
@@ -218,10 +239,15 @@ mod tests {
         let log = turning_flight(false, 0.1);
         let log = with_angle(log, "Pitch", |_| 2f64.to_radians());
         let log = with_angle(log, "Roll", |i| (10.0 * (i as f64 * 0.1).sin()).to_radians());
-        let warnings = unit_warnings("turn.csv", &log);
+        let warnings = unit_warnings(Path::new("turn.csv"), &log);
         assert_eq!(warnings.len(), 1, "{warnings:?}");
+        let Warning::Reading(Reading::PitchRollInRadians { yaw_turn_deg, .. }) = warnings[0] else {
+            panic!("{warnings:?}")
+        };
+        assert!((yaw_turn_deg - 359.4).abs() < 0.05, "{yaw_turn_deg}");
         assert!(
-            warnings[0].contains("pitch and roll never exceed π/2 in size although the yaw turned through 359°"),
+            (warnings[0].to_string())
+                .contains("pitch and roll never exceed π/2 in size although the yaw turned through 359°"),
             "{}",
             warnings[0]
         );
@@ -237,14 +263,22 @@ mod tests {
         let log = with_angle(log, "Yaw", |i| 0.4 * (i as f64 * 0.01).sin());
         let log = with_angle(log, "Roll", |i| 0.8 * (i as f64 * 0.1).sin());
         let log = with_angle(log, "Pitch", |_| 0.5);
-        assert!(unit_warnings("line.csv", &log).is_empty());
+        assert!(unit_warnings(Path::new("line.csv"), &log).is_empty());
     }
 
     #[test]
     fn time_in_milliseconds_is_named() {
-        let warnings = unit_warnings("turn.csv", &turning_flight(false, 100.0));
+        let warnings = unit_warnings(Path::new("turn.csv"), &turning_flight(false, 100.0));
         assert_eq!(warnings.len(), 1, "{warnings:?}");
-        assert!(warnings[0].contains("steps 100 between samples"), "{}", warnings[0]);
+        let Warning::Reading(Reading::TimeNotInSeconds { step, .. }) = warnings[0] else {
+            panic!("{warnings:?}")
+        };
+        assert_eq!(step, 100.0);
+        assert!(
+            warnings[0].to_string().contains("steps 100 between samples"),
+            "{}",
+            warnings[0]
+        );
     }
 
     #[test]

@@ -12,6 +12,7 @@ use std::path::{Path, PathBuf};
 use serde::Serialize;
 
 use crate::error::{Error, Result};
+use crate::messages::Warning;
 
 /// The three body axes of a vector magnetometer.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -104,7 +105,7 @@ pub struct FlightLog {
     row_flags: Vec<RowFlags>,
     alignment: Option<AlignmentReport>,
     date: Option<crate::ingest::flight_date::FlightDate>,
-    reading_warnings: Vec<String>,
+    reading_warnings: Vec<Warning>,
     text_columns: Vec<String>,
     declared_units: Vec<(String, String)>,
 }
@@ -228,7 +229,7 @@ impl FlightLog {
     }
 
     /// Records what the reader could not read or had to leave out.
-    pub fn with_reading_warnings(mut self, warnings: Vec<String>) -> Self {
+    pub fn with_reading_warnings(mut self, warnings: Vec<Warning>) -> Self {
         self.reading_warnings = warnings;
         self
     }
@@ -236,7 +237,7 @@ impl FlightLog {
     /// What the reader could not read or had to leave out (a file cut
     /// short, a dataset of another length, repeated times): each a line
     /// for stdout and the report.
-    pub fn reading_warnings(&self) -> &[String] {
+    pub fn reading_warnings(&self) -> &[Warning] {
         &self.reading_warnings
     }
 
@@ -477,7 +478,7 @@ pub struct AlignmentReport {
     /// What was lost or left missing while reading and aligning: a file
     /// cut short, damaged chunks, messages that failed to decode, repeated
     /// or disagreeing timestamps. Printed and shown in the report.
-    pub warnings: Vec<String>,
+    pub warnings: Vec<Warning>,
 }
 
 #[cfg(test)]

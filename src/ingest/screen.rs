@@ -219,7 +219,7 @@ impl Screened {
     /// What reading `recorded` lost and what screening masked, one line
     /// each, for stdout and the report.
     pub fn warnings(&self, recorded: &FlightLog) -> Vec<Warning> {
-        let reading = Warning::said(recorded.reading_warnings().iter().cloned());
+        let reading = recorded.reading_warnings().iter().cloned();
         reading.chain(self.screening.warnings()).collect()
     }
 

@@ -220,7 +220,7 @@ pub fn run_metered(job: &FlightJob, options: &Settings, compensated: &Path, mete
     // Columns in units magcomp does not read (attitude in radians, time
     // in milliseconds) make every later stage fail in its own words: the
     // units are named first.
-    let units = crate::formats::units::unit_warnings(&job.input.display().to_string(), &recorded);
+    let units = crate::formats::units::unit_warnings(&job.input, &recorded);
     let run = match saved {
         Some(saved) => run_applied(job, options, compensated, &saved, recorded, meter),
         None => run_fitted(job, options, compensated, planned, recorded, meter),
@@ -228,7 +228,9 @@ pub fn run_metered(job: &FlightJob, options: &Settings, compensated: &Path, mete
     run.map_err(|error| match units.is_empty() {
         true => error,
         false => Error::UnitsLookWrong {
-            problems: units.join("; "),
+            problems: (units.iter().map(crate::messages::Warning::to_string))
+                .collect::<Vec<_>>()
+                .join("; "),
             source: Box::new(error),
         },
     })

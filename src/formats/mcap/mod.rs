@@ -43,6 +43,7 @@ use super::{IngestOptions, TopicMapping};
 use crate::error::{Error, Result};
 use crate::ingest::flight_date::FlightDate;
 use crate::ingest::flight_log::{AttitudeAngle, Channel, ChannelRole, FlightLog, VectorAxis};
+use crate::messages::{Reading, Warning};
 use messages::MessageLayout;
 
 /// Metadata key on a `/gps/fix` channel naming the height column.
@@ -157,7 +158,7 @@ type FileContents = (
     BTreeMap<u16, TopicPlan>,
     BTreeMap<u16, Decoded>,
     Vec<String>,
-    Vec<String>,
+    Vec<Warning>,
     Option<records::CutShort>,
 );
 
@@ -203,11 +204,9 @@ type OpenedChunk<'a> = (Cow<'a, [u8]>, Definitions);
 fn decode_file(bytes: &[u8], names: &ColumnNames) -> std::result::Result<FileContents, String> {
     let section = records::data_section(bytes)?;
     let (notes, cut_short) = (section.notes, section.cut_short);
-    let mut losses = section.losses;
+    let mut losses: Vec<Warning> = Vec::new();
     if records::data_section_crc_holds(bytes) == Some(false) {
-        losses.push(
-            "the data section does not match the CRC its data-end record gives: bytes of the recording were altered after it was written; chunks whose own CRC fails are left out (below), and any other change is read as it stands. Copy the recording again from the recorder or its backup".into(),
-        );
+        losses.push(Reading::McapCrcFails.into());
     }
     // Decompress every chunk (in parallel) and learn the schemas and
     // channels they define; messages are decoded once all are known.
@@ -232,17 +231,20 @@ fn decode_file(bytes: &[u8], names: &ColumnNames) -> std::result::Result<FileCon
             }
             Err(e) => {
                 if damaged == 0 {
-                    losses.push(format!("a damaged chunk was left out: {e}"));
+                    losses.push(Reading::McapChunkDamaged { why: e }.into());
                 }
                 damaged += 1;
             }
         }
     }
     if damaged > 0 {
-        losses.push(format!(
-            "{damaged} of {} chunks were damaged and left out: their samples are missing from the output. Copy the recording again from the recorder or its backup, whose copy may be whole",
-            damaged + chunks.len()
-        ));
+        losses.push(
+            Reading::McapChunksLeftOut {
+                damaged,
+                of: damaged + chunks.len(),
+            }
+            .into(),
+        );
         if chunks.is_empty() && section.messages.is_empty() {
             return Err(format!("every chunk is damaged ({} of them)", damaged));
         }
@@ -581,34 +583,48 @@ fn build_log(
         .with_date(date))
 }
 
+/// Each topic skipped: a loss when numbers it may hold are lost with it
+/// (an encoding or schema magcomp cannot decode), a note when it holds
+/// none magcomp reads.
+fn skipped_topics(plans: &BTreeMap<u16, TopicPlan>, (notes, losses): (&mut Vec<String>, &mut Vec<Warning>)) {
+    for plan in plans.values() {
+        match &plan.decoder {
+            Decoder::Skip { why, lost: true } => losses.push(
+                Reading::McapTopicLost {
+                    topic: plan.topic.clone(),
+                    why: why.clone(),
+                }
+                .into(),
+            ),
+            Decoder::Skip { why, lost: false } => notes.push(format!("topic '{}' skipped: {why}", plan.topic)),
+            _ => {}
+        }
+    }
+}
+
 /// The skipped topics in words, then one stream per decoded field (or per
 /// ROS message field), with what could not be decoded said.
 fn decoded_streams(
     path: &Path,
     options: &IngestOptions,
     (plans, decoded): (&BTreeMap<u16, TopicPlan>, BTreeMap<u16, Decoded>),
-    (notes, losses): (&mut Vec<String>, &mut Vec<String>),
+    (notes, losses): (&mut Vec<String>, &mut Vec<Warning>),
 ) -> Result<Vec<Stream>> {
     let names = &options.columns;
     let mut attitude_taken = false;
-    for plan in plans.values() {
-        match &plan.decoder {
-            Decoder::Skip { why, lost: true } => losses.push(format!(
-                "topic '{}' is not in the output: {why}; whatever it records is lost to this run (write it in an encoding magcomp reads)",
-                plan.topic
-            )),
-            Decoder::Skip { why, lost: false } => notes.push(format!("topic '{}' skipped: {why}", plan.topic)),
-            _ => {}
-        }
-    }
+    skipped_topics(plans, (notes, losses));
     let mut streams: Vec<Stream> = Vec::new();
     for (id, data) in decoded {
         let plan = &plans[&id];
         if let Some(error) = &data.first_error {
-            losses.push(format!(
-                "topic '{}': {} messages could not be decoded and were left out (first: {error})",
-                plan.topic, data.errors
-            ));
+            losses.push(
+                Reading::McapUndecodable {
+                    topic: plan.topic.clone(),
+                    messages: data.errors,
+                    first: error.clone(),
+                }
+                .into(),
+            );
             if data.times_ns.is_empty() {
                 return Err(Error::UnsupportedFormat {
                     path: path.to_path_buf(),
@@ -678,7 +694,7 @@ fn time_base(path: &Path, options: &IngestOptions, streams: &[Stream]) -> Result
 /// series, read together in time order, with a note. Streams of different
 /// sources that would make the same column keep the first source's, and
 /// a line in `losses` names the others.
-fn joined_streams(mut streams: Vec<Stream>, notes: &mut Vec<String>, losses: &mut Vec<String>) -> Vec<Stream> {
+fn joined_streams(mut streams: Vec<Stream>, notes: &mut Vec<String>, losses: &mut Vec<Warning>) -> Vec<Stream> {
     streams.sort_by(|a, b| a.name.cmp(&b.name).then(a.source.cmp(&b.source)));
     let mut joined: Vec<Stream> = Vec::with_capacity(streams.len());
     let mut parts = 1;
@@ -692,13 +708,15 @@ fn joined_streams(mut streams: Vec<Stream>, notes: &mut Vec<String>, losses: &mu
             continue;
         };
         if last.source != stream.source {
-            losses.push(format!(
-                "column '{}' is given by {} and by {}; the first is read and the second's {} messages are left out (map one of them to another column with [[topic]])",
-                stream.name,
-                last.source,
-                stream.source,
-                stream.times_ns.len()
-            ));
+            losses.push(
+                Reading::McapColumnTwice {
+                    column: stream.name.clone(),
+                    read: last.source.clone(),
+                    left_out: stream.source.clone(),
+                    messages: stream.times_ns.len(),
+                }
+                .into(),
+            );
             continue;
         }
         parts += 1;
@@ -720,26 +738,16 @@ fn joined_note(stream: Option<&Stream>, parts: usize) -> String {
 }
 
 /// What a file cut short lost, with the rows and time span read.
-fn cut_short_warning(cut: &records::CutShort, time_s: &[f64]) -> String {
-    let span = match (time_s.first(), time_s.last()) {
-        (Some(first), Some(last)) => format!(
-            "{} rows from {} to {} s",
-            time_s.len(),
-            crate::error::Number(*first),
-            crate::error::Number(*last)
-        ),
-        _ => "no row".into(),
-    };
-    match cut.at_record_boundary {
-        true => format!(
-            "the file is cut short: it ends at byte {} between two records, without the data-end record and footer every finished recording has (a logger that stopped, a copy that did not finish); read {span}, and whatever was recorded after is lost",
-            cut.at_byte
-        ),
-        false => format!(
-            "the file is cut short at byte {} of {}, inside a record; read {span}, and the rest is lost",
-            cut.at_byte, cut.of_bytes
-        ),
+fn cut_short_warning(cut: &records::CutShort, time_s: &[f64]) -> Warning {
+    Reading::McapCutShort {
+        at_byte: cut.at_byte as u64,
+        inside_record_of: (!cut.at_record_boundary).then_some(cut.of_bytes as u64),
+        read: match (time_s.first(), time_s.last()) {
+            (Some(first), Some(last)) => Some((time_s.len(), *first, *last)),
+            _ => None,
+        },
     }
+    .into()
 }
 
 /// The flight's day from the channels' metadata, with every stream's times
@@ -749,16 +757,19 @@ fn cut_short_warning(cut: &records::CutShort, time_s: &[f64]) -> String {
 fn time_of_day(
     plans: &BTreeMap<u16, TopicPlan>,
     streams: &mut [Stream],
-    losses: &mut Vec<String>,
+    losses: &mut Vec<Warning>,
 ) -> Option<FlightDate> {
     let date = plans.values().find_map(|p| p.date)?;
     let midnight = u64::try_from(date.midnight_unix_ns()).ok()?;
     let after_midnight = streams.iter().all(|s| s.times_ns.iter().all(|&t| t >= midnight));
     if !after_midnight {
-        losses.push(format!(
-            "the channels give the day {date} ({DATE_KEY}), but some messages are older than its midnight; \
-             the log times are read as they are (seconds since 1970-01-01), not as times of that day"
-        ));
+        losses.push(
+            Reading::McapBeforeItsDay {
+                day: date.to_string(),
+                key: DATE_KEY.to_string(),
+            }
+            .into(),
+        );
         return None;
     }
     for stream in streams {

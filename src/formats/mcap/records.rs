@@ -265,8 +265,6 @@ pub struct DataSection<'a> {
     pub definitions: Definitions,
     /// How the file was read and what was wrong with it.
     pub notes: Vec<String>,
-    /// What could not be read.
-    pub losses: Vec<String>,
     /// Where the file was cut short, when it was.
     pub cut_short: Option<CutShort>,
 }

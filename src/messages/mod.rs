@@ -13,9 +13,8 @@
 //! and the solver), the quality figures, the output's range, the vector
 //! and gradient stages, and the run's inputs and outputs (windows from
 //! another flight, an undated MCAP output, text columns not written), the
-//! comparison with a flight plan, and a saved model's or diagnosis's
-//! words. The format readers' warnings still come as their sentence:
-//! [`Warning::Said`].
+//! comparison with a flight plan, a saved model's or diagnosis's words,
+//! and what reading a flight log lost or doubts ([`reading::Reading`]).
 //!
 //! A [`Note`] is what the user may want to know (how a column was named,
 //! which model a channel was fitted with, an analysis not made); it is
@@ -25,6 +24,9 @@
 use std::fmt;
 
 use serde::{Serialize, Serializer};
+
+pub mod reading;
+pub use reading::Reading;
 
 /// Why a channel's diagnosed findings are held back by the evidence rule.
 #[derive(Debug, Clone, PartialEq)]
@@ -183,8 +185,8 @@ pub const FITTED_PLAIN: &str = "so the channel is compensated with plain Tolles-
 /// Something the user must look at before trusting an output.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Warning {
-    /// A warning of a stage not typed yet, as its sentence.
-    Said(String),
+    /// What reading the flight log lost or doubts.
+    Reading(Reading),
     /// Screening masked samples no instrument can record, and flagged
     /// their rows.
     Masked {
@@ -712,7 +714,7 @@ impl Warning {
     /// [`Warning::OutputOutOfRange`], the channel or vector magnetometer).
     pub fn channel(&self) -> Option<&str> {
         match self {
-            Warning::Said(_)
+            Warning::Reading(_)
             | Warning::Masked { .. }
             | Warning::NotDiagnosed { .. }
             | Warning::IncompleteBox { .. }
@@ -765,23 +767,12 @@ impl Warning {
             Warning::OutputOutOfRange { subject, .. } => Some(subject),
         }
     }
-
-    /// Each sentence of an untyped stage as a [`Warning::Said`].
-    pub fn said(sentences: impl IntoIterator<Item = String>) -> impl Iterator<Item = Warning> {
-        sentences.into_iter().map(Warning::Said)
-    }
-}
-
-impl From<String> for Warning {
-    fn from(sentence: String) -> Self {
-        Warning::Said(sentence)
-    }
 }
 
 impl fmt::Display for Warning {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            Warning::Said(sentence) => f.write_str(sentence),
+            Warning::Reading(reading) => reading.fmt(f),
             Warning::IncompleteBox { .. }
             | Warning::NamedBySize { .. }
             | Warning::SteepField { .. }
@@ -1320,6 +1311,12 @@ fn between_passes(station_removed: bool) -> &'static str {
     }
 }
 
+impl From<Reading> for Warning {
+    fn from(reading: Reading) -> Self {
+        Warning::Reading(reading)
+    }
+}
+
 impl Serialize for Warning {
     /// As its sentence: the quality JSON's `warnings` are sentences.
     fn serialize<S: Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
@@ -1837,12 +1834,5 @@ mod tests {
         let sentence = "the input already has a 'mag_1_c' column (kept unchanged); magcomp's compensation of 'mag_1_uc' is in 'mag_1_c_magcomp'";
         assert_eq!(note.to_string(), sentence);
         assert_eq!(serde_json::to_value(&note).unwrap(), serde_json::json!(sentence));
-    }
-
-    #[test]
-    fn an_untyped_stage_keeps_its_sentence() {
-        let warning = Warning::from("box 1 (0.0–10.0) is incomplete".to_string());
-        assert_eq!(warning.to_string(), "box 1 (0.0–10.0) is incomplete");
-        assert_eq!(warning.channel(), None);
     }
 }
