@@ -62,10 +62,10 @@ fn a_line_number_selects_its_box_and_nothing_else() {
             "line {line}: a window outside its box"
         );
         assert!(
-            run.result
-                .notes
-                .iter()
-                .any(|n| n.to_string().contains(&format!("12 on line {line}"))),
+            run.result.notes.iter().any(|n| matches!(
+                n,
+                magcomp::messages::Note::ManoeuvresByLine { counts } if counts.contains(&(line, 12))
+            )),
             "line {line}: notes {:?}",
             run.result.notes
         );

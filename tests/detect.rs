@@ -347,7 +347,7 @@ fn without_an_ins_the_fluxgate_stands_in() {
     let flight = fly(14, |_| {});
     let detection = detect_manoeuvres(&without_ins(&flight.log), &DetectOptions::default()).unwrap();
     assert_eq!(detection.attitude_source, AttitudeSource::Fluxgate);
-    assert!(detection.notes.iter().any(|n| n.contains("fluxgate")));
+    assert!(detection.notes.contains(&magcomp::messages::Note::AttitudeFromFluxgate));
     assert_perfect("fluxgate", &flight, &detection);
     // Headings are magnetic: true heading minus the declination (about
     // −13° at the default site), within 1.5° for the fluxgate's own field.

@@ -40,7 +40,7 @@ use crate::calibration::headings::heading_difference;
 use crate::calibration::windows::{CalibrationWindow, ManoeuvreKind};
 use crate::error::{Error, Result};
 use crate::ingest::flight_log::{AttitudeAngle, ChannelRole, FlightLog};
-use crate::messages::Warning;
+use crate::messages::{Note, Warning};
 
 /// Detection thresholds (`[detect]` in pipeline.toml).
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -207,7 +207,7 @@ pub struct Detection {
     /// Every straight leg, with or without manoeuvres.
     pub legs: Vec<Leg>,
     /// Remarks for the user.
-    pub notes: Vec<String>,
+    pub notes: Vec<Note>,
     /// With the fluxgate standing in for the INS: the median angle, °, by
     /// which the field dips below the aircraft's x-y plane (the
     /// inclination, in level flight).
@@ -268,22 +268,19 @@ impl Detection {
         self.boxes.retain(|b| touches(b.t_start, b.t_end));
         let mut lines: Vec<f64> = spans.iter().map(|s| s.0).collect();
         lines.dedup();
-        let counts: Vec<String> = (lines.iter())
-            .map(|line| {
+        let counts: Vec<(f64, usize)> = (lines.iter())
+            .map(|&line| {
                 let on_line = (self.manoeuvres.iter())
                     .filter(|m| {
                         spans
                             .iter()
-                            .any(|(l, a, b)| l == line && m.t_start >= *a && m.t_end <= *b)
+                            .any(|(l, a, b)| *l == line && m.t_start >= *a && m.t_end <= *b)
                     })
                     .count();
-                format!("{on_line} on line {line}")
+                (line, on_line)
             })
             .collect();
-        self.notes.push(format!(
-            "calibration data by line: manoeuvres detected {}",
-            counts.join(", ")
-        ));
+        self.notes.push(Note::ManoeuvresByLine { counts });
         self
     }
 
@@ -368,10 +365,10 @@ pub fn detect_manoeuvres(log: &FlightLog, options: &DetectOptions) -> Result<Det
     let boxes = group_boxes(&legs, &manoeuvres, options);
     let mut notes = Vec::new();
     if attitude.source == AttitudeSource::Fluxgate {
-        notes.push("no INS attitude in the file: legs and manoeuvres come from the fluxgate's field direction; headings are magnetic".into());
+        notes.push(Note::AttitudeFromFluxgate);
     }
     if manoeuvres.is_empty() {
-        notes.push("no calibration manoeuvres found".into());
+        notes.push(Note::NoManoeuvres);
     }
     Ok(Detection {
         manoeuvres,

@@ -17,9 +17,11 @@
 //! and what reading a flight log lost or doubts ([`reading::Reading`]).
 //!
 //! A [`Note`] is what the user may want to know (how a column was named,
-//! which model a channel was fitted with, an analysis not made); it is
-//! printed with `-v` and kept in the quality JSON and the report, and
-//! typed the same way.
+//! which model a channel was fitted with, an analysis not made, what
+//! detection found, the flight against its plan); it is printed with `-v`
+//! and kept in the quality JSON and the report, and typed the same way.
+//! The notes of the vector and gradient stages, a saved model's and the
+//! fit's own still come as their sentence: [`Note::Said`].
 
 use std::fmt;
 
@@ -1368,6 +1370,75 @@ pub enum Note {
         /// The model, in words.
         model: String,
     },
+    /// What detection found: its manoeuvres and boxes, and where the
+    /// attitude came from.
+    Detected {
+        /// Manoeuvres detected.
+        manoeuvres: usize,
+        /// Boxes detected.
+        boxes: usize,
+        /// Whether the fluxgate's field direction stood in for the INS.
+        from_fluxgate: bool,
+    },
+    /// The file has no INS attitude: detection read the fluxgate's field
+    /// direction, and its headings are magnetic.
+    AttitudeFromFluxgate,
+    /// Detection found no calibration manoeuvre.
+    NoManoeuvres,
+    /// Detection on the calibration lines alone: the manoeuvres each line
+    /// gave.
+    ManoeuvresByLine {
+        /// (line number, manoeuvres on it), in the lines' order.
+        counts: Vec<(f64, usize)>,
+    },
+    /// A channel compensated on the flight that the plan did not predict.
+    PlanLacksChannel {
+        /// The scalar channel.
+        channel: String,
+        /// The plan's report.
+        report: std::path::PathBuf,
+    },
+    /// A channel the plan predicted that the flight did not compensate.
+    PlanChannelNotCompensated {
+        /// The scalar channel.
+        channel: String,
+        /// The plan's report.
+        report: std::path::PathBuf,
+    },
+    /// The manoeuvres flown are not compared with the plan's.
+    PlanManoeuvresNotCompared {
+        /// The plan's report.
+        report: std::path::PathBuf,
+        /// Why: the report lists no planned manoeuvres (`true`), or the
+        /// calibration windows carry no manoeuvre kind and heading.
+        no_plan: bool,
+    },
+    /// Manoeuvres flown that the plan did not have.
+    PlanUnplannedManoeuvres {
+        /// The plan's report.
+        report: std::path::PathBuf,
+        /// Each, in words ("roll at 90°").
+        manoeuvres: Vec<String>,
+    },
+    /// The flight flew the plan's proposed additions: it is compared with
+    /// the prediction with them.
+    PlanWithAdditions {
+        /// The plan's report.
+        report: std::path::PathBuf,
+        /// The additions' manoeuvres.
+        additions: usize,
+    },
+    /// A channel's figures against the plan.
+    PlanChannelFigures {
+        /// The scalar channel.
+        channel: String,
+        /// The plan's report.
+        report: std::path::PathBuf,
+        /// Each figure against its prediction, in words.
+        figures: Vec<String>,
+        /// Whether every figure compared is as planned.
+        as_planned: bool,
+    },
 }
 
 impl Note {
@@ -1387,6 +1458,16 @@ impl fmt::Display for Note {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             Note::Said(sentence) => f.write_str(sentence),
+            Note::Detected { .. }
+            | Note::AttitudeFromFluxgate
+            | Note::NoManoeuvres
+            | Note::ManoeuvresByLine { .. } => self.write_detection(f),
+            Note::PlanLacksChannel { .. }
+            | Note::PlanChannelNotCompensated { .. }
+            | Note::PlanManoeuvresNotCompared { .. }
+            | Note::PlanUnplannedManoeuvres { .. }
+            | Note::PlanWithAdditions { .. }
+            | Note::PlanChannelFigures { .. } => self.write_plan(f),
             Note::Renamed {
                 channel,
                 original,
@@ -1418,6 +1499,89 @@ impl fmt::Display for Note {
             Note::SavedFindings { channel, model } => {
                 write!(f, "{channel}: compensated with the saved model's findings: {model}")
             }
+        }
+    }
+}
+
+impl Note {
+    /// The sentence of a note of the flight against its plan.
+    fn write_plan(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Note::PlanLacksChannel { channel, report } => write!(
+                f,
+                "{channel}: not in the plan ({}), so not compared with it",
+                report.display()
+            ),
+            Note::PlanChannelNotCompensated { channel, report } => write!(
+                f,
+                "{channel}: planned ({}) but not compensated on this flight",
+                report.display()
+            ),
+            Note::PlanManoeuvresNotCompared { report, no_plan: true } => write!(
+                f,
+                "against the plan ({}): the report lists no planned manoeuvres (made by an older magcomp), so the manoeuvres flown are not compared with it",
+                report.display()
+            ),
+            Note::PlanManoeuvresNotCompared { report, no_plan: false } => write!(
+                f,
+                "against the plan ({}): the calibration windows carry no manoeuvre kind and heading, so the manoeuvres flown are not compared with the plan's",
+                report.display()
+            ),
+            Note::PlanUnplannedManoeuvres { report, manoeuvres } => write!(
+                f,
+                "against the plan ({}): the flight flew {} manoeuvre(s) the plan did not have ({})",
+                report.display(),
+                manoeuvres.len(),
+                manoeuvres.join(", ")
+            ),
+            Note::PlanWithAdditions { report, additions } => write!(
+                f,
+                "against the plan ({}): the flight flew the plan's {additions} proposed additions, so it is compared with the prediction with them",
+                report.display()
+            ),
+            Note::PlanChannelFigures {
+                channel,
+                report,
+                figures,
+                as_planned,
+            } => write!(
+                f,
+                "{channel}: against the plan ({}): {}; {}",
+                report.display(),
+                figures.join("; "),
+                if *as_planned {
+                    "as planned"
+                } else {
+                    "not as planned (see the warnings)"
+                }
+            ),
+            _ => write!(f, "{self:?}"),
+        }
+    }
+
+    /// The sentence of a note of the box's detection.
+    fn write_detection(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Note::Detected {
+                manoeuvres,
+                boxes,
+                from_fluxgate,
+            } => write!(
+                f,
+                "calibration windows detected: {manoeuvres} manoeuvres in {boxes} box(es), attitude from {}",
+                if *from_fluxgate { "the fluxgate" } else { "the INS" }
+            ),
+            Note::AttitudeFromFluxgate => f.write_str(
+                "no INS attitude in the file: legs and manoeuvres come from the fluxgate's field direction; headings are magnetic",
+            ),
+            Note::NoManoeuvres => f.write_str("no calibration manoeuvres found"),
+            Note::ManoeuvresByLine { counts } => {
+                let counts: Vec<String> = (counts.iter())
+                    .map(|(line, on_line)| format!("{on_line} on line {line}"))
+                    .collect();
+                write!(f, "calibration data by line: manoeuvres detected {}", counts.join(", "))
+            }
+            _ => write!(f, "{self:?}"),
         }
     }
 }

@@ -157,7 +157,7 @@ impl Assessed {
         (notes, warnings): (&mut Vec<Note>, &mut Vec<Warning>),
     ) -> crate::quality::against_plan::PlanComparison {
         let plan = against_plan(planned, log, &self.models, &self.quality, &self.compensation);
-        notes.extend(Note::said(plan.notes.iter().cloned()));
+        notes.extend(plan.notes.iter().cloned());
         warnings.extend(plan.warnings.iter().cloned());
         plan
     }
@@ -191,7 +191,7 @@ impl Assessed {
         warnings.append(&mut vector.warnings);
         warnings.append(&mut gradients.warnings);
         if let Some(detection) = &flight.detection {
-            notes.extend(Note::said(detection_notes(detection)));
+            notes.extend(detection_notes(detection));
             warnings.extend(detection_warnings(detection));
         }
         warnings.extend(departure_warnings(&mut self.quality, departures));

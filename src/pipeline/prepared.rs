@@ -7,7 +7,7 @@ use crate::config::{FlightJob, Settings};
 use crate::error::{Error, Result};
 use crate::ingest::flight_log::{FlightLog, VectorSensor};
 use crate::ingest::screen::{Screened, Screening};
-use crate::messages::Warning;
+use crate::messages::{Note, Warning};
 use crate::model::Calibration;
 
 /// Warnings from detection: every incomplete box, and every leg whose
@@ -225,16 +225,12 @@ impl Chosen {
 }
 
 /// What detection found, in a sentence per box and per lack.
-pub fn detection_notes(detection: &Detection) -> Vec<String> {
-    let mut notes = vec![format!(
-        "calibration windows detected: {} manoeuvres in {} box(es), attitude from {}",
-        detection.manoeuvres.len(),
-        detection.boxes.len(),
-        match detection.attitude_source {
-            crate::calibration::detect::AttitudeSource::Ins => "the INS",
-            crate::calibration::detect::AttitudeSource::Fluxgate => "the fluxgate",
-        }
-    )];
+pub fn detection_notes(detection: &Detection) -> Vec<Note> {
+    let mut notes = vec![Note::Detected {
+        manoeuvres: detection.manoeuvres.len(),
+        boxes: detection.boxes.len(),
+        from_fluxgate: detection.attitude_source == crate::calibration::detect::AttitudeSource::Fluxgate,
+    }];
     notes.extend(detection.notes.iter().cloned());
     notes
 }

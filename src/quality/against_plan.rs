@@ -33,6 +33,7 @@ use serde::{Deserialize, Serialize};
 use crate::calibration::headings::angle_apart;
 use crate::calibration::windows::ManoeuvreKind;
 use crate::error::{Error, Result};
+use crate::messages::Note;
 
 /// The factor within which the plan's medians are expected to hold on
 /// flights of the plan (FOM and survey figures); `tests/plan.rs` measures it.
@@ -204,7 +205,7 @@ pub struct PlanComparison {
     /// What the user must know (also in the run's warnings).
     pub warnings: Vec<crate::messages::Warning>,
     /// The comparison in words (also in the run's notes).
-    pub notes: Vec<String>,
+    pub notes: Vec<Note>,
 }
 
 fn manoeuvre_words(kind: ManoeuvreKind, heading_deg: f64) -> String {
@@ -286,29 +287,23 @@ pub fn compare(
         true => &prediction.with_additions,
         false => &prediction.channels,
     };
-    let report_name = prediction.path.display();
     let mut compared = Vec::new();
     for channel in channels {
         let Some(planned) = predictions.iter().find(|p| p.channel == channel.channel) else {
-            said.notes.push(format!(
-                "{}: not in the plan ({report_name}), so not compared with it",
-                channel.channel
-            ));
+            said.notes.push(Note::PlanLacksChannel {
+                channel: channel.channel.clone(),
+                report: prediction.path.clone(),
+            });
             continue;
         };
-        compared.push(compare_channel(
-            planned,
-            channel,
-            (factor, &report_name.to_string()),
-            &mut said,
-        ));
+        compared.push(compare_channel(planned, channel, (factor, &prediction.path), &mut said));
     }
     for planned in predictions {
         if !channels.iter().any(|c| c.channel == planned.channel) {
-            said.notes.push(format!(
-                "{}: planned ({report_name}) but not compensated on this flight",
-                planned.channel
-            ));
+            said.notes.push(Note::PlanChannelNotCompensated {
+                channel: planned.channel.clone(),
+                report: prediction.path.clone(),
+            });
         }
     }
     PlanComparison {
@@ -329,7 +324,7 @@ pub fn compare(
 #[derive(Default)]
 struct Said {
     warnings: Vec<crate::messages::Warning>,
-    notes: Vec<String>,
+    notes: Vec<Note>,
 }
 
 /// The manoeuvres flown against the plan's: those it lacks and those it
@@ -339,20 +334,6 @@ struct ManoeuvresAgainstPlan {
     missing: Vec<String>,
     unplanned: Vec<String>,
     with_additions: bool,
-}
-
-/// The note that the manoeuvres flown are not compared with the plan's
-/// (`report_name`): it lists none (`no_plan`), or the windows carry no
-/// kind and heading.
-fn not_compared(report_name: &std::path::Display<'_>, no_plan: bool) -> String {
-    match no_plan {
-        true => format!(
-            "against the plan ({report_name}): the report lists no planned manoeuvres (made by an older magcomp), so the manoeuvres flown are not compared with it"
-        ),
-        false => format!(
-            "against the plan ({report_name}): the calibration windows carry no manoeuvre kind and heading, so the manoeuvres flown are not compared with the plan's"
-        ),
-    }
 }
 
 /// Sets the manoeuvres flown against the plan's (and its additions'),
@@ -368,7 +349,6 @@ fn compare_manoeuvres(
     let additions: Vec<(ManoeuvreKind, f64)> = (prediction.additions.iter())
         .flat_map(|a| std::iter::repeat_n((a.kind, a.heading_deg), a.count))
         .collect();
-    let report_name = prediction.path.display();
     let mut compared = ManoeuvresAgainstPlan {
         missing: Vec::new(),
         unplanned: Vec::new(),
@@ -377,7 +357,10 @@ fn compare_manoeuvres(
     let flown = match flown_manoeuvres {
         Some(flown) if !planned.is_empty() => flown,
         _ => {
-            said.notes.push(not_compared(&report_name, planned.is_empty()));
+            said.notes.push(Note::PlanManoeuvresNotCompared {
+                report: prediction.path.clone(),
+                no_plan: planned.is_empty(),
+            });
             return compared;
         }
     };
@@ -407,17 +390,16 @@ fn compare_manoeuvres(
         });
     }
     if !compared.unplanned.is_empty() {
-        said.notes.push(format!(
-            "against the plan ({report_name}): the flight flew {} manoeuvre(s) the plan did not have ({})",
-            compared.unplanned.len(),
-            compared.unplanned.join(", ")
-        ));
+        said.notes.push(Note::PlanUnplannedManoeuvres {
+            report: prediction.path.clone(),
+            manoeuvres: compared.unplanned.clone(),
+        });
     }
     if with_additions {
-        said.notes.push(format!(
-            "against the plan ({report_name}): the flight flew the plan's {} proposed additions, so it is compared with the prediction with them",
-            additions.len()
-        ));
+        said.notes.push(Note::PlanWithAdditions {
+            report: prediction.path.clone(),
+            additions: additions.len(),
+        });
     }
     compared
 }
@@ -427,7 +409,7 @@ fn compare_manoeuvres(
 fn compare_channel(
     planned: &PlannedChannel,
     channel: &FlownChannel,
-    (factor, report_name): (f64, &str),
+    (factor, report): (f64, &std::path::Path),
     said: &mut Said,
 ) -> ChannelAgainstPlan {
     let figures = vec![
@@ -476,15 +458,12 @@ fn compare_channel(
     let holds = figures
         .iter()
         .all(|f| matches!(f.verdict, Verdict::AsPlanned | Verdict::NotCompared));
-    said.notes.push(format!(
-        "{}: against the plan ({report_name}): {}; {}",
-        channel.channel,
-        words.join("; "),
-        match holds {
-            true => "as planned",
-            false => "not as planned (see the warnings)",
-        }
-    ));
+    said.notes.push(Note::PlanChannelFigures {
+        channel: channel.channel.clone(),
+        report: report.to_path_buf(),
+        figures: words,
+        as_planned: holds,
+    });
     ChannelAgainstPlan {
         channel: channel.channel.clone(),
         figures,
@@ -596,7 +575,11 @@ mod tests {
         assert!(held.missing.is_empty() && held.unplanned.is_empty());
         assert!(!held.with_additions);
         assert_eq!(held.channels.len(), 2);
-        assert!(held.notes.iter().filter(|n| n.ends_with("as planned")).count() == 2);
+        let as_planned = (held.notes.iter())
+            .filter(|n| matches!(n, Note::PlanChannelFigures { as_planned: true, .. }))
+            .count();
+        assert_eq!(as_planned, 2, "{:?}", held.notes);
+        assert!(held.notes.iter().any(|n| n.to_string().ends_with("; as planned")));
         // The roll on the second leg (heading 97°) left out.
         let lacking = compare(&prediction, Some(&box_flown(Some(4))), &channels);
         assert_eq!(lacking.missing, vec!["roll on heading 97°".to_string()]);
@@ -653,7 +636,14 @@ mod tests {
         assert!(result.warnings[1]
             .to_string()
             .starts_with("mag_2_uc: stated survey uncertainty 0.005 nT"));
-        assert!(result.notes.iter().any(|n| n.starts_with("mag_3_uc: not in the plan")));
+        assert!(result.notes.iter().any(|n| matches!(
+            n,
+            Note::PlanLacksChannel { channel, .. } if channel == "mag_3_uc"
+        )));
+        assert!(result
+            .notes
+            .iter()
+            .any(|n| n.to_string().starts_with("mag_3_uc: not in the plan")));
     }
 
     #[test]
