@@ -35,7 +35,7 @@ use crate::calibration::windows::CalibrationWindow;
 use crate::compensate::{compensate, CompensatedGradient, Compensation, LevelConvention};
 use crate::error::{Error, Result};
 use crate::ingest::flight_log::{Channel, ChannelRole, FlightLog, VectorSensor};
-use crate::messages::{GradientParting, Warning};
+use crate::messages::{GradientParting, Note, Warning};
 use crate::model::terms::TermSet;
 use crate::model::{fit, FitOptions, FittedModel, ModelSpec, WindowFit};
 use crate::numerics::stacked::StorePool;
@@ -151,7 +151,7 @@ pub struct GradientStage {
     /// The compensated columns.
     pub compensated: Vec<CompensatedGradient>,
     /// Lines for the summary.
-    pub notes: Vec<String>,
+    pub notes: Vec<Note>,
     /// What the user must know.
     pub warnings: Vec<Warning>,
 }
@@ -250,10 +250,11 @@ pub fn gradients_from_saved_model(
             column: column.clone(),
             values: a.values.iter().zip(&b.values).map(|(a, b)| (a - b) / d).collect(),
         });
-        stage.notes.push(format!(
-            "{column}: ({} − {})/{d:.3} m, from the difference of the channels the saved model compensated (a direct fit needs a calibration box)",
-            pair.a, pair.b
-        ));
+        stage.notes.push(Note::GradientFromSavedChannels {
+            column: column.clone(),
+            channels: [pair.a.clone(), pair.b.clone()],
+            separation_m: d,
+        });
         stage
             .warnings
             .push(level_warning(pair, (a.level_offset_nt - b.level_offset_nt) / d));
@@ -306,7 +307,7 @@ enum AtOdds {
     /// The output is the direct fit.
     Warning(Warning),
     /// The output is the difference.
-    Note(String),
+    Note(Note),
 }
 
 /// A direct fit at odds ([`direct_at_odds`]): a warning when the output
@@ -324,33 +325,21 @@ fn disagreement(result: &GradientResult) -> Option<AtOdds> {
     };
     Some(match result.method_used {
         GradientMethod::Direct => AtOdds::Warning(Warning::GradientDirectAtOdds { parting }),
-        _ => AtOdds::Note(format!(
-            "{parting}: the direct fit is at odds, and the output uses the difference"
-        )),
+        _ => AtOdds::Note(Note::GradientDifferenceUsed { parting }),
     })
 }
 
 /// One line on a compensated gradient.
-fn describe(result: &GradientResult) -> String {
-    let mut text = format!(
-        "{}: ({} − {})/{:.3} m, from the {} ({})",
-        result.column,
-        result.pair.a,
-        result.pair.b,
-        result.pair.separation_m,
-        match result.method_used {
-            GradientMethod::Direct => "model fitted to the difference",
-            _ => "difference of the compensated channels",
-        },
-        result.reason
-    );
-    if let Some(held) = &result.held_out {
-        text += &format!(
-            "; held out by heading ({} headings): direct {:.5} nT/m, difference {:.5} nT/m",
-            held.headings, held.direct_nt_per_m, held.difference_nt_per_m
-        );
+fn describe(result: &GradientResult) -> Note {
+    Note::GradientFormed {
+        column: result.column.clone(),
+        channels: [result.pair.a.clone(), result.pair.b.clone()],
+        separation_m: result.pair.separation_m,
+        direct: result.method_used == GradientMethod::Direct,
+        reason: result.reason.clone(),
+        held_out: (result.held_out.as_ref())
+            .map(|held| (held.headings, held.direct_nt_per_m, held.difference_nt_per_m)),
     }
-    text
 }
 
 /// Where the pair's two channels are among the compensated ones; an error

@@ -20,8 +20,8 @@
 //! which model a channel was fitted with, an analysis not made, what
 //! detection found, the flight against its plan); it is printed with `-v`
 //! and kept in the quality JSON and the report, and typed the same way.
-//! The notes of the vector and gradient stages, a saved model's and the
-//! fit's own still come as their sentence: [`Note::Said`].
+//! The notes of the vector stage, a saved model's, the reduced columns'
+//! and the fit's own still come as their sentence: [`Note::Said`].
 
 use std::fmt;
 
@@ -1428,6 +1428,38 @@ pub enum Note {
         /// The additions' manoeuvres.
         additions: usize,
     },
+    /// A gradient formed: how, and why that way.
+    GradientFormed {
+        /// The gradient column.
+        column: String,
+        /// Its two channels (a − b).
+        channels: [String; 2],
+        /// Their separation, m.
+        separation_m: f64,
+        /// Whether the output is a model fitted to the difference (else
+        /// the difference of the compensated channels).
+        direct: bool,
+        /// Why that method, in words.
+        reason: String,
+        /// Held out by heading: (headings, direct fit's and difference's
+        /// residual, nT/m), when it was.
+        held_out: Option<(usize, f64, f64)>,
+    },
+    /// A gradient formed from the channels a saved model compensated.
+    GradientFromSavedChannels {
+        /// The gradient column.
+        column: String,
+        /// Its two channels (a − b).
+        channels: [String; 2],
+        /// Their separation, m.
+        separation_m: f64,
+    },
+    /// The direct fit parts from the difference on the survey lines, and
+    /// the output uses the difference.
+    GradientDifferenceUsed {
+        /// How far they part.
+        parting: GradientParting,
+    },
     /// A channel's figures against the plan.
     PlanChannelFigures {
         /// The scalar channel.
@@ -1462,6 +1494,9 @@ impl fmt::Display for Note {
             | Note::AttitudeFromFluxgate
             | Note::NoManoeuvres
             | Note::ManoeuvresByLine { .. } => self.write_detection(f),
+            Note::GradientFormed { .. } | Note::GradientFromSavedChannels { .. } | Note::GradientDifferenceUsed { .. } => {
+                self.write_gradient(f)
+            }
             Note::PlanLacksChannel { .. }
             | Note::PlanChannelNotCompensated { .. }
             | Note::PlanManoeuvresNotCompared { .. }
@@ -1504,6 +1539,49 @@ impl fmt::Display for Note {
 }
 
 impl Note {
+    /// The sentence of a note of a gradient.
+    fn write_gradient(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Note::GradientFormed {
+                column,
+                channels: [a, b],
+                separation_m,
+                direct,
+                reason,
+                held_out,
+            } => {
+                write!(
+                    f,
+                    "{column}: ({a} − {b})/{separation_m:.3} m, from the {} ({reason})",
+                    if *direct {
+                        "model fitted to the difference"
+                    } else {
+                        "difference of the compensated channels"
+                    }
+                )?;
+                match held_out {
+                    Some((headings, direct, difference)) => write!(
+                        f,
+                        "; held out by heading ({headings} headings): direct {direct:.5} nT/m, difference {difference:.5} nT/m"
+                    ),
+                    None => Ok(()),
+                }
+            }
+            Note::GradientFromSavedChannels {
+                column,
+                channels: [a, b],
+                separation_m,
+            } => write!(
+                f,
+                "{column}: ({a} − {b})/{separation_m:.3} m, from the difference of the channels the saved model compensated (a direct fit needs a calibration box)"
+            ),
+            Note::GradientDifferenceUsed { parting } => {
+                write!(f, "{parting}: the direct fit is at odds, and the output uses the difference")
+            }
+            _ => write!(f, "{self:?}"),
+        }
+    }
+
     /// The sentence of a note of the flight against its plan.
     fn write_plan(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
@@ -1986,6 +2064,52 @@ mod tests {
             "mag_3_uc: the diagnosis leaves an unexplained residual of 0.1235 nT held out, 1712 times the sensor noise in the band, largest on roll@90, yaw@180: the compensation of this channel is not good to the noise level; see the diagnosis's unexplained finding"
         );
         assert_eq!(warning.channel(), Some("mag_3_uc"));
+    }
+
+    /// The detection, gradient and plan notes print the sentences the
+    /// stages always wrote.
+    #[test]
+    fn typed_notes_read_as_the_stages_have_always_said_them() {
+        let cases = [
+            (
+                Note::Detected {
+                    manoeuvres: 12,
+                    boxes: 1,
+                    from_fluxgate: false,
+                },
+                "calibration windows detected: 12 manoeuvres in 1 box(es), attitude from the INS".to_string(),
+            ),
+            (
+                Note::ManoeuvresByLine {
+                    counts: vec![(1002.2, 12), (1002.21, 0)],
+                },
+                "calibration data by line: manoeuvres detected 12 on line 1002.2, 0 on line 1002.21".into(),
+            ),
+            (
+                Note::GradientFormed {
+                    column: "grad_1_2_c".into(),
+                    channels: ["mag_1_uc".into(), "mag_2_uc".into()],
+                    separation_m: 5.0,
+                    direct: true,
+                    reason: "the smaller held-out residual".into(),
+                    held_out: Some((4, 0.00123456, 0.002)),
+                },
+                "grad_1_2_c: (mag_1_uc − mag_2_uc)/5.000 m, from the model fitted to the difference (the smaller held-out residual); held out by heading (4 headings): direct 0.00123 nT/m, difference 0.00200 nT/m".into(),
+            ),
+            (
+                Note::PlanChannelFigures {
+                    channel: "mag_1_uc".into(),
+                    report: "PLAN_REPORT.json".into(),
+                    figures: vec!["FOM 0.433 nT, planned 0.550".into(), "sigma column not compared".into()],
+                    as_planned: false,
+                },
+                "mag_1_uc: against the plan (PLAN_REPORT.json): FOM 0.433 nT, planned 0.550; sigma column not compared; not as planned (see the warnings)".into(),
+            ),
+        ];
+        for (note, sentence) in cases {
+            assert_eq!(note.to_string(), sentence);
+            assert_eq!(serde_json::to_value(&note).unwrap(), serde_json::json!(sentence));
+        }
     }
 
     #[test]

@@ -47,7 +47,10 @@ pub(super) fn run_applied(
     let (mut compensation, quality) = compensate_applied(log, &models, (options, meter), &mut warnings)?;
     notes.extend(job.assigned_model.clone());
     notes.extend(renaming);
-    let said = Said { warnings, notes };
+    let said = Said {
+        warnings,
+        notes: notes.into_iter().map(Note::from).collect(),
+    };
     let said = beside_the_scalars(
         (log, &recorded, compensated),
         saved,
@@ -161,10 +164,10 @@ fn hold_out_on_own_windows(
     Ok(())
 }
 
-/// Warnings and notes gathered along the way, as sentences.
+/// Warnings and notes gathered along the way.
 struct Said {
     warnings: Vec<Warning>,
-    notes: Vec<String>,
+    notes: Vec<Note>,
 }
 
 /// What the compensated channels carry beside themselves on a flight given
@@ -186,7 +189,7 @@ fn beside_the_scalars(
         }
         said.warnings.extend(vector_warnings);
     }
-    said.notes.extend(vector_not_run(options, saved, log));
+    said.notes.extend(vector_not_run(options, saved, log).map(Note::from));
     let gradients = crate::gradient::gradients_from_saved_model(models, compensation, &options.gradients);
     compensation.gradients = gradients.compensated;
     said.notes.extend(gradients.notes);
@@ -195,8 +198,8 @@ fn beside_the_scalars(
         .extend(crate::formats::mcap::undated_warning(recorded, compensated));
     said.warnings
         .extend(crate::formats::write::text_columns_warning(recorded, compensated, true));
-    said.notes
-        .extend(crate::reduce::add_reduced(log, compensation, options.reduced)?);
+    let reduced = crate::reduce::add_reduced(log, compensation, options.reduced)?;
+    said.notes.extend(reduced.into_iter().map(Note::from));
     said.warnings.extend(compensation.out_of_range_warnings(log.time_s()));
     Ok(said)
 }
@@ -207,11 +210,11 @@ fn beside_the_scalars(
 fn applied_notes(
     (recorded, channels, added_columns): (&FlightLog, &[String], &[String]),
     models: &[crate::model::FittedModel],
-    notes: Vec<String>,
+    notes: Vec<Note>,
 ) -> Vec<Note> {
     let mut said: Vec<Note> = units_row_note(recorded).into_iter().collect();
     said.extend(renaming_notes(channels, added_columns));
-    said.extend(Note::said(notes));
+    said.extend(notes);
     said.extend(
         models
             .iter()

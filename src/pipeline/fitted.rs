@@ -184,10 +184,8 @@ impl Assessed {
         let excitation = std::mem::take(&mut self.excitation_notes);
         model_messages(&self.models, excitation, (notes, warnings));
         let (vector, gradients) = (&mut self.vector, &mut self.gradients);
-        let stage_notes = std::mem::take(&mut vector.notes)
-            .into_iter()
-            .chain(std::mem::take(&mut gradients.notes));
-        notes.extend(Note::said(stage_notes));
+        notes.extend(Note::said(std::mem::take(&mut vector.notes)));
+        notes.append(&mut gradients.notes);
         warnings.append(&mut vector.warnings);
         warnings.append(&mut gradients.warnings);
         if let Some(detection) = &flight.detection {
