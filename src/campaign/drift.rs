@@ -24,7 +24,7 @@
 //! direction, the rates, the fluxgate's own errors move the effective
 //! coefficients a little), and simulated pairs of an unchanged aircraft
 //! put that at about three times the variance. Then
-//! $E[Q] = \operatorname{tr}(M\Sigma)$, and $Q/E[Q]$ is close to a
+//! $\operatorname{E}(Q) = \operatorname{tr}(M\Sigma)$, and $Q/\operatorname{E}(Q)$ is close to a
 //! $\chi^2_\nu/\nu$ with $\nu = \operatorname{tr}(M\Sigma)^2 /
 //! \operatorname{tr}((M\Sigma)^2)$ degrees of freedom (Satterthwaite
 //! 1946); since $\Sigma$ is itself estimated from the $m = F_a + F_b - 2$
@@ -202,9 +202,9 @@ pub struct Drift {
     /// RMS of the two models' predictions' difference over the
     /// calibration manoeuvres, $\sqrt{Q}$, nT.
     pub change_rms_nt: f64,
-    /// What the two fits' uncertainties explain, $\sqrt{E[Q]}$, nT.
+    /// What the two fits' uncertainties explain, $\sqrt{\operatorname{E}(Q)}$, nT.
     pub expected_rms_nt: f64,
-    /// $Q / E[Q]$.
+    /// $Q / \operatorname{E}(Q)$.
     pub ratio: f64,
     /// The ratio above which the change is flagged.
     pub limit: f64,
@@ -271,7 +271,7 @@ pub fn compare(a: &Calibration, b: &Calibration) -> Drift {
         drift.note = "not compared: the jackknife gives no spread over the calibration (every window alike)".into();
         return drift;
     }
-    // ν is unchanged by the covariance's factor; E[Q] scales with it.
+    // ν is unchanged by the covariance's factor; \operatorname{E}(Q) scales with it.
     let nu = expected * expected / cross;
     let expected = BETWEEN_BOXES * expected;
     drift.change_rms_nt = q.max(0.0).sqrt();
@@ -551,7 +551,7 @@ mod tests {
         }
     }
 
-    /// The statistic by hand on a small case: Q, E[Q] and ν from their
+    /// The statistic by hand on a small case: Q, \operatorname{E}(Q) and ν from their
     /// definitions, and the verdict either side of the limit.
     #[test]
     fn the_statistic_matches_its_definition() {

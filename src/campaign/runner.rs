@@ -52,7 +52,7 @@ const PROCESS_BYTES: f64 = 50e6;
 impl FlightsAtOnce {
     /// One flight for each of `threads` worker threads, no more than the
     /// `flights` to do, and no more than `available` bytes of memory hold
-    /// when each flight needs [`PEAK_BYTES_PER_INPUT_BYTE`] times its
+    /// when each flight needs `PEAK_BYTES_PER_INPUT_BYTE` times its
     /// largest input (`largest_input` bytes). `available` is `None` where
     /// the system does not say.
     pub fn choose(threads: usize, flights: usize, largest_input: u64, available: Option<u64>) -> Self {

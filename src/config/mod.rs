@@ -397,7 +397,7 @@ pub struct FlightJob {
     /// The airframe, when the campaign names it.
     pub aircraft: Option<String>,
     /// The flight is its aircraft's calibration: its model compensates
-    /// the aircraft's flights that name none of their own ([`calibrations`]).
+    /// the aircraft's flights that name none of their own (`calibrations`).
     pub calibration: bool,
     /// Why `model` is this flight's, when the campaign gave it (a note for
     /// its quality JSON and report).

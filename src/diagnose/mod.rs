@@ -42,7 +42,7 @@
 //! accepted when it lowers it by more than `min_improvement` (30 %), then
 //! the search repeats on the extended model. A source must also beat the
 //! best of every candidate column shifted in time (see
-//! [`beats_shifted_sources`]), a permutation test of the scan's multiple
+//! `beats_shifted_sources`), a permutation test of the scan's multiple
 //! comparison. The threshold guards the scan too. Unrelated regressors
 //! change a held-out RMS by under 1 %, but a channel that follows the
 //! manoeuvres (a servo current, the trim tab) can stand in for structured

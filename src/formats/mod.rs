@@ -1,5 +1,5 @@
 //! The file formats: reading a flight log into a
-//! [`FlightLog`](crate::ingest::flight_log::FlightLog) and writing it back with
+//! [`FlightLog`] and writing it back with
 //! magcomp's columns, one module per format that does both.
 //!
 //! - [`csv`]: delimited text (CSV, `;`, tab, whitespace-aligned);
@@ -10,7 +10,7 @@
 //!
 //! The input format is chosen from the file extension, with a look at the
 //! content as a fallback; the output format from the output path's
-//! extension ([`write`]). [`table::FORMATS`] holds a row per format (its
+//! extension ([`mod@write`]). [`table::FORMATS`] holds a row per format (its
 //! extensions, its signature, its reader and writers): a new format is a
 //! row there and its module. Every output is staged and renamed into place
 //! ([`destination`]), never over an input.

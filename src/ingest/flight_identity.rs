@@ -116,7 +116,7 @@ fn hex(digest: &[u8]) -> String {
 /// whose path, device, inode, size and modification time are all
 /// unchanged is not read again. A write to the file moves its
 /// modification time, and a file renamed over it has another inode; a
-/// file modified less than [`SETTLED`] before it was hashed is not kept,
+/// file modified less than `SETTLED` before it was hashed is not kept,
 /// since a write within the file system's clock tick (milliseconds here,
 /// seconds on some) may leave the time as it was.
 pub fn hash_file(path: &Path) -> Result<String> {

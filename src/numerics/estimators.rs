@@ -11,8 +11,8 @@
 //! $\beta = V\,\mathrm{diag}(w_k/\sigma_k)\,c$ (Hansen 1998, ch. 4):
 //! - least squares, $w_k = 1$;
 //! - ridge (Tikhonov), $w_k = \sigma_k^2/(\sigma_k^2 + \lambda)$;
-//! - truncated SVD of rank r, $w_k = [k < r]$;
-//! - damped TSVD, $w_k = [k < r]\,\sigma_k^2/(\sigma_k^2 + \lambda)$
+//! - truncated SVD of rank r, $w_k = \mathbb{1}(k < r)$;
+//! - damped TSVD, $w_k = \mathbb{1}(k < r)\,\sigma_k^2/(\sigma_k^2 + \lambda)$
 //!   (Hansen 1998, §4.2: the truncation removes the directions the data do
 //!   not pin, the damping shrinks the weakly pinned ones kept).
 //!

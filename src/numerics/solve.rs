@@ -8,7 +8,7 @@
 //!
 //! $$ \beta = V \,\mathrm{diag}(w_k / \sigma_k)\, c, \qquad
 //!    w_k^{\text{ridge}} = \frac{\sigma_k^2}{\sigma_k^2 + \lambda}, \qquad
-//!    w_k^{\text{TSVD}} = [k < r]. $$
+//!    w_k^{\text{TSVD}} = \mathbb{1}(k < r). $$
 //!
 //! The fitted values are $U\,\mathrm{diag}(w)\,c$ and the leverages
 //! $h_{ii} = \sum_k U_{ik}^2 w_k$, so the leave-one-out PRESS statistic

@@ -199,7 +199,7 @@ impl StackedBuilder {
 /// zero memory. The caller owns the pool and hands it to every fit that may
 /// share it, across threads; [`StorePool::recycle`] returns a finished
 /// store to it, and dropping the pool frees them all. It keeps at most
-/// [`SPARE_STORES`], the largest.
+/// `SPARE_STORES`, the largest.
 #[derive(Debug, Default)]
 pub struct StorePool {
     spares: Mutex<Vec<Vec<[f64; LANES]>>>,

@@ -99,7 +99,7 @@ impl FlightOutputs {
 
 /// Reads, fits, compensates and assesses one flight
 /// ([`crate::pipeline::run`]) and writes
-/// its outputs ([`write`]).
+/// its outputs ([`write()`]).
 pub fn process_flight(job: &FlightJob, options: &Settings, outputs: &FlightOutputs) -> Result<FlightResult> {
     process_flight_listing(job, options, outputs, &crate::progress::Silent).map(|(result, _)| result)
 }

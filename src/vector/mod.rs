@@ -56,7 +56,7 @@
 //! cost falls, the rows Huber-weighted. K and h start from the linear
 //! least-squares fit at the starting direction. The differences leave out
 //! the row's own attitude, whose noise would otherwise bias the fit (see
-//! [`differences`]).
+//! `differences`).
 //!
 //! **The output.** $\hat b^{body}_i = K^{-1}(m_i - h)$ on every row with a
 //! fluxgate reading (no attitude needed), and $\hat b^{NED}_i =

@@ -14,7 +14,7 @@
 //! `sensor_msgs/msg/MagneticField` becomes a vector magnetometer (tesla →
 //! nT) or, mapped with `[[topic]] scalar = "mag_1_uc"`, a scalar one (its
 //! magnitude); `Imu` becomes `ins_roll|pitch|yaw` in the SGL convention;
-//! `NavSatFix` becomes `lat`, `lon`, `alt` (see [`ros`](super::ros)).
+//! `NavSatFix` becomes `lat`, `lon`, `alt` (see [`ros`]).
 //!
 //! The file is read through its summary and chunk index when it has them,
 //! chunks decoded in parallel and merged in file order; a file without a
