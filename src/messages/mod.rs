@@ -20,8 +20,9 @@
 //! which model a channel was fitted with, an analysis not made, what
 //! detection found, the flight against its plan); it is printed with `-v`
 //! and kept in the quality JSON and the report, and typed the same way.
-//! The notes of the vector stage, a saved model's, the reduced columns'
-//! and the fit's own still come as their sentence: [`Note::Said`].
+//! The notes of the vector stage, a saved model's, the reduced columns',
+//! the calibration headings' and the fluxgate calibration's still come as
+//! their sentence: [`Note::Said`].
 
 use std::fmt;
 
@@ -1428,6 +1429,28 @@ pub enum Note {
         /// The additions' manoeuvres.
         additions: usize,
     },
+    /// The channel has no estimator table: its windows do not give three
+    /// headings.
+    NoEstimatorTable {
+        /// The scalar channel.
+        channel: String,
+    },
+    /// Estimator families no split of the headings could fit.
+    EstimatorTableLacks {
+        /// The scalar channel.
+        channel: String,
+        /// The families left out.
+        families: Vec<String>,
+    },
+    /// A box the transfer check could not fit.
+    NoBoxTransfer {
+        /// The scalar channel.
+        channel: String,
+        /// The box, from 1.
+        number: usize,
+        /// Why, in words.
+        why: String,
+    },
     /// A gradient formed: how, and why that way.
     GradientFormed {
         /// The gradient column.
@@ -1497,6 +1520,9 @@ impl fmt::Display for Note {
             Note::GradientFormed { .. } | Note::GradientFromSavedChannels { .. } | Note::GradientDifferenceUsed { .. } => {
                 self.write_gradient(f)
             }
+            Note::NoEstimatorTable { .. } | Note::EstimatorTableLacks { .. } | Note::NoBoxTransfer { .. } => {
+                self.write_fit(f)
+            }
             Note::PlanLacksChannel { .. }
             | Note::PlanChannelNotCompensated { .. }
             | Note::PlanManoeuvresNotCompared { .. }
@@ -1539,6 +1565,26 @@ impl fmt::Display for Note {
 }
 
 impl Note {
+    /// The sentence of a note of a channel's fit: its estimator table and
+    /// its transfer between boxes.
+    fn write_fit(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Note::NoEstimatorTable { channel } => write!(
+                f,
+                "{channel}: no estimator table: the calibration windows do not give three headings (a window given by time that spans a turn has none), so no estimator can be held out by heading"
+            ),
+            Note::EstimatorTableLacks { channel, families } => write!(
+                f,
+                "{channel}: the estimator table lacks {}: no split of the headings could be fitted by it",
+                families.join(", ")
+            ),
+            Note::NoBoxTransfer { channel, number, why } => {
+                write!(f, "{channel}: no box transfer from box {number}: {why}")
+            }
+            _ => write!(f, "{self:?}"),
+        }
+    }
+
     /// The sentence of a note of a gradient.
     fn write_gradient(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
@@ -2095,6 +2141,21 @@ mod tests {
                     held_out: Some((4, 0.00123456, 0.002)),
                 },
                 "grad_1_2_c: (mag_1_uc − mag_2_uc)/5.000 m, from the model fitted to the difference (the smaller held-out residual); held out by heading (4 headings): direct 0.00123 nT/m, difference 0.00200 nT/m".into(),
+            ),
+            (
+                Note::EstimatorTableLacks {
+                    channel: "mag_1_uc".into(),
+                    families: vec!["Tls".into(), "Tsvd".into()],
+                },
+                "mag_1_uc: the estimator table lacks Tls, Tsvd: no split of the headings could be fitted by it".into(),
+            ),
+            (
+                Note::NoBoxTransfer {
+                    channel: "mag_2_uc".into(),
+                    number: 2,
+                    why: "no calibration windows".into(),
+                },
+                "mag_2_uc: no box transfer from box 2: no calibration windows".into(),
             ),
             (
                 Note::PlanChannelFigures {

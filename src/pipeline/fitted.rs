@@ -110,7 +110,7 @@ struct Assessed {
     vector: VectorStage,
     gradients: GradientStage,
     /// The notes of the stages (reduced columns, transfer).
-    notes: Vec<String>,
+    notes: Vec<Note>,
     excitation_notes: Vec<Option<Note>>,
 }
 
@@ -142,7 +142,9 @@ fn compensate_and_assess(
         quality,
         vector,
         gradients,
-        notes: reduced_notes.into_iter().chain(transfer_notes).collect(),
+        notes: (reduced_notes.into_iter().map(Note::from))
+            .chain(transfer_notes)
+            .collect(),
         excitation_notes: fitted.excitation_notes,
     })
 }
@@ -178,9 +180,8 @@ impl Assessed {
         notes.extend(units_row_note(&flight.recorded));
         notes.extend(renaming_notes(&flight.channels, added_columns));
         warnings.extend(self.compensation.out_of_range_warnings(log.time_s()));
-        notes.extend(Note::said(
-            std::mem::take(&mut self.notes).into_iter().chain(stage_notes),
-        ));
+        notes.append(&mut self.notes);
+        notes.extend(Note::said(stage_notes));
         let excitation = std::mem::take(&mut self.excitation_notes);
         model_messages(&self.models, excitation, (notes, warnings));
         let (vector, gradients) = (&mut self.vector, &mut self.gradients);
@@ -334,14 +335,14 @@ fn assess_channels(
     compensation: &mut crate::compensate::Compensation,
     boxes: &[(f64, f64)],
     (options, meter): (&Settings, &dyn Meter),
-) -> Result<(Vec<ChannelQuality>, Vec<String>)> {
+) -> Result<(Vec<ChannelQuality>, Vec<Note>)> {
     let Calibration {
         log, sensor, windows, ..
     } = *on;
     let stores = StorePool::new();
     let shared = std::mem::take(&mut fitted.shared);
     let geometry = crate::quality::SurveyGeometry::of(log);
-    let assessed: Vec<(ChannelQuality, Vec<f64>, Vec<String>)> = (fitted.models.par_iter())
+    let assessed: Vec<(ChannelQuality, Vec<f64>, Vec<Note>)> = (fitted.models.par_iter())
         .zip(compensation.channels.par_iter_mut())
         .map(|(model, channel)| {
             let (mut quality, jackknife_levels) = assess_with_sigma((log, &geometry), model, channel, &shared)?;
@@ -367,7 +368,7 @@ fn assess_channels(
         transfer_notes.extend(notes);
     }
     // In channel order, as they always were sorted.
-    transfer_notes.sort();
+    transfer_notes.sort_by_cached_key(Note::to_string);
     Ok((quality, transfer_notes))
 }
 
@@ -413,7 +414,7 @@ fn model_messages(
     excitation_notes: Vec<Option<Note>>,
     (notes, warnings): (&mut Vec<Note>, &mut Vec<Warning>),
 ) {
-    notes.extend(Note::said(models.iter().filter_map(estimator_table_gap)));
+    notes.extend(models.iter().filter_map(estimator_table_gap));
     notes.extend(excitation_notes.into_iter().flatten());
     // A gap in the box is a warning: the FOM lacks a manoeuvre and the
     // coefficients it pins are less certain.

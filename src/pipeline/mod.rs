@@ -133,25 +133,21 @@ fn against_plan(
 /// What a channel's estimator table leaves out, in words: the whole table
 /// when the windows span fewer than three headings, or the families no
 /// split could fit.
-fn estimator_table_gap(model: &FittedModel) -> Option<String> {
+fn estimator_table_gap(model: &FittedModel) -> Option<crate::messages::Note> {
     use crate::numerics::estimators::Family;
     let Some(table) = &model.estimators else {
-        return Some(format!(
-            "{}: no estimator table: the calibration windows do not give three headings (a window given by time that spans a turn has none), so no estimator can be held out by heading",
-            model.channel
-        ));
+        return Some(crate::messages::Note::NoEstimatorTable {
+            channel: model.channel.clone(),
+        });
     };
     let missing: Vec<String> = Family::ALL
         .iter()
         .filter(|family| !table.iter().any(|s| s.family == **family))
         .map(|family| format!("{family:?}"))
         .collect();
-    (!missing.is_empty()).then(|| {
-        format!(
-            "{}: the estimator table lacks {}: no split of the headings could be fitted by it",
-            model.channel,
-            missing.join(", ")
-        )
+    (!missing.is_empty()).then(|| crate::messages::Note::EstimatorTableLacks {
+        channel: model.channel.clone(),
+        families: missing,
     })
 }
 

@@ -201,7 +201,7 @@ pub fn box_transfer(
     boxes: &[(f64, f64)],
     options: &FitOptions,
     stores: &StorePool,
-) -> Result<(Vec<BoxTransfer>, Vec<String>)> {
+) -> Result<(Vec<BoxTransfer>, Vec<crate::messages::Note>)> {
     let grouped: Vec<(usize, Vec<CalibrationWindow>)> = (boxes.iter().enumerate())
         .map(|(k, (start, end))| {
             let inside = (windows.iter())
@@ -221,11 +221,11 @@ pub fn box_transfer(
         .map(|(k, inside)| match prepared.fit(inside, options, stores) {
             Ok(fitted) => Some(fitted),
             Err(error) => {
-                notes.push(format!(
-                    "{}: no box transfer from box {}: {error}",
-                    model.channel,
-                    k + 1
-                ));
+                notes.push(crate::messages::Note::NoBoxTransfer {
+                    channel: model.channel.clone(),
+                    number: k + 1,
+                    why: error.to_string(),
+                });
                 None
             }
         })
