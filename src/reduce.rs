@@ -24,6 +24,7 @@ use crate::error::{Error, Result};
 use crate::igrf::{decimal_year, Igrf};
 use crate::ingest::flags::FlagKind;
 use crate::ingest::flight_log::{ChannelRole, FlightLog};
+use crate::messages::Note;
 
 /// A base-station column whose median is within this of zero records the
 /// variation, not the total field, nT.
@@ -59,7 +60,7 @@ fn column_name(channel: &str, suffix: &str) -> String {
 /// values less their median when the station records the total field),
 /// and a note saying which; an error when there is no station or it has
 /// no reading.
-fn station_variation(log: &FlightLog) -> Result<(&str, Vec<f64>, String)> {
+fn station_variation(log: &FlightLog) -> Result<(&str, Vec<f64>, Note)> {
     let missing = |looked_for: String, hint: &str| Error::MissingColumn {
         path: log.source().to_path_buf(),
         role: "base-station (for dc and igrf)",
@@ -87,15 +88,10 @@ fn station_variation(log: &FlightLog) -> Result<(&str, Vec<f64>, String)> {
         true => 0.0,
         false => median,
     };
-    let note = match datum {
-        0.0 => format!(
-            "reduced columns: the base station '{}' records the variation (median {median:.1} nT), removed as recorded",
-            station.name
-        ),
-        _ => format!(
-            "reduced columns: the base station '{}' records the total field; its variation about its median over the flight ({datum:.1} nT) is removed",
-            station.name
-        ),
+    let note = Note::BaseStationRemoved {
+        station: station.name.clone(),
+        median_nt: median,
+        total_field: datum != 0.0,
     };
     let variation: Vec<f64> = station.values.iter().map(|v| v - datum).collect();
     Ok((&station.name, variation, note))
@@ -106,7 +102,7 @@ fn station_variation(log: &FlightLog) -> Result<(&str, Vec<f64>, String)> {
 /// rows that have none; returns the notes that say how they were made.
 /// No base station, or for IGRF no latitude and longitude or no date, is
 /// an error naming what is missing.
-pub fn add_reduced(log: &FlightLog, compensation: &mut Compensation, wanted: ReducedColumns) -> Result<Vec<String>> {
+pub fn add_reduced(log: &FlightLog, compensation: &mut Compensation, wanted: ReducedColumns) -> Result<Vec<Note>> {
     if !wanted.any() || compensation.channels.is_empty() {
         return Ok(Vec::new());
     }
@@ -170,7 +166,7 @@ struct MainFieldColumn {
 
 /// The main field at every row's latitude, longitude and height (above
 /// mean sea level, 0 m without a height column) on the flight's day.
-fn main_field(log: &FlightLog) -> Result<(MainFieldColumn, String)> {
+fn main_field(log: &FlightLog) -> Result<(MainFieldColumn, Note)> {
     let column = |names: &[&str]| {
         names
             .iter()
@@ -221,13 +217,11 @@ fn main_field(log: &FlightLog) -> Result<(MainFieldColumn, String)> {
         .map(|c| c.name.as_str())
         .collect::<Vec<_>>()
         .join("/");
-    let note = format!(
-        "reduced columns: IGRF-14 for {date} at '{position}'{} removed for _igrf",
-        match height {
-            Some(_) => "",
-            None => " (no height column: at sea level)",
-        }
-    );
+    let note = Note::MainFieldRemoved {
+        day: date.to_string(),
+        position: position.clone(),
+        height: height.is_some(),
+    };
     Ok((MainFieldColumn { total_nt, position }, note))
 }
 

@@ -20,9 +20,9 @@
 //! which model a channel was fitted with, an analysis not made, what
 //! detection found, the flight against its plan); it is printed with `-v`
 //! and kept in the quality JSON and the report, and typed the same way.
-//! The notes of the vector stage, a saved model's, the reduced columns',
-//! the calibration headings' and the fluxgate calibration's still come as
-//! their sentence: [`Note::Said`].
+//! The notes of the vector stage, a saved model's, the calibration
+//! headings' and the fluxgate calibration's still come as their sentence:
+//! [`Note::Said`].
 
 use std::fmt;
 
@@ -1429,6 +1429,26 @@ pub enum Note {
         /// The additions' manoeuvres.
         additions: usize,
     },
+    /// The reduced columns remove the base station's variation: as
+    /// recorded, or about its median when it records the total field.
+    BaseStationRemoved {
+        /// The base station's column.
+        station: String,
+        /// Its median over the flight, nT.
+        median_nt: f64,
+        /// Whether it records the total field (its variation about the
+        /// median is removed) rather than the variation itself.
+        total_field: bool,
+    },
+    /// The `_igrf` columns remove IGRF-14 for the flight's day.
+    MainFieldRemoved {
+        /// The day, `YYYY-MM-DD`.
+        day: String,
+        /// The position columns, `lat/lon[/height]`.
+        position: String,
+        /// Whether a height column was read (else at sea level).
+        height: bool,
+    },
     /// The channel has no estimator table: its windows do not give three
     /// headings.
     NoEstimatorTable {
@@ -1523,6 +1543,7 @@ impl fmt::Display for Note {
             Note::NoEstimatorTable { .. } | Note::EstimatorTableLacks { .. } | Note::NoBoxTransfer { .. } => {
                 self.write_fit(f)
             }
+            Note::BaseStationRemoved { .. } | Note::MainFieldRemoved { .. } => self.write_reduced(f),
             Note::PlanLacksChannel { .. }
             | Note::PlanChannelNotCompensated { .. }
             | Note::PlanManoeuvresNotCompared { .. }
@@ -1565,6 +1586,34 @@ impl fmt::Display for Note {
 }
 
 impl Note {
+    /// The sentence of a note of the reduced columns.
+    fn write_reduced(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Note::BaseStationRemoved {
+                station,
+                median_nt,
+                total_field: false,
+            } => write!(
+                f,
+                "reduced columns: the base station '{station}' records the variation (median {median_nt:.1} nT), removed as recorded"
+            ),
+            Note::BaseStationRemoved {
+                station,
+                median_nt,
+                total_field: true,
+            } => write!(
+                f,
+                "reduced columns: the base station '{station}' records the total field; its variation about its median over the flight ({median_nt:.1} nT) is removed"
+            ),
+            Note::MainFieldRemoved { day, position, height } => write!(
+                f,
+                "reduced columns: IGRF-14 for {day} at '{position}'{} removed for _igrf",
+                if *height { "" } else { " (no height column: at sea level)" }
+            ),
+            _ => write!(f, "{self:?}"),
+        }
+    }
+
     /// The sentence of a note of a channel's fit: its estimator table and
     /// its transfer between boxes.
     fn write_fit(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
@@ -2141,6 +2190,22 @@ mod tests {
                     held_out: Some((4, 0.00123456, 0.002)),
                 },
                 "grad_1_2_c: (mag_1_uc − mag_2_uc)/5.000 m, from the model fitted to the difference (the smaller held-out residual); held out by heading (4 headings): direct 0.00123 nT/m, difference 0.00200 nT/m".into(),
+            ),
+            (
+                Note::BaseStationRemoved {
+                    station: "diurnal".into(),
+                    median_nt: 50_012.34,
+                    total_field: true,
+                },
+                "reduced columns: the base station 'diurnal' records the total field; its variation about its median over the flight (50012.3 nT) is removed".into(),
+            ),
+            (
+                Note::MainFieldRemoved {
+                    day: "2026-06-13".into(),
+                    position: "lat/lon".into(),
+                    height: false,
+                },
+                "reduced columns: IGRF-14 for 2026-06-13 at 'lat/lon' (no height column: at sea level) removed for _igrf".into(),
             ),
             (
                 Note::EstimatorTableLacks {

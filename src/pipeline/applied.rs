@@ -199,7 +199,7 @@ fn beside_the_scalars(
     said.warnings
         .extend(crate::formats::write::text_columns_warning(recorded, compensated, true));
     let reduced = crate::reduce::add_reduced(log, compensation, options.reduced)?;
-    said.notes.extend(reduced.into_iter().map(Note::from));
+    said.notes.extend(reduced);
     said.warnings.extend(compensation.out_of_range_warnings(log.time_s()));
     Ok(said)
 }

@@ -142,9 +142,7 @@ fn compensate_and_assess(
         quality,
         vector,
         gradients,
-        notes: (reduced_notes.into_iter().map(Note::from))
-            .chain(transfer_notes)
-            .collect(),
+        notes: reduced_notes.into_iter().chain(transfer_notes).collect(),
         excitation_notes: fitted.excitation_notes,
     })
 }
