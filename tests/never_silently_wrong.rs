@@ -112,8 +112,13 @@ fn windows_given_by_time_are_tested_with_a_caveat() {
         .map(|w| CalibrationWindow::new(w.t_start, w.t_end))
         .collect();
     let (headed, note) = magcomp::calibration::windows::headings_from_ins(&log, &windows, 15.0);
+    let Some(magcomp::messages::Note::WindowHeadings { headings_deg, without }) = &note else {
+        panic!("{note:?}")
+    };
+    assert_eq!((headings_deg.len(), *without), (12, 0), "{note:?}");
     assert!(note
         .unwrap()
+        .to_string()
         .starts_with("12 window(s) given by time take their leg's heading from the INS yaw"));
     for (found, known) in headed.iter().zip(&labelled) {
         let apart = magcomp::calibration::headings::angle_apart(found.heading_deg.unwrap(), known.heading_deg.unwrap());

@@ -310,25 +310,18 @@ impl VectorCalibration {
         Ok(calibrated)
     }
 
-    /// One line for people.
-    pub fn summary(&self) -> String {
-        format!(
-            "{} calibrated against {}: scale {:.4} {:.4} {:.4}, non-orthogonality {:.3} {:.3} {:.3}°, offset {:.1} {:.1} {:.1} nT; |B| mismatch {:.2} → {:.2} nT RMS over {} rows",
-            self.sensor,
-            self.reference,
-            self.scale[0],
-            self.scale[1],
-            self.scale[2],
-            self.non_orthogonality_deg[0],
-            self.non_orthogonality_deg[1],
-            self.non_orthogonality_deg[2],
-            self.offset_nt[0],
-            self.offset_nt[1],
-            self.offset_nt[2],
-            self.mismatch_rms_before_nt,
-            self.mismatch_rms_after_nt,
-            self.samples
-        )
+    /// The calibration as a note: what it was calibrated against, its
+    /// scale, non-orthogonality and offset, and the mismatch it removed.
+    pub fn summary(&self) -> crate::messages::Note {
+        crate::messages::Note::FluxgateCalibrated {
+            sensor: self.sensor.clone(),
+            reference: self.reference.clone(),
+            scale: self.scale,
+            non_orthogonality_deg: self.non_orthogonality_deg,
+            offset_nt: self.offset_nt,
+            mismatch_rms_nt: [self.mismatch_rms_before_nt, self.mismatch_rms_after_nt],
+            rows: self.samples,
+        }
     }
 }
 

@@ -13,6 +13,7 @@ use serde::{Deserialize, Serialize};
 use crate::error::{Error, Result};
 use crate::ingest::flight_identity::FlightIdentity;
 use crate::ingest::flight_log::{FlightLog, VectorSensor};
+use crate::messages::Note;
 
 /// The three manoeuvres of the FOM box.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -261,7 +262,7 @@ pub fn headings_from_ins(
     log: &FlightLog,
     windows: &[CalibrationWindow],
     tolerance_deg: f64,
-) -> (Vec<CalibrationWindow>, Option<String>) {
+) -> (Vec<CalibrationWindow>, Option<Note>) {
     let Some([_, _, yaw]) = log.attitude() else {
         return (windows.to_vec(), None);
     };
@@ -274,7 +275,7 @@ pub fn headings_from_ins(
                 match steady_heading_deg(&yaw[rows], tolerance_deg) {
                     Some(heading) => {
                         window.heading_deg = Some(heading);
-                        labelled.push(format!("{:.0}°", heading.round().rem_euclid(360.0)));
+                        labelled.push(heading.round().rem_euclid(360.0));
                     }
                     None => across += 1,
                 }
@@ -282,23 +283,10 @@ pub fn headings_from_ins(
             window
         })
         .collect();
-    let keep_none = match across {
-        0 => String::new(),
-        n => format!("{n} window(s) given by time span a turn or lack the yaw and keep no heading"),
-    };
-    let note = match labelled.len() {
-        0 if across == 0 => None,
-        0 => Some(keep_none),
-        n => Some(format!(
-            "{n} window(s) given by time take their leg's heading from the INS yaw ({}){}",
-            labelled.join(", "),
-            if across > 0 {
-                format!("; {keep_none}")
-            } else {
-                String::new()
-            }
-        )),
-    };
+    let note = (!labelled.is_empty() || across > 0).then_some(Note::WindowHeadings {
+        headings_deg: labelled,
+        without: across,
+    });
     (windows, note)
 }
 

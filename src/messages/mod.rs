@@ -20,9 +20,8 @@
 //! which model a channel was fitted with, an analysis not made, what
 //! detection found, the flight against its plan); it is printed with `-v`
 //! and kept in the quality JSON and the report, and typed the same way.
-//! The notes of the vector stage, a saved model's, the calibration
-//! headings' and the fluxgate calibration's still come as their sentence:
-//! [`Note::Said`].
+//! The notes of the vector stage and a saved model's words still come as
+//! their sentence: [`Note::Said`].
 
 use std::fmt;
 
@@ -1429,6 +1428,40 @@ pub enum Note {
         /// The additions' manoeuvres.
         additions: usize,
     },
+    /// The fluxgate was calibrated against a scalar magnetometer.
+    FluxgateCalibrated {
+        /// The fluxgate.
+        sensor: String,
+        /// The scalar magnetometer it was calibrated against.
+        reference: String,
+        /// Scale factor per axis.
+        scale: [f64; 3],
+        /// Non-orthogonality angles, °.
+        non_orthogonality_deg: [f64; 3],
+        /// Offset per axis, nT.
+        offset_nt: [f64; 3],
+        /// The mismatch of |B| against the reference, RMS nT, before and
+        /// after.
+        mismatch_rms_nt: [f64; 2],
+        /// Rows it was calibrated on.
+        rows: usize,
+    },
+    /// Windows given by time took their leg's heading from the INS yaw,
+    /// or could not.
+    WindowHeadings {
+        /// The headings taken, rounded to a degree, in the windows' order.
+        headings_deg: Vec<f64>,
+        /// Windows that span a turn or lack the yaw, and keep no heading.
+        without: usize,
+    },
+    /// No manoeuvre was detected on the calibration lines named: each
+    /// line's whole span is a window.
+    LinesAsWindows {
+        /// The lines named.
+        lines: Vec<f64>,
+        /// What the windows' headings are ([`Note::WindowHeadings`]).
+        headings: Option<Box<Note>>,
+    },
     /// The reduced columns remove the base station's variation: as
     /// recorded, or about its median when it records the total field.
     BaseStationRemoved {
@@ -1533,6 +1566,19 @@ impl fmt::Display for Note {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             Note::Said(sentence) => f.write_str(sentence),
+            Note::WindowHeadings { .. } | Note::LinesAsWindows { .. } => self.write_windows(f),
+            Note::FluxgateCalibrated {
+                sensor,
+                reference,
+                scale: [sx, sy, sz],
+                non_orthogonality_deg: [nx, ny, nz],
+                offset_nt: [ox, oy, oz],
+                mismatch_rms_nt: [before, after],
+                rows,
+            } => write!(
+                f,
+                "{sensor} calibrated against {reference}: scale {sx:.4} {sy:.4} {sz:.4}, non-orthogonality {nx:.3} {ny:.3} {nz:.3}°, offset {ox:.1} {oy:.1} {oz:.1} nT; |B| mismatch {before:.2} → {after:.2} nT RMS over {rows} rows"
+            ),
             Note::Detected { .. }
             | Note::AttitudeFromFluxgate
             | Note::NoManoeuvres
@@ -1586,6 +1632,43 @@ impl fmt::Display for Note {
 }
 
 impl Note {
+    /// The sentence of a note on calibration windows not detected.
+    fn write_windows(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Note::WindowHeadings { headings_deg, without } => {
+                let keep_none =
+                    format!("{without} window(s) given by time span a turn or lack the yaw and keep no heading");
+                if headings_deg.is_empty() {
+                    return f.write_str(&keep_none);
+                }
+                let taken: Vec<String> = headings_deg.iter().map(|h| format!("{h:.0}°")).collect();
+                write!(
+                    f,
+                    "{} window(s) given by time take their leg's heading from the INS yaw ({})",
+                    headings_deg.len(),
+                    taken.join(", ")
+                )?;
+                match without {
+                    0 => Ok(()),
+                    _ => write!(f, "; {keep_none}"),
+                }
+            }
+            Note::LinesAsWindows { lines, headings } => {
+                let lines: Vec<String> = lines.iter().map(f64::to_string).collect();
+                write!(
+                    f,
+                    "no calibration manoeuvre was detected on line(s) {}: each line's whole span is a calibration window",
+                    lines.join(", ")
+                )?;
+                match headings {
+                    Some(note) => write!(f, "; {note}"),
+                    None => Ok(()),
+                }
+            }
+            _ => write!(f, "{self:?}"),
+        }
+    }
+
     /// The sentence of a note of the reduced columns.
     fn write_reduced(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
@@ -2190,6 +2273,28 @@ mod tests {
                     held_out: Some((4, 0.00123456, 0.002)),
                 },
                 "grad_1_2_c: (mag_1_uc − mag_2_uc)/5.000 m, from the model fitted to the difference (the smaller held-out residual); held out by heading (4 headings): direct 0.00123 nT/m, difference 0.00200 nT/m".into(),
+            ),
+            (
+                Note::LinesAsWindows {
+                    lines: vec![1001.0, 1002.0],
+                    headings: Some(Box::new(Note::WindowHeadings {
+                        headings_deg: vec![0.0, 180.0],
+                        without: 1,
+                    })),
+                },
+                "no calibration manoeuvre was detected on line(s) 1001, 1002: each line's whole span is a calibration window; 2 window(s) given by time take their leg's heading from the INS yaw (0°, 180°); 1 window(s) given by time span a turn or lack the yaw and keep no heading".into(),
+            ),
+            (
+                Note::FluxgateCalibrated {
+                    sensor: "flux_a".into(),
+                    reference: "mag_1_uc".into(),
+                    scale: [1.01321, 0.98631, 1.0118],
+                    non_orthogonality_deg: [0.4521, -0.2991, 0.781],
+                    offset_nt: [109.54, -49.42, 66.4],
+                    mismatch_rms_nt: [194.214, 0.18],
+                    rows: 16120,
+                },
+                "flux_a calibrated against mag_1_uc: scale 1.0132 0.9863 1.0118, non-orthogonality 0.452 -0.299 0.781°, offset 109.5 -49.4 66.4 nT; |B| mismatch 194.21 → 0.18 nT RMS over 16120 rows".into(),
             ),
             (
                 Note::BaseStationRemoved {

@@ -34,7 +34,8 @@ pub(super) fn run_applied(
     let raw_log = screened.log_or(&recorded);
     let (mut models, sensor, channels) = models_on_flight(saved, job, (raw_log, &screened.screening))?;
     let applied = saved.applied(raw_log.date(), &recorded)?;
-    let (model_said, mut notes) = model_words(job, options, saved, (&applied, &channels), raw_log);
+    let (model_said, model_notes) = model_words(job, options, saved, (&applied, &channels), raw_log);
+    let mut notes: Vec<Note> = model_notes.into_iter().map(Note::from).collect();
     let mut warnings: Vec<Warning> = screened.warnings(&recorded);
     warnings.extend(model_said);
     let calibrated = saved
@@ -45,12 +46,9 @@ pub(super) fn run_applied(
     let flight = (job, raw_log, log);
     hold_out_on_own_windows(flight, (&sensor, &mut models), (options, &applied), &mut notes)?;
     let (mut compensation, quality) = compensate_applied(log, &models, (options, meter), &mut warnings)?;
-    notes.extend(job.assigned_model.clone());
-    notes.extend(renaming);
-    let said = Said {
-        warnings,
-        notes: notes.into_iter().map(Note::from).collect(),
-    };
+    notes.extend(job.assigned_model.clone().map(Note::from));
+    notes.extend(renaming.into_iter().map(Note::from));
+    let said = Said { warnings, notes };
     let said = beside_the_scalars(
         (log, &recorded, compensated),
         saved,
@@ -150,7 +148,7 @@ fn hold_out_on_own_windows(
         &mut [crate::model::FittedModel],
     ),
     (options, applied): (&Settings, &crate::apply::AppliedModel),
-    notes: &mut Vec<String>,
+    notes: &mut Vec<Note>,
 ) -> Result<()> {
     if job.windows.is_empty() && job.lines.is_empty() {
         return Ok(());
@@ -160,7 +158,7 @@ fn hold_out_on_own_windows(
     for model in models {
         model.windows = model.held_out(log, sensor, &windows, &options.fit)?;
     }
-    notes.push(held_out_note(applied.fitted_on_this_flight, windows.len()));
+    notes.push(held_out_note(applied.fitted_on_this_flight, windows.len()).into());
     Ok(())
 }
 

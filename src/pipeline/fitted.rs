@@ -53,7 +53,7 @@ pub(super) fn run_fitted(
     let fitted = fit_channels(&on, &plan, options, meter)?;
     let mut assessed = compensate_and_assess(&flight, &on, fitted, (options, meter))?;
     let added_columns = added_column_names(on.log, compensated, &assessed.compensation)?;
-    let stage_notes: Vec<String> = (flight.headings_note.iter().cloned())
+    let stage_notes: Vec<Note> = (flight.headings_note.iter().cloned())
         .chain(fluxgate.iter().map(|c| c.summary()))
         .collect();
     let next_step = next_step(options.diagnose.apply, job.diagnosis.is_some(), diagnosis.is_some());
@@ -170,7 +170,7 @@ impl Assessed {
     /// `warnings`.
     fn messages(
         &mut self,
-        (flight, log, added_columns, stage_notes): (&PreparedFlight, &FlightLog, &[String], Vec<String>),
+        (flight, log, added_columns, stage_notes): (&PreparedFlight, &FlightLog, &[String], Vec<Note>),
         (departures, next_step): (&BTreeMap<String, f64>, &str),
         options: &Settings,
         (notes, warnings): (&mut Vec<Note>, &mut Vec<Warning>),
@@ -179,7 +179,7 @@ impl Assessed {
         notes.extend(renaming_notes(&flight.channels, added_columns));
         warnings.extend(self.compensation.out_of_range_warnings(log.time_s()));
         notes.append(&mut self.notes);
-        notes.extend(Note::said(stage_notes));
+        notes.extend(stage_notes);
         let excitation = std::mem::take(&mut self.excitation_notes);
         model_messages(&self.models, excitation, (notes, warnings));
         let (vector, gradients) = (&mut self.vector, &mut self.gradients);

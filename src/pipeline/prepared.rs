@@ -42,7 +42,7 @@ pub fn calibration_windows(
 ) -> Result<(
     Vec<crate::calibration::windows::CalibrationWindow>,
     Option<Detection>,
-    Option<String>,
+    Option<Note>,
 )> {
     let tolerance = options.detect.heading_tolerance_deg;
     if !job.windows.is_empty() {
@@ -76,15 +76,11 @@ pub fn calibration_windows(
         })
         .collect();
     let (windows, note) = crate::calibration::windows::headings_from_ins(log, &whole, tolerance);
-    let said = format!(
-        "no calibration manoeuvre was detected on line(s) {}: each line's whole span is a calibration window",
-        job.lines.iter().map(|l| l.to_string()).collect::<Vec<_>>().join(", ")
-    );
-    Ok((
-        windows,
-        None,
-        Some(note.map_or(said.clone(), |n| format!("{said}; {n}"))),
-    ))
+    let said = Note::LinesAsWindows {
+        lines: job.lines.clone(),
+        headings: note.map(Box::new),
+    };
+    Ok((windows, None, Some(said)))
 }
 
 /// Diagnoses a screened flight `log`: its vector sensor and channels and
@@ -133,7 +129,7 @@ pub struct PreparedFlight {
     /// The detection that gave the windows, when they were detected.
     pub detection: Option<Detection>,
     /// How the given windows' headings were found, when they were given.
-    pub headings_note: Option<String>,
+    pub headings_note: Option<Note>,
 }
 
 impl PreparedFlight {
@@ -192,7 +188,7 @@ struct Chosen {
     channels: Vec<String>,
     windows: Vec<CalibrationWindow>,
     detection: Option<Detection>,
-    headings_note: Option<String>,
+    headings_note: Option<Note>,
 }
 
 impl Chosen {
