@@ -1566,19 +1566,9 @@ impl fmt::Display for Note {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             Note::Said(sentence) => f.write_str(sentence),
-            Note::WindowHeadings { .. } | Note::LinesAsWindows { .. } => self.write_windows(f),
-            Note::FluxgateCalibrated {
-                sensor,
-                reference,
-                scale: [sx, sy, sz],
-                non_orthogonality_deg: [nx, ny, nz],
-                offset_nt: [ox, oy, oz],
-                mismatch_rms_nt: [before, after],
-                rows,
-            } => write!(
-                f,
-                "{sensor} calibrated against {reference}: scale {sx:.4} {sy:.4} {sz:.4}, non-orthogonality {nx:.3} {ny:.3} {nz:.3}°, offset {ox:.1} {oy:.1} {oz:.1} nT; |B| mismatch {before:.2} → {after:.2} nT RMS over {rows} rows"
-            ),
+            Note::WindowHeadings { .. } | Note::LinesAsWindows { .. } | Note::FluxgateCalibrated { .. } => {
+                self.write_calibration(f)
+            }
             Note::Detected { .. }
             | Note::AttitudeFromFluxgate
             | Note::NoManoeuvres
@@ -1632,9 +1622,22 @@ impl fmt::Display for Note {
 }
 
 impl Note {
-    /// The sentence of a note on calibration windows not detected.
-    fn write_windows(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+    /// The sentence of a note on the calibration: windows not detected,
+    /// the fluxgate's own calibration.
+    fn write_calibration(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
+            Note::FluxgateCalibrated {
+                sensor,
+                reference,
+                scale: [sx, sy, sz],
+                non_orthogonality_deg: [nx, ny, nz],
+                offset_nt: [ox, oy, oz],
+                mismatch_rms_nt: [before, after],
+                rows,
+            } => write!(
+                f,
+                "{sensor} calibrated against {reference}: scale {sx:.4} {sy:.4} {sz:.4}, non-orthogonality {nx:.3} {ny:.3} {nz:.3}°, offset {ox:.1} {oy:.1} {oz:.1} nT; |B| mismatch {before:.2} → {after:.2} nT RMS over {rows} rows"
+            ),
             Note::WindowHeadings { headings_deg, without } => {
                 let keep_none =
                     format!("{without} window(s) given by time span a turn or lack the yaw and keep no heading");
