@@ -33,7 +33,7 @@ use crate::error::{Error, Result};
 use crate::ingest::flight_date::FlightDate;
 use crate::ingest::flight_identity::FlightIdentity;
 use crate::ingest::flight_log::FlightLog;
-use crate::messages::Warning;
+use crate::messages::{Note, Warning};
 use crate::model::{CalibrationLevel, FittedModel, ModelSpec};
 use crate::numerics::solve::{Decomposition, Method, Solution};
 use crate::quality::ChannelQuality;
@@ -420,7 +420,7 @@ impl SavedModel {
         &self,
         log: &FlightLog,
         names: &std::collections::BTreeMap<String, String>,
-    ) -> Result<(SavedModel, Vec<String>)> {
+    ) -> Result<(SavedModel, Vec<Note>)> {
         let refuse = |message: String| Error::Config {
             source_name: "[model] channels".into(),
             message,
@@ -436,9 +436,10 @@ impl SavedModel {
             }
             let Some(target) = log.channel(column) else {
                 if own && self.channels().contains(&model.as_str()) {
-                    notes.push(format!(
-                        "the flight records the model's channel '{model}' under its own name: [model] channels' '{column}' is not used for it"
-                    ));
+                    notes.push(Note::ModelChannelOwnName {
+                        model: model.clone(),
+                        column: column.clone(),
+                    });
                 }
                 if own || !self.channels().contains(&model.as_str()) {
                     used.insert(model.clone(), column.clone());
@@ -462,9 +463,10 @@ impl SavedModel {
                     "'{model}' = '{column}': the flight records both '{model}' and '{column}', so which one the model compensates is not known; remove the line, or rename one column"
                 )));
             }
-            notes.push(format!(
-                "the model's channel '{model}' compensates this flight's column '{column}' ([model] channels)"
-            ));
+            notes.push(Note::ModelChannelMapped {
+                model: model.clone(),
+                column: column.clone(),
+            });
             used.insert(model.clone(), column.clone());
         }
         // Names of the model the flight records under their own name are
@@ -799,7 +801,7 @@ impl SavedModel {
         applied: &AppliedModel,
         aircraft: Option<&str>,
         max_age_days: u32,
-    ) -> (Vec<Warning>, Vec<String>) {
+    ) -> (Vec<Warning>, Vec<Note>) {
         let (mut warnings, mut notes) = (Vec::new(), Vec::new());
         match applied.age_days {
             Some(age_days) if age_days.unsigned_abs() > u64::from(max_age_days) => {
@@ -810,13 +812,9 @@ impl SavedModel {
                 })
             }
             Some(_) => {}
-            None => notes.push(format!(
-                "the model's age is not known: {} has no date (give [[flight]] date, or record year and doy columns)",
-                match applied.date {
-                    None => "the calibration flight",
-                    Some(_) => "this flight",
-                }
-            )),
+            None => notes.push(Note::ModelAgeUnknown {
+                calibration_undated: applied.date.is_none(),
+            }),
         }
         let same = |a: &str, b: &str| a.trim().eq_ignore_ascii_case(b.trim());
         match (applied.aircraft.as_deref(), aircraft) {
@@ -826,14 +824,10 @@ impl SavedModel {
                 used: used.to_string(),
             }),
             (Some(_), Some(_)) => {}
-            (made, used) => notes.push(format!(
-                "the aircraft is not named for {}: magcomp cannot check that the model is this airframe's (name it with [[flight]] aircraft)",
-                match (made, used) {
-                    (None, None) => "either flight",
-                    (None, Some(_)) => "the calibration flight",
-                    _ => "this flight",
-                }
-            )),
+            (made, used) => notes.push(Note::AircraftUnnamed {
+                calibration_named: made.is_some(),
+                flight_named: used.is_some(),
+            }),
         }
         (warnings, notes)
     }

@@ -20,8 +20,8 @@
 //! which model a channel was fitted with, an analysis not made, what
 //! detection found, the flight against its plan); it is printed with `-v`
 //! and kept in the quality JSON and the report, and typed the same way.
-//! The notes of the vector stage and a saved model's words still come as
-//! their sentence: [`Note::Said`].
+//! The vector stage's model summary and the flight's assigned model still
+//! come as their sentence: [`Note::Said`].
 
 use std::fmt;
 
@@ -1428,6 +1428,51 @@ pub enum Note {
         /// The additions' manoeuvres.
         additions: usize,
     },
+    /// A saved model's age is not known: a flight has no date.
+    ModelAgeUnknown {
+        /// Whether the calibration flight is the one without a date (else
+        /// this flight).
+        calibration_undated: bool,
+    },
+    /// A flight's aircraft is not named, so the model's airframe is not
+    /// checked.
+    AircraftUnnamed {
+        /// Whether the calibration flight names it.
+        calibration_named: bool,
+        /// Whether this flight names it.
+        flight_named: bool,
+    },
+    /// The saved model was fitted on this very flight.
+    ModelOnItsOwnFlight,
+    /// The saved model is set against the flight's own calibration
+    /// windows.
+    ModelHeldOut {
+        /// The windows.
+        windows: usize,
+        /// Whether the model was fitted on this flight (in sample).
+        own_flight: bool,
+    },
+    /// The flight records the model's channel under its own name, so the
+    /// `[model] channels` line for it is not used.
+    ModelChannelOwnName {
+        /// The model's channel.
+        model: String,
+        /// The column the line names.
+        column: String,
+    },
+    /// The model's channel compensates another column of this flight.
+    ModelChannelMapped {
+        /// The model's channel.
+        model: String,
+        /// The flight's column.
+        column: String,
+    },
+    /// No vector compensation with a saved model.
+    NoSavedVectorCompensation {
+        /// Whether the flight records an INS attitude (then the model
+        /// holds no vector model).
+        attitude: bool,
+    },
     /// The fluxgate was calibrated against a scalar magnetometer.
     FluxgateCalibrated {
         /// The fluxgate.
@@ -1579,6 +1624,14 @@ impl fmt::Display for Note {
             Note::NoEstimatorTable { .. } | Note::EstimatorTableLacks { .. } | Note::NoBoxTransfer { .. } => {
                 self.write_fit(f)
             }
+            Note::ModelAgeUnknown { .. }
+            | Note::AircraftUnnamed { .. }
+            | Note::ModelOnItsOwnFlight
+            | Note::ModelHeldOut { .. }
+            | Note::ModelChannelOwnName { .. }
+            | Note::ModelChannelMapped { .. }
+            | Note::NoSavedVectorCompensation { .. }
+            | Note::SavedFindings { .. } => self.write_saved_model(f),
             Note::BaseStationRemoved { .. } | Note::MainFieldRemoved { .. } => self.write_reduced(f),
             Note::PlanLacksChannel { .. }
             | Note::PlanChannelNotCompensated { .. }
@@ -1598,30 +1651,83 @@ impl fmt::Display for Note {
             Note::DiagnosedModel { channel, model } => {
                 write!(f, "{channel}: fitted and compensated with the diagnosed model: {model}")
             }
-            Note::UnitsRow { path, units } => {
-                const LISTED: usize = 6;
-                let listed: Vec<String> = (units.iter().take(LISTED))
-                    .map(|(column, unit)| format!("{column} {unit}"))
-                    .collect();
-                let more = match units.len().saturating_sub(LISTED) {
-                    0 => String::new(),
-                    n => format!(" and {n} more"),
-                };
-                write!(
-                    f,
-                    "line 2 of {} is a row of units ({}{more}): it is read as units, not data; a compensated CSV keeps it, with the added columns' units",
-                    path.display(),
-                    listed.join(", ")
-                )
-            }
-            Note::SavedFindings { channel, model } => {
-                write!(f, "{channel}: compensated with the saved model's findings: {model}")
-            }
+            Note::UnitsRow { path, units } => write_units_row(f, path, units),
         }
     }
 }
 
+/// The sentence of [`Note::UnitsRow`]: the first six columns' units, and
+/// how many more.
+fn write_units_row(f: &mut fmt::Formatter<'_>, path: &std::path::Path, units: &[(String, String)]) -> fmt::Result {
+    const LISTED: usize = 6;
+    let listed: Vec<String> = (units.iter().take(LISTED))
+        .map(|(column, unit)| format!("{column} {unit}"))
+        .collect();
+    let more = match units.len().saturating_sub(LISTED) {
+        0 => String::new(),
+        n => format!(" and {n} more"),
+    };
+    write!(
+        f,
+        "line 2 of {} is a row of units ({}{more}): it is read as units, not data; a compensated CSV keeps it, with the added columns' units",
+        path.display(),
+        listed.join(", ")
+    )
+}
+
 impl Note {
+    /// The sentence of a note on a saved model applied to this flight.
+    fn write_saved_model(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Note::ModelAgeUnknown { calibration_undated } => write!(
+                f,
+                "the model's age is not known: {} has no date (give [[flight]] date, or record year and doy columns)",
+                if *calibration_undated { "the calibration flight" } else { "this flight" }
+            ),
+            Note::AircraftUnnamed {
+                calibration_named,
+                flight_named,
+            } => write!(
+                f,
+                "the aircraft is not named for {}: magcomp cannot check that the model is this airframe's (name it with [[flight]] aircraft)",
+                match (calibration_named, flight_named) {
+                    (false, false) => "either flight",
+                    (false, true) => "the calibration flight",
+                    _ => "this flight",
+                }
+            ),
+            Note::ModelOnItsOwnFlight => f.write_str(
+                "the model was fitted on this very flight: its compensation is that of the calibration run",
+            ),
+            Note::ModelHeldOut { windows, own_flight: true } => write!(
+                f,
+                "the model is set against {windows} calibration window(s) of the flight it was fitted on: its FOM and IR here are in sample"
+            ),
+            Note::ModelHeldOut { windows, own_flight: false } => write!(
+                f,
+                "the model is held out on this flight's {windows} calibration window(s): its FOM and IR here are of a model fitted on another flight"
+            ),
+            Note::ModelChannelOwnName { model, column } => write!(
+                f,
+                "the flight records the model's channel '{model}' under its own name: [model] channels' '{column}' is not used for it"
+            ),
+            Note::ModelChannelMapped { model, column } => write!(
+                f,
+                "the model's channel '{model}' compensates this flight's column '{column}' ([model] channels)"
+            ),
+            Note::NoSavedVectorCompensation { attitude: false } => {
+                f.write_str("no vector compensation: the flight records no INS attitude (roll, pitch and yaw)")
+            }
+            Note::SavedFindings { channel, model } => {
+                write!(f, "{channel}: compensated with the saved model's findings: {model}")
+            }
+            Note::NoSavedVectorCompensation { attitude: true } => f.write_str(
+                "no vector compensation: the model holds no vector model (its calibration flight fitted none: no INS attitude, or [vector] enabled = false there)",
+            ),
+            _ => write!(f, "{self:?}"),
+        }
+    }
+
     /// The sentence of a note on the calibration: windows not detected,
     /// the fluxgate's own calibration.
     fn write_calibration(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
@@ -2276,6 +2382,20 @@ mod tests {
                     held_out: Some((4, 0.00123456, 0.002)),
                 },
                 "grad_1_2_c: (mag_1_uc − mag_2_uc)/5.000 m, from the model fitted to the difference (the smaller held-out residual); held out by heading (4 headings): direct 0.00123 nT/m, difference 0.00200 nT/m".into(),
+            ),
+            (
+                Note::AircraftUnnamed {
+                    calibration_named: false,
+                    flight_named: true,
+                },
+                "the aircraft is not named for the calibration flight: magcomp cannot check that the model is this airframe's (name it with [[flight]] aircraft)".into(),
+            ),
+            (
+                Note::ModelHeldOut {
+                    windows: 3,
+                    own_flight: false,
+                },
+                "the model is held out on this flight's 3 calibration window(s): its FOM and IR here are of a model fitted on another flight".into(),
             ),
             (
                 Note::LinesAsWindows {

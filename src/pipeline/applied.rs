@@ -35,7 +35,7 @@ pub(super) fn run_applied(
     let (mut models, sensor, channels) = models_on_flight(saved, job, (raw_log, &screened.screening))?;
     let applied = saved.applied(raw_log.date(), &recorded)?;
     let (model_said, model_notes) = model_words(job, options, saved, (&applied, &channels), raw_log);
-    let mut notes: Vec<Note> = model_notes.into_iter().map(Note::from).collect();
+    let mut notes = model_notes;
     let mut warnings: Vec<Warning> = screened.warnings(&recorded);
     warnings.extend(model_said);
     let calibrated = saved
@@ -47,7 +47,7 @@ pub(super) fn run_applied(
     hold_out_on_own_windows(flight, (&sensor, &mut models), (options, &applied), &mut notes)?;
     let (mut compensation, quality) = compensate_applied(log, &models, (options, meter), &mut warnings)?;
     notes.extend(job.assigned_model.clone().map(Note::from));
-    notes.extend(renaming.into_iter().map(Note::from));
+    notes.extend(renaming);
     let said = Said { warnings, notes };
     let said = beside_the_scalars(
         (log, &recorded, compensated),
@@ -130,7 +130,7 @@ fn renamed_model(
     saved: &crate::apply::SavedModel,
     recorded: &FlightLog,
     options: &Settings,
-) -> Result<(Option<crate::apply::SavedModel>, Vec<String>)> {
+) -> Result<(Option<crate::apply::SavedModel>, Vec<Note>)> {
     if options.model_channels.is_empty() {
         return Ok((None, Vec::new()));
     }
@@ -158,7 +158,10 @@ fn hold_out_on_own_windows(
     for model in models {
         model.windows = model.held_out(log, sensor, &windows, &options.fit)?;
     }
-    notes.push(held_out_note(applied.fitted_on_this_flight, windows.len()).into());
+    notes.push(Note::ModelHeldOut {
+        windows: windows.len(),
+        own_flight: applied.fitted_on_this_flight,
+    });
     Ok(())
 }
 
@@ -187,7 +190,7 @@ fn beside_the_scalars(
         }
         said.warnings.extend(vector_warnings);
     }
-    said.notes.extend(vector_not_run(options, saved, log).map(Note::from));
+    said.notes.extend(vector_not_run(options, saved, log));
     let gradients = crate::gradient::gradients_from_saved_model(models, compensation, &options.gradients);
     compensation.gradients = gradients.compensated;
     said.notes.extend(gradients.notes);
@@ -234,11 +237,11 @@ fn model_words(
     saved: &crate::apply::SavedModel,
     (applied, channels): (&crate::apply::AppliedModel, &[String]),
     raw_log: &FlightLog,
-) -> (Vec<Warning>, Vec<String>) {
+) -> (Vec<Warning>, Vec<Note>) {
     let (mut warnings, mut notes) =
         saved.age_and_aircraft(applied, job.aircraft.as_deref(), options.model_max_age_days);
     if applied.fitted_on_this_flight {
-        notes.push("the model was fitted on this very flight: its compensation is that of the calibration run".into());
+        notes.push(Note::ModelOnItsOwnFlight);
     }
     warnings.extend(saved.calibration_warnings(channels, options.fom_limit_nt));
     let vector = options.vector.enabled && raw_log.attitude().is_some();
@@ -256,18 +259,6 @@ fn model_words(
         }
     }
     (warnings, notes)
-}
-
-/// What the figures on the flight's own windows are.
-fn held_out_note(fitted_on_this_flight: bool, windows: usize) -> String {
-    match fitted_on_this_flight {
-        true => format!(
-            "the model is set against {windows} calibration window(s) of the flight it was fitted on: its FOM and IR here are in sample"
-        ),
-        false => format!(
-            "the model is held out on this flight's {windows} calibration window(s): its FOM and IR here are of a model fitted on another flight"
-        ),
-    }
 }
 
 /// Each compensated channel's figures and sigma column, with the
@@ -321,13 +312,13 @@ fn assess_applied(
 /// The note on the vector compensation a saved model cannot run (it holds
 /// no vector model), when the settings ask for it and the flight records a
 /// fluxgate.
-fn vector_not_run(options: &Settings, saved: &crate::apply::SavedModel, log: &FlightLog) -> Option<String> {
+fn vector_not_run(options: &Settings, saved: &crate::apply::SavedModel, log: &FlightLog) -> Option<Note> {
     if !options.vector.enabled || log.vector_sensors().is_empty() {
         return None;
     }
     match (log.attitude().is_some(), saved.has_vector_models()) {
-        (false, _) => Some("no vector compensation: the flight records no INS attitude (roll, pitch and yaw)".into()),
-        (true, false) => Some("no vector compensation: the model holds no vector model (its calibration flight fitted none: no INS attitude, or [vector] enabled = false there)".into()),
+        (false, _) => Some(Note::NoSavedVectorCompensation { attitude: false }),
+        (true, false) => Some(Note::NoSavedVectorCompensation { attitude: true }),
         (true, true) => None,
     }
 }
