@@ -16,8 +16,10 @@
 //! Seeds per effect: 10 in `cargo test` (`MAGCOMP_DEFAULT_SEEDS=N` for
 //! more), each with its own layout: the tail, cabin and wing sensors that
 //! carry the effects and 0–3 more, at a random site, rate (10 or 20 Hz)
-//! and box heading. Odd seeds fly four lines crossed by three tie lines, so
-//! the crossover levelling of the evidence rule is tested against real
+//! and box heading; half the boxes flown as crews fly them (manoeuvres
+//! back to back with the airframe's coupled motion), and the fluxgate
+//! mounted any way round on half the flights. Odd seeds fly four lines
+//! crossed by three tie lines, so the crossover levelling of the evidence rule is tested against real
 //! gains too; even seeds fly six lines back and forth with no tie, for the
 //! rule's comparison of neighbouring lines.
 
@@ -69,8 +71,9 @@ const EFFECTS: [(&str, &str, &str); 6] = [
 
 /// The tail, cabin and wing sensors that carry the effects, with 0–3
 /// more at random places (tail, cabin, wing, nose) and noise levels, at a
-/// random site, rate and box heading: the layout drawn from `seed`, the
-/// effect unchanged.
+/// random site, rate and box heading, the box flown as crews fly it on
+/// half the seeds and the fluxgate mounted any way round on half: the
+/// layout drawn from `seed`, the effect unchanged.
 fn random_layout(seed: u64, effect: &str) -> Scenario {
     let mut raw = common::three_sensor_scenario(seed, effect).raw;
     let mut draw = Random::new(0xEFFEC7 ^ seed).fork("layout");
@@ -92,6 +95,17 @@ fn random_layout(seed: u64, effect: &str) -> Scenario {
     raw.site.longitude_deg = draw.uniform(-180.0, 180.0);
     let base = draw.uniform(0.0, 90.0).round();
     raw.calibration.headings_deg = (0..4).map(|k| base + 90.0 * k as f64).collect();
+    // Half the boxes flown as crews fly them, and the fluxgate mounted any
+    // way round (their own draws: the rest of the layout is unchanged).
+    let mut crew = Random::new(0xEFFEC7 ^ seed).fork("crew");
+    if crew.uniform(0.0, 1.0) < 0.5 {
+        common::fly_box_as_crews_do(&mut raw.calibration, &mut crew);
+    }
+    let mut mount = Random::new(0xEFFEC7 ^ seed).fork("mounting");
+    let turned = mount.uniform(0.0, 1.0) < 0.5;
+    let (axes, turn) = common::random_mounting(&mut mount, turned);
+    raw.fluxgate[0].axes = axes;
+    raw.fluxgate[0].turn_deg = turn;
     Scenario::try_from(raw).unwrap()
 }
 

@@ -115,20 +115,7 @@ fn clean_plan(seed: u64) -> RawScenario {
     // the rest of the plan is unchanged).
     let mut crew = Random::new(0x5AFE ^ seed).fork("clean flight crew");
     if crew.uniform(0.0, 1.0) < 0.5 {
-        let box_ = &mut raw.calibration;
-        box_.pause_s = [0.0, crew.uniform(0.0, 1.5)];
-        let quickest = crew.uniform(1.5, 4.0);
-        box_.turn_entry_s = [quickest, crew.uniform(quickest, 6.0)];
-        let mut range = |low: f64, high: f64| {
-            let a = crew.uniform(low, high);
-            [a, crew.uniform(a, high)]
-        };
-        let coupling = &mut box_.coupling;
-        coupling.pitch_roll = range(0.1, 0.3);
-        coupling.roll_pitch = range(0.0, 0.1);
-        coupling.roll_yaw = range(0.2, 0.4);
-        coupling.yaw_roll = range(0.3, 0.55);
-        coupling.lag_deg = [0.0, 60.0];
+        common::fly_box_as_crews_do(&mut raw.calibration, &mut crew);
     }
     // Tie lines across the block, as most surveys fly them (their own
     // draws: the rest of the plan is unchanged).

@@ -331,3 +331,25 @@ pub fn random_mounting(draw: &mut magcomp::simulate::random::Random, turned: boo
     };
     (axes, turn)
 }
+
+/// The box flown as real crews fly it (measured on a survey aircraft):
+/// pitch, roll and yaw back to back, turns rolled into, and the airframe's
+/// cross-axis response to each manoeuvre, drawn from `crew`.
+pub fn fly_box_as_crews_do(
+    box_: &mut magcomp::simulate::scenario::Calibration,
+    crew: &mut magcomp::simulate::random::Random,
+) {
+    box_.pause_s = [0.0, crew.uniform(0.0, 1.5)];
+    let quickest = crew.uniform(1.5, 4.0);
+    box_.turn_entry_s = [quickest, crew.uniform(quickest, 6.0)];
+    let mut range = |low: f64, high: f64| {
+        let a = crew.uniform(low, high);
+        [a, crew.uniform(a, high)]
+    };
+    let coupling = &mut box_.coupling;
+    coupling.pitch_roll = range(0.1, 0.3);
+    coupling.roll_pitch = range(0.0, 0.1);
+    coupling.roll_yaw = range(0.2, 0.4);
+    coupling.yaw_roll = range(0.3, 0.55);
+    coupling.lag_deg = [0.0, 60.0];
+}
