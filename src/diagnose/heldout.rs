@@ -104,19 +104,12 @@ pub(super) fn residuals(
     let (mut terms, mut fewest_training_samples) = (0, usize::MAX);
     let mut ridge = Vec::new();
     // Every window of the splits band-passed once, each split's fit and
-    // residual taken from it, when the model allows it.
-    let shared = match prepared.reads_scalar_as_prepared() {
-        true => {
-            let (every, places) = every_window(&splits);
-            Some((prepared.band(&every, &options, problem.stores)?, places))
-        }
-        false => None,
-    };
-    for (split, (out, rest)) in splits.into_iter().enumerate() {
-        let fitted = match &shared {
-            Some((band, places)) => prepared.fit_within(band, &places[split][1], &options, problem.stores)?,
-            None => prepared.fit(&rest, &options, problem.stores)?,
-        };
+    // residual taken from it (the second-order passes band-pass only the
+    // scalar again).
+    let (every, places) = every_window(&splits);
+    let band = prepared.band(&every, &options, problem.stores)?;
+    for place in &places {
+        let fitted = prepared.fit_within(&band, &place[1], &options, problem.stores)?;
         let solution = &fitted.solution;
         ridge.push(solution.lambda.unwrap_or_else(|| {
             let sigma = &solution.singular_values;
@@ -127,14 +120,9 @@ pub(super) fn residuals(
         }));
         terms = terms.max(fitted.coefficients.len());
         fewest_training_samples = fewest_training_samples.min(fitted.solution.samples);
-        windows.extend(match &shared {
-            Some((band, places)) => prepared.held_out_within(band, &fitted, &places[split][0], problem.stores),
-            None => prepared.held_out(&fitted, &out, &options, problem.stores)?,
-        });
+        windows.extend(prepared.held_out_within(&band, &fitted, (&place[0], &options), problem.stores)?);
     }
-    if let Some((band, _)) = shared {
-        problem.stores.recycle(band.stacked);
-    }
+    problem.stores.recycle(band.stacked);
     let all: Vec<f64> = windows.iter().flat_map(|w| w.band_after_nt.iter().copied()).collect();
     Ok(HeldOut {
         rms_nt: root_mean_square(&all),

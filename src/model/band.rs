@@ -213,6 +213,93 @@ pub(crate) fn band_data(
     })
 }
 
+/// Replaces `band`'s target by `scalar` band-passed over the same windows,
+/// the design columns as they are: bit for bit what [`band_data`] gives
+/// with `scalar`, since each column is band-passed in its own lane. False,
+/// with `band` untouched, when `scalar` is not valid on the very runs the
+/// band was made from (then only [`band_data`] will do).
+pub(crate) fn replace_target(
+    band: &mut BandData,
+    log: &FlightLog,
+    (sensor, extra): (&VectorSensor, &[&[f64]]),
+    (channel, scalar): (&str, &[f64]),
+    settings: &FilterSettings,
+    stores: &StorePool,
+) -> Result<bool> {
+    if scalar.len() != log.len() {
+        return Err(Error::LengthMismatch {
+            column: channel.to_string(),
+            found: scalar.len(),
+            expected: log.len(),
+        });
+    }
+    let filter = design_filter(log, settings)?;
+    let trim = settings.trim_samples;
+    let needed = filter.min_samples().max(2 * trim + 1);
+    let mut plans = Vec::with_capacity(band.windows.len());
+    for fit in &band.windows {
+        let Ok(plan) = WindowPlan::new(log, sensor, (scalar, extra), &fit.window, needed, trim) else {
+            return Ok(false);
+        };
+        let runs = plan.runs.iter().map(|r| r.start + trim..r.end - trim);
+        if !runs.eq(fit.flight_rows.iter().cloned()) {
+            return Ok(false);
+        }
+        plans.push(plan);
+    }
+    let target = filter_target(scalar, &plans, (&filter, trim), stores).map_err(|e| Error::Fit {
+        path: log.source().to_path_buf(),
+        channel: channel.into(),
+        source: e.into(),
+    })?;
+    if !band.stacked.take_target(&target) {
+        stores.recycle(target);
+        return Ok(false);
+    }
+    stores.recycle(target);
+    let columns = band.stacked.columns();
+    for fit in &mut band.windows {
+        fit.band_before_nt = band.stacked.column_range(columns, fit.stacked_rows.clone());
+    }
+    Ok(true)
+}
+
+/// `scalar` band-passed and stacked alone, over every run of `plans`, as
+/// [`stack_filtered`] stacks a target: a store with no design columns.
+fn filter_target(
+    scalar: &[f64],
+    plans: &[WindowPlan],
+    (filter, trim): (&ZeroPhaseFilter, usize),
+    stores: &StorePool,
+) -> std::result::Result<Stacked, FilterError> {
+    let fold_lengths: Vec<usize> = plans.iter().map(|p| p.used(trim)).collect();
+    let mut builder = StackedBuilder::new(&fold_lengths, 0, stores);
+    let runs: Vec<Range<usize>> = plans.iter().flat_map(|p| p.runs.iter().cloned()).collect();
+    let mut stacked_rows = Vec::with_capacity(runs.len());
+    let mut start = 0;
+    for run in &runs {
+        stacked_rows.push(start..start + run.len() - 2 * trim);
+        start += run.len() - 2 * trim;
+    }
+    let panel = builder
+        .segments_mut(&stacked_rows)
+        .into_iter()
+        .next()
+        .unwrap_or_default();
+    panel.into_par_iter().enumerate().try_for_each(|(index, mut output)| {
+        let run = runs[index].clone();
+        let source = |rows: Range<usize>, out: &mut [[f64; LANES]]| {
+            let rows = run.start + rows.start..run.start + rows.end;
+            for (row, &value) in out.iter_mut().zip(&scalar[rows]) {
+                *row = [0.0; LANES];
+                row[0] = value;
+            }
+        };
+        filter.apply_panel(run.len(), source, &mut output, trim)
+    })?;
+    Ok(builder.finish())
+}
+
 /// The runs of one window that are long enough to filter and trim.
 struct WindowPlan<'w> {
     window: &'w CalibrationWindow,

@@ -11,10 +11,10 @@ use crate::calibration::windows::{merged_rows, CalibrationWindow};
 use crate::error::{Error, Result};
 use crate::ingest::flight_log::{FlightLog, VectorSensor};
 use crate::numerics::estimators::{compare, compare_families, Decomposed, Factor, Scored, Solver};
-use crate::numerics::solve::{solve_stacked, Solution};
+use crate::numerics::solve::{solve_again, solve_keeping, DesignFactor, Solution};
 use crate::numerics::stacked::{Stacked, StorePool};
 
-use super::band::{band_data, BandData, FitOptions, WindowFit};
+use super::band::{band_data, replace_target, BandData, FitOptions, WindowFit};
 use super::extensions::{advanced, advanced_on, field_directions, lagged_rate, rate_at, second_order_term, SourceTerm};
 use super::{FittedModel, ModelSpec, SolverUse, SECOND_ORDER_PASSES};
 
@@ -206,50 +206,87 @@ impl<'a> Prepared<'a> {
             });
         }
         self.check_filled(windows)?;
-        let mut fitted = self.fit_once(&self.scalar, windows, options, stores)?;
-        if self.spec.extensions.second_order {
-            for _ in 0..SECOND_ORDER_PASSES {
-                let corrected = self.corrected(&fitted, windows);
-                fitted = self.fit_once(&corrected, windows, options, stores)?;
+        let band = self.band_with(&self.scalar, windows, options, stores)?;
+        self.fit_passes(band, options, stores)
+    }
+
+    /// The fit on `band` (this model's columns and the scalar as prepared,
+    /// over its windows), then each second-order pass: the same design
+    /// columns fitted to the scalar less the term of the fit before, only
+    /// that scalar band-passed again and the design's decomposition kept.
+    /// The band's store goes back to `stores`.
+    fn fit_passes(&self, mut band: BandData, options: &FitOptions, stores: &StorePool) -> Result<FittedModel> {
+        let fitted = self.passes_on(&mut band, options, stores);
+        stores.recycle(band.stacked);
+        fitted
+    }
+
+    /// [`Self::fit_passes`] on a band it may change.
+    fn passes_on(&self, band: &mut BandData, options: &FitOptions, stores: &StorePool) -> Result<FittedModel> {
+        let (mut fitted, mut factor) = self.fit_on(band, None, options)?;
+        if !self.spec.extensions.second_order {
+            return Ok(fitted);
+        }
+        let windows: Vec<CalibrationWindow> = band.windows.iter().map(|w| w.window.clone()).collect();
+        for _ in 0..SECOND_ORDER_PASSES {
+            let corrected = self.corrected(&fitted, &windows);
+            if !self.replace_target(band, &corrected, options, stores)? {
+                // The corrected scalar is valid on other rows: band it afresh.
+                let afresh = self.band_with(&corrected, &windows, options, stores)?;
+                stores.recycle(std::mem::replace(band, afresh).stacked);
+                factor = None;
             }
+            let (next, made) = self.fit_on(band, factor.as_ref(), options)?;
+            fitted = next;
+            factor = made.or(factor);
         }
         Ok(fitted)
     }
 
-    /// One regularised fit of the terms and extension columns on `log`
-    /// (the prepared flight, or it less the second-order term).
-    fn fit_once(
+    /// [`replace_target`] with this preparation's flight and columns.
+    fn replace_target(
         &self,
+        band: &mut BandData,
         scalar: &[f64],
-        windows: &[CalibrationWindow],
         options: &FitOptions,
         stores: &StorePool,
-    ) -> Result<FittedModel> {
-        let band = self.band_with(scalar, windows, options, stores)?;
-        self.fit_band(band, options, stores)
+    ) -> Result<bool> {
+        replace_target(
+            band,
+            &self.log,
+            (self.sensor, &self.extra_columns()),
+            (self.channel, scalar),
+            &options.filter,
+            stores,
+        )
     }
 
-    /// The fit on band data of this preparation's columns.
-    fn fit_band(&self, band: BandData, options: &FitOptions, stores: &StorePool) -> Result<FittedModel> {
+    /// The fit on `band` of this preparation's columns, its design
+    /// decomposed afresh or, given `factor` (of the same design columns),
+    /// reused; with the decomposition made, if one was.
+    fn fit_on(
+        &self,
+        band: &BandData,
+        factor: Option<&DesignFactor>,
+        options: &FitOptions,
+    ) -> Result<(FittedModel, Option<DesignFactor>)> {
         let terms = self.spec.fitted_terms();
-        let BandData {
-            stacked,
-            windows: mut fits,
-            sample_rate_hz,
-        } = band;
+        let (stacked, sample_rate_hz) = (&band.stacked, band.sample_rate_hz);
         let solve = self.spec.solve_options(&options.solve);
-        let solution = solve_stacked(&stacked, &solve);
-        let mut solution = solution.map_err(|e| Error::Fit {
+        let solved = match factor {
+            Some(factor) => solve_again(stacked, factor, &solve).map(|solution| (solution, None)),
+            None => solve_keeping(stacked, &solve).map(|(solution, made)| (solution, Some(made))),
+        };
+        let (mut solution, made) = solved.map_err(|e| Error::Fit {
             path: self.log.source().to_path_buf(),
             channel: self.channel.into(),
             source: e.into(),
-        });
-        let chosen = match (&mut solution, options.solver) {
-            (Ok(_), Solver::Ridge) | (Err(_), _) => None,
-            (Ok(solution), requested) => Some(solve_on_headings(&stacked, &fits, requested, solution)),
+        })?;
+        let chosen = match options.solver {
+            Solver::Ridge => None,
+            requested => Some(solve_on_headings(stacked, &band.windows, requested, &mut solution)),
         };
-        stores.recycle(stacked);
-        let solution = solution?;
+        let mut fits = band.windows.clone();
         for fit in &mut fits {
             fit.band_after_nt = (fit.band_before_nt.iter())
                 .zip(&solution.fitted[fit.stacked_rows.clone()])
@@ -262,7 +299,7 @@ impl<'a> Prepared<'a> {
         let correlation = (sample_rate_hz / (2.0 * options.filter.band.bandwidth_hz(sample_rate_hz)))
             .max(1.0)
             .sqrt();
-        Ok(FittedModel {
+        let fitted = FittedModel {
             solver: chosen,
             coefficient_uncertainty: solution.standard_errors.iter().map(|e| e * correlation).collect(),
             channel: self.channel.into(),
@@ -281,7 +318,8 @@ impl<'a> Prepared<'a> {
             estimators: None,
             excitation: None,
             calibration_level: None,
-        })
+        };
+        Ok((fitted, made))
     }
 
     /// Every estimator of the family ([`crate::numerics::estimators`]) on
@@ -324,14 +362,6 @@ impl<'a> Prepared<'a> {
         Ok(Self::residual_on(data, fitted, stores))
     }
 
-    /// Whether every fit and held-out residual of this model reads the
-    /// scalar as prepared, so that each is made from a part of one band
-    /// data ([`Self::band`]): true unless the model has the second-order
-    /// term, whose passes change the scalar with each fit.
-    pub(crate) fn reads_scalar_as_prepared(&self) -> bool {
-        !self.spec.extensions.second_order
-    }
-
     /// Band data of `windows` with the scalar as prepared: each window
     /// band-passed once, for [`Self::fit_within`] and
     /// [`Self::held_out_within`] on any part of them.
@@ -365,8 +395,8 @@ impl<'a> Prepared<'a> {
     }
 
     /// [`Self::fit`] on the windows `indices` of `band`: the same fit, bit
-    /// for bit, without band-passing them again. Only for a model that
-    /// [reads the scalar as prepared](Self::reads_scalar_as_prepared).
+    /// for bit, without band-passing their design columns again (the
+    /// second-order passes band-pass only their scalar).
     pub(crate) fn fit_within(
         &self,
         band: &BandData,
@@ -379,8 +409,7 @@ impl<'a> Prepared<'a> {
                 path: self.log.source().to_path_buf(),
             });
         }
-        debug_assert!(self.reads_scalar_as_prepared());
-        self.fit_band(band.windows_subset(indices, stores), options, stores)
+        self.fit_passes(band.windows_subset(indices, stores), options, stores)
     }
 
     /// [`Self::held_out`] on the windows `indices` of `band`, bit for bit.
@@ -388,11 +417,19 @@ impl<'a> Prepared<'a> {
         &self,
         band: &BandData,
         fitted: &FittedModel,
-        indices: &[usize],
+        (indices, options): (&[usize], &FitOptions),
         stores: &StorePool,
-    ) -> Vec<WindowFit> {
-        debug_assert!(self.reads_scalar_as_prepared());
-        Self::residual_on(band.windows_subset(indices, stores), fitted, stores)
+    ) -> Result<Vec<WindowFit>> {
+        let mut data = band.windows_subset(indices, stores);
+        if self.spec.extensions.second_order {
+            let windows: Vec<CalibrationWindow> = data.windows.iter().map(|w| w.window.clone()).collect();
+            let corrected = self.corrected(fitted, &windows);
+            if !self.replace_target(&mut data, &corrected, options, stores)? {
+                let afresh = self.band_with(&corrected, &windows, options, stores)?;
+                stores.recycle(std::mem::replace(&mut data, afresh).stacked);
+            }
+        }
+        Ok(Self::residual_on(data, fitted, stores))
     }
 
     /// Each window's band-passed residual from `fitted`'s prediction.
@@ -765,7 +802,6 @@ mod tests {
             },
         );
         let prepared = Prepared::new(&log, &sensor, "mag_1_uc", &spec).unwrap();
-        assert!(prepared.reads_scalar_as_prepared());
         let options = FitOptions::default();
         let stores = StorePool::new();
         let band = prepared.band(&windows, &options, &stores).unwrap();
@@ -784,11 +820,31 @@ mod tests {
         assert_eq!(bits(&within.solution.fitted), bits(&afresh.solution.fitted));
         assert_eq!(within.windows, afresh.windows);
         let held_afresh = prepared.held_out(&afresh, &pick(&out), &options, &stores).unwrap();
-        let held_within = prepared.held_out_within(&band, &within, &out, &stores);
+        let held_within = (prepared.held_out_within(&band, &within, (&out, &options), &stores)).unwrap();
         assert!(held_within.iter().all(|w| !w.band_after_nt.is_empty()));
         assert_eq!(held_within, held_afresh);
         assert!(prepared.fit_within(&band, &[], &options, &stores).is_err());
-        // The second-order term changes the scalar with each pass.
+    }
+
+    /// The fit of a second-order model as each pass once made it: the
+    /// scalar less the term of the pass before band-passed with every
+    /// design column again, and the design decomposed again.
+    fn second_order_afresh(prepared: &Prepared, windows: &[CalibrationWindow], stores: &StorePool) -> FittedModel {
+        let options = FitOptions::default();
+        let band = prepared.band_with(&prepared.scalar, windows, &options, stores).unwrap();
+        let mut fitted = prepared.fit_on(&band, None, &options).unwrap().0;
+        for _ in 0..SECOND_ORDER_PASSES {
+            let corrected = prepared.corrected(&fitted, windows);
+            let band = prepared.band_with(&corrected, windows, &options, stores).unwrap();
+            fitted = prepared.fit_on(&band, None, &options).unwrap().0;
+        }
+        fitted
+    }
+
+    #[test]
+    fn the_second_order_passes_refit_the_same_design_bit_for_bit() {
+        let (log, windows) = flight();
+        let sensor = log.vector_sensor("flux_a").unwrap();
         let second = ModelSpec::new(
             TermSet::default(),
             Extensions {
@@ -796,8 +852,30 @@ mod tests {
                 ..Extensions::default()
             },
         );
-        assert!(!Prepared::new(&log, &sensor, "mag_1_uc", &second)
-            .unwrap()
-            .reads_scalar_as_prepared());
+        let prepared = Prepared::new(&log, &sensor, "mag_1_uc", &second).unwrap();
+        let (options, stores) = (FitOptions::default(), StorePool::new());
+        let bits = |values: &[f64]| values.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+        let afresh = second_order_afresh(&prepared, &windows, &stores);
+        let kept = prepared.fit(&windows, &options, &stores).unwrap();
+        assert_eq!(bits(&kept.coefficients), bits(&afresh.coefficients));
+        assert_eq!(bits(&kept.solution.fitted), bits(&afresh.solution.fitted));
+        assert_eq!(kept.windows, afresh.windows);
+        // The passes matter: the first fit alone is another.
+        let band = prepared.band(&windows, &options, &stores).unwrap();
+        let first = prepared.fit_on(&band, None, &options).unwrap().0;
+        assert_ne!(bits(&first.coefficients), bits(&kept.coefficients));
+        // Part of one band data: trained on every other window, held out
+        // on the rest.
+        let trained: Vec<usize> = (0..windows.len()).step_by(2).collect();
+        let out: Vec<usize> = (1..windows.len()).step_by(2).collect();
+        let pick = |indices: &[usize]| indices.iter().map(|&k| windows[k].clone()).collect::<Vec<_>>();
+        let within = prepared.fit_within(&band, &trained, &options, &stores).unwrap();
+        let afresh = second_order_afresh(&prepared, &pick(&trained), &stores);
+        assert_eq!(bits(&within.coefficients), bits(&afresh.coefficients));
+        assert_eq!(within.windows, afresh.windows);
+        let held_afresh = prepared.held_out(&afresh, &pick(&out), &options, &stores).unwrap();
+        let held_within = (prepared.held_out_within(&band, &within, (&out, &options), &stores)).unwrap();
+        assert!(held_within.iter().all(|w| !w.band_after_nt.is_empty()));
+        assert_eq!(held_within, held_afresh);
     }
 }

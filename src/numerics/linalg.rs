@@ -94,6 +94,33 @@ pub fn combine_r(parts: &[Mat<f64>], cols: usize) -> Mat<f64> {
     r.as_ref().get(..cols, ..).to_owned()
 }
 
+/// The singular values of a small square matrix, non-increasing, without
+/// its singular vectors.
+pub fn small_singular_values(a: MatRef<'_, f64>) -> Option<Vec<f64>> {
+    let n = a.nrows();
+    let mut s = Diag::<f64>::zeros(n);
+    let scratch = faer::linalg::svd::svd_scratch::<f64>(
+        n,
+        n,
+        ComputeSvdVectors::No,
+        ComputeSvdVectors::No,
+        Par::Seq,
+        Default::default(),
+    );
+    let mut memory = MemBuffer::new(scratch);
+    let status = faer::linalg::svd::svd(
+        a,
+        s.as_mut(),
+        None,
+        None,
+        Par::Seq,
+        MemStack::new(&mut memory),
+        Default::default(),
+    );
+    status.ok()?;
+    Some((0..n).map(|k| s[k]).collect())
+}
+
 /// Singular value decomposition of a small square matrix: `(U, σ, V)` with
 /// `a = U diag(σ) Vᵀ` and σ non-increasing.
 pub fn small_svd(a: MatRef<'_, f64>) -> Option<(Mat<f64>, Vec<f64>, Mat<f64>)> {

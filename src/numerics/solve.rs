@@ -38,7 +38,7 @@ use faer::{Mat, MatRef};
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::numerics::linalg::{cholesky_lower, gram, multiply, small_svd, tall_skinny_r};
+use crate::numerics::linalg::{cholesky_lower, gram, multiply, small_singular_values, small_svd, tall_skinny_r};
 use crate::numerics::stacked::{Block, Stacked, BLOCK_ROWS};
 
 /// How λ is obtained.
@@ -261,6 +261,7 @@ pub enum SolveError {
 }
 
 /// The spectral form of the problem: everything PRESS and the coefficients need.
+#[derive(Clone)]
 struct Spectrum {
     singular_values: Vec<f64>,
     v: Mat<f64>,
@@ -312,14 +313,41 @@ pub fn solve(
 /// [`solve`] for a design already stacked with its target; its folds
 /// (when there are at least two) are those of the blocked PRESS.
 pub fn solve_stacked(design: &Stacked, options: &SolveOptions) -> Result<Solution, SolveError> {
+    solve_keeping(design, options).map(|(solution, _)| solution)
+}
+
+/// [`solve_stacked`], keeping the design's decomposition for
+/// [`solve_again`] on the same design with another target.
+pub fn solve_keeping(design: &Stacked, options: &SolveOptions) -> Result<(Solution, DesignFactor), SolveError> {
     check_shape(design)?;
+    let factor = decompose(design, design.folds().len())?;
+    let solution = solve_factored(design, (&factor.spectrum, &factor.statistics), options)?;
+    Ok((solution, factor))
+}
+
+/// [`solve_stacked`] on `design`, whose design columns are those `factor`
+/// was made from (only the target differs): bit for bit the same solution,
+/// without decomposing the design again. The second-order passes fit the
+/// same columns to a target less the term of the fit before.
+pub fn solve_again(design: &Stacked, factor: &DesignFactor, options: &SolveOptions) -> Result<Solution, SolveError> {
+    check_shape(design)?;
+    let (spectrum, statistics) = factor.with_target(design);
+    solve_factored(design, (&spectrum, &statistics), options)
+}
+
+/// The solve on a decomposed design: the λ grid, the PRESS curves, the
+/// choice and its figures.
+fn solve_factored(
+    design: &Stacked,
+    (spectrum, fold_statistics): (&Spectrum, &[FoldStatistics]),
+    options: &SolveOptions,
+) -> Result<Solution, SolveError> {
     let rows = design.rows();
     let fold_count = design.folds().len();
-    let (spectrum, fold_statistics) = decompose(design, fold_count)?;
-    let grid = lambda_grid(&spectrum, options);
-    let weights = candidate_weights(&spectrum, &grid);
+    let grid = lambda_grid(spectrum, options);
+    let weights = candidate_weights(spectrum, &grid);
     let (press_needed, blocked_needed) = curves_needed(options, fold_count);
-    let blocked = blocked_needed.then(|| blocked_press(&fold_statistics, &spectrum, &grid));
+    let blocked = blocked_needed.then(|| blocked_press(fold_statistics, spectrum, &grid));
     // Blocked PRESS with no finite value on the ridge grid gives way to
     // leave-one-out PRESS ([`choose`]), which is then needed.
     let no_blocked_choice = blocked
@@ -327,7 +355,7 @@ pub fn solve_stacked(design: &Stacked, options: &SolveOptions) -> Result<Solutio
         .is_some_and(|b| !b[..grid.len()].iter().any(|v| v.is_finite()));
     let press_needed = press_needed || no_blocked_choice;
     let press = match press_needed {
-        true => leave_one_out_press(design, &spectrum, &weights),
+        true => leave_one_out_press(design, spectrum, &weights),
         false => vec![f64::NAN; weights.len()],
     };
     let ridge_curve: Vec<RidgePoint> = (0..grid.len())
@@ -345,7 +373,7 @@ pub fn solve_stacked(design: &Stacked, options: &SolveOptions) -> Result<Solutio
             blocked_press: blocked.as_ref().map(|b| b[grid.len() + r]),
         })
         .collect();
-    let (mut solution, chosen_weights) = choose(&spectrum, (ridge_curve, tsvd_curve), (options, press_needed), rows)?;
+    let (mut solution, chosen_weights) = choose(spectrum, (ridge_curve, tsvd_curve), (options, press_needed), rows)?;
     solution.fitted = design.predict(&solution.coefficients);
     let residual_ss: f64 = (design.target_pieces().flatten().zip(&solution.fitted))
         .map(|(y, f)| (y - f) * (y - f))
@@ -356,9 +384,9 @@ pub fn solve_stacked(design: &Stacked, options: &SolveOptions) -> Result<Solutio
     if options.figures == Figures::Choice {
         return Ok(solution);
     }
-    solution.standard_errors = standard_errors(&spectrum, &chosen_weights, noise);
+    solution.standard_errors = standard_errors(spectrum, &chosen_weights, noise);
     if fold_count >= 3 {
-        solution.jackknife = jackknife(&spectrum, &fold_statistics, solution.lambda, solution.rank);
+        solution.jackknife = jackknife(spectrum, fold_statistics, solution.lambda, solution.rank);
     }
     Ok(solution)
 }
@@ -569,7 +597,7 @@ impl Factor {
 /// Cholesky factor of $U_1^\top U_1$ corrects the first to working
 /// precision). Ill-conditioned or rank-deficient designs take the
 /// Householder tall-skinny QR instead.
-fn decompose(design: &Stacked, fold_count: usize) -> Result<(Spectrum, Vec<FoldStatistics>), SolveError> {
+fn decompose(design: &Stacked, fold_count: usize) -> Result<DesignFactor, SolveError> {
     let p = design.columns();
     let gram = design.gram();
     if !(0..p).all(|j| (0..p).all(|i| gram[(i, j)].is_finite())) {
@@ -596,7 +624,11 @@ fn decompose(design: &Stacked, fold_count: usize) -> Result<(Spectrum, Vec<FoldS
     let statistics = basis_statistics(design, &factor.to_u, fold_count);
     let total = FoldStatistics::total(&statistics, p);
     let spectrum = factor.spectrum(r.as_ref(), &scales, total.uty, Decomposition::Householder)?;
-    Ok((spectrum, statistics))
+    Ok(DesignFactor {
+        spectrum,
+        statistics,
+        to_final: None,
+    })
 }
 
 /// CholeskyQR2 when the scaled Gram matrix is safely positive definite;
@@ -606,7 +638,7 @@ fn cholesky_route(
     fold_count: usize,
     scaled_gram: MatRef<'_, f64>,
     scales: &[f64],
-) -> Result<Option<(Spectrum, Vec<FoldStatistics>)>, SolveError> {
+) -> Result<Option<DesignFactor>, SolveError> {
     let p = scales.len();
     let Some(first_lower) = cholesky_lower(scaled_gram) else {
         return Ok(None);
@@ -643,12 +675,101 @@ fn cholesky_route(
     let statistics: Vec<FoldStatistics> = first_statistics.iter().map(|s| s.in_basis(&t)).collect();
     let uty = first_total.in_basis(&t).uty;
     let spectrum = factor.spectrum(r.as_ref(), scales, uty, Decomposition::CholeskyQr2)?;
-    Ok(Some((spectrum, statistics)))
+    Ok(Some(DesignFactor {
+        spectrum,
+        statistics,
+        to_final: Some((first.to_u, t)),
+    }))
+}
+
+/// A design's decomposition ([`solve_keeping`]): its spectrum and per-fold
+/// statistics, with what a new target needs to be seen in the same basis.
+pub struct DesignFactor {
+    spectrum: Spectrum,
+    statistics: Vec<FoldStatistics>,
+    /// CholeskyQR2's first basis $M_1$ ($U_1 = A M_1$), in which the
+    /// statistics were summed, and $T$ taking it to the final one
+    /// ($U = U_1 T$); `None` where they were summed in the final basis
+    /// (Householder).
+    to_final: Option<(Mat<f64>, Mat<f64>)>,
+}
+
+impl DesignFactor {
+    /// The spectrum and per-fold statistics of the same design with the
+    /// target `design` holds: $U^\top y$ and $y^\top y$ summed as
+    /// [`decompose`] sums them, so they are the same bits.
+    fn with_target(&self, design: &Stacked) -> (Spectrum, Vec<FoldStatistics>) {
+        let p = design.columns();
+        let basis = match &self.to_final {
+            Some((first, _)) => first,
+            None => &self.spectrum.to_u,
+        };
+        let sums = target_statistics(design, basis, self.statistics.len());
+        let mut total = vec![0.0; p];
+        for (uty, _) in &sums {
+            total.iter_mut().zip(uty).for_each(|(a, b)| *a += b);
+        }
+        let in_final = |uty: &[f64]| match &self.to_final {
+            Some((_, t)) => uty_in_basis(t, uty),
+            None => uty.to_vec(),
+        };
+        let statistics = (self.statistics.iter().zip(&sums))
+            .map(|(fold, (uty, yy))| FoldStatistics {
+                gram: fold.gram.clone(),
+                uty: in_final(uty),
+                yy: *yy,
+            })
+            .collect();
+        let spectrum = Spectrum {
+            uty: in_final(&total),
+            ..self.spectrum.clone()
+        };
+        (spectrum, statistics)
+    }
+}
+
+/// Per fold, $U^\top y$ and $y^\top y$ with $U = A M$ ([`basis_statistics`]
+/// without the Gram matrices), summed in block order.
+fn target_statistics(design: &Stacked, to_u: &Mat<f64>, fold_count: usize) -> Vec<(Vec<f64>, f64)> {
+    let p = design.columns();
+    let partials: Vec<(usize, Vec<f64>, f64)> = design
+        .blocks()
+        .par_iter()
+        .map_init(
+            || BlockBuffer::new(p),
+            |buffer, block| {
+                let y = buffer.load(design, block, to_u);
+                let u = buffer.basis.as_ref().get(..y.len(), ..);
+                (block.fold, basis_times(u, y), y.iter().map(|v| v * v).sum())
+            },
+        )
+        .collect();
+    let mut folds: Vec<(Vec<f64>, f64)> = (0..fold_count).map(|_| (vec![0.0; p], 0.0)).collect();
+    for (fold, uty, yy) in partials {
+        folds[fold].0.iter_mut().zip(&uty).for_each(|(a, b)| *a += b);
+        folds[fold].1 += yy;
+    }
+    folds
+}
+
+/// $U^\top y$.
+fn basis_times(u: MatRef<'_, f64>, y: &[f64]) -> Vec<f64> {
+    let p = u.ncols();
+    let mut uty = Mat::zeros(p, 1);
+    let y_column = MatRef::from_column_major_slice(y, y.len(), 1);
+    multiply(uty.as_mut(), u.transpose(), y_column);
+    (0..p).map(|k| uty[(k, 0)]).collect()
+}
+
+/// $T^\top (U^\top y)$: $U^\top y$ for the basis $U T$.
+fn uty_in_basis(t: &Mat<f64>, uty: &[f64]) -> Vec<f64> {
+    let p = t.ncols();
+    (0..p).map(|k| (0..p).map(|i| t[(i, k)] * uty[i]).sum()).collect()
 }
 
 /// σ₁/σₚ of a small matrix.
 fn condition_number(a: MatRef<'_, f64>) -> Result<f64, SolveError> {
-    let sigma = small_svd(a).ok_or(SolveError::SvdFailed)?.1;
+    let sigma = small_singular_values(a).ok_or(SolveError::SvdFailed)?;
     Ok(sigma[0] / sigma[sigma.len() - 1])
 }
 
@@ -968,15 +1089,9 @@ impl FoldStatistics {
     }
 
     fn of_block(u: MatRef<'_, f64>, y: &[f64]) -> Self {
-        let p = u.ncols();
-        let gram = gram(u);
-        let mut uty = Mat::zeros(p, 1);
-        let y_column = MatRef::from_column_major_slice(y, y.len(), 1);
-        multiply(uty.as_mut(), u.transpose(), y_column);
-        let uty = (0..p).map(|k| uty[(k, 0)]).collect();
         FoldStatistics {
-            gram,
-            uty,
+            gram: gram(u),
+            uty: basis_times(u, y),
             yy: y.iter().map(|v| v * v).sum(),
         }
     }
@@ -1003,8 +1118,11 @@ impl FoldStatistics {
         multiply(half.as_mut(), self.gram.as_ref(), t.as_ref());
         let mut gram = Mat::zeros(p, p);
         multiply(gram.as_mut(), t.transpose(), half.as_ref());
-        let uty = (0..p).map(|k| (0..p).map(|i| t[(i, k)] * self.uty[i]).sum()).collect();
-        FoldStatistics { gram, uty, yy: self.yy }
+        FoldStatistics {
+            gram,
+            uty: uty_in_basis(t, &self.uty),
+            yy: self.yy,
+        }
     }
 }
 
@@ -1393,6 +1511,59 @@ mod tests {
     /// per-candidate solve, on a full-rank design and on one with a column
     /// that repeats a combination of two others.
     #[test]
+    fn a_kept_decomposition_solves_another_target_bit_for_bit() {
+        let (rows, p) = (300, 6);
+        // Well conditioned (CholeskyQR2) and rank-deficient (Householder).
+        for deficient in [false, true] {
+            let mut columns: Vec<Vec<f64>> = (0..p)
+                .map(|k| {
+                    (0..rows)
+                        .map(|i| ((i * (2 * k + 3)) as f64 * 0.173 + k as f64).sin())
+                        .collect()
+                })
+                .collect();
+            if deficient {
+                columns[5] = columns[0].iter().zip(&columns[2]).map(|(a, b)| a - 2.0 * b).collect();
+            }
+            let target = |shift: f64| -> Vec<f64> {
+                (0..rows)
+                    .map(|i| {
+                        (columns.iter().enumerate())
+                            .map(|(k, c)| (k as f64 - shift) * c[i])
+                            .sum::<f64>()
+                            + 0.05 * (i as f64 * 1.7).cos()
+                    })
+                    .collect()
+            };
+            let folds = [70, 80, 90, 60];
+            let first = Stacked::from_columns(&columns, &target(2.0), &folds);
+            let second = Stacked::from_columns(&columns, &target(-1.0), &folds);
+            for options in [
+                SolveOptions::default(),
+                SolveOptions {
+                    criterion: Criterion::BlockedPress,
+                    figures: Figures::All,
+                    ..SolveOptions::default()
+                },
+            ] {
+                let (_, factor) = solve_keeping(&first, &options).unwrap();
+                assert_eq!(factor.to_final.is_none(), deficient);
+                let again = solve_again(&second, &factor, &options).unwrap();
+                let afresh = solve_stacked(&second, &options).unwrap();
+                let bits = |values: &[f64]| values.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+                assert_eq!(bits(&again.coefficients), bits(&afresh.coefficients));
+                assert_eq!(bits(&again.fitted), bits(&afresh.fitted));
+                assert_eq!(again.lambda.map(f64::to_bits), afresh.lambda.map(f64::to_bits));
+                assert_eq!(bits(&again.standard_errors), bits(&afresh.standard_errors));
+                assert_eq!(again.jackknife.len(), afresh.jackknife.len());
+                // Another target: another fit.
+                let (kept, _) = solve_keeping(&first, &options).unwrap();
+                assert!((kept.coefficients[1] - again.coefficients[1]).abs() > 1.0);
+            }
+        }
+    }
+
+    #[test]
     fn blocked_press_forms_equal_the_per_candidate_solve() {
         let (rows, p) = (90, 6);
         for deficient in [false, true] {
@@ -1417,7 +1588,11 @@ mod tests {
                 })
                 .collect();
             let design = Stacked::from_columns(&columns, &y, &[20, 25, 30, 15]);
-            let (spectrum, folds) = decompose(&design, 4).unwrap();
+            let DesignFactor {
+                spectrum,
+                statistics: folds,
+                ..
+            } = decompose(&design, 4).unwrap();
             assert_eq!(spectrum.rank, if deficient { p - 1 } else { p });
             let grid = lambda_grid(&spectrum, &SolveOptions::default());
             let weights = candidate_weights(&spectrum, &grid);

@@ -331,6 +331,23 @@ impl Stacked {
         Stacked { data, layout, grams }
     }
 
+    /// Takes the target of `other`, a stack of the same folds with no
+    /// design columns, in place of this one's: the design columns and their
+    /// Gram matrices stay. False, with nothing changed, when the folds
+    /// differ.
+    pub fn take_target(&mut self, other: &Stacked) -> bool {
+        if other.layout.folds != self.layout.folds || other.layout.columns != 0 {
+            return false;
+        }
+        let p = self.layout.columns;
+        let flat = self.data.as_flattened_mut();
+        for (block, source) in self.layout.blocks.iter().zip(&other.layout.blocks) {
+            let start = block.offset + p * block.stride;
+            flat[start..start + block.stride].copy_from_slice(other.block_target(source));
+        }
+        true
+    }
+
     /// $A^\top A$ of the design columns: the blocks' Gram matrices summed in
     /// block order.
     pub fn gram(&self) -> Mat<f64> {
