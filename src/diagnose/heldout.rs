@@ -110,14 +110,7 @@ pub(super) fn residuals(
     let band = prepared.band(&every, &options, problem.stores)?;
     for place in &places {
         let fitted = prepared.fit_within(&band, &place[1], &options, problem.stores)?;
-        let solution = &fitted.solution;
-        ridge.push(solution.lambda.unwrap_or_else(|| {
-            let sigma = &solution.singular_values;
-            match solution.rank {
-                Some(r) if r > 0 && r < sigma.len() => sigma[r - 1] * sigma[r],
-                _ => 0.0,
-            }
-        }));
+        ridge.push(ridge_of(&fitted.solution));
         terms = terms.max(fitted.coefficients.len());
         fewest_training_samples = fewest_training_samples.min(fitted.solution.samples);
         windows.extend(prepared.held_out_within(&band, &fitted, (&place[0], &options), problem.stores)?);
@@ -131,6 +124,18 @@ pub(super) fn residuals(
         terms,
         fewest_training_samples,
         ridge,
+    })
+}
+
+/// The ridge a fit used: its λ, or for a truncated SVD the product of the
+/// singular values either side of the cut (0 with none cut).
+fn ridge_of(solution: &crate::numerics::solve::Solution) -> f64 {
+    solution.lambda.unwrap_or_else(|| {
+        let sigma = &solution.singular_values;
+        match solution.rank {
+            Some(r) if r > 0 && r < sigma.len() => sigma[r - 1] * sigma[r],
+            _ => 0.0,
+        }
     })
 }
 

@@ -188,29 +188,33 @@ pub(crate) fn band_data(
         channel: channel.into(),
         source: e.into(),
     })?;
+    Ok(BandData {
+        windows: window_fits(&plans, trim, &stacked),
+        stacked,
+        sample_rate_hz,
+    })
+}
+
+/// How each window of `plans` went into `stacked`: its rows there and in
+/// the flight, and its band-passed signal.
+fn window_fits(plans: &[WindowPlan], trim: usize, stacked: &Stacked) -> Vec<WindowFit> {
     let mut fits: Vec<WindowFit> = Vec::with_capacity(plans.len());
     let mut start = 0;
     for plan in plans {
         let used = plan.used(trim);
+        let stacked_rows = start..start + used;
         fits.push(WindowFit {
             window: plan.window.clone(),
-            stacked_rows: start..start + used,
+            band_before_nt: stacked.column_range(stacked.columns(), stacked_rows.clone()),
+            stacked_rows,
             samples_used: used,
             samples_dropped: plan.rows - used,
             flight_rows: plan.runs.iter().map(|r| r.start + trim..r.end - trim).collect(),
-            band_before_nt: Vec::new(),
             band_after_nt: Vec::new(),
         });
         start += used;
     }
-    for fit in &mut fits {
-        fit.band_before_nt = stacked.column_range(stacked.columns(), fit.stacked_rows.clone());
-    }
-    Ok(BandData {
-        stacked,
-        windows: fits,
-        sample_rate_hz,
-    })
+    fits
 }
 
 /// Replaces `band`'s target by `scalar` band-passed over the same windows,
@@ -275,12 +279,7 @@ fn filter_target(
     let fold_lengths: Vec<usize> = plans.iter().map(|p| p.used(trim)).collect();
     let mut builder = StackedBuilder::new(&fold_lengths, 0, stores);
     let runs: Vec<Range<usize>> = plans.iter().flat_map(|p| p.runs.iter().cloned()).collect();
-    let mut stacked_rows = Vec::with_capacity(runs.len());
-    let mut start = 0;
-    for run in &runs {
-        stacked_rows.push(start..start + run.len() - 2 * trim);
-        start += run.len() - 2 * trim;
-    }
+    let stacked_rows = stacked_rows(&runs, trim);
     let panel = builder
         .segments_mut(&stacked_rows)
         .into_iter()
@@ -382,12 +381,7 @@ fn stack_filtered(
         FitMagnitude::RunMean => runs.iter().map(|run| at_mean_strength(field, run.clone())).collect(),
         FitMagnitude::Measured => Vec::new(),
     };
-    let mut stacked_rows = Vec::with_capacity(runs.len());
-    let mut start = 0;
-    for run in &runs {
-        stacked_rows.push(start..start + run.len() - 2 * trim);
-        start += run.len() - 2 * trim;
-    }
+    let stacked_rows = stacked_rows(&runs, trim);
     // One task per (run, panel), each owning its panel rows.
     let mut tasks: Vec<FilterTask> = Vec::new();
     for (panel, per_run) in builder.segments_mut(&stacked_rows).into_iter().enumerate() {
@@ -427,6 +421,18 @@ fn stack_filtered(
         filter.apply_panel(run.len(), source, &mut output, trim)
     })?;
     Ok(builder.finish())
+}
+
+/// The rows of the stack each run fills once trimmed, in order.
+fn stacked_rows(runs: &[Range<usize>], trim: usize) -> Vec<Range<usize>> {
+    let mut start = 0;
+    (runs.iter())
+        .map(|run| {
+            let rows = start..start + run.len() - 2 * trim;
+            start = rows.end;
+            rows
+        })
+        .collect()
 }
 
 /// The field over `run` in its recorded direction at the run's mean

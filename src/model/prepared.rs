@@ -270,8 +270,7 @@ impl<'a> Prepared<'a> {
         factor: Option<&DesignFactor>,
         options: &FitOptions,
     ) -> Result<(FittedModel, Option<DesignFactor>)> {
-        let terms = self.spec.fitted_terms();
-        let (stacked, sample_rate_hz) = (&band.stacked, band.sample_rate_hz);
+        let stacked = &band.stacked;
         let solve = self.spec.solve_options(&options.solve);
         let solved = match factor {
             Some(factor) => solve_again(stacked, factor, &solve).map(|solution| (solution, None)),
@@ -286,6 +285,18 @@ impl<'a> Prepared<'a> {
             Solver::Ridge => None,
             requested => Some(solve_on_headings(stacked, &band.windows, requested, &mut solution)),
         };
+        Ok((self.fitted_model(band, (solution, chosen), options), made))
+    }
+
+    /// The model `solution` makes on `band`: its coefficients, their
+    /// uncertainty and each window's band-passed residual.
+    fn fitted_model(
+        &self,
+        band: &BandData,
+        (solution, chosen): (Solution, Option<SolverUse>),
+        options: &FitOptions,
+    ) -> FittedModel {
+        let sample_rate_hz = band.sample_rate_hz;
         let mut fits = band.windows.clone();
         for fit in &mut fits {
             fit.band_after_nt = (fit.band_before_nt.iter())
@@ -299,15 +310,13 @@ impl<'a> Prepared<'a> {
         let correlation = (sample_rate_hz / (2.0 * options.filter.band.bandwidth_hz(sample_rate_hz)))
             .max(1.0)
             .sqrt();
-        let fitted = FittedModel {
+        FittedModel {
             solver: chosen,
             coefficient_uncertainty: solution.standard_errors.iter().map(|e| e * correlation).collect(),
             channel: self.channel.into(),
             vector_sensor: self.sensor.prefix.clone(),
             spec: self.spec.clone(),
-            term_names: terms
-                .names()
-                .into_iter()
+            term_names: (self.spec.fitted_terms().names().into_iter())
                 .chain(self.extra.iter().map(|c| c.name.clone()))
                 .collect(),
             coefficients: solution.coefficients.clone(),
@@ -318,8 +327,7 @@ impl<'a> Prepared<'a> {
             estimators: None,
             excitation: None,
             calibration_level: None,
-        };
-        Ok((fitted, made))
+        }
     }
 
     /// Every estimator of the family ([`crate::numerics::estimators`]) on

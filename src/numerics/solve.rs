@@ -358,22 +358,8 @@ fn solve_factored(
         true => leave_one_out_press(design, spectrum, &weights),
         false => vec![f64::NAN; weights.len()],
     };
-    let ridge_curve: Vec<RidgePoint> = (0..grid.len())
-        .map(|l| RidgePoint {
-            lambda: grid[l],
-            press: press[l],
-            blocked_press: blocked.as_ref().map(|b| b[l]),
-            effective_dof: weights[l].iter().sum(),
-        })
-        .collect();
-    let tsvd_curve: Vec<RankPoint> = (0..spectrum.rank)
-        .map(|r| RankPoint {
-            rank: r + 1,
-            press: press[grid.len() + r],
-            blocked_press: blocked.as_ref().map(|b| b[grid.len() + r]),
-        })
-        .collect();
-    let (mut solution, chosen_weights) = choose(spectrum, (ridge_curve, tsvd_curve), (options, press_needed), rows)?;
+    let curves = curves((&grid, &weights, spectrum.rank), &press, blocked.as_deref());
+    let (mut solution, chosen_weights) = choose(spectrum, curves, (options, press_needed), rows)?;
     solution.fitted = design.predict(&solution.coefficients);
     let residual_ss: f64 = (design.target_pieces().flatten().zip(&solution.fitted))
         .map(|(y, f)| (y - f) * (y - f))
@@ -389,6 +375,32 @@ fn solve_factored(
         solution.jackknife = jackknife(spectrum, fold_statistics, solution.lambda, solution.rank);
     }
     Ok(solution)
+}
+
+/// The ridge curve (one point per λ of `grid`, with its `weights`) and
+/// the truncated-SVD curve (ranks 1..=`rank`) from the criteria of every
+/// candidate, ridge then ranks.
+fn curves(
+    (grid, weights, rank): (&[f64], &[Vec<f64>], usize),
+    press: &[f64],
+    blocked: Option<&[f64]>,
+) -> (Vec<RidgePoint>, Vec<RankPoint>) {
+    let ridge = (0..grid.len())
+        .map(|l| RidgePoint {
+            lambda: grid[l],
+            press: press[l],
+            blocked_press: blocked.map(|b| b[l]),
+            effective_dof: weights[l].iter().sum(),
+        })
+        .collect();
+    let tsvd = (0..rank)
+        .map(|r| RankPoint {
+            rank: r + 1,
+            press: press[grid.len() + r],
+            blocked_press: blocked.map(|b| b[grid.len() + r]),
+        })
+        .collect();
+    (ridge, tsvd)
 }
 
 /// Which PRESS curves a solve computes: (leave-one-out, blocked). Both

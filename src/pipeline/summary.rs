@@ -45,24 +45,32 @@ pub(super) fn applied_summary(result: &FlightResult, applied: &crate::apply::App
             }
         }
         text += "\n";
-        if let Some(error) = &quality.heading_error {
-            text += &format!(
-                "    heading error ({} matched samples on reciprocal lines): {:.3} → {:.3} nT\n",
-                error.pairs, error.before_nt, error.after_nt
-            );
-        }
-        if let Some(figures) = &quality.crossovers {
-            text += &format!(
-                "    crossovers ({} where lines cross): RMS {:.3} → {:.3} nT\n",
-                figures.crossovers, figures.before_nt, figures.after_nt
-            );
-        }
-        if let Some(figures) = &quality.heading_level {
-            text += &format!(
-                "    heading level between neighbouring lines ({} lines flown both ways): {:.3} → {:.3} nT\n",
-                figures.lines, figures.before_nt, figures.after_nt
-            );
-        }
+        text += &survey_figures(quality);
+    }
+    text
+}
+
+/// A channel's survey figures before and after, a line each: the heading
+/// error, the crossovers and the heading level, those it has.
+fn survey_figures(quality: &crate::quality::ChannelQuality) -> String {
+    let mut text = String::new();
+    if let Some(error) = &quality.heading_error {
+        text += &format!(
+            "    heading error ({} matched samples on reciprocal lines): {:.3} → {:.3} nT\n",
+            error.pairs, error.before_nt, error.after_nt
+        );
+    }
+    if let Some(figures) = &quality.crossovers {
+        text += &format!(
+            "    crossovers ({} where lines cross): RMS {:.3} → {:.3} nT\n",
+            figures.crossovers, figures.before_nt, figures.after_nt
+        );
+    }
+    if let Some(figures) = &quality.heading_level {
+        text += &format!(
+            "    heading level between neighbouring lines ({} lines flown both ways): {:.3} → {:.3} nT\n",
+            figures.lines, figures.before_nt, figures.after_nt
+        );
     }
     text
 }
@@ -98,21 +106,31 @@ pub fn summary(result: &FlightResult, limit_nt: f64, verbose: bool) -> String {
             text += &fit_details(quality, model);
         }
     }
-    text += &match (result.diagnosis_mode, result.applied_findings.is_empty()) {
-        _ if result.model.is_some() => match result.applied_findings.is_empty() {
-            true => String::new(),
-            false => "  the model's findings (from its calibration flight):\n".to_string(),
-        },
-        (crate::diagnose::ApplyDiagnosis::Never, _) => "  diagnosis: not applied (plain Tolles-Lawson)\n".to_string(),
-        (_, true) if result.diagnosis.is_some() => {
-            "  diagnosis: no finding changes the model; plain Tolles-Lawson\n".to_string()
-        }
-        (_, true) => String::new(),
-        (_, false) => "  diagnosis applied:\n".to_string(),
-    };
+    text += diagnosis_heading(result);
     for applied in &result.applied_findings {
         text += &format!("    {}\n", applied.describe());
     }
+    text + &messages(result, verbose)
+}
+
+/// The line over the findings applied: the saved model's, the
+/// diagnosis's, or why there are none.
+fn diagnosis_heading(result: &FlightResult) -> &'static str {
+    match (result.diagnosis_mode, result.applied_findings.is_empty()) {
+        _ if result.model.is_some() => match result.applied_findings.is_empty() {
+            true => "",
+            false => "  the model's findings (from its calibration flight):\n",
+        },
+        (crate::diagnose::ApplyDiagnosis::Never, _) => "  diagnosis: not applied (plain Tolles-Lawson)\n",
+        (_, true) if result.diagnosis.is_some() => "  diagnosis: no finding changes the model; plain Tolles-Lawson\n",
+        (_, true) => "",
+        (_, false) => "  diagnosis applied:\n",
+    }
+}
+
+/// The notes (with `verbose`, else their count) and the warnings.
+fn messages(result: &FlightResult, verbose: bool) -> String {
+    let mut text = String::new();
     match (verbose, result.notes.len()) {
         (_, 0) => {}
         (true, _) => {
@@ -159,27 +177,33 @@ fn channel_line(result: &FlightResult, quality: &crate::quality::ChannelQuality,
             figures.before_nt, figures.after_nt
         );
     }
-    // A fluxgate calibration is the fluxgate's ("flux_a (for mag_1_uc)"),
-    // found against the channel it names as its source.
-    use crate::diagnose::EffectKind;
-    let findings: Vec<String> =
-        (result.applied_findings.iter())
-            .filter_map(|f| match f.effect {
-                EffectKind::VectorCalibration if f.source.as_deref() == Some(quality.channel.as_str()) => Some(
-                    format!("{} of {}", f.effect, f.channel.split(' ').next().unwrap_or_default()),
-                ),
-                _ if f.channel == quality.channel => Some(format!(
-                    "{}{}",
-                    f.effect,
-                    f.source.as_ref().map(|s| format!(" from {s}")).unwrap_or_default()
-                )),
-                _ => None,
-            })
-            .collect();
+    let findings = findings_on(result, &quality.channel);
     if !findings.is_empty() {
         line += &format!("; findings applied: {}", findings.join(", "));
     }
     line + "\n"
+}
+
+/// The findings applied to `channel`, in words. A fluxgate calibration is
+/// the fluxgate's ("flux_a (for mag_1_uc)"), found against the channel it
+/// names as its source.
+fn findings_on(result: &FlightResult, channel: &str) -> Vec<String> {
+    use crate::diagnose::EffectKind;
+    (result.applied_findings.iter())
+        .filter_map(|f| match f.effect {
+            EffectKind::VectorCalibration if f.source.as_deref() == Some(channel) => Some(format!(
+                "{} of {}",
+                f.effect,
+                f.channel.split(' ').next().unwrap_or_default()
+            )),
+            _ if f.channel == channel => Some(format!(
+                "{}{}",
+                f.effect,
+                f.source.as_ref().map(|s| format!(" from {s}")).unwrap_or_default()
+            )),
+            _ => None,
+        })
+        .collect()
 }
 
 /// The regulariser a channel was fitted with, in words: its estimator
@@ -223,6 +247,20 @@ fn fit_details(quality: &crate::quality::ChannelQuality, model: &crate::model::F
             check.ratio
         );
     }
+    text += &survey_checks(quality);
+    for transfer in &quality.box_transfer {
+        text += &format!(
+            "    box transfer: fitted on {}, {} residual {:.3} nT (fitted on itself {:.3} nT)\n",
+            transfer.fit, transfer.test, transfer.band_std_nt, transfer.own_fit_band_std_nt
+        );
+    }
+    text
+}
+
+/// How a channel's survey checks were made (`-v`): the heading error's
+/// matched samples, the crossovers and the lines' heading level.
+fn survey_checks(quality: &crate::quality::ChannelQuality) -> String {
+    let mut text = String::new();
     if let Some(error) = &quality.heading_error {
         text += &format!(
             "    heading error over {} matched samples of reciprocal lines\n",
@@ -249,12 +287,6 @@ fn fit_details(quality: &crate::quality::ChannelQuality, model: &crate::model::F
                 true => ", the base station's change between lines taken out",
                 false => ", no base station: the external field's change between lines is in it",
             }
-        );
-    }
-    for transfer in &quality.box_transfer {
-        text += &format!(
-            "    box transfer: fitted on {}, {} residual {:.3} nT (fitted on itself {:.3} nT)\n",
-            transfer.fit, transfer.test, transfer.band_std_nt, transfer.own_fit_band_std_nt
         );
     }
     text
