@@ -9,6 +9,7 @@ use std::path::{Path, PathBuf};
 use magcomp::calibration::windows::CalibrationWindow;
 use magcomp::compensate::{compensate, LevelConvention};
 use magcomp::formats::{read_flight_log, IngestOptions};
+use magcomp::messages::{Diagnosing, Note};
 use magcomp::model::terms::TermSet;
 use magcomp::model::{fit, FilterSettings, FitMagnitude, FitOptions, ModelSpec};
 use magcomp::numerics::estimators::Solver;
@@ -164,10 +165,10 @@ fn diagnosis_of_the_real_segment_finds_nothing_it_cannot_support() {
     );
     assert!(diagnosis.fluxgate.is_none());
     assert!(
-        diagnosis
-            .notes
-            .iter()
-            .any(|n| n.contains("do not pin the fluxgate calibration")),
+        diagnosis.notes.iter().any(
+            |n| matches!(n, Note::Diagnosing(Diagnosing::FluxgateNotChecked { reason })
+                if reason.contains("do not pin the fluxgate calibration"))
+        ),
         "{:?}",
         diagnosis.notes
     );

@@ -9,6 +9,7 @@ use std::process::Command;
 use magcomp::calibration::windows::CalibrationWindow;
 use magcomp::config::{FlightJob, Pipeline, Settings};
 use magcomp::diagnose::ApplyDiagnosis;
+use magcomp::messages::{Diagnosing, Note};
 use magcomp::output::sink::{process_flight, FlightOutputs};
 use magcomp::simulate::scenario::{RawScenario, Scenario};
 use magcomp::Error;
@@ -134,7 +135,7 @@ fn windows_given_by_time_are_tested_with_a_caveat() {
     };
     let with_ins = diagnose(&log);
     assert!(
-        !with_ins.notes.iter().any(|n| n.contains("held out window by window")),
+        !(with_ins.notes.iter()).any(|n| matches!(n, Note::Diagnosing(Diagnosing::HeldOutByWindow { .. }))),
         "{:?}",
         with_ins.notes
     );
@@ -147,7 +148,8 @@ fn windows_given_by_time_are_tested_with_a_caveat() {
             .unwrap();
     let diagnosis = diagnose(&without_ins);
     assert!(
-        diagnosis.notes.iter().any(|n| n.contains("held out window by window")),
+        (diagnosis.notes.iter())
+            .any(|n| matches!(n, Note::Diagnosing(Diagnosing::HeldOutByWindow { windows }) if *windows >= 3)),
         "{:?}",
         diagnosis.notes
     );
@@ -427,7 +429,9 @@ fn a_clean_fluxgate_is_not_blamed_for_a_cabin_sensors_field() {
             diagnosis.findings
         );
         assert!(check.reference_interference_nt > 20.0 && check.threshold_nt > 260.0);
-        assert!(diagnosis.notes.iter().any(|n| n.contains("three times that field")));
+        assert!(
+            (diagnosis.notes.iter()).any(|n| matches!(n, Note::Diagnosing(Diagnosing::FluxgateMismatchShort { .. })))
+        );
     }
     let broken = r#"
         [[effect]]

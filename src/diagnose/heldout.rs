@@ -210,15 +210,10 @@ impl HoldOut {
     }
 
     /// What a diagnosis held out this way cannot test, in words.
-    pub(super) fn caveat(&self) -> Option<String> {
-        match self {
-            HoldOut::ByWindow(n) => Some(format!(
-                "held out window by window ({n} windows given by time, without headings), not heading by heading: the figures test what those windows share, and an effect that changes with heading is tested only as far as they differ"
-            )),
-            HoldOut::ByQuarter(n) => Some(format!(
-                "held out by quarters of {n} window{} given by time: each quarter is predicted from the rest of its own window, so the figures test consistency within the windows, not transfer to other headings or manoeuvres",
-                if *n == 1 { "" } else { "s" }
-            )),
+    pub(super) fn caveat(&self) -> Option<Note> {
+        match *self {
+            HoldOut::ByWindow(windows) => Some(Diagnosing::HeldOutByWindow { windows }.into()),
+            HoldOut::ByQuarter(windows) => Some(Diagnosing::HeldOutByQuarter { windows }.into()),
             _ => None,
         }
     }

@@ -112,6 +112,7 @@ use crate::calibration::headings::{distinct_headings, heading_splits};
 use crate::calibration::windows::CalibrationWindow;
 use crate::error::Result;
 use crate::ingest::flight_log::{ChannelRole, FlightLog, VectorSensor};
+use crate::messages::{Diagnosing, Note};
 use crate::model::terms::TermSet;
 use crate::model::{
     column_level, field_directions, fit, Calibration, Extensions, FitOptions, FittedModel, ModelSpec, Prepared,
@@ -325,9 +326,9 @@ pub struct Diagnosis {
     /// the held-out mismatch before and after.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub fluxgate: Option<FluxgateCheck>,
-    /// What could not be checked, and checks that found nothing, in words.
+    /// What could not be checked, and checks that found nothing.
     #[serde(skip_serializing_if = "Vec::is_empty")]
-    pub notes: Vec<String>,
+    pub notes: Vec<Note>,
 }
 
 impl Diagnosis {
@@ -669,10 +670,10 @@ fn calibrated_flight(
 }
 
 /// The fluxgate's check, or a note saying why it was not made.
-fn checked_or_said(checked: std::result::Result<FluxgateCheck, String>) -> (Option<FluxgateCheck>, Vec<String>) {
+fn checked_or_said(checked: std::result::Result<FluxgateCheck, String>) -> (Option<FluxgateCheck>, Vec<Note>) {
     match checked {
         Ok(check) => (Some(check), Vec::new()),
-        Err(why) => (None, vec![format!("fluxgate calibration not checked: {why}")]),
+        Err(reason) => (None, vec![Diagnosing::FluxgateNotChecked { reason }.into()]),
     }
 }
 
@@ -698,7 +699,7 @@ fn fluxgate_check(
 /// first where it stands (`calibrated`: the search ran on the calibrated
 /// fluxgate), else a note of its figures.
 fn with_fluxgate(
-    (channels, findings, mut notes): (Vec<ChannelDiagnosis>, Vec<Vec<Finding>>, Vec<String>),
+    (channels, findings, mut notes): (Vec<ChannelDiagnosis>, Vec<Vec<Finding>>, Vec<Note>),
     fluxgate: Option<FluxgateCheck>,
     calibrated: bool,
     settings: &DiagnoseOptions,
@@ -733,7 +734,7 @@ type Searched = std::result::Result<(ChannelDiagnosis, Vec<Finding>), String>;
 fn searched_channels(
     log: &FlightLog,
     results: Vec<Searched>,
-) -> Result<(Vec<ChannelDiagnosis>, Vec<Vec<Finding>>, Vec<String>)> {
+) -> Result<(Vec<ChannelDiagnosis>, Vec<Vec<Finding>>, Vec<Note>)> {
     let (results, untestable): (Vec<_>, Vec<_>) = results.into_iter().partition(|r| r.is_ok());
     let untestable: Vec<String> = untestable.into_iter().filter_map(|r| r.err()).collect();
     if results.is_empty() {
@@ -741,6 +742,9 @@ fn searched_channels(
     }
     let results: Vec<(ChannelDiagnosis, Vec<Finding>)> = results.into_iter().filter_map(|r| r.ok()).collect();
     let (channel_results, findings): (Vec<_>, Vec<_>) = results.into_iter().unzip();
+    let untestable = (untestable.into_iter())
+        .map(|reason| Diagnosing::ChannelNotTested { reason }.into())
+        .collect();
     Ok((channel_results, findings, untestable))
 }
 
@@ -786,40 +790,41 @@ fn diagnose_from(
 }
 
 /// A note for each channel whose search used the other λ criterion.
-fn criterion_notes(channel_results: &[ChannelDiagnosis], options: &FitOptions) -> Vec<String> {
+fn criterion_notes(channel_results: &[ChannelDiagnosis], options: &FitOptions) -> Vec<Note> {
     let mut notes = Vec::new();
     for c in channel_results {
-        if let (true, Some(other)) = (
+        if let (true, Some(other_nt)) = (
             c.search_criterion != options.solve.criterion,
             c.heldout_rms_other_criterion_nt,
         ) {
-            notes.push(format!(
-                "{}: λ picked by {} predicts the held-out headings better in band than by {} ({:.4} → {:.4} nT), so the search used it; the diagnosed model keeps {} ({:.4} nT held out with the findings, if any), because a less regularised fit is not checked outside the band: held-out figures measure only the calibration band, and on simulated flights with known truth the pipeline's criterion compensated closer to it outside the band",
-                c.channel,
-                c.search_criterion.describe(),
-                options.solve.criterion.describe(),
-                c.heldout_rms_baseline_nt,
-                other,
-                options.solve.criterion.describe(),
-                c.heldout_rms_final_nt,
-            ));
+            notes.push(
+                Diagnosing::OtherCriterion {
+                    channel: c.channel.clone(),
+                    searched_by: c.search_criterion.describe().into(),
+                    kept: options.solve.criterion.describe().into(),
+                    baseline_nt: c.heldout_rms_baseline_nt,
+                    other_nt,
+                    final_nt: c.heldout_rms_final_nt,
+                }
+                .into(),
+            );
         }
     }
     notes
 }
 
 /// The fluxgate check's figures, when its finding does not stand.
-fn fluxgate_note(check: &FluxgateCheck, settings: &DiagnoseOptions) -> String {
-    format!(
-        "{}'s magnitude against {} (the scalar with the least aircraft field, {:.1} nT over the manoeuvres): held-out mismatch {:.1} nT raw, {:.1} nT calibrated; below the {:.0} nT a finding needs ({:.0} nT and three times that field), or not removed by the calibration",
-        check.calibration.sensor,
-        check.calibration.reference,
-        check.reference_interference_nt,
-        check.heldout_mismatch_before_nt,
-        check.heldout_mismatch_after_nt,
-        check.threshold_nt,
-        settings.vector_mismatch_nt
-    )
+fn fluxgate_note(check: &FluxgateCheck, settings: &DiagnoseOptions) -> Note {
+    Diagnosing::FluxgateMismatchShort {
+        sensor: check.calibration.sensor.clone(),
+        reference: check.calibration.reference.clone(),
+        reference_interference_nt: check.reference_interference_nt,
+        before_nt: check.heldout_mismatch_before_nt,
+        after_nt: check.heldout_mismatch_after_nt,
+        threshold_nt: check.threshold_nt,
+        least_nt: settings.vector_mismatch_nt,
+    }
+    .into()
 }
 
 /// The held-out in-band RMS of `spec` on `channel`, nT, scored as the

@@ -27,8 +27,12 @@ use std::fmt;
 
 use serde::{Serialize, Serializer};
 
+pub mod diagnosis;
 pub mod reading;
+pub mod vector;
+pub use diagnosis::Diagnosing;
 pub use reading::Reading;
+pub use vector::VectorSummary;
 
 /// Why a channel's diagnosed findings are held back by the evidence rule.
 #[derive(Debug, Clone, PartialEq)]
@@ -1331,6 +1335,12 @@ impl Serialize for Warning {
 pub enum Note {
     /// A note of a stage not typed yet, as its sentence.
     Said(String),
+    /// What the diagnosis says beside its findings.
+    Diagnosing(Diagnosing),
+    /// No vector compensation: the flight records no INS attitude.
+    NoVectorAttitude,
+    /// A fluxgate vector-compensated, with its model's figures.
+    VectorCompensated(Box<VectorSummary>),
     /// The input already has the column magcomp would add: the
     /// compensation goes in a renamed one.
     Renamed {
@@ -1601,6 +1611,12 @@ impl Note {
     }
 }
 
+impl From<Diagnosing> for Note {
+    fn from(note: Diagnosing) -> Self {
+        Note::Diagnosing(note)
+    }
+}
+
 impl From<String> for Note {
     fn from(sentence: String) -> Self {
         Note::Said(sentence)
@@ -1611,6 +1627,11 @@ impl fmt::Display for Note {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             Note::Said(sentence) => f.write_str(sentence),
+            Note::Diagnosing(note) => note.fmt(f),
+            Note::NoVectorAttitude => {
+                f.write_str("no vector compensation: the flight records no INS attitude (roll, pitch and yaw)")
+            }
+            Note::VectorCompensated(summary) => summary.fmt(f),
             Note::WindowHeadings { .. } | Note::LinesAsWindows { .. } | Note::FluxgateCalibrated { .. } => {
                 self.write_calibration(f)
             }

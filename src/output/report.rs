@@ -1160,7 +1160,7 @@ fn findings_table(findings: &[crate::diagnose::Finding]) -> String {
 pub fn diagnosis_section(diagnosis: &Diagnosis) -> Result<String> {
     let mut html = String::from("<section id=\"diagnosis\"><h2>Diagnosis: physics the model left out</h2>");
     for note in &diagnosis.notes {
-        let _ = write!(html, "<p class=\"note\">{}</p>", escape(note));
+        let _ = write!(html, "<p class=\"note\">{}</p>", escape(&note.to_string()));
     }
     html += &findings_table(&diagnosis.findings);
     for channel in &diagnosis.channels {

@@ -206,16 +206,17 @@ pub(super) fn evidence_rule(
             false,
         );
     }
-    let unchecked: Vec<&str> = (plan.iter())
+    let unchecked: Vec<String> = (plan.iter())
         .filter(|(_, model)| **model != tolles_lawson_of(model))
-        .map(|(channel, _)| channel.as_str())
+        .map(|(channel, _)| channel.clone())
         .collect();
     if check == SurveyCheck::NotMade && !unchecked.is_empty() {
-        diagnosis.notes.push(format!(
-            "the findings applied on {} were not checked against the survey's line levels: it has fewer than {LEAST_CROSSOVERS} crossovers with a base station, and no block of {} or more parallel lines flown both ways",
-            unchecked.join(", "),
-            LEAST_TRIPLES + 2
-        ));
+        let note = crate::messages::Diagnosing::SurveyNotChecked {
+            channels: unchecked,
+            least_crossovers: LEAST_CROSSOVERS,
+            least_lines: LEAST_TRIPLES + 2,
+        };
+        diagnosis.notes.push(note.into());
     }
     Ok((plan, applied))
 }

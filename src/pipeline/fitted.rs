@@ -183,7 +183,7 @@ impl Assessed {
         let excitation = std::mem::take(&mut self.excitation_notes);
         model_messages(&self.models, excitation, (notes, warnings));
         let (vector, gradients) = (&mut self.vector, &mut self.gradients);
-        notes.extend(Note::said(std::mem::take(&mut vector.notes)));
+        notes.append(&mut vector.notes);
         notes.append(&mut gradients.notes);
         warnings.append(&mut vector.warnings);
         warnings.append(&mut gradients.warnings);

@@ -2,14 +2,14 @@
 //! on the calibration, and its compensated vectors.
 
 use crate::ingest::flight_log::FlightLog;
-use crate::messages::Warning;
+use crate::messages::{Note, VectorSummary, Warning};
 use crate::model::FitOptions;
 
 /// What the vector stage produced: models, compensated vectors, words.
 pub(super) struct VectorStage {
     pub(super) models: Vec<crate::vector::VectorModel>,
     pub(super) compensated: Vec<crate::vector::CompensatedVector>,
-    pub(super) notes: Vec<String>,
+    pub(super) notes: Vec<Note>,
     pub(super) warnings: Vec<Warning>,
 }
 
@@ -46,9 +46,7 @@ pub(super) fn vector_stage(
         return stage;
     }
     if log.attitude().is_none() {
-        stage
-            .notes
-            .push("no vector compensation: the flight records no INS attitude (roll, pitch and yaw)".into());
+        stage.notes.push(Note::NoVectorAttitude);
         return stage;
     }
     // The reference is the channel with the least aircraft field over the
@@ -78,7 +76,9 @@ pub(super) fn vector_stage(
         .and_then(|model| Ok((model.compensate(log)?, model)));
         match fitted {
             Ok((compensated, model)) => {
-                stage.notes.push(vector_note(&model));
+                stage
+                    .notes
+                    .push(Note::VectorCompensated(Box::new(vector_summary(&model))));
                 stage.warnings.extend(vector_model_warnings(&model));
                 stage.compensated.push(compensated);
                 stage.models.push(model);
@@ -142,54 +142,41 @@ pub(super) fn window_hulls(windows: &[crate::calibration::windows::CalibrationWi
     hulls
 }
 
-/// One line on a vector model.
-pub(super) fn vector_note(model: &crate::vector::VectorModel) -> String {
-    let [x, y, z] = model.residual_rms_nt;
-    let mut text = format!(
-        "{}: vector-compensated with the twelve-constant model on {} calibration rows, the field's size from {} levelled at its recorded mean over the box (the aircraft's mean field at that sensor, which no manoeuvre pins, scales the vector: δ nT there is up to δ nT on a component; its modelled interference swings by {:.2} nT RMS over the box): residual x/y/z {x:.2}/{y:.2}/{z:.2} nT",
-        model.sensor, model.rows, model.reference, model.reference_swing_nt
-    );
-    if let Some(held) = &model.held_out {
-        let [x, y, z] = held.rms_nt;
-        text += &format!(
-            ", held out by heading ({} headings) {x:.2}/{y:.2}/{z:.2} nT",
-            held.headings
-        );
+/// What the vector stage says of a fitted model.
+pub(super) fn vector_summary(model: &crate::vector::VectorModel) -> VectorSummary {
+    let igrf = match model.start {
+        crate::vector::FieldStart::Igrf {
+            inclination_deg,
+            declination_deg,
+            position,
+            ..
+        } => Some((
+            position == crate::vector::PositionSource::Site,
+            inclination_deg,
+            declination_deg,
+        )),
+        _ => None,
+    };
+    VectorSummary {
+        sensor: model.sensor.clone(),
+        rows: model.rows,
+        reference: model.reference.clone(),
+        reference_swing_nt: model.reference_swing_nt,
+        residual_rms_nt: model.residual_rms_nt,
+        held_out: model.held_out.as_ref().map(|held| (held.headings, held.rms_nt)),
+        inclination_deg: model.inclination_deg,
+        declination_deg: model.declination_deg,
+        igrf,
+        mounting: model.mounting.describe(),
+        eddy: model
+            .tolles_lawson
+            .as_ref()
+            .map(|stage| crate::messages::vector::VectorEddy {
+                before_nt: stage.band_rms_before_nt,
+                after_nt: stage.band_rms_after_nt,
+                held_out: stage.held_out.as_ref().map(|held| (held.before_nt, held.after_nt)),
+            }),
     }
-    text += &format!(
-        "; Earth field inclination {:.3}°, declination {:.3}°",
-        model.inclination_deg, model.declination_deg
-    );
-    if let crate::vector::FieldStart::Igrf {
-        inclination_deg,
-        declination_deg,
-        position,
-        ..
-    } = model.start
-    {
-        let at = match position {
-            crate::vector::PositionSource::Recorded => "",
-            crate::vector::PositionSource::Site => " at the [site]",
-        };
-        text += &format!(" (IGRF-14{at}: {inclination_deg:.3}°, {declination_deg:.3}°)");
-    }
-    text += &format!("; {}", model.mounting.describe());
-    if let Some(stage) = &model.tolles_lawson {
-        let axes = |v: [f64; 3]| format!("{:.2}/{:.2}/{:.2}", v[0], v[1], v[2]);
-        text += &format!(
-            "; vector Tolles-Lawson (eddy currents, per axis): band-passed residual x/y/z {} → {} nT",
-            axes(stage.band_rms_before_nt),
-            axes(stage.band_rms_after_nt)
-        );
-        if let Some(held) = &stage.held_out {
-            text += &format!(
-                ", held out by heading {} → {} nT",
-                axes(held.before_nt),
-                axes(held.after_nt)
-            );
-        }
-    }
-    text
 }
 
 /// A warning when the field's sign could not be checked (no position, no
