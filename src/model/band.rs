@@ -159,17 +159,9 @@ pub(crate) fn band_data(
     extra: &[&[f64]],
     stores: &StorePool,
 ) -> Result<BandData> {
-    if scalar.len() != log.len() {
-        return Err(Error::LengthMismatch {
-            column: channel.to_string(),
-            found: scalar.len(),
-            expected: log.len(),
-        });
-    }
-    let filter = design_filter(log, settings)?;
+    let (filter, needed) = band_pass(log, (channel, scalar), settings)?;
     let sample_rate_hz = 1.0 / log.median_interval_s();
     let trim = settings.trim_samples;
-    let needed = filter.min_samples().max(2 * trim + 1);
     let plans: Vec<WindowPlan> = windows
         .iter()
         .map(|window| WindowPlan::new(log, sensor, (scalar, extra), window, needed, trim))
@@ -217,6 +209,26 @@ fn window_fits(plans: &[WindowPlan], trim: usize, stacked: &Stacked) -> Vec<Wind
     fits
 }
 
+/// The band-pass of `settings` for `log`, and the fewest samples a run
+/// needs to be filtered and trimmed; an error when `scalar` (the channel's
+/// readings) is not one value per row.
+fn band_pass(
+    log: &FlightLog,
+    (channel, scalar): (&str, &[f64]),
+    settings: &FilterSettings,
+) -> Result<(ZeroPhaseFilter, usize)> {
+    if scalar.len() != log.len() {
+        return Err(Error::LengthMismatch {
+            column: channel.to_string(),
+            found: scalar.len(),
+            expected: log.len(),
+        });
+    }
+    let filter = design_filter(log, settings)?;
+    let needed = filter.min_samples().max(2 * settings.trim_samples + 1);
+    Ok((filter, needed))
+}
+
 /// Replaces `band`'s target by `scalar` band-passed over the same windows,
 /// the design columns as they are: bit for bit what [`band_data`] gives
 /// with `scalar`, since each column is band-passed in its own lane. False,
@@ -230,16 +242,8 @@ pub(crate) fn replace_target(
     settings: &FilterSettings,
     stores: &StorePool,
 ) -> Result<bool> {
-    if scalar.len() != log.len() {
-        return Err(Error::LengthMismatch {
-            column: channel.to_string(),
-            found: scalar.len(),
-            expected: log.len(),
-        });
-    }
-    let filter = design_filter(log, settings)?;
+    let (filter, needed) = band_pass(log, (channel, scalar), settings)?;
     let trim = settings.trim_samples;
-    let needed = filter.min_samples().max(2 * trim + 1);
     let mut plans = Vec::with_capacity(band.windows.len());
     for fit in &band.windows {
         let Ok(plan) = WindowPlan::new(log, sensor, (scalar, extra), &fit.window, needed, trim) else {

@@ -1519,24 +1519,28 @@ mod tests {
         residual_ss + 2.0 * dot(&projected, &correction) + dot(&correction, &times_gram(&correction))
     }
 
-    /// Every ridge λ and TSVD rank of the blocked PRESS equals the
-    /// per-candidate solve, on a full-rank design and on one with a column
-    /// that repeats a combination of two others.
+    /// Six sine columns of `rows` rows, the last a combination of two
+    /// others when `deficient`.
+    fn sine_columns(rows: usize, deficient: bool) -> Vec<Vec<f64>> {
+        let mut columns: Vec<Vec<f64>> = (0..6)
+            .map(|k| {
+                (0..rows)
+                    .map(|i| ((i * (2 * k + 3)) as f64 * 0.173 + k as f64).sin())
+                    .collect()
+            })
+            .collect();
+        if deficient {
+            columns[5] = columns[0].iter().zip(&columns[2]).map(|(a, b)| a - 2.0 * b).collect();
+        }
+        columns
+    }
+
     #[test]
     fn a_kept_decomposition_solves_another_target_bit_for_bit() {
-        let (rows, p) = (300, 6);
+        let rows = 300;
         // Well conditioned (CholeskyQR2) and rank-deficient (Householder).
         for deficient in [false, true] {
-            let mut columns: Vec<Vec<f64>> = (0..p)
-                .map(|k| {
-                    (0..rows)
-                        .map(|i| ((i * (2 * k + 3)) as f64 * 0.173 + k as f64).sin())
-                        .collect()
-                })
-                .collect();
-            if deficient {
-                columns[5] = columns[0].iter().zip(&columns[2]).map(|(a, b)| a - 2.0 * b).collect();
-            }
+            let columns = sine_columns(rows, deficient);
             let target = |shift: f64| -> Vec<f64> {
                 (0..rows)
                     .map(|i| {
@@ -1575,20 +1579,14 @@ mod tests {
         }
     }
 
+    /// Every ridge λ and TSVD rank of the blocked PRESS equals the
+    /// per-candidate solve, on a full-rank design and on one with a column
+    /// that repeats a combination of two others.
     #[test]
     fn blocked_press_forms_equal_the_per_candidate_solve() {
         let (rows, p) = (90, 6);
         for deficient in [false, true] {
-            let mut columns: Vec<Vec<f64>> = (0..p)
-                .map(|k| {
-                    (0..rows)
-                        .map(|i| ((i * (2 * k + 3)) as f64 * 0.173 + k as f64).sin())
-                        .collect()
-                })
-                .collect();
-            if deficient {
-                columns[5] = columns[0].iter().zip(&columns[2]).map(|(a, b)| a - 2.0 * b).collect();
-            }
+            let columns = sine_columns(rows, deficient);
             let y: Vec<f64> = (0..rows)
                 .map(|i| {
                     columns
