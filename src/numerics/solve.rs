@@ -744,24 +744,35 @@ impl DesignFactor {
 /// without the Gram matrices), summed in block order.
 fn target_statistics(design: &Stacked, to_u: &Mat<f64>, fold_count: usize) -> Vec<(Vec<f64>, f64)> {
     let p = design.columns();
-    let partials: Vec<(usize, Vec<f64>, f64)> = design
-        .blocks()
-        .par_iter()
+    let partials = per_block_in_basis(design, to_u, |u, y| {
+        (basis_times(u, y), y.iter().map(|v| v * v).sum::<f64>())
+    });
+    let mut folds: Vec<(Vec<f64>, f64)> = (0..fold_count).map(|_| (vec![0.0; p], 0.0)).collect();
+    for (fold, (uty, yy)) in partials {
+        folds[fold].0.iter_mut().zip(&uty).for_each(|(a, b)| *a += b);
+        folds[fold].1 += yy;
+    }
+    folds
+}
+
+/// `each(U_b, y_b)` of every row block, with $U = A M$ (`to_u` is M), the
+/// blocks side by side: each result with its block's fold, in block order.
+fn per_block_in_basis<T: Send>(
+    design: &Stacked,
+    to_u: &Mat<f64>,
+    each: impl Fn(MatRef<'_, f64>, &[f64]) -> T + Sync + Send,
+) -> Vec<(usize, T)> {
+    let p = design.columns();
+    (design.blocks().par_iter())
         .map_init(
             || BlockBuffer::new(p),
             |buffer, block| {
                 let y = buffer.load(design, block, to_u);
                 let u = buffer.basis.as_ref().get(..y.len(), ..);
-                (block.fold, basis_times(u, y), y.iter().map(|v| v * v).sum())
+                (block.fold, each(u, y))
             },
         )
-        .collect();
-    let mut folds: Vec<(Vec<f64>, f64)> = (0..fold_count).map(|_| (vec![0.0; p], 0.0)).collect();
-    for (fold, uty, yy) in partials {
-        folds[fold].0.iter_mut().zip(&uty).for_each(|(a, b)| *a += b);
-        folds[fold].1 += yy;
-    }
-    folds
+        .collect()
 }
 
 /// $U^\top y$.
@@ -789,18 +800,7 @@ fn condition_number(a: MatRef<'_, f64>) -> Result<f64, SolveError> {
 /// $U = A M$, summed in block order.
 fn basis_statistics(design: &Stacked, to_u: &Mat<f64>, fold_count: usize) -> Vec<FoldStatistics> {
     let p = design.columns();
-    let partials: Vec<(usize, FoldStatistics)> = design
-        .blocks()
-        .par_iter()
-        .map_init(
-            || BlockBuffer::new(p),
-            |buffer, block| {
-                let y = buffer.load(design, block, to_u);
-                let u = buffer.basis.as_ref().get(..y.len(), ..);
-                (block.fold, FoldStatistics::of_block(u, y))
-            },
-        )
-        .collect();
+    let partials = per_block_in_basis(design, to_u, FoldStatistics::of_block);
     let mut folds: Vec<FoldStatistics> = (0..fold_count).map(|_| FoldStatistics::zeros(p)).collect();
     for (fold, partial) in partials {
         folds[fold].add(&partial);
