@@ -635,14 +635,9 @@ pub fn predict(plan: &Plan, settings: &Settings) -> Result<PlanReport> {
     let channels = predictions(&realisations, target_survey, target_fom);
     let mut warnings = Vec::new();
     let headings = plan.scenario.raw.calibration.headings_deg.clone();
-    let Proposed {
-        additions,
-        additions_meet_target,
-        with_additions,
-        candidates,
-    } = propose(plan, (&realisations, &channels), (&seeds, settings), &mut warnings)?;
+    let proposed = propose(plan, (&realisations, &channels), (&seeds, settings), &mut warnings)?;
     warnings.extend(channel_warnings(&channels, &realisations, target_fom));
-    if additions_meet_target == Some(false) {
+    if proposed.additions_meet_target == Some(false) {
         warnings.push(format!(
             "no set of up to {} additions meets the survey target of {:.3} nT on every channel; the report lists the best found",
             plan.settings.most_additions,
@@ -661,10 +656,10 @@ pub fn predict(plan: &Plan, settings: &Settings) -> Result<PlanReport> {
         target_survey_sigma_nt: target_survey,
         stated_factor: STATED_FACTOR,
         channels,
-        additions,
-        additions_meet_target,
-        with_additions,
-        candidates,
+        additions: proposed.additions,
+        additions_meet_target: proposed.additions_meet_target,
+        with_additions: proposed.with_additions,
+        candidates: proposed.candidates,
         warnings,
         summary: Vec::new(),
     };
