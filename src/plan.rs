@@ -134,25 +134,7 @@ impl Plan {
         let mut raw: RawScenario = toml::Value::Table(table)
             .try_into()
             .map_err(|e| config(e.to_string()))?;
-        if !(1..=MOST_REALISATIONS).contains(&settings.realisations) {
-            return Err(config(format!(
-                "[plan] realisations = {}: give 1 to {MOST_REALISATIONS} simulated flights",
-                settings.realisations
-            )));
-        }
-        for (name, target) in [
-            ("target_survey_sigma_nt", settings.target_survey_sigma_nt),
-            ("target_fom_nt", settings.target_fom_nt),
-        ] {
-            if target.is_some_and(|t| !(t.is_finite() && t > 0.0)) {
-                return Err(config(format!("[plan] {name}: give a positive number of nT")));
-            }
-        }
-        if raw.calibration.repeats == 0 {
-            return Err(config(
-                "[calibration] repeats = 0: a plan needs a calibration box to predict".into(),
-            ));
-        }
+        check_plan(&settings, &raw).map_err(config)?;
         let installation = match &settings.installation {
             None => "typical values: each scalar sensor's aircraft field drawn at its location's size (tail, wing or cabin), afresh in every realisation".to_string(),
             Some(file) => {
@@ -171,6 +153,29 @@ impl Plan {
             installation,
         })
     }
+}
+
+/// Refuses a plan that cannot be predicted: too few or too many simulated
+/// flights, a target that is not a positive number of nT, or no box.
+fn check_plan(settings: &PlanSettings, raw: &RawScenario) -> std::result::Result<(), String> {
+    if !(1..=MOST_REALISATIONS).contains(&settings.realisations) {
+        return Err(format!(
+            "[plan] realisations = {}: give 1 to {MOST_REALISATIONS} simulated flights",
+            settings.realisations
+        ));
+    }
+    for (name, target) in [
+        ("target_survey_sigma_nt", settings.target_survey_sigma_nt),
+        ("target_fom_nt", settings.target_fom_nt),
+    ] {
+        if target.is_some_and(|t| !(t.is_finite() && t > 0.0)) {
+            return Err(format!("[plan] {name}: give a positive number of nT"));
+        }
+    }
+    if raw.calibration.repeats == 0 {
+        return Err("[calibration] repeats = 0: a plan needs a calibration box to predict".into());
+    }
+    Ok(())
 }
 
 /// The aircraft field of each mag_<n>_uc channel of a model JSON's
@@ -235,6 +240,13 @@ fn install(raw: &mut RawScenario, file: &Path, has_scalars: bool) -> Result<Stri
             None => typical.push(sensor.name.clone()),
         }
     }
+    Ok(installed_words(file, &taken, &left_out, &typical))
+}
+
+/// What [`install`] took from the model file at `file`, in words: the
+/// sensors `taken` from it, the terms `left_out` and the sensors drawn at
+/// their `typical` size.
+fn installed_words(file: &Path, taken: &[String], left_out: &[String], typical: &[String]) -> String {
     let mut words = format!(
         "from {}: the aircraft's field at {} from that flight's Tolles-Lawson coefficients",
         file.display(),
@@ -252,7 +264,7 @@ fn install(raw: &mut RawScenario, file: &Path, has_scalars: bool) -> Result<Stri
             typical.join(", ")
         );
     }
-    Ok(words)
+    words
 }
 
 /// The simulator's aircraft field from one model of a model JSON: the
@@ -559,6 +571,57 @@ fn addition_cost(plan: &Plan, candidate: &crate::model::excitation::Candidate) -
     (candidate.duration_s + 0.5 * (pause[0] + pause[1]) + extra, new_leg)
 }
 
+/// What a prediction proposes to add to the plan's box.
+struct Proposed {
+    /// The additions chosen towards the survey target.
+    additions: Vec<Addition>,
+    /// Whether they meet it; `None` without a target or an analysis.
+    additions_meet_target: Option<bool>,
+    /// The channels predicted with the additions flown.
+    with_additions: Vec<ChannelPrediction>,
+    /// Without a target, what each candidate alone would do.
+    candidates: Vec<CandidateValue>,
+}
+
+/// The additions towards the plan's survey target and the channels flown
+/// with them, or without a target each candidate's value; warns in
+/// `warnings` of channels whose noise alone is above the target.
+fn propose(
+    plan: &Plan,
+    (realisations, channels): (&[Realisation], &[ChannelPrediction]),
+    (seeds, settings): (&[u64], &Settings),
+    warnings: &mut Vec<String>,
+) -> Result<Proposed> {
+    let target_survey = plan.settings.target_survey_sigma_nt;
+    let target_fom = plan.settings.target_fom_nt;
+    let cost = |candidate: &crate::model::excitation::Candidate| addition_cost(plan, candidate);
+    let mut additions = Vec::new();
+    let mut additions_meet_target = None;
+    let mut with_additions = Vec::new();
+    let mut candidates = Vec::new();
+    match target_survey {
+        Some(target) => {
+            let chosen = choose_additions(realisations, target, plan.settings.most_additions, &cost);
+            warnings.extend(noise_above_target(channels, realisations, target));
+            if let Some((list, met)) = chosen {
+                additions = list;
+                additions_meet_target = Some(met);
+                if !additions.is_empty() {
+                    let again = realise_with(plan, &additions, (seeds, settings))?;
+                    with_additions = predictions(&again, target_survey, target_fom);
+                }
+            }
+        }
+        None => candidates = candidate_values(realisations, &cost),
+    }
+    Ok(Proposed {
+        additions,
+        additions_meet_target,
+        with_additions,
+        candidates,
+    })
+}
+
 /// Predicts what flights of `plan` would achieve (see the module doc).
 /// Results do not depend on the number of threads: each realisation is
 /// simulated and fitted on its own seed, and they are gathered in order.
@@ -572,28 +635,9 @@ pub fn predict(plan: &Plan, settings: &Settings) -> Result<PlanReport> {
     let channels = predictions(&realisations, target_survey, target_fom);
     let mut warnings = Vec::new();
     let headings = plan.scenario.raw.calibration.headings_deg.clone();
-    let cost = |candidate: &crate::model::excitation::Candidate| addition_cost(plan, candidate);
-    let mut additions = Vec::new();
-    let mut additions_meet_target = None;
-    let mut with_additions = Vec::new();
-    let mut candidates = Vec::new();
-    match target_survey {
-        Some(target) => {
-            let chosen = choose_additions(&realisations, target, plan.settings.most_additions, &cost);
-            warnings.extend(noise_above_target(&channels, &realisations, target));
-            if let Some((list, met)) = chosen {
-                additions = list;
-                additions_meet_target = Some(met);
-                if !additions.is_empty() {
-                    let again = realise_with(plan, &additions, (&seeds, settings))?;
-                    with_additions = predictions(&again, target_survey, target_fom);
-                }
-            }
-        }
-        None => candidates = candidate_values(&realisations, &cost),
-    }
+    let proposed = propose(plan, (&realisations, &channels), (&seeds, settings), &mut warnings)?;
     warnings.extend(channel_warnings(&channels, &realisations, target_fom));
-    if additions_meet_target == Some(false) {
+    if proposed.additions_meet_target == Some(false) {
         warnings.push(format!(
             "no set of up to {} additions meets the survey target of {:.3} nT on every channel; the report lists the best found",
             plan.settings.most_additions,
@@ -612,10 +656,10 @@ pub fn predict(plan: &Plan, settings: &Settings) -> Result<PlanReport> {
         target_survey_sigma_nt: target_survey,
         stated_factor: STATED_FACTOR,
         channels,
-        additions,
-        additions_meet_target,
-        with_additions,
-        candidates,
+        additions: proposed.additions,
+        additions_meet_target: proposed.additions_meet_target,
+        with_additions: proposed.with_additions,
+        candidates: proposed.candidates,
         warnings,
         summary: Vec::new(),
     };
@@ -635,24 +679,7 @@ fn channel_warnings(
     let flights = realisations.len();
     let mut warnings = Vec::new();
     let listed = |items: Vec<String>| items.join(", ");
-    let above: Vec<String> = (channels.iter())
-        .filter(|c| c.meets_fom_target == Some(false))
-        .map(|c| {
-            format!(
-                "{} (FOM {}, its compensated noise {:.3} nT)",
-                c.channel,
-                c.fom_nt.words(2),
-                c.noise_nt.median
-            )
-        })
-        .collect();
-    if !above.is_empty() {
-        warnings.push(format!(
-            "the plan's predicted FOM is above the target of {:.2} nT on {}; no addition to the box lowers it (it measures the compensated residual over the box's own manoeuvres)",
-            target_fom.unwrap_or(f64::NAN),
-            listed(above)
-        ));
-    }
+    warnings.extend(fom_above_target(channels, target_fom));
     let unanalysed: Vec<String> = (channels.iter())
         .filter_map(|channel| {
             let count = (realisations.iter())
@@ -668,6 +695,36 @@ fn channel_warnings(
         ));
     }
     warnings.extend(gap_warnings(channels, realisations));
+    warnings.extend(uncertain_away(channels, flights));
+    warnings
+}
+
+/// The warning naming the channels whose predicted FOM is above
+/// `target_fom`, nT, with their compensated noise.
+fn fom_above_target(channels: &[ChannelPrediction], target_fom: Option<f64>) -> Option<String> {
+    let above: Vec<String> = (channels.iter())
+        .filter(|c| c.meets_fom_target == Some(false))
+        .map(|c| {
+            format!(
+                "{} (FOM {}, its compensated noise {:.3} nT)",
+                c.channel,
+                c.fom_nt.words(2),
+                c.noise_nt.median
+            )
+        })
+        .collect();
+    (!above.is_empty()).then(|| {
+        format!(
+            "the plan's predicted FOM is above the target of {:.2} nT on {}; no addition to the box lowers it (it measures the compensated residual over the box's own manoeuvres)",
+            target_fom.unwrap_or(f64::NAN),
+            above.join(", ")
+        )
+    })
+}
+
+/// The warning naming the channels uncertain away from the calibration on
+/// some of the `flights` simulated flights, with how uncertain.
+fn uncertain_away(channels: &[ChannelPrediction], flights: usize) -> Option<String> {
     let uncertain: Vec<String> = (channels.iter())
         .filter(|c| c.uncertain_flights > 0)
         .map(|c| {
@@ -677,14 +734,13 @@ fn channel_warnings(
             )
         })
         .collect();
-    if !uncertain.is_empty() {
-        warnings.push(format!(
+    (!uncertain.is_empty()).then(|| {
+        format!(
             "on some simulated flights the compensation away from the calibration is uncertain by more than {:.3} nT: {}; the planned manoeuvres leave the fit open on the survey's headings and attitudes on some flights, and compensate would warn on them",
             crate::quality::UNCERTAINTY_WARNING_NT,
-            listed(uncertain)
-        ));
-    }
-    warnings
+            uncertain.join(", ")
+        )
+    })
 }
 
 /// One warning per gap in the box that most realisations name on some
@@ -756,6 +812,42 @@ fn stated_sigmas(
     ))
 }
 
+/// One channel's outcome on a simulated flight: its quality figures, its
+/// excitation analysis and the error of its compensated survey lines
+/// against the flight's truth.
+fn outcome(
+    flight: &SimulatedFlight,
+    (model, compensated): (&FittedModel, &crate::compensate::CompensatedChannel),
+    design: Option<(Excitation, Design)>,
+    (shared, line): (&[SharedDesign], &[f64]),
+) -> Result<Outcome> {
+    let log = &flight.log;
+    let quality = crate::quality::assess_quality(log, model, compensated);
+    let noise_nt = quality.white_noise_nt().unwrap_or(f64::NAN);
+    let truth = flight.truth.earth_total_nt(&model.channel).unwrap_or_default();
+    let (excitation, design) = design.unzip();
+    let (jackknife_sigma_nt, sigma_column_nt) = stated_sigmas(log, model, (shared, line), noise_nt)?;
+    Ok(Outcome {
+        channel: model.channel.clone(),
+        fom: quality
+            .fom_before_nt
+            .zip(quality.fom_after_nt)
+            .map(|(b, a)| (b, a, quality.fom_manoeuvres)),
+        coefficient_sigma_nt: excitation.as_ref().map_or(f64::NAN, |e| e.survey_sigma_nt),
+        noise_nt,
+        survey_error_nt: error_from_calibration_level(model, &compensated.values, truth, line),
+        poorly_pinned: (excitation.iter())
+            .flat_map(|e| e.terms.iter().filter(|t| t.poorly_pinned).map(|t| t.term.clone()))
+            .collect(),
+        gaps: (excitation.iter())
+            .flat_map(|e| e.additions.iter().filter(|c| c.gap).cloned())
+            .collect(),
+        jackknife_sigma_nt,
+        sigma_column_nt,
+        design,
+    })
+}
+
 /// Fits and measures one simulated flight as `compensate --plain` would,
 /// on its planned manoeuvres.
 fn realise(flight: &SimulatedFlight, settings: &Settings) -> Result<Realisation> {
@@ -775,32 +867,7 @@ fn realise(flight: &SimulatedFlight, settings: &Settings) -> Result<Realisation>
     let compensation = crate::compensate::compensate_with(log, &models, settings.level, &shared)?;
     let line = log.channel("line").map(|c| c.values.as_slice()).unwrap_or_default();
     let outcomes = (models.iter().zip(&compensation.channels).zip(designs))
-        .map(|((model, compensated), design)| {
-            let quality = crate::quality::assess_quality(log, model, compensated);
-            let noise_nt = quality.white_noise_nt().unwrap_or(f64::NAN);
-            let truth = flight.truth.earth_total_nt(&model.channel).unwrap_or_default();
-            let (excitation, design) = design.unzip();
-            let (jackknife_sigma_nt, sigma_column_nt) = stated_sigmas(log, model, (&shared, line), noise_nt)?;
-            Ok(Outcome {
-                channel: model.channel.clone(),
-                fom: quality
-                    .fom_before_nt
-                    .zip(quality.fom_after_nt)
-                    .map(|(b, a)| (b, a, quality.fom_manoeuvres)),
-                coefficient_sigma_nt: excitation.as_ref().map_or(f64::NAN, |e| e.survey_sigma_nt),
-                noise_nt,
-                survey_error_nt: error_from_calibration_level(model, &compensated.values, truth, line),
-                poorly_pinned: (excitation.iter())
-                    .flat_map(|e| e.terms.iter().filter(|t| t.poorly_pinned).map(|t| t.term.clone()))
-                    .collect(),
-                gaps: (excitation.iter())
-                    .flat_map(|e| e.additions.iter().filter(|c| c.gap).cloned())
-                    .collect(),
-                jackknife_sigma_nt,
-                sigma_column_nt,
-                design,
-            })
-        })
+        .map(|((model, compensated), design)| outcome(flight, (model, compensated), design, (&shared, line)))
         .collect::<Result<_>>()?;
     let manoeuvres = &flight.truth.manoeuvres;
     let calibration_s = match (manoeuvres.first(), manoeuvres.last()) {
@@ -852,55 +919,72 @@ fn predictions(
     let Some(first) = realisations.first() else {
         return Vec::new();
     };
-    let half = realisations.len().div_ceil(2);
     (first.outcomes.iter().enumerate())
-        .map(|(c, outcome)| {
-            let figure = |f: &dyn Fn(&Outcome) -> f64| Spread::of(realisations.iter().map(|r| f(&r.outcomes[c])));
-            let majority = |list: &dyn Fn(&Outcome) -> Vec<(String, String)>| -> Vec<String> {
-                let mut counts: BTreeMap<String, (usize, String)> = BTreeMap::new();
-                for r in realisations {
-                    for (key, words) in list(&r.outcomes[c]) {
-                        counts.entry(key).or_insert((0, words)).0 += 1;
-                    }
-                }
-                (counts.into_values())
-                    .filter(|(n, _)| *n >= half)
-                    .map(|(_, words)| words)
-                    .collect()
-            };
-            let uncertain_flights = (realisations.iter())
-                .filter(|r| r.outcomes[c].jackknife_sigma_nt > crate::quality::UNCERTAINTY_WARNING_NT)
-                .count();
-            let gap_labels = majority(&|o| o.gaps.iter().map(|g| (g.label(), g.label())).collect());
-            let fom_nt = figure(&|o| o.fom.map_or(f64::NAN, |f| f.1));
-            let survey_sigma_nt = figure(&|o| o.coefficient_sigma_nt.hypot(o.noise_nt));
-            ChannelPrediction {
-                channel: outcome.channel.clone(),
-                fom_before_nt: figure(&|o| o.fom.map_or(f64::NAN, |f| f.0)),
-                fom_nt,
-                fom_manoeuvres: median_of(
-                    realisations
-                        .iter()
-                        .map(|r| r.outcomes[c].fom.map_or(0.0, |f| f.2 as f64)),
-                ) as usize,
-                survey_sigma_nt,
-                coefficient_sigma_nt: figure(&|o| o.coefficient_sigma_nt),
-                noise_nt: figure(&|o| o.noise_nt),
-                survey_error_nt: figure(&|o| o.survey_error_nt),
-                jackknife_sigma_nt: figure(&|o| o.jackknife_sigma_nt),
-                sigma_column_nt: figure(&|o| o.sigma_column_nt),
-                uncertain_flights,
-                poorly_pinned: majority(&|o| o.poorly_pinned.iter().map(|t| (t.clone(), t.clone())).collect()),
-                gaps: gap_labels
-                    .iter()
-                    .map(|label| gap_words(realisations, c, label))
-                    .collect(),
-                gap_labels,
-                meets_fom_target: target_fom.map(|t| fom_nt.median <= t),
-                meets_survey_target: target_survey.map(|t| survey_sigma_nt.median <= t),
-            }
-        })
+        .map(|(c, outcome)| channel_prediction(realisations, (c, outcome), (target_survey, target_fom)))
         .collect()
+}
+
+/// The words of each item `list` gives channel `c` on at least half the
+/// realisations (items keyed, the words of the first kept), in key order.
+fn held_by_most(
+    realisations: &[Realisation],
+    c: usize,
+    list: &dyn Fn(&Outcome) -> Vec<(String, String)>,
+) -> Vec<String> {
+    let half = realisations.len().div_ceil(2);
+    let mut counts: BTreeMap<String, (usize, String)> = BTreeMap::new();
+    for r in realisations {
+        for (key, words) in list(&r.outcomes[c]) {
+            counts.entry(key).or_insert((0, words)).0 += 1;
+        }
+    }
+    (counts.into_values())
+        .filter(|(n, _)| *n >= half)
+        .map(|(_, words)| words)
+        .collect()
+}
+
+/// Channel `c`'s prediction (its `outcome` on the first realisation names
+/// it): each figure's spread over the realisations, what most of them
+/// leave poorly pinned or missing, and the targets met.
+fn channel_prediction(
+    realisations: &[Realisation],
+    (c, outcome): (usize, &Outcome),
+    (target_survey, target_fom): (Option<f64>, Option<f64>),
+) -> ChannelPrediction {
+    let figure = |f: &dyn Fn(&Outcome) -> f64| Spread::of(realisations.iter().map(|r| f(&r.outcomes[c])));
+    let majority = |list: &dyn Fn(&Outcome) -> Vec<(String, String)>| held_by_most(realisations, c, list);
+    let uncertain_flights = (realisations.iter())
+        .filter(|r| r.outcomes[c].jackknife_sigma_nt > crate::quality::UNCERTAINTY_WARNING_NT)
+        .count();
+    let gap_labels = majority(&|o| o.gaps.iter().map(|g| (g.label(), g.label())).collect());
+    let fom_nt = figure(&|o| o.fom.map_or(f64::NAN, |f| f.1));
+    let survey_sigma_nt = figure(&|o| o.coefficient_sigma_nt.hypot(o.noise_nt));
+    ChannelPrediction {
+        channel: outcome.channel.clone(),
+        fom_before_nt: figure(&|o| o.fom.map_or(f64::NAN, |f| f.0)),
+        fom_nt,
+        fom_manoeuvres: median_of(
+            realisations
+                .iter()
+                .map(|r| r.outcomes[c].fom.map_or(0.0, |f| f.2 as f64)),
+        ) as usize,
+        survey_sigma_nt,
+        coefficient_sigma_nt: figure(&|o| o.coefficient_sigma_nt),
+        noise_nt: figure(&|o| o.noise_nt),
+        survey_error_nt: figure(&|o| o.survey_error_nt),
+        jackknife_sigma_nt: figure(&|o| o.jackknife_sigma_nt),
+        sigma_column_nt: figure(&|o| o.sigma_column_nt),
+        uncertain_flights,
+        poorly_pinned: majority(&|o| o.poorly_pinned.iter().map(|t| (t.clone(), t.clone())).collect()),
+        gaps: gap_labels
+            .iter()
+            .map(|label| gap_words(realisations, c, label))
+            .collect(),
+        gap_labels,
+        meets_fom_target: target_fom.map(|t| fom_nt.median <= t),
+        meets_survey_target: target_survey.map(|t| survey_sigma_nt.median <= t),
+    }
 }
 
 /// A gap named `label` in channel `c`'s analyses: what the plan lacks,
@@ -1058,7 +1142,6 @@ fn choose_additions(
         .collect();
     let met = |sigmas: &[f64]| (sigmas.iter().zip(&reachable)).all(|(s, r)| !r || *s <= target);
     let mut chosen: Vec<usize> = Vec::new();
-    let mut additions = Vec::new();
     let mut sigmas = sigma_with(realisations, &index, &chosen);
     while !met(&sigmas) && chosen.len() < most {
         let now = excess(&sigmas, &reachable, target);
@@ -1081,7 +1164,26 @@ fn choose_additions(
     // A manoeuvre chosen again later is listed once, flown that many
     // times: the list keeps the order of first choice, and each entry's
     // figures are those of it and the entries before it.
-    let groups = grouped(&chosen, |a, b| {
+    let additions = listed_additions(realisations, &index, &chosen, (&names, cost));
+    Some((additions, met(&sigmas)))
+}
+
+/// What flying a candidate costs, s, and whether it needs a new leg
+/// ([`addition_cost`]).
+type CostOf<'a> = dyn Fn(&crate::model::excitation::Candidate) -> (f64, bool) + 'a;
+
+/// The additions `chosen` (indices into `index`, in the order chosen) as
+/// the plan lists them: a manoeuvre chosen again listed once, flown that
+/// many times, with its cost and each channel's survey sigma, nT, flown
+/// with it and those before it.
+fn listed_additions(
+    realisations: &[Realisation],
+    index: &[(crate::model::excitation::Candidate, Vec<Vec<Option<usize>>>)],
+    chosen: &[usize],
+    (names, cost): (&[String], &CostOf),
+) -> Vec<Addition> {
+    let mut additions = Vec::new();
+    let groups = grouped(chosen, |a, b| {
         index[a].0.kind == index[b].0.kind && index[a].0.heading_deg == index[b].0.heading_deg
     });
     let mut flown: Vec<usize> = Vec::new();
@@ -1090,7 +1192,7 @@ fn choose_additions(
         let candidate = &index[group[0]].0;
         let (cost_s, new_leg) = cost(candidate);
         let repeat_s = cost_s - if new_leg { NEW_LEG_S } else { 0.0 };
-        let after = sigma_with(realisations, &index, &flown);
+        let after = sigma_with(realisations, index, &flown);
         additions.push(Addition {
             kind: candidate.kind,
             heading_deg: candidate.heading_deg,
@@ -1103,7 +1205,7 @@ fn choose_additions(
             survey_sigma_nt: names.iter().cloned().zip(after).collect(),
         });
     }
-    Some((additions, met(&sigmas)))
+    additions
 }
 
 /// Without a target: what each candidate alone would do.
@@ -1196,38 +1298,49 @@ fn target_summary(report: &PlanReport, target: f64) -> Vec<String> {
         (true, _) => lines.push(format!(
             "No addition lowers the survey uncertainty towards the target of {target:.3} nT."
         )),
-        (false, met) => {
-            let list: Vec<String> = (report.additions.iter())
-                .map(|a| {
-                    format!(
-                        "{} on heading {:.0}{}{} ({:.0} s)",
-                        a.kind.name(),
-                        a.heading_deg,
-                        if a.count > 1 { format!(" ×{}", a.count) } else { String::new() },
-                        if a.new_leg { ", a new leg" } else { "" },
-                        a.cost_s
-                    )
-                })
-                .collect();
-            let total: f64 = report.additions.iter().map(|a| a.cost_s).sum();
-            let verdict = match met {
-                Some(true) => "meet",
-                _ => "come closest to",
-            };
-            lines.push(format!(
-                "The cheapest additions that {verdict} the survey target of {target:.3} nT: {} ({total:.0} s of flight in all).",
-                list.join(", ")
-            ));
-            for channel in &report.with_additions {
-                lines.push(format!(
-                    "Flown with them, {}: survey uncertainty {}, simulated error {}, FOM {}.",
-                    channel.channel,
-                    channel.survey_sigma_nt.words(3),
-                    channel.survey_error_nt.words(3),
-                    channel.fom_nt.words(2)
-                ));
-            }
-        }
+        (false, met) => lines.extend(additions_summary(report, target, met)),
+    }
+    lines
+}
+
+/// The summary's sentences on the additions proposed towards the survey
+/// `target`, nT, which they meet or (`met` not `Some(true)`) come closest
+/// to, and on the channels flown with them.
+fn additions_summary(report: &PlanReport, target: f64, met: Option<bool>) -> Vec<String> {
+    let mut lines = Vec::new();
+    let list: Vec<String> = (report.additions.iter())
+        .map(|a| {
+            format!(
+                "{} on heading {:.0}{}{} ({:.0} s)",
+                a.kind.name(),
+                a.heading_deg,
+                if a.count > 1 {
+                    format!(" ×{}", a.count)
+                } else {
+                    String::new()
+                },
+                if a.new_leg { ", a new leg" } else { "" },
+                a.cost_s
+            )
+        })
+        .collect();
+    let total: f64 = report.additions.iter().map(|a| a.cost_s).sum();
+    let verdict = match met {
+        Some(true) => "meet",
+        _ => "come closest to",
+    };
+    lines.push(format!(
+        "The cheapest additions that {verdict} the survey target of {target:.3} nT: {} ({total:.0} s of flight in all).",
+        list.join(", ")
+    ));
+    for channel in &report.with_additions {
+        lines.push(format!(
+            "Flown with them, {}: survey uncertainty {}, simulated error {}, FOM {}.",
+            channel.channel,
+            channel.survey_sigma_nt.words(3),
+            channel.survey_error_nt.words(3),
+            channel.fom_nt.words(2)
+        ));
     }
     lines
 }

@@ -454,6 +454,26 @@ impl Drift {
             .map(|(f, _)| FAMILIES[f])
     }
 
+    /// The sentence of a changed installation: the tests it failed, the
+    /// `permanent` field's move and the models' `predictions`, and where
+    /// the change mostly lies.
+    fn describe_change(&self, permanent: &Option<String>, predictions: &str) -> String {
+        let mut reasons = Vec::new();
+        if self.permanent_t2 > self.permanent_limit {
+            reasons.extend(permanent.clone());
+        }
+        if self.ratio > self.limit {
+            reasons.push(predictions.to_string());
+            if let Some(family) = self.mostly_in() {
+                reasons.push(format!("the change is mostly in the {family} terms"));
+            }
+        }
+        format!(
+            "changed: {}: the installation changed between the flights (a part moved, added or magnetised, or the sensor moved); recalibrate before using the earlier model",
+            reasons.join("; ")
+        )
+    }
+
     /// The comparison in one sentence.
     pub fn describe(&self) -> String {
         if self.verdict == Verdict::Unknown {
@@ -470,22 +490,7 @@ impl Drift {
             )
         });
         let mut text = match self.verdict {
-            Verdict::Changed => {
-                let mut reasons = Vec::new();
-                if self.permanent_t2 > self.permanent_limit {
-                    reasons.extend(permanent.clone());
-                }
-                if self.ratio > self.limit {
-                    reasons.push(predictions.clone());
-                    if let Some(family) = self.mostly_in() {
-                        reasons.push(format!("the change is mostly in the {family} terms"));
-                    }
-                }
-                format!(
-                    "changed: {}: the installation changed between the flights (a part moved, added or magnetised, or the sensor moved); recalibrate before using the earlier model",
-                    reasons.join("; ")
-                )
-            }
+            Verdict::Changed => self.describe_change(&permanent, &predictions),
             _ => {
                 let mut text = format!("steady: {predictions}");
                 if let Some(permanent) = permanent {

@@ -104,6 +104,68 @@ pub struct DriftRow {
 }
 
 impl DriftRow {
+    /// The row's cells in `campaign_drift.csv`, in its header's order.
+    fn csv_cells(&self) -> Vec<String> {
+        let d = &self.drift;
+        let number = |v: f64| match v.is_finite() {
+            true => format!("{v:.6}"),
+            false => String::new(),
+        };
+        let (change, sigma) = d.permanent_change_nt.unwrap_or(([f64::NAN; 3], [f64::NAN; 3]));
+        let mut cells = vec![
+            self.aircraft.clone(),
+            self.channel.clone(),
+            self.from.0.clone(),
+            self.from.1.clone().unwrap_or_default(),
+            self.to.0.clone(),
+            self.to.1.clone().unwrap_or_default(),
+            d.verdict.name().into(),
+            number(d.change_rms_nt),
+            number(d.expected_rms_nt),
+            number(d.ratio),
+            number(d.limit),
+            number(d.degrees_of_freedom),
+            d.compared_terms.to_string(),
+        ];
+        cells.extend(change.iter().chain(&sigma).map(|&v| number(v)));
+        cells.extend([number(d.permanent_t2), number(d.permanent_limit)]);
+        cells.extend([figure(self.fom_nt.0), figure(self.fom_nt.1), d.note.clone()]);
+        cells
+    }
+
+    /// The row in the page's drift table, a change in red.
+    fn html_row(&self) -> String {
+        let escape = crate::output::report::escape;
+        let d = &self.drift;
+        let label = |(flight, date): &(String, Option<String>)| match date {
+            Some(date) => format!("{flight} ({date})"),
+            None => flight.clone(),
+        };
+        let class = match d.verdict {
+            Verdict::Changed => " class=\"failed\"",
+            _ => "",
+        };
+        let number = |v: f64| match v.is_finite() {
+            true => format!("{v:.3}"),
+            false => "–".into(),
+        };
+        format!(
+            "<tr{class}><td class=\"text\">{}</td><td class=\"text\">{}</td><td class=\"text\">{}</td><td class=\"text\">{}</td><td class=\"text\">{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td class=\"text\">{}</td></tr>",
+            escape(&self.aircraft),
+            escape(&self.channel),
+            escape(&label(&self.from)),
+            escape(&label(&self.to)),
+            d.verdict.name(),
+            number(d.change_rms_nt),
+            number(d.expected_rms_nt),
+            number(d.ratio),
+            number(d.limit),
+            figure(self.fom_nt.0),
+            figure(self.fom_nt.1),
+            escape(&d.describe())
+        )
+    }
+
     /// The row in one sentence, for stdout and the page.
     pub fn describe(&self) -> String {
         let fom = match self.fom_nt {
@@ -199,21 +261,10 @@ fn summary_flight(folder: &Path, path: &Path) -> Result<SummaryFlight> {
     match read_json(&folder.join(format!("{name}_quality.json"))) {
         Ok(quality) => {
             flight.channels = channel_figures(&quality);
-            // The pass or fail the report gave, from its figures.
-            let report = read_json(&folder.join(format!("{name}_report.json"))).unwrap_or_default();
-            let passes = report["channels"].as_array().cloned().unwrap_or_default();
-            for channel in &mut flight.channels {
-                let pass = (passes.iter())
-                    .find(|c| c["channel"].as_str() == Some(&channel.channel))
-                    .map(|c| c["fom_pass"].as_bool());
-                channel.verdict = match (channel.verdict.as_str(), pass) {
-                    ("CHECK", _) => "CHECK".into(),
-                    (_, Some(Some(true))) => "PASS".into(),
-                    (_, Some(Some(false))) => "FAIL".into(),
-                    (_, Some(None)) => "no FOM".into(),
-                    (_, None) => String::new(),
-                };
-            }
+            report_verdicts(
+                &read_json(&folder.join(format!("{name}_report.json"))).unwrap_or_default(),
+                &mut flight.channels,
+            );
             if flight.channels.is_empty() {
                 flight.problems.push(format!(
                     "{name}_quality.json lists no compensated channel although the flight is done: its row has no figures; read the flight's warnings and run it again"
@@ -236,6 +287,24 @@ fn summary_flight(folder: &Path, path: &Path) -> Result<SummaryFlight> {
         Err(problem) => flight.problems.push(problem),
     }
     Ok(flight)
+}
+
+/// Each channel's verdict as the flight's report figures (`report`) gave
+/// it: PASS, FAIL or no FOM, or CHECK where the quality said so.
+fn report_verdicts(report: &Value, channels: &mut [ChannelFigures]) {
+    let passes = report["channels"].as_array().cloned().unwrap_or_default();
+    for channel in channels {
+        let pass = (passes.iter())
+            .find(|c| c["channel"].as_str() == Some(&channel.channel))
+            .map(|c| c["fom_pass"].as_bool());
+        channel.verdict = match (channel.verdict.as_str(), pass) {
+            ("CHECK", _) => "CHECK".into(),
+            (_, Some(Some(true))) => "PASS".into(),
+            (_, Some(Some(false))) => "FAIL".into(),
+            (_, Some(None)) => "no FOM".into(),
+            (_, None) => String::new(),
+        };
+    }
 }
 
 fn read_json(path: &Path) -> std::result::Result<Value, String> {
@@ -420,31 +489,7 @@ impl CampaignSummary {
         ];
         let mut rows = vec![header.map(String::from).to_vec()];
         for row in self.drifts() {
-            let d = &row.drift;
-            let number = |v: f64| match v.is_finite() {
-                true => format!("{v:.6}"),
-                false => String::new(),
-            };
-            let (change, sigma) = d.permanent_change_nt.unwrap_or(([f64::NAN; 3], [f64::NAN; 3]));
-            let mut cells = vec![
-                row.aircraft.clone(),
-                row.channel.clone(),
-                row.from.0.clone(),
-                row.from.1.clone().unwrap_or_default(),
-                row.to.0.clone(),
-                row.to.1.clone().unwrap_or_default(),
-                d.verdict.name().into(),
-                number(d.change_rms_nt),
-                number(d.expected_rms_nt),
-                number(d.ratio),
-                number(d.limit),
-                number(d.degrees_of_freedom),
-                d.compared_terms.to_string(),
-            ];
-            cells.extend(change.iter().chain(&sigma).map(|&v| number(v)));
-            cells.extend([number(d.permanent_t2), number(d.permanent_limit)]);
-            cells.extend([figure(row.fom_nt.0), figure(row.fom_nt.1), d.note.clone()]);
-            rows.push(cells);
+            rows.push(row.csv_cells());
         }
         Some(csv_text(&rows))
     }
@@ -471,39 +516,7 @@ impl CampaignSummary {
         ];
         let mut rows = vec![header.map(String::from).to_vec()];
         for flight in &self.flights {
-            let status = &flight.status;
-            let head = [
-                status.flight.clone(),
-                status.input.display().to_string(),
-                status.aircraft.clone().unwrap_or_default(),
-                status.date.clone().unwrap_or_default(),
-                state_name(status.state).into(),
-                status.rows.map(|r| r.to_string()).unwrap_or_default(),
-                status.warnings.len().to_string(),
-            ];
-            if flight.channels.is_empty() {
-                rows.push(
-                    head.iter()
-                        .cloned()
-                        .chain(vec![String::new(); 8])
-                        .chain([flight.problem()])
-                        .collect(),
-                );
-            }
-            for channel in &flight.channels {
-                let figures = [
-                    channel.channel.clone(),
-                    channel.verdict.clone(),
-                    figure(channel.fom_before_nt),
-                    figure(channel.fom_after_nt),
-                    figure(channel.improvement_ratio),
-                    figure(channel.band_std_after_nt),
-                    channel.findings.join("; "),
-                    channel.model.clone().unwrap_or_default(),
-                    flight.problem(),
-                ];
-                rows.push(head.iter().cloned().chain(figures).collect());
-            }
+            rows.extend(flight.csv_rows());
         }
         csv_text(&rows)
     }
@@ -567,7 +580,6 @@ impl CampaignSummary {
 
     /// `campaign_summary.html`.
     pub fn html(&self) -> String {
-        let escape = crate::output::report::escape;
         let (done, failed) = self.counts();
         let mut page = String::from(
             "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>magcomp campaign summary</title>\n<style>body{font-family:sans-serif;margin:2em}table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #bbb;padding:2px 6px;text-align:right}td.text,th.text{text-align:left}tr.failed td{background:#fdd}</style></head><body>\n",
@@ -579,42 +591,7 @@ impl CampaignSummary {
         );
         page += "<h2>Flights</h2>\n<table><tr><th class=\"text\">flight</th><th class=\"text\">aircraft</th><th class=\"text\">date</th><th class=\"text\">state</th><th>rows</th><th>warnings</th><th class=\"text\">channel</th><th class=\"text\">verdict</th><th>FOM before, nT</th><th>FOM after, nT</th><th>IR</th><th class=\"text\">findings applied</th><th class=\"text\">saved model applied</th><th class=\"text\">problem</th></tr>\n";
         for flight in &self.flights {
-            let status = &flight.status;
-            let problem = flight.problem();
-            let class = match status.state {
-                FlightState::Failed => " class=\"failed\"",
-                FlightState::Done => "",
-            };
-            let head = format!(
-                "<td class=\"text\">{}</td><td class=\"text\">{}</td><td class=\"text\">{}</td><td class=\"text\">{}</td><td>{}</td><td>{}</td>",
-                escape(&status.flight),
-                escape(status.aircraft.as_deref().unwrap_or("")),
-                escape(status.date.as_deref().unwrap_or("")),
-                state_name(status.state),
-                status.rows.map(|r| r.to_string()).unwrap_or_default(),
-                status.warnings.len()
-            );
-            if flight.channels.is_empty() {
-                let _ = writeln!(
-                    page,
-                    "<tr{class}>{head}<td></td><td></td><td></td><td></td><td></td><td></td><td></td><td class=\"text\">{}</td></tr>",
-                    escape(&problem)
-                );
-            }
-            for channel in &flight.channels {
-                let _ = writeln!(
-                    page,
-                    "<tr{class}>{head}<td class=\"text\">{}</td><td class=\"text\">{}</td><td>{}</td><td>{}</td><td>{}</td><td class=\"text\">{}</td><td class=\"text\">{}</td><td class=\"text\">{}</td></tr>",
-                    escape(&channel.channel),
-                    escape(&channel.verdict),
-                    figure(channel.fom_before_nt),
-                    figure(channel.fom_after_nt),
-                    figure(channel.improvement_ratio),
-                    escape(&channel.findings.join("; ")),
-                    escape(channel.model.as_deref().unwrap_or("")),
-                    escape(&problem)
-                );
-            }
+            page += &flight.html_rows();
         }
         page += "</table>\n";
         if self.flights.iter().all(|f| f.status.aircraft.is_none()) {
@@ -629,7 +606,6 @@ impl CampaignSummary {
     /// The drift table: each channel against the aircraft's previous
     /// calibration, a change the uncertainties do not explain in red.
     fn drift_html(&self) -> String {
-        let escape = crate::output::report::escape;
         let rows = self.drifts();
         if rows.is_empty() {
             return String::new();
@@ -638,35 +614,7 @@ impl CampaignSummary {
             "<h2>Drift between calibrations</h2>\n<p>Each channel's model against the aircraft's previous calibration: the RMS of the two models' predictions' difference over the calibration manoeuvres, against what the two fits' blocked-jackknife uncertainties explain. A ratio above the limit (the χ² 0.999 quantile times 1.5) is a change of the installation.</p>\n<table><tr><th class=\"text\">aircraft</th><th class=\"text\">channel</th><th class=\"text\">before</th><th class=\"text\">after</th><th class=\"text\">verdict</th><th>change, nT</th><th>expected, nT</th><th>ratio</th><th>limit</th><th>FOM before, nT</th><th>FOM after, nT</th><th class=\"text\">in words</th></tr>\n",
         );
         for row in &rows {
-            let d = &row.drift;
-            let label = |(flight, date): &(String, Option<String>)| match date {
-                Some(date) => format!("{flight} ({date})"),
-                None => flight.clone(),
-            };
-            let class = match d.verdict {
-                Verdict::Changed => " class=\"failed\"",
-                _ => "",
-            };
-            let number = |v: f64| match v.is_finite() {
-                true => format!("{v:.3}"),
-                false => "–".into(),
-            };
-            let _ = writeln!(
-                html,
-                "<tr{class}><td class=\"text\">{}</td><td class=\"text\">{}</td><td class=\"text\">{}</td><td class=\"text\">{}</td><td class=\"text\">{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td class=\"text\">{}</td></tr>",
-                escape(&row.aircraft),
-                escape(&row.channel),
-                escape(&label(&row.from)),
-                escape(&label(&row.to)),
-                d.verdict.name(),
-                number(d.change_rms_nt),
-                number(d.expected_rms_nt),
-                number(d.ratio),
-                number(d.limit),
-                figure(row.fom_nt.0),
-                figure(row.fom_nt.1),
-                escape(&d.describe())
-            );
+            let _ = writeln!(html, "{}", row.html_row());
         }
         html += "</table>\n";
         html
@@ -686,48 +634,7 @@ impl CampaignSummary {
             channels.sort_unstable();
             channels.dedup();
             for channel in channels {
-                let _ = write!(
-                    html,
-                    "<h3>{}</h3>\n<table><tr><th class=\"text\">term</th>",
-                    escape(channel)
-                );
-                for flight in &flights {
-                    let label = match &flight.status.date {
-                        Some(date) => format!("{} ({date})", flight.status.flight),
-                        None => flight.status.flight.clone(),
-                    };
-                    let _ = write!(html, "<th>{}</th>", escape(&label));
-                }
-                html += "</tr>\n";
-                let mut terms: Vec<&str> = Vec::new();
-                for c in flights
-                    .iter()
-                    .flat_map(|f| &f.coefficients)
-                    .filter(|c| c.channel == channel)
-                {
-                    if !terms.contains(&c.term.as_str()) {
-                        terms.push(&c.term);
-                    }
-                }
-                for term in terms {
-                    let _ = write!(html, "<tr><td class=\"text\">{}</td>", escape(term));
-                    for flight in &flights {
-                        let found = flight
-                            .coefficients
-                            .iter()
-                            .find(|c| c.channel == channel && c.term == term);
-                        let text = match found {
-                            Some(Coefficient {
-                                value, sigma: Some(s), ..
-                            }) => format!("{value:.4e} ± {s:.1e}"),
-                            Some(c) => format!("{:.4e}", c.value),
-                            None => "–".into(),
-                        };
-                        let _ = write!(html, "<td>{text}</td>");
-                    }
-                    html += "</tr>\n";
-                }
-                html += "</table>\n";
+                html += &coefficient_history(channel, &flights);
             }
         }
         html
@@ -763,6 +670,62 @@ fn state_name(state: FlightState) -> &'static str {
     }
 }
 
+/// The terms of `channel`'s coefficients over `flights`, each once, in
+/// the order they first appear.
+fn terms_of<'a>(channel: &str, flights: &[&'a SummaryFlight]) -> Vec<&'a str> {
+    let mut terms: Vec<&str> = Vec::new();
+    for c in flights
+        .iter()
+        .flat_map(|f| &f.coefficients)
+        .filter(|c| c.channel == channel)
+    {
+        if !terms.contains(&c.term.as_str()) {
+            terms.push(&c.term);
+        }
+    }
+    terms
+}
+
+/// One recurring aircraft's table for `channel`: a row per term, a column
+/// per flight in date order, value ± one sigma.
+fn coefficient_history(channel: &str, flights: &[&SummaryFlight]) -> String {
+    let escape = crate::output::report::escape;
+    let mut html = String::new();
+    let _ = write!(
+        html,
+        "<h3>{}</h3>\n<table><tr><th class=\"text\">term</th>",
+        escape(channel)
+    );
+    for flight in flights {
+        let label = match &flight.status.date {
+            Some(date) => format!("{} ({date})", flight.status.flight),
+            None => flight.status.flight.clone(),
+        };
+        let _ = write!(html, "<th>{}</th>", escape(&label));
+    }
+    html += "</tr>\n";
+    for term in terms_of(channel, flights) {
+        let _ = write!(html, "<tr><td class=\"text\">{}</td>", escape(term));
+        for flight in flights {
+            let found = flight
+                .coefficients
+                .iter()
+                .find(|c| c.channel == channel && c.term == term);
+            let text = match found {
+                Some(Coefficient {
+                    value, sigma: Some(s), ..
+                }) => format!("{value:.4e} ± {s:.1e}"),
+                Some(c) => format!("{:.4e}", c.value),
+                None => "–".into(),
+            };
+            let _ = write!(html, "<td>{text}</td>");
+        }
+        html += "</tr>\n";
+    }
+    html += "</table>\n";
+    html
+}
+
 fn figure(value: Option<f64>) -> String {
     value.map(|v| format!("{v:.4}")).unwrap_or_default()
 }
@@ -779,6 +742,90 @@ fn csv_text(rows: &[Vec<String>]) -> String {
 }
 
 impl SummaryFlight {
+    /// The flight's rows in `campaign_summary.csv`: one per channel, or
+    /// one without figures when it has none.
+    fn csv_rows(&self) -> Vec<Vec<String>> {
+        let mut rows = Vec::new();
+        let status = &self.status;
+        let head = [
+            status.flight.clone(),
+            status.input.display().to_string(),
+            status.aircraft.clone().unwrap_or_default(),
+            status.date.clone().unwrap_or_default(),
+            state_name(status.state).into(),
+            status.rows.map(|r| r.to_string()).unwrap_or_default(),
+            status.warnings.len().to_string(),
+        ];
+        if self.channels.is_empty() {
+            rows.push(
+                head.iter()
+                    .cloned()
+                    .chain(vec![String::new(); 8])
+                    .chain([self.problem()])
+                    .collect(),
+            );
+        }
+        for channel in &self.channels {
+            let figures = [
+                channel.channel.clone(),
+                channel.verdict.clone(),
+                figure(channel.fom_before_nt),
+                figure(channel.fom_after_nt),
+                figure(channel.improvement_ratio),
+                figure(channel.band_std_after_nt),
+                channel.findings.join("; "),
+                channel.model.clone().unwrap_or_default(),
+                self.problem(),
+            ];
+            rows.push(head.iter().cloned().chain(figures).collect());
+        }
+        rows
+    }
+
+    /// The flight's rows in the page's table of flights: one per channel,
+    /// or one without figures when it has none; a failed flight in red.
+    fn html_rows(&self) -> String {
+        let escape = crate::output::report::escape;
+        let mut page = String::new();
+        let status = &self.status;
+        let problem = self.problem();
+        let class = match status.state {
+            FlightState::Failed => " class=\"failed\"",
+            FlightState::Done => "",
+        };
+        let head = format!(
+            "<td class=\"text\">{}</td><td class=\"text\">{}</td><td class=\"text\">{}</td><td class=\"text\">{}</td><td>{}</td><td>{}</td>",
+            escape(&status.flight),
+            escape(status.aircraft.as_deref().unwrap_or("")),
+            escape(status.date.as_deref().unwrap_or("")),
+            state_name(status.state),
+            status.rows.map(|r| r.to_string()).unwrap_or_default(),
+            status.warnings.len()
+        );
+        if self.channels.is_empty() {
+            let _ = writeln!(
+                page,
+                "<tr{class}>{head}<td></td><td></td><td></td><td></td><td></td><td></td><td></td><td class=\"text\">{}</td></tr>",
+                escape(&problem)
+            );
+        }
+        for channel in &self.channels {
+            let _ = writeln!(
+                page,
+                "<tr{class}>{head}<td class=\"text\">{}</td><td class=\"text\">{}</td><td>{}</td><td>{}</td><td>{}</td><td class=\"text\">{}</td><td class=\"text\">{}</td><td class=\"text\">{}</td></tr>",
+                escape(&channel.channel),
+                escape(&channel.verdict),
+                figure(channel.fom_before_nt),
+                figure(channel.fom_after_nt),
+                figure(channel.improvement_ratio),
+                escape(&channel.findings.join("; ")),
+                escape(channel.model.as_deref().unwrap_or("")),
+                escape(&problem)
+            );
+        }
+        page
+    }
+
     /// Why the flight failed and what of it could not be read, in one
     /// cell (empty when nothing is wrong).
     fn problem(&self) -> String {

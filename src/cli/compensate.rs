@@ -126,10 +126,10 @@ fn apply_flags(settings: &mut magcomp::config::Settings, args: &CompensateArgs) 
     Ok(())
 }
 
-/// Fits and compensates one flight and writes its outputs.
-pub fn compensate(args: CompensateArgs, verbose: bool) -> anyhow::Result<()> {
-    let mut pipeline = Pipeline::load_or_default(args.config.as_deref())?;
-    apply_flags(&mut pipeline.settings, &args)?;
+/// The flight `args` name as a job: its windows (given, and read from a
+/// DETECT.json with the flight they were detected on), lines, diagnosis,
+/// plan, vector sensor, channels, saved model and aircraft.
+fn flight_job(args: &CompensateArgs, pipeline: &Pipeline) -> anyhow::Result<FlightJob> {
     let mut windows = args
         .windows
         .iter()
@@ -141,12 +141,12 @@ pub fn compensate(args: CompensateArgs, verbose: bool) -> anyhow::Result<()> {
         windows.extend(detected.windows);
         windows_detected_on = detected.flight.map(|identity| (file.clone(), identity));
     }
-    let job = FlightJob {
+    Ok(FlightJob {
         diagnosis: args.diagnosis.clone(),
         force_diagnosis: args.force,
         plan: args.plan.clone(),
-        vector: args.vector,
-        channels: args.channels,
+        vector: args.vector.clone(),
+        channels: args.channels.clone(),
         windows,
         lines: args
             .lines
@@ -158,7 +158,14 @@ pub fn compensate(args: CompensateArgs, verbose: bool) -> anyhow::Result<()> {
         model: args.apply.clone(),
         aircraft: args.aircraft.clone(),
         ..FlightJob::new(args.flight.clone())
-    };
+    })
+}
+
+/// Fits and compensates one flight and writes its outputs.
+pub fn compensate(args: CompensateArgs, verbose: bool) -> anyhow::Result<()> {
+    let mut pipeline = Pipeline::load_or_default(args.config.as_deref())?;
+    apply_flags(&mut pipeline.settings, &args)?;
+    let job = flight_job(&args, &pipeline)?;
     let beside_out = |suffix: &str| beside(&args.out, suffix);
     let outputs = FlightOutputs {
         diagnosis_json: Some(beside_out("_diagnosis.json")),

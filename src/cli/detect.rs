@@ -31,10 +31,18 @@ pub fn detect(flight: &Path, out: &Path, config: Option<&Path>, lines: Option<&s
         flight: magcomp::ingest::flight_identity::FlightIdentity::of(&log)?,
     };
     magcomp::formats::write_json(out, "the detected manoeuvres", &file)?;
-    for note in magcomp::pipeline::detection_notes(&detection) {
+    print_detection(&detection);
+    println!("wrote {}", out.display());
+    Ok(())
+}
+
+/// The detection on the terminal: its notes, its warnings and a line per
+/// manoeuvre (kind, heading, span, cycles, period and amplitude).
+fn print_detection(detection: &magcomp::calibration::detect::Detection) {
+    for note in magcomp::pipeline::detection_notes(detection) {
         println!("  {note}");
     }
-    for warning in magcomp::pipeline::detection_warnings(&detection) {
+    for warning in magcomp::pipeline::detection_warnings(detection) {
         println!("  warning: {warning}");
     }
     for manoeuvre in &detection.manoeuvres {
@@ -53,6 +61,4 @@ pub fn detect(flight: &Path, out: &Path, config: Option<&Path>, lines: Option<&s
                 .unwrap_or_default()
         );
     }
-    println!("wrote {}", out.display());
-    Ok(())
 }

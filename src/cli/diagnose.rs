@@ -58,30 +58,40 @@ pub fn diagnose(
     Ok(())
 }
 
+/// One channel of the diagnosis on the terminal: its held-out RMS plain
+/// and with the findings (λ by `criterion`), where the search started, and
+/// the best candidate short of the threshold.
+fn print_diagnosed_channel(
+    channel: &magcomp::diagnose::ChannelDiagnosis,
+    criterion: magcomp::numerics::solve::Criterion,
+) {
+    println!(
+        "  {}: held-out RMS {:.4} nT with plain Tolles-Lawson, {:.4} nT with the findings and λ by {} as compensation picks it",
+        channel.channel,
+        channel.heldout_rms_baseline_nt,
+        channel.heldout_rms_final_nt,
+        criterion.describe()
+    );
+    if let (true, Some(start)) = (
+        channel.search_criterion != criterion,
+        channel.heldout_rms_other_criterion_nt,
+    ) {
+        println!(
+            "    the search started from plain Tolles-Lawson with λ by {} ({start:.4} nT held out); its findings' figures are measured from there",
+            channel.search_criterion.describe()
+        );
+    }
+    if let Some(hint) = &channel.strongest_rejected {
+        println!("    best candidate short of the threshold: {hint}");
+    }
+}
+
 /// The diagnosis on the terminal: each channel's held-out RMS (λ by
 /// `criterion`, as compensation picks it), the notes, and each finding
 /// with what it means.
 fn print_diagnosis(diagnosis: &magcomp::diagnose::Diagnosis, criterion: magcomp::numerics::solve::Criterion) {
     for channel in &diagnosis.channels {
-        println!(
-            "  {}: held-out RMS {:.4} nT with plain Tolles-Lawson, {:.4} nT with the findings and λ by {} as compensation picks it",
-            channel.channel,
-            channel.heldout_rms_baseline_nt,
-            channel.heldout_rms_final_nt,
-            criterion.describe()
-        );
-        if let (true, Some(start)) = (
-            channel.search_criterion != criterion,
-            channel.heldout_rms_other_criterion_nt,
-        ) {
-            println!(
-                "    the search started from plain Tolles-Lawson with λ by {} ({start:.4} nT held out); its findings' figures are measured from there",
-                channel.search_criterion.describe()
-            );
-        }
-        if let Some(hint) = &channel.strongest_rejected {
-            println!("    best candidate short of the threshold: {hint}");
-        }
+        print_diagnosed_channel(channel, criterion);
     }
     for note in &diagnosis.notes {
         println!("  note: {note}");

@@ -24,6 +24,22 @@ fn create_output_folder(config: &Path, folder: &Path) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The flights of `shard`, indices into the pipeline's, in the order they
+/// run; said when the campaign is split into shards.
+fn shard_flights(pipeline: &Pipeline, shard: Shard) -> Vec<usize> {
+    // A flight compensated with the model another flight of this run
+    // writes (a survey flight and its calibration flight) comes after it.
+    let mine = magcomp::campaign::dependency_order(pipeline, shard.select(&pipeline.flights));
+    if shard.count > 1 {
+        println!(
+            "shard {shard}: {} of the campaign's {} flights",
+            mine.len(),
+            pipeline.flights.len()
+        );
+    }
+    mine
+}
+
 /// Runs every flight of the pipeline file `config` (this shard's), prints
 /// each as it finishes and the status table, and fails when any flight did.
 pub fn run(config: &Path, (plain, force, verbose): (bool, bool, bool), shard: Option<&str>) -> anyhow::Result<()> {
@@ -32,17 +48,8 @@ pub fn run(config: &Path, (plain, force, verbose): (bool, bool, bool), shard: Op
         Some(text) => Shard::parse(text, |name| std::env::var(name).ok())?,
         None => Shard::default(),
     };
-    // A flight compensated with the model another flight of this run
-    // writes (a survey flight and its calibration flight) comes after it.
-    let mine = magcomp::campaign::dependency_order(&pipeline, shard.select(&pipeline.flights));
+    let mine = shard_flights(&pipeline, shard);
     let folder = &pipeline.output_directory;
-    if shard.count > 1 {
-        println!(
-            "shard {shard}: {} of the campaign's {} flights",
-            mine.len(),
-            pipeline.flights.len()
-        );
-    }
     create_output_folder(config, folder)?;
     let jobs: Vec<&FlightJob> = mine.iter().map(|&i| &pipeline.flights[i]).collect();
     let at_once = FlightsAtOnce::for_jobs(&jobs);
@@ -80,7 +87,13 @@ pub fn run(config: &Path, (plain, force, verbose): (bool, bool, bool), shard: Op
     // The table in the campaign's order, whatever order the flights ran in
     // (a flight given another's model runs after it).
     flights.sort_by_key(|done| done.index);
-    let statuses = statuses(&pipeline, &flights);
+    report_statuses(config, &pipeline, &flights)
+}
+
+/// Prints the status table of the `flights` run and fails, naming the
+/// pipeline file `config`, when any of them did.
+fn report_statuses(config: &Path, pipeline: &Pipeline, flights: &[FinishedFlight]) -> anyhow::Result<()> {
+    let statuses = statuses(pipeline, flights);
     print!("{}", status_table(&statuses));
     let failed = statuses
         .iter()

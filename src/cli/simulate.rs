@@ -55,7 +55,16 @@ pub fn replay_flight(
         &replayed.channels,
     )?);
     set.commit()?;
-    for channel in &replayed.channels {
+    print_replayed(&replayed.channels);
+    println!("wrote {} and {}", out.display(), report.display());
+    Ok(())
+}
+
+/// Each replayed channel on the terminal: the recording less the replay in
+/// band over the calibration manoeuvres and elsewhere, plain and with the
+/// diagnosed model, nT.
+fn print_replayed(channels: &[magcomp::simulate::replay::ReplayedChannel]) {
+    for channel in channels {
         println!(
             "  {}: recording − replay in band, over the calibration manoeuvres {:.4} nT with plain Tolles-Lawson, {:.4} nT with {}; elsewhere {:.4} → {:.4} nT",
             channel.channel,
@@ -66,8 +75,6 @@ pub fn replay_flight(
             channel.elsewhere_rms_diagnosed_nt
         );
     }
-    println!("wrote {} and {}", out.display(), report.display());
-    Ok(())
 }
 
 /// The models to replay the flight with: each channel's in the saved

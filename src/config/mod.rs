@@ -450,6 +450,27 @@ fn file_stem(path: &Path) -> String {
         .map_or("flight".into(), |s| s.to_string_lossy().into_owned())
 }
 
+/// The output name of the flight file `input` with its folders under
+/// `base`: the folders and the `stem` joined by `_`.
+fn name_by_path(input: &Path, stem: &String, base: &Path) -> String {
+    let relative = input.strip_prefix(base).unwrap_or(input);
+    let folders: Vec<String> = relative
+        .parent()
+        .into_iter()
+        .flat_map(|p| p.components())
+        .filter_map(|c| match c {
+            std::path::Component::Normal(part) => Some(part.to_string_lossy().into_owned()),
+            _ => None,
+        })
+        .collect();
+    folders
+        .iter()
+        .chain(std::iter::once(stem))
+        .cloned()
+        .collect::<Vec<_>>()
+        .join("_")
+}
+
 /// Gives every flight a distinct output name: its file stem, unless
 /// another flight shares it; then its path under `base` without the
 /// extension, folders joined by `_` (`2020/06/flight.csv` →
@@ -470,24 +491,7 @@ fn name_outputs(flights: &mut [FlightJob], base: &Path) {
     let by_path: Vec<String> = flights
         .iter()
         .zip(&stems)
-        .map(|(flight, stem)| {
-            let relative = flight.input.strip_prefix(base).unwrap_or(&flight.input);
-            let folders: Vec<String> = relative
-                .parent()
-                .into_iter()
-                .flat_map(|p| p.components())
-                .filter_map(|c| match c {
-                    std::path::Component::Normal(part) => Some(part.to_string_lossy().into_owned()),
-                    _ => None,
-                })
-                .collect();
-            folders
-                .iter()
-                .chain(std::iter::once(stem))
-                .cloned()
-                .collect::<Vec<_>>()
-                .join("_")
-        })
+        .map(|(flight, stem)| name_by_path(&flight.input, stem, base))
         .collect();
     let (stem_counts, path_counts) = (tally(&stems), tally(&by_path));
     for (index, flight) in flights.iter_mut().enumerate() {

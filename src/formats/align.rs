@@ -122,29 +122,9 @@ pub fn align(mut streams: Vec<Stream>, base: usize, options: &AlignmentOptions) 
         let tolerance_s = options.gap_tolerance_s.unwrap_or(2.5 * interval_s);
         let method = stream.method(index == base);
         let resampled = resample(&stream, &repeats, &base_times, (tolerance_s * 1e9) as u64);
-        for (rows, flag) in [
-            (&resampled.gap_rows, FlagKind::Gap),
-            (&resampled.conflict_rows, FlagKind::DuplicateTime),
-            (&resampled.repeat_rows, FlagKind::DuplicateTime),
-        ] {
-            for &row in rows {
-                row_flags[row].raise(flag, &stream.name);
-            }
-        }
+        resampled.raise_flags(&mut row_flags, &stream.name);
         warnings.extend(repeat_warnings(&stream, &repeats, &resampled));
-        report.push(ResampledChannel {
-            channel: stream.name.clone(),
-            source: stream.source.clone(),
-            samples: stream.times_ns.len(),
-            rate_hz: if interval_s > 0.0 { 1.0 / interval_s } else { 0.0 },
-            method,
-            gap_tolerance_s: tolerance_s,
-            rows_in_gaps: resampled.gap_rows.len(),
-            rows_outside: resampled.outside,
-            repeats_dropped: repeats.dropped,
-            conflicting_times: repeats.conflicts.len(),
-            rows_conflicting: resampled.conflict_rows.len(),
-        });
+        report.push(resampled.report(&stream, &repeats, (interval_s, tolerance_s, method)));
         channels.push((stream.name, resampled.values));
     }
     let time_base = report[base].channel.clone();
@@ -271,6 +251,78 @@ struct Resampled {
     outside: usize,
 }
 
+impl Resampled {
+    /// Raises the gap and duplicate-time flags of `name` on the rows that
+    /// fell in its gaps or used its repeated or disagreeing samples.
+    fn raise_flags(&self, row_flags: &mut [RowFlags], name: &str) {
+        for (rows, flag) in [
+            (&self.gap_rows, FlagKind::Gap),
+            (&self.conflict_rows, FlagKind::DuplicateTime),
+            (&self.repeat_rows, FlagKind::DuplicateTime),
+        ] {
+            for &row in rows {
+                row_flags[row].raise(flag, name);
+            }
+        }
+    }
+
+    /// What the alignment did to `stream`, resampled at its median
+    /// `interval_s` with gaps above `tolerance_s`, s, by `method`.
+    fn report(
+        &self,
+        stream: &Stream,
+        repeats: &Repeats,
+        (interval_s, tolerance_s, method): (f64, f64, &'static str),
+    ) -> ResampledChannel {
+        ResampledChannel {
+            channel: stream.name.clone(),
+            source: stream.source.clone(),
+            samples: stream.times_ns.len(),
+            rate_hz: if interval_s > 0.0 { 1.0 / interval_s } else { 0.0 },
+            method,
+            gap_tolerance_s: tolerance_s,
+            rows_in_gaps: self.gap_rows.len(),
+            rows_outside: self.outside,
+            repeats_dropped: repeats.dropped,
+            conflicting_times: repeats.conflicts.len(),
+            rows_conflicting: self.conflict_rows.len(),
+        }
+    }
+
+    /// Row `row`, at time `t`, ns, between samples `j` and `j + 1` of
+    /// `stream`: left missing in a gap longer than `tolerance_ns` or where
+    /// it would use a disagreeing sample, else interpolated (or held).
+    fn between_samples(
+        &mut self,
+        stream: &Stream,
+        repeats: &Repeats,
+        (row, t, j): (usize, u64, usize),
+        tolerance_ns: u64,
+    ) {
+        let (times, values) = (&stream.times_ns, &stream.values);
+        let (conflicting, repeated) = (&repeats.conflicting, &repeats.repeated);
+        let (ta, tb) = (times[j], times[j + 1]);
+        if tb - ta > tolerance_ns {
+            self.gap_rows.push(row);
+            return;
+        }
+        let used_conflict = conflicting[j] || (!stream.hold && conflicting[j + 1]);
+        if used_conflict {
+            self.conflict_rows.push(row);
+            return;
+        }
+        if repeated[j] || (!stream.hold && repeated[j + 1]) {
+            self.repeat_rows.push(row);
+        }
+        let fraction = (t - ta) as f64 / (tb - ta) as f64;
+        self.values[row] = match (stream.hold, stream.angle) {
+            (true, _) => values[j],
+            (false, true) => angle_between(values[j], values[j + 1], fraction),
+            (false, false) => values[j] + fraction * (values[j + 1] - values[j]),
+        };
+    }
+}
+
 /// Evaluates `stream` at the sorted `base` times; `repeats` marks its
 /// samples whose time carried repeated or disagreeing values.
 fn resample(stream: &Stream, repeats: &Repeats, base: &[u64], tolerance_ns: u64) -> Resampled {
@@ -305,25 +357,7 @@ fn resample(stream: &Stream, repeats: &Repeats, base: &[u64], tolerance_ns: u64)
             out.values[row] = values[j];
             continue;
         }
-        let (ta, tb) = (times[j], times[j + 1]);
-        if tb - ta > tolerance_ns {
-            out.gap_rows.push(row);
-            continue;
-        }
-        let used_conflict = conflicting[j] || (!stream.hold && conflicting[j + 1]);
-        if used_conflict {
-            out.conflict_rows.push(row);
-            continue;
-        }
-        if repeated[j] || (!stream.hold && repeated[j + 1]) {
-            out.repeat_rows.push(row);
-        }
-        let fraction = (t - ta) as f64 / (tb - ta) as f64;
-        out.values[row] = match (stream.hold, stream.angle) {
-            (true, _) => values[j],
-            (false, true) => angle_between(values[j], values[j + 1], fraction),
-            (false, false) => values[j] + fraction * (values[j + 1] - values[j]),
-        };
+        out.between_samples(stream, repeats, (row, t, j), tolerance_ns);
     }
     out
 }

@@ -56,13 +56,9 @@ pub fn read_hdf5(path: &Path, names: &ColumnNames) -> Result<FlightLog> {
 /// The time dataset, the channels' datasets, and what was not read.
 type Datasets = (Vec<f64>, Vec<(String, Vec<f64>)>, Vec<Warning>);
 
-fn read_datasets(path: &Path, time_name: &str) -> Result<Datasets> {
-    let file = File::open(path).map_err(|e| corrupt(path, format!("not a readable HDF5 file: {e}")))?;
-    let mut names = file
-        .root()
-        .datasets()
-        .map_err(|e| corrupt(path, format!("cannot list the root datasets: {e}")))?;
-    names.sort();
+/// The time dataset `time_name` of the HDF5 file at `path`, s; an error
+/// when it is missing or empty.
+fn read_time(file: &File, path: &Path, time_name: &str) -> Result<Vec<f64>> {
     let time_s = file
         .dataset(time_name)
         .and_then(|d| d.read_f64())
@@ -78,6 +74,17 @@ fn read_datasets(path: &Path, time_name: &str) -> Result<Datasets> {
             problem: format!("the time dataset '{time_name}' is empty"),
         });
     }
+    Ok(time_s)
+}
+
+fn read_datasets(path: &Path, time_name: &str) -> Result<Datasets> {
+    let file = File::open(path).map_err(|e| corrupt(path, format!("not a readable HDF5 file: {e}")))?;
+    let mut names = file
+        .root()
+        .datasets()
+        .map_err(|e| corrupt(path, format!("cannot list the root datasets: {e}")))?;
+    names.sort();
+    let time_s = read_time(&file, path, time_name)?;
     let mut not_read: Vec<String> = Vec::new();
     let series = sampled_series(&file, names, time_name, &mut not_read);
     check_time_length(path, time_name, time_s.len(), &series)?;

@@ -142,6 +142,29 @@ impl fmt::Display for HeldBack {
                 f,
                 "on the survey it would move the compensation by {survey_nt:.4} nT RMS, more than {factor} times what it does over the calibration ({calibration_nt:.4} nT) plus {floor_nt} nT: it would act beyond anything the box tested"
             ),
+            HeldBack::WorseAtCrossovers { .. } | HeldBack::WorseBetweenLines { .. } => self.write_survey_levels(f),
+            HeldBack::UncheckedOnSurvey {
+                survey_nt,
+                stated_nt,
+                explained_nt,
+                floor_nt,
+            } => write!(
+                f,
+                "on the survey it would move the compensation by {survey_nt:.4} nT RMS, beyond {}, while on the box it explains only {explained_nt:.4} nT of the held-out RMS, within it; and the survey has nothing to check that move against (no crossovers with a base station to level at, no block of parallel lines flown both ways)",
+                match stated_nt {
+                    Some(stated) if *stated >= *floor_nt => format!("the uncertainty the channel states outside the calibration ({stated:.4} nT)"),
+                    _ => format!("{floor_nt} nT"),
+                }
+            ),
+        }
+    }
+}
+
+impl HeldBack {
+    /// The sentence of findings held back by the survey's own levels: at
+    /// the crossovers, or between parallel lines flown both ways.
+    fn write_survey_levels(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
             HeldBack::WorseAtCrossovers {
                 crossovers,
                 lines,
@@ -168,19 +191,7 @@ impl fmt::Display for HeldBack {
                     false => " (no base station: the external field's change between lines is in the comparison)",
                 }
             ),
-            HeldBack::UncheckedOnSurvey {
-                survey_nt,
-                stated_nt,
-                explained_nt,
-                floor_nt,
-            } => write!(
-                f,
-                "on the survey it would move the compensation by {survey_nt:.4} nT RMS, beyond {}, while on the box it explains only {explained_nt:.4} nT of the held-out RMS, within it; and the survey has nothing to check that move against (no crossovers with a base station to level at, no block of parallel lines flown both ways)",
-                match stated_nt {
-                    Some(stated) if *stated >= *floor_nt => format!("the uncertainty the channel states outside the calibration ({stated:.4} nT)"),
-                    _ => format!("{floor_nt} nT"),
-                }
-            ),
+            _ => write!(f, "{self:?}"),
         }
     }
 }
@@ -783,28 +794,26 @@ impl fmt::Display for Warning {
             | Warning::NamedBySize { .. }
             | Warning::SteepField { .. }
             | Warning::AttitudeGaps { .. } => self.write_detection(f),
-            Warning::FomAboveLimit { .. }
-            | Warning::NoiseRaised { .. }
-            | Warning::HeadingErrorRaised { .. }
-            | Warning::CrossoversRaised { .. }
-            | Warning::PoorTransfer { .. } => self.write_quality(f),
+            Warning::FomAboveLimit { .. } | Warning::NoiseRaised { .. } | Warning::PoorTransfer { .. } => {
+                self.write_quality(f)
+            }
+            Warning::HeadingErrorRaised { .. } | Warning::CrossoversRaised { .. } => self.write_levels_raised(f),
             Warning::GradientLevelUnpinned { .. }
             | Warning::GradientDirectAtOdds { .. }
             | Warning::GradientNotCompensated { .. } => self.write_gradient(f),
             Warning::VectorNoReference
             | Warning::VectorNotCompensated { .. }
             | Warning::VectorScaleSwings { .. }
-            | Warning::VectorDirectionOff { .. }
-            | Warning::VectorSignUnverified { .. }
-            | Warning::VectorLeftHanded { .. }
-            | Warning::VectorAtSiteOnly { .. }
             | Warning::VectorNotHeldOut { .. }
             | Warning::VectorTollesLawson { .. } => self.write_vector(f),
-            Warning::Masked { .. }
-            | Warning::WindowsFromOtherFlight { .. }
-            | Warning::OutputOutOfRange { .. }
-            | Warning::McapUndated { .. }
-            | Warning::TextColumnsNotWritten { .. } => self.write_input(f),
+            Warning::VectorDirectionOff { .. }
+            | Warning::VectorSignUnverified { .. }
+            | Warning::VectorLeftHanded { .. }
+            | Warning::VectorAtSiteOnly { .. } => self.write_vector_direction(f),
+            Warning::Masked { .. } | Warning::WindowsFromOtherFlight { .. } => self.write_input(f),
+            Warning::OutputOutOfRange { .. } | Warning::McapUndated { .. } | Warning::TextColumnsNotWritten { .. } => {
+                self.write_output(f)
+            }
             Warning::PlanManoeuvresMissing { .. } | Warning::PlanFigureOutside { .. } => self.write_plan(f),
             Warning::ModelTooOld { .. }
             | Warning::ModelOtherAircraft { .. }
@@ -855,18 +864,7 @@ impl Warning {
                 heading_deg,
                 alike,
                 manoeuvres,
-            } => {
-                let alike: Vec<String> = alike.iter().map(|(a, b)| format!("a {a} and a {b}")).collect();
-                let named: Vec<String> = (manoeuvres.iter())
-                    .map(|(start, end, kind)| format!("{start:.1}–{end:.1} s as {kind}"))
-                    .collect();
-                write!(
-                    f,
-                    "heading {heading_deg:.0}° (magnetic): with the fluxgate alone {} turn the field direction alike on this heading, so the manoeuvre(s) at {} are named by size only; check them against the flight notes, or give the windows with --window",
-                    alike.join(", and "),
-                    named.join(" and ")
-                )
-            }
+            } => write_named_by_size(f, *heading_deg, alike, manoeuvres),
             Warning::SteepField { dip_deg } => write!(
                 f,
                 "the field dips {dip_deg:.0}° at the fluxgate, which stands in for the INS: its horizontal part gives the heading weakly and a yaw barely turns the field direction, so manoeuvres reported missing may have been flown and not seen. Give the INS attitude (ins_pitch, ins_roll, ins_yaw) or the windows with --window"
@@ -916,16 +914,7 @@ impl Warning {
     /// applied anyway, the survey moved, the residual left unexplained.
     fn write_diagnosis(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            Warning::Unexplained {
-                channel,
-                heldout_rms_nt,
-                residual_to_noise,
-                largest_on,
-            } => write!(
-                f,
-                "{channel}: the diagnosis leaves an unexplained residual of {heldout_rms_nt:.4} nT held out, {residual_to_noise:.0} times the sensor noise in the band, largest on {}: the compensation of this channel is not good to the noise level; see the diagnosis's unexplained finding",
-                largest_on.join(", ")
-            ),
+            Warning::Unexplained { .. } => self.write_unexplained(f),
             Warning::NotDiagnosed { error } => {
                 write!(f, "not diagnosed, so compensated with plain Tolles-Lawson: {error}")
             }
@@ -961,6 +950,25 @@ impl Warning {
             ),
             _ => self.write_unrouted(f),
         }
+    }
+
+    /// The sentence of [`Warning::Unexplained`]: the residual the
+    /// diagnosis leaves, against the sensor's noise.
+    fn write_unexplained(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let Warning::Unexplained {
+            channel,
+            heldout_rms_nt,
+            residual_to_noise,
+            largest_on,
+        } = self
+        else {
+            return self.write_unrouted(f);
+        };
+        write!(
+            f,
+            "{channel}: the diagnosis leaves an unexplained residual of {heldout_rms_nt:.4} nT held out, {residual_to_noise:.0} times the sensor noise in the band, largest on {}: the compensation of this channel is not good to the noise level; see the diagnosis's unexplained finding",
+            largest_on.join(", ")
+        )
     }
 
     /// The sentence of a warning on a channel's fit: its sigma column,
@@ -1001,9 +1009,8 @@ impl Warning {
         }
     }
 
-    /// The sentence of a warning on the run's inputs and outputs: samples
-    /// masked, windows from another flight, rows out of range, an undated
-    /// MCAP output, text columns not written.
+    /// The sentence of a warning on the run's inputs: samples masked,
+    /// windows from another flight.
     fn write_input(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             Warning::Masked {
@@ -1025,12 +1032,6 @@ impl Warning {
                     if one { "its row is" } else { "their rows are" },
                 )
             }
-            Warning::OutputOutOfRange { subject, rows, first } => write!(
-                f,
-                "{subject}: {rows} compensated row{} lie beyond what the instrument reads (a total field outside 1,000-100,000 nT, a component beyond ±100,000 nT), the first at {} s; they are written and flagged output_out_of_range:{subject}. The model was applied far from what it was fitted on: look at the attitude and fluxgate there, and at the calibration windows",
-                if *rows == 1 { "" } else { "s" },
-                crate::error::Number(*first),
-            ),
             Warning::WindowsFromOtherFlight {
                 windows_file,
                 detected_on,
@@ -1040,6 +1041,20 @@ impl Warning {
                 f,
                 "the calibration windows of {} were detected on {detected_on}, not on this flight {flight} ({difference}): check that they lie on this flight's manoeuvres, or detect them on it with `magcomp detect`",
                 windows_file.display()
+            ),
+            _ => self.write_unrouted(f),
+        }
+    }
+
+    /// The sentence of a warning on the run's outputs: rows out of range,
+    /// an undated MCAP output, text columns not written.
+    fn write_output(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Warning::OutputOutOfRange { subject, rows, first } => write!(
+                f,
+                "{subject}: {rows} compensated row{} lie beyond what the instrument reads (a total field outside 1,000-100,000 nT, a component beyond ±100,000 nT), the first at {} s; they are written and flagged output_out_of_range:{subject}. The model was applied far from what it was fitted on: look at the attitude and fluxgate there, and at the calibration windows",
+                if *rows == 1 { "" } else { "s" },
+                crate::error::Number(*first),
             ),
             Warning::McapUndated { output, time_column } => write!(
                 f,
@@ -1169,21 +1184,7 @@ impl Warning {
                 fitted_hz,
                 flight_hz,
                 rescaled,
-            } => {
-                let factor = flight_hz / fitted_hz;
-                write!(
-                    f,
-                    "the model {} was fitted at {fitted_hz:.3} Hz and this flight is recorded at {flight_hz:.3} Hz: {}. The fit's band and its per-sample differences were those of the calibration's rate, and nothing on this flight checks the transfer: compare its noise and heading error with the calibration flight's, or calibrate at this rate",
-                    model.display(),
-                    match rescaled.is_empty() {
-                        true => "it has no per-sample term to rescale".to_string(),
-                        false => format!(
-                            "its per-sample terms (eddy currents, the field's derivative) were rescaled by the rates' ratio, {factor:.3}: {}; they carry the fluxgate's noise {factor:.2}× as strongly as on the calibration flight",
-                            rescaled.join("; ")
-                        ),
-                    }
-                )
-            }
+            } => write_rate_differs(f, model, (*fitted_hz, *flight_hz), rescaled),
             Warning::ModelLacksChannels { model, channels } => {
                 let them = if channels.len() == 1 { "it" } else { "them" };
                 write!(
@@ -1215,6 +1216,19 @@ impl Warning {
                 f,
                 "{sensor}: the vector's scale rests on {reference}'s level over the box, where the aircraft's modelled field swings by {swing_nt:.1} nT RMS: its mean there, which no manoeuvre pins, may be as large and is an error of up to that size on each vector component (a scalar sensor on a tail stinger gives a surer level)"
             ),
+            Warning::VectorNotHeldOut { sensor } => write!(
+                f,
+                "{sensor}: the twelve-constant fit's windows do not give three headings (a window given by time that spans a turn has none), so no heading is held out and the vector's accuracy away from them is not checked; give the box's manoeuvres or legs as windows"
+            ),
+            Warning::VectorTollesLawson { sensor, reason } => write!(f, "{sensor}: vector Tolles-Lawson: {reason}"),
+            _ => self.write_unrouted(f),
+        }
+    }
+
+    /// The sentence of a warning on the vector's direction and sign as
+    /// checked against IGRF-14, or unchecked.
+    fn write_vector_direction(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
             Warning::VectorDirectionOff {
                 sensor,
                 angle_deg,
@@ -1245,11 +1259,6 @@ impl Warning {
                 f,
                 "{sensor}: the flight records no position: the field's sign and direction are checked against IGRF-14 at the [site], but the field's turn across the box (about 0.01° a km) is not modelled: expect tens of nT on each component (a few with lat and lon columns)"
             ),
-            Warning::VectorNotHeldOut { sensor } => write!(
-                f,
-                "{sensor}: the twelve-constant fit's windows do not give three headings (a window given by time that spans a turn has none), so no heading is held out and the vector's accuracy away from them is not checked; give the box's manoeuvres or legs as windows"
-            ),
-            Warning::VectorTollesLawson { sensor, reason } => write!(f, "{sensor}: vector Tolles-Lawson: {reason}"),
             _ => self.write_unrouted(f),
         }
     }
@@ -1277,6 +1286,18 @@ impl Warning {
                 "{channel}: compensation raised the survey lines' fourth-difference noise from {before_nt:.4} to {after_nt:.4} nT ({:.2}×): the model adds more than it removes there. {next_step}",
                 after_nt / before_nt
             ),
+            Warning::PoorTransfer {
+                sentence, next_step, ..
+            } => write!(f, "{sentence}. {next_step}"),
+            _ => self.write_unrouted(f),
+        }
+    }
+
+    /// The sentence of a warning that compensation raised the level
+    /// difference between passes over the same ground: reciprocal lines,
+    /// crossovers.
+    fn write_levels_raised(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
             Warning::HeadingErrorRaised {
                 channel,
                 before_nt,
@@ -1301,12 +1322,54 @@ impl Warning {
                 "{channel}: compensation raised the RMS difference between the passes where survey lines cross from {before_nt:.3} to {after_nt:.3} nT over {crossovers} crossovers{}. {next_step}",
                 between_passes(*station_removed)
             ),
-            Warning::PoorTransfer {
-                sentence, next_step, ..
-            } => write!(f, "{sentence}. {next_step}"),
             _ => self.write_unrouted(f),
         }
     }
+}
+
+/// The sentence of [`Warning::NamedBySize`]: the kinds that look `alike`
+/// on the leg at `heading_deg`, degrees (magnetic), and the `manoeuvres`
+/// named by size only.
+fn write_named_by_size(
+    f: &mut fmt::Formatter<'_>,
+    heading_deg: f64,
+    alike: &[(String, String)],
+    manoeuvres: &[(f64, f64, String)],
+) -> fmt::Result {
+    let alike: Vec<String> = alike.iter().map(|(a, b)| format!("a {a} and a {b}")).collect();
+    let named: Vec<String> = (manoeuvres.iter())
+        .map(|(start, end, kind)| format!("{start:.1}–{end:.1} s as {kind}"))
+        .collect();
+    write!(
+        f,
+        "heading {heading_deg:.0}° (magnetic): with the fluxgate alone {} turn the field direction alike on this heading, so the manoeuvre(s) at {} are named by size only; check them against the flight notes, or give the windows with --window",
+        alike.join(", and "),
+        named.join(" and ")
+    )
+}
+
+/// The sentence of [`Warning::ModelRateDiffers`]: the saved `model` was
+/// fitted at `fitted_hz` and the flight recorded at `flight_hz`, Hz, with
+/// its per-sample terms `rescaled`.
+fn write_rate_differs(
+    f: &mut fmt::Formatter<'_>,
+    model: &std::path::Path,
+    (fitted_hz, flight_hz): (f64, f64),
+    rescaled: &[String],
+) -> fmt::Result {
+    let factor = flight_hz / fitted_hz;
+    write!(
+        f,
+        "the model {} was fitted at {fitted_hz:.3} Hz and this flight is recorded at {flight_hz:.3} Hz: {}. The fit's band and its per-sample differences were those of the calibration's rate, and nothing on this flight checks the transfer: compare its noise and heading error with the calibration flight's, or calibrate at this rate",
+        model.display(),
+        match rescaled.is_empty() {
+            true => "it has no per-sample term to rescale".to_string(),
+            false => format!(
+                "its per-sample terms (eddy currents, the field's derivative) were rescaled by the rates' ratio, {factor:.3}: {}; they carry the fluxgate's noise {factor:.2}× as strongly as on the calibration flight",
+                rescaled.join("; ")
+            ),
+        }
+    )
 }
 
 /// What a comparison between two passes over the same ground took out.
@@ -1635,42 +1698,32 @@ impl fmt::Display for Note {
             Note::WindowHeadings { .. } | Note::LinesAsWindows { .. } | Note::FluxgateCalibrated { .. } => {
                 self.write_calibration(f)
             }
-            Note::Detected { .. }
-            | Note::AttitudeFromFluxgate
-            | Note::NoManoeuvres
-            | Note::ManoeuvresByLine { .. } => self.write_detection(f),
-            Note::GradientFormed { .. } | Note::GradientFromSavedChannels { .. } | Note::GradientDifferenceUsed { .. } => {
-                self.write_gradient(f)
+            Note::Detected { .. } | Note::AttitudeFromFluxgate | Note::NoManoeuvres | Note::ManoeuvresByLine { .. } => {
+                self.write_detection(f)
             }
+            Note::GradientFormed { .. }
+            | Note::GradientFromSavedChannels { .. }
+            | Note::GradientDifferenceUsed { .. } => self.write_gradient(f),
             Note::NoEstimatorTable { .. } | Note::EstimatorTableLacks { .. } | Note::NoBoxTransfer { .. } => {
                 self.write_fit(f)
             }
             Note::ModelAgeUnknown { .. }
             | Note::AircraftUnnamed { .. }
             | Note::ModelOnItsOwnFlight
-            | Note::ModelHeldOut { .. }
-            | Note::ModelChannelOwnName { .. }
+            | Note::ModelHeldOut { .. } => self.write_saved_model(f),
+            Note::ModelChannelOwnName { .. }
             | Note::ModelChannelMapped { .. }
             | Note::NoSavedVectorCompensation { .. }
-            | Note::SavedFindings { .. } => self.write_saved_model(f),
+            | Note::SavedFindings { .. } => self.write_saved_channels(f),
             Note::BaseStationRemoved { .. } | Note::MainFieldRemoved { .. } => self.write_reduced(f),
             Note::PlanLacksChannel { .. }
             | Note::PlanChannelNotCompensated { .. }
-            | Note::PlanManoeuvresNotCompared { .. }
-            | Note::PlanUnplannedManoeuvres { .. }
-            | Note::PlanWithAdditions { .. }
             | Note::PlanChannelFigures { .. } => self.write_plan(f),
-            Note::Renamed {
-                channel,
-                original,
-                column,
-            } => write!(
-                f,
-                "the input already has a '{original}' column (kept unchanged); magcomp's compensation of '{channel}' is in '{column}'"
-            ),
-            Note::NoExcitationAnalysis { channel, why } => write!(f, "{channel}: no excitation analysis: {why}"),
-            Note::DiagnosedModel { channel, model } => {
-                write!(f, "{channel}: fitted and compensated with the diagnosed model: {model}")
+            Note::PlanManoeuvresNotCompared { .. }
+            | Note::PlanUnplannedManoeuvres { .. }
+            | Note::PlanWithAdditions { .. } => self.write_plan_manoeuvres(f),
+            Note::Renamed { .. } | Note::NoExcitationAnalysis { .. } | Note::DiagnosedModel { .. } => {
+                self.write_channel_output(f)
             }
             Note::UnitsRow { path, units } => write_units_row(f, path, units),
         }
@@ -1696,7 +1749,47 @@ fn write_units_row(f: &mut fmt::Formatter<'_>, path: &std::path::Path, units: &[
     )
 }
 
+/// The sentence of [`Note::WindowHeadings`]: the headings, degrees, the
+/// windows given by time take from the INS yaw, and how many keep none.
+fn write_window_headings(f: &mut fmt::Formatter<'_>, headings_deg: &[f64], without: usize) -> fmt::Result {
+    let keep_none = format!("{without} window(s) given by time span a turn or lack the yaw and keep no heading");
+    if headings_deg.is_empty() {
+        return f.write_str(&keep_none);
+    }
+    let taken: Vec<String> = headings_deg.iter().map(|h| format!("{h:.0}°")).collect();
+    write!(
+        f,
+        "{} window(s) given by time take their leg's heading from the INS yaw ({})",
+        headings_deg.len(),
+        taken.join(", ")
+    )?;
+    match without {
+        0 => Ok(()),
+        _ => write!(f, "; {keep_none}"),
+    }
+}
+
 impl Note {
+    /// The sentence of a note on a channel's output: its column renamed,
+    /// no excitation analysis, the diagnosed model it was compensated with.
+    fn write_channel_output(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Note::Renamed {
+                channel,
+                original,
+                column,
+            } => write!(
+                f,
+                "the input already has a '{original}' column (kept unchanged); magcomp's compensation of '{channel}' is in '{column}'"
+            ),
+            Note::NoExcitationAnalysis { channel, why } => write!(f, "{channel}: no excitation analysis: {why}"),
+            Note::DiagnosedModel { channel, model } => {
+                write!(f, "{channel}: fitted and compensated with the diagnosed model: {model}")
+            }
+            _ => write!(f, "{self:?}"),
+        }
+    }
+
     /// The sentence of a note on a saved model applied to this flight.
     fn write_saved_model(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
@@ -1728,6 +1821,15 @@ impl Note {
                 f,
                 "the model is held out on this flight's {windows} calibration window(s): its FOM and IR here are of a model fitted on another flight"
             ),
+            _ => write!(f, "{self:?}"),
+        }
+    }
+
+    /// The sentence of a note on which of this flight's channels a saved
+    /// model compensates, and with what: the channel's name, its findings,
+    /// no vector compensation.
+    fn write_saved_channels(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
             Note::ModelChannelOwnName { model, column } => write!(
                 f,
                 "the flight records the model's channel '{model}' under its own name: [model] channels' '{column}' is not used for it"
@@ -1765,24 +1867,7 @@ impl Note {
                 f,
                 "{sensor} calibrated against {reference}: scale {sx:.4} {sy:.4} {sz:.4}, non-orthogonality {nx:.3} {ny:.3} {nz:.3}°, offset {ox:.1} {oy:.1} {oz:.1} nT; |B| mismatch {before:.2} → {after:.2} nT RMS over {rows} rows"
             ),
-            Note::WindowHeadings { headings_deg, without } => {
-                let keep_none =
-                    format!("{without} window(s) given by time span a turn or lack the yaw and keep no heading");
-                if headings_deg.is_empty() {
-                    return f.write_str(&keep_none);
-                }
-                let taken: Vec<String> = headings_deg.iter().map(|h| format!("{h:.0}°")).collect();
-                write!(
-                    f,
-                    "{} window(s) given by time take their leg's heading from the INS yaw ({})",
-                    headings_deg.len(),
-                    taken.join(", ")
-                )?;
-                match without {
-                    0 => Ok(()),
-                    _ => write!(f, "; {keep_none}"),
-                }
-            }
+            Note::WindowHeadings { headings_deg, without } => write_window_headings(f, headings_deg, *without),
             Note::LinesAsWindows { lines, headings } => {
                 let lines: Vec<String> = lines.iter().map(f64::to_string).collect();
                 write!(
@@ -1903,6 +1988,30 @@ impl Note {
                 "{channel}: planned ({}) but not compensated on this flight",
                 report.display()
             ),
+            Note::PlanChannelFigures {
+                channel,
+                report,
+                figures,
+                as_planned,
+            } => write!(
+                f,
+                "{channel}: against the plan ({}): {}; {}",
+                report.display(),
+                figures.join("; "),
+                if *as_planned {
+                    "as planned"
+                } else {
+                    "not as planned (see the warnings)"
+                }
+            ),
+            _ => write!(f, "{self:?}"),
+        }
+    }
+
+    /// The sentence of a note of the manoeuvres flown against the plan's:
+    /// not compared, unplanned, or with the plan's additions.
+    fn write_plan_manoeuvres(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
             Note::PlanManoeuvresNotCompared { report, no_plan: true } => write!(
                 f,
                 "against the plan ({}): the report lists no planned manoeuvres (made by an older magcomp), so the manoeuvres flown are not compared with it",
@@ -1924,22 +2033,6 @@ impl Note {
                 f,
                 "against the plan ({}): the flight flew the plan's {additions} proposed additions, so it is compared with the prediction with them",
                 report.display()
-            ),
-            Note::PlanChannelFigures {
-                channel,
-                report,
-                figures,
-                as_planned,
-            } => write!(
-                f,
-                "{channel}: against the plan ({}): {}; {}",
-                report.display(),
-                figures.join("; "),
-                if *as_planned {
-                    "as planned"
-                } else {
-                    "not as planned (see the warnings)"
-                }
             ),
             _ => write!(f, "{self:?}"),
         }

@@ -194,10 +194,10 @@ pub enum Reading {
 impl fmt::Display for Reading {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            Reading::TimeJump { .. }
-            | Reading::TimeJumps { .. }
-            | Reading::DayGivenOverRecorded { .. }
-            | Reading::NamedColumnMissing { .. }
+            Reading::TimeJump { .. } | Reading::TimeJumps { .. } | Reading::DayGivenOverRecorded { .. } => {
+                self.write_times(f)
+            }
+            Reading::NamedColumnMissing { .. }
             | Reading::DatasetsNotRead { .. }
             | Reading::RepeatsReadOnce { .. }
             | Reading::RepeatsDisagree { .. } => self.write_rows(f),
@@ -211,10 +211,9 @@ impl fmt::Display for Reading {
 }
 
 impl Reading {
-    /// The sentence of a warning on the rows and columns read: the time
-    /// column's steps, the day, the columns named, the datasets left out,
-    /// repeated samples.
-    fn write_rows(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+    /// The sentence of a warning on the flight's times: the time column's
+    /// jumps, the day given over the day recorded.
+    fn write_times(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             Reading::TimeJump {
                 file,
@@ -241,6 +240,14 @@ impl Reading {
                 "{}: the day given ({given}, --date or [[flight]] date) is used over the day the file records ({recorded})",
                 file.display()
             ),
+            _ => write!(f, "{self:?}"),
+        }
+    }
+
+    /// The sentence of a warning on the rows and columns read: the columns
+    /// named, the datasets left out, repeated samples.
+    fn write_rows(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
             Reading::NamedColumnMissing { file, column, setting } => write!(
                 f,
                 "{}: the column '{column}' named by [columns] {setting} is not in the file, so the flight is read without it",
@@ -349,26 +356,35 @@ impl Reading {
                 at_byte,
                 inside_record_of,
                 read,
-            } => {
-                let span = match read {
-                    Some((rows, first, last)) => {
-                        format!("{rows} rows from {} to {} s", Number(*first), Number(*last))
-                    }
-                    None => "no row".into(),
-                };
-                match inside_record_of {
-                    None => write!(
-                        f,
-                        "the file is cut short: it ends at byte {at_byte} between two records, without the data-end record and footer every finished recording has (a logger that stopped, a copy that did not finish); read {span}, and whatever was recorded after is lost"
-                    ),
-                    Some(of) => write!(
-                        f,
-                        "the file is cut short at byte {at_byte} of {of}, inside a record; read {span}, and the rest is lost"
-                    ),
-                }
-            }
+            } => write_cut_short(f, *at_byte, *inside_record_of, *read),
             _ => write!(f, "{self:?}"),
         }
+    }
+}
+
+/// The sentence of [`Reading::McapCutShort`]: where the recording ends,
+/// between records or inside one, and the rows read before it.
+fn write_cut_short(
+    f: &mut fmt::Formatter<'_>,
+    at_byte: u64,
+    inside_record_of: Option<u64>,
+    read: Option<(usize, f64, f64)>,
+) -> fmt::Result {
+    let span = match read {
+        Some((rows, first, last)) => {
+            format!("{rows} rows from {} to {} s", Number(first), Number(last))
+        }
+        None => "no row".into(),
+    };
+    match inside_record_of {
+        None => write!(
+            f,
+            "the file is cut short: it ends at byte {at_byte} between two records, without the data-end record and footer every finished recording has (a logger that stopped, a copy that did not finish); read {span}, and whatever was recorded after is lost"
+        ),
+        Some(of) => write!(
+            f,
+            "the file is cut short at byte {at_byte} of {of}, inside a record; read {span}, and the rest is lost"
+        ),
     }
 }
 

@@ -282,32 +282,45 @@ fn attitude_panels(
         let (top, bottom) = root.split_vertically(150);
         let shade = RGBColor(255, 200, 60).mix(0.35).filled();
         heading_panel(&top, (&time, windows), (t, &rows, heading), &shade)?;
-        // Pitch and roll.
-        let y = span(series.iter().flat_map(|(v, _)| rows.iter().map(|&k| v[k])));
-        let mut chart = ChartBuilder::on(&bottom)
-            .margin(6)
-            .x_label_area_size(30)
-            .y_label_area_size(45)
-            .build_cartesian_2d(time.clone(), y.clone())
-            .map_err(plot_error)?;
-        (chart.configure_mesh())
-            .x_desc("time, s")
-            .y_desc("pitch, roll, °")
-            .draw()
-            .map_err(plot_error)?;
-        chart
-            .draw_series(
-                windows
-                    .iter()
-                    .map(|&(a, b)| Rectangle::new([(near(&time, a), y.start), (near(&time, b), y.end)], shade)),
-            )
-            .map_err(plot_error)?;
-        for (values, colour) in &series {
-            let points = on_canvas(decimated(rows.iter().map(|&k| (t[k], values[k]))), &time, &y);
-            chart.draw_series(LineSeries::new(points, colour)).map_err(plot_error)?;
-        }
-        Ok(())
+        pitch_roll_panel(&bottom, (&time, windows), (t, &rows, &series), &shade)
     })
+}
+
+/// An attitude angle's values over the flight, degrees, and its line's colour.
+type Trace<'a> = (&'a [f64], RGBColor);
+
+/// The lower panel of [`attitude_panels`]: pitch and roll, degrees, over
+/// `time`, with `windows` shaded.
+fn pitch_roll_panel(
+    area: &DrawingArea<SVGBackend, plotters::coord::Shift>,
+    (time, windows): (&std::ops::Range<f64>, &[(f64, f64)]),
+    (t, rows, series): (&[f64], &[usize], &[Trace]),
+    shade: &ShapeStyle,
+) -> Result<()> {
+    let y = span(series.iter().flat_map(|(v, _)| rows.iter().map(|&k| v[k])));
+    let mut chart = ChartBuilder::on(area)
+        .margin(6)
+        .x_label_area_size(30)
+        .y_label_area_size(45)
+        .build_cartesian_2d(time.clone(), y.clone())
+        .map_err(plot_error)?;
+    (chart.configure_mesh())
+        .x_desc("time, s")
+        .y_desc("pitch, roll, °")
+        .draw()
+        .map_err(plot_error)?;
+    chart
+        .draw_series(
+            windows
+                .iter()
+                .map(|&(a, b)| Rectangle::new([(near(time, a), y.start), (near(time, b), y.end)], *shade)),
+        )
+        .map_err(plot_error)?;
+    for (values, colour) in series {
+        let points = on_canvas(decimated(rows.iter().map(|&k| (t[k], values[k]))), time, &y);
+        chart.draw_series(LineSeries::new(points, colour)).map_err(plot_error)?;
+    }
+    Ok(())
 }
 
 /// A heading trace cut where it wraps across north (a step of more than
@@ -570,29 +583,41 @@ fn line_map(log: &FlightLog, values: &[f64]) -> Result<Option<String>> {
     let drawn = one_per_cell(&rows, (&east, &north), (&x, &y), (pixels.0 / 6, pixels.1 / 6));
     let map = svg(MAP, |root| {
         let (area, bar) = root.split_horizontally(MAP.0 - COLOUR_BAR_WIDTH);
-        let mut chart = map_chart(&area, x.clone(), y.clone())?;
-        (chart.configure_mesh())
-            .max_light_lines(0)
-            .x_labels(6)
-            .y_labels(8)
-            .x_label_formatter(&|v| format!("{v:.0}"))
-            .y_label_formatter(&|v| format!("{v:.0}"))
-            .x_desc("east, m")
-            .y_desc("north, m")
-            .draw()
-            .map_err(plot_error)?;
-        chart
-            .draw_series((drawn.iter()).map(|&k| {
-                Circle::new(
-                    (east[k], north[k]),
-                    2,
-                    anomaly_colour(values[k] - level, range).filled(),
-                )
-            }))
-            .map_err(plot_error)?;
+        draw_line_dots(&area, (&x, &y), (&drawn, &east, &north), (values, level, range))?;
         colour_bar(&bar, range)
     })?;
     Ok(Some(map))
+}
+
+/// The map's dots: each of the `drawn` samples at its metres east and
+/// north, coloured by its anomaly (value less `level`) over `range`, nT.
+fn draw_line_dots(
+    area: &DrawingArea<SVGBackend, plotters::coord::Shift>,
+    (x, y): (&std::ops::Range<f64>, &std::ops::Range<f64>),
+    (drawn, east, north): (&[usize], &[f64], &[f64]),
+    (values, level, range): (&[f64], f64, (f64, f64)),
+) -> Result<()> {
+    let mut chart = map_chart(area, x.clone(), y.clone())?;
+    (chart.configure_mesh())
+        .max_light_lines(0)
+        .x_labels(6)
+        .y_labels(8)
+        .x_label_formatter(&|v| format!("{v:.0}"))
+        .y_label_formatter(&|v| format!("{v:.0}"))
+        .x_desc("east, m")
+        .y_desc("north, m")
+        .draw()
+        .map_err(plot_error)?;
+    chart
+        .draw_series((drawn.iter()).map(|&k| {
+            Circle::new(
+                (east[k], north[k]),
+                2,
+                anomaly_colour(values[k] - level, range).filled(),
+            )
+        }))
+        .map_err(plot_error)?;
+    Ok(())
 }
 
 /// The map's colour bar: the anomaly's colours from `low` to `high`, nT.
@@ -693,41 +718,54 @@ fn line_profiles(log: &FlightLog, before: &[f64], after: &[f64]) -> Result<Optio
         ))
         .map_err(plot_error)?;
         for (panel, (number, rows)) in root.split_evenly((shown.len(), 1)).iter().zip(&shown) {
-            let start = time[rows[0]];
-            let relative = |values: &[f64]| -> Vec<(f64, f64)> {
-                let mut finite: Vec<f64> = rows.iter().map(|&k| values[k]).filter(|v| v.is_finite()).collect();
-                finite.sort_by(f64::total_cmp);
-                let median = finite.get(finite.len() / 2).copied().unwrap_or(0.0);
-                decimated_to(
-                    rows.iter().map(|&k| (time[k] - start, values[k] - median)),
-                    PROFILE_POINTS,
-                )
-            };
-            let (was, now) = (relative(before), relative(after));
-            let x = span(was.iter().chain(&now).map(|p| p.0));
-            let y = span(was.iter().chain(&now).map(|p| p.1));
-            let mut chart = ChartBuilder::on(panel)
-                .margin(4)
-                .x_label_area_size(34)
-                .y_label_area_size(55)
-                .build_cartesian_2d(x.clone(), y.clone())
-                .map_err(plot_error)?;
-            (chart.configure_mesh())
-                .max_light_lines(0)
-                .x_desc(format!("line {number}: time since its start, s"))
-                .y_desc("nT")
-                .y_labels(4)
-                .draw()
-                .map_err(plot_error)?;
-            for (points, colour) in [(was, RGBColor(150, 150, 150)), (now, BLUE)] {
-                chart
-                    .draw_series(LineSeries::new(on_canvas(points, &x, &y), colour))
-                    .map_err(plot_error)?;
-            }
+            line_profile_panel(panel, (*number, rows), time, (before, after))?;
         }
         Ok(())
     })?;
     Ok(Some((plot, lines.len())))
+}
+
+/// One panel of [`line_profiles`]: line `number`'s samples (`rows`) before
+/// and after compensation, each less its median over the line, nT, against
+/// the time since the line began, s.
+fn line_profile_panel(
+    panel: &DrawingArea<SVGBackend, plotters::coord::Shift>,
+    (number, rows): (f64, &[usize]),
+    time: &[f64],
+    (before, after): (&[f64], &[f64]),
+) -> Result<()> {
+    let start = time[rows[0]];
+    let relative = |values: &[f64]| -> Vec<(f64, f64)> {
+        let mut finite: Vec<f64> = rows.iter().map(|&k| values[k]).filter(|v| v.is_finite()).collect();
+        finite.sort_by(f64::total_cmp);
+        let median = finite.get(finite.len() / 2).copied().unwrap_or(0.0);
+        decimated_to(
+            rows.iter().map(|&k| (time[k] - start, values[k] - median)),
+            PROFILE_POINTS,
+        )
+    };
+    let (was, now) = (relative(before), relative(after));
+    let x = span(was.iter().chain(&now).map(|p| p.0));
+    let y = span(was.iter().chain(&now).map(|p| p.1));
+    let mut chart = ChartBuilder::on(panel)
+        .margin(4)
+        .x_label_area_size(34)
+        .y_label_area_size(55)
+        .build_cartesian_2d(x.clone(), y.clone())
+        .map_err(plot_error)?;
+    (chart.configure_mesh())
+        .max_light_lines(0)
+        .x_desc(format!("line {number}: time since its start, s"))
+        .y_desc("nT")
+        .y_labels(4)
+        .draw()
+        .map_err(plot_error)?;
+    for (points, colour) in [(was, RGBColor(150, 150, 150)), (now, BLUE)] {
+        chart
+            .draw_series(LineSeries::new(on_canvas(points, &x, &y), colour))
+            .map_err(plot_error)?;
+    }
+    Ok(())
 }
 
 /// Fourth-difference noise of each survey line, before and after.
@@ -783,6 +821,29 @@ fn fom_section(quality: &ChannelQuality, limit_nt: f64) -> String {
     html
 }
 
+/// The verdict's FOM line: PASS or FAIL against `limit_nt`, nT, or neither
+/// when the survey's departure is `unchecked`.
+fn fom_verdict(quality: &ChannelQuality, limit_nt: f64, unchecked: bool) -> String {
+    match quality.fom_after_nt {
+        Some(fom) if fom <= limit_nt && unchecked => format!(
+            "FOM {:.2} → {fom:.2} nT over {} of 12 manoeuvres (limit {limit_nt} nT)",
+            quality.fom_before_nt.unwrap_or(f64::NAN),
+            quality.fom_manoeuvres
+        ),
+        Some(fom) if fom <= limit_nt => format!(
+            "<span class=\"pass\">PASS</span> FOM {:.2} → {fom:.2} nT over {} of 12 manoeuvres (limit {limit_nt} nT)",
+            quality.fom_before_nt.unwrap_or(f64::NAN),
+            quality.fom_manoeuvres
+        ),
+        Some(fom) => format!(
+            "<span class=\"fail\">FAIL</span> FOM {:.2} → {fom:.2} nT over {} of 12 manoeuvres (limit {limit_nt} nT)",
+            quality.fom_before_nt.unwrap_or(f64::NAN),
+            quality.fom_manoeuvres
+        ),
+        None => "no labelled manoeuvres: no FOM".into(),
+    }
+}
+
 fn verdict(quality: &ChannelQuality, limit_nt: f64) -> String {
     let mut lines = Vec::new();
     let unchecked = quality.unchecked_departure();
@@ -792,24 +853,7 @@ fn verdict(quality: &ChannelQuality, limit_nt: f64) -> String {
             stated.map(|s| format!(" ({s:.4} nT)")).unwrap_or_else(|| " (none stated)".into())
         ));
     }
-    match quality.fom_after_nt {
-        Some(fom) if fom <= limit_nt && unchecked.is_some() => lines.push(format!(
-            "FOM {:.2} → {fom:.2} nT over {} of 12 manoeuvres (limit {limit_nt} nT)",
-            quality.fom_before_nt.unwrap_or(f64::NAN),
-            quality.fom_manoeuvres
-        )),
-        Some(fom) if fom <= limit_nt => lines.push(format!(
-            "<span class=\"pass\">PASS</span> FOM {:.2} → {fom:.2} nT over {} of 12 manoeuvres (limit {limit_nt} nT)",
-            quality.fom_before_nt.unwrap_or(f64::NAN),
-            quality.fom_manoeuvres
-        )),
-        Some(fom) => lines.push(format!(
-            "<span class=\"fail\">FAIL</span> FOM {:.2} → {fom:.2} nT over {} of 12 manoeuvres (limit {limit_nt} nT)",
-            quality.fom_before_nt.unwrap_or(f64::NAN),
-            quality.fom_manoeuvres
-        )),
-        None => lines.push("no labelled manoeuvres: no FOM".into()),
-    }
+    lines.push(fom_verdict(quality, limit_nt, unchecked.is_some()));
     lines.push(format!(
         "IR {:.1}; band std {:.3} → {:.3} nT; 4th-difference noise {:.4} → {:.4} nT",
         quality.improvement_ratio,
@@ -1003,7 +1047,15 @@ fn excitation_section(model: &FittedModel) -> String {
         let _ = write!(html, "<p>{}</p>", escape(line));
     }
     let _ = write!(html, "<p class=\"note\">{}</p>", escape(&analysis.candidates_from));
-    html += "<table class=\"excitation\"><tr><th>term</th><th>standard error against a full box</th><th>share no manoeuvre pins</th><th>pinned by</th></tr>";
+    html += &excitation_terms(analysis);
+    html += &excitation_candidates(analysis);
+    html
+}
+
+/// The excitation's table of terms: each coefficient's standard error
+/// against a full box, the share no manoeuvre pins, and what pins it.
+fn excitation_terms(analysis: &crate::model::excitation::Excitation) -> String {
+    let mut html = String::from("<table class=\"excitation\"><tr><th>term</th><th>standard error against a full box</th><th>share no manoeuvre pins</th><th>pinned by</th></tr>");
     for term in &analysis.terms {
         let by: Vec<String> = (term.pinned_by.iter().take(3))
             .map(|(label, share)| format!("{label} {:.0} %", 100.0 * share))
@@ -1018,7 +1070,13 @@ fn excitation_section(model: &FittedModel) -> String {
             escape(&by.join(", "))
         );
     }
-    html += "</table><table class=\"advice\"><tr><th>manoeuvre</th><th>in the box</th><th>amplitude, period, length</th><th>predicted survey uncertainty, nT</th><th>change</th></tr>";
+    html + "</table>"
+}
+
+/// The excitation's candidates: each manoeuvre that could be added or
+/// flown more strongly, and the survey uncertainty it would leave, nT.
+fn excitation_candidates(analysis: &crate::model::excitation::Excitation) -> String {
+    let mut html = String::from("<table class=\"advice\"><tr><th>manoeuvre</th><th>in the box</th><th>amplitude, period, length</th><th>predicted survey uncertainty, nT</th><th>change</th></tr>");
     for candidate in &analysis.additions {
         let state = match (candidate.gap, candidate.flown) {
             (true, false) => "missing".to_string(),
@@ -1164,47 +1222,64 @@ pub fn diagnosis_section(diagnosis: &Diagnosis) -> Result<String> {
     }
     html += &findings_table(&diagnosis.findings);
     for channel in &diagnosis.channels {
-        let located: Vec<&Located> = diagnosis
-            .findings
-            .iter()
-            .filter(|f| f.channel == channel.channel)
-            .flat_map(|f| &f.located)
-            .chain(&channel.localisation.structured)
-            .collect();
-        let _ = write!(
-            html,
-            "<h3>{}: held-out residual per manoeuvre, plain Tolles-Lawson (grey) and with the findings (red)</h3><p>Held-out RMS {:.4} → {:.4} nT ({}); in-band sensor noise {:.4} nT. Shaded: where the findings helped most and where the residual is structured.</p>",
-            escape(&channel.channel),
-            channel.heldout_rms_baseline_nt,
-            channel.heldout_rms_final_nt,
-            escape(&channel.model.describe()),
-            channel.localisation.noise_floor_nt
-        );
-        html += "<table class=\"diagnosis-windows\"><tr><th>manoeuvre</th><th>held-out RMS before, nT</th><th>after, nT</th></tr>";
-        for window in &channel.localisation.windows {
-            let _ = write!(
-                html,
-                "<tr><td>{}</td><td>{:.4}</td><td>{:.4}</td></tr>",
-                escape(&window.label),
-                window.heldout_rms_baseline_nt,
-                window.heldout_rms_final_nt
-            );
-        }
-        html += "</table><div class=\"grid\">";
-        for (trace, window) in channel.localisation.traces.iter().zip(&channel.localisation.windows) {
-            let marked = overlapping(&located, (window.t_start, window.t_end));
-            let attribute: Vec<String> = marked.iter().map(|(a, b)| format!("{a:.2}:{b:.2}")).collect();
-            let _ = write!(
-                html,
-                "<figure class=\"diagnosis-manoeuvre\" data-label=\"{}\" data-marked=\"{}\">{}</figure>",
-                escape(&trace.label),
-                attribute.join(" "),
-                residual_plot(trace, &marked)?
-            );
-        }
-        html += "</div>";
+        html += &diagnosed_channel(diagnosis, channel)?;
     }
     Ok(html + "</section>")
+}
+
+/// One channel of the diagnosis section: its held-out RMS before and after,
+/// the table of manoeuvres and each manoeuvre's residual plotted with the
+/// stretches the findings located shaded.
+fn diagnosed_channel(diagnosis: &Diagnosis, channel: &crate::diagnose::ChannelDiagnosis) -> Result<String> {
+    let mut html = String::new();
+    let located: Vec<&Located> = diagnosis
+        .findings
+        .iter()
+        .filter(|f| f.channel == channel.channel)
+        .flat_map(|f| &f.located)
+        .chain(&channel.localisation.structured)
+        .collect();
+    let _ = write!(
+        html,
+        "<h3>{}: held-out residual per manoeuvre, plain Tolles-Lawson (grey) and with the findings (red)</h3><p>Held-out RMS {:.4} → {:.4} nT ({}); in-band sensor noise {:.4} nT. Shaded: where the findings helped most and where the residual is structured.</p>",
+        escape(&channel.channel),
+        channel.heldout_rms_baseline_nt,
+        channel.heldout_rms_final_nt,
+        escape(&channel.model.describe()),
+        channel.localisation.noise_floor_nt
+    );
+    html += "<table class=\"diagnosis-windows\"><tr><th>manoeuvre</th><th>held-out RMS before, nT</th><th>after, nT</th></tr>";
+    for window in &channel.localisation.windows {
+        let _ = write!(
+            html,
+            "<tr><td>{}</td><td>{:.4}</td><td>{:.4}</td></tr>",
+            escape(&window.label),
+            window.heldout_rms_baseline_nt,
+            window.heldout_rms_final_nt
+        );
+    }
+    html += "</table>";
+    html += &residual_figures(channel, &located)?;
+    Ok(html)
+}
+
+/// A diagnosed channel's grid of figures: each manoeuvre's held-out
+/// residual, with the `located` stretches that overlap it shaded.
+fn residual_figures(channel: &crate::diagnose::ChannelDiagnosis, located: &[&Located]) -> Result<String> {
+    let mut html = String::from("<div class=\"grid\">");
+    for (trace, window) in channel.localisation.traces.iter().zip(&channel.localisation.windows) {
+        let marked = overlapping(located, (window.t_start, window.t_end));
+        let attribute: Vec<String> = marked.iter().map(|(a, b)| format!("{a:.2}:{b:.2}")).collect();
+        let _ = write!(
+            html,
+            "<figure class=\"diagnosis-manoeuvre\" data-label=\"{}\" data-marked=\"{}\">{}</figure>",
+            escape(&trace.label),
+            attribute.join(" "),
+            residual_plot(trace, &marked)?
+        );
+    }
+    html += "</div>";
+    Ok(html)
 }
 
 const STYLE: &str = "body{font-family:sans-serif;margin:2em;max-width:1000px}h2{border-bottom:1px solid #ccc}\
@@ -1262,7 +1337,6 @@ fn applied_findings_section(result: &FlightResult) -> String {
 /// The flight against the plan it was flown to: each channel's figures,
 /// planned and flown, and the manoeuvres the flight lacks.
 fn plan_section(plan: &crate::quality::against_plan::PlanComparison) -> String {
-    use crate::quality::against_plan::Verdict;
     let mut html = format!(
         "<section id=\"plan\"><h2>Against the plan</h2><p>Plan report <code>{}</code> (plan <code>{}</code>){}; a figure holds inside the range of the plan's simulated flights widened ×{}.</p>",
         escape(&plan.report.display().to_string()),
@@ -1288,29 +1362,38 @@ fn plan_section(plan: &crate::quality::against_plan::PlanComparison) -> String {
         );
     }
     html += "<table><tr><th>channel</th><th>figure</th><th>planned, nT</th><th>range, nT</th><th>flown, nT</th><th>flown / planned</th><th>verdict</th></tr>";
-    let number = |v: Option<f64>| v.map_or("–".to_string(), |v| format!("{v:.4}"));
     for channel in &plan.channels {
-        for figure in &channel.figures {
-            let (class, verdict) = match figure.verdict {
-                Verdict::AsPlanned => ("", "as planned"),
-                Verdict::Worse => (" class=\"warning\"", "worse than planned"),
-                Verdict::Better => (" class=\"warning\"", "better than planned"),
-                Verdict::NotCompared => ("", "not compared"),
-            };
-            let _ = write!(
-                html,
-                "<tr{class}><td>{}</td><td>{}</td><td>{}</td><td>{}–{}</td><td>{}</td><td>{}</td><td>{verdict}</td></tr>",
-                escape(&channel.channel),
-                figure.figure,
-                number(figure.planned_nt),
-                number(figure.planned_low_nt),
-                number(figure.planned_high_nt),
-                number(figure.flown_nt),
-                figure.ratio.map_or("–".to_string(), |r| format!("{r:.2}")),
-            );
-        }
+        html += &plan_rows(channel);
     }
     html + "</table></section>"
+}
+
+/// One channel's rows of the plan table: each figure planned, its range,
+/// flown, their ratio and the verdict.
+fn plan_rows(channel: &crate::quality::against_plan::ChannelAgainstPlan) -> String {
+    use crate::quality::against_plan::Verdict;
+    let number = |v: Option<f64>| v.map_or("–".to_string(), |v| format!("{v:.4}"));
+    let mut html = String::new();
+    for figure in &channel.figures {
+        let (class, verdict) = match figure.verdict {
+            Verdict::AsPlanned => ("", "as planned"),
+            Verdict::Worse => (" class=\"warning\"", "worse than planned"),
+            Verdict::Better => (" class=\"warning\"", "better than planned"),
+            Verdict::NotCompared => ("", "not compared"),
+        };
+        let _ = write!(
+            html,
+            "<tr{class}><td>{}</td><td>{}</td><td>{}</td><td>{}–{}</td><td>{}</td><td>{}</td><td>{verdict}</td></tr>",
+            escape(&channel.channel),
+            figure.figure,
+            number(figure.planned_nt),
+            number(figure.planned_low_nt),
+            number(figure.planned_high_nt),
+            number(figure.flown_nt),
+            figure.ratio.map_or("–".to_string(), |r| format!("{r:.2}")),
+        );
+    }
+    html
 }
 
 /// The report's page and its figures as JSON beside it (`<path>` with the
@@ -1347,22 +1430,7 @@ pub fn stage_report(path: &Path, flight: &FlightRun, fom_limit_nt: f64) -> Resul
             .unwrap_or_default();
         let noise = line_noise(log, before, &channel.values);
         html += &channel_section(log, result, (quality, model, channel), &noise, fom_limit_nt)?;
-        figures.push(ChannelFigures {
-            channel: model.channel.clone(),
-            fom_after_nt: quality.fom_after_nt,
-            fom_limit_nt,
-            // A flight given a saved model passes or fails with its
-            // calibration flight's FOM (or its own, held out, when it has one).
-            fom_pass: (quality.fom_after_nt)
-                .or_else(|| {
-                    let applied = result.model.as_ref()?;
-                    let saved = applied.calibration.iter().find(|c| c.channel == quality.channel)?;
-                    saved.fom_after_nt
-                })
-                .map(|f| f <= fom_limit_nt),
-            improvement_ratio: quality.improvement_ratio,
-            line_noise: noise,
-        });
+        figures.push(channel_figures(result, (quality, model), noise, fom_limit_nt));
     }
     if let Some(diagnosis) = &result.diagnosis {
         html += &diagnosis_section(diagnosis)?;
@@ -1379,6 +1447,32 @@ pub fn stage_report(path: &Path, flight: &FlightRun, fom_limit_nt: f64) -> Resul
         page,
         figures_json,
     })
+}
+
+/// One channel's figures for the report's JSON: its FOM against
+/// `fom_limit_nt`, nT, its improvement ratio and each line's noise.
+fn channel_figures(
+    result: &FlightResult,
+    (quality, model): (&ChannelQuality, &FittedModel),
+    noise: Vec<LineNoise>,
+    fom_limit_nt: f64,
+) -> ChannelFigures {
+    ChannelFigures {
+        channel: model.channel.clone(),
+        fom_after_nt: quality.fom_after_nt,
+        fom_limit_nt,
+        // A flight given a saved model passes or fails with its
+        // calibration flight's FOM (or its own, held out, when it has one).
+        fom_pass: (quality.fom_after_nt)
+            .or_else(|| {
+                let applied = result.model.as_ref()?;
+                let saved = applied.calibration.iter().find(|c| c.channel == quality.channel)?;
+                saved.fom_after_nt
+            })
+            .map(|f| f <= fom_limit_nt),
+        improvement_ratio: quality.improvement_ratio,
+        line_noise: noise,
+    }
 }
 
 /// The page's head and what it says of the whole flight: its rows, the
@@ -1446,6 +1540,31 @@ fn regularisation(model: &FittedModel, fitted_here: bool) -> Result<String> {
     Ok(html)
 }
 
+/// A channel's survey-line profiles before and after compensation, under
+/// their heading; nothing when the flight has no lines.
+fn profiles_figure(
+    log: &FlightLog,
+    model: &FittedModel,
+    channel: &crate::compensate::CompensatedChannel,
+) -> Result<String> {
+    let mut html = String::new();
+    let before = log
+        .channel(&model.channel)
+        .map(|c| c.values.as_slice())
+        .unwrap_or_default();
+    if let Some((profiles, lines)) = line_profiles(log, before, &channel.values)? {
+        html += "<h3>Survey line profiles</h3>";
+        if lines > MOST_PROFILES {
+            let _ = write!(
+                html,
+                "<p>{MOST_PROFILES} of the flight's {lines} lines, spread over them; the per-line noise table lists every line.</p>"
+            );
+        }
+        let _ = write!(html, "<figure class=\"profiles\">{profiles}</figure>");
+    }
+    Ok(html)
+}
+
 /// One channel's section: its verdict, FOM table and manoeuvres (where it
 /// has windows), regularisation, coefficients, estimators, excitation,
 /// survey-line map and per-line noise.
@@ -1487,20 +1606,7 @@ fn channel_section(
     if let Some(map) = line_map(log, &channel.values)? {
         let _ = write!(html, "<h3>Survey lines</h3><figure class=\"map\">{map}</figure>");
     }
-    let before = log
-        .channel(&model.channel)
-        .map(|c| c.values.as_slice())
-        .unwrap_or_default();
-    if let Some((profiles, lines)) = line_profiles(log, before, &channel.values)? {
-        html += "<h3>Survey line profiles</h3>";
-        if lines > MOST_PROFILES {
-            let _ = write!(
-                html,
-                "<p>{MOST_PROFILES} of the flight's {lines} lines, spread over them; the per-line noise table lists every line.</p>"
-            );
-        }
-        let _ = write!(html, "<figure class=\"profiles\">{profiles}</figure>");
-    }
+    html += &profiles_figure(log, model, channel)?;
     html += &noise_table(noise);
     html += "</section>";
     Ok(html)

@@ -137,13 +137,7 @@ pub fn read_units_row(
     let Some(time_index) = header.iter().position(|n| *n == roles.time) else {
         return Ok(None);
     };
-    let file = File::open(path).map_err(|e| Error::io(path, "opening", e))?;
-    let mut lines = BufReader::new(file).split(b'\n');
-    let line = match (lines.next(), lines.next()) {
-        (Some(_), Some(Ok(line))) => line,
-        _ => return Ok(None),
-    };
-    let Some(cells) = line_cells(&line, separator) else {
+    let Some(cells) = second_line_cells(path, separator)? else {
         return Ok(None);
     };
     // The time cell a unit; or empty, with no number on the line and a
@@ -181,6 +175,18 @@ pub fn read_units_row(
         ));
     }
     Ok(Some(cells))
+}
+
+/// The cells of the file's second line (the one after the header), or
+/// `None` when it has none or they cannot be split.
+fn second_line_cells(path: &Path, separator: Separator) -> Result<Option<Vec<String>>> {
+    let file = File::open(path).map_err(|e| Error::io(path, "opening", e))?;
+    let mut lines = BufReader::new(file).split(b'\n');
+    let line = match (lines.next(), lines.next()) {
+        (Some(_), Some(Ok(line))) => line,
+        _ => return Ok(None),
+    };
+    Ok(line_cells(&line, separator))
 }
 
 /// Opens a `csv` reader over a delimited file with magcomp's settings.
@@ -258,16 +264,7 @@ fn read_delimited_parallel<'a>(
         .count()
         .max(1);
     let bytes_per_row = (head.len() as u64 - header_end) as f64 / sample_rows as f64;
-    let mut starts = vec![header_end];
-    for k in 1..parts_wanted as u64 {
-        let guess = header_end + (size - header_end) * k / parts_wanted as u64;
-        let Some(start) = next_line_start(&mut file, guess).map_err(io)? else {
-            break;
-        };
-        if start > *starts.last().unwrap_or(&0) && start < size {
-            starts.push(start);
-        }
-    }
+    let starts = part_starts(&mut file, (header_end, size), parts_wanted).map_err(io)?;
     let ends: Vec<u64> = starts.iter().skip(1).copied().chain(std::iter::once(size)).collect();
     use rayon::prelude::*;
     let parts: Vec<Option<ColumnBuilder>> = starts
@@ -281,18 +278,42 @@ fn read_delimited_parallel<'a>(
     let Some(parts) = parts.into_iter().collect::<Option<Vec<ColumnBuilder>>>() else {
         return Ok(None);
     };
+    Ok(merged_parts(parts))
+}
+
+/// Where each of up to `parts_wanted` parts of the data (from `header_end`
+/// to `size`, bytes) starts: at the first line start after an even split.
+pub(crate) fn part_starts(
+    file: &mut File,
+    (header_end, size): (u64, u64),
+    parts_wanted: usize,
+) -> std::io::Result<Vec<u64>> {
+    let mut starts = vec![header_end];
+    for k in 1..parts_wanted as u64 {
+        let guess = header_end + (size - header_end) * k / parts_wanted as u64;
+        let Some(start) = next_line_start(file, guess)? else {
+            break;
+        };
+        if start > *starts.last().unwrap_or(&0) && start < size {
+            starts.push(start);
+        }
+    }
+    Ok(starts)
+}
+
+/// The parts read in parallel joined in order into one, or `None` when
+/// they disagree (a column's kind, time not increasing across a boundary).
+fn merged_parts(parts: Vec<ColumnBuilder>) -> Option<ColumnBuilder> {
     let total: usize = parts.iter().map(|p| p.row_offsets.len()).sum();
     let mut parts = parts.into_iter();
-    let Some(mut merged) = parts.next() else {
-        return Ok(None);
-    };
+    let mut merged = parts.next()?;
     merged.reserve(total);
     for part in parts {
         if !merged.absorb(part) {
-            return Ok(None);
+            return None;
         }
     }
-    Ok(Some(merged))
+    Some(merged)
 }
 
 /// Reads as much of `buffer` as the file holds.

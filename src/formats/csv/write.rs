@@ -84,30 +84,7 @@ fn copy_verbatim<W: Write>(
     extra: &ExtraColumns,
 ) -> std::io::Result<()> {
     let mut file = BufReader::with_capacity(1 << 20, File::open(input)?);
-    let mut text = Vec::new();
-    let header_length = offsets.first().copied().unwrap_or(0);
-    read_span(&mut file, Some(header_length), &mut text)?;
-    // The span before the first row: the header, then the units row when
-    // the reader found one (any other line there would have been a row).
-    let text = without_terminator(&text);
-    let (header, units) = match text.iter().position(|&b| b == b'\n') {
-        Some(end) => (&text[..end], Some(without_terminator(&text[end..]))),
-        None => (text, None),
-    };
-    out.write_all(without_terminator(header))?;
-    for name in head.added {
-        out.write_all(b",")?;
-        write_cell(out, name.as_bytes())?;
-    }
-    out.write_all(b"\n")?;
-    if let Some(units) = units {
-        out.write_all(units)?;
-        for unit in head.added_units {
-            out.write_all(b",")?;
-            write_cell(out, unit.as_bytes())?;
-        }
-        out.write_all(b"\n")?;
-    }
+    copy_head(&mut file, offsets.first().copied().unwrap_or(0), head, out)?;
     // Rows go in waves: each wave's text is read whole, its chunks of rows
     // get their cells side by side, and the chunks are written in order, so
     // the bytes are the same whatever the thread count and at most a wave
@@ -132,6 +109,36 @@ fn copy_verbatim<W: Write>(
         for chunk in chunks {
             out.write_all(&chunk?)?;
         }
+    }
+    Ok(())
+}
+
+/// Copies the input's first `header_length` bytes, its header and the
+/// units row under it when there is one, with the added columns' names
+/// and units appended.
+fn copy_head<W: Write>(file: &mut impl Read, header_length: u64, head: Head, out: &mut W) -> std::io::Result<()> {
+    let mut text = Vec::new();
+    read_span(file, Some(header_length), &mut text)?;
+    // The span before the first row: the header, then the units row when
+    // the reader found one (any other line there would have been a row).
+    let text = without_terminator(&text);
+    let (header, units) = match text.iter().position(|&b| b == b'\n') {
+        Some(end) => (&text[..end], Some(without_terminator(&text[end..]))),
+        None => (text, None),
+    };
+    out.write_all(without_terminator(header))?;
+    for name in head.added {
+        out.write_all(b",")?;
+        write_cell(out, name.as_bytes())?;
+    }
+    out.write_all(b"\n")?;
+    if let Some(units) = units {
+        out.write_all(units)?;
+        for unit in head.added_units {
+            out.write_all(b",")?;
+            write_cell(out, unit.as_bytes())?;
+        }
+        out.write_all(b"\n")?;
     }
     Ok(())
 }

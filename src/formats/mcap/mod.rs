@@ -221,6 +221,32 @@ fn decode_file(bytes: &[u8], names: &ColumnNames) -> std::result::Result<FileCon
         })
         .collect();
     let mut definitions = section.definitions;
+    let (chunks, damaged) = whole_chunks(opened, &mut definitions, &mut losses);
+    if damaged > 0 && chunks.is_empty() && section.messages.is_empty() {
+        return Err(format!("every chunk is damaged ({} of them)", damaged));
+    }
+    let plans: BTreeMap<u16, TopicPlan> = definitions
+        .channels
+        .iter()
+        .map(|(id, channel)| {
+            (
+                *id,
+                plan_topic(channel, definitions.schemas.get(&channel.schema_id), names),
+            )
+        })
+        .collect();
+    let merged = decode_messages(&plans, &chunks, &section.messages);
+    Ok((plans, merged, notes, losses, cut_short))
+}
+
+/// The chunks that opened, their definitions merged into `definitions`,
+/// and how many were damaged; the first damage and the count left out are
+/// told in `losses`.
+fn whole_chunks<'a>(
+    opened: Vec<std::result::Result<OpenedChunk<'a>, String>>,
+    definitions: &mut Definitions,
+    losses: &mut Vec<Warning>,
+) -> (Vec<Cow<'a, [u8]>>, usize) {
     let mut chunks = Vec::with_capacity(opened.len());
     let mut damaged = 0;
     for chunk in opened {
@@ -245,22 +271,8 @@ fn decode_file(bytes: &[u8], names: &ColumnNames) -> std::result::Result<FileCon
             }
             .into(),
         );
-        if chunks.is_empty() && section.messages.is_empty() {
-            return Err(format!("every chunk is damaged ({} of them)", damaged));
-        }
     }
-    let plans: BTreeMap<u16, TopicPlan> = definitions
-        .channels
-        .iter()
-        .map(|(id, channel)| {
-            (
-                *id,
-                plan_topic(channel, definitions.schemas.get(&channel.schema_id), names),
-            )
-        })
-        .collect();
-    let merged = decode_messages(&plans, &chunks, &section.messages);
-    Ok((plans, merged, notes, losses, cut_short))
+    (chunks, damaged)
 }
 
 /// Whether `topic` is one of the contract's sensor topics:
@@ -276,7 +288,32 @@ fn is_sensor_topic(topic: &str) -> bool {
 /// Decides how to decode a channel and what its fields become.
 fn plan_topic(channel: &ChannelRecord, schema: Option<&SchemaRecord>, names: &ColumnNames) -> TopicPlan {
     let topic = channel.topic.clone();
-    let decoder = match (channel.message_encoding.as_str(), schema) {
+    let decoder = decoder_for(channel, schema);
+    // A sensor topic of the contract (a magnetometer, the INS, the GPS)
+    // that cannot be read loses a sensor the run would use: a warning,
+    // whatever the reason.
+    let decoder = match decoder {
+        Decoder::Skip { why, lost: false } if is_sensor_topic(&topic) => Decoder::Skip { why, lost: true },
+        other => other,
+    };
+    let altitude_column = channel
+        .metadata
+        .get(ALTITUDE_COLUMN_KEY)
+        .cloned()
+        .unwrap_or_else(|| "alt".into());
+    let _ = names;
+    TopicPlan {
+        topic,
+        decoder,
+        altitude_column,
+        date: channel.metadata.get(DATE_KEY).and_then(|d| FlightDate::parse(d)),
+    }
+}
+
+/// How to decode a channel's messages, by their encoding and schema: the
+/// protobuf layout, JSON, a ROS 2 type, or skipped with why.
+fn decoder_for(channel: &ChannelRecord, schema: Option<&SchemaRecord>) -> Decoder {
+    match (channel.message_encoding.as_str(), schema) {
         ("protobuf", Some(schema)) if schema.encoding == "protobuf" => {
             match MessageLayout::from_descriptor_set(&schema.data, &schema.name) {
                 Ok(layout) if layout.names.is_empty() => Decoder::Skip {
@@ -305,25 +342,6 @@ fn plan_topic(channel: &ChannelRecord, schema: Option<&SchemaRecord>, names: &Co
             why: format!("message encoding '{encoding}' is not read (magcomp reads protobuf, JSON and ROS 2 CDR)"),
             lost: true,
         },
-    };
-    // A sensor topic of the contract (a magnetometer, the INS, the GPS)
-    // that cannot be read loses a sensor the run would use: a warning,
-    // whatever the reason.
-    let decoder = match decoder {
-        Decoder::Skip { why, lost: false } if is_sensor_topic(&topic) => Decoder::Skip { why, lost: true },
-        other => other,
-    };
-    let altitude_column = channel
-        .metadata
-        .get(ALTITUDE_COLUMN_KEY)
-        .cloned()
-        .unwrap_or_else(|| "alt".into());
-    let _ = names;
-    TopicPlan {
-        topic,
-        decoder,
-        altitude_column,
-        date: channel.metadata.get(DATE_KEY).and_then(|d| FlightDate::parse(d)),
     }
 }
 

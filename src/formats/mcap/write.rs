@@ -172,7 +172,20 @@ fn write_records<W: Write + Seek>(
         }
     }
     let created = times.first().copied().unwrap_or(0);
-    for (name, json) in &extras.documents {
+    write_documents(&mut writer, &extras.documents, created)?;
+    writer.finish()?;
+    Ok(())
+}
+
+/// Stores each JSON document twice, as a metadata record
+/// (`magcomp.<name>`) and as an attachment (`<name>.json`) made at
+/// `created`, ns.
+fn write_documents<W: Write + Seek>(
+    writer: &mut mcap::Writer<W>,
+    documents: &[(String, String)],
+    created: u64,
+) -> std::result::Result<(), mcap::McapError> {
+    for (name, json) in documents {
         writer.write_metadata(&mcap::records::Metadata {
             name: format!("magcomp.{name}"),
             metadata: BTreeMap::from([("json".to_string(), json.clone())]),
@@ -185,7 +198,6 @@ fn write_records<W: Write + Seek>(
             data: std::borrow::Cow::Borrowed(json.as_bytes()),
         })?;
     }
-    writer.finish()?;
     Ok(())
 }
 

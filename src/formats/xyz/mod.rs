@@ -21,7 +21,7 @@ mod write;
 pub use write::{stage_log_xyz, stage_xyz_copy};
 
 use super::columns::{sgl_uppercase_alias, ColumnNames};
-use super::csv::{next_line_start, ColumnBuilder, PARALLEL_MIN_BYTES};
+use super::csv::{part_starts, ColumnBuilder, PARALLEL_MIN_BYTES};
 use crate::error::{Error, Result};
 use crate::ingest::flight_log::FlightLog;
 
@@ -88,37 +88,50 @@ pub(crate) fn find_header(path: &Path, names: &ColumnNames) -> Result<Header> {
             XyzLine::LineRecord(_) => saw_line_record = true,
             XyzLine::Data => {
                 let fields = line.split_ascii_whitespace().count();
-                let (line_index, header, body_start) = comments
-                    .iter()
-                    .rev()
-                    .find(|(_, c, _)| c.split_ascii_whitespace().count() == fields)
-                    .ok_or_else(|| Error::UnsupportedFormat {
-                        path: path.to_path_buf(),
-                        message: format!(
-                            "no '/' header line with {fields} column names (as many as the first data row has \
-                             fields) precedes the data; a Geosoft XYZ file needs a line such as '/ TIME LINE UNCOMPMAG1 FLUXB_X ...'"
-                        ),
-                    })?;
-                let mut column_names: Vec<String> = header
-                    .split_ascii_whitespace()
-                    .map(|name| canonical_name(name, names))
-                    .collect();
-                let line_from_records = saw_line_record && !column_names.contains(&names.line);
-                if line_from_records {
-                    column_names.push(names.line.clone());
-                }
-                return Ok(Header {
-                    names: column_names,
-                    line_index: *line_index,
-                    body_start: *body_start,
-                    line_from_records,
-                });
+                return header_of(path, &comments, fields, (names, saw_line_record));
             }
         }
     }
     Err(Error::NoData {
         path: path.to_path_buf(),
         problem: "the XYZ file has no data rows".into(),
+    })
+}
+
+/// The header: the last of the `comments` (line index, text, offset after
+/// it) with as many names as the first data row has `fields`, the names
+/// made canonical, and `line` appended when the line number comes only
+/// from line records.
+fn header_of(
+    path: &Path,
+    comments: &[(usize, String, u64)],
+    fields: usize,
+    (names, saw_line_record): (&ColumnNames, bool),
+) -> Result<Header> {
+    let (line_index, header, body_start) = comments
+        .iter()
+        .rev()
+        .find(|(_, c, _)| c.split_ascii_whitespace().count() == fields)
+        .ok_or_else(|| Error::UnsupportedFormat {
+            path: path.to_path_buf(),
+            message: format!(
+                "no '/' header line with {fields} column names (as many as the first data row has \
+                 fields) precedes the data; a Geosoft XYZ file needs a line such as '/ TIME LINE UNCOMPMAG1 FLUXB_X ...'"
+            ),
+        })?;
+    let mut column_names: Vec<String> = header
+        .split_ascii_whitespace()
+        .map(|name| canonical_name(name, names))
+        .collect();
+    let line_from_records = saw_line_record && !column_names.contains(&names.line);
+    if line_from_records {
+        column_names.push(names.line.clone());
+    }
+    Ok(Header {
+        names: column_names,
+        line_index: *line_index,
+        body_start: *body_start,
+        line_from_records,
     })
 }
 
@@ -183,9 +196,7 @@ fn read_range(
     let mut reader = BufReader::with_capacity(1 << 18, file.take(end - start));
     let mut text = Vec::new();
     let (mut line_number, mut offset) = (first_line, start);
-    let mut current_line: Option<f64> = None;
-    let mut line_cell = Vec::new();
-    let mut unresolved = 0;
+    let mut lines = LineRecords::default();
     loop {
         text.clear();
         let read = reader.read_until(b'\n', &mut text).map_err(io)?;
@@ -205,29 +216,52 @@ fn read_range(
         };
         match classify(line) {
             XyzLine::Blank | XyzLine::Comment(_) => {}
-            XyzLine::LineRecord(number) => {
-                current_line = Some(number);
-                line_cell.clear();
-                if number.is_finite() {
-                    line_cell.extend_from_slice(ryu::Buffer::new().format(number).as_bytes());
-                }
-            }
+            XyzLine::LineRecord(number) => lines.enter(number),
             XyzLine::Data => {
-                let fields = line.split_ascii_whitespace().map(str::as_bytes);
-                if header.line_from_records {
-                    unresolved += usize::from(current_line.is_none());
-                    builder.push_row(fields.chain(std::iter::once(line_cell.as_slice())), this_line)?;
-                } else {
-                    builder.push_row(fields, this_line)?;
-                }
+                lines.push_row(builder, header, line, this_line)?;
                 builder.row_offsets.push(row_start);
             }
         }
     }
     Ok(PartEnd {
-        unresolved,
-        last_line: current_line,
+        unresolved: lines.unresolved,
+        last_line: lines.current,
     })
+}
+
+/// The line number a part of the file is on, from its line records.
+#[derive(Default)]
+struct LineRecords {
+    /// The last line record's number, if the part has had one.
+    current: Option<f64>,
+    /// That number as the `line` cell of the rows under it.
+    cell: Vec<u8>,
+    /// Rows read before the part's first line record.
+    unresolved: usize,
+}
+
+impl LineRecords {
+    /// A line record: the rows after it are on line `number`.
+    fn enter(&mut self, number: f64) {
+        self.current = Some(number);
+        self.cell.clear();
+        if number.is_finite() {
+            self.cell
+                .extend_from_slice(ryu::Buffer::new().format(number).as_bytes());
+        }
+    }
+
+    /// Pushes the data row `line` (file line `this_line`) into `builder`,
+    /// with the line number's cell when the header takes it from records.
+    fn push_row(&mut self, builder: &mut ColumnBuilder, header: &Header, line: &str, this_line: u64) -> Result<()> {
+        let fields = line.split_ascii_whitespace().map(str::as_bytes);
+        if header.line_from_records {
+            self.unresolved += usize::from(self.current.is_none());
+            builder.push_row(fields.chain(std::iter::once(self.cell.as_slice())), this_line)
+        } else {
+            builder.push_row(fields, this_line)
+        }
+    }
 }
 
 fn read_parallel<'a>(
@@ -243,16 +277,7 @@ fn read_parallel<'a>(
     }
     let io = |e| Error::io(path, "reading", e);
     let mut file = File::open(path).map_err(io)?;
-    let mut starts = vec![header.body_start];
-    for k in 1..parts_wanted {
-        let guess = header.body_start + (size - header.body_start) * k / parts_wanted;
-        let Some(start) = next_line_start(&mut file, guess).map_err(io)? else {
-            break;
-        };
-        if start > *starts.last().unwrap_or(&0) && start < size {
-            starts.push(start);
-        }
-    }
+    let starts = part_starts(&mut file, (header.body_start, size), parts_wanted as usize).map_err(io)?;
     let ends: Vec<u64> = starts.iter().skip(1).copied().chain(std::iter::once(size)).collect();
     let parts: Vec<Option<(ColumnBuilder, PartEnd)>> = starts
         .par_iter()
@@ -267,6 +292,13 @@ fn read_parallel<'a>(
     let Some(parts) = parts.into_iter().collect::<Option<Vec<_>>>() else {
         return Ok(None);
     };
+    Ok(merged_parts(parts, header))
+}
+
+/// The parts read in parallel joined in order into one, each part's rows
+/// before its first line record given the line the part before ended on;
+/// `None` when they disagree (a column's kind, time not increasing).
+fn merged_parts<'a>(parts: Vec<(ColumnBuilder<'a>, PartEnd)>, header: &Header) -> Option<ColumnBuilder<'a>> {
     let total: usize = parts.iter().map(|(p, _)| p.row_offsets.len()).sum();
     let line_column = header.line_from_records.then(|| header.names.len() - 1);
     let mut carried: Option<f64> = None;
@@ -283,12 +315,12 @@ fn read_parallel<'a>(
             }
             Some(merged) => {
                 if !merged.absorb(part) {
-                    return Ok(None);
+                    return None;
                 }
             }
         }
     }
-    Ok(merged)
+    merged
 }
 
 /// True when the start of a file looks like Geosoft XYZ: its first non-blank
