@@ -119,17 +119,11 @@ pub(super) fn assign_calibrations(
     let mut notes = Vec::new();
     for (calibration, users) in &uses {
         let model = flights[*calibration].model_json_in(output_directory);
-        let said = format!(
-            "compensated with the model of its aircraft's calibration flight {} (calibration = true)",
-            flights[*calibration].input.display()
-        );
         for &user in users {
             flights[user].model = Some(model.clone());
-            flights[user].assigned_model = Some(match flown_before_any.contains(&user) {
-                true => {
-                    format!("{said}: it was flown before any calibration flight of its aircraft, so the first one's")
-                }
-                false => said.clone(),
+            flights[user].assigned_model = Some(crate::messages::Note::AssignedModel {
+                calibration: flights[*calibration].input.clone(),
+                before_any: flown_before_any.contains(&user),
             });
         }
         let names: Vec<&str> = users.iter().map(|&u| flights[u].output_name.as_str()).collect();
@@ -274,11 +268,23 @@ mod tests {
             "{notes:?}"
         );
         // Each flight given a model says why, in its own files.
+        let said = |k: usize| flights[k].assigned_model.as_ref().map(|note| note.to_string());
         assert_eq!(
-            flights[3].assigned_model.as_deref(),
+            flights[3].assigned_model,
+            Some(crate::messages::Note::AssignedModel {
+                calibration: "/season/cal_a1.csv".into(),
+                before_any: false
+            })
+        );
+        assert_eq!(
+            said(3).as_deref(),
             Some("compensated with the model of its aircraft's calibration flight /season/cal_a1.csv (calibration = true)")
         );
-        let before_any = flights[5].assigned_model.as_deref().unwrap();
+        assert!(matches!(
+            flights[5].assigned_model,
+            Some(crate::messages::Note::AssignedModel { before_any: true, .. })
+        ));
+        let before_any = said(5).unwrap();
         assert!(before_any.ends_with("flown before any calibration flight of its aircraft, so the first one's"));
         assert!(flights[0].assigned_model.is_none() && flights[9].assigned_model.is_none());
     }

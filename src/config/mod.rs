@@ -400,8 +400,8 @@ pub struct FlightJob {
     /// the aircraft's flights that name none of their own (`calibrations`).
     pub calibration: bool,
     /// Why `model` is this flight's, when the campaign gave it (a note for
-    /// its quality JSON and report).
-    pub assigned_model: Option<String>,
+    /// its quality JSON and report): [`crate::messages::Note::AssignedModel`].
+    pub assigned_model: Option<crate::messages::Note>,
     /// What the flight's outputs are named after: the input's file stem,
     /// or, when two flights of a campaign share a stem, their path.
     pub output_name: String,

@@ -19,9 +19,9 @@
 //! A [`Note`] is what the user may want to know (how a column was named,
 //! which model a channel was fitted with, an analysis not made, what
 //! detection found, the flight against its plan); it is printed with `-v`
-//! and kept in the quality JSON and the report, and typed the same way.
-//! The vector stage's model summary and the flight's assigned model still
-//! come as their sentence: [`Note::Said`].
+//! and kept in the quality JSON and the report, and typed the same way
+//! (the diagnosis's in [`diagnosis::Diagnosing`], a vector model's
+//! figures in [`vector::VectorSummary`]).
 
 use std::fmt;
 
@@ -1396,10 +1396,16 @@ impl Serialize for Warning {
 /// What the user may want to know about a run.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Note {
-    /// A note of a stage not typed yet, as its sentence.
-    Said(String),
     /// What the diagnosis says beside its findings.
     Diagnosing(Diagnosing),
+    /// A campaign gave the flight its aircraft's calibration model.
+    AssignedModel {
+        /// The calibration flight whose model compensates this one.
+        calibration: std::path::PathBuf,
+        /// The flight was flown before any calibration flight of its
+        /// aircraft, so it has the first one's.
+        before_any: bool,
+    },
     /// No vector compensation: the flight records no INS attitude.
     NoVectorAttitude,
     /// A fluxgate vector-compensated, with its model's figures.
@@ -1667,30 +1673,32 @@ pub enum Note {
     },
 }
 
-impl Note {
-    /// Each sentence of an untyped stage as a [`Note::Said`].
-    pub fn said(sentences: impl IntoIterator<Item = String>) -> impl Iterator<Item = Note> {
-        sentences.into_iter().map(Note::Said)
-    }
-}
-
 impl From<Diagnosing> for Note {
     fn from(note: Diagnosing) -> Self {
         Note::Diagnosing(note)
     }
 }
 
-impl From<String> for Note {
-    fn from(sentence: String) -> Self {
-        Note::Said(sentence)
-    }
-}
-
 impl fmt::Display for Note {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            Note::Said(sentence) => f.write_str(sentence),
             Note::Diagnosing(note) => note.fmt(f),
+            Note::AssignedModel {
+                calibration,
+                before_any,
+            } => {
+                write!(
+                    f,
+                    "compensated with the model of its aircraft's calibration flight {} (calibration = true)",
+                    calibration.display()
+                )?;
+                match before_any {
+                    true => {
+                        f.write_str(": it was flown before any calibration flight of its aircraft, so the first one's")
+                    }
+                    false => Ok(()),
+                }
+            }
             Note::NoVectorAttitude => {
                 f.write_str("no vector compensation: the flight records no INS attitude (roll, pitch and yaw)")
             }

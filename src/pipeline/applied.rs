@@ -46,7 +46,7 @@ pub(super) fn run_applied(
     let flight = (job, raw_log, log);
     hold_out_on_own_windows(flight, (&sensor, &mut models), (options, &applied), &mut notes)?;
     let (mut compensation, quality) = compensate_applied(log, &models, (options, meter), &mut warnings)?;
-    notes.extend(job.assigned_model.clone().map(Note::from));
+    notes.extend(job.assigned_model.clone());
     notes.extend(renaming);
     let said = Said { warnings, notes };
     let said = beside_the_scalars(
