@@ -67,6 +67,18 @@ pub(super) fn prepare<'a>(problem: &Problem<'a>, spec: &'a ModelSpec) -> Result<
     )
 }
 
+/// The fit options of a score: it keeps the coefficients and the λ that
+/// chose them, nothing the fit would report beside them.
+pub(super) fn score_options(problem: &Problem) -> FitOptions {
+    FitOptions {
+        solve: SolveOptions {
+            figures: Figures::Choice,
+            ..problem.options.solve.clone()
+        },
+        ..problem.options.clone()
+    }
+}
+
 /// Held-out residuals of `model` (see [`folds`]).
 pub(super) fn held_out(problem: &Problem, model: &Model) -> Result<HeldOut> {
     residuals(problem, model, folds(problem.windows))
@@ -91,15 +103,7 @@ pub(super) fn residuals(
 ) -> Result<HeldOut> {
     let spec = problem.spec(model);
     let prepared = prepare(problem, &spec)?;
-    // A score keeps the coefficients and the λ that chose them, nothing
-    // the fit would report beside them.
-    let options = FitOptions {
-        solve: SolveOptions {
-            figures: Figures::Choice,
-            ..problem.options.solve.clone()
-        },
-        ..problem.options.clone()
-    };
+    let options = score_options(problem);
     let mut windows = Vec::new();
     let (mut terms, mut fewest_training_samples) = (0, usize::MAX);
     let mut ridge = Vec::new();

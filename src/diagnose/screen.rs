@@ -26,11 +26,15 @@
 //! (its regularisation, which the full score would mostly choose again)
 //! and none on a source's columns, so the screen asks what they add to the
 //! model as it stands; an eddy time constant's lagged terms, which replace
-//! X's nine eddy columns, take the model's λ as those did. It ranks; it
-//! decides nothing: the best [`SCREENED_KEEP`] by the screen, and every
-//! candidate it cannot judge (the second-order term, whose target depends
-//! on the fit; a source with gaps on the windows, which changes the rows),
-//! go on to the full score and to every test after it.
+//! X's nine eddy columns, take the model's λ as those did. A model with
+//! the second-order term fits the scalar less the term of its own fit:
+//! the screen takes that target once, from the model fitted on every
+//! piece ([`Screen::new`]). It ranks; it decides nothing: the best
+//! [`SCREENED_KEEP`] by the screen, and every candidate it cannot judge
+//! (the second-order term added or removed; a lag or a base station on a
+//! model with the second-order term, whose corrected target the screen
+//! does not refit; a source with gaps on the windows, which changes the
+//! rows), go on to the full score and to every test after it.
 
 use faer::linalg::solvers::Solve;
 use faer::Mat;
@@ -94,13 +98,18 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
 
 impl Screen {
     /// The screen of `model`, fitted on each split with ridge λ `ridge`
-    /// ([`HeldOut::ridge`]); `None` where it cannot be built (a model with
-    /// the second-order term, whose target the fit corrects; a split count
-    /// that does not match).
+    /// ([`HeldOut::ridge`]); `None` where it cannot be built (a split
+    /// count that does not match, a design that does not fill the
+    /// pieces).
+    ///
+    /// A model with the second-order term fits the scalar less the term of
+    /// its own fit, which differs a little from split to split and moves
+    /// with any column added. The screen takes one target for every
+    /// piece: the scalar less the term of the model fitted on all of
+    /// them. What it ranks is what a candidate's columns add to that
+    /// corrected residual; the full score of those it keeps makes the
+    /// passes of each split.
     pub(super) fn new(problem: &Problem, model: &Model, ridge: &[f64]) -> Option<Screen> {
-        if model.second_order {
-            return None;
-        }
         let splits = folds(problem.windows);
         if ridge.len() != splits.len() {
             return None;
@@ -115,10 +124,11 @@ impl Screen {
         if !prepared.covers(&pieces) {
             return None;
         }
+        let scalar = (prepared.fitted_target(&pieces, &score_options(problem), problem.stores)).ok()?;
         let data = band_data(
             &prepared.log,
             problem.sensor,
-            (problem.channel, &prepared.scalar),
+            (problem.channel, &scalar),
             &pieces,
             (spec.fitted_terms(), &problem.options.filter),
             &prepared.extra_columns(),
@@ -177,8 +187,40 @@ impl Screen {
             return None;
         }
         // A lag reads the scalar at other times; a base station is
-        // subtracted from it: either changes the target.
+        // subtracted from it: either changes the target. With the
+        // second-order term that target is corrected by a fit the screen
+        // does not make for each candidate: such a candidate goes on to
+        // the full score.
         let retargeted = candidate.lag_s != model.lag_s || station_columns(candidate) != station_columns(model);
+        if retargeted && model.second_order {
+            return None;
+        }
+        let (added, target) = self.band_passed(problem, &prepared, &new, retargeted)?;
+        let p = kept.len();
+        // The model's regularisation on its own columns and on columns
+        // that stand in for its terms (the lagged eddy terms); none on a
+        // source's.
+        let penalised: Vec<bool> = (0..p)
+            .map(|_| true)
+            .chain(new.iter().map(|c| c.name.starts_with("eddy_lagged")))
+            .collect();
+        let y = target.as_deref().unwrap_or(&self.target);
+        // Each piece's moments of [X C] and y′.
+        let moments = self.piece_moments(&kept, &added, y, retargeted);
+        self.held_out_rms(&moments, &penalised)
+    }
+
+    /// The candidate's `new` columns band-passed on the screen's pieces,
+    /// and its own target where it is `retargeted`; `None` where they do
+    /// not fill the same rows as the model's.
+    #[allow(clippy::type_complexity)]
+    fn band_passed(
+        &self,
+        problem: &Problem,
+        prepared: &Prepared,
+        new: &[&ExtraColumn],
+        retargeted: bool,
+    ) -> Option<(Vec<Vec<f64>>, Option<Vec<f64>>)> {
         let none = TermSet {
             permanent: false,
             induced: InducedTerms::None,
@@ -203,25 +245,10 @@ impl Screen {
             && (data.windows.iter())
                 .zip(&self.flight_rows)
                 .all(|(w, rows)| w.flight_rows == *rows);
-        let k = new.len();
-        let added: Vec<Vec<f64>> = (0..k).map(|j| data.stacked.column(j)).collect();
+        let added: Vec<Vec<f64>> = (0..new.len()).map(|j| data.stacked.column(j)).collect();
         let target = retargeted.then(|| data.stacked.target());
         problem.stores.recycle(data.stacked);
-        if !aligned {
-            return None;
-        }
-        let p = kept.len();
-        // The model's regularisation on its own columns and on columns
-        // that stand in for its terms (the lagged eddy terms); none on a
-        // source's.
-        let penalised: Vec<bool> = (0..p)
-            .map(|_| true)
-            .chain(new.iter().map(|c| c.name.starts_with("eddy_lagged")))
-            .collect();
-        let y = target.as_deref().unwrap_or(&self.target);
-        // Each piece's moments of [X C] and y′.
-        let moments = self.piece_moments(&kept, &added, y, retargeted);
-        self.held_out_rms(&moments, &penalised)
+        aligned.then_some((added, target))
     }
 
     /// Each piece's moments of the candidate's design [X C] (the model's
@@ -414,5 +441,34 @@ mod tests {
             lag.is_finite() && lag > 0.0 && (lag / lag_full - 1.0).abs() < 0.2,
             "{lag} against {lag_full}"
         );
+    }
+
+    /// A model with the second-order term is screened on the scalar less
+    /// the term of its fit on every piece (not the scalar as recorded):
+    /// its own screened figure lies near its held-out RMS (each split's
+    /// passes correct the target a little differently); a lag on it
+    /// changes a target the screen does not refit, so it goes on to the
+    /// full score.
+    #[test]
+    fn a_model_with_the_second_order_term_is_screened_on_its_corrected_target() {
+        let flight = TestFlight::new(&[]);
+        let problem = flight.problem();
+        let model = with_second_order(&Model::default());
+        let full = held_out(&problem, &model).unwrap();
+        let screen = Screen::new(&problem, &model, &full.ridge).unwrap();
+        let screened = screen.score(&problem, &model).unwrap();
+        assert!(
+            (screened / full.rms_nt - 1.0).abs() < 0.1,
+            "{screened} against {}",
+            full.rms_nt
+        );
+        let plain = held_out(&problem, &Model::default()).unwrap();
+        let plain_screen = Screen::new(&problem, &Model::default(), &plain.ridge).unwrap();
+        let moved = (screen.target.iter().zip(&plain_screen.target))
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
+        assert!(moved > 1e-6, "the target corrected by at most {moved} nT");
+        let lagged = Model { lag_s: 0.1, ..model };
+        assert_eq!(screen.score(&problem, &lagged), None);
     }
 }

@@ -402,6 +402,22 @@ impl<'a> Prepared<'a> {
         )
     }
 
+    /// What the model is fitted to on `windows` once fitted there: the
+    /// scalar as prepared, or with the second-order term the scalar less
+    /// the term of the fit on `windows` (its last pass's target).
+    pub(crate) fn fitted_target(
+        &self,
+        windows: &[CalibrationWindow],
+        options: &FitOptions,
+        stores: &StorePool,
+    ) -> Result<Cow<'_, [f64]>> {
+        if !self.spec.extensions.second_order {
+            return Ok(Cow::Borrowed(&self.scalar));
+        }
+        let fitted = self.fit(windows, options, stores)?;
+        Ok(self.corrected(&fitted, windows))
+    }
+
     /// [`Self::fit`] on the windows `indices` of `band`: the same fit, bit
     /// for bit, without band-passing their design columns again (the
     /// second-order passes band-pass only their scalar).
