@@ -299,18 +299,28 @@ fn interpolate_cubic(knots: &[usize], values: &[Vector], k: usize) -> Vector {
 /// The Earth's field in body axes at a sensor `position_m` (forward,
 /// right, down of the aircraft's reference point), per internal sample.
 fn earth_field_at(path: &FlightPath, environment: &Environment, position_m: Vector) -> Vec<Vector> {
-    path.poses
-        .par_iter()
-        .zip(&environment.regional_nt)
+    // The sensor's place (north, east, down of the start) at each pose;
+    // the crust's field there, a block of poses at a time.
+    const BLOCK: usize = 4096;
+    let places: Vec<Vector> = (path.poses.par_iter())
         .zip(&environment.attitude)
-        .map(|((pose, regional), attitude)| {
+        .map(|(pose, attitude)| {
             let lever: Vector = (attitude * Vector3::from(position_m)).into();
-            let at = [
+            [
                 pose.northing_m + lever[0],
                 pose.easting_m + lever[1],
                 lever[2] - pose.height_agl_m,
-            ];
-            let ned = add(*regional, environment.crust.field_nt(at));
+            ]
+        })
+        .collect();
+    let crust: Vec<Vector> = (places.par_chunks(BLOCK))
+        .flat_map_iter(|block| environment.crust.fields_nt(block))
+        .collect();
+    (crust.par_iter())
+        .zip(&environment.regional_nt)
+        .zip(&environment.attitude)
+        .map(|((crust, regional), attitude)| {
+            let ned = add(*regional, *crust);
             attitude.inverse_transform_vector(&Vector3::from(ned)).into()
         })
         .collect()
