@@ -106,7 +106,8 @@ pub enum Figures {
     /// Only the curve of the criterion that picks λ (both when λ is
     /// fixed): what a held-out score needs, which keeps the coefficients
     /// and nothing else. The other curve reads NaN, and the standard
-    /// errors and the jackknife are empty.
+    /// errors and the jackknife are empty. Leave-one-out PRESS reads
+    /// infinity at the λs its partial sums show cannot be its minimum.
     Choice,
 }
 
@@ -354,9 +355,11 @@ fn solve_factored(
         .as_ref()
         .is_some_and(|b| !b[..grid.len()].iter().any(|v| v.is_finite()));
     let press_needed = press_needed || no_blocked_choice;
-    let press = match press_needed {
-        true => leave_one_out_press(design, spectrum, &weights),
-        false => vec![f64::NAN; weights.len()],
+    let press = match (press_needed, options.figures) {
+        (true, Figures::Choice) => press_to_minimum(design, spectrum, &weights)
+            .unwrap_or_else(|| leave_one_out_press(design, spectrum, &weights)),
+        (true, Figures::All) => leave_one_out_press(design, spectrum, &weights),
+        (false, _) => vec![f64::NAN; weights.len()],
     };
     let curves = curves((&grid, &weights, spectrum.rank), &press, blocked.as_deref());
     let (mut solution, chosen_weights) = choose(spectrum, curves, (options, press_needed), rows)?;
@@ -941,6 +944,180 @@ fn too_high(leverage: f64) -> bool {
     leverage >= 1.0 - 1e-10 || leverage.is_nan()
 }
 
+/// Groups of rows a chunk of candidates adds between the checks of
+/// [`press_to_minimum`] (256 rows).
+const CHECK_GROUPS: usize = 32;
+
+/// [`leave_one_out_press`] where only its minimum matters (the fit of a
+/// score, [`Figures::Choice`]): every candidate that can be the minimum
+/// gets its value bit for bit, the others infinity. The smallest λs (whose
+/// largest leverage says whether any sample has leverage 1) and those
+/// around the minimum of generalised cross-validation (from the spectrum
+/// alone; it tracks PRESS closely) are summed first over every row,
+/// blocks in parallel: their least PRESS bounds the minimum. The other
+/// ridge candidates are then summed block by block in order, 256 rows at
+/// a time, a chunk of them dropped as soon as each of its sums passes the
+/// bound (a sum of squares only grows, so a dropped λ cannot be the
+/// minimum). Truncated-SVD ranks are summed whole. `None` where a
+/// leverage reaches 1 or the bound is not finite: the caller sums every
+/// candidate.
+fn press_to_minimum(design: &Stacked, spectrum: &Spectrum, weights: &[Vec<f64>]) -> Option<Vec<f64>> {
+    let p = design.columns();
+    let m = weights.len();
+    let ridge = m - spectrum.rank;
+    let guess = gcv_minimum(design, spectrum, &weights[..ridge])? / CANDIDATES;
+    let leverage_weights = packed((ridge, p), |l, k| weights[l][k]);
+    let fitted_weights = packed((ridge, p), |l, k| weights[l][k] * spectrum.uty[k]);
+    let kernel = Kernel {
+        leverage_weights: &leverage_weights,
+        fitted_weights: &fitted_weights,
+        ridge,
+        track_all: false,
+        uty: &spectrum.uty[..spectrum.rank],
+    };
+    let first: Vec<usize> = if guess == 0 { vec![0] } else { vec![0, guess] };
+    let totals = sums_whole(design, spectrum, &kernel, &first);
+    let summed = first.len() * CANDIDATES;
+    if ridge == 0 || too_high(totals[0].1) {
+        return None;
+    }
+    // A sample with leverage 1 has no leave-one-out prediction.
+    let value = |(sum, high): (f64, f64)| if too_high(high) { f64::INFINITY } else { sum };
+    let mut press = vec![f64::INFINITY; m];
+    for (index, &total) in totals[..summed].iter().enumerate() {
+        let l = first[index / CANDIDATES] * CANDIDATES + index % CANDIDATES;
+        if l < ridge {
+            press[l] = value(total);
+        }
+    }
+    for (rank, &total) in totals[summed..].iter().enumerate() {
+        press[ridge + rank] = value(total);
+    }
+    let bound = press[..ridge]
+        .iter()
+        .copied()
+        .filter(|v| v.is_finite())
+        .fold(f64::INFINITY, f64::min);
+    if !bound.is_finite() {
+        return None;
+    }
+    let rest: Vec<usize> = (0..ridge.div_ceil(CANDIDATES)).filter(|c| !first.contains(c)).collect();
+    for (chunk, sums) in rest.iter().zip(sums_below(design, spectrum, &kernel, (&rest, bound))) {
+        for (c, sum) in sums.into_iter().enumerate() {
+            let l = chunk * CANDIDATES + c;
+            if l < ridge {
+                press[l] = sum;
+            }
+        }
+    }
+    Some(press)
+}
+
+/// The leave-one-out sums and largest leverages of the ridge `chunks` of
+/// `kernel` (candidate by candidate), then of every truncated-SVD rank:
+/// blocks in parallel, summed in block order.
+fn sums_whole(design: &Stacked, spectrum: &Spectrum, kernel: &Kernel, chunks: &[usize]) -> Vec<(f64, f64)> {
+    let p = design.columns();
+    let ranks_only = Kernel {
+        leverage_weights: &[],
+        fitted_weights: &[],
+        ridge: 0,
+        ..*kernel
+    };
+    let partials: Vec<Vec<(f64, f64)>> = (design.blocks().par_iter())
+        .map_init(
+            || BlockBuffer::new(p),
+            |buffer, block| {
+                let y = buffer.load(design, block, &spectrum.to_u);
+                buffer.group(y.len());
+                let (targets, _) = y.as_chunks::<LANES>();
+                let mut out = Vec::new();
+                for &chunk in chunks {
+                    let mut state = ChunkSums::default();
+                    kernel.chunk_rows((&buffer.groups, p, targets), chunk, &mut state);
+                    out.extend(state.totals());
+                }
+                out.extend(ranks_only.block(&buffer.groups, p, y));
+                out
+            },
+        )
+        .collect();
+    let mut totals = vec![(0.0, 0.0f64); chunks.len() * CANDIDATES + spectrum.rank];
+    for partial in partials {
+        for ((sum, high), (s, h)) in totals.iter_mut().zip(partial) {
+            *sum += s;
+            *high = nan_max(*high, h);
+        }
+    }
+    totals
+}
+
+/// The leave-one-out sums of the ridge `chunks` of `kernel` over the
+/// blocks in order, each chunk dropped (its sums infinite) once every one
+/// of its sums passes `bound`.
+fn sums_below(
+    design: &Stacked,
+    spectrum: &Spectrum,
+    kernel: &Kernel,
+    (chunks, bound): (&[usize], f64),
+) -> Vec<[f64; CANDIDATES]> {
+    let p = design.columns();
+    let mut totals = vec![[0.0; CANDIDATES]; chunks.len()];
+    let mut live = vec![true; chunks.len()];
+    let mut buffer = BlockBuffer::new(p);
+    for block in design.blocks() {
+        if !live.contains(&true) {
+            break;
+        }
+        let y = buffer.load(design, block, &spectrum.to_u);
+        buffer.group(y.len());
+        let (targets, _) = y.as_chunks::<LANES>();
+        let groups = buffer.groups.chunks(CHECK_GROUPS * p).zip(targets.chunks(CHECK_GROUPS));
+        let mut states = vec![ChunkSums::default(); chunks.len()];
+        for (rows, y) in groups {
+            for ((state, total), (alive, &chunk)) in states.iter_mut().zip(&totals).zip(live.iter_mut().zip(chunks)) {
+                if !*alive {
+                    continue;
+                }
+                kernel.chunk_rows((rows, p, y), chunk, state);
+                let so_far = |c: usize| total[c] + state.sums[c].iter().sum::<f64>();
+                *alive = !(0..CANDIDATES).all(|c| so_far(c) > bound);
+            }
+        }
+        for ((total, state), alive) in totals.iter_mut().zip(&states).zip(&live) {
+            if *alive {
+                for (sum, (s, _)) in total.iter_mut().zip(state.totals()) {
+                    *sum += s;
+                }
+            }
+        }
+    }
+    (totals.into_iter().zip(live))
+        .map(|(total, alive)| if alive { total } else { [f64::INFINITY; CANDIDATES] })
+        .collect()
+}
+
+/// The ridge candidate (index into `weights`) with the least generalised
+/// cross-validation, $n\,\mathrm{RSS}(λ)/(n - \mathrm{tr}\,H(λ))^2$ with
+/// $\mathrm{RSS} = y^\top y - \sum_k (2 w_k - w_k^2) c_k^2$, $c = U^\top y$;
+/// `None` where no candidate has a finite one.
+fn gcv_minimum(design: &Stacked, spectrum: &Spectrum, weights: &[Vec<f64>]) -> Option<usize> {
+    let rows = design.rows() as f64;
+    let yy: f64 = design.target_pieces().flatten().map(|y| y * y).sum();
+    let gcv = weights.iter().map(|w| {
+        let explained: f64 = (w.iter().zip(&spectrum.uty))
+            .map(|(w, c)| (2.0 * w - w * w) * c * c)
+            .sum();
+        let dof: f64 = w.iter().sum();
+        let left = rows - dof;
+        match left > 0.0 {
+            true => rows * (yy - explained).max(0.0) / (left * left),
+            false => f64::NAN,
+        }
+    });
+    argmin(gcv)
+}
+
 /// The leave-one-out sums of every candidate over row blocks.
 struct Kernel<'a> {
     /// Ridge weights $W$, packed by [`leave_one_out_press`].
@@ -996,6 +1173,44 @@ impl Kernel<'_> {
         self.run(groups, p, y, out);
     }
 
+    /// Adds the rows of `groups` and `y` to the sums `state` of ridge
+    /// chunk `chunk` ([`loo_chunk`]), with the processor's widest vectors.
+    fn chunk_rows(&self, (groups, p, y): (&[Group], usize, &[[f64; LANES]]), chunk: usize, state: &mut ChunkSums) {
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::arch::is_x86_feature_detected!("avx512f") && std::arch::is_x86_feature_detected!("fma") {
+                // SAFETY: the processor supports AVX-512F and FMA, checked just above.
+                unsafe { self.chunk_rows_avx512((groups, p, y), chunk, state) };
+                return;
+            }
+            if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+                // SAFETY: the processor supports AVX2 and FMA, checked just above.
+                unsafe { self.chunk_rows_avx2((groups, p, y), chunk, state) };
+                return;
+            }
+        }
+        self.chunk_rows_of((groups, p, y), chunk, state);
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f,fma")]
+    unsafe fn chunk_rows_avx512(&self, rows: (&[Group], usize, &[[f64; LANES]]), chunk: usize, state: &mut ChunkSums) {
+        self.chunk_rows_of(rows, chunk, state);
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn chunk_rows_avx2(&self, rows: (&[Group], usize, &[[f64; LANES]]), chunk: usize, state: &mut ChunkSums) {
+        self.chunk_rows_of(rows, chunk, state);
+    }
+
+    #[inline(always)]
+    fn chunk_rows_of(&self, (groups, p, y): (&[Group], usize, &[[f64; LANES]]), chunk: usize, state: &mut ChunkSums) {
+        let weights = chunk * p..(chunk + 1) * p;
+        let pair = (&self.leverage_weights[weights.clone()], &self.fitted_weights[weights]);
+        loo_chunk(groups, p, y, pair, self.track_all || chunk == 0, state);
+    }
+
     #[inline(always)]
     fn run(&self, groups: &[Group], p: usize, y: &[[f64; LANES]], out: &mut Vec<(f64, f64)>) {
         match self.track_all {
@@ -1045,34 +1260,65 @@ fn loo_kernel<const TRACK_ALL: bool>(
     out: &mut Vec<(f64, f64)>,
 ) {
     let chunks = leverage_weights.chunks_exact(p).zip(fitted_weights.chunks_exact(p));
-    for (chunk, (w_chunk, f_chunk)) in chunks.enumerate() {
-        let track = TRACK_ALL || chunk == 0;
-        let mut sums = [[0.0; LANES]; CANDIDATES];
-        let mut worst = [[0.0f64; LANES]; CANDIDATES];
-        for (group, target) in groups.chunks_exact(p).zip(y) {
-            let mut leverage = [[0.0; LANES]; CANDIDATES];
-            let mut fitted = [[0.0; LANES]; CANDIDATES];
-            for (([u, squared], w), f) in group.iter().zip(w_chunk).zip(f_chunk) {
-                for c in 0..CANDIDATES {
-                    for lane in 0..LANES {
-                        leverage[c][lane] = squared[lane].mul_add(w[c], leverage[c][lane]);
-                        fitted[c][lane] = u[lane].mul_add(f[c], fitted[c][lane]);
-                    }
-                }
-            }
+    for (chunk, weights) in chunks.enumerate() {
+        let mut state = ChunkSums::default();
+        loo_chunk(groups, p, y, weights, TRACK_ALL || chunk == 0, &mut state);
+        out.extend(state.totals());
+    }
+}
+
+/// One chunk of candidates' running leave-one-out sums and largest
+/// leverages, lane by lane.
+#[derive(Clone, Copy, Default)]
+struct ChunkSums {
+    sums: [[f64; LANES]; CANDIDATES],
+    worst: [[f64; LANES]; CANDIDATES],
+}
+
+impl ChunkSums {
+    /// Each candidate's sum and largest leverage.
+    fn totals(&self) -> impl Iterator<Item = (f64, f64)> + '_ {
+        self.sums.iter().zip(&self.worst).map(|(s, w)| lane_totals(s, w))
+    }
+}
+
+/// Adds the rows of `groups` and `y` to one chunk's sums in `state`
+/// (its leverage weights and fitted weights), tracking the largest
+/// leverage where `track`. Rows added in pieces give the same bits as
+/// rows added at once.
+#[inline(always)]
+fn loo_chunk(
+    groups: &[Group],
+    p: usize,
+    y: &[[f64; LANES]],
+    (w_chunk, f_chunk): (&[[f64; CANDIDATES]], &[[f64; CANDIDATES]]),
+    track: bool,
+    state: &mut ChunkSums,
+) {
+    let ChunkSums { mut sums, mut worst } = *state;
+    for (group, target) in groups.chunks_exact(p).zip(y) {
+        let mut leverage = [[0.0; LANES]; CANDIDATES];
+        let mut fitted = [[0.0; LANES]; CANDIDATES];
+        for (([u, squared], w), f) in group.iter().zip(w_chunk).zip(f_chunk) {
             for c in 0..CANDIDATES {
                 for lane in 0..LANES {
-                    let h = leverage[c][lane];
-                    let e = (target[lane] - fitted[c][lane]) / (1.0 - h);
-                    sums[c][lane] = e.mul_add(e, sums[c][lane]);
-                    if track {
-                        worst[c][lane] = nan_max(worst[c][lane], h);
-                    }
+                    leverage[c][lane] = squared[lane].mul_add(w[c], leverage[c][lane]);
+                    fitted[c][lane] = u[lane].mul_add(f[c], fitted[c][lane]);
                 }
             }
         }
-        out.extend(sums.iter().zip(&worst).map(|(s, w)| lane_totals(s, w)));
+        for c in 0..CANDIDATES {
+            for lane in 0..LANES {
+                let h = leverage[c][lane];
+                let e = (target[lane] - fitted[c][lane]) / (1.0 - h);
+                sums[c][lane] = e.mul_add(e, sums[c][lane]);
+                if track {
+                    worst[c][lane] = nan_max(worst[c][lane], h);
+                }
+            }
+        }
     }
+    *state = ChunkSums { sums, worst };
 }
 
 /// The larger of the two, NaN winning: a NaN leverage marks its candidate.
@@ -1497,6 +1743,71 @@ mod tests {
         assert_eq!(bits(&dispatched), bits(&portable));
     }
 
+    /// Where only the minimum of leave-one-out PRESS matters (a score's
+    /// fit), the candidates that can be the minimum are summed bit for bit
+    /// as the whole curve sums them and the others are dropped; the
+    /// solution is the same to the bit. Over designs several blocks long
+    /// (clean and noisy targets, a full-rank and a rank-deficient design),
+    /// some λs are dropped and every dropped one lies above the minimum.
+    #[test]
+    fn press_summed_to_its_minimum_chooses_what_the_whole_curve_chooses() {
+        let rows = 3 * crate::numerics::stacked::BLOCK_ROWS + 700;
+        let mut dropped = 0;
+        for deficient in [false, true] {
+            let columns = sine_columns(rows, deficient);
+            for noise in [0.001, 0.3, 3.0] {
+                let target: Vec<f64> = (0..rows)
+                    .map(|i| {
+                        (columns.iter().enumerate())
+                            .map(|(k, c)| (k as f64 - 2.5) * c[i])
+                            .sum::<f64>()
+                            + noise * ((i * i) as f64 * 0.61).sin()
+                    })
+                    .collect();
+                let design = Stacked::from_columns(
+                    &columns,
+                    &target,
+                    &[rows / 4, rows / 4, rows / 4, rows - 3 * (rows / 4)],
+                );
+                let factor = decompose(&design, 4).unwrap();
+                let spectrum = &factor.spectrum;
+                let grid = lambda_grid(spectrum, &SolveOptions::default());
+                let weights = candidate_weights(spectrum, &grid);
+                let whole = leave_one_out_press(&design, spectrum, &weights);
+                let least = whole
+                    .iter()
+                    .copied()
+                    .filter(|v| v.is_finite())
+                    .fold(f64::INFINITY, f64::min);
+                let to_minimum = press_to_minimum(&design, spectrum, &weights).unwrap();
+                for (l, (all, some)) in whole.iter().zip(&to_minimum).enumerate() {
+                    match some.is_finite() {
+                        true => assert_eq!(all.to_bits(), some.to_bits(), "candidate {l}"),
+                        false => {
+                            assert!(*all > least, "candidate {l}: {all} dropped, the minimum {least}");
+                            dropped += 1;
+                        }
+                    }
+                }
+                let solve = |figures| SolveOptions {
+                    criterion: Criterion::Press,
+                    figures,
+                    ..SolveOptions::default()
+                };
+                let (choice, all) = (
+                    solve_stacked(&design, &solve(Figures::Choice)).unwrap(),
+                    solve_stacked(&design, &solve(Figures::All)).unwrap(),
+                );
+                let bits = |values: &[f64]| values.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+                assert_eq!(choice.lambda.map(f64::to_bits), all.lambda.map(f64::to_bits));
+                assert_eq!(choice.rank, all.rank);
+                assert_eq!(bits(&choice.coefficients), bits(&all.coefficients));
+                assert_eq!(bits(&choice.fitted), bits(&all.fitted));
+            }
+        }
+        assert!(dropped > 50, "{dropped} candidates dropped");
+    }
+
     /// The per-candidate Woodbury solve the eigen and leading-Cholesky forms
     /// replace: $x = e_b + U_b S (I - S G_b S)^{-1} S U_b^\top e_b$, one
     /// Cholesky per candidate and fold.
@@ -1628,7 +1939,8 @@ mod tests {
     /// A solve for a held-out score ([`Figures::Choice`]) picks the same λ
     /// or rank and the same coefficients, to the bit, as the full solve,
     /// by either criterion and with λ fixed; it leaves out the other
-    /// curve, the standard errors and the jackknife.
+    /// curve, the standard errors, the jackknife and the leave-one-out
+    /// values of λs that cannot be the minimum.
     #[test]
     fn a_choice_only_solve_keeps_the_choice_to_the_bit() {
         let (p, lengths) = (5, [40usize, 35, 50, 45]);
@@ -1679,13 +1991,24 @@ mod tests {
             assert_eq!(full.jackknife.len(), lengths.len());
             assert!(lean.standard_errors.is_empty() && lean.jackknife.is_empty());
             let blocked = lean.ridge_curve.iter().all(|r| r.blocked_press.is_some());
-            let press = lean.ridge_curve.iter().all(|r| r.press.is_finite());
+            // Leave-one-out PRESS where it is the criterion: the value of
+            // every λ that can be its minimum, as the full curve has it;
+            // infinity, above that minimum, for the others.
+            let least = (full.ridge_curve.iter().map(|r| r.press)).fold(f64::INFINITY, f64::min);
+            let press =
+                (lean.ridge_curve.iter().zip(&full.ridge_curve)).all(|(lean, full)| match lean.press.is_finite() {
+                    true => lean.press.to_bits() == full.press.to_bits(),
+                    false => lean.press == f64::INFINITY && full.press > least,
+                });
             match (criterion, lambda) {
                 (Criterion::BlockedPress, LambdaChoice::Select) => {
                     assert!(blocked && lean.ridge_curve.iter().all(|r| r.press.is_nan()));
                     assert!(lean.lambda_by_press.is_nan());
                 }
-                _ => assert!(press && lean.ridge_curve.iter().all(|r| r.blocked_press.is_none())),
+                _ => {
+                    assert!(press && lean.ridge_curve.iter().all(|r| r.blocked_press.is_none()));
+                    assert_eq!(lean.lambda_by_press.to_bits(), full.lambda_by_press.to_bits());
+                }
             }
         }
     }
