@@ -35,7 +35,7 @@
 //!   prediction, [`apply`] applies a saved model to another flight,
 //!   [`vector`] compensates the fluxgate itself, [`gradient`] forms
 //!   gradients, and [`reduce`] adds the DC-shifted and IGRF-reduced
-//!   columns ([`igrf`]). [`numerics`]: [`numerics::filter`] (zero-phase
+//!   columns ([`model::igrf`]). [`numerics`]: [`numerics::filter`] (zero-phase
 //!   band-pass), [`numerics::stacked`] and [`numerics::solve`] (ridge by
 //!   PRESS, truncated SVD), [`numerics::segments`], [`numerics::linalg`];
 //!   it imports nothing else of magcomp.
@@ -104,7 +104,6 @@ pub mod diagnose;
 pub mod error;
 pub mod formats;
 pub mod gradient;
-pub mod igrf;
 pub mod ingest;
 pub mod messages;
 pub mod model;
