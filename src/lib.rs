@@ -31,14 +31,16 @@
 //! - [`model`]: one model type. A [`model::ModelSpec`] (the Tolles-Lawson
 //!   terms of [`model::terms`] and the physics a diagnosis adds) is fitted
 //!   by [`model::fit`] into a [`model::FittedModel`] that predicts the
-//!   interference and its held-out residual; [`compensate`] subtracts the
-//!   prediction, [`apply`] applies a saved model to another flight,
-//!   [`vector`] compensates the fluxgate itself, [`gradient`] forms
-//!   gradients, and [`reduce`] adds the DC-shifted and IGRF-reduced
-//!   columns ([`model::igrf`]). [`numerics`]: [`numerics::filter`] (zero-phase
+//!   interference and its held-out residual, and [`model::igrf`] is the
+//!   Earth's main field. [`numerics`]: [`numerics::filter`] (zero-phase
 //!   band-pass), [`numerics::stacked`] and [`numerics::solve`] (ridge by
-//!   PRESS, truncated SVD), [`numerics::segments`], [`numerics::linalg`];
-//!   it imports nothing else of magcomp.
+//!   PRESS, truncated SVD), [`numerics::segments`], [`numerics::linalg`],
+//!   [`numerics::statistics`]; it imports nothing else of magcomp.
+//! - [`compensate`]: the prediction subtracted from every row, and what is
+//!   made of the compensated channels: gradients between two sensors
+//!   ([`compensate::gradient`]) and the DC-shifted and IGRF-reduced
+//!   columns ([`compensate::reduce`]). [`apply`] applies a saved model to
+//!   another flight; [`vector`] compensates the fluxgate itself.
 //! - [`diagnose`]: the physics the model leaves out, found, named and
 //!   scored held out. [`quality`]: the figures of a compensation, the
 //!   transfer check, crossovers and corrugation, and the flight against
@@ -103,7 +105,6 @@ pub mod config;
 pub mod diagnose;
 pub mod error;
 pub mod formats;
-pub mod gradient;
 pub mod ingest;
 pub mod messages;
 pub mod model;
@@ -113,7 +114,6 @@ pub mod pipeline;
 pub mod plan;
 pub mod progress;
 pub mod quality;
-pub mod reduce;
 pub mod simulate;
 pub mod vector;
 

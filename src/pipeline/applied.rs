@@ -191,7 +191,7 @@ fn beside_the_scalars(
         said.warnings.extend(vector_warnings);
     }
     said.notes.extend(vector_not_run(options, saved, log));
-    let gradients = crate::gradient::gradients_from_saved_model(models, compensation, &options.gradients);
+    let gradients = crate::compensate::gradient::gradients_from_saved_model(models, compensation, &options.gradients);
     compensation.gradients = gradients.compensated;
     said.notes.extend(gradients.notes);
     said.warnings.extend(gradients.warnings);
@@ -199,7 +199,7 @@ fn beside_the_scalars(
         .extend(crate::formats::mcap::undated_warning(recorded, compensated));
     said.warnings
         .extend(crate::formats::write::text_columns_warning(recorded, compensated, true));
-    let reduced = crate::reduce::add_reduced(log, compensation, options.reduced)?;
+    let reduced = crate::compensate::reduce::add_reduced(log, compensation, options.reduced)?;
     said.notes.extend(reduced);
     said.warnings.extend(compensation.out_of_range_warnings(log.time_s()));
     Ok(said)

@@ -77,7 +77,7 @@ pub struct FlightResult {
     /// Each compensated gradient: the method used, why, and both methods
     /// held out.
     #[serde(skip_serializing_if = "Vec::is_empty")]
-    pub gradients: Vec<crate::gradient::GradientResult>,
+    pub gradients: Vec<crate::compensate::gradient::GradientResult>,
     /// The gradients' direct models (the model JSON holds them).
     #[serde(skip)]
     pub gradient_models: Vec<FittedModel>,
