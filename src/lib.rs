@@ -39,8 +39,8 @@
 //! - [`compensate`]: the prediction subtracted from every row, and what is
 //!   made of the compensated channels: gradients between two sensors
 //!   ([`compensate::gradient`]) and the DC-shifted and IGRF-reduced
-//!   columns ([`compensate::reduce`]). [`apply`] applies a saved model to
-//!   another flight; [`vector`] compensates the fluxgate itself.
+//!   columns ([`compensate::reduce`]). [`vector`] compensates the fluxgate
+//!   itself.
 //! - [`diagnose`]: the physics the model leaves out, found, named and
 //!   scored held out. [`quality`]: the figures of a compensation, the
 //!   transfer check, crossovers and corrugation, and the flight against
@@ -50,6 +50,7 @@
 //!   prepared once ([`pipeline::PreparedFlight`]: screened, its sensor,
 //!   channels and windows chosen); each stage after it takes the
 //!   [`model::Calibration`] it gives (log, sensor, channels, windows).
+//!   [`pipeline::apply`] applies a model saved from one flight to another.
 //!   A [`progress::Meter`] hears each stage begin and each channel done.
 //!   [`campaign`] runs many flights, [`config`] reads `pipeline.toml`.
 //! - [`output`]: [`output::sink`] writes what a run produced, and
@@ -97,7 +98,6 @@
 //! ```
 #![deny(missing_docs)]
 
-pub mod apply;
 pub mod calibration;
 pub mod campaign;
 pub mod compensate;

@@ -390,7 +390,7 @@ pub struct FlightJob {
     /// ([`crate::quality::against_plan`]).
     pub plan: Option<PathBuf>,
     /// A MODEL.json saved from another flight to compensate this one with,
-    /// nothing refitted ([`crate::apply`]).
+    /// nothing refitted ([`crate::pipeline::apply`]).
     pub model: Option<PathBuf>,
     /// The day the flight was flown, over what the file says.
     pub date: Option<crate::ingest::flight_date::FlightDate>,

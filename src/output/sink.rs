@@ -206,9 +206,9 @@ fn to_json<T: Serialize>(path: Option<&Path>, what: &'static str, value: &T) -> 
 }
 
 /// The model JSON: the flight and its fitted models, with what applying
-/// them to another flight needs ([`crate::apply`]): the calibration
-/// flight's identity, day and aircraft, each channel's figures on it, and
-/// the findings its models carry.
+/// them to another flight needs ([`crate::pipeline::apply`]): the
+/// calibration flight's identity, day and aircraft, each channel's figures
+/// on it, and the findings its models carry.
 #[derive(Serialize)]
 struct ModelFile<'a> {
     /// "magcomp 1.2.3".
@@ -219,7 +219,7 @@ struct ModelFile<'a> {
     date: Option<crate::ingest::flight_date::FlightDate>,
     #[serde(skip_serializing_if = "Option::is_none")]
     aircraft: Option<&'a str>,
-    calibration: Vec<crate::apply::CalibrationFigures>,
+    calibration: Vec<crate::pipeline::apply::CalibrationFigures>,
     #[serde(skip_serializing_if = "<[_]>::is_empty")]
     applied_findings: &'a [crate::pipeline::AppliedFinding],
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -246,7 +246,7 @@ impl<'a> ModelFile<'a> {
             calibration: result
                 .channels
                 .iter()
-                .map(crate::apply::CalibrationFigures::of)
+                .map(crate::pipeline::apply::CalibrationFigures::of)
                 .collect(),
             applied_findings: &result.applied_findings,
             vector_calibration: result.vector_calibration.as_ref(),

@@ -23,7 +23,7 @@ pub(super) fn run_applied(
     job: &FlightJob,
     options: &Settings,
     compensated: &Path,
-    saved: &crate::apply::SavedModel,
+    saved: &crate::pipeline::apply::SavedModel,
     recorded: FlightLog,
     meter: &dyn Meter,
 ) -> Result<FlightRun> {
@@ -92,7 +92,7 @@ pub(super) fn run_applied(
 /// `raw_log` and its `screening`: an error for a column it lacks or that
 /// carries no reading.
 fn models_on_flight(
-    saved: &crate::apply::SavedModel,
+    saved: &crate::pipeline::apply::SavedModel,
     job: &FlightJob,
     (raw_log, screening): (&FlightLog, &crate::ingest::screen::Screening),
 ) -> Result<(
@@ -127,10 +127,10 @@ fn compensate_applied(
 /// (`[model] channels`), and the notes saying so; `None` when the names
 /// are the same.
 fn renamed_model(
-    saved: &crate::apply::SavedModel,
+    saved: &crate::pipeline::apply::SavedModel,
     recorded: &FlightLog,
     options: &Settings,
-) -> Result<(Option<crate::apply::SavedModel>, Vec<Note>)> {
+) -> Result<(Option<crate::pipeline::apply::SavedModel>, Vec<Note>)> {
     if options.model_channels.is_empty() {
         return Ok((None, Vec::new()));
     }
@@ -147,7 +147,7 @@ fn hold_out_on_own_windows(
         &crate::ingest::flight_log::VectorSensor,
         &mut [crate::model::FittedModel],
     ),
-    (options, applied): (&Settings, &crate::apply::AppliedModel),
+    (options, applied): (&Settings, &crate::pipeline::apply::AppliedModel),
     notes: &mut Vec<Note>,
 ) -> Result<()> {
     if job.windows.is_empty() && job.lines.is_empty() {
@@ -178,7 +178,7 @@ struct Said {
 /// model's), `recorded` as read, `compensated` where the output goes.
 fn beside_the_scalars(
     (log, recorded, compensated): (&FlightLog, &FlightLog, &Path),
-    saved: &crate::apply::SavedModel,
+    saved: &crate::pipeline::apply::SavedModel,
     (models, compensation): (&[crate::model::FittedModel], &mut crate::compensate::Compensation),
     options: &Settings,
     mut said: Said,
@@ -234,8 +234,8 @@ fn applied_notes(
 fn model_words(
     job: &FlightJob,
     options: &Settings,
-    saved: &crate::apply::SavedModel,
-    (applied, channels): (&crate::apply::AppliedModel, &[String]),
+    saved: &crate::pipeline::apply::SavedModel,
+    (applied, channels): (&crate::pipeline::apply::AppliedModel, &[String]),
     raw_log: &FlightLog,
 ) -> (Vec<Warning>, Vec<Note>) {
     let (mut warnings, mut notes) =
@@ -312,7 +312,7 @@ fn assess_applied(
 /// The note on the vector compensation a saved model cannot run (it holds
 /// no vector model), when the settings ask for it and the flight records a
 /// fluxgate.
-fn vector_not_run(options: &Settings, saved: &crate::apply::SavedModel, log: &FlightLog) -> Option<Note> {
+fn vector_not_run(options: &Settings, saved: &crate::pipeline::apply::SavedModel, log: &FlightLog) -> Option<Note> {
     if !options.vector.enabled || log.vector_sensors().is_empty() {
         return None;
     }
