@@ -326,8 +326,8 @@ impl StageClock {
     }
 }
 
-impl magcomp::progress::Meter for StageClock {
-    fn begin(&self, stage: magcomp::progress::Stage, _: u64) {
+impl magcomp::messages::progress::Meter for StageClock {
+    fn begin(&self, stage: magcomp::messages::progress::Stage, _: u64) {
         self.0.lock().unwrap().push((stage.words(), Instant::now()));
     }
     fn step(&self) {}

@@ -51,7 +51,8 @@
 //!   channels and windows chosen); each stage after it takes the
 //!   [`model::Calibration`] it gives (log, sensor, channels, windows).
 //!   [`pipeline::apply`] applies a model saved from one flight to another.
-//!   A [`progress::Meter`] hears each stage begin and each channel done.
+//!   A [`messages::progress::Meter`] hears each stage begin and each
+//!   channel done.
 //!   [`campaign`] runs many flights, [`config`] reads `pipeline.toml`.
 //! - [`output`]: [`output::sink`] writes what a run produced, and
 //!   [`output::report`] is the HTML page.
@@ -112,7 +113,6 @@ pub mod numerics;
 pub mod output;
 pub mod pipeline;
 pub mod plan;
-pub mod progress;
 pub mod quality;
 pub mod simulate;
 pub mod vector;

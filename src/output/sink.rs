@@ -101,7 +101,7 @@ impl FlightOutputs {
 /// ([`crate::pipeline::run`]) and writes
 /// its outputs ([`write()`]).
 pub fn process_flight(job: &FlightJob, options: &Settings, outputs: &FlightOutputs) -> Result<FlightResult> {
-    process_flight_listing(job, options, outputs, &crate::progress::Silent).map(|(result, _)| result)
+    process_flight_listing(job, options, outputs, &crate::messages::progress::Silent).map(|(result, _)| result)
 }
 
 /// [`process_flight`], also returning the files written, telling `meter`
@@ -110,7 +110,7 @@ pub fn process_flight_listing(
     job: &FlightJob,
     options: &Settings,
     outputs: &FlightOutputs,
-    meter: &dyn crate::progress::Meter,
+    meter: &dyn crate::messages::progress::Meter,
 ) -> Result<(FlightResult, Vec<PathBuf>)> {
     let inputs: Vec<&Path> = std::iter::once(job.input.as_path())
         .chain(job.diagnosis.as_deref())
@@ -121,7 +121,7 @@ pub fn process_flight_listing(
     // tells its user calls `prepare` first.
     crate::formats::prepare(&inputs, &outputs.destinations())?;
     let flight = crate::pipeline::run_metered(job, options, &outputs.compensated, meter)?;
-    meter.begin(crate::progress::Stage::Writing, 0);
+    meter.begin(crate::messages::progress::Stage::Writing, 0);
     let written = write(&flight, options, outputs)?;
     Ok((flight.result, written))
 }

@@ -10,9 +10,9 @@ use crate::config::{FlightJob, Settings};
 use crate::error::Result;
 use crate::formats::added_column_names;
 use crate::ingest::flight_log::FlightLog;
+use crate::messages::progress::{Meter, Stage};
 use crate::messages::{Note, Warning};
 use crate::model::SharedDesign;
-use crate::progress::{Meter, Stage};
 use crate::quality::ChannelQuality;
 
 /// Compensates `job`'s flight with the saved model at `model_path`,

@@ -19,10 +19,10 @@ use crate::config::{FlightJob, Settings};
 use crate::error::Result;
 use crate::formats::added_column_names;
 use crate::ingest::flight_log::FlightLog;
+use crate::messages::progress::{Meter, Stage};
 use crate::messages::{Note, Warning};
 use crate::model::{compare_estimators, fit, Calibration, Extensions, FittedModel, ModelSpec, SharedDesign};
 use crate::numerics::stacked::StorePool;
-use crate::progress::{Meter, Stage};
 use crate::quality::transfer::check_transfer;
 use crate::quality::ChannelQuality;
 

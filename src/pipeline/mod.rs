@@ -16,8 +16,8 @@ use crate::error::{Error, Result};
 use crate::formats::align::AlignmentReport;
 use crate::formats::read_flight_log;
 use crate::ingest::flight_log::FlightLog;
+use crate::messages::progress::{Meter, Stage};
 use crate::model::{FittedModel, SharedDesign};
-use crate::progress::{Meter, Stage};
 use crate::quality::ChannelQuality;
 
 pub use crate::diagnose::AppliedFinding;
@@ -200,7 +200,7 @@ impl FlightRun {
 /// `compensated` is where the compensated flight will go: its format
 /// names the columns magcomp adds.
 pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<FlightRun> {
-    run_metered(job, options, compensated, &crate::progress::Silent)
+    run_metered(job, options, compensated, &crate::messages::progress::Silent)
 }
 
 /// [`run`], telling `meter` as each stage begins and each channel of a
