@@ -49,11 +49,13 @@
 //!   ([`pipeline::run`] → [`pipeline::FlightRun`]). A flight is read and
 //!   prepared once ([`pipeline::PreparedFlight`]: screened, its sensor,
 //!   channels and windows chosen); each stage after it takes the
-//!   [`model::Calibration`] it gives (log, sensor, channels, windows).
-//!   [`pipeline::apply`] applies a model saved from one flight to another.
-//!   A [`messages::progress::Meter`] hears each stage begin and each
-//!   channel done.
-//!   [`campaign`] runs many flights, [`config`] reads `pipeline.toml`.
+//!   [`model::Calibration`] it gives (log, sensor, channels, windows). A
+//!   flight with no calibration of its own is compensated with a model
+//!   saved from another ([`pipeline::apply`]). [`campaign`] runs many
+//!   flights, [`config`] reads `pipeline.toml`.
+//! - [`messages`]: what a run says to its user: typed warnings and notes,
+//!   and, while it runs, each stage begun and each channel done, told to
+//!   a [`messages::progress::Meter`].
 //! - [`output`]: [`output::sink`] writes what a run produced, and
 //!   [`output::report`] is the HTML page.
 //! - [`plan`]: a calibration planned before the flight, and what it
