@@ -219,12 +219,12 @@ fn bench_whole_file(rows: usize) {
     // (`-- file nogradient` times it without).
     if !std::env::args().any(|a| a == "nogradient") {
         options.gradients = [("mag_1_uc", "mag_2_uc"), ("mag_3_uc", "mag_5_uc")]
-            .map(|(a, b)| magcomp::gradient::GradientPair {
+            .map(|(a, b)| magcomp::compensate::gradient::GradientPair {
                 a: a.into(),
                 b: b.into(),
                 separation_m: 1.5,
                 axis_body: None,
-                method: magcomp::gradient::GradientMethod::Auto,
+                method: magcomp::compensate::gradient::GradientMethod::Auto,
             })
             .to_vec();
     }
@@ -326,8 +326,8 @@ impl StageClock {
     }
 }
 
-impl magcomp::progress::Meter for StageClock {
-    fn begin(&self, stage: magcomp::progress::Stage, _: u64) {
+impl magcomp::messages::progress::Meter for StageClock {
+    fn begin(&self, stage: magcomp::messages::progress::Stage, _: u64) {
         self.0.lock().unwrap().push((stage.words(), Instant::now()));
     }
     fn step(&self) {}

@@ -31,14 +31,16 @@
 //! - [`model`]: one model type. A [`model::ModelSpec`] (the Tolles-Lawson
 //!   terms of [`model::terms`] and the physics a diagnosis adds) is fitted
 //!   by [`model::fit`] into a [`model::FittedModel`] that predicts the
-//!   interference and its held-out residual; [`compensate`] subtracts the
-//!   prediction, [`apply`] applies a saved model to another flight,
-//!   [`vector`] compensates the fluxgate itself, [`gradient`] forms
-//!   gradients, and [`reduce`] adds the DC-shifted and IGRF-reduced
-//!   columns ([`igrf`]). [`numerics`]: [`numerics::filter`] (zero-phase
+//!   interference and its held-out residual, and [`model::igrf`] is the
+//!   Earth's main field. [`numerics`]: [`numerics::filter`] (zero-phase
 //!   band-pass), [`numerics::stacked`] and [`numerics::solve`] (ridge by
-//!   PRESS, truncated SVD), [`numerics::segments`], [`numerics::linalg`];
-//!   it imports nothing else of magcomp.
+//!   PRESS, truncated SVD), [`numerics::segments`], [`numerics::linalg`],
+//!   [`numerics::statistics`]; it imports nothing else of magcomp.
+//! - [`compensate`]: the prediction subtracted from every row, and what is
+//!   made of the compensated channels: gradients between two sensors
+//!   ([`compensate::gradient`]) and the DC-shifted and IGRF-reduced
+//!   columns ([`compensate::reduce`]). [`vector`] compensates the fluxgate
+//!   itself.
 //! - [`diagnose`]: the physics the model leaves out, found, named and
 //!   scored held out. [`quality`]: the figures of a compensation, the
 //!   transfer check, crossovers and corrugation, and the flight against
@@ -47,9 +49,13 @@
 //!   ([`pipeline::run`] → [`pipeline::FlightRun`]). A flight is read and
 //!   prepared once ([`pipeline::PreparedFlight`]: screened, its sensor,
 //!   channels and windows chosen); each stage after it takes the
-//!   [`model::Calibration`] it gives (log, sensor, channels, windows).
-//!   A [`progress::Meter`] hears each stage begin and each channel done.
-//!   [`campaign`] runs many flights, [`config`] reads `pipeline.toml`.
+//!   [`model::Calibration`] it gives (log, sensor, channels, windows). A
+//!   flight with no calibration of its own is compensated with a model
+//!   saved from another ([`pipeline::apply`]). [`campaign`] runs many
+//!   flights, [`config`] reads `pipeline.toml`.
+//! - [`messages`]: what a run says to its user: typed warnings and notes,
+//!   and, while it runs, each stage begun and each channel done, told to
+//!   a [`messages::progress::Meter`].
 //! - [`output`]: [`output::sink`] writes what a run produced, and
 //!   [`output::report`] is the HTML page.
 //! - [`plan`]: a calibration planned before the flight, and what it
@@ -95,7 +101,6 @@
 //! ```
 #![deny(missing_docs)]
 
-pub mod apply;
 pub mod calibration;
 pub mod campaign;
 pub mod compensate;
@@ -103,8 +108,6 @@ pub mod config;
 pub mod diagnose;
 pub mod error;
 pub mod formats;
-pub mod gradient;
-pub mod igrf;
 pub mod ingest;
 pub mod messages;
 pub mod model;
@@ -112,9 +115,7 @@ pub mod numerics;
 pub mod output;
 pub mod pipeline;
 pub mod plan;
-pub mod progress;
 pub mod quality;
-pub mod reduce;
 pub mod simulate;
 pub mod vector;
 

@@ -9,17 +9,17 @@
 //! difference, difference of the compensated channels):
 //! - the survey-line error of the gradient's variation (one overall level
 //!   taken out: the calibration does not pin the level, see
-//!   `magcomp::gradient`), against the uncompensated gradient's;
+//!   `magcomp::compensate::gradient`), against the uncompensated gradient's;
 //! - that `auto` takes the method with the smaller held-out residual, and
 //!   that the held-out choice is no worse on the survey lines than the
 //!   other method by more than the stated margin.
 
 mod common;
 
+use magcomp::compensate::gradient::{GradientMethod, GradientPair};
 use magcomp::config::{FlightJob, Settings};
 use magcomp::diagnose::ApplyDiagnosis;
 use magcomp::formats::write_flight_log;
-use magcomp::gradient::{GradientMethod, GradientPair};
 use magcomp::ingest::flight_date::FlightDate;
 use magcomp::simulate::SimulatedFlight;
 

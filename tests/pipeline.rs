@@ -6,8 +6,8 @@ use std::process::Command;
 
 use magcomp::calibration::windows::read_detect_json;
 use magcomp::config::{FlightJob, Settings};
+use magcomp::messages::progress::{Meter, Stage};
 use magcomp::output::sink::{process_flight, process_flight_listing, FlightOutputs};
-use magcomp::progress::{Meter, Stage};
 use magcomp::simulate::sample_flight::{generate, write, SampleFlightSpec};
 
 fn small_flight(folder: &Path) -> (PathBuf, PathBuf) {

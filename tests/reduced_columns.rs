@@ -109,8 +109,8 @@ fn the_reduced_columns_remove_the_station_and_igrf_as_the_truth_says() {
         ))
         .unwrap();
         let date = magcomp::ingest::flight_date::FlightDate::parse(&day(seed)).unwrap();
-        let year = magcomp::igrf::decimal_year(date.year, date.month, date.day, 43_200.0);
-        let main = magcomp::igrf::Igrf::fourteenth().at_year(year);
+        let year = magcomp::model::igrf::decimal_year(date.year, date.month, date.day, 43_200.0);
+        let main = magcomp::model::igrf::Igrf::fourteenth().at_year(year);
         let survey: Vec<usize> = (0..c.len()).filter(|&r| line[r].is_finite() && line[r] > 0.0).collect();
         assert!(survey.len() > 1000, "{} survey rows", survey.len());
         let off = |column: &[f64], truth: &dyn Fn(usize) -> f64| -> f64 {

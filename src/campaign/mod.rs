@@ -63,10 +63,10 @@ pub fn process_campaign_flight(
     settings: &Settings,
     folder: &Path,
     (shard, force): (Shard, bool),
-    meter: &dyn crate::progress::Meter,
+    meter: &dyn crate::messages::progress::Meter,
 ) -> Result<CampaignFlight> {
     let started = Instant::now();
-    meter.begin(crate::progress::Stage::Reading, 0);
+    meter.begin(crate::messages::progress::Stage::Reading, 0);
     let path = status_path(folder, &job.output_name);
     let hashes = crate::ingest::flight_identity::hash_file(&job.input)
         .and_then(|input| Ok((input, settings_sha256(job, settings)?)));

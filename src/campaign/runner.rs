@@ -25,8 +25,8 @@ use std::time::{Duration, Instant};
 use super::{fail_campaign_flight, process_campaign_flight, CampaignFlight, Shard};
 use crate::config::{FlightJob, Pipeline};
 use crate::error::{Error, Result};
+use crate::messages::progress::Meter;
 use crate::output::sink::FlightOutputs;
-use crate::progress::Meter;
 
 /// How many flights a run holds in memory at once, and why.
 #[derive(Debug, Clone, PartialEq)]

@@ -8,7 +8,7 @@ use std::time::Duration;
 
 use indicatif::{MultiProgress, ProgressBar, ProgressDrawTarget, ProgressStyle};
 use magcomp::campaign::Progress;
-use magcomp::progress::{Meter, Stage};
+use magcomp::messages::progress::{Meter, Stage};
 
 use super::duration_words;
 

@@ -6,9 +6,9 @@ use anyhow::Context as _;
 use magcomp::campaign::{run_flights, CampaignFlight, FinishedFlight, FlightState, FlightsAtOnce, Progress, Shard};
 use magcomp::config::{FlightJob, Pipeline};
 use magcomp::diagnose::ApplyDiagnosis;
+use magcomp::messages::progress::Meter;
 use magcomp::output::sink::FlightOutputs;
 use magcomp::pipeline::summary;
-use magcomp::progress::Meter;
 
 use super::progress::{CampaignBar, FlightBar};
 use super::{prepare_flight_outputs, print_notes};

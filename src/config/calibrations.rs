@@ -16,8 +16,8 @@ use std::path::Path;
 use super::FlightJob;
 use crate::error::{Error, Result};
 
-/// Aircraft compared as [`crate::apply`] compares them: without case or
-/// surrounding spaces.
+/// Aircraft compared as [`crate::pipeline::apply`] compares them: without
+/// case or surrounding spaces.
 fn aircraft_key(aircraft: &str) -> String {
     aircraft.trim().to_lowercase()
 }

@@ -11,8 +11,8 @@
 //! object a line). Its fields are those of a `[[flight]]`: `input` (the
 //! only one required), `windows`, `diagnosis`, `plan` (the PLAN_REPORT.json
 //! of the plan the flight was flown to), `model` (a MODEL.json saved from a
-//! calibration flight, applied to this one: [`crate::apply`]), `lines`,
-//! `vector`, `channels`, `date`, `aircraft`, the airframe a
+//! calibration flight, applied to this one: [`crate::pipeline::apply`]),
+//! `lines`, `vector`, `channels`, `date`, `aircraft`, the airframe a
 //! calibration belongs to (the campaign summary follows each aircraft's
 //! coefficients over time), and `calibration`, true for an aircraft's
 //! calibration flight, whose model compensates its other flights

@@ -81,12 +81,12 @@ use serde::Deserialize;
 use crate::calibration::detect::DetectOptions;
 use crate::calibration::fluxgate::VectorCalibrationOptions;
 use crate::calibration::windows::{read_detect_file, CalibrationWindow};
+use crate::compensate::gradient::{GradientMethod, GradientPair, LEAST_SEPARATION_M};
 use crate::compensate::LevelConvention;
 use crate::diagnose::DiagnoseOptions;
 use crate::error::{Error, Result};
 use crate::formats::align::AlignmentOptions;
 use crate::formats::{ColumnNames, IngestOptions};
-use crate::gradient::{GradientMethod, GradientPair, LEAST_SEPARATION_M};
 use crate::model::terms::{EddyTerms, InducedTerms, TermSet};
 use crate::model::{FilterSettings, FitOptions};
 use crate::numerics::estimators::Solver;
@@ -390,7 +390,7 @@ pub struct FlightJob {
     /// ([`crate::quality::against_plan`]).
     pub plan: Option<PathBuf>,
     /// A MODEL.json saved from another flight to compensate this one with,
-    /// nothing refitted ([`crate::apply`]).
+    /// nothing refitted ([`crate::pipeline::apply`]).
     pub model: Option<PathBuf>,
     /// The day the flight was flown, over what the file says.
     pub date: Option<crate::ingest::flight_date::FlightDate>,
@@ -553,7 +553,7 @@ pub struct Settings {
     /// Decimal places of the added nT columns (`[output] decimals`).
     pub output_decimals: u32,
     /// The reduced columns to add (`[output] dc`, `[output] igrf`).
-    pub reduced: crate::reduce::ReducedColumns,
+    pub reduced: crate::compensate::reduce::ReducedColumns,
     /// Days after which an applied model is a warning (`[model]
     /// max_age_days`).
     pub model_max_age_days: u32,
@@ -641,7 +641,7 @@ impl Pipeline {
         check_limits(&raw).map_err(bad)?;
         let settings = Settings {
             output_decimals: raw.output.decimals,
-            reduced: crate::reduce::ReducedColumns {
+            reduced: crate::compensate::reduce::ReducedColumns {
                 dc: raw.output.dc,
                 igrf: raw.output.igrf,
             },

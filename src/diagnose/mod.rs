@@ -112,6 +112,7 @@ use crate::calibration::headings::{distinct_headings, heading_splits};
 use crate::calibration::windows::CalibrationWindow;
 use crate::error::Result;
 use crate::ingest::flight_log::{ChannelRole, FlightLog, VectorSensor};
+use crate::messages::progress::{Meter, Silent, Stage};
 use crate::messages::{Diagnosing, Note};
 use crate::model::terms::TermSet;
 use crate::model::{
@@ -120,7 +121,6 @@ use crate::model::{
 };
 use crate::numerics::solve::{Criterion, Figures, LambdaChoice, SolveOptions};
 use crate::numerics::stacked::StorePool;
-use crate::progress::{Meter, Stage};
 use crate::quality::root_mean_square;
 
 /// `[diagnose]` settings.
@@ -555,7 +555,7 @@ pub fn diagnose(
     options: &FitOptions,
     settings: &DiagnoseOptions,
 ) -> Result<Diagnosis> {
-    diagnose_metered(calibration, (terms, options, settings), &crate::progress::Silent)
+    diagnose_metered(calibration, (terms, options, settings), &Silent)
 }
 
 /// [`diagnose`], telling `meter` of two steps a channel: its plain fits

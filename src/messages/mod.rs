@@ -22,12 +22,16 @@
 //! and kept in the quality JSON and the report, and typed the same way
 //! (the diagnosis's in [`diagnosis::Diagnosing`], a vector model's
 //! figures in [`vector::VectorSummary`]).
+//!
+//! While a flight is processed it also says how far it has got: a
+//! [`progress::Meter`] hears each stage begin and each step of it done.
 
 use std::fmt;
 
 use serde::{Serialize, Serializer};
 
 pub mod diagnosis;
+pub mod progress;
 pub mod reading;
 pub mod vector;
 pub use diagnosis::Diagnosing;

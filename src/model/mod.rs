@@ -26,10 +26,15 @@
 //! not fitted on ([`FittedModel::held_out`]): the transfer check and the
 //! diagnosis score models by it. Diagnosis, transfer check, replay and
 //! compensation all go through these three functions.
+//!
+//! The Earth's own main field, which the aircraft's interference rides
+//! on, is modelled by the IGRF ([`igrf`]): the IGRF-reduced columns, the
+//! fluxgate's orientation and the simulated flights take it from there.
 
 pub mod band;
 pub mod excitation;
 pub mod extensions;
+pub mod igrf;
 mod prepared;
 pub mod terms;
 

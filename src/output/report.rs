@@ -886,7 +886,7 @@ fn verdict(quality: &ChannelQuality, limit_nt: f64) -> String {
 /// figures on its calibration flight against the FOM limit, then this
 /// flight's: held out on its own manoeuvres when it names them, and its
 /// noise and heading error.
-fn applied_verdict(quality: &ChannelQuality, applied: &crate::apply::AppliedModel, limit_nt: f64) -> String {
+fn applied_verdict(quality: &ChannelQuality, applied: &crate::pipeline::apply::AppliedModel, limit_nt: f64) -> String {
     let mut lines = Vec::new();
     let saved = applied.calibration.iter().find(|c| c.channel == quality.channel);
     let (class, word) = match saved.and_then(|c| c.fom_after_nt) {
@@ -973,7 +973,7 @@ fn heading_level_line(figures: &crate::quality::corrugation::HeadingLevelFigures
 }
 
 /// The saved model a flight was compensated with: where it comes from.
-fn applied_model_section(applied: &crate::apply::AppliedModel) -> String {
+fn applied_model_section(applied: &crate::pipeline::apply::AppliedModel) -> String {
     let mut rows = vec![
         ("model file", applied.file.display().to_string()),
         ("fitted on", applied.fitted_on.display().to_string()),

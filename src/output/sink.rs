@@ -101,7 +101,7 @@ impl FlightOutputs {
 /// ([`crate::pipeline::run`]) and writes
 /// its outputs ([`write()`]).
 pub fn process_flight(job: &FlightJob, options: &Settings, outputs: &FlightOutputs) -> Result<FlightResult> {
-    process_flight_listing(job, options, outputs, &crate::progress::Silent).map(|(result, _)| result)
+    process_flight_listing(job, options, outputs, &crate::messages::progress::Silent).map(|(result, _)| result)
 }
 
 /// [`process_flight`], also returning the files written, telling `meter`
@@ -110,7 +110,7 @@ pub fn process_flight_listing(
     job: &FlightJob,
     options: &Settings,
     outputs: &FlightOutputs,
-    meter: &dyn crate::progress::Meter,
+    meter: &dyn crate::messages::progress::Meter,
 ) -> Result<(FlightResult, Vec<PathBuf>)> {
     let inputs: Vec<&Path> = std::iter::once(job.input.as_path())
         .chain(job.diagnosis.as_deref())
@@ -121,7 +121,7 @@ pub fn process_flight_listing(
     // tells its user calls `prepare` first.
     crate::formats::prepare(&inputs, &outputs.destinations())?;
     let flight = crate::pipeline::run_metered(job, options, &outputs.compensated, meter)?;
-    meter.begin(crate::progress::Stage::Writing, 0);
+    meter.begin(crate::messages::progress::Stage::Writing, 0);
     let written = write(&flight, options, outputs)?;
     Ok((flight.result, written))
 }
@@ -206,9 +206,9 @@ fn to_json<T: Serialize>(path: Option<&Path>, what: &'static str, value: &T) -> 
 }
 
 /// The model JSON: the flight and its fitted models, with what applying
-/// them to another flight needs ([`crate::apply`]): the calibration
-/// flight's identity, day and aircraft, each channel's figures on it, and
-/// the findings its models carry.
+/// them to another flight needs ([`crate::pipeline::apply`]): the
+/// calibration flight's identity, day and aircraft, each channel's figures
+/// on it, and the findings its models carry.
 #[derive(Serialize)]
 struct ModelFile<'a> {
     /// "magcomp 1.2.3".
@@ -219,7 +219,7 @@ struct ModelFile<'a> {
     date: Option<crate::ingest::flight_date::FlightDate>,
     #[serde(skip_serializing_if = "Option::is_none")]
     aircraft: Option<&'a str>,
-    calibration: Vec<crate::apply::CalibrationFigures>,
+    calibration: Vec<crate::pipeline::apply::CalibrationFigures>,
     #[serde(skip_serializing_if = "<[_]>::is_empty")]
     applied_findings: &'a [crate::pipeline::AppliedFinding],
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -246,7 +246,7 @@ impl<'a> ModelFile<'a> {
             calibration: result
                 .channels
                 .iter()
-                .map(crate::apply::CalibrationFigures::of)
+                .map(crate::pipeline::apply::CalibrationFigures::of)
                 .collect(),
             applied_findings: &result.applied_findings,
             vector_calibration: result.vector_calibration.as_ref(),

@@ -10,9 +10,9 @@ use crate::config::{FlightJob, Settings};
 use crate::error::Result;
 use crate::formats::added_column_names;
 use crate::ingest::flight_log::FlightLog;
+use crate::messages::progress::{Meter, Stage};
 use crate::messages::{Note, Warning};
 use crate::model::SharedDesign;
-use crate::progress::{Meter, Stage};
 use crate::quality::ChannelQuality;
 
 /// Compensates `job`'s flight with the saved model at `model_path`,
@@ -23,7 +23,7 @@ pub(super) fn run_applied(
     job: &FlightJob,
     options: &Settings,
     compensated: &Path,
-    saved: &crate::apply::SavedModel,
+    saved: &crate::pipeline::apply::SavedModel,
     recorded: FlightLog,
     meter: &dyn Meter,
 ) -> Result<FlightRun> {
@@ -92,7 +92,7 @@ pub(super) fn run_applied(
 /// `raw_log` and its `screening`: an error for a column it lacks or that
 /// carries no reading.
 fn models_on_flight(
-    saved: &crate::apply::SavedModel,
+    saved: &crate::pipeline::apply::SavedModel,
     job: &FlightJob,
     (raw_log, screening): (&FlightLog, &crate::ingest::screen::Screening),
 ) -> Result<(
@@ -127,10 +127,10 @@ fn compensate_applied(
 /// (`[model] channels`), and the notes saying so; `None` when the names
 /// are the same.
 fn renamed_model(
-    saved: &crate::apply::SavedModel,
+    saved: &crate::pipeline::apply::SavedModel,
     recorded: &FlightLog,
     options: &Settings,
-) -> Result<(Option<crate::apply::SavedModel>, Vec<Note>)> {
+) -> Result<(Option<crate::pipeline::apply::SavedModel>, Vec<Note>)> {
     if options.model_channels.is_empty() {
         return Ok((None, Vec::new()));
     }
@@ -147,7 +147,7 @@ fn hold_out_on_own_windows(
         &crate::ingest::flight_log::VectorSensor,
         &mut [crate::model::FittedModel],
     ),
-    (options, applied): (&Settings, &crate::apply::AppliedModel),
+    (options, applied): (&Settings, &crate::pipeline::apply::AppliedModel),
     notes: &mut Vec<Note>,
 ) -> Result<()> {
     if job.windows.is_empty() && job.lines.is_empty() {
@@ -178,7 +178,7 @@ struct Said {
 /// model's), `recorded` as read, `compensated` where the output goes.
 fn beside_the_scalars(
     (log, recorded, compensated): (&FlightLog, &FlightLog, &Path),
-    saved: &crate::apply::SavedModel,
+    saved: &crate::pipeline::apply::SavedModel,
     (models, compensation): (&[crate::model::FittedModel], &mut crate::compensate::Compensation),
     options: &Settings,
     mut said: Said,
@@ -191,7 +191,7 @@ fn beside_the_scalars(
         said.warnings.extend(vector_warnings);
     }
     said.notes.extend(vector_not_run(options, saved, log));
-    let gradients = crate::gradient::gradients_from_saved_model(models, compensation, &options.gradients);
+    let gradients = crate::compensate::gradient::gradients_from_saved_model(models, compensation, &options.gradients);
     compensation.gradients = gradients.compensated;
     said.notes.extend(gradients.notes);
     said.warnings.extend(gradients.warnings);
@@ -199,7 +199,7 @@ fn beside_the_scalars(
         .extend(crate::formats::mcap::undated_warning(recorded, compensated));
     said.warnings
         .extend(crate::formats::write::text_columns_warning(recorded, compensated, true));
-    let reduced = crate::reduce::add_reduced(log, compensation, options.reduced)?;
+    let reduced = crate::compensate::reduce::add_reduced(log, compensation, options.reduced)?;
     said.notes.extend(reduced);
     said.warnings.extend(compensation.out_of_range_warnings(log.time_s()));
     Ok(said)
@@ -234,8 +234,8 @@ fn applied_notes(
 fn model_words(
     job: &FlightJob,
     options: &Settings,
-    saved: &crate::apply::SavedModel,
-    (applied, channels): (&crate::apply::AppliedModel, &[String]),
+    saved: &crate::pipeline::apply::SavedModel,
+    (applied, channels): (&crate::pipeline::apply::AppliedModel, &[String]),
     raw_log: &FlightLog,
 ) -> (Vec<Warning>, Vec<Note>) {
     let (mut warnings, mut notes) =
@@ -312,7 +312,7 @@ fn assess_applied(
 /// The note on the vector compensation a saved model cannot run (it holds
 /// no vector model), when the settings ask for it and the flight records a
 /// fluxgate.
-fn vector_not_run(options: &Settings, saved: &crate::apply::SavedModel, log: &FlightLog) -> Option<Note> {
+fn vector_not_run(options: &Settings, saved: &crate::pipeline::apply::SavedModel, log: &FlightLog) -> Option<Note> {
     if !options.vector.enabled || log.vector_sensors().is_empty() {
         return None;
     }

@@ -65,7 +65,7 @@ pub(super) fn augmentation_plan(
     job: &FlightJob,
     raw_log: &FlightLog,
     calibration: &Calibration,
-    (options, meter): (&Settings, &dyn crate::progress::Meter),
+    (options, meter): (&Settings, &dyn crate::messages::progress::Meter),
     stage_calibrated: bool,
 ) -> Result<ExtensionsPlan> {
     use crate::diagnose::ApplyDiagnosis;

@@ -14,15 +14,15 @@ use super::vector_stage::{vector_stage, window_hulls, VectorStage};
 use super::{
     against_plan, assess_with_sigma, estimator_table_gap, renaming_notes, units_row_note, FlightResult, FlightRun,
 };
+use crate::compensate::gradient::GradientStage;
 use crate::config::{FlightJob, Settings};
 use crate::error::Result;
 use crate::formats::added_column_names;
-use crate::gradient::GradientStage;
 use crate::ingest::flight_log::FlightLog;
+use crate::messages::progress::{Meter, Stage};
 use crate::messages::{Note, Warning};
 use crate::model::{compare_estimators, fit, Calibration, Extensions, FittedModel, ModelSpec, SharedDesign};
 use crate::numerics::stacked::StorePool;
-use crate::progress::{Meter, Stage};
 use crate::quality::transfer::check_transfer;
 use crate::quality::ChannelQuality;
 
@@ -135,7 +135,7 @@ fn compensate_and_assess(
         compensation.add_vector(compensated);
     }
     compensation.gradients = std::mem::take(&mut gradients.compensated);
-    let reduced_notes = crate::reduce::add_reduced(on.log, &mut compensation, options.reduced)?;
+    let reduced_notes = crate::compensate::reduce::add_reduced(on.log, &mut compensation, options.reduced)?;
     Ok(Assessed {
         models,
         compensation,
@@ -388,8 +388,8 @@ fn vector_and_gradients(
             )
         },
         || {
-            crate::gradient::compensate_gradients(
-                &crate::gradient::GradientInputs {
+            crate::compensate::gradient::compensate_gradients(
+                &crate::compensate::gradient::GradientInputs {
                     log: on.log,
                     sensor: on.sensor,
                     windows: on.windows,

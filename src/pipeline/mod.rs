@@ -1,6 +1,10 @@
 //! One flight through every stage: read, screen, detect, diagnose, fit,
 //! compensate, assess. [`run`] writes nothing; [`crate::output::sink`] writes what
 //! it produced.
+//!
+//! A flight that flies no calibration of its own is compensated with a
+//! model saved from one that did ([`apply`]: the saved model read, checked
+//! against the flight and applied, nothing refitted).
 
 use std::path::{Path, PathBuf};
 
@@ -12,13 +16,14 @@ use crate::error::{Error, Result};
 use crate::formats::align::AlignmentReport;
 use crate::formats::read_flight_log;
 use crate::ingest::flight_log::FlightLog;
+use crate::messages::progress::{Meter, Stage};
 use crate::model::{FittedModel, SharedDesign};
-use crate::progress::{Meter, Stage};
 use crate::quality::ChannelQuality;
 
 pub use crate::diagnose::AppliedFinding;
 
 mod applied;
+pub mod apply;
 mod diagnosis;
 mod fitted;
 mod prepared;
@@ -77,7 +82,7 @@ pub struct FlightResult {
     /// Each compensated gradient: the method used, why, and both methods
     /// held out.
     #[serde(skip_serializing_if = "Vec::is_empty")]
-    pub gradients: Vec<crate::gradient::GradientResult>,
+    pub gradients: Vec<crate::compensate::gradient::GradientResult>,
     /// The gradients' direct models (the model JSON holds them).
     #[serde(skip)]
     pub gradient_models: Vec<FittedModel>,
@@ -87,7 +92,7 @@ pub struct FlightResult {
     /// The saved model the flight was compensated with (`--apply`),
     /// nothing refitted; `None` when it was fitted on its own calibration.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub model: Option<crate::apply::AppliedModel>,
+    pub model: Option<crate::pipeline::apply::AppliedModel>,
     /// The airframe, when the flight names it.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub aircraft: Option<String>,
@@ -195,7 +200,7 @@ impl FlightRun {
 /// `compensated` is where the compensated flight will go: its format
 /// names the columns magcomp adds.
 pub fn run(job: &FlightJob, options: &Settings, compensated: &Path) -> Result<FlightRun> {
-    run_metered(job, options, compensated, &crate::progress::Silent)
+    run_metered(job, options, compensated, &crate::messages::progress::Silent)
 }
 
 /// [`run`], telling `meter` as each stage begins and each channel of a
@@ -207,7 +212,9 @@ pub fn run_metered(job: &FlightJob, options: &Settings, compensated: &Path, mete
     let planned = (job.plan.as_deref())
         .map(crate::quality::against_plan::PlanPrediction::read)
         .transpose()?;
-    let saved = (job.model.as_deref()).map(crate::apply::SavedModel::read).transpose()?;
+    let saved = (job.model.as_deref())
+        .map(crate::pipeline::apply::SavedModel::read)
+        .transpose()?;
     let ingest = crate::formats::IngestOptions {
         date: job.date.or(options.ingest.date),
         ..options.ingest.clone()

@@ -7,6 +7,7 @@ use crate::config::{FlightJob, Settings};
 use crate::error::{Error, Result};
 use crate::ingest::flight_log::{FlightLog, VectorSensor};
 use crate::ingest::screen::{Screened, Screening};
+use crate::messages::progress::{Meter, Silent};
 use crate::messages::{Note, Warning};
 use crate::model::Calibration;
 
@@ -93,7 +94,7 @@ pub fn diagnose_flight(
     settings: &crate::diagnose::DiagnoseOptions,
 ) -> Result<crate::diagnose::Diagnosis> {
     let chosen = Chosen::of(log, None, job, options)?;
-    diagnose_calibration(&chosen.calibration(log), (options, settings), &crate::progress::Silent)
+    diagnose_calibration(&chosen.calibration(log), (options, settings), &Silent)
 }
 
 /// [`crate::diagnose::diagnose`] on `calibration`, the diagnosis naming
@@ -101,7 +102,7 @@ pub fn diagnose_flight(
 fn diagnose_calibration(
     calibration: &Calibration,
     (options, settings): (&Settings, &crate::diagnose::DiagnoseOptions),
-    meter: &dyn crate::progress::Meter,
+    meter: &dyn Meter,
 ) -> Result<crate::diagnose::Diagnosis> {
     let settings = (&options.terms, &options.fit, settings);
     let mut diagnosis = crate::diagnose::diagnose_metered(calibration, settings, meter)?;
@@ -176,7 +177,7 @@ impl PreparedFlight {
     pub fn diagnose(
         &self,
         (options, settings): (&Settings, &crate::diagnose::DiagnoseOptions),
-        meter: &dyn crate::progress::Meter,
+        meter: &dyn Meter,
     ) -> Result<crate::diagnose::Diagnosis> {
         diagnose_calibration(&self.calibration(), (options, settings), meter)
     }

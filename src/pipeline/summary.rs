@@ -4,7 +4,7 @@ use super::FlightResult;
 
 /// The lines of [`summary`] for a flight compensated with a saved model:
 /// the model, then per channel its calibration figures and this flight's.
-pub(super) fn applied_summary(result: &FlightResult, applied: &crate::apply::AppliedModel) -> String {
+pub(super) fn applied_summary(result: &FlightResult, applied: &crate::pipeline::apply::AppliedModel) -> String {
     let mut text = format!(
         "  compensated with the saved model {} (fitted on {}{}{}{}); nothing refitted\n",
         applied.file.display(),

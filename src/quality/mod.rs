@@ -24,6 +24,8 @@ use crate::ingest::flight_log::FlightLog;
 use crate::messages::Warning;
 use crate::model::{FittedModel, PredictionSigma, WindowFit};
 
+pub use crate::numerics::statistics::{peak_to_peak, root_mean_square, standard_deviation};
+
 /// Figures for one calibration window.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct WindowQuality {
@@ -421,35 +423,6 @@ pub fn window_quality(fit: &WindowFit) -> WindowQuality {
     }
 }
 
-/// Population standard deviation (0 for an empty slice).
-pub fn standard_deviation(values: &[f64]) -> f64 {
-    if values.is_empty() {
-        return 0.0;
-    }
-    let mean = values.iter().sum::<f64>() / values.len() as f64;
-    (values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / values.len() as f64).sqrt()
-}
-
-/// Root mean square (0 for an empty slice).
-pub fn root_mean_square(values: &[f64]) -> f64 {
-    if values.is_empty() {
-        return 0.0;
-    }
-    (values.iter().map(|v| v * v).sum::<f64>() / values.len() as f64).sqrt()
-}
-
-/// Largest minus smallest value (0 for an empty slice).
-pub fn peak_to_peak(values: &[f64]) -> f64 {
-    let (low, high) = values
-        .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &v| (l.min(v), h.max(v)));
-    if values.is_empty() {
-        0.0
-    } else {
-        high - low
-    }
-}
-
 /// Compensation may raise the survey lines' fourth-difference noise by this
 /// factor before it is a warning: the fluxgate's own noise enters through
 /// the direction cosines, and on a tail sensor with a few nT of aircraft
@@ -762,12 +735,5 @@ mod tests {
             uncertainty_advice(None, false),
             "Check the per-line figures in the quality JSON."
         );
-    }
-
-    #[test]
-    fn peak_to_peak_and_spread() {
-        assert_eq!(peak_to_peak(&[1.0, -2.5, 3.0]), 5.5);
-        assert_eq!(standard_deviation(&[1.0, 3.0]), 1.0);
-        assert_eq!(root_mean_square(&[3.0, 4.0]), (12.5f64).sqrt());
     }
 }

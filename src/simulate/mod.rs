@@ -28,7 +28,7 @@
 //! manoeuvres and the effects' parameters, goes to a separate truth file.
 //! A scenario and a seed give bit-identical output.
 
-pub use crate::igrf;
+pub use crate::model::igrf;
 pub mod physics;
 pub mod random;
 pub mod recording;

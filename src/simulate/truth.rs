@@ -210,9 +210,9 @@ impl Truth {
     }
 
     /// The true gradient between every two scalar sensors at least
-    /// [`crate::gradient::LEAST_SEPARATION_M`] apart, a before b in the
-    /// scenario's order: the difference of their true Earth fields over
-    /// their separation, nT/m, per output sample.
+    /// [`crate::compensate::gradient::LEAST_SEPARATION_M`] apart, a before
+    /// b in the scenario's order: the difference of their true Earth fields
+    /// over their separation, nT/m, per output sample.
     pub fn gradients(&self) -> Vec<TrueGradient> {
         let mut gradients = Vec::new();
         for (i, a) in self.sensors.iter().enumerate() {
@@ -221,11 +221,11 @@ impl Truth {
                     .map(|k| (a.position_m[k] - b.position_m[k]).powi(2))
                     .sum::<f64>()
                     .sqrt();
-                if separation_m < crate::gradient::LEAST_SEPARATION_M {
+                if separation_m < crate::compensate::gradient::LEAST_SEPARATION_M {
                     continue;
                 }
                 gradients.push(TrueGradient {
-                    name: crate::gradient::gradient_name(&a.channel, &b.channel),
+                    name: crate::compensate::gradient::gradient_name(&a.channel, &b.channel),
                     a: a.channel.clone(),
                     b: b.channel.clone(),
                     separation_m,

@@ -73,8 +73,8 @@ use serde::Serialize;
 use crate::calibration::headings::{distinct_headings, same_heading};
 use crate::calibration::windows::CalibrationWindow;
 use crate::error::{Error, Result};
-use crate::igrf::{decimal_year, Igrf};
 use crate::ingest::flight_log::{ChannelRole, FlightLog, VectorSensor};
+use crate::model::igrf::{decimal_year, Igrf};
 use crate::numerics::linalg::{small_svd, tall_skinny_r};
 
 pub mod tolles_lawson;
@@ -737,7 +737,7 @@ fn start_direction(
 /// IGRF-14's field direction (inclination, declination, radians) at the
 /// `[site]`, and the start it makes; `year` decimal, `dated` whether it is
 /// a date given (the flight's, or the `[site]`'s) rather than the default.
-fn at_site(epoch: &crate::igrf::IgrfEpoch, site: &Site, (year, dated): (f64, bool)) -> ((f64, f64), FieldStart) {
+fn at_site(epoch: &crate::model::igrf::IgrfEpoch, site: &Site, (year, dated): (f64, bool)) -> ((f64, f64), FieldStart) {
     let field = Vector3::from(
         epoch
             .field(site.latitude_deg, site.longitude_deg, site.height_m)

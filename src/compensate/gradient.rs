@@ -444,7 +444,7 @@ fn survey_spread(log: &FlightLog, windows: &[CalibrationWindow], a: &[f64], b: &
         }
     };
     let differences: Vec<f64> = (rows.iter()).map(|&r| a[r] - b[r]).filter(|v| v.is_finite()).collect();
-    (!differences.is_empty()).then(|| crate::quality::standard_deviation(&differences))
+    (!differences.is_empty()).then(|| crate::numerics::statistics::standard_deviation(&differences))
 }
 
 /// The flight reduced to what the direct fit reads: the fluxgate and the

@@ -16,6 +16,13 @@
 //! terms: the fluxgate calibrated, the extension columns added to
 //! $A\beta$, and $m_{uc}$ read `lag_s` later when the sensor lags, so the
 //! compensated value at a row is the field at that row's time and place.
+//!
+//! What is made from the compensated channels is here too: the gradients
+//! between two compensated sensors ([`gradient`]) and the DC-shifted and
+//! IGRF-reduced columns ([`reduce`]).
+
+pub mod gradient;
+pub mod reduce;
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -69,7 +76,7 @@ pub struct CompensatedChannel {
     pub sigma_nt: Option<Vec<f64>>,
 }
 
-/// A compensated gradient ([`crate::gradient`]) on every row, nT/m (`NaN` where either sensor
+/// A compensated gradient ([`gradient`]) on every row, nT/m (`NaN` where either sensor
 /// or the fluxgate is missing).
 #[derive(Debug, Clone, PartialEq)]
 pub struct CompensatedGradient {
@@ -80,7 +87,7 @@ pub struct CompensatedGradient {
 }
 
 /// One compensated channel reduced for levelling and gridding
-/// ([`crate::reduce`]).
+/// ([`reduce`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct ReducedChannel {
     /// The output column, `mag_<n>_dc` or `mag_<n>_igrf`.
@@ -100,11 +107,11 @@ pub struct Compensation {
     /// ([`crate::vector`]); empty when vector compensation is off or
     /// impossible.
     pub vectors: Vec<crate::vector::CompensatedVector>,
-    /// Each compensated gradient, nT/m ([`crate::gradient`]); empty when
+    /// Each compensated gradient, nT/m ([`gradient`]); empty when
     /// none is asked for.
     pub gradients: Vec<CompensatedGradient>,
     /// The compensated channels reduced for levelling and gridding
-    /// (`mag_<n>_dc`, `mag_<n>_igrf`; [`crate::reduce`]); empty unless
+    /// (`mag_<n>_dc`, `mag_<n>_igrf`; [`reduce`]); empty unless
     /// asked for.
     pub reduced: Vec<ReducedChannel>,
 }

@@ -39,7 +39,8 @@ use crate::numerics::solve::{Decomposition, Method, Solution};
 use crate::quality::ChannelQuality;
 
 /// "3 days before this flight": kept here for callers of
-/// `apply::days_from`; the sentences that use it are in [`crate::messages`].
+/// `pipeline::apply::days_from`; the sentences that use it are in
+/// [`crate::messages`].
 pub use crate::messages::days_from;
 
 /// The sample rate of the flight may differ from the model's by this

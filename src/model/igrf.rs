@@ -16,7 +16,7 @@ use std::sync::OnceLock;
 
 /// The coefficient file, unchanged from its published form (see
 /// `data/igrf/README.md`).
-const COEFFICIENT_FILE: &str = include_str!("../data/igrf/IGRF14.shc");
+const COEFFICIENT_FILE: &str = include_str!("../../data/igrf/IGRF14.shc");
 
 /// Geomagnetic reference radius, km.
 const REFERENCE_RADIUS_KM: f64 = 6371.2;

@@ -21,10 +21,10 @@ use serde::Serialize;
 
 use crate::compensate::{Compensation, ReducedChannel};
 use crate::error::{Error, Result};
-use crate::igrf::{decimal_year, Igrf};
 use crate::ingest::flags::FlagKind;
 use crate::ingest::flight_log::{ChannelRole, FlightLog};
 use crate::messages::Note;
+use crate::model::igrf::{decimal_year, Igrf};
 
 /// A base-station column whose median is within this of zero records the
 /// variation, not the total field, nT.
