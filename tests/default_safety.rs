@@ -10,7 +10,9 @@
 //! What is measured, on the survey lines against the simulator's true
 //! Earth field (standard deviation of compensated − truth over the line
 //! rows): the channels worse than plain by more than 10 % + 0.01 nT. The
-//! aim is none; the first 30 plans must show none. The figures of every channel
+//! aim is none; the first 30 plans must show none, and the first 100 no
+//! other than the one known (plan 95, within twice its stated
+//! uncertainty); none may be harmed with nothing said. The figures of every channel
 //! whose default differs from plain are printed, with the findings it
 //! applied and those it held back, and a table by what was applied.
 //!
@@ -32,7 +34,18 @@ use magcomp::simulate::truth::survey_line_error_nt;
 use rayon::prelude::*;
 
 /// Flights in `cargo test`.
-const DEFAULT_FLIGHTS: u64 = 30;
+const DEFAULT_FLIGHTS: u64 = 100;
+
+/// The first plans, none of which may be harmed.
+const STRICT_FLIGHTS: usize = 30;
+
+/// The harmed channels measured on the first [`DEFAULT_FLIGHTS`] plans,
+/// each within twice the uncertainty the default states for it (plan 95,
+/// mag_5_uc: 0.0068 → 0.0202 nT against a stated 0.0146 nT; the base
+/// station's term, which held out lowers the RMS of each of the flight's
+/// sensors by 26–35 %, moves the level per heading on four lines without
+/// a tie). Another harmed channel fails the test.
+const KNOWN_HARMED: [(u64, &str); 1] = [(95, "mag_5_uc")];
 
 fn flights() -> u64 {
     std::env::var("MAGCOMP_SAFETY_FLIGHTS")
@@ -272,7 +285,9 @@ fn keep_flight(
 }
 
 // Channels harmed (default worse than plain by more than 10 % + 0.01 nT)
-// over the first [`DEFAULT_FLIGHTS`] plans: none, the aim. 80 % of the
+// over the first [`STRICT_FLIGHTS`] plans: none, the aim; over the first
+// [`DEFAULT_FLIGHTS`], the one of [`KNOWN_HARMED`] (427 channels; all 300
+// plans: 4 of 1,344, 3 of them warned of). 80 % of the
 // plans fly 1–4 tie lines, and the evidence rule levels the lines at
 // their crossovers. Over all 300 plans (1,344 channels): 28 harmed before
 // the ties, 22 with them, 16 with the levelling at its first setting (8
@@ -364,12 +379,32 @@ fn the_default_never_makes_a_clean_channel_worse_than_plain() {
         silent.len()
     );
     if flights() == DEFAULT_FLIGHTS && std::env::var("MAGCOMP_SAFETY_SEEDS").is_err() {
+        let strict: Vec<&String> = (harmed.iter()).filter(|h| seed_of(h) < STRICT_FLIGHTS as u64).collect();
         assert!(
-            harmed.is_empty(),
-            "the aim, and the figure measured: none harmed {harmed:#?}"
+            strict.is_empty(),
+            "the aim, and the figure measured on the first {STRICT_FLIGHTS} plans: none harmed {strict:#?}"
+        );
+        let unknown: Vec<&String> = (harmed.iter())
+            .filter(|h| {
+                !KNOWN_HARMED
+                    .iter()
+                    .any(|(seed, channel)| seed_of(h) == *seed && h.contains(&format!(" {channel} (")))
+            })
+            .collect();
+        assert!(
+            unknown.is_empty(),
+            "harmed beyond the one known on the first {DEFAULT_FLIGHTS} plans: {unknown:#?}"
         );
         assert!(silent.is_empty(), "harmed with nothing said: {silent:#?}");
     }
+}
+
+/// The plan of a line of the campaign's output (`seed N: …`).
+fn seed_of(line: &str) -> u64 {
+    (line.strip_prefix("seed "))
+        .and_then(|rest| rest.split(':').next())
+        .and_then(|seed| seed.parse().ok())
+        .expect("a campaign line starts with its seed")
 }
 
 /// The clean flight of `raw`, compensated by default and plain.
