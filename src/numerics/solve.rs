@@ -358,7 +358,7 @@ fn solve_factored(
     let press = match (press_needed, options.figures) {
         (true, Figures::Choice) => press_to_minimum(design, spectrum, &weights)
             .unwrap_or_else(|| leave_one_out_press(design, spectrum, &weights)),
-        (true, Figures::All) => leave_one_out_press(design, spectrum, &weights),
+        (true, _) => leave_one_out_press(design, spectrum, &weights),
         (false, _) => vec![f64::NAN; weights.len()],
     };
     let curves = curves((&grid, &weights, spectrum.rank), &press, blocked.as_deref());
@@ -944,6 +944,10 @@ fn too_high(leverage: f64) -> bool {
     leverage >= 1.0 - 1e-10 || leverage.is_nan()
 }
 
+/// Most row blocks [`press_to_minimum`] keeps the basis of between its
+/// two passes (16,384 rows).
+const KEPT_BLOCKS: usize = 8;
+
 /// Groups of rows a chunk of candidates adds between the checks of
 /// [`press_to_minimum`] (256 rows).
 const CHECK_GROUPS: usize = 32;
@@ -958,13 +962,19 @@ const CHECK_GROUPS: usize = 32;
 /// ridge candidates are then summed block by block in order, 256 rows at
 /// a time, a chunk of them dropped as soon as each of its sums passes the
 /// bound (a sum of squares only grows, so a dropped λ cannot be the
-/// minimum). Truncated-SVD ranks are summed whole. `None` where a
-/// leverage reaches 1 or the bound is not finite: the caller sums every
-/// candidate.
+/// minimum). Truncated-SVD ranks are summed whole. The second pass reads
+/// the basis the first made of each block. `None` where a leverage
+/// reaches 1, the bound is not finite or the design has more than
+/// [`KEPT_BLOCKS`] blocks: the caller sums every candidate.
 fn press_to_minimum(design: &Stacked, spectrum: &Spectrum, weights: &[Vec<f64>]) -> Option<Vec<f64>> {
     let p = design.columns();
     let m = weights.len();
     let ridge = m - spectrum.rank;
+    // The first pass keeps each block's basis for the second: a few
+    // blocks' worth, as a score's box has (more are summed whole).
+    if design.blocks().len() > KEPT_BLOCKS {
+        return None;
+    }
     let guess = gcv_minimum(design, spectrum, &weights[..ridge])? / CANDIDATES;
     let leverage_weights = packed((ridge, p), |l, k| weights[l][k]);
     let fitted_weights = packed((ridge, p), |l, k| weights[l][k] * spectrum.uty[k]);
@@ -976,7 +986,7 @@ fn press_to_minimum(design: &Stacked, spectrum: &Spectrum, weights: &[Vec<f64>])
         uty: &spectrum.uty[..spectrum.rank],
     };
     let first: Vec<usize> = if guess == 0 { vec![0] } else { vec![0, guess] };
-    let totals = sums_whole(design, spectrum, &kernel, &first);
+    let (totals, groups) = sums_whole(design, spectrum, &kernel, &first);
     let summed = first.len() * CANDIDATES;
     if ridge == 0 || too_high(totals[0].1) {
         return None;
@@ -1002,7 +1012,7 @@ fn press_to_minimum(design: &Stacked, spectrum: &Spectrum, weights: &[Vec<f64>])
         return None;
     }
     let rest: Vec<usize> = (0..ridge.div_ceil(CANDIDATES)).filter(|c| !first.contains(c)).collect();
-    for (chunk, sums) in rest.iter().zip(sums_below(design, spectrum, &kernel, (&rest, bound))) {
+    for (chunk, sums) in rest.iter().zip(sums_below(design, (&groups, &kernel), (&rest, bound))) {
         for (c, sum) in sums.into_iter().enumerate() {
             let l = chunk * CANDIDATES + c;
             if l < ridge {
@@ -1016,7 +1026,12 @@ fn press_to_minimum(design: &Stacked, spectrum: &Spectrum, weights: &[Vec<f64>])
 /// The leave-one-out sums and largest leverages of the ridge `chunks` of
 /// `kernel` (candidate by candidate), then of every truncated-SVD rank:
 /// blocks in parallel, summed in block order.
-fn sums_whole(design: &Stacked, spectrum: &Spectrum, kernel: &Kernel, chunks: &[usize]) -> Vec<(f64, f64)> {
+fn sums_whole(
+    design: &Stacked,
+    spectrum: &Spectrum,
+    kernel: &Kernel,
+    chunks: &[usize],
+) -> (Vec<(f64, f64)>, Vec<Vec<Group>>) {
     let p = design.columns();
     let ranks_only = Kernel {
         leverage_weights: &[],
@@ -1024,7 +1039,7 @@ fn sums_whole(design: &Stacked, spectrum: &Spectrum, kernel: &Kernel, chunks: &[
         ridge: 0,
         ..*kernel
     };
-    let partials: Vec<Vec<(f64, f64)>> = (design.blocks().par_iter())
+    let (partials, groups): (Vec<Vec<(f64, f64)>>, Vec<_>) = (design.blocks().par_iter())
         .map_init(
             || BlockBuffer::new(p),
             |buffer, block| {
@@ -1038,10 +1053,10 @@ fn sums_whole(design: &Stacked, spectrum: &Spectrum, kernel: &Kernel, chunks: &[
                     out.extend(state.totals());
                 }
                 out.extend(ranks_only.block(&buffer.groups, p, y));
-                out
+                (out, std::mem::take(&mut buffer.groups))
             },
         )
-        .collect();
+        .unzip();
     let mut totals = vec![(0.0, 0.0f64); chunks.len() * CANDIDATES + spectrum.rank];
     for partial in partials {
         for ((sum, high), (s, h)) in totals.iter_mut().zip(partial) {
@@ -1049,7 +1064,7 @@ fn sums_whole(design: &Stacked, spectrum: &Spectrum, kernel: &Kernel, chunks: &[
             *high = nan_max(*high, h);
         }
     }
-    totals
+    (totals, groups)
 }
 
 /// The leave-one-out sums of the ridge `chunks` of `kernel` over the
@@ -1057,22 +1072,18 @@ fn sums_whole(design: &Stacked, spectrum: &Spectrum, kernel: &Kernel, chunks: &[
 /// of its sums passes `bound`.
 fn sums_below(
     design: &Stacked,
-    spectrum: &Spectrum,
-    kernel: &Kernel,
+    (grouped, kernel): (&[Vec<Group>], &Kernel),
     (chunks, bound): (&[usize], f64),
 ) -> Vec<[f64; CANDIDATES]> {
     let p = design.columns();
     let mut totals = vec![[0.0; CANDIDATES]; chunks.len()];
     let mut live = vec![true; chunks.len()];
-    let mut buffer = BlockBuffer::new(p);
-    for block in design.blocks() {
+    for (block, block_groups) in design.blocks().iter().zip(grouped) {
         if !live.contains(&true) {
             break;
         }
-        let y = buffer.load(design, block, &spectrum.to_u);
-        buffer.group(y.len());
-        let (targets, _) = y.as_chunks::<LANES>();
-        let groups = buffer.groups.chunks(CHECK_GROUPS * p).zip(targets.chunks(CHECK_GROUPS));
+        let (targets, _) = design.block_target(block).as_chunks::<LANES>();
+        let groups = block_groups.chunks(CHECK_GROUPS * p).zip(targets.chunks(CHECK_GROUPS));
         let mut states = vec![ChunkSums::default(); chunks.len()];
         for (rows, y) in groups {
             for ((state, total), (alive, &chunk)) in states.iter_mut().zip(&totals).zip(live.iter_mut().zip(chunks)) {
