@@ -944,9 +944,10 @@ fn too_high(leverage: f64) -> bool {
     leverage >= 1.0 - 1e-10 || leverage.is_nan()
 }
 
-/// Most row blocks [`press_to_minimum`] keeps the basis of between its
-/// two passes (16,384 rows).
-const KEPT_BLOCKS: usize = 8;
+/// Most rows [`press_to_minimum`] keeps the basis of between its two
+/// passes: a score's box has a few thousand, in as many blocks as it has
+/// pieces (a manoeuvre each).
+const KEPT_ROWS: usize = 16_384;
 
 /// Groups of rows a chunk of candidates adds between the checks of
 /// [`press_to_minimum`] (256 rows).
@@ -965,14 +966,14 @@ const CHECK_GROUPS: usize = 32;
 /// minimum). Truncated-SVD ranks are summed whole. The second pass reads
 /// the basis the first made of each block. `None` where a leverage
 /// reaches 1, the bound is not finite or the design has more than
-/// [`KEPT_BLOCKS`] blocks: the caller sums every candidate.
+/// [`KEPT_ROWS`] rows: the caller sums every candidate.
 fn press_to_minimum(design: &Stacked, spectrum: &Spectrum, weights: &[Vec<f64>]) -> Option<Vec<f64>> {
     let p = design.columns();
     let m = weights.len();
     let ridge = m - spectrum.rank;
     // The first pass keeps each block's basis for the second: a few
-    // blocks' worth, as a score's box has (more are summed whole).
-    if design.blocks().len() > KEPT_BLOCKS {
+    // thousand rows, as a score's box has (more are summed whole).
+    if design.rows() > KEPT_ROWS {
         return None;
     }
     let guess = gcv_minimum(design, spectrum, &weights[..ridge])? / CANDIDATES;
