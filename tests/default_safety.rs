@@ -10,15 +10,17 @@
 //! What is measured, on the survey lines against the simulator's true
 //! Earth field (standard deviation of compensated − truth over the line
 //! rows): the channels worse than plain by more than 10 % + 0.01 nT. The
-//! aim is none; the first 30 plans must show none, and the first 100 no
-//! other than the one known (plan 95, within twice its stated
+//! aim is none; the first 30 plans must show none, and all 300 no other
+//! than the two known (plans 95 and 272, each within twice its stated
 //! uncertainty); none may be harmed with nothing said. The figures of every channel
 //! whose default differs from plain are printed, with the findings it
 //! applied and those it held back, and a table by what was applied.
 //!
-//! Flights: 300 with `MAGCOMP_SAFETY_FLIGHTS=300`; `cargo test` flies
-//! [`DEFAULT_FLIGHTS`] of them (the first ones of the same draw);
-//! `MAGCOMP_SAFETY_SEEDS=6,27` flies those plans alone, and
+//! Flights: `cargo test` flies [`DEFAULT_FLIGHTS`];
+//! `MAGCOMP_SAFETY_FLIGHTS=N` flies the first N of the same draw instead
+//! (450: 150 more, drawn as those before them), and
+//! `MAGCOMP_SAFETY_SEEDS=6,27` those plans alone, printing the figures
+//! without asserting them; and
 //! `MAGCOMP_SAFETY_KEEP=DIR` leaves each flight there as `clean_<seed>.csv`
 //! (with `truth_<seed>.csv`, the true Earth field per sensor) to look at
 //! with `magcomp diagnose`.
@@ -34,18 +36,30 @@ use magcomp::simulate::truth::survey_line_error_nt;
 use rayon::prelude::*;
 
 /// Flights in `cargo test`.
-const DEFAULT_FLIGHTS: u64 = 100;
+const DEFAULT_FLIGHTS: u64 = 300;
 
 /// The first plans, none of which may be harmed.
 const STRICT_FLIGHTS: usize = 30;
 
-/// The harmed channels measured on the first [`DEFAULT_FLIGHTS`] plans,
-/// each within twice the uncertainty the default states for it (plan 95,
-/// mag_5_uc: 0.0068 → 0.0202 nT against a stated 0.0146 nT; the base
-/// station's term, which held out lowers the RMS of each of the flight's
-/// sensors by 26–35 %, moves the level per heading on four lines without
-/// a tie). Another harmed channel fails the test.
-const KNOWN_HARMED: [(u64, &str); 1] = [(95, "mag_5_uc")];
+/// The harmed channels measured on the [`DEFAULT_FLIGHTS`] plans (1,344
+/// channels), each by the base station's term alone and within twice the
+/// uncertainty the default states for it:
+/// - plan 95, mag_5_uc: 0.0068 → 0.0202 nT against a stated 0.0146 nT.
+///   The term lowers the held-out RMS of each of the flight's sensors by
+///   26–35 % and helps two of them on the survey (mag_6_uc 0.0210 →
+///   0.0103 nT); on mag_5_uc it moves the level per heading on four
+///   lines without a tie, two triples of neighbours that have no scatter
+///   to judge a level by.
+/// - plan 272, mag_2_uc: 0.0088 → 0.0208 nT against a stated 0.0180 nT,
+///   warned. At 36 crossovers of 20 lines the levels spread 0.0340 nT
+///   plain and 0.0393 nT with the term (standard error 0.0027 nT): within
+///   the 0.005 nT tolerance and half a standard error the levelling
+///   allows. A tolerance that held it back would also hold back the term
+///   on channels it helped (plan 144: 0.0348 → 0.0223 and 0.0265 →
+///   0.0107 nT, their levels spread 0.003 nT more).
+///
+/// Another harmed channel fails the test.
+const KNOWN_HARMED: [(u64, &str); 2] = [(95, "mag_5_uc"), (272, "mag_2_uc")];
 
 fn flights() -> u64 {
     std::env::var("MAGCOMP_SAFETY_FLIGHTS")
@@ -285,9 +299,13 @@ fn keep_flight(
 }
 
 // Channels harmed (default worse than plain by more than 10 % + 0.01 nT)
-// over the first [`STRICT_FLIGHTS`] plans: none, the aim; over the first
-// [`DEFAULT_FLIGHTS`], the one of [`KNOWN_HARMED`] (427 channels; all 300
-// plans: 4 of 1,344, 3 of them warned of). 80 % of the
+// over the first [`STRICT_FLIGHTS`] plans: none, the aim; over all
+// [`DEFAULT_FLIGHTS`], the two of [`KNOWN_HARMED`] (1,344 channels). Before
+// lags whatever the survey check, and couplings where none could be made,
+// were weighed against what they explain on the box
+// (`pipeline::diagnosis::unchecked_moves`): 4, plan 267's lag (0.0205 →
+// 0.0919 nT) and plan 135's coupling (0.0593 → 0.1070 nT) besides those
+// two; the rule changes no other channel of the 300. 80 % of the
 // plans fly 1–4 tie lines, and the evidence rule levels the lines at
 // their crossovers. Over all 300 plans (1,344 channels): 28 harmed before
 // the ties, 22 with them, 16 with the levelling at its first setting (8
@@ -305,7 +323,7 @@ fn keep_flight(
 // sensor lag: 0.021 → 0.038 nT, warned; a lag moves the geology along the
 // line, which the lines' levels do not show).
 
-// No channel of the first [`DEFAULT_FLIGHTS`] plans may be harmed with
+// No channel of the [`DEFAULT_FLIGHTS`] plans may be harmed with
 // nothing said: no warning naming the channel and an error beyond twice
 // the uncertainty it states (the sigma's coverage: 91.5 % of survey
 // samples within 2σ, `tests/uncertainty.rs`). Right, or loudly uncertain.
@@ -393,7 +411,7 @@ fn the_default_never_makes_a_clean_channel_worse_than_plain() {
             .collect();
         assert!(
             unknown.is_empty(),
-            "harmed beyond the one known on the first {DEFAULT_FLIGHTS} plans: {unknown:#?}"
+            "harmed beyond the two known on the {DEFAULT_FLIGHTS} plans: {unknown:#?}"
         );
         assert!(silent.is_empty(), "harmed with nothing said: {silent:#?}");
     }
@@ -601,25 +619,17 @@ fn a_move_beyond_the_stated_uncertainty_that_no_survey_line_can_check_is_held_ba
         "the plan as measured"
     );
     let (flight, auto, plain) = default_and_plain(raw);
-    let reason = (auto.result.warnings.iter())
-        .find_map(|w| match w {
-            Warning::FindingsHeldBack {
-                channel,
-                findings,
-                reason: reason @ HeldBack::UncheckedOnSurvey { .. },
-            } if channel == "mag_1_uc" && findings.iter().any(|f| f.starts_with("sensor_lag")) => Some(reason.clone()),
-            _ => None,
-        })
-        .unwrap_or_else(|| panic!("mag_1_uc's lag is not held back: {:#?}", auto.result.warnings));
     let HeldBack::UncheckedOnSurvey {
         survey_nt,
         stated_nt,
         explained_nt,
+        levels_checked,
         ..
-    } = reason
+    } = held_unchecked(&auto, ("mag_1_uc", "sensor_lag"))
     else {
         unreachable!()
     };
+    assert!(!levels_checked);
     assert!((survey_nt - 0.102).abs() < 0.01, "{survey_nt}");
     let stated = stated_nt.expect("a stated uncertainty");
     assert!((stated - 0.054).abs() < 0.01, "{stated}");
@@ -637,4 +647,96 @@ fn a_move_beyond_the_stated_uncertainty_that_no_survey_line_can_check_is_held_ba
         "{not_applied}"
     );
     assert_compensated_plain(&flight, (&auto, &plain), (0, "mag_1_uc"));
+}
+
+/// The reason the default's run gives for holding back `channel`'s
+/// findings as a move nothing on the survey checks, one of them `effect`;
+/// panics, listing the warnings, when it gives none.
+fn held_unchecked(auto: &magcomp::pipeline::FlightRun, (channel, effect): (&str, &str)) -> HeldBack {
+    (auto.result.warnings.iter())
+        .find_map(|w| match w {
+            Warning::FindingsHeldBack {
+                channel: held,
+                findings,
+                reason: reason @ HeldBack::UncheckedOnSurvey { .. },
+            } if held == channel && findings.iter().any(|f| f.starts_with(effect)) => Some(reason.clone()),
+            _ => None,
+        })
+        .unwrap_or_else(|| panic!("{channel}'s {effect} is not held back: {:#?}", auto.result.warnings))
+}
+
+/// Plan 267 (four sensors, 10 Hz, 23 lines flown back and forth, no tie):
+/// the diagnosis finds a lag on the tail sensor (held out 0.0441 → 0.0258
+/// nT at its step), where the simulator has none. Neighbouring lines can
+/// be compared, and their levels pass it: a lag moves the geology along
+/// the lines, which their levels do not show. Applied, it moved the
+/// survey 0.149 nT from plain against a stated uncertainty of 0.105 nT,
+/// and made it 4.5 times worse against truth (0.0205 → 0.0919 nT), on box
+/// evidence of 0.036 nT. It must be held back as a move the survey's
+/// levels cannot check, with its figures.
+#[test]
+fn a_lag_the_line_levels_cannot_check_is_held_back() {
+    let raw = clean_plan(267);
+    assert_eq!(
+        (raw.scalar.len(), raw.survey.line_count, raw.survey.tie_count),
+        (4, 23, 0),
+        "the plan as measured"
+    );
+    let (flight, auto, plain) = default_and_plain(raw);
+    let reason = held_unchecked(&auto, ("mag_1_uc", "sensor_lag"));
+    println!("{reason:?}");
+    let HeldBack::UncheckedOnSurvey {
+        survey_nt,
+        stated_nt,
+        explained_nt,
+        levels_checked,
+        ..
+    } = reason
+    else {
+        unreachable!()
+    };
+    assert!(levels_checked, "the neighbouring lines were compared");
+    assert!((survey_nt - 0.149).abs() < 0.015, "{survey_nt}");
+    let stated = stated_nt.expect("a stated uncertainty");
+    assert!((stated - 0.105).abs() < 0.01, "{stated}");
+    // √(0.0441² − 0.0258²) nT.
+    assert!((explained_nt - 0.0358).abs() < 0.003, "{explained_nt}");
+    assert_compensated_plain(&flight, (&auto, &plain), (0, "mag_1_uc"));
+}
+
+/// Plan 135 (six sensors, 5 Hz, two lines, no tie): the diagnosis finds a
+/// coupling of a cabin sensor to the aileron servo's current (held out
+/// 0.0530 → 0.0315 nT at its step), which the simulator couples to
+/// nothing. With nothing on the survey to check it, it moved the survey
+/// 0.079 nT from plain against a stated uncertainty of 0.0435 nT, and
+/// made it worse against truth (0.059 → 0.107 nT), on box evidence of
+/// 0.0426 nT. It must be held back, with its figures.
+#[test]
+fn a_coupling_nothing_on_the_survey_checks_is_held_back() {
+    let raw = clean_plan(135);
+    assert_eq!(
+        (raw.scalar.len(), raw.survey.line_count, raw.survey.tie_count),
+        (6, 2, 0),
+        "the plan as measured"
+    );
+    let (flight, auto, plain) = default_and_plain(raw);
+    let reason = held_unchecked(&auto, ("mag_2_uc", "aux_coupling"));
+    println!("{reason:?}");
+    let HeldBack::UncheckedOnSurvey {
+        survey_nt,
+        stated_nt,
+        explained_nt,
+        levels_checked,
+        ..
+    } = reason
+    else {
+        unreachable!()
+    };
+    assert!(!levels_checked, "nothing on the survey could be compared");
+    assert!((survey_nt - 0.079).abs() < 0.008, "{survey_nt}");
+    let stated = stated_nt.expect("a stated uncertainty");
+    assert!((stated - 0.0435).abs() < 0.004, "{stated}");
+    // √(0.0530² − 0.0315²) nT.
+    assert!((explained_nt - 0.0426).abs() < 0.003, "{explained_nt}");
+    assert_compensated_plain(&flight, (&auto, &plain), (1, "mag_2_uc"));
 }

@@ -122,6 +122,11 @@ pub enum HeldBack {
         explained_nt: f64,
         /// Departures below this always pass, nT.
         floor_nt: f64,
+        /// Whether the survey's line levels were compared (at crossovers
+        /// or between neighbouring lines): they do not show a lag's move
+        /// of the geology along the lines. Otherwise nothing on the
+        /// survey could be compared.
+        levels_checked: bool,
     },
 }
 
@@ -152,12 +157,17 @@ impl fmt::Display for HeldBack {
                 stated_nt,
                 explained_nt,
                 floor_nt,
+                levels_checked,
             } => write!(
                 f,
-                "on the survey it would move the compensation by {survey_nt:.4} nT RMS, beyond {}, while on the box it explains only {explained_nt:.4} nT of the held-out RMS, within it; and the survey has nothing to check that move against (no crossovers with a base station to level at, no block of parallel lines flown both ways)",
+                "on the survey it would move the compensation by {survey_nt:.4} nT RMS, beyond {}, while on the box it explains only {explained_nt:.4} nT of the held-out RMS, within it; and {}",
                 match stated_nt {
                     Some(stated) if *stated >= *floor_nt => format!("the uncertainty the channel states outside the calibration ({stated:.4} nT)"),
                     _ => format!("{floor_nt} nT"),
+                },
+                match levels_checked {
+                    true => "the survey's line levels cannot check that move (a lag moves the geology along the lines, which their levels do not show)",
+                    false => "the survey has nothing to check that move against (no crossovers with a base station to level at, no block of parallel lines flown both ways)",
                 }
             ),
         }
@@ -2341,15 +2351,14 @@ mod tests {
 
     #[test]
     fn a_move_nothing_on_the_survey_checks_names_the_stated_uncertainty_or_the_floor() {
-        let said = |stated_nt| {
-            HeldBack::UncheckedOnSurvey {
-                survey_nt: 0.1022,
-                stated_nt,
-                explained_nt: 0.0259,
-                floor_nt: 0.01,
-            }
-            .to_string()
+        let reason = |stated_nt, levels_checked| HeldBack::UncheckedOnSurvey {
+            survey_nt: 0.1022,
+            stated_nt,
+            explained_nt: 0.0259,
+            floor_nt: 0.01,
+            levels_checked,
         };
+        let said = |stated_nt| reason(stated_nt, false).to_string();
         let head = "on the survey it would move the compensation by 0.1022 nT RMS, beyond";
         let tail = "while on the box it explains only 0.0259 nT of the held-out RMS, within it; and the survey has nothing to check that move against (no crossovers with a base station to level at, no block of parallel lines flown both ways)";
         assert_eq!(
@@ -2358,6 +2367,10 @@ mod tests {
         );
         assert_eq!(said(Some(0.004)), format!("{head} 0.01 nT, {tail}"));
         assert_eq!(said(None), said(Some(0.004)));
+        assert_eq!(
+            reason(Some(0.0545), true).to_string(),
+            format!("{head} the uncertainty the channel states outside the calibration (0.0545 nT), while on the box it explains only 0.0259 nT of the held-out RMS, within it; and the survey's line levels cannot check that move (a lag moves the geology along the lines, which their levels do not show)")
+        );
     }
 
     #[test]

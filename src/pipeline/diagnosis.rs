@@ -196,16 +196,14 @@ pub(super) fn evidence_rule(
     // whether the survey gains).
     let (check, worse) = survey_checks(&compensations, &plan)?;
     hold_back((&mut plan, &mut applied), diagnosis, (options, warnings), worse, true);
-    if check == SurveyCheck::NotMade {
-        let unsupported = unchecked_moves(&compensations, &plan, (&applied, &diagnosis.findings))?;
-        hold_back(
-            (&mut plan, &mut applied),
-            diagnosis,
-            (options, warnings),
-            unsupported,
-            false,
-        );
-    }
+    let unsupported = unchecked_moves(&compensations, &plan, (&applied, &diagnosis.findings), check)?;
+    hold_back(
+        (&mut plan, &mut applied),
+        diagnosis,
+        (options, warnings),
+        unsupported,
+        false,
+    );
     let unchecked: Vec<String> = (plan.iter())
         .filter(|(_, model)| **model != tolles_lawson_of(model))
         .map(|(channel, _)| channel.clone())
@@ -221,23 +219,13 @@ pub(super) fn evidence_rule(
     Ok((plan, applied))
 }
 
-/// The channels of `plan` with a sensor lag whose findings, on a survey
-/// nothing can check them against, move the compensation by more than the
+/// The channels of `plan` whose findings move the survey in a way its
+/// own checks cannot judge ([`unchecked_kinds`]), by more than the
 /// uncertainty the channel states with them (`departures`: each channel's
-/// move, RMS from plain Tolles-Lawson) on evidence within it: what the
-/// lag explains of the held-out RMS on the box (its finding among
-/// `findings`), √(before² − after²), is no larger than that uncertainty.
-/// Returns why each is held back.
-///
-/// A lag alone: the other findings change only the interference
-/// predicted, and the departure check bounds how far beyond the box they
-/// act by what they do over it. A lag reads the record itself earlier, so
-/// it moves the survey's geology by τ times its rate, and the box's record
-/// moves with it: only the survey can show whether the geology was late.
-/// On clean plans 300–449 and 580–759 one second-order term helped a cabin
-/// sensor from 0.98 to 0.30 nT on a survey with nothing to check it,
-/// moving it 4.8 nT against a stated 0.053 nT: judged by this rule it
-/// would have been lost.
+/// move, RMS from plain Tolles-Lawson) on evidence within it: what those
+/// findings explain of the held-out RMS on the box (theirs among
+/// `findings`), √(Σ before² − after²), is no larger than that
+/// uncertainty. Returns why each is held back.
 ///
 /// A clean simulated flight (plan 733 of the default's safety campaign:
 /// four sensors, 50 Hz, two survey lines, no tie) showed why: a sensor lag
@@ -254,33 +242,35 @@ fn unchecked_moves(
     compensations: &crate::diagnose::evidence::Compensations,
     plan: &BTreeMap<String, Extensions>,
     (departures, findings): (&BTreeMap<String, f64>, &[crate::diagnose::Finding]),
+    check: crate::diagnose::evidence::SurveyCheck,
 ) -> Result<Vec<(String, HeldBack)>> {
     use rayon::prelude::*;
-    let moved: Vec<(&String, &Extensions, f64)> = (plan.iter())
-        .filter(|(_, model)| model.lag_s != 0.0)
-        .filter_map(|(channel, model)| Some((channel, model, *departures.get(channel)?)))
-        .filter(|(_, _, departure)| crate::quality::departs_beyond_stated(*departure, None))
+    let moved: Vec<(&String, &Extensions, f64, Vec<EffectKind>)> = (plan.iter())
+        .filter_map(|(channel, model)| {
+            let kinds = unchecked_kinds(model, check);
+            let departure = *departures.get(channel)?;
+            (!kinds.is_empty() && crate::quality::departs_beyond_stated(departure, None))
+                .then_some((channel, model, departure, kinds))
+        })
         .collect();
     let judged: Vec<Option<(String, HeldBack)>> = moved
         .par_iter()
-        .map(|(channel, model, departure)| {
+        .map(|(channel, model, departure, kinds)| {
             let stated = compensations.stated_nt(channel, model)?;
-            // What the lag itself explains of the held-out RMS, at the
+            // What those findings explain of the held-out RMS, each at the
             // step the search accepted it (the channel's figures would
             // count a base station's gain, which holding back keeps).
             let explained = (findings.iter())
-                .find(|f| f.channel == **channel && f.effect.kind() == EffectKind::SensorLag)
-                .map(|f| {
-                    (f.heldout_rms_before_nt.powi(2) - f.heldout_rms_after_nt.powi(2))
-                        .max(0.0)
-                        .sqrt()
-                })
-                .unwrap_or(0.0);
+                .filter(|f| f.channel == **channel && f.not_applied.is_none() && kinds.contains(&f.effect.kind()))
+                .map(|f| (f.heldout_rms_before_nt.powi(2) - f.heldout_rms_after_nt.powi(2)).max(0.0))
+                .sum::<f64>()
+                .sqrt();
             let reason = HeldBack::UncheckedOnSurvey {
                 survey_nt: *departure,
                 stated_nt: stated,
                 explained_nt: explained,
                 floor_nt: crate::quality::DEPARTURE_FLOOR_NT,
+                levels_checked: check != crate::diagnose::evidence::SurveyCheck::NotMade,
             };
             // Beyond the stated uncertainty on the survey, on evidence
             // within it on the box.
@@ -290,6 +280,41 @@ fn unchecked_moves(
         })
         .collect::<Result<_>>()?;
     Ok(judged.into_iter().flatten().collect())
+}
+
+/// The kinds of `model`'s findings whose move on the survey the survey's
+/// own `check` cannot judge, and which [`unchecked_moves`] weighs against
+/// what they explain on the box:
+/// - a sensor lag, whatever the check: it reads the record itself
+///   earlier, so it moves the survey's geology along the lines by τ times
+///   its rate, and the box's record moves with it. The lines' levels, at
+///   crossovers or between neighbours, show only the part a regional
+///   gradient turns into a level. On clean plan 267 (23 lines flown back
+///   and forth, no tie) a lag of the tail sensor passed the neighbouring
+///   lines and took the survey from 0.021 to 0.092 nT against truth;
+/// - a coupling to a recorded channel, where no check could be made: it
+///   adds the source's survey record times its coefficient, which
+///   nothing but the survey's levels can test. On clean plan 135 (two
+///   lines, no tie) a coupling to the aileron servo's current, which the
+///   simulator couples to nothing, took a cabin sensor from 0.059 to
+///   0.107 nT.
+///
+/// The other findings change only the interference predicted, and the
+/// departure check bounds how far beyond the box they act by what they do
+/// over it. On clean plans 300–449 and 580–759 one second-order term
+/// helped a cabin sensor from 0.98 to 0.30 nT on a survey with nothing to
+/// check it, moving it 4.8 nT against a stated 0.053 nT: judged by this
+/// rule it would have been lost.
+fn unchecked_kinds(model: &Extensions, check: crate::diagnose::evidence::SurveyCheck) -> Vec<EffectKind> {
+    let mut kinds = Vec::new();
+    if model.lag_s != 0.0 {
+        kinds.push(EffectKind::SensorLag);
+    }
+    let coupled = (model.sources.iter()).any(|s| !matches!(s, crate::model::SourceTerm::ExternalField { .. }));
+    if coupled && check == crate::diagnose::evidence::SurveyCheck::NotMade {
+        kinds.push(EffectKind::AuxCoupling);
+    }
+    kinds
 }
 
 /// [`hold_back_one`] for each channel of `held`, with its reason.
