@@ -6,7 +6,7 @@ use std::path::Path;
 
 use magcomp::formats::mcap::messages::{descriptor_set, timestamp, Attitude, Sample, ScalarMag, VectorMag};
 use magcomp::formats::{read_flight_log, IngestOptions};
-use magcomp::messages::{Reading, Warning};
+use magcomp::messages::{ReadNote, Reading, Warning};
 use prost::Message;
 
 /// Which encoding and layout a test file uses.
@@ -286,9 +286,8 @@ fn every_layout_and_encoding_reads_to_the_same_log() {
     let reference = folder.path().join("reference.mcap");
     write_file(&reference, INDEXED);
     let expected = read_flight_log(&reference, &IngestOptions::default()).unwrap();
-    let scanned = |log: &magcomp::ingest::flight_log::FlightLog| {
-        log.alignment().unwrap().notes.iter().any(|n| n.contains("linear scan"))
-    };
+    let scanned =
+        |log: &magcomp::ingest::flight_log::FlightLog| log.alignment().unwrap().notes.iter().any(|n| n.scanned());
     assert!(!scanned(&expected), "an indexed file is read through its chunk index");
     let layouts = [
         (
@@ -659,9 +658,10 @@ fn a_chunk_index_that_lost_an_entry_is_not_trusted() {
     assert_same_log(&whole, &log, "lost index entry");
     let notes = &log.alignment().unwrap().notes;
     assert!(
-        notes
-            .iter()
-            .any(|n| n.contains(&format!("lists {} of the {chunks} chunks", chunks - 1))),
+        notes.contains(&ReadNote::ChunkIndexIncomplete {
+            listed: chunks - 1,
+            chunks
+        }),
         "{notes:?}"
     );
 }
@@ -726,9 +726,11 @@ fn a_topic_on_two_channel_records_is_read_whole() {
     assert_same_log(&whole, &log, "restarted");
     let notes = &log.alignment().unwrap().notes;
     assert!(
-        notes.iter().any(
-            |n| n.contains("/mag/1/scalar:total_nt is recorded on 2 channel records") && n.contains("300 messages")
-        ),
+        notes.contains(&ReadNote::TopicJoined {
+            source: "/mag/1/scalar:total_nt".into(),
+            parts: 2,
+            messages: 300
+        }),
         "{notes:?}"
     );
 }

@@ -121,7 +121,7 @@ pub struct FinishedFlight {
     /// Its index in the pipeline's flights.
     pub index: usize,
     /// What preparing its outputs noted (folders created).
-    pub notes: Vec<String>,
+    pub notes: Vec<crate::messages::Setup>,
     /// How it ended; an error is a status that could not be written.
     pub flight: Result<CampaignFlight>,
 }
@@ -219,7 +219,7 @@ pub fn run_flights(
     pipeline: &Pipeline,
     order: &[usize],
     (shard, force, at_once): (Shard, bool, usize),
-    prepare: &(dyn Fn(&FlightJob, &FlightOutputs) -> Vec<String> + Sync),
+    prepare: &(dyn Fn(&FlightJob, &FlightOutputs) -> Vec<crate::messages::Setup> + Sync),
     started: &(dyn Fn(&FlightJob, Progress) -> Box<dyn Meter> + Sync),
     finished: &(dyn Fn(&FinishedFlight, Progress) + Sync),
 ) -> Vec<FinishedFlight> {

@@ -63,7 +63,7 @@ pub fn beside(path: &Path, suffix: &str) -> PathBuf {
 }
 
 /// Prints each note on its own indented line.
-pub fn print_notes(notes: &[String]) {
+pub fn print_notes(notes: &[impl std::fmt::Display]) {
     for note in notes {
         println!("  note: {note}");
     }
@@ -92,7 +92,10 @@ pub fn spinner(message: String) -> ProgressBar {
 }
 
 /// Makes the folders of a flight's outputs; what it made, as notes.
-pub fn prepare_flight_outputs(job: &FlightJob, outputs: &FlightOutputs) -> magcomp::error::Result<Vec<String>> {
+pub fn prepare_flight_outputs(
+    job: &FlightJob,
+    outputs: &FlightOutputs,
+) -> magcomp::error::Result<Vec<magcomp::messages::Setup>> {
     let inputs: Vec<&Path> = std::iter::once(job.input.as_path())
         .chain(job.diagnosis.as_deref())
         .chain(job.plan.as_deref())

@@ -15,6 +15,7 @@ use std::path::Path;
 
 use super::FlightJob;
 use crate::error::{Error, Result};
+use crate::messages::Setup;
 
 /// Aircraft compared as [`crate::pipeline::apply`] compares them: without
 /// case or surrounding spaces.
@@ -54,22 +55,23 @@ fn notes_on_the_rest(
     flights: &[FlightJob],
     flown_before_any: &[usize],
     uncalibrated: &BTreeMap<String, Vec<usize>>,
-) -> Vec<String> {
+) -> Vec<Setup> {
     let mut notes = Vec::new();
     for &index in flown_before_any {
-        notes.push(format!(
-            "{} was flown before any calibration flight of its aircraft: it is compensated with the first one's model",
-            flights[index].input.display()
-        ));
+        notes.push(Setup::FlownBeforeCalibration {
+            flight: flights[index].input.clone(),
+        });
     }
     for indices in uncalibrated.values() {
-        let names: Vec<&str> = indices.iter().map(|&i| flights[i].output_name.as_str()).collect();
-        notes.push(format!(
-            "aircraft '{}' has no calibration flight in this campaign (calibration = true): its {} flight(s) are fitted on their own boxes: {}",
-            flights[indices[0]].aircraft.as_deref().unwrap_or_default().trim(),
-            indices.len(),
-            listed(&names)
-        ));
+        notes.push(Setup::NoCalibrationFlight {
+            aircraft: flights[indices[0]]
+                .aircraft
+                .as_deref()
+                .unwrap_or_default()
+                .trim()
+                .to_string(),
+            flights: indices.iter().map(|&i| flights[i].output_name.clone()).collect(),
+        });
     }
     notes
 }
@@ -82,7 +84,7 @@ pub(super) fn assign_calibrations(
     flights: &mut [FlightJob],
     output_directory: &Path,
     source_name: &str,
-) -> Result<Vec<String>> {
+) -> Result<Vec<Setup>> {
     let bad = |message: String| Error::Config {
         source_name: source_name.into(),
         message,
@@ -126,15 +128,17 @@ pub(super) fn assign_calibrations(
                 before_any: flown_before_any.contains(&user),
             });
         }
-        let names: Vec<&str> = users.iter().map(|&u| flights[u].output_name.as_str()).collect();
-        notes.push(format!(
-            "aircraft '{}': {} flight(s) compensated with the model of its calibration flight {} ({}): {}",
-            flights[*calibration].aircraft.as_deref().unwrap_or_default().trim(),
-            users.len(),
-            flights[*calibration].input.display(),
-            model.display(),
-            listed(&names)
-        ));
+        notes.push(Setup::CompensatedWithCalibration {
+            aircraft: flights[*calibration]
+                .aircraft
+                .as_deref()
+                .unwrap_or_default()
+                .trim()
+                .to_string(),
+            calibration: flights[*calibration].input.clone(),
+            model: model.clone(),
+            flights: users.iter().map(|&u| flights[u].output_name.clone()).collect(),
+        });
     }
     notes.extend(notes_on_the_rest(flights, &flown_before_any, &uncalibrated));
     Ok(notes)
@@ -185,16 +189,6 @@ fn choose(
         ));
     }
     Ok((chosen.1, before_any))
-}
-
-/// Names for a note: all of them up to eight, else the first eight and a
-/// count.
-fn listed(names: &[&str]) -> String {
-    const SHOWN: usize = 8;
-    match names.len() {
-        0..=SHOWN => names.join(", "),
-        n => format!("{} and {} more", names[..SHOWN].join(", "), n - SHOWN),
-    }
 }
 
 #[cfg(test)]
@@ -254,18 +248,25 @@ mod tests {
         assert_eq!(models(&flights), expected);
         assert_eq!(notes.len(), 5, "{notes:?}");
         assert!(
-            notes[0].contains("aircraft 'C-GMAG': 2 flight(s)") && notes[0].contains("s1, s3"),
-            "{notes:?}"
-        );
-        assert!(notes[1].contains("aircraft 'c-gmag': 1 flight(s)"), "{notes:?}");
-        assert!(
-            notes[3].contains("s3.csv was flown before any calibration flight"),
+            matches!(&notes[0], Setup::CompensatedWithCalibration { aircraft, flights, .. }
+                if aircraft == "C-GMAG" && flights.len() == 2 && flights.join(", ").contains("s1, s3")),
             "{notes:?}"
         );
         assert!(
-            notes[4].contains("aircraft 'C-OTHR' has no calibration flight in this campaign")
-                && notes[4].ends_with(": s6"),
+            matches!(&notes[1], Setup::CompensatedWithCalibration { aircraft, flights, .. }
+                if aircraft == "c-gmag" && flights.len() == 1),
             "{notes:?}"
+        );
+        assert!(
+            matches!(&notes[3], Setup::FlownBeforeCalibration { flight } if flight.ends_with("s3.csv")),
+            "{notes:?}"
+        );
+        assert_eq!(
+            notes[4],
+            Setup::NoCalibrationFlight {
+                aircraft: "C-OTHR".into(),
+                flights: vec!["s6".into()]
+            }
         );
         // Each flight given a model says why, in its own files.
         let said = |k: usize| flights[k].assigned_model.as_ref().map(|note| note.to_string());

@@ -166,7 +166,7 @@ pub(crate) fn campaign_flights(
     explicit: &[RawFlight],
     (base, output_directory): (&Path, &Path),
     source_name: &str,
-) -> Result<(Vec<RawFlight>, Vec<String>)> {
+) -> Result<(Vec<RawFlight>, Vec<crate::messages::Setup>)> {
     // A pattern such as "**/*.csv" also matches the compensated files of
     // earlier runs when the output folder lies below; they are outputs,
     // not flights.
@@ -201,10 +201,11 @@ pub(crate) fn campaign_flights(
             }
         }
         if left_out > 0 {
-            notes.push(format!(
-                "[campaign] inputs: {pattern:?} matches {left_out} file(s) in the output folder {}; they are outputs of earlier runs, not flights, and are left out",
-                output_directory.display()
-            ));
+            notes.push(crate::messages::Setup::InputsInOutputFolder {
+                pattern: pattern.clone(),
+                files: left_out,
+                folder: output_directory.to_path_buf(),
+            });
         }
     }
     Ok((flights, notes))
@@ -560,9 +561,13 @@ mod tests {
         let (flights, notes) =
             campaign_flights(&campaign, &[own], (folder.path(), Path::new("f/out")), "p.toml").unwrap();
         assert_eq!(notes.len(), 1, "{notes:?}");
-        assert!(
-            notes[0].contains("\"f/**/*.csv\" matches 1 file(s) in the output folder"),
-            "{notes:?}"
+        assert_eq!(
+            notes[0],
+            crate::messages::Setup::InputsInOutputFolder {
+                pattern: "f/**/*.csv".into(),
+                files: 1,
+                folder: "f/out".into()
+            }
         );
         let names: Vec<String> = flights
             .iter()

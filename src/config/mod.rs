@@ -519,7 +519,7 @@ pub struct Pipeline {
     /// Flights to process.
     pub flights: Vec<FlightJob>,
     /// What reading the campaign left out, and why, for the user.
-    pub notes: Vec<String>,
+    pub notes: Vec<crate::messages::Setup>,
 }
 
 /// The validated settings of a run, shared by every flight: each stage

@@ -27,6 +27,7 @@ use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 
 use crate::error::{Error, Result};
+use crate::messages::Setup;
 
 /// What an output holds, which decides the extensions it may have.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -98,8 +99,8 @@ fn refuse(path: &Path, problem: impl Into<String>, hint: impl Into<String>) -> E
 
 /// Checks every destination of a command against its `inputs` and each
 /// other, before any work is done; creates missing folders. Returns a
-/// sentence for each folder created, for the user.
-pub fn prepare(inputs: &[&Path], outputs: &[Destination]) -> Result<Vec<String>> {
+/// note for each folder created, for the user.
+pub fn prepare(inputs: &[&Path], outputs: &[Destination]) -> Result<Vec<Setup>> {
     // A missing input stops the command before any folder is made.
     for input in inputs {
         std::fs::metadata(input).map_err(|e| Error::io(input, "opening", e))?;
@@ -251,7 +252,7 @@ pub fn folder_of(path: &Path) -> PathBuf {
         .to_path_buf()
 }
 
-fn create_folder(folder: &Path, output: &Destination) -> Result<Option<String>> {
+fn create_folder(folder: &Path, output: &Destination) -> Result<Option<Setup>> {
     match std::fs::metadata(folder) {
         Ok(metadata) if metadata.is_dir() => Ok(None),
         Ok(_) => Err(refuse(
@@ -261,11 +262,10 @@ fn create_folder(folder: &Path, output: &Destination) -> Result<Option<String>> 
         )),
         Err(_) => {
             std::fs::create_dir_all(folder).map_err(|e| Error::io(folder, "creating the output folder", e))?;
-            Ok(Some(format!(
-                "created the folder {} for {}",
-                folder.display(),
-                output.named_by
-            )))
+            Ok(Some(Setup::FolderCreated {
+                folder: folder.to_path_buf(),
+                named_by: output.named_by.clone(),
+            }))
         }
     }
 }
@@ -580,8 +580,13 @@ mod tests {
         let folder = tempfile::tempdir().unwrap();
         let path = folder.path().join("new").join("out.csv");
         let notes = prepare(&[], &[flight(&path)]).unwrap();
-        assert_eq!(notes.len(), 1);
-        assert!(notes[0].contains("created the folder"), "{notes:?}");
+        assert_eq!(
+            notes,
+            [Setup::FolderCreated {
+                folder: folder.path().join("new"),
+                named_by: "--out".into()
+            }]
+        );
         assert!(folder.path().join("new").is_dir());
     }
 

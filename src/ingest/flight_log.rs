@@ -474,7 +474,7 @@ pub struct AlignmentReport {
     /// Every channel, in output order.
     pub channels: Vec<ResampledChannel>,
     /// Remarks from reading: topics skipped and why, how the file was read.
-    pub notes: Vec<String>,
+    pub notes: Vec<crate::messages::ReadNote>,
     /// What was lost or left missing while reading and aligning: a file
     /// cut short, damaged chunks, messages that failed to decode, repeated
     /// or disagreeing timestamps. Printed and shown in the report.

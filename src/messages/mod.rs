@@ -21,7 +21,10 @@
 //! detection found, the flight against its plan); it is printed with `-v`
 //! and kept in the quality JSON and the report, and typed the same way
 //! (the diagnosis's in [`diagnosis::Diagnosing`], a vector model's
-//! figures in [`vector::VectorSummary`]).
+//! figures in [`vector::VectorSummary`], how an MCAP file was read in
+//! [`reading::ReadNote`]). Before any flight is processed, a run's setup
+//! (the output folders it made, what reading a campaign decided about its
+//! flights) says what it did in [`setup::Setup`].
 //!
 //! While a flight is processed it also says how far it has got: a
 //! [`progress::Meter`] hears each stage begin and each step of it done.
@@ -33,9 +36,11 @@ use serde::{Serialize, Serializer};
 pub mod diagnosis;
 pub mod progress;
 pub mod reading;
+pub mod setup;
 pub mod vector;
 pub use diagnosis::Diagnosing;
-pub use reading::Reading;
+pub use reading::{ReadNote, Reading};
+pub use setup::Setup;
 pub use vector::VectorSummary;
 
 /// Why a channel's diagnosed findings are held back by the evidence rule.

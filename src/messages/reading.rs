@@ -388,6 +388,74 @@ fn write_cut_short(
     }
 }
 
+/// A note of reading an MCAP file: how it was read, and what it holds
+/// that magcomp has no use for. Kept in the alignment's record and
+/// printed by `convert`; serialised as its sentence.
+#[derive(Debug, Clone, PartialEq)]
+pub enum ReadNote {
+    /// The summary's chunk index misses chunks the data section holds.
+    ChunkIndexIncomplete {
+        /// Chunks the index lists.
+        listed: usize,
+        /// Chunks in the data section.
+        chunks: usize,
+    },
+    /// The file has no chunk index magcomp could use.
+    NoChunkIndex,
+    /// A topic holding no numbers magcomp reads, skipped.
+    TopicSkipped {
+        /// The topic.
+        topic: String,
+        /// Why.
+        why: String,
+    },
+    /// A topic recorded on several channel records, read together.
+    TopicJoined {
+        /// The stream (topic and field).
+        source: String,
+        /// Channel records it is on.
+        parts: usize,
+        /// Its messages in all.
+        messages: usize,
+    },
+}
+
+impl fmt::Display for ReadNote {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            ReadNote::ChunkIndexIncomplete { listed, chunks } => write!(
+                f,
+                "the summary's chunk index lists {listed} of the {chunks} chunks in the data section; the file was read by a linear scan, which reads them all"
+            ),
+            ReadNote::NoChunkIndex => f.write_str("the file has no usable chunk index; it was read by a linear scan"),
+            ReadNote::TopicSkipped { topic, why } => write!(f, "topic '{topic}' skipped: {why}"),
+            ReadNote::TopicJoined {
+                source,
+                parts,
+                messages,
+            } => write!(
+                f,
+                "{source} is recorded on {parts} channel records (a logger that restarted, or two writers); their {messages} messages are read together, in time order"
+            ),
+        }
+    }
+}
+
+impl ReadNote {
+    /// Whether the file was read by a linear scan rather than through its
+    /// chunk index.
+    pub fn scanned(&self) -> bool {
+        matches!(self, ReadNote::ChunkIndexIncomplete { .. } | ReadNote::NoChunkIndex)
+    }
+}
+
+impl serde::Serialize for ReadNote {
+    /// As its sentence, as the record has always kept it.
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        serializer.collect_str(self)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

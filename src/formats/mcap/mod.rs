@@ -43,7 +43,7 @@ use super::{IngestOptions, TopicMapping};
 use crate::error::{Error, Result};
 use crate::ingest::flight_date::FlightDate;
 use crate::ingest::flight_log::{AttitudeAngle, Channel, ChannelRole, FlightLog, VectorAxis};
-use crate::messages::{Reading, Warning};
+use crate::messages::{ReadNote, Reading, Warning};
 use messages::MessageLayout;
 
 /// Metadata key on a `/gps/fix` channel naming the height column.
@@ -157,7 +157,7 @@ pub fn read_mcap(path: &Path, options: &IngestOptions) -> Result<FlightLog> {
 type FileContents = (
     BTreeMap<u16, TopicPlan>,
     BTreeMap<u16, Decoded>,
-    Vec<String>,
+    Vec<ReadNote>,
     Vec<Warning>,
     Option<records::CutShort>,
 );
@@ -604,7 +604,7 @@ fn build_log(
 /// Each topic skipped: a loss when numbers it may hold are lost with it
 /// (an encoding or schema magcomp cannot decode), a note when it holds
 /// none magcomp reads.
-fn skipped_topics(plans: &BTreeMap<u16, TopicPlan>, (notes, losses): (&mut Vec<String>, &mut Vec<Warning>)) {
+fn skipped_topics(plans: &BTreeMap<u16, TopicPlan>, (notes, losses): (&mut Vec<ReadNote>, &mut Vec<Warning>)) {
     for plan in plans.values() {
         match &plan.decoder {
             Decoder::Skip { why, lost: true } => losses.push(
@@ -614,7 +614,10 @@ fn skipped_topics(plans: &BTreeMap<u16, TopicPlan>, (notes, losses): (&mut Vec<S
                 }
                 .into(),
             ),
-            Decoder::Skip { why, lost: false } => notes.push(format!("topic '{}' skipped: {why}", plan.topic)),
+            Decoder::Skip { why, lost: false } => notes.push(ReadNote::TopicSkipped {
+                topic: plan.topic.clone(),
+                why: why.clone(),
+            }),
             _ => {}
         }
     }
@@ -626,7 +629,7 @@ fn decoded_streams(
     path: &Path,
     options: &IngestOptions,
     (plans, decoded): (&BTreeMap<u16, TopicPlan>, BTreeMap<u16, Decoded>),
-    (notes, losses): (&mut Vec<String>, &mut Vec<Warning>),
+    (notes, losses): (&mut Vec<ReadNote>, &mut Vec<Warning>),
 ) -> Result<Vec<Stream>> {
     let names = &options.columns;
     let mut attitude_taken = false;
@@ -712,7 +715,7 @@ fn time_base(path: &Path, options: &IngestOptions, streams: &[Stream]) -> Result
 /// series, read together in time order, with a note. Streams of different
 /// sources that would make the same column keep the first source's, and
 /// a line in `losses` names the others.
-fn joined_streams(mut streams: Vec<Stream>, notes: &mut Vec<String>, losses: &mut Vec<Warning>) -> Vec<Stream> {
+fn joined_streams(mut streams: Vec<Stream>, notes: &mut Vec<ReadNote>, losses: &mut Vec<Warning>) -> Vec<Stream> {
     streams.sort_by(|a, b| a.name.cmp(&b.name).then(a.source.cmp(&b.source)));
     let mut joined: Vec<Stream> = Vec::with_capacity(streams.len());
     let mut parts = 1;
@@ -750,9 +753,13 @@ fn joined_streams(mut streams: Vec<Stream>, notes: &mut Vec<String>, losses: &mu
     joined
 }
 
-fn joined_note(stream: Option<&Stream>, parts: usize) -> String {
-    let (source, count) = stream.map_or(("?", 0), |s| (s.source.as_str(), s.times_ns.len()));
-    format!("{source} is recorded on {parts} channel records (a logger that restarted, or two writers); their {count} messages are read together, in time order")
+fn joined_note(stream: Option<&Stream>, parts: usize) -> ReadNote {
+    let (source, messages) = stream.map_or(("?", 0), |s| (s.source.as_str(), s.times_ns.len()));
+    ReadNote::TopicJoined {
+        source: source.to_string(),
+        parts,
+        messages,
+    }
 }
 
 /// What a file cut short lost, with the rows and time span read.

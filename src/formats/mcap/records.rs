@@ -264,7 +264,7 @@ pub struct DataSection<'a> {
     /// Schemas and channels outside chunks (and from the summary).
     pub definitions: Definitions,
     /// How the file was read and what was wrong with it.
-    pub notes: Vec<String>,
+    pub notes: Vec<crate::messages::ReadNote>,
     /// Where the file was cut short, when it was.
     pub cut_short: Option<CutShort>,
 }
@@ -308,14 +308,11 @@ pub fn data_section(bytes: &[u8]) -> Result<DataSection<'_>, String> {
     // chunk's rows without a word.
     match index {
         Some(section) if !truncated && section.chunks.len() == chunks.len() => return Ok(section),
-        Some(listed) => section.notes.push(format!(
-            "the summary's chunk index lists {} of the {} chunks in the data section; the file was read by a linear scan, which reads them all",
-            listed.chunks.len(),
-            chunks.len()
-        )),
-        None => section
-            .notes
-            .push("the file has no usable chunk index; it was read by a linear scan".into()),
+        Some(listed) => section.notes.push(crate::messages::ReadNote::ChunkIndexIncomplete {
+            listed: listed.chunks.len(),
+            chunks: chunks.len(),
+        }),
+        None => section.notes.push(crate::messages::ReadNote::NoChunkIndex),
     }
     section.chunks = chunks;
     section.messages = messages;
