@@ -1220,7 +1220,13 @@ impl Kernel<'_> {
     fn chunk_rows_of(&self, (groups, p, y): (&[Group], usize, &[[f64; LANES]]), chunk: usize, state: &mut ChunkSums) {
         let weights = chunk * p..(chunk + 1) * p;
         let pair = (&self.leverage_weights[weights.clone()], &self.fitted_weights[weights]);
-        loo_chunk(groups, p, y, pair, self.track_all || chunk == 0, state);
+        // The tracking is a constant of each loop, so that the loop
+        // vectorises: with it a value at run time, the chunk's sums went
+        // through the stack one lane at a time.
+        match self.track_all || chunk == 0 {
+            true => loo_chunk::<true>(groups, p, y, pair, state),
+            false => loo_chunk::<false>(groups, p, y, pair, state),
+        }
     }
 
     #[inline(always)]
@@ -1274,7 +1280,10 @@ fn loo_kernel<const TRACK_ALL: bool>(
     let chunks = leverage_weights.chunks_exact(p).zip(fitted_weights.chunks_exact(p));
     for (chunk, weights) in chunks.enumerate() {
         let mut state = ChunkSums::default();
-        loo_chunk(groups, p, y, weights, TRACK_ALL || chunk == 0, &mut state);
+        match TRACK_ALL || chunk == 0 {
+            true => loo_chunk::<true>(groups, p, y, weights, &mut state),
+            false => loo_chunk::<false>(groups, p, y, weights, &mut state),
+        }
         out.extend(state.totals());
     }
 }
@@ -1296,15 +1305,14 @@ impl ChunkSums {
 
 /// Adds the rows of `groups` and `y` to one chunk's sums in `state`
 /// (its leverage weights and fitted weights), tracking the largest
-/// leverage where `track`. Rows added in pieces give the same bits as
+/// leverage where `TRACK`. Rows added in pieces give the same bits as
 /// rows added at once.
 #[inline(always)]
-fn loo_chunk(
+fn loo_chunk<const TRACK: bool>(
     groups: &[Group],
     p: usize,
     y: &[[f64; LANES]],
     (w_chunk, f_chunk): (&[[f64; CANDIDATES]], &[[f64; CANDIDATES]]),
-    track: bool,
     state: &mut ChunkSums,
 ) {
     let ChunkSums { mut sums, mut worst } = *state;
@@ -1324,7 +1332,7 @@ fn loo_chunk(
                 let h = leverage[c][lane];
                 let e = (target[lane] - fitted[c][lane]) / (1.0 - h);
                 sums[c][lane] = e.mul_add(e, sums[c][lane]);
-                if track {
+                if TRACK {
                     worst[c][lane] = nan_max(worst[c][lane], h);
                 }
             }
