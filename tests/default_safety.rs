@@ -619,23 +619,18 @@ fn a_move_beyond_the_stated_uncertainty_that_no_survey_line_can_check_is_held_ba
         "the plan as measured"
     );
     let (flight, auto, plain) = default_and_plain(raw);
-    let HeldBack::UncheckedOnSurvey {
-        survey_nt,
-        stated_nt,
-        explained_nt,
-        levels_checked,
-        ..
-    } = held_unchecked(&auto, ("mag_1_uc", "sensor_lag"))
-    else {
-        unreachable!()
-    };
-    assert!(!levels_checked);
-    assert!((survey_nt - 0.102).abs() < 0.01, "{survey_nt}");
-    let stated = stated_nt.expect("a stated uncertainty");
-    assert!((stated - 0.054).abs() < 0.01, "{stated}");
-    // On the box the lag explains √(0.0302² − 0.0155²) nT held out, under
-    // the stated uncertainty.
-    assert!((explained_nt - 0.0259).abs() < 0.003, "{explained_nt}");
+    assert_held_unchecked(
+        &auto,
+        ("mag_1_uc", "sensor_lag"),
+        Unchecked {
+            levels_checked: false,
+            survey_nt: (0.102, 0.01),
+            stated_nt: (0.054, 0.01),
+            // On the box the lag explains √(0.0302² − 0.0155²) nT held
+            // out, under the stated uncertainty.
+            explained_nt: (0.0259, 0.003),
+        },
+    );
     // The diagnosis keeps the lag as a candidate with the same reason.
     let diagnosis = auto.result.diagnosis.as_ref().expect("the default diagnoses");
     let lag = (diagnosis.findings.iter())
@@ -649,11 +644,21 @@ fn a_move_beyond_the_stated_uncertainty_that_no_survey_line_can_check_is_held_ba
     assert_compensated_plain(&flight, (&auto, &plain), (0, "mag_1_uc"));
 }
 
-/// The reason the default's run gives for holding back `channel`'s
-/// findings as a move nothing on the survey checks, one of them `effect`;
-/// panics, listing the warnings, when it gives none.
-fn held_unchecked(auto: &magcomp::pipeline::FlightRun, (channel, effect): (&str, &str)) -> HeldBack {
-    (auto.result.warnings.iter())
+/// The figures a move the survey cannot check is held back with, each as
+/// (expected, tolerance), nT.
+struct Unchecked {
+    /// Whether the survey's line levels were compared.
+    levels_checked: bool,
+    survey_nt: (f64, f64),
+    stated_nt: (f64, f64),
+    explained_nt: (f64, f64),
+}
+
+/// Asserts that the default's run holds back `channel`'s findings, one of
+/// them `effect`, as a move the survey cannot check, with the `expected`
+/// figures; panics, listing the warnings, when it gives no such reason.
+fn assert_held_unchecked(auto: &magcomp::pipeline::FlightRun, (channel, effect): (&str, &str), expected: Unchecked) {
+    let reason = (auto.result.warnings.iter())
         .find_map(|w| match w {
             Warning::FindingsHeldBack {
                 channel: held,
@@ -662,7 +667,24 @@ fn held_unchecked(auto: &magcomp::pipeline::FlightRun, (channel, effect): (&str,
             } if held == channel && findings.iter().any(|f| f.starts_with(effect)) => Some(reason.clone()),
             _ => None,
         })
-        .unwrap_or_else(|| panic!("{channel}'s {effect} is not held back: {:#?}", auto.result.warnings))
+        .unwrap_or_else(|| panic!("{channel}'s {effect} is not held back: {:#?}", auto.result.warnings));
+    println!("{reason:?}");
+    let HeldBack::UncheckedOnSurvey {
+        survey_nt,
+        stated_nt,
+        explained_nt,
+        levels_checked,
+        ..
+    } = reason
+    else {
+        unreachable!()
+    };
+    assert_eq!(levels_checked, expected.levels_checked);
+    let near = |value: f64, (want, tolerance): (f64, f64)| (value - want).abs() < tolerance;
+    assert!(near(survey_nt, expected.survey_nt), "survey move {survey_nt}");
+    let stated = stated_nt.expect("a stated uncertainty");
+    assert!(near(stated, expected.stated_nt), "stated {stated}");
+    assert!(near(explained_nt, expected.explained_nt), "explained {explained_nt}");
 }
 
 /// Plan 267 (four sensors, 10 Hz, 23 lines flown back and forth, no tie):
@@ -683,24 +705,18 @@ fn a_lag_the_line_levels_cannot_check_is_held_back() {
         "the plan as measured"
     );
     let (flight, auto, plain) = default_and_plain(raw);
-    let reason = held_unchecked(&auto, ("mag_1_uc", "sensor_lag"));
-    println!("{reason:?}");
-    let HeldBack::UncheckedOnSurvey {
-        survey_nt,
-        stated_nt,
-        explained_nt,
-        levels_checked,
-        ..
-    } = reason
-    else {
-        unreachable!()
-    };
-    assert!(levels_checked, "the neighbouring lines were compared");
-    assert!((survey_nt - 0.149).abs() < 0.015, "{survey_nt}");
-    let stated = stated_nt.expect("a stated uncertainty");
-    assert!((stated - 0.105).abs() < 0.01, "{stated}");
-    // √(0.0441² − 0.0258²) nT.
-    assert!((explained_nt - 0.0358).abs() < 0.003, "{explained_nt}");
+    assert_held_unchecked(
+        &auto,
+        ("mag_1_uc", "sensor_lag"),
+        Unchecked {
+            // The neighbouring lines were compared.
+            levels_checked: true,
+            survey_nt: (0.149, 0.015),
+            stated_nt: (0.105, 0.01),
+            // √(0.0441² − 0.0258²) nT.
+            explained_nt: (0.0358, 0.003),
+        },
+    );
     assert_compensated_plain(&flight, (&auto, &plain), (0, "mag_1_uc"));
 }
 
@@ -720,23 +736,17 @@ fn a_coupling_nothing_on_the_survey_checks_is_held_back() {
         "the plan as measured"
     );
     let (flight, auto, plain) = default_and_plain(raw);
-    let reason = held_unchecked(&auto, ("mag_2_uc", "aux_coupling"));
-    println!("{reason:?}");
-    let HeldBack::UncheckedOnSurvey {
-        survey_nt,
-        stated_nt,
-        explained_nt,
-        levels_checked,
-        ..
-    } = reason
-    else {
-        unreachable!()
-    };
-    assert!(!levels_checked, "nothing on the survey could be compared");
-    assert!((survey_nt - 0.079).abs() < 0.008, "{survey_nt}");
-    let stated = stated_nt.expect("a stated uncertainty");
-    assert!((stated - 0.0435).abs() < 0.004, "{stated}");
-    // √(0.0530² − 0.0315²) nT.
-    assert!((explained_nt - 0.0426).abs() < 0.003, "{explained_nt}");
+    assert_held_unchecked(
+        &auto,
+        ("mag_2_uc", "aux_coupling"),
+        Unchecked {
+            // Nothing on the survey could be compared.
+            levels_checked: false,
+            survey_nt: (0.079, 0.008),
+            stated_nt: (0.0435, 0.004),
+            // √(0.0530² − 0.0315²) nT.
+            explained_nt: (0.0426, 0.003),
+        },
+    );
     assert_compensated_plain(&flight, (&auto, &plain), (1, "mag_2_uc"));
 }

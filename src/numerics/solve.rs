@@ -1220,13 +1220,7 @@ impl Kernel<'_> {
     fn chunk_rows_of(&self, (groups, p, y): (&[Group], usize, &[[f64; LANES]]), chunk: usize, state: &mut ChunkSums) {
         let weights = chunk * p..(chunk + 1) * p;
         let pair = (&self.leverage_weights[weights.clone()], &self.fitted_weights[weights]);
-        // The tracking is a constant of each loop, so that the loop
-        // vectorises: with it a value at run time, the chunk's sums went
-        // through the stack one lane at a time.
-        match self.track_all || chunk == 0 {
-            true => loo_chunk::<true>(groups, p, y, pair, state),
-            false => loo_chunk::<false>(groups, p, y, pair, state),
-        }
+        loo_chunk_tracking(self.track_all || chunk == 0, (groups, p, y), pair, state);
     }
 
     #[inline(always)]
@@ -1280,10 +1274,7 @@ fn loo_kernel<const TRACK_ALL: bool>(
     let chunks = leverage_weights.chunks_exact(p).zip(fitted_weights.chunks_exact(p));
     for (chunk, weights) in chunks.enumerate() {
         let mut state = ChunkSums::default();
-        match TRACK_ALL || chunk == 0 {
-            true => loo_chunk::<true>(groups, p, y, weights, &mut state),
-            false => loo_chunk::<false>(groups, p, y, weights, &mut state),
-        }
+        loo_chunk_tracking(TRACK_ALL || chunk == 0, (groups, p, y), weights, &mut state);
         out.extend(state.totals());
     }
 }
@@ -1300,6 +1291,23 @@ impl ChunkSums {
     /// Each candidate's sum and largest leverage.
     fn totals(&self) -> impl Iterator<Item = (f64, f64)> + '_ {
         self.sums.iter().zip(&self.worst).map(|(s, w)| lane_totals(s, w))
+    }
+}
+
+/// [`loo_chunk`], tracking the largest leverage where `track`. The
+/// tracking is a constant of each loop, so that the loop vectorises: with
+/// it a value at run time, a release build sent the chunk's sums through
+/// the stack one lane at a time.
+#[inline(always)]
+fn loo_chunk_tracking(
+    track: bool,
+    (groups, p, y): (&[Group], usize, &[[f64; LANES]]),
+    weights: (&[[f64; CANDIDATES]], &[[f64; CANDIDATES]]),
+    state: &mut ChunkSums,
+) {
+    match track {
+        true => loo_chunk::<true>(groups, p, y, weights, state),
+        false => loo_chunk::<false>(groups, p, y, weights, state),
     }
 }
 
