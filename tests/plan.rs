@@ -26,6 +26,7 @@ use std::path::Path;
 use magcomp::config::FlightJob;
 use magcomp::formats::write_flight_log;
 use magcomp::ingest::flight_date::FlightDate;
+use magcomp::messages::PlanWarning;
 use magcomp::plan::{predict, Plan, PlanReport, STATED_FACTOR};
 use magcomp::simulate::random::Random;
 use magcomp::simulate::scenario::Scenario;
@@ -184,8 +185,8 @@ fn the_prediction_holds_on_flights_of_the_plan_it_has_not_seen() {
                 false => {
                     assert!(
                         predicted.uncertain_flights > 0
-                            && report.warnings.iter().any(|w| w.contains("the compensation away from the calibration is uncertain")
-                                && w.contains(&format!("{} in ", predicted.channel))),
+                            && report.warnings.iter().any(|w| matches!(w, PlanWarning::UncertainAway { .. })
+                                && w.names(&predicted.channel)),
                         "seed {seed} channel {c}: true survey error predicted {:.4} nT, flown {error:.4} nT, and the plan did not warn",
                         predicted.survey_error_nt.median
                     );
@@ -196,7 +197,13 @@ fn the_prediction_holds_on_flights_of_the_plan_it_has_not_seen() {
         // A plan that leaves a manoeuvre out says so.
         if seed % 2 == 1 {
             assert!(
-                report.warnings.iter().any(|w| w.contains("the plan's box has no")),
+                (report.warnings.iter()).any(|w| matches!(
+                    w,
+                    PlanWarning::Gap {
+                        excitation_flown: None,
+                        ..
+                    }
+                )),
                 "seed {seed}: {:?}",
                 report.warnings
             );
@@ -250,8 +257,11 @@ fn additions_proposed_for_a_target_meet_it_when_flown() {
     let plan = load(folder.path(), "plan.toml", &plan_toml);
     assert!(plan.installation.contains("mag_1_uc"), "{}", plan.installation);
     let report = predict(&plan, &common::plain()).unwrap();
-    for line in report.summary.iter().chain(&report.warnings) {
+    for line in &report.summary {
         println!("{line}");
+    }
+    for warning in &report.warnings {
+        println!("{warning}");
     }
     let before = report.channels[0].survey_sigma_nt.median;
     assert!(before > target, "the plan already meets {target}: {before}");
@@ -278,7 +288,7 @@ fn additions_proposed_for_a_target_meet_it_when_flown() {
             !report
                 .channels
                 .iter()
-                .any(|c| warning.starts_with(&format!("{}: ", c.channel))),
+                .any(|c| warning.to_string().starts_with(&format!("{}: ", c.channel))),
             "a warning per channel: {warning}"
         );
     }

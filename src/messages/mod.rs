@@ -34,11 +34,13 @@ use std::fmt;
 use serde::{Serialize, Serializer};
 
 pub mod diagnosis;
+pub mod plan;
 pub mod progress;
 pub mod reading;
 pub mod setup;
 pub mod vector;
 pub use diagnosis::Diagnosing;
+pub use plan::PlanWarning;
 pub use reading::{ReadNote, Reading};
 pub use setup::Setup;
 pub use vector::VectorSummary;

@@ -66,7 +66,7 @@ pub(super) fn propose(
     plan: &Plan,
     (realisations, channels): (&[Realisation], &[ChannelPrediction]),
     (seeds, settings): (&[u64], &Settings),
-    warnings: &mut Vec<String>,
+    warnings: &mut Vec<crate::messages::PlanWarning>,
 ) -> Result<Proposed> {
     let target_survey = plan.settings.target_survey_sigma_nt;
     let target_fom = plan.settings.target_fom_nt;

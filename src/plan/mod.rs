@@ -236,7 +236,7 @@ pub struct PlanReport {
     /// survey sigma, per channel, the most useful first.
     pub candidates: Vec<CandidateValue>,
     /// What the user must know.
-    pub warnings: Vec<String>,
+    pub warnings: Vec<crate::messages::PlanWarning>,
     /// The prediction in words.
     pub summary: Vec<String>,
 }
@@ -271,11 +271,10 @@ pub fn predict(plan: &Plan, settings: &Settings) -> Result<PlanReport> {
     let proposed = propose(plan, (&realisations, &channels), (&seeds, settings), &mut warnings)?;
     warnings.extend(channel_warnings(&channels, &realisations, target_fom));
     if proposed.additions_meet_target == Some(false) {
-        warnings.push(format!(
-            "no set of up to {} additions meets the survey target of {:.3} nT on every channel; the report lists the best found",
-            plan.settings.most_additions,
-            target_survey.unwrap_or(f64::NAN)
-        ));
+        warnings.push(crate::messages::PlanWarning::TargetNotMet {
+            most_additions: plan.settings.most_additions,
+            target_nt: target_survey.unwrap_or(f64::NAN),
+        });
     }
     let mut report = PlanReport {
         plan: plan.path.clone(),

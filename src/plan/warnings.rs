@@ -3,6 +3,7 @@
 
 use super::realise::{median_of, noise_of, Realisation};
 use super::ChannelPrediction;
+use crate::messages::plan::{gap_state, FomAbove, PlanWarning, UncertainAway};
 
 /// The warning naming the channels whose compensated noise alone is at or
 /// above the survey `target`, nT, which no manoeuvre can meet.
@@ -10,18 +11,16 @@ pub(super) fn noise_above_target(
     channels: &[ChannelPrediction],
     realisations: &[Realisation],
     target: f64,
-) -> Option<String> {
-    let floored: Vec<String> = (channels.iter().zip(&realisations[0].outcomes))
+) -> Option<PlanWarning> {
+    let floored: Vec<(String, f64)> = (channels.iter().zip(&realisations[0].outcomes))
         .filter_map(|(channel, outcome)| {
             let floor = median_of(realisations.iter().map(|r| noise_of(r, &outcome.channel)));
-            (floor >= target).then(|| format!("{} ({floor:.3} nT)", channel.channel))
+            (floor >= target).then(|| (channel.channel.clone(), floor))
         })
         .collect();
-    (!floored.is_empty()).then(|| {
-        format!(
-            "no manoeuvre can meet the survey target of {target:.3} nT on {}: the compensated channel's noise alone is above it",
-            floored.join(", ")
-        )
+    (!floored.is_empty()).then_some(PlanWarning::NoiseAboveTarget {
+        target_nt: target,
+        channels: floored,
     })
 }
 
@@ -33,24 +32,23 @@ pub(super) fn channel_warnings(
     channels: &[ChannelPrediction],
     realisations: &[Realisation],
     target_fom: Option<f64>,
-) -> Vec<String> {
+) -> Vec<PlanWarning> {
     let flights = realisations.len();
     let mut warnings = Vec::new();
-    let listed = |items: Vec<String>| items.join(", ");
     warnings.extend(fom_above_target(channels, target_fom));
-    let unanalysed: Vec<String> = (channels.iter())
+    let unanalysed: Vec<(String, usize)> = (channels.iter())
         .filter_map(|channel| {
             let count = (realisations.iter())
                 .filter(|r| (r.outcomes.iter()).any(|o| o.channel == channel.channel && o.design.is_none()))
                 .count();
-            (count > 0).then(|| format!("{} ({count} of {flights})", channel.channel))
+            (count > 0).then(|| (channel.channel.clone(), count))
         })
         .collect();
     if !unanalysed.is_empty() {
-        warnings.push(format!(
-            "simulated flights without an excitation analysis (the windows leave the design singular) on {}: the survey uncertainty and the additions rest on the others",
-            listed(unanalysed)
-        ));
+        warnings.push(PlanWarning::NotAnalysed {
+            flights,
+            channels: unanalysed,
+        });
     }
     warnings.extend(gap_warnings(channels, realisations));
     warnings.extend(uncertain_away(channels, flights));
@@ -59,52 +57,44 @@ pub(super) fn channel_warnings(
 
 /// The warning naming the channels whose predicted FOM is above
 /// `target_fom`, nT, with their compensated noise.
-fn fom_above_target(channels: &[ChannelPrediction], target_fom: Option<f64>) -> Option<String> {
-    let above: Vec<String> = (channels.iter())
+fn fom_above_target(channels: &[ChannelPrediction], target_fom: Option<f64>) -> Option<PlanWarning> {
+    let above: Vec<FomAbove> = (channels.iter())
         .filter(|c| c.meets_fom_target == Some(false))
-        .map(|c| {
-            format!(
-                "{} (FOM {}, its compensated noise {:.3} nT)",
-                c.channel,
-                c.fom_nt.words(2),
-                c.noise_nt.median
-            )
+        .map(|c| FomAbove {
+            channel: c.channel.clone(),
+            fom_nt: [c.fom_nt.median, c.fom_nt.low, c.fom_nt.high],
+            noise_nt: c.noise_nt.median,
         })
         .collect();
-    (!above.is_empty()).then(|| {
-        format!(
-            "the plan's predicted FOM is above the target of {:.2} nT on {}; no addition to the box lowers it (it measures the compensated residual over the box's own manoeuvres)",
-            target_fom.unwrap_or(f64::NAN),
-            above.join(", ")
-        )
+    (!above.is_empty()).then(|| PlanWarning::FomAboveTarget {
+        target_nt: target_fom.unwrap_or(f64::NAN),
+        channels: above,
     })
 }
 
 /// The warning naming the channels uncertain away from the calibration on
 /// some of the `flights` simulated flights, with how uncertain.
-fn uncertain_away(channels: &[ChannelPrediction], flights: usize) -> Option<String> {
-    let uncertain: Vec<String> = (channels.iter())
+fn uncertain_away(channels: &[ChannelPrediction], flights: usize) -> Option<PlanWarning> {
+    let uncertain: Vec<UncertainAway> = (channels.iter())
         .filter(|c| c.uncertain_flights > 0)
-        .map(|c| {
-            format!(
-                "{} in {} of the {flights} (the blocked jackknife up to {:.3} nT, the survey lines' error up to {:.3} nT)",
-                c.channel, c.uncertain_flights, c.jackknife_sigma_nt.high, c.survey_error_nt.high,
-            )
+        .map(|c| UncertainAway {
+            channel: c.channel.clone(),
+            flights: c.uncertain_flights,
+            jackknife_high_nt: c.jackknife_sigma_nt.high,
+            survey_error_high_nt: c.survey_error_nt.high,
         })
         .collect();
-    (!uncertain.is_empty()).then(|| {
-        format!(
-            "on some simulated flights the compensation away from the calibration is uncertain by more than {:.3} nT: {}; the planned manoeuvres leave the fit open on the survey's headings and attitudes on some flights, and compensate would warn on them",
-            crate::quality::UNCERTAINTY_WARNING_NT,
-            uncertain.join(", ")
-        )
+    (!uncertain.is_empty()).then_some(PlanWarning::UncertainAway {
+        threshold_nt: crate::quality::UNCERTAINTY_WARNING_NT,
+        flights,
+        channels: uncertain,
     })
 }
 
 /// One warning per gap in the box that most realisations name on some
 /// channel: what the plan lacks, how to fly it, and the median change it
 /// would make on each channel that names it.
-fn gap_warnings(channels: &[ChannelPrediction], realisations: &[Realisation]) -> Vec<String> {
+fn gap_warnings(channels: &[ChannelPrediction], realisations: &[Realisation]) -> Vec<PlanWarning> {
     let mut labels: Vec<&str> = Vec::new();
     for label in channels.iter().flat_map(|c| &c.gap_labels) {
         if !labels.contains(&label.as_str()) {
@@ -119,24 +109,25 @@ fn gap_warnings(channels: &[ChannelPrediction], realisations: &[Realisation]) ->
                 .filter_map(|(c, _)| gap_figures(realisations, c, label).map(|g| (c, g)))
                 .collect();
             let (_, first) = named.first()?;
-            let changes: Vec<String> = (named.iter())
-                .map(|(c, g)| format!("{:+.0} % on {}", g.change_percent, channels[*c].channel))
-                .collect();
-            Some(format!(
-                "{}: flying it ({}) changes the survey uncertainty the coefficients leave by {} (medians of the {} simulated flights that name it).",
-                first.state,
-                first.shape,
-                changes.join(", "),
-                first.flights
-            ))
+            Some(PlanWarning::Gap {
+                label: label.to_string(),
+                excitation_flown: first.excitation_flown,
+                shape: first.shape.clone(),
+                changes: (named.iter())
+                    .map(|(c, g)| (channels[*c].channel.clone(), g.change_percent))
+                    .collect(),
+                flights: first.flights,
+            })
         })
         .collect()
 }
 
-/// A gap named `label` in channel `c`'s analyses: what the plan lacks,
-/// how to fly it, and the median change it would make.
+/// A gap named `label` in channel `c`'s analyses: what the plan flies of
+/// it, how to fly it, and the median change it would make.
 struct GapFigures {
-    state: String,
+    /// The share of a typical manoeuvre's excitation the plan's gives;
+    /// `None` where it does not fly it.
+    excitation_flown: Option<f64>,
     shape: String,
     change_percent: f64,
     /// Realisations that name it.
@@ -148,15 +139,8 @@ fn gap_figures(realisations: &[Realisation], c: usize, label: &str) -> Option<Ga
         .flat_map(|r| r.outcomes[c].gaps.iter().filter(|g| g.label() == label))
         .collect();
     let first = gaps.first()?;
-    let state = match first.flown {
-        false => format!("the plan's box has no {label}"),
-        true => format!(
-            "the plan's {label} gives {:.0} % of the excitation of a typical one",
-            100.0 * median_of(gaps.iter().map(|g| g.excitation_flown))
-        ),
-    };
     Some(GapFigures {
-        state,
+        excitation_flown: first.flown.then(|| median_of(gaps.iter().map(|g| g.excitation_flown))),
         shape: first.shape_words(),
         change_percent: 100.0 * median_of(gaps.iter().map(|g| g.change)),
         flights: gaps.len(),
@@ -169,7 +153,10 @@ pub(super) fn gap_words(realisations: &[Realisation], c: usize, label: &str) -> 
         None => format!("the plan's box lacks {label}"),
         Some(g) => format!(
             "{}: flying it ({}) changes the survey uncertainty the coefficients leave by {:+.0} % (median of {} simulated flights).",
-            g.state, g.shape, g.change_percent, g.flights
+            gap_state(label, g.excitation_flown),
+            g.shape,
+            g.change_percent,
+            g.flights
         ),
     }
 }
