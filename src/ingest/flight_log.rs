@@ -108,7 +108,16 @@ pub struct FlightLog {
     reading_warnings: Vec<Warning>,
     text_columns: Vec<String>,
     declared_units: Vec<(String, String)>,
+    /// Series derived from one channel, computed once and shared by the
+    /// log's clones (their channels are the same values).
+    derived: Derived,
 }
+
+/// Series derived from a channel, each named by (channel, what it is).
+type Derived = std::sync::Arc<std::sync::Mutex<DerivedList>>;
+
+/// The derived series computed so far.
+type DerivedList = Vec<((String, &'static str), std::sync::Arc<Vec<f64>>)>;
 
 impl FlightLog {
     /// Builds a flight log, checking that every channel has one value per
@@ -142,6 +151,7 @@ impl FlightLog {
             reading_warnings: Vec::new(),
             text_columns: Vec::new(),
             declared_units: Vec::new(),
+            derived: Derived::default(),
         })
     }
 
@@ -159,6 +169,12 @@ impl FlightLog {
         if let Some(channel) = log.channels.iter_mut().find(|c| c.name == name) {
             channel.values = values;
         }
+        // What was derived from the other channels still holds.
+        let kept: Vec<_> = (self.derived_series().iter())
+            .filter(|((channel, _), _)| channel != name)
+            .cloned()
+            .collect();
+        log.derived = std::sync::Arc::new(std::sync::Mutex::new(kept));
         Ok(log)
     }
 
@@ -186,7 +202,34 @@ impl FlightLog {
             reading_warnings: Vec::new(),
             text_columns: Vec::new(),
             declared_units: Vec::new(),
+            derived: Derived::default(),
         })
+    }
+
+    /// The series `what` derived from channel `name` by `derive` (its
+    /// values, one result per row), computed on the first call and shared
+    /// from then on by this log and its clones; `None` without the channel.
+    /// `what` names the derivation: one name, one function.
+    pub fn derived(
+        &self,
+        name: &str,
+        what: &'static str,
+        derive: impl FnOnce(&Channel) -> Vec<f64>,
+    ) -> Option<std::sync::Arc<Vec<f64>>> {
+        let channel = self.channel(name)?;
+        let mut series = self.derived_series();
+        if let Some((_, found)) = series.iter().find(|((c, w), _)| c == name && *w == what) {
+            return Some(found.clone());
+        }
+        let values = std::sync::Arc::new(derive(channel));
+        series.push(((name.to_string(), what), values.clone()));
+        Some(values)
+    }
+
+    fn derived_series(&self) -> std::sync::MutexGuard<'_, DerivedList> {
+        // A derivation that panicked left nothing half-written: the list
+        // is pushed to only after it returns.
+        self.derived.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
     }
 
     /// Attaches per-row flags raised while reading (e.g. `gap:cur_a` where

@@ -1455,6 +1455,19 @@ pub enum Note {
         /// The model, in words.
         model: String,
     },
+    /// A base station the models subtract from their channels before the
+    /// fit, as it was used (`model::station`: low-passed where its own
+    /// noise takes over).
+    QuietStation {
+        /// The station's column.
+        column: String,
+        /// Where it was low-passed, Hz; `None`: subtracted as recorded.
+        corner_hz: Option<f64>,
+        /// Its white noise, nT.
+        noise_nt: f64,
+        /// The channels whose models subtract it.
+        channels: Vec<String>,
+    },
     /// The line under the input's header is a row of units: read as
     /// units, not data, and kept in a compensated CSV.
     UnitsRow {
@@ -1751,9 +1764,10 @@ impl fmt::Display for Note {
             Note::PlanManoeuvresNotCompared { .. }
             | Note::PlanUnplannedManoeuvres { .. }
             | Note::PlanWithAdditions { .. } => self.write_plan_manoeuvres(f),
-            Note::Renamed { .. } | Note::NoExcitationAnalysis { .. } | Note::DiagnosedModel { .. } => {
-                self.write_channel_output(f)
-            }
+            Note::Renamed { .. }
+            | Note::NoExcitationAnalysis { .. }
+            | Note::DiagnosedModel { .. }
+            | Note::QuietStation { .. } => self.write_channel_output(f),
             Note::UnitsRow { path, units } => write_units_row(f, path, units),
         }
     }
@@ -1815,6 +1829,26 @@ impl Note {
             Note::DiagnosedModel { channel, model } => {
                 write!(f, "{channel}: fitted and compensated with the diagnosed model: {model}")
             }
+            Note::QuietStation {
+                column,
+                corner_hz: Some(corner_hz),
+                noise_nt,
+                channels,
+            } => write!(
+                f,
+                "base station '{column}': low-passed at {corner_hz:.3} Hz before the fit of {} subtracts it; above that its record is its own noise ({noise_nt:.4} nT), which would enter the fit",
+                channels.join(", ")
+            ),
+            Note::QuietStation {
+                column,
+                corner_hz: None,
+                noise_nt,
+                channels,
+            } => write!(
+                f,
+                "base station '{column}': subtracted as recorded before the fit of {}; it records the external field up to its Nyquist frequency, or no noise of its own to take out ({noise_nt:.4} nT)",
+                channels.join(", ")
+            ),
             _ => write!(f, "{self:?}"),
         }
     }

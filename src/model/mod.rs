@@ -36,6 +36,7 @@ pub mod excitation;
 pub mod extensions;
 pub mod igrf;
 mod prepared;
+pub mod station;
 pub mod terms;
 
 use std::borrow::Cow;

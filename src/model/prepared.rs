@@ -521,7 +521,8 @@ fn lagged_eddy_columns(
 }
 
 /// The scalar less each base station's variation among `sources` (its
-/// column less its level), on `rows` of the flight's `n` (all without).
+/// quiet record less its level: [`super::station`]), on `rows` of the
+/// flight's `n` (all without).
 /// A base station's variation is the Earth's field, which the aircraft's
 /// sensor reads as the station does: the model is fitted on the scalar
 /// less it, gain 1, so it cannot bias the aircraft's coefficients and no
@@ -534,9 +535,11 @@ fn less_base_stations<'s>(
     sources: &[SourceTerm],
     (n, rows): (usize, Option<&[Range<usize>]>),
 ) -> Cow<'s, [f64]> {
-    let stations: Vec<(&[f64], f64)> = (sources.iter())
+    let stations: Vec<(std::sync::Arc<Vec<f64>>, f64)> = (sources.iter())
         .filter_map(|source| match source {
-            SourceTerm::ExternalField { column, level } => log.channel(column).map(|c| (c.values.as_slice(), *level)),
+            SourceTerm::ExternalField { column, level } => {
+                super::station::quiet_values(log, column).map(|values| (values, *level))
+            }
             _ => None,
         })
         .collect();

@@ -1,5 +1,12 @@
 //! Plain statistics of a slice of values: its spread, its root mean
-//! square and its peak-to-peak range.
+//! square and its peak-to-peak range; white noise from a fourth
+//! difference.
+
+/// The standard deviation of white noise over the RMS of its fourth
+/// difference with the Seequent QCNOISE normalisation: the difference
+/// $(x_{-2} - 4x_{-1} + 6x_0 - 4x_{+1} + x_{+2})/16$ of white noise of
+/// standard deviation σ has standard deviation $\sqrt{70}\,σ/16 ≈ 0.52σ$.
+pub const WHITE_NOISE_PER_FOURTH_DIFFERENCE: f64 = 1.912_365_774_935_03;
 
 /// Population standard deviation (0 for an empty slice).
 pub fn standard_deviation(values: &[f64]) -> f64 {

@@ -182,6 +182,7 @@ impl Assessed {
         notes.extend(stage_notes);
         let excitation = std::mem::take(&mut self.excitation_notes);
         model_messages(&self.models, excitation, (notes, warnings));
+        notes.extend(station_notes(log, &self.models));
         let (vector, gradients) = (&mut self.vector, &mut self.gradients);
         notes.append(&mut vector.notes);
         notes.append(&mut gradients.notes);
@@ -402,6 +403,33 @@ fn vector_and_gradients(
             )
         },
     )
+}
+
+/// How each base station the models subtract was used: low-passed where
+/// its own noise takes over, or as recorded ([`crate::model::station`]).
+fn station_notes(log: &FlightLog, models: &[FittedModel]) -> Vec<Note> {
+    let mut stations: Vec<(&str, Vec<String>)> = Vec::new();
+    for model in models {
+        for source in &model.spec.extensions.sources {
+            if let crate::model::SourceTerm::ExternalField { column, .. } = source {
+                match stations.iter_mut().find(|(c, _)| c == column) {
+                    Some((_, channels)) => channels.push(model.channel.clone()),
+                    None => stations.push((column, vec![model.channel.clone()])),
+                }
+            }
+        }
+    }
+    (stations.into_iter())
+        .filter_map(|(column, channels)| {
+            let quiet = crate::model::station::quiet_station(log, log.channel(column)?);
+            Some(Note::QuietStation {
+                column: column.to_string(),
+                corner_hz: quiet.corner_hz,
+                noise_nt: quiet.noise_nt,
+                channels,
+            })
+        })
+        .collect()
 }
 
 /// What the models say of themselves: a missing estimator table, an

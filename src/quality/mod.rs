@@ -24,7 +24,9 @@ use crate::ingest::flight_log::FlightLog;
 use crate::messages::Warning;
 use crate::model::{FittedModel, PredictionSigma, WindowFit};
 
-pub use crate::numerics::statistics::{peak_to_peak, root_mean_square, standard_deviation};
+pub use crate::numerics::statistics::{
+    peak_to_peak, root_mean_square, standard_deviation, WHITE_NOISE_PER_FOURTH_DIFFERENCE,
+};
 
 /// Figures for one calibration window.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -294,12 +296,6 @@ pub fn uncertainty_of(log: &FlightLog, model: &FittedModel, prediction: &Predict
 pub fn departs_beyond_stated(departure_nt: f64, stated_nt: Option<f64>) -> bool {
     departure_nt > stated_nt.unwrap_or(0.0).max(DEPARTURE_FLOOR_NT)
 }
-
-/// The standard deviation of white noise over the RMS of its fourth
-/// difference with the Seequent QCNOISE normalisation: the difference
-/// $(x_{-2} - 4x_{-1} + 6x_0 - 4x_{+1} + x_{+2})/16$ of white noise of
-/// standard deviation σ has standard deviation $\sqrt{70}\,σ/16 ≈ 0.52σ$.
-pub const WHITE_NOISE_PER_FOURTH_DIFFERENCE: f64 = 1.912_365_774_935_03;
 
 impl ChannelQuality {
     /// The findings' departure from plain Tolles-Lawson on the survey when
