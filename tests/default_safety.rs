@@ -10,11 +10,12 @@
 //! What is measured, on the survey lines against the simulator's true
 //! Earth field (standard deviation of compensated − truth over the line
 //! rows): the channels worse than plain by more than 10 % + 0.01 nT. The
-//! aim is none; the first 30 plans must show none, and all 300 no other
-//! than the two known (plans 95 and 272, each within twice its stated
-//! uncertainty); none may be harmed with nothing said. The figures of every channel
-//! whose default differs from plain are printed, with the findings it
-//! applied and those it held back, and a table by what was applied.
+//! 300 plans must show none, and none may be harmed with nothing said.
+//! The figures of every channel whose default differs from plain are
+//! printed, with the findings it applied and those it held back, a table
+//! by what was applied, and the channels whose verdict is CHECK (the
+//! default's move from plain beyond its stated uncertainty) by what moved
+//! them.
 //!
 //! Flights: `cargo test` flies [`DEFAULT_FLIGHTS`];
 //! `MAGCOMP_SAFETY_FLIGHTS=N` flies the first N of the same draw instead
@@ -28,7 +29,7 @@
 mod common;
 
 use magcomp::config::{FlightJob, Settings};
-use magcomp::messages::{HeldBack, Warning};
+use magcomp::messages::{HeldBack, MovedBy, Warning};
 use magcomp::simulate::random::Random;
 use magcomp::simulate::scenario::{RawScenario, ScalarSensor, Scenario, SensorLocation};
 use magcomp::simulate::simulate;
@@ -153,6 +154,9 @@ struct ChannelOutcome {
     warned: bool,
     /// The default's stated uncertainty outside the calibration, nT.
     stated_sigma: Option<f64>,
+    /// What moved the survey beyond that uncertainty, where something
+    /// did: the verdict is CHECK.
+    checked: Option<MovedBy>,
 }
 
 type Outcome = Vec<ChannelOutcome>;
@@ -233,6 +237,10 @@ fn fly(seed: u64) -> (String, Outcome) {
                     })
                     .unwrap_or_else(|| "; no crossovers".into());
             let said = if warned { "; warned" } else { "; not warned" };
+            let checked = (auto.result.warnings.iter()).find_map(|w| match w {
+                Warning::SurveyDeparture { channel, moved_by, .. } if *channel == model.channel => Some(*moved_by),
+                _ => None,
+            });
             ChannelOutcome {
                 name: format!("{} ({heldout}{departure}{stated}{said}{crossovers})", model.channel),
                 plain: survey_line_error_nt(&p.values, truth, line),
@@ -241,6 +249,7 @@ fn fly(seed: u64) -> (String, Outcome) {
                 held,
                 warned,
                 stated_sigma,
+                checked,
             }
         })
         .collect();
@@ -326,6 +335,8 @@ fn the_default_never_makes_a_clean_channel_worse_than_plain() {
     let mut silent = Vec::new();
     // Per set of effects applied: channels, harmed, helped by more than 10 %.
     let mut by_effect: std::collections::BTreeMap<String, (usize, usize, usize)> = Default::default();
+    // Per cause of a CHECK verdict: channels, harmed, helped by more than 10 %.
+    let mut checks: std::collections::BTreeMap<String, (usize, usize, usize)> = Default::default();
     for (flight, outcome) in &outcomes {
         for outcome in outcome {
             let (channel, plain, auto, applied, held) = (
@@ -345,15 +356,21 @@ fn the_default_never_makes_a_clean_channel_worse_than_plain() {
             effects.sort();
             effects.dedup();
             let entry = by_effect.entry(effects.join("+")).or_default();
+            let check =
+                (outcome.checked.map(|by| format!("{by:?}")).as_deref()).map(|by| checks.entry(by.into()).or_default());
+            let (harm, help) = (*auto > 1.1 * plain + 0.01, *auto < 0.9 * plain);
+            if let Some(check) = check {
+                *check = (check.0 + 1, check.1 + usize::from(harm), check.2 + usize::from(help));
+            }
             entry.0 += 1;
-            if *auto > 1.1 * plain + 0.01 {
+            if harm {
                 harmed.push(format!("{flight} {channel}: {plain:.4} → {auto:.4} nT"));
                 entry.1 += 1;
                 let within_stated = outcome.stated_sigma.is_some_and(|sigma| *auto <= 2.0 * sigma);
                 if !outcome.warned && !within_stated {
                     silent.push(format!("{flight} {channel}: {plain:.4} → {auto:.4} nT"));
                 }
-            } else if *auto < 0.9 * plain {
+            } else if help {
                 entry.2 += 1;
             }
         }
@@ -366,6 +383,10 @@ fn the_default_never_makes_a_clean_channel_worse_than_plain() {
             effects.as_str()
         };
         println!("| {name} | {count} | {worse} | {better} |");
+    }
+    println!("| CHECK, moved by | channels | harmed | helped by > 10 % |\n|---|---|---|---|");
+    for (by, (count, worse, better)) in &checks {
+        println!("| {by} | {count} | {worse} | {better} |");
     }
     println!(
         "{} clean flights, {channels} channels: {} harmed (worst default/plain {worst:.2}); {held_back} findings held back by the evidence rule",
@@ -795,10 +816,61 @@ fn a_base_stations_own_noise_does_not_harm_a_channel() {
         let (_, auto, _) = default_and_plain(clean_plan(seed));
         let corner = (auto.result.notes.iter())
             .find_map(|n| match n {
-                magcomp::messages::Note::QuietStation { column, corner_hz, .. } if column == "diurnal" => *corner_hz,
+                magcomp::messages::Note::QuietStation { column, filter, .. } if column == "diurnal" => {
+                    filter.corner_hz()
+                }
                 _ => None,
             })
             .unwrap_or_else(|| panic!("{flight}: no note of the station's corner: {:#?}", auto.result.notes));
         assert!((corner - 0.156_25).abs() < 1e-9, "{flight}: corner {corner} Hz");
+    }
+}
+
+/// Plan 579 (three sensors, 5 Hz, 15 lines, no tie): the base station's
+/// term alone took the cabin sensor mag_1_uc from 0.0069 to 0.0363 nT
+/// against truth, moving the survey 0.051 nT from plain Tolles-Lawson
+/// against a stated uncertainty of 0.011 nT, and the verdict was PASS.
+/// The move beyond the stated uncertainty is the station's: the run
+/// warns and names it, and the verdict is CHECK.
+#[test]
+fn a_base_station_term_that_moves_the_survey_beyond_its_uncertainty_is_no_plain_pass() {
+    let (flight, auto, plain) = default_and_plain(clean_plan(579));
+    let (plain_error, auto_error) = survey_errors(&flight, (&auto, &plain), (0, "mag_1_uc"));
+    println!("plan 579 mag_1_uc: {plain_error:.4} → {auto_error:.4} nT against truth");
+    let applied: Vec<String> = (auto.result.applied_findings.iter())
+        .filter(|f| f.channel == "mag_1_uc")
+        .map(|f| f.describe())
+        .collect();
+    assert!(
+        applied.len() == 1 && applied[0].starts_with("external_field"),
+        "the station's term alone: {applied:?}"
+    );
+    let (departure, stated) = (auto.result.warnings.iter())
+        .find_map(|w| match w {
+            Warning::SurveyDeparture {
+                channel,
+                moved_by: MovedBy::BaseStation,
+                departure_nt,
+                stated_nt,
+            } if channel == "mag_1_uc" => Some((*departure_nt, *stated_nt)),
+            _ => None,
+        })
+        .unwrap_or_else(|| panic!("no departure warning naming the station: {:#?}", auto.result.warnings));
+    let stated = stated.expect("a stated uncertainty");
+    println!("moved {departure:.4} nT, stated {stated:.4} nT");
+    // Measured on the flight, within 15 %.
+    assert!((departure - 0.0507).abs() < 0.0076, "moved {departure} nT");
+    assert!((stated - 0.0109).abs() < 0.0016, "stated {stated} nT");
+    let quality = (auto.result.channels.iter()).find(|q| q.channel == "mag_1_uc").unwrap();
+    assert_eq!(quality.unchecked_departure().map(|(d, _)| d), Some(departure));
+    // The other two channels keep no station's term, or one within what
+    // they state.
+    for q in auto.result.channels.iter().filter(|q| q.channel != "mag_1_uc") {
+        assert!(
+            q.unchecked_departure().is_none(),
+            "{}: {:?}",
+            q.channel,
+            q.unchecked_departure()
+        );
     }
 }

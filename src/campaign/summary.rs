@@ -51,7 +51,7 @@ pub struct ChannelFigures {
     pub model: Option<String>,
     /// The report's verdict: `PASS` or `FAIL` (FOM against the run's
     /// `[quality] fom_limit_nt`; a flight given a model, its calibration
-    /// flight's FOM), `CHECK` (diagnosed findings moved the survey beyond
+    /// flight's FOM), `CHECK` (diagnosed findings or the base station's term moved the survey beyond
     /// the stated uncertainty), `no FOM`, or empty when the report's
     /// figures cannot be read.
     pub verdict: String,

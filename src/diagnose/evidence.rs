@@ -139,21 +139,24 @@ pub fn plain_of(model: &Extensions) -> Extensions {
     }
 }
 
-/// What the findings of each channel of `plan` add on the survey: per
-/// channel with a model that is not plain, its [`Departure`] (`None` where
-/// it cannot be measured: no survey rows).
+/// What each channel of `plan` adds on the survey to its `reference`
+/// model ([`plain_of`] for the findings the rule judges,
+/// [`tolles_lawson_of`] for everything the diagnosis added): per channel
+/// whose model is not its reference, its [`Departure`] (`None` where it
+/// cannot be measured: no survey rows).
 pub fn departures(
     compensations: &Compensations,
     plan: &BTreeMap<String, Extensions>,
+    reference: fn(&Extensions) -> Extensions,
 ) -> Result<BTreeMap<String, Option<Departure>>> {
     let Calibration { log, windows, .. } = *compensations.calibration;
     use rayon::prelude::*;
-    let changed: Vec<(&String, &Extensions)> = plan.iter().filter(|(_, model)| *model != &plain_of(model)).collect();
+    let changed: Vec<(&String, &Extensions)> = plan.iter().filter(|(_, model)| *model != &reference(model)).collect();
     let measured: Vec<(String, Option<Departure>)> = changed
         .par_iter()
         .map(|(channel, model)| {
             let diagnosed = compensations.of(channel, model)?;
-            let plain = compensations.of(channel, &plain_of(model))?;
+            let plain = compensations.of(channel, &reference(model))?;
             Ok(((*channel).clone(), departure(log, windows, &plain, &diagnosed)))
         })
         .collect::<Result<_>>()?;

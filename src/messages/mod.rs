@@ -417,11 +417,14 @@ pub enum Warning {
         /// Why they would have been held back.
         reason: HeldBack,
     },
-    /// The applied findings move the survey from plain Tolles-Lawson by
-    /// more than the channel's stated uncertainty: no plain pass.
+    /// The applied findings, or the base station's term, move the survey
+    /// from plain Tolles-Lawson by more than the channel's stated
+    /// uncertainty: no plain pass.
     SurveyDeparture {
         /// The scalar channel.
         channel: String,
+        /// What moves it.
+        moved_by: MovedBy,
         /// RMS of the move on the survey, nT.
         departure_nt: f64,
         /// The stated uncertainty outside the calibration, nT; `None`
@@ -716,6 +719,60 @@ pub enum Warning {
     },
 }
 
+/// How a base station's record is used before the fit subtracts it
+/// (`model::station`), and why.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum StationFilter {
+    /// Low-passed where its own noise takes over.
+    LowPassed {
+        /// The corner, Hz.
+        corner_hz: f64,
+    },
+    /// As recorded: it holds more signal than noise up to its Nyquist
+    /// frequency.
+    SignalToNyquist,
+    /// As recorded: it has no noise of its own to measure (a station
+    /// sampled slower than the flight and held or interpolated between
+    /// its samples).
+    NoNoise,
+    /// As recorded: no run of valid samples is long enough to filter, or
+    /// the record has no sampling interval.
+    TooShort,
+}
+
+impl StationFilter {
+    /// The low-pass corner, Hz; `None` where the record is used as
+    /// recorded.
+    pub fn corner_hz(&self) -> Option<f64> {
+        match self {
+            StationFilter::LowPassed { corner_hz } => Some(*corner_hz),
+            _ => None,
+        }
+    }
+}
+
+/// What moves a channel's compensated survey from plain Tolles-Lawson.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MovedBy {
+    /// Findings of the diagnosis fitted with the aircraft's terms.
+    Findings,
+    /// The base station's record subtracted before the fit, which moves
+    /// the aircraft's coefficients it no longer biases.
+    BaseStation,
+    /// Both.
+    FindingsAndBaseStation,
+}
+
+impl std::fmt::Display for MovedBy {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            MovedBy::Findings => "the diagnosed findings move",
+            MovedBy::BaseStation => "the base station's term (its record subtracted before the fit) moves",
+            MovedBy::FindingsAndBaseStation => "the diagnosed findings and the base station's term move",
+        })
+    }
+}
+
 /// How a gradient's direct fit and the difference of its compensated
 /// channels part on the survey lines ([`Warning::GradientDirectAtOdds`],
 /// and the note where the output uses the difference).
@@ -959,14 +1016,19 @@ impl Warning {
             ),
             Warning::SurveyDeparture {
                 channel,
+                moved_by,
                 departure_nt,
                 stated_nt,
             } => write!(
                 f,
-                "{channel}: the diagnosed findings move the survey {departure_nt:.4} nT RMS from plain Tolles-Lawson, more than {}: the verdict is not a plain pass; compare with a plain run (--plain) before using this channel",
+                "{channel}: {moved_by} the survey {departure_nt:.4} nT RMS from plain Tolles-Lawson, more than {}: the verdict is not a plain pass; {}",
                 match stated_nt {
                     Some(sigma) => format!("its stated uncertainty ({sigma:.4} nT)"),
                     None => "anything its uncertainty states (none is stated)".into(),
+                },
+                match moved_by {
+                    MovedBy::BaseStation => "the fit without the external field the station recorded and the fit with it disagree by more than either states, so one of them is wrong by more than its uncertainty: compare with a plain run (--plain), and at the survey's crossovers, before using this channel",
+                    _ => "compare with a plain run (--plain) before using this channel",
                 }
             ),
             _ => self.write_unrouted(f),
@@ -1176,7 +1238,7 @@ impl Warning {
             ),
             Warning::ModelCalibrationDeparted { channel, departure_nt } => write!(
                 f,
-                "{channel}: on its calibration flight the model's findings moved the survey {departure_nt:.4} nT from plain Tolles-Lawson, beyond its stated uncertainty (verdict CHECK): compare with a plain model (--plain --model on the calibration flight) before using this channel"
+                "{channel}: on its calibration flight the model's findings or base station's term moved the survey {departure_nt:.4} nT from plain Tolles-Lawson, beyond its stated uncertainty (verdict CHECK): compare with a plain model (--plain --model on the calibration flight) before using this channel"
             ),
             _ => self.write_unrouted(f),
         }
@@ -1461,8 +1523,8 @@ pub enum Note {
     QuietStation {
         /// The station's column.
         column: String,
-        /// Where it was low-passed, Hz; `None`: subtracted as recorded.
-        corner_hz: Option<f64>,
+        /// How it was filtered: low-passed, or as recorded and why.
+        filter: StationFilter,
         /// Its white noise, nT.
         noise_nt: f64,
         /// The channels whose models subtract it.
@@ -1831,24 +1893,30 @@ impl Note {
             }
             Note::QuietStation {
                 column,
-                corner_hz: Some(corner_hz),
+                filter,
                 noise_nt,
                 channels,
-            } => write!(
-                f,
-                "base station '{column}': low-passed at {corner_hz:.3} Hz before the fit of {} subtracts it; above that its record is its own noise ({noise_nt:.4} nT), which would enter the fit",
-                channels.join(", ")
-            ),
-            Note::QuietStation {
-                column,
-                corner_hz: None,
-                noise_nt,
-                channels,
-            } => write!(
-                f,
-                "base station '{column}': subtracted as recorded before the fit of {}; it records the external field up to its Nyquist frequency, or no noise of its own to take out ({noise_nt:.4} nT)",
-                channels.join(", ")
-            ),
+            } => {
+                let channels = channels.join(", ");
+                match filter {
+                    StationFilter::LowPassed { corner_hz } => write!(
+                        f,
+                        "base station '{column}': low-passed at {corner_hz:.3} Hz before the fit of {channels} subtracts it; above that its record is its own noise ({noise_nt:.4} nT), which would enter the fit"
+                    ),
+                    StationFilter::SignalToNyquist => write!(
+                        f,
+                        "base station '{column}': subtracted as recorded before the fit of {channels}; it records more of the external field than of its own noise ({noise_nt:.4} nT) up to its Nyquist frequency"
+                    ),
+                    StationFilter::NoNoise => write!(
+                        f,
+                        "base station '{column}': subtracted as recorded before the fit of {channels}; it has no noise of its own to take out (sampled slower than the flight and held or interpolated between samples)"
+                    ),
+                    StationFilter::TooShort => write!(
+                        f,
+                        "base station '{column}': subtracted as recorded before the fit of {channels}, its own noise ({noise_nt:.4} nT) included: no run of its valid samples is long enough to filter"
+                    ),
+                }
+            }
             _ => write!(f, "{self:?}"),
         }
     }

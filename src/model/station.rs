@@ -38,6 +38,8 @@ use crate::ingest::flight_log::{Channel, FlightLog};
 use crate::numerics::filter::{EdgePadding, FilterBand, ZeroPhaseFilter};
 use crate::numerics::segments::valid_runs;
 
+pub use crate::messages::StationFilter;
+
 /// The lowest corner a station's record is low-passed at, Hz: the
 /// external field's pulsations reach periods of 10 minutes and its daily
 /// variation far longer, below any band a Tolles-Lawson fit is made in.
@@ -58,12 +60,11 @@ const NO_NOISE_NT: f64 = 1e-6;
 /// The station's record where its noise takes over, taken out.
 #[derive(Debug, Clone, PartialEq)]
 pub struct QuietStation {
-    /// The record low-passed at [`Self::corner_hz`] (as recorded where it
-    /// is `None`), one value per row; a missing sample stays missing.
+    /// The record filtered as [`Self::filter`] says, one value per row; a
+    /// missing sample stays missing.
     pub values: Vec<f64>,
-    /// The low-pass corner, Hz; `None` where the record is used as
-    /// recorded.
-    pub corner_hz: Option<f64>,
+    /// How it was filtered.
+    pub filter: StationFilter,
     /// The station's white noise, nT (one sigma).
     pub noise_nt: f64,
 }
@@ -83,13 +84,16 @@ pub fn quiet_station(log: &FlightLog, channel: &Channel) -> QuietStation {
     let values = &channel.values;
     let interval = log.median_interval_s();
     let noise_nt = white_noise_nt(values);
-    let as_recorded = |noise_nt| QuietStation {
+    let as_recorded = |filter| QuietStation {
         values: values.clone(),
-        corner_hz: None,
+        filter,
         noise_nt,
     };
-    if !(interval.is_finite() && interval > 0.0 && noise_nt.is_finite() && noise_nt > NO_NOISE_NT) {
-        return as_recorded(noise_nt);
+    if !(interval.is_finite() && interval > 0.0 && noise_nt.is_finite()) {
+        return as_recorded(StationFilter::TooShort);
+    }
+    if noise_nt <= NO_NOISE_NT {
+        return as_recorded(StationFilter::NoNoise);
     }
     let rate_hz = 1.0 / interval;
     let valid: Vec<bool> = values.iter().map(|v| v.is_finite()).collect();
@@ -109,12 +113,12 @@ pub fn quiet_station(log: &FlightLog, channel: &Channel) -> QuietStation {
         match robust_variance(&filtered(values, &runs, band, rate_hz)) {
             Some(variance) if variance > SIGNAL_OVER_NOISE * noise => break,
             // Nothing long enough to filter: nothing to judge by.
-            None => return as_recorded(noise_nt),
+            None => return as_recorded(StationFilter::TooShort),
             Some(_) => upper = lower,
         }
     }
     if upper >= nyquist {
-        return as_recorded(noise_nt);
+        return as_recorded(StationFilter::SignalToNyquist);
     }
     let corner_hz = upper.max(LOWEST_CORNER_HZ);
     let mut quiet = values.clone();
@@ -126,7 +130,7 @@ pub fn quiet_station(log: &FlightLog, channel: &Channel) -> QuietStation {
     }
     QuietStation {
         values: quiet,
-        corner_hz: Some(corner_hz),
+        filter: StationFilter::LowPassed { corner_hz },
         noise_nt,
     }
 }
@@ -219,7 +223,7 @@ mod tests {
         assert!((quiet.noise_nt - 0.02).abs() < 0.001, "noise {}", quiet.noise_nt);
         // The pulsation (1/12 Hz) lies in the octave 0.078–0.156 Hz: the
         // corner is its upper edge.
-        let corner = quiet.corner_hz.expect("a corner");
+        let corner = quiet.filter.corner_hz().expect("a corner");
         assert!((corner - 10.0 / 64.0).abs() < 1e-12, "corner {corner}");
         // The record less its quiet version is the noise above the
         // corner, 0.02 × √(1 − 0.156/10) nT, and what the zero-phase
@@ -241,8 +245,30 @@ mod tests {
     fn a_station_without_measurable_noise_is_used_as_recorded() {
         let log = station(10.0, 1200.0, 30.0, 0.0);
         let quiet = quiet_station(&log, log.channel("diurnal").unwrap());
-        assert_eq!(quiet.corner_hz, None, "noise {}", quiet.noise_nt);
+        assert_eq!(quiet.filter, StationFilter::NoNoise, "noise {}", quiet.noise_nt);
         assert_eq!(quiet.values, log.channel("diurnal").unwrap().values);
+    }
+
+    #[test]
+    fn a_station_with_signal_to_its_nyquist_frequency_or_too_short_to_filter_is_used_as_recorded() {
+        // A 1.5 Hz signal at 5 Hz, 2 nT against 0.02 nT of noise: the top
+        // octave (1.25–2.5 Hz) holds it. The fourth difference counts
+        // 83 % of it as noise (its gain there, (2 sin 0.3π)⁴ ≈ 6.9 against
+        // white noise's √70), and the octave's variance is still three
+        // times that noise's share.
+        let log = station(5.0, 1200.0, 1.0 / 1.5, 0.02);
+        let quiet = quiet_station(&log, log.channel("diurnal").unwrap());
+        assert_eq!(quiet.filter, StationFilter::SignalToNyquist, "noise {}", quiet.noise_nt);
+        assert_eq!(quiet.values, log.channel("diurnal").unwrap().values);
+        // Every other sample missing: no run longer than one sample.
+        let log = station(10.0, 600.0, 30.0, 0.02);
+        let gappy: Vec<f64> = (log.channel("diurnal").unwrap().values.iter().enumerate())
+            .map(|(k, v)| if k % 2 == 0 { *v } else { f64::NAN })
+            .collect();
+        let log = log.with_values("diurnal", gappy.clone()).unwrap();
+        let quiet = quiet_station(&log, log.channel("diurnal").unwrap());
+        assert_eq!(quiet.filter, StationFilter::TooShort, "noise {}", quiet.noise_nt);
+        assert!(quiet.values.iter().zip(&gappy).all(|(a, b)| a.to_bits() == b.to_bits()));
     }
 
     #[test]

@@ -849,7 +849,7 @@ fn verdict(quality: &ChannelQuality, limit_nt: f64) -> String {
     let unchecked = quality.unchecked_departure();
     if let Some((departure, stated)) = unchecked {
         lines.push(format!(
-            "<span class=\"fail\">CHECK</span> the diagnosed findings move the survey {departure:.4} nT from plain Tolles-Lawson, beyond the stated uncertainty{}: compare with a plain run",
+            "<span class=\"fail\">CHECK</span> what the diagnosis added (its findings, the base station's term) moves the survey {departure:.4} nT from plain Tolles-Lawson, beyond the stated uncertainty{}: compare with a plain run",
             stated.map(|s| format!(" ({s:.4} nT)")).unwrap_or_else(|| " (none stated)".into())
         ));
     }

@@ -73,7 +73,7 @@ pub struct CalibrationFigures {
     /// The compensation's uncertainty away from the calibration, nT.
     #[serde(default)]
     pub outside_calibration_sigma_nt: Option<f64>,
-    /// How far the diagnosed findings moved the survey from plain
+    /// How far the diagnosed findings or the base station's term moved the survey from plain
     /// Tolles-Lawson, when beyond the stated uncertainty: the calibration
     /// flight's verdict was CHECK, not PASS, nT.
     #[serde(default, skip_serializing_if = "Option::is_none")]

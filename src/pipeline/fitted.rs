@@ -8,7 +8,7 @@ use std::path::Path;
 
 use rayon::prelude::*;
 
-use super::diagnosis::{applied_findings, augmentation_plan, evidence_rule, next_step, ExtensionsPlan};
+use super::diagnosis::{applied_findings, augmentation_plan, evidence_rule, next_step, Departures, ExtensionsPlan};
 use super::prepared::{detection_notes, detection_warnings, PreparedFlight};
 use super::vector_stage::{vector_stage, window_hulls, VectorStage};
 use super::{
@@ -171,7 +171,7 @@ impl Assessed {
     fn messages(
         &mut self,
         (flight, log, added_columns, stage_notes): (&PreparedFlight, &FlightLog, &[String], Vec<Note>),
-        (departures, next_step): (&BTreeMap<String, f64>, &str),
+        (departures, next_step): (&Departures, &str),
         options: &Settings,
         (notes, warnings): (&mut Vec<Note>, &mut Vec<Warning>),
     ) {
@@ -217,7 +217,7 @@ fn diagnosed_plan(
 ) -> Result<(
     BTreeMap<String, Extensions>,
     Option<crate::diagnose::Diagnosis>,
-    BTreeMap<String, f64>,
+    Departures,
 )> {
     let ExtensionsPlan {
         models: plan,
@@ -424,7 +424,7 @@ fn station_notes(log: &FlightLog, models: &[FittedModel]) -> Vec<Note> {
             let quiet = crate::model::station::quiet_station(log, log.channel(column)?);
             Some(Note::QuietStation {
                 column: column.to_string(),
-                corner_hz: quiet.corner_hz,
+                filter: quiet.filter,
                 noise_nt: quiet.noise_nt,
                 channels,
             })
@@ -477,13 +477,15 @@ fn model_messages(
 
 /// Sets each channel's departure from plain Tolles-Lawson on the survey;
 /// a warning for each that exceeds its stated uncertainty.
-fn departure_warnings(quality: &mut [ChannelQuality], departures: &BTreeMap<String, f64>) -> Vec<Warning> {
+fn departure_warnings(quality: &mut [ChannelQuality], departures: &Departures) -> Vec<Warning> {
     let mut warnings = Vec::new();
     for q in quality {
-        q.survey_departure_from_plain_nt = departures.get(&q.channel).copied();
-        if let Some((departure_nt, stated_nt)) = q.unchecked_departure() {
+        let departure = departures.get(&q.channel).copied();
+        q.survey_departure_from_plain_nt = departure.map(|(nt, _)| nt);
+        if let (Some((departure_nt, stated_nt)), Some((_, moved_by))) = (q.unchecked_departure(), departure) {
             warnings.push(Warning::SurveyDeparture {
                 channel: q.channel.clone(),
+                moved_by,
                 departure_nt,
                 stated_nt,
             });

@@ -76,8 +76,8 @@ fn survey_figures(quality: &crate::quality::ChannelQuality) -> String {
 }
 
 /// A channel's verdict against `limit_nt`: PASS or FAIL by its FOM, CHECK
-/// when its findings move the survey beyond the stated uncertainty
-/// unchecked, and "no FOM" without labelled manoeuvres.
+/// when its findings or the base station's term move the survey beyond
+/// the stated uncertainty unchecked, and "no FOM" without labelled manoeuvres.
 fn verdict(quality: &crate::quality::ChannelQuality, limit_nt: f64) -> &'static str {
     match quality.fom_after_nt {
         _ if quality.unchecked_departure().is_some() => "CHECK",

@@ -191,8 +191,9 @@ pub struct ChannelQuality {
     /// Each calibration box's model on every other box of the flight.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub box_transfer: Vec<crate::quality::transfer::BoxTransfer>,
-    /// How far the diagnosed findings move the survey from plain
-    /// Tolles-Lawson, RMS, nT; only for a channel fitted with findings.
+    /// How far the diagnosed findings and the base station's term move
+    /// the survey from plain Tolles-Lawson, RMS, nT; only for a channel
+    /// fitted with either.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub survey_departure_from_plain_nt: Option<f64>,
     /// How uncertain the compensation is away from the calibration, by the
