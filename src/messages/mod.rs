@@ -1027,7 +1027,7 @@ impl Warning {
                     None => "anything its uncertainty states (none is stated)".into(),
                 },
                 match moved_by {
-                    MovedBy::BaseStation => "the fit without the external field the station recorded and the fit with it disagree by more than either states, so one of them is wrong by more than its uncertainty: compare with a plain run (--plain), and at the survey's crossovers, before using this channel",
+                    MovedBy::BaseStation => "the fits with and without the external field the station recorded disagree by more than that, so one of them is wrong by more than the uncertainty stated: compare with a plain run (--plain), and at the survey's crossovers, before using this channel",
                     _ => "compare with a plain run (--plain) before using this channel",
                 }
             ),
