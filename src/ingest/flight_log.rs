@@ -113,11 +113,11 @@ pub struct FlightLog {
     derived: Derived,
 }
 
-/// Series derived from a channel, each named by (channel, what it is).
+/// What was derived from a channel, each named by (channel, what it is).
 type Derived = std::sync::Arc<std::sync::Mutex<DerivedList>>;
 
-/// The derived series computed so far.
-type DerivedList = Vec<((String, &'static str), std::sync::Arc<Vec<f64>>)>;
+/// What was derived so far.
+type DerivedList = Vec<((String, &'static str), std::sync::Arc<dyn std::any::Any + Send + Sync>)>;
 
 impl FlightLog {
     /// Builds a flight log, checking that every channel has one value per
@@ -206,24 +206,27 @@ impl FlightLog {
         })
     }
 
-    /// The series `what` derived from channel `name` by `derive` (its
-    /// values, one result per row), computed on the first call and shared
-    /// from then on by this log and its clones; `None` without the channel.
-    /// `what` names the derivation: one name, one function.
-    pub fn derived(
+    /// `what` derived from channel `name` by `derive`, computed on the
+    /// first call and shared from then on by this log and its clones;
+    /// `None` without the channel. `what` names the derivation: one name,
+    /// one function (a name asked for with another type is derived again).
+    pub fn derived<T: std::any::Any + Send + Sync>(
         &self,
         name: &str,
         what: &'static str,
-        derive: impl FnOnce(&Channel) -> Vec<f64>,
-    ) -> Option<std::sync::Arc<Vec<f64>>> {
+        derive: impl FnOnce(&Channel) -> T,
+    ) -> Option<std::sync::Arc<T>> {
         let channel = self.channel(name)?;
         let mut series = self.derived_series();
-        if let Some((_, found)) = series.iter().find(|((c, w), _)| c == name && *w == what) {
-            return Some(found.clone());
+        let found = (series.iter())
+            .find(|((c, w), _)| c == name && *w == what)
+            .and_then(|(_, found)| found.clone().downcast::<T>().ok());
+        if found.is_some() {
+            return found;
         }
-        let values = std::sync::Arc::new(derive(channel));
-        series.push(((name.to_string(), what), values.clone()));
-        Some(values)
+        let value = std::sync::Arc::new(derive(channel));
+        series.push(((name.to_string(), what), value.clone()));
+        Some(value)
     }
 
     fn derived_series(&self) -> std::sync::MutexGuard<'_, DerivedList> {

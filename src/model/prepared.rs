@@ -535,10 +535,10 @@ fn less_base_stations<'s>(
     sources: &[SourceTerm],
     (n, rows): (usize, Option<&[Range<usize>]>),
 ) -> Cow<'s, [f64]> {
-    let stations: Vec<(std::sync::Arc<Vec<f64>>, f64)> = (sources.iter())
+    let stations: Vec<(std::sync::Arc<super::station::QuietStation>, f64)> = (sources.iter())
         .filter_map(|source| match source {
             SourceTerm::ExternalField { column, level } => {
-                super::station::quiet_values(log, column).map(|values| (values, *level))
+                super::station::shared_quiet_station(log, column).map(|values| (values, *level))
             }
             _ => None,
         })
@@ -546,7 +546,7 @@ fn less_base_stations<'s>(
     match stations.is_empty() {
         true => scalar,
         false => Cow::Owned(column_on(n, rows, |row| {
-            scalar[row] - stations.iter().map(|(c, level)| c[row] - level).sum::<f64>()
+            scalar[row] - stations.iter().map(|(c, level)| c.values[row] - level).sum::<f64>()
         })),
     }
 }

@@ -72,10 +72,10 @@ pub struct QuietStation {
 /// What [`FlightLog::derived`] names the quiet record of a station.
 const DERIVED: &str = "quiet station";
 
-/// The quiet record ([`QuietStation::values`]) of the station `column` of
-/// `log`, computed once per log; `None` without the column.
-pub fn quiet_values(log: &FlightLog, column: &str) -> Option<std::sync::Arc<Vec<f64>>> {
-    log.derived(column, DERIVED, |channel| quiet_station(log, channel).values)
+/// The quiet record ([`QuietStation`]) of the station `column` of `log`,
+/// computed once per log; `None` without the column.
+pub fn shared_quiet_station(log: &FlightLog, column: &str) -> Option<std::sync::Arc<QuietStation>> {
+    log.derived(column, DERIVED, |channel| quiet_station(log, channel))
 }
 
 /// The quiet record of the station `channel` of `log` (see the module
@@ -274,14 +274,14 @@ mod tests {
     #[test]
     fn the_quiet_record_is_computed_once_per_log_and_its_clones() {
         let log = station(10.0, 600.0, 30.0, 0.02);
-        let first = quiet_values(&log, "diurnal").unwrap();
+        let first = shared_quiet_station(&log, "diurnal").unwrap();
         let clone = log.clone();
-        let again = quiet_values(&clone, "diurnal").unwrap();
+        let again = shared_quiet_station(&clone, "diurnal").unwrap();
         assert!(std::sync::Arc::ptr_eq(&first, &again));
         // A log whose station was replaced derives it again.
         let replaced = log.with_values("diurnal", vec![50_000.0; log.len()]).unwrap();
-        let other = quiet_values(&replaced, "diurnal").unwrap();
-        assert!(other.iter().all(|v| *v == 50_000.0));
-        assert!(quiet_values(&log, "missing").is_none());
+        let other = shared_quiet_station(&replaced, "diurnal").unwrap();
+        assert!(other.values.iter().all(|v| *v == 50_000.0));
+        assert!(shared_quiet_station(&log, "missing").is_none());
     }
 }

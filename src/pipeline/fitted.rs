@@ -421,7 +421,7 @@ fn station_notes(log: &FlightLog, models: &[FittedModel]) -> Vec<Note> {
     }
     (stations.into_iter())
         .filter_map(|(column, channels)| {
-            let quiet = crate::model::station::quiet_station(log, log.channel(column)?);
+            let quiet = crate::model::station::shared_quiet_station(log, column)?;
             Some(Note::QuietStation {
                 column: column.to_string(),
                 filter: quiet.filter,
