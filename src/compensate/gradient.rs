@@ -32,12 +32,12 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::calibration::windows::CalibrationWindow;
-use crate::compensate::{compensate, CompensatedGradient, Compensation, LevelConvention};
+use crate::compensate::{compensate_channel, CompensatedGradient, Compensation, LevelConvention};
 use crate::error::{Error, Result};
 use crate::ingest::flight_log::{Channel, ChannelRole, FlightLog, VectorSensor};
 use crate::messages::{GradientParting, Note, Warning};
 use crate::model::terms::TermSet;
-use crate::model::{fit, FitOptions, FittedModel, ModelSpec, WindowFit};
+use crate::model::{fit, FitOptions, FittedModel, ModelSpec, SharedDesign, WindowFit};
 use crate::numerics::stacked::StorePool;
 
 /// How a gradient is compensated (`[[gradient]] method`).
@@ -169,6 +169,11 @@ pub struct GradientInputs<'a> {
     pub models: &'a [FittedModel],
     /// Their compensation.
     pub compensation: &'a Compensation,
+    /// The terms over the whole flight that compensation built
+    /// ([`crate::compensate::compensate_with`]): the direct model reads
+    /// the same fluxgate, so it takes its terms from here when its terms
+    /// are among them, and builds them otherwise.
+    pub shared: &'a [SharedDesign],
     /// Whether each model's compensation carries the uncertainty warning
     /// ([`crate::quality::is_uncertain`]), in the models' order.
     pub uncertain: &'a [bool],
@@ -386,11 +391,8 @@ fn compensate_pair(
     // Both methods' difference fields, nT: the one used is the output,
     // and where they part on the survey one of them is wrong.
     let direct = {
-        let direct = compensate(&lean, std::slice::from_ref(&model), level)?;
-        let channel = direct.channels.into_iter().next().ok_or_else(|| Error::Vector {
-            sensor: name.clone(),
-            message: "the direct model compensated nothing".into(),
-        })?;
+        // Only the values are read: the rows' flags are the channels'.
+        let channel = compensate_channel(&lean, &model, level, inputs.shared)?;
         (channel.values, channel.level_offset_nt)
     };
     let difference = {
@@ -566,5 +568,56 @@ fn choose(asked: GradientMethod, held_out: Option<&GradientHeldOut>, at_odds: bo
             GradientMethod::Direct,
             "not compared held out: the windows span fewer than three headings; the direct fit is not disturbed by what both sensors see alike".into(),
         ),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::compensate::compensate;
+    use crate::simulate::scenario::{RawScenario, Scenario};
+
+    /// The direct model reads the fluxgate of the flight its channels were
+    /// compensated on: compensated with the terms that compensation built,
+    /// it gives the bits of the compensation that builds its own, and
+    /// those of the whole compensation the gradient stage once made.
+    #[test]
+    fn the_direct_model_from_the_shared_terms_is_the_same_bits() {
+        let raw: RawScenario = toml::from_str("[survey]\nline_count = 1\nline_length_m = 3000.0\n").unwrap();
+        let log = crate::simulate::simulate(&Scenario::try_from(raw).unwrap())
+            .unwrap()
+            .log;
+        let windows = crate::calibration::detect::detect_manoeuvres(&log, &Default::default())
+            .unwrap()
+            .calibration_windows(1.0);
+        let sensor = log.vector_sensors().into_iter().next().unwrap();
+        let (options, stores) = (FitOptions::default(), StorePool::new());
+        let spec = ModelSpec::plain(TermSet::default());
+        let channel_model = fit(&log, &sensor, "mag_1_uc", &windows, &spec, &options, &stores).unwrap();
+        let shared = SharedDesign::of_models(&log, std::slice::from_ref(&channel_model));
+        assert_eq!(shared.len(), 1);
+        let pair = GradientPair {
+            a: "mag_1_uc".into(),
+            b: "mag_2_uc".into(),
+            separation_m: 1.5,
+            axis_body: None,
+            method: GradientMethod::Direct,
+        };
+        let name = gradient_name(&pair.a, &pair.b);
+        let lean = difference_log(&log, &sensor, &pair, &name).unwrap();
+        let lean_sensor = lean.vector_sensor(&sensor.prefix).unwrap();
+        let direct = fit(&lean, &lean_sensor, &name, &windows, &spec, &options, &stores).unwrap();
+        let level = LevelConvention::CalibrationMean;
+        let bits = |values: &[f64]| values.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+        let from_shared = compensate_channel(&lean, &direct, level, &shared).unwrap();
+        let own = compensate_channel(&lean, &direct, level, &[]).unwrap();
+        let whole = compensate(&lean, std::slice::from_ref(&direct), level).unwrap();
+        assert!(from_shared.values.iter().filter(|v| v.is_finite()).count() > lean.len() / 2);
+        assert_eq!(bits(&from_shared.values), bits(&own.values));
+        assert_eq!(bits(&from_shared.values), bits(&whole.channels[0].values));
+        assert_eq!(
+            from_shared.level_offset_nt.to_bits(),
+            whole.channels[0].level_offset_nt.to_bits()
+        );
     }
 }

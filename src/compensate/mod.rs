@@ -234,16 +234,7 @@ pub fn compensate_with(
 ) -> Result<Compensation> {
     let channels: Vec<CompensatedChannel> = models
         .par_iter()
-        .map(|model| {
-            let prediction = model.predict_with(log, shared)?;
-            Ok(level_compensated(
-                log,
-                model,
-                &prediction.scalar_nt,
-                prediction.interference_nt,
-                level,
-            ))
-        })
+        .map(|model| compensate_channel(log, model, level, shared))
         .collect::<Result<_>>()?;
     let flags = row_flags(log, models, &channels);
     Ok(Compensation {
@@ -253,6 +244,24 @@ pub fn compensate_with(
         gradients: Vec::new(),
         reduced: Vec::new(),
     })
+}
+
+/// One channel of [`compensate_with`], without the rows' flags: what a
+/// stage that reads only the values (the direct gradient) needs.
+pub(crate) fn compensate_channel(
+    log: &FlightLog,
+    model: &FittedModel,
+    level: LevelConvention,
+    shared: &[SharedDesign],
+) -> Result<CompensatedChannel> {
+    let prediction = model.predict_with(log, shared)?;
+    Ok(level_compensated(
+        log,
+        model,
+        &prediction.scalar_nt,
+        prediction.interference_nt,
+        level,
+    ))
 }
 
 /// `scalar` less `interference`, levelled by `level`.

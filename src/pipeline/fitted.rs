@@ -10,7 +10,7 @@ use rayon::prelude::*;
 
 use super::diagnosis::{applied_findings, augmentation_plan, evidence_rule, next_step, Departures, ExtensionsPlan};
 use super::prepared::{detection_notes, detection_warnings, PreparedFlight};
-use super::vector_stage::{vector_stage, window_hulls, VectorStage};
+use super::vector_stage::{vector_fits, vector_reference, window_hulls, VectorStage};
 use super::{
     against_plan, assess_with_sigma, estimator_table_gap, renaming_notes, units_row_note, FlightResult, FlightRun,
 };
@@ -128,9 +128,27 @@ fn compensate_and_assess(
         Some(detection) => detection.boxes.iter().map(|b| (b.t_start, b.t_end)).collect(),
         None => window_hulls(&flight.windows),
     };
-    let (quality, transfer_notes) = assess_channels(on, &mut fitted, &mut compensation, &boxes, (options, meter))?;
-    let models = fitted.models;
-    let (mut vector, mut gradients) = vector_and_gradients(on, &boxes, (&compensation, &models, &quality), options);
+    // The vector stage reads the channels' interference only: its fits run
+    // beside the channels' assessment and the gradients.
+    let reference = vector_reference(on.log, (on.windows, &boxes), &compensation, &options.vector);
+    let (assessed, mut vector) = rayon::join(
+        || -> Result<_> {
+            let (quality, transfer_notes) =
+                assess_channels(on, &mut fitted, &mut compensation, &boxes, (options, meter))?;
+            let gradients = gradient_stage(on, (&compensation, &fitted, &quality), options);
+            Ok((quality, transfer_notes, gradients))
+        },
+        || match &reference {
+            Ok(reference) => vector_fits(on.log, (on.windows, &boxes), reference, (&options.vector, &options.fit)),
+            Err(_) => VectorStage::default(),
+        },
+    );
+    let (quality, transfer_notes, mut gradients) = assessed?;
+    if let Err(ended) = reference {
+        vector = ended;
+    }
+    let Fitted { models, shared, .. } = fitted;
+    drop(shared);
     for compensated in std::mem::take(&mut vector.compensated) {
         compensation.add_vector(compensated);
     }
@@ -339,12 +357,12 @@ fn assess_channels(
         log, sensor, windows, ..
     } = *on;
     let stores = StorePool::new();
-    let shared = std::mem::take(&mut fitted.shared);
+    let shared = &fitted.shared;
     let geometry = crate::quality::SurveyGeometry::of(log);
     let assessed: Vec<(ChannelQuality, Vec<f64>, Vec<Note>)> = (fitted.models.par_iter())
         .zip(compensation.channels.par_iter_mut())
         .map(|(model, channel)| {
-            let (mut quality, jackknife_levels) = assess_with_sigma((log, &geometry), model, channel, &shared)?;
+            let (mut quality, jackknife_levels) = assess_with_sigma((log, &geometry), model, channel, shared)?;
             quality.transfer = check_transfer(log, sensor, model, windows, (&options.fit, &options.transfer), &stores)?;
             let (transfers, notes) =
                 crate::quality::transfer::box_transfer(log, sensor, model, windows, boxes, &options.fit, &stores)?;
@@ -353,7 +371,6 @@ fn assess_channels(
             Ok((quality, jackknife_levels, notes))
         })
         .collect::<Result<_>>()?;
-    drop(shared);
     let mut quality = Vec::with_capacity(assessed.len());
     let mut transfer_notes = Vec::new();
     for ((model, (q, jackknife_nt, notes)), channel) in
@@ -371,37 +388,25 @@ fn assess_channels(
     Ok((quality, transfer_notes))
 }
 
-/// The vector stage and the gradients: they read the compensated channels
-/// and not each other, so they run side by side.
-fn vector_and_gradients(
+/// The gradients of `options` from the fitted channels and their
+/// compensation, assessed (`quality`).
+fn gradient_stage(
     on: &Calibration,
-    boxes: &[(f64, f64)],
-    (compensation, models, quality): (&crate::compensate::Compensation, &[FittedModel], &[ChannelQuality]),
+    (compensation, fitted, quality): (&crate::compensate::Compensation, &Fitted, &[ChannelQuality]),
     options: &Settings,
-) -> (VectorStage, GradientStage) {
-    rayon::join(
-        || {
-            vector_stage(
-                on.log,
-                (on.windows, boxes),
-                compensation,
-                (&options.vector, &options.fit),
-            )
+) -> GradientStage {
+    crate::compensate::gradient::compensate_gradients(
+        &crate::compensate::gradient::GradientInputs {
+            log: on.log,
+            sensor: on.sensor,
+            windows: on.windows,
+            models: &fitted.models,
+            compensation,
+            shared: &fitted.shared,
+            uncertain: &quality.iter().map(crate::quality::is_uncertain).collect::<Vec<_>>(),
         },
-        || {
-            crate::compensate::gradient::compensate_gradients(
-                &crate::compensate::gradient::GradientInputs {
-                    log: on.log,
-                    sensor: on.sensor,
-                    windows: on.windows,
-                    models,
-                    compensation,
-                    uncertain: &quality.iter().map(crate::quality::is_uncertain).collect::<Vec<_>>(),
-                },
-                &options.gradients,
-                (options.terms, &options.fit, options.level),
-            )
-        },
+        &options.gradients,
+        (options.terms, &options.fit, options.level),
     )
 }
 

@@ -6,6 +6,7 @@ use crate::messages::{Note, VectorSummary, Warning};
 use crate::model::FitOptions;
 
 /// What the vector stage produced: models, compensated vectors, words.
+#[derive(Default)]
 pub(super) struct VectorStage {
     pub(super) models: Vec<crate::vector::VectorModel>,
     pub(super) compensated: Vec<crate::vector::CompensatedVector>,
@@ -25,29 +26,26 @@ pub(super) const VECTOR_DIRECTION_WARNING_DEG: f64 = 0.5;
 /// the box (RMS, nT) is a warning: the vector's scale rests on its level.
 pub(super) const VECTOR_SWING_WARNING_NT: f64 = 10.0;
 
-/// Vector-compensates every fluxgate of `log` with the twelve-constant
-/// model fitted on `windows`, the field's size from the scalar channel
-/// with the least aircraft field over the box: when `[vector] enabled` and the flight records an
-/// INS attitude. A fluxgate whose fit fails is a warning, not an error:
-/// the scalar outputs stand.
-pub(super) fn vector_stage(
+/// The reference of the vector stage ([`vector_fits`]): the scalar channel
+/// with the least aircraft field over the box, its field's size on every
+/// row, when `[vector] enabled` and the flight records an INS attitude.
+/// Otherwise the stage as it ends: empty when the stage is off, with a
+/// note without an attitude, a warning without a reference. It reads the
+/// channels' interference only, so the fits that follow need nothing more
+/// of the compensation and run beside the channels' assessment.
+pub(super) fn vector_reference(
     log: &FlightLog,
     (windows, boxes): (&[crate::calibration::windows::CalibrationWindow], &[(f64, f64)]),
     compensation: &crate::compensate::Compensation,
-    (options, fit_options): (&crate::vector::VectorOptions, &FitOptions),
-) -> VectorStage {
-    let mut stage = VectorStage {
-        models: Vec::new(),
-        compensated: Vec::new(),
-        notes: Vec::new(),
-        warnings: Vec::new(),
-    };
+    options: &crate::vector::VectorOptions,
+) -> Result<crate::vector::Reference, VectorStage> {
+    let mut stage = VectorStage::default();
     if !options.enabled {
-        return stage;
+        return Err(stage);
     }
     if log.attitude().is_none() {
         stage.notes.push(Note::NoVectorAttitude);
-        return stage;
+        return Err(stage);
     }
     // The reference is the channel with the least aircraft field over the
     // box: its level, which the vector's scale rests on, is the surest.
@@ -60,17 +58,30 @@ pub(super) fn vector_stage(
         })
         .filter(|r| r.swing_nt.is_finite())
         .min_by(|a, b| a.swing_nt.total_cmp(&b.swing_nt));
-    let Some(reference) = reference else {
+    reference.ok_or_else(|| {
         stage.warnings.push(Warning::VectorNoReference);
-        return stage;
-    };
+        stage
+    })
+}
+
+/// Vector-compensates every fluxgate of `log` with the twelve-constant
+/// model fitted on `windows`, the field's size from `reference`
+/// ([`vector_reference`]). A fluxgate whose fit fails is a warning, not an
+/// error: the scalar outputs stand.
+pub(super) fn vector_fits(
+    log: &FlightLog,
+    (windows, boxes): (&[crate::calibration::windows::CalibrationWindow], &[(f64, f64)]),
+    reference: &crate::vector::Reference,
+    (options, fit_options): (&crate::vector::VectorOptions, &FitOptions),
+) -> VectorStage {
+    let mut stage = VectorStage::default();
     for sensor in log.vector_sensors() {
         let stage_options = options.tolles_lawson.then_some(fit_options);
         let fitted = crate::vector::fit(
             log,
             &sensor,
             (windows, boxes),
-            &reference,
+            reference,
             (options.site.as_ref(), stage_options),
         )
         .and_then(|model| Ok((model.compensate(log)?, model)));
