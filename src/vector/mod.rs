@@ -75,7 +75,7 @@ use crate::calibration::windows::CalibrationWindow;
 use crate::error::{Error, Result};
 use crate::ingest::flight_log::{ChannelRole, FlightLog, VectorSensor};
 use crate::model::igrf::{decimal_year, Igrf};
-use crate::numerics::linalg::{small_svd, tall_skinny_r};
+use crate::numerics::linalg::{small_svd, tall_skinny_r, tall_skinny_r_of};
 
 pub mod tolles_lawson;
 
@@ -1057,32 +1057,34 @@ fn gauss_newton_step(samples: &[Sample], weights: &[f64], parameters: &Parameter
     let n = samples.len() * 3;
     let [u, du_di, du_dd] = direction(parameters.inclination, parameters.declination);
     let (lag, smoothing) = (parameters.lag, parameters.smoothing);
-    let mut columns: Vec<Vec<f64>> = vec![vec![0.0; n]; PARAMETERS + 1];
-    for (i, (s, w)) in samples.iter().zip(weights).enumerate() {
-        let root = w.sqrt();
-        let body = s.body(&u, lag, smoothing);
-        let [first, second, _] = differences(s.points.map(|p| p.body(&u)));
-        let by_lag = parameters.k * -first;
-        let by_smoothing = parameters.k * second;
-        let at = s.points[2];
-        let by_inclination = parameters.k * (at.ned_to_body * du_di) * at.total_nt;
-        let by_declination = parameters.k * (at.ned_to_body * du_dd) * at.total_nt;
-        let residual = parameters.k * body + parameters.h - s.reading;
-        for j in 0..3 {
-            let row = 3 * i + j;
-            for c in 0..3 {
-                columns[3 * j + c][row] = root * body[c];
+    // Sample i's rows 3i..3i+3 of W^{1/2}[J | -r], each block of rows
+    // formed where it is factored.
+    let r = tall_skinny_r_of(n, PARAMETERS + 1, |rows, mut block| {
+        for i in rows.start / 3..rows.end.div_ceil(3) {
+            let (s, w) = (&samples[i], weights[i]);
+            let root = w.sqrt();
+            let body = s.body(&u, lag, smoothing);
+            let [first, second, _] = differences(s.points.map(|p| p.body(&u)));
+            let by_lag = parameters.k * -first;
+            let by_smoothing = parameters.k * second;
+            let at = s.points[2];
+            let by_inclination = parameters.k * (at.ned_to_body * du_di) * at.total_nt;
+            let by_declination = parameters.k * (at.ned_to_body * du_dd) * at.total_nt;
+            let residual = parameters.k * body + parameters.h - s.reading;
+            for j in (0..3).filter(|j| rows.contains(&(3 * i + j))) {
+                let row = 3 * i + j - rows.start;
+                for c in 0..3 {
+                    block[(row, 3 * j + c)] = root * body[c];
+                }
+                block[(row, 9 + j)] = root;
+                block[(row, 12)] = root * by_inclination[j];
+                block[(row, 13)] = root * by_declination[j];
+                block[(row, 14)] = root * by_lag[j];
+                block[(row, 15)] = root * by_smoothing[j];
+                block[(row, PARAMETERS)] = -root * residual[j];
             }
-            columns[9 + j][row] = root;
-            columns[12][row] = root * by_inclination[j];
-            columns[13][row] = root * by_declination[j];
-            columns[14][row] = root * by_lag[j];
-            columns[15][row] = root * by_smoothing[j];
-            columns[PARAMETERS][row] = -root * residual[j];
         }
-    }
-    let views: Vec<&[f64]> = columns.iter().map(Vec::as_slice).collect();
-    let r = tall_skinny_r(&views);
+    });
     let delta = back_substitute(&r, PARAMETERS)?;
     let norms: Vec<f64> = (0..PARAMETERS)
         .map(|j| (0..=j).map(|i| r[(i, j)].powi(2)).sum::<f64>().sqrt())
