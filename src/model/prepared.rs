@@ -223,10 +223,12 @@ impl<'a> Prepared<'a> {
 
     /// [`Self::fit_passes`] on a band it may change.
     fn passes_on(&self, band: &mut BandData, options: &FitOptions, stores: &StorePool) -> Result<FittedModel> {
-        let (mut fitted, mut factor) = self.fit_on(band, None, options)?;
         if !self.spec.extensions.second_order {
-            return Ok(fitted);
+            // The only pass: the model takes the band's windows.
+            let windows = std::mem::take(&mut band.windows);
+            return Ok(self.fit_windows(band, windows, None, options)?.0);
         }
+        let (mut fitted, mut factor) = self.fit_on(band, None, options)?;
         let windows: Vec<CalibrationWindow> = band.windows.iter().map(|w| w.window.clone()).collect();
         for _ in 0..SECOND_ORDER_PASSES {
             let corrected = self.corrected(&fitted, &windows);
@@ -270,6 +272,18 @@ impl<'a> Prepared<'a> {
         factor: Option<&DesignFactor>,
         options: &FitOptions,
     ) -> Result<(FittedModel, Option<DesignFactor>)> {
+        self.fit_windows(band, band.windows.clone(), factor, options)
+    }
+
+    /// [`Self::fit_on`] with the band's `windows` given apart (the band's
+    /// own, or a copy of them), for the model to keep.
+    fn fit_windows(
+        &self,
+        band: &BandData,
+        windows: Vec<WindowFit>,
+        factor: Option<&DesignFactor>,
+        options: &FitOptions,
+    ) -> Result<(FittedModel, Option<DesignFactor>)> {
         let stacked = &band.stacked;
         let solve = self.spec.solve_options(&options.solve);
         let solved = match factor {
@@ -283,21 +297,21 @@ impl<'a> Prepared<'a> {
         })?;
         let chosen = match options.solver {
             Solver::Ridge => None,
-            requested => Some(solve_on_headings(stacked, &band.windows, requested, &mut solution)),
+            requested => Some(solve_on_headings(stacked, &windows, requested, &mut solution)),
         };
-        Ok((self.fitted_model(band, (solution, chosen), options), made))
+        let model = self.fitted_model((windows, band.sample_rate_hz), (solution, chosen), options);
+        Ok((model, made))
     }
 
-    /// The model `solution` makes on `band`: its coefficients, their
-    /// uncertainty and each window's band-passed residual.
+    /// The model `solution` makes on the band's windows `fits` (sampled at
+    /// `sample_rate_hz`): its coefficients, their uncertainty and each
+    /// window's band-passed residual.
     fn fitted_model(
         &self,
-        band: &BandData,
+        (mut fits, sample_rate_hz): (Vec<WindowFit>, f64),
         (solution, chosen): (Solution, Option<SolverUse>),
         options: &FitOptions,
     ) -> FittedModel {
-        let sample_rate_hz = band.sample_rate_hz;
-        let mut fits = band.windows.clone();
         for fit in &mut fits {
             fit.band_after_nt = (fit.band_before_nt.iter())
                 .zip(&solution.fitted[fit.stacked_rows.clone()])
