@@ -132,7 +132,7 @@ pub fn plain_of(model: &Extensions) -> Extensions {
     Extensions {
         vector_calibration: model.vector_calibration.clone(),
         sources: (model.sources.iter())
-            .filter(|s| matches!(s, crate::model::SourceTerm::ExternalField { .. }))
+            .filter(|s| s.is_external_field())
             .cloned()
             .collect(),
         ..Extensions::default()
@@ -373,7 +373,7 @@ pub fn heading_level_risky(comparison: &crate::quality::corrugation::HeadingLeve
 pub fn recorded_part(model: &Extensions) -> Extensions {
     Extensions {
         sources: (model.sources.iter())
-            .filter(|s| matches!(s, crate::model::SourceTerm::ExternalField { .. }))
+            .filter(|s| s.is_external_field())
             .cloned()
             .collect(),
         ..tolles_lawson_of(model)

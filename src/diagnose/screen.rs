@@ -376,7 +376,7 @@ impl Screen {
 /// The base-station columns `model` subtracts from the scalar.
 fn station_columns(model: &Model) -> Vec<String> {
     (model.sources.iter())
-        .filter(|s| matches!(s, crate::model::SourceTerm::ExternalField { .. }))
+        .filter(|s| s.is_external_field())
         .map(|s| s.column().to_string())
         .collect()
 }

@@ -727,6 +727,9 @@ pub enum StationFilter {
     LowPassed {
         /// The corner, Hz.
         corner_hz: f64,
+        /// Valid samples in runs too short to filter (between gaps), used
+        /// as recorded, their noise included.
+        recorded_samples: usize,
     },
     /// As recorded: it holds more signal than noise up to its Nyquist
     /// frequency.
@@ -745,7 +748,7 @@ impl StationFilter {
     /// recorded.
     pub fn corner_hz(&self) -> Option<f64> {
         match self {
-            StationFilter::LowPassed { corner_hz } => Some(*corner_hz),
+            StationFilter::LowPassed { corner_hz, .. } => Some(*corner_hz),
             _ => None,
         }
     }
@@ -1899,10 +1902,22 @@ impl Note {
             } => {
                 let channels = channels.join(", ");
                 match filter {
-                    StationFilter::LowPassed { corner_hz } => write!(
-                        f,
-                        "base station '{column}': low-passed at {corner_hz:.3} Hz before the fit of {channels} subtracts it; above that its record is its own noise ({noise_nt:.4} nT), which would enter the fit"
-                    ),
+                    StationFilter::LowPassed {
+                        corner_hz,
+                        recorded_samples,
+                    } => {
+                        write!(
+                            f,
+                            "base station '{column}': low-passed at {corner_hz:.3} Hz before the fit of {channels} subtracts it; above that its record is its own noise ({noise_nt:.4} nT), which would enter the fit"
+                        )?;
+                        match recorded_samples {
+                            0 => Ok(()),
+                            n => write!(
+                                f,
+                                "; {n} of its samples, in runs between gaps too short to filter, are subtracted as recorded, that noise included"
+                            ),
+                        }
+                    }
                     StationFilter::SignalToNyquist => write!(
                         f,
                         "base station '{column}': subtracted as recorded before the fit of {channels}; it records more of the external field than of its own noise ({noise_nt:.4} nT) up to its Nyquist frequency"

@@ -73,6 +73,12 @@ impl SourceTerm {
             | SourceTerm::ExternalField { column, .. } => column,
         }
     }
+
+    /// Whether the term is the base station's record of the external
+    /// field, not a coupling to an aircraft column.
+    pub fn is_external_field(&self) -> bool {
+        matches!(self, SourceTerm::ExternalField { .. })
+    }
 }
 
 /// Physics added to one channel's Tolles-Lawson model. The default is

@@ -123,14 +123,20 @@ pub fn quiet_station(log: &FlightLog, channel: &Channel) -> QuietStation {
     let corner_hz = upper.max(LOWEST_CORNER_HZ);
     let mut quiet = values.clone();
     let low = filtered(values, &runs, FilterBand::Lowpass { high_hz: corner_hz }, rate_hz);
+    // A run too short for the filter stays as recorded, and is counted.
+    let mut recorded_samples = 0;
     for (run, piece) in runs.iter().zip(&low) {
-        if let Some(piece) = piece {
-            quiet[run.clone()].copy_from_slice(piece);
+        match piece {
+            Some(piece) => quiet[run.clone()].copy_from_slice(piece),
+            None => recorded_samples += run.len(),
         }
     }
     QuietStation {
         values: quiet,
-        filter: StationFilter::LowPassed { corner_hz },
+        filter: StationFilter::LowPassed {
+            corner_hz,
+            recorded_samples,
+        },
         noise_nt,
     }
 }
@@ -238,6 +244,53 @@ mod tests {
         assert!(
             (rms - expected).abs() < 0.001,
             "removed {rms} nT, expected {expected} nT"
+        );
+    }
+
+    /// A run between two gaps too short for the low-pass is subtracted as
+    /// recorded, and the note counts its samples: a low-passed record
+    /// never holds raw samples unsaid.
+    #[test]
+    fn a_short_run_between_gaps_is_counted_and_kept_as_recorded() {
+        let log = station(20.0, 3600.0, 12.0, 0.02);
+        let recorded = &log.channel("diurnal").unwrap().values;
+        // Ten valid samples between two gaps, mid-flight.
+        let short = 30_000..30_010;
+        let gappy: Vec<f64> = (recorded.iter().enumerate())
+            .map(|(k, v)| match k == short.start - 1 || k == short.end {
+                true => f64::NAN,
+                false => *v,
+            })
+            .collect();
+        let log = log.with_values("diurnal", gappy).unwrap();
+        let quiet = quiet_station(&log, log.channel("diurnal").unwrap());
+        let StationFilter::LowPassed {
+            corner_hz,
+            recorded_samples,
+        } = quiet.filter
+        else {
+            panic!("{:?}", quiet.filter);
+        };
+        assert!((corner_hz - 10.0 / 64.0).abs() < 1e-9, "corner {corner_hz}");
+        assert_eq!(recorded_samples, 10);
+        assert!(short
+            .clone()
+            .all(|k| quiet.values[k].to_bits() == recorded[k].to_bits()));
+        // The long runs are low-passed: the noise is gone there.
+        assert!((0..20_000).any(|k| quiet.values[k] != recorded[k]));
+        let note = crate::messages::Note::QuietStation {
+            column: "diurnal".into(),
+            filter: quiet.filter,
+            noise_nt: quiet.noise_nt,
+            channels: vec!["mag_1_uc".into()],
+        };
+        let text = note.to_string();
+        assert!(
+            text.contains("low-passed at 0.156 Hz")
+                && text.contains(
+                    "10 of its samples, in runs between gaps too short to filter, are subtracted as recorded"
+                ),
+            "{text}"
         );
     }
 

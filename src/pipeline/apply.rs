@@ -625,7 +625,7 @@ impl SavedModel {
                 // An earlier magcomp fitted a base station's gain: one
                 // more term, named after the station's column.
                 let stations: Vec<&str> = (fit.spec.extensions.sources.iter())
-                    .filter(|s| matches!(s, crate::model::SourceTerm::ExternalField { .. }))
+                    .filter(|s| s.is_external_field())
                     .map(|s| s.column())
                     .collect();
                 let fitted_gain = !stations.is_empty()

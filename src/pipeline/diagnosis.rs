@@ -248,7 +248,7 @@ fn verdict_departures(
     use crate::diagnose::evidence::{departures, plain_of, tolles_lawson_of};
     let measured = departures(compensations, plan, tolles_lawson_of)?;
     let moved_by = |model: &Extensions| {
-        let station = (model.sources.iter()).any(|s| matches!(s, crate::model::SourceTerm::ExternalField { .. }));
+        let station = (model.sources.iter()).any(|s| s.is_external_field());
         match (model != &plain_of(model), station) {
             (true, true) => MovedBy::FindingsAndBaseStation,
             (false, true) => MovedBy::BaseStation,
@@ -354,7 +354,7 @@ fn unchecked_kinds(model: &Extensions, check: crate::diagnose::evidence::SurveyC
     if model.lag_s != 0.0 {
         kinds.push(EffectKind::SensorLag);
     }
-    let coupled = (model.sources.iter()).any(|s| !matches!(s, crate::model::SourceTerm::ExternalField { .. }));
+    let coupled = (model.sources.iter()).any(|s| !s.is_external_field());
     if coupled && check == crate::diagnose::evidence::SurveyCheck::NotMade {
         kinds.push(EffectKind::AuxCoupling);
     }
