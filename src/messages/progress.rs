@@ -24,8 +24,8 @@ pub enum Stage {
     /// each fit's excitation.
     Fitting,
     /// Compensating every row and assessing each channel (a step each:
-    /// figures, held-out transfer, the sigma column), then the vector
-    /// stage, the gradients and the reduced columns.
+    /// figures, held-out transfer, the sigma column) with the vector
+    /// stage beside it, then the gradients and the reduced columns.
     Assessing,
     /// Writing the outputs.
     Writing,

@@ -114,8 +114,8 @@ struct Assessed {
     excitation_notes: Vec<Option<Note>>,
 }
 
-/// Compensates every row of every fitted channel, assesses each, then runs
-/// the vector stage, the gradients and the reduced columns on them.
+/// Compensates every row of every fitted channel and assesses each, the
+/// vector stage beside it, then adds the gradients and the reduced columns.
 fn compensate_and_assess(
     flight: &PreparedFlight,
     on: &Calibration,
