@@ -138,15 +138,17 @@ fn compensate_and_assess(
             let gradients = gradient_stage(on, (&compensation, &fitted, &quality), options);
             Ok((quality, transfer_notes, gradients))
         },
-        || match &reference {
-            Ok(reference) => vector_fits(on.log, (on.windows, &boxes), reference, (&options.vector, &options.fit)),
-            Err(_) => VectorStage::default(),
+        || match reference {
+            Ok(reference) => vector_fits(
+                on.log,
+                (on.windows, &boxes),
+                &reference,
+                (&options.vector, &options.fit),
+            ),
+            Err(ended) => ended,
         },
     );
     let (quality, transfer_notes, mut gradients) = assessed?;
-    if let Err(ended) = reference {
-        vector = ended;
-    }
     let Fitted { models, shared, .. } = fitted;
     drop(shared);
     for compensated in std::mem::take(&mut vector.compensated) {
