@@ -39,6 +39,10 @@ enum Command {
         /// diagnosis even when it was made on another flight.
         #[arg(long)]
         force: bool,
+        /// Exit 0 even when a channel's verdict is FAIL (default: exit code
+        /// 3, the outputs written); also [quality] exit_zero_on_fail.
+        #[arg(long)]
+        exit_zero_on_fail: bool,
         /// Process only shard K of N (K from 0): the flights at positions
         /// K, K+N, K+2N, … of the campaign sorted by output name. auto/N
         /// takes K from SLURM_ARRAY_TASK_ID (less SLURM_ARRAY_TASK_MIN),
@@ -181,7 +185,11 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let outcome = dispatch(cli.command, cli.verbose);
     match outcome {
-        Ok(()) => ExitCode::SUCCESS,
+        Ok(cli::Outcome::Done) => ExitCode::SUCCESS,
+        Ok(cli::Outcome::ChannelFailed) => {
+            eprintln!("{}", cli::FAIL_EXIT_LINE);
+            ExitCode::from(3)
+        }
         Err(error) => {
             eprintln!("magcomp: error: {}", error_paragraph(&error));
             ExitCode::FAILURE
@@ -190,16 +198,25 @@ fn main() -> ExitCode {
 }
 
 /// Runs the subcommand `command` (`verbose`: with `-v`).
-fn dispatch(command: Command, verbose: bool) -> anyhow::Result<()> {
+fn dispatch(command: Command, verbose: bool) -> anyhow::Result<cli::Outcome> {
     match command {
         Command::Run {
             config,
             plain,
             force,
+            exit_zero_on_fail,
             shard,
-        } => cli::run::run(&config, (plain, force, verbose), shard.as_deref()),
-        Command::Summarize { outdir } => cli::summarize::summarize(&outdir),
+        } => cli::run::run(&config, (plain, force, verbose, exit_zero_on_fail), shard.as_deref()),
         Command::Compensate(args) => cli::compensate::compensate(*args, verbose),
+        command => other_command(command).map(|()| cli::Outcome::Done),
+    }
+}
+
+/// Runs a subcommand that compensates no flight.
+fn other_command(command: Command) -> anyhow::Result<()> {
+    match command {
+        Command::Run { .. } | Command::Compensate(_) => unreachable!("dispatched above"),
+        Command::Summarize { outdir } => cli::summarize::summarize(&outdir),
         Command::Detect {
             flight,
             out,

@@ -20,7 +20,7 @@ pub mod summary;
 
 pub use runner::{dependency_order, run_flights, FinishedFlight, FlightsAtOnce, Progress};
 pub use shard::{Shard, SCHEDULER_INDEX_VARIABLES};
-pub use status::{settings_sha256, status_path, FlightState, FlightStatus};
+pub use status::{settings_sha256, status_path, ChannelVerdict, FlightState, FlightStatus};
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -88,6 +88,12 @@ pub fn process_campaign_flight(
             status.state = FlightState::Done;
             status.rows = Some(result.rows);
             status.warnings = result.warnings.iter().map(ToString::to_string).collect();
+            status.verdicts = (result.channels.iter())
+                .map(|c| ChannelVerdict {
+                    channel: c.channel.clone(),
+                    verdict: c.verdict,
+                })
+                .collect();
             status.outputs = file_names(&written);
             Ok(result)
         }
@@ -130,6 +136,7 @@ fn failed_status(job: &FlightJob, shard: Shard) -> FlightStatus {
         outputs: Vec::new(),
         rows: None,
         warnings: Vec::new(),
+        verdicts: Vec::new(),
         aircraft: job.aircraft.clone(),
         date: job.date.map(|d| d.to_string()),
         elapsed_s: 0.0,

@@ -8,6 +8,7 @@ use sha2::{Digest, Sha256};
 
 use crate::config::{FlightJob, Settings};
 use crate::error::{Error, Result};
+use crate::quality::verdict::Verdict;
 
 /// How a flight of a run ended.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -48,6 +49,10 @@ pub struct FlightStatus {
     /// The run's warnings (also in the quality JSON and the report).
     #[serde(default)]
     pub warnings: Vec<String>,
+    /// Each channel's verdict, in channel order (also in the quality JSON
+    /// and the report).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub verdicts: Vec<ChannelVerdict>,
     /// The airframe, when the campaign names it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub aircraft: Option<String>,
@@ -58,6 +63,15 @@ pub struct FlightStatus {
     pub elapsed_s: f64,
     /// The shard that processed it, `K/N` (differs with the split).
     pub shard: String,
+}
+
+/// One channel's verdict, as a status keeps it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ChannelVerdict {
+    /// The scalar channel.
+    pub channel: String,
+    /// Its verdict.
+    pub verdict: Verdict,
 }
 
 /// `<folder>/<output name>_status.json`.
@@ -137,13 +151,28 @@ impl FlightStatus {
             }
             (FlightState::Done, _) => {
                 let rows = self.rows.unwrap_or(0);
-                match self.warnings.len() {
+                let done = match self.warnings.len() {
                     0 => format!("ok, {rows} rows"),
                     1 => format!("ok with 1 warning, {rows} rows"),
                     n => format!("ok with {n} warnings, {rows} rows"),
+                };
+                match self.verdict() {
+                    Some(Verdict::Pass) | None => done,
+                    Some(worst) => {
+                        let channels: Vec<&str> = (self.verdicts.iter())
+                            .filter(|c| c.verdict == worst)
+                            .map(|c| c.channel.as_str())
+                            .collect();
+                        format!("{worst} ({}); {done}", channels.join(", "))
+                    }
                 }
             }
         }
+    }
+
+    /// The flight's verdict: its worst channel's; `None` without channels.
+    pub fn verdict(&self) -> Option<Verdict> {
+        self.verdicts.iter().map(|c| c.verdict).max()
     }
 }
 

@@ -49,11 +49,9 @@ pub struct ChannelFigures {
     /// The saved model the channel was compensated with (`--apply`), as
     /// the quality JSON names it; `None` when fitted on its own flight.
     pub model: Option<String>,
-    /// The report's verdict: `PASS` or `FAIL` (FOM against the run's
-    /// `[quality] fom_limit_nt`; a flight given a model, its calibration
-    /// flight's FOM), `CHECK` (diagnosed findings or the base station's term moved the survey beyond
-    /// the stated uncertainty), `no FOM`, or empty when the report's
-    /// figures cannot be read.
+    /// The channel's verdict, `FAIL`, `CHECK` or `PASS`, as its quality
+    /// JSON gives it ([`crate::quality::verdict`]); empty when the figures
+    /// cannot be read.
     pub verdict: String,
 }
 
@@ -289,19 +287,23 @@ fn summary_flight(folder: &Path, path: &Path) -> Result<SummaryFlight> {
     Ok(flight)
 }
 
-/// Each channel's verdict as the flight's report figures (`report`) gave
-/// it: PASS, FAIL or no FOM, or CHECK where the quality said so.
+/// Each channel's verdict: the quality JSON's own (`verdict`), else, for
+/// outputs of an earlier magcomp, as the report's figures (`report`) gave
+/// it, FAIL by the FOM over CHECK over PASS.
 fn report_verdicts(report: &Value, channels: &mut [ChannelFigures]) {
     let passes = report["channels"].as_array().cloned().unwrap_or_default();
     for channel in channels {
+        if crate::quality::verdict::Verdict::from_word(&channel.verdict).is_some() {
+            continue;
+        }
         let pass = (passes.iter())
             .find(|c| c["channel"].as_str() == Some(&channel.channel))
             .map(|c| c["fom_pass"].as_bool());
         channel.verdict = match (channel.verdict.as_str(), pass) {
-            ("CHECK", _) => "CHECK".into(),
-            (_, Some(Some(true))) => "PASS".into(),
             (_, Some(Some(false))) => "FAIL".into(),
-            (_, Some(None)) => "no FOM".into(),
+            ("unchecked", _) => "CHECK".into(),
+            (_, Some(Some(true))) => "PASS".into(),
+            (_, Some(None)) => "CHECK".into(),
             (_, None) => String::new(),
         };
     }
@@ -347,10 +349,10 @@ fn channel_figures(quality: &Value) -> Vec<ChannelFigures> {
                     })
                     .collect(),
                 model: model.clone(),
-                verdict: if unchecked(channel) {
-                    "CHECK".into()
-                } else {
-                    String::new()
+                verdict: match (channel["verdict"].as_str(), unchecked(channel)) {
+                    (Some(word), _) => word.to_string(),
+                    (None, true) => "unchecked".into(),
+                    (None, false) => String::new(),
                 },
                 channel: name,
             }

@@ -93,6 +93,10 @@ pub struct CompensateArgs {
     /// says; MCAP output's log times count from its midnight.
     #[arg(long, value_parser = parse_date)]
     date: Option<magcomp::ingest::flight_date::FlightDate>,
+    /// Exit 0 even when a channel's verdict is FAIL (default: exit code
+    /// 3, the outputs written); also [quality] exit_zero_on_fail.
+    #[arg(long)]
+    exit_zero_on_fail: bool,
     /// Also write mag_<n>_dc: each compensated channel less the base
     /// station's variation ([output] dc).
     #[arg(long)]
@@ -123,6 +127,7 @@ fn apply_flags(settings: &mut magcomp::config::Settings, args: &CompensateArgs) 
     settings.ingest.date = args.date.or(settings.ingest.date);
     settings.reduced.dc |= args.dc;
     settings.reduced.igrf |= args.igrf;
+    settings.exit_zero_on_fail |= args.exit_zero_on_fail;
     Ok(())
 }
 
@@ -162,7 +167,7 @@ fn flight_job(args: &CompensateArgs, pipeline: &Pipeline) -> anyhow::Result<Flig
 }
 
 /// Fits and compensates one flight and writes its outputs.
-pub fn compensate(args: CompensateArgs, verbose: bool) -> anyhow::Result<()> {
+pub fn compensate(args: CompensateArgs, verbose: bool) -> anyhow::Result<super::Outcome> {
     let mut pipeline = Pipeline::load_or_default(args.config.as_deref())?;
     apply_flags(&mut pipeline.settings, &args)?;
     let job = flight_job(&args, &pipeline)?;
@@ -189,5 +194,6 @@ pub fn compensate(args: CompensateArgs, verbose: bool) -> anyhow::Result<()> {
     for path in written {
         println!("  wrote {}", path.display());
     }
-    Ok(())
+    let failed = (result.channels.iter()).any(|c| c.verdict == magcomp::quality::verdict::Verdict::Fail);
+    Ok(super::Outcome::of(failed, pipeline.settings.exit_zero_on_fail))
 }

@@ -22,6 +22,29 @@ pub mod simulate;
 pub mod summarize;
 
 /// `--date`: a day as YYYY-MM-DD.
+/// How a command that compensates ended, for its exit code: 0 when every
+/// channel is PASS or CHECK, 3 when one is FAIL (docs/CONTRACT.md §2).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Outcome {
+    /// Done; no channel at FAIL, or FAIL allowed (`--exit-zero-on-fail`).
+    Done,
+    /// Done, the outputs written, with at least one channel at FAIL.
+    ChannelFailed,
+}
+
+impl Outcome {
+    /// [`Outcome::ChannelFailed`] when `failed` and FAIL is not to exit 0.
+    pub fn of(failed: bool, exit_zero_on_fail: bool) -> Self {
+        match failed && !exit_zero_on_fail {
+            true => Outcome::ChannelFailed,
+            false => Outcome::Done,
+        }
+    }
+}
+
+/// The line on stderr for a run that ends with a channel at FAIL.
+pub const FAIL_EXIT_LINE: &str = "magcomp: at least one channel's verdict is FAIL (its reasons are printed above and in the report); the outputs were written; exit code 3 (--exit-zero-on-fail, or [quality] exit_zero_on_fail = true, exits 0)";
+
 pub fn parse_date(text: &str) -> Result<magcomp::ingest::flight_date::FlightDate, String> {
     magcomp::ingest::flight_date::FlightDate::parse(text)
         .ok_or_else(|| format!("'{text}' is not a day; write it as YYYY-MM-DD, e.g. 2020-06-20"))

@@ -42,8 +42,13 @@ fn shard_flights(pipeline: &Pipeline, shard: Shard) -> Vec<usize> {
 
 /// Runs every flight of the pipeline file `config` (this shard's), prints
 /// each as it finishes and the status table, and fails when any flight did.
-pub fn run(config: &Path, (plain, force, verbose): (bool, bool, bool), shard: Option<&str>) -> anyhow::Result<()> {
-    let pipeline = load(config, (plain, force))?;
+pub fn run(
+    config: &Path,
+    (plain, force, verbose, exit_zero_on_fail): (bool, bool, bool, bool),
+    shard: Option<&str>,
+) -> anyhow::Result<super::Outcome> {
+    let mut pipeline = load(config, (plain, force))?;
+    pipeline.settings.exit_zero_on_fail |= exit_zero_on_fail;
     let shard = match shard {
         Some(text) => Shard::parse(text, |name| std::env::var(name).ok())?,
         None => Shard::default(),
@@ -91,8 +96,9 @@ pub fn run(config: &Path, (plain, force, verbose): (bool, bool, bool), shard: Op
 }
 
 /// Prints the status table of the `flights` run and fails, naming the
-/// pipeline file `config`, when any of them did.
-fn report_statuses(config: &Path, pipeline: &Pipeline, flights: &[FinishedFlight]) -> anyhow::Result<()> {
+/// pipeline file `config`, when any of them did; else whether a channel's
+/// verdict is FAIL.
+fn report_statuses(config: &Path, pipeline: &Pipeline, flights: &[FinishedFlight]) -> anyhow::Result<super::Outcome> {
     let statuses = statuses(pipeline, flights);
     print!("{}", status_table(&statuses));
     let failed = statuses
@@ -105,7 +111,10 @@ fn report_statuses(config: &Path, pipeline: &Pipeline, flights: &[FinishedFlight
         config.display(),
         statuses.len()
     );
-    Ok(())
+    let channel_failed = (flights.iter())
+        .filter_map(|done| done.flight.as_ref().ok())
+        .any(|flight| flight.status().verdict() == Some(magcomp::quality::verdict::Verdict::Fail));
+    Ok(super::Outcome::of(channel_failed, pipeline.settings.exit_zero_on_fail))
 }
 
 /// The pipeline file `config`, its notes printed, with `--plain` and

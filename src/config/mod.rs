@@ -309,6 +309,10 @@ pub(crate) struct RawQuality {
     pub transfer: RawTransfer,
     /// FOM limit the report judges against, nT.
     pub fom_limit_nt: f64,
+    /// How far a channel's anomaly gain may depart from 1.
+    pub anomaly_gain_tolerance: f64,
+    /// Whether a run with a channel at FAIL exits 0 rather than 3.
+    pub exit_zero_on_fail: bool,
 }
 
 impl Default for RawQuality {
@@ -316,6 +320,8 @@ impl Default for RawQuality {
         RawQuality {
             transfer: RawTransfer::default(),
             fom_limit_nt: 1.5,
+            anomaly_gain_tolerance: crate::model::ANOMALY_GAIN_TOLERANCE,
+            exit_zero_on_fail: false,
         }
     }
 }
@@ -541,6 +547,13 @@ pub struct Settings {
     pub transfer: TransferOptions,
     /// FOM limit the report judges against, nT.
     pub fom_limit_nt: f64,
+    /// How far a channel's anomaly gain may depart from 1 before its
+    /// verdict is FAIL and no finding that departs so is applied
+    /// (`[quality] anomaly_gain_tolerance`).
+    pub anomaly_gain_tolerance: f64,
+    /// A run with a channel at FAIL exits 0 rather than 3
+    /// (`[quality] exit_zero_on_fail`, `--exit-zero-on-fail`).
+    pub exit_zero_on_fail: bool,
     /// Physics diagnosis, and whether the fit takes its models.
     pub diagnose: DiagnoseOptions,
     /// Fluxgate calibration before the fit.
@@ -657,6 +670,8 @@ impl Pipeline {
             detect: DetectOptions::try_from(raw.detect).map_err(bad)?,
             transfer: TransferOptions::try_from(raw.quality.transfer).map_err(bad)?,
             fom_limit_nt: raw.quality.fom_limit_nt,
+            anomaly_gain_tolerance: raw.quality.anomaly_gain_tolerance,
+            exit_zero_on_fail: raw.quality.exit_zero_on_fail,
             diagnose: DiagnoseOptions::try_from(raw.diagnose).map_err(bad)?,
             vector_calibration: VectorCalibrationOptions::try_from(raw.vector_calibration).map_err(bad)?,
             vector: VectorOptions {
@@ -681,13 +696,20 @@ impl Pipeline {
     }
 }
 
-/// `[quality] fom_limit_nt` positive and `[output] decimals` within
+/// `[quality] fom_limit_nt` positive, `[quality] anomaly_gain_tolerance`
+/// between 0 and 1, and `[output] decimals` within
 /// [`MOST_DECIMALS`].
 fn check_limits(raw: &RawPipeline) -> std::result::Result<(), String> {
     if !(raw.quality.fom_limit_nt.is_finite() && raw.quality.fom_limit_nt > 0.0) {
         return Err(format!(
             "[quality] fom_limit_nt = {}: give a positive number of nT (1.5 is usual)",
             raw.quality.fom_limit_nt
+        ));
+    }
+    let tolerance = raw.quality.anomaly_gain_tolerance;
+    if !(tolerance.is_finite() && tolerance > 0.0 && tolerance < 1.0) {
+        return Err(format!(
+            "[quality] anomaly_gain_tolerance = {tolerance}: give how far the gain on a crustal anomaly may depart from 1, between 0 and 1 (0.02 is the default)"
         ));
     }
     if raw.output.decimals > MOST_DECIMALS {

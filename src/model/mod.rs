@@ -31,6 +31,7 @@
 //! on, is modelled by the IGRF ([`igrf`]): the IGRF-reduced columns, the
 //! fluxgate's orientation and the simulated flights take it from there.
 
+pub mod anomaly_gain;
 pub mod band;
 pub mod excitation;
 pub mod extensions;
@@ -54,6 +55,7 @@ use crate::numerics::solve::{Solution, SolveOptions};
 use crate::numerics::stacked::StorePool;
 
 pub use crate::calibration::windows::Calibration;
+pub use anomaly_gain::{AnomalyGain, GainRows, ANOMALY_GAIN_TOLERANCE};
 pub use band::{design_filter, FilterSettings, FitMagnitude, FitOptions, WindowFit};
 pub use extensions::{
     advanced, column_level, field_directions, rate_of_change, second_order_term, Extensions, SourceTerm,

@@ -156,6 +156,23 @@ fn estimator_table_gap(model: &FittedModel) -> Option<crate::messages::Note> {
     })
 }
 
+/// Judges every channel of `result` ([`crate::quality::verdict`]) against
+/// the limits of `options`, once its figures are final.
+fn judge_channels(result: &mut FlightResult, options: &Settings) {
+    let limits = verdict_limits(options);
+    for quality in &mut result.channels {
+        crate::quality::verdict::judge(quality, &limits);
+    }
+}
+
+/// The limits of `options` a verdict is judged against.
+pub fn verdict_limits(options: &Settings) -> crate::quality::verdict::VerdictLimits {
+    crate::quality::verdict::VerdictLimits {
+        fom_limit_nt: options.fom_limit_nt,
+        anomaly_gain_tolerance: options.anomaly_gain_tolerance,
+    }
+}
+
 /// One flight through every stage: what [`run`] produced, for the sinks
 /// ([`crate::output::sink`]) to write.
 #[derive(Debug, Clone)]
@@ -252,6 +269,10 @@ fn assess_with_sigma(
     shared: &[SharedDesign],
 ) -> Result<(ChannelQuality, Vec<f64>)> {
     let mut quality = crate::quality::assess_quality_at(log, geometry, model, channel);
+    if let Some(gain) = model.anomaly_gain(log, shared)? {
+        quality.anomaly_gain = Some(gain.median);
+        quality.anomaly_gain_range = Some([gain.min, gain.max]);
+    }
     let Some(prediction) = model.prediction_sigma_with(log, shared)? else {
         return Ok((quality, Vec::new()));
     };

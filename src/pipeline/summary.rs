@@ -25,8 +25,9 @@ pub(super) fn applied_summary(result: &FlightResult, applied: &crate::pipeline::
             .find(|c| c.channel == quality.channel)
             .map_or("no calibration figures saved".into(), |c| c.describe());
         text += &format!(
-            "  {} vs {}: on its calibration {calibration}; here 4th-difference noise {:.4} → {:.4} nT",
+            "  {}: {} vs {}: on its calibration {calibration}; here 4th-difference noise {:.4} → {:.4} nT",
             quality.channel,
+            quality.verdict,
             model.vector_sensor,
             quality.noise_4th_difference_before_nt,
             quality.noise_4th_difference_after_nt
@@ -44,7 +45,11 @@ pub(super) fn applied_summary(result: &FlightResult, applied: &crate::pipeline::
                 text += &format!(", FOM {before:.2} → {after:.2} nT ({} of 12)", quality.fom_manoeuvres);
             }
         }
+        if let Some(gain) = quality.anomaly_gain {
+            text += &format!(", anomaly gain ×{gain:.3}");
+        }
         text += "\n";
+        text += &verdict_reasons(quality);
         text += &survey_figures(quality);
     }
     text
@@ -75,16 +80,11 @@ fn survey_figures(quality: &crate::quality::ChannelQuality) -> String {
     text
 }
 
-/// A channel's verdict against `limit_nt`: PASS or FAIL by its FOM, CHECK
-/// when its findings or the base station's term move the survey beyond
-/// the stated uncertainty unchecked, and "no FOM" without labelled manoeuvres.
-fn verdict(quality: &crate::quality::ChannelQuality, limit_nt: f64) -> &'static str {
-    match quality.fom_after_nt {
-        _ if quality.unchecked_departure().is_some() => "CHECK",
-        Some(fom) if fom <= limit_nt => "PASS",
-        Some(_) => "FAIL",
-        None => "no FOM",
-    }
+/// Why a channel's verdict is not a plain PASS, a line each.
+fn verdict_reasons(quality: &crate::quality::ChannelQuality) -> String {
+    (quality.verdict_reasons.iter())
+        .map(|reason| format!("    {reason}\n"))
+        .collect()
 }
 
 /// One line per channel for the terminal (its verdict, FOM, IR, held-out
@@ -154,7 +154,7 @@ fn messages(result: &FlightResult, verbose: bool) -> String {
 /// A fitted channel's line: verdict, FOM against the limit, IR, the
 /// held-out FOM, the heading error and the findings applied to it.
 fn channel_line(result: &FlightResult, quality: &crate::quality::ChannelQuality, limit_nt: f64) -> String {
-    let mut line = format!("  {}: {}", quality.channel, verdict(quality, limit_nt));
+    let mut line = format!("  {}: {}", quality.channel, quality.verdict);
     if let (Some(before), Some(after)) = (quality.fom_before_nt, quality.fom_after_nt) {
         line += &format!(
             "  FOM {before:.2} → {after:.2} nT (limit {limit_nt:.2}; {} of 12 manoeuvres)",
@@ -177,11 +177,14 @@ fn channel_line(result: &FlightResult, quality: &crate::quality::ChannelQuality,
             figures.before_nt, figures.after_nt
         );
     }
+    if let Some(gain) = quality.anomaly_gain {
+        line += &format!(", anomaly gain ×{gain:.3}");
+    }
     let findings = findings_on(result, &quality.channel);
     if !findings.is_empty() {
         line += &format!("; findings applied: {}", findings.join(", "));
     }
-    line + "\n"
+    line + "\n" + &verdict_reasons(quality)
 }
 
 /// The findings applied to `channel`, in words. A fluxgate calibration is
@@ -248,6 +251,11 @@ fn fit_details(quality: &crate::quality::ChannelQuality, model: &crate::model::F
         );
     }
     text += &survey_checks(quality);
+    if let (Some(gain), Some([low, high])) = (quality.anomaly_gain, quality.anomaly_gain_range) {
+        text += &format!(
+            "    anomaly gain ×{gain:.4} over the survey's rows ({low:.4}–{high:.4}): how the compensation scales a crustal anomaly\n"
+        );
+    }
     for transfer in &quality.box_transfer {
         text += &format!(
             "    box transfer: fitted on {}, {} residual {:.3} nT (fitted on itself {:.3} nT)\n",

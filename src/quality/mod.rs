@@ -15,6 +15,7 @@ pub mod corrugation;
 pub mod crossovers;
 pub mod heading_error;
 pub mod transfer;
+pub mod verdict;
 
 use serde::Serialize;
 
@@ -150,6 +151,19 @@ pub fn figure_of_merit(table: &[FomRow]) -> Option<(f64, f64, usize)> {
 pub struct ChannelQuality {
     /// Scalar channel.
     pub channel: String,
+    /// The channel's one verdict ([`verdict`]): FAIL > CHECK > PASS.
+    pub verdict: verdict::Verdict,
+    /// Why the verdict is not a plain PASS, in words, most severe first.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub verdict_reasons: Vec<String>,
+    /// How the compensation scales a crustal anomaly at the survey's
+    /// attitudes, the median over the survey rows (1.0 keeps the geology;
+    /// [`crate::model::AnomalyGain`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub anomaly_gain: Option<f64>,
+    /// The smallest and largest gain of a survey row.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub anomaly_gain_range: Option<[f64; 2]>,
     /// Standard deviation of the band-passed signal over the windows, nT.
     pub band_std_before_nt: f64,
     /// Standard deviation of the band-passed residual over the windows, nT.
@@ -380,6 +394,10 @@ pub fn assess_quality_at(
         .unwrap_or_default();
     ChannelQuality {
         channel: model.channel.clone(),
+        verdict: verdict::Verdict::Pass,
+        verdict_reasons: Vec::new(),
+        anomaly_gain: None,
+        anomaly_gain_range: None,
         band_std_before_nt,
         band_std_after_nt,
         improvement_ratio: band_std_before_nt / band_std_after_nt,

@@ -1,0 +1,276 @@
+//! A channel's one verdict: `FAIL` > `CHECK` > `PASS`, in that order of
+//! precedence, with the reasons in words.
+//!
+//! The verdict reads the figures of the flight the model compensates, not
+//! only those of the box it was fitted on:
+//! - **FAIL** when the FOM exceeds the limit (`[quality] fom_limit_nt`);
+//!   when the compensation scales a crustal anomaly by more than the
+//!   tolerance (`[quality] anomaly_gain_tolerance`); or when the model
+//!   makes a survey-side figure clearly worse than the uncompensated
+//!   record: the heading level between neighbouring lines flown both ways,
+//!   or the crossover differences ([`clearly_worse`]).
+//! - **CHECK** when what the diagnosis added moves the survey from plain
+//!   Tolles-Lawson beyond the stated uncertainty, or when nothing on the
+//!   flight checks the model (no FOM and no survey-side figure).
+//! - **PASS** otherwise.
+//!
+//! The same word goes to stdout, the run table, the quality JSON
+//! (`verdict`), the campaign summary, the report and the saved model; a run
+//! with a FAIL exits with code 3 ([`crate::cli`]).
+
+use serde::{Deserialize, Serialize};
+
+use super::ChannelQuality;
+
+/// A channel's verdict; the order of the variants is their precedence.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "UPPERCASE")]
+pub enum Verdict {
+    /// Every figure within its limit.
+    Pass,
+    /// Usable, but the reasons say what to look at before signing off.
+    Check,
+    /// A figure beyond its limit: the channel is not to be delivered as it is.
+    Fail,
+}
+
+impl Verdict {
+    /// "PASS", "CHECK" or "FAIL".
+    pub fn word(self) -> &'static str {
+        match self {
+            Verdict::Pass => "PASS",
+            Verdict::Check => "CHECK",
+            Verdict::Fail => "FAIL",
+        }
+    }
+
+    /// The verdict of a word as the quality JSON writes it.
+    pub fn from_word(word: &str) -> Option<Self> {
+        match word {
+            "PASS" => Some(Verdict::Pass),
+            "CHECK" => Some(Verdict::Check),
+            "FAIL" => Some(Verdict::Fail),
+            _ => None,
+        }
+    }
+}
+
+impl std::fmt::Display for Verdict {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.word())
+    }
+}
+
+/// A survey-side figure is clearly worse when the compensated one exceeds
+/// the uncompensated one by this factor...
+pub const SURVEY_WORSE_FACTOR: f64 = 1.5;
+
+/// ...and by at least this much, nT: a tenth of a nT more on lines whose
+/// heading level was already a few tenths decides nothing. A model of
+/// another airframe raised a real survey's heading level from 9.9 to 75.8
+/// nT and from 2.5 to 4.7 nT.
+pub const SURVEY_WORSE_FLOOR_NT: f64 = 1.0;
+
+/// Whether `after` is clearly worse than `before` ([`SURVEY_WORSE_FACTOR`],
+/// [`SURVEY_WORSE_FLOOR_NT`]).
+pub fn clearly_worse(before_nt: f64, after_nt: f64) -> bool {
+    after_nt > before_nt * SURVEY_WORSE_FACTOR && after_nt > before_nt + SURVEY_WORSE_FLOOR_NT
+}
+
+/// The limits a verdict is judged against.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct VerdictLimits {
+    /// The FOM limit, nT (`[quality] fom_limit_nt`).
+    pub fom_limit_nt: f64,
+    /// How far the anomaly gain may depart from 1
+    /// (`[quality] anomaly_gain_tolerance`).
+    pub anomaly_gain_tolerance: f64,
+}
+
+/// Why a channel is not a plain PASS.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum VerdictReason {
+    /// The FOM exceeds the limit.
+    FomAboveLimit {
+        /// FOM after compensation, nT.
+        fom_nt: f64,
+        /// The limit, nT.
+        limit_nt: f64,
+    },
+    /// The compensation scales a crustal anomaly beyond the tolerance.
+    AnomalyGain {
+        /// The median gain over the survey rows.
+        gain: f64,
+        /// The tolerance on |gain − 1|.
+        tolerance: f64,
+    },
+    /// A survey-side figure the model made clearly worse.
+    SurveyWorse {
+        /// Which figure: "heading level between neighbouring lines" or
+        /// "crossover differences".
+        figure: &'static str,
+        /// Uncompensated, nT.
+        before_nt: f64,
+        /// Compensated, nT.
+        after_nt: f64,
+    },
+    /// The findings move the survey from plain Tolles-Lawson beyond the
+    /// stated uncertainty.
+    Departure {
+        /// The departure, RMS over the survey, nT.
+        departure_nt: f64,
+        /// The stated uncertainty, nT, when there is one.
+        stated_nt: Option<f64>,
+    },
+    /// Neither a FOM nor a survey-side figure checks the model.
+    Unchecked,
+}
+
+impl VerdictReason {
+    /// The verdict this reason alone gives.
+    pub fn verdict(&self) -> Verdict {
+        match self {
+            VerdictReason::Departure { .. } | VerdictReason::Unchecked => Verdict::Check,
+            _ => Verdict::Fail,
+        }
+    }
+}
+
+impl std::fmt::Display for VerdictReason {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            VerdictReason::FomAboveLimit { fom_nt, limit_nt } => {
+                write!(f, "FOM {fom_nt:.2} nT is above the limit of {limit_nt:.2} nT")
+            }
+            VerdictReason::AnomalyGain { gain, tolerance } => write!(
+                f,
+                "the compensation scales a crustal anomaly by {gain:.3}, beyond 1 ± {tolerance}: the map's amplitudes would not be the ground's"
+            ),
+            VerdictReason::SurveyWorse {
+                figure,
+                before_nt,
+                after_nt,
+            } => write!(
+                f,
+                "this model raises the {figure} from {before_nt:.2} to {after_nt:.2} nT: is it this aircraft's, and this installation's?"
+            ),
+            VerdictReason::Departure { departure_nt, stated_nt } => write!(
+                f,
+                "what the diagnosis added moves the survey {departure_nt:.4} nT from plain Tolles-Lawson, beyond the stated uncertainty{}",
+                stated_nt.map(|s| format!(" of {s:.4} nT")).unwrap_or_default()
+            ),
+            VerdictReason::Unchecked => f.write_str(
+                "nothing on this flight checks the model: no labelled manoeuvres for a FOM, and no lines flown both ways or crossing",
+            ),
+        }
+    }
+}
+
+/// Every reason `quality` is not a plain PASS, in order of precedence.
+pub fn reasons(quality: &ChannelQuality, limits: &VerdictLimits) -> Vec<VerdictReason> {
+    let mut reasons = Vec::new();
+    if let Some(fom_nt) = quality.fom_after_nt.filter(|f| *f > limits.fom_limit_nt) {
+        reasons.push(VerdictReason::FomAboveLimit {
+            fom_nt,
+            limit_nt: limits.fom_limit_nt,
+        });
+    }
+    if let Some(gain) = quality
+        .anomaly_gain
+        .filter(|g| (g - 1.0).abs() > limits.anomaly_gain_tolerance)
+    {
+        reasons.push(VerdictReason::AnomalyGain {
+            gain,
+            tolerance: limits.anomaly_gain_tolerance,
+        });
+    }
+    reasons.extend(survey_worse(quality));
+    if let Some((departure_nt, stated_nt)) = quality.unchecked_departure() {
+        reasons.push(VerdictReason::Departure {
+            departure_nt,
+            stated_nt,
+        });
+    }
+    if quality.fom_after_nt.is_none() && quality.heading_level.is_none() && quality.crossovers.is_none() {
+        reasons.push(VerdictReason::Unchecked);
+    }
+    reasons.sort_by_key(|r| std::cmp::Reverse(r.verdict()));
+    reasons
+}
+
+/// The survey-side figures the model made clearly worse.
+fn survey_worse(quality: &ChannelQuality) -> Vec<VerdictReason> {
+    let level =
+        (quality.heading_level.as_ref()).map(|f| ("heading level between neighbouring lines", f.before_nt, f.after_nt));
+    let crossovers = (quality.crossovers.as_ref()).map(|f| ("crossover differences", f.before_nt, f.after_nt));
+    [level, crossovers]
+        .into_iter()
+        .flatten()
+        .filter(|(_, before, after)| clearly_worse(*before, *after))
+        .map(|(figure, before_nt, after_nt)| VerdictReason::SurveyWorse {
+            figure,
+            before_nt,
+            after_nt,
+        })
+        .collect()
+}
+
+/// The verdict of `reasons`: the highest of theirs, PASS without any.
+pub fn verdict_of(reasons: &[VerdictReason]) -> Verdict {
+    reasons
+        .iter()
+        .map(VerdictReason::verdict)
+        .max()
+        .unwrap_or(Verdict::Pass)
+}
+
+/// Sets `quality`'s verdict and its reasons in words, each after the
+/// verdict it gives ("FAIL: FOM 3.51 nT is above …").
+pub fn judge(quality: &mut ChannelQuality, limits: &VerdictLimits) {
+    let reasons = reasons(quality, limits);
+    quality.verdict = verdict_of(&reasons);
+    quality.verdict_reasons = (reasons.iter())
+        .map(|reason| format!("{}: {reason}", reason.verdict()))
+        .collect();
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_order_of_precedence_is_fail_check_pass() {
+        assert!(Verdict::Fail > Verdict::Check && Verdict::Check > Verdict::Pass);
+        let reasons = [
+            VerdictReason::Departure {
+                departure_nt: 0.2,
+                stated_nt: Some(0.01),
+            },
+            VerdictReason::FomAboveLimit {
+                fom_nt: 1.54,
+                limit_nt: 1.5,
+            },
+        ];
+        assert_eq!(verdict_of(&reasons), Verdict::Fail);
+        assert_eq!(verdict_of(&reasons[..1]), Verdict::Check);
+        assert_eq!(verdict_of(&[]), Verdict::Pass);
+        for verdict in [Verdict::Pass, Verdict::Check, Verdict::Fail] {
+            assert_eq!(Verdict::from_word(verdict.word()), Some(verdict));
+            assert_eq!(serde_json::to_value(verdict).unwrap(), verdict.word());
+        }
+    }
+
+    #[test]
+    fn a_survey_figure_is_clearly_worse_by_both_factor_and_floor() {
+        // The figures of a real survey compensated with another
+        // airframe's model.
+        assert!(clearly_worse(9.9, 75.8));
+        assert!(clearly_worse(2.5, 4.7));
+        // Within the factor, or within the floor.
+        assert!(!clearly_worse(2.5, 3.7));
+        assert!(!clearly_worse(0.3, 1.2));
+        assert!(!clearly_worse(4.0, 1.0));
+        assert!(clearly_worse(0.3, 1.31));
+    }
+}
