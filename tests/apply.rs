@@ -965,3 +965,93 @@ fn a_model_that_fitted_the_base_stations_gain_is_refused_as_an_earlier_versions(
             .arg(at("model.json")),
     );
 }
+
+/// Clearly harmful: the applied model leaves the survey lines further
+/// from truth than the uncompensated record by this factor and floor.
+const HARMFUL_FACTOR: f64 = 2.0;
+const HARMFUL_FLOOR_NT: f64 = 1.0;
+
+/// A model of another airframe is checked on the flight it compensates:
+/// each random survey flight of aircraft B, compensated with aircraft A's
+/// model (a plain `--apply`, no aircraft names given), gets FAIL on every
+/// channel the wrong model leaves clearly further from truth than the
+/// uncompensated record, with the survey figure it made worse in words;
+/// and its own aircraft's model is never failed by the survey's figures.
+/// On the command line, the wrong model's run writes its outputs and
+/// exits 3; `--exit-zero-on-fail` exits 0.
+#[test]
+fn another_aircrafts_model_fails_on_the_survey_it_compensates() {
+    let folder = tempfile::tempdir().unwrap();
+    let settings = common::plain();
+    let mut harmful = 0;
+    let mut failures = Vec::new();
+    for seed in seeds() {
+        let (own_plan, other_plan) = (calibration_plan(seed), calibration_plan(seed + 100));
+        let (own_input, own_truth, _) = fly(folder.path(), own_plan.clone(), &format!("own_{seed}"));
+        let (other_input, _, _) = fly(folder.path(), other_plan, &format!("other_{seed}"));
+        let survey = survey_plan(seed + 5_000, &own_plan, &own_truth, 3);
+        let (survey_input, survey_truth, survey_line) = fly(folder.path(), survey, &format!("survey_{seed}"));
+        for (who, calibration) in [("own", &own_input), ("other", &other_input)] {
+            let model = folder.path().join(format!("{who}_{seed}_model.json"));
+            let outputs = FlightOutputs {
+                compensated: folder.path().join(format!("{who}_{seed}_c.csv")),
+                model_json: Some(model.clone()),
+                quality_json: None,
+                report_html: None,
+                diagnosis_json: None,
+            };
+            let run = magcomp::pipeline::run(&FlightJob::new(calibration), &settings, &outputs.compensated).unwrap();
+            magcomp::output::sink::write(&run, &settings, &outputs).unwrap();
+            let mut job = FlightJob::new(&survey_input);
+            job.model = Some(model.clone());
+            let applied = magcomp::pipeline::run(&job, &settings, &folder.path().join("applied.csv")).unwrap();
+            for (k, quality) in applied.result.channels.iter().enumerate() {
+                let truth = survey_truth.earth_total_nt(&quality.channel).unwrap();
+                let error = survey_line_error_nt(&applied.compensation.channels[k].values, truth, &survey_line);
+                let raw = &applied.recorded.channel(&quality.channel).unwrap().values;
+                let uncompensated = survey_line_error_nt(raw, truth, &survey_line);
+                let survey_failed = quality.verdict_reasons.iter().any(|r| r.contains("this aircraft's"));
+                println!(
+                    "seed {seed} {who} model, {}: survey lines against truth {uncompensated:.3} → {error:.3} nT; {} {:?}",
+                    quality.channel, quality.verdict, quality.verdict_reasons
+                );
+                let clearly_harmful = error > HARMFUL_FACTOR * uncompensated + HARMFUL_FLOOR_NT;
+                if who == "other" && clearly_harmful {
+                    harmful += 1;
+                    if quality.verdict != magcomp::quality::verdict::Verdict::Fail || !survey_failed {
+                        failures.push(format!("seed {seed} {}: the other aircraft's model passed", quality.channel));
+                    }
+                }
+                if who == "own" && survey_failed {
+                    failures.push(format!("seed {seed} {}: its own aircraft's model failed", quality.channel));
+                }
+            }
+            if seed == seeds().start && who == "other" {
+                let out = folder.path().join("cli_c.csv");
+                let mut command = magcomp();
+                let args = [survey_input.as_os_str(), "--out".as_ref(), out.as_os_str(), "--apply".as_ref()];
+                command.arg("compensate").args(args).arg(&model).arg("--plain");
+                let output = command.output().unwrap();
+                let stdout = String::from_utf8_lossy(&output.stdout);
+                let stderr = String::from_utf8_lossy(&output.stderr);
+                let failed = stdout.contains(": FAIL");
+                assert_eq!(output.status.code(), Some(if failed { 3 } else { 0 }), "{stdout}{stderr}");
+                assert!(out.exists(), "the outputs are written whatever the verdict");
+                if failed {
+                    assert!(stderr.contains("exit code 3"), "{stderr}");
+                    let again = magcomp()
+                        .arg("compensate")
+                        .args(args)
+                        .arg(&model)
+                        .args(["--plain", "--exit-zero-on-fail"])
+                        .output()
+                        .unwrap();
+                    assert_eq!(again.status.code(), Some(0));
+                }
+            }
+        }
+    }
+    println!("{harmful} channels clearly harmed by another aircraft's model");
+    assert!(harmful > 0, "no plan's wrong model harmed a channel: the test checks nothing");
+    assert!(failures.is_empty(), "{failures:#?}");
+}

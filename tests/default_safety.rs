@@ -988,3 +988,61 @@ fn the_stated_anomaly_gain_is_what_an_injected_anomaly_comes_out_at() {
     let failures: Vec<String> = results.into_iter().flatten().collect();
     assert!(failures.is_empty(), "{failures:#?}");
 }
+
+/// A column that holds the answer (a vendor's compensated total field of
+/// the same sensor, under a name magcomp does not know) is never applied
+/// as a source: it carries the Earth's field, so a coupling to it scales
+/// the geology. On random clean plans with `vendor_mag` (plain
+/// Tolles-Lawson's compensation of `mag_1_uc`) added, the default applies
+/// no finding from it, and every channel keeps its anomaly gain within
+/// the tolerance.
+#[test]
+fn a_column_that_holds_the_earths_field_is_never_a_source() {
+    let seeds: Vec<u64> = (0..4).map(|k| 9_300 + 41 * k).collect();
+    let failures: Vec<String> = seeds
+        .par_iter()
+        .flat_map(|&seed| {
+            let flight = simulate(&Scenario::try_from(clean_plan(seed)).unwrap()).unwrap();
+            let folder = tempfile::tempdir().unwrap();
+            let csv = folder.path().join("clean.csv");
+            magcomp::formats::write_flight_log(&flight.log, &csv).unwrap();
+            let out = folder.path().join("out.csv");
+            let plain = magcomp::pipeline::run(&FlightJob::new(&csv), &common::plain(), &out).unwrap();
+            let mut channels = flight.log.channels().to_vec();
+            channels.push(magcomp::ingest::flight_log::Channel {
+                name: "vendor_mag".into(),
+                role: magcomp::ingest::flight_log::ChannelRole::Auxiliary,
+                values: plain.compensation.channels[0].values.clone(),
+            });
+            let with_vendor = flight.log.with_channels(channels).unwrap();
+            let csv = folder.path().join("vendor.csv");
+            magcomp::formats::write_flight_log(&with_vendor, &csv).unwrap();
+            let mut default = Settings::default();
+            default.vector.enabled = false;
+            let auto = magcomp::pipeline::run(&FlightJob::new(&csv), &default, &out).unwrap();
+            let mut failures = Vec::new();
+            for finding in (auto.result.diagnosis.iter()).flat_map(|d| d.findings.iter()) {
+                println!(
+                    "seed {seed}: {} {} from {:?}: applied {}, {:?}",
+                    finding.channel,
+                    finding.effect,
+                    finding.source,
+                    finding.not_applied.is_none(),
+                    finding.not_applied
+                );
+                if finding.source.as_deref() == Some("vendor_mag") && finding.not_applied.is_none() {
+                    failures.push(format!("seed {seed}: {} coupled to vendor_mag", finding.channel));
+                }
+            }
+            for quality in &auto.result.channels {
+                let gain = quality.anomaly_gain.unwrap();
+                println!("seed {seed}: {} anomaly gain {gain:.4}, {}", quality.channel, quality.verdict);
+                if (gain - 1.0).abs() > magcomp::model::ANOMALY_GAIN_TOLERANCE {
+                    failures.push(format!("seed {seed}: {} scales the geology by {gain}", quality.channel));
+                }
+            }
+            failures
+        })
+        .collect();
+    assert!(failures.is_empty(), "{failures:#?}");
+}

@@ -258,6 +258,7 @@ mod tests {
             heldout_rms_before_nt: 0.5,
             heldout_rms_after_nt: 0.125,
             not_applied: None,
+            anomaly_gain: None,
         };
         assert_eq!(
             serde_json::to_string(&finding).unwrap(),

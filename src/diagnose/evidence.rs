@@ -211,6 +211,13 @@ impl<'c, 'a> Compensations<'c, 'a> {
         Ok(uncertainty.map(|u| u.outside_calibration_sigma_nt))
     }
 
+    /// How `channel` compensated with `extensions` scales a crustal
+    /// anomaly over the survey ([`FittedModel::anomaly_gain`]).
+    pub fn anomaly_gain(&self, channel: &str, extensions: &Extensions) -> Result<Option<crate::model::AnomalyGain>> {
+        let model = self.computed(channel, extensions)?.3;
+        model.anomaly_gain(self.calibration.log, &[])
+    }
+
     /// `channel` fitted with `extensions` and compensated, once.
     fn computed(&self, channel: &str, extensions: &Extensions) -> Result<Computed> {
         let done = |list: &[Computed]| {

@@ -41,6 +41,7 @@ pub(super) fn unexplained(channel: &str, rms_nt: f64, found: &localise::Localisa
         heldout_rms_before_nt: rms_nt,
         heldout_rms_after_nt: rms_nt,
         not_applied: None,
+        anomaly_gain: None,
     })
 }
 
@@ -113,6 +114,7 @@ pub(super) fn far_above_noise(
         heldout_rms_before_nt: rms_nt,
         heldout_rms_after_nt: rms_nt,
         not_applied: None,
+        anomaly_gain: None,
     })
 }
 
@@ -249,6 +251,7 @@ pub(super) fn finding(
         heldout_rms_before_nt: before_nt,
         heldout_rms_after_nt: result.rms_nt,
         not_applied: None,
+        anomaly_gain: None,
     };
     Ok((found, model, result))
 }

@@ -225,5 +225,6 @@ pub(super) fn fluxgate_finding(check: &FluxgateCheck, channels: &[ChannelDiagnos
         heldout_rms_before_nt: check.heldout_mismatch_before_nt,
         heldout_rms_after_nt: check.heldout_mismatch_after_nt,
         not_applied: None,
+        anomaly_gain: None,
     }
 }

@@ -230,6 +230,11 @@ pub struct Finding {
     /// applied to the compensation (the evidence rule,
     /// [`evidence`]); `None` when applied or never meant to be.
     pub not_applied: Option<String>,
+    /// How the channel's compensation with this finding applied scales a
+    /// crustal anomaly on the survey ([`crate::model::AnomalyGain`]'s
+    /// median); set once the finding is applied, written as
+    /// `parameters.anomaly_gain`.
+    pub anomaly_gain: Option<f64>,
 }
 
 impl Serialize for Finding {
@@ -242,7 +247,11 @@ impl Serialize for Finding {
             Some(source) => finding.serialize_field("source", source)?,
             None => finding.skip_field("source")?,
         }
-        finding.serialize_field("parameters", &self.effect.parameters())?;
+        let mut parameters = self.effect.parameters();
+        if let Some(gain) = self.anomaly_gain {
+            parameters.insert("anomaly_gain".into(), gain);
+        }
+        finding.serialize_field("parameters", &parameters)?;
         finding.serialize_field("explanation", &self.explanation)?;
         finding.serialize_field("located", &self.located)?;
         finding.serialize_field("heldout_rms_before_nt", &self.heldout_rms_before_nt)?;

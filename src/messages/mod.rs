@@ -135,6 +135,17 @@ pub enum HeldBack {
         /// survey could be compared.
         levels_checked: bool,
     },
+    /// With the findings the compensation would scale a crustal anomaly
+    /// on the survey beyond the tolerance, and further from 1 than plain
+    /// Tolles-Lawson does ([`crate::model::AnomalyGain`]).
+    AnomalyGain {
+        /// The median gain with the findings.
+        gain: f64,
+        /// The median gain of plain Tolles-Lawson.
+        plain_gain: f64,
+        /// The tolerance on |gain − 1| (`[quality] anomaly_gain_tolerance`).
+        tolerance: f64,
+    },
 }
 
 impl fmt::Display for HeldBack {
@@ -159,6 +170,14 @@ impl fmt::Display for HeldBack {
                 "on the survey it would move the compensation by {survey_nt:.4} nT RMS, more than {factor} times what it does over the calibration ({calibration_nt:.4} nT) plus {floor_nt} nT: it would act beyond anything the box tested"
             ),
             HeldBack::WorseAtCrossovers { .. } | HeldBack::WorseBetweenLines { .. } => self.write_survey_levels(f),
+            HeldBack::AnomalyGain {
+                gain,
+                plain_gain,
+                tolerance,
+            } => write!(
+                f,
+                "with them the compensation would scale a crustal anomaly on the survey by {gain:.3} (plain Tolles-Lawson {plain_gain:.3}), beyond 1 ± {tolerance}: the map's amplitudes would not be the ground's"
+            ),
             HeldBack::UncheckedOnSurvey {
                 survey_nt,
                 stated_nt,

@@ -52,6 +52,12 @@ pub struct ChannelFigures {
     pub fom_limit_nt: f64,
     /// FOM after within the limit.
     pub fom_pass: Option<bool>,
+    /// The channel's verdict ([`crate::quality::verdict`]).
+    pub verdict: crate::quality::verdict::Verdict,
+    /// How the compensation scales a crustal anomaly (median over the
+    /// survey's rows).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub anomaly_gain: Option<f64>,
     /// Improvement ratio.
     pub improvement_ratio: f64,
     /// Per-line fourth-difference noise.
@@ -821,22 +827,13 @@ fn fom_section(quality: &ChannelQuality, limit_nt: f64) -> String {
     html
 }
 
-/// The verdict's FOM line: PASS or FAIL against `limit_nt`, nT, or neither
-/// when the survey's departure is `unchecked`.
-fn fom_verdict(quality: &ChannelQuality, limit_nt: f64, unchecked: bool) -> String {
+/// The FOM line: the FOM before and after against `limit_nt`, nT, or
+/// that there is none.
+fn fom_line(quality: &ChannelQuality, limit_nt: f64) -> String {
     match quality.fom_after_nt {
-        Some(fom) if fom <= limit_nt && unchecked => format!(
-            "FOM {:.2} → {fom:.2} nT over {} of 12 manoeuvres (limit {limit_nt} nT)",
-            quality.fom_before_nt.unwrap_or(f64::NAN),
-            quality.fom_manoeuvres
-        ),
-        Some(fom) if fom <= limit_nt => format!(
-            "<span class=\"pass\">PASS</span> FOM {:.2} → {fom:.2} nT over {} of 12 manoeuvres (limit {limit_nt} nT)",
-            quality.fom_before_nt.unwrap_or(f64::NAN),
-            quality.fom_manoeuvres
-        ),
         Some(fom) => format!(
-            "<span class=\"fail\">FAIL</span> FOM {:.2} → {fom:.2} nT over {} of 12 manoeuvres (limit {limit_nt} nT)",
+            "<span class=\"{}\">FOM {:.2} → {fom:.2} nT</span> over {} of 12 manoeuvres (limit {limit_nt} nT)",
+            if fom <= limit_nt { "pass" } else { "fail" },
             quality.fom_before_nt.unwrap_or(f64::NAN),
             quality.fom_manoeuvres
         ),
@@ -844,16 +841,30 @@ fn fom_verdict(quality: &ChannelQuality, limit_nt: f64, unchecked: bool) -> Stri
     }
 }
 
-fn verdict(quality: &ChannelQuality, limit_nt: f64) -> String {
-    let mut lines = Vec::new();
-    let unchecked = quality.unchecked_departure();
-    if let Some((departure, stated)) = unchecked {
-        lines.push(format!(
-            "<span class=\"fail\">CHECK</span> what the diagnosis added (its findings, the base station's term) moves the survey {departure:.4} nT from plain Tolles-Lawson, beyond the stated uncertainty{}: compare with a plain run",
-            stated.map(|s| format!(" ({s:.4} nT)")).unwrap_or_else(|| " (none stated)".into())
-        ));
+/// The CSS class of a verdict's word.
+fn verdict_class(verdict: crate::quality::verdict::Verdict) -> &'static str {
+    match verdict {
+        crate::quality::verdict::Verdict::Pass => "pass",
+        crate::quality::verdict::Verdict::Check => "check",
+        crate::quality::verdict::Verdict::Fail => "fail",
     }
-    lines.push(fom_verdict(quality, limit_nt, unchecked.is_some()));
+}
+
+/// The channel's verdict in its word, then a line per reason.
+fn verdict_head(quality: &ChannelQuality) -> String {
+    let mut html = format!(
+        "<p class=\"verdict\"><span class=\"{}\">{}</span></p>",
+        verdict_class(quality.verdict),
+        quality.verdict
+    );
+    for reason in &quality.verdict_reasons {
+        let _ = write!(html, "<p class=\"reason\">{}</p>", escape(reason));
+    }
+    html
+}
+
+fn verdict(quality: &ChannelQuality, limit_nt: f64) -> String {
+    let mut lines = vec![fom_line(quality, limit_nt)];
     lines.push(format!(
         "IR {:.1}; band std {:.3} → {:.3} nT; 4th-difference noise {:.4} → {:.4} nT",
         quality.improvement_ratio,
@@ -889,13 +900,12 @@ fn verdict(quality: &ChannelQuality, limit_nt: f64) -> String {
 fn applied_verdict(quality: &ChannelQuality, applied: &crate::pipeline::apply::AppliedModel, limit_nt: f64) -> String {
     let mut lines = Vec::new();
     let saved = applied.calibration.iter().find(|c| c.channel == quality.channel);
-    let (class, word) = match saved.and_then(|c| c.fom_after_nt) {
-        Some(fom) if fom <= limit_nt => ("pass", "PASS"),
-        Some(_) => ("fail", "FAIL"),
-        None => ("fail", "NO FOM"),
+    let class = match saved.and_then(|c| c.fom_after_nt) {
+        Some(fom) if fom <= limit_nt => "pass",
+        _ => "fail",
     };
     lines.push(format!(
-        "<span class=\"{class}\">{word}</span> on its calibration flight ({}): {} (limit {limit_nt} nT)",
+        "<span class=\"{class}\">On its calibration flight</span> ({}): {} (limit {limit_nt} nT)",
         escape(&applied.fitted_on.display().to_string()),
         saved.map_or("no calibration figures saved".into(), |c| c.describe())
     ));
@@ -1284,7 +1294,8 @@ fn residual_figures(channel: &crate::diagnose::ChannelDiagnosis, located: &[&Loc
 
 const STYLE: &str = "body{font-family:sans-serif;margin:2em;max-width:1000px}h2{border-bottom:1px solid #ccc}\
 table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #ddd;padding:3px 8px;text-align:right}\
-.pass{color:#176b1d;font-weight:bold}.fail{color:#b00020;font-weight:bold}.missing{color:#888}\
+.pass{color:#176b1d;font-weight:bold}.fail{color:#b00020;font-weight:bold}.check{color:#8a5a00;font-weight:bold}\
+.verdict{font-size:1.3em;margin:4px 0}.reason{margin:2px 0 2px 1em}.missing{color:#888}\
 .grid{display:flex;flex-wrap:wrap;gap:4px}figure{margin:0}\
 .warning{background:#fff3cd;border-left:4px solid #b00020;padding:4px 8px}";
 
@@ -1470,9 +1481,40 @@ fn channel_figures(
                 saved.fom_after_nt
             })
             .map(|f| f <= fom_limit_nt),
+        verdict: quality.verdict,
+        anomaly_gain: quality.anomaly_gain,
         improvement_ratio: quality.improvement_ratio,
         line_noise: noise,
     }
+}
+
+/// The answer first: a row per channel with its verdict, FOM, noise,
+/// heading level, anomaly gain and findings, linked to its section.
+fn summary_table(result: &FlightResult) -> String {
+    let figure = |value: Option<f64>, decimals: usize| value.map_or("–".to_string(), |v| format!("{v:.decimals$}"));
+    let mut html = String::from(
+        "<section id=\"summary\"><table class=\"summary\"><tr><th class=\"text\">channel</th><th class=\"text\">verdict</th><th>FOM after, nT</th><th>survey noise after, nT</th><th>heading level before → after, nT</th><th>anomaly gain</th><th class=\"text\">findings applied</th></tr>",
+    );
+    for quality in &result.channels {
+        let level = (quality.heading_level.as_ref())
+            .map_or("–".to_string(), |f| format!("{:.2} → {:.2}", f.before_nt, f.after_nt));
+        let findings: Vec<String> = (result.applied_findings.iter())
+            .filter(|f| f.channel == quality.channel)
+            .map(|f| f.effect.to_string())
+            .collect();
+        let _ = write!(
+            html,
+            "<tr><td class=\"text\"><a href=\"#{0}\">{0}</a></td><td class=\"text\"><span class=\"{1}\">{2}</span></td><td>{3}</td><td>{4}</td><td>{level}</td><td>{5}</td><td class=\"text\">{6}</td></tr>",
+            escape(&quality.channel),
+            verdict_class(quality.verdict),
+            quality.verdict,
+            figure(quality.fom_after_nt, 2),
+            figure(quality.survey_noise_4th_difference_after_nt, 4),
+            figure(quality.anomaly_gain, 3),
+            escape(&findings.join(", "))
+        );
+    }
+    html + "</table></section>"
 }
 
 /// The page's head and what it says of the whole flight: its rows, the
@@ -1483,6 +1525,7 @@ fn report_head(result: &crate::pipeline::FlightResult) -> String {
         escape(&result.flight.display().to_string())
     );
     let _ = write!(html, "<p>{} rows.</p>", result.rows);
+    html += &summary_table(result);
     for warning in &result.warnings {
         let _ = write!(
             html,
@@ -1579,6 +1622,7 @@ fn channel_section(
         "<section class=\"channel\" id=\"{0}\"><h2>{0}</h2>",
         escape(&model.channel)
     );
+    html += &verdict_head(quality);
     if let Some(applied) = &result.model {
         html += &applied_verdict(quality, applied, fom_limit_nt);
     }

@@ -78,6 +78,16 @@ pub struct CalibrationFigures {
     /// flight's verdict was CHECK, not PASS, nT.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub unchecked_departure_nt: Option<f64>,
+    /// The channel's verdict on its calibration flight.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub verdict: Option<crate::quality::verdict::Verdict>,
+    /// How the model scaled a crustal anomaly on its calibration flight's
+    /// survey rows (the median; [`crate::model::AnomalyGain`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub anomaly_gain: Option<f64>,
+    /// The smallest and largest gain of a row there.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub anomaly_gain_range: Option<[f64; 2]>,
 }
 
 impl CalibrationFigures {
@@ -93,6 +103,9 @@ impl CalibrationFigures {
             held_out_fom_nt: (quality.transfer.as_ref()).map(|t| t.held_out_fom_nt),
             outside_calibration_sigma_nt: (quality.uncertainty.as_ref()).map(|u| u.outside_calibration_sigma_nt),
             unchecked_departure_nt: quality.unchecked_departure().map(|(departure, _)| departure),
+            verdict: Some(quality.verdict),
+            anomaly_gain: quality.anomaly_gain,
+            anomaly_gain_range: quality.anomaly_gain_range,
         }
     }
 

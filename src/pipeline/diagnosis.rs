@@ -207,6 +207,14 @@ pub(super) fn evidence_rule(
         unsupported,
         false,
     );
+    let (gains, scaled) = anomaly_gains(&compensations, &plan, options.anomaly_gain_tolerance)?;
+    hold_back((&mut plan, &mut applied), diagnosis, (options, warnings), scaled, false);
+    for finding in (diagnosis.findings.iter_mut()).filter(|f| f.not_applied.is_none()) {
+        finding.anomaly_gain = (gains.iter())
+            .find(|(channel, _)| *channel == finding.channel)
+            .map(|(_, gain)| *gain)
+            .filter(|_| applies_to_model(finding.effect.kind()) || finding.effect.kind() == EffectKind::ExternalField);
+    }
     let unchecked: Vec<String> = (plan.iter())
         .filter(|(_, model)| **model != tolles_lawson_of(model))
         .map(|(channel, _)| channel.clone())
@@ -221,6 +229,49 @@ pub(super) fn evidence_rule(
     }
     let verdict = verdict_departures(&compensations, &plan)?;
     Ok((plan, verdict))
+}
+
+/// The anomaly gain ([`crate::model::AnomalyGain`]) of each channel of
+/// `plan` whose model is not plain Tolles-Lawson, and the channels whose
+/// findings scale the geology beyond `tolerance`, further from 1 than
+/// plain Tolles-Lawson does: those are held back. A term, finding or
+/// source is judged by how it scales the survey's anomalies as well as by
+/// how quiet it makes the box.
+fn anomaly_gains(
+    compensations: &crate::diagnose::evidence::Compensations,
+    plan: &BTreeMap<String, Extensions>,
+    tolerance: f64,
+) -> Result<(Vec<(String, f64)>, Vec<(String, HeldBack)>)> {
+    use crate::diagnose::evidence::{plain_of, tolles_lawson_of};
+    use rayon::prelude::*;
+    let judged: Vec<Option<(String, f64, Option<HeldBack>)>> = (plan.iter())
+        .filter(|(_, model)| **model != tolles_lawson_of(model))
+        .collect::<Vec<_>>()
+        .par_iter()
+        .map(|(channel, model)| {
+            let Some(gain) = compensations.anomaly_gain(channel, model)? else {
+                return Ok(None);
+            };
+            let plain = compensations.anomaly_gain(channel, &tolles_lawson_of(model))?;
+            let plain_gain = plain.map_or(1.0, |g| g.median);
+            let departs = gain.departure() > tolerance && gain.departure() > (plain_gain - 1.0).abs();
+            let held = (departs && **model != plain_of(model)).then_some(HeldBack::AnomalyGain {
+                gain: gain.median,
+                plain_gain,
+                tolerance,
+            });
+            Ok(Some(((*channel).clone(), gain.median, held)))
+        })
+        .collect::<Result<_>>()?;
+    let judged: Vec<(String, f64, Option<HeldBack>)> = judged.into_iter().flatten().collect();
+    let held = (judged.iter())
+        .filter_map(|(channel, _, held)| Some((channel.clone(), held.clone()?)))
+        .collect();
+    let gains = (judged.into_iter())
+        .filter(|(_, _, held)| held.is_none())
+        .map(|(channel, gain, _)| (channel, gain))
+        .collect();
+    Ok((gains, held))
 }
 
 /// Per channel, how far its compensation moves the survey from plain

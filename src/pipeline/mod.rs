@@ -161,7 +161,13 @@ fn estimator_table_gap(model: &FittedModel) -> Option<crate::messages::Note> {
 fn judge_channels(result: &mut FlightResult, options: &Settings) {
     let limits = verdict_limits(options);
     for quality in &mut result.channels {
-        crate::quality::verdict::judge(quality, &limits);
+        let calibration = (result.model.as_ref()).map(|applied| {
+            let figures = applied.calibration.iter().find(|c| c.channel == quality.channel);
+            crate::quality::verdict::CalibrationVerdict {
+                fom_after_nt: figures.and_then(|c| c.fom_after_nt),
+            }
+        });
+        crate::quality::verdict::judge(quality, &limits, calibration);
     }
 }
 

@@ -123,15 +123,36 @@ pub enum VerdictReason {
         /// The stated uncertainty, nT, when there is one.
         stated_nt: Option<f64>,
     },
-    /// Neither a FOM nor a survey-side figure checks the model.
-    Unchecked,
+    /// A saved model's FOM on its calibration flight was above the limit
+    /// (this flight has no box of its own to measure one).
+    CalibrationFomAboveLimit {
+        /// The calibration flight's FOM after compensation, nT.
+        fom_nt: f64,
+        /// The limit, nT.
+        limit_nt: f64,
+    },
+    /// Neither a FOM nor a survey-side figure of this flight checks the
+    /// model.
+    Unchecked {
+        /// A saved model's FOM on its calibration flight, nT, the only
+        /// figure behind it.
+        calibration_fom_nt: Option<f64>,
+    },
+}
+
+/// What a saved model's calibration flight said of a channel, for the
+/// verdict of a flight compensated with it.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct CalibrationVerdict {
+    /// The FOM after compensation on the calibration flight, nT.
+    pub fom_after_nt: Option<f64>,
 }
 
 impl VerdictReason {
     /// The verdict this reason alone gives.
     pub fn verdict(&self) -> Verdict {
         match self {
-            VerdictReason::Departure { .. } | VerdictReason::Unchecked => Verdict::Check,
+            VerdictReason::Departure { .. } | VerdictReason::Unchecked { .. } => Verdict::Check,
             _ => Verdict::Fail,
         }
     }
@@ -160,18 +181,40 @@ impl std::fmt::Display for VerdictReason {
                 "what the diagnosis added moves the survey {departure_nt:.4} nT from plain Tolles-Lawson, beyond the stated uncertainty{}",
                 stated_nt.map(|s| format!(" of {s:.4} nT")).unwrap_or_default()
             ),
-            VerdictReason::Unchecked => f.write_str(
-                "nothing on this flight checks the model: no labelled manoeuvres for a FOM, and no lines flown both ways or crossing",
+            VerdictReason::CalibrationFomAboveLimit { fom_nt, limit_nt } => write!(
+                f,
+                "on its calibration flight the model's FOM was {fom_nt:.2} nT, above the limit of {limit_nt:.2} nT"
+            ),
+            VerdictReason::Unchecked { calibration_fom_nt } => write!(
+                f,
+                "nothing on this flight checks the model: no labelled manoeuvres for a FOM, no reciprocal lines, no block of lines flown both ways, no crossing lines{}; fly a tie line across the survey, or lines both ways, to check it here",
+                match calibration_fom_nt {
+                    Some(fom) => format!(" (only its calibration flight's FOM of {fom:.2} nT is behind it)"),
+                    None => String::new(),
+                }
             ),
         }
     }
 }
 
-/// Every reason `quality` is not a plain PASS, in order of precedence.
-pub fn reasons(quality: &ChannelQuality, limits: &VerdictLimits) -> Vec<VerdictReason> {
+/// Every reason `quality` is not a plain PASS, in order of precedence;
+/// `calibration`, for a flight compensated with a saved model, what its
+/// calibration flight said.
+pub fn reasons(
+    quality: &ChannelQuality,
+    limits: &VerdictLimits,
+    calibration: Option<CalibrationVerdict>,
+) -> Vec<VerdictReason> {
     let mut reasons = Vec::new();
     if let Some(fom_nt) = quality.fom_after_nt.filter(|f| *f > limits.fom_limit_nt) {
         reasons.push(VerdictReason::FomAboveLimit {
+            fom_nt,
+            limit_nt: limits.fom_limit_nt,
+        });
+    }
+    let calibration_fom_nt = calibration.and_then(|c| c.fom_after_nt);
+    if let Some(fom_nt) = calibration_fom_nt.filter(|f| quality.fom_after_nt.is_none() && *f > limits.fom_limit_nt) {
+        reasons.push(VerdictReason::CalibrationFomAboveLimit {
             fom_nt,
             limit_nt: limits.fom_limit_nt,
         });
@@ -192,8 +235,10 @@ pub fn reasons(quality: &ChannelQuality, limits: &VerdictLimits) -> Vec<VerdictR
             stated_nt,
         });
     }
-    if quality.fom_after_nt.is_none() && quality.heading_level.is_none() && quality.crossovers.is_none() {
-        reasons.push(VerdictReason::Unchecked);
+    let survey_checked =
+        quality.heading_level.is_some() || quality.crossovers.is_some() || quality.heading_error.is_some();
+    if quality.fom_after_nt.is_none() && !survey_checked {
+        reasons.push(VerdictReason::Unchecked { calibration_fom_nt });
     }
     reasons.sort_by_key(|r| std::cmp::Reverse(r.verdict()));
     reasons
@@ -204,7 +249,9 @@ fn survey_worse(quality: &ChannelQuality) -> Vec<VerdictReason> {
     let level =
         (quality.heading_level.as_ref()).map(|f| ("heading level between neighbouring lines", f.before_nt, f.after_nt));
     let crossovers = (quality.crossovers.as_ref()).map(|f| ("crossover differences", f.before_nt, f.after_nt));
-    [level, crossovers]
+    let reciprocal = (quality.heading_error.as_ref())
+        .map(|f| ("heading error between reciprocal lines", f.before_nt.abs(), f.after_nt.abs()));
+    [level, crossovers, reciprocal]
         .into_iter()
         .flatten()
         .filter(|(_, before, after)| clearly_worse(*before, *after))
@@ -226,9 +273,10 @@ pub fn verdict_of(reasons: &[VerdictReason]) -> Verdict {
 }
 
 /// Sets `quality`'s verdict and its reasons in words, each after the
-/// verdict it gives ("FAIL: FOM 3.51 nT is above …").
-pub fn judge(quality: &mut ChannelQuality, limits: &VerdictLimits) {
-    let reasons = reasons(quality, limits);
+/// verdict it gives ("FAIL: FOM 3.51 nT is above …"); `calibration` as
+/// for [`reasons`].
+pub fn judge(quality: &mut ChannelQuality, limits: &VerdictLimits, calibration: Option<CalibrationVerdict>) {
+    let reasons = reasons(quality, limits, calibration);
     quality.verdict = verdict_of(&reasons);
     quality.verdict_reasons = (reasons.iter())
         .map(|reason| format!("{}: {reason}", reason.verdict()))
