@@ -547,16 +547,24 @@ fn what_the_model_cannot_vouch_for_is_a_warning() {
     // A FOM limit the calibration did not meet, and a magnetometer the
     // model holds no model of.
     std::fs::write(at("strict.toml"), "[quality]\nfom_limit_nt = 0.1\n").unwrap();
-    let stdout = run_ok(
-        magcomp()
-            .arg("compensate")
-            .arg(at("f.csv"))
-            .arg("--out")
-            .arg(at("applied.csv"))
-            .arg("--apply")
-            .arg(at("model.json"))
-            .arg("--config")
-            .arg(at("strict.toml")),
+    let output = magcomp()
+        .arg("compensate")
+        .arg(at("f.csv"))
+        .arg("--out")
+        .arg(at("applied.csv"))
+        .arg("--apply")
+        .arg(at("model.json"))
+        .arg("--config")
+        .arg(at("strict.toml"))
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&output.stdout).into_owned();
+    // The calibration's FOM above the limit fails the channel here too:
+    // its outputs are written and the run exits 3.
+    assert_eq!(output.status.code(), Some(3), "{stdout}");
+    assert!(
+        stdout.contains("mag_1_uc: FAIL") && stdout.contains("on its calibration flight the model's FOM was"),
+        "{stdout}"
     );
     assert!(
         stdout.contains("mag_1_uc: the model") && stdout.contains("above the 0.10 nT limit"),
@@ -638,12 +646,20 @@ fn a_run_applies_the_model_its_calibration_flight_writes() {
     assert_eq!(survey_rows.len(), 2, "{summary}");
     assert!(survey_rows.iter().all(|r| r.contains("cal_model.json")), "{summary}");
     // Each channel's verdict: the calibration's FOM passes the limit, so
-    // both flights' channels pass.
+    // the calibration flight's channels pass; nothing on the survey flight
+    // (no reciprocal, neighbouring or crossing lines) checks the model
+    // there, so its channels are CHECK, and say why.
     let header: Vec<&str> = summary.lines().next().unwrap().split(',').collect();
     let verdict = header.iter().position(|h| *h == "verdict").unwrap();
     for row in summary.lines().skip(1) {
-        assert_eq!(row.split(',').nth(verdict), Some("PASS"), "{summary}");
+        let expected = if row.starts_with("survey,") { "CHECK" } else { "PASS" };
+        assert_eq!(row.split(',').nth(verdict), Some(expected), "{summary}");
     }
+    let survey_quality = std::fs::read_to_string(at("out/survey_quality.json")).unwrap();
+    assert!(
+        survey_quality.contains("nothing on this flight checks the model"),
+        "{survey_quality}"
+    );
     // The calibration flight damaged: the survey flight fails with it,
     // though the model JSON of the first run is still there.
     std::fs::write(at("cal.csv"), lines[..lines.len() / 2].join("\n") + "\n1,2\n").unwrap();
@@ -968,28 +984,35 @@ fn a_model_that_fitted_the_base_stations_gain_is_refused_as_an_earlier_versions(
 
 /// Clearly harmful: the applied model leaves the survey lines further
 /// from truth than the uncompensated record by this factor and floor.
-const HARMFUL_FACTOR: f64 = 2.0;
+const HARMFUL_FACTOR: f64 = 1.5;
 const HARMFUL_FLOOR_NT: f64 = 1.0;
 
 /// A model of another airframe is checked on the flight it compensates:
-/// each random survey flight of aircraft B, compensated with aircraft A's
-/// model (a plain `--apply`, no aircraft names given), gets FAIL on every
-/// channel the wrong model leaves clearly further from truth than the
-/// uncompensated record, with the survey figure it made worse in words;
-/// and its own aircraft's model is never failed by the survey's figures.
+/// each random survey flight of aircraft B (eight lines flown both ways,
+/// two ties), compensated with aircraft A's model (a plain `--apply`, no
+/// aircraft names given), gets FAIL, or CHECK where the figure's rise lies
+/// within the geology's scatter, on every channel the wrong model leaves
+/// clearly further from truth than the uncompensated record, with the
+/// survey figure it made worse in words; and its own aircraft's model is
+/// never failed by the survey's figures. Measured on seeds 700–705: 4
+/// channels clearly harmed, 3 FAIL and 1 CHECK (heading level 0.04 →
+/// 5.23 nT against a standard error of 2.16 nT); every own model PASS.
 /// On the command line, the wrong model's run writes its outputs and
 /// exits 3; `--exit-zero-on-fail` exits 0.
 #[test]
 fn another_aircrafts_model_fails_on_the_survey_it_compensates() {
     let folder = tempfile::tempdir().unwrap();
     let settings = common::plain();
-    let mut harmful = 0;
+    let (mut harmful, mut failed) = (0, 0);
     let mut failures = Vec::new();
     for seed in seeds() {
         let (own_plan, other_plan) = (calibration_plan(seed), calibration_plan(seed + 100));
         let (own_input, own_truth, _) = fly(folder.path(), own_plan.clone(), &format!("own_{seed}"));
         let (other_input, _, _) = fly(folder.path(), other_plan, &format!("other_{seed}"));
-        let survey = survey_plan(seed + 5_000, &own_plan, &own_truth, 3);
+        // A survey a new user would check a model on: eight lines flown
+        // back and forth and two ties across them.
+        let mut survey = survey_plan(seed + 5_000, &own_plan, &own_truth, 3);
+        (survey.survey.line_count, survey.survey.tie_count) = (8, 2);
         let (survey_input, survey_truth, survey_line) = fly(folder.path(), survey, &format!("survey_{seed}"));
         for (who, calibration) in [("own", &own_input), ("other", &other_input)] {
             let model = folder.path().join(format!("{who}_{seed}_model.json"));
@@ -1010,32 +1033,57 @@ fn another_aircrafts_model_fails_on_the_survey_it_compensates() {
                 let error = survey_line_error_nt(&applied.compensation.channels[k].values, truth, &survey_line);
                 let raw = &applied.recorded.channel(&quality.channel).unwrap().values;
                 let uncompensated = survey_line_error_nt(raw, truth, &survey_line);
-                let survey_failed = quality.verdict_reasons.iter().any(|r| r.contains("this aircraft's"));
+                let survey_failed = quality
+                    .verdict_reasons
+                    .iter()
+                    .any(|r| r.contains("FAIL: this model raises"));
+                let survey_said = quality.verdict_reasons.iter().any(|r| r.contains("this model raises"));
                 println!(
-                    "seed {seed} {who} model, {}: survey lines against truth {uncompensated:.3} → {error:.3} nT; {} {:?}",
-                    quality.channel, quality.verdict, quality.verdict_reasons
+                    "seed {seed} {who} model, {}: survey lines against truth {uncompensated:.3} → {error:.3} nT; {} {:?}; heading level {:?}; crossovers {:?}; reciprocal {:?}",
+                    quality.channel,
+                    quality.verdict,
+                    quality.verdict_reasons,
+                    quality.heading_level.as_ref().map(|f| (f.before_nt, f.after_nt, f.standard_error_nt, f.triples)),
+                    quality.crossovers.as_ref().map(|f| (f.before_nt, f.after_nt, f.crossovers)),
+                    quality.heading_error.as_ref().map(|f| (f.before_nt, f.after_nt))
                 );
                 let clearly_harmful = error > HARMFUL_FACTOR * uncompensated + HARMFUL_FLOOR_NT;
                 if who == "other" && clearly_harmful {
                     harmful += 1;
-                    if quality.verdict != magcomp::quality::verdict::Verdict::Fail || !survey_failed {
-                        failures.push(format!("seed {seed} {}: the other aircraft's model passed", quality.channel));
+                    if quality.verdict == magcomp::quality::verdict::Verdict::Pass || !survey_said {
+                        failures.push(format!(
+                            "seed {seed} {}: the other aircraft's model passed",
+                            quality.channel
+                        ));
                     }
+                    failed += usize::from(survey_failed);
                 }
                 if who == "own" && survey_failed {
-                    failures.push(format!("seed {seed} {}: its own aircraft's model failed", quality.channel));
+                    failures.push(format!(
+                        "seed {seed} {}: its own aircraft's model failed",
+                        quality.channel
+                    ));
                 }
             }
             if seed == seeds().start && who == "other" {
                 let out = folder.path().join("cli_c.csv");
                 let mut command = magcomp();
-                let args = [survey_input.as_os_str(), "--out".as_ref(), out.as_os_str(), "--apply".as_ref()];
-                command.arg("compensate").args(args).arg(&model).arg("--plain");
+                let args = [
+                    survey_input.as_os_str(),
+                    "--out".as_ref(),
+                    out.as_os_str(),
+                    "--apply".as_ref(),
+                ];
+                command.arg("compensate").args(args).arg(&model);
                 let output = command.output().unwrap();
                 let stdout = String::from_utf8_lossy(&output.stdout);
                 let stderr = String::from_utf8_lossy(&output.stderr);
                 let failed = stdout.contains(": FAIL");
-                assert_eq!(output.status.code(), Some(if failed { 3 } else { 0 }), "{stdout}{stderr}");
+                assert_eq!(
+                    output.status.code(),
+                    Some(if failed { 3 } else { 0 }),
+                    "{stdout}{stderr}"
+                );
                 assert!(out.exists(), "the outputs are written whatever the verdict");
                 if failed {
                     assert!(stderr.contains("exit code 3"), "{stderr}");
@@ -1043,7 +1091,7 @@ fn another_aircrafts_model_fails_on_the_survey_it_compensates() {
                         .arg("compensate")
                         .args(args)
                         .arg(&model)
-                        .args(["--plain", "--exit-zero-on-fail"])
+                        .arg("--exit-zero-on-fail")
                         .output()
                         .unwrap();
                     assert_eq!(again.status.code(), Some(0));
@@ -1051,7 +1099,10 @@ fn another_aircrafts_model_fails_on_the_survey_it_compensates() {
             }
         }
     }
-    println!("{harmful} channels clearly harmed by another aircraft's model");
-    assert!(harmful > 0, "no plan's wrong model harmed a channel: the test checks nothing");
+    println!("{harmful} channels clearly harmed by another aircraft's model, {failed} of them FAIL, the rest CHECK");
+    assert!(
+        harmful > 0,
+        "no plan's wrong model harmed a channel: the test checks nothing"
+    );
     assert!(failures.is_empty(), "{failures:#?}");
 }

@@ -528,3 +528,189 @@ fn campaign_names_each_effect_and_leaves_clean_flights_alone() {
         );
     }
 }
+
+/// A flight with a current no column records: a tail scalar, two cabin
+/// scalars and a cabin fluxgate, the current's dipole placed among them
+/// (0.5–1 m from the scalars' middle, any direction, a moment giving 1–5
+/// nT at the nearest cabin scalar; the fluxgate 0.4–0.8 m from it),
+/// switched on and off, alone or with ramps and slow cycles, and a
+/// survey of 8 lines and 2 ties flown 100–200 m over 12 dipoles so that
+/// the sensors' separation carries a real gradient. Drawn by this file's own
+/// generator, not the simulator's. Returns the scenario and the field
+/// the current gives each cabin scalar per ampere (nT).
+fn unrecorded_current_scenario(seed: u64) -> (Scenario, Vec<(String, f64)>) {
+    let mut draw = Draw(0xC0FF_EE00 ^ seed);
+    let cabin = [
+        [1.5 + draw.between(-0.3, 0.3), 0.3 + draw.between(-0.3, 0.3), 0.2],
+        [2.3 + draw.between(-0.3, 0.3), -0.4 + draw.between(-0.3, 0.3), 0.1],
+    ];
+    let middle: Vec<f64> = (0..3).map(|i| (cabin[0][i] + cabin[1][i]) / 2.0).collect();
+    let away_m = draw.between(0.5, 1.0);
+    let offset = draw.vector(away_m);
+    let source: Vec<f64> = (0..3).map(|i| middle[i] + offset[i]).collect();
+    // The cabin fluxgate 0.4–0.8 m from the source.
+    let near_m = draw.between(0.4, 0.8);
+    let near = draw.vector(near_m);
+    let fluxgate = [source[0] + near[0], source[1] + near[1], source[2] + near[2]];
+    let distance = |p: &[f64; 3]| (0..3).map(|i| (p[i] - source[i]).powi(2)).sum::<f64>().sqrt();
+    let nearest = distance(&cabin[0]).min(distance(&cabin[1]));
+    // |B| ≈ 100 m / r³ nT for a moment m in A·m² (μ0/4π = 100 nT·m/A).
+    let at_nearest_nt = draw.between(1.0, 5.0);
+    let moment = draw.vector(at_nearest_nt * nearest.powi(3) / 100.0);
+    // Switched loads: their edges reach the calibration band, where the
+    // box can see them (a current that only ramps or cycles over tens of
+    // seconds stays below the band's 0.1 Hz and is seen on the survey
+    // alone).
+    let waveform = draw.pick(&["steps", "mixed"]);
+    let text = format!(
+        r#"
+        seed = {}
+        [survey]
+        line_count = 8
+        line_length_m = 5000.0
+        tie_count = 2
+        altitude_m = {}
+        line_heading_deg = {}
+        [crust]
+        dipole_count = 12
+        [[scalar]]
+        name = "mag_1_uc"
+        location = "tail"
+        position_m = [-9.0, 0.0, -0.5]
+        [[scalar]]
+        name = "mag_2_uc"
+        location = "cabin"
+        position_m = {:?}
+        [[scalar]]
+        name = "mag_3_uc"
+        location = "cabin"
+        position_m = {:?}
+        [[fluxgate]]
+        name = "flux_a"
+        position_m = {:?}
+        [[effect]]
+        kind = "unrecorded_current"
+        position_m = {:?}
+        moment_a_m2_per_a = {:?}
+        amplitude_a = 1.0
+        waveform = "{waveform}"
+        "#,
+        31_000 + seed,
+        draw.between(100.0, 200.0),
+        draw.between(0.0, 180.0),
+        cabin[0],
+        cabin[1],
+        fluxgate,
+        source,
+        moment
+    );
+    let raw: magcomp::simulate::scenario::RawScenario = toml::from_str(&text).unwrap();
+    let per_ampere = ["mag_2_uc", "mag_3_uc"]
+        .iter()
+        .zip(cabin)
+        .map(|(name, p)| {
+            let r: Vec<f64> = (0..3).map(|i| p[i] - source[i]).collect();
+            let field = magcomp::simulate::physics::dipole_field_nt(moment, [r[0], r[1], r[2]]);
+            (name.to_string(), field.iter().map(|v| v * v).sum::<f64>().sqrt())
+        })
+        .collect();
+    (Scenario::try_from(raw).unwrap(), per_ampere)
+}
+
+/// The unrecorded current is found from the other sensors alone, and the
+/// survey against truth improves with the geology's amplitude held: over
+/// random layouts, every applied `cross_sensor` finding leaves its
+/// channel's survey lines no further from truth than plain Tolles-Lawson
+/// (10 % + 0.01 nT), and every channel's anomaly gain stays within the
+/// tolerance; the cabin scalar the current reaches most gets one on at
+/// least [`LEAST_FOUND`] flights of ten.
+///
+/// Measured on seeds 0–9: found on 2 (3.72 → 0.93 nT and 1.41 → 0.43 nT
+/// against truth on the survey lines), none applied elsewhere. On the
+/// others the best signal explains 15–20 % of the held-out residual, short
+/// of the 30 % a finding needs: a witness sees the source through its own
+/// projection, $s = I\,(f \cdot u)$, and the channel through another,
+/// and the three regressors $s\,u_i$ hold the ratio of the two only to
+/// first order across the box's headings.
+#[test]
+fn an_unrecorded_current_is_found_from_the_other_sensors() {
+    use magcomp::config::{FlightJob, Settings};
+    use rayon::prelude::*;
+    let n = seeds().max(5) * 2;
+    let outcomes: Vec<(bool, Vec<String>)> = (0..n)
+        .into_par_iter()
+        .map(|seed| {
+            let (scenario, per_ampere) = unrecorded_current_scenario(seed);
+            let flight = magcomp::simulate::simulate(&scenario).unwrap();
+            let folder = tempfile::tempdir().unwrap();
+            let csv = folder.path().join("flight.csv");
+            magcomp::formats::write_flight_log(&flight.log, &csv).unwrap();
+            let job = FlightJob::new(&csv);
+            let mut default = Settings::default();
+            default.vector.enabled = false;
+            let out = folder.path().join("out.csv");
+            let auto = magcomp::pipeline::run(&job, &default, &out).unwrap();
+            let plain = magcomp::pipeline::run(&job, &common::plain(), &out).unwrap();
+            let line = &flight.log.channel("line").unwrap().values;
+            let strongest = per_ampere.iter().max_by(|a, b| a.1.total_cmp(&b.1)).unwrap().0.clone();
+            // `MAGCOMP_CROSS_KEEP=DIR` leaves each flight there to look at
+            // with `magcomp diagnose`.
+            if let Ok(keep) = std::env::var("MAGCOMP_CROSS_KEEP") {
+                std::fs::copy(&csv, std::path::Path::new(&keep).join(format!("unrecorded_{seed}.csv"))).unwrap();
+            }
+            for finding in auto.result.diagnosis.iter().flat_map(|d| d.findings.iter()) {
+                println!(
+                    "seed {seed}: finding {} {} {:?}: held out {:.4} → {:.4} nT; {:?}",
+                    finding.channel,
+                    finding.effect,
+                    finding.source,
+                    finding.heldout_rms_before_nt,
+                    finding.heldout_rms_after_nt,
+                    finding.not_applied
+                );
+            }
+            let mut failures = Vec::new();
+            let mut found = false;
+            for (k, quality) in auto.result.channels.iter().enumerate() {
+                let channel = &quality.channel;
+                let truth = flight.truth.earth_total_nt(channel).unwrap();
+                let error = |run: &magcomp::pipeline::FlightRun| {
+                    magcomp::simulate::truth::survey_line_error_nt(&run.compensation.channels[k].values, truth, line)
+                };
+                let (plain_nt, auto_nt) = (error(&plain), error(&auto));
+                let cross: Vec<&magcomp::pipeline::AppliedFinding> = (auto.result.applied_findings.iter())
+                    .filter(|f| f.channel == *channel && f.effect.name() == "cross_sensor")
+                    .collect();
+                let gain = quality.anomaly_gain.unwrap_or(f64::NAN);
+                println!(
+                    "seed {seed} {channel} ({:.1} nT/A): survey against truth plain {plain_nt:.3} → default {auto_nt:.3} nT; cross_sensor {:?}; anomaly gain {gain:.4}; {}",
+                    per_ampere.iter().find(|(c, _)| c == channel).map_or(0.0, |p| p.1),
+                    cross.iter().map(|f| f.source.clone().unwrap_or_default()).collect::<Vec<_>>(),
+                    quality.verdict
+                );
+                if *channel == strongest && !cross.is_empty() {
+                    found = true;
+                }
+                if !cross.is_empty() && auto_nt > 1.1 * plain_nt + 0.01 {
+                    failures.push(format!("seed {seed} {channel}: cross_sensor harmed the survey, {plain_nt} → {auto_nt}"));
+                }
+                if (gain - 1.0).abs() > magcomp::model::ANOMALY_GAIN_TOLERANCE {
+                    failures.push(format!("seed {seed} {channel}: anomaly gain {gain}"));
+                }
+            }
+            (found, failures)
+        })
+        .collect();
+    let found = outcomes.iter().filter(|(f, _)| *f).count();
+    let failures: Vec<String> = outcomes.into_iter().flat_map(|(_, f)| f).collect();
+    println!("the strongest cabin channel's cross_sensor applied on {found} of {n} flights");
+    assert!(failures.is_empty(), "{failures:#?}");
+    assert!(
+        found * 10 >= n as usize * LEAST_FOUND,
+        "found on {found} of {n} flights"
+    );
+}
+
+/// Flights of ten on which the strongest channel's `cross_sensor` must be
+/// found (see the test).
+const LEAST_FOUND: usize = 2;

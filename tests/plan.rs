@@ -529,7 +529,14 @@ fn the_command_line_sets_the_flight_against_the_plan(folder: &Path, report: &Pat
         report.as_os_str(),
     ]);
     let stdout = String::from_utf8_lossy(&output.stdout);
-    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+    // Exit 3 where a channel's verdict is FAIL, its outputs written.
+    let expected = if stdout.contains(": FAIL") { 3 } else { 0 };
+    assert_eq!(
+        output.status.code(),
+        Some(expected),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
     assert!(
         stdout
             .lines()

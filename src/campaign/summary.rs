@@ -584,7 +584,7 @@ impl CampaignSummary {
     pub fn html(&self) -> String {
         let (done, failed) = self.counts();
         let mut page = String::from(
-            "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>magcomp campaign summary</title>\n<style>body{font-family:sans-serif;margin:2em}table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #bbb;padding:2px 6px;text-align:right}td.text,th.text{text-align:left}tr.failed td{background:#fdd}</style></head><body>\n",
+            "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>magcomp campaign summary</title>\n<style>body{font-family:sans-serif;margin:2em}table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #bbb;padding:2px 6px;text-align:right}td.text,th.text{text-align:left}tr.failed td{background:#fdd}td.FAIL{background:#f8c6cc;font-weight:bold}td.CHECK{background:#ffe7a8;font-weight:bold}td.PASS{background:#cfeccf}</style></head><body>\n",
         );
         let _ = writeln!(
             page,
@@ -795,9 +795,15 @@ impl SummaryFlight {
             FlightState::Failed => " class=\"failed\"",
             FlightState::Done => "",
         };
+        // The flight's name links its report, where it wrote one.
+        let report = (status.outputs.iter()).find(|name| name.ends_with("_report.html"));
+        let name = match report {
+            Some(report) => format!("<a href=\"{}\">{}</a>", escape(report), escape(&status.flight)),
+            None => escape(&status.flight),
+        };
         let head = format!(
             "<td class=\"text\">{}</td><td class=\"text\">{}</td><td class=\"text\">{}</td><td class=\"text\">{}</td><td>{}</td><td>{}</td>",
-            escape(&status.flight),
+            name,
             escape(status.aircraft.as_deref().unwrap_or("")),
             escape(status.date.as_deref().unwrap_or("")),
             state_name(status.state),
@@ -812,11 +818,11 @@ impl SummaryFlight {
             );
         }
         for channel in &self.channels {
+            let verdict = escape(&channel.verdict);
             let _ = writeln!(
                 page,
-                "<tr{class}>{head}<td class=\"text\">{}</td><td class=\"text\">{}</td><td>{}</td><td>{}</td><td>{}</td><td class=\"text\">{}</td><td class=\"text\">{}</td><td class=\"text\">{}</td></tr>",
+                "<tr{class}>{head}<td class=\"text\">{}</td><td class=\"text {verdict}\">{verdict}</td><td>{}</td><td>{}</td><td>{}</td><td class=\"text\">{}</td><td class=\"text\">{}</td><td class=\"text\">{}</td></tr>",
                 escape(&channel.channel),
-                escape(&channel.verdict),
                 figure(channel.fom_before_nt),
                 figure(channel.fom_after_nt),
                 figure(channel.improvement_ratio),

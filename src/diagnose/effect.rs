@@ -28,6 +28,9 @@ pub enum EffectKind {
     VectorCalibration,
     /// The aircraft field's second-order part of the total field.
     SecondOrder,
+    /// Interference the attitude terms cannot hold, seen by other sensors
+    /// less a reference scalar, free of geology.
+    CrossSensor,
     /// Structured residual nothing in the library explains.
     Unexplained,
 }
@@ -42,6 +45,7 @@ impl EffectKind {
             EffectKind::EddyTimeConstant => "eddy_time_constant",
             EffectKind::VectorCalibration => "vector_calibration",
             EffectKind::SecondOrder => "second_order",
+            EffectKind::CrossSensor => "cross_sensor",
             EffectKind::Unexplained => "unexplained",
         }
     }
@@ -68,6 +72,8 @@ pub enum Effect {
     VectorCalibration(FluxgateErrors),
     /// `second_order`.
     SecondOrder(SecondOrder),
+    /// `cross_sensor`.
+    CrossSensor(CrossSensor),
     /// `unexplained`.
     Unexplained(Unexplained),
 }
@@ -91,6 +97,15 @@ pub struct AuxCoupling {
     /// Body-axis field per unit/s of the channel's rate, nT·s per unit
     /// (x, y, z); `None` when only the channel itself couples.
     pub kdot_nt_s_per_unit: Option<[f64; 3]>,
+}
+
+/// The geology-free signal s of other sensors (a fluxgate's magnitude or
+/// another scalar, less a reference scalar, less its attitude part)
+/// coupled into the scalar through the direction cosines: $s\,(k \cdot u)$.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CrossSensor {
+    /// nT at the channel per nT of the signal, along each body axis.
+    pub k: [f64; 3],
 }
 
 /// The scalar follows a base station's record with this gain.
@@ -153,6 +168,7 @@ impl Effect {
             Effect::EddyTimeConstant(_) => EffectKind::EddyTimeConstant,
             Effect::VectorCalibration(_) => EffectKind::VectorCalibration,
             Effect::SecondOrder(_) => EffectKind::SecondOrder,
+            Effect::CrossSensor(_) => EffectKind::CrossSensor,
             Effect::Unexplained(_) => EffectKind::Unexplained,
         }
     }
@@ -165,7 +181,7 @@ impl Effect {
     /// The parameters under DIAGNOSIS.json's names, units in each name:
     /// `lag_s`; `k_x_nt_per_unit` … and `kdot_x_nt_s_per_unit` …; `gain`;
     /// `tau_s`; `scale_x` …, `offset_x_nt` …, `non_orthogonality_xy_deg` …;
-    /// `term_rms_nt`; `structured_energy_share`, `noise_floor_nt`,
+    /// `term_rms_nt`; `k_x` … (cross-sensor, nT per nT); `structured_energy_share`, `noise_floor_nt`,
     /// `residual_to_noise`.
     pub fn parameters(&self) -> BTreeMap<String, f64> {
         let mut named = BTreeMap::new();
@@ -202,6 +218,7 @@ impl Effect {
             Effect::SecondOrder(p) => {
                 named.insert("term_rms_nt".into(), p.term_rms_nt);
             }
+            Effect::CrossSensor(p) => axes("k_{}", p.k, &mut named),
             Effect::Unexplained(p) => {
                 named.insert("structured_energy_share".into(), p.structured_energy_share);
                 named.insert("noise_floor_nt".into(), p.noise_floor_nt);

@@ -143,7 +143,10 @@ pub(super) fn describe(extension: &Extension) -> String {
     match extension {
         Extension::Lag { lag_s } => format!("sensor_lag {lag_s:.2} s"),
         Extension::Eddy { tau_s } => format!("eddy_time_constant {tau_s:.2} s"),
-        Extension::Coupling { source } => format!("aux_coupling from {source}"),
+        Extension::Coupling { source } => match source.strip_prefix(crate::model::cross_sensor::CROSS_COLUMN_PREFIX) {
+            Some(sensors) => format!("cross_sensor from {sensors}"),
+            None => format!("aux_coupling from {source}"),
+        },
         Extension::CouplingRate { source } => format!("aux_coupling from the rate of {source}"),
         Extension::CouplingWithRate { source } => format!("aux_coupling from {source} and its rate"),
         Extension::External { source } => format!("external_field from {source}"),

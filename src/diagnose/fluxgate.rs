@@ -12,35 +12,10 @@ pub(super) fn quietest_reference(
     (terms, options): (&TermSet, &FitOptions),
     stores: &StorePool,
 ) -> Result<(String, f64)> {
-    let Calibration {
-        log,
-        sensor,
-        channels,
-        windows,
-    } = *calibration;
-    let plain = ModelSpec::plain(*terms);
-    let models: Vec<FittedModel> = channels
-        .par_iter()
-        .map(|channel| fit(log, sensor, channel, windows, &plain, options, stores))
-        .collect::<Result<_>>()?;
-    let compensation = crate::compensate::compensate(log, &models, crate::compensate::LevelConvention::Absolute)?;
-    let rows = window_rows(log.time_s(), windows);
-    let mut quietest: Option<(String, f64)> = None;
-    for (channel, compensated) in channels.iter().zip(&compensation.channels) {
-        let Some(raw) = log.channel(channel) else { continue };
-        let interference: Vec<f64> = rows
-            .iter()
-            .map(|&k| raw.values[k] - compensated.values[k])
-            .filter(|v| v.is_finite())
-            .collect();
-        let size = crate::quality::standard_deviation(&interference);
-        if quietest.as_ref().is_none_or(|(_, best)| size < *best) {
-            quietest = Some((channel.clone(), size));
-        }
-    }
-    quietest.ok_or_else(|| crate::Error::Fit {
-        path: log.source().to_path_buf(),
-        channel: sensor.prefix.clone(),
+    let ranked = super::cross::ranked_by_interference(calibration, (terms, options), stores)?;
+    ranked.into_iter().next().ok_or_else(|| crate::Error::Fit {
+        path: calibration.log.source().to_path_buf(),
+        channel: calibration.sensor.prefix.clone(),
         source: crate::error::FitFailure::Other("no scalar channel to judge the fluxgate against".into()),
     })
 }

@@ -316,6 +316,7 @@ fn coherence(
         .channels()
         .iter()
         .filter(|c| matches!(c.role, ChannelRole::Auxiliary) && !super::is_magnetic_product(&c.name))
+        .filter(|c| !super::cross::is_cross_column(&c.name))
         .filter_map(|c| {
             // Band-passed c·u_i on the same trimmed runs as the residual.
             let regressors: Vec<Vec<f64>> = (0..3)

@@ -79,6 +79,7 @@
 //! fluxgate check, `finding` the findings in words, [`localise`] where the
 //! residual is.
 
+mod cross;
 mod effect;
 pub mod evidence;
 mod finding;
@@ -96,8 +97,8 @@ use search::*;
 use shifted::*;
 
 pub use effect::{
-    AuxCoupling, EddyTimeConstant, Effect, EffectKind, ExternalField, FluxgateErrors, SecondOrder, SensorLag,
-    Unexplained,
+    AuxCoupling, CrossSensor, EddyTimeConstant, Effect, EffectKind, ExternalField, FluxgateErrors, SecondOrder,
+    SensorLag, Unexplained,
 };
 pub use finding::AppliedFinding;
 
@@ -590,8 +591,24 @@ pub fn diagnose_metered(
     // left: a cabin sensor's hundreds of nT would otherwise count as
     // fluxgate offsets.
     let stores = StorePool::new();
+    // Other sensors as interference sensors: their geology-free signals
+    // are source columns of the log the search reads.
+    let plain = cross::plain_models(calibration, (terms, options), &stores)?;
+    let ranked = cross::ranked_of(calibration, &plain)?;
+    let cross = cross::cross_columns(calibration, &ranked, (terms, options), &stores)?;
+    let log = &cross.log;
     let raw_direction = field_directions(log, sensor);
-    let levels = source_levels(log);
+    let all_levels = source_levels(log);
+    let levels: BTreeMap<String, BTreeMap<String, f64>> = (channels.iter())
+        .map(|channel| {
+            let allowed = cross.allowed.get(channel).map(Vec::as_slice).unwrap_or_default();
+            let mine = (all_levels.iter())
+                .filter(|(name, _)| !cross::is_cross_column(name) || allowed.contains(name))
+                .map(|(name, level)| (name.clone(), *level))
+                .collect();
+            (channel.clone(), mine)
+        })
+        .collect();
     let problem = |channel, log, direction| Problem {
         log,
         sensor,
@@ -600,7 +617,7 @@ pub fn diagnose_metered(
         terms: *terms,
         options,
         direction,
-        levels: &levels,
+        levels: levels.get(channel).unwrap_or(&all_levels),
         stores: &stores,
     };
     // The fluxgate check and each channel's plain fits held out (by
@@ -632,8 +649,13 @@ pub fn diagnose_metered(
         diagnose_from(start, (raw, calibrated), fluxgate_calibration, settings)
     };
     let results = search_each(starts, &search, meter)?;
-    let (channel_results, findings, untestable) = searched_channels(log, results)?;
+    let (mut channel_results, mut findings, untestable) = searched_channels(log, results)?;
+    for found in &mut findings {
+        cross::name_cross_sensor((&mut [], found), &cross.signals);
+    }
+    cross::name_cross_sensor((&mut channel_results, &mut []), &cross.signals);
     notes.extend(untestable);
+    notes.extend(cross.notes);
     notes.extend(criterion_notes(&channel_results, options));
     Ok(with_fluxgate(
         (channel_results, findings, notes),

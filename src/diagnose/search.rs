@@ -203,6 +203,7 @@ pub(super) fn diagnose_channel(
     let keep = 1.0 - settings.min_improvement;
     while findings.len() < settings.max_findings {
         let mut scored = score_candidates(problem, (&model, &current_ridge), &control, settings);
+        prefer_recorded(&mut scored, current * keep);
         let state = SearchState {
             model: &model,
             ridge: &current_ridge,
@@ -245,6 +246,20 @@ pub(super) fn diagnose_channel(
         localisation,
     };
     Ok((summary, findings))
+}
+
+/// Puts the recorded candidates that pass the threshold (`passing_nt`)
+/// before every cross-sensor signal: a recorded column that pays holds
+/// the cause itself, where another sensor's signal holds that sensor's
+/// share of it and its noise. The order within each part is kept.
+fn prefer_recorded(scored: &mut [(Model, Extension, HeldOut)], passing_nt: f64) {
+    let cross = |extension: &Extension| match extension {
+        Extension::Coupling { source } => super::cross::is_cross_column(source),
+        _ => false,
+    };
+    if scored.iter().any(|(_, e, h)| !cross(e) && h.rms_nt <= passing_nt) {
+        scored.sort_by_key(|(_, e, _)| cross(e));
+    }
 }
 
 /// Where the search stands before a step: the model, each split's ridge
@@ -440,7 +455,10 @@ pub(super) fn candidates(problem: &Problem, model: &Model, settings: &DiagnoseOp
         if !model.sources.iter().any(|s| s.column() == channel.name) {
             let mut next = model.clone();
             next.sources.push(term);
-            if let Extension::Coupling { source } = &extension {
+            // A cross-sensor signal's rate is another sensor's noise
+            // differentiated: only the signal itself is a candidate.
+            let rated = !super::cross::is_cross_column(&channel.name);
+            if let (Extension::Coupling { source }, true) = (&extension, rated) {
                 let mut with_rate = next.clone();
                 with_rate
                     .sources
@@ -461,6 +479,9 @@ pub(super) fn candidates(problem: &Problem, model: &Model, settings: &DiagnoseOp
         let SourceTerm::AuxCoupling { column, .. } = source else {
             continue;
         };
+        if super::cross::is_cross_column(column) {
+            continue;
+        }
         let refined = SourceTerm::AuxCouplingRate { column: column.clone() };
         if !model.sources.contains(&refined) {
             let mut next = model.clone();

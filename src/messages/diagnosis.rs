@@ -65,6 +65,14 @@ pub enum Diagnosing {
         /// `[diagnose] vector_mismatch_nt`, nT.
         least_nt: f64,
     },
+    /// A channel for which no cross-sensor signal could be formed: the
+    /// flight has no other scalar to take as the reference.
+    CrossSensorNotTried {
+        /// The channel.
+        channel: String,
+        /// The fluxgates the flight has.
+        fluxgates: usize,
+    },
     /// Findings applied where the survey has nothing to check them
     /// against.
     SurveyNotChecked {
@@ -113,6 +121,14 @@ impl fmt::Display for Diagnosing {
             } => write!(
                 f,
                 "{sensor}'s magnitude against {reference} (the scalar with the least aircraft field, {reference_interference_nt:.1} nT over the manoeuvres): held-out mismatch {before_nt:.1} nT raw, {after_nt:.1} nT calibrated; below the {threshold_nt:.0} nT a finding needs ({least_nt:.0} nT and three times that field), or not removed by the calibration"
+            ),
+            Diagnosing::CrossSensorNotTried { channel, fluxgates } => write!(
+                f,
+                "{channel}: other sensors as interference sensors not tried: the flight has no other scalar to take as the reference, and {} less {channel} would hold {channel}'s own interference",
+                match fluxgates {
+                    1 => "its fluxgate's magnitude".to_string(),
+                    n => format!("each of its {n} fluxgates' magnitudes"),
+                }
             ),
             Diagnosing::SurveyNotChecked {
                 channels,

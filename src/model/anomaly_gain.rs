@@ -144,7 +144,11 @@ impl FittedModel {
                 let b = magnitude(row);
                 let induced = design.predict_row(row, &degree_one) + extra.degree_one(row);
                 let second = second_order.as_ref().map_or(0.0, |q| q[row]);
-                let coupled: f64 = (0..3).map(|i| extra.sources[i] * field[i][row] / b).sum();
+                let cosines = [0, 1, 2].map(|i| field[i][row] / b);
+                let coupled: f64 = (0..3).map(|i| extra.sources[i] * cosines[i]).sum::<f64>()
+                    + (extra.cross.iter())
+                        .map(|(rate, k)| rate[row] * (0..3).map(|i| k[i] * cosines[i]).sum::<f64>())
+                        .sum::<f64>();
                 1.0 - induced / b - second - coupled
             })
             .collect())
@@ -178,6 +182,9 @@ struct ExtraGains<'p> {
     /// $\sum_c s_c \beta_c$: the coupled sources' coefficients on
     /// $(c - \bar c) u$, each times its column's slope against the field.
     sources: [f64; 3],
+    /// Each cross-sensor signal's rate with the anomaly per row, and its
+    /// coefficients on $s\,u$.
+    cross: Vec<(Vec<f64>, [f64; 3])>,
 }
 
 impl<'p> ExtraGains<'p> {
@@ -194,6 +201,7 @@ impl<'p> ExtraGains<'p> {
             degree_one.extend(columns.by_ref().take(9).map(|(c, &b)| (c.values.as_slice(), b)));
         }
         let mut sources = [0.0; 3];
+        let mut cross = Vec::new();
         let recorded = scalar_values(log, &model.channel)?;
         for source in &model.spec.extensions.sources {
             match source {
@@ -207,13 +215,22 @@ impl<'p> ExtraGains<'p> {
                         *sum += slope * b;
                     }
                 }
+                SourceTerm::CrossSensor { signal, .. } => {
+                    let three: Vec<f64> = columns.by_ref().take(3).map(|(_, &b)| b).collect();
+                    let weights = [0, 1, 2].map(|i| three.get(i).copied().unwrap_or(0.0));
+                    cross.push((signal.anomaly_rate(log)?, weights));
+                }
                 // The rate of a column scales an anomaly's rate, not the
                 // anomaly: no gain at the survey's wavelengths.
                 SourceTerm::AuxCouplingRate { .. } => columns.by_ref().take(3).for_each(drop),
                 SourceTerm::ExternalField { .. } => {}
             }
         }
-        Ok(ExtraGains { degree_one, sources })
+        Ok(ExtraGains {
+            degree_one,
+            sources,
+            cross,
+        })
     }
 
     fn degree_one(&self, row: usize) -> f64 {
@@ -252,12 +269,31 @@ fn field_slope(values: &[f64], recorded: &[f64], rows: &[usize], log: &FlightLog
     }
 }
 
+/// How much of the Earth's field `values` carry: their slope against the
+/// total field `recorded` (a scalar's record) over the survey rows outside
+/// `windows`, each survey line's mean removed ([`AnomalyGain`]'s source
+/// term). Zero where either does not vary.
+pub fn survey_field_slope(
+    log: &FlightLog,
+    (values, recorded): (&[f64], &[f64]),
+    windows: &[crate::calibration::windows::CalibrationWindow],
+) -> f64 {
+    let (rows, _) = rows_outside(log, windows.iter().map(|w| w.rows(log.time_s())));
+    field_slope(values, recorded, &rows, log)
+}
+
 /// The rows a model's gain is taken over: the survey lines outside its
 /// calibration windows, else every row outside them, else every row.
 fn gain_rows(log: &FlightLog, model: &FittedModel) -> (Vec<usize>, GainRows) {
+    rows_outside(log, model.windows.iter().map(|w| w.window.rows(log.time_s())))
+}
+
+/// The survey lines' rows outside `windows` (row ranges), else every row
+/// outside them, else every row.
+fn rows_outside(log: &FlightLog, windows: impl Iterator<Item = std::ops::Range<usize>>) -> (Vec<usize>, GainRows) {
     let mut calibration = vec![false; log.len()];
-    for window in &model.windows {
-        for row in window.window.rows(log.time_s()) {
+    for rows in windows {
+        for row in rows {
             calibration[row] = true;
         }
     }

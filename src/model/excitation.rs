@@ -1107,7 +1107,7 @@ fn candidate_gram(
         }
         let level = match source {
             SourceTerm::AuxCoupling { level, .. } | SourceTerm::ExternalField { level, .. } => *level,
-            SourceTerm::AuxCouplingRate { .. } => 0.0,
+            SourceTerm::AuxCouplingRate { .. } | SourceTerm::CrossSensor { .. } => 0.0,
         };
         channels.push(Channel {
             name: source.column().to_string(),
@@ -1123,6 +1123,14 @@ fn candidate_gram(
     // The field is already what the model reads: no fluxgate calibration again.
     let mut spec = model.spec.clone();
     spec.extensions.vector_calibration = None;
+    // A cross-sensor signal is made from sensors the candidate manoeuvre
+    // does not fly: it sits at its level, zero, as a coupled column does.
+    for source in &mut spec.extensions.sources {
+        if let SourceTerm::CrossSensor { name, .. } = source {
+            let column = std::mem::take(name);
+            *source = SourceTerm::AuxCoupling { column, level: 0.0 };
+        }
+    }
     let candidate = Prepared::new(&flight, &candidate_sensor, &model.channel, &spec)?;
     let window = CalibrationWindow::new(0.0, (rows - 1) as f64 * dt);
     let data = band_data(

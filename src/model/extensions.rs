@@ -62,6 +62,15 @@ pub enum SourceTerm {
         /// $\bar c$, nT.
         level: f64,
     },
+    /// Interference other sensors see and the attitude terms cannot hold
+    /// ([`crate::model::cross_sensor`]): three regressors $s\,u_i$ of the
+    /// geology-free signal s.
+    CrossSensor {
+        /// The sensors read, `flux_c|mag_5_uc`.
+        name: String,
+        /// How the signal is made from them.
+        signal: crate::model::cross_sensor::CrossSignal,
+    },
 }
 
 impl SourceTerm {
@@ -71,6 +80,7 @@ impl SourceTerm {
             SourceTerm::AuxCoupling { column, .. }
             | SourceTerm::AuxCouplingRate { column }
             | SourceTerm::ExternalField { column, .. } => column,
+            SourceTerm::CrossSensor { name, .. } => name,
         }
     }
 
@@ -133,6 +143,7 @@ impl Extensions {
                 SourceTerm::AuxCoupling { column, .. } => format!("coupling to {column}"),
                 SourceTerm::AuxCouplingRate { column } => format!("coupling to the rate of {column}"),
                 SourceTerm::ExternalField { column, .. } => format!("base station {column}"),
+                SourceTerm::CrossSensor { name, .. } => format!("cross-sensor signal {name}"),
             });
         }
         match parts.is_empty() {

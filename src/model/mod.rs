@@ -33,6 +33,7 @@
 
 pub mod anomaly_gain;
 pub mod band;
+pub mod cross_sensor;
 pub mod excitation;
 pub mod extensions;
 pub mod igrf;

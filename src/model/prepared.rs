@@ -115,6 +115,13 @@ impl<'a> Prepared<'a> {
         };
         let mut push = |name: String, values: Vec<f64>| extra.push(ExtraColumn { name, values });
         for source in &extensions.sources {
+            if let SourceTerm::CrossSensor { name, signal } = source {
+                let values = signal.values(&log)?;
+                for (axis, u) in ["x", "y", "z"].iter().zip(direction) {
+                    push(format!("{name}_{axis}"), column_on(n, rows, |k| values[k] * u[k]));
+                }
+                continue;
+            }
             let Some(values) = log.channel(source.column()).map(|c| &c.values) else {
                 return Err(Error::MissingColumn {
                     path: log.source().to_path_buf(),
@@ -137,7 +144,7 @@ impl<'a> Prepared<'a> {
                     }
                 }
                 // Subtracted from the scalar below, with gain 1.
-                SourceTerm::ExternalField { .. } => {}
+                SourceTerm::ExternalField { .. } | SourceTerm::CrossSensor { .. } => {}
             }
         }
         let scalar = match (&log, extensions.lag_s) {

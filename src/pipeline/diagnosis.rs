@@ -407,7 +407,7 @@ fn unchecked_kinds(model: &Extensions, check: crate::diagnose::evidence::SurveyC
     }
     let coupled = (model.sources.iter()).any(|s| !s.is_external_field());
     if coupled && check == crate::diagnose::evidence::SurveyCheck::NotMade {
-        kinds.push(EffectKind::AuxCoupling);
+        kinds.extend([EffectKind::AuxCoupling, EffectKind::CrossSensor]);
     }
     kinds
 }

@@ -115,6 +115,18 @@ pub enum VerdictReason {
         /// Compensated, nT.
         after_nt: f64,
     },
+    /// A survey-side figure the model made clearly worse, within the
+    /// figure's own uncertainty.
+    SurveyWorseUncertain {
+        /// Which figure.
+        figure: &'static str,
+        /// Uncompensated, nT.
+        before_nt: f64,
+        /// Compensated, nT.
+        after_nt: f64,
+        /// The figure's standard error, nT, where it has one.
+        standard_error_nt: Option<f64>,
+    },
     /// The findings move the survey from plain Tolles-Lawson beyond the
     /// stated uncertainty.
     Departure {
@@ -152,7 +164,9 @@ impl VerdictReason {
     /// The verdict this reason alone gives.
     pub fn verdict(&self) -> Verdict {
         match self {
-            VerdictReason::Departure { .. } | VerdictReason::Unchecked { .. } => Verdict::Check,
+            VerdictReason::Departure { .. }
+            | VerdictReason::Unchecked { .. }
+            | VerdictReason::SurveyWorseUncertain { .. } => Verdict::Check,
             _ => Verdict::Fail,
         }
     }
@@ -175,6 +189,19 @@ impl std::fmt::Display for VerdictReason {
             } => write!(
                 f,
                 "this model raises the {figure} from {before_nt:.2} to {after_nt:.2} nT: is it this aircraft's, and this installation's?"
+            ),
+            VerdictReason::SurveyWorseUncertain {
+                figure,
+                before_nt,
+                after_nt,
+                standard_error_nt,
+            } => write!(
+                f,
+                "this model raises the {figure} from {before_nt:.2} to {after_nt:.2} nT, {}: compare a tie line or a reflown line before delivering this channel",
+                match standard_error_nt {
+                    Some(se) => format!("within {HEADING_LEVEL_STANDARD_ERRORS} standard errors of the geology's scatter ({se:.2} nT)"),
+                    None => "on too few lines to tell the model from the geology".to_string(),
+                }
             ),
             VerdictReason::Departure { departure_nt, stated_nt } => write!(
                 f,
@@ -244,23 +271,66 @@ pub fn reasons(
     reasons
 }
 
-/// The survey-side figures the model made clearly worse.
+/// Standard errors of the heading level a rise must exceed besides
+/// [`clearly_worse`]'s factor and floor: the level is known only to the
+/// geology's curvature across neighbouring lines.
+pub const HEADING_LEVEL_STANDARD_ERRORS: f64 = 3.0;
+
+/// Fewest triples of neighbouring lines whose heading level can fail a
+/// model: two leave no scatter to judge the level by (its standard error
+/// is zero), and a near-perfect compensation of a clean simulated survey
+/// of four lines raised it from 1.79 to 3.37 nT, the geology's, not the
+/// model's.
+pub const HEADING_LEVEL_LEAST_TRIPLES: usize = 3;
+
+/// The survey-side figures the model made clearly worse: FAIL where the
+/// rise stands beyond the figure's own uncertainty, CHECK where it does
+/// not (the heading level of too few lines, or within
+/// [`HEADING_LEVEL_STANDARD_ERRORS`] of the geology's scatter).
 fn survey_worse(quality: &ChannelQuality) -> Vec<VerdictReason> {
-    let level =
-        (quality.heading_level.as_ref()).map(|f| ("heading level between neighbouring lines", f.before_nt, f.after_nt));
+    let mut reasons = Vec::new();
+    if let Some(f) = quality
+        .heading_level
+        .as_ref()
+        .filter(|f| clearly_worse(f.before_nt, f.after_nt))
+    {
+        let figure = "heading level between neighbouring lines";
+        let certain = f.triples >= HEADING_LEVEL_LEAST_TRIPLES
+            && f.after_nt - f.before_nt > HEADING_LEVEL_STANDARD_ERRORS * f.standard_error_nt;
+        reasons.push(match certain {
+            true => VerdictReason::SurveyWorse {
+                figure,
+                before_nt: f.before_nt,
+                after_nt: f.after_nt,
+            },
+            false => VerdictReason::SurveyWorseUncertain {
+                figure,
+                before_nt: f.before_nt,
+                after_nt: f.after_nt,
+                standard_error_nt: (f.triples >= HEADING_LEVEL_LEAST_TRIPLES).then_some(f.standard_error_nt),
+            },
+        });
+    }
     let crossovers = (quality.crossovers.as_ref()).map(|f| ("crossover differences", f.before_nt, f.after_nt));
-    let reciprocal = (quality.heading_error.as_ref())
-        .map(|f| ("heading error between reciprocal lines", f.before_nt.abs(), f.after_nt.abs()));
-    [level, crossovers, reciprocal]
-        .into_iter()
-        .flatten()
-        .filter(|(_, before, after)| clearly_worse(*before, *after))
-        .map(|(figure, before_nt, after_nt)| VerdictReason::SurveyWorse {
-            figure,
-            before_nt,
-            after_nt,
-        })
-        .collect()
+    let reciprocal = (quality.heading_error.as_ref()).map(|f| {
+        (
+            "heading error between reciprocal lines",
+            f.before_nt.abs(),
+            f.after_nt.abs(),
+        )
+    });
+    reasons.extend(
+        [crossovers, reciprocal]
+            .into_iter()
+            .flatten()
+            .filter(|(_, before, after)| clearly_worse(*before, *after))
+            .map(|(figure, before_nt, after_nt)| VerdictReason::SurveyWorse {
+                figure,
+                before_nt,
+                after_nt,
+            }),
+    );
+    reasons
 }
 
 /// The verdict of `reasons`: the highest of theirs, PASS without any.

@@ -87,18 +87,20 @@ pub fn simulate(scenario: &Scenario) -> Result<SimulatedFlight> {
         .map(|j| raw.start_time_s + j as f64 / raw.sample_rate_hz)
         .collect();
     let auxiliary = auxiliary_channels(&path, &mut root.fork("currents"));
+    let unrecorded = unrecorded_currents(scenario, &path, &root);
     let mut columns: Vec<(String, Vec<f64>)> = Vec::new();
     let mut sensors = Vec::new();
     for (index, sensor) in raw.scalar.iter().enumerate() {
         let mut random = root.fork(&format!("scalar {index}"));
-        let (recorded, truth) = record_scalar(scenario, &path, &environment, &auxiliary, sensor, &mut random);
+        let sources = (&auxiliary[..], &unrecorded[..]);
+        let (recorded, truth) = record_scalar(scenario, &path, &environment, sources, sensor, &mut random);
         columns.push((sensor.name.clone(), recorded));
         sensors.push(truth);
     }
     let mut fluxgates = Vec::new();
     for (index, fluxgate) in raw.fluxgate.iter().enumerate() {
         let mut random = root.fork(&format!("fluxgate {index}"));
-        let (recorded, truth) = record_fluxgate(scenario, &path, &environment, fluxgate, &mut random);
+        let (recorded, truth) = record_fluxgate(scenario, &path, (&environment, &unrecorded), fluxgate, &mut random);
         columns.extend(recorded);
         fluxgates.push(truth);
     }
@@ -377,11 +379,55 @@ fn sensor_effects(
     (lag_s, (couplings, rate_couplings))
 }
 
+/// A current no column records, per internal sample, with the dipole it
+/// drives ([`scenario::Effect::UnrecordedCurrent`]).
+struct UnrecordedCurrent {
+    /// Body axes, m.
+    position_m: Vector,
+    /// A·m² per A, body axes.
+    moment_a_m2_per_a: Vector,
+    /// A, per internal sample, zero-mean.
+    current_a: Vec<f64>,
+}
+
+impl UnrecordedCurrent {
+    /// Its field at `position_m` (body axes) at internal sample `k`, nT.
+    fn field_at(&self, position_m: Vector, k: usize) -> Vector {
+        let offset = [0, 1, 2].map(|i| position_m[i] - self.position_m[i]);
+        let moment = self.moment_a_m2_per_a.map(|m| m * self.current_a[k]);
+        physics::dipole_field_nt(moment, offset)
+    }
+}
+
+/// The scenario's unrecorded currents, each drawn from its own stream.
+fn unrecorded_currents(scenario: &Scenario, path: &FlightPath, root: &Random) -> Vec<UnrecordedCurrent> {
+    (scenario.raw.effect.iter().enumerate())
+        .filter_map(|(index, effect)| match effect {
+            Effect::UnrecordedCurrent {
+                position_m,
+                moment_a_m2_per_a,
+                amplitude_a,
+                waveform,
+            } => Some(UnrecordedCurrent {
+                position_m: *position_m,
+                moment_a_m2_per_a: *moment_a_m2_per_a,
+                current_a: crate::simulate::recording::unrecorded_current(
+                    path.poses.len(),
+                    path.dt_s,
+                    (*amplitude_a, *waveform),
+                    &mut root.fork(&format!("unrecorded current {index}")),
+                ),
+            }),
+            _ => None,
+        })
+        .collect()
+}
+
 fn record_scalar(
     scenario: &Scenario,
     path: &FlightPath,
     environment: &Environment,
-    auxiliary: &[Vec<f64>],
+    (auxiliary, unrecorded): (&[Vec<f64>], &[UnrecordedCurrent]),
     sensor: &ScalarSensor,
     random: &mut Random,
 ) -> (Vec<f64>, SensorTruth) {
@@ -408,6 +454,9 @@ fn record_scalar(
             }
             for (rate, vector) in &rate_couplings {
                 own = add(own, vector.map(|v| v * rate[k]));
+            }
+            for current in unrecorded {
+                own = add(own, current.field_at(sensor.position_m, k));
             }
             let total = add(*b, own);
             let cosine = physics::dot(total, sensor.dead_zone_axis) / (norm(total) * axis_norm);
@@ -471,7 +520,7 @@ fn fluxgate_errors(scenario: &Scenario, fluxgate: &scenario::Fluxgate) -> Option
 fn record_fluxgate(
     scenario: &Scenario,
     path: &FlightPath,
-    environment: &Environment,
+    (environment, unrecorded): (&Environment, &[UnrecordedCurrent]),
     fluxgate: &scenario::Fluxgate,
     random: &mut Random,
 ) -> (Vec<(String, Vec<f64>)>, FluxgateTruth) {
@@ -490,7 +539,7 @@ fn record_fluxgate(
     let mounting = fluxgate
         .mounting()
         .expect("the scenario checks each fluxgate's mounting");
-    let earth = earth_field_at(path, environment, [1.0, 0.0, -0.3]);
+    let earth = earth_field_at(path, environment, fluxgate.position_m);
     let factor = scenario.raw.oversampling;
     // The eddy currents' drive: the body-axis Earth field's rate of change.
     let drive: [Vec<f64>; 3] =
@@ -499,7 +548,10 @@ fn record_fluxgate(
         .iter()
         .enumerate()
         .map(|(k, b)| {
-            let body = add(*b, own.at(*b, [drive[0][k], drive[1][k], drive[2][k]]));
+            let mut body = add(*b, own.at(*b, [drive[0][k], drive[1][k], drive[2][k]]));
+            for current in unrecorded {
+                body = add(body, current.field_at(fluxgate.position_m, k));
+            }
             errors.read(physics::apply(&mounting, body))
         })
         .collect();

@@ -125,6 +125,43 @@ fn switching(n: usize, dt: f64, random: &mut Random, off_s: [f64; 2], on_s: [f64
     values
 }
 
+/// A current that no column records, `n` internal samples `dt` apart,
+/// zero-mean: steps switched every 10–60 s, straight ramps between levels
+/// drawn every 20–90 s, or slow cycles of 20–120 s (`Mixed` adds all
+/// three), each of size about `amplitude_a`. It varies independently of
+/// the attitude.
+pub fn unrecorded_current(
+    n: usize,
+    dt: f64,
+    (amplitude_a, waveform): (f64, crate::simulate::scenario::Waveform),
+    random: &mut Random,
+) -> Vec<f64> {
+    use crate::simulate::scenario::Waveform;
+    let steps = switching(n, dt, random, [10.0, 60.0], [10.0, 60.0], amplitude_a);
+    let mut ramps = Vec::with_capacity(n);
+    let mut from = random.uniform(-1.0, 1.0) * amplitude_a;
+    while ramps.len() < n {
+        let samples = ((random.uniform(20.0, 90.0) / dt) as usize).max(1);
+        let to = random.uniform(-1.0, 1.0) * amplitude_a;
+        ramps.extend((0..samples).map(|k| from + (to - from) * k as f64 / samples as f64));
+        from = to;
+    }
+    ramps.truncate(n);
+    let period_s = random.uniform(20.0, 120.0);
+    let phase = random.uniform(0.0, 2.0 * PI);
+    let cycles: Vec<f64> = (0..n)
+        .map(|k| amplitude_a * (2.0 * PI * k as f64 * dt / period_s + phase).sin())
+        .collect();
+    let current: Vec<f64> = match waveform {
+        Waveform::Steps => steps,
+        Waveform::Ramps => ramps,
+        Waveform::Cycles => cycles,
+        Waveform::Mixed => (0..n).map(|k| (steps[k] + ramps[k] + cycles[k]) / 3.0).collect(),
+    };
+    let mean = current.iter().sum::<f64>() / n.max(1) as f64;
+    current.into_iter().map(|c| c - mean).collect()
+}
+
 /// Central-difference time derivative (one-sided at the ends), per second.
 pub fn central_rate(series: &[f64], dt_s: f64) -> Vec<f64> {
     let n = series.len();

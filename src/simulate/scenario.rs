@@ -490,6 +490,10 @@ pub struct Fluxgate {
     /// The fluxgate turned from those axes about its own: roll, pitch,
     /// yaw, degrees (default none).
     pub turn_deg: [f64; 3],
+    /// Position in body axes (forward, right, down), m: where it reads
+    /// the crust's field and an unrecorded source's
+    /// (default `[1.0, 0.0, -0.3]`, above the cabin floor).
+    pub position_m: [f64; 3],
 }
 
 impl Fluxgate {
@@ -542,8 +546,31 @@ impl Default for Fluxgate {
             calibration: None,
             axes: ["x", "y", "z"].map(String::from),
             turn_deg: [0.0; 3],
+            position_m: DEFAULT_FLUXGATE_POSITION_M,
         }
     }
+}
+
+/// Where a fluxgate sits unless the scenario says: forward of the
+/// reference point, just above it.
+pub const DEFAULT_FLUXGATE_POSITION_M: [f64; 3] = [1.0, 0.0, -0.3];
+
+/// How an unrecorded current varies: independently of the attitude.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Waveform {
+    /// Switched on and off for 10–60 s at a time.
+    Steps,
+    /// Straight runs between levels drawn every 20–90 s.
+    Ramps,
+    /// Slow cycles of 20–120 s.
+    Cycles,
+    /// All three added.
+    Mixed,
+}
+
+fn mixed() -> Waveform {
+    Waveform::Mixed
 }
 
 fn is_zero_vector(vector: &[f64; 3]) -> bool {
@@ -600,6 +627,22 @@ pub enum Effect {
         /// RMS amplitude, nT.
         amplitude_nt: f64,
     },
+    /// A current no column records (a heater, a radio, a pump on a circuit
+    /// the logger does not tap): a dipole at `position_m` whose moment
+    /// follows the current, seen by every sensor near it (the cabin
+    /// scalars and a cabin fluxgate) and varying in time independently
+    /// of the attitude, so no Tolles-Lawson term holds it.
+    UnrecordedCurrent {
+        /// Position in body axes (forward, right, down), m.
+        position_m: [f64; 3],
+        /// Dipole moment per ampere, body axes, A·m² per A.
+        moment_a_m2_per_a: [f64; 3],
+        /// Size of the current's variation, A.
+        amplitude_a: f64,
+        /// How it varies (default mixed).
+        #[serde(default = "mixed")]
+        waveform: Waveform,
+    },
 }
 
 impl Effect {
@@ -611,6 +654,7 @@ impl Effect {
             Effect::VectorCalibration { .. } => EffectKind::VectorCalibration,
             Effect::EddyTimeConstant { .. } => EffectKind::EddyTimeConstant,
             Effect::Pulsations { .. } => EffectKind::ExternalField,
+            Effect::UnrecordedCurrent { .. } => EffectKind::CrossSensor,
         }
     }
 }
@@ -1013,6 +1057,28 @@ fn check_effect(raw: &RawScenario, effect: &Effect) -> std::result::Result<(), S
             if !(*amplitude_nt >= 0.0 && *amplitude_nt < 1000.0) {
                 return Err(format!(
                     "[[effect]] pulsations: amplitude_nt = {amplitude_nt} must lie in [0, 1000)"
+                ));
+            }
+        }
+        Effect::UnrecordedCurrent {
+            position_m,
+            moment_a_m2_per_a,
+            amplitude_a,
+            ..
+        } => {
+            let finite = position_m.iter().chain(moment_a_m2_per_a).all(|v| v.is_finite());
+            if !finite || !(*amplitude_a >= 0.0 && *amplitude_a < 1000.0) {
+                return Err(format!(
+                    "[[effect]] unrecorded_current: give a finite position_m and moment_a_m2_per_a, and amplitude_a in [0, 1000) A (got {amplitude_a})"
+                ));
+            }
+            let sensors = (raw.scalar.iter().map(|s| s.position_m)).chain(raw.fluxgate.iter().map(|f| f.position_m));
+            if let Some(p) = sensors.into_iter().find(|p| {
+                let d: f64 = p.iter().zip(position_m).map(|(a, b)| (a - b) * (a - b)).sum();
+                d.sqrt() < 0.1
+            }) {
+                return Err(format!(
+                    "[[effect]] unrecorded_current: position_m {position_m:?} is within 0.1 m of a sensor at {p:?}; a dipole's field there is not its far field"
                 ));
             }
         }
