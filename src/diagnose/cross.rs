@@ -30,6 +30,55 @@ pub(super) struct CrossColumns {
     pub(super) notes: Vec<Note>,
 }
 
+/// The cross-sensor columns of `calibration` ([`cross_columns`]), its
+/// channels ranked by their plain fits.
+pub(super) fn prepare(
+    calibration: &Calibration,
+    (terms, options): (&TermSet, &FitOptions),
+    stores: &StorePool,
+) -> Result<CrossColumns> {
+    let plain = plain_models(calibration, (terms, options), stores)?;
+    let ranked = ranked_of(calibration, &plain)?;
+    cross_columns(calibration, &ranked, (terms, options), stores)
+}
+
+/// What the search returns: each channel's diagnosis, its findings, and
+/// the notes of channels it could not test.
+type Searched = (Vec<ChannelDiagnosis>, Vec<Vec<Finding>>, Vec<Note>);
+
+impl CrossColumns {
+    /// The search's results with their synthetic columns named as
+    /// cross-sensor findings and terms ([`name_cross_sensor`]), and this
+    /// preparation's notes added.
+    pub(super) fn named(&self, (mut channels, mut findings, mut notes): Searched) -> Searched {
+        for found in &mut findings {
+            name_cross_sensor((&mut [], found), &self.signals);
+        }
+        name_cross_sensor((&mut channels, &mut []), &self.signals);
+        notes.extend(self.notes.iter().cloned());
+        (channels, findings, notes)
+    }
+
+    /// The source columns and levels each of `channels` may take: every
+    /// one of `levels` but the synthetic columns it is not allowed.
+    pub(super) fn levels_by_channel(
+        &self,
+        channels: &[String],
+        levels: &BTreeMap<String, f64>,
+    ) -> BTreeMap<String, BTreeMap<String, f64>> {
+        (channels.iter())
+            .map(|channel| {
+                let allowed = self.allowed.get(channel).map(Vec::as_slice).unwrap_or_default();
+                let mine = (levels.iter())
+                    .filter(|(name, _)| !is_cross_column(name) || allowed.contains(name))
+                    .map(|(name, level)| (name.clone(), *level))
+                    .collect();
+                (channel.clone(), mine)
+            })
+            .collect()
+    }
+}
+
 /// Whether `name` is a synthetic cross-sensor column.
 pub(super) fn is_cross_column(name: &str) -> bool {
     name.starts_with(CROSS_COLUMN_PREFIX)

@@ -593,22 +593,11 @@ pub fn diagnose_metered(
     let stores = StorePool::new();
     // Other sensors as interference sensors: their geology-free signals
     // are source columns of the log the search reads.
-    let plain = cross::plain_models(calibration, (terms, options), &stores)?;
-    let ranked = cross::ranked_of(calibration, &plain)?;
-    let cross = cross::cross_columns(calibration, &ranked, (terms, options), &stores)?;
+    let cross = cross::prepare(calibration, (terms, options), &stores)?;
     let log = &cross.log;
     let raw_direction = field_directions(log, sensor);
     let all_levels = source_levels(log);
-    let levels: BTreeMap<String, BTreeMap<String, f64>> = (channels.iter())
-        .map(|channel| {
-            let allowed = cross.allowed.get(channel).map(Vec::as_slice).unwrap_or_default();
-            let mine = (all_levels.iter())
-                .filter(|(name, _)| !cross::is_cross_column(name) || allowed.contains(name))
-                .map(|(name, level)| (name.clone(), *level))
-                .collect();
-            (channel.clone(), mine)
-        })
-        .collect();
+    let levels = cross.levels_by_channel(channels, &all_levels);
     let problem = |channel, log, direction| Problem {
         log,
         sensor,
@@ -649,20 +638,11 @@ pub fn diagnose_metered(
         diagnose_from(start, (raw, calibrated), fluxgate_calibration, settings)
     };
     let results = search_each(starts, &search, meter)?;
-    let (mut channel_results, mut findings, untestable) = searched_channels(log, results)?;
-    for found in &mut findings {
-        cross::name_cross_sensor((&mut [], found), &cross.signals);
-    }
-    cross::name_cross_sensor((&mut channel_results, &mut []), &cross.signals);
+    let (channel_results, findings, untestable) = cross.named(searched_channels(log, results)?);
     notes.extend(untestable);
-    notes.extend(cross.notes);
     notes.extend(criterion_notes(&channel_results, options));
-    Ok(with_fluxgate(
-        (channel_results, findings, notes),
-        fluxgate,
-        calibrated.is_some(),
-        settings,
-    ))
+    let searched = (channel_results, findings, notes);
+    Ok(with_fluxgate(searched, fluxgate, calibrated.is_some(), settings))
 }
 
 /// Each channel's search (`search`, given the channel's index) from its

@@ -116,19 +116,13 @@ impl<'a> Prepared<'a> {
         let mut push = |name: String, values: Vec<f64>| extra.push(ExtraColumn { name, values });
         for source in &extensions.sources {
             if let SourceTerm::CrossSensor { name, signal } = source {
-                let values = signal.values(&log)?;
-                for (axis, u) in ["x", "y", "z"].iter().zip(direction) {
-                    push(format!("{name}_{axis}"), column_on(n, rows, |k| values[k] * u[k]));
+                for column in cross_sensor_columns((name, signal), &log, direction, rows)? {
+                    push(column.name, column.values);
                 }
                 continue;
             }
             let Some(values) = log.channel(source.column()).map(|c| &c.values) else {
-                return Err(Error::MissingColumn {
-                    path: log.source().to_path_buf(),
-                    role: "model source column",
-                    looked_for: format!("'{}', which the model of '{channel}' uses", source.column()),
-                    hint: "Compensate with a diagnosis made on a flight that records the same columns.".into(),
-                });
+                return Err(missing_source(&log, source, channel));
             };
             match source {
                 SourceTerm::AuxCoupling { column, level } => {
@@ -574,6 +568,33 @@ fn less_base_stations<'s>(
 
 /// `value(k)` for every row of a column `n` long, or only for `rows`
 /// with zero elsewhere.
+/// The error for a source column of the model of `channel` that `log`
+/// lacks.
+fn missing_source(log: &FlightLog, source: &SourceTerm, channel: &str) -> Error {
+    Error::MissingColumn {
+        path: log.source().to_path_buf(),
+        role: "model source column",
+        looked_for: format!("'{}', which the model of '{channel}' uses", source.column()),
+        hint: "Compensate with a diagnosis made on a flight that records the same columns.".into(),
+    }
+}
+
+/// The three regressors $s\,u_i$ of a cross-sensor signal.
+fn cross_sensor_columns(
+    (name, signal): (&str, &crate::model::cross_sensor::CrossSignal),
+    log: &FlightLog,
+    direction: &[Vec<f64>; 3],
+    rows: Option<&[Range<usize>]>,
+) -> Result<Vec<ExtraColumn>> {
+    let values = signal.values(log)?;
+    Ok((["x", "y", "z"].iter().zip(direction))
+        .map(|(axis, u)| ExtraColumn {
+            name: format!("{name}_{axis}"),
+            values: column_on(log.len(), rows, |k| values[k] * u[k]),
+        })
+        .collect())
+}
+
 fn column_on(n: usize, rows: Option<&[Range<usize>]>, value: impl Fn(usize) -> f64) -> Vec<f64> {
     match rows {
         None => (0..n).map(value).collect(),

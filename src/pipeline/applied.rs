@@ -5,7 +5,7 @@ use std::path::Path;
 use rayon::prelude::*;
 
 use super::prepared::{calibration_windows, choose_channels, choose_vector_sensor, refuse_dead_columns};
-use super::{assess_with_sigma, judge_channels, renaming_notes, units_row_note, FlightResult, FlightRun};
+use super::{assess_with_sigma, renaming_notes, units_row_note, FlightResult, FlightRun};
 use crate::config::{FlightJob, Settings};
 use crate::error::Result;
 use crate::formats::added_column_names;
@@ -58,7 +58,7 @@ pub(super) fn run_applied(
     )?;
     let added_columns = added_column_names(log, compensated, &compensation)?;
     let notes = applied_notes((&recorded, &channels, &added_columns), &models, said.notes);
-    let mut result = FlightResult {
+    let result = FlightResult {
         flight: job.input.clone(),
         rows: log.len(),
         added_columns,
@@ -79,13 +79,7 @@ pub(super) fn run_applied(
         model: Some(applied),
         aircraft: job.aircraft.clone(),
     };
-    judge_channels(&mut result, options);
-    Ok(FlightRun::finished(
-        (recorded, screened),
-        compensation,
-        result,
-        options.output_decimals,
-    ))
+    Ok(FlightRun::finished((recorded, screened), compensation, result, options))
 }
 
 /// The saved model's models of the channels `job` asks for (every one by

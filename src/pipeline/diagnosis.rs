@@ -231,6 +231,9 @@ pub(super) fn evidence_rule(
     Ok((plan, verdict))
 }
 
+/// Each channel's anomaly gain, and the channels held back with why.
+type Gains = (Vec<(String, f64)>, Vec<(String, HeldBack)>);
+
 /// The anomaly gain ([`crate::model::AnomalyGain`]) of each channel of
 /// `plan` whose model is not plain Tolles-Lawson, and the channels whose
 /// findings scale the geology beyond `tolerance`, further from 1 than
@@ -241,7 +244,7 @@ fn anomaly_gains(
     compensations: &crate::diagnose::evidence::Compensations,
     plan: &BTreeMap<String, Extensions>,
     tolerance: f64,
-) -> Result<(Vec<(String, f64)>, Vec<(String, HeldBack)>)> {
+) -> Result<Gains> {
     use crate::diagnose::evidence::{plain_of, tolles_lawson_of};
     use rayon::prelude::*;
     let judged: Vec<Option<(String, f64, Option<HeldBack>)>> = (plan.iter())

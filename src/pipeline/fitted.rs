@@ -12,8 +12,7 @@ use super::diagnosis::{applied_findings, augmentation_plan, evidence_rule, next_
 use super::prepared::{detection_notes, detection_warnings, PreparedFlight};
 use super::vector_stage::{vector_fits, vector_reference, window_hulls, VectorStage};
 use super::{
-    against_plan, assess_with_sigma, estimator_table_gap, judge_channels, renaming_notes, units_row_note, FlightResult,
-    FlightRun,
+    against_plan, assess_with_sigma, estimator_table_gap, renaming_notes, units_row_note, FlightResult, FlightRun,
 };
 use crate::compensate::gradient::GradientStage;
 use crate::config::{FlightJob, Settings};
@@ -69,7 +68,7 @@ pub(super) fn run_fitted(
         detection,
         ..
     } = flight;
-    let mut result = FlightResult {
+    let result = FlightResult {
         flight: job.input.clone(),
         rows,
         added_columns,
@@ -93,13 +92,11 @@ pub(super) fn run_fitted(
         model: None,
         aircraft: job.aircraft.clone(),
     };
-    judge_channels(&mut result, options);
-    let decimals = options.output_decimals;
     Ok(FlightRun::finished(
         (recorded, screened),
         assessed.compensation,
         result,
-        decimals,
+        options,
     ))
 }
 

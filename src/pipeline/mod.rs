@@ -195,16 +195,18 @@ pub struct FlightRun {
 }
 
 impl FlightRun {
-    /// A finished run. The figures in `result` are of the full values;
+    /// A finished run: each channel judged ([`judge_channels`]) against
+    /// `options`' limits. The figures in `result` are of the full values;
     /// the compensation's outputs are rounded here to the stated
     /// resolution (`[output] decimals`), once for every format.
     fn finished(
         (recorded, screened): (FlightLog, crate::ingest::screen::Screened),
         mut compensation: crate::compensate::Compensation,
-        result: FlightResult,
-        decimals: u32,
+        mut result: FlightResult,
+        options: &Settings,
     ) -> FlightRun {
-        compensation.round_to(decimals);
+        judge_channels(&mut result, options);
+        compensation.round_to(options.output_decimals);
         FlightRun {
             recorded,
             screened,

@@ -646,6 +646,16 @@ pub enum Effect {
 }
 
 impl Effect {
+    /// The scalar channel the effect acts on, when it acts on one.
+    pub fn channel(&self) -> Option<&str> {
+        match self {
+            Effect::SensorLag { channel, .. }
+            | Effect::AuxCoupling { channel, .. }
+            | Effect::EddyTimeConstant { channel, .. } => Some(channel),
+            _ => None,
+        }
+    }
+
     /// The effect the diagnosis should name for it.
     pub fn kind(&self) -> EffectKind {
         match self {
@@ -1003,27 +1013,45 @@ fn check_sensors(raw: &RawScenario) -> std::result::Result<(), String> {
     Ok(())
 }
 
+/// An unrecorded current's dipole is finite, its current within 1000 A,
+/// and no sensor within 0.1 m of it (where its far field does not hold).
+fn check_unrecorded_current(
+    raw: &RawScenario,
+    (position_m, moment_a_m2_per_a): (&[f64; 3], &[f64; 3]),
+    amplitude_a: f64,
+) -> std::result::Result<(), String> {
+    let finite = position_m.iter().chain(moment_a_m2_per_a).all(|v| v.is_finite());
+    if !(finite && (0.0..1000.0).contains(&amplitude_a)) {
+        return Err(format!(
+            "[[effect]] unrecorded_current: give a finite position_m and moment_a_m2_per_a, and amplitude_a in [0, 1000) A (got {amplitude_a})"
+        ));
+    }
+    let sensors = (raw.scalar.iter().map(|s| s.position_m)).chain(raw.fluxgate.iter().map(|f| f.position_m));
+    if let Some(p) = sensors.into_iter().find(|p| {
+        let d: f64 = p.iter().zip(position_m).map(|(a, b)| (a - b) * (a - b)).sum();
+        d.sqrt() < 0.1
+    }) {
+        return Err(format!(
+            "[[effect]] unrecorded_current: position_m {position_m:?} is within 0.1 m of a sensor at {p:?}; a dipole's field there is not its far field"
+        ));
+    }
+    Ok(())
+}
+
 fn check_effect(raw: &RawScenario, effect: &Effect) -> std::result::Result<(), String> {
-    let has_scalar = |name: &str| raw.scalar.iter().any(|s| s.name == name);
-    let unknown_scalar = |name: &str| {
-        format!(
-            "[[effect]] {}: channel '{name}' is not one of the [[scalar]] sensors",
+    if let Some(channel) = effect.channel().filter(|c| !raw.scalar.iter().any(|s| s.name == *c)) {
+        return Err(format!(
+            "[[effect]] {}: channel '{channel}' is not one of the [[scalar]] sensors",
             effect.kind().name()
-        )
-    };
+        ));
+    }
     match effect {
-        Effect::SensorLag { channel, lag_s } => {
-            if !has_scalar(channel) {
-                return Err(unknown_scalar(channel));
-            }
+        Effect::SensorLag { lag_s, .. } => {
             if lag_s.is_nan() || lag_s.abs() >= 2.0 {
                 return Err(format!("[[effect]] sensor_lag: lag_s = {lag_s} must lie within ±2 s"));
             }
         }
-        Effect::AuxCoupling { channel, source, .. } => {
-            if !has_scalar(channel) {
-                return Err(unknown_scalar(channel));
-            }
+        Effect::AuxCoupling { source, .. } => {
             if !AUXILIARY_CHANNELS.contains(&source.as_str()) {
                 return Err(format!(
                     "[[effect]] aux_coupling: source '{source}' is not a simulated channel; use one of {}",
@@ -1043,10 +1071,7 @@ fn check_effect(raw: &RawScenario, effect: &Effect) -> std::result::Result<(), S
                 ));
             }
         }
-        Effect::EddyTimeConstant { channel, tau_s } => {
-            if !has_scalar(channel) {
-                return Err(unknown_scalar(channel));
-            }
+        Effect::EddyTimeConstant { tau_s, .. } => {
             if !(*tau_s > 0.0 && *tau_s < 10.0) {
                 return Err(format!(
                     "[[effect]] eddy_time_constant: tau_s = {tau_s} must lie in (0, 10) s"
@@ -1065,23 +1090,7 @@ fn check_effect(raw: &RawScenario, effect: &Effect) -> std::result::Result<(), S
             moment_a_m2_per_a,
             amplitude_a,
             ..
-        } => {
-            let finite = position_m.iter().chain(moment_a_m2_per_a).all(|v| v.is_finite());
-            if !finite || !(*amplitude_a >= 0.0 && *amplitude_a < 1000.0) {
-                return Err(format!(
-                    "[[effect]] unrecorded_current: give a finite position_m and moment_a_m2_per_a, and amplitude_a in [0, 1000) A (got {amplitude_a})"
-                ));
-            }
-            let sensors = (raw.scalar.iter().map(|s| s.position_m)).chain(raw.fluxgate.iter().map(|f| f.position_m));
-            if let Some(p) = sensors.into_iter().find(|p| {
-                let d: f64 = p.iter().zip(position_m).map(|(a, b)| (a - b) * (a - b)).sum();
-                d.sqrt() < 0.1
-            }) {
-                return Err(format!(
-                    "[[effect]] unrecorded_current: position_m {position_m:?} is within 0.1 m of a sensor at {p:?}; a dipole's field there is not its far field"
-                ));
-            }
-        }
+        } => check_unrecorded_current(raw, (position_m, moment_a_m2_per_a), *amplitude_a)?,
     }
     Ok(())
 }
