@@ -16,7 +16,7 @@
 //!
 //! The same word goes to stdout, the run table, the quality JSON
 //! (`verdict`), the campaign summary, the report and the saved model; a run
-//! with a FAIL exits with code 3 ([`crate::cli`]).
+//! with a FAIL exits with code 3 (docs/CONTRACT.md §2).
 
 use serde::{Deserialize, Serialize};
 
