@@ -199,7 +199,7 @@ pub enum Error {
     },
 
     /// A fit was asked for without any calibration window.
-    #[error("{path}: no calibration windows to fit on: give them with --window T0:T1, in pipeline.toml, or as a DETECT.json file")]
+    #[error("{path}: no calibration windows to fit on: give them with --window T0:T1, in pipeline.toml, or as a DETECT.json file; or, for a survey flight without a box, compensate it with its aircraft's saved model (--apply MODEL.json, or [[flight]] model)")]
     NoCalibrationWindows {
         /// The flight.
         path: PathBuf,

@@ -571,6 +571,12 @@ fn what_the_model_cannot_vouch_for_is_a_warning() {
         "{stdout}"
     );
     assert!(stdout.contains("mag_2_uc not compensated: the model"), "{stdout}");
+    // Neither flight is dated: the model's age cannot be checked, and that
+    // is a warning on stdout, not a note behind -v.
+    assert!(
+        stdout.contains("warning: the model's age is not known: the calibration flight has no date"),
+        "{stdout}"
+    );
     let quality = std::fs::read_to_string(at("applied_report.json")).unwrap();
     let figures: serde_json::Value = serde_json::from_str(&quality).unwrap();
     assert_eq!(figures["channels"][0]["fom_pass"], false, "{quality}");

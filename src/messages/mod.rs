@@ -642,6 +642,13 @@ pub enum Warning {
         /// `[model] max_age_days`.
         max_age_days: u32,
     },
+    /// A saved model's age is not known: a flight has no date, so
+    /// `[model] max_age_days` cannot be checked.
+    ModelAgeUnknown {
+        /// Whether the calibration flight is the one without a date (else
+        /// this flight).
+        calibration_undated: bool,
+    },
     /// A saved model calibrated on another airframe.
     ModelOtherAircraft {
         /// The model file.
@@ -855,6 +862,7 @@ impl Warning {
             | Warning::TextColumnsNotWritten { .. }
             | Warning::PlanManoeuvresMissing { .. }
             | Warning::ModelTooOld { .. }
+            | Warning::ModelAgeUnknown { .. }
             | Warning::ModelOtherAircraft { .. }
             | Warning::ModelRateDiffers { .. }
             | Warning::ModelLacksChannels { .. }
@@ -916,6 +924,7 @@ impl fmt::Display for Warning {
             }
             Warning::PlanManoeuvresMissing { .. } | Warning::PlanFigureOutside { .. } => self.write_plan(f),
             Warning::ModelTooOld { .. }
+            | Warning::ModelAgeUnknown { .. }
             | Warning::ModelOtherAircraft { .. }
             | Warning::ModelRateDiffers { .. }
             | Warning::ModelLacksChannels { .. } => self.write_saved_model(f),
@@ -1279,6 +1288,11 @@ impl Warning {
                 model.display(),
                 days_from(*age_days)
             ),
+            Warning::ModelAgeUnknown { calibration_undated } => write!(
+                f,
+                "the model's age is not known: {} has no date, so magcomp cannot tell whether the installation has changed since the calibration ([model] max_age_days); give [[flight]] date or --date, or record year and doy columns",
+                if *calibration_undated { "the calibration flight" } else { "this flight" }
+            ),
             Warning::ModelOtherAircraft { model, made, used } => write!(
                 f,
                 "the model {} was calibrated on the aircraft '{made}' and this flight is '{used}': another airframe's magnetic signature does not compensate this one; apply a model of '{used}'",
@@ -1625,12 +1639,6 @@ pub enum Note {
         /// The additions' manoeuvres.
         additions: usize,
     },
-    /// A saved model's age is not known: a flight has no date.
-    ModelAgeUnknown {
-        /// Whether the calibration flight is the one without a date (else
-        /// this flight).
-        calibration_undated: bool,
-    },
     /// A flight's aircraft is not named, so the model's airframe is not
     /// checked.
     AircraftUnnamed {
@@ -1833,8 +1841,7 @@ impl fmt::Display for Note {
             Note::NoEstimatorTable { .. } | Note::EstimatorTableLacks { .. } | Note::NoBoxTransfer { .. } => {
                 self.write_fit(f)
             }
-            Note::ModelAgeUnknown { .. }
-            | Note::AircraftUnnamed { .. }
+            Note::AircraftUnnamed { .. }
             | Note::ModelOnItsOwnFlight
             | Note::ModelHeldOut { .. } => self.write_saved_model(f),
             Note::ModelChannelOwnName { .. }
@@ -1958,11 +1965,6 @@ impl Note {
     /// The sentence of a note on a saved model applied to this flight.
     fn write_saved_model(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            Note::ModelAgeUnknown { calibration_undated } => write!(
-                f,
-                "the model's age is not known: {} has no date (give [[flight]] date, or record year and doy columns)",
-                if *calibration_undated { "the calibration flight" } else { "this flight" }
-            ),
             Note::AircraftUnnamed {
                 calibration_named,
                 flight_named,

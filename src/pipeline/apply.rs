@@ -826,7 +826,7 @@ impl SavedModel {
                 })
             }
             Some(_) => {}
-            None => notes.push(Note::ModelAgeUnknown {
+            None => warnings.push(Warning::ModelAgeUnknown {
                 calibration_undated: applied.date.is_none(),
             }),
         }
