@@ -84,7 +84,19 @@ fn the_report_holds_every_section_and_its_figures_match_the_quality() {
         html.matches("<td>20°</td>").count() + html.matches("<td>110°</td>").count(),
         2 * result.channels.len()
     );
-    assert_eq!(html.matches(">PASS<").count(), result.channels.len());
+    // The verdict twice per channel: in the summary table that opens the
+    // page, which links each channel's section, and at the section's head.
+    assert_eq!(html.matches(">PASS<").count(), 2 * result.channels.len());
+    let summary_at = html.find("<table class=\"summary\">").expect("a summary table");
+    let first_section = html.find("<section class=\"channel\"").unwrap();
+    assert!(summary_at < first_section, "the summary opens the page");
+    for quality in &result.channels {
+        assert!(
+            html.contains(&format!("<a href=\"#{0}\">{0}</a>", quality.channel)),
+            "{}: linked from the summary",
+            quality.channel
+        );
+    }
     let figures: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(html_path.with_extension("json")).unwrap()).unwrap();
     for (quality, channel) in result.channels.iter().zip(figures["channels"].as_array().unwrap()) {

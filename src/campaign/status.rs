@@ -185,3 +185,54 @@ pub(crate) fn unreadable(path: &Path, problem: String) -> Error {
         hint: "Remove it, or run magcomp run again to rewrite it.",
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn done(verdicts: &[(&str, Verdict)], warnings: usize) -> FlightStatus {
+        FlightStatus {
+            flight: "f".into(),
+            input: "f.csv".into(),
+            input_sha256: String::new(),
+            settings_sha256: String::new(),
+            magcomp_version: String::new(),
+            state: FlightState::Done,
+            error: None,
+            outputs: Vec::new(),
+            rows: Some(100),
+            warnings: vec!["w".into(); warnings],
+            verdicts: (verdicts.iter())
+                .map(|(channel, verdict)| ChannelVerdict {
+                    channel: channel.to_string(),
+                    verdict: *verdict,
+                })
+                .collect(),
+            aircraft: None,
+            date: None,
+            elapsed_s: 0.0,
+            shard: "0/1".into(),
+        }
+    }
+
+    /// A flight with a channel at FAIL says FAIL first in the run's table,
+    /// whatever else its channels are; a CHECK says CHECK; PASS says ok.
+    #[test]
+    fn the_table_leads_with_the_worst_verdict() {
+        let status = done(
+            &[
+                ("mag_1_uc", Verdict::Pass),
+                ("mag_2_uc", Verdict::Fail),
+                ("mag_3_uc", Verdict::Check),
+            ],
+            4,
+        );
+        assert_eq!(status.verdict(), Some(Verdict::Fail));
+        assert_eq!(status.outcome(), "FAIL (mag_2_uc); ok with 4 warnings, 100 rows");
+        let status = done(&[("mag_1_uc", Verdict::Check), ("mag_2_uc", Verdict::Pass)], 0);
+        assert_eq!(status.outcome(), "CHECK (mag_1_uc); ok, 100 rows");
+        let status = done(&[("mag_1_uc", Verdict::Pass)], 1);
+        assert_eq!(status.outcome(), "ok with 1 warning, 100 rows");
+        assert_eq!(done(&[], 0).verdict(), None);
+    }
+}

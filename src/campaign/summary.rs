@@ -847,3 +847,31 @@ impl SummaryFlight {
             .join("; ")
     }
 }
+
+#[cfg(test)]
+mod verdict_tests {
+    use super::*;
+
+    /// The summary takes each channel's verdict from its quality JSON;
+    /// outputs of an earlier magcomp, which wrote none, get FAIL by the
+    /// FOM before CHECK by the departure, never CHECK over FAIL.
+    #[test]
+    fn the_quality_jsons_verdict_is_the_summarys() {
+        let quality = serde_json::json!({"channels": [
+            {"channel": "mag_1_uc", "verdict": "FAIL", "survey_departure_from_plain_nt": 0.5},
+            {"channel": "mag_2_uc", "survey_departure_from_plain_nt": 0.5,
+             "uncertainty": {"outside_calibration_sigma_nt": 0.01}},
+            {"channel": "mag_3_uc", "survey_departure_from_plain_nt": 0.5,
+             "uncertainty": {"outside_calibration_sigma_nt": 0.01}},
+        ]});
+        let report = serde_json::json!({"channels": [
+            {"channel": "mag_1_uc", "fom_pass": true},
+            {"channel": "mag_2_uc", "fom_pass": false},
+            {"channel": "mag_3_uc", "fom_pass": true},
+        ]});
+        let mut channels = channel_figures(&quality);
+        report_verdicts(&report, &mut channels);
+        let verdicts: Vec<&str> = channels.iter().map(|c| c.verdict.as_str()).collect();
+        assert_eq!(verdicts, ["FAIL", "FAIL", "CHECK"]);
+    }
+}

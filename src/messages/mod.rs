@@ -1841,9 +1841,9 @@ impl fmt::Display for Note {
             Note::NoEstimatorTable { .. } | Note::EstimatorTableLacks { .. } | Note::NoBoxTransfer { .. } => {
                 self.write_fit(f)
             }
-            Note::AircraftUnnamed { .. }
-            | Note::ModelOnItsOwnFlight
-            | Note::ModelHeldOut { .. } => self.write_saved_model(f),
+            Note::AircraftUnnamed { .. } | Note::ModelOnItsOwnFlight | Note::ModelHeldOut { .. } => {
+                self.write_saved_model(f)
+            }
             Note::ModelChannelOwnName { .. }
             | Note::ModelChannelMapped { .. }
             | Note::NoSavedVectorCompensation { .. }
