@@ -874,6 +874,7 @@ fn a_base_station_term_that_moves_the_survey_beyond_its_uncertainty_is_no_plain_
                 moved_by: MovedBy::BaseStation,
                 departure_nt,
                 stated_nt,
+                ..
             } if channel == "mag_1_uc" => Some((*departure_nt, *stated_nt)),
             _ => None,
         })

@@ -449,6 +449,9 @@ pub enum Warning {
         /// The stated uncertainty outside the calibration, nT; `None`
         /// when none is stated.
         stated_nt: Option<f64>,
+        /// Which compensation to use, and the survey's figures that say
+        /// so ([`crate::quality::verdict::which_to_use`]).
+        advice: String,
     },
     /// The compensated channel's noise could not be measured, so it has
     /// no sigma column.
@@ -1050,16 +1053,17 @@ impl Warning {
                 moved_by,
                 departure_nt,
                 stated_nt,
+                advice,
             } => write!(
                 f,
-                "{channel}: {moved_by} the survey {departure_nt:.4} nT RMS from plain Tolles-Lawson, more than {}: the verdict is not a plain pass; {}",
+                "{channel}: {moved_by} the survey {departure_nt:.4} nT RMS from plain Tolles-Lawson, more than {}: the verdict is CHECK; {}{advice}",
                 match stated_nt {
                     Some(sigma) => format!("its stated uncertainty ({sigma:.4} nT)"),
                     None => "anything its uncertainty states (none is stated)".into(),
                 },
                 match moved_by {
-                    MovedBy::BaseStation => "the fits with and without the external field the station recorded disagree by more than that, so one of them is wrong by more than the uncertainty stated: compare with a plain run (--plain), and at the survey's crossovers, before using this channel",
-                    _ => "compare with a plain run (--plain) before using this channel",
+                    MovedBy::BaseStation => "the fits with and without the external field the station recorded disagree by more than that, so one of them is wrong by more than the uncertainty stated; ",
+                    _ => "",
                 }
             ),
             _ => self.write_unrouted(f),

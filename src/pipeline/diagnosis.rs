@@ -277,9 +277,22 @@ fn anomaly_gains(
     Ok((gains, held))
 }
 
-/// Per channel, how far its compensation moves the survey from plain
-/// Tolles-Lawson (nT RMS), and what moves it.
-pub(super) type Departures = BTreeMap<String, (f64, MovedBy)>;
+/// How far a channel's compensation moves the survey from plain
+/// Tolles-Lawson, what moves it, and plain Tolles-Lawson's compensation
+/// to set the survey's own figures against.
+#[derive(Debug, Clone)]
+pub(super) struct Departure {
+    /// RMS over the survey, nT.
+    pub(super) nt: f64,
+    /// What moves it.
+    pub(super) moved_by: MovedBy,
+    /// The channel compensated with plain Tolles-Lawson (its level
+    /// aside), nT.
+    pub(super) plain: std::sync::Arc<Vec<f64>>,
+}
+
+/// Per channel, its [`Departure`].
+pub(super) type Departures = BTreeMap<String, Departure>;
 
 /// How far each channel of `plan` departs on the survey from plain
 /// Tolles-Lawson ([`crate::diagnose::evidence::departures`] against
@@ -309,12 +322,19 @@ fn verdict_departures(
             _ => MovedBy::Findings,
         }
     };
-    Ok((measured.into_iter())
-        .filter_map(|(channel, departure)| {
-            let by = moved_by(plan.get(&channel)?);
-            Some((channel, (departure?.survey_departure_nt, by)))
-        })
-        .collect())
+    let mut found = Departures::new();
+    for (channel, departure) in measured {
+        let (Some(model), Some(departure)) = (plan.get(&channel), departure) else {
+            continue;
+        };
+        let departure = Departure {
+            nt: departure.survey_departure_nt,
+            moved_by: moved_by(model),
+            plain: compensations.of(&channel, &tolles_lawson_of(model))?,
+        };
+        found.insert(channel, departure);
+    }
+    Ok(found)
 }
 
 /// The channels of `plan` whose findings move the survey in a way its

@@ -211,7 +211,7 @@ impl Assessed {
             notes.extend(detection_notes(detection));
             warnings.extend(detection_warnings(detection));
         }
-        warnings.extend(departure_warnings(&mut self.quality, departures));
+        warnings.extend(departure_warnings(log, &mut self.quality, departures));
         warnings.extend(channel_warnings(
             &self.quality,
             &self.models,
@@ -483,17 +483,24 @@ fn model_messages(
 
 /// Sets each channel's departure from plain Tolles-Lawson on the survey;
 /// a warning for each that exceeds its stated uncertainty.
-fn departure_warnings(quality: &mut [ChannelQuality], departures: &Departures) -> Vec<Warning> {
+/// `log`'s survey figures of each departing channel are set against
+/// plain Tolles-Lawson's ([`crate::quality::PlainSurvey`]).
+fn departure_warnings(log: &FlightLog, quality: &mut [ChannelQuality], departures: &Departures) -> Vec<Warning> {
     let mut warnings = Vec::new();
+    let geometry = (!departures.is_empty()).then(|| crate::quality::SurveyGeometry::of(log));
     for q in quality {
-        let departure = departures.get(&q.channel).copied();
-        q.survey_departure_from_plain_nt = departure.map(|(nt, _)| nt);
-        if let (Some((departure_nt, stated_nt)), Some((_, moved_by))) = (q.unchecked_departure(), departure) {
+        let departure = departures.get(&q.channel);
+        q.survey_departure_from_plain_nt = departure.map(|d| d.nt);
+        if let (Some(departure), Some(geometry), Some(scalar)) = (departure, &geometry, log.channel(&q.channel)) {
+            q.plain_survey = crate::quality::PlainSurvey::of(log, geometry, (&scalar.values, &departure.plain));
+        }
+        if let (Some((departure_nt, stated_nt)), Some(departure)) = (q.unchecked_departure(), departure) {
             warnings.push(Warning::SurveyDeparture {
                 channel: q.channel.clone(),
-                moved_by,
+                moved_by: departure.moved_by,
                 departure_nt,
                 stated_nt,
+                advice: crate::quality::verdict::which_to_use(q),
             });
         }
     }

@@ -210,6 +210,10 @@ pub struct ChannelQuality {
     /// fitted with either.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub survey_departure_from_plain_nt: Option<f64>,
+    /// The survey's own figures with plain Tolles-Lawson, for a channel
+    /// whose compensation departs from it: what says which to use.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub plain_survey: Option<PlainSurvey>,
     /// How uncertain the compensation is away from the calibration, by the
     /// blocked jackknife over the windows (three windows or more).
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -347,6 +351,37 @@ pub fn assess_quality(log: &FlightLog, model: &FittedModel, compensated: &Compen
     assess_quality_at(log, &SurveyGeometry::of(log), model, compensated)
 }
 
+/// A channel's survey figures compensated with plain Tolles-Lawson: the
+/// heading level between neighbouring lines, the crossover differences
+/// and the heading error of reciprocal lines, those the flight has, nT.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct PlainSurvey {
+    /// The heading level between neighbouring lines flown both ways.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub heading_level_nt: Option<f64>,
+    /// RMS of the differences where lines cross.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub crossovers_nt: Option<f64>,
+    /// The mean difference of reciprocal lines, its size.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub heading_error_nt: Option<f64>,
+}
+
+impl PlainSurvey {
+    /// The figures of `plain` (the channel compensated with plain
+    /// Tolles-Lawson; `recorded`, its record) on `log`'s survey; `None`
+    /// where the survey has none.
+    pub fn of(log: &FlightLog, geometry: &SurveyGeometry, (recorded, plain): (&[f64], &[f64])) -> Option<Self> {
+        let figures = PlainSurvey {
+            heading_level_nt: corrugation::figures(&geometry.neighbours, recorded, plain).map(|f| f.after_nt),
+            crossovers_nt: crossovers::figures(&geometry.crossovers, recorded, plain).map(|f| f.after_nt),
+            heading_error_nt: heading_error::heading_error(log, recorded, plain, 25.0).map(|f| f.after_nt.abs()),
+        };
+        let any = figures.heading_level_nt.is_some() || figures.crossovers_nt.is_some();
+        (any || figures.heading_error_nt.is_some()).then_some(figures)
+    }
+}
+
 /// Where the survey's lines cross and which are neighbours in a block,
 /// found once per flight for all its channels' figures.
 pub struct SurveyGeometry<'a> {
@@ -412,6 +447,7 @@ pub fn assess_quality_at(
         transfer: None,
         box_transfer: Vec::new(),
         survey_departure_from_plain_nt: None,
+        plain_survey: None,
         uncertainty: None,
         heading_error: crate::quality::heading_error::heading_error(log, scalar, &compensated.values, 25.0),
         crossovers: crate::quality::crossovers::figures(&geometry.crossovers, scalar, &compensated.values),

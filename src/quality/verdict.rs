@@ -134,6 +134,8 @@ pub enum VerdictReason {
         departure_nt: f64,
         /// The stated uncertainty, nT, when there is one.
         stated_nt: Option<f64>,
+        /// Which to use, and the survey's figures that say so.
+        advice: String,
     },
     /// A saved model's FOM on its calibration flight was above the limit
     /// (this flight has no box of its own to measure one).
@@ -203,9 +205,13 @@ impl std::fmt::Display for VerdictReason {
                     None => "on too few lines to tell the model from the geology".to_string(),
                 }
             ),
-            VerdictReason::Departure { departure_nt, stated_nt } => write!(
+            VerdictReason::Departure {
+                departure_nt,
+                stated_nt,
+                advice,
+            } => write!(
                 f,
-                "what the diagnosis added moves the survey {departure_nt:.4} nT from plain Tolles-Lawson, beyond the stated uncertainty{}",
+                "what the diagnosis added moves the survey {departure_nt:.4} nT from plain Tolles-Lawson, beyond the stated uncertainty{}: {advice}",
                 stated_nt.map(|s| format!(" of {s:.4} nT")).unwrap_or_default()
             ),
             VerdictReason::CalibrationFomAboveLimit { fom_nt, limit_nt } => write!(
@@ -260,6 +266,7 @@ pub fn reasons(
         reasons.push(VerdictReason::Departure {
             departure_nt,
             stated_nt,
+            advice: which_to_use(quality),
         });
     }
     let survey_checked =
@@ -333,6 +340,69 @@ fn survey_worse(quality: &ChannelQuality) -> Vec<VerdictReason> {
     reasons
 }
 
+/// A survey figure the default and plain Tolles-Lawson may differ by
+/// without either being the better, nT.
+pub const SURVEY_FIGURE_TOLERANCE_NT: f64 = 0.005;
+
+/// Which compensation to deliver where the default departs from plain
+/// Tolles-Lawson, from the survey's own figures with each (the heading
+/// level between neighbouring lines, the crossovers, reciprocal lines),
+/// in words with the figures.
+pub fn which_to_use(quality: &ChannelQuality) -> String {
+    let Some(plain) = &quality.plain_survey else {
+        return no_survey_figure(quality);
+    };
+    let pairs: Vec<(&str, f64, f64)> = [
+        (
+            "heading level",
+            quality.heading_level.as_ref().map(|f| f.after_nt),
+            plain.heading_level_nt,
+        ),
+        (
+            "crossovers",
+            quality.crossovers.as_ref().map(|f| f.after_nt),
+            plain.crossovers_nt,
+        ),
+        (
+            "reciprocal lines",
+            quality.heading_error.as_ref().map(|f| f.after_nt.abs()),
+            plain.heading_error_nt,
+        ),
+    ]
+    .into_iter()
+    .filter_map(|(name, default, plain)| Some((name, default?, plain?)))
+    .collect();
+    if pairs.is_empty() {
+        return no_survey_figure(quality);
+    }
+    let words: Vec<String> = (pairs.iter())
+        .map(|(name, default, plain)| format!("{name} {default:.3} nT against {plain:.3} nT plain"))
+        .collect();
+    let better = pairs.iter().all(|(_, d, p)| *d <= p + SURVEY_FIGURE_TOLERANCE_NT);
+    let worse = pairs.iter().all(|(_, d, p)| *d > p + SURVEY_FIGURE_TOLERANCE_NT);
+    match (better, worse) {
+        (true, _) => format!("use it: the survey's own figures agree ({})", words.join(", ")),
+        (_, true) => format!(
+            "use plain Tolles-Lawson (--plain): the survey's own figures are worse with the diagnosis ({})",
+            words.join(", ")
+        ),
+        _ => format!(
+            "the survey's own figures disagree ({}): compare a tie line before choosing",
+            words.join(", ")
+        ),
+    }
+}
+
+/// The advice where the survey has no figure to compare the two by.
+fn no_survey_figure(quality: &ChannelQuality) -> String {
+    let transfer = (quality.box_transfer.first())
+        .map(|t| format!("; fitted on {}, it leaves {:.3} nT on {}", t.fit, t.band_std_nt, t.test))
+        .unwrap_or_default();
+    format!(
+        "nothing on the survey tells the two apart (no crossing, reciprocal or neighbouring lines flown both ways){transfer}; fly a tie line, or deliver plain Tolles-Lawson (--plain) where the geology's amplitude matters more than the last hundredths of a nT"
+    )
+}
+
 /// The verdict of `reasons`: the highest of theirs, PASS without any.
 pub fn verdict_of(reasons: &[VerdictReason]) -> Verdict {
     reasons
@@ -364,6 +434,7 @@ mod tests {
             VerdictReason::Departure {
                 departure_nt: 0.2,
                 stated_nt: Some(0.01),
+                advice: String::new(),
             },
             VerdictReason::FomAboveLimit {
                 fom_nt: 1.54,
