@@ -399,7 +399,7 @@ fn no_survey_figure(quality: &ChannelQuality) -> String {
         .map(|t| format!("; fitted on {}, it leaves {:.3} nT on {}", t.fit, t.band_std_nt, t.test))
         .unwrap_or_default();
     format!(
-        "nothing on the survey tells the two apart (no crossing, reciprocal or neighbouring lines flown both ways){transfer}; fly a tie line, or deliver plain Tolles-Lawson (--plain) where the geology's amplitude matters more than the last hundredths of a nT"
+        "nothing on the survey tells the two apart (no crossing, reciprocal or neighbouring lines flown both ways){transfer}; fly a tie line across the lines to decide, and until then deliver plain Tolles-Lawson (--plain) where a move of this size matters"
     )
 }
 
