@@ -619,13 +619,15 @@ fn unrecorded_current_scenario(seed: u64) -> (Scenario, Vec<(String, f64)>) {
 
 /// The unrecorded current is found from the other sensors alone, and the
 /// survey against truth improves with the geology's amplitude held: over
-/// random layouts, every applied `cross_sensor` finding leaves its
+/// random layouts, with `[diagnose] cross_sensor = "apply"` (by default
+/// the finding is reported and never applied), every applied
+/// `cross_sensor` finding leaves its
 /// channel's survey lines no further from truth than plain Tolles-Lawson
 /// (10 % + 0.01 nT), and every channel's anomaly gain stays within the
-/// tolerance; the cabin scalar the current reaches most gets one on at
-/// least [`LEAST_FOUND`] flights of ten.
+/// tolerance; a cabin scalar the current reaches (2 nT/A or more, or the
+/// most) gets one on at least [`LEAST_FOUND`] flights of ten.
 ///
-/// Measured on seeds 0–9: found on 2 (3.72 → 0.93 nT and 1.41 → 0.43 nT
+/// Measured on seeds 0–9: found on 2 (3.72 → 0.87 nT and 1.41 → 0.43 nT
 /// against truth on the survey lines), none applied elsewhere. On the
 /// others the best signal explains 15–20 % of the held-out residual, short
 /// of the 30 % a finding needs: a witness sees the source through its own
@@ -649,6 +651,10 @@ fn an_unrecorded_current_is_found_from_the_other_sensors() {
             let mut default = Settings::default();
             default.vector.enabled = false;
             let out = folder.path().join("out.csv");
+            // By default the finding is reported, never applied.
+            let reported = magcomp::pipeline::run(&job, &default, &out).unwrap();
+            let applied_by_default = (reported.result.applied_findings.iter()).any(|f| f.effect.name() == "cross_sensor");
+            default.diagnose.cross_sensor = magcomp::diagnose::CrossSensorUse::Apply;
             let auto = magcomp::pipeline::run(&job, &default, &out).unwrap();
             let plain = magcomp::pipeline::run(&job, &common::plain(), &out).unwrap();
             let line = &flight.log.channel("line").unwrap().values;
@@ -670,6 +676,9 @@ fn an_unrecorded_current_is_found_from_the_other_sensors() {
                 );
             }
             let mut failures = Vec::new();
+            if applied_by_default {
+                failures.push(format!("seed {seed}: cross_sensor applied without [diagnose] cross_sensor = \"apply\""));
+            }
             let mut found = false;
             for (k, quality) in auto.result.channels.iter().enumerate() {
                 let channel = &quality.channel;
@@ -688,7 +697,8 @@ fn an_unrecorded_current_is_found_from_the_other_sensors() {
                     cross.iter().map(|f| f.source.clone().unwrap_or_default()).collect::<Vec<_>>(),
                     quality.verdict
                 );
-                if *channel == strongest && !cross.is_empty() {
+                let reached = per_ampere.iter().any(|(c, nt)| c == channel && *nt >= REACHED_NT_PER_A);
+                if (reached || *channel == strongest) && !cross.is_empty() {
                     found = true;
                 }
                 if !cross.is_empty() && auto_nt > 1.1 * plain_nt + 0.01 {
@@ -703,7 +713,7 @@ fn an_unrecorded_current_is_found_from_the_other_sensors() {
         .collect();
     let found = outcomes.iter().filter(|(f, _)| *f).count();
     let failures: Vec<String> = outcomes.into_iter().flat_map(|(_, f)| f).collect();
-    println!("the strongest cabin channel's cross_sensor applied on {found} of {n} flights");
+    println!("cross_sensor applied to a channel the current reaches on {found} of {n} flights");
     assert!(failures.is_empty(), "{failures:#?}");
     assert!(
         found * 10 >= n as usize * LEAST_FOUND,
@@ -711,6 +721,10 @@ fn an_unrecorded_current_is_found_from_the_other_sensors() {
     );
 }
 
-/// Flights of ten on which the strongest channel's `cross_sensor` must be
-/// found (see the test).
+/// Flights of ten on which a channel the current reaches must get an
+/// applied `cross_sensor` (see the test).
 const LEAST_FOUND: usize = 2;
+
+/// A channel the current reaches by this much, nT per A, or the one it
+/// reaches most, counts as found.
+const REACHED_NT_PER_A: f64 = 2.0;

@@ -81,6 +81,7 @@ raw_section! {
         max_findings: usize,
         vector_mismatch_nt: f64,
         apply: ApplyDiagnosis,
+        cross_sensor: crate::diagnose::CrossSensorUse,
     }
 }
 

@@ -139,6 +139,23 @@ pub struct DiagnoseOptions {
     /// Whether `run` and `compensate` diagnose each flight first and fit
     /// and compensate every channel with the model its findings make.
     pub apply: ApplyDiagnosis,
+    /// Whether a `cross_sensor` finding is applied or only reported.
+    pub cross_sensor: CrossSensorUse,
+}
+
+/// `[diagnose] cross_sensor`: what the compensation does with a
+/// `cross_sensor` finding.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum CrossSensorUse {
+    /// Found, held out and reported, not applied (the default): on clean
+    /// simulated flights two cabin sensors' residuals, which no source on
+    /// board causes, stood in for each other on 5 of 1,344 channels, and
+    /// nothing the box or the survey measures told them from a current no
+    /// column records.
+    Report,
+    /// Applied under the evidence rule like any other finding.
+    Apply,
 }
 
 /// `[diagnose] apply`: whether `run` and `compensate` use the diagnosis.
@@ -193,6 +210,7 @@ impl Default for DiagnoseOptions {
             max_findings: 3,
             vector_mismatch_nt: 200.0,
             apply: ApplyDiagnosis::Auto,
+            cross_sensor: CrossSensorUse::Report,
         }
     }
 }

@@ -2,22 +2,26 @@
 //! another scalar sees that the channel's attitude terms cannot hold.
 //!
 //! Sensors a metre or two apart at survey height read nearly the same
-//! geology, so the difference of two of them, $d = m - r$ (the minuend m
-//! a fluxgate's magnitude $|F|$ or another scalar, the reference r the
-//! quietest scalar), holds the aircraft's interference at both and hardly
-//! any of the Earth's field. Its attitude part, the Tolles-Lawson terms
-//! of the vector magnetometer fitted to d on the calibration windows
-//! ($A\beta$), is taken out:
+//! geology. Each of two of them, the minuend m (a fluxgate's magnitude
+//! $|F|$ or another scalar) and the reference r (one of the quietest
+//! scalars), is compensated for its own attitude part: the Tolles-Lawson
+//! terms of the vector magnetometer and the total field's second-order
+//! term, fitted to it on the calibration windows ($H_m$, $H_r$). Their
+//! difference
 //!
-//! $$ s = m - r - A\beta - \bar s $$
+//! $$ s = (m - H_m) - (r - H_r) - \bar s $$
 //!
-//! What is left varies independently of the attitude: a current no
-//! column records, switched, ramped or cycled, seen by every sensor near
-//! it. The channel's model couples s through its direction cosines,
-//! $s\,(k \cdot u)$, as an auxiliary column's field (three regressors).
-//! What the sensors' separation leaves of the geology in s, the model's
-//! anomaly gain counts ([`crate::model::AnomalyGain`]): s's slope
-//! against the total field.
+//! holds hardly any of the Earth's field and nothing that follows the
+//! attitude, first or second order: what is left varies on its own, a
+//! current no column records, switched, ramped or cycled, seen by every
+//! sensor near it. (The difference's attitude part fitted as one, as the
+//! first version did, leaves each sensor's second-order residual in s: on
+//! clean simulated flights two cabin sensors' residuals then stood in for
+//! each other's on 12 of 1,344 channels.) The channel's model couples s
+//! through its direction cosines, $s\,(k \cdot u)$, as an auxiliary
+//! column's field (three regressors). What the sensors' separation leaves
+//! of a gradient is no scaling of the anomaly; the model's anomaly gain
+//! counts the rest ([`CrossSignal::anomaly_rate`]).
 
 use serde::{Deserialize, Serialize};
 
@@ -27,7 +31,47 @@ use crate::ingest::flight_log::{Channel, ChannelRole, FlightLog, VectorSensor};
 use crate::model::terms::TermSet;
 use crate::numerics::stacked::StorePool;
 
-use super::{design_matrix, fit, FitOptions, ModelSpec};
+use super::{design_matrix, fit, second_order_term, Extensions, FitOptions, ModelSpec};
+
+/// One sensor's attitude part: the terms of the vector magnetometer and
+/// the second-order term from the same coefficients, fitted to it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AttitudePart {
+    /// The terms.
+    pub terms: TermSet,
+    /// Their coefficients, nT per unit term.
+    pub coefficients: Vec<f64>,
+}
+
+impl AttitudePart {
+    /// The part on every row of `log`, nT (`NaN` where the field is).
+    fn predict(&self, log: &FlightLog, sensor: &VectorSensor) -> Vec<f64> {
+        let design = design_matrix(log, sensor, &self.terms);
+        let second = second_order_term(log.vector_components(sensor), &self.terms, &self.coefficients);
+        (0..log.len())
+            .map(|row| design.predict_row(row, &self.coefficients) + second[row])
+            .collect()
+    }
+
+    /// How the part moves with a crustal anomaly δ along the field, per
+    /// nT of it, on every row: its terms of degree one scale by $δ/|B|$
+    /// ([`TermSet::field_degrees`]); the second-order term's share is a
+    /// thousandth of that and left out.
+    fn anomaly_rate(&self, log: &FlightLog, sensor: &VectorSensor) -> Vec<f64> {
+        let design = design_matrix(log, sensor, &self.terms);
+        let degree_one: Vec<f64> = (self.terms.field_degrees().iter().zip(&self.coefficients))
+            .map(|(&degree, &b)| if degree == 1 { b } else { 0.0 })
+            .collect();
+        let field = log.vector_components(sensor);
+        (0..log.len())
+            .map(|row| {
+                let magnitude = field.iter().map(|c| c[row] * c[row]).sum::<f64>().sqrt();
+                design.predict_row(row, &degree_one) / magnitude
+            })
+            .collect()
+    }
+}
 
 /// The recipe of a cross-sensor signal, kept with the model so that any
 /// flight with the same sensors rebuilds it.
@@ -39,12 +83,12 @@ pub struct CrossSignal {
     pub minuend: String,
     /// The reference scalar subtracted.
     pub reference: String,
-    /// The vector magnetometer whose terms model the attitude part.
+    /// The vector magnetometer whose terms model each attitude part.
     pub vector_sensor: String,
-    /// Those terms.
-    pub terms: TermSet,
-    /// Their coefficients, nT per unit term.
-    pub coefficients: Vec<f64>,
+    /// The minuend's attitude part.
+    pub minuend_part: AttitudePart,
+    /// The reference's attitude part.
+    pub reference_part: AttitudePart,
     /// The signal's median over the calibration windows, nT.
     pub level: f64,
 }
@@ -62,41 +106,37 @@ impl CrossSignal {
 
     /// The signal on every row of `log` (`NaN` where an input is missing).
     pub fn values(&self, log: &FlightLog) -> Result<Vec<f64>> {
-        let difference = difference(log, &self.minuend, &self.reference).ok_or_else(|| missing(log, self))?;
+        let (minuend, reference) = (
+            reading(log, &self.minuend).ok_or_else(|| missing(log, self))?,
+            reading(log, &self.reference).ok_or_else(|| missing(log, self))?,
+        );
         let sensor = log
             .vector_sensor(&self.vector_sensor)
             .ok_or_else(|| missing(log, self))?;
-        let design = design_matrix(log, &sensor, &self.terms);
-        Ok((difference.iter().enumerate())
-            .map(|(row, d)| d - design.predict_row(row, &self.coefficients) - self.level)
+        let (m, r) = (
+            self.minuend_part.predict(log, &sensor),
+            self.reference_part.predict(log, &sensor),
+        );
+        Ok((0..log.len())
+            .map(|k| (minuend[k] - m[k]) - (reference[k] - r[k]) - self.level)
             .collect())
     }
-}
 
-impl CrossSignal {
     /// How the signal moves with a crustal anomaly δ along the field, per
     /// nT of it, on every row: the anomaly adds δ to the minuend and the
     /// reference alike (a fluxgate's magnitude grows by δ too), which
-    /// cancel, and scales the attitude part's terms of degree one in the
-    /// field by $δ/|B|$: $\partial s / \partial δ = -H_1/|B|$
-    /// ([`TermSet::field_degrees`]). What the sensors' separation leaves
-    /// of a gradient is no scaling of the anomaly; the survey's own checks
-    /// judge it.
+    /// cancel, and moves each attitude part
+    /// ([`AttitudePart::anomaly_rate`]): the reference's less the
+    /// minuend's.
     pub fn anomaly_rate(&self, log: &FlightLog) -> Result<Vec<f64>> {
         let sensor = log
             .vector_sensor(&self.vector_sensor)
             .ok_or_else(|| missing(log, self))?;
-        let design = design_matrix(log, &sensor, &self.terms);
-        let degree_one: Vec<f64> = (self.terms.field_degrees().iter().zip(&self.coefficients))
-            .map(|(&degree, &b)| if degree == 1 { b } else { 0.0 })
-            .collect();
-        let field = log.vector_components(&sensor);
-        Ok((0..log.len())
-            .map(|row| {
-                let magnitude = field.iter().map(|c| c[row] * c[row]).sum::<f64>().sqrt();
-                -design.predict_row(row, &degree_one) / magnitude
-            })
-            .collect())
+        let (m, r) = (
+            self.minuend_part.anomaly_rate(log, &sensor),
+            self.reference_part.anomaly_rate(log, &sensor),
+        );
+        Ok(r.iter().zip(&m).map(|(r, m)| r - m).collect())
     }
 }
 
@@ -112,39 +152,38 @@ fn missing(log: &FlightLog, signal: &CrossSignal) -> crate::error::Error {
     }
 }
 
-/// $m - r$ on every row: `minuend` a fluxgate's prefix (its magnitude) or
-/// a scalar channel, `reference` a scalar channel; `None` when `log`
-/// lacks either.
-pub fn difference(log: &FlightLog, minuend: &str, reference: &str) -> Option<Vec<f64>> {
-    let reference = &log.channel(reference)?.values;
-    let minuend: Vec<f64> = match log.vector_sensor(minuend) {
+/// What `name` reads on every row: a fluxgate's magnitude for a fluxgate
+/// prefix, else the scalar channel; `None` when `log` has neither.
+pub fn reading(log: &FlightLog, name: &str) -> Option<Vec<f64>> {
+    match log.vector_sensor(name) {
         Some(sensor) => {
             let field = log.vector_components(&sensor);
-            (0..log.len())
-                .map(|k| field.iter().map(|c| c[k] * c[k]).sum::<f64>().sqrt())
-                .collect()
+            Some(
+                (0..log.len())
+                    .map(|k| field.iter().map(|c| c[k] * c[k]).sum::<f64>().sqrt())
+                    .collect(),
+            )
         }
-        None => log.channel(minuend)?.values.clone(),
-    };
-    Some(minuend.iter().zip(reference).map(|(m, r)| m - r).collect())
+        None => Some(log.channel(name)?.values.clone()),
+    }
 }
 
-/// The cross-sensor signal of `minuend` less `reference` on `log`, its
-/// attitude part fitted with `terms` of `sensor` on `windows`.
-pub fn fit_cross_signal(
+/// The attitude part of `name`'s reading on `log`: `terms` of `sensor`
+/// with the second-order term, fitted on `windows`; `None` when `log`
+/// lacks it.
+fn fit_attitude_part(
     log: &FlightLog,
     sensor: &VectorSensor,
-    (minuend, reference): (&str, &str),
-    windows: &[CalibrationWindow],
+    (name, windows): (&str, &[CalibrationWindow]),
     (terms, options, stores): (TermSet, &FitOptions, &StorePool),
-) -> Result<Option<CrossSignal>> {
-    let Some(values) = difference(log, minuend, reference) else {
+) -> Result<Option<AttitudePart>> {
+    let Some(values) = reading(log, name) else {
         return Ok(None);
     };
-    // A lean flight: the fluxgate and the difference as its one scalar.
+    // A lean flight: the fluxgate and the reading as its one scalar.
     let mut channels: Vec<Channel> = sensor.axes.iter().map(|&i| log.channels()[i].clone()).collect();
     channels.push(Channel {
-        name: "cross_sensor_difference".into(),
+        name: "cross_sensor_reading".into(),
         role: ChannelRole::ScalarMagnetometer,
         values,
     });
@@ -152,22 +191,46 @@ pub fn fit_cross_signal(
     let Some(lean_sensor) = lean.vector_sensor(&sensor.prefix) else {
         return Ok(None);
     };
-    let spec = ModelSpec::plain(terms);
+    let extensions = Extensions {
+        second_order: true,
+        ..Extensions::default()
+    };
+    let spec = ModelSpec::new(terms, extensions);
     let model = fit(
         &lean,
         &lean_sensor,
-        "cross_sensor_difference",
+        "cross_sensor_reading",
         windows,
         &spec,
         options,
         stores,
     )?;
+    Ok(Some(AttitudePart {
+        terms,
+        coefficients: model.coefficients,
+    }))
+}
+
+/// The cross-sensor signal of `minuend` less `reference` on `log`, each
+/// one's attitude part fitted with `terms` of `sensor` on `windows`.
+pub fn fit_cross_signal(
+    log: &FlightLog,
+    sensor: &VectorSensor,
+    (minuend, reference): (&str, &str),
+    windows: &[CalibrationWindow],
+    settings: (TermSet, &FitOptions, &StorePool),
+) -> Result<Option<CrossSignal>> {
+    let minuend_part = fit_attitude_part(log, sensor, (minuend, windows), settings)?;
+    let reference_part = fit_attitude_part(log, sensor, (reference, windows), settings)?;
+    let (Some(minuend_part), Some(reference_part)) = (minuend_part, reference_part) else {
+        return Ok(None);
+    };
     let mut signal = CrossSignal {
         minuend: minuend.to_string(),
         reference: reference.to_string(),
         vector_sensor: sensor.prefix.clone(),
-        terms,
-        coefficients: model.coefficients,
+        minuend_part,
+        reference_part,
         level: 0.0,
     };
     let values = signal.values(log)?;

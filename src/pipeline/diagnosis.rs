@@ -173,6 +173,9 @@ pub(super) fn evidence_rule(
         departures, plain_of, survey_checks, tolles_lawson_of, Compensations, SurveyCheck, LEAST_CROSSOVERS,
         LEAST_TRIPLES,
     };
+    if options.diagnose.cross_sensor == crate::diagnose::CrossSensorUse::Report {
+        report_cross_sensor(&mut plan, diagnosis);
+    }
     let mut refused = no_gain_held_out(diagnosis, &plan, options);
     let compensations = Compensations::new(calibration, (options.terms, &options.fit));
     let measured = departures(&compensations, &plan, plain_of)?;
@@ -289,6 +292,24 @@ pub(super) struct Departure {
     /// The channel compensated with plain Tolles-Lawson (its level
     /// aside), nT.
     pub(super) plain: std::sync::Arc<Vec<f64>>,
+}
+
+/// Takes every cross-sensor term out of `plan` and the diagnosis's
+/// models, and marks its findings reported, not applied
+/// (`[diagnose] cross_sensor = "report"`, the default).
+fn report_cross_sensor(plan: &mut BTreeMap<String, Extensions>, diagnosis: &mut crate::diagnose::Diagnosis) {
+    let cross = |s: &crate::model::SourceTerm| matches!(s, crate::model::SourceTerm::CrossSensor { .. });
+    for model in plan.values_mut() {
+        model.sources.retain(|s| !cross(s));
+    }
+    for channel in &mut diagnosis.channels {
+        channel.model.sources.retain(|s| !cross(s));
+    }
+    for finding in (diagnosis.findings.iter_mut()).filter(|f| f.effect.kind() == EffectKind::CrossSensor) {
+        finding.not_applied = Some(
+            "other sensors' signals are reported, not applied, unless [diagnose] cross_sensor = \"apply\": on clean flights two cabin sensors' residuals can stand in for each other".into(),
+        );
+    }
 }
 
 /// Per channel, its [`Departure`].
