@@ -126,7 +126,7 @@ impl CrossSignal {
     /// nT of it, on every row: the anomaly adds δ to the minuend and the
     /// reference alike (a fluxgate's magnitude grows by δ too), which
     /// cancel, and moves each attitude part
-    /// ([`AttitudePart::anomaly_rate`]): the reference's less the
+    /// (its terms of degree one in the field): the reference's less the
     /// minuend's.
     pub fn anomaly_rate(&self, log: &FlightLog) -> Result<Vec<f64>> {
         let sensor = log
