@@ -34,7 +34,7 @@ use crate::ingest::flight_log::FlightLog;
 use crate::model::terms::TermSet;
 
 use super::prepared::scalar_values;
-use super::{design_matrix, second_order_term, FittedModel, Prepared, SharedDesign, SourceTerm};
+use super::{second_order_term, FittedModel, Prepared, SharedDesign, SourceTerm};
 
 /// A model's gain on a crustal anomaly over the survey's rows.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -101,6 +101,15 @@ impl TermSet {
             .map(|name| u8::from(!(name.starts_with("perm_") || name == "bias")))
             .collect()
     }
+
+    /// `coefficients` (of these terms first) with every term of degree
+    /// zero in the field set to zero: what predicts the part that moves
+    /// with the field's magnitude.
+    pub fn degree_one_part(&self, coefficients: &[f64]) -> Vec<f64> {
+        (self.field_degrees().iter().zip(coefficients))
+            .map(|(&degree, &b)| if degree == 1 { b } else { 0.0 })
+            .collect()
+    }
 }
 
 impl FittedModel {
@@ -119,17 +128,8 @@ impl FittedModel {
         let sensor = self.sensor_in(log)?;
         let prepared = Prepared::new(log, &sensor, &self.channel, &self.spec)?;
         let terms = self.spec.fitted_terms();
-        let built;
-        let design = match self.shared_design(shared, &terms) {
-            Some(design) => design,
-            None => {
-                built = design_matrix(&prepared.log, &sensor, &terms);
-                &built
-            }
-        };
-        let degree_one: Vec<f64> = (terms.field_degrees().iter().zip(&self.coefficients))
-            .map(|(&degree, &b)| if degree == 1 { b } else { 0.0 })
-            .collect();
+        let design = self.terms_design(shared, &prepared.log, &sensor);
+        let degree_one = terms.degree_one_part(&self.coefficients);
         let field = prepared.log.vector_components(&sensor);
         let magnitude = |row: usize| field.iter().map(|c| c[row] * c[row]).sum::<f64>().sqrt();
         let extra_part = &self.coefficients[design.columns.len().min(self.coefficients.len())..];

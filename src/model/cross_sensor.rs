@@ -60,9 +60,7 @@ impl AttitudePart {
     /// thousandth of that and left out.
     fn anomaly_rate(&self, log: &FlightLog, sensor: &VectorSensor) -> Vec<f64> {
         let design = design_matrix(log, sensor, &self.terms);
-        let degree_one: Vec<f64> = (self.terms.field_degrees().iter().zip(&self.coefficients))
-            .map(|(&degree, &b)| if degree == 1 { b } else { 0.0 })
-            .collect();
+        let degree_one = self.terms.degree_one_part(&self.coefficients);
         let field = log.vector_components(sensor);
         (0..log.len())
             .map(|row| {

@@ -361,14 +361,7 @@ impl FittedModel {
             )),
         };
         let terms = self.spec.fitted_terms();
-        let built;
-        let design = match self.shared_design(shared, &terms) {
-            Some(design) => design,
-            None => {
-                built = design_matrix(&prepared.log, &sensor, &terms);
-                &built
-            }
-        };
+        let design = self.terms_design(shared, &prepared.log, &sensor);
         let (term_part, extra_part) = self
             .coefficients
             .split_at(design.columns.len().min(self.coefficients.len()));
@@ -514,6 +507,21 @@ impl FittedModel {
         (shared.iter())
             .find(|s| reusable && s.sensor == self.vector_sensor && s.terms == *terms)
             .map(|s| &s.design)
+    }
+
+    /// The model's fitted terms on every row of `log` (the flight as its
+    /// preparation made it): `shared`'s where it holds them, else built.
+    fn terms_design<'s>(
+        &self,
+        shared: &'s [SharedDesign],
+        log: &FlightLog,
+        sensor: &VectorSensor,
+    ) -> Cow<'s, DesignMatrix> {
+        let terms = self.spec.fitted_terms();
+        match self.shared_design(shared, &terms) {
+            Some(design) => Cow::Borrowed(design),
+            None => Cow::Owned(design_matrix(log, sensor, &terms)),
+        }
     }
 
     /// The model's vector sensor in `log`; an error when `log` lacks it
