@@ -571,8 +571,22 @@ fn what_the_model_cannot_vouch_for_is_a_warning() {
         "{stdout}"
     );
     assert!(stdout.contains("mag_2_uc not compensated: the model"), "{stdout}");
-    // Neither flight is dated: the model's age cannot be checked, and that
+    // Applied to its own flight, the model is of the flight's day.
+    assert!(!stdout.contains("age is not known"), "{stdout}");
+    // Applied to another flight (the same rows without the vol_bus
+    // column), neither dated: the model's age cannot be checked, and that
     // is a warning on stdout, not a note behind -v.
+    rewrite(&at("f.csv"), &at("g.csv"), &["vol_bus"], &[], 1);
+    let output = magcomp()
+        .arg("compensate")
+        .arg(at("g.csv"))
+        .arg("--out")
+        .arg(at("g_applied.csv"))
+        .arg("--apply")
+        .arg(at("model.json"))
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&output.stdout);
     assert!(
         stdout.contains("warning: the model's age is not known: the calibration flight has no date"),
         "{stdout}"

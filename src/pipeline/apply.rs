@@ -826,6 +826,8 @@ impl SavedModel {
                 })
             }
             Some(_) => {}
+            // A model fitted on this very flight is of its day.
+            None if applied.fitted_on_this_flight => {}
             None => warnings.push(Warning::ModelAgeUnknown {
                 calibration_undated: applied.date.is_none(),
             }),
