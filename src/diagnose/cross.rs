@@ -171,9 +171,6 @@ pub(super) fn cross_columns(
     let mut columns = log.channels().to_vec();
     for signal in fitted.into_iter().flatten() {
         let values = signal.values(log)?;
-        if !varies_on_its_own(log, &values, calibration.windows) {
-            continue;
-        }
         let name = format!("{CROSS_COLUMN_PREFIX}{}", signal.name());
         columns.push(Channel {
             name: name.clone(),
@@ -195,41 +192,6 @@ pub(super) fn cross_columns(
         allowed,
         notes,
     })
-}
-
-/// Half a second: the lag of the difference that measures a signal's
-/// variation in the calibration band (0.1–0.9 Hz).
-const VARIATION_LAG_S: f64 = 0.5;
-
-/// How much of a signal's variation on the box it must keep on the
-/// survey lines to be a source of its own.
-pub const LINES_TO_BOX: f64 = 0.5;
-
-/// Whether a cross-sensor signal varies on its own, as a source on board
-/// does, and not with the manoeuvres: its variation over half a second
-/// (RMS of $s(t + 0.5\,s) - s(t)$) on the survey lines is at least
-/// [`LINES_TO_BOX`] of that over the calibration windows. A current
-/// switches on the lines as in the box; what two sensors' attitude fits
-/// leave of the manoeuvres (their second-order and eddy residuals, which
-/// on clean simulated flights stood in for each other on cabin sensors)
-/// is gone in straight flight. A flight without survey lines keeps every
-/// signal.
-fn varies_on_its_own(log: &FlightLog, values: &[f64], windows: &[CalibrationWindow]) -> bool {
-    let lag = ((VARIATION_LAG_S / log.median_interval_s()).round() as usize).max(1);
-    let variation = |rows: &mut dyn Iterator<Item = usize>| {
-        let (sum, n) = rows
-            .filter(|&k| k + lag < values.len())
-            .map(|k| values[k + lag] - values[k])
-            .filter(|d| d.is_finite())
-            .fold((0.0, 0usize), |(s, n), d| (s + d * d, n + 1));
-        (n > 0).then(|| (sum / n as f64).sqrt())
-    };
-    let box_rows = window_rows(log.time_s(), windows);
-    let lines: Vec<usize> = log.survey_lines().into_iter().flat_map(|(_, rows)| rows).collect();
-    match (variation(&mut box_rows.into_iter()), variation(&mut lines.into_iter())) {
-        (Some(on_box), Some(on_lines)) => on_lines >= LINES_TO_BOX * on_box,
-        _ => true,
-    }
 }
 
 /// (channel, minuend, reference) of every signal each of `channels` may
