@@ -15,7 +15,7 @@
 
 use super::*;
 use crate::ingest::flight_log::Channel;
-use crate::model::cross_sensor::{fit_cross_signal, CrossSignal, CROSS_COLUMN_PREFIX};
+use crate::model::cross_sensor::{cross_signal, fit_attitude_parts, CrossSignal, CROSS_COLUMN_PREFIX};
 
 /// The search's log with the cross-sensor columns, their recipes, and
 /// which of them each channel may take.
@@ -28,6 +28,9 @@ pub(super) struct CrossColumns {
     pub(super) allowed: BTreeMap<String, Vec<String>>,
     /// Why a channel has none.
     pub(super) notes: Vec<Note>,
+    /// The channels, least aircraft field first; `None` where a plain fit
+    /// failed (the fluxgate check then ranks them itself, and says why).
+    pub(super) ranked: Option<Vec<(String, f64)>>,
 }
 
 /// The cross-sensor columns of `calibration` ([`cross_columns`]), its
@@ -37,9 +40,27 @@ pub(super) fn prepare(
     (terms, options): (&TermSet, &FitOptions),
     stores: &StorePool,
 ) -> Result<CrossColumns> {
-    let plain = plain_models(calibration, (terms, options), stores)?;
-    let ranked = ranked_of(calibration, &plain)?;
-    cross_columns(calibration, &ranked, (terms, options), stores)
+    // A channel whose plain fit fails is said so by its own search; the
+    // other sensors' signals are then not tried, in a note.
+    let ranked = plain_models(calibration, (terms, options), stores).and_then(|plain| ranked_of(calibration, &plain));
+    let ranked = match ranked {
+        Ok(ranked) => ranked,
+        Err(error) => {
+            return Ok(CrossColumns {
+                log: calibration.log.clone(),
+                signals: BTreeMap::new(),
+                allowed: BTreeMap::new(),
+                notes: vec![Diagnosing::ChannelNotTested {
+                    reason: format!("other sensors as interference sensors not tried: {error}"),
+                }
+                .into()],
+                ranked: None,
+            });
+        }
+    };
+    let mut cross = cross_columns(calibration, &ranked, (terms, options), stores)?;
+    cross.ranked = Some(ranked);
+    Ok(cross)
 }
 
 /// What the search returns: each channel's diagnosis, its findings, and
@@ -154,17 +175,19 @@ pub(super) fn cross_columns(
     let mut pairs: Vec<(String, String)> = wanted.iter().map(|(_, m, r)| (m.clone(), r.clone())).collect();
     pairs.sort();
     pairs.dedup();
+    // Each sensor's attitude part once, whatever the pairs it is in.
+    let mut sensors: Vec<String> = pairs.iter().flat_map(|(m, r)| [m.clone(), r.clone()]).collect();
+    sensors.sort();
+    sensors.dedup();
+    let (sensor, windows) = (calibration.sensor, calibration.windows);
+    let parts = fit_attitude_parts(log, sensor, (&sensors, windows), (*terms, options, stores))?;
     let fitted: Vec<Option<CrossSignal>> = pairs
         .par_iter()
         .map(|(minuend, reference)| {
-            let settings = (*terms, options, stores);
-            fit_cross_signal(
-                log,
-                calibration.sensor,
-                (minuend, reference),
-                calibration.windows,
-                settings,
-            )
+            let (Some(m), Some(r)) = (parts.get(minuend), parts.get(reference)) else {
+                return Ok(None);
+            };
+            cross_signal(log, sensor, ((minuend, m), (reference, r)), windows).map(Some)
         })
         .collect::<Result<_>>()?;
     let mut signals: BTreeMap<String, CrossSignal> = BTreeMap::new();
@@ -191,6 +214,7 @@ pub(super) fn cross_columns(
         signals,
         allowed,
         notes,
+        ranked: None,
     })
 }
 

@@ -629,8 +629,9 @@ pub fn diagnose_metered(
     };
     // The fluxgate check and each channel's plain fits held out (by
     // either λ criterion) do not need each other: side by side.
+    let ranked = (&stores, cross.ranked.as_deref());
     let (checked, starts) = rayon::join(
-        || fluxgate_check(calibration, (terms, options), &stores, settings),
+        || fluxgate_check(calibration, (terms, options), ranked, settings),
         || {
             channels
                 .par_iter()
@@ -711,13 +712,19 @@ fn checked_or_said(checked: std::result::Result<FluxgateCheck, String>) -> (Opti
 fn fluxgate_check(
     calibration: &Calibration,
     (terms, options): (&TermSet, &FitOptions),
-    stores: &StorePool,
+    (stores, ranked): (&StorePool, Option<&[(String, f64)]>),
     settings: &DiagnoseOptions,
 ) -> std::result::Result<FluxgateCheck, String> {
     let Calibration {
         log, sensor, windows, ..
     } = *calibration;
-    quietest_reference(calibration, (terms, options), stores)
+    // The channels' ranking the cross-sensor columns made, where they made
+    // one: the same plain fits, not fitted again.
+    let quietest = match ranked.and_then(|r| r.first()) {
+        Some(first) => Ok(first.clone()),
+        None => quietest_reference(calibration, (terms, options), stores),
+    };
+    quietest
         .map_err(|e| e.to_string())
         .and_then(|(reference, interference_nt)| {
             check_fluxgate(log, sensor, &reference, windows, interference_nt, settings)

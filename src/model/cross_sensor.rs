@@ -209,26 +209,40 @@ fn fit_attitude_part(
     }))
 }
 
-/// The cross-sensor signal of `minuend` less `reference` on `log`, each
-/// one's attitude part fitted with `terms` of `sensor` on `windows`.
-pub fn fit_cross_signal(
+/// The attitude part of each of `names` (fluxgate prefixes or scalar
+/// channels) on `log`, fitted once each (the parts of [`cross_signal`]):
+/// a sensor that serves several signals is fitted for all of them.
+pub fn fit_attitude_parts(
     log: &FlightLog,
     sensor: &VectorSensor,
-    (minuend, reference): (&str, &str),
-    windows: &[CalibrationWindow],
+    (names, windows): (&[String], &[CalibrationWindow]),
     settings: (TermSet, &FitOptions, &StorePool),
-) -> Result<Option<CrossSignal>> {
-    let minuend_part = fit_attitude_part(log, sensor, (minuend, windows), settings)?;
-    let reference_part = fit_attitude_part(log, sensor, (reference, windows), settings)?;
-    let (Some(minuend_part), Some(reference_part)) = (minuend_part, reference_part) else {
-        return Ok(None);
-    };
+) -> Result<std::collections::BTreeMap<String, AttitudePart>> {
+    use rayon::prelude::*;
+    let fitted: Vec<Option<AttitudePart>> = names
+        .par_iter()
+        .map(|name| fit_attitude_part(log, sensor, (name, windows), settings))
+        .collect::<Result<_>>()?;
+    Ok((names.iter().cloned().zip(fitted))
+        .filter_map(|(name, part)| Some((name, part?)))
+        .collect())
+}
+
+/// The cross-sensor signal of `minuend` less `reference` on `log`, from
+/// their attitude parts fitted on `windows` (its level their median
+/// there).
+pub fn cross_signal(
+    log: &FlightLog,
+    sensor: &VectorSensor,
+    (minuend, reference): ((&str, &AttitudePart), (&str, &AttitudePart)),
+    windows: &[CalibrationWindow],
+) -> Result<CrossSignal> {
     let mut signal = CrossSignal {
-        minuend: minuend.to_string(),
-        reference: reference.to_string(),
+        minuend: minuend.0.to_string(),
+        reference: reference.0.to_string(),
         vector_sensor: sensor.prefix.clone(),
-        minuend_part,
-        reference_part,
+        minuend_part: minuend.1.clone(),
+        reference_part: reference.1.clone(),
         level: 0.0,
     };
     let values = signal.values(log)?;
@@ -237,5 +251,5 @@ pub fn fit_cross_signal(
         .map(|row| values[row])
         .collect();
     signal.level = super::column_level(&on_windows);
-    Ok(Some(signal))
+    Ok(signal)
 }
