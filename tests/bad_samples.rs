@@ -236,3 +236,100 @@ fn masked_samples_do_not_spread(seed: u64) {
         );
     }
 }
+
+/// Seeds drawn by the test's own generator (SplitMix64), not the
+/// simulator's.
+fn drawn_seeds(start: u64, count: usize) -> Vec<u64> {
+    let mut state = start;
+    (0..count)
+        .map(|_| {
+            state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+            let mut z = state;
+            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+            z ^ (z >> 31)
+        })
+        .collect()
+}
+
+/// Compensates `input` on its detected windows with plain Tolles-Lawson.
+fn compensate_detected(input: &Path, out: &Path) -> magcomp::pipeline::FlightResult {
+    let mut pipeline = Pipeline::default();
+    pipeline.settings.diagnose.apply = ApplyDiagnosis::Never;
+    let job = FlightJob::new(input.to_path_buf());
+    process_flight(&job, &pipeline.settings, &FlightOutputs::in_directory(out, input)).unwrap()
+}
+
+#[test]
+fn a_manoeuvre_cut_by_a_fluxgate_gap_is_counted_with_what_it_kept_and_one_lost_to_it_is_named() {
+    for seed in drawn_seeds(69, 3) {
+        let seed = seed % 9_973;
+        let folder = tempfile::tempdir().unwrap();
+        let mut flight = Flight::new(folder.path(), seed);
+        let windows = flight.window_rows();
+        let chosen = (seed as usize / 7) % windows.len();
+        let manoeuvre = &windows[chosen];
+        println!("seed {seed}: manoeuvre {chosen} ({} rows)", manoeuvre.len());
+
+        // The middle 40 % of the manoeuvre without fluxgate readings: the
+        // window is cut, counted, and the rows lost are the gap's.
+        let (from, to) = (manoeuvre.len() * 3 / 10, manoeuvre.len() * 7 / 10);
+        let gap: Vec<usize> = manoeuvre[from..to].to_vec();
+        let mut cut = Flight::new(folder.path(), seed);
+        for &row in &gap {
+            for name in ["flux_a_x", "flux_a_y", "flux_a_z"] {
+                cut.set(row, name, "");
+            }
+        }
+        let path = folder.path().join("cut.csv");
+        cut.write(&path);
+        let result = compensate_detected(&path, &folder.path().join("cut_out"));
+        for quality in &result.channels {
+            assert_eq!(quality.fom_manoeuvres, 12, "{}", quality.channel);
+            assert_eq!(quality.fom_manoeuvres_cut, 1, "{}", quality.channel);
+            let cells: Vec<_> = (quality.fom_table.iter())
+                .flat_map(|row| [&row.pitch, &row.roll, &row.yaw])
+                .flatten()
+                .filter(|cell| cell.cut_by_gaps())
+                .collect();
+            assert_eq!(cells.len(), 1, "{}", quality.channel);
+            assert_eq!(
+                cells[0].samples_in_window - cells[0].samples_kept,
+                gap.len(),
+                "{}: the rows lost are the gap's",
+                quality.channel
+            );
+            assert!(quality
+                .manoeuvre_count()
+                .ends_with("12 of 12 manoeuvres, 1 cut by gaps"));
+        }
+        let warnings: Vec<String> = result.warnings.iter().map(ToString::to_string).collect();
+        assert!(
+            warnings
+                .iter()
+                .any(|w| w.contains("cut a manoeuvre of the calibration")),
+            "{warnings:#?}"
+        );
+
+        // The whole manoeuvre and 5 s either side without them: detection
+        // still sees it from the INS, the fit goes on without it, and the
+        // run names it.
+        let first = manoeuvre[0].saturating_sub(50);
+        let last = (manoeuvre[manoeuvre.len() - 1] + 50).min(flight.rows.len() - 1);
+        for row in first..=last {
+            for name in ["flux_a_x", "flux_a_y", "flux_a_z"] {
+                flight.set(row, name, "");
+            }
+        }
+        let path = folder.path().join("lost.csv");
+        flight.write(&path);
+        let result = compensate_detected(&path, &folder.path().join("lost_out"));
+        for quality in &result.channels {
+            assert_eq!(quality.fom_manoeuvres, 11, "{}", quality.channel);
+        }
+        let warnings: Vec<String> = result.warnings.iter().map(ToString::to_string).collect();
+        let named = warnings.iter().find(|w| w.contains("too short to band-pass"));
+        assert!(named.is_some(), "{warnings:#?}");
+        println!("  {}", named.unwrap());
+    }
+}

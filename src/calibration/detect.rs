@@ -217,6 +217,11 @@ pub struct Detection {
     /// attitude is missing: legs and manoeuvres there cannot be seen.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub attitude_gaps: Vec<(f64, f64)>,
+    /// Manoeuvres found whose windows gaps in the fluxgate or scalar
+    /// readings leave too short to band-pass: left out of the fit (their
+    /// labels).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub left_out_in_gaps: Vec<String>,
 }
 
 /// A stretch without INS attitude this long, s, can hide a manoeuvre
@@ -381,6 +386,7 @@ pub fn detect_manoeuvres(log: &FlightLog, options: &DetectOptions) -> Result<Det
             AttitudeSource::Ins => missing_spans(log.time_s(), &attitude.angles, ATTITUDE_GAP_S),
             AttitudeSource::Fluxgate => Vec::new(),
         },
+        left_out_in_gaps: Vec::new(),
     })
 }
 

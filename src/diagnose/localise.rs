@@ -366,6 +366,8 @@ mod tests {
             stacked_rows: 0..values.len(),
             samples_used: values.len(),
             samples_dropped: 0,
+            samples_in_window: values.len(),
+            samples_lost_to_gaps: 0,
             flight_rows: std::iter::once(0..values.len()).collect(),
             band_before_nt: Vec::new(),
             band_after_nt: values,

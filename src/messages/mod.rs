@@ -297,6 +297,12 @@ pub enum Warning {
         /// The gaps, start and end (s).
         spans: Vec<(f64, f64)>,
     },
+    /// Detected manoeuvres whose windows gaps in the fluxgate or scalar
+    /// readings leave too short to band-pass: left out of the fit.
+    ManoeuvresInGaps {
+        /// Their labels.
+        manoeuvres: Vec<String>,
+    },
     /// Compensated rows lie beyond what the instrument reads: the model
     /// was applied far from what it was fitted on.
     OutputOutOfRange {
@@ -480,6 +486,15 @@ pub enum Warning {
         channel: String,
         /// The gap, in words.
         gap: String,
+    },
+    /// Gaps in the recording cut calibration manoeuvres: their FOM cells
+    /// and their share of the fit count only the samples kept.
+    ManoeuvresCut {
+        /// The scalar channel.
+        channel: String,
+        /// Each manoeuvre cut, in words ("roll on heading 20: 36 of 196
+        /// samples kept").
+        manoeuvres: Vec<String>,
     },
     /// The solver the settings ask for was not used.
     SolverNotUsed {
@@ -848,6 +863,7 @@ impl Warning {
             | Warning::NamedBySize { .. }
             | Warning::SteepField { .. }
             | Warning::AttitudeGaps { .. }
+            | Warning::ManoeuvresInGaps { .. }
             | Warning::GradientLevelUnpinned { .. }
             | Warning::GradientDirectAtOdds { .. }
             | Warning::GradientNotCompensated { .. }
@@ -883,6 +899,7 @@ impl Warning {
             | Warning::TooFewWindows { channel, .. }
             | Warning::NoUncertainty { channel, .. }
             | Warning::BoxGap { channel, .. }
+            | Warning::ManoeuvresCut { channel, .. }
             | Warning::SolverNotUsed { channel, .. }
             | Warning::FomAboveLimit { channel, .. }
             | Warning::NoiseRaised { channel, .. }
@@ -904,7 +921,8 @@ impl fmt::Display for Warning {
             Warning::IncompleteBox { .. }
             | Warning::NamedBySize { .. }
             | Warning::SteepField { .. }
-            | Warning::AttitudeGaps { .. } => self.write_detection(f),
+            | Warning::AttitudeGaps { .. }
+            | Warning::ManoeuvresInGaps { .. } => self.write_detection(f),
             Warning::FomAboveLimit { .. } | Warning::NoiseRaised { .. } | Warning::PoorTransfer { .. } => {
                 self.write_quality(f)
             }
@@ -947,6 +965,7 @@ impl fmt::Display for Warning {
             | Warning::TooFewWindows { .. }
             | Warning::NoUncertainty { .. }
             | Warning::BoxGap { .. }
+            | Warning::ManoeuvresCut { .. }
             | Warning::SolverNotUsed { .. } => self.write_fit(f),
         }
     }
@@ -980,6 +999,17 @@ impl Warning {
             Warning::SteepField { dip_deg } => write!(
                 f,
                 "the field dips {dip_deg:.0}° at the fluxgate, which stands in for the INS: its horizontal part gives the heading weakly and a yaw barely turns the field direction, so manoeuvres reported missing may have been flown and not seen. Give the INS attitude (ins_pitch, ins_roll, ins_yaw) or the windows with --window"
+            ),
+            Warning::ManoeuvresInGaps { manoeuvres } => write!(
+                f,
+                "gaps in the fluxgate or scalar readings leave {} too short to band-pass: {}; the fit and the FOM go on without {}, so the box counts fewer manoeuvres. Fill the gaps, or fly {} again",
+                match manoeuvres.len() {
+                    1 => "a detected manoeuvre".to_string(),
+                    n => format!("{n} detected manoeuvres"),
+                },
+                manoeuvres.join(", "),
+                if manoeuvres.len() == 1 { "it" } else { "them" },
+                if manoeuvres.len() == 1 { "it" } else { "them" },
             ),
             Warning::AttitudeGaps { spans } => {
                 let spans: Vec<String> = (spans.iter())
@@ -1122,6 +1152,15 @@ impl Warning {
             ),
             Warning::NoUncertainty { channel, why } => write!(f, "{channel}: no uncertainty figure: {why}"),
             Warning::BoxGap { channel, gap } => write!(f, "{channel}: {gap}"),
+            Warning::ManoeuvresCut { channel, manoeuvres } => write!(
+                f,
+                "{channel}: gaps in the recording (invalid scalar, fluxgate or source samples) cut {} of the calibration: {}; their FOM cells and their share of the fit count only the samples kept, so the FOM may understate those manoeuvres. Fill the gaps, or fly them again",
+                match manoeuvres.len() {
+                    1 => "a manoeuvre".to_string(),
+                    n => format!("{n} manoeuvres"),
+                },
+                manoeuvres.join("; ")
+            ),
             Warning::SolverNotUsed { channel, reason } => write!(f, "{channel}: {reason}"),
             _ => self.write_unrouted(f),
         }

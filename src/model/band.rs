@@ -87,6 +87,11 @@ pub struct FitOptions {
     pub solver: crate::numerics::estimators::Solver,
 }
 
+/// A window that lost more than this fraction of its samples to gaps in
+/// the recording is a manoeuvre cut by gaps: its FOM cell and its share
+/// of the fit count only what was kept, and the run says so.
+pub const CUT_BY_GAPS: f64 = 0.1;
+
 /// How one window contributed to the fit.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct WindowFit {
@@ -99,6 +104,12 @@ pub struct WindowFit {
     pub samples_used: usize,
     /// Samples of the window left out (gaps, fragments too short to filter, trims).
     pub samples_dropped: usize,
+    /// Samples of the flight inside the window.
+    pub samples_in_window: usize,
+    /// Samples of the window lost to gaps in the recording: invalid
+    /// samples, and fragments between gaps too short to filter (the trims
+    /// at the ends of the runs kept are not counted).
+    pub samples_lost_to_gaps: usize,
     /// Rows of the flight the used samples come from, run by run (trimmed),
     /// in stacked order.
     #[serde(skip)]
@@ -109,6 +120,14 @@ pub struct WindowFit {
     /// Band-passed residual after compensation in the window, nT.
     #[serde(skip)]
     pub band_after_nt: Vec<f64>,
+}
+
+impl WindowFit {
+    /// Whether gaps in the recording took more than [`CUT_BY_GAPS`] of
+    /// the window's samples.
+    pub fn cut_by_gaps(&self) -> bool {
+        self.samples_lost_to_gaps as f64 > CUT_BY_GAPS * self.samples_in_window as f64
+    }
 }
 
 /// The band-passed, trimmed, stacked data of a set of windows.
@@ -201,6 +220,8 @@ fn window_fits(plans: &[WindowPlan], trim: usize, stacked: &Stacked) -> Vec<Wind
             stacked_rows,
             samples_used: used,
             samples_dropped: plan.rows - used,
+            samples_in_window: plan.rows,
+            samples_lost_to_gaps: plan.rows - plan.runs.iter().map(Range::len).sum::<usize>(),
             flight_rows: plan.runs.iter().map(|r| r.start + trim..r.end - trim).collect(),
             band_after_nt: Vec::new(),
         });
@@ -301,6 +322,37 @@ fn filter_target(
         filter.apply_panel(run.len(), source, &mut output, trim)
     })?;
     Ok(builder.finish())
+}
+
+/// Whether `window` of `log` holds a run long enough to band-pass and
+/// trim as `settings` ask, on which every one of `columns` is valid; false
+/// too when the band cannot be designed for the flight's rate.
+pub fn window_filterable(
+    log: &FlightLog,
+    window: &CalibrationWindow,
+    columns: &[&[f64]],
+    settings: &FilterSettings,
+) -> bool {
+    let Ok(filter) = design_filter(log, settings) else {
+        return false;
+    };
+    let needed = filter.min_samples().max(2 * settings.trim_samples + 1);
+    let rows = window.rows(log.time_s());
+    let valid: Vec<bool> = rows
+        .clone()
+        .map(|row| {
+            columns
+                .iter()
+                .all(|column| column.get(row).is_some_and(|v| v.is_finite()))
+        })
+        .collect();
+    let runs = valid_runs(
+        &log.time_s()[rows.clone()],
+        &valid,
+        0..rows.len(),
+        log.median_interval_s(),
+    );
+    runs.iter().any(|run| run.len() >= needed)
 }
 
 /// The runs of one window that are long enough to filter and trim.

@@ -172,6 +172,11 @@ pub struct Candidate {
     /// scaled information) over what this candidate gives: 0 when not
     /// flown, about 1 when flown as the candidate is.
     pub excitation_flown: f64,
+    /// The samples its windows on this heading kept and had, when gaps in
+    /// the recording cut them ([`super::CUT_BY_GAPS`]): the excitation
+    /// flown counts only what was kept.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub samples_kept: Option<[usize; 2]>,
     /// A gap in the box: not flown, or flown with under
     /// [`WEAK_EXCITATION`] of the candidate's excitation (never when the
     /// windows carry no manoeuvre kind).
@@ -216,9 +221,14 @@ impl Excitation {
     /// The sentence of one gap: what is missing or weak, how to fly it
     /// and what it would do to the survey.
     pub fn gap_words(&self, gap: &Candidate) -> String {
-        let state = match gap.flown {
-            false => "is not among the windows".to_string(),
-            true => format!(
+        let state = match (gap.flown, gap.samples_kept) {
+            (false, _) => "is not among the windows".to_string(),
+            (true, Some([kept, had])) => format!(
+                "was flown, but gaps in the recording left {kept} of its {had} samples: {:.0} % of the excitation of a typical {} reached the fit",
+                100.0 * gap.excitation_flown,
+                gap.kind.name()
+            ),
+            (true, None) => format!(
                 "was flown with {:.0} % of the excitation of a typical {}",
                 100.0 * gap.excitation_flown,
                 gap.kind.name()
@@ -613,6 +623,7 @@ fn box_candidates(
                 duration_s: shape.duration_s,
                 flown: !own.is_empty(),
                 excitation_flown,
+                samples_kept: samples_kept(own.iter().map(|&k| &fits[k])),
                 gap: kinds_known && excitation_flown < WEAK_EXCITATION,
                 survey_sigma_nt: f64::NAN,
                 change: f64::NAN,
@@ -623,6 +634,17 @@ fn box_candidates(
         }
     }
     Ok(candidates)
+}
+
+/// The samples `windows` kept and had, when gaps cut any of them.
+fn samples_kept<'a>(windows: impl Iterator<Item = &'a WindowFit>) -> Option<[usize; 2]> {
+    let (mut kept, mut had, mut cut) = (0, 0, false);
+    for window in windows {
+        kept += window.samples_in_window - window.samples_lost_to_gaps;
+        had += window.samples_in_window;
+        cut |= window.cut_by_gaps();
+    }
+    cut.then_some([kept, had])
 }
 
 /// `g` with each row and column divided by its column's scale.

@@ -57,7 +57,7 @@ use crate::numerics::stacked::StorePool;
 
 pub use crate::calibration::windows::Calibration;
 pub use anomaly_gain::{AnomalyGain, GainRows, ANOMALY_GAIN_TOLERANCE};
-pub use band::{design_filter, FilterSettings, FitMagnitude, FitOptions, WindowFit};
+pub use band::{design_filter, window_filterable, FilterSettings, FitMagnitude, FitOptions, WindowFit, CUT_BY_GAPS};
 pub use extensions::{
     advanced, column_level, field_directions, rate_of_change, second_order_term, Extensions, SourceTerm,
     SECOND_ORDER_PASSES,

@@ -832,10 +832,10 @@ fn fom_section(quality: &ChannelQuality, limit_nt: f64) -> String {
 fn fom_line(quality: &ChannelQuality, limit_nt: f64) -> String {
     match quality.fom_after_nt {
         Some(fom) => format!(
-            "<span class=\"{}\">FOM {:.2} → {fom:.2} nT</span> over {} of 12 manoeuvres (limit {limit_nt} nT)",
+            "<span class=\"{}\">FOM {:.2} → {fom:.2} nT</span> over {} (limit {limit_nt} nT)",
             if fom <= limit_nt { "pass" } else { "fail" },
             quality.fom_before_nt.unwrap_or(f64::NAN),
-            quality.fom_manoeuvres
+            quality.manoeuvre_count()
         ),
         None => "no labelled manoeuvres: no FOM".into(),
     }

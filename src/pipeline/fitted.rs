@@ -458,6 +458,24 @@ fn model_messages(
         })
         .collect::<Vec<_>>()
     }));
+    // A manoeuvre cut by gaps is a warning: its FOM cell counts only what
+    // was kept.
+    warnings.extend(models.iter().filter_map(|m| {
+        let manoeuvres: Vec<String> = (m.windows.iter().filter(|w| w.cut_by_gaps()))
+            .map(|w| {
+                format!(
+                    "{}: {} of {} samples kept",
+                    w.window.display_label(),
+                    w.samples_in_window - w.samples_lost_to_gaps,
+                    w.samples_in_window
+                )
+            })
+            .collect();
+        (!manoeuvres.is_empty()).then(|| Warning::ManoeuvresCut {
+            channel: m.channel.clone(),
+            manoeuvres,
+        })
+    }));
     // A solver asked for and not used is a warning: the coefficients are
     // not what the settings say.
     warnings.extend(models.iter().filter_map(|m| {

@@ -29,6 +29,11 @@ pub fn detection_warnings(detection: &Detection) -> Vec<Warning> {
     warnings.extend(crate::calibration::detect::uncertain_kinds(detection));
     warnings.extend(detection.steep_field_warning());
     warnings.extend(detection.attitude_gap_warning());
+    if !detection.left_out_in_gaps.is_empty() {
+        warnings.push(Warning::ManoeuvresInGaps {
+            manoeuvres: detection.left_out_in_gaps.clone(),
+        });
+    }
     warnings
 }
 
@@ -201,7 +206,10 @@ impl Chosen {
             refuse_dead_columns(log, screening, &sensor, job.channels.as_deref())?;
         }
         let channels = choose_channels(log, job.channels.as_deref())?;
-        let (windows, detection, headings_note) = calibration_windows(log, job, options)?;
+        let (mut windows, mut detection, headings_note) = calibration_windows(log, job, options)?;
+        if let Some(detection) = &mut detection {
+            detection.left_out_in_gaps = leave_out_gaps(log, (&sensor, &channels), &mut windows, options);
+        }
         Ok(Chosen {
             sensor,
             channels,
@@ -219,6 +227,36 @@ impl Chosen {
             windows: &self.windows,
         }
     }
+}
+
+/// Removes from detected `windows` those where gaps in `sensor`'s axes or
+/// in one of `channels` leave no run long enough to band-pass (a
+/// manoeuvre flown while a sensor dropped out), and returns their labels:
+/// the fit goes on with the rest, and the run says what it lacks.
+fn leave_out_gaps(
+    log: &FlightLog,
+    (sensor, channels): (&VectorSensor, &[String]),
+    windows: &mut Vec<CalibrationWindow>,
+    options: &Settings,
+) -> Vec<String> {
+    let mut columns: Vec<&[f64]> = log.vector_components(sensor).to_vec();
+    columns.extend(
+        channels
+            .iter()
+            .filter_map(|c| log.channel(c))
+            .map(|c| c.values.as_slice()),
+    );
+    let filter = &options.fit.filter;
+    let (kept, left_out): (Vec<CalibrationWindow>, Vec<CalibrationWindow>) = std::mem::take(windows)
+        .into_iter()
+        .partition(|w| crate::model::window_filterable(log, w, &columns, filter));
+    // With nothing left, the fit's own error names the first window's gap.
+    if kept.is_empty() {
+        *windows = left_out;
+        return Vec::new();
+    }
+    *windows = kept;
+    left_out.iter().map(CalibrationWindow::display_label).collect()
 }
 
 /// What detection found, in a sentence per box and per lack.

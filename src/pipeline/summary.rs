@@ -42,7 +42,7 @@ pub(super) fn applied_summary(result: &FlightResult, applied: &crate::pipeline::
                 quality.band_std_before_nt, quality.band_std_after_nt, quality.improvement_ratio
             );
             if let (Some(before), Some(after)) = (quality.fom_before_nt, quality.fom_after_nt) {
-                text += &format!(", FOM {before:.2} → {after:.2} nT ({} of 12)", quality.fom_manoeuvres);
+                text += &format!(", FOM {before:.2} → {after:.2} nT ({})", quality.manoeuvre_count());
             }
         }
         if let Some(gain) = quality.anomaly_gain {
@@ -157,8 +157,8 @@ fn channel_line(result: &FlightResult, quality: &crate::quality::ChannelQuality,
     let mut line = format!("  {}: {}", quality.channel, quality.verdict);
     if let (Some(before), Some(after)) = (quality.fom_before_nt, quality.fom_after_nt) {
         line += &format!(
-            "  FOM {before:.2} → {after:.2} nT (limit {limit_nt:.2}; {} of 12 manoeuvres)",
-            quality.fom_manoeuvres
+            "  FOM {before:.2} → {after:.2} nT (limit {limit_nt:.2}; {})",
+            quality.manoeuvre_count()
         );
     }
     line += &format!(", IR {:.1}", quality.improvement_ratio);

@@ -44,6 +44,11 @@ pub struct WindowQuality {
     pub t_end: f64,
     /// Samples used in the band.
     pub samples: usize,
+    /// Samples of the flight inside the window.
+    pub samples_in_window: usize,
+    /// Samples of the window lost to gaps in the recording (invalid
+    /// samples and fragments too short to filter; not the trims).
+    pub samples_lost_to_gaps: usize,
     /// RMS of the band-passed uncompensated signal, nT.
     pub rms_before_nt: f64,
     /// RMS of the band-passed residual, nT.
@@ -61,6 +66,23 @@ pub struct FomCell {
     pub before_nt: f64,
     /// Compensated.
     pub after_nt: f64,
+    /// Samples of the manoeuvre's window the cell was measured on (before
+    /// the band's trims): fewer than `samples_in_window` when gaps in the
+    /// recording cut it.
+    pub samples_kept: usize,
+    /// Samples of the flight inside the manoeuvre's window.
+    pub samples_in_window: usize,
+}
+
+impl FomCell {
+    /// Whether gaps in the recording took more than
+    /// [`crate::model::CUT_BY_GAPS`] of the manoeuvre's samples: its
+    /// peak-to-peak then counts only what was kept.
+    pub fn cut_by_gaps(&self) -> bool {
+        self.samples_kept < self.samples_in_window
+            && (self.samples_in_window - self.samples_kept) as f64
+                > crate::model::CUT_BY_GAPS * self.samples_in_window as f64
+    }
 }
 
 /// One heading of the FOM table.
@@ -122,6 +144,8 @@ pub fn fom_table(windows: &[WindowQuality], fits: &[WindowFit]) -> Vec<FomRow> {
         cell.get_or_insert(FomCell {
             before_nt: quality.peak_to_peak_before_nt,
             after_nt: quality.peak_to_peak_after_nt,
+            samples_kept: quality.samples_in_window - quality.samples_lost_to_gaps,
+            samples_in_window: quality.samples_in_window,
         });
         before.extend_from_slice(&fit.band_before_nt);
         after.extend_from_slice(&fit.band_after_nt);
@@ -144,6 +168,10 @@ pub fn figure_of_merit(table: &[FomRow]) -> Option<(f64, f64, usize)> {
             cells.len(),
         )
     })
+}
+
+fn is_zero(count: &usize) -> bool {
+    *count == 0
 }
 
 /// Figures for one compensated channel.
@@ -187,6 +215,9 @@ pub struct ChannelQuality {
     pub fom_after_nt: Option<f64>,
     /// Number of manoeuvres summed in the FOM (12 for a whole box).
     pub fom_manoeuvres: usize,
+    /// How many of them gaps in the recording cut ([`FomCell::cut_by_gaps`]).
+    #[serde(skip_serializing_if = "is_zero")]
+    pub fom_manoeuvres_cut: usize,
     /// The classic FOM table: one row per heading, a cell per manoeuvre.
     pub fom_table: Vec<FomRow>,
     /// Level difference between opposite-direction survey lines over the
@@ -317,6 +348,16 @@ pub fn departs_beyond_stated(departure_nt: f64, stated_nt: Option<f64>) -> bool 
 }
 
 impl ChannelQuality {
+    /// "12 of 12 manoeuvres", with how many gaps cut ("12 of 12
+    /// manoeuvres, 1 cut by gaps").
+    pub fn manoeuvre_count(&self) -> String {
+        let mut words = format!("{} of 12 manoeuvres", self.fom_manoeuvres);
+        if self.fom_manoeuvres_cut > 0 {
+            words += &format!(", {} cut by gaps", self.fom_manoeuvres_cut);
+        }
+        words
+    }
+
     /// The findings' departure from plain Tolles-Lawson on the survey when
     /// it exceeds the stated uncertainty outside the calibration (or a
     /// hundredth of a nT where none is stated): (departure, stated sigma).
@@ -443,6 +484,7 @@ pub fn assess_quality_at(
         fom_before_nt: fom.map(|f| f.0),
         fom_after_nt: fom.map(|f| f.1),
         fom_manoeuvres: fom.map_or(0, |f| f.2),
+        fom_manoeuvres_cut: table.iter().flat_map(FomRow::cells).filter(|c| c.cut_by_gaps()).count(),
         fom_table: table,
         transfer: None,
         box_transfer: Vec::new(),
@@ -467,6 +509,8 @@ pub fn window_quality(fit: &WindowFit) -> WindowQuality {
         t_start: w.t_start,
         t_end: w.t_end,
         samples: fit.samples_used,
+        samples_in_window: fit.samples_in_window,
+        samples_lost_to_gaps: fit.samples_lost_to_gaps,
         rms_before_nt: root_mean_square(&fit.band_before_nt),
         rms_after_nt: root_mean_square(&fit.band_after_nt),
         peak_to_peak_before_nt: peak_to_peak(&fit.band_before_nt),
@@ -693,6 +737,8 @@ mod tests {
             stacked_rows: 0..200,
             samples_used: 200,
             samples_dropped: 0,
+            samples_in_window: 200,
+            samples_lost_to_gaps: 0,
             flight_rows: std::iter::once(0..200).collect(),
             band_before_nt: sine(before),
             band_after_nt: sine(after),
