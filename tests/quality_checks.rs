@@ -211,3 +211,70 @@ fn tie_lines_cross_every_line_and_the_crossovers_see_a_heading_level() {
     assert!(!magcomp::diagnose::evidence::levels_worse(&better), "{better:?}");
     assert!(compare_levels(&flight.log, &ties, (truth, &levelled), 19).is_none());
 }
+
+/// "May not transfer" is said only where something bears it out. Held out
+/// by heading with the warning factor at its floor (1: every held-out
+/// figure is above its in-sample one), a clean flight whose survey lines
+/// over the same ground show the compensation right gets no warning; the
+/// same flight without such lines gets one that says nothing on the
+/// survey checks it; and a survey figure that shows an error left brings
+/// the warning back.
+#[test]
+fn may_not_transfer_is_said_only_where_the_survey_or_a_second_box_bears_it_out() {
+    let mut options = Settings::default();
+    options.diagnose.apply = magcomp::diagnose::ApplyDiagnosis::Never;
+    options.transfer.warning_factor = 1.0;
+    for seed in [17_u64, 4_021, 90_210] {
+        let folder = tempfile::tempdir().unwrap();
+        let flight = |spacing_m: f64, name: &str| {
+            let mut raw = RawScenario {
+                seed,
+                ..RawScenario::default()
+            };
+            (
+                raw.survey.line_count,
+                raw.survey.line_spacing_m,
+                raw.survey.line_length_m,
+            ) = (2, spacing_m, 6000.0);
+            let flight = magcomp::simulate::simulate(&Scenario::try_from(raw).unwrap()).unwrap();
+            let path = folder.path().join(name);
+            magcomp::formats::write_flight_log(&flight.log, &path).unwrap();
+            run_with(&path, &folder.path().join(format!("{name}_out")), options.clone())
+        };
+        let poor = |result: &FlightResult, channel: &str| -> Vec<String> {
+            (result.warnings.iter())
+                .filter(|w| matches!(w, Warning::PoorTransfer { channel: c, .. } if c == channel))
+                .map(ToString::to_string)
+                .collect()
+        };
+        let reciprocal = flight(0.0, "reciprocal.csv");
+        for quality in &reciprocal.channels {
+            let check = quality.transfer.as_ref().unwrap();
+            let error = quality.heading_error.as_ref().unwrap();
+            println!(
+                "seed {seed} {}: held out {:.2}×, heading error {:.3} → {:.3} nT",
+                quality.channel, check.ratio, error.before_nt, error.after_nt
+            );
+            assert_eq!(check.method, TransferMethod::LeaveOneHeadingOut);
+            assert!(check.warning.is_some(), "{check:?}");
+            assert!(error.after_nt.abs() < magcomp::quality::SURVEY_LEVEL_LEFT_NT);
+            assert_eq!(
+                magcomp::quality::transfer_evidence(quality),
+                magcomp::quality::TransferEvidence::SurveyDisagrees
+            );
+            assert!(poor(&reciprocal, &quality.channel).is_empty());
+            // An error of 3 nT left between the reciprocal lines agrees.
+            let mut left = quality.clone();
+            left.heading_error.as_mut().unwrap().after_nt = 3.0;
+            let warnings = magcomp::quality::quality_warnings(&left, 1.5, ("", false));
+            assert!(warnings.iter().any(|w| matches!(w, Warning::PoorTransfer { .. })));
+        }
+        let apart = flight(500.0, "apart.csv");
+        for quality in &apart.channels {
+            assert!(quality.heading_error.is_none() && quality.heading_level.is_none());
+            let said = poor(&apart, &quality.channel);
+            assert_eq!(said.len(), 1, "{said:?}");
+            assert!(said[0].contains("may not transfer") && said[0].contains("nothing on the survey checks it"));
+        }
+    }
+}

@@ -249,6 +249,10 @@ fn fit_details(quality: &crate::quality::ChannelQuality, model: &crate::model::F
             check.in_sample_fom_nt,
             check.ratio
         );
+        let evidence = crate::quality::transfer_evidence(quality);
+        if check.warning.is_some() && evidence == crate::quality::TransferEvidence::SurveyDisagrees {
+            text += "    the held-out ratio is above the warning factor, but the survey's lines over the same ground show no error it would leave (heading level, heading error, crossovers): no warning\n";
+        }
     }
     text += &survey_checks(quality);
     if let (Some(gain), Some([low, high])) = (quality.anomaly_gain, quality.anomaly_gain_range) {

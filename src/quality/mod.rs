@@ -617,7 +617,15 @@ pub fn quality_warnings(
             });
         }
     }
-    if let Some(sentence) = quality.transfer.as_ref().and_then(|check| check.warning.clone()) {
+    let sentence = quality.transfer.as_ref().and_then(|check| check.warning.clone());
+    let sentence = sentence.and_then(|sentence| match transfer_evidence(quality) {
+        TransferEvidence::BoxToBox | TransferEvidence::SurveyAgrees => Some(sentence),
+        TransferEvidence::SurveyDisagrees => None,
+        TransferEvidence::Unchecked => Some(format!(
+            "{sentence}, and nothing on the survey checks it (no lines flown both ways over the same ground, no crossings): fly a tie line, or a second box"
+        )),
+    });
+    if let Some(sentence) = sentence {
         warnings.push(Warning::PoorTransfer {
             channel: channel(),
             sentence,
@@ -625,6 +633,56 @@ pub fn quality_warnings(
         });
     }
     warnings
+}
+
+/// A level left between passes over the same ground this large, nT, after
+/// compensation, is a heading-dependent error a map shows (a corrugation
+/// between lines flown both ways).
+pub const SURVEY_LEVEL_LEFT_NT: f64 = 1.0;
+
+/// What bears out a held-out FOM far above the in-sample one.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TransferEvidence {
+    /// It was measured box to box: a second box flown apart from the first.
+    BoxToBox,
+    /// The survey's own figures agree: compensation raised the lines'
+    /// noise, the heading error or the crossover differences, or leaves a
+    /// heading level or error of [`SURVEY_LEVEL_LEFT_NT`] or more (beyond
+    /// three standard errors).
+    SurveyAgrees,
+    /// The survey has lines over the same ground and they show no such
+    /// error: the survey is compensated as well as the box.
+    SurveyDisagrees,
+    /// Nothing on the survey checks it (no lines flown both ways, no
+    /// crossings).
+    Unchecked,
+}
+
+/// What bears out `quality`'s held-out FOM ([`TransferEvidence`]). Each
+/// heading held out of a single box loses what that heading alone pins,
+/// so its ratio runs above 2 on clean flights whose survey is compensated
+/// to the calibration's accuracy: where the survey's own figures say so,
+/// it is a figure, not a warning.
+pub fn transfer_evidence(quality: &ChannelQuality) -> TransferEvidence {
+    if quality
+        .transfer
+        .as_ref()
+        .is_some_and(|c| c.method == TransferMethod::SecondBox)
+    {
+        return TransferEvidence::BoxToBox;
+    }
+    let level = quality.heading_level.as_ref();
+    let level_raised = level.is_some_and(|f| f.after_nt.abs() > f.before_nt.abs().max(0.05) * NOISE_RISE_WARNING);
+    let level_left = level.is_some_and(|f| f.after_nt.abs() > SURVEY_LEVEL_LEFT_NT.max(3.0 * f.standard_error_nt));
+    let error_left = (quality.heading_error.as_ref()).is_some_and(|e| e.after_nt.abs() > SURVEY_LEVEL_LEFT_NT);
+    let checked = level.is_some() || quality.heading_error.is_some() || quality.crossovers.is_some();
+    if level_raised || level_left || error_left || !survey_warnings(quality, String::new).is_empty() {
+        TransferEvidence::SurveyAgrees
+    } else if checked {
+        TransferEvidence::SurveyDisagrees
+    } else {
+        TransferEvidence::Unchecked
+    }
 }
 
 /// What to try for an uncertain compensation: `[fit] solver = "auto"` when
