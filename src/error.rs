@@ -205,6 +205,16 @@ pub enum Error {
         path: PathBuf,
     },
 
+    /// A campaign's flight without a box of its own, given no calibration
+    /// flight's model.
+    #[error("{path}: no calibration windows to fit on, and the campaign gave it no calibration flight's model: {why}")]
+    NoCampaignCalibration {
+        /// The flight.
+        path: PathBuf,
+        /// Why none, what the campaign has, and what to do.
+        why: String,
+    },
+
     /// The band-pass filter cannot be designed for a flight's sample rate.
     #[error("{path}: the band-pass filter cannot be designed: {source}. {hint}")]
     FilterDesign {

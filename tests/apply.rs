@@ -798,6 +798,66 @@ fn a_campaign_gives_each_flight_its_aircraft_s_calibration() {
     assert!(!at("out/cal_2_model.json").exists(), "nothing runs");
 }
 
+/// A survey flight without a box whose aircraft name no calibration flight
+/// of the campaign carries (a typo) fails with an error that names the
+/// campaign's calibration flights and the closest aircraft name; one that
+/// names no aircraft is told to name it.
+#[test]
+fn a_flight_without_a_box_and_a_mistyped_aircraft_is_told_the_calibrations_and_the_closest_name() {
+    let folder = tempfile::tempdir().unwrap();
+    let at = |name: &str| folder.path().join(name);
+    sample_flight(&at("cal.csv"));
+    // The survey lines alone: the rows of a non-zero line number.
+    let text = std::fs::read_to_string(at("cal.csv")).unwrap();
+    let mut lines = text.lines();
+    let header = lines.next().unwrap();
+    let line_column = header.split(',').position(|c| c == "line").unwrap();
+    let survey: Vec<&str> = lines
+        .filter(|l| {
+            l.split(',')
+                .nth(line_column)
+                .is_some_and(|v| v.parse::<f64>().unwrap() != 0.0)
+        })
+        .collect();
+    assert!(survey.len() > 1000);
+    std::fs::write(at("survey.csv"), format!("{header}\n{}\n", survey.join("\n"))).unwrap();
+    std::fs::write(
+        at("pipeline.toml"),
+        "[output]\ndirectory = \"out\"\n\n[campaign]\nmanifest = \"flights.csv\"\n",
+    )
+    .unwrap();
+    for (aircraft, wanted) in [
+        ("C-GMAF", "no calibration flight names its aircraft \"C-GMAF\""),
+        ("", "the flight names no aircraft"),
+    ] {
+        std::fs::write(
+            at("flights.csv"),
+            format!("input,aircraft,date,calibration\ncal.csv,C-GMAG,2026-06-15,yes\ncal_b.csv,C-FTLL,2026-06-15,yes\nsurvey.csv,{aircraft},2026-06-20,\n"),
+        )
+        .unwrap();
+        std::fs::copy(at("cal.csv"), at("cal_b.csv")).unwrap();
+        let output = (magcomp().arg("run").arg(at("pipeline.toml")))
+            .arg("--plain")
+            .output()
+            .unwrap();
+        let said = String::from_utf8_lossy(&output.stdout).to_string() + &String::from_utf8_lossy(&output.stderr);
+        println!("{said}");
+        assert!(!output.status.success());
+        assert!(
+            said.contains(
+                "survey.csv: no calibration windows to fit on, and the campaign gave it no calibration flight's model"
+            ) && said.contains(wanted)
+                && said.contains("C-GMAG: ")
+                && said.contains("cal.csv")
+                && said.contains("C-FTLL: "),
+            "{said}"
+        );
+        if !aircraft.is_empty() {
+            assert!(said.contains("the closest name is \"C-GMAG\""), "{said}");
+        }
+    }
+}
+
 /// A survey flight that names its magnetometers otherwise takes the model
 /// through `[model] channels`, as if it used the model's names: the same
 /// values, in the column its own name gives. A name the model does not

@@ -76,6 +76,17 @@ fn notes_on_the_rest(
     notes
 }
 
+/// Whether `flight` names its own calibration data, diagnosis or plan: it
+/// is fitted on its own box.
+fn names_its_own(flight: &FlightJob) -> bool {
+    flight.calibration
+        || flight.model.is_some()
+        || !flight.windows.is_empty()
+        || !flight.lines.is_empty()
+        || flight.diagnosis.is_some()
+        || flight.plan.is_some()
+}
+
 /// Gives each flight of an aircraft with calibration flights the model of
 /// one of them (see the module documentation), as the path that flight's
 /// run writes in `output_directory`. Returns one note per calibration
@@ -93,23 +104,18 @@ pub(super) fn assign_calibrations(
     let mut uses: BTreeMap<usize, Vec<usize>> = BTreeMap::new();
     let mut flown_before_any = Vec::new();
     let mut uncalibrated: BTreeMap<String, Vec<usize>> = BTreeMap::new();
+    let mut unassigned: Vec<(usize, Option<String>)> = Vec::new();
     for (index, flight) in flights.iter().enumerate() {
-        // A flight that names its own calibration data, diagnosis or plan
-        // is fitted on its own box.
-        let own = flight.calibration
-            || flight.model.is_some()
-            || !flight.windows.is_empty()
-            || !flight.lines.is_empty()
-            || flight.diagnosis.is_some()
-            || flight.plan.is_some();
-        if own || by_aircraft.is_empty() {
+        if names_its_own(flight) || by_aircraft.is_empty() {
             continue;
         }
         let Some(aircraft) = flight.aircraft.as_deref() else {
+            unassigned.push((index, None));
             continue;
         };
         let Some(calibrations) = by_aircraft.get(&aircraft_key(aircraft)) else {
             uncalibrated.entry(aircraft_key(aircraft)).or_default().push(index);
+            unassigned.push((index, Some(aircraft.to_string())));
             continue;
         };
         let (chosen, before_any) = choose(flights, flight, calibrations).map_err(bad)?;
@@ -117,6 +123,9 @@ pub(super) fn assign_calibrations(
         if before_any {
             flown_before_any.push(index);
         }
+    }
+    for (index, aircraft) in unassigned {
+        flights[index].no_calibration_because = Some(why_no_calibration(flights, &by_aircraft, aircraft.as_deref()));
     }
     let mut notes = Vec::new();
     for (calibration, users) in &uses {
@@ -142,6 +151,62 @@ pub(super) fn assign_calibrations(
     }
     notes.extend(notes_on_the_rest(flights, &flown_before_any, &uncalibrated));
     Ok(notes)
+}
+
+/// Why a flight of `aircraft` (or of none) took no calibration flight's
+/// model: the campaign's calibration flights by aircraft, and the closest
+/// aircraft name to the flight's.
+fn why_no_calibration(
+    flights: &[FlightJob],
+    by_aircraft: &BTreeMap<String, Vec<usize>>,
+    aircraft: Option<&str>,
+) -> String {
+    let listed: Vec<String> = (by_aircraft.values())
+        .map(|indices| {
+            let name = flights[indices[0]].aircraft.as_deref().unwrap_or_default().trim();
+            let paths: Vec<String> = indices
+                .iter()
+                .map(|&i| flights[i].input.display().to_string())
+                .collect();
+            format!("{name}: {}", paths.join(", "))
+        })
+        .collect();
+    let has = format!(
+        "the campaign's calibration flights are, by aircraft, {}",
+        listed.join("; ")
+    );
+    match aircraft {
+        None => format!(
+            "the flight names no aircraft, and {has}; name its aircraft (aircraft = \"...\") to take that aircraft's model, or give it a model, windows or lines of its own"
+        ),
+        Some(aircraft) => {
+            let key = aircraft_key(aircraft);
+            let closest = (by_aircraft.iter())
+                .min_by_key(|(other, _)| edit_distance(&key, other))
+                .map(|(_, indices)| flights[indices[0]].aircraft.as_deref().unwrap_or_default().trim());
+            format!(
+                "no calibration flight names its aircraft \"{}\", and {has}; the closest name is \"{}\": correct the flight's aircraft if it is that one, or give the flight a model, windows or lines of its own",
+                aircraft.trim(),
+                closest.unwrap_or_default()
+            )
+        }
+    }
+}
+
+/// The Levenshtein distance between `a` and `b`, by characters.
+fn edit_distance(a: &str, b: &str) -> usize {
+    let b: Vec<char> = b.chars().collect();
+    let mut row: Vec<usize> = (0..=b.len()).collect();
+    for (i, ca) in a.chars().enumerate() {
+        let mut diagonal = row[0];
+        row[0] = i + 1;
+        for (j, &cb) in b.iter().enumerate() {
+            let substituted = diagonal + usize::from(ca != cb);
+            diagonal = row[j + 1];
+            row[j + 1] = substituted.min(row[j] + 1).min(diagonal + 1);
+        }
+    }
+    row[b.len()]
 }
 
 /// The calibration flight (an index into `flights`) whose model compensates

@@ -408,6 +408,10 @@ pub struct FlightJob {
     /// Why `model` is this flight's, when the campaign gave it (a note for
     /// its quality JSON and report): [`crate::messages::Note::AssignedModel`].
     pub assigned_model: Option<crate::messages::Note>,
+    /// Why a campaign with calibration flights gave this flight none of
+    /// their models, with what it has and the closest aircraft name (said
+    /// when the flight then has no box of its own to fit on).
+    pub no_calibration_because: Option<String>,
     /// What the flight's outputs are named after: the input's file stem,
     /// or, when two flights of a campaign share a stem, their path.
     pub output_name: String,
@@ -434,6 +438,7 @@ impl FlightJob {
             aircraft: None,
             calibration: false,
             assigned_model: None,
+            no_calibration_because: None,
         }
     }
 

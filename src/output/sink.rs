@@ -120,7 +120,14 @@ pub fn process_flight_listing(
     // Folders created here are not noted in the outputs: a caller that
     // tells its user calls `prepare` first.
     crate::formats::prepare(&inputs, &outputs.destinations())?;
-    let flight = crate::pipeline::run_metered(job, options, &outputs.compensated, meter)?;
+    let flight = crate::pipeline::run_metered(job, options, &outputs.compensated, meter).map_err(|error| {
+        match (error, &job.no_calibration_because) {
+            (crate::error::Error::NoCalibrationWindows { path }, Some(why)) => {
+                crate::error::Error::NoCampaignCalibration { path, why: why.clone() }
+            }
+            (error, _) => error,
+        }
+    })?;
     meter.begin(crate::messages::progress::Stage::Writing, 0);
     let written = write(&flight, options, outputs)?;
     Ok((flight.result, written))
