@@ -5,7 +5,10 @@
 //! ratio, the survey-line error against the simulation's truth (when a
 //! `<name>.truth.csv` sits beside the flight), and the fitted λ and method,
 //! with plain Tolles-Lawson; and with the default (`[diagnose] apply =
-//! "auto"`) the effects applied, the FOM after and the survey-line error.
+//! "auto"`, run as `magcomp run` runs it: only the findings its evidence
+//! rule applies) the effects applied, the FOM after and the survey-line
+//! error. The guide's table of them (docs/guide/src/sample-flights.md) is
+//! checked against these figures.
 //! `MAGCOMP_BLESS=1 cargo test --test sample_flights` rewrites the
 //! expected files (see sample_flights/regenerate.sh).
 //!
@@ -81,21 +84,10 @@ fn replay(pipeline: &Pipeline, job: &magcomp::config::FlightJob) -> Expected {
     };
     let models = common::fit_channels(&log, &sensor, (&channels, &windows), pipeline, &Default::default());
     let compensated = compensate(&log, &models, pipeline.settings.level).unwrap();
-    let calibration = magcomp::model::Calibration {
-        log: &log,
-        sensor: &sensor,
-        channels: &channels,
-        windows: &windows,
-    };
-    let diagnosis = magcomp::diagnose::diagnose(
-        &calibration,
-        &pipeline.settings.terms,
-        &pipeline.settings.fit,
-        &pipeline.settings.diagnose,
-    )
-    .unwrap();
-    let diagnosed = common::fit_channels(&log, &sensor, (&channels, &windows), pipeline, &diagnosis.models());
-    let diagnosed_compensated = compensate(&log, &diagnosed, pipeline.settings.level).unwrap();
+    // The default, as `run` makes it: the diagnosis, and only the findings
+    // its evidence rule applies.
+    let folder = tempfile::tempdir().unwrap();
+    let run = magcomp::pipeline::run(job, &pipeline.settings, &folder.path().join("out.csv")).unwrap();
     let truth = job.input.with_extension("truth.csv");
     let line_error = |channel: &str, values: &[f64]| {
         truth.exists().then(|| {
@@ -106,21 +98,28 @@ fn replay(pipeline: &Pipeline, job: &magcomp::config::FlightJob) -> Expected {
     let figures = models
         .iter()
         .zip(&compensated.channels)
-        .zip(diagnosed.iter().zip(&diagnosed_compensated.channels))
-        .map(|((model, channel), (diagnosed_model, diagnosed_channel))| {
+        .map(|(model, channel)| {
             let quality = assess_quality(&log, model, channel);
             let plain_line_error = line_error(&model.channel, &channel.values);
+            let default_quality = (run.result.channels.iter())
+                .find(|q| q.channel == model.channel)
+                .unwrap();
+            let default_values = &(run.compensation.channels.iter())
+                .find(|c| c.channel == model.channel)
+                .unwrap()
+                .values;
             let default = DefaultFigures {
-                effects: diagnosis
-                    .findings
-                    .iter()
+                effects: (run.result.diagnosis.iter())
+                    .flat_map(|d| d.findings.iter())
                     .filter(|f| f.channel == model.channel && f.effect.name() != "unexplained")
-                    .map(|f| f.effect.name().to_string())
+                    .filter(|f| f.not_applied.is_none())
+                    .map(|f| match &f.source {
+                        Some(source) => format!("{} ({source})", f.effect.name()),
+                        None => f.effect.name().to_string(),
+                    })
                     .collect(),
-                fom_after_nt: assess_quality(&log, diagnosed_model, diagnosed_channel)
-                    .fom_after_nt
-                    .unwrap_or(f64::NAN),
-                survey_line_error_nt: line_error(&model.channel, &diagnosed_channel.values),
+                fom_after_nt: default_quality.fom_after_nt.unwrap_or(f64::NAN),
+                survey_line_error_nt: line_error(&model.channel, default_values),
             };
             ChannelFigures {
                 channel: model.channel.clone(),
@@ -148,17 +147,56 @@ fn close(name: &str, got: f64, want: f64, relative: f64) {
     );
 }
 
+/// Where the guide's table of the sample flights' figures lies.
+const TABLE_START: &str = "<!-- figures: generated from sample_flights/expected by tests/sample_flights.rs -->\n";
+const TABLE_END: &str = "<!-- end of figures -->\n";
+
+/// The guide's table of every sample flight's channels: what the default
+/// applies, and the FOM after and the survey-line error against truth,
+/// plain Tolles-Lawson → the default.
+fn guide_table(flights: &[Expected]) -> String {
+    let mut table = String::from(
+        "| flight | channel | the default applies | FOM after, nT | survey-line error, nT |\n|---|---|---|---|---|\n",
+    );
+    for flight in flights {
+        for channel in &flight.channels {
+            let applied = match channel.default.effects.is_empty() {
+                true => "nothing (plain Tolles-Lawson)".to_string(),
+                false => channel.default.effects.join(", "),
+            };
+            let error = match (channel.survey_line_error_nt, channel.default.survey_line_error_nt) {
+                (Some(plain), Some(default)) => format!("{plain:.3} → {default:.3}"),
+                _ => "no truth".to_string(),
+            };
+            table += &format!(
+                "| {} | {} | {applied} | {:.2} → {:.2} | {error} |\n",
+                flight.flight, channel.channel, channel.fom_after_nt, channel.default.fom_after_nt
+            );
+        }
+    }
+    table
+}
+
+/// The guide's page with its table of figures made from `flights`.
+fn guide_with_table(page: &str, flights: &[Expected]) -> String {
+    let start = page.find(TABLE_START).expect("the sample flights' page marks its table") + TABLE_START.len();
+    let end = start + page[start..].find(TABLE_END).expect("the table's end is marked");
+    format!("{}{}{}", &page[..start], guide_table(flights), &page[end..])
+}
+
 #[test]
 fn every_sample_flight_replays_to_its_expected_figures() {
     let pipeline = Pipeline::load(&root().join("pipeline.toml")).unwrap();
     let bless = std::env::var_os("MAGCOMP_BLESS").is_some();
     assert!(pipeline.flights.len() >= 7, "pipeline.toml lists every sample flight");
+    let mut flights = Vec::new();
     for job in &pipeline.flights {
         let got = replay(&pipeline, job);
         let stem = job.input.file_stem().unwrap().to_string_lossy().into_owned();
         let path = root().join("sample_flights/expected").join(format!("{stem}.json"));
         if bless {
             std::fs::write(&path, serde_json::to_string_pretty(&got).unwrap() + "\n").unwrap();
+            flights.push(got);
             continue;
         }
         let text = std::fs::read_to_string(&path).unwrap_or_else(|_| {
@@ -198,5 +236,19 @@ fn every_sample_flight_replays_to_its_expected_figures() {
                 (a, b) => assert_eq!(a.is_some(), b.is_some(), "{}", name("λ")),
             }
         }
+        flights.push(want);
     }
+    // The guide's table is the expected figures' (rewritten when blessed).
+    let page_path = root().join("docs/guide/src/sample-flights.md");
+    let page = std::fs::read_to_string(&page_path).unwrap();
+    let made = guide_with_table(&page, &flights);
+    if bless {
+        std::fs::write(&page_path, made).unwrap();
+        return;
+    }
+    assert!(
+        page == made,
+        "docs/guide/src/sample-flights.md's table differs from the sample flights' figures; run sample_flights/regenerate.sh (or MAGCOMP_BLESS=1 cargo test --test sample_flights). The table should read:\n{}",
+        guide_table(&flights)
+    );
 }
