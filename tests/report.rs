@@ -271,6 +271,10 @@ fn a_three_hour_five_sensor_report_stays_within_its_size_budget() {
         std::fs::write(keep, &html).unwrap();
     }
     assert!(html.len() <= 2_000_000, "{} bytes", html.len());
+    // Ticks never read "-0", and every line's track is drawn under the
+    // map's dots.
+    assert!(!html.contains(">-0<") && !html.contains(">-0.0<"));
+    assert_eq!(html.matches("tracks in grey").count(), 5);
     assert_eq!(labels_out_of_bounds(&html), Vec::<String>::new());
     assert_eq!(html.matches("6 of the flight's 13 lines").count(), 5);
     assert_eq!(html.matches("class=\"profiles\"").count(), 5);

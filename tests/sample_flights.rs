@@ -179,7 +179,10 @@ fn guide_table(flights: &[Expected]) -> String {
 
 /// The guide's page with its table of figures made from `flights`.
 fn guide_with_table(page: &str, flights: &[Expected]) -> String {
-    let start = page.find(TABLE_START).expect("the sample flights' page marks its table") + TABLE_START.len();
+    let start = page
+        .find(TABLE_START)
+        .expect("the sample flights' page marks its table")
+        + TABLE_START.len();
     let end = start + page[start..].find(TABLE_END).expect("the table's end is marked");
     format!("{}{}{}", &page[..start], guide_table(flights), &page[end..])
 }

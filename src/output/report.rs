@@ -15,6 +15,7 @@ use std::path::Path;
 
 use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
+use plotters::style::text_anchor::{HPos, Pos, VPos};
 use serde::Serialize;
 
 use crate::diagnose::localise::ResidualTrace;
@@ -28,7 +29,7 @@ use crate::quality::{fourth_difference_noise, ChannelQuality, FomCell};
 
 /// Plot size, pixels.
 const WIDE: (u32, u32) = (900, 260);
-const SMALL: (u32, u32) = (290, 150);
+const SMALL: (u32, u32) = (290, 165);
 
 /// Noise of one survey line.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -131,6 +132,14 @@ fn span(values: impl Iterator<Item = f64>) -> std::ops::Range<f64> {
     low - pad..high + pad
 }
 
+/// An axis tick's label: the value rounded to a millionth, as short as
+/// it reads (53156.2, 0.25, 12), and never "-0".
+fn tick(value: &f64) -> String {
+    let rounded = (value * 1e6).round() / 1e6;
+    // -0.0 + 0.0 is 0.0.
+    format!("{}", rounded + 0.0)
+}
+
 /// `value` brought within one axis width of `range`: a point off the plot
 /// stays off it, but its pixel coordinate stays small (plotters adds pixel
 /// coordinates as 32-bit integers, which 1e308 would overflow).
@@ -226,37 +235,40 @@ fn box_timeline(log: &FlightLog, result: &FlightResult) -> Result<Option<String>
 }
 
 /// The heading panel over `time`: the `windows` shaded, the heading of
-/// `rows` wrapped to 0–360° and broken where it crosses north.
+/// `rows` wrapped to 360° from [`heading_cut`] and broken where it
+/// crosses the axis's ends.
 fn heading_panel(
     area: &DrawingArea<SVGBackend, plotters::coord::Shift>,
     (time, windows): (&std::ops::Range<f64>, &[(f64, f64)]),
     (t, rows, heading): (&[f64], &[usize], Option<&[f64]>),
     shade: &ShapeStyle,
 ) -> Result<()> {
+    let cut = heading_cut(rows.iter().filter_map(|&k| heading.map(|h| h[k])));
+    let axis = cut..cut + 360.0;
     let mut chart = ChartBuilder::on(area)
         .margin(6)
         .x_label_area_size(18)
         .y_label_area_size(45)
-        .build_cartesian_2d(time.clone(), 0.0..360.0)
+        .build_cartesian_2d(time.clone(), axis.clone())
         .map_err(plot_error)?;
-    (chart.configure_mesh())
+    (chart.configure_mesh().x_label_formatter(&tick))
+        .y_labels(0)
+        .disable_y_mesh()
         .y_desc("heading, °")
-        .y_labels(5)
         .draw()
         .map_err(plot_error)?;
+    compass_ticks(area, &mut chart, (time, cut))?;
     chart
         .draw_series(
             windows
                 .iter()
-                .map(|&(a, b)| Rectangle::new([(near(time, a), 0.0), (near(time, b), 360.0)], *shade)),
+                .map(|&(a, b)| Rectangle::new([(near(time, a), axis.start), (near(time, b), axis.end)], *shade)),
         )
         .map_err(plot_error)?;
     if let Some(heading) = heading {
-        let points = decimated(rows.iter().map(|&k| (t[k], heading[k].rem_euclid(360.0))));
-        for piece in split_at_wraps(&points) {
-            chart
-                .draw_series(LineSeries::new(piece.to_vec(), BLACK))
-                .map_err(plot_error)?;
+        let points = decimated(rows.iter().map(|&k| (t[k], cut + (heading[k] - cut).rem_euclid(360.0))));
+        for piece in split_at_wraps(&points, cut) {
+            chart.draw_series(LineSeries::new(piece, BLACK)).map_err(plot_error)?;
         }
     }
     Ok(())
@@ -310,7 +322,7 @@ fn pitch_roll_panel(
         .y_label_area_size(45)
         .build_cartesian_2d(time.clone(), y.clone())
         .map_err(plot_error)?;
-    (chart.configure_mesh())
+    (chart.configure_mesh().x_label_formatter(&tick).y_label_formatter(&tick))
         .x_desc("time, s")
         .y_desc("pitch, roll, °")
         .draw()
@@ -329,18 +341,75 @@ fn pitch_roll_panel(
     Ok(())
 }
 
-/// A heading trace cut where it wraps across north (a step of more than
-/// 180°), so no line is drawn across the panel.
-fn split_at_wraps(points: &[(f64, f64)]) -> Vec<&[(f64, f64)]> {
-    let mut pieces = Vec::new();
-    let mut start = 0;
-    for k in 1..points.len() {
-        if (points[k].1 - points[k - 1].1).abs() > 180.0 {
-            pieces.push(&points[start..k]);
-            start = k;
+/// The heading panel's grid and labels at every 90° from `cut` (its
+/// axis's start), labelled as compass headings (0–360°), in `area`'s
+/// label margin left of `chart`'s plot over `time`.
+fn compass_ticks(
+    area: &DrawingArea<SVGBackend, plotters::coord::Shift>,
+    chart: &mut ChartContext<SVGBackend, Cartesian2d<RangedCoordf64, RangedCoordf64>>,
+    (time, cut): (&std::ops::Range<f64>, f64),
+) -> Result<()> {
+    let levels: Vec<f64> = (0..5).map(|k| cut + 90.0 * f64::from(k)).collect();
+    (chart.draw_series(
+        levels
+            .iter()
+            .map(|&v| PathElement::new(vec![(time.start, v), (time.end, v)], RGBColor(200, 200, 200))),
+    ))
+    .map_err(plot_error)?;
+    let base = area.get_base_pixel();
+    let style = TextStyle::from(("sans-serif", 11).into_font()).pos(Pos::new(HPos::Right, VPos::Center));
+    for &v in &levels {
+        let (x, y) = chart.backend_coord(&(time.start, v));
+        let at = (x - base.0 - 6, y - base.1);
+        area.draw(&Text::new(tick(&v.rem_euclid(360.0)), at, style.clone()))
+            .map_err(plot_error)?;
+    }
+    Ok(())
+}
+
+/// Where the heading panel's axis begins, degrees: the one of north,
+/// east, south and west with the fewest of the `headings` within 15° of
+/// it (north on a tie), so the lines flown are drawn whole, not along both
+/// edges of the panel.
+fn heading_cut(headings: impl Iterator<Item = f64>) -> f64 {
+    let mut near = [0_usize; 4];
+    for heading in headings.filter(|h| h.is_finite()) {
+        for (k, count) in near.iter_mut().enumerate() {
+            let apart = (heading - 90.0 * k as f64).rem_euclid(360.0);
+            *count += usize::from(apart.min(360.0 - apart) < 15.0);
         }
     }
-    pieces.push(&points[start..]);
+    let best = (0..4).min_by_key(|&k| (near[k], k)).unwrap_or(0);
+    90.0 * best as f64
+}
+
+/// A heading trace on an axis from `cut` to `cut` + 360°, cut where it
+/// wraps across the axis's ends (a step of more than 180°), each piece
+/// carried to the panel's edge where it crosses, and no line drawn
+/// across the panel.
+fn split_at_wraps(points: &[(f64, f64)], cut: f64) -> Vec<Vec<(f64, f64)>> {
+    let mut pieces = Vec::new();
+    let mut piece: Vec<(f64, f64)> = Vec::new();
+    for (k, &point) in points.iter().enumerate() {
+        if let Some(&(t0, h0)) = k.checked_sub(1).map(|j| &points[j]) {
+            let step = point.1 - h0;
+            if step.abs() > 180.0 {
+                // Unwrapped, the heading goes from h0 to h1 through north
+                // (360° going up, 0° going down).
+                let (edge, other, unwrapped) = match step < 0.0 {
+                    true => (cut + 360.0, cut, point.1 + 360.0),
+                    false => (cut, cut + 360.0, point.1 - 360.0),
+                };
+                let fraction = (edge - h0) / (unwrapped - h0);
+                let t = t0 + fraction.clamp(0.0, 1.0) * (point.0 - t0);
+                piece.push((t, edge));
+                pieces.push(std::mem::take(&mut piece));
+                piece.push((t, other));
+            }
+        }
+        piece.push(point);
+    }
+    pieces.push(piece);
     pieces
 }
 
@@ -355,12 +424,14 @@ fn manoeuvre_plot(model: &FittedModel, index: usize) -> Result<String> {
         let mut chart = ChartBuilder::on(root)
             .caption(&label, ("sans-serif", 12))
             .margin(4)
-            .x_label_area_size(16)
-            .y_label_area_size(36)
+            .x_label_area_size(30)
+            .y_label_area_size(40)
             .build_cartesian_2d(0.0..n, y.clone())
             .map_err(plot_error)?;
         chart
             .configure_mesh()
+            .x_label_formatter(&tick)
+            .y_label_formatter(&tick)
             .disable_x_mesh()
             .x_labels(3)
             .y_labels(4)
@@ -401,12 +472,14 @@ fn press_plot(model: &FittedModel) -> Result<String> {
         let mut chart = ChartBuilder::on(root)
             .caption("PRESS against log10 λ (chosen λ marked)", ("sans-serif", 13))
             .margin(6)
-            .x_label_area_size(28)
-            .y_label_area_size(45)
+            .x_label_area_size(36)
+            .y_label_area_size(50)
             .build_cartesian_2d(x.clone(), y.clone())
             .map_err(plot_error)?;
         chart
             .configure_mesh()
+            .x_label_formatter(&tick)
+            .y_label_formatter(&tick)
             .x_desc("log10 λ")
             .y_desc("log10 PRESS, nT²")
             .draw()
@@ -439,11 +512,17 @@ fn singular_value_plot(model: &FittedModel) -> Result<String> {
         let mut chart = ChartBuilder::on(root)
             .caption("Singular values (log10, scaled design)", ("sans-serif", 13))
             .margin(6)
-            .x_label_area_size(28)
-            .y_label_area_size(40)
+            .x_label_area_size(36)
+            .y_label_area_size(45)
             .build_cartesian_2d(0.5..values.len() as f64 + 0.5, y.clone())
             .map_err(plot_error)?;
-        chart.configure_mesh().x_desc("index").draw().map_err(plot_error)?;
+        chart
+            .configure_mesh()
+            .x_label_formatter(&tick)
+            .y_label_formatter(&tick)
+            .x_desc("index")
+            .draw()
+            .map_err(plot_error)?;
         chart
             .draw_series(
                 values
@@ -466,9 +545,12 @@ fn local_metres((lat, lon): (f64, f64), (lat0, lon0): (f64, f64)) -> (f64, f64) 
     (east, north)
 }
 
-/// The map's size and the width its colour bar takes from it, pixels.
-const MAP: (u32, u32) = (560, 460);
-const COLOUR_BAR_WIDTH: u32 = 95;
+/// The map's width, the width its colour bar takes from it, and the
+/// least and most height of its plotting area, pixels: the height follows
+/// the block's shape between them.
+const MAP_WIDTH: u32 = 900;
+const COLOUR_BAR_WIDTH: u32 = 120;
+const MAP_PLOT_HEIGHT: (u32, u32) = (240, 640);
 
 /// The anomaly's colour, blue (`low`) to red (`high`), nT.
 fn anomaly_colour(v: f64, (low, high): (f64, f64)) -> RGBColor {
@@ -488,9 +570,16 @@ fn map_chart<'a, 'b>(
     area: &'a DrawingArea<SVGBackend<'b>, plotters::coord::Shift>,
     x: std::ops::Range<f64>,
     y: std::ops::Range<f64>,
+    stretch: f64,
 ) -> Result<MapChart<'a, 'b>> {
+    let caption = match stretch > 1.0 {
+        true => {
+            format!("Survey lines: compensated anomaly (north stretched ×{stretch:.1} to show a long, narrow block)")
+        }
+        false => "Survey lines: compensated anomaly, tracks in grey".to_string(),
+    };
     ChartBuilder::on(area)
-        .caption("Survey lines: compensated anomaly", ("sans-serif", 13))
+        .caption(caption, ("sans-serif", 13))
         .margin(6)
         .x_label_area_size(30)
         .y_label_area_size(60)
@@ -499,17 +588,56 @@ fn map_chart<'a, 'b>(
 }
 
 /// `x` and `y` widened about their centres to one scale, metres per pixel,
-/// for a plot of `pixels`: a kilometre east as long as one north.
-fn equal_scale(
+/// for a plot of `pixels`, a kilometre north drawn `stretch` times as long
+/// as one east (1: one scale).
+fn stretched_scale(
     (x, y): (std::ops::Range<f64>, std::ops::Range<f64>),
     pixels: (u32, u32),
+    stretch: f64,
 ) -> (std::ops::Range<f64>, std::ops::Range<f64>) {
-    let scale = ((x.end - x.start) / f64::from(pixels.0.max(1))).max((y.end - y.start) / f64::from(pixels.1.max(1)));
-    let about = |r: &std::ops::Range<f64>, px: u32| {
-        let (centre, half) = ((r.start + r.end) / 2.0, scale * f64::from(px) / 2.0);
+    let (width, height) = (f64::from(pixels.0.max(1)), f64::from(pixels.1.max(1)));
+    // Metres east per pixel; north, a stretch-th of that.
+    let scale = ((x.end - x.start) / width).max(stretch * (y.end - y.start) / height);
+    let about = |r: &std::ops::Range<f64>, half: f64| {
+        let centre = (r.start + r.end) / 2.0;
         (centre - half)..(centre + half)
     };
-    (about(&x, pixels.0), about(&y, pixels.1))
+    (
+        about(&x, scale * width / 2.0),
+        about(&y, scale / stretch * height / 2.0),
+    )
+}
+
+/// The map's canvas for a block `east` × `north` metres across: its size,
+/// pixels, and how much north is stretched (1 unless the block is so long
+/// and narrow that at one scale its plot would be under
+/// [`MAP_PLOT_HEIGHT`]'s least).
+fn map_canvas(east: f64, north: f64) -> Result<((u32, u32), f64)> {
+    // The caption, margins and east axis take the same pixels whatever
+    // the canvas's height.
+    let scratch_height = 2 * MAP_PLOT_HEIGHT.1;
+    let (plot_width, plot_height) = map_pixels((MAP_WIDTH, scratch_height))?;
+    let frame = scratch_height.saturating_sub(plot_height);
+    let aspect = match east > 0.0 {
+        true => north.max(0.0) / east,
+        false => 1.0,
+    };
+    let wanted = aspect * f64::from(plot_width);
+    let (least, most) = (f64::from(MAP_PLOT_HEIGHT.0), f64::from(MAP_PLOT_HEIGHT.1));
+    let height = wanted.clamp(least, most);
+    let stretch = match wanted > 0.0 && wanted < least {
+        true => least / wanted,
+        false => 1.0,
+    };
+    // A block taller than wide is drawn narrower, not with empty sides.
+    let width = match wanted > most {
+        true => {
+            let frame_width = MAP_WIDTH - plot_width;
+            ((most / aspect).round() as u32 + frame_width).max(MAP_WIDTH / 2)
+        }
+        false => MAP_WIDTH,
+    };
+    Ok(((width, height.round() as u32 + frame), stretch))
 }
 
 /// Metres east and north of the centre of `rows`' positions (latitude and
@@ -527,13 +655,13 @@ fn east_north(rows: &[usize], (lat, lon): (&[f64], &[f64])) -> (Vec<f64>, Vec<f6
     (east, north)
 }
 
-/// The map's plotting area in pixels. It does not depend on the map's
-/// ranges: measured on a scratch canvas, it sets the one scale.
-fn map_pixels() -> Result<(u32, u32)> {
+/// The plotting area of a map of `size` in pixels. It does not depend on
+/// the map's ranges: measured on a scratch canvas, it sets the one scale.
+fn map_pixels(size: (u32, u32)) -> Result<(u32, u32)> {
     let mut scratch = String::new();
-    let root = SVGBackend::with_string(&mut scratch, MAP).into_drawing_area();
-    let (area, _) = root.split_horizontally(MAP.0 - COLOUR_BAR_WIDTH);
-    let chart = map_chart(&area, 0.0..1.0, 0.0..1.0)?;
+    let root = SVGBackend::with_string(&mut scratch, size).into_drawing_area();
+    let (area, _) = root.split_horizontally(size.0 - COLOUR_BAR_WIDTH);
+    let chart = map_chart(&area, 0.0..1.0, 0.0..1.0, 1.0)?;
     let pixels = chart.plotting_area().dim_in_pixel();
     Ok(pixels)
 }
@@ -577,19 +705,24 @@ fn line_map(log: &FlightLog, values: &[f64]) -> Result<Option<String>> {
     }
     let (level, range) = anomaly_scale(rows.iter().map(|&k| values[k]).collect());
     let (east, north) = east_north(&rows, (&lat.values, &lon.values));
-    let pixels = map_pixels()?;
-    let (x, y) = equal_scale(
-        (
-            span(rows.iter().map(|&k| east[k])),
-            span(rows.iter().map(|&k| north[k])),
-        ),
-        pixels,
+    let extent = (
+        span(rows.iter().map(|&k| east[k])),
+        span(rows.iter().map(|&k| north[k])),
     );
-    // One dot (4 px across) for each 6 × 6 pixel cell a line crosses.
-    let drawn = one_per_cell(&rows, (&east, &north), (&x, &y), (pixels.0 / 6, pixels.1 / 6));
-    let map = svg(MAP, |root| {
-        let (area, bar) = root.split_horizontally(MAP.0 - COLOUR_BAR_WIDTH);
-        draw_line_dots(&area, (&x, &y), (&drawn, &east, &north), (values, level, range))?;
+    let (size, stretch) = map_canvas(extent.0.end - extent.0.start, extent.1.end - extent.1.start)?;
+    let pixels = map_pixels(size)?;
+    let (x, y) = stretched_scale(extent, pixels, stretch);
+    // One dot (4 px across) for each 8 × 8 pixel cell a line crosses.
+    let drawn = one_per_cell(&rows, (&east, &north), (&x, &y), (pixels.0 / 8, pixels.1 / 8));
+    let tracks = line_tracks(log, (&east, &north));
+    let map = svg(size, |root| {
+        let (area, bar) = root.split_horizontally(size.0 - COLOUR_BAR_WIDTH);
+        let mut chart = map_chart(&area, x.clone(), y.clone(), stretch)?;
+        for track in &tracks {
+            let points = on_canvas(track.iter().copied(), &x, &y);
+            (chart.draw_series(LineSeries::new(points, RGBColor(170, 170, 170)))).map_err(plot_error)?;
+        }
+        draw_line_dots(&mut chart, (&drawn, &east, &north), (values, level, range))?;
         colour_bar(&bar, range)
     })?;
     Ok(Some(map))
@@ -598,18 +731,14 @@ fn line_map(log: &FlightLog, values: &[f64]) -> Result<Option<String>> {
 /// The map's dots: each of the `drawn` samples at its metres east and
 /// north, coloured by its anomaly (value less `level`) over `range`, nT.
 fn draw_line_dots(
-    area: &DrawingArea<SVGBackend, plotters::coord::Shift>,
-    (x, y): (&std::ops::Range<f64>, &std::ops::Range<f64>),
+    chart: &mut MapChart,
     (drawn, east, north): (&[usize], &[f64], &[f64]),
     (values, level, range): (&[f64], f64, (f64, f64)),
 ) -> Result<()> {
-    let mut chart = map_chart(area, x.clone(), y.clone())?;
-    (chart.configure_mesh())
+    (chart.configure_mesh().x_label_formatter(&tick).y_label_formatter(&tick))
         .max_light_lines(0)
         .x_labels(6)
         .y_labels(8)
-        .x_label_formatter(&|v| format!("{v:.0}"))
-        .y_label_formatter(&|v| format!("{v:.0}"))
         .x_desc("east, m")
         .y_desc("north, m")
         .draw()
@@ -626,6 +755,24 @@ fn draw_line_dots(
     Ok(())
 }
 
+/// Points of each line's track (tie lines too) a map draws at most.
+const TRACK_POINTS: usize = 60;
+
+/// Each survey line's track, metres east and north, thinned to
+/// [`TRACK_POINTS`]: drawn under the dots, so a line or a tie crossing
+/// the block shows where the dots of others hide it.
+fn line_tracks(log: &FlightLog, (east, north): (&[f64], &[f64])) -> Vec<Vec<(f64, f64)>> {
+    (log.survey_lines().iter())
+        .map(|(_, rows)| {
+            let step = rows.len().div_ceil(TRACK_POINTS).max(1);
+            (rows.iter().step_by(step))
+                .map(|&k| (east[k], north[k]))
+                .filter(|(e, n)| e.is_finite() && n.is_finite())
+                .collect()
+        })
+        .collect()
+}
+
 /// The map's colour bar: the anomaly's colours from `low` to `high`, nT.
 fn colour_bar(area: &DrawingArea<SVGBackend, plotters::coord::Shift>, (low, high): (f64, f64)) -> Result<()> {
     let high = if high > low { high } else { low + 1e-9 };
@@ -633,10 +780,10 @@ fn colour_bar(area: &DrawingArea<SVGBackend, plotters::coord::Shift>, (low, high
         .margin_top(30)
         .margin_bottom(36)
         .margin_right(8)
-        .y_label_area_size(50)
+        .y_label_area_size(75)
         .build_cartesian_2d(0.0..1.0, low..high)
         .map_err(plot_error)?;
-    (chart.configure_mesh())
+    (chart.configure_mesh().x_label_formatter(&tick).y_label_formatter(&tick))
         .disable_x_mesh()
         .disable_y_mesh()
         .disable_x_axis()
@@ -700,8 +847,8 @@ const MOST_PROFILES: usize = 6;
 const PROFILE_POINTS: usize = 450;
 
 /// Each survey line's profile (up to [`MOST_PROFILES`]): the channel before
-/// (grey) and after (blue) compensation, each less its median over the
-/// line, against the time since the line began; `None` without lines. The
+/// (grey) and after (blue) compensation, each less its regional trend (a
+/// straight line fitted along the line), against the time since the line began; `None` without lines. The
 /// second value says how many lines the flight has.
 fn line_profiles(log: &FlightLog, before: &[f64], after: &[f64]) -> Result<Option<(String, usize)>> {
     let lines = log.survey_lines();
@@ -719,7 +866,7 @@ fn line_profiles(log: &FlightLog, before: &[f64], after: &[f64]) -> Result<Optio
     let height = PANEL_HEIGHT * shown.len() as u32 + 24;
     let plot = svg((WIDE.0, height), |root| {
         let root = (root.titled(
-            "Survey lines: before (grey) and after (blue), each less its median on the line",
+            "Survey lines: before (grey) and after (blue), each less its straight-line regional trend along the line",
             ("sans-serif", 14),
         ))
         .map_err(plot_error)?;
@@ -732,7 +879,7 @@ fn line_profiles(log: &FlightLog, before: &[f64], after: &[f64]) -> Result<Optio
 }
 
 /// One panel of [`line_profiles`]: line `number`'s samples (`rows`) before
-/// and after compensation, each less its median over the line, nT, against
+/// and after compensation, each less its regional trend, nT, against
 /// the time since the line began, s.
 fn line_profile_panel(
     panel: &DrawingArea<SVGBackend, plotters::coord::Shift>,
@@ -742,11 +889,10 @@ fn line_profile_panel(
 ) -> Result<()> {
     let start = time[rows[0]];
     let relative = |values: &[f64]| -> Vec<(f64, f64)> {
-        let mut finite: Vec<f64> = rows.iter().map(|&k| values[k]).filter(|v| v.is_finite()).collect();
-        finite.sort_by(f64::total_cmp);
-        let median = finite.get(finite.len() / 2).copied().unwrap_or(0.0);
+        let trend = regional_trend(rows.iter().map(|&k| (time[k] - start, values[k])));
         decimated_to(
-            rows.iter().map(|&k| (time[k] - start, values[k] - median)),
+            rows.iter()
+                .map(|&k| (time[k] - start, values[k] - trend(time[k] - start))),
             PROFILE_POINTS,
         )
     };
@@ -759,7 +905,7 @@ fn line_profile_panel(
         .y_label_area_size(55)
         .build_cartesian_2d(x.clone(), y.clone())
         .map_err(plot_error)?;
-    (chart.configure_mesh())
+    (chart.configure_mesh().x_label_formatter(&tick).y_label_formatter(&tick))
         .max_light_lines(0)
         .x_desc(format!("line {number}: time since its start, s"))
         .y_desc("nT")
@@ -772,6 +918,25 @@ fn line_profile_panel(
             .map_err(plot_error)?;
     }
     Ok(())
+}
+
+/// The straight line fitted by least squares to a profile's finite
+/// `points` (time, value): the regional gradient along the line, which
+/// would otherwise span the panel and hide what compensation changed. A
+/// profile of one point or none has its value (or 0) as its trend.
+fn regional_trend(points: impl Iterator<Item = (f64, f64)>) -> impl Fn(f64) -> f64 {
+    let points: Vec<(f64, f64)> = points.filter(|(t, v)| t.is_finite() && v.is_finite()).collect();
+    let n = points.len().max(1) as f64;
+    let (mean_t, mean_v) = (
+        points.iter().map(|p| p.0).sum::<f64>() / n,
+        points.iter().map(|p| p.1).sum::<f64>() / n,
+    );
+    let spread: f64 = points.iter().map(|p| (p.0 - mean_t).powi(2)).sum();
+    let slope = match spread > 0.0 {
+        true => points.iter().map(|p| (p.0 - mean_t) * (p.1 - mean_v)).sum::<f64>() / spread,
+        false => 0.0,
+    };
+    move |t| mean_v + slope * (t - mean_t)
 }
 
 /// Fourth-difference noise of each survey line, before and after.
@@ -1152,12 +1317,14 @@ fn residual_plot(trace: &ResidualTrace, marked: &[(f64, f64)]) -> Result<String>
         let mut chart = ChartBuilder::on(root)
             .caption(&trace.label, ("sans-serif", 12))
             .margin(4)
-            .x_label_area_size(16)
-            .y_label_area_size(36)
+            .x_label_area_size(30)
+            .y_label_area_size(40)
             .build_cartesian_2d(x.clone(), y.clone())
             .map_err(plot_error)?;
         chart
             .configure_mesh()
+            .x_label_formatter(&tick)
+            .y_label_formatter(&tick)
             .disable_x_mesh()
             .x_labels(3)
             .y_labels(4)
@@ -1671,7 +1838,12 @@ mod tests {
                     .y_label_area_size(40)
                     .build_cartesian_2d(x.clone(), y.clone())
                     .map_err(plot_error)?;
-                chart.configure_mesh().draw().map_err(plot_error)?;
+                chart
+                    .configure_mesh()
+                    .x_label_formatter(&tick)
+                    .y_label_formatter(&tick)
+                    .draw()
+                    .map_err(plot_error)?;
                 // A point far off the plot, as a 1e308 sample would be.
                 let points = on_canvas([(x.start, y.start), (x.end, 1e308), (-1e308, y.end)], &x, &y);
                 chart.draw_series(LineSeries::new(points, BLUE)).map_err(plot_error)?;
@@ -1694,7 +1866,7 @@ mod tests {
         assert!((east - 55_597.5).abs() < 1.0 && north.abs() < 1e-9, "{east}");
         // 1 km east and 6 km north on a 400 × 300 pixel plot: one scale,
         // both spans kept whole, centred where they were.
-        let (x, y) = equal_scale((0.0..1000.0, -3000.0..3000.0), (400, 300));
+        let (x, y) = stretched_scale((0.0..1000.0, -3000.0..3000.0), (400, 300), 1.0);
         let scale = ((x.end - x.start) / 400.0, (y.end - y.start) / 300.0);
         assert!(
             (scale.0 - scale.1).abs() < 1e-12 && (scale.1 - 20.0).abs() < 1e-12,
@@ -1702,6 +1874,95 @@ mod tests {
         );
         assert!(x.start <= 0.0 && x.end >= 1000.0 && ((x.start + x.end) / 2.0 - 500.0).abs() < 1e-9);
         assert_eq!(y, -3000.0..3000.0);
+    }
+
+    #[test]
+    fn a_long_narrow_block_gets_a_legible_map_and_says_it_is_stretched() {
+        // 30 km east by 3.5 km north: at one scale the plot would be about
+        // 90 pixels tall; it is drawn at the least height, north stretched.
+        let ((width, height), stretch) = map_canvas(30_000.0, 3_500.0).unwrap();
+        let plot = map_pixels((width, height)).unwrap();
+        assert_eq!(width, MAP_WIDTH);
+        assert!(
+            (f64::from(plot.1) - f64::from(MAP_PLOT_HEIGHT.0)).abs() <= 2.0,
+            "{plot:?}"
+        );
+        let expected = f64::from(MAP_PLOT_HEIGHT.0) / (3_500.0 / 30_000.0 * f64::from(plot.0));
+        assert!(
+            (stretch - expected).abs() < 0.01 && stretch > 2.0,
+            "{stretch} against {expected}"
+        );
+        let (x, y) = stretched_scale((0.0..30_000.0, 0.0..3_500.0), plot, stretch);
+        let (east_per_pixel, north_per_pixel) = (
+            (x.end - x.start) / f64::from(plot.0),
+            (y.end - y.start) / f64::from(plot.1),
+        );
+        assert!((east_per_pixel / north_per_pixel - stretch).abs() < 1e-9);
+        assert!(x.start <= 0.0 && x.end >= 30_000.0 && y.start <= 0.0 && y.end >= 3_500.0);
+        // A square block is drawn at one scale, as tall as it is wide up to
+        // the most height.
+        let (size, stretch) = map_canvas(10_000.0, 10_000.0).unwrap();
+        assert_eq!((map_pixels(size).unwrap().1, stretch), (MAP_PLOT_HEIGHT.1, 1.0));
+    }
+
+    #[test]
+    fn a_heading_trace_wraps_at_north_to_the_panel_edges() {
+        // 350° → 10° going up through north, then back down through it.
+        let points = [(0.0, 350.0), (1.0, 10.0), (2.0, 20.0), (3.0, 355.0)];
+        let pieces = split_at_wraps(&points, 0.0);
+        assert_eq!(pieces.len(), 3, "{pieces:?}");
+        assert_eq!(pieces[0], vec![(0.0, 350.0), (0.5, 360.0)]);
+        assert_eq!(pieces[1], vec![(0.5, 0.0), (1.0, 10.0), (2.0, 20.0), (2.8, 0.0)]);
+        assert_eq!(pieces[2], vec![(2.8, 360.0), (3.0, 355.0)]);
+        // Without a crossing, one piece as it was.
+        assert_eq!(split_at_wraps(&points[1..3], 0.0), vec![points[1..3].to_vec()]);
+        // On an axis from 180° (south) through north to 180°, the same
+        // crossing of north is no wrap, and a crossing of south is.
+        let through_north = [(0.0, 350.0), (1.0, 370.0)];
+        assert_eq!(split_at_wraps(&through_north, 180.0).len(), 1);
+        let through_south = [(0.0, 530.0), (1.0, 190.0)];
+        let pieces = split_at_wraps(&through_south, 180.0);
+        assert_eq!(pieces.len(), 2);
+        assert_eq!(pieces[0].last(), Some(&(0.5, 540.0)));
+        assert_eq!(pieces[1].first(), Some(&(0.5, 180.0)));
+        // The axis's ends go where no line is flown: east for lines flown
+        // north and south (west if east is flown), north for east-west.
+        assert_eq!(heading_cut([359.0, 1.0, 0.5, 180.0].into_iter()), 90.0);
+        assert_eq!(heading_cut([90.0, 270.0, 2.0].into_iter()), 180.0);
+        assert_eq!(heading_cut([90.0, 270.0, 178.0].into_iter()), 0.0);
+        assert_eq!(heading_cut([0.0, 180.0, 95.0].into_iter()), 270.0);
+    }
+
+    #[test]
+    fn ticks_read_short_and_never_minus_zero() {
+        for (value, label) in [
+            (-0.0, "0"),
+            (-1e-13, "0"),
+            (0.30000000000000004, "0.3"),
+            (-2000.0, "-2000"),
+            (53156.2, "53156.2"),
+            (0.0125, "0.0125"),
+        ] {
+            assert_eq!(tick(&value), label, "{value}");
+        }
+    }
+
+    #[test]
+    fn a_profile_s_regional_trend_is_its_least_squares_line() {
+        // 3 nT/s along the line and a 2 nT sine about it: the trend is the
+        // line, the sine is what is left.
+        let points: Vec<(f64, f64)> = (0..=400)
+            .map(|k| {
+                let t = f64::from(k) * 0.1;
+                (t, 100.0 + 3.0 * t + 2.0 * (t * std::f64::consts::PI).sin())
+            })
+            .collect();
+        let trend = regional_trend(points.iter().copied());
+        // The sine's own slope over 20 periods, −1/(π·133) nT/s, moves the
+        // ends by under 0.1 nT.
+        assert!((trend(0.0) - 100.0).abs() < 0.1 && (trend(40.0) - 220.0).abs() < 0.1);
+        let single = regional_trend(std::iter::once((5.0, 7.0)));
+        assert_eq!(single(100.0), 7.0);
     }
 
     #[test]
