@@ -278,3 +278,88 @@ fn may_not_transfer_is_said_only_where_the_survey_or_a_second_box_bears_it_out()
         }
     }
 }
+
+/// On a flight with two fluxgates each channel says which it used and what
+/// each would give held out: two alike (no aircraft field or calibration
+/// error of their own) are immaterial, and a fluxgate 300 times noisier,
+/// chosen with `--vector`, is named as the worse choice, with the better
+/// one. (A fluxgate's own aircraft field, hundreds of nT, the 16 terms
+/// absorb: on the real flights the choice was immaterial.)
+#[test]
+fn each_channel_says_which_fluxgate_it_used_and_whether_another_holds_out_better() {
+    use magcomp::simulate::scenario::Fluxgate;
+    for seed in [44_u64, 5_150] {
+        let folder = tempfile::tempdir().unwrap();
+        let fly = |noisy: bool, name: &str| {
+            let mut raw = RawScenario {
+                seed,
+                ..RawScenario::default()
+            };
+            raw.survey.line_count = 1;
+            // Two fluxgates without an aircraft field or calibration error
+            // of their own differ only in their noise and where they sit.
+            let ideal = Fluxgate {
+                permanent_nt: 0.0,
+                induced: 0.0,
+                scale_error: 0.0,
+                non_orthogonality_deg: 0.0,
+                offset_nt: 0.0,
+                ..Fluxgate::default()
+            };
+            let second = Fluxgate {
+                name: "flux_b".into(),
+                position_m: [2.0, 0.5, -0.2],
+                ..ideal.clone()
+            };
+            let second = match noisy {
+                true => Fluxgate {
+                    noise_nt: 30.0,
+                    ..second
+                },
+                false => second,
+            };
+            raw.fluxgate = vec![ideal, second];
+            let flight = magcomp::simulate::simulate(&Scenario::try_from(raw).unwrap()).unwrap();
+            let path = folder.path().join(name);
+            magcomp::formats::write_flight_log(&flight.log, &path).unwrap();
+            path
+        };
+        let mut plain = Settings::default();
+        plain.diagnose.apply = magcomp::diagnose::ApplyDiagnosis::Never;
+        let alike = run_with(&fly(false, "alike.csv"), &folder.path().join("alike"), plain.clone());
+        for quality in &alike.channels {
+            let comparison = quality.fluxgates.as_ref().unwrap();
+            println!("seed {seed} alike: {}", comparison.describe());
+            assert_eq!(comparison.used, "flux_a");
+            assert_eq!(comparison.held_out.len(), 2);
+            assert!(comparison.better().is_none());
+            assert!(comparison.describe().contains("the choice is immaterial"));
+        }
+        assert!(!alike
+            .warnings
+            .iter()
+            .any(|w| matches!(w, Warning::FluxgateBetter { .. })));
+        let path = fly(true, "worse.csv");
+        let job = FlightJob {
+            vector: Some("flux_b".into()),
+            ..FlightJob::new(path.clone())
+        };
+        let outputs = FlightOutputs::in_directory(&folder.path().join("worse"), &path);
+        let worse = process_flight(&job, &plain, &outputs).unwrap();
+        for quality in &worse.channels {
+            println!(
+                "seed {seed} worse {}: {}",
+                quality.channel,
+                quality.fluxgates.as_ref().unwrap().describe()
+            );
+        }
+        let cabin = &worse.channels[1];
+        let comparison = cabin.fluxgates.as_ref().unwrap();
+        assert_eq!(comparison.used, "flux_b");
+        assert_eq!(comparison.better().unwrap().fluxgate, "flux_a");
+        assert!(worse.warnings.iter().any(|w| matches!(
+            w,
+            Warning::FluxgateBetter { channel, comparison } if channel == "mag_2_uc" && comparison.contains("--vector flux_a")
+        )));
+    }
+}

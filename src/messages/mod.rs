@@ -496,6 +496,15 @@ pub enum Warning {
         /// samples kept").
         manoeuvres: Vec<String>,
     },
+    /// Another fluxgate's plain Tolles-Lawson holds out better than the
+    /// one the channel's terms were built from, by more than
+    /// [`crate::quality::transfer::FLUXGATE_MATERIAL`].
+    FluxgateBetter {
+        /// The scalar channel.
+        channel: String,
+        /// The comparison, in words.
+        comparison: String,
+    },
     /// The solver the settings ask for was not used.
     SolverNotUsed {
         /// The scalar channel.
@@ -900,6 +909,7 @@ impl Warning {
             | Warning::NoUncertainty { channel, .. }
             | Warning::BoxGap { channel, .. }
             | Warning::ManoeuvresCut { channel, .. }
+            | Warning::FluxgateBetter { channel, .. }
             | Warning::SolverNotUsed { channel, .. }
             | Warning::FomAboveLimit { channel, .. }
             | Warning::NoiseRaised { channel, .. }
@@ -966,6 +976,7 @@ impl fmt::Display for Warning {
             | Warning::NoUncertainty { .. }
             | Warning::BoxGap { .. }
             | Warning::ManoeuvresCut { .. }
+            | Warning::FluxgateBetter { .. }
             | Warning::SolverNotUsed { .. } => self.write_fit(f),
         }
     }
@@ -1152,6 +1163,7 @@ impl Warning {
             ),
             Warning::NoUncertainty { channel, why } => write!(f, "{channel}: no uncertainty figure: {why}"),
             Warning::BoxGap { channel, gap } => write!(f, "{channel}: {gap}"),
+            Warning::FluxgateBetter { channel, comparison } => write!(f, "{channel}: {comparison}"),
             Warning::ManoeuvresCut { channel, manoeuvres } => write!(
                 f,
                 "{channel}: gaps in the recording (invalid scalar, fluxgate or source samples) cut {} of the calibration: {}; their FOM cells and their share of the fit count only the samples kept, so the FOM may understate those manoeuvres. Fill the gaps, or fly them again",

@@ -365,6 +365,14 @@ fn assess_channels(
         .map(|(model, channel)| {
             let (mut quality, jackknife_levels) = assess_with_sigma((log, &geometry), model, channel, shared)?;
             quality.transfer = check_transfer(log, sensor, model, windows, (&options.fit, &options.transfer), &stores)?;
+            quality.fluxgates = crate::quality::transfer::compare_fluxgates(
+                log,
+                sensor,
+                model,
+                windows,
+                (&options.fit, &options.transfer),
+                &stores,
+            );
             let (transfers, notes) =
                 crate::quality::transfer::box_transfer(log, sensor, model, windows, boxes, &options.fit, &stores)?;
             quality.box_transfer = transfers;

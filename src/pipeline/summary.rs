@@ -254,6 +254,9 @@ fn fit_details(quality: &crate::quality::ChannelQuality, model: &crate::model::F
             text += "    the held-out ratio is above the warning factor, but the survey's lines over the same ground show no error it would leave (heading level, heading error, crossovers): no warning\n";
         }
     }
+    if let Some(fluxgates) = &quality.fluxgates {
+        text += &format!("    {}\n", fluxgates.describe());
+    }
     text += &survey_checks(quality);
     if let (Some(gain), Some([low, high])) = (quality.anomaly_gain, quality.anomaly_gain_range) {
         text += &format!(

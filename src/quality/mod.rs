@@ -233,6 +233,10 @@ pub struct ChannelQuality {
     pub heading_level: Option<crate::quality::corrugation::HeadingLevelFigures>,
     /// In-sample against held-out FOM (second box, or leave one heading out).
     pub transfer: Option<TransferCheck>,
+    /// On a flight with several fluxgates: plain Tolles-Lawson held out
+    /// with each, and whether the one used matters.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fluxgates: Option<crate::quality::transfer::FluxgateComparison>,
     /// Each calibration box's model on every other box of the flight.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub box_transfer: Vec<crate::quality::transfer::BoxTransfer>,
@@ -487,6 +491,7 @@ pub fn assess_quality_at(
         fom_manoeuvres_cut: table.iter().flat_map(FomRow::cells).filter(|c| c.cut_by_gaps()).count(),
         fom_table: table,
         transfer: None,
+        fluxgates: None,
         box_transfer: Vec::new(),
         survey_departure_from_plain_nt: None,
         plain_survey: None,
@@ -616,6 +621,12 @@ pub fn quality_warnings(
                 sigma_nt: uncertainty.level_sigma_nt,
             });
         }
+    }
+    if let Some(fluxgates) = quality.fluxgates.as_ref().filter(|f| f.better().is_some()) {
+        warnings.push(Warning::FluxgateBetter {
+            channel: channel(),
+            comparison: fluxgates.describe(),
+        });
     }
     let sentence = quality.transfer.as_ref().and_then(|check| check.warning.clone());
     let sentence = sentence.and_then(|sentence| match transfer_evidence(quality) {

@@ -153,6 +153,123 @@ fn leave_one_heading_out(
     Ok(Some(held))
 }
 
+/// Another fluxgate whose plain Tolles-Lawson holds out better than the
+/// one used by this factor matters: below it the choice is immaterial.
+pub const FLUXGATE_MATERIAL: f64 = 1.25;
+
+/// One fluxgate's plain Tolles-Lawson held out on a channel.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct FluxgateFigure {
+    /// The fluxgate's prefix.
+    pub fluxgate: String,
+    /// Held-out FOM of plain Tolles-Lawson built from it, nT.
+    pub held_out_fom_nt: f64,
+}
+
+/// Which fluxgate a channel's terms are built from, and whether it
+/// matters: plain Tolles-Lawson with each fluxgate of the flight, held out
+/// as the transfer check holds out (second box, or each heading fitted on
+/// the others), side by side.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct FluxgateComparison {
+    /// The fluxgate used (named with `--vector`, or the first found).
+    pub used: String,
+    /// How the held-out figures were made.
+    pub method: TransferMethod,
+    /// Each fluxgate's held-out FOM, in the flight's order.
+    pub held_out: Vec<FluxgateFigure>,
+}
+
+impl FluxgateComparison {
+    /// The fluxgate whose plain fit holds out best, and its figure.
+    pub fn best(&self) -> Option<&FluxgateFigure> {
+        self.held_out
+            .iter()
+            .min_by(|a, b| a.held_out_fom_nt.total_cmp(&b.held_out_fom_nt))
+    }
+
+    /// The used fluxgate's figure.
+    pub fn used_figure(&self) -> Option<&FluxgateFigure> {
+        self.held_out.iter().find(|f| f.fluxgate == self.used)
+    }
+
+    /// The fluxgate to use instead, when one holds out better than the
+    /// used one by more than [`FLUXGATE_MATERIAL`].
+    pub fn better(&self) -> Option<&FluxgateFigure> {
+        let (best, used) = (self.best()?, self.used_figure()?);
+        (best.held_out_fom_nt * FLUXGATE_MATERIAL < used.held_out_fom_nt).then_some(best)
+    }
+
+    /// "fluxgate flux_a used (--vector chooses); plain Tolles-Lawson with
+    /// each, held out (each heading fitted on the other three): flux_a
+    /// 0.68, flux_b 0.70 nT: the choice is immaterial (every one within
+    /// ×1.25)".
+    pub fn describe(&self) -> String {
+        let figures: Vec<String> = (self.held_out.iter())
+            .map(|f| format!("{} {:.2}", f.fluxgate, f.held_out_fom_nt))
+            .collect();
+        let used = self.used_figure().map_or(f64::NAN, |f| f.held_out_fom_nt);
+        let worst = (self.held_out.iter()).max_by(|a, b| a.held_out_fom_nt.total_cmp(&b.held_out_fom_nt));
+        let verdict = match (self.better(), worst) {
+            (Some(better), _) => format!(
+                "{} holds out better by more than ×{FLUXGATE_MATERIAL}: compensate with --vector {}",
+                better.fluxgate, better.fluxgate
+            ),
+            (None, Some(worst)) if worst.held_out_fom_nt > FLUXGATE_MATERIAL * used => format!(
+                "the one used is the best or within ×{FLUXGATE_MATERIAL} of it, and the choice matters: {} would hold out ×{:.1} worse",
+                worst.fluxgate,
+                worst.held_out_fom_nt / used
+            ),
+            (None, _) => format!("the choice is immaterial (every one within ×{FLUXGATE_MATERIAL})"),
+        };
+        format!(
+            "fluxgate {} used (--vector chooses); plain Tolles-Lawson with each, held out ({}): {} nT: {verdict}",
+            self.used,
+            self.method.describe(),
+            figures.join(", ")
+        )
+    }
+}
+
+/// [`FluxgateComparison`] of `model`'s channel on a flight with more than
+/// one fluxgate (`used` the one its terms come from); `None` with one, or
+/// where the used fluxgate and one other cannot both be held out (too few
+/// headings). A fluxgate whose readings cannot be fitted on the windows
+/// (a gap, a dead axis) is left out of the comparison.
+pub fn compare_fluxgates(
+    log: &FlightLog,
+    used: &VectorSensor,
+    model: &FittedModel,
+    windows: &[CalibrationWindow],
+    (options, transfer): (&FitOptions, &TransferOptions),
+    stores: &StorePool,
+) -> Option<FluxgateComparison> {
+    let sensors = log.vector_sensors();
+    if sensors.len() < 2 {
+        return None;
+    }
+    let plain = crate::model::ModelSpec::plain(model.spec.terms);
+    let held_out_with = |sensor: &VectorSensor| -> Option<TransferCheck> {
+        let prepared = Prepared::new(log, sensor, &model.channel, &plain).ok()?;
+        let fitted = prepared.fit(windows, options, stores).ok()?;
+        check_transfer(log, sensor, &fitted, windows, (options, transfer), stores).ok()?
+    };
+    let checks: Vec<(String, TransferCheck)> = (sensors.iter())
+        .filter_map(|sensor| Some((sensor.prefix.clone(), held_out_with(sensor)?)))
+        .collect();
+    let method = checks.iter().find(|(prefix, _)| *prefix == used.prefix)?.1.method;
+    (checks.len() >= 2).then(|| FluxgateComparison {
+        used: used.prefix.clone(),
+        method,
+        held_out: (checks.into_iter())
+            .map(|(fluxgate, check)| FluxgateFigure {
+                fluxgate,
+                held_out_fom_nt: check.held_out_fom_nt,
+            })
+            .collect(),
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
