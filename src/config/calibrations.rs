@@ -24,9 +24,16 @@ fn aircraft_key(aircraft: &str) -> String {
 }
 
 /// The calibration flights (`calibration = true`) of each aircraft, by
-/// [`aircraft_key`]; an error for one that names no aircraft or gives a
+/// [`aircraft_key`]; an error for a flight whose aircraft is empty, and for
+/// a calibration flight that names no aircraft or gives a
 /// model of its own.
 fn calibration_flights(flights: &[FlightJob]) -> std::result::Result<BTreeMap<String, Vec<usize>>, String> {
+    if let Some(flight) = (flights.iter()).find(|f| f.aircraft.as_deref().is_some_and(|a| a.trim().is_empty())) {
+        return Err(format!(
+            "{}: aircraft is empty; name the airframe (aircraft = \"C-GMAG\", say), or leave the key out",
+            flight.input.display()
+        ));
+    }
     let mut by_aircraft: BTreeMap<String, Vec<usize>> = BTreeMap::new();
     for (index, flight) in flights.iter().enumerate().filter(|(_, f)| f.calibration) {
         let Some(aircraft) = &flight.aircraft else {
@@ -391,5 +398,13 @@ mod tests {
             text.contains("cal.csv: calibration = true, but the flight names no aircraft"),
             "{text}"
         );
+        // An empty name is no name: refused, whatever the flight.
+        for calibration in [true, false] {
+            let mut empty = vec![flight("cal", Some(" "), None, calibration)];
+            let text = assign_calibrations(&mut empty, Path::new("/out"), "p")
+                .unwrap_err()
+                .to_string();
+            assert!(text.contains("cal.csv: aircraft is empty"), "{text}");
+        }
     }
 }

@@ -952,7 +952,20 @@ fn parse_terms(names: &[String], bt_scale_nt: f64) -> std::result::Result<TermSe
         bias: false,
         bt_scale_nt,
     };
+    let mut given: Vec<(&str, &str)> = Vec::new();
     for name in names {
+        let family = match name.as_str() {
+            n if n.starts_with("induced") => "induced",
+            n if n.starts_with("eddy") => "eddy",
+            "fdm" => "field_derivative",
+            n => n,
+        };
+        if let Some((earlier, _)) = given.iter().find(|(_, f)| *f == family) {
+            return Err(format!(
+                "[fit] terms lists '{earlier}' and '{name}': both are the {family} terms; give one"
+            ));
+        }
+        given.push((name, family));
         match name.as_str() {
             "permanent" => set.permanent = true,
             "induced" | "induced_traceless" => set.induced = InducedTerms::Traceless,
@@ -1282,6 +1295,19 @@ mod tests {
             "[site]\nlatitude = 95.0\nlongitude = 0.0\n",
             "[site]\nlongitude = 400.0\nlatitude = 0.0\n",
             "[site]\ndate = \"June\"\nlatitude = 0.0\nlongitude = 0.0\n",
+            // Bounded, finite and signed: a margin of 1e308 s would run for
+            // ever; NaN, infinity and negatives mean nothing.
+            "[detect]\nwindow_margin_s = 1e308\n",
+            "[detect]\nturn_heading_deg = nan\n",
+            "[detect]\nturn_bank_deg = inf\n",
+            "[detect]\nfluxgate_min_rms_deg = -0.5\n",
+            "[detect]\njoin_activity_s = -2.0\n",
+            "[detect]\nmin_half_cycles = 0\n",
+            "[detect]\nmin_rms_deg = [1.2, 2.5, -1.2]\n",
+            "[detect]\nmin_rms_deg = [1.2, 2.5, 1.2, 4.0]\n",
+            "[detect]\ndominance_deg = [5.0, 6.0]\n",
+            "[fit]\nterms = [\"permanent\", \"permanent\"]\n",
+            "[fit]\nterms = [\"induced\", \"induced_6\"]\n",
         ] {
             let error = parse(bad).unwrap_err().to_string();
             let key = bad
@@ -1290,7 +1316,10 @@ mod tests {
                 .and_then(|l| l.split(" =").next())
                 .unwrap_or_default();
             let section = bad.lines().next().unwrap_or_default();
-            assert!(error.contains(section) && error.contains(key), "{bad:?}: {error}");
+            // A value of the wrong shape is the TOML reader's error, which
+            // shows the line and points at the value.
+            let placed = error.contains(section) || error.contains("line 2");
+            assert!(placed && error.contains(key), "{bad:?}: {error}");
         }
     }
 

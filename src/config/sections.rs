@@ -21,12 +21,12 @@ use crate::vector::VectorOptions;
 /// A section as written: one optional field per field of the validated
 /// section `$validated`, which fills in its defaults for the absent ones.
 macro_rules! raw_section {
-    ($(#[$meta:meta])* $raw:ident => $validated:ident { $($field:ident: $ty:ty),* $(,)? }) => {
+    ($(#[$meta:meta])* $raw:ident => $validated:ident { $($(#[$field_meta:meta])* $field:ident: $ty:ty),* $(,)? }) => {
         $(#[$meta])*
         #[derive(Debug, Clone, Default, Deserialize)]
         #[serde(deny_unknown_fields)]
         pub(crate) struct $raw {
-            $(#[serde(default)] $field: Option<$ty>,)*
+            $($(#[$field_meta])* #[serde(default)] $field: Option<$ty>,)*
         }
 
         impl $raw {
@@ -56,12 +56,16 @@ raw_section! {
         turn_heading_deg: f64,
         turn_bank_deg: f64,
         envelope_s: f64,
+        #[serde(deserialize_with = "three_values")]
         min_rms_deg: [f64; 3],
         fluxgate_min_rms_deg: f64,
         turbulence_factor: f64,
+        #[serde(deserialize_with = "three_values")]
         nominal_amplitude_deg: [f64; 3],
+        #[serde(deserialize_with = "three_values")]
         dominance_deg: [f64; 3],
         min_dominance_s: f64,
+        #[serde(deserialize_with = "three_values")]
         min_amplitude_deg: [f64; 3],
         join_activity_s: f64,
         min_half_cycles: usize,
@@ -208,40 +212,88 @@ fn positive(section: &str, name: &str, value: f64) -> Result<f64, String> {
     }
 }
 
+/// A setting of three values (pitch, roll, yaw), refused with any other
+/// count: a fourth value would otherwise be dropped without a word.
+fn three_values<'de, D: serde::Deserializer<'de>>(deserializer: D) -> Result<Option<[f64; 3]>, D::Error> {
+    let values: Vec<f64> = Deserialize::deserialize(deserializer)?;
+    <[f64; 3]>::try_from(values.as_slice())
+        .map(Some)
+        .map_err(|_| serde::de::Error::custom(format!("give three values (pitch, roll, yaw), not {}", values.len())))
+}
+
+/// A number as a setting's error shows it: 1e308, not 309 digits.
+fn shown(value: f64) -> String {
+    match value != 0.0 && !(1e-3..1e6).contains(&value.abs()) {
+        true => format!("{value:e}"),
+        false => format!("{value}"),
+    }
+}
+
+/// `value` within `low..=high` (finite), or an error naming the setting
+/// and the range: a setting far outside what a flight can mean (a margin of
+/// 1e308 s) would run for ever rather than fail.
+fn within(section: &str, name: &str, value: f64, (low, high): (f64, f64)) -> Result<f64, String> {
+    match value.is_finite() && (low..=high).contains(&value) {
+        true => Ok(value),
+        false if low == f64::MIN_POSITIVE => Err(format!(
+            "[{section}] {name} = {}: give a number above 0, up to {high}",
+            shown(value)
+        )),
+        false => Err(format!(
+            "[{section}] {name} = {}: give a number from {low} to {high}",
+            shown(value)
+        )),
+    }
+}
+
+/// The longest span a `[detect]` time may cover, s: a day.
+const LONGEST_DETECT_S: f64 = 86_400.0;
+
 impl TryFrom<RawDetect> for DetectOptions {
     type Error = String;
 
     fn try_from(raw: RawDetect) -> Result<Self, String> {
         let detect = raw.over_defaults();
-        for (name, value) in [
-            ("heading_smoothing_s", detect.heading_smoothing_s),
-            ("straight_rate_deg_s", detect.straight_rate_deg_s),
-            ("min_leg_s", detect.min_leg_s),
-            ("heading_tolerance_deg", detect.heading_tolerance_deg),
-            ("envelope_s", detect.envelope_s),
-            ("turbulence_factor", detect.turbulence_factor),
-            ("max_half_cycle_spread", detect.max_half_cycle_spread),
-            ("leg_run_on_s", detect.leg_run_on_s),
-            ("max_turn_s", detect.max_turn_s),
-            ("min_dominance_s", detect.min_dominance_s),
-            ("dominance_deg[0]", detect.dominance_deg[0]),
-            ("dominance_deg[1]", detect.dominance_deg[1]),
-            ("dominance_deg[2]", detect.dominance_deg[2]),
-        ] {
-            positive("detect", name, value)?;
+        let tiny = f64::MIN_POSITIVE;
+        let seconds = (tiny, LONGEST_DETECT_S);
+        let ranges = [
+            ("heading_smoothing_s", detect.heading_smoothing_s, seconds),
+            ("straight_rate_deg_s", detect.straight_rate_deg_s, (tiny, 360.0)),
+            ("min_leg_s", detect.min_leg_s, seconds),
+            ("join_gap_s", detect.join_gap_s, (0.0, LONGEST_DETECT_S)),
+            ("heading_tolerance_deg", detect.heading_tolerance_deg, (tiny, 180.0)),
+            ("turn_heading_deg", detect.turn_heading_deg, (tiny, 180.0)),
+            ("turn_bank_deg", detect.turn_bank_deg, (tiny, 90.0)),
+            ("envelope_s", detect.envelope_s, seconds),
+            ("fluxgate_min_rms_deg", detect.fluxgate_min_rms_deg, (tiny, 90.0)),
+            ("turbulence_factor", detect.turbulence_factor, (tiny, 1e6)),
+            ("min_dominance_s", detect.min_dominance_s, seconds),
+            ("join_activity_s", detect.join_activity_s, (0.0, LONGEST_DETECT_S)),
+            ("max_half_cycle_spread", detect.max_half_cycle_spread, (tiny, 1e6)),
+            ("max_peak_spread", detect.max_peak_spread, (tiny, 1e6)),
+            ("max_turn_s", detect.max_turn_s, seconds),
+            ("leg_run_on_s", detect.leg_run_on_s, seconds),
+            ("window_margin_s", detect.window_margin_s, (0.0, 600.0)),
+        ];
+        for (name, value, range) in ranges {
+            within("detect", name, value, range)?;
         }
-        let amplitudes = detect
-            .min_rms_deg
-            .iter()
-            .chain(&detect.nominal_amplitude_deg)
-            .chain(&detect.min_amplitude_deg);
-        if amplitudes
-            .chain([&detect.window_margin_s, &detect.join_gap_s])
-            .any(|v| !(v.is_finite() && *v >= 0.0))
-        {
-            return Err(
-                "[detect] min_rms_deg, nominal_amplitude_deg, min_amplitude_deg, window_margin_s and join_gap_s must be non-negative".into(),
-            );
+        let degrees = [
+            ("min_rms_deg", detect.min_rms_deg, (0.0, 90.0)),
+            ("nominal_amplitude_deg", detect.nominal_amplitude_deg, (0.0, 90.0)),
+            ("dominance_deg", detect.dominance_deg, (tiny, 90.0)),
+            ("min_amplitude_deg", detect.min_amplitude_deg, (0.0, 90.0)),
+        ];
+        for (name, values, range) in degrees {
+            for (axis, value) in ["pitch", "roll", "yaw"].iter().zip(values) {
+                within("detect", &format!("{name} ({axis})"), value, range)?;
+            }
+        }
+        if !(1..=1000).contains(&detect.min_half_cycles) {
+            return Err(format!(
+                "[detect] min_half_cycles = {}: give a count from 1 to 1000 (4 is usual: two cycles)",
+                detect.min_half_cycles
+            ));
         }
         Ok(detect)
     }
