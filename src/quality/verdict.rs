@@ -127,6 +127,18 @@ pub enum VerdictReason {
         /// The figure's standard error, nT, where it has one.
         standard_error_nt: Option<f64>,
     },
+    /// A survey-side figure that carries the aircraft's heading effect
+    /// ([`NOT_COMPENSATED_FLOOR_NT`] or more, beyond its uncertainty) and
+    /// that the model leaves at more than [`NOT_COMPENSATED_FRACTION`] of
+    /// it: the model does not compensate this flight.
+    SurveyNotCompensated {
+        /// Which figure.
+        figure: &'static str,
+        /// Uncompensated, nT.
+        before_nt: f64,
+        /// Compensated, nT.
+        after_nt: f64,
+    },
     /// The findings move the survey from plain Tolles-Lawson beyond the
     /// stated uncertainty.
     Departure {
@@ -168,7 +180,8 @@ impl VerdictReason {
         match self {
             VerdictReason::Departure { .. }
             | VerdictReason::Unchecked { .. }
-            | VerdictReason::SurveyWorseUncertain { .. } => Verdict::Check,
+            | VerdictReason::SurveyWorseUncertain { .. }
+            | VerdictReason::SurveyNotCompensated { .. } => Verdict::Check,
             _ => Verdict::Fail,
         }
     }
@@ -191,6 +204,14 @@ impl std::fmt::Display for VerdictReason {
             } => write!(
                 f,
                 "this model raises the {figure} from {before_nt:.2} to {after_nt:.2} nT: is it this aircraft's, and this installation's?"
+            ),
+            VerdictReason::SurveyNotCompensated {
+                figure,
+                before_nt,
+                after_nt,
+            } => write!(
+                f,
+                "this model leaves the {figure} at {after_nt:.2} nT against {before_nt:.2} nT uncompensated: it does not compensate this flight's heading effect; is it this aircraft's, and this installation's?"
             ),
             VerdictReason::SurveyWorseUncertain {
                 figure,
@@ -337,7 +358,59 @@ fn survey_worse(quality: &ChannelQuality) -> Vec<VerdictReason> {
                 after_nt,
             }),
     );
+    if reasons.is_empty() {
+        reasons.extend(survey_not_compensated(quality));
+    }
     reasons
+}
+
+/// A survey figure this large uncompensated, nT, carries a heading effect
+/// a model of the aircraft must take out.
+pub const NOT_COMPENSATED_FLOOR_NT: f64 = 1.0;
+
+/// A model that leaves more than this fraction of such a figure does not
+/// compensate the flight: the aircraft's own model takes 90 % or more
+/// (seeds 700–704: heading level 31.1 → 1.6 nT, crossovers 17.4 → 0.02 nT;
+/// another aircraft's leaves 24.2 of 25.0 nT).
+pub const NOT_COMPENSATED_FRACTION: f64 = 0.5;
+
+/// The survey-side figures that carry the aircraft's heading effect and
+/// that the model leaves largely in place: the heading level beyond five
+/// standard errors (of three triples or more), the crossovers with the external field taken out
+/// (else they carry its drift), the reciprocal lines' heading error.
+fn survey_not_compensated(quality: &ChannelQuality) -> Vec<VerdictReason> {
+    let left = |before: f64, after: f64| before > NOT_COMPENSATED_FLOOR_NT && after > NOT_COMPENSATED_FRACTION * before;
+    let level = (quality.heading_level.as_ref())
+        .filter(|f| f.triples >= HEADING_LEVEL_LEAST_TRIPLES && f.before_nt.abs() > 5.0 * f.standard_error_nt)
+        .map(|f| {
+            (
+                "heading level between neighbouring lines",
+                f.before_nt.abs(),
+                f.after_nt.abs(),
+            )
+        });
+    let crossovers = (quality.crossovers.as_ref())
+        .filter(|f| f.external_field_removed)
+        .map(|f| ("crossover differences", f.before_nt, f.after_nt));
+    let reciprocal = (quality.heading_error.as_ref())
+        .filter(|f| f.external_field_removed)
+        .map(|f| {
+            (
+                "heading error between reciprocal lines",
+                f.before_nt.abs(),
+                f.after_nt.abs(),
+            )
+        });
+    [level, crossovers, reciprocal]
+        .into_iter()
+        .flatten()
+        .filter(|(_, before, after)| left(*before, *after))
+        .map(|(figure, before_nt, after_nt)| VerdictReason::SurveyNotCompensated {
+            figure,
+            before_nt,
+            after_nt,
+        })
+        .collect()
 }
 
 /// A survey figure the default and plain Tolles-Lawson may differ by
