@@ -2,6 +2,8 @@
 //! can make are masked before the fit, flagged per row with the reason,
 //! and every other row is compensated as if they were not there.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 
 use magcomp::calibration::windows::read_detect_json;
@@ -41,6 +43,15 @@ impl Flight {
     fn set(&mut self, row: usize, name: &str, value: &str) {
         let column = self.column(name);
         self.rows[row][column] = value.to_string();
+    }
+
+    /// The fluxgate's readings of `rows` left empty: a gap in its record.
+    fn blank_fluxgate(&mut self, rows: impl Iterator<Item = usize>) {
+        for row in rows {
+            for name in ["flux_a_x", "flux_a_y", "flux_a_z"] {
+                self.set(row, name, "");
+            }
+        }
     }
 
     fn write(&self, path: &Path) {
@@ -237,21 +248,6 @@ fn masked_samples_do_not_spread(seed: u64) {
     }
 }
 
-/// Seeds drawn by the test's own generator (SplitMix64), not the
-/// simulator's.
-fn drawn_seeds(start: u64, count: usize) -> Vec<u64> {
-    let mut state = start;
-    (0..count)
-        .map(|_| {
-            state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
-            let mut z = state;
-            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-            z ^ (z >> 31)
-        })
-        .collect()
-}
-
 /// Compensates `input` on its detected windows with plain Tolles-Lawson.
 fn compensate_detected(input: &Path, out: &Path) -> magcomp::pipeline::FlightResult {
     let mut pipeline = Pipeline::default();
@@ -262,7 +258,7 @@ fn compensate_detected(input: &Path, out: &Path) -> magcomp::pipeline::FlightRes
 
 #[test]
 fn a_manoeuvre_cut_by_a_fluxgate_gap_is_counted_with_what_it_kept_and_one_lost_to_it_is_named() {
-    for seed in drawn_seeds(69, 3) {
+    for seed in common::splitmix64(69, 3) {
         let seed = seed % 9_973;
         let folder = tempfile::tempdir().unwrap();
         let mut flight = Flight::new(folder.path(), seed);
@@ -276,11 +272,7 @@ fn a_manoeuvre_cut_by_a_fluxgate_gap_is_counted_with_what_it_kept_and_one_lost_t
         let (from, to) = (manoeuvre.len() * 3 / 10, manoeuvre.len() * 7 / 10);
         let gap: Vec<usize> = manoeuvre[from..to].to_vec();
         let mut cut = Flight::new(folder.path(), seed);
-        for &row in &gap {
-            for name in ["flux_a_x", "flux_a_y", "flux_a_z"] {
-                cut.set(row, name, "");
-            }
-        }
+        cut.blank_fluxgate(gap.iter().copied());
         let path = folder.path().join("cut.csv");
         cut.write(&path);
         let result = compensate_detected(&path, &folder.path().join("cut_out"));
@@ -316,11 +308,7 @@ fn a_manoeuvre_cut_by_a_fluxgate_gap_is_counted_with_what_it_kept_and_one_lost_t
         // run names it.
         let first = manoeuvre[0].saturating_sub(50);
         let last = (manoeuvre[manoeuvre.len() - 1] + 50).min(flight.rows.len() - 1);
-        for row in first..=last {
-            for name in ["flux_a_x", "flux_a_y", "flux_a_z"] {
-                flight.set(row, name, "");
-            }
-        }
+        flight.blank_fluxgate(first..=last);
         let path = folder.path().join("lost.csv");
         flight.write(&path);
         let result = compensate_detected(&path, &folder.path().join("lost_out"));

@@ -1,20 +1,15 @@
 //! Known-answer tests of the regularised solver.
 
+mod common;
+
 use faer::Mat;
 use magcomp::numerics::solve::{solve, Criterion, Decomposition, LambdaChoice, Method, SolveOptions};
 use proptest::prelude::*;
 
 /// Deterministic pseudo-random values in [-1, 1) (SplitMix64).
 fn values(seed: u64, count: usize) -> Vec<f64> {
-    let mut state = seed;
-    (0..count)
-        .map(|_| {
-            state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
-            let mut z = state;
-            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-            2.0 * ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64 - 1.0
-        })
+    (common::splitmix64(seed, count).into_iter())
+        .map(|z| 2.0 * (z >> 11) as f64 / (1u64 << 53) as f64 - 1.0)
         .collect()
 }
 

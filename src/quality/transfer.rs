@@ -178,6 +178,10 @@ pub struct FluxgateComparison {
     pub method: TransferMethod,
     /// Each fluxgate's held-out FOM, in the flight's order.
     pub held_out: Vec<FluxgateFigure>,
+    /// The flight's fluxgates that could not be fitted on the windows (a
+    /// gap, a dead axis): not compared, and said so.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub not_compared: Vec<String>,
 }
 
 impl FluxgateComparison {
@@ -222,12 +226,19 @@ impl FluxgateComparison {
             ),
             (None, _) => format!("the choice is immaterial (every one within ×{FLUXGATE_MATERIAL})"),
         };
-        format!(
+        let mut words = format!(
             "fluxgate {} used (--vector chooses); plain Tolles-Lawson with each, held out ({}): {} nT: {verdict}",
             self.used,
             self.method.describe(),
             figures.join(", ")
-        )
+        );
+        if !self.not_compared.is_empty() {
+            words += &format!(
+                "; not compared, as they cannot be fitted on the windows: {}",
+                self.not_compared.join(", ")
+            );
+        }
+        words
     }
 }
 
@@ -235,7 +246,7 @@ impl FluxgateComparison {
 /// one fluxgate (`used` the one its terms come from); `None` with one, or
 /// where the used fluxgate and one other cannot both be held out (too few
 /// headings). A fluxgate whose readings cannot be fitted on the windows
-/// (a gap, a dead axis) is left out of the comparison.
+/// (a gap, a dead axis) is named as not compared.
 pub fn compare_fluxgates(
     log: &FlightLog,
     used: &VectorSensor,
@@ -254,13 +265,18 @@ pub fn compare_fluxgates(
         let fitted = prepared.fit(windows, options, stores).ok()?;
         check_transfer(log, sensor, &fitted, windows, (options, transfer), stores).ok()?
     };
-    let checks: Vec<(String, TransferCheck)> = (sensors.iter())
-        .filter_map(|sensor| Some((sensor.prefix.clone(), held_out_with(sensor)?)))
-        .collect();
+    let (mut checks, mut not_compared) = (Vec::new(), Vec::new());
+    for sensor in &sensors {
+        match held_out_with(sensor) {
+            Some(check) => checks.push((sensor.prefix.clone(), check)),
+            None => not_compared.push(sensor.prefix.clone()),
+        }
+    }
     let method = checks.iter().find(|(prefix, _)| *prefix == used.prefix)?.1.method;
     (checks.len() >= 2).then(|| FluxgateComparison {
         used: used.prefix.clone(),
         method,
+        not_compared,
         held_out: (checks.into_iter())
             .map(|(fluxgate, check)| FluxgateFigure {
                 fluxgate,

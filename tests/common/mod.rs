@@ -353,3 +353,18 @@ pub fn fly_box_as_crews_do(
     coupling.yaw_roll = range(0.3, 0.55);
     coupling.lag_deg = [0.0, 60.0];
 }
+
+/// A reproducible sequence of `count` 64-bit values from `seed`
+/// (SplitMix64): the tests' own generator, independent of the simulator's.
+pub fn splitmix64(seed: u64, count: usize) -> Vec<u64> {
+    let mut state = seed;
+    (0..count)
+        .map(|_| {
+            state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+            let mut z = state;
+            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+            z ^ (z >> 31)
+        })
+        .collect()
+}
