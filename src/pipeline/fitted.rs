@@ -367,7 +367,7 @@ fn assess_channels(
             quality.transfer = check_transfer(log, sensor, model, windows, (&options.fit, &options.transfer), &stores)?;
             quality.fluxgates = crate::quality::transfer::compare_fluxgates(
                 log,
-                sensor,
+                (sensor, quality.transfer.as_ref()),
                 model,
                 windows,
                 (&options.fit, &options.transfer),

@@ -243,13 +243,14 @@ impl FluxgateComparison {
 }
 
 /// [`FluxgateComparison`] of `model`'s channel on a flight with more than
-/// one fluxgate (`used` the one its terms come from); `None` with one, or
+/// one fluxgate (`used` the one its terms come from, `own` the model's
+/// transfer check, reused when the model is plain); `None` with one, or
 /// where the used fluxgate and one other cannot both be held out (too few
 /// headings). A fluxgate whose readings cannot be fitted on the windows
 /// (a gap, a dead axis) is named as not compared.
 pub fn compare_fluxgates(
     log: &FlightLog,
-    used: &VectorSensor,
+    (used, own): (&VectorSensor, Option<&TransferCheck>),
     model: &FittedModel,
     windows: &[CalibrationWindow],
     (options, transfer): (&FitOptions, &TransferOptions),
@@ -261,6 +262,12 @@ pub fn compare_fluxgates(
     }
     let plain = crate::model::ModelSpec::plain(model.spec.terms);
     let held_out_with = |sensor: &VectorSensor| -> Option<TransferCheck> {
+        // A plain model's own transfer check is the used fluxgate's figure.
+        if sensor.prefix == used.prefix && model.spec == plain {
+            if let Some(own) = own {
+                return Some(own.clone());
+            }
+        }
         let prepared = Prepared::new(log, sensor, &model.channel, &plain).ok()?;
         let fitted = prepared.fit(windows, options, stores).ok()?;
         check_transfer(log, sensor, &fitted, windows, (options, transfer), stores).ok()?
