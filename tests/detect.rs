@@ -11,6 +11,8 @@ use magcomp::simulate::truth::TrueManoeuvre;
 use magcomp::simulate::{simulate, SimulatedFlight};
 use rayon::prelude::*;
 
+mod common;
+
 /// Intersection over union of two time windows on a 0.1 s grid.
 fn overlap(a: (f64, f64), b: (f64, f64)) -> f64 {
     let dt = 0.1;
@@ -231,6 +233,61 @@ fn a_wandering_track_and_heavy_turbulence() {
     assert_eq!((result.spurious, result.wrong_kind), (0, 0));
     let missing: usize = detection.boxes.iter().map(|b| b.missing.len()).sum();
     assert_eq!(missing, result.truth - result.found);
+}
+
+#[test]
+fn a_yaw_run_on_into_the_turn_and_a_pitch_begun_at_the_roll_out_are_found() {
+    // As on the real flight's legs: the turn begins 0–1 s after the yaw
+    // and the pitch 0–1 s after the roll-out, the bank rolling in and out
+    // over 1.5–4 s, the three manoeuvres back to back, the airframe's
+    // coupled motion and a held heading that drifts 0.5–1° under them
+    // (the yaw's own level is then neither the leg's nor the turn's). 16
+    // flights, each drawn from the test's own SplitMix64 stream.
+    let draws = common::splitmix64(0x5EED_0068_0004, 16 * 8);
+    let outcomes: Vec<(u64, Score)> = (0..16usize)
+        .into_par_iter()
+        .map(|flight| {
+            let unit = |k: usize| (draws[flight * 8 + k] >> 11) as f64 / (1u64 << 53) as f64;
+            let within = |k: usize, low: f64, high: f64| low + (high - low) * unit(k);
+            let seed = draws[flight * 8 + 7] % 100_000;
+            let flown = fly(seed, |raw| {
+                let base = within(0, 0.0, 360.0).round();
+                raw.calibration.headings_deg = (0..4).map(|k| (base + 90.0 * k as f64) % 360.0).collect();
+                raw.calibration.repeats = 2;
+                raw.calibration.cycles = [2, 4];
+                raw.calibration.period_s = [4.5, 7.5];
+                raw.calibration.pitch_deg = within(1, 3.0, 4.6);
+                raw.calibration.roll_deg = within(2, 6.2, 8.4);
+                raw.calibration.yaw_deg = within(3, 3.5, 5.0);
+                raw.calibration.heading_wander_deg = within(4, 0.5, 1.0);
+                raw.calibration.turbulence_deg = 0.1;
+                raw.calibration.lead_in_s = [0.0, 1.0];
+                raw.calibration.pause_s = [0.0, 1.0];
+                raw.calibration.turn_after_s = Some([0.0, 1.0]);
+                let quickest = within(5, 1.5, 3.0);
+                raw.calibration.turn_entry_s = [quickest, quickest + 1.0];
+                raw.calibration.turn_rate_deg_s = [2.5, 3.5];
+                let coupling = &mut raw.calibration.coupling;
+                coupling.pitch_roll = [0.1, 0.3];
+                coupling.roll_yaw = [0.2, 0.4];
+                coupling.yaw_roll = [0.3, 0.55];
+                coupling.lag_deg = [0.0, 60.0];
+                raw.sample_rate_hz = [10.0, 20.0][usize::from(unit(6) < 0.5)];
+            });
+            (seed, score(&detect(&flown), &flown.truth.manoeuvres))
+        })
+        .collect();
+    for (seed, result) in &outcomes {
+        println!("seed {seed}: {result:?}");
+    }
+    let faulty: Vec<u64> = (outcomes.iter())
+        .filter(|(_, r)| (r.found, r.spurious, r.wrong_kind) != (r.truth, 0, 0))
+        .map(|(seed, _)| *seed)
+        .collect();
+    assert!(
+        faulty.is_empty(),
+        "manoeuvres lost, misnamed or spurious on seeds {faulty:?}"
+    );
 }
 
 /// The flight with `rows` of the INS set missing, or removed entirely.

@@ -126,8 +126,10 @@ fn random_plan(seed: u64) -> Plan {
 /// (2–4 of 4.5–7.5 s), pitch ±3.4–4° (±2.4–5.5°), roll ±7–8° (±5–10°) and
 /// yaw ±3.4–4.5° (±2.8–6°), each ±20 % per manoeuvre; roll 0.2× a pitch
 /// (0.1–0.3×), adverse yaw 0.25–0.3× a roll (0.2–0.4×), roll 0.4–0.46× a
-/// yaw (0.3–0.55×) lagging by up to 60°; the first manoeuvre 5–45 s after
-/// the turn's roll-out; turns banked up to 24° (18–27°), the bank rolling
+/// yaw (0.3–0.55×) lagging by up to 60°; the first manoeuvre 0–4 s after
+/// the turn's roll-out on half the plans (two pitches of the real flight
+/// began within a few seconds of it), 5–45 s on the others; the turn to
+/// the next leg 0–4 s after the yaw (three real yaws ran on into it); turns banked up to 24° (18–27°), the bank rolling
 /// in over 1.5–6 s with the heading's rate; two boxes back to
 /// back (or one), headings clockwise from any base, as crews fly them.
 /// These plans share nothing with the detector but the flight it reads.
@@ -155,9 +157,20 @@ fn crew_plan(seed: u64) -> Plan {
     box_.yaw_deg = random.uniform(3.5, 5.0);
     box_.turbulence_deg = random.uniform(0.02, 0.3);
     box_.heading_wander_deg = random.uniform(0.0, 1.0);
-    let lead = random.uniform(5.0, 30.0);
-    box_.lead_in_s = [lead, random.uniform(lead, 45.0)];
+    // Half the crews begin the pitch within 0–4 s of the roll-out, as on
+    // two legs of the real flight; the others after 5–45 s.
+    let lead = match random.uniform(0.0, 1.0) < 0.5 {
+        true => [0.0, random.uniform(0.0, 4.0)],
+        false => {
+            let lead = random.uniform(5.0, 30.0);
+            [lead, random.uniform(lead, 45.0)]
+        }
+    };
+    box_.lead_in_s = lead;
     box_.pause_s = [0.0, random.uniform(0.0, 1.5)];
+    // The turn to the next leg begins 0–4 s after the yaw.
+    let soonest = random.uniform(0.0, 2.0);
+    box_.turn_after_s = Some([soonest, random.uniform(soonest, 4.0)]);
     let slowest = random.uniform(2.3, 3.3);
     box_.turn_rate_deg_s = [slowest, random.uniform(slowest, 3.9)];
     // The bank rolls in over 1.5–6 s, the heading's rate with it.

@@ -31,7 +31,7 @@
 //! $u_{ref} \times u$ of the field direction, whose direction tells which
 //! axis turned (a rotation about the field itself is invisible).
 
-use std::ops::Range;
+use std::ops::{Range, RangeInclusive};
 
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 use serde::Serialize;
@@ -108,7 +108,7 @@ impl Default for DetectOptions {
         DetectOptions {
             heading_smoothing_s: 20.0,
             straight_rate_deg_s: 1.0,
-            min_leg_s: 25.0,
+            min_leg_s: 18.0,
             join_gap_s: 15.0,
             heading_tolerance_deg: 15.0,
             turn_heading_deg: 9.0,
@@ -624,7 +624,7 @@ fn find_legs(
     }
     joined
         .into_iter()
-        .map(|rows| trim_turns(rows, heading, roll, options, samples(0.5, dt)))
+        .map(|rows| trim_turns(rows, heading, roll, options, dt))
         .filter(|r| !r.is_empty() && time[r.end - 1] - time[r.start] >= options.min_leg_s)
         .map(|rows| Leg {
             heading_deg: ((centre(&rows) * 10.0).round() / 10.0).rem_euclid(360.0),
@@ -671,6 +671,15 @@ fn cut_run_on(time: &[f64], heading: &[f64], leg: Leg, found: &[DetectedManoeuvr
         .collect()
 }
 
+/// Heading rate below which a turn counts as rolled out (or not yet
+/// rolled in), degrees/s: at 70 m/s it banks the aircraft 1.4°, and a
+/// raised-cosine roll-out turns less than a tenth of a degree below it.
+const TURN_SETTLED_DEG_S: f64 = 0.2;
+
+/// Roll rate below which a turn's bank counts as rolled out, degrees/s
+/// (a roll-out takes the bank off at 5–10°/s).
+const ROLL_SETTLED_DEG_S: f64 = 0.5;
+
 /// Moves the ends of a straight run to where the aircraft starts (or
 /// stops) turning: heading off the run's centre by more than
 /// `turn_heading_deg`, or bank beyond `turn_bank_deg`. The smoothed heading
@@ -680,8 +689,9 @@ fn trim_turns(
     heading: &[f64],
     roll: Option<&[f64]>,
     options: &DetectOptions,
-    step: usize,
+    dt: f64,
 ) -> Range<usize> {
+    let step = samples(0.5, dt);
     let centre = heading_centre(heading[rows.clone()].iter().copied());
     let turning = |k: usize| {
         let off = heading_difference(heading[k], centre).abs() > options.turn_heading_deg;
@@ -708,10 +718,15 @@ fn trim_turns(
     // back to where the heading began to move monotonically into it (and,
     // at the start, on to where it stopped coming out of the previous
     // one), so the leg's level flight holds none of it.
+    // Moving means turning by more than `TURN_SETTLED_DEG_S`: the last
+    // fractions of a degree of a roll-out die away slowly, and the
+    // turbulence on them would otherwise carry the leg's start into a
+    // manoeuvre flown at once after the roll-out.
     let deviation = |k: usize| heading_difference(heading[k], centre);
+    let least = TURN_SETTLED_DEG_S * step as f64 * dt;
     let moving = |later: usize, earlier: usize, sign: f64| {
         let (a, b) = (deviation(later) * sign, deviation(earlier) * sign);
-        a.is_finite() && b.is_finite() && a > b
+        a.is_finite() && b.is_finite() && a - b > least
     };
     if end < heading.len() && end > start + step {
         let sign = deviation(end).signum();
@@ -722,6 +737,19 @@ fn trim_turns(
     if start > 0 && start + step < end {
         let sign = deviation(start - 1).signum();
         while start + step < end && moving(start, start + step, sign) {
+            start += 1;
+        }
+    }
+    // The bank rolls out after the heading has settled: on to where the
+    // roll stops falling back to level, so a manoeuvre flown at once after
+    // the roll-out does not begin with the turn's last degrees of bank.
+    if let (Some(roll), true) = (roll, start > 0) {
+        let least = ROLL_SETTLED_DEG_S * step as f64 * dt;
+        let falling = |k: usize| {
+            let (a, b) = (roll[k].abs(), roll[k + step].abs());
+            a.is_finite() && b.is_finite() && a - b > least
+        };
+        while start + step < end && falling(start) {
             start += 1;
         }
     }
@@ -1241,6 +1269,15 @@ fn measure(
         let levelled = less_level(values, outer.clone(), core.clone());
         let core = core.start.clamp(outer.start, outer.end) - outer.start
             ..core.end.clamp(outer.start, outer.end) - outer.start;
+        let rough = measure_between(&levelled, outer.clone(), core.clone(), 0..0, 0..0, dt)?;
+        // The core reaches into the level flight beside the manoeuvre, or
+        // into a turn it runs on into, whose heading need not be the
+        // oscillation's, and a pilot lets the heading drift as he yaws:
+        // levelled again at the mean over one period about each sample
+        // (which holds a sine's centre and follows a drift), kept within
+        // the cycles found.
+        let period = (rough.period_s / dt).round() as usize;
+        let levelled = less_running_level(values, outer.clone(), rough.start..rough.end, period);
         return measure_between(&levelled, outer, core, 0..0, 0..0, dt);
     }
     // First against the level flight a few seconds either side of the
@@ -1275,6 +1312,35 @@ fn less_level(values: &[f64], outer: Range<usize>, fit: Range<usize>) -> Vec<f64
     let mut levelled = vec![f64::NAN; values.len()];
     for k in outer {
         levelled[k] = values[k] - level;
+    }
+    levelled
+}
+
+/// `values` over `outer` less their mean over the `period` samples about
+/// each row, the window slid to lie within `cycles` (NaN outside `outer`).
+/// Falls back to [`less_level`] where the cycles are shorter than a
+/// period, and a row whose window holds no finite value is NaN.
+fn less_running_level(values: &[f64], outer: Range<usize>, cycles: Range<usize>, period: usize) -> Vec<f64> {
+    if period == 0 || cycles.len() < period {
+        return less_level(values, outer, cycles);
+    }
+    // Prefix sums of the finite values and of their count.
+    let mut sums = vec![(0.0, 0usize); cycles.len() + 1];
+    for (i, v) in values[cycles.clone()].iter().enumerate() {
+        let (sum, count) = sums[i];
+        sums[i + 1] = match v.is_finite() {
+            true => (sum + v, count + 1),
+            false => (sum, count),
+        };
+    }
+    let mut levelled = vec![f64::NAN; values.len()];
+    for k in outer {
+        let first = k.saturating_sub(period / 2).clamp(cycles.start, cycles.end - period) - cycles.start;
+        let (high, low) = (sums[first + period], sums[first]);
+        let count = high.1 - low.1;
+        if count > 0 {
+            levelled[k] = values[k] - (high.0 - low.0) / count as f64;
+        }
     }
     levelled
 }
@@ -1339,7 +1405,7 @@ fn measure_between(
     while end + 1 < centred.len() && beyond(centred[end + 1], centred[last_strong]) {
         end += 1;
     }
-    let runs = half_cycles(&centred[start..=end], STRONG * peak);
+    let (start, end, runs) = oscillation_runs(&centred, start..=end, STRONG * peak);
     let half_cycles: Vec<usize> = runs.iter().map(|r| r.end - r.start).collect();
     let peaks: Vec<f64> = runs.iter().map(|r| r.peak).collect();
     let amplitude_deg = median(&mut peaks.clone())?;
@@ -1357,6 +1423,54 @@ fn measure_between(
         peaks,
         amplitude_deg,
     })
+}
+
+/// The strong half-cycles of `centred` over `rows`, with the rows cut
+/// where a first or last half-cycle runs on ([`drifting_ends`]): the
+/// rows' first and last (inclusive) and the runs (relative to the first).
+fn oscillation_runs(centred: &[f64], rows: RangeInclusive<usize>, strong: f64) -> (usize, usize, Vec<HalfCycle>) {
+    let (start, end) = (*rows.start(), *rows.end());
+    let runs = half_cycles(&centred[start..=end], strong);
+    match drifting_ends(&runs, end + 1 - start) {
+        Some((from, to)) => {
+            let (start, end) = (start + from, start + to - 1);
+            (start, end, half_cycles(&centred[start..=end], strong))
+        }
+        None => (start, end, runs),
+    }
+}
+
+/// Longest first or last half-cycle, as a multiple of the others' median,
+/// that is taken as the oscillation's own.
+const LONGEST_END_HALF_CYCLE: f64 = 1.5;
+
+/// Where an oscillation's first or last half-cycle runs on far longer
+/// than the others, the rows (relative to the runs) it is cut to: the
+/// oscillation ends the others' median length after its last crossing
+/// (and begins as long before its first). Level flight off the
+/// oscillation's own level, where the pilot let the heading drift or
+/// rolled into a turn at once, keeps the sign of the half-cycle next to
+/// it for seconds. `None` where neither end runs on, or with fewer than
+/// three half-cycles to compare; `len` is the length of the rows the runs
+/// were found in.
+fn drifting_ends(runs: &[HalfCycle], len: usize) -> Option<(usize, usize)> {
+    let (first, last) = (runs.first()?, runs.last()?);
+    let mut inner: Vec<f64> = runs
+        .get(1..runs.len().checked_sub(1)?)?
+        .iter()
+        .map(|r| (r.end - r.start) as f64)
+        .collect();
+    let typical = median(&mut inner)?;
+    let longest = LONGEST_END_HALF_CYCLE * typical;
+    let from = match ((first.end - first.start) as f64) > longest {
+        true => first.end - typical.round() as usize,
+        false => 0,
+    };
+    let to = match ((last.end - last.start) as f64) > longest {
+        true => last.start + typical.round() as usize,
+        false => len,
+    };
+    (from > 0 || to < len).then_some((from, to))
 }
 
 /// One sign run of an oscillation: its samples and its peak deviation.

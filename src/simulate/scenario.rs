@@ -199,6 +199,10 @@ pub struct Calibration {
     /// Level flight after each manoeuvre, s (drawn per manoeuvre). Real
     /// crews often fly the three back to back: `[0, 1]`.
     pub pause_s: [f64; 2],
+    /// Level flight between a leg's last manoeuvre and the turn to the
+    /// next leg, s (drawn per leg); unset, the last manoeuvre's pause. Real
+    /// crews often roll into the turn 0–4 s after the yaw: `[0, 4]`.
+    pub turn_after_s: Option<[f64; 2]>,
     /// Rate of the turns between legs, degrees/s (drawn per turn); the bank
     /// follows from the speed (3°/s at 70 m/s banks 20.5°).
     pub turn_rate_deg_s: [f64; 2],
@@ -283,6 +287,7 @@ impl Default for Calibration {
             clover_leaf: false,
             lead_in_s: [20.0, 20.0],
             pause_s: [8.0, 14.0],
+            turn_after_s: None,
             turn_rate_deg_s: [3.0, 3.0],
             turn_entry_s: [0.0, 0.0],
             coupling: Coupling::default(),
@@ -778,7 +783,8 @@ fn check_flight_plan(raw: &RawScenario) -> std::result::Result<(), String> {
         ));
     }
     check_box_manoeuvres(box_)?;
-    for (name, range) in [("lead_in_s", box_.lead_in_s), ("pause_s", box_.pause_s)] {
+    let turn_after = ("turn_after_s", box_.turn_after_s.unwrap_or(box_.pause_s));
+    for (name, range) in [("lead_in_s", box_.lead_in_s), ("pause_s", box_.pause_s), turn_after] {
         if !(range[0] >= 0.0 && range[0] <= range[1] && range[1] < 3600.0) {
             return Err(format!(
                 "[calibration] {name} = {range:?}: give [shortest, longest] in seconds, 0 ≤ shortest ≤ longest"

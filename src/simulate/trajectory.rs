@@ -137,6 +137,27 @@ pub fn fly(scenario: &Scenario, random: &mut Random) -> FlightPath {
 /// Where the flight starts: at the box's height when it starts in the box
 /// (else at survey height), heading along the box's first leg when no line
 /// is flown before it (`lines_before`; else along the lines).
+/// The manoeuvres flown on the leg at `heading_deg`, in order, each with
+/// the fraction of its amplitude: pitch, roll and yaw less those the crew
+/// forgets, then the leg's extra ones.
+fn leg_plan(box_: &crate::simulate::scenario::Calibration, heading_deg: f64) -> Vec<(ManoeuvreKind, f64)> {
+    let on_leg = |h: f64| (h - heading_deg).abs() < 0.5;
+    let omitted: Vec<(ManoeuvreKind, f64)> = box_.omit.iter().filter_map(|o| parse_omission(o).ok()).collect();
+    let weakened: Vec<(ManoeuvreKind, f64, f64)> = box_.weaken.iter().filter_map(|w| parse_weakening(w).ok()).collect();
+    let extra: Vec<(ManoeuvreKind, f64)> = box_.extra.iter().filter_map(|o| parse_omission(o).ok()).collect();
+    [ManoeuvreKind::Pitch, ManoeuvreKind::Roll, ManoeuvreKind::Yaw]
+        .into_iter()
+        .filter(|&kind| !omitted.iter().any(|(k, h)| *k == kind && on_leg(*h)))
+        .map(|kind| {
+            let fraction = (weakened.iter())
+                .find(|(k, h, _)| *k == kind && on_leg(*h))
+                .map_or(1.0, |w| w.2);
+            (kind, fraction)
+        })
+        .chain((extra.iter()).filter(|(_, h)| on_leg(*h)).map(|e| (e.0, 1.0)))
+        .collect()
+}
+
 fn starting_pose(scenario: &Scenario, lines_before: usize) -> Pose {
     let (box_, survey) = (&scenario.raw.calibration, &scenario.raw.survey);
     let starts_in_box = lines_before == 0 && box_.repeats > 0 && !box_.climb_before;
@@ -354,41 +375,33 @@ impl Pilot<'_> {
     fn fly_box(&mut self, scenario: &Scenario, turn_back: bool) {
         let box_ = &scenario.raw.calibration;
         self.wander.1 = box_.heading_wander_deg;
-        let omitted: Vec<(ManoeuvreKind, f64)> = box_.omit.iter().filter_map(|o| parse_omission(o).ok()).collect();
-        let weakened: Vec<(ManoeuvreKind, f64, f64)> =
-            box_.weaken.iter().filter_map(|w| parse_weakening(w).ok()).collect();
-        let extra: Vec<(ManoeuvreKind, f64)> = box_.extra.iter().filter_map(|o| parse_omission(o).ok()).collect();
         let start = self.now();
         let headings = &box_.headings_deg;
         for (leg, &heading) in headings.iter().enumerate() {
             let lead_in = self.draw(box_.lead_in_s);
             self.level(lead_in, heading, box_.turbulence_deg, box_.speed_m_s);
-            for kind in [ManoeuvreKind::Pitch, ManoeuvreKind::Roll, ManoeuvreKind::Yaw] {
-                let skipped = omitted.iter().any(|(k, h)| *k == kind && (h - heading).abs() < 0.5);
-                if !skipped {
-                    let fraction = (weakened.iter())
-                        .find(|(k, h, _)| *k == kind && (h - heading).abs() < 0.5)
-                        .map_or(1.0, |w| w.2);
-                    self.manoeuvre(scenario, kind, heading, fraction);
-                    let pause = self.draw(box_.pause_s);
-                    self.level(pause, heading, box_.turbulence_deg, box_.speed_m_s);
-                }
-            }
-            for kind in (extra.iter()).filter(|(_, h)| (h - heading).abs() < 0.5).map(|e| e.0) {
-                self.manoeuvre(scenario, kind, heading, 1.0);
-                let pause = self.draw(box_.pause_s);
+            let last = leg + 1 == headings.len();
+            let turns = !last || turn_back;
+            let flown = leg_plan(box_, heading);
+            for (k, &(kind, fraction)) in flown.iter().enumerate() {
+                self.manoeuvre(scenario, kind, heading, fraction);
+                // The last manoeuvre before a turn is followed by the
+                // crew's own lead into it, where one is given.
+                let pause = match box_.turn_after_s {
+                    Some(range) if turns && k + 1 == flown.len() => self.draw(range),
+                    _ => self.draw(box_.pause_s),
+                };
                 self.level(pause, heading, box_.turbulence_deg, box_.speed_m_s);
             }
             let end = self.now();
             let next = headings[(leg + 1) % headings.len()];
-            let last = leg + 1 == headings.len();
             if last {
                 self.path.boxes.push(Stretch {
                     t_start_s: start,
                     t_end_s: end,
                 });
             }
-            if !last || turn_back {
+            if turns {
                 let change = (next - heading + 540.0).rem_euclid(360.0) - 180.0;
                 let change = match box_.clover_leaf && change != 0.0 {
                     true => change - 360.0 * change.signum(),
