@@ -173,3 +173,77 @@ fn a_dead_fluxgate_axis_is_named_and_nothing_is_compensated_through_it() {
         "{text}"
     );
 }
+
+/// The rows `screen_samples` masks in `column` of `log`.
+fn masked_rows(log: &FlightLog, column: &str) -> Vec<usize> {
+    let screened = magcomp::ingest::screen::screen_samples(log).unwrap();
+    let Some(masked) = screened.log.as_ref() else {
+        return Vec::new();
+    };
+    let values = &masked.channel(column).unwrap().values;
+    let recorded = &log.channel(column).unwrap().values;
+    (0..values.len())
+        .filter(|&k| values[k].is_nan() && recorded[k].is_finite())
+        .collect()
+}
+
+#[test]
+fn glitches_of_many_samples_on_a_scalar_or_a_fluxgate_axis_are_masked_and_nothing_else() {
+    // Runs of 2, 3, 10 and 50 samples, each placed at a row drawn from the
+    // test's own SplitMix64 stream on flights drawn at random (any rate
+    // from 5 to 50 Hz, box and survey): a scalar lowered by 20,000 nT, a
+    // fluxgate axis read as zeros or subnormals, and one with its sign
+    // flipped (2, 3 and 10 samples: a flip held for 5 s is an axis that
+    // turned, as far as continuity can tell). The clean flight masks
+    // nothing; each damaged one masks exactly the damaged rows.
+    let draws = common::splitmix64(0x5EED_0070_0001, 64);
+    let mut next = draws.into_iter();
+    for seed in [5, 13, 21] {
+        let (simulated, layout, _) = common::paired_sensors_flight(seed);
+        let log = &simulated.log;
+        assert!(
+            masked_rows(log, "mag_1_uc").is_empty(),
+            "seed {seed}: the clean flight is masked"
+        );
+        assert!(
+            masked_rows(log, "flux_a_z").is_empty(),
+            "seed {seed}: the clean flight is masked"
+        );
+        for length in [2usize, 3, 10, 50] {
+            let start = 100 + (next.next().unwrap() % (log.len() as u64 - 300)) as usize;
+            let rows: Vec<usize> = (start..start + length).collect();
+            let damaged = |column: &str, change: &dyn Fn(f64) -> f64| {
+                let mut values = log.channel(column).unwrap().values.clone();
+                for &k in &rows {
+                    values[k] = change(values[k]);
+                }
+                log.with_values(column, values).unwrap()
+            };
+            let case = format!(
+                "seed {seed} ({layout:?}), {length} samples from row {start} ({:.3} s apart; z {:.0} nT)",
+                log.median_interval_s(),
+                log.channel("flux_a_z").unwrap().values[start]
+            );
+            let lowered = damaged("mag_1_uc", &|v| v - 20_000.0);
+            assert_eq!(masked_rows(&lowered, "mag_1_uc"), rows, "scalar lowered, {case}");
+            // Zeros and a flip on the axis with the largest reading there:
+            // an axis near zero read as zero, or flipped, is within what
+            // a turn does.
+            let axis = ["flux_a_x", "flux_a_y", "flux_a_z"]
+                .into_iter()
+                .max_by(|a, b| {
+                    let at = |c: &str| log.channel(c).unwrap().values[start].abs();
+                    at(a).total_cmp(&at(b))
+                })
+                .unwrap();
+            let zeros = damaged(axis, &|_| 0.0);
+            assert_eq!(masked_rows(&zeros, axis), rows, "{axis} zeros, {case}");
+            let subnormal = damaged("flux_a_x", &|_| 5e-324);
+            assert_eq!(masked_rows(&subnormal, "flux_a_x"), rows, "subnormals, {case}");
+            if length <= 10 {
+                let flipped = damaged(axis, &|v| -v);
+                assert_eq!(masked_rows(&flipped, axis), rows, "{axis} flipped, {case}");
+            }
+        }
+    }
+}

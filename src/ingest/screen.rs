@@ -16,9 +16,16 @@
 //!   agree with each other;
 //! - a fluxgate whose magnitude is under 1,000 nT (a zero or subnormal
 //!   reading: the sensor reported nothing; all three axes), an axis reading
-//!   zero between neighbours 500 nT or more from zero (a dropout), a
-//!   component beyond ±100,000 nT, or an isolated spike in one axis (that
-//!   axis, which makes the row's vector missing);
+//!   zero between neighbours 500 nT or more from zero, alone or in a run,
+//!   or a subnormal anywhere (a dropout), a component beyond ±100,000 nT,
+//!   or an isolated spike in one axis (that axis, which makes the row's
+//!   vector missing);
+//! - in a scalar or a fluxgate axis, a run of glitches: samples entered
+//!   and left by jumps larger than the field can change in one interval,
+//!   with the readings either side of the run agreeing (within what the
+//!   field can change across it: the crust at 1,500 nT/s plus the
+//!   aircraft's own swing of 4,000 nT for a scalar, up to 10 s; the
+//!   Earth's field turning at 1 rad/s for a fluxgate axis, up to 2 s);
 //! - a scalar magnetometer or a fluxgate axis that repeats one reading
 //!   for [`STUCK_S`] or longer (and at least [`STUCK_SAMPLES`] samples):
 //!   a working sensor's noise and the aircraft's motion change every
@@ -77,6 +84,27 @@ pub const LEAST_ATTITUDE_GLITCH_DEG: f64 = 5.0;
 /// each side a sample is judged against.
 pub const LONGEST_GLITCH_SAMPLES: usize = 3;
 
+/// Fastest the crustal field changes under a survey aircraft, nT/s: a
+/// 10 nT/m gradient at 150 m/s.
+pub const GEOLOGY_NT_S: f64 = 1_500.0;
+
+/// Largest swing of an aircraft's own field at a scalar sensor between
+/// any two attitudes, nT: a cabin sensor's interference reaches a few
+/// thousand nT at most, a tail sensor's a few hundred.
+pub const AIRCRAFT_SWING_NT: f64 = 4_000.0;
+
+/// Neighbours a scalar sample is judged against on each side, s: a run of
+/// glitches shorter than this is found whatever its values.
+pub const SCALAR_GLITCH_REACH_S: f64 = 10.0;
+
+/// ... and a fluxgate component, s: beyond it the Earth's field can turn
+/// through any direction, so continuity tells nothing.
+pub const COMPONENT_GLITCH_REACH_S: f64 = 2.0;
+
+/// Most neighbours on each side any glitch is judged against (10 s at
+/// 50 Hz).
+const MOST_GLITCH_REACH_SAMPLES: usize = 500;
+
 /// A magnetometer repeating one reading this long is stuck, s.
 pub const STUCK_S: f64 = 5.0;
 
@@ -110,6 +138,9 @@ pub enum MaskReason {
     Glitch,
     /// One reading repeated for [`STUCK_S`] or longer.
     Stuck,
+    /// Magnetometer samples further from most of their neighbours than
+    /// the field can change between them, in runs of more than one.
+    Burst,
 }
 
 impl MaskReason {
@@ -122,6 +153,7 @@ impl MaskReason {
             MaskReason::Dropout => FlagKind::Dropout,
             MaskReason::Glitch => FlagKind::Spike,
             MaskReason::Stuck => FlagKind::Stuck,
+            MaskReason::Burst => FlagKind::Spike,
         }
     }
 
@@ -132,12 +164,17 @@ impl MaskReason {
             MaskReason::Spike => {
                 "isolated spikes, further from both neighbours than the field can change in one sample"
             }
-            MaskReason::Dropout => "an axis reading zero between neighbours 500 nT or more from zero: a dropout",
+            MaskReason::Dropout => {
+                "an axis reading zero (alone or in a run) between neighbours 500 nT or more from zero: a dropout"
+            }
             MaskReason::Glitch => {
                 "glitches: samples further from most of their neighbours than the aircraft can turn in two intervals (90°/s), up to 3 in a row"
             }
             MaskReason::Stuck => {
                 "one reading repeated for 5 s or longer: the sensor is stuck or its axis dead, or the logger held its last value"
+            }
+            MaskReason::Burst => {
+                "glitches lasting more than one sample: samples further from most of their neighbours (up to 10 s away for a scalar, 2 s for a fluxgate axis) than the field can change between them"
             }
         }
     }
@@ -287,6 +324,9 @@ fn screen_channel(name: &str, role: &ChannelRole, values: &[f64], interval_s: f6
             let mut found = range(low, high);
             let jump_nt = (FASTEST_TOTAL_FIELD_NT_S * interval_s).max(100.0);
             found.extend(spikes(values, jump_nt, &found));
+            let most_change = |dt: f64| (FASTEST_TOTAL_FIELD_NT_S * dt).min(GEOLOGY_NT_S * dt + AIRCRAFT_SWING_NT);
+            let reach = samples_within(SCALAR_GLITCH_REACH_S, interval_s);
+            found.extend(bursts(values, (jump_nt, interval_s), reach, most_change, &found));
             // A base station may record at a minute's cadence, held.
             if matches!(role, ChannelRole::ScalarMagnetometer) {
                 found.extend(stuck(values, interval_s));
@@ -298,6 +338,9 @@ fn screen_channel(name: &str, role: &ChannelRole, values: &[f64], interval_s: f6
             let jump_nt = (FASTEST_COMPONENT_NT_S * interval_s).max(1_000.0);
             let mut found = dropouts(values);
             found.extend(spikes(values, jump_nt, &found));
+            let most_change = |dt: f64| FASTEST_COMPONENT_NT_S * dt;
+            let reach = samples_within(COMPONENT_GLITCH_REACH_S, interval_s);
+            found.extend(bursts(values, (jump_nt, interval_s), reach, most_change, &found));
             found.extend(stuck(values, interval_s));
             found
         }
@@ -343,14 +386,32 @@ fn vector_reason(components: [f64; 3]) -> Option<(MaskReason, Option<usize>)> {
     None
 }
 
-/// Rows where a fluxgate axis reads zero (or a subnormal) between two
-/// neighbours well away from zero: a dropout, not a zero crossing.
+/// Rows where a fluxgate axis reads zero (or a subnormal), alone or in a
+/// run, between two neighbours well away from zero: a dropout, not a zero
+/// crossing (an axis crossing zero passes it, it does not stay). A
+/// subnormal is a dropout anywhere.
 fn dropouts(values: &[f64]) -> Vec<(usize, MaskReason)> {
     let away = |v: f64| v.is_finite() && v.abs() >= DROPOUT_NEIGHBOUR_NT;
-    (1..values.len().saturating_sub(1))
-        .filter(|&row| values[row].abs() < DROPOUT_NT && away(values[row - 1]) && away(values[row + 1]))
-        .map(|row| (row, MaskReason::Dropout))
-        .collect()
+    let zero = |v: f64| v.abs() < DROPOUT_NT;
+    let mut found = Vec::new();
+    let mut row = 1;
+    while row + 1 < values.len() {
+        if !zero(values[row]) {
+            row += 1;
+            continue;
+        }
+        let start = row;
+        while row < values.len() && zero(values[row]) {
+            row += 1;
+        }
+        let between_readings = row < values.len() && away(values[start - 1]) && away(values[row]);
+        // No instrument reads a subnormal: it is a damaged cell wherever it is.
+        let subnormal = |r: &usize| values[*r] != 0.0;
+        for r in (start..row).filter(|r| between_readings || subnormal(r)) {
+            found.push((r, MaskReason::Dropout));
+        }
+    }
+    found
 }
 
 /// Rows holding an isolated spike: a finite sample further than `jump`
@@ -367,6 +428,65 @@ fn spikes(values: &[f64], jump: f64, masked: &[(usize, MaskReason)]) -> Vec<(usi
         })
         .map(|row| (row, MaskReason::Spike))
         .collect()
+}
+
+/// Samples within `seconds` of a row at `interval_s`, at least
+/// [`LONGEST_GLITCH_SAMPLES`] and at most [`MOST_GLITCH_REACH_SAMPLES`].
+fn samples_within(seconds: f64, interval_s: f64) -> usize {
+    let samples = (seconds / interval_s.max(1e-9)).round();
+    (samples.min(MOST_GLITCH_REACH_SAMPLES as f64) as usize).max(LONGEST_GLITCH_SAMPLES)
+}
+
+/// Rows of a magnetometer's glitches that last more than one sample: a
+/// run of up to `reach` samples entered and left by jumps larger than the
+/// field can change in their interval, whose readings either side agree
+/// with each other within what the field can change across the run
+/// (`most_change` of the time, at least `least.0`; `least.1` is the
+/// sampling interval). A real change, however fast, makes no such jump,
+/// so nothing the aircraft flies through is masked; a clean record costs
+/// one pass. Rows already in `masked` are not read.
+fn bursts(
+    values: &[f64],
+    least: (f64, f64),
+    reach: usize,
+    most_change: impl Fn(f64) -> f64,
+    masked: &[(usize, MaskReason)],
+) -> Vec<(usize, MaskReason)> {
+    let (jump, interval_s) = least;
+    let excluded: std::collections::HashSet<usize> = masked.iter().map(|(row, _)| *row).collect();
+    let usable: Vec<usize> = (0..values.len())
+        .filter(|row| values[*row].is_finite() && !excluded.contains(row))
+        .collect();
+    let allowed = |a: usize, b: usize| most_change(b.abs_diff(a) as f64 * interval_s).max(jump);
+    let agree = |a: usize, b: usize| (values[b] - values[a]).abs() <= allowed(a, b);
+    // Jumps between consecutive usable readings, as (before, after) rows.
+    let jumps: Vec<(usize, usize)> = (usable.windows(2))
+        .map(|pair| (pair[0], pair[1]))
+        .filter(|&(a, b)| !agree(a, b))
+        .collect();
+    let mut found = Vec::new();
+    let mut i = 0;
+    while i < jumps.len() {
+        let (before, first) = jumps[i];
+        // The nearest later jump within reach that lands back where the
+        // reading before the run would allow.
+        let back = (jumps[i + 1..].iter().enumerate())
+            .take_while(|(_, (last, _))| last - first < reach)
+            .find(|(_, (_, after))| agree(before, *after));
+        match back {
+            Some((offset, &(last, _))) => {
+                found.extend(
+                    usable
+                        .iter()
+                        .filter(|&&r| r >= first && r <= last)
+                        .map(|&r| (r, MaskReason::Burst)),
+                );
+                i += offset + 2;
+            }
+            None => i += 1,
+        }
+    }
+    found
 }
 
 /// Rows of attitude glitches: a finite sample further than twice `jump`
