@@ -364,6 +364,7 @@ fn io_hint(error: &std::io::Error) -> &'static str {
         ErrorKind::PermissionDenied => "Check the permissions of the file and its folder.",
         ErrorKind::UnexpectedEof => "The file ends early; check that it was copied or exported completely.",
         ErrorKind::InvalidData => "The file is not what its name says, or it is damaged.",
+        ErrorKind::InvalidInput => "Copy what it holds to a file and give that file.",
         _ => "Check the file, its folder and the disk (space, permissions, a network drive that went away).",
     }
 }

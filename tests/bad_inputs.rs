@@ -1410,3 +1410,71 @@ fn every_bad_input_is_refused_by_name_or_kept_row_for_row() {
         listing.join("\n")
     );
 }
+
+/// A named pipe given wherever magcomp reads a file: as the settings
+/// (`--config`), a model (`--apply`), windows (`--windows-file`), the
+/// `run` pipeline, a `[[flight]] input` and a flight's `_status.json`.
+/// Reading one would block until something wrote to it; each is refused
+/// at once, naming the path and saying it is not a regular file.
+#[cfg(unix)]
+#[test]
+fn a_named_pipe_is_refused_wherever_a_file_is_read() {
+    let folder = tempfile::tempdir().unwrap();
+    let folder = folder.path();
+    good_flight(folder);
+    let pipe = folder.join("settings.fifo");
+    assert!(Command::new("mkfifo").arg(&pipe).status().unwrap().success());
+    let binary = Path::new(env!("CARGO_BIN_EXE_magcomp"));
+    std::fs::write(
+        folder.join("pipe.toml"),
+        "[quality]\nexit_zero_on_fail = true\n[[flight]]\ninput = \"settings.fifo\"\n",
+    )
+    .unwrap();
+    let args = |words: &[&str]| words.iter().map(OsString::from).collect::<Vec<_>>();
+    let cases = [
+        args(&["compensate", "good.csv", "--out", "a.csv", "--config", "settings.fifo"]),
+        args(&["compensate", "good.csv", "--out", "b.csv", "--apply", "settings.fifo"]),
+        args(&[
+            "compensate",
+            "good.csv",
+            "--out",
+            "c.csv",
+            "--windows-file",
+            "settings.fifo",
+        ]),
+        args(&["run", "settings.fifo"]),
+        args(&["run", "pipe.toml"]),
+    ];
+    for case in &cases {
+        let outcome = run_magcomp(binary, case, folder);
+        assert!(outcome.elapsed < WIDE_TIME_BOUND, "{case:?} took {:?}", outcome.elapsed);
+        assert!(
+            outcome.status.is_some_and(|s| !s.success()),
+            "{case:?}: {}",
+            outcome.stderr
+        );
+        assert!(
+            outcome.stderr.contains("settings.fifo") && outcome.stderr.contains("not a regular file"),
+            "{case:?}: {}",
+            outcome.stderr
+        );
+    }
+    // A status file that is a pipe is no status: the flight is done again.
+    std::fs::write(folder.join("good.toml"), "[[flight]]\ninput = \"good.csv\"\n").unwrap();
+    let first = run_magcomp(binary, &args(&["run", "good.toml", "--exit-zero-on-fail"]), folder);
+    assert!(first.status.is_some_and(|s| s.success()), "{}", first.stderr);
+    let status = std::fs::read_dir(folder.join("out"))
+        .unwrap()
+        .map(|entry| entry.unwrap().path())
+        .find(|path| path.to_string_lossy().ends_with("_status.json"))
+        .expect("run writes a status");
+    std::fs::remove_file(&status).unwrap();
+    assert!(Command::new("mkfifo").arg(&status).status().unwrap().success());
+    let again = run_magcomp(binary, &args(&["run", "good.toml", "--exit-zero-on-fail"]), folder);
+    assert!(
+        again.elapsed < WIDE_TIME_BOUND,
+        "a status pipe took {:?}",
+        again.elapsed
+    );
+    assert!(again.status.is_some(), "a status pipe: killed");
+}

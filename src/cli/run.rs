@@ -183,6 +183,11 @@ fn print_finished(job: &FlightJob, done: &FinishedFlight, folder: &Path, (limit,
     }
 }
 
+/// Widest the status table's flight column is padded to, characters: a
+/// longer name runs on past it (a padding beyond 65,535 cannot be
+/// formatted).
+const MOST_FLIGHT_COLUMN: usize = 120;
+
 /// The run's per-flight status table: flight, and how it ended.
 fn status_table(statuses: &[(String, FlightState, String)]) -> String {
     let width = statuses
@@ -190,10 +195,27 @@ fn status_table(statuses: &[(String, FlightState, String)]) -> String {
         .map(|(flight, _, _)| flight.chars().count())
         .max()
         .unwrap_or(0)
-        .max(6);
+        .clamp(6, MOST_FLIGHT_COLUMN);
     let mut table = format!("\n{:<width$}  status\n", "flight");
     for (flight, _, outcome) in statuses {
         table += &format!("{flight:<width$}  {outcome}\n");
     }
     table
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_flight_name_longer_than_any_padding_is_printed_whole() {
+        let long = "a".repeat(70_000);
+        let table = status_table(&[
+            (long.clone(), FlightState::Failed, "FAILED: no such file".into()),
+            ("short.csv".into(), FlightState::Done, "PASS".into()),
+        ]);
+        assert!(table.contains(&format!("{long}  FAILED: no such file")));
+        let padded = format!("{:<width$}  PASS", "short.csv", width = MOST_FLIGHT_COLUMN);
+        assert!(table.contains(&padded), "{}", &table[..200]);
+    }
 }

@@ -97,6 +97,8 @@ pub fn detect_format(path: &Path) -> Result<Format> {
     if let Some(format) = Format::of_extension(&lowercase_extension(path)) {
         return Ok(format);
     }
+    // Sniffing a named pipe would block until something wrote to it.
+    check_not_empty(path)?;
     let mut head = [0u8; 512];
     let mut file = std::fs::File::open(path).map_err(|e| Error::io(path, "opening", e))?;
     let read = file.read(&mut head).map_err(|e| Error::io(path, "reading", e))?;
@@ -187,6 +189,21 @@ fn date_from_columns(log: &FlightLog) -> Option<crate::ingest::flight_date::Flig
         let whole = |v: f64| (v.is_finite() && v.fract() == 0.0 && (1.0..1e4).contains(&v)).then_some(v as u32);
         crate::ingest::flight_date::FlightDate::from_day_of_year(whole(year)? as i32, whole(day)?)
     })
+}
+
+/// The whole text of a file magcomp reads at once (a pipeline or
+/// manifest, a scenario, a model, windows, a plan, a status, a quality
+/// JSON), refused with `InvalidInput` unless it is a regular file: a
+/// named pipe would block the run until something wrote to it, and a
+/// device never ends.
+pub fn read_text(path: &Path) -> std::io::Result<String> {
+    if !std::fs::metadata(path)?.is_file() {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            "not a regular file (a named pipe, a device or a folder); give the path of a file",
+        ));
+    }
+    std::fs::read_to_string(path)
 }
 
 /// Refuses a file of no bytes at all, or one that is not a regular file,

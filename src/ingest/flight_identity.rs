@@ -186,6 +186,14 @@ impl FileKey {
 
 /// SHA-256 of a file's bytes, read now.
 fn hash_bytes(path: &Path) -> Result<String> {
+    // A named pipe would block here until something wrote to it.
+    let metadata = std::fs::metadata(path).map_err(|e| Error::io(path, "reading (to hash)", e))?;
+    if !metadata.is_file() {
+        return Err(Error::UnsupportedFormat {
+            path: path.to_path_buf(),
+            message: "not a regular file (a named pipe, a device or a folder): magcomp reads its inputs more than once, so copy it to a file and give that file".into(),
+        });
+    }
     let mut file = std::fs::File::open(path).map_err(|e| Error::io(path, "reading (to hash)", e))?;
     let mut hasher = Sha256::new();
     let mut block = vec![0u8; 1 << 20];
