@@ -408,7 +408,13 @@ fn csv_windows(cell: String) -> ManifestWindows {
 
 fn from_row(row: ManifestRow) -> std::result::Result<RawFlight, String> {
     let mut flight = raw_flight(row.input);
-    match row.windows {
+    // A JSON string that is not a `.json` path holds windows, as a CSV
+    // cell does ("46000:46120" reads as a window, not a missing file).
+    let windows = match row.windows {
+        Some(ManifestWindows::File(file)) => Some(csv_windows(file.to_string_lossy().into_owned())),
+        windows => windows,
+    };
+    match windows {
         Some(ManifestWindows::File(file)) => flight.windows_file = Some(file),
         Some(ManifestWindows::List(list)) => {
             for window in list {
@@ -538,6 +544,24 @@ mod tests {
             assert!(text.contains("s.jsonl line 1") && text.contains(says), "{text}");
             assert!(!text.contains("variant"), "{text}");
         }
+        // A string that is no `.json` path holds windows, as a CSV cell.
+        let text_windows = write(
+            folder.path(),
+            "x.jsonl",
+            "{\"input\": \"a.csv\", \"windows\": \"x:y\"}\n",
+        );
+        let text = read_manifest(&text_windows).unwrap_err().to_string();
+        assert!(
+            text.contains("x.jsonl line 1") && text.contains("\"x:y\" is not a window") && !text.contains("reading"),
+            "{text}"
+        );
+        let good = write(
+            folder.path(),
+            "g.jsonl",
+            "{\"input\": \"a.csv\", \"windows\": \"5:9 12:20\"}\n",
+        );
+        let flights = read_manifest(&good).unwrap();
+        assert_eq!(flights[0].windows.len(), 2);
         let typo = write(folder.path(), "t.jsonl", "{\"input\": \"a.csv\", \"chanels\": []}\n");
         let text = read_manifest(&typo).unwrap_err().to_string();
         assert!(text.contains("t.jsonl line 1") && text.contains("chanels"), "{text}");

@@ -52,10 +52,9 @@ pub fn read_header(path: &Path) -> Result<(Separator, Vec<String>)> {
     })?;
     let line = line.trim_start_matches('\u{feff}').trim_end_matches(['\r', '\n']);
     let separator = sniff_separator(line);
-    let names = match separator {
-        Separator::Byte(d) => line.split(d as char).map(|s| s.trim().to_string()).collect(),
-        Separator::Whitespace => line.split_ascii_whitespace().map(String::from).collect(),
-    };
+    // Split as the rows are, so a quoted name ("tt") is read without its
+    // quotes and a quoted separator stays in its name.
+    let names = line_cells(line.as_bytes(), separator).unwrap_or_default();
     Ok((separator, names))
 }
 
@@ -718,6 +717,18 @@ mod tests {
         let mut file = tempfile::Builder::new().suffix(".csv").tempfile().unwrap();
         file.write_all(text.as_bytes()).unwrap();
         file
+    }
+
+    #[test]
+    fn quoted_header_and_cells_are_read_without_their_quotes() {
+        let file =
+            write_temp("\"tt\",\"mag_1_uc\",\"note, free\"\n\"0.0\",\"52000.5\",\"1\"\n\"0.1\",\"52000.75\",\"2\"\n");
+        let (separator, names) = read_header(file.path()).unwrap();
+        assert_eq!(separator, Separator::Byte(b','));
+        assert_eq!(names, ["tt", "mag_1_uc", "note, free"]);
+        let log = read_csv(file.path(), &ColumnNames::default()).unwrap();
+        assert_eq!(log.time_s(), [0.0, 0.1]);
+        assert_eq!(log.channel("mag_1_uc").unwrap().values, [52000.5, 52000.75]);
     }
 
     #[test]
