@@ -189,16 +189,31 @@ pub(crate) fn campaign_flights(
         }
         named.insert(key);
     }
+    // A pattern such as "*" matches the pipeline file and the manifest
+    // too: they are the run's settings, not flights.
+    let settings: Vec<PathBuf> = std::iter::once(Path::new(source_name).to_path_buf())
+        .chain(campaign.manifest.as_ref().map(|m| base.join(m)))
+        .map(|p| path_key(&p))
+        .collect();
     let mut notes = Vec::new();
     for pattern in &campaign.inputs {
         let mut left_out = 0;
+        let mut settings_matched = Vec::new();
         for path in glob_matches(pattern, base, source_name)? {
             let key = path_key(&path);
             if outputs.as_ref().is_some_and(|folder| key.starts_with(folder)) {
                 left_out += 1;
+            } else if settings.contains(&key) {
+                settings_matched.push(path);
             } else if named.insert(key) {
                 flights.push(raw_flight(path));
             }
+        }
+        if !settings_matched.is_empty() {
+            notes.push(crate::messages::Setup::SettingsMatched {
+                pattern: pattern.clone(),
+                files: settings_matched,
+            });
         }
         if left_out > 0 {
             notes.push(crate::messages::Setup::InputsInOutputFolder {
@@ -565,6 +580,31 @@ mod tests {
         let typo = write(folder.path(), "t.jsonl", "{\"input\": \"a.csv\", \"chanels\": []}\n");
         let text = read_manifest(&typo).unwrap_err().to_string();
         assert!(text.contains("t.jsonl line 1") && text.contains("chanels"), "{text}");
+    }
+
+    #[test]
+    fn a_pattern_that_matches_the_pipeline_file_or_manifest_leaves_them_out_and_says_so() {
+        let folder = tempfile::tempdir().unwrap();
+        write(folder.path(), "a.csv", "tt\n0\n");
+        write(folder.path(), "flights.jsonl", "{\"input\": \"b.csv\"}\n");
+        let pipeline = write(folder.path(), "p.toml", "");
+        let campaign = RawCampaign {
+            inputs: vec!["*".into()],
+            manifest: Some("flights.jsonl".into()),
+        };
+        let source = pipeline.display().to_string();
+        let (flights, notes) = campaign_flights(&campaign, &[], (folder.path(), Path::new("out")), &source).unwrap();
+        let names: Vec<String> = (flights.iter())
+            .map(|f| f.input.file_name().unwrap().to_string_lossy().into_owned())
+            .collect();
+        assert_eq!(names, ["b.csv", "a.csv"]);
+        let said = notes.iter().map(ToString::to_string).collect::<Vec<_>>().join("\n");
+        assert!(
+            said.contains("matches the run's own settings")
+                && said.contains("p.toml")
+                && said.contains("flights.jsonl"),
+            "{said}"
+        );
     }
 
     #[test]

@@ -25,6 +25,14 @@ pub enum Setup {
         /// The output folder.
         folder: PathBuf,
     },
+    /// A campaign's input pattern also matches the run's own settings
+    /// (the pipeline file or its manifest), which are left out.
+    SettingsMatched {
+        /// The pattern, as written.
+        pattern: String,
+        /// The settings files it matches.
+        files: Vec<PathBuf>,
+    },
     /// An aircraft's flights compensated with the model of its
     /// calibration flight.
     CompensatedWithCalibration {
@@ -63,6 +71,11 @@ impl fmt::Display for Setup {
                 f,
                 "[campaign] inputs: {pattern:?} matches {files} file(s) in the output folder {}; they are outputs of earlier runs, not flights, and are left out",
                 folder.display()
+            ),
+            Setup::SettingsMatched { pattern, files } => write!(
+                f,
+                "[campaign] inputs: {pattern:?} matches the run's own settings ({}); they are not flights, and are left out",
+                listed(&files.iter().map(|p| p.display().to_string()).collect::<Vec<_>>())
             ),
             Setup::CompensatedWithCalibration {
                 aircraft,
