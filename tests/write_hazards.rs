@@ -386,3 +386,40 @@ fn a_read_only_report_folder_stops_the_run_before_anything_is_written() {
         "the CSV is not written when the report cannot be"
     );
 }
+
+#[test]
+fn an_output_name_no_file_system_takes_is_refused_before_anything_is_written() {
+    // 251 bytes and ".csv" is a name the disk takes, but the report and
+    // JSON named after it are not: the flight's outputs are committed
+    // together or not at all, so nothing is written.
+    let folder = tempfile::tempdir().unwrap();
+    small_flight(folder.path());
+    let long = format!("{}.csv", "a".repeat(251));
+    assert_refused(
+        folder.path(),
+        &["compensate", "flight.csv", "--out", &long],
+        "at most 255",
+    );
+    assert!(
+        names_in(folder.path()).iter().all(|n| !n.starts_with("aaaa")),
+        "{:?}",
+        names_in(folder.path())
+    );
+}
+
+#[test]
+fn a_read_only_output_is_not_replaced() {
+    let folder = tempfile::tempdir().unwrap();
+    small_flight(folder.path());
+    let kept = folder.path().join("kept.csv");
+    std::fs::write(&kept, "delivered\n").unwrap();
+    let mut permissions = std::fs::metadata(&kept).unwrap().permissions();
+    permissions.set_readonly(true);
+    std::fs::set_permissions(&kept, permissions).unwrap();
+    assert_refused(
+        folder.path(),
+        &["compensate", "flight.csv", "--out", "kept.csv"],
+        "read-only",
+    );
+    assert_eq!(std::fs::read_to_string(&kept).unwrap(), "delivered\n");
+}

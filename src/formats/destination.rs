@@ -107,6 +107,7 @@ pub fn prepare(inputs: &[&Path], outputs: &[Destination]) -> Result<Vec<Setup>> 
     }
     for output in outputs {
         check_extension(output)?;
+        check_name_length(output)?;
         check_not_special(&output.path)?;
         check_not_an_input(output, inputs)?;
     }
@@ -126,6 +127,29 @@ pub fn prepare(inputs: &[&Path], outputs: &[Destination]) -> Result<Vec<Setup>> 
         folders.push(folder);
     }
     Ok(notes)
+}
+
+/// Longest file name the common file systems take, bytes (ext4, XFS,
+/// APFS, NTFS in UTF-16 units near enough).
+const LONGEST_FILE_NAME: usize = 255;
+
+/// Refuses a destination whose file name no file system takes, before
+/// anything is written: a flight's outputs are committed together, and a
+/// name derived from `--out` (its `_report.json`, say) can be longer than
+/// the name given.
+fn check_name_length(output: &Destination) -> Result<()> {
+    let length = output.path.file_name().map_or(0, |n| n.as_encoded_bytes().len());
+    if length <= LONGEST_FILE_NAME {
+        return Ok(());
+    }
+    Err(refuse(
+        &output.path,
+        format!(
+            "{}'s file name is {length} bytes, and file systems take at most {LONGEST_FILE_NAME}",
+            output.named_by
+        ),
+        "Give a shorter output name (the report and JSON files add up to 20 bytes to it); nothing was written.",
+    ))
 }
 
 fn check_extension(output: &Destination) -> Result<()> {
@@ -159,7 +183,8 @@ fn list_extensions(allowed: &[&str]) -> String {
 }
 
 /// Refuses a destination that exists and is not a regular file: magcomp
-/// never writes through a link or over a device, FIFO, socket or folder.
+/// never writes through a link or over a device, FIFO, socket or folder,
+/// nor replaces a read-only file.
 fn check_not_special(path: &Path) -> Result<()> {
     let Ok(metadata) = std::fs::symlink_metadata(path) else {
         return Ok(());
@@ -171,6 +196,14 @@ fn check_not_special(path: &Path) -> Result<()> {
         "a folder"
     } else if !file_type.is_file() {
         "a device, FIFO or socket, not a regular file"
+    } else if metadata.permissions().readonly() {
+        // The rename that commits an output would replace it whatever its
+        // mode (and root may write it anyway): its owner protected it.
+        return Err(refuse(
+            path,
+            "the destination is read-only: its owner protected it, and magcomp does not replace it",
+            "Make it writable if it may be replaced, or give another name; nothing was written.",
+        ));
     } else {
         return Ok(());
     };
