@@ -231,7 +231,7 @@ pub fn read_detect_json(path: &Path, margin_s: f64) -> Result<Vec<CalibrationWin
 
 /// [`read_detect_json`]'s windows with the flight they were detected on.
 pub fn read_detect_file(path: &Path, margin_s: f64) -> Result<DetectedWindows> {
-    let text = crate::formats::read_text(path).map_err(|e| Error::io(path, "reading", e))?;
+    let text = crate::ingest::read_text(path).map_err(|e| Error::io(path, "reading", e))?;
     let file: DetectFile = serde_json::from_str(&text).map_err(|e| Error::NotOurFile {
         path: path.to_path_buf(),
         expected: "a DETECT.json manoeuvre list",

@@ -117,7 +117,7 @@ impl FlightStatus {
     /// Reads the status at `path`; `None` when there is none or it cannot
     /// be read (a flight to do again, not an error).
     pub fn read(path: &Path) -> Option<Self> {
-        let text = crate::formats::read_text(path).ok()?;
+        let text = crate::ingest::read_text(path).ok()?;
         serde_json::from_str(&text).ok()
     }
 

@@ -243,7 +243,7 @@ fn name_repeated_inputs(flights: &mut [SummaryFlight]) {
 }
 
 fn summary_flight(folder: &Path, path: &Path) -> Result<SummaryFlight> {
-    let text = crate::formats::read_text(path).map_err(|e| Error::io(path, "reading", e))?;
+    let text = crate::ingest::read_text(path).map_err(|e| Error::io(path, "reading", e))?;
     let status: FlightStatus = serde_json::from_str(&text).map_err(|e| unreadable(path, e.to_string()))?;
     let mut flight = SummaryFlight {
         status,
@@ -311,7 +311,7 @@ fn report_verdicts(report: &Value, channels: &mut [ChannelFigures]) {
 
 fn read_json(path: &Path) -> std::result::Result<Value, String> {
     let name = path.file_name().unwrap_or_default().to_string_lossy();
-    let text = crate::formats::read_text(path).map_err(|e| format!("{name}: {e}"))?;
+    let text = crate::ingest::read_text(path).map_err(|e| format!("{name}: {e}"))?;
     serde_json::from_str(&text).map_err(|e| format!("{name}: {e}"))
 }
 

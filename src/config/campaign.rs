@@ -298,7 +298,7 @@ fn raw_flight(input: PathBuf) -> RawFlight {
 /// `.ndjson`, `.json`: one object a line, or in `.json` one array), CSV
 /// otherwise.
 fn read_manifest(path: &Path) -> Result<Vec<RawFlight>> {
-    let text = crate::formats::read_text(path).map_err(|e| Error::io(path, "reading", e))?;
+    let text = crate::ingest::read_text(path).map_err(|e| Error::io(path, "reading", e))?;
     let extension = crate::formats::lowercase_extension(path);
     match extension.as_str() {
         "json" if text.trim_start().starts_with('[') => read_json_array(path, &text),

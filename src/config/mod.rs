@@ -605,7 +605,7 @@ impl Pipeline {
     /// Reads and validates a pipeline.toml, then reads the DETECT.json
     /// files its flights name as windows.
     pub fn load(path: &Path) -> Result<Self> {
-        let text = crate::formats::read_text(path).map_err(|e| Error::io(path, "reading", e))?;
+        let text = crate::ingest::read_text(path).map_err(|e| Error::io(path, "reading", e))?;
         let source_name = path.display().to_string();
         let raw: RawPipeline = toml::from_str(&text).map_err(|e| Error::Config {
             source_name: source_name.clone(),

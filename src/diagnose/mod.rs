@@ -435,7 +435,7 @@ pub fn read_saved(path: &std::path::Path) -> Result<SavedDiagnosis> {
         #[serde(default)]
         model: Extensions,
     }
-    let text = crate::formats::read_text(path).map_err(|e| crate::Error::io(path, "reading", e))?;
+    let text = crate::ingest::read_text(path).map_err(|e| crate::Error::io(path, "reading", e))?;
     let file: File = serde_json::from_str(&text).map_err(|e| crate::Error::NotOurFile {
         path: path.to_path_buf(),
         expected: "a DIAGNOSIS.json as `magcomp diagnose` writes it",

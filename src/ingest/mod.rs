@@ -8,6 +8,8 @@
 //! - [`flags`]: the row flags every output carries.
 //! - [`screen`]: the samples no instrument can record, flagged before any
 //!   fit.
+//! - [`text_file`]: a settings or results file read whole, refused when it
+//!   is a named pipe or a device.
 //!
 //! The file formats themselves are [`crate::formats`], which both reads
 //! and writes.
@@ -17,3 +19,6 @@ pub mod flight_date;
 pub mod flight_identity;
 pub mod flight_log;
 pub mod screen;
+pub mod text_file;
+
+pub use text_file::read_text;

@@ -344,7 +344,7 @@ impl SavedModel {
             hint: "Give the model JSON that `magcomp compensate --model` or `magcomp run` wrote for the calibration flight",
         }
         };
-        let text = crate::formats::read_text(path).map_err(|source| Error::Io {
+        let text = crate::ingest::read_text(path).map_err(|source| Error::Io {
             path: path.to_path_buf(),
             action: "reading",
             source,

@@ -61,7 +61,7 @@ pub struct Plan {
 impl Plan {
     /// Reads and checks a plan file.
     pub fn load(path: &Path) -> Result<Plan> {
-        let text = crate::formats::read_text(path).map_err(|e| Error::io(path, "reading", e))?;
+        let text = crate::ingest::read_text(path).map_err(|e| Error::io(path, "reading", e))?;
         let config = |message: String| Error::Config {
             source_name: path.display().to_string(),
             message,
@@ -152,7 +152,7 @@ fn install(raw: &mut RawScenario, file: &Path, has_scalars: bool) -> Result<Stri
         hint: "Give [plan] installation the --model file of a previous flight of this aircraft, or leave it out for typical values.",
     }
     };
-    let text = crate::formats::read_text(file).map_err(|e| Error::io(file, "reading", e))?;
+    let text = crate::ingest::read_text(file).map_err(|e| Error::io(file, "reading", e))?;
     let json: serde_json::Value = serde_json::from_str(&text).map_err(|e| not_ours(e.to_string()))?;
     let models = json
         .get("models")

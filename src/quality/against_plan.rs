@@ -102,7 +102,7 @@ pub struct PlanPrediction {
 impl PlanPrediction {
     /// Reads a `PLAN_REPORT.json` as `magcomp plan` writes it.
     pub fn read(path: &Path) -> Result<PlanPrediction> {
-        let text = crate::formats::read_text(path).map_err(|e| Error::io(path, "reading", e))?;
+        let text = crate::ingest::read_text(path).map_err(|e| Error::io(path, "reading", e))?;
         let not_ours = |problem: String| {
             Error::NotOurFile {
             path: path.to_path_buf(),

@@ -691,7 +691,7 @@ pub const AUXILIARY_CHANNELS: [&str; 8] = [
 impl Scenario {
     /// Reads and checks a scenario file.
     pub fn load(path: &Path) -> Result<Scenario> {
-        let text = crate::formats::read_text(path).map_err(|e| Error::io(path, "reading", e))?;
+        let text = crate::ingest::read_text(path).map_err(|e| Error::io(path, "reading", e))?;
         let raw: RawScenario = toml::from_str(&text).map_err(|e| Error::Config {
             source_name: path.display().to_string(),
             message: e.to_string(),
