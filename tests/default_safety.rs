@@ -573,7 +573,9 @@ fn a_finding_that_corrugates_a_survey_without_ties_is_held_back() {
 /// forth, no tie): the diagnosis finds a lag of −0.18 s on mag_1_uc (held
 /// out 0.0314 → 0.0176 nT, better on 11 of 12 manoeuvres), where the
 /// simulator has none. On the survey it moves the level between the
-/// lines flown one way and the other by 0.083 nT, while the geology's
+/// lines flown one way and the other by 0.083 nT (0.065 nT since
+/// detection levels a manoeuvre flown back to back about its own cycles,
+/// which moves the windows' ends by tenths of a second), while the geology's
 /// curvature across lines 500 m apart leaves plain's own level uncertain
 /// by 0.043 nT: compared on their estimates alone (0.040 nT plain, 0.043
 /// nT with the lag) the two looked alike, and the lag nearly doubled the
@@ -600,7 +602,8 @@ fn a_heading_level_move_the_lines_cannot_resolve_is_held_back() {
     };
     // Sizes alike, the move twice the standard error.
     assert!((diagnosed_nt - plain_nt).abs() < 0.01, "{plain_nt} → {diagnosed_nt}");
-    assert!((moved_nt - 0.083).abs() < 0.01, "{moved_nt}");
+    println!("moved {moved_nt:.4} nT, standard error {standard_error_nt:.4} nT");
+    assert!((moved_nt - 0.065).abs() < 0.01, "{moved_nt}");
     assert!((standard_error_nt - 0.043).abs() < 0.01, "{standard_error_nt}");
     assert_compensated_plain(&flight, (&auto, &plain), (0, "mag_1_uc"));
 }
@@ -634,7 +637,9 @@ fn held_between_lines(auto: &magcomp::pipeline::FlightRun, (channel, effect): (&
 /// neither cross nor form a block to compare. Applied, it moved the survey
 /// 0.102 nT from plain against a stated uncertainty of 0.054 nT, and made
 /// it 5.6 times worse against truth (0.017 → 0.096 nT), on box evidence of
-/// 0.026 nT. A move beyond the stated uncertainty on evidence within it,
+/// 0.026 nT (on the windows detection finds since it levels a manoeuvre
+/// flown back to back about its own cycles: 0.090 nT against 0.050 nT, on
+/// 0.025 nT). A move beyond the stated uncertainty on evidence within it,
 /// that nothing on the survey can check, must be held back, with its
 /// figures.
 #[test]
@@ -656,8 +661,8 @@ fn a_move_beyond_the_stated_uncertainty_that_no_survey_line_can_check_is_held_ba
         ("mag_1_uc", "sensor_lag"),
         Unchecked {
             levels_checked: false,
-            survey_nt: (0.102, 0.01),
-            stated_nt: (0.054, 0.01),
+            survey_nt: (0.090, 0.01),
+            stated_nt: (0.050, 0.01),
             // On the box the lag explains √(0.0302² − 0.0155²) nT held
             // out, under the stated uncertainty.
             explained_nt: (0.0259, 0.003),
@@ -769,7 +774,9 @@ fn a_lag_the_line_levels_cannot_check_is_held_back() {
 /// nothing. With nothing on the survey to check it, it moved the survey
 /// 0.079 nT from plain against a stated uncertainty of 0.0435 nT, and
 /// made it worse against truth (0.059 → 0.107 nT), on box evidence of
-/// 0.0426 nT. It must be held back, with its figures.
+/// 0.0426 nT (0.0395 nT on the windows detection finds since it levels a
+/// manoeuvre flown back to back about its own cycles). It must be held
+/// back, with its figures.
 #[test]
 fn a_coupling_nothing_on_the_survey_checks_is_held_back() {
     let raw = clean_plan(135);
@@ -787,8 +794,9 @@ fn a_coupling_nothing_on_the_survey_checks_is_held_back() {
             levels_checked: false,
             survey_nt: (0.079, 0.008),
             stated_nt: (0.0435, 0.004),
-            // √(0.0530² − 0.0315²) nT.
-            explained_nt: (0.0426, 0.003),
+            // √(0.0530² − 0.0315²) nT on the windows found before, 0.0395
+            // on today's.
+            explained_nt: (0.0395, 0.003),
         },
     );
     assert_compensated_plain(&flight, (&auto, &plain), (1, "mag_2_uc"));
