@@ -93,16 +93,14 @@ pub const GEOLOGY_NT_S: f64 = 1_500.0;
 /// thousand nT at most, a tail sensor's a few hundred.
 pub const AIRCRAFT_SWING_NT: f64 = 4_000.0;
 
-/// Neighbours a scalar sample is judged against on each side, s: a run of
-/// glitches shorter than this is found whatever its values.
+/// Longest run of glitches looked for on a scalar, s.
 pub const SCALAR_GLITCH_REACH_S: f64 = 10.0;
 
-/// ... and a fluxgate component, s: beyond it the Earth's field can turn
-/// through any direction, so continuity tells nothing.
+/// ... and on a fluxgate component, s: beyond it the Earth's field can
+/// turn through any direction, so continuity tells nothing.
 pub const COMPONENT_GLITCH_REACH_S: f64 = 2.0;
 
-/// Most neighbours on each side any glitch is judged against (10 s at
-/// 50 Hz).
+/// Longest run of glitches looked for, samples (10 s at 50 Hz).
 const MOST_GLITCH_REACH_SAMPLES: usize = 500;
 
 /// A magnetometer repeating one reading this long is stuck, s.
@@ -138,8 +136,8 @@ pub enum MaskReason {
     Glitch,
     /// One reading repeated for [`STUCK_S`] or longer.
     Stuck,
-    /// Magnetometer samples further from most of their neighbours than
-    /// the field can change between them, in runs of more than one.
+    /// A run of magnetometer samples entered and left by jumps the field
+    /// cannot make, the readings either side agreeing.
     Burst,
 }
 
@@ -174,7 +172,7 @@ impl MaskReason {
                 "one reading repeated for 5 s or longer: the sensor is stuck or its axis dead, or the logger held its last value"
             }
             MaskReason::Burst => {
-                "glitches lasting more than one sample: samples further from most of their neighbours (up to 10 s away for a scalar, 2 s for a fluxgate axis) than the field can change between them"
+                "glitches lasting more than one sample: runs entered and left by jumps larger than the field can change in one interval, the readings either side agreeing (runs up to 10 s on a scalar, 2 s on a fluxgate axis)"
             }
         }
     }
