@@ -14,6 +14,9 @@ pub struct VectorSummary {
     pub reference: String,
     /// Its modelled interference's swing over the box, RMS nT.
     pub reference_swing_nt: f64,
+    /// Where its level is pinned by its modelled interference: the level's
+    /// sigma, nT, and that sigma per body-axis component over the flight.
+    pub reference_level: Option<(f64, [f64; 3])>,
     /// Residual per component, nT.
     pub residual_rms_nt: [f64; 3],
     /// Held out by heading: the headings and the residual per component, nT.
@@ -51,11 +54,18 @@ fn axes(v: [f64; 3]) -> String {
 impl fmt::Display for VectorSummary {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         let [x, y, z] = self.residual_rms_nt;
-        write!(
-            f,
-            "{}: vector-compensated with the twelve-constant model on {} calibration rows, the field's size from {} levelled at its recorded mean over the box (the aircraft's mean field at that sensor, which no manoeuvre pins, scales the vector: δ nT there is up to δ nT on a component; its modelled interference swings by {:.2} nT RMS over the box): residual x/y/z {x:.2}/{y:.2}/{z:.2} nT",
-            self.sensor, self.rows, self.reference, self.reference_swing_nt
-        )?;
+        match self.reference_level {
+            Some((sigma, [sx, sy, sz])) => write!(
+                f,
+                "{}: vector-compensated with the twelve-constant model on {} calibration rows, the field's size from {} less its whole modelled interference (its terms pin the interference's mean; its modelled interference swings by {:.2} nT RMS over the box); the aircraft's isotropic induced field at that sensor, which no manoeuvre shows, leaves the level uncertain by ±{sigma:.2} nT, which scales the vector: ±{sx:.2}/{sy:.2}/{sz:.2} nT on x/y/z; residual x/y/z {x:.2}/{y:.2}/{z:.2} nT",
+                self.sensor, self.rows, self.reference, self.reference_swing_nt
+            )?,
+            None => write!(
+                f,
+                "{}: vector-compensated with the twelve-constant model on {} calibration rows, the field's size from {} levelled at its recorded mean over the box (the aircraft's mean field at that sensor, which no manoeuvre pins, scales the vector: δ nT there is up to δ nT on a component; its modelled interference swings by {:.2} nT RMS over the box): residual x/y/z {x:.2}/{y:.2}/{z:.2} nT",
+                self.sensor, self.rows, self.reference, self.reference_swing_nt
+            )?,
+        }
         if let Some((headings, [x, y, z])) = self.held_out {
             write!(f, ", held out by heading ({headings} headings) {x:.2}/{y:.2}/{z:.2} nT")?;
         }
@@ -95,6 +105,7 @@ mod tests {
             rows: 4200,
             reference: "mag_1_uc".into(),
             reference_swing_nt: 1.234,
+            reference_level: None,
             residual_rms_nt: [1.0, 2.0, 3.0],
             held_out: None,
             inclination_deg: 70.1234,
@@ -124,5 +135,32 @@ mod tests {
             "{text}"
         );
         assert!(text.ends_with("; vector Tolles-Lawson (eddy currents, per axis): band-passed residual x/y/z 4.00/5.00/6.00 → 0.40/0.50/0.60 nT, held out by heading 4.10/5.10/6.10 → 0.41/0.51/0.61 nT"), "{text}");
+    }
+
+    #[test]
+    fn a_pinned_reference_level_is_stated_with_its_sigma_per_component() {
+        let summary = VectorSummary {
+            sensor: "flux_a".into(),
+            rows: 4200,
+            reference: "mag_1_uc".into(),
+            reference_swing_nt: 1.234,
+            reference_level: Some((4.5, [1.0, 2.0, 4.0])),
+            residual_rms_nt: [1.0, 2.0, 3.0],
+            held_out: None,
+            inclination_deg: 70.1234,
+            declination_deg: -12.5,
+            igrf: None,
+            mounting: "mounted as the aircraft's axes".into(),
+            eddy: None,
+        };
+        let text = summary.to_string();
+        assert!(
+            text.contains("the field's size from mag_1_uc less its whole modelled interference"),
+            "{text}"
+        );
+        assert!(
+            text.contains("leaves the level uncertain by ±4.50 nT, which scales the vector: ±1.00/2.00/4.00 nT on x/y/z; residual"),
+            "{text}"
+        );
     }
 }

@@ -237,6 +237,15 @@ impl TermSet {
         terms
     }
 
+    /// Whether a fit of these terms pins the mean of the interference it
+    /// models: no induced term holds the isotropic direction $|B|$, whose
+    /// coefficient only the Earth's field's level would set (none, or the
+    /// traceless five). The permanent and anisotropic induced means then
+    /// follow from how they vary with the attitude.
+    pub fn pins_the_level(&self) -> bool {
+        matches!(self.induced, InducedTerms::None | InducedTerms::Traceless)
+    }
+
     /// Number of terms (columns).
     pub fn len(&self) -> usize {
         self.terms().len()

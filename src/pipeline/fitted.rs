@@ -129,7 +129,12 @@ fn compensate_and_assess(
     };
     // The vector stage reads the channels' interference only: its fits run
     // beside the channels' assessment and the gradients.
-    let reference = vector_reference(on.log, (on.windows, &boxes), &compensation, &options.vector);
+    let reference = vector_reference(
+        on.log,
+        (on.windows, &boxes),
+        (&compensation, &fitted.models),
+        &options.vector,
+    );
     let (assessed, mut vector) = rayon::join(
         || -> Result<_> {
             let (quality, transfer_notes) =

@@ -36,7 +36,7 @@ pub(super) const VECTOR_SWING_WARNING_NT: f64 = 10.0;
 pub(super) fn vector_reference(
     log: &FlightLog,
     (windows, boxes): (&[crate::calibration::windows::CalibrationWindow], &[(f64, f64)]),
-    compensation: &crate::compensate::Compensation,
+    (compensation, models): (&crate::compensate::Compensation, &[crate::model::FittedModel]),
     options: &crate::vector::VectorOptions,
 ) -> Result<crate::vector::Reference, VectorStage> {
     let mut stage = VectorStage::default();
@@ -54,7 +54,21 @@ pub(super) fn vector_reference(
         .iter()
         .filter_map(|c| {
             let recorded = log.channel(&c.channel)?.values.as_slice();
-            crate::vector::Reference::levelled(log, &c.channel, (recorded, &c.interference_nt), (windows, boxes))
+            let scalar = compensated_scalar(c, recorded);
+            let model = models.iter().find(|m| m.channel == c.channel);
+            let pinned = model.is_some_and(|m| m.spec.terms.pins_the_level());
+            let mut reference = crate::vector::Reference::levelled(
+                log,
+                (&c.channel, pinned),
+                (&scalar, &c.interference_nt),
+                (windows, boxes),
+            )?;
+            if let Some(model) = model.filter(|_| pinned) {
+                let (_, induced) = model.spec.terms.aircraft_field(&model.coefficients);
+                let field_nt = crate::model::column_level(&reference.total_nt);
+                reference.level_sigma_nt = Some(crate::vector::Reference::level_sigma_nt(&induced, field_nt));
+            }
+            Some(reference)
         })
         .filter(|r| r.swing_nt.is_finite())
         .min_by(|a, b| a.swing_nt.total_cmp(&b.swing_nt));
@@ -62,6 +76,27 @@ pub(super) fn vector_reference(
         stage.warnings.push(Warning::VectorNoReference);
         stage
     })
+}
+
+/// The scalar reading `channel`'s compensation subtracted its interference
+/// from, on every row: the recorded reading with what the diagnosis
+/// applied to the reading itself (a sensor lag undone), so that the
+/// reference and the interference it is levelled by are of the same
+/// instants. A late reference taken as recorded puts the lag's error, the
+/// interference's and the field's rate times the lag, into every
+/// component of the vector. The recorded reading where the compensation
+/// has no value (a flagged row).
+fn compensated_scalar(channel: &crate::compensate::CompensatedChannel, recorded: &[f64]) -> Vec<f64> {
+    (channel.values.iter().zip(&channel.interference_nt).zip(recorded))
+        .map(|((&value, &interference), &recorded)| {
+            let scalar = value + interference - channel.level_offset_nt;
+            if scalar.is_finite() {
+                scalar
+            } else {
+                recorded
+            }
+        })
+        .collect()
 }
 
 /// Vector-compensates every fluxgate of `log` with the twelve-constant
@@ -86,7 +121,12 @@ pub(super) fn vector_fits(
         )
         .and_then(|model| Ok((model.compensate(log)?, model)));
         match fitted {
-            Ok((compensated, model)) => {
+            Ok((compensated, mut model)) => {
+                model.reference_level = crate::vector::ReferenceLevel {
+                    pinned: reference.pinned,
+                    sigma_nt: reference.level_sigma_nt,
+                    component_sigma_nt: (reference.level_sigma_nt).map(|sigma| along_the_field(&compensated, sigma)),
+                };
                 stage
                     .notes
                     .push(Note::VectorCompensated(Box::new(vector_summary(&model))));
@@ -102,6 +142,26 @@ pub(super) fn vector_fits(
         }
     }
     stage
+}
+
+/// A level's sigma `sigma` (nT) per body-axis component of `vector`: it
+/// scales the field, so each component by its share, RMS over the rows.
+fn along_the_field(vector: &crate::vector::CompensatedVector, sigma: f64) -> [f64; 3] {
+    let [x, y, z] = &vector.body_nt;
+    let mut squares = [0.0; 3];
+    let mut count = 0usize;
+    for k in 0..x.len() {
+        let b = [x[k], y[k], z[k]];
+        let size = b.iter().map(|v| v * v).sum::<f64>().sqrt();
+        if !(size.is_finite() && size > 0.0) {
+            continue;
+        }
+        for (square, v) in squares.iter_mut().zip(b) {
+            *square += (v / size).powi(2);
+        }
+        count += 1;
+    }
+    squares.map(|square| sigma * (square / count.max(1) as f64).sqrt())
 }
 
 /// What a fitted vector model must say: a scale resting on a swinging
@@ -173,6 +233,7 @@ pub(super) fn vector_summary(model: &crate::vector::VectorModel) -> VectorSummar
         rows: model.rows,
         reference: model.reference.clone(),
         reference_swing_nt: model.reference_swing_nt,
+        reference_level: (model.reference_level.sigma_nt).zip(model.reference_level.component_sigma_nt),
         residual_rms_nt: model.residual_rms_nt,
         held_out: model.held_out.as_ref().map(|held| (held.headings, held.rms_nt)),
         inclination_deg: model.inclination_deg,

@@ -19,10 +19,11 @@
 //! hardly changes (an anomaly of 100 nT turns it by 0.1°), but its size
 //! does (diurnal variation, anomalies). So $b_i = F_i u$: the size is the
 //! scalar magnetometer's reading $F_i$ on the same row, less the
-//! Tolles-Lawson interference's variation so the aircraft's field is not
-//! taken for the Earth's, levelled at the recorded reading's mean over the
-//! box ([`Reference::levelled`]: the scalar's level error is the vector's
-//! scale error), the direction one unit vector, inclination I (down positive) and
+//! Tolles-Lawson interference so the aircraft's field is not taken for
+//! the Earth's (the whole interference where its terms pin its mean, else
+//! its variation about the recorded reading's mean over the box;
+//! [`Reference::levelled`]: the scalar's level error is the vector's
+//! scale error, stated by [`Reference::level_sigma_nt`]), the direction one unit vector, inclination I (down positive) and
 //! declination D (east of north) fitted with K and h. IGRF-14 at the
 //! box's mean position and the flight's date gives the starting direction;
 //! without a position it is IGRF-14 at the `[site]` of pipeline.toml, and
@@ -281,6 +282,23 @@ pub struct HeldOut {
     pub rms_nt: [f64; 3],
 }
 
+/// How surely the vector's reference level is known: what no manoeuvre
+/// pins scales the vector, so it is its uncertainty along the field.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct ReferenceLevel {
+    /// Whether the level is the reference's reading less its whole
+    /// modelled interference (its terms pin the mean), not its recorded
+    /// mean over the box ([`Reference::levelled`]).
+    pub pinned: bool,
+    /// One sigma of the level, nT, where it is pinned: the aircraft's
+    /// isotropic induced field at the sensor, which no manoeuvre shows
+    /// ([`Reference::level_sigma_nt`]).
+    pub sigma_nt: Option<f64>,
+    /// That sigma per body-axis component over the flight, nT: times the
+    /// RMS of the component's share of the field.
+    pub component_sigma_nt: Option<[f64; 3]>,
+}
+
 /// A fitted twelve-constant model of one fluxgate.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct VectorModel {
@@ -291,6 +309,8 @@ pub struct VectorModel {
     /// The reference's modelled interference over the box, RMS about its
     /// mean, nT (see [`Reference::swing_nt`]).
     pub reference_swing_nt: f64,
+    /// How surely the reference's level is known.
+    pub reference_level: ReferenceLevel,
     /// K: fluxgate reading per unit body-axis field (rows: fluxgate axes).
     pub soft_iron: [[f64; 3]; 3],
     /// h: the reading with no Earth field, nT.
@@ -536,6 +556,13 @@ pub struct Reference {
     /// it does not bound the level's error, which the aircraft's
     /// permanent field seen steadily in level flight can exceed.
     pub swing_nt: f64,
+    /// Whether the level is the reading less the whole modelled
+    /// interference (the channel's terms pin its mean), not the reading's
+    /// own mean over the box.
+    pub pinned: bool,
+    /// One sigma of the level where it is pinned, nT
+    /// ([`Reference::level_sigma_nt`]); `None` otherwise.
+    pub level_sigma_nt: Option<f64>,
 }
 
 impl Reference {
@@ -554,9 +581,18 @@ impl Reference {
     /// field at the sensor (a few nT at a tail stinger), which no
     /// calibration manoeuvre pins. `None` when no box row has both a
     /// reading and an interference.
+    ///
+    /// Where the channel's terms hold no isotropic direction (`pinned`:
+    /// the default's 16, whose induced part is traceless), the modelled
+    /// interference's mean is pinned too: the permanent field's and the
+    /// anisotropic induced field's means follow from how they vary with
+    /// the attitude. The level is then the reading less the whole
+    /// modelled interference, wrong only by the aircraft's isotropic
+    /// induced field at the sensor, a multiple of the Earth's field that
+    /// no attitude shows ([`Reference::level_sigma_nt`] states its size).
     pub fn levelled(
         log: &FlightLog,
-        channel: &str,
+        (channel, pinned): (&str, bool),
         (recorded, interference): (&[f64], &[f64]),
         (windows, spans): (&[CalibrationWindow], &[(f64, f64)]),
     ) -> Option<Reference> {
@@ -573,11 +609,35 @@ impl Reference {
         let count = boxed.len() as f64;
         let mean = boxed.iter().sum::<f64>() / count;
         let swing_nt = (boxed.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / count).sqrt();
+        let kept = if pinned { 0.0 } else { mean };
+        let level_sigma_nt = None;
         Some(Reference {
             channel: channel.into(),
-            total_nt: recorded.iter().zip(interference).map(|(m, h)| m - (h - mean)).collect(),
+            total_nt: recorded.iter().zip(interference).map(|(m, h)| m - (h - kept)).collect(),
             swing_nt,
+            pinned,
+            level_sigma_nt,
         })
+    }
+}
+
+impl Reference {
+    /// One sigma of a pinned level, nT: the aircraft's isotropic induced
+    /// field at the sensor, $m F$ with $m$ a third of the induced tensor's
+    /// trace, which no attitude shows. What the fit does show is the
+    /// tensor's traceless part $T$; an induced tensor with no preferred
+    /// axis has $E[m^2] = E\,\|T\|_F^2 / 8$ (a symmetric tensor of
+    /// independent entries of one size σ: its trace over three has
+    /// variance σ²/3, its traceless part a squared norm of 8σ²/3), so the
+    /// level's sigma is $F \|T\|_F / \sqrt 8$. `induced` is the fitted
+    /// tensor (nT per nT), `field_nt` the field's size.
+    pub fn level_sigma_nt(induced: &[[f64; 3]; 3], field_nt: f64) -> f64 {
+        let trace = (induced[0][0] + induced[1][1] + induced[2][2]) / 3.0;
+        let traceless: f64 = (0..3)
+            .flat_map(|i| (0..3).map(move |j| (i, j)))
+            .map(|(i, j)| (induced[i][j] - if i == j { trace } else { 0.0 }).powi(2))
+            .sum();
+        field_nt * (traceless / 8.0).sqrt()
     }
 }
 
@@ -1029,6 +1089,7 @@ fn fit_samples(samples: &[Sample], start: &(f64, f64)) -> Option<VectorModel> {
         sensor: String::new(),
         reference: String::new(),
         reference_swing_nt: 0.0,
+        reference_level: ReferenceLevel::default(),
         soft_iron: std::array::from_fn(|j| std::array::from_fn(|c| parameters.k[(j, c)])),
         hard_iron_nt: std::array::from_fn(|j| parameters.h[j]),
         inclination_deg: inclination.to_degrees(),
@@ -1288,6 +1349,37 @@ fn twelve_constant_body(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The level's sigma is the traceless part's Frobenius norm over √8,
+    /// times the field: diag(1, −1, 0)·10⁻³ at 50 000 nT has norm √2·10⁻³,
+    /// so 25 nT; an isotropic tensor, which no attitude shows and the fit
+    /// never returns, adds nothing.
+    #[test]
+    fn the_level_sigma_follows_the_traceless_induced_tensor() {
+        let tensor = [[1e-3, 0.0, 0.0], [0.0, -1e-3, 0.0], [0.0, 0.0, 0.0]];
+        assert!((Reference::level_sigma_nt(&tensor, 50_000.0) - 25.0).abs() < 1e-9);
+        let isotropic = [[2e-3, 0.0, 0.0], [0.0, 2e-3, 0.0], [0.0, 0.0, 2e-3]];
+        assert!(Reference::level_sigma_nt(&isotropic, 50_000.0).abs() < 1e-9);
+        let off_diagonal = [[0.0, 1e-3, 0.0], [1e-3, 0.0, 0.0], [0.0, 0.0, 0.0]];
+        assert!((Reference::level_sigma_nt(&off_diagonal, 50_000.0) - 25.0).abs() < 1e-9);
+    }
+
+    /// A pinned reference is the reading less the whole interference; an
+    /// unpinned one keeps the reading's mean over the box.
+    #[test]
+    fn a_pinned_reference_takes_the_whole_interference_out() {
+        let time: Vec<f64> = (0..10).map(f64::from).collect();
+        let log = FlightLog::new(std::path::Path::new("t.csv"), "time", time, Vec::new()).unwrap();
+        let recorded = vec![50_010.0; 10];
+        let interference: Vec<f64> = (0..10).map(|k| 10.0 + f64::from(k % 2)).collect();
+        let windows = [CalibrationWindow::new(0.0, 9.0)];
+        let pinned = Reference::levelled(&log, ("mag_1_uc", true), (&recorded, &interference), (&windows, &[])).unwrap();
+        let kept = Reference::levelled(&log, ("mag_1_uc", false), (&recorded, &interference), (&windows, &[])).unwrap();
+        assert_eq!(pinned.total_nt[0], 50_000.0);
+        assert_eq!(pinned.total_nt[1], 49_999.0);
+        assert!((kept.total_nt[0] - 50_010.5).abs() < 1e-9);
+        assert!(pinned.pinned && !kept.pinned);
+    }
 
     /// Samples of consecutive rows read as `k`·field + `h`, the attitude of
     /// row t given by `attitude(t)` (roll, pitch, yaw).
