@@ -1373,7 +1373,8 @@ mod tests {
         let recorded = vec![50_010.0; 10];
         let interference: Vec<f64> = (0..10).map(|k| 10.0 + f64::from(k % 2)).collect();
         let windows = [CalibrationWindow::new(0.0, 9.0)];
-        let pinned = Reference::levelled(&log, ("mag_1_uc", true), (&recorded, &interference), (&windows, &[])).unwrap();
+        let pinned =
+            Reference::levelled(&log, ("mag_1_uc", true), (&recorded, &interference), (&windows, &[])).unwrap();
         let kept = Reference::levelled(&log, ("mag_1_uc", false), (&recorded, &interference), (&windows, &[])).unwrap();
         assert_eq!(pinned.total_nt[0], 50_000.0);
         assert_eq!(pinned.total_nt[1], 49_999.0);
