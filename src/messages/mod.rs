@@ -561,6 +561,18 @@ pub enum Warning {
         /// Its modelled aircraft field's swing over the box, RMS, nT.
         swing_nt: f64,
     },
+    /// The vector's scale rests on a scalar channel's level, pinned by its
+    /// modelled interference, but the aircraft's isotropic induced field
+    /// at that sensor, which no manoeuvre shows, leaves it uncertain by
+    /// more than the warning's limit.
+    VectorLevelUncertain {
+        /// The fluxgate.
+        sensor: String,
+        /// The scalar channel giving the field's size.
+        reference: String,
+        /// One sigma of its level, nT.
+        sigma_nt: f64,
+    },
     /// The vector-compensated field's direction is far from IGRF-14's.
     VectorDirectionOff {
         /// The fluxgate.
@@ -879,6 +891,7 @@ impl Warning {
             | Warning::VectorNoReference
             | Warning::VectorNotCompensated { .. }
             | Warning::VectorScaleSwings { .. }
+            | Warning::VectorLevelUncertain { .. }
             | Warning::VectorDirectionOff { .. }
             | Warning::VectorSignUnverified { .. }
             | Warning::VectorLeftHanded { .. }
@@ -943,6 +956,7 @@ impl fmt::Display for Warning {
             Warning::VectorNoReference
             | Warning::VectorNotCompensated { .. }
             | Warning::VectorScaleSwings { .. }
+            | Warning::VectorLevelUncertain { .. }
             | Warning::VectorNotHeldOut { .. }
             | Warning::VectorTollesLawson { .. } => self.write_vector(f),
             Warning::VectorDirectionOff { .. }
@@ -1389,6 +1403,14 @@ impl Warning {
             } => write!(
                 f,
                 "{sensor}: the vector's scale rests on {reference}'s level over the box, where the aircraft's modelled field swings by {swing_nt:.1} nT RMS: its mean there, which no manoeuvre pins, may be as large and is an error of up to that size on each vector component (a scalar sensor on a tail stinger gives a surer level)"
+            ),
+            Warning::VectorLevelUncertain {
+                sensor,
+                reference,
+                sigma_nt,
+            } => write!(
+                f,
+                "{sensor}: the vector's scale rests on {reference}'s level, its modelled interference taken out, but the aircraft's isotropic induced field at that sensor, which no manoeuvre shows, leaves it uncertain by ±{sigma_nt:.1} nT, an error of up to that size on each vector component (a scalar sensor on a tail stinger gives a surer level)"
             ),
             Warning::VectorNotHeldOut { sensor } => write!(
                 f,
@@ -2401,6 +2423,14 @@ mod tests {
         assert!(swings
             .to_string()
             .starts_with("flux_b: the vector's scale rests on mag_1_uc's level over the box, where the aircraft's modelled field swings by 12.3 nT RMS: "));
+        let uncertain = Warning::VectorLevelUncertain {
+            sensor: "flux_b".into(),
+            reference: "mag_1_uc".into(),
+            sigma_nt: 12.34,
+        };
+        assert!(uncertain
+            .to_string()
+            .contains("mag_1_uc's level, its modelled interference taken out, but the aircraft's isotropic induced field at that sensor, which no manoeuvre shows, leaves it uncertain by ±12.3 nT"));
         let unverified = Warning::VectorSignUnverified {
             sensor: "flux_b".into(),
             inclination_deg: 71.234,

@@ -98,9 +98,9 @@ impl fmt::Display for VectorSummary {
 mod tests {
     use super::*;
 
-    #[test]
-    fn a_vector_summary_reads_as_the_vector_stage_has_always_said_it() {
-        let mut summary = VectorSummary {
+    /// A summary without a held-out figure, IGRF start or eddy stage.
+    fn summary() -> VectorSummary {
+        VectorSummary {
             sensor: "flux_a".into(),
             rows: 4200,
             reference: "mag_1_uc".into(),
@@ -113,7 +113,12 @@ mod tests {
             igrf: None,
             mounting: "mounted as the aircraft's axes".into(),
             eddy: None,
-        };
+        }
+    }
+
+    #[test]
+    fn a_vector_summary_reads_as_the_vector_stage_has_always_said_it() {
+        let mut summary = summary();
         assert_eq!(
             summary.to_string(),
             "flux_a: vector-compensated with the twelve-constant model on 4200 calibration rows, the field's size from mag_1_uc levelled at its recorded mean over the box (the aircraft's mean field at that sensor, which no manoeuvre pins, scales the vector: δ nT there is up to δ nT on a component; its modelled interference swings by 1.23 nT RMS over the box): residual x/y/z 1.00/2.00/3.00 nT; Earth field inclination 70.123°, declination -12.500°; mounted as the aircraft's axes"
@@ -140,18 +145,8 @@ mod tests {
     #[test]
     fn a_pinned_reference_level_is_stated_with_its_sigma_per_component() {
         let summary = VectorSummary {
-            sensor: "flux_a".into(),
-            rows: 4200,
-            reference: "mag_1_uc".into(),
-            reference_swing_nt: 1.234,
             reference_level: Some((4.5, [1.0, 2.0, 4.0])),
-            residual_rms_nt: [1.0, 2.0, 3.0],
-            held_out: None,
-            inclination_deg: 70.1234,
-            declination_deg: -12.5,
-            igrf: None,
-            mounting: "mounted as the aircraft's axes".into(),
-            eddy: None,
+            ..summary()
         };
         let text = summary.to_string();
         assert!(

@@ -23,7 +23,8 @@ pub(super) struct VectorStage {
 pub(super) const VECTOR_DIRECTION_WARNING_DEG: f64 = 0.5;
 
 /// The reference channel's aircraft field swinging by more than this over
-/// the box (RMS, nT) is a warning: the vector's scale rests on its level.
+/// the box (RMS, nT), or its pinned level's sigma above it, is a warning:
+/// the vector's scale rests on its level.
 pub(super) const VECTOR_SWING_WARNING_NT: f64 = 10.0;
 
 /// The reference of the vector stage ([`vector_fits`]): the scalar channel
@@ -169,12 +170,20 @@ fn along_the_field(vector: &crate::vector::CompensatedVector, sigma: f64) -> [f6
 /// left-handed, no heading held out, the eddy stage's own warning.
 fn vector_model_warnings(model: &crate::vector::VectorModel) -> Vec<Warning> {
     let mut warnings = Vec::new();
-    if model.reference_swing_nt > VECTOR_SWING_WARNING_NT {
-        warnings.push(Warning::VectorScaleSwings {
+    // A pinned level is as sure as its stated sigma; one kept at the
+    // recorded mean, as its swing suggests.
+    match model.reference_level.sigma_nt {
+        Some(sigma_nt) if sigma_nt > VECTOR_SWING_WARNING_NT => warnings.push(Warning::VectorLevelUncertain {
+            sensor: model.sensor.clone(),
+            reference: model.reference.clone(),
+            sigma_nt,
+        }),
+        None if model.reference_swing_nt > VECTOR_SWING_WARNING_NT => warnings.push(Warning::VectorScaleSwings {
             sensor: model.sensor.clone(),
             reference: model.reference.clone(),
             swing_nt: model.reference_swing_nt,
-        });
+        }),
+        _ => {}
     }
     if let Some(warning) = vector_direction_warning(model) {
         warnings.push(warning);

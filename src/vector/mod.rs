@@ -610,18 +610,15 @@ impl Reference {
         let mean = boxed.iter().sum::<f64>() / count;
         let swing_nt = (boxed.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / count).sqrt();
         let kept = if pinned { 0.0 } else { mean };
-        let level_sigma_nt = None;
         Some(Reference {
             channel: channel.into(),
             total_nt: recorded.iter().zip(interference).map(|(m, h)| m - (h - kept)).collect(),
             swing_nt,
             pinned,
-            level_sigma_nt,
+            level_sigma_nt: None,
         })
     }
-}
 
-impl Reference {
     /// One sigma of a pinned level, nT: the aircraft's isotropic induced
     /// field at the sensor, $m F$ with $m$ a third of the induced tensor's
     /// trace, which no attitude shows. What the fit does show is the
