@@ -174,6 +174,56 @@ fn magnav_layout_fixture_reads_to_the_sample_flight_rows() {
     assert_eq!(fixture.vector_sensors()[0].prefix, "flux_a");
 }
 
+/// Files written by h5py itself (`tests/fixtures/h5py_layouts.py`, h5py
+/// 3.16 with HDF5 2.0 and hdf5plugin) read to the sample flight's first 600
+/// rows exactly: chunked with gzip, shuffle and fletcher32, one dataset in
+/// szip and one in bitshuffle with LZ4; and with `libver="latest"`, whose
+/// layout version 5 and chunk indexes the first decoder refuses.
+#[test]
+fn h5py_chunked_and_filtered_files_read_to_the_sample_flight_rows() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let ingest = IngestOptions::default();
+    let sample = read_flight_log(&root.join("sample_flights/box_and_lines.csv"), &ingest).unwrap();
+    for name in ["h5py_gzip_shuffle.h5", "h5py_latest_gzip.h5"] {
+        let log =
+            read_flight_log(&root.join("tests/fixtures").join(name), &ingest).unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert_eq!(log.len(), 600, "{name}");
+        assert_eq!(log.time_s(), &sample.time_s()[..600], "{name}");
+        assert_eq!(log.channels().len(), sample.channels().len(), "{name}");
+        for channel in sample.channels() {
+            let stored = log
+                .channel(&channel.name)
+                .unwrap_or_else(|| panic!("{name}: no {}", channel.name));
+            assert_eq!(stored.role, channel.role, "{name} {}", channel.name);
+            assert_eq!(stored.values, channel.values[..600], "{name} {}", channel.name);
+        }
+    }
+}
+
+/// A dataset compressed with a filter neither decoder has (Zstandard, from
+/// hdf5plugin) is an error that names the dataset and the filter and says
+/// how to rewrite the file, not a missing column or a damaged file.
+#[test]
+fn an_hdf5_filter_magcomp_does_not_decode_is_named_with_its_fix() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let path = root.join("tests/fixtures/h5py_zstd.h5");
+    let error = read_flight_log(&path, &IngestOptions::default())
+        .unwrap_err()
+        .to_string();
+    for needed in [
+        "h5py_zstd.h5",
+        "dataset 'ins_pitch'",
+        "32015",
+        "filter magcomp does not decode",
+        "h5repack",
+    ] {
+        assert!(error.contains(needed), "'{needed}' not in: {error}");
+    }
+    for wrong in ["no time column", "damaged"] {
+        assert!(!error.contains(wrong), "'{wrong}' in: {error}");
+    }
+}
+
 #[test]
 fn sgl_xyz_with_line_records_runs_through_the_cli() {
     let folder = tempfile::tempdir().unwrap();

@@ -57,17 +57,17 @@ pub fn read_hdf5(path: &Path, names: &ColumnNames) -> Result<FlightLog> {
 type Datasets = (Vec<f64>, Vec<(String, Vec<f64>)>, Vec<Warning>);
 
 /// The time dataset `time_name` of the HDF5 file at `path`, s; an error
-/// when it is missing or empty.
-fn read_time(file: &File, path: &Path, time_name: &str) -> Result<Vec<f64>> {
-    let time_s = file
-        .dataset(time_name)
-        .and_then(|d| d.read_f64())
-        .map_err(|_| Error::MissingColumn {
+/// when it is missing, cannot be decoded, or is empty.
+fn read_time(file: &Decoders, path: &Path, time_name: &str) -> Result<Vec<f64>> {
+    if file.pure.dataset(time_name).is_err() {
+        return Err(Error::MissingColumn {
             path: path.to_path_buf(),
             role: "time",
             looked_for: format!("a root dataset '{time_name}'"),
             hint: "MagNav challenge files keep time in 'tt'; name another in [columns] time = \"...\".".into(),
-        })?;
+        });
+    }
+    let time_s = file.read(time_name).map_err(|why| undecoded(path, time_name, &why))?;
     if time_s.is_empty() {
         return Err(Error::NoData {
             path: path.to_path_buf(),
@@ -77,16 +77,130 @@ fn read_time(file: &File, path: &Path, time_name: &str) -> Result<Vec<f64>> {
     Ok(time_s)
 }
 
+/// The file's two decoders: hdf5-pure, which reads the layouts MagNav's
+/// files and magcomp's own use, and rust-hdf5, opened only when the first
+/// cannot decode a dataset (HDF5 2.0's layout version 5, which h5py writes
+/// with `libver="latest"`, and the szip and bitshuffle+LZ4 filters).
+struct Decoders<'a> {
+    path: &'a Path,
+    pure: File,
+    other: std::cell::OnceCell<std::result::Result<rust_hdf5::H5File, String>>,
+}
+
+impl Decoders<'_> {
+    /// The dataset `name` as numbers, or both decoders' reasons why not
+    /// (the second's last: it has the last word on the cause).
+    fn read(&self, name: &str) -> std::result::Result<Vec<f64>, (String, String)> {
+        let first = match self.pure.dataset(name).and_then(|d| d.read_f64()) {
+            Ok(values) => return Ok(values),
+            Err(e) => e.to_string(),
+        };
+        let other = self
+            .other
+            .get_or_init(|| rust_hdf5::H5File::open(self.path).map_err(|e| e.to_string()));
+        let second = match other {
+            Ok(file) => file
+                .dataset(name)
+                .map_err(|e| e.to_string())
+                .and_then(|d| read_numbers(&d)),
+            Err(why) => Err(why.clone()),
+        };
+        second.map_err(|second| (first, second))
+    }
+}
+
+/// A one-dimensional numeric dataset read by rust-hdf5, as f64.
+fn read_numbers(dataset: &rust_hdf5::H5Dataset) -> std::result::Result<Vec<f64>, String> {
+    use rust_hdf5::{ByteOrder, DatatypeMessage as T};
+    fn widened<V: rust_hdf5::types::H5Type + Copy + Into<f64>>(
+        d: &rust_hdf5::H5Dataset,
+    ) -> std::result::Result<Vec<f64>, String> {
+        Ok(d.read_raw::<V>()
+            .map_err(|e| e.to_string())?
+            .into_iter()
+            .map(Into::into)
+            .collect())
+    }
+    fn wide<V: rust_hdf5::types::H5Type + Copy>(
+        d: &rust_hdf5::H5Dataset,
+        to: fn(V) -> f64,
+    ) -> std::result::Result<Vec<f64>, String> {
+        Ok(d.read_raw::<V>()
+            .map_err(|e| e.to_string())?
+            .into_iter()
+            .map(to)
+            .collect())
+    }
+    let datatype = dataset.datatype().map_err(|e| e.to_string())?;
+    match datatype {
+        T::FloatingPoint {
+            size: 8,
+            byte_order: ByteOrder::LittleEndian,
+            ..
+        } => widened::<f64>(dataset),
+        T::FloatingPoint {
+            size: 4,
+            byte_order: ByteOrder::LittleEndian,
+            ..
+        } => widened::<f32>(dataset),
+        T::FixedPoint {
+            size,
+            signed,
+            byte_order: ByteOrder::LittleEndian,
+            ..
+        } => match (size, signed) {
+            (1, true) => widened::<i8>(dataset),
+            (1, false) => widened::<u8>(dataset),
+            (2, true) => widened::<i16>(dataset),
+            (2, false) => widened::<u16>(dataset),
+            (4, true) => widened::<i32>(dataset),
+            (4, false) => widened::<u32>(dataset),
+            (8, true) => wide::<i64>(dataset, |v| v as f64),
+            (8, false) => wide::<u64>(dataset, |v| v as f64),
+            _ => Err(format!("{size}-byte integers are not read")),
+        },
+        other => Err(format!("its element type is not read ({})", type_words(&other))),
+    }
+}
+
+/// A datatype in a few words.
+fn type_words(datatype: &rust_hdf5::DatatypeMessage) -> String {
+    let words = format!("{datatype:?}");
+    words.split([' ', '{', '(']).next().unwrap_or_default().to_string()
+}
+
+/// Why dataset `name` of the file at `path` cannot be read, with the fix
+/// that fits: a compression filter neither decoder has is named as such,
+/// anything else is damage.
+fn undecoded(path: &Path, name: &str, (first, second): &(String, String)) -> Error {
+    let filter = (first.contains("unsupported filter") && second.contains("unsupported feature"))
+        || second.contains("filter id");
+    let why = format!("{first}; read again with a second decoder: {second}");
+    let fix = match filter {
+        true => "it is compressed with a filter magcomp does not decode (magcomp reads gzip/deflate, shuffle, \
+                 fletcher32, lzf, szip, scale-offset and bitshuffle+LZ4): rewrite the file with one of those, for example \
+                 `h5repack -f GZIP=4 in.h5 out.h5`",
+        false => "the file is damaged or cut short: copy it again from its source",
+    };
+    corrupt(path, format!("dataset '{name}' cannot be read ({why}); {fix}"))
+}
+
 fn read_datasets(path: &Path, time_name: &str) -> Result<Datasets> {
-    let file = File::open(path).map_err(|e| corrupt(path, format!("not a readable HDF5 file: {e}")))?;
+    let pure = File::open(path).map_err(|e| corrupt(path, format!("not a readable HDF5 file: {e}")))?;
+    let file = Decoders {
+        path,
+        pure,
+        other: std::cell::OnceCell::new(),
+    };
     let mut names = file
+        .pure
         .root()
         .datasets()
         .map_err(|e| corrupt(path, format!("cannot list the root datasets: {e}")))?;
     names.sort();
     let time_s = read_time(&file, path, time_name)?;
     let mut not_read: Vec<String> = Vec::new();
-    let series = sampled_series(&file, names, time_name, &mut not_read);
+    let series = sampled_series(&file.pure, names, time_name, &mut not_read);
     check_time_length(path, time_name, time_s.len(), &series)?;
     let mut datasets = Vec::new();
     for (name, samples) in series {
@@ -94,15 +208,7 @@ fn read_datasets(path: &Path, time_name: &str) -> Result<Datasets> {
             not_read.push(format!("'{name}' ({samples} samples, not {})", time_s.len()));
             continue;
         }
-        let values = file
-            .dataset(&name)
-            .and_then(|d| d.read_f64())
-            .map_err(|e| {
-                corrupt(
-                    path,
-                    format!("dataset '{name}' cannot be read ({e}); the file is damaged or cut short: copy it again from its source"),
-                )
-            })?;
+        let values = file.read(&name).map_err(|why| undecoded(path, &name, &why))?;
         datasets.push((name, values));
     }
     let warnings = match not_read.is_empty() {
