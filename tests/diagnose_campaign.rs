@@ -539,6 +539,12 @@ fn campaign_names_each_effect_and_leaves_clean_flights_alone() {
 /// generator, not the simulator's. Returns the scenario and the field
 /// the current gives each cabin scalar per ampere (nT).
 fn unrecorded_current_scenario(seed: u64) -> (Scenario, Vec<(String, f64)>) {
+    unrecorded_current_scenario_with(seed, 1.0)
+}
+
+/// [`unrecorded_current_scenario`] with the current's amplitude `amplitude_a`
+/// (0: the same flight, layout and noise without it).
+fn unrecorded_current_scenario_with(seed: u64, amplitude_a: f64) -> (Scenario, Vec<(String, f64)>) {
     let mut draw = Draw(0xC0FF_EE00 ^ seed);
     let cabin = [
         [1.5 + draw.between(-0.3, 0.3), 0.3 + draw.between(-0.3, 0.3), 0.2],
@@ -592,7 +598,7 @@ fn unrecorded_current_scenario(seed: u64) -> (Scenario, Vec<(String, f64)>) {
         kind = "unrecorded_current"
         position_m = {:?}
         moment_a_m2_per_a = {:?}
-        amplitude_a = 1.0
+        amplitude_a = {amplitude_a:?}
         waveform = "{waveform}"
         "#,
         31_000 + seed,
@@ -619,21 +625,24 @@ fn unrecorded_current_scenario(seed: u64) -> (Scenario, Vec<(String, f64)>) {
 
 /// The unrecorded current is found from the other sensors alone, and the
 /// survey against truth improves with the geology's amplitude held: over
-/// random layouts, with `[diagnose] cross_sensor = "apply"` (by default
-/// the finding is reported and never applied), every applied
-/// `cross_sensor` finding leaves its
-/// channel's survey lines no further from truth than plain Tolles-Lawson
-/// (10 % + 0.01 nT), and every channel's anomaly gain stays within the
-/// tolerance; a cabin scalar the current reaches (2 nT/A or more, or the
-/// most) gets one on at least [`LEAST_FOUND`] flights of ten.
+/// random layouts, by default (`[diagnose] cross_sensor = "survey"`: applied
+/// where the survey bears it out), every applied `cross_sensor` finding
+/// leaves its channel's survey lines no further from truth than plain
+/// Tolles-Lawson (10 % + 0.01 nT), every channel's anomaly gain stays
+/// within the tolerance, a cabin scalar the current reaches (2 nT/A or
+/// more, or the most) gets one on at least [`LEAST_FOUND`] flights of ten;
+/// under `"report"` none is applied, and on each flight's clean twin (the
+/// same layout and noise without the current) none is applied by default.
 ///
-/// Measured on seeds 0–9: found on 2 (3.72 → 0.87 nT and 1.41 → 0.43 nT
-/// against truth on the survey lines), none applied elsewhere. On the
-/// others the best signal explains 15–20 % of the held-out residual, short
-/// of the 30 % a finding needs: a witness sees the source through its own
-/// projection, $s = I\,(f \cdot u)$, and the channel through another,
-/// and the three regressors $s\,u_i$ hold the ratio of the two only to
-/// first order across the box's headings.
+/// Measured on seeds 0–9: found on 2 (1.07 → 0.86 nT and 1.54 → 0.71 nT
+/// against truth on the survey lines), none applied elsewhere or on a
+/// clean twin. On the others the term the box fits takes under 15 % of the
+/// channel's survey difference from the quiet scalar, or the flight has no
+/// quiet scalar the signal does not read (seed 7's mag_2_uc, whose
+/// mag_3_uc|mag_1_uc signal the box finds, is reported). Fitted on the
+/// survey lines instead (a scalar coupling, held out by line), the same
+/// fluxgate-less-cabin-scalar signal took 27–68 % out on seeds 0, 2, 3, 4,
+/// 6 and 7, with the truth following: the next step.
 #[test]
 fn an_unrecorded_current_is_found_from_the_other_sensors() {
     use magcomp::config::{FlightJob, Settings};
@@ -651,11 +660,12 @@ fn an_unrecorded_current_is_found_from_the_other_sensors() {
             let mut default = Settings::default();
             default.vector.enabled = false;
             let out = folder.path().join("out.csv");
-            // By default the finding is reported, never applied.
-            let reported = magcomp::pipeline::run(&job, &default, &out).unwrap();
-            let applied_by_default = (reported.result.applied_findings.iter()).any(|f| f.effect.name() == "cross_sensor");
-            default.diagnose.cross_sensor = magcomp::diagnose::CrossSensorUse::Apply;
             let auto = magcomp::pipeline::run(&job, &default, &out).unwrap();
+            // Under "report" the finding is reported, never applied.
+            let mut report = default.clone();
+            report.diagnose.cross_sensor = magcomp::diagnose::CrossSensorUse::Report;
+            let reported = magcomp::pipeline::run(&job, &report, &out).unwrap();
+            let applied_by_default = (reported.result.applied_findings.iter()).any(|f| f.effect.name() == "cross_sensor");
             let plain = magcomp::pipeline::run(&job, &common::plain(), &out).unwrap();
             let line = &flight.log.channel("line").unwrap().values;
             let strongest = per_ampere.iter().max_by(|a, b| a.1.total_cmp(&b.1)).unwrap().0.clone();
@@ -675,9 +685,19 @@ fn an_unrecorded_current_is_found_from_the_other_sensors() {
                     finding.not_applied
                 );
             }
-            let mut failures = Vec::new();
+            // The same layout and noise without the current: nothing for
+            // the other sensors to see, and nothing applied.
+            let (twin, _) = unrecorded_current_scenario_with(seed, 0.0);
+            let twin = magcomp::simulate::simulate(&twin).unwrap();
+            let twin_csv = folder.path().join("twin.csv");
+            magcomp::formats::write_flight_log(&twin.log, &twin_csv).unwrap();
+            let clean = magcomp::pipeline::run(&FlightJob::new(&twin_csv), &default, &out).unwrap();
+            let mut failures: Vec<String> = (clean.result.applied_findings.iter())
+                .filter(|f| f.effect.name() == "cross_sensor")
+                .map(|f| format!("seed {seed}, without the current: cross_sensor applied to {}", f.channel))
+                .collect();
             if applied_by_default {
-                failures.push(format!("seed {seed}: cross_sensor applied without [diagnose] cross_sensor = \"apply\""));
+                failures.push(format!("seed {seed}: cross_sensor applied under [diagnose] cross_sensor = \"report\""));
             }
             let mut found = false;
             for (k, quality) in auto.result.channels.iter().enumerate() {

@@ -31,6 +31,9 @@ pub(super) struct CrossColumns {
     /// The channels, least aircraft field first; `None` where a plain fit
     /// failed (the fluxgate check then ranks them itself, and says why).
     pub(super) ranked: Option<Vec<(String, f64)>>,
+    /// The channels' names in that order (none where they were not
+    /// ranked): the quiet scalars a signal is judged against on the survey.
+    pub(super) quietest: Vec<String>,
 }
 
 /// The cross-sensor columns of `calibration` ([`cross_columns`]), its
@@ -55,10 +58,12 @@ pub(super) fn prepare(
                 }
                 .into()],
                 ranked: None,
+                quietest: Vec::new(),
             });
         }
     };
     let mut cross = cross_columns(calibration, &ranked, (terms, options), stores)?;
+    cross.quietest = ranked.iter().map(|(channel, _)| channel.clone()).collect();
     cross.ranked = Some(ranked);
     Ok(cross)
 }
@@ -215,6 +220,7 @@ pub(super) fn cross_columns(
         allowed,
         notes,
         ranked: None,
+        quietest: Vec::new(),
     })
 }
 
@@ -291,17 +297,39 @@ pub(super) fn name_cross_sensor(
         if let Effect::AuxCoupling(coupling) = &finding.effect {
             finding.effect = Effect::CrossSensor(CrossSensor {
                 k: coupling.k_nt_per_unit.unwrap_or_default(),
+                survey: None,
             });
         }
         finding.source = Some(signal.name());
-        finding.explanation = cross_explanation(signal, &finding.channel);
+        let survey = match &finding.effect {
+            Effect::CrossSensor(cross) => cross.survey.clone(),
+            _ => None,
+        };
+        finding.explanation = cross_explanation(signal, &finding.channel, survey.as_ref());
     }
 }
 
-/// A cross-sensor finding in words.
-fn cross_explanation(signal: &CrossSignal, channel: &str) -> String {
-    format!(
+/// A cross-sensor finding in words, with what the survey says of it.
+fn cross_explanation(signal: &CrossSignal, channel: &str, survey: Option<&SurveyEvidence>) -> String {
+    let mut words = format!(
         "{channel} carries interference its attitude terms cannot hold, and {} less {} (their attitude part taken out, the geology cancelling between sensors a metre or two apart) sees it too: a source on board that varies on its own, such as a current no column records. The signal of those sensors is coupled into {channel} through the field's direction.",
         signal.minuend, signal.reference
-    )
+    );
+    words += &match survey {
+        Some(s) => format!(
+            " On the survey lines, which the fit never saw, {channel}'s difference from {} falls from {:.3} to {:.3} nT RMS with it ({:+.0} %), lower on {} of {} lines{}.",
+            s.reference,
+            s.before_nt,
+            s.after_nt,
+            100.0 * (s.after_nt / s.before_nt - 1.0),
+            s.lines_lower,
+            s.lines,
+            match s.holds() {
+                true => "",
+                false => ": the survey does not bear it out",
+            }
+        ),
+        None => " The survey could not judge it: the flight has no survey lines outside the calibration, or no quiet scalar the signal does not read.".into(),
+    };
+    words
 }

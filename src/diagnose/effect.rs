@@ -102,10 +102,52 @@ pub struct AuxCoupling {
 /// The geology-free signal s of other sensors (a fluxgate's magnitude or
 /// another scalar, less a reference scalar, less its attitude part)
 /// coupled into the scalar through the direction cosines: $s\,(k \cdot u)$.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct CrossSensor {
     /// nT at the channel per nT of the signal, along each body axis.
     pub k: [f64; 3],
+    /// What the survey, which the fit never saw, says of it; `None` where
+    /// it could not be measured (no survey lines, or no scalar outside the
+    /// signal to measure against).
+    pub survey: Option<SurveyEvidence>,
+}
+
+/// A cross-sensor term judged on the survey lines: the channel's
+/// difference from a quiet scalar the signal does not read (both
+/// compensated, RMS about its mean over the survey's line rows outside
+/// the calibration), without the term and with it. What a current no
+/// column records adds to a cabin sensor shows in that difference on
+/// every line, and the term, fitted on the box, takes it out; a signal
+/// that only stands in for another sensor's residual on the box moves it
+/// by a few per cent at most (under 2 % on the clean twins of the
+/// unrecorded-current campaign).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SurveyEvidence {
+    /// The quiet scalar the difference is taken from.
+    pub reference: String,
+    /// The difference's RMS without the term, nT.
+    pub before_nt: f64,
+    /// With it, nT.
+    pub after_nt: f64,
+    /// Survey lines on which the term lowers the difference.
+    pub lines_lower: usize,
+    /// Survey lines measured.
+    pub lines: usize,
+}
+
+/// The least share of the channel's survey difference from the quiet
+/// scalar a cross-sensor term must take out to be borne out there.
+pub const SURVEY_CROSS_GAIN: f64 = 0.15;
+
+impl SurveyEvidence {
+    /// Whether the survey bears the term out: the difference falls by
+    /// [`SURVEY_CROSS_GAIN`] or more overall, and on more than half the
+    /// lines.
+    pub fn holds(&self) -> bool {
+        self.lines >= 2
+            && self.after_nt <= (1.0 - SURVEY_CROSS_GAIN) * self.before_nt
+            && 2 * self.lines_lower > self.lines
+    }
 }
 
 /// The scalar follows a base station's record with this gain.
@@ -218,7 +260,13 @@ impl Effect {
             Effect::SecondOrder(p) => {
                 named.insert("term_rms_nt".into(), p.term_rms_nt);
             }
-            Effect::CrossSensor(p) => axes("k_{}", p.k, &mut named),
+            Effect::CrossSensor(p) => {
+                axes("k_{}", p.k, &mut named);
+                if let Some(survey) = &p.survey {
+                    named.insert("survey_rms_before_nt".into(), survey.before_nt);
+                    named.insert("survey_rms_after_nt".into(), survey.after_nt);
+                }
+            }
             Effect::Unexplained(p) => {
                 named.insert("structured_energy_share".into(), p.structured_energy_share);
                 named.insert("noise_floor_nt".into(), p.noise_floor_nt);

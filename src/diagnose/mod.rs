@@ -89,6 +89,7 @@ pub mod localise;
 mod screen;
 mod search;
 mod shifted;
+mod survey;
 
 use finding::*;
 use fluxgate::*;
@@ -98,7 +99,7 @@ use shifted::*;
 
 pub use effect::{
     AuxCoupling, CrossSensor, EddyTimeConstant, Effect, EffectKind, ExternalField, FluxgateErrors, SecondOrder,
-    SensorLag, Unexplained,
+    SensorLag, SurveyEvidence, Unexplained, SURVEY_CROSS_GAIN,
 };
 pub use finding::AppliedFinding;
 
@@ -148,11 +149,14 @@ pub struct DiagnoseOptions {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum CrossSensorUse {
-    /// Found, held out and reported, not applied (the default): on clean
+    /// Applied where the survey bears it out ([`SurveyEvidence::holds`]),
+    /// reported elsewhere (the default). On the box alone, on clean
     /// simulated flights two cabin sensors' residuals, which no source on
-    /// board causes, stood in for each other on 5 of 1,344 channels, and
-    /// nothing the box or the survey measures told them from a current no
+    /// board causes, stood in for each other on 5 of 1,344 channels; the
+    /// survey, which the fit never saw, tells them from a current no
     /// column records.
+    Survey,
+    /// Found, held out and reported, never applied.
     Report,
     /// Applied under the evidence rule like any other finding.
     Apply,
@@ -210,7 +214,7 @@ impl Default for DiagnoseOptions {
             max_findings: 3,
             vector_mismatch_nt: 200.0,
             apply: ApplyDiagnosis::Auto,
-            cross_sensor: CrossSensorUse::Report,
+            cross_sensor: CrossSensorUse::Survey,
         }
     }
 }
@@ -532,6 +536,10 @@ struct Problem<'a> {
     levels: &'a BTreeMap<String, f64>,
     /// Stores of finished fits, shared by every fit of the diagnosis.
     stores: &'a StorePool,
+    /// The flight's scalar channels, least aircraft field first (empty
+    /// where they were not ranked): the quiet scalars a cross-sensor
+    /// signal is judged against on the survey.
+    quietest: &'a [String],
 }
 
 /// Where a channel's search starts: plain Tolles-Lawson held out, with λ
@@ -607,14 +615,11 @@ pub fn diagnose_metered(
     // The fluxgate is judged against the scalar channel with the least
     // aircraft field of its own, and the threshold grows with what is
     // left: a cabin sensor's hundreds of nT would otherwise count as
-    // fluxgate offsets.
+    // fluxgate offsets. Other sensors' geology-free signals are source columns.
     let stores = StorePool::new();
-    // Other sensors as interference sensors: their geology-free signals
-    // are source columns of the log the search reads.
     let cross = cross::prepare(calibration, (terms, options), &stores)?;
-    let log = &cross.log;
+    let (log, all_levels) = (&cross.log, source_levels(&cross.log));
     let raw_direction = field_directions(log, sensor);
-    let all_levels = source_levels(log);
     let levels = cross.levels_by_channel(channels, &all_levels);
     let problem = |channel, log, direction| Problem {
         log,
@@ -626,6 +631,7 @@ pub fn diagnose_metered(
         direction,
         levels: levels.get(channel).unwrap_or(&all_levels),
         stores: &stores,
+        quietest: &cross.quietest,
     };
     // The fluxgate check and each channel's plain fits held out (by
     // either λ criterion) do not need each other: side by side.
@@ -892,6 +898,7 @@ pub fn heldout_rms(
         direction: &direction,
         levels: &levels,
         stores: &StorePool::new(),
+        quietest: &[],
     };
     let uncalibrated = Model {
         vector_calibration: None,
@@ -963,6 +970,7 @@ mod tests {
                 direction: &self.direction,
                 levels: &self.levels,
                 stores: &self.stores,
+                quietest: &[],
             }
         }
     }

@@ -211,15 +211,13 @@ pub(super) fn diagnose_channel(
             windows: &current_windows,
             control: &control,
         };
-        let index = match step(problem, &state, &scored, keep) {
-            Step::Accept(index) => index,
-            Step::Stop(rejected) => {
+        let (found, next, result) = match next_finding(problem, (&state, scored, keep))? {
+            Ok(accepted) => accepted,
+            Err(rejected) => {
                 strongest_rejected = rejected;
                 break;
             }
         };
-        let (next, extension, result) = scored.swap_remove(index);
-        let (found, next, result) = accept(problem, (next, &extension, result), (current, &current_windows))?;
         findings.push(found);
         control = held_out(problem, &with_second_order(&next))?;
         current_ridge = result.ridge.clone();
@@ -246,6 +244,60 @@ pub(super) fn diagnose_channel(
         localisation,
     };
     Ok((summary, findings))
+}
+
+/// The finding the search takes next from the `scored` candidates, with
+/// the model it makes and its held-out figures: the step's
+/// ([`step`]), else a cross-sensor signal the survey bears out
+/// ([`super::survey::survey_step`]); or the strongest candidate rejected
+/// and why.
+fn next_finding(
+    problem: &Problem,
+    (state, mut scored, keep): (&SearchState, Vec<(Model, Extension, HeldOut)>, f64),
+) -> Result<std::result::Result<(Finding, Model, HeldOut), Option<String>>> {
+    let current = (state.rms_nt, state.windows);
+    let (index, surveyed) = match step(problem, state, &scored, keep) {
+        Step::Accept(index) => (index, false),
+        Step::Stop(rejected) => match super::survey::survey_step(problem, (state.model, state.rms_nt), &scored)? {
+            Some((index, _)) => (index, true),
+            None => return Ok(Err(rejected)),
+        },
+    };
+    let (next, extension, result) = scored.swap_remove(index);
+    let (mut found, next, result) = match surveyed {
+        // Borne out on the survey as fitted: no other λ criterion.
+        true => finding(problem, next, &extension, current, result)?,
+        false => accept(problem, (next, &extension, result), current)?,
+    };
+    surveyed_cross_sensor(problem, (state.model, &next), &extension, &mut found)?;
+    Ok(Ok((found, next, result)))
+}
+
+/// A cross-sensor finding with what the survey says of it
+/// ([`super::survey::survey_evidence`]): its effect becomes
+/// [`Effect::CrossSensor`] with the evidence. Other findings are left as
+/// they are.
+fn surveyed_cross_sensor(
+    problem: &Problem,
+    (before, after): (&Model, &Model),
+    extension: &Extension,
+    found: &mut Finding,
+) -> Result<()> {
+    let Extension::Coupling { source } = extension else {
+        return Ok(());
+    };
+    let Effect::AuxCoupling(coupling) = &found.effect else {
+        return Ok(());
+    };
+    if !super::cross::is_cross_column(source) {
+        return Ok(());
+    }
+    let survey = super::survey::survey_evidence(problem, (before, after), source)?;
+    found.effect = Effect::CrossSensor(CrossSensor {
+        k: coupling.k_nt_per_unit.unwrap_or_default(),
+        survey,
+    });
+    Ok(())
 }
 
 /// Puts the recorded candidates that pass the threshold (`passing_nt`)

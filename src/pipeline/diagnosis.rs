@@ -173,9 +173,7 @@ pub(super) fn evidence_rule(
         departures, plain_of, survey_checks, tolles_lawson_of, Compensations, SurveyCheck, LEAST_CROSSOVERS,
         LEAST_TRIPLES,
     };
-    if options.diagnose.cross_sensor == crate::diagnose::CrossSensorUse::Report {
-        report_cross_sensor(&mut plan, diagnosis);
-    }
+    report_cross_sensor(&mut plan, diagnosis, options.diagnose.cross_sensor);
     let mut refused = no_gain_held_out(diagnosis, &plan, options);
     let compensations = Compensations::new(calibration, (options.terms, &options.fit));
     let measured = departures(&compensations, &plan, plain_of)?;
@@ -294,21 +292,51 @@ pub(super) struct Departure {
     pub(super) plain: std::sync::Arc<Vec<f64>>,
 }
 
-/// Takes every cross-sensor term out of `plan` and the diagnosis's
-/// models, and marks its findings reported, not applied
-/// (`[diagnose] cross_sensor = "report"`, the default).
-fn report_cross_sensor(plan: &mut BTreeMap<String, Extensions>, diagnosis: &mut crate::diagnose::Diagnosis) {
-    let cross = |s: &crate::model::SourceTerm| matches!(s, crate::model::SourceTerm::CrossSensor { .. });
-    for model in plan.values_mut() {
-        model.sources.retain(|s| !cross(s));
+/// Takes the cross-sensor terms out of `plan` and the diagnosis's models,
+/// and marks their findings reported, not applied: under `[diagnose]
+/// cross_sensor = "report"` every one, under `"survey"` (the default)
+/// those the survey does not bear out, under `"apply"` none.
+fn report_cross_sensor(
+    plan: &mut BTreeMap<String, Extensions>,
+    diagnosis: &mut crate::diagnose::Diagnosis,
+    setting: crate::diagnose::CrossSensorUse,
+) {
+    use crate::diagnose::{CrossSensorUse, Effect};
+    let survey_borne = match setting {
+        CrossSensorUse::Apply => return,
+        CrossSensorUse::Survey => true,
+        CrossSensorUse::Report => false,
+    };
+    let borne = |f: &crate::diagnose::Finding| match &f.effect {
+        Effect::CrossSensor(cross) => survey_borne && cross.survey.as_ref().is_some_and(|s| s.holds()),
+        _ => false,
+    };
+    let reported: Vec<(String, String)> = (diagnosis.findings.iter())
+        .filter(|f| f.effect.kind() == EffectKind::CrossSensor && !borne(f))
+        .filter_map(|f| Some((f.channel.clone(), f.source.clone()?)))
+        .collect();
+    let taken = |channel: &str, s: &crate::model::SourceTerm| match s {
+        crate::model::SourceTerm::CrossSensor { name, .. } => reported.iter().any(|(c, n)| c == channel && n == name),
+        _ => false,
+    };
+    for (channel, model) in plan.iter_mut() {
+        model.sources.retain(|s| !taken(channel, s));
     }
     for channel in &mut diagnosis.channels {
-        channel.model.sources.retain(|s| !cross(s));
+        let name = channel.channel.clone();
+        channel.model.sources.retain(|s| !taken(&name, s));
     }
+    let reason = match survey_borne {
+        true => format!(
+            "the survey does not bear this signal out (the channel's difference from a quiet scalar the signal does not read must fall by {:.0} % or more, on more than half the lines), and on the box alone two cabin sensors' residuals can stand in for each other on clean flights: reported, not applied, unless [diagnose] cross_sensor = \"apply\"",
+            100.0 * crate::diagnose::SURVEY_CROSS_GAIN
+        ),
+        false => "other sensors' signals are reported, not applied, under [diagnose] cross_sensor = \"report\"".into(),
+    };
     for finding in (diagnosis.findings.iter_mut()).filter(|f| f.effect.kind() == EffectKind::CrossSensor) {
-        finding.not_applied = Some(
-            "other sensors' signals are reported, not applied, unless [diagnose] cross_sensor = \"apply\": on clean flights two cabin sensors' residuals can stand in for each other".into(),
-        );
+        if !borne(finding) {
+            finding.not_applied = Some(reason.clone());
+        }
     }
 }
 

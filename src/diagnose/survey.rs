@@ -1,0 +1,149 @@
+//! A cross-sensor signal judged on the survey, which its fit never saw.
+//!
+//! A current no column records is switched, ramped and cycled through the
+//! whole flight. On the box it is one effect among the manoeuvres, and the
+//! witness sensors see it through their own projection of its field: on
+//! the unrecorded-current campaign (`tests/diagnose_campaign.rs`) the
+//! best signal took 15–40 % of the held-out residual on most flights,
+//! short of the 30 % a finding needs there, or none. On the survey lines
+//! the same current leaves the channel 0.4–3.7 nT from a quiet scalar, on
+//! every line, and a term fitted on the box that holds it takes a third
+//! to two thirds of that out. So a cross-sensor candidate that lowers the
+//! box's held-out residual at all, and takes [`SURVEY_CROSS_GAIN`] or more
+//! of the channel's survey difference from a quiet scalar the signal does
+//! not read, on two lines in three, is a finding ([`SurveyEvidence`]).
+//!
+//! The difference holds the geology between the two sensors (the tail is
+//! metres from the cabin, a real gradient at survey height), and the
+//! signal none where its sensors sit side by side; a quiet scalar the
+//! signal reads is never the one measured against, since the term would
+//! then carry that sensor's share of the geology into the difference.
+
+use super::*;
+use crate::model::cross_sensor::CROSS_COLUMN_PREFIX;
+
+/// The survey evidence for `after`, the channel's model with the cross
+/// column `column` added to `before`: the channel's difference from the
+/// quietest scalar (of `problem.quietest`) that is neither it nor one of
+/// the signal's sensors. `None` where there is no such scalar, no survey
+/// line, or `column` is not a cross column.
+pub(super) fn survey_evidence(
+    problem: &Problem,
+    (before, after): (&Model, &Model),
+    column: &str,
+) -> Result<Option<SurveyEvidence>> {
+    let Some((minuend, reference)) = column.strip_prefix(CROSS_COLUMN_PREFIX).and_then(|n| n.split_once('|')) else {
+        return Ok(None);
+    };
+    let Some(quiet) = (problem.quietest.iter()).find(|q| ![problem.channel, minuend, reference].contains(&q.as_str()))
+    else {
+        return Ok(None);
+    };
+    let lines = survey_line_rows(problem.log, problem.windows);
+    if lines.len() < 2 {
+        return Ok(None);
+    }
+    let without = compensated(problem, problem.channel, before)?;
+    let with = compensated(problem, problem.channel, after)?;
+    let quiet_values = compensated(problem, quiet, &Model::default())?;
+    let difference = |values: &[f64], row: usize| values[row] - quiet_values[row];
+    let usable = |row: &usize| difference(&without, *row).is_finite() && difference(&with, *row).is_finite();
+    let lines: Vec<Vec<usize>> = (lines.into_iter())
+        .map(|rows| rows.into_iter().filter(usable).collect::<Vec<_>>())
+        .filter(|rows| rows.len() >= LEAST_LINE_ROWS)
+        .collect();
+    let all: Vec<usize> = lines.iter().flatten().copied().collect();
+    if lines.len() < 2 {
+        return Ok(None);
+    }
+    let mean = |values: &[f64]| all.iter().map(|&r| difference(values, r)).sum::<f64>() / all.len() as f64;
+    let (centre_without, centre_with) = (mean(&without), mean(&with));
+    let rms = |values: &[f64], centre: f64, rows: &[usize]| {
+        (rows
+            .iter()
+            .map(|&r| (difference(values, r) - centre).powi(2))
+            .sum::<f64>()
+            / rows.len() as f64)
+            .sqrt()
+    };
+    let lines_lower = (lines.iter())
+        .filter(|rows| rms(&with, centre_with, rows) < rms(&without, centre_without, rows))
+        .count();
+    Ok(Some(SurveyEvidence {
+        reference: quiet.clone(),
+        before_nt: rms(&without, centre_without, &all),
+        after_nt: rms(&with, centre_with, &all),
+        lines_lower,
+        lines: lines.len(),
+    }))
+}
+
+/// The fewest usable rows a survey line is measured on.
+const LEAST_LINE_ROWS: usize = 20;
+
+/// The rows of each survey line of `log` outside every calibration window.
+fn survey_line_rows(log: &FlightLog, windows: &[CalibrationWindow]) -> Vec<Vec<usize>> {
+    let time = log.time_s();
+    let mut in_windows = vec![false; log.len()];
+    for window in windows {
+        in_windows[window.rows(time)].fill(true);
+    }
+    (log.survey_lines().into_iter())
+        .map(|(_, rows)| rows.into_iter().filter(|r| !in_windows[*r]).collect())
+        .collect()
+}
+
+/// `channel` compensated on every row of the problem's log with `model`
+/// fitted on its calibration windows.
+fn compensated(problem: &Problem, channel: &str, model: &Model) -> Result<Vec<f64>> {
+    let spec = ModelSpec::new(problem.terms, model.clone());
+    let fitted = fit(
+        problem.log,
+        problem.sensor,
+        channel,
+        problem.windows,
+        &spec,
+        problem.options,
+        problem.stores,
+    )?;
+    let prediction = fitted.predict(problem.log)?;
+    Ok((prediction.scalar_nt.iter())
+        .zip(&prediction.interference_nt)
+        .map(|(scalar, interference)| scalar - interference)
+        .collect())
+}
+
+/// The best of the `scored` cross-sensor candidates (at most
+/// [`SURVEY_CHECKS`], each lowering the box's held-out RMS below
+/// `current_nt`) that the survey bears out, by its difference after, with
+/// its evidence.
+pub(super) fn survey_step(
+    problem: &Problem,
+    (model, current_nt): (&Model, f64),
+    scored: &[(Model, Extension, HeldOut)],
+) -> Result<Option<(usize, SurveyEvidence)>> {
+    let candidates: Vec<(usize, &str)> = (scored.iter().enumerate())
+        .filter(|(_, (_, _, h))| h.rms_nt < current_nt)
+        .filter_map(|(i, (_, extension, _))| match extension {
+            Extension::Coupling { source } if super::cross::is_cross_column(source) => Some((i, source.as_str())),
+            _ => None,
+        })
+        .take(SURVEY_CHECKS)
+        .collect();
+    let judged: Vec<Option<(usize, SurveyEvidence)>> = candidates
+        .par_iter()
+        .map(|&(i, column)| {
+            let evidence = survey_evidence(problem, (model, &scored[i].0), column)?;
+
+            Ok(evidence.filter(SurveyEvidence::holds).map(|e| (i, e)))
+        })
+        .collect::<Result<_>>()?;
+    Ok(judged
+        .into_iter()
+        .flatten()
+        .min_by(|a, b| a.1.after_nt.total_cmp(&b.1.after_nt)))
+}
+
+/// Cross-sensor candidates, best on the box first, that a step judges on
+/// the survey.
+const SURVEY_CHECKS: usize = 4;
