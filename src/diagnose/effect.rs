@@ -330,4 +330,34 @@ mod tests {
             r#"{"effect":"sensor_lag","channel":"mag_1_uc","parameters":{"lag_s":0.25},"explanation":"late","located":[],"heldout_rms_before_nt":0.5,"heldout_rms_after_nt":0.125}"#
         );
     }
+
+    #[test]
+    fn the_survey_bears_a_cross_sensor_term_out_by_its_share_and_its_lines() {
+        let evidence = |after_nt: f64, lines_lower: usize, lines: usize| SurveyEvidence {
+            reference: "mag_1_uc".into(),
+            before_nt: 1.0,
+            after_nt,
+            lines_lower,
+            lines,
+        };
+        // 15 % off on 6 of 10 lines holds; 14 % off, or 5 of 10 lines, does not.
+        assert!(evidence(0.85, 6, 10).holds());
+        assert!(!evidence(0.86, 10, 10).holds());
+        assert!(!evidence(0.5, 5, 10).holds());
+        // One line is no survey.
+        assert!(!evidence(0.5, 1, 1).holds());
+        let cross = Effect::CrossSensor(CrossSensor {
+            k: [0.5, -0.25, 2.0],
+            survey: Some(evidence(0.75, 7, 8)),
+        });
+        let parameters = cross.parameters();
+        assert_eq!(parameters["k_y"], -0.25);
+        assert_eq!(parameters["survey_rms_before_nt"], 1.0);
+        assert_eq!(parameters["survey_rms_after_nt"], 0.75);
+        let unjudged = Effect::CrossSensor(CrossSensor {
+            k: [0.5, -0.25, 2.0],
+            survey: None,
+        });
+        assert_eq!(unjudged.parameters().len(), 3);
+    }
 }

@@ -211,7 +211,7 @@ pub(super) fn diagnose_channel(
             windows: &current_windows,
             control: &control,
         };
-        let (found, next, result) = match next_finding(problem, (&state, scored, keep))? {
+        let (found, next, result) = match next_finding(problem, (&state, scored), settings)? {
             Ok(accepted) => accepted,
             Err(rejected) => {
                 strongest_rejected = rejected;
@@ -248,16 +248,21 @@ pub(super) fn diagnose_channel(
 
 /// The finding the search takes next from the `scored` candidates, with
 /// the model it makes and its held-out figures: the step's
-/// ([`step`]), else a cross-sensor signal the survey bears out
+/// ([`step`]), else, unless `[diagnose] cross_sensor = "report"`, a
+/// cross-sensor signal the survey bears out
 /// ([`super::survey::survey_step`]); or the strongest candidate rejected
 /// and why.
 fn next_finding(
     problem: &Problem,
-    (state, mut scored, keep): (&SearchState, Vec<(Model, Extension, HeldOut)>, f64),
+    (state, mut scored): (&SearchState, Vec<(Model, Extension, HeldOut)>),
+    settings: &DiagnoseOptions,
 ) -> Result<std::result::Result<(Finding, Model, HeldOut), Option<String>>> {
     let current = (state.rms_nt, state.windows);
-    let (index, surveyed) = match step(problem, state, &scored, keep) {
+    // Only where a finding the survey bears out may be applied.
+    let surveying = settings.cross_sensor != CrossSensorUse::Report;
+    let (index, surveyed) = match step(problem, state, &scored, 1.0 - settings.min_improvement) {
         Step::Accept(index) => (index, false),
+        Step::Stop(rejected) if !surveying => return Ok(Err(rejected)),
         Step::Stop(rejected) => match super::survey::survey_step(problem, (state.model, state.rms_nt), &scored)? {
             Some((index, _)) => (index, true),
             None => return Ok(Err(rejected)),

@@ -331,7 +331,7 @@ fn report_cross_sensor(
             "the survey does not bear this signal out (the channel's difference from a quiet scalar the signal does not read must fall by {:.0} % or more, on more than half the lines), and on the box alone two cabin sensors' residuals can stand in for each other on clean flights: reported, not applied, unless [diagnose] cross_sensor = \"apply\"",
             100.0 * crate::diagnose::SURVEY_CROSS_GAIN
         ),
-        false => "other sensors' signals are reported, not applied, under [diagnose] cross_sensor = \"report\"".into(),
+        false => "other sensors' signals are reported, not applied, by default ([diagnose] cross_sensor = \"report\"): on clean flights two cabin sensors' residuals can stand in for each other; \"survey\" applies one the survey bears out, \"apply\" every one".into(),
     };
     for finding in (diagnosis.findings.iter_mut()).filter(|f| f.effect.kind() == EffectKind::CrossSensor) {
         if !borne(finding) {
