@@ -92,7 +92,10 @@ pub enum Error {
     },
 
     /// The time column is missing, non-finite or not strictly increasing.
-    #[error("{path}, {location}: time column '{column}' {problem}. Time must be finite and strictly increasing; sort the file by time and remove duplicated rows.")]
+    /// (The fix for an unsorted file is [`SORT_BY_TIME`].)
+    #[error(
+        "{path}, {location}: time column '{column}' {problem}. Time must be finite and strictly increasing; {fix}."
+    )]
     BadTime {
         /// The file concerned.
         path: PathBuf,
@@ -102,6 +105,8 @@ pub enum Error {
         column: String,
         /// What is wrong with it.
         problem: String,
+        /// What to do about it, as the problem's cause suggests.
+        fix: String,
     },
 
     /// A file holds no data to work on.
@@ -421,6 +426,9 @@ impl std::fmt::Display for Excerpt<'_> {
         }
     }
 }
+
+/// What to do about a time column that goes back: sort and deduplicate.
+pub const SORT_BY_TIME: &str = "sort the file by time and remove duplicated rows";
 
 #[cfg(test)]
 mod tests {

@@ -455,29 +455,59 @@ fn median_step(time_s: &[f64]) -> f64 {
 /// Checks that `time_s` is finite and strictly increasing; `locate` turns a
 /// sample index into a place the user can find ("line 12", "sample 10").
 pub fn check_time(source: &Path, column: &str, time_s: &[f64], locate: impl Fn(usize) -> String) -> Result<()> {
-    let bad = |index: usize, problem: String| Error::BadTime {
+    let bad = |index: usize, (problem, fix): (String, String)| Error::BadTime {
         path: source.to_path_buf(),
         location: locate(index),
         column: column.to_string(),
         problem,
+        fix,
     };
     for (index, &t) in time_s.iter().enumerate() {
         if !t.is_finite() {
-            return Err(bad(index, "is missing or not finite".into()));
+            let fix = "repair that sample's time, or drop the sample".to_string();
+            return Err(bad(index, ("is missing or not finite".into(), fix)));
         }
         if index > 0 && t <= time_s[index - 1] {
-            let previous = time_s[index - 1];
-            return Err(bad(
-                index,
-                format!(
-                    "goes from {} to {}",
-                    crate::error::Number(previous),
-                    crate::error::Number(t)
-                ),
-            ));
+            return Err(bad(index, backward_time(column, time_s, index)));
         }
     }
     Ok(())
+}
+
+/// What is wrong where `time_s` first goes back, at `index`, and the fix
+/// its cause calls for: a column that goes back on a fifth of its steps
+/// or more is not a time at all (a data column named as time); one damaged
+/// stamp, with its neighbours in order around it, is repaired or dropped;
+/// anything else is an unsorted file.
+fn backward_time(column: &str, time_s: &[f64], index: usize) -> (String, String) {
+    use crate::error::Number;
+    let moved = format!("goes from {} to {}", Number(time_s[index - 1]), Number(time_s[index]));
+    let back = time_s.windows(2).filter(|w| w[1] <= w[0]).count();
+    if 5 * back >= time_s.len().saturating_sub(1) && back > 2 {
+        let problem = format!("{moved}, and goes back on {back} of its {} steps", time_s.len() - 1);
+        let fix = format!("'{column}' is not a time column; name the file's time in [columns] time = \"...\"");
+        return (problem, fix);
+    }
+    // The stamp at `index` (or the one before it) is out of line with
+    // the samples on either side, which are in order.
+    let in_order = |a: usize, b: usize| b < time_s.len() && time_s[a] < time_s[b];
+    let lone = |k: usize| k >= 1 && in_order(k - 1, k + 1) && back <= 2;
+    match (lone(index), index >= 1 && lone(index - 1)) {
+        (true, _) | (_, true) => {
+            let k = if lone(index) { index } else { index - 1 };
+            let problem = format!(
+                "{moved}: the stamp {} lies out of line between {} and {}, which are in order",
+                Number(time_s[k]),
+                Number(time_s[k - 1]),
+                Number(time_s[k + 1])
+            );
+            (
+                problem,
+                format!("one damaged time stamp (sample {k}), not an unsorted file: repair it or drop that sample"),
+            )
+        }
+        _ => (moved, crate::error::SORT_BY_TIME.to_string()),
+    }
 }
 
 /// How one channel was placed on the time base.
@@ -544,6 +574,36 @@ mod tests {
         let err = FlightLog::new("f.csv", "tt", vec![0.0, 0.1, 0.05], vec![]).unwrap_err();
         let text = err.to_string();
         assert!(text.contains("sample 2") && text.contains("0.1 to 0.05"), "{text}");
+    }
+
+    /// Each way a time goes back gets the fix its cause calls for.
+    #[test]
+    fn a_backward_time_is_told_apart_by_its_cause() {
+        let message = |time: Vec<f64>| FlightLog::new("f.h5", "tt", time, vec![]).unwrap_err().to_string();
+        let steady: Vec<f64> = (0..100).map(|k| 100.0 + 0.1 * k as f64).collect();
+        // One stamp damaged low, and one damaged high: repair that sample.
+        for (k, value) in [(50, 20.0), (50, 900.0)] {
+            let mut time = steady.clone();
+            time[k] = value;
+            let text = message(time);
+            assert!(text.contains("one damaged time stamp (sample 50)"), "{text}");
+            assert!(!text.contains("sort the file"), "{text}");
+        }
+        // A block flown twice: sort.
+        let mut time = steady.clone();
+        time.extend((0..50).map(|k| 105.0 + 0.1 * k as f64));
+        let text = message(time);
+        assert!(
+            text.contains("sample 100") && text.contains("sort the file by time"),
+            "{text}"
+        );
+        // A data column named as time goes back on about half its steps.
+        let readings: Vec<f64> = (0..100).map(|k| 52_000.0 + (k as f64 * 1.7).sin()).collect();
+        let text = message(readings);
+        assert!(
+            text.contains("'tt' is not a time column") && text.contains("[columns] time"),
+            "{text}"
+        );
     }
 
     #[test]

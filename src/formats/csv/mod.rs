@@ -622,6 +622,7 @@ impl<'a> ColumnBuilder<'a> {
             location: format!("line {line}"),
             column: self.names[self.time_index].clone(),
             problem,
+            fix: crate::error::SORT_BY_TIME.into(),
         })
     }
 

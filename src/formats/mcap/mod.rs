@@ -576,6 +576,7 @@ fn build_log(
             conflict.times,
             crate::error::Number(conflict.first_time_s)
         ),
+        fix: "the recording holds two copies of the topic that disagree (two recorders, or a logger that restarted): keep one, or map the other to its own column with [columns]".into(),
     })?;
     aligned.report.notes = notes;
     aligned.report.warnings.splice(0..0, losses);

@@ -133,6 +133,7 @@ fn log_times_ns(log: &FlightLog, midnight_ns: u64) -> Result<Vec<u64>> {
                             crate::error::Number(t)
                         ),
                     },
+                    fix: "write the flight as CSV, XYZ or HDF5, which hold any time in seconds, or shift its times to start at zero".into(),
                 }),
             },
         )
