@@ -154,6 +154,11 @@ fn write_records_restarting(path: &Path, layout: Layout, records: Vec<Record>, r
             if topic.starts_with("/msgpack/") {
                 return writer.add_channel(0, topic, "msgpack", &BTreeMap::new()).unwrap();
             }
+            // Protobuf messages whose schema is in another encoding.
+            if topic == MISMATCHED_SCHEMA_TOPIC {
+                let schema = writer.add_schema("Total", "foo", b"total").unwrap();
+                return writer.add_channel(schema, topic, "protobuf", &BTreeMap::new()).unwrap();
+            }
             // A magnetometer recorded in a ROS 2 type magcomp does not read.
             if topic == UNREAD_ROS_MAGNETOMETER {
                 let schema = writer
@@ -195,6 +200,9 @@ fn write_records_restarting(path: &Path, layout: Layout, records: Vec<Record>, r
 /// A magnetometer topic written in a ROS 2 type magcomp does not read.
 const UNREAD_ROS_MAGNETOMETER: &str = "/mag/2/scalar";
 
+/// A topic of protobuf messages whose schema is in encoding "foo".
+const MISMATCHED_SCHEMA_TOPIC: &str = "/mag/3/scalar";
+
 /// A topic magcomp cannot read is not dropped silently: the flight carries
 /// a reading warning (which `compensate` prints and the report shows) that
 /// names the topic, says it is not in the output, and why. So is a
@@ -207,6 +215,11 @@ fn a_topic_magcomp_cannot_read_is_a_warning() {
     let cases = [
         ("/msgpack/mag_9", "'msgpack'"),
         (UNREAD_ROS_MAGNETOMETER, "vendor_msgs/msg/Total"),
+        // Named for its schema's encoding, not as protobuf unread.
+        (
+            MISMATCHED_SCHEMA_TOPIC,
+            "schema 'Total' is in encoding 'foo', not a protobuf descriptor set",
+        ),
     ];
     for (topic, why) in cases {
         let path = folder.path().join("unread.mcap");

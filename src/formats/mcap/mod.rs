@@ -338,6 +338,17 @@ fn decoder_for(channel: &ChannelRecord, schema: Option<&SchemaRecord>) -> Decode
                 lost: false,
             },
         },
+        ("protobuf", Some(schema)) => Decoder::Skip {
+            why: format!(
+                "its messages are protobuf but their schema '{}' is in encoding '{}', not a protobuf descriptor set, so they cannot be decoded: rewrite the schema record, or record the topic again",
+                schema.name, schema.encoding
+            ),
+            lost: true,
+        },
+        (encoding @ ("protobuf" | "cdr"), None) => Decoder::Skip {
+            why: format!("its messages are {encoding} but the channel names no schema, without which they cannot be decoded: record the topic with its schema"),
+            lost: true,
+        },
         (encoding, _) => Decoder::Skip {
             why: format!("message encoding '{encoding}' is not read (magcomp reads protobuf, JSON and ROS 2 CDR)"),
             lost: true,
