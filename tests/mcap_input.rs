@@ -150,8 +150,9 @@ fn write_records_restarting(path: &Path, layout: Layout, records: Vec<Record>, r
     for (sequence, (topic, t, fields)) in records.into_iter().enumerate() {
         let restarted = restart.is_some_and(|(name, from)| name == topic && t >= from);
         let channel = *channels.entry((topic, restarted)).or_insert_with(|| {
-            // A topic in an encoding magcomp does not decode.
-            if topic.starts_with("/msgpack/") {
+            // A topic in an encoding magcomp does not decode, or a logger
+            // that restarted writing the current in one.
+            if topic.starts_with("/msgpack/") || (restarted && topic == "/aux/cur_a") {
                 return writer.add_channel(0, topic, "msgpack", &BTreeMap::new()).unwrap();
             }
             // Protobuf messages whose schema is in another encoding.
@@ -746,6 +747,42 @@ fn a_topic_on_two_channel_records_is_read_whole() {
         }),
         "{notes:?}"
     );
+}
+
+/// A topic whose logger restarted in an encoding magcomp does not decode
+/// is read where its first channel record covers it, and the warning says
+/// that only the second record's messages are lost, not the topic.
+#[test]
+fn a_topic_half_in_an_unknown_encoding_is_read_where_it_can_be() {
+    let folder = tempfile::tempdir().unwrap();
+    let path = folder.path().join("half.mcap");
+    write_records_restarting(&path, INDEXED, records(), Some(("/aux/cur_a", 120.0)));
+    let log = read_flight_log(&path, &IngestOptions::default()).unwrap();
+    let lost: Vec<&Reading> = (log.reading_warnings().iter())
+        .filter_map(|w| match w {
+            Warning::Reading(r) => Some(r),
+            _ => None,
+        })
+        .collect();
+    assert!(
+        lost.iter()
+            .any(|r| matches!(r, Reading::McapChannelLost { topic, why, .. }
+            if topic == "/aux/cur_a" && why.contains("'msgpack'"))),
+        "{lost:?}"
+    );
+    assert!(
+        !lost
+            .iter()
+            .any(|r| matches!(r, Reading::McapTopicLost { topic, .. } if topic == "/aux/cur_a")),
+        "{lost:?}"
+    );
+    // Read on its first record (101–119.5 s, but for the gap), missing after.
+    let current = &log.channel("cur_a").expect("cur_a read from its first record").values;
+    let (time, read) = (log.time_s(), |t: f64| {
+        current[log.time_s().iter().position(|&x| x >= t).unwrap()]
+    });
+    assert!((read(105.0) - current(105.0)).abs() < 1e-6, "{} at 105 s", read(105.0));
+    assert!(read(125.0).is_nan() && time.len() == 300, "{} at 125 s", read(125.0));
 }
 
 /// `compensate` says what it could not read (issue: nothing lost): a

@@ -144,6 +144,17 @@ pub enum Reading {
         /// Chunks in the file.
         of: usize,
     },
+    /// One channel record of an MCAP topic whose other records magcomp
+    /// reads is in an encoding it does not: only that record's messages
+    /// are lost.
+    McapChannelLost {
+        /// The topic.
+        topic: String,
+        /// The channel record's id.
+        channel: u16,
+        /// Why it is not read.
+        why: String,
+    },
     /// An MCAP topic in an encoding magcomp does not read.
     McapTopicLost {
         /// The topic.
@@ -330,6 +341,10 @@ impl Reading {
             Reading::McapChunksLeftOut { damaged, of } => write!(
                 f,
                 "{damaged} of {of} chunks were damaged and left out: their samples are missing from the output. Copy the recording again from the recorder or its backup, whose copy may be whole"
+            ),
+            Reading::McapChannelLost { topic, channel, why } => write!(
+                f,
+                "topic '{topic}': its channel record {channel} is not read ({why}); the topic's other channel records are, so the output holds the topic where they cover it, and the messages on record {channel} alone are lost (write them in an encoding magcomp reads)"
             ),
             Reading::McapTopicLost { topic, why } => write!(
                 f,

@@ -617,8 +617,18 @@ fn build_log(
 /// (an encoding or schema magcomp cannot decode), a note when it holds
 /// none magcomp reads.
 fn skipped_topics(plans: &BTreeMap<u16, TopicPlan>, (notes, losses): (&mut Vec<ReadNote>, &mut Vec<Warning>)) {
-    for plan in plans.values() {
+    let read = |topic: &str| (plans.values()).any(|p| p.topic == topic && !matches!(p.decoder, Decoder::Skip { .. }));
+    for (&channel, plan) in plans {
         match &plan.decoder {
+            // The topic's other channel records are read.
+            Decoder::Skip { why, lost: true } if read(&plan.topic) => losses.push(
+                Reading::McapChannelLost {
+                    topic: plan.topic.clone(),
+                    channel,
+                    why: why.clone(),
+                }
+                .into(),
+            ),
             Decoder::Skip { why, lost: true } => losses.push(
                 Reading::McapTopicLost {
                     topic: plan.topic.clone(),
