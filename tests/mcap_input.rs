@@ -777,9 +777,9 @@ fn a_topic_half_in_an_unknown_encoding_is_read_where_it_can_be() {
         "{lost:?}"
     );
     // Read on its first record (101–119.5 s, but for the gap), missing after.
-    let current = &log.channel("cur_a").expect("cur_a read from its first record").values;
+    let values = &log.channel("cur_a").expect("cur_a read from its first record").values;
     let (time, read) = (log.time_s(), |t: f64| {
-        current[log.time_s().iter().position(|&x| x >= t).unwrap()]
+        values[log.time_s().iter().position(|&x| x >= t).unwrap()]
     });
     assert!((read(105.0) - current(105.0)).abs() < 1e-6, "{} at 105 s", read(105.0));
     assert!(read(125.0).is_nan() && time.len() == 300, "{} at 125 s", read(125.0));
