@@ -152,8 +152,10 @@ pub enum CrossSensorUse {
     /// Found, held out and reported, never applied (the default): on
     /// clean simulated flights, where no source on board causes it, two
     /// cabin sensors' shared residual still stood in for a source on 5 of
-    /// 1,344 channels on the box alone, and on 37 where the survey judged
-    /// it too (it helped 31 of those against the truth, and harmed one).
+    /// 1,344 channels on the box alone, and on 35 under `Survey` (none
+    /// harmed against the truth, 32 helped by more than 10 %: the term
+    /// takes a residual the sensors share out, but names a source that is
+    /// not there).
     Report,
     /// Applied where the survey bears it out ([`SurveyEvidence::holds`]),
     /// reported elsewhere; a signal the box held out too weakly becomes a
