@@ -785,6 +785,34 @@ fn a_topic_half_in_an_unknown_encoding_is_read_where_it_can_be() {
     assert!(read(125.0).is_nan() && time.len() == 300, "{} at 125 s", read(125.0));
 }
 
+/// A recording whose only fluxgate topic is in an encoding magcomp does not
+/// decode is refused for want of a fluxgate, and the refusal names the
+/// topic it could not read and why, not only the columns it did.
+#[test]
+fn a_missing_fluxgate_names_the_topic_that_could_not_be_read() {
+    let folder = tempfile::tempdir().unwrap();
+    let path = folder.path().join("unread_vector.mcap");
+    let records = (records().into_iter())
+        .map(|(topic, t, fields)| match topic {
+            "/mag/a/vector" => ("/msgpack/mag/a/vector", t, fields),
+            _ => (topic, t, fields),
+        })
+        .collect();
+    write_records(&path, INDEXED, records);
+    let log = read_flight_log(&path, &IngestOptions::default()).unwrap();
+    let error = magcomp::pipeline::choose_vector_sensor(&log, None)
+        .unwrap_err()
+        .to_string();
+    for needed in [
+        "no vector magnetometer",
+        "'/msgpack/mag/a/vector'",
+        "'msgpack'",
+        "could not be read",
+    ] {
+        assert!(error.contains(needed), "'{needed}' not in: {error}");
+    }
+}
+
 /// `compensate` says what it could not read (issue: nothing lost): a
 /// second scalar magnetometer recorded in an encoding magcomp does not
 /// decode is named on stdout and in the quality JSON's warnings, and the

@@ -322,8 +322,9 @@ pub fn choose_vector_sensor(log: &FlightLog, wanted: Option<&str>) -> Result<Vec
             "The Tolles-Lawson terms are built from a 3-axis fluxgate. {} Choose one with --vector, or map its columns in [[columns.vector]] in pipeline.toml.",
             match sensors.is_empty() {
                 true => format!(
-                    "The flight has no fluxgate of three such columns; its columns are {}.",
-                    column_list(log)
+                    "The flight has no fluxgate of three such columns; its columns are {}.{}",
+                    column_list(log),
+                    lost_topics(log)
                 ),
                 false => format!(
                     "Fluxgates found: {}.",
@@ -332,6 +333,26 @@ pub fn choose_vector_sensor(log: &FlightLog, wanted: Option<&str>) -> Result<Vec
             }
         ),
     })
+}
+
+/// The recording's topics that could not be read, for a message about a
+/// sensor the flight lacks: a fluxgate may be among them. Empty when none
+/// was lost.
+fn lost_topics(log: &FlightLog) -> String {
+    use crate::messages::{Reading, Warning};
+    let lost: Vec<String> = (log.reading_warnings().iter())
+        .filter_map(|w| match w {
+            Warning::Reading(Reading::McapTopicLost { topic, why }) => Some(format!("'{topic}' ({why})")),
+            _ => None,
+        })
+        .collect();
+    match lost.is_empty() {
+        true => String::new(),
+        false => format!(
+            " The recording's topic(s) {} could not be read, and the fluxgate may be among them: write them in an encoding magcomp reads.",
+            lost.join(", ")
+        ),
+    }
 }
 
 /// The flight's column names for a message: the first
