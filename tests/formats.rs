@@ -155,6 +155,21 @@ fn every_format_ingests_to_the_same_log_and_compensates_identically() {
     );
 }
 
+/// Asserts `log` (read from the fixture `name`) holds exactly the first
+/// `rows` rows of `sample`: times, channels, roles and values bit for bit.
+fn assert_first_rows(log: &FlightLog, sample: &FlightLog, rows: usize, name: &str) {
+    assert_eq!(log.len(), rows, "{name}");
+    assert_eq!(log.time_s(), &sample.time_s()[..rows], "{name}");
+    assert_eq!(log.channels().len(), sample.channels().len(), "{name}");
+    for channel in sample.channels() {
+        let stored = log
+            .channel(&channel.name)
+            .unwrap_or_else(|| panic!("{name}: no {}", channel.name));
+        assert_eq!(stored.role, channel.role, "{name} {}", channel.name);
+        assert_eq!(stored.values, channel.values[..rows], "{name} {}", channel.name);
+    }
+}
+
 /// The shipped MagNav-layout fixture holds the first 2000 rows of the
 /// sample flight (made with `magcomp convert` from those rows).
 #[test]
@@ -163,14 +178,7 @@ fn magnav_layout_fixture_reads_to_the_sample_flight_rows() {
     let ingest = IngestOptions::default();
     let fixture = read_flight_log(&root.join("tests/fixtures/Flt_sample_train.h5"), &ingest).unwrap();
     let sample = read_flight_log(&root.join("sample_flights/box_and_lines.csv"), &ingest).unwrap();
-    assert_eq!(fixture.len(), 2000);
-    assert_eq!(fixture.time_s(), &sample.time_s()[..2000]);
-    assert_eq!(fixture.channels().len(), sample.channels().len());
-    for channel in sample.channels() {
-        let stored = fixture.channel(&channel.name).unwrap();
-        assert_eq!(stored.role, channel.role, "{}", channel.name);
-        assert_eq!(stored.values, channel.values[..2000], "{}", channel.name);
-    }
+    assert_first_rows(&fixture, &sample, 2000, "Flt_sample_train.h5");
     assert_eq!(fixture.vector_sensors()[0].prefix, "flux_a");
 }
 
@@ -187,16 +195,7 @@ fn h5py_chunked_and_filtered_files_read_to_the_sample_flight_rows() {
     for name in ["h5py_gzip_shuffle.h5", "h5py_latest_gzip.h5"] {
         let log =
             read_flight_log(&root.join("tests/fixtures").join(name), &ingest).unwrap_or_else(|e| panic!("{name}: {e}"));
-        assert_eq!(log.len(), 600, "{name}");
-        assert_eq!(log.time_s(), &sample.time_s()[..600], "{name}");
-        assert_eq!(log.channels().len(), sample.channels().len(), "{name}");
-        for channel in sample.channels() {
-            let stored = log
-                .channel(&channel.name)
-                .unwrap_or_else(|| panic!("{name}: no {}", channel.name));
-            assert_eq!(stored.role, channel.role, "{name} {}", channel.name);
-            assert_eq!(stored.values, channel.values[..600], "{name} {}", channel.name);
-        }
+        assert_first_rows(&log, &sample, 600, name);
     }
 }
 
