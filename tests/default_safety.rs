@@ -906,45 +906,6 @@ fn a_base_station_term_that_moves_the_survey_beyond_its_uncertainty_is_no_plain_
     }
 }
 
-/// A crustal anomaly added to `flight`'s survey lines: a Gaussian in time
-/// of `amplitude_nt` and half-width `width_s`, centred at `centre_row`, on
-/// every scalar channel and along every fluxgate's field (each component
-/// scaled by $1 + δ/|B|$), as the Earth's field carries it. Returns the
-/// log and δ per row.
-fn with_anomaly(
-    log: &magcomp::ingest::flight_log::FlightLog,
-    (centre_row, amplitude_nt, width_s): (usize, f64, f64),
-) -> (magcomp::ingest::flight_log::FlightLog, Vec<f64>) {
-    let time = log.time_s();
-    let centre = time[centre_row];
-    let delta: Vec<f64> = (time.iter())
-        .map(|t| amplitude_nt * (-((t - centre) / width_s).powi(2)).exp())
-        .collect();
-    let mut out = log.clone();
-    for name in log.scalar_channels() {
-        let values: Vec<f64> = (log.channel(name).unwrap().values.iter())
-            .zip(&delta)
-            .map(|(v, d)| v + d)
-            .collect();
-        out = out.with_values(name, values).unwrap();
-    }
-    for sensor in log.vector_sensors() {
-        let field = log.vector_components(&sensor);
-        let scale: Vec<f64> = (0..log.len())
-            .map(|k| {
-                let magnitude = field.iter().map(|c| c[k] * c[k]).sum::<f64>().sqrt();
-                1.0 + delta[k] / magnitude
-            })
-            .collect();
-        for axis in sensor.axes {
-            let channel = &log.channels()[axis];
-            let values: Vec<f64> = (channel.values.iter()).zip(&scale).map(|(v, s)| v * s).collect();
-            out = out.with_values(&channel.name, values).unwrap();
-        }
-    }
-    (out, delta)
-}
-
 /// The anomaly gain a model states is what an anomaly injected on the
 /// survey comes out at: on random clean plans, each channel by default
 /// (its 16 terms and the findings applied) and with MagNav.jl's 18 terms,
@@ -977,7 +938,7 @@ fn the_stated_anomaly_gain_is_what_an_injected_anomaly_comes_out_at() {
             let centre_row = rows[rows.len() / 2];
             let amplitude_nt = draw.uniform(20.0, 150.0);
             let width_s = draw.uniform(4.0, 25.0);
-            let (injected, delta) = with_anomaly(&flight.log, (centre_row, amplitude_nt, width_s));
+            let (injected, delta) = common::with_anomaly(&flight.log, (centre_row, amplitude_nt, width_s));
             let peak: Vec<usize> = (rows.iter().copied())
                 .filter(|&r| (flight.log.time_s()[r] - flight.log.time_s()[centre_row]).abs() < width_s / 4.0)
                 .collect();

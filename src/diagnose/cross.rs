@@ -105,6 +105,10 @@ impl CrossColumns {
     }
 }
 
+/// No cross-sensor signals: a problem without the other sensors.
+#[cfg(test)]
+pub(super) static NO_SIGNALS: BTreeMap<String, CrossSignal> = BTreeMap::new();
+
 /// Whether `name` is a synthetic cross-sensor column.
 pub(super) fn is_cross_column(name: &str) -> bool {
     name.starts_with(CROSS_COLUMN_PREFIX)
@@ -285,6 +289,7 @@ pub(super) fn name_cross_sensor(
                 *source = SourceTerm::CrossSensor {
                     name: signal.name(),
                     signal: signal.clone(),
+                    survey_gain: None,
                 };
             }
         }
@@ -298,6 +303,7 @@ pub(super) fn name_cross_sensor(
             finding.effect = Effect::CrossSensor(CrossSensor {
                 k: coupling.k_nt_per_unit.unwrap_or_default(),
                 survey: None,
+                survey_gain: None,
             });
         }
         finding.source = Some(signal.name());

@@ -110,6 +110,9 @@ pub struct CrossSensor {
     /// it could not be measured (no survey lines, or no scalar outside the
     /// signal to measure against).
     pub survey: Option<SurveyEvidence>,
+    /// g, where the gain was fitted on the survey ($g\,s$, held out line
+    /// by line): `k` is then zero.
+    pub survey_gain: Option<f64>,
 }
 
 /// A cross-sensor term judged on the survey lines: the channel's
@@ -266,6 +269,9 @@ impl Effect {
                     named.insert("survey_rms_before_nt".into(), survey.before_nt);
                     named.insert("survey_rms_after_nt".into(), survey.after_nt);
                 }
+                if let Some(gain) = p.survey_gain {
+                    named.insert("survey_gain".into(), gain);
+                }
             }
             Effect::Unexplained(p) => {
                 named.insert("structured_energy_share".into(), p.structured_energy_share);
@@ -349,6 +355,7 @@ mod tests {
         let cross = Effect::CrossSensor(CrossSensor {
             k: [0.5, -0.25, 2.0],
             survey: Some(evidence(0.75, 7, 8)),
+            survey_gain: None,
         });
         let parameters = cross.parameters();
         assert_eq!(parameters["k_y"], -0.25);
@@ -357,7 +364,15 @@ mod tests {
         let unjudged = Effect::CrossSensor(CrossSensor {
             k: [0.5, -0.25, 2.0],
             survey: None,
+            survey_gain: None,
         });
         assert_eq!(unjudged.parameters().len(), 3);
+        let fitted = Effect::CrossSensor(CrossSensor {
+            k: [0.0; 3],
+            survey: Some(evidence(0.5, 8, 8)),
+            survey_gain: Some(1.5),
+        });
+        assert_eq!(fitted.parameters()["survey_gain"], 1.5);
+        assert_eq!(fitted.parameters().len(), 6);
     }
 }

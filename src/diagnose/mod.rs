@@ -149,17 +149,26 @@ pub struct DiagnoseOptions {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum CrossSensorUse {
-    /// Found, held out and reported, never applied (the default): on
-    /// clean simulated flights, where no source on board causes it, two
-    /// cabin sensors' shared residual still stood in for a source on 5 of
-    /// 1,344 channels on the box alone, and on 35 under `Survey` (none
-    /// harmed against the truth, 32 helped by more than 10 %: the term
-    /// takes a residual the sensors share out, but names a source that is
-    /// not there).
+    /// Found, held out and reported, never applied: on clean simulated
+    /// flights, where no source on board causes it, two cabin sensors'
+    /// shared residual still stood in for a source on 5 of 1,344 channels
+    /// on the box alone.
     Report,
-    /// Applied where the survey bears it out ([`SurveyEvidence::holds`]),
-    /// reported elsewhere; a signal the box held out too weakly becomes a
-    /// finding where the survey bears it out.
+    /// A fluxgate's magnitude less another scalar whose gain the survey
+    /// lines fit, each line held out (the diagnosis's last step,
+    /// `src/diagnose/survey.rs`), applied where it takes a
+    /// quarter or more of the channel's difference from the quietest
+    /// scalar and keeps the lines' levels at the crossovers; the signals
+    /// fitted on the box reported (the default).
+    SurveyFitted,
+    /// As `SurveyFitted`, with the differences of two scalars fitted too,
+    /// and a box-fitted signal applied where the survey bears it out
+    /// ([`SurveyEvidence::holds`]); a signal the box held out too weakly
+    /// becomes a finding where the survey bears it out. On 35 of 1,344
+    /// clean channels the box-fitted ones were applied (none harmed
+    /// against the truth, 32 helped by more than 10 %: the term takes a
+    /// residual the sensors share out, but names a source that is not
+    /// there).
     Survey,
     /// Applied under the evidence rule like any other finding.
     Apply,
@@ -217,7 +226,7 @@ impl Default for DiagnoseOptions {
             max_findings: 3,
             vector_mismatch_nt: 200.0,
             apply: ApplyDiagnosis::Auto,
-            cross_sensor: CrossSensorUse::Report,
+            cross_sensor: CrossSensorUse::SurveyFitted,
         }
     }
 }
@@ -543,6 +552,8 @@ struct Problem<'a> {
     /// where they were not ranked): the quiet scalars a cross-sensor
     /// signal is judged against on the survey.
     quietest: &'a [String],
+    /// The recipe of each synthetic cross-sensor column, by its name.
+    signals: &'a BTreeMap<String, crate::model::cross_sensor::CrossSignal>,
 }
 
 /// Where a channel's search starts: plain Tolles-Lawson held out, with λ
@@ -635,6 +646,7 @@ pub fn diagnose_metered(
         levels: levels.get(channel).unwrap_or(&all_levels),
         stores: &stores,
         quietest: &cross.quietest,
+        signals: &cross.signals,
     };
     // The fluxgate check and each channel's plain fits held out (by
     // either λ criterion) do not need each other: side by side.
@@ -652,7 +664,6 @@ pub fn diagnose_metered(
                 .collect::<Result<Vec<_>>>()
         },
     );
-    let starts = starts?;
     let (fluxgate, mut notes) = checked_or_said(checked);
     notes.extend(hold_out.caveat());
     // The calibrated fluxgate is tried only once its finding stands.
@@ -665,7 +676,7 @@ pub fn diagnose_metered(
         let calibrated = on_calibrated.map(|(l, d)| problem(channel, l, d));
         diagnose_from(start, (raw, calibrated), fluxgate_calibration, settings)
     };
-    let results = search_each(starts, &search, meter)?;
+    let results = search_each(starts?, &search, meter)?;
     let (channel_results, findings, untestable) = cross.named(searched_channels(log, results)?);
     notes.extend(untestable);
     notes.extend(criterion_notes(&channel_results, options));
@@ -817,12 +828,26 @@ fn diagnose_from(
         Some((p, h)) if h.rms_nt < raw.rms_nt => (p, h, FluxgateReading::Calibrated),
         _ => (raw_problem, raw, FluxgateReading::Raw),
     };
-    let (mut summary, found) = diagnose_channel(&chosen, start_model, start, settings)?;
+    let (mut summary, mut found) = diagnose_channel(&chosen, start_model, start, settings)?;
     // The model compensation uses keeps the pipeline's criterion: the
     // in-band held-out RMS says nothing of what a less regularised fit
     // does outside the band (see `criterion_trial`).
     if summary.model.lambda_criterion.take().is_some() {
         summary.heldout_rms_final_nt = held_out(&chosen, &summary.model)?.rms_nt;
+    }
+    // Last, on the model compensation uses: a signal the survey fits.
+    // The signals are made from the recorded fluxgate.
+    if settings.cross_sensor != CrossSensorUse::Report && label == FluxgateReading::Raw {
+        let scalars = settings.cross_sensor != CrossSensorUse::SurveyFitted;
+        if let Some(fitted) = survey::survey_fitted(&chosen, &summary.model, scalars)? {
+            let after_nt = held_out(&chosen, &fitted.model)?.rms_nt;
+            found.push(survey::fitted_finding(
+                &chosen,
+                &fitted,
+                (summary.heldout_rms_final_nt, after_nt),
+            ));
+            summary.model = fitted.model;
+        }
     }
     summary.heldout_rms_baseline_nt = raw_rms;
     summary.heldout_rms_calibrated_fluxgate_nt = calibrated_rms;
@@ -902,6 +927,7 @@ pub fn heldout_rms(
         levels: &levels,
         stores: &StorePool::new(),
         quietest: &[],
+        signals: &BTreeMap::new(),
     };
     let uncalibrated = Model {
         vector_calibration: None,
@@ -974,6 +1000,7 @@ mod tests {
                 levels: &self.levels,
                 stores: &self.stores,
                 quietest: &[],
+                signals: &super::cross::NO_SIGNALS,
             }
         }
     }

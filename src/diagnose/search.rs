@@ -259,7 +259,7 @@ fn next_finding(
 ) -> Result<std::result::Result<(Finding, Model, HeldOut), Option<String>>> {
     let current = (state.rms_nt, state.windows);
     // Only where a finding the survey bears out may be applied.
-    let surveying = settings.cross_sensor != CrossSensorUse::Report;
+    let surveying = matches!(settings.cross_sensor, CrossSensorUse::Survey | CrossSensorUse::Apply);
     let (index, surveyed) = match step(problem, state, &scored, 1.0 - settings.min_improvement) {
         Step::Accept(index) => (index, false),
         Step::Stop(rejected) if !surveying => return Ok(Err(rejected)),
@@ -301,6 +301,7 @@ fn surveyed_cross_sensor(
     found.effect = Effect::CrossSensor(CrossSensor {
         k: coupling.k_nt_per_unit.unwrap_or_default(),
         survey,
+        survey_gain: None,
     });
     Ok(())
 }

@@ -148,7 +148,8 @@ impl FittedModel {
                 let coupled: f64 = (0..3).map(|i| extra.sources[i] * cosines[i]).sum::<f64>()
                     + (extra.cross.iter())
                         .map(|(rate, k)| rate[row] * (0..3).map(|i| k[i] * cosines[i]).sum::<f64>())
-                        .sum::<f64>();
+                        .sum::<f64>()
+                    + extra.fixed.iter().map(|(rate, g)| rate[row] * g).sum::<f64>();
                 1.0 - induced / b - second - coupled
             })
             .collect())
@@ -185,6 +186,9 @@ struct ExtraGains<'p> {
     /// Each cross-sensor signal's rate with the anomaly per row, and its
     /// coefficients on $s\,u$.
     cross: Vec<(Vec<f64>, [f64; 3])>,
+    /// Each survey-fitted cross-sensor signal's rate with the anomaly per
+    /// row, and its gain.
+    fixed: Vec<(Vec<f64>, f64)>,
 }
 
 impl<'p> ExtraGains<'p> {
@@ -202,6 +206,7 @@ impl<'p> ExtraGains<'p> {
         }
         let mut sources = [0.0; 3];
         let mut cross = Vec::new();
+        let mut fixed = Vec::new();
         let recorded = scalar_values(log, &model.channel)?;
         for source in &model.spec.extensions.sources {
             match source {
@@ -215,6 +220,11 @@ impl<'p> ExtraGains<'p> {
                         *sum += slope * b;
                     }
                 }
+                SourceTerm::CrossSensor {
+                    signal,
+                    survey_gain: Some(gain),
+                    ..
+                } => fixed.push((signal.anomaly_rate(log)?, *gain)),
                 SourceTerm::CrossSensor { signal, .. } => {
                     let three: Vec<f64> = columns.by_ref().take(3).map(|(_, &b)| b).collect();
                     let weights = [0, 1, 2].map(|i| three.get(i).copied().unwrap_or(0.0));
@@ -230,6 +240,7 @@ impl<'p> ExtraGains<'p> {
             degree_one,
             sources,
             cross,
+            fixed,
         })
     }
 

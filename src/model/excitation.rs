@@ -1147,6 +1147,8 @@ fn candidate_gram(
     spec.extensions.vector_calibration = None;
     // A cross-sensor signal is made from sensors the candidate manoeuvre
     // does not fly: it sits at its level, zero, as a coupled column does.
+    // A survey-fitted one adds no regressor.
+    spec.extensions.sources.retain(|s| s.survey_gain().is_none());
     for source in &mut spec.extensions.sources {
         if let SourceTerm::CrossSensor { name, .. } = source {
             let column = std::mem::take(name);

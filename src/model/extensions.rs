@@ -25,6 +25,10 @@
 //!   The level $\bar c$ is the column's median on the flight the model was
 //!   fitted on: the steady part of a body-fixed field is the permanent
 //!   terms' already.
+//!   Other sensors' geology-free signal s ([`crate::model::cross_sensor`])
+//!   enters as $s\,(k \cdot u)$ fitted on the box, or as $g\,s$ with a
+//!   gain the survey lines fitted, subtracted before the fit and predicted
+//!   as interference.
 
 use serde::{Deserialize, Serialize};
 
@@ -64,12 +68,19 @@ pub enum SourceTerm {
     },
     /// Interference other sensors see and the attitude terms cannot hold
     /// ([`crate::model::cross_sensor`]): three regressors $s\,u_i$ of the
-    /// geology-free signal s.
+    /// geology-free signal s fitted on the box, or, with a gain fitted on
+    /// the survey, $g\,s$ subtracted from the scalar before the fit (no
+    /// coefficient), as a base station's record is.
     CrossSensor {
         /// The sensors read, `flux_c|mag_5_uc`.
         name: String,
         /// How the signal is made from them.
         signal: crate::model::cross_sensor::CrossSignal,
+        /// g, nT at the channel per nT of the signal, where the survey
+        /// fitted it ([`crate::diagnose`]'s survey step); `None` for the
+        /// box's three regressors.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        survey_gain: Option<f64>,
     },
 }
 
@@ -88,6 +99,15 @@ impl SourceTerm {
     /// field, not a coupling to an aircraft column.
     pub fn is_external_field(&self) -> bool {
         matches!(self, SourceTerm::ExternalField { .. })
+    }
+
+    /// A cross-sensor signal's gain fitted on the survey, where the term
+    /// is one: it adds no regressor to the box's fit.
+    pub fn survey_gain(&self) -> Option<f64> {
+        match self {
+            SourceTerm::CrossSensor { survey_gain, .. } => *survey_gain,
+            _ => None,
+        }
     }
 }
 
@@ -143,6 +163,11 @@ impl Extensions {
                 SourceTerm::AuxCoupling { column, .. } => format!("coupling to {column}"),
                 SourceTerm::AuxCouplingRate { column } => format!("coupling to the rate of {column}"),
                 SourceTerm::ExternalField { column, .. } => format!("base station {column}"),
+                SourceTerm::CrossSensor {
+                    name,
+                    survey_gain: Some(gain),
+                    ..
+                } => format!("cross-sensor signal {name} × {gain:.3} (fitted on the survey)"),
                 SourceTerm::CrossSensor { name, .. } => format!("cross-sensor signal {name}"),
             });
         }

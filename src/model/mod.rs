@@ -377,6 +377,13 @@ impl FittedModel {
                 *h += q;
             }
         }
+        // A survey-fitted cross-sensor term is the aircraft's, unlike a
+        // base station's record.
+        if let Some(part) = prepared::survey_fitted_part(&prepared.log, &self.spec.extensions.sources)? {
+            for (h, p) in interference_nt.iter_mut().zip(&part) {
+                *h += p;
+            }
+        }
         Ok(Prediction {
             scalar_nt,
             interference_nt,

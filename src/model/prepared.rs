@@ -115,30 +115,21 @@ impl<'a> Prepared<'a> {
         };
         let mut push = |name: String, values: Vec<f64>| extra.push(ExtraColumn { name, values });
         for source in &extensions.sources {
-            if let SourceTerm::CrossSensor { name, signal } = source {
-                for column in cross_sensor_columns((name, signal), &log, direction, rows)? {
-                    push(column.name, column.values);
+            let columns = match source {
+                SourceTerm::CrossSensor {
+                    name,
+                    signal,
+                    survey_gain: None,
+                } => cross_sensor_columns((name, signal), &log, direction, rows)?,
+                // Subtracted from the scalar below: the station with gain
+                // 1, a survey-fitted signal with its gain.
+                SourceTerm::ExternalField { .. } | SourceTerm::CrossSensor { .. } => Vec::new(),
+                SourceTerm::AuxCoupling { .. } | SourceTerm::AuxCouplingRate { .. } => {
+                    recorded_source_columns(&log, (source, channel), direction, rows)?
                 }
-                continue;
-            }
-            let Some(values) = log.channel(source.column()).map(|c| &c.values) else {
-                return Err(missing_source(&log, source, channel));
             };
-            match source {
-                SourceTerm::AuxCoupling { column, level } => {
-                    for (axis, u) in ["x", "y", "z"].iter().zip(direction) {
-                        let coupled = column_on(n, rows, |k| (values[k] - level) * u[k]);
-                        push(format!("{column}_{axis}"), coupled);
-                    }
-                }
-                SourceTerm::AuxCouplingRate { column } => {
-                    let rate = column_on(n, rows, |k| rate_at(values, log.time_s(), k));
-                    for (axis, u) in ["x", "y", "z"].iter().zip(direction) {
-                        push(format!("{column}_rate_{axis}"), column_on(n, rows, |k| rate[k] * u[k]));
-                    }
-                }
-                // Subtracted from the scalar below, with gain 1.
-                SourceTerm::ExternalField { .. } | SourceTerm::CrossSensor { .. } => {}
+            for column in columns {
+                push(column.name, column.values);
             }
         }
         let scalar = match (&log, extensions.lag_s) {
@@ -153,6 +144,7 @@ impl<'a> Prepared<'a> {
             (Cow::Owned(flight), _) => Cow::Owned(scalar_values(flight, channel)?.to_vec()),
         };
         let scalar = less_base_stations(scalar, &log, &extensions.sources, (n, rows));
+        let scalar = less_survey_fitted(scalar, &log, &extensions.sources, (n, rows))?;
         Ok(Prepared {
             log,
             sensor,
@@ -566,8 +558,45 @@ fn less_base_stations<'s>(
     }
 }
 
-/// `value(k)` for every row of a column `n` long, or only for `rows`
-/// with zero elsewhere.
+/// The scalar less each survey-fitted cross-sensor term among `sources`
+/// ([`survey_fitted_part`]), on `rows` of the `n` (every row when `None`).
+/// The box's fit then holds the rest of the aircraft's field, as with a
+/// base station's record.
+fn less_survey_fitted<'s>(
+    scalar: Cow<'s, [f64]>,
+    log: &FlightLog,
+    sources: &[SourceTerm],
+    (n, rows): (usize, Option<&[Range<usize>]>),
+) -> Result<Cow<'s, [f64]>> {
+    let Some(part) = survey_fitted_part(log, sources)? else {
+        return Ok(scalar);
+    };
+    Ok(Cow::Owned(column_on(n, rows, |row| scalar[row] - part[row])))
+}
+
+/// $\sum g\,s$ over the survey-fitted cross-sensor terms among `sources`
+/// on every row of `log` (`NaN` where a signal is); `None` where there
+/// is none.
+pub(crate) fn survey_fitted_part(log: &FlightLog, sources: &[SourceTerm]) -> Result<Option<Vec<f64>>> {
+    let mut part: Option<Vec<f64>> = None;
+    for source in sources {
+        let SourceTerm::CrossSensor {
+            signal,
+            survey_gain: Some(gain),
+            ..
+        } = source
+        else {
+            continue;
+        };
+        let values = signal.values(log)?;
+        let sum = part.get_or_insert_with(|| vec![0.0; log.len()]);
+        for (total, s) in sum.iter_mut().zip(&values) {
+            *total += gain * s;
+        }
+    }
+    Ok(part)
+}
+
 /// The error for a source column of the model of `channel` that `log`
 /// lacks.
 fn missing_source(log: &FlightLog, source: &SourceTerm, channel: &str) -> Error {
@@ -577,6 +606,39 @@ fn missing_source(log: &FlightLog, source: &SourceTerm, channel: &str) -> Error 
         looked_for: format!("'{}', which the model of '{channel}' uses", source.column()),
         hint: "Compensate with a diagnosis made on a flight that records the same columns.".into(),
     }
+}
+
+/// The three regressors of a recorded source column of `channel`'s model:
+/// $(c - \bar c)\,u_i$ for a coupling, $\dot c\,u_i$ for its rate; none for
+/// the other terms.
+fn recorded_source_columns(
+    log: &FlightLog,
+    (source, channel): (&SourceTerm, &str),
+    direction: &[Vec<f64>; 3],
+    rows: Option<&[Range<usize>]>,
+) -> Result<Vec<ExtraColumn>> {
+    let n = log.len();
+    let Some(values) = log.channel(source.column()).map(|c| &c.values) else {
+        return Err(missing_source(log, source, channel));
+    };
+    let each_axis = |name: &dyn Fn(&str) -> String, value: &dyn Fn(usize) -> f64| {
+        (["x", "y", "z"].iter().zip(direction))
+            .map(|(axis, u)| ExtraColumn {
+                name: name(axis),
+                values: column_on(n, rows, |k| value(k) * u[k]),
+            })
+            .collect()
+    };
+    Ok(match source {
+        SourceTerm::AuxCoupling { column, level } => {
+            each_axis(&|axis| format!("{column}_{axis}"), &|k| values[k] - level)
+        }
+        SourceTerm::AuxCouplingRate { column } => {
+            let rate = column_on(n, rows, |k| rate_at(values, log.time_s(), k));
+            each_axis(&|axis| format!("{column}_rate_{axis}"), &|k| rate[k])
+        }
+        SourceTerm::ExternalField { .. } | SourceTerm::CrossSensor { .. } => Vec::new(),
+    })
 }
 
 /// The three regressors $s\,u_i$ of a cross-sensor signal.
@@ -595,6 +657,8 @@ fn cross_sensor_columns(
         .collect())
 }
 
+/// `value(k)` for every row of a column `n` long, or only for `rows`
+/// with zero elsewhere.
 fn column_on(n: usize, rows: Option<&[Range<usize>]>, value: impl Fn(usize) -> f64) -> Vec<f64> {
     match rows {
         None => (0..n).map(value).collect(),

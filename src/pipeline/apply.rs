@@ -613,7 +613,11 @@ impl SavedModel {
             ));
         }
         self.check_terms(log, fit)?;
-        let sources = fit.spec.extensions.sources.iter().map(|s| s.column());
+        // A cross-sensor signal reads sensors, not a column of its name:
+        // rebuilding it says which is missing.
+        let sources = (fit.spec.extensions.sources.iter())
+            .filter(|s| !matches!(s, crate::model::SourceTerm::CrossSensor { .. }))
+            .map(|s| s.column());
         if let Some(column) = sources.into_iter().find(|c| log.channel(c).is_none()) {
             return Err(self.mismatch(
                 log,

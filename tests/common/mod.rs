@@ -368,3 +368,42 @@ pub fn splitmix64(seed: u64, count: usize) -> Vec<u64> {
         })
         .collect()
 }
+
+/// A crustal anomaly added to `flight`'s survey lines: a Gaussian in time
+/// of `amplitude_nt` and half-width `width_s`, centred at `centre_row`, on
+/// every scalar channel and along every fluxgate's field (each component
+/// scaled by $1 + δ/|B|$), as the Earth's field carries it. Returns the
+/// log and δ per row.
+pub fn with_anomaly(
+    log: &magcomp::ingest::flight_log::FlightLog,
+    (centre_row, amplitude_nt, width_s): (usize, f64, f64),
+) -> (magcomp::ingest::flight_log::FlightLog, Vec<f64>) {
+    let time = log.time_s();
+    let centre = time[centre_row];
+    let delta: Vec<f64> = (time.iter())
+        .map(|t| amplitude_nt * (-((t - centre) / width_s).powi(2)).exp())
+        .collect();
+    let mut out = log.clone();
+    for name in log.scalar_channels() {
+        let values: Vec<f64> = (log.channel(name).unwrap().values.iter())
+            .zip(&delta)
+            .map(|(v, d)| v + d)
+            .collect();
+        out = out.with_values(name, values).unwrap();
+    }
+    for sensor in log.vector_sensors() {
+        let field = log.vector_components(&sensor);
+        let scale: Vec<f64> = (0..log.len())
+            .map(|k| {
+                let magnitude = field.iter().map(|c| c[k] * c[k]).sum::<f64>().sqrt();
+                1.0 + delta[k] / magnitude
+            })
+            .collect();
+        for axis in sensor.axes {
+            let channel = &log.channels()[axis];
+            let values: Vec<f64> = (channel.values.iter()).zip(&scale).map(|(v, s)| v * s).collect();
+            out = out.with_values(&channel.name, values).unwrap();
+        }
+    }
+    (out, delta)
+}
