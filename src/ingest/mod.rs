@@ -8,12 +8,15 @@
 //! - [`flags`]: the row flags every output carries.
 //! - [`screen`]: the samples no instrument can record, flagged before any
 //!   fit.
+//! - [`agreement`]: the samples the INS and a fluxgate, read together,
+//!   show to be glitches, for [`screen`].
 //! - [`text_file`]: a settings or results file read whole, refused when it
 //!   is a named pipe or a device.
 //!
 //! The file formats themselves are [`crate::formats`], which both reads
 //! and writes.
 
+pub mod agreement;
 pub mod flags;
 pub mod flight_date;
 pub mod flight_identity;

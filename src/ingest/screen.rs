@@ -139,6 +139,9 @@ pub enum MaskReason {
     /// A run of magnetometer samples entered and left by jumps the field
     /// cannot make, the readings either side agreeing.
     Burst,
+    /// A run in which the INS attitude and a fluxgate's field direction
+    /// disagree abruptly ([`super::agreement`]).
+    Disagreement,
 }
 
 impl MaskReason {
@@ -152,6 +155,7 @@ impl MaskReason {
             MaskReason::Glitch => FlagKind::Spike,
             MaskReason::Stuck => FlagKind::Stuck,
             MaskReason::Burst => FlagKind::Spike,
+            MaskReason::Disagreement => FlagKind::Spike,
         }
     }
 
@@ -173,6 +177,9 @@ impl MaskReason {
             }
             MaskReason::Burst => {
                 "glitches lasting more than one sample: runs entered and left by jumps larger than the field can change in one interval, the readings either side agreeing (runs up to 10 s on a scalar, 2 s on a fluxgate axis)"
+            }
+            MaskReason::Disagreement => {
+                "glitches the sensors' agreement shows: the turn the INS reports and the turn of the field the fluxgate sees part abruptly (by 1° or more, and 8 times the flight's median step) and agree again within 5 s; masked in the sensor whose reading, drawn across the run, restores the agreement (in the INS and the fluxgate both where neither alone does)"
             }
         }
     }

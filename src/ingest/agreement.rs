@@ -1,0 +1,561 @@
+//! Screening by the sensors' agreement: the INS attitude against each
+//! fluxgate.
+//!
+//! The INS says how the aircraft turned; a fluxgate sees the Earth's field
+//! turn the other way in its own axes. With the fluxgate's mounting $M$
+//! (any orthogonal matrix: axes permuted, reversed, turned) and the
+//! field's direction $u$ in north-east-down, every row should read
+//!
+//! $$ M\,\hat b_i \approx R_i\,u, $$
+//!
+//! $\hat b_i$ the fluxgate's unit reading, $R_i$ the INS rotation from
+//! north-east-down to body axes. Both M and u come from the flight itself
+//! (alternating orthogonal Procrustes and the mean direction, from a
+//! spread of starting directions, on at most [`FIT_ROWS`] rows), so
+//! neither a position, a date nor the installation is needed.
+//!
+//! The disagreement $d_i = M\hat b_i - R_i u$ is not zero: the aircraft's
+//! own field at the fluxgate, its scale errors and any lag between the
+//! two sensors leave a few degrees. But all of these change smoothly
+//! with the motion. A glitch in either sensor does not: a roll read 17°
+//! off on one row, a pitch read as zero for five rows, an axis whose sign
+//! flips, each moves $d$ abruptly and back. Such a run is one entered and
+//! left by steps of $d$ that depart from the neighbouring steps by more
+//! than [`NOISE_MULTIPLE`] times the flight's median step and at least
+//! [`LEAST_DISAGREEMENT_DEG`], the readings either side agreeing with the
+//! smooth progression, within [`REACH_S`]. Inside the screen of a single
+//! channel's rate these are invisible: a 17° step at 10 Hz is within the
+//! 90°/s an attitude can turn, a zero pitch within its range.
+//!
+//! Which sensor is wrong is told by repair: the attitude angle or fluxgate
+//! axis that, read across the run as the line between its neighbours,
+//! brings the run back into agreement is the one masked. Where none
+//! alone does, the run's attitude and the fluxgate's axes are all masked:
+//! the sensors disagree and nothing says which to believe.
+
+use std::collections::BTreeMap;
+
+use nalgebra::{Matrix3, Vector3};
+
+use crate::ingest::flight_log::{body_to_ned, AttitudeAngle, ChannelRole, FlightLog, VectorSensor};
+use crate::ingest::screen::MaskReason;
+
+/// The rows of each channel (by index) screening masks, and why.
+pub type Masks = BTreeMap<usize, Vec<(usize, MaskReason)>>;
+
+/// Smallest disagreement masked, degrees: 1° of the Earth's field is
+/// 400–1,200 nT in a vector component.
+pub const LEAST_DISAGREEMENT_DEG: f64 = 1.0;
+
+/// A step of the disagreement is abrupt beyond this many times the
+/// flight's median step (white noise reaches about 3 times it once in a
+/// hundred thousand samples).
+pub const NOISE_MULTIPLE: f64 = 8.0;
+
+/// Longest run of glitches looked for, s.
+pub const REACH_S: f64 = 5.0;
+
+/// Most rows the mounting and the field's direction are fitted on.
+pub const FIT_ROWS: usize = 4_000;
+
+/// A fluxgate whose median disagreement with the INS is larger than this
+/// does not follow the INS at all (another platform, another convention):
+/// it is not judged against it, degrees.
+const MOST_MEDIAN_DISAGREEMENT_DEG: f64 = 10.0;
+
+/// Most whole samples the INS is looked for behind or ahead of the
+/// fluxgate.
+const MOST_SHIFT_SAMPLES: isize = 3;
+
+/// The stretch either side of a run its level is judged on, s.
+const BRACKET_S: f64 = 1.0;
+
+/// Steps across a gap longer than this are not judged, s.
+const LONGEST_STEP_S: f64 = 1.0;
+
+/// Fewest usable rows the check needs.
+const FEWEST_ROWS: usize = 50;
+
+/// The rows of each channel (by index) to mask because the INS attitude and
+/// a fluxgate disagree abruptly; `masked` are the rows screening already
+/// masked, which are not read.
+pub fn disagreements(log: &FlightLog, masked: &Masks) -> Masks {
+    let mut found = Masks::new();
+    let Some(attitude) = attitude_channels(log) else {
+        return found;
+    };
+    for sensor in log.vector_sensors() {
+        let Some(shift) = best_shift(log, attitude, &sensor, masked) else {
+            continue;
+        };
+        let sensors = Sensors::new(log, attitude, &sensor, (masked, shift));
+        let Some(check) = Check::of(&sensors) else { continue };
+        for run in check.runs() {
+            for (k, rows) in check.culprits(&run) {
+                let rows =
+                    (rows.first..=rows.last).map(|i| (sensors.row_of(k, check.rows[i]), MaskReason::Disagreement));
+                found.entry(sensors.channels[k]).or_default().extend(rows);
+            }
+        }
+    }
+    found
+}
+
+/// The roll, pitch and yaw channels' indices, when all three are recorded.
+fn attitude_channels(log: &FlightLog) -> Option<[usize; 3]> {
+    let index = |angle: AttitudeAngle| (log.channels().iter()).position(|c| c.role == ChannelRole::Attitude(angle));
+    Some([
+        index(AttitudeAngle::Roll)?,
+        index(AttitudeAngle::Pitch)?,
+        index(AttitudeAngle::Yaw)?,
+    ])
+}
+
+/// The six channels one check reads: roll, pitch, yaw, then the
+/// fluxgate's x, y, z; the INS read `shift` rows later than the fluxgate.
+struct Sensors<'a> {
+    values: [&'a [f64]; 6],
+    channels: [usize; 6],
+    time_s: &'a [f64],
+    shift: isize,
+    usable: Vec<bool>,
+}
+
+impl<'a> Sensors<'a> {
+    fn new(log: &'a FlightLog, attitude: [usize; 3], sensor: &VectorSensor, (masked, shift): (&Masks, isize)) -> Self {
+        let [roll, pitch, yaw] = attitude;
+        let [x, y, z] = sensor.axes;
+        let channels = [roll, pitch, yaw, x, y, z];
+        let values = channels.map(|c| log.channels()[c].values.as_slice());
+        let mut good: Vec<[bool; 6]> = (0..log.len()).map(|row| values.map(|v| v[row].is_finite())).collect();
+        for (k, channel) in channels.iter().enumerate() {
+            for (row, _) in masked.get(channel).into_iter().flatten() {
+                good[*row][k] = false;
+            }
+        }
+        let mut sensors = Sensors {
+            values,
+            channels,
+            time_s: log.time_s(),
+            shift,
+            usable: Vec::new(),
+        };
+        sensors.usable = (0..log.len())
+            .map(|row| {
+                let ins = sensors.ins_row(row).is_some_and(|r| good[r][..3].iter().all(|g| *g));
+                ins && good[row][3..].iter().all(|g| *g)
+            })
+            .collect();
+        sensors
+    }
+
+    /// The INS row read with the fluxgate's row `row`.
+    fn ins_row(&self, row: usize) -> Option<usize> {
+        row.checked_add_signed(self.shift).filter(|r| *r < self.time_s.len())
+    }
+
+    /// The row channel `k` (0–5) is read at with the fluxgate's row `row`.
+    fn row_of(&self, k: usize, row: usize) -> usize {
+        match k {
+            0..=2 => self.ins_row(row).unwrap_or(row),
+            _ => row,
+        }
+    }
+
+    /// Row `row`'s six readings (the INS `shift` rows on).
+    fn reading(&self, row: usize) -> [f64; 6] {
+        std::array::from_fn(|k| self.values[k][self.row_of(k, row)])
+    }
+
+    /// The median sample interval, s.
+    fn interval_s(&self) -> f64 {
+        let mut steps: Vec<f64> = self.time_s.windows(2).map(|w| w[1] - w[0]).collect();
+        median(&mut steps)
+    }
+
+    /// The fit's (unit reading, rotation) pairs: at most [`FIT_ROWS`] of
+    /// the usable rows, evenly spread.
+    fn pairs(&self) -> Vec<(Vector3<f64>, Matrix3<f64>)> {
+        let rows: Vec<usize> = (0..self.usable.len()).filter(|&r| self.usable[r]).collect();
+        let stride = rows.len().div_ceil(FIT_ROWS).max(1);
+        (rows.iter().step_by(stride))
+            .filter_map(|&row| directions(self.reading(row)))
+            .collect()
+    }
+}
+
+/// The whole samples the INS runs behind the fluxgate (or ahead, when
+/// negative), within [`MOST_SHIFT_SAMPLES`]: the shift whose frame makes
+/// them agree best.
+fn best_shift(log: &FlightLog, attitude: [usize; 3], sensor: &VectorSensor, masked: &Masks) -> Option<isize> {
+    let start = Frame::fit(&Sensors::new(log, attitude, sensor, (masked, 0)).pairs())?;
+    (-MOST_SHIFT_SAMPLES..=MOST_SHIFT_SAMPLES)
+        .filter_map(|shift| {
+            let pairs = Sensors::new(log, attitude, sensor, (masked, shift)).pairs();
+            let frame = Frame::refined(&pairs, start.field, 40)?;
+            (pairs.len() >= FEWEST_ROWS).then(|| (shift, frame.cost(&pairs)))
+        })
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .map(|(shift, _)| shift)
+}
+
+/// The fluxgate's unit reading and the INS rotation of one row's readings
+/// (roll, pitch, yaw, x, y, z).
+fn directions(reading: [f64; 6]) -> Option<(Vector3<f64>, Matrix3<f64>)> {
+    let [roll, pitch, yaw, x, y, z] = reading;
+    let field = Vector3::new(x, y, z);
+    let norm = field.norm();
+    (norm > 0.0 && norm.is_finite()).then(|| (field / norm, body_to_ned(roll, pitch, yaw).inverse().into_inner()))
+}
+
+/// The fluxgate's mounting and the field's direction that make the INS and
+/// the fluxgate agree best.
+#[derive(Debug, Clone, Copy)]
+struct Frame {
+    mounting: Matrix3<f64>,
+    field: Vector3<f64>,
+}
+
+impl Frame {
+    /// What one row's readings see of the field's direction in body axes.
+    fn seen(&self, reading: [f64; 6]) -> Option<Seen> {
+        let (b, r) = directions(reading)?;
+        Some([self.mounting * b, r * self.field])
+    }
+
+    /// The frame fitted to `pairs` (unit reading, NED→body rotation), the
+    /// best of starts spread over a hemisphere (−M with −u reads alike).
+    fn fit(pairs: &[(Vector3<f64>, Matrix3<f64>)]) -> Option<Frame> {
+        let starts = (0..16).map(|k| {
+            // A Fibonacci spiral over the upper hemisphere.
+            let z = 1.0 - (k as f64 + 0.5) / 16.0;
+            let azimuth = k as f64 * std::f64::consts::PI * (3.0 - 5f64.sqrt());
+            let across = (1.0 - z * z).sqrt();
+            Vector3::new(across * azimuth.cos(), across * azimuth.sin(), z)
+        });
+        let best = (starts.filter_map(|field| Frame::refined(pairs, field, 12)))
+            .min_by(|a, b| a.cost(pairs).total_cmp(&b.cost(pairs)))?;
+        Frame::refined(pairs, best.field, 40)
+    }
+
+    /// The frame after `steps` alternations from the field direction
+    /// `field`.
+    fn refined(pairs: &[(Vector3<f64>, Matrix3<f64>)], field: Vector3<f64>, steps: usize) -> Option<Frame> {
+        (0..steps).try_fold(Frame::mounted(pairs, field)?, |frame, _| {
+            Frame::mounted(pairs, frame.mean_field(pairs)?)
+        })
+    }
+
+    /// The orthogonal mounting that best takes the readings to the INS's
+    /// view of `field` (orthogonal Procrustes).
+    fn mounted(pairs: &[(Vector3<f64>, Matrix3<f64>)], field: Vector3<f64>) -> Option<Frame> {
+        let h: Matrix3<f64> = (pairs.iter()).map(|(b, r)| (r * field) * b.transpose()).sum();
+        let svd = h.svd(true, true);
+        let mounting = svd.u? * svd.v_t?;
+        Some(Frame { mounting, field })
+    }
+
+    /// The field's direction that `self.mounting` reads, on average.
+    fn mean_field(&self, pairs: &[(Vector3<f64>, Matrix3<f64>)]) -> Option<Vector3<f64>> {
+        let sum: Vector3<f64> = (pairs.iter()).map(|(b, r)| r.transpose() * (self.mounting * b)).sum();
+        let norm = sum.norm();
+        (norm > 0.0).then(|| sum / norm)
+    }
+
+    fn cost(&self, pairs: &[(Vector3<f64>, Matrix3<f64>)]) -> f64 {
+        (pairs.iter())
+            .map(|(b, r)| (self.mounting * b - r * self.field).norm_squared())
+            .sum::<f64>()
+            / pairs.len() as f64
+    }
+}
+
+/// One run of disagreement, as indices into the check's usable rows:
+/// `first..=last`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Run {
+    first: usize,
+    last: usize,
+}
+
+/// What one row's two sensors say of the field's direction in body axes:
+/// the fluxgate's ($M\hat b_i$) and the INS's ($R_i u$).
+type Seen = [Vector3<f64>; 2];
+
+/// One fluxgate's disagreement with the INS on the usable rows.
+struct Check<'a> {
+    sensors: &'a Sensors<'a>,
+    frame: Frame,
+    /// The usable rows.
+    rows: Vec<usize>,
+    /// What each usable row's sensors see.
+    seen: Vec<Seen>,
+    /// The lag between the two sensors, as the coefficients of the INS
+    /// view's first and second differences (per sample).
+    lag: [f64; 2],
+    /// The disagreement less the lag, degrees.
+    d: Vec<Vector3<f64>>,
+    /// The smallest abrupt step, degrees.
+    threshold_deg: f64,
+}
+
+impl<'a> Check<'a> {
+    /// The check of `sensors`, when enough rows are usable and the
+    /// fluxgate follows the INS.
+    fn of(sensors: &'a Sensors<'a>) -> Option<Check<'a>> {
+        let rows: Vec<usize> = (0..sensors.usable.len()).filter(|&r| sensors.usable[r]).collect();
+        if rows.len() < FEWEST_ROWS {
+            return None;
+        }
+        let frame = Frame::fit(&sensors.pairs())?;
+        let seen: Vec<Seen> = (rows.iter())
+            .map(|&row| frame.seen(sensors.reading(row)))
+            .collect::<Option<_>>()?;
+        let mut check = Check {
+            sensors,
+            frame,
+            rows,
+            seen,
+            lag: [0.0; 2],
+            d: Vec::new(),
+            threshold_deg: LEAST_DISAGREEMENT_DEG,
+        };
+        check.lag = check.fitted_lag();
+        check.d = (0..check.rows.len()).map(|i| check.lagged(&check.seen, 0, i)).collect();
+        let mut sizes: Vec<f64> = check.d.iter().map(Vector3::norm).collect();
+        if median(&mut sizes) > MOST_MEDIAN_DISAGREEMENT_DEG {
+            return None;
+        }
+        let mut steps: Vec<f64> = (1..check.d.len())
+            .filter_map(|k| check.step(k))
+            .map(|s| s.norm())
+            .collect();
+        check.threshold_deg = (NOISE_MULTIPLE * median(&mut steps)).max(LEAST_DISAGREEMENT_DEG);
+        Some(check)
+    }
+
+    /// The usable rows before and after `i`, each when it is near in time.
+    fn neighbours(&self, i: usize) -> Option<(usize, usize)> {
+        let time = |k: usize| self.sensors.time_s[self.rows[k]];
+        let near = |a: usize, b: usize| time(b) - time(a) <= LONGEST_STEP_S;
+        (i >= 1 && i + 1 < self.rows.len() && near(i - 1, i) && near(i, i + 1)).then(|| (i - 1, i + 1))
+    }
+
+    /// The INS view's first and second differences about usable row `i`,
+    /// from `seen` (which starts at usable row `from`); zero without both
+    /// neighbours.
+    fn differences(&self, seen: &[Seen], from: usize, i: usize) -> [Vector3<f64>; 2] {
+        match self.neighbours(i) {
+            Some((before, after)) => {
+                let ins = |k: usize| seen[k - from][1];
+                [
+                    0.5 * (ins(after) - ins(before)),
+                    ins(after) - 2.0 * ins(i) + ins(before),
+                ]
+            }
+            None => [Vector3::zeros(); 2],
+        }
+    }
+
+    /// The lag that best explains the disagreement: least squares of the
+    /// two sensors' difference on the INS view's differences.
+    fn fitted_lag(&self) -> [f64; 2] {
+        let (mut normal, mut right) = ([[0.0; 2]; 2], [0.0; 2]);
+        for i in 0..self.rows.len() {
+            let [rate, curve] = self.differences(&self.seen, 0, i);
+            let difference = self.seen[i][0] - self.seen[i][1];
+            normal[0][0] += rate.dot(&rate);
+            normal[0][1] += rate.dot(&curve);
+            normal[1][1] += curve.dot(&curve);
+            right[0] += rate.dot(&difference);
+            right[1] += curve.dot(&difference);
+        }
+        let det = normal[0][0] * normal[1][1] - normal[0][1] * normal[0][1];
+        if det.is_nan() || det <= 1e-12 * (normal[0][0] * normal[1][1]).max(f64::MIN_POSITIVE) {
+            return [0.0; 2];
+        }
+        [
+            (right[0] * normal[1][1] - right[1] * normal[0][1]) / det,
+            (right[1] * normal[0][0] - right[0] * normal[0][1]) / det,
+        ]
+    }
+
+    /// The disagreement of usable row `i` less the lag, degrees, from
+    /// `seen` (which starts at usable row `from`).
+    fn lagged(&self, seen: &[Seen], from: usize, i: usize) -> Vector3<f64> {
+        let [rate, curve] = self.differences(seen, from, i);
+        let [fluxgate, ins] = seen[i - from];
+        (fluxgate - ins - self.lag[0] * rate - self.lag[1] * curve).map(f64::to_degrees)
+    }
+
+    /// The step from usable row `k − 1` to `k`; `None` across a long gap.
+    fn step(&self, k: usize) -> Option<Vector3<f64>> {
+        let time = self.sensors.time_s;
+        (time[self.rows[k]] - time[self.rows[k - 1]] <= LONGEST_STEP_S).then(|| self.d[k] - self.d[k - 1])
+    }
+
+    /// What the disagreement may move beyond its smooth progression over
+    /// `seconds`, degrees.
+    fn allowed(&self, seconds: f64) -> f64 {
+        self.threshold_deg * (1.0 + seconds)
+    }
+
+    /// The time of usable row `i`, s.
+    fn time(&self, i: usize) -> f64 {
+        self.sensors.time_s[self.rows[i]]
+    }
+
+    /// The runs of disagreement: where the disagreement steps by more than
+    /// half the threshold, and steps again within [`REACH_S`], the rows
+    /// between that lie further than the threshold from the line between
+    /// the medians of the second before and the second after, those
+    /// seconds themselves all within it.
+    fn runs(&self) -> Vec<Run> {
+        let moves: Vec<usize> = (1..self.d.len())
+            .filter(|&k| self.step(k).is_some_and(|step| step.norm() > 0.5 * self.threshold_deg))
+            .collect();
+        let mut runs = Vec::new();
+        let mut i = 0;
+        while i < moves.len() {
+            let start = moves[i];
+            let mut j = i;
+            while j + 1 < moves.len() && self.time(moves[j + 1]) - self.time(start) <= REACH_S + BRACKET_S {
+                j += 1;
+            }
+            runs.extend(self.bracketed(start, moves[j]));
+            i = j + 1;
+        }
+        runs
+    }
+
+    /// The run among usable rows `start..end` (from the first move to the
+    /// step of the last), when the second either side agrees with its
+    /// line and a row between departs from it.
+    fn bracketed(&self, start: usize, end: usize) -> Option<Run> {
+        let width = ((BRACKET_S / self.sensors.interval_s()).round() as usize).max(5);
+        let (left, right) = (start.checked_sub(width)?..start, end..end + width);
+        if right.end > self.d.len() || self.time(right.end - 1) - self.time(left.start) > REACH_S + 4.0 * BRACKET_S {
+            return None;
+        }
+        let level = |range: std::ops::Range<usize>| {
+            let time = range.clone().map(|i| self.time(i)).sum::<f64>() / range.len() as f64;
+            let values =
+                Vector3::from_fn(|axis, _| median(&mut range.clone().map(|i| self.d[i][axis]).collect::<Vec<_>>()));
+            (time, values)
+        };
+        let ((t0, d0), (t1, d1)) = (level(left.clone()), level(right.clone()));
+        let off = |i: usize| (self.d[i] - (d0 + (self.time(i) - t0) / (t1 - t0) * (d1 - d0))).norm();
+        if left.chain(right).any(|i| off(i) > self.threshold_deg) {
+            return None;
+        }
+        let first = (start..end).find(|&i| off(i) > self.threshold_deg)?;
+        let last = (start..end).rev().find(|&i| off(i) > self.threshold_deg)?;
+        Some(Run { first, last })
+    }
+
+    /// How far the disagreement about `run` (one row beyond it each side,
+    /// which the lag reads) lies from the line between the rows two beyond
+    /// it, degrees, with channel `repaired` (0–5) read across the run along
+    /// the line between its own readings just outside (`None`: as
+    /// recorded); `None` when the run is too near the record's ends.
+    fn departure(&self, run: &Run, repaired: Option<usize>) -> Option<f64> {
+        let (from, to) = (run.first.checked_sub(2)?, run.last + 2);
+        if to >= self.rows.len() {
+            return None;
+        }
+        let mut seen = self.seen[from..=to].to_vec();
+        if let Some(channel) = repaired {
+            let outside = [run.first - 1, run.last + 1].map(|i| self.sensors.reading(self.rows[i]));
+            let (a, b) = (outside[0][channel], outside[1][channel]);
+            // A heading is read across north.
+            let change = match channel {
+                2 => (b - a + 180.0).rem_euclid(360.0) - 180.0,
+                _ => b - a,
+            };
+            for i in run.first..=run.last {
+                let share =
+                    (self.time(i) - self.time(run.first - 1)) / (self.time(run.last + 1) - self.time(run.first - 1));
+                let mut reading = self.sensors.reading(self.rows[i]);
+                reading[channel] = a + share * change;
+                seen[i - from] = self.frame.seen(reading)?;
+            }
+        }
+        let (start, end) = (self.d[from], self.d[to]);
+        let span = self.time(to) - self.time(from);
+        ((run.first - 1)..=(run.last + 1))
+            .map(|i| {
+                let line = start + (self.time(i) - self.time(from)) / span * (end - start);
+                (self.lagged(&seen, from, i) - line).norm()
+            })
+            .reduce(f64::max)
+    }
+
+    /// What is allowed over `run`, degrees.
+    fn allowed_over(&self, run: &Run) -> f64 {
+        let (from, to) = (run.first.saturating_sub(2), (run.last + 2).min(self.rows.len() - 1));
+        self.allowed(self.time(to) - self.time(from))
+    }
+
+    /// The channels (0–5) to mask, and the rows: the channel whose repair
+    /// brings the run nearest agreement, within what is allowed, over the
+    /// fewest of the run's rows that still do; all six over the run when
+    /// none does; none when the run is within what is allowed as recorded.
+    fn culprits(&self, run: &Run) -> Vec<(usize, Run)> {
+        let allowed = self.allowed_over(run);
+        let Some(recorded) = self.departure(run, None) else {
+            return Vec::new();
+        };
+        if recorded <= allowed {
+            return Vec::new();
+        }
+        let repaired = (0..6)
+            .filter_map(|channel| Some((channel, self.departure(run, Some(channel))?)))
+            .filter(|(_, departure)| *departure <= allowed)
+            .min_by(|a, b| a.1.total_cmp(&b.1));
+        match repaired {
+            Some((channel, _)) => vec![(channel, self.fewest(run, channel))],
+            None => (0..6).map(|channel| (channel, *run)).collect(),
+        }
+    }
+
+    /// The shortest run within `run` over which repairing `channel` still
+    /// restores the agreement: the lag spreads a glitch of the INS over
+    /// the rows beside it, which are not to be masked.
+    fn fewest(&self, run: &Run, channel: usize) -> Run {
+        let repairs = |candidate: &Run| {
+            self.departure(candidate, Some(channel))
+                .is_some_and(|departure| departure <= self.allowed_over(run))
+        };
+        let mut shortest = *run;
+        while shortest.first < shortest.last {
+            let trimmed = Run {
+                first: shortest.first + 1,
+                ..shortest
+            };
+            if !repairs(&trimmed) {
+                break;
+            }
+            shortest = trimmed;
+        }
+        while shortest.first < shortest.last {
+            let trimmed = Run {
+                last: shortest.last - 1,
+                ..shortest
+            };
+            if !repairs(&trimmed) {
+                break;
+            }
+            shortest = trimmed;
+        }
+        shortest
+    }
+}
+
+/// The median of `values` (reordered), 0 when empty.
+fn median(values: &mut [f64]) -> f64 {
+    if values.is_empty() {
+        return 0.0;
+    }
+    let middle = values.len() / 2;
+    *values.select_nth_unstable_by(middle, f64::total_cmp).1
+}
