@@ -16,14 +16,18 @@
 //!
 //! The disagreement $d_i = M\hat b_i - R_i u$ is not zero: the aircraft's
 //! own field at the fluxgate, its scale errors and any lag between the
-//! two sensors leave a few degrees. But all of these change smoothly
+//! two sensors leave a few degrees. The whole-sample shift between them
+//! (within ±3 samples) is chosen by the fit, and what is left of the lag
+//! and the fluxgate's smoothing is taken out as multiples of the INS
+//! view's first and second differences. All of this changes smoothly
 //! with the motion. A glitch in either sensor does not: a roll read 17°
 //! off on one row, a pitch read as zero for five rows, an axis whose sign
-//! flips, each moves $d$ abruptly and back. Such a run is one entered and
-//! left by steps of $d$ that depart from the neighbouring steps by more
-//! than [`NOISE_MULTIPLE`] times the flight's median step and at least
-//! [`LEAST_DISAGREEMENT_DEG`], the readings either side agreeing with the
-//! smooth progression, within [`REACH_S`]. Inside the screen of a single
+//! flips, each moves $d$ abruptly and back. Such a run starts where $d$
+//! steps by more than half the threshold and steps again within
+//! [`REACH_S`]; its rows are those further than the threshold (at least
+//! [`LEAST_DISAGREEMENT_DEG`], and [`NOISE_MULTIPLE`] times the flight's
+//! median step) from the line between the medians of the second before
+//! and the second after, every row of those seconds within it. Inside the screen of a single
 //! channel's rate these are invisible: a 17° step at 10 Hz is within the
 //! 90°/s an attitude can turn, a zero pitch within its range.
 //!
@@ -336,8 +340,7 @@ impl<'a> Check<'a> {
 
     /// The usable rows before and after `i`, each when it is near in time.
     fn neighbours(&self, i: usize) -> Option<(usize, usize)> {
-        let time = |k: usize| self.sensors.time_s[self.rows[k]];
-        let near = |a: usize, b: usize| time(b) - time(a) <= LONGEST_STEP_S;
+        let near = |a: usize, b: usize| self.time(b) - self.time(a) <= LONGEST_STEP_S;
         (i >= 1 && i + 1 < self.rows.len() && near(i - 1, i) && near(i, i + 1)).then(|| (i - 1, i + 1))
     }
 
@@ -390,8 +393,7 @@ impl<'a> Check<'a> {
 
     /// The step from usable row `k − 1` to `k`; `None` across a long gap.
     fn step(&self, k: usize) -> Option<Vector3<f64>> {
-        let time = self.sensors.time_s;
-        (time[self.rows[k]] - time[self.rows[k - 1]] <= LONGEST_STEP_S).then(|| self.d[k] - self.d[k - 1])
+        (self.time(k) - self.time(k - 1) <= LONGEST_STEP_S).then(|| self.d[k] - self.d[k - 1])
     }
 
     /// What the disagreement may move beyond its smooth progression over
