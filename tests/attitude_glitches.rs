@@ -19,6 +19,9 @@ use magcomp::ingest::flags::FlagKind;
 use magcomp::ingest::flight_date::FlightDate;
 use magcomp::ingest::flight_log::FlightLog;
 use magcomp::simulate::random::Random;
+use magcomp::simulate::scenario::Scenario;
+use magcomp::simulate::simulate;
+use std::collections::BTreeMap;
 
 /// The values a glitching INS writes for the heading.
 const GLITCHES: [f64; 4] = [0.0, 359.9, -180.0, 5e-324];
@@ -245,5 +248,183 @@ fn glitches_of_many_samples_on_a_scalar_or_a_fluxgate_axis_are_masked_and_nothin
                 assert_eq!(masked_rows(&flipped, axis), rows, "{axis} flipped, {case}");
             }
         }
+    }
+}
+
+/// The INS attitude as it would read `late` samples behind (a fraction
+/// read as the line between samples; the heading across north).
+fn ins_late(log: &FlightLog, late: f64) -> FlightLog {
+    let mut out = log.clone();
+    for column in ["ins_roll", "ins_pitch", "ins_yaw"] {
+        let values = &log.channel(column).unwrap().values;
+        let signed = values.iter().any(|v| *v < 0.0);
+        let at = |k: usize| -> f64 {
+            let position = (k as f64 - late).max(0.0);
+            let (low, share) = (position.floor() as usize, position.fract());
+            let (a, b) = (values[low], values[(low + 1).min(values.len() - 1)]);
+            if column != "ins_yaw" {
+                return a + share * (b - a);
+            }
+            let turned = a + share * ((b - a + 180.0).rem_euclid(360.0) - 180.0);
+            match signed {
+                true => (turned + 180.0).rem_euclid(360.0) - 180.0,
+                false => turned.rem_euclid(360.0),
+            }
+        };
+        out = out.with_values(column, (0..values.len()).map(at).collect()).unwrap();
+    }
+    out
+}
+
+/// Body axes to north-east-down for roll, pitch and yaw in degrees, as
+/// CONTRACT §1 states it: yaw about down, then pitch about east, then roll
+/// about north.
+fn to_ned(roll: f64, pitch: f64, yaw: f64) -> nalgebra::Matrix3<f64> {
+    let turn = |axis: nalgebra::Unit<nalgebra::Vector3<f64>>, deg: f64| {
+        nalgebra::Rotation3::from_axis_angle(&axis, deg.to_radians()).into_inner()
+    };
+    turn(nalgebra::Vector3::z_axis(), yaw)
+        * turn(nalgebra::Vector3::y_axis(), pitch)
+        * turn(nalgebra::Vector3::x_axis(), roll)
+}
+
+/// The angle between two directions, degrees.
+fn angle_deg(a: nalgebra::Vector3<f64>, b: nalgebra::Vector3<f64>) -> f64 {
+    a.normalize().dot(&b.normalize()).clamp(-1.0, 1.0).acos().to_degrees()
+}
+
+#[test]
+fn attitude_glitches_inside_the_rate_screen_are_masked_on_the_damaged_rows_alone() {
+    // Clean plans drawn as the default's safety campaign draws them (5–50
+    // Hz, boxes flown by crews, fluxgates mounted any way round), shortened
+    // to two survey lines. The clean flight, and its INS read one, two and
+    // half a sample late, mask nothing. Each glitch the rate screen lets
+    // through (90°/s) masks none but damaged rows, in the damaged channel
+    // alone, and every damaged row that turns the field the sensors see by
+    // more than 3° (1,000–2,600 nT in a vector component).
+    const TURN_DEG: f64 = 3.0;
+    let attitude = ["ins_roll", "ins_pitch", "ins_yaw"];
+    let axes = ["flux_a_x", "flux_a_y", "flux_a_z"];
+    let mut counts: BTreeMap<&str, [usize; 3]> = BTreeMap::new();
+    // `MAGCOMP_GLITCH_FLIGHTS=N` flies N plans instead of 6.
+    let flights = std::env::var("MAGCOMP_GLITCH_FLIGHTS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(6);
+    let draws = common::splitmix64(0x5EED_0070_0002, 16 * flights);
+    let mut next = draws.into_iter();
+    for _ in 0..flights {
+        let seed = next.next().unwrap() % 1_000;
+        let mut raw = common::clean_plan(seed);
+        raw.survey.line_count = raw.survey.line_count.min(2);
+        raw.survey.tie_count = 0;
+        let simulated = simulate(&Scenario::try_from(raw).unwrap()).unwrap();
+        let log = &simulated.log;
+        let hz = 1.0 / log.median_interval_s();
+        for late in [0.0, 0.5, 1.0, 2.0] {
+            let shifted = ins_late(log, late);
+            for column in attitude.iter().chain(&axes) {
+                let masked = masked_rows(&shifted, column);
+                assert!(
+                    masked.is_empty(),
+                    "seed {seed} ({hz} Hz), INS {late} samples late: {column} masked at {:?}",
+                    &masked[..masked.len().min(5)]
+                );
+            }
+        }
+        let truth = &simulated.truth.fluxgates[0];
+        let field_ned = |k: usize| nalgebra::Vector3::from_fn(|i, _| truth.earth_ned_nt[i][k]);
+        let recorded = |column: &str| log.channel(column).unwrap().values.clone();
+        let body = |k: usize, angles: [f64; 3]| to_ned(angles[0], angles[1], angles[2]).transpose() * field_ned(k);
+        let angles_at = |k: usize| attitude.map(|c| log.channel(c).unwrap().values[k]);
+        let margin = (10.0 * hz) as u64;
+        let row = |draw: u64| (margin + draw % (log.len() as u64 - 3 * margin)) as usize;
+        let cases: [(&str, usize, usize, f64); 4] = [
+            ("roll +17°, one row", 0, 1, 17.0),
+            ("heading +15°, one row", 2, 1, 15.0),
+            ("roll +3°, one row", 0, 1, 3.0),
+            ("pitch read as zero, five rows", 1, 5, f64::NAN),
+        ];
+        let mut damaged_logs = Vec::new();
+        // Pitch read as zero where the aircraft pitches (in the box), so
+        // that the zeros turn the field.
+        let pitched: Vec<usize> = (margin as usize..log.len() - 3 * margin as usize)
+            .filter(|&k| recorded("ins_pitch")[k].abs() > 3.0)
+            .collect();
+        for (name, angle, length, change) in cases {
+            let start = match (change.is_nan(), pitched.len()) {
+                (true, n) if n > 0 => pitched[(next.next().unwrap() % n as u64) as usize],
+                _ => row(next.next().unwrap()),
+            };
+            let rows: Vec<usize> = (start..start + length).collect();
+            let mut values = recorded(attitude[angle]);
+            let mut turned = Vec::new();
+            for &k in &rows {
+                let mut angles = angles_at(k);
+                angles[angle] = match change.is_nan() {
+                    true => 0.0,
+                    false => angles[angle] + change,
+                };
+                values[k] = angles[angle];
+                if angle_deg(body(k, angles), body(k, angles_at(k))) > TURN_DEG {
+                    turned.push(k);
+                }
+            }
+            let damaged = log.with_values(attitude[angle], values).unwrap();
+            damaged_logs.push((name, attitude[angle], rows, turned, damaged));
+        }
+        // An axis of the fluxgate read with its sign flipped for 4 s: the
+        // axis with the largest reading there.
+        let (start, length) = (row(next.next().unwrap()), (4.0 * hz) as usize);
+        let rows: Vec<usize> = (start..start + length).collect();
+        let axis = *axes
+            .iter()
+            .max_by(|a, b| recorded(a)[start].abs().total_cmp(&recorded(b)[start].abs()))
+            .unwrap();
+        let mut values = recorded(axis);
+        let reading = |k: usize| nalgebra::Vector3::from_fn(|i, _| log.channel(axes[i]).unwrap().values[k]);
+        let mut turned = Vec::new();
+        for &k in &rows {
+            values[k] = -values[k];
+            let mut flipped = reading(k);
+            let i = axes.iter().position(|a| *a == axis).unwrap();
+            flipped[i] = -flipped[i];
+            if angle_deg(flipped, reading(k)) > TURN_DEG {
+                turned.push(k);
+            }
+        }
+        damaged_logs.push((
+            "fluxgate axis flipped, 4 s",
+            axis,
+            rows,
+            turned,
+            log.with_values(axis, values).unwrap(),
+        ));
+        for (name, column, rows, turned, damaged) in damaged_logs {
+            let case = format!("seed {seed} ({hz} Hz), {name} from row {}", rows[0]);
+            for other in attitude.iter().chain(&axes) {
+                let masked = masked_rows(&damaged, other);
+                if *other != column {
+                    assert!(masked.is_empty(), "{case}: {other} masked at {masked:?}");
+                    continue;
+                }
+                assert!(
+                    masked.iter().all(|k| rows.contains(k)),
+                    "{case}: undamaged rows masked: {masked:?}"
+                );
+                let missed: Vec<&usize> = turned.iter().filter(|k| !masked.contains(k)).collect();
+                assert!(
+                    missed.is_empty(),
+                    "{case}: rows turning the field > {TURN_DEG}° not masked: {missed:?}"
+                );
+                let count = counts.entry(name).or_default();
+                count[0] += rows.len();
+                count[1] += turned.len();
+                count[2] += masked.len();
+            }
+        }
+    }
+    for (name, [damaged, turned, masked]) in counts {
+        println!("{name}: {damaged} rows damaged, {turned} turn the field > {TURN_DEG}°, {masked} masked");
     }
 }

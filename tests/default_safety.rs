@@ -31,7 +31,7 @@ mod common;
 use magcomp::config::{FlightJob, Settings};
 use magcomp::messages::{HeldBack, MovedBy, Warning};
 use magcomp::simulate::random::Random;
-use magcomp::simulate::scenario::{RawScenario, ScalarSensor, Scenario, SensorLocation};
+use magcomp::simulate::scenario::{RawScenario, Scenario};
 use magcomp::simulate::simulate;
 use magcomp::simulate::truth::survey_line_error_nt;
 use rayon::prelude::*;
@@ -62,82 +62,6 @@ fn seeds() -> Vec<u64> {
     }
 }
 
-/// A clean flight plan drawn from `seed`: the layout, rate, length, site,
-/// box, diurnal variation and the fluxgate's mounting. No concealed effect.
-fn clean_plan(seed: u64) -> RawScenario {
-    let mut draw = Random::new(0x5AFE ^ seed).fork("clean flight");
-    let mut raw = RawScenario {
-        seed: 20_000 + seed,
-        ..RawScenario::default()
-    };
-    let rates = [5.0, 10.0, 10.0, 20.0, 50.0];
-    raw.sample_rate_hz = rates[draw.integer(0, rates.len() - 1)];
-    raw.oversampling = (100.0 / raw.sample_rate_hz).round().max(1.0) as usize;
-    // 20–240 minutes, fewer at the high rates so that a flight stays
-    // under about 100,000 rows.
-    let longest_min = (100_000.0 / raw.sample_rate_hz / 60.0).min(240.0);
-    let minutes = draw.uniform(20.0, longest_min.max(21.0));
-    let locations = [
-        SensorLocation::Tail,
-        SensorLocation::Cabin,
-        SensorLocation::Wing,
-        SensorLocation::Nose,
-    ];
-    let count = draw.integer(1, 8);
-    raw.scalar = (0..count)
-        .map(|k| {
-            let location = match k {
-                0 => SensorLocation::Tail,
-                _ => locations[draw.integer(0, locations.len() - 1)],
-            };
-            ScalarSensor::new(&format!("mag_{}_uc", k + 1), location, draw.uniform(0.002, 0.02))
-        })
-        .collect();
-    raw.site.latitude_deg = draw.uniform(-60.0, 70.0);
-    raw.site.longitude_deg = draw.uniform(-180.0, 180.0);
-    raw.external.diurnal_nt = draw.uniform(10.0, 100.0);
-    let box_ = &mut raw.calibration;
-    let base = draw.uniform(0.0, 90.0).round();
-    box_.headings_deg = (0..4).map(|k| base + 90.0 * k as f64).collect();
-    box_.pitch_deg = draw.uniform(3.0, 6.0);
-    box_.roll_deg = draw.uniform(6.0, 12.0);
-    box_.yaw_deg = draw.uniform(3.0, 6.0);
-    box_.turbulence_deg = draw.uniform(0.02, 0.2);
-    box_.altitude_m = draw.uniform(1500.0, 4000.0);
-    // The survey: lines of 5–15 minutes filling the rest of the flight.
-    let survey = &mut raw.survey;
-    survey.speed_m_s = draw.uniform(55.0, 75.0);
-    let line_min = draw.uniform(5.0, 15.0);
-    survey.line_length_m = line_min * 60.0 * survey.speed_m_s;
-    survey.line_count = (((minutes - 12.0) / (line_min + 1.0)).round() as usize).max(1);
-    survey.line_heading_deg = draw.uniform(0.0, 180.0).round();
-    survey.altitude_m = draw.uniform(100.0, 400.0);
-    survey.turbulence_deg = draw.uniform(0.2, 1.0);
-    raw.crust.dipole_count = 12;
-    // Half the boxes flown as real crews fly them (measured on a survey
-    // aircraft): pitch, roll and yaw back to back, turns rolled into, and
-    // the airframe's cross-axis response to each manoeuvre (its own draws:
-    // the rest of the plan is unchanged).
-    let mut crew = Random::new(0x5AFE ^ seed).fork("clean flight crew");
-    if crew.uniform(0.0, 1.0) < 0.5 {
-        common::fly_box_as_crews_do(&mut raw.calibration, &mut crew);
-    }
-    // Tie lines across the block, as most surveys fly them (their own
-    // draws: the rest of the plan is unchanged).
-    let mut ties = Random::new(0x5AFE ^ seed).fork("clean flight ties");
-    if ties.uniform(0.0, 1.0) < 0.8 {
-        raw.survey.tie_count = ties.integer(1, 4);
-    }
-    // The fluxgate mounted any way round, as on real aircraft (its own
-    // draws: the rest of the plan is unchanged).
-    let mut mount = Random::new(0x5AFE ^ seed).fork("clean flight mounting");
-    let turned = mount.uniform(0.0, 1.0) < 0.5;
-    let (axes, turn) = common::random_mounting(&mut mount, turned);
-    raw.fluxgate[0].axes = axes;
-    raw.fluxgate[0].turn_deg = turn;
-    raw
-}
-
 /// One channel of a clean flight, compensated by default and plain.
 struct ChannelOutcome {
     /// The channel with the diagnosis's figures.
@@ -164,7 +88,7 @@ struct ChannelOutcome {
 type Outcome = Vec<ChannelOutcome>;
 
 fn fly(seed: u64) -> (String, Outcome) {
-    let raw = clean_plan(seed);
+    let raw = common::clean_plan(seed);
     let describe = format!(
         "seed {seed}: {} sensors, {} Hz, {} lines, {} ties",
         raw.scalar.len(),
@@ -507,7 +431,7 @@ fn assert_not_harmed(
 /// evidence rule must hold it back, say why, and compensate plain.
 #[test]
 fn a_finding_that_does_not_pay_with_the_compensations_lambda_is_held_back() {
-    let (flight, auto, plain) = default_and_plain(clean_plan(242));
+    let (flight, auto, plain) = default_and_plain(common::clean_plan(242));
     let diagnosis = auto.result.diagnosis.as_ref().expect("the default diagnoses");
     let lag = (diagnosis.findings.iter())
         .find(|f| f.channel == "mag_1_uc" && f.effect.kind() == magcomp::diagnose::EffectKind::SensorLag)
@@ -536,7 +460,7 @@ fn a_finding_that_does_not_pay_with_the_compensations_lambda_is_held_back() {
 /// compensate plain.
 #[test]
 fn a_finding_that_corrugates_a_survey_without_ties_is_held_back() {
-    let raw = clean_plan(344);
+    let raw = common::clean_plan(344);
     assert_eq!(
         (raw.survey.line_count, raw.survey.tie_count),
         (8, 0),
@@ -583,7 +507,7 @@ fn a_finding_that_corrugates_a_survey_without_ties_is_held_back() {
 /// cannot show to be a correction must be held back.
 #[test]
 fn a_heading_level_move_the_lines_cannot_resolve_is_held_back() {
-    let raw = clean_plan(581);
+    let raw = common::clean_plan(581);
     assert_eq!(
         (raw.survey.line_count, raw.survey.tie_count),
         (9, 0),
@@ -644,7 +568,7 @@ fn held_between_lines(auto: &magcomp::pipeline::FlightRun, (channel, effect): (&
 /// figures.
 #[test]
 fn a_move_beyond_the_stated_uncertainty_that_no_survey_line_can_check_is_held_back() {
-    let raw = clean_plan(733);
+    let raw = common::clean_plan(733);
     assert_eq!(
         (
             raw.scalar.len(),
@@ -738,7 +662,7 @@ fn assert_held_unchecked(auto: &magcomp::pipeline::FlightRun, (channel, effect):
 /// station's term alone.
 #[test]
 fn a_lag_the_line_levels_cannot_check_is_held_back() {
-    let raw = clean_plan(267);
+    let raw = common::clean_plan(267);
     assert_eq!(
         (raw.scalar.len(), raw.survey.line_count, raw.survey.tie_count),
         (4, 23, 0),
@@ -779,7 +703,7 @@ fn a_lag_the_line_levels_cannot_check_is_held_back() {
 /// back, with its figures.
 #[test]
 fn a_coupling_nothing_on_the_survey_checks_is_held_back() {
-    let raw = clean_plan(135);
+    let raw = common::clean_plan(135);
     assert_eq!(
         (raw.scalar.len(), raw.survey.line_count, raw.survey.tie_count),
         (6, 2, 0),
@@ -843,7 +767,7 @@ fn a_base_stations_own_noise_does_not_harm_a_channel() {
         );
         // The report says where the station was low-passed: its pulsations
         // reach 0.1 Hz, in the octave 0.078–0.156 Hz.
-        let (_, auto, _) = default_and_plain(clean_plan(seed));
+        let (_, auto, _) = default_and_plain(common::clean_plan(seed));
         let corner = (auto.result.notes.iter())
             .find_map(|n| match n {
                 magcomp::messages::Note::QuietStation { column, filter, .. } if column == "diurnal" => {
@@ -864,7 +788,7 @@ fn a_base_stations_own_noise_does_not_harm_a_channel() {
 /// warns and names it, and the verdict is CHECK.
 #[test]
 fn a_base_station_term_that_moves_the_survey_beyond_its_uncertainty_is_no_plain_pass() {
-    let (flight, auto, plain) = default_and_plain(clean_plan(579));
+    let (flight, auto, plain) = default_and_plain(common::clean_plan(579));
     let (plain_error, auto_error) = survey_errors(&flight, (&auto, &plain), (0, "mag_1_uc"));
     println!("plan 579 mag_1_uc: {plain_error:.4} → {auto_error:.4} nT against truth");
     let applied: Vec<String> = (auto.result.applied_findings.iter())
@@ -922,7 +846,7 @@ fn the_stated_anomaly_gain_is_what_an_injected_anomaly_comes_out_at() {
     let results: Vec<Vec<String>> = seeds
         .par_iter()
         .map(|&seed| {
-            let raw = clean_plan(seed);
+            let raw = common::clean_plan(seed);
             let flight = simulate(&Scenario::try_from(raw).unwrap()).unwrap();
             let folder = tempfile::tempdir().unwrap();
             let csv = folder.path().join("clean.csv");
@@ -994,7 +918,7 @@ fn a_column_that_holds_the_earths_field_is_never_a_source() {
     let failures: Vec<String> = seeds
         .par_iter()
         .flat_map(|&seed| {
-            let flight = simulate(&Scenario::try_from(clean_plan(seed)).unwrap()).unwrap();
+            let flight = simulate(&Scenario::try_from(common::clean_plan(seed)).unwrap()).unwrap();
             let folder = tempfile::tempdir().unwrap();
             let csv = folder.path().join("clean.csv");
             magcomp::formats::write_flight_log(&flight.log, &csv).unwrap();

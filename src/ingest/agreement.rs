@@ -56,6 +56,13 @@ pub const LEAST_DISAGREEMENT_DEG: f64 = 1.0;
 /// hundred thousand samples).
 pub const NOISE_MULTIPLE: f64 = 8.0;
 
+/// Rows further off than this many times the median disagreement, after
+/// a first fit of the lag, are left out of the second.
+const LAG_FIT_MULTIPLE: f64 = 5.0;
+
+/// Largest disagreement of one row the shift's choice counts, degrees.
+const MOST_COUNTED_DEG: f64 = 5.0;
+
 /// Longest run of glitches looked for, s.
 pub const REACH_S: f64 = 5.0;
 
@@ -96,8 +103,7 @@ pub fn disagreements(log: &FlightLog, masked: &Masks) -> Masks {
         let Some(check) = Check::of(&sensors) else { continue };
         for run in check.runs() {
             for (k, rows) in check.culprits(&run) {
-                let rows =
-                    (rows.first..=rows.last).map(|i| (sensors.row_of(k, check.rows[i]), MaskReason::Disagreement));
+                let rows = (rows.into_iter()).map(|i| (sensors.row_of(k, check.rows[i]), MaskReason::Disagreement));
                 found.entry(sensors.channels[k]).or_default().extend(rows);
             }
         }
@@ -123,6 +129,8 @@ struct Sensors<'a> {
     time_s: &'a [f64],
     shift: isize,
     usable: Vec<bool>,
+    /// The median sample interval, s.
+    interval_s: f64,
 }
 
 impl<'a> Sensors<'a> {
@@ -143,6 +151,10 @@ impl<'a> Sensors<'a> {
             time_s: log.time_s(),
             shift,
             usable: Vec::new(),
+            interval_s: {
+                let mut steps: Vec<f64> = log.time_s().windows(2).map(|w| w[1] - w[0]).collect();
+                median(&mut steps)
+            },
         };
         sensors.usable = (0..log.len())
             .map(|row| {
@@ -169,12 +181,6 @@ impl<'a> Sensors<'a> {
     /// Row `row`'s six readings (the INS `shift` rows on).
     fn reading(&self, row: usize) -> [f64; 6] {
         std::array::from_fn(|k| self.values[k][self.row_of(k, row)])
-    }
-
-    /// The median sample interval, s.
-    fn interval_s(&self) -> f64 {
-        let mut steps: Vec<f64> = self.time_s.windows(2).map(|w| w[1] - w[0]).collect();
-        median(&mut steps)
     }
 
     /// The fit's (unit reading, rotation) pairs: at most [`FIT_ROWS`] of
@@ -266,9 +272,13 @@ impl Frame {
         (norm > 0.0).then(|| sum / norm)
     }
 
+    /// The mean squared disagreement over `pairs`, each row's counted up to
+    /// [`MOST_COUNTED_DEG`]: a glitch of tens of degrees on a few rows does
+    /// not choose the shift.
     fn cost(&self, pairs: &[(Vector3<f64>, Matrix3<f64>)]) -> f64 {
+        let most = MOST_COUNTED_DEG.to_radians().powi(2);
         (pairs.iter())
-            .map(|(b, r)| (self.mounting * b - r * self.field).norm_squared())
+            .map(|(b, r)| (self.mounting * b - r * self.field).norm_squared().min(most))
             .sum::<f64>()
             / pairs.len() as f64
     }
@@ -324,7 +334,14 @@ impl<'a> Check<'a> {
             d: Vec::new(),
             threshold_deg: LEAST_DISAGREEMENT_DEG,
         };
-        check.lag = check.fitted_lag();
+        // Twice: a glitch disagrees by tens of degrees, and the second fit
+        // leaves out the rows the first leaves far off.
+        check.lag = check.fitted_lag(|_| true);
+        let first: Vec<f64> = (0..check.rows.len())
+            .map(|i| check.lagged(&check.seen, 0, i).norm())
+            .collect();
+        let far = (LAG_FIT_MULTIPLE * median(&mut first.clone())).max(LEAST_DISAGREEMENT_DEG);
+        check.lag = check.fitted_lag(|i| first[i] <= far);
         check.d = (0..check.rows.len()).map(|i| check.lagged(&check.seen, 0, i)).collect();
         let mut sizes: Vec<f64> = check.d.iter().map(Vector3::norm).collect();
         if median(&mut sizes) > MOST_MEDIAN_DISAGREEMENT_DEG {
@@ -345,26 +362,38 @@ impl<'a> Check<'a> {
     }
 
     /// The INS view's first and second differences about usable row `i`,
-    /// from `seen` (which starts at usable row `from`); zero without both
-    /// neighbours.
+    /// per median sample interval, from `seen` (which starts at usable row
+    /// `from`); zero without both neighbours. The differences follow the
+    /// neighbours' times, so that a masked row beside `i` (its neighbour
+    /// then two intervals away) changes neither.
     fn differences(&self, seen: &[Seen], from: usize, i: usize) -> [Vector3<f64>; 2] {
-        match self.neighbours(i) {
-            Some((before, after)) => {
-                let ins = |k: usize| seen[k - from][1];
-                [
-                    0.5 * (ins(after) - ins(before)),
-                    ins(after) - 2.0 * ins(i) + ins(before),
-                ]
-            }
-            None => [Vector3::zeros(); 2],
+        let Some((before, after)) = self.neighbours(i) else {
+            return [Vector3::zeros(); 2];
+        };
+        let ins = |k: usize| seen[k - from][1];
+        let step = self.sensors.interval_s;
+        let (h1, h2) = (
+            (self.time(i) - self.time(before)) / step,
+            (self.time(after) - self.time(i)) / step,
+        );
+        let ordered = |h: f64| h > 0.0 && h.is_finite();
+        if !(ordered(h1) && ordered(h2)) {
+            return [Vector3::zeros(); 2];
         }
+        let (ahead, behind) = (ins(after) - ins(i), ins(i) - ins(before));
+        let span = h1 + h2;
+        [
+            (ahead * (h1 / h2) + behind * (h2 / h1)) / span,
+            (ahead / h2 - behind / h1) * (2.0 / span),
+        ]
     }
 
     /// The lag that best explains the disagreement: least squares of the
-    /// two sensors' difference on the INS view's differences.
-    fn fitted_lag(&self) -> [f64; 2] {
+    /// two sensors' difference on the INS view's differences, over the
+    /// usable rows `kept`.
+    fn fitted_lag(&self, kept: impl Fn(usize) -> bool) -> [f64; 2] {
         let (mut normal, mut right) = ([[0.0; 2]; 2], [0.0; 2]);
-        for i in 0..self.rows.len() {
+        for i in (0..self.rows.len()).filter(|&i| kept(i)) {
             let [rate, curve] = self.differences(&self.seen, 0, i);
             let difference = self.seen[i][0] - self.seen[i][1];
             normal[0][0] += rate.dot(&rate);
@@ -434,7 +463,7 @@ impl<'a> Check<'a> {
     /// step of the last), when the second either side agrees with its
     /// line and a row between departs from it.
     fn bracketed(&self, start: usize, end: usize) -> Option<Run> {
-        let width = ((BRACKET_S / self.sensors.interval_s()).round() as usize).max(5);
+        let width = ((BRACKET_S / self.sensors.interval_s).round() as usize).max(5);
         let (left, right) = (start.checked_sub(width)?..start, end..end + width);
         if right.end > self.d.len() || self.time(right.end - 1) - self.time(left.start) > REACH_S + 4.0 * BRACKET_S {
             return None;
@@ -446,50 +475,87 @@ impl<'a> Check<'a> {
             (time, values)
         };
         let ((t0, d0), (t1, d1)) = (level(left.clone()), level(right.clone()));
-        let off = |i: usize| (self.d[i] - (d0 + (self.time(i) - t0) / (t1 - t0) * (d1 - d0))).norm();
-        if left.chain(right).any(|i| off(i) > self.threshold_deg) {
+        let offset = |i: usize| self.d[i] - (d0 + (self.time(i) - t0) / (t1 - t0) * (d1 - d0));
+        if left.chain(right).any(|i| offset(i).norm() > self.threshold_deg) {
             return None;
         }
-        let first = (start..end).find(|&i| off(i) > self.threshold_deg)?;
-        let last = (start..end).rev().find(|&i| off(i) > self.threshold_deg)?;
-        Some(Run { first, last })
+        let departs = |i: usize| {
+            offset(i).norm() > self.threshold_deg
+                || (i >= 1 && i + 1 < self.d.len())
+                    && (offset(i - 1) + offset(i) + offset(i + 1)).norm() > self.threshold_deg
+        };
+        let first = (start..=end).find(|&i| departs(i))?;
+        let last = (start..=end).rev().find(|&i| departs(i))?;
+        // The lag terms spread a glitch of the INS a row each side: the
+        // glitch may lie a row beyond the rows that depart.
+        Some(Run {
+            first: first.saturating_sub(1),
+            last: (last + 1).min(end),
+        })
     }
 
     /// How far the disagreement about `run` (one row beyond it each side,
     /// which the lag reads) lies from the line between the rows two beyond
-    /// it, degrees, with channel `repaired` (0–5) read across the run along
-    /// the line between its own readings just outside (`None`: as
-    /// recorded); `None` when the run is too near the record's ends.
-    fn departure(&self, run: &Run, repaired: Option<usize>) -> Option<f64> {
+    /// it, row by row or summed over three rows, degrees, with the run's rows marked in `repair` (a channel 0–5
+    /// and one mark per row of the run) read along the line between that
+    /// channel's readings either side of each stretch of marked rows
+    /// (`None`: as recorded); `None` when the run is too near the
+    /// record's ends.
+    fn departure(&self, run: &Run, repair: Option<(usize, &[bool])>) -> Option<f64> {
         let (from, to) = (run.first.checked_sub(2)?, run.last + 2);
         if to >= self.rows.len() {
             return None;
         }
         let mut seen = self.seen[from..=to].to_vec();
-        if let Some(channel) = repaired {
-            let outside = [run.first - 1, run.last + 1].map(|i| self.sensors.reading(self.rows[i]));
-            let (a, b) = (outside[0][channel], outside[1][channel]);
-            // A heading is read across north.
-            let change = match channel {
-                2 => (b - a + 180.0).rem_euclid(360.0) - 180.0,
-                _ => b - a,
-            };
-            for i in run.first..=run.last {
-                let share =
-                    (self.time(i) - self.time(run.first - 1)) / (self.time(run.last + 1) - self.time(run.first - 1));
-                let mut reading = self.sensors.reading(self.rows[i]);
-                reading[channel] = a + share * change;
-                seen[i - from] = self.frame.seen(reading)?;
+        if let Some((channel, marked)) = repair {
+            let mut i = run.first;
+            while i <= run.last {
+                if !marked[i - run.first] {
+                    i += 1;
+                    continue;
+                }
+                let end = (i..=run.last).take_while(|&j| marked[j - run.first]).count() + i;
+                self.bridge(channel, (i - 1, end), (&mut seen, from))?;
+                i = end;
             }
         }
         let (start, end) = (self.d[from], self.d[to]);
         let span = self.time(to) - self.time(from);
-        ((run.first - 1)..=(run.last + 1))
-            .map(|i| {
-                let line = start + (self.time(i) - self.time(from)) / span * (end - start);
-                (self.lagged(&seen, from, i) - line).norm()
-            })
-            .reduce(f64::max)
+        let off: Vec<Vector3<f64>> = ((run.first - 1)..=(run.last + 1))
+            .map(|i| self.lagged(&seen, from, i) - (start + (self.time(i) - self.time(from)) / span * (end - start)))
+            .collect();
+        // Row by row, and three rows at a time: the lag terms spread a
+        // glitch of the INS over its row and the two beside it, and the
+        // three sum to it.
+        let rows = off.iter().map(Vector3::norm);
+        let threes = off.windows(3).map(|w| (w[0] + w[1] + w[2]).norm());
+        rows.chain(threes).reduce(f64::max)
+    }
+
+    /// Reads `channel` (0–5) on the usable rows strictly between `before`
+    /// and `after` along the line between its readings there, into `seen`
+    /// (which starts at usable row `from`).
+    fn bridge(
+        &self,
+        channel: usize,
+        (before, after): (usize, usize),
+        (seen, from): (&mut [Seen], usize),
+    ) -> Option<()> {
+        let outside = [before, after].map(|i| self.sensors.reading(self.rows[i]));
+        let (a, b) = (outside[0][channel], outside[1][channel]);
+        // A heading is read across north.
+        let change = match channel {
+            2 => (b - a + 180.0).rem_euclid(360.0) - 180.0,
+            _ => b - a,
+        };
+        let span = self.time(after) - self.time(before);
+        for i in before + 1..after {
+            let share = (self.time(i) - self.time(before)) / span;
+            let mut reading = self.sensors.reading(self.rows[i]);
+            reading[channel] = a + share * change;
+            seen[i - from] = self.frame.seen(reading)?;
+        }
+        Some(())
     }
 
     /// What is allowed over `run`, degrees.
@@ -498,11 +564,12 @@ impl<'a> Check<'a> {
         self.allowed(self.time(to) - self.time(from))
     }
 
-    /// The channels (0–5) to mask, and the rows: the channel whose repair
-    /// brings the run nearest agreement, within what is allowed, over the
-    /// fewest of the run's rows that still do; all six over the run when
-    /// none does; none when the run is within what is allowed as recorded.
-    fn culprits(&self, run: &Run) -> Vec<(usize, Run)> {
+    /// The channels (0–5) to mask, and their rows (indices into the usable
+    /// rows): the channel whose repair restores the run's agreement over
+    /// the fewest rows (then the nearest agreement); all six over the run
+    /// when none does; none when the run is within what is allowed as
+    /// recorded.
+    fn culprits(&self, run: &Run) -> Vec<(usize, Vec<usize>)> {
         let allowed = self.allowed_over(run);
         let Some(recorded) = self.departure(run, None) else {
             return Vec::new();
@@ -511,45 +578,52 @@ impl<'a> Check<'a> {
             return Vec::new();
         }
         let repaired = (0..6)
-            .filter_map(|channel| Some((channel, self.departure(run, Some(channel))?)))
-            .filter(|(_, departure)| *departure <= allowed)
-            .min_by(|a, b| a.1.total_cmp(&b.1));
+            .filter_map(|channel| Some((channel, self.repair(run, channel)?)))
+            .min_by(|(_, a), (_, b)| a.0.len().cmp(&b.0.len()).then(a.1.total_cmp(&b.1)));
         match repaired {
-            Some((channel, _)) => vec![(channel, self.fewest(run, channel))],
-            None => (0..6).map(|channel| (channel, *run)).collect(),
+            Some((channel, (rows, _))) => vec![(channel, rows)],
+            None => (0..6)
+                .map(|channel| (channel, (run.first..=run.last).collect()))
+                .collect(),
         }
     }
 
-    /// The shortest run within `run` over which repairing `channel` still
-    /// restores the agreement: the lag spreads a glitch of the INS over
-    /// the rows beside it, which are not to be masked.
-    fn fewest(&self, run: &Run, channel: usize) -> Run {
-        let repairs = |candidate: &Run| {
-            self.departure(candidate, Some(channel))
-                .is_some_and(|departure| departure <= self.allowed_over(run))
+    /// The fewest rows of `run` whose repair of `channel` restores the
+    /// agreement within what is allowed, and the departure left: the rows
+    /// are read along the channel's line across the run one by one, from
+    /// the one that departs furthest from that line, until the run agrees.
+    /// The lag spreads a glitch of the INS over the rows beside it, and
+    /// two glitches a few rows apart make one run: the good rows among
+    /// them are not masked. `None` when no such rows restore it.
+    fn repair(&self, run: &Run, channel: usize) -> Option<(Vec<usize>, f64)> {
+        let allowed = self.allowed_over(run);
+        let reading = |i: usize| self.sensors.reading(self.rows[i])[channel];
+        let (a, b) = (reading(run.first - 1), reading(run.last + 1));
+        let across = |value: f64| match channel {
+            2 => (value - a + 180.0).rem_euclid(360.0) - 180.0,
+            _ => value - a,
         };
-        let mut shortest = *run;
-        while shortest.first < shortest.last {
-            let trimmed = Run {
-                first: shortest.first + 1,
-                ..shortest
-            };
-            if !repairs(&trimmed) {
-                break;
+        let span = self.time(run.last + 1) - self.time(run.first - 1);
+        let off_line = |i: usize| {
+            let share = (self.time(i) - self.time(run.first - 1)) / span;
+            (across(reading(i)) - share * across(b)).abs()
+        };
+        let mut order: Vec<usize> = (0..=run.last - run.first).collect();
+        order.sort_by(|&j, &k| {
+            off_line(run.first + k)
+                .total_cmp(&off_line(run.first + j))
+                .then(j.cmp(&k))
+        });
+        let mut marked = vec![false; order.len()];
+        for k in order {
+            marked[k] = true;
+            let departure = self.departure(run, Some((channel, &marked)))?;
+            if departure <= allowed {
+                let rows = (run.first..=run.last).filter(|i| marked[i - run.first]).collect();
+                return Some((rows, departure));
             }
-            shortest = trimmed;
         }
-        while shortest.first < shortest.last {
-            let trimmed = Run {
-                last: shortest.last - 1,
-                ..shortest
-            };
-            if !repairs(&trimmed) {
-                break;
-            }
-            shortest = trimmed;
-        }
-        shortest
+        None
     }
 }
 

@@ -300,6 +300,11 @@ pub fn screen_samples(log: &FlightLog) -> Result<Screened> {
             }
         }
     }
+    // Glitches each channel's own screen cannot see: the INS attitude
+    // against each fluxgate's field direction.
+    for (channel, rows) in super::agreement::disagreements(log, &masks) {
+        masks.entry(channel).or_default().extend(rows);
+    }
     if masks.is_empty() {
         return Ok(Screened {
             log: None,

@@ -407,3 +407,81 @@ pub fn with_anomaly(
     }
     (out, delta)
 }
+
+/// A clean flight plan drawn from `seed`: the layout, rate, length, site,
+/// box, diurnal variation and the fluxgate's mounting. No concealed effect.
+pub fn clean_plan(seed: u64) -> RawScenario {
+    use magcomp::simulate::random::Random;
+    use magcomp::simulate::scenario::{ScalarSensor, SensorLocation};
+    let mut draw = Random::new(0x5AFE ^ seed).fork("clean flight");
+    let mut raw = RawScenario {
+        seed: 20_000 + seed,
+        ..RawScenario::default()
+    };
+    let rates = [5.0, 10.0, 10.0, 20.0, 50.0];
+    raw.sample_rate_hz = rates[draw.integer(0, rates.len() - 1)];
+    raw.oversampling = (100.0 / raw.sample_rate_hz).round().max(1.0) as usize;
+    // 20–240 minutes, fewer at the high rates so that a flight stays
+    // under about 100,000 rows.
+    let longest_min = (100_000.0 / raw.sample_rate_hz / 60.0).min(240.0);
+    let minutes = draw.uniform(20.0, longest_min.max(21.0));
+    let locations = [
+        SensorLocation::Tail,
+        SensorLocation::Cabin,
+        SensorLocation::Wing,
+        SensorLocation::Nose,
+    ];
+    let count = draw.integer(1, 8);
+    raw.scalar = (0..count)
+        .map(|k| {
+            let location = match k {
+                0 => SensorLocation::Tail,
+                _ => locations[draw.integer(0, locations.len() - 1)],
+            };
+            ScalarSensor::new(&format!("mag_{}_uc", k + 1), location, draw.uniform(0.002, 0.02))
+        })
+        .collect();
+    raw.site.latitude_deg = draw.uniform(-60.0, 70.0);
+    raw.site.longitude_deg = draw.uniform(-180.0, 180.0);
+    raw.external.diurnal_nt = draw.uniform(10.0, 100.0);
+    let box_ = &mut raw.calibration;
+    let base = draw.uniform(0.0, 90.0).round();
+    box_.headings_deg = (0..4).map(|k| base + 90.0 * k as f64).collect();
+    box_.pitch_deg = draw.uniform(3.0, 6.0);
+    box_.roll_deg = draw.uniform(6.0, 12.0);
+    box_.yaw_deg = draw.uniform(3.0, 6.0);
+    box_.turbulence_deg = draw.uniform(0.02, 0.2);
+    box_.altitude_m = draw.uniform(1500.0, 4000.0);
+    // The survey: lines of 5–15 minutes filling the rest of the flight.
+    let survey = &mut raw.survey;
+    survey.speed_m_s = draw.uniform(55.0, 75.0);
+    let line_min = draw.uniform(5.0, 15.0);
+    survey.line_length_m = line_min * 60.0 * survey.speed_m_s;
+    survey.line_count = (((minutes - 12.0) / (line_min + 1.0)).round() as usize).max(1);
+    survey.line_heading_deg = draw.uniform(0.0, 180.0).round();
+    survey.altitude_m = draw.uniform(100.0, 400.0);
+    survey.turbulence_deg = draw.uniform(0.2, 1.0);
+    raw.crust.dipole_count = 12;
+    // Half the boxes flown as real crews fly them (measured on a survey
+    // aircraft): pitch, roll and yaw back to back, turns rolled into, and
+    // the airframe's cross-axis response to each manoeuvre (its own draws:
+    // the rest of the plan is unchanged).
+    let mut crew = Random::new(0x5AFE ^ seed).fork("clean flight crew");
+    if crew.uniform(0.0, 1.0) < 0.5 {
+        fly_box_as_crews_do(&mut raw.calibration, &mut crew);
+    }
+    // Tie lines across the block, as most surveys fly them (their own
+    // draws: the rest of the plan is unchanged).
+    let mut ties = Random::new(0x5AFE ^ seed).fork("clean flight ties");
+    if ties.uniform(0.0, 1.0) < 0.8 {
+        raw.survey.tie_count = ties.integer(1, 4);
+    }
+    // The fluxgate mounted any way round, as on real aircraft (its own
+    // draws: the rest of the plan is unchanged).
+    let mut mount = Random::new(0x5AFE ^ seed).fork("clean flight mounting");
+    let turned = mount.uniform(0.0, 1.0) < 0.5;
+    let (axes, turn) = random_mounting(&mut mount, turned);
+    raw.fluxgate[0].axes = axes;
+    raw.fluxgate[0].turn_deg = turn;
+    raw
+}
