@@ -17,25 +17,31 @@
 //! The disagreement $d_i = M\hat b_i - R_i u$ is not zero: the aircraft's
 //! own field at the fluxgate, its scale errors and any lag between the
 //! two sensors leave a few degrees. The whole-sample shift between them
-//! (within ±3 samples) is chosen by the fit, and what is left of the lag
-//! and the fluxgate's smoothing is taken out as multiples of the INS
-//! view's first and second differences. All of this changes smoothly
-//! with the motion. A glitch in either sensor does not: a roll read 17°
-//! off on one row, a pitch read as zero for five rows, an axis whose sign
-//! flips, each moves $d$ abruptly and back. Such a run starts where $d$
-//! steps by more than half the threshold and steps again within
-//! [`REACH_S`]; its rows are those further than the threshold (at least
-//! [`LEAST_DISAGREEMENT_DEG`], and [`NOISE_MULTIPLE`] times the flight's
-//! median step) from the line between the medians of the second before
-//! and the second after, every row of those seconds within it. Inside the screen of a single
-//! channel's rate these are invisible: a 17° step at 10 Hz is within the
-//! 90°/s an attitude can turn, a zero pitch within its range.
+//! (within ±3 samples) is chosen by the fit, each row counted up to
+//! [`MOST_COUNTED_DEG`] so that a glitch does not choose it; what is left
+//! of the lag and the fluxgate's smoothing is taken out as multiples of
+//! the INS view's first and second differences (fitted twice, the rows
+//! far off after the first left out of the second). All of this changes
+//! smoothly with the motion. A glitch in either sensor does not: a roll
+//! read 17° off on one row, a pitch read as zero for five rows, an axis
+//! whose sign flips, each moves $d$ abruptly and back. Such a run starts
+//! where $d$ steps by more than half the threshold and steps again
+//! within [`REACH_S`]; its rows are those further than the threshold (at
+//! least [`LEAST_DISAGREEMENT_DEG`], and [`NOISE_MULTIPLE`] times the
+//! flight's median step) from the line between the medians of the second
+//! before and the second after, every row of those seconds within it,
+//! alone or summed over three rows (the lag terms spread a glitch of the
+//! INS over its row and the two beside it, and the three sum to it), and
+//! a row each side. Inside the screen of a single channel's rate these
+//! are invisible: a 17° step at 10 Hz is within the 90°/s an attitude can
+//! turn, a zero pitch within its range.
 //!
 //! Which sensor is wrong is told by repair: the attitude angle or fluxgate
-//! axis that, read across the run as the line between its neighbours,
-//! brings the run back into agreement is the one masked. Where none
-//! alone does, the run's attitude and the fluxgate's axes are all masked:
-//! the sensors disagree and nothing says which to believe.
+//! axis that, read on the fewest of the run's rows along its line across
+//! the run (those furthest from that line first), brings the run back
+//! into agreement is the one masked, on those rows. Where none alone
+//! does, the run's attitude and the fluxgate's axes are all masked: the
+//! sensors disagree and nothing says which to believe.
 
 use std::collections::BTreeMap;
 
@@ -61,7 +67,7 @@ pub const NOISE_MULTIPLE: f64 = 8.0;
 const LAG_FIT_MULTIPLE: f64 = 5.0;
 
 /// Largest disagreement of one row the shift's choice counts, degrees.
-const MOST_COUNTED_DEG: f64 = 5.0;
+pub const MOST_COUNTED_DEG: f64 = 5.0;
 
 /// Longest run of glitches looked for, s.
 pub const REACH_S: f64 = 5.0;
