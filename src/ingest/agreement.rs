@@ -20,8 +20,9 @@
 //! (within ±3 samples) is chosen by the fit, each row counted up to
 //! [`MOST_COUNTED_DEG`] so that a glitch does not choose it; what is left
 //! of the lag and the fluxgate's smoothing is taken out as multiples of
-//! the INS view's first and second differences (fitted twice, the rows
-//! far off after the first left out of the second). All of this changes
+//! the INS view's first and second differences (fitted without the rows
+//! far from the flight's usual disagreement, and the rows beside them).
+//! All of this changes
 //! smoothly with the motion. A glitch in either sensor does not: a roll
 //! read 17° off on one row, a pitch read as zero for five rows, an axis
 //! whose sign flips, each moves $d$ abruptly and back. Such a run starts
@@ -34,7 +35,12 @@
 //! INS over its row and the two beside it, and the three sum to it), and
 //! a row each side. Inside the screen of a single channel's rate these
 //! are invisible: a 17° step at 10 Hz is within the 90°/s an attitude can
-//! turn, a zero pitch within its range.
+//! turn, a zero pitch within its range. A run is judged only beyond what
+//! its span allows and a share of how sharply both sensors see the
+//! aircraft turn there: where the turn rate steps within a sample (a roll
+//! snapped in or out), the fluxgate's averaging over its interval and the
+//! INS's instants part by up to about that step, and both sensors see it,
+//! while a glitch is seen by one alone.
 //!
 //! Which sensor is wrong is told by repair: the attitude angle or fluxgate
 //! axis that, read on the fewest of the run's rows along its line across
@@ -62,12 +68,20 @@ pub const LEAST_DISAGREEMENT_DEG: f64 = 1.0;
 /// hundred thousand samples).
 pub const NOISE_MULTIPLE: f64 = 8.0;
 
-/// Rows further off than this many times the median disagreement, after
-/// a first fit of the lag, are left out of the second.
+/// Rows further off than this many times the median departure from the
+/// flight's usual disagreement are left out of the lag's fit.
 const LAG_FIT_MULTIPLE: f64 = 5.0;
 
 /// Largest disagreement of one row the shift's choice counts, degrees.
 pub const MOST_COUNTED_DEG: f64 = 5.0;
+
+/// Share of how sharply both sensors see the aircraft turn about a run
+/// ([`Check::sharpness`]) allowed as disagreement: the lag terms take out
+/// a smooth manoeuvre's, but where the turn rate steps within a sample (a
+/// roll snapped in or out) the fluxgate's averaging over its interval
+/// against the INS's instants leaves up to about 1.5 times the step
+/// (measured on random flights at 5–50 Hz); twice is allowed.
+const SHARP_SHARE: f64 = 2.0;
 
 /// Longest run of glitches looked for, s.
 pub const REACH_S: f64 = 5.0;
@@ -340,14 +354,15 @@ impl<'a> Check<'a> {
             d: Vec::new(),
             threshold_deg: LEAST_DISAGREEMENT_DEG,
         };
-        // Twice: a glitch disagrees by tens of degrees, and the second fit
-        // leaves out the rows the first leaves far off.
-        check.lag = check.fitted_lag(|_| true);
-        let first: Vec<f64> = (0..check.rows.len())
-            .map(|i| check.lagged(&check.seen, 0, i).norm())
-            .collect();
-        let far = (LAG_FIT_MULTIPLE * median(&mut first.clone())).max(LEAST_DISAGREEMENT_DEG);
-        check.lag = check.fitted_lag(|i| first[i] <= far);
+        // A glitch disagrees by tens of degrees: the fit leaves out the rows
+        // far from the flight's usual disagreement, and the rows beside
+        // them (whose differences read them).
+        let raw: Vec<Vector3<f64>> = check.seen.iter().map(|[fluxgate, ins]| fluxgate - ins).collect();
+        let usual = Vector3::from_fn(|axis, _| median(&mut raw.iter().map(|r| r[axis]).collect::<Vec<_>>()));
+        let off: Vec<f64> = raw.iter().map(|r| (r - usual).norm().to_degrees()).collect();
+        let far = (LAG_FIT_MULTIPLE * median(&mut off.clone())).max(LEAST_DISAGREEMENT_DEG);
+        let near = |i: usize| (i.saturating_sub(1)..=(i + 1).min(off.len() - 1)).all(|k| off[k] <= far);
+        check.lag = check.fitted_lag(near);
         check.d = (0..check.rows.len()).map(|i| check.lagged(&check.seen, 0, i)).collect();
         let mut sizes: Vec<f64> = check.d.iter().map(Vector3::norm).collect();
         if median(&mut sizes) > MOST_MEDIAN_DISAGREEMENT_DEG {
@@ -367,16 +382,16 @@ impl<'a> Check<'a> {
         (i >= 1 && i + 1 < self.rows.len() && near(i - 1, i) && near(i, i + 1)).then(|| (i - 1, i + 1))
     }
 
-    /// The INS view's first and second differences about usable row `i`,
-    /// per median sample interval, from `seen` (which starts at usable row
-    /// `from`); zero without both neighbours. The differences follow the
+    /// The first and second differences of one sensor's view (`view`: 0
+    /// the fluxgate's, 1 the INS's) about usable row `i`, per median sample
+    /// interval, from `seen` (which starts at usable row `from`); zero without both neighbours. The differences follow the
     /// neighbours' times, so that a masked row beside `i` (its neighbour
     /// then two intervals away) changes neither.
-    fn differences(&self, seen: &[Seen], from: usize, i: usize) -> [Vector3<f64>; 2] {
+    fn differences(&self, seen: &[Seen], from: usize, i: usize, view: usize) -> [Vector3<f64>; 2] {
         let Some((before, after)) = self.neighbours(i) else {
             return [Vector3::zeros(); 2];
         };
-        let ins = |k: usize| seen[k - from][1];
+        let at = |k: usize| seen[k - from][view];
         let step = self.sensors.interval_s;
         let (h1, h2) = (
             (self.time(i) - self.time(before)) / step,
@@ -386,7 +401,7 @@ impl<'a> Check<'a> {
         if !(ordered(h1) && ordered(h2)) {
             return [Vector3::zeros(); 2];
         }
-        let (ahead, behind) = (ins(after) - ins(i), ins(i) - ins(before));
+        let (ahead, behind) = (at(after) - at(i), at(i) - at(before));
         let span = h1 + h2;
         [
             (ahead * (h1 / h2) + behind * (h2 / h1)) / span,
@@ -400,7 +415,7 @@ impl<'a> Check<'a> {
     fn fitted_lag(&self, kept: impl Fn(usize) -> bool) -> [f64; 2] {
         let (mut normal, mut right) = ([[0.0; 2]; 2], [0.0; 2]);
         for i in (0..self.rows.len()).filter(|&i| kept(i)) {
-            let [rate, curve] = self.differences(&self.seen, 0, i);
+            let [rate, curve] = self.differences(&self.seen, 0, i, 1);
             let difference = self.seen[i][0] - self.seen[i][1];
             normal[0][0] += rate.dot(&rate);
             normal[0][1] += rate.dot(&curve);
@@ -421,7 +436,7 @@ impl<'a> Check<'a> {
     /// The disagreement of usable row `i` less the lag, degrees, from
     /// `seen` (which starts at usable row `from`).
     fn lagged(&self, seen: &[Seen], from: usize, i: usize) -> Vector3<f64> {
-        let [rate, curve] = self.differences(seen, from, i);
+        let [rate, curve] = self.differences(seen, from, i, 1);
         let [fluxgate, ins] = seen[i - from];
         (fluxgate - ins - self.lag[0] * rate - self.lag[1] * curve).map(f64::to_degrees)
     }
@@ -564,10 +579,28 @@ impl<'a> Check<'a> {
         Some(())
     }
 
-    /// What is allowed over `run`, degrees.
+    /// What is allowed over `run`, degrees: the threshold over its span,
+    /// and a share of how sharply both sensors see the aircraft turn there
+    /// ([`Check::sharpness`]).
     fn allowed_over(&self, run: &Run) -> f64 {
         let (from, to) = (run.first.saturating_sub(2), (run.last + 2).min(self.rows.len() - 1));
-        self.allowed(self.time(to) - self.time(from))
+        self.allowed(self.time(to) - self.time(from)) + SHARP_SHARE * self.sharpness(run)
+    }
+
+    /// How sharply both sensors see the aircraft turn about `run` (a row
+    /// beyond it each side), degrees per median interval squared: the
+    /// larger second difference of each sensor's view, the smaller of the
+    /// two. A glitch is seen by one sensor only, and the other's view stays
+    /// smooth; a turn whose rate steps within a sample (a roll snapped in
+    /// or out) is seen by both.
+    fn sharpness(&self, run: &Run) -> f64 {
+        let rows = run.first.saturating_sub(1)..=(run.last + 1).min(self.rows.len() - 1);
+        let sharpest = |view: usize| {
+            (rows.clone())
+                .map(|i| self.differences(&self.seen, 0, i, view)[1].norm())
+                .fold(0.0, f64::max)
+        };
+        sharpest(0).min(sharpest(1)).to_degrees()
     }
 
     /// The channels (0–5) to mask, and their rows (indices into the usable
