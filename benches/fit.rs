@@ -16,7 +16,9 @@
 //!    pyarrow, numpy fits with a fixed λ) runs on the same file when a
 //!    `python3` with them is there, and the speed-up over the faster is
 //!    printed.
-//! 3. Format ingest: 1e6 protobuf messages from MCAP against the bare mcap +
+//! 3. Screening (`-- screen`): the whole sample screen of a two-hour
+//!    flight at 25 Hz, and the INS-fluxgate agreement check within it.
+//! 4. Format ingest: 1e6 protobuf messages from MCAP against the bare mcap +
 //!    prost decode, and CSV / XYZ against the bare csv crate parse.
 
 use std::path::Path;
@@ -506,6 +508,37 @@ fn main() {
     if wanted("run-window") {
         bench_run_one_window();
     }
+    if wanted("screen") {
+        bench_screen();
+    }
+}
+
+/// Screening the two-hour, five-magnetometer flight at 25 Hz (about
+/// 200,000 rows, one fluxgate and the INS attitude): the whole screen, and
+/// the agreement check between the INS and the fluxgate within it.
+fn bench_screen() {
+    use magcomp::ingest::agreement::{disagreements, Masks};
+    let mut scenario = two_hour_scenario();
+    scenario.raw.sample_rate_hz = 25.0;
+    let log = magcomp::simulate::simulate(&scenario).unwrap().log;
+    let mut masked = 0;
+    let screen_s = median_seconds(5, || {
+        let screened = magcomp::ingest::screen::screen_samples(&log).unwrap();
+        masked = usize::from(!screened.screening.is_clean());
+    });
+    let mut found = 0;
+    let agreement_s = median_seconds(5, || {
+        found = disagreements(&log, &Masks::new()).values().map(Vec::len).sum();
+    });
+    println!(
+        "screen: {} rows, {} channels: whole screen {:.0} ms, of which the INS-fluxgate agreement {:.0} ms ({:.0} %) (medians of 5); rows masked by agreement {found}, anything masked {masked}; peak RSS {:.0} MB",
+        log.len(),
+        log.channels().len(),
+        screen_s * 1e3,
+        agreement_s * 1e3,
+        100.0 * agreement_s / screen_s,
+        peak_rss_mb()
+    );
 }
 
 /// `compensate` with the default settings against `--plain` on a whole

@@ -251,6 +251,99 @@ fn glitches_of_many_samples_on_a_scalar_or_a_fluxgate_axis_are_masked_and_nothin
     }
 }
 
+#[test]
+fn glitches_held_too_long_for_continuity_are_masked_against_the_fluxgate_magnitude() {
+    // Clean plans drawn as the default's safety campaign draws them (5–50
+    // Hz, 1–8 scalars anywhere on the aircraft, cabin ones included,
+    // fluxgates mounted any way round), shortened to three survey lines.
+    // A scalar lowered by 20,000 or 2,000 nT, or a fluxgate axis raised by
+    // 5,000 nT, for 20 s to 10 minutes from a row drawn from the test's
+    // own SplitMix64 stream: continuity alone cannot tell such a run from
+    // the field (it looks up to 10 s on a scalar, 2 s on an axis); the
+    // scalar's departure from the fluxgate's magnitude can. The clean
+    // flight masks nothing; each damaged one masks exactly the damaged
+    // rows, in the damaged channel only. `MAGCOMP_GLITCH_FLIGHTS=N` flies
+    // N plans instead of 4.
+    let flights = std::env::var("MAGCOMP_GLITCH_FLIGHTS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(4);
+    let draws = common::splitmix64(0x5EED_0070_0004, 8 * flights);
+    let mut next = draws.into_iter();
+    let mut cases = 0;
+    for _ in 0..flights {
+        let seed = next.next().unwrap() % 1_000;
+        let mut raw = common::clean_plan(seed);
+        raw.survey.line_count = raw.survey.line_count.min(3);
+        raw.survey.tie_count = 0;
+        let log = &simulate(&Scenario::try_from(raw).unwrap()).unwrap().log;
+        let hz = 1.0 / log.median_interval_s();
+        let magnetometers: Vec<String> = (log.channels().iter())
+            .filter(|c| c.name.starts_with("mag_") || c.name.starts_with("flux_"))
+            .map(|c| c.name.clone())
+            .collect();
+        for column in &magnetometers {
+            let masked = masked_rows(log, column);
+            assert!(
+                masked.is_empty(),
+                "seed {seed}: the clean flight masks {column} at {masked:?}"
+            );
+        }
+        let last_scalar = magnetometers.iter().rfind(|c| c.starts_with("mag_")).unwrap().clone();
+        for (column, change, seconds) in [
+            ("mag_1_uc".to_string(), -20_000.0, 20.0),
+            ("mag_1_uc".to_string(), -20_000.0, 600.0),
+            (last_scalar, -2_000.0, 60.0),
+            ("flux_a".to_string(), 5_000.0, 30.0),
+        ] {
+            let length = (seconds * hz) as usize;
+            assert!(
+                log.len() > length + 300,
+                "seed {seed}: {} rows, too few for {seconds} s",
+                log.len()
+            );
+            let start = 100 + (next.next().unwrap() % (log.len() - length - 200) as u64) as usize;
+            // On the fluxgate, the axis reading most at both ends of the
+            // run: an offset across the field hardly changes its
+            // magnitude (that is the INS agreement's to see).
+            let column = match column.as_str() {
+                "flux_a" => ["flux_a_x", "flux_a_y", "flux_a_z"]
+                    .into_iter()
+                    .max_by(|a, b| {
+                        let ends = |c: &str| {
+                            let values = &log.channel(c).unwrap().values;
+                            values[start].abs().min(values[start + length - 1].abs())
+                        };
+                        ends(a).total_cmp(&ends(b))
+                    })
+                    .unwrap()
+                    .to_string(),
+                _ => column,
+            };
+            let rows: Vec<usize> = (start..start + length).collect();
+            let mut values = log.channel(&column).unwrap().values.clone();
+            for &k in &rows {
+                values[k] += change;
+            }
+            let damaged = log.with_values(&column, values).unwrap();
+            let case = format!("seed {seed} ({hz} Hz): {column} {change:+} nT for {seconds} s from row {start}");
+            for other in &magnetometers {
+                let masked = masked_rows(&damaged, other);
+                match *other == column {
+                    true => assert_eq!(masked, rows, "{case}"),
+                    false => assert!(
+                        masked.is_empty(),
+                        "{case}: {other} masked at {:?}",
+                        &masked[..masked.len().min(5)]
+                    ),
+                }
+            }
+            cases += 1;
+        }
+    }
+    println!("{cases} damaged flights, each masked on exactly its damaged rows");
+}
+
 /// The INS attitude as it would read `late` samples behind (a fraction
 /// read as the line between samples; the heading across north).
 fn ins_late(log: &FlightLog, late: f64) -> FlightLog {
@@ -426,5 +519,105 @@ fn attitude_glitches_inside_the_rate_screen_are_masked_on_the_damaged_rows_alone
     }
     for (name, [damaged, turned, masked]) in counts {
         println!("{name}: {damaged} rows damaged, {turned} turn the field > {TURN_DEG}°, {masked} masked");
+    }
+}
+
+/// Runs the pipeline on `log` in `folder` with vector compensation on and
+/// no diagnosis.
+fn run_vector(folder: &std::path::Path, log: &FlightLog, name: &str) -> magcomp::pipeline::FlightRun {
+    let input = folder.join(format!("{name}.csv"));
+    write_flight_log(log, &input).unwrap();
+    let mut job = FlightJob::new(&input);
+    job.date = FlightDate::parse("2026-06-15");
+    let mut settings = common::plain();
+    settings.vector.enabled = true;
+    magcomp::pipeline::run(&job, &settings, &folder.join(format!("{name}_c.csv"))).unwrap()
+}
+
+#[test]
+fn no_vector_value_turned_by_an_attitude_glitch_is_written_unflagged() {
+    // Clean plans drawn at random, shortened to two survey lines, with
+    // vector compensation on. Each glitch the rate screen lets through (a
+    // roll or heading step on one row, pitch read as zero on five rows
+    // where the aircraft pitches) may change the north-east-down vector
+    // written on an unflagged row by no more than a 3° turn of the field
+    // would; the clean run is the measure. `MAGCOMP_GLITCH_FLIGHTS=N`
+    // flies N plans instead of 2.
+    const TURN_DEG: f64 = 3.0;
+    let flights = std::env::var("MAGCOMP_GLITCH_FLIGHTS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(2);
+    let draws = common::splitmix64(0x5EED_0070_0003, 8 * flights);
+    let mut next = draws.into_iter();
+    let folder = tempfile::tempdir().unwrap();
+    let mut worst: BTreeMap<&str, (f64, usize)> = BTreeMap::new();
+    for flight in 0..flights {
+        let seed = next.next().unwrap() % 1_000;
+        let mut raw = common::clean_plan(seed);
+        raw.survey.line_count = raw.survey.line_count.min(2);
+        raw.survey.tie_count = 0;
+        let log = simulate(&Scenario::try_from(raw).unwrap()).unwrap().log;
+        let hz = 1.0 / log.median_interval_s();
+        let clean = run_vector(folder.path(), &log, &format!("clean_{flight}"));
+        assert_eq!(
+            clean.compensation.vectors.len(),
+            1,
+            "seed {seed}: {:?}",
+            clean.result.warnings
+        );
+        let reference = &clean.compensation.vectors[0].ned_nt;
+        let margin = 10.0 * hz;
+        let row = |draw: u64| (margin as u64 + draw % (log.len() as u64 - 3 * margin as u64)) as usize;
+        let pitch = &log.channel("ins_pitch").unwrap().values;
+        let pitched: Vec<usize> = (margin as usize..log.len() - 3 * margin as usize)
+            .filter(|&k| pitch[k].abs() > 3.0)
+            .collect();
+        let cases: [(&str, &str, usize, f64); 3] = [
+            ("roll +17°, one row", "ins_roll", 1, 17.0),
+            ("heading +15°, one row", "ins_yaw", 1, 15.0),
+            ("pitch read as zero, five rows", "ins_pitch", 5, f64::NAN),
+        ];
+        for (name, column, length, change) in cases {
+            let start = match (change.is_nan(), pitched.len()) {
+                (true, n) if n > 0 => pitched[(next.next().unwrap() % n as u64) as usize],
+                _ => row(next.next().unwrap()),
+            };
+            let mut values = log.channel(column).unwrap().values.clone();
+            for value in &mut values[start..start + length] {
+                *value = if change.is_nan() { 0.0 } else { *value + change };
+            }
+            let damaged = log.with_values(column, values).unwrap();
+            let dirty = run_vector(folder.path(), &damaged, &format!("{flight}_{column}"));
+            assert_eq!(dirty.compensation.vectors.len(), 1, "seed {seed}, {name}");
+            let written = &dirty.compensation.vectors[0].ned_nt;
+            let flags = &dirty.compensation.flags;
+            let (mut turned, mut largest) = (0, 0.0f64);
+            for k in 0..log.len() {
+                let field = (0..3).map(|i| reference[i][k].powi(2)).sum::<f64>().sqrt();
+                let change = (0..3)
+                    .map(|i| (written[i][k] - reference[i][k]).abs())
+                    .fold(0.0, f64::max);
+                if !field.is_finite() || !change.is_finite() || !flags[k].is_empty() {
+                    turned += usize::from((start..start + length).contains(&k));
+                    continue;
+                }
+                let allowed = field * TURN_DEG.to_radians().sin();
+                assert!(
+                    change <= allowed,
+                    "seed {seed} ({hz} Hz), {name} from row {start}: row {k} written unflagged {change:.0} nT off \
+                     (a {TURN_DEG}° turn is {allowed:.0} nT)"
+                );
+                largest = largest.max(change);
+            }
+            let entry = worst.entry(name).or_default();
+            entry.0 = entry.0.max(largest);
+            entry.1 += turned;
+        }
+    }
+    for (name, (largest, missing)) in worst {
+        println!(
+            "{name}: largest change on an unflagged row {largest:.1} nT; damaged rows missing or flagged {missing}"
+        );
     }
 }

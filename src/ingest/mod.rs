@@ -21,6 +21,7 @@ pub mod flags;
 pub mod flight_date;
 pub mod flight_identity;
 pub mod flight_log;
+pub mod magnitude;
 pub mod screen;
 pub mod text_file;
 

@@ -26,6 +26,9 @@
 //!   field can change across it: the crust at 1,500 nT/s plus the
 //!   aircraft's own swing of 4,000 nT for a scalar, up to 10 s; the
 //!   Earth's field turning at 1 rad/s for a fluxgate axis, up to 2 s);
+//! - a longer run in a scalar or a fluxgate axis, up to 600 s, where the
+//!   scalar's departure from the fluxgate's magnitude steps out and back
+//!   by more than the aircraft's own field can ([`super::magnitude`]);
 //! - a scalar magnetometer or a fluxgate axis that repeats one reading
 //!   for [`STUCK_S`] or longer (and at least [`STUCK_SAMPLES`] samples):
 //!   a working sensor's noise and the aircraft's motion change every
@@ -142,6 +145,10 @@ pub enum MaskReason {
     /// A run in which the INS attitude and a fluxgate's field direction
     /// disagree abruptly ([`super::agreement`]).
     Disagreement,
+    /// A run in which a scalar's departure from a fluxgate's magnitude
+    /// steps out and back by more than the aircraft can make
+    /// ([`super::magnitude`]).
+    Departure,
 }
 
 impl MaskReason {
@@ -156,6 +163,7 @@ impl MaskReason {
             MaskReason::Stuck => FlagKind::Stuck,
             MaskReason::Burst => FlagKind::Spike,
             MaskReason::Disagreement => FlagKind::Spike,
+            MaskReason::Departure => FlagKind::Spike,
         }
     }
 
@@ -180,6 +188,9 @@ impl MaskReason {
             }
             MaskReason::Disagreement => {
                 "glitches the sensors' agreement shows: the turn the INS reports and the turn of the field the fluxgate sees part abruptly (by 1° or more, and 8 times the flight's median step) and agree again within 5 s; masked in the sensor whose reading, drawn across the run, restores the agreement (in the INS and the fluxgate both where neither alone does)"
+            }
+            MaskReason::Departure => {
+                "glitches held too long for continuity: the scalar's departure from the fluxgate's magnitude steps by more than 1,000 nT while the other sensor holds still, and steps back within 600 s; masked in the sensor that stepped"
             }
         }
     }
@@ -303,6 +314,11 @@ pub fn screen_samples(log: &FlightLog) -> Result<Screened> {
     // Glitches each channel's own screen cannot see: the INS attitude
     // against each fluxgate's field direction.
     for (channel, rows) in super::agreement::disagreements(log, &masks) {
+        masks.entry(channel).or_default().extend(rows);
+    }
+    // Scalar glitches held too long for continuity to judge: each scalar
+    // against the fluxgate's magnitude.
+    for (channel, rows) in super::magnitude::departures(log, &masks) {
         masks.entry(channel).or_default().extend(rows);
     }
     if masks.is_empty() {
