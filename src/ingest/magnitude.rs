@@ -120,7 +120,7 @@ impl Pair<'_> {
     fn step(&self, a: usize, b: usize) -> Option<Step> {
         let time = self.log.time_s();
         let size_nt = self.departure(b) - self.departure(a);
-        if size_nt.abs() <= LEAST_STEP_NT || !(time[b] - time[a] <= LONGEST_STEP_S) {
+        if size_nt.abs() <= LEAST_STEP_NT || time[b] - time[a] > LONGEST_STEP_S {
             return None;
         }
         let (scalar, fluxgate) = (self.scalar[b] - self.scalar[a], self.magnitude[b] - self.magnitude[a]);
