@@ -667,7 +667,7 @@ impl<'a> Check<'a> {
 }
 
 /// The median of `values` (reordered), 0 when empty.
-fn median(values: &mut [f64]) -> f64 {
+pub(crate) fn median(values: &mut [f64]) -> f64 {
     if values.is_empty() {
         return 0.0;
     }

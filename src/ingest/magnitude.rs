@@ -7,7 +7,8 @@
 //! d = B_scalar − |B_fluxgate|, changes only as the aircraft's own field at
 //! the two sensors and the fluxgate's calibration do: with attitude,
 //! smoothly, and by an electrical load switching, a few hundred nT at
-//! most. A step of d larger than [`LEAST_STEP_NT`] between two samples
+//! most. A step of d larger than [`LEAST_STEP_NT`] (and than
+//! [`NOISE_MULTIPLE`] times the flight's median step) between two samples
 //! under [`LONGEST_STEP_S`] apart, made by one sensor while the other
 //! holds still (the other moves by under a quarter of the step), is a
 //! glitch's edge. A run entered by such a step and left, within
@@ -20,13 +21,14 @@
 //! sensor the field's own change cancels, and runs of any length up to
 //! [`REACH_S`] are found. Without a fluxgate nothing is judged.
 
-use crate::ingest::agreement::Masks;
+use crate::ingest::agreement::{median, Masks, NOISE_MULTIPLE};
 use crate::ingest::flight_log::{ChannelRole, FlightLog, VectorSensor};
 use crate::ingest::screen::{MaskReason, AIRCRAFT_SWING_NT};
 
 /// Smallest step of a scalar's departure from the fluxgate's magnitude
 /// that is a glitch's edge, nT: an electrical load switching moves a
-/// cabin sensor by a few hundred nT at most.
+/// cabin sensor by a few hundred nT at most. On a noisy pair the edge must
+/// also pass [`NOISE_MULTIPLE`] times the median step.
 pub const LEAST_STEP_NT: f64 = 1_000.0;
 
 /// Longest run looked for, s.
@@ -81,12 +83,19 @@ pub fn departures(log: &FlightLog, masked: &Masks) -> Masks {
         let rows: Vec<usize> = (0..log.len())
             .filter(|&k| !own[k] && channel.values[k].is_finite() && magnitude[k].is_finite())
             .collect();
-        let pair = Pair {
+        let mut pair = Pair {
             log,
             sensor: &sensor,
             scalar: &channel.values,
             magnitude: &magnitude,
+            least_nt: LEAST_STEP_NT,
         };
+        // A noisy sensor's own steps are no glitch's edges.
+        let mut sizes: Vec<f64> = (rows.windows(2))
+            .filter(|w| log.time_s()[w[1]] - log.time_s()[w[0]] <= LONGEST_STEP_S)
+            .map(|w| (pair.departure(w[1]) - pair.departure(w[0])).abs())
+            .collect();
+        pair.least_nt = LEAST_STEP_NT.max(NOISE_MULTIPLE * median(&mut sizes));
         let steps: Vec<Step> = (rows.windows(2)).filter_map(|w| pair.step(w[0], w[1])).collect();
         for (mover, (first, last)) in pair.runs(&steps) {
             let channel = match mover {
@@ -107,6 +116,8 @@ struct Pair<'a> {
     sensor: &'a VectorSensor,
     scalar: &'a [f64],
     magnitude: &'a [f64],
+    /// The smallest step that is a glitch's edge, nT.
+    least_nt: f64,
 }
 
 impl Pair<'_> {
@@ -120,7 +131,7 @@ impl Pair<'_> {
     fn step(&self, a: usize, b: usize) -> Option<Step> {
         let time = self.log.time_s();
         let size_nt = self.departure(b) - self.departure(a);
-        if size_nt.abs() <= LEAST_STEP_NT || time[b] - time[a] > LONGEST_STEP_S {
+        if size_nt.abs() <= self.least_nt || time[b] - time[a] > LONGEST_STEP_S {
             return None;
         }
         let (scalar, fluxgate) = (self.scalar[b] - self.scalar[a], self.magnitude[b] - self.magnitude[a]);

@@ -190,7 +190,7 @@ impl MaskReason {
                 "glitches the sensors' agreement shows: the turn the INS reports and the turn of the field the fluxgate sees part abruptly (by 1° or more, and 8 times the flight's median step) and agree again within 5 s; masked in the sensor whose reading, drawn across the run, restores the agreement (in the INS and the fluxgate both where neither alone does)"
             }
             MaskReason::Departure => {
-                "glitches held too long for continuity: the scalar's departure from the fluxgate's magnitude steps by more than 1,000 nT while the other sensor holds still, and steps back within 600 s; masked in the sensor that stepped"
+                "glitches held too long for continuity: the scalar's departure from the fluxgate's magnitude steps by more than 1,000 nT (and 8 times the flight's median step) while the other sensor holds still, and steps back within 600 s; masked in the sensor that stepped"
             }
         }
     }
