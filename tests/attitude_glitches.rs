@@ -41,6 +41,14 @@ fn with_heading_glitches(log: &FlightLog, seed: u64, fraction: f64) -> (FlightLo
     (log.with_values("ins_yaw", yaw).unwrap(), rows)
 }
 
+/// The plans a test flies: `MAGCOMP_GLITCH_FLIGHTS`, or `default`.
+fn flights_asked(default: usize) -> usize {
+    std::env::var("MAGCOMP_GLITCH_FLIGHTS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(default)
+}
+
 /// Runs the plain pipeline on `log` (detection included) in `folder`.
 fn run(folder: &std::path::Path, log: &FlightLog, name: &str) -> magcomp::error::Result<magcomp::pipeline::FlightRun> {
     let input = folder.join(format!("{name}.csv"));
@@ -264,10 +272,7 @@ fn glitches_held_too_long_for_continuity_are_masked_against_the_fluxgate_magnitu
     // flight masks nothing; each damaged one masks exactly the damaged
     // rows, in the damaged channel only. `MAGCOMP_GLITCH_FLIGHTS=N` flies
     // N plans instead of 4.
-    let flights = std::env::var("MAGCOMP_GLITCH_FLIGHTS")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(4);
+    let flights = flights_asked(4);
     let draws = common::splitmix64(0x5EED_0070_0004, 8 * flights);
     let mut next = draws.into_iter();
     let mut cases = 0;
@@ -400,10 +405,7 @@ fn attitude_glitches_inside_the_rate_screen_are_masked_on_the_damaged_rows_alone
     let axes = ["flux_a_x", "flux_a_y", "flux_a_z"];
     let mut counts: BTreeMap<&str, [usize; 3]> = BTreeMap::new();
     // `MAGCOMP_GLITCH_FLIGHTS=N` flies N plans instead of 6.
-    let flights = std::env::var("MAGCOMP_GLITCH_FLIGHTS")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(6);
+    let flights = flights_asked(6);
     let draws = common::splitmix64(0x5EED_0070_0002, 16 * flights);
     let mut next = draws.into_iter();
     for _ in 0..flights {
@@ -544,10 +546,7 @@ fn no_vector_value_turned_by_an_attitude_glitch_is_written_unflagged() {
     // would; the clean run is the measure. `MAGCOMP_GLITCH_FLIGHTS=N`
     // flies N plans instead of 2.
     const TURN_DEG: f64 = 3.0;
-    let flights = std::env::var("MAGCOMP_GLITCH_FLIGHTS")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(2);
+    let flights = flights_asked(2);
     let draws = common::splitmix64(0x5EED_0070_0003, 8 * flights);
     let mut next = draws.into_iter();
     let folder = tempfile::tempdir().unwrap();
