@@ -349,6 +349,76 @@ fn glitches_held_too_long_for_continuity_are_masked_against_the_fluxgate_magnitu
     println!("{cases} damaged flights, each masked on exactly its damaged rows");
 }
 
+#[test]
+fn a_heading_step_held_is_masked_until_it_steps_back() {
+    // Clean plans drawn at random (5–50 Hz, crews' boxes, fluxgates
+    // mounted any way round), shortened to two survey lines. The INS
+    // heading realigned by 15° at a row drawn from the test's own
+    // SplitMix64 stream, held to the end of the record, or for 60 s and
+    // then back: the rate screen sees one step within what the aircraft
+    // can turn, and no run comes back within 5 s. The heading is masked
+    // (flagged `step:ins_yaw`) on exactly the rows it is off (held to the
+    // end, on the shorter part of the flight: a heading off from the
+    // start and realigned reads the same), and no other channel
+    // anywhere. `MAGCOMP_GLITCH_FLIGHTS=N` flies N plans
+    // instead of 4.
+    let flights = flights_asked(4);
+    let draws = common::splitmix64(0x5EED_0070_0005, 8 * flights);
+    let mut next = draws.into_iter();
+    let channels = ["ins_roll", "ins_pitch", "ins_yaw", "flux_a_x", "flux_a_y", "flux_a_z"];
+    for _ in 0..flights {
+        let seed = next.next().unwrap() % 1_000;
+        let mut raw = common::clean_plan(seed);
+        raw.survey.line_count = raw.survey.line_count.min(2);
+        raw.survey.tie_count = 0;
+        let log = &simulate(&Scenario::try_from(raw).unwrap()).unwrap().log;
+        let hz = 1.0 / log.median_interval_s();
+        let yaw = &log.channel("ins_yaw").unwrap().values;
+        let signed = yaw.iter().any(|v| *v < 0.0);
+        for held_s in [f64::INFINITY, 60.0] {
+            let margin = (70.0 * hz) as u64;
+            let start = (margin + next.next().unwrap() % (log.len() as u64 - 2 * margin)) as usize;
+            let end = match held_s.is_finite() {
+                true => start + (held_s * hz) as usize,
+                false => log.len(),
+            };
+            let turned: Vec<f64> = (0..log.len())
+                .map(|k| match (start..end).contains(&k) {
+                    true if signed => (yaw[k] + 15.0 + 180.0).rem_euclid(360.0) - 180.0,
+                    true => (yaw[k] + 15.0).rem_euclid(360.0),
+                    false => yaw[k],
+                })
+                .collect();
+            let damaged = log.with_values("ins_yaw", turned).unwrap();
+            let case = format!(
+                "seed {seed} ({hz} Hz): heading +15° from row {start} to {end} of {}",
+                log.len()
+            );
+            // A step that never comes back leaves two parts, either of
+            // which may be the turned one: the shorter is masked.
+            let off = match end - start <= start || end < log.len() {
+                true => start..end,
+                false => 0..start,
+            };
+            for column in channels {
+                let masked = masked_rows(&damaged, column);
+                match column {
+                    "ins_yaw" => assert_eq!(masked, off.clone().collect::<Vec<_>>(), "{case}"),
+                    _ => assert!(
+                        masked.is_empty(),
+                        "{case}: {column} masked at {:?}",
+                        &masked[..masked.len().min(5)]
+                    ),
+                }
+            }
+            let screened = magcomp::ingest::screen::screen_samples(&damaged).unwrap();
+            let flags = screened.log.unwrap().row_flags().to_vec();
+            assert!(flags[off.start].has(FlagKind::Step, "ins_yaw"), "{case}");
+            println!("{case}: masked on exactly rows {off:?}");
+        }
+    }
+}
+
 /// The INS attitude as it would read `late` samples behind (a fraction
 /// read as the line between samples; the heading across north).
 fn ins_late(log: &FlightLog, late: f64) -> FlightLog {

@@ -42,6 +42,25 @@
 //! INS's instants part by up to about that step, and both sensors see it,
 //! while a glitch is seen by one alone.
 //!
+//! A step that stays is not a run: a heading realigned by the INS, an
+//! attitude or an axis offset that holds. Where the disagreement steps
+//! and no run comes back, the channel whose jump there, taken out of its
+//! readings from the step on, takes the step out is suspected; the frame,
+//! the shift and the lag are fitted again without the stretch it would
+//! turn (it pulls them towards it), and the step is held when, against
+//! that fit, the second before and the second after each keep to their
+//! line, the lines part by more than the threshold at the step, and that
+//! channel's jump taken out joins them. Its rows are masked from the step
+//! until the channel steps back: an opposite held step undoing three
+//! quarters of it, or, where the disagreement's step back is within the
+//! threshold, the channel's own opposite jump (which also closes a
+//! stretch whose step out was within it). A step that never comes back
+//! leaves two parts, and the agreement alone cannot say which is turned
+//! (a constant offset is taken into the frame, and a heading off from
+//! the start and realigned reads the same as one realigned wrongly): the
+//! shorter part is masked, the frame being the longer's. Where that is
+//! the wrong part, the vector's direction check against IGRF-14 says so.
+//!
 //! Which sensor is wrong is told by repair: the attitude angle or fluxgate
 //! axis that, read on the fewest of the run's rows along its line across
 //! the run (those furthest from that line first), brings the run back
@@ -94,6 +113,9 @@ pub const FIT_ROWS: usize = 4_000;
 /// it is not judged against it, degrees.
 const MOST_MEDIAN_DISAGREEMENT_DEG: f64 = 10.0;
 
+/// Largest lag coefficient (per sample, per sample squared) taken out.
+const MOST_LAG_SAMPLES: f64 = 2.0;
+
 /// Most whole samples the INS is looked for behind or ahead of the
 /// fluxgate.
 const MOST_SHIFT_SAMPLES: isize = 3;
@@ -116,19 +138,75 @@ pub fn disagreements(log: &FlightLog, masked: &Masks) -> Masks {
         return found;
     };
     for sensor in log.vector_sensors() {
-        let Some(shift) = best_shift(log, attitude, &sensor, masked) else {
+        // A held step leaves part of the flight turned: the frame, the
+        // shift and the lag are fitted again without the stretches the
+        // first look suspects, and the steps judged against that fit.
+        let Some((first, suspected)) = judge(log, (attitude, &sensor), masked, &[]) else {
             continue;
         };
-        let sensors = Sensors::new(log, attitude, &sensor, (masked, shift));
-        let Some(check) = Check::of(&sensors) else { continue };
-        for run in check.runs() {
-            for (k, rows) in check.culprits(&run) {
-                let rows = (rows.into_iter()).map(|i| (sensors.row_of(k, check.rows[i]), MaskReason::Disagreement));
-                found.entry(sensors.channels[k]).or_default().extend(rows);
-            }
+        let masks = match suspected.is_empty() {
+            true => first,
+            false => match judge(log, (attitude, &sensor), masked, &suspected) {
+                Some((second, _)) => second,
+                None => first,
+            },
+        };
+        for (channel, rows) in masks {
+            found.entry(channel).or_default().extend(rows);
         }
     }
     found
+}
+
+/// One fluxgate's check against the INS, fitted without the log rows
+/// `left_out` (first and past-the-end): the rows of each channel to mask,
+/// and the stretches (log rows) a held step seems to turn, when the check
+/// can be made. Held steps are masked only when `left_out` is given: a
+/// step is judged held against a fit that did not see it.
+fn judge(
+    log: &FlightLog,
+    (attitude, sensor): ([usize; 3], &VectorSensor),
+    masked: &Masks,
+    left_out: &[(usize, usize)],
+) -> Option<(Masks, Vec<(usize, usize)>)> {
+    let shift = best_shift(log, attitude, sensor, (masked, left_out))?;
+    let sensors = Sensors::new(log, attitude, sensor, (masked, shift)).without(left_out);
+    let check = Check::of(&sensors)?;
+    let mut found = Masks::new();
+    // The runs masked: a run the check lets stand may be a held step's.
+    let mut runs = Vec::new();
+    for run in check.runs() {
+        let culprits = check.culprits(&run);
+        if !culprits.is_empty() {
+            runs.push(run);
+        }
+        // Inside a stretch a held step turns, the disagreement is the
+        // step's, and its rows are masked for it.
+        let turned = |i: usize| left_out.iter().any(|&(from, to)| (from..to).contains(&check.rows[i]));
+        if turned(run.first) && turned(run.last) {
+            continue;
+        }
+        for (k, rows) in culprits {
+            let rows = (rows.into_iter()).map(|i| (sensors.row_of(k, check.rows[i]), MaskReason::Disagreement));
+            found.entry(sensors.channels[k]).or_default().extend(rows);
+        }
+    }
+    let judged = !left_out.is_empty();
+    let held = check.held(&runs, judged);
+    if judged {
+        for &(k, (from, to)) in &held {
+            let values = sensors.values[k];
+            let rows = (from..to).filter(|&row| values[row].is_finite());
+            let rows = rows.map(|row| (row, MaskReason::HeldStep));
+            found.entry(sensors.channels[k]).or_default().extend(rows);
+        }
+    }
+    // The INS rows are read up to the shift's reach from the fluxgate's.
+    let reach = MOST_SHIFT_SAMPLES as usize;
+    let stretches = (held.into_iter())
+        .map(|(_, (from, to))| (from.saturating_sub(reach), (to + reach).min(log.len())))
+        .collect();
+    Some((found, stretches))
 }
 
 /// The roll, pitch and yaw channels' indices, when all three are recorded.
@@ -149,6 +227,8 @@ struct Sensors<'a> {
     time_s: &'a [f64],
     shift: isize,
     usable: Vec<bool>,
+    /// The usable rows the frame and the lag are fitted on.
+    fitted: Vec<bool>,
     /// The median sample interval, s.
     interval_s: f64,
 }
@@ -171,6 +251,7 @@ impl<'a> Sensors<'a> {
             time_s: log.time_s(),
             shift,
             usable: Vec::new(),
+            fitted: Vec::new(),
             interval_s: {
                 let mut steps: Vec<f64> = log.time_s().windows(2).map(|w| w[1] - w[0]).collect();
                 median(&mut steps)
@@ -182,7 +263,17 @@ impl<'a> Sensors<'a> {
                 ins && good[row][3..].iter().all(|g| *g)
             })
             .collect();
+        sensors.fitted = sensors.usable.clone();
         sensors
+    }
+
+    /// The same sensors, with the log rows `left_out` (first and
+    /// past-the-end) judged but not fitted on.
+    fn without(mut self, left_out: &[(usize, usize)]) -> Self {
+        for &(from, to) in left_out {
+            self.fitted[from..to].fill(false);
+        }
+        self
     }
 
     /// The INS row read with the fluxgate's row `row`.
@@ -204,9 +295,9 @@ impl<'a> Sensors<'a> {
     }
 
     /// The fit's (unit reading, rotation) pairs: at most [`FIT_ROWS`] of
-    /// the usable rows, evenly spread.
+    /// the rows fitted on, evenly spread.
     fn pairs(&self) -> Vec<(Vector3<f64>, Matrix3<f64>)> {
-        let rows: Vec<usize> = (0..self.usable.len()).filter(|&r| self.usable[r]).collect();
+        let rows: Vec<usize> = (0..self.fitted.len()).filter(|&r| self.fitted[r]).collect();
         let stride = rows.len().div_ceil(FIT_ROWS).max(1);
         (rows.iter().step_by(stride))
             .filter_map(|&row| directions(self.reading(row)))
@@ -217,11 +308,17 @@ impl<'a> Sensors<'a> {
 /// The whole samples the INS runs behind the fluxgate (or ahead, when
 /// negative), within [`MOST_SHIFT_SAMPLES`]: the shift whose frame makes
 /// them agree best.
-fn best_shift(log: &FlightLog, attitude: [usize; 3], sensor: &VectorSensor, masked: &Masks) -> Option<isize> {
-    let start = Frame::fit(&Sensors::new(log, attitude, sensor, (masked, 0)).pairs())?;
+fn best_shift(
+    log: &FlightLog,
+    attitude: [usize; 3],
+    sensor: &VectorSensor,
+    (masked, left_out): (&Masks, &[(usize, usize)]),
+) -> Option<isize> {
+    let sensors = |shift: isize| Sensors::new(log, attitude, sensor, (masked, shift)).without(left_out);
+    let start = Frame::fit(&sensors(0).pairs())?;
     (-MOST_SHIFT_SAMPLES..=MOST_SHIFT_SAMPLES)
         .filter_map(|shift| {
-            let pairs = Sensors::new(log, attitude, sensor, (masked, shift)).pairs();
+            let pairs = sensors(shift).pairs();
             let frame = Frame::refined(&pairs, start.field, 40)?;
             (pairs.len() >= FEWEST_ROWS).then(|| (shift, frame.cost(&pairs)))
         })
@@ -361,8 +458,17 @@ impl<'a> Check<'a> {
         let usual = Vector3::from_fn(|axis, _| median(&mut raw.iter().map(|r| r[axis]).collect::<Vec<_>>()));
         let off: Vec<f64> = raw.iter().map(|r| (r - usual).norm().to_degrees()).collect();
         let far = (LAG_FIT_MULTIPLE * median(&mut off.clone())).max(LEAST_DISAGREEMENT_DEG);
-        let near = |i: usize| (i.saturating_sub(1)..=(i + 1).min(off.len() - 1)).all(|k| off[k] <= far);
-        check.lag = check.fitted_lag(near);
+        let fitted = |i: usize| sensors.fitted[check.rows[i]];
+        let near = |i: usize| fitted(i) && (i.saturating_sub(1)..=(i + 1).min(off.len() - 1)).all(|k| off[k] <= far);
+        // A lag is a fraction of a sample and a smoothing over about one;
+        // coefficients far beyond are not a lag but a fit pulled by
+        // something else (a held step turning part of the flight), and
+        // are not taken out.
+        let lag = check.fitted_lag(near);
+        check.lag = match lag.iter().all(|c| c.abs() <= MOST_LAG_SAMPLES) {
+            true => lag,
+            false => [0.0; 2],
+        };
         check.d = (0..check.rows.len()).map(|i| check.lagged(&check.seen, 0, i)).collect();
         let mut sizes: Vec<f64> = check.d.iter().map(Vector3::norm).collect();
         if median(&mut sizes) > MOST_MEDIAN_DISAGREEMENT_DEG {
@@ -625,6 +731,230 @@ impl<'a> Check<'a> {
                 .map(|channel| (channel, (run.first..=run.last).collect()))
                 .collect(),
         }
+    }
+
+    /// The held steps: a step of the disagreement by more than the
+    /// threshold, outside every run, from a second that agrees with its
+    /// level to a second that agrees with another, made by one channel
+    /// alone (a heading realigned, an attitude or an axis offset that
+    /// stays). Each is given as the channel (0–5) and the log rows it is
+    /// off on: from the step to that channel's step back (an opposite
+    /// held step undoing at least three quarters of it) or to the end of
+    /// the record.
+    fn held(&self, runs: &[Run], judged: bool) -> Vec<(usize, (usize, usize))> {
+        let width = ((BRACKET_S / self.sensors.interval_s).round() as usize).max(5);
+        let in_run = |k: usize| runs.iter().any(|r| r.first <= k && k <= r.last + 1);
+        // The lag terms spread a step over its row and the two beside it:
+        // each row whose step is over half the threshold is tried, and of
+        // steps found a row or two apart, the largest jump is kept.
+        let mut steps: Vec<(usize, usize, f64)> = Vec::new();
+        // A first look reads the disagreement as recorded: a fit a held
+        // step has pulled may take out a lag that is not there.
+        let moved = |k: usize| match judged {
+            true => self.step(k).map(|s| s.norm()),
+            false => {
+                (self.time(k) - self.time(k - 1) <= LONGEST_STEP_S).then(|| (self.raw(k) - self.raw(k - 1)).norm())
+            }
+        };
+        let tried = (width + 2..self.d.len().saturating_sub(width + 2))
+            .filter(|&k| !in_run(k) && moved(k).is_some_and(|s| s > 0.5 * self.threshold_deg));
+        let at = |k: usize| match judged {
+            true => self.held_at(k, width),
+            false => self.suspected_at(k),
+        };
+        for (k, channel, jump) in tried.filter_map(|k| at(k).map(|(c, j)| (k, c, j))) {
+            match steps.last_mut() {
+                Some(last) if k - last.0 <= 2 && last.1 == channel => {
+                    if jump.abs() > last.2.abs() {
+                        *last = (k, channel, jump);
+                    }
+                }
+                _ => steps.push((k, channel, jump)),
+            }
+        }
+        self.stretches(&steps)
+    }
+
+    /// The log rows each held step (usable row, channel, jump) leaves its
+    /// channel off, from the step to its step back.
+    fn stretches(&self, steps: &[(usize, usize, f64)]) -> Vec<(usize, (usize, usize))> {
+        let end = self.sensors.time_s.len();
+        let mut found = Vec::new();
+        let mut i = 0;
+        while i < steps.len() {
+            let (k, channel, jump) = steps[i];
+            let back = (steps[i + 1..].iter().enumerate())
+                .find(|(_, &(_, c, j))| c == channel && (jump + j).abs() <= 0.25 * jump.abs());
+            let from = self.sensors.row_of(channel, self.rows[k]);
+            match back {
+                Some((offset, &(k2, _, _))) => {
+                    found.push((channel, (from, self.sensors.row_of(channel, self.rows[k2]))));
+                    i += offset + 2;
+                }
+                // A step that never steps back leaves the flight in two
+                // parts, and the agreement alone cannot say which is
+                // turned (a constant offset is taken into the frame):
+                // the shorter part is masked, the frame being the rest's.
+                // Where the disagreement's step back (or out) was within
+                // the threshold, the channel's own opposite jump, beyond
+                // its neighbours', closes the stretch.
+                None => {
+                    let row = |k: usize| self.sensors.row_of(channel, self.rows[k]);
+                    let later = self.opposite(channel, jump, k + 1..self.rows.len().saturating_sub(1));
+                    let earlier = self.opposite(channel, jump, (2..k.saturating_sub(1)).rev());
+                    match (later, earlier) {
+                        (Some(k2), _) => {
+                            found.push((channel, (from, row(k2))));
+                            while i < steps.len() && steps[i].0 <= k2 {
+                                i += 1;
+                            }
+                        }
+                        (None, Some(k0)) => {
+                            found.push((channel, (row(k0), from)));
+                            i += 1;
+                        }
+                        (None, None) => {
+                            let shorter = match end - from <= from {
+                                true => (from, end),
+                                false => (0, from),
+                            };
+                            found.push((channel, shorter));
+                            break;
+                        }
+                    }
+                }
+            }
+        }
+        found
+    }
+
+    /// The first usable row of `rows` where `channel` jumps back by the
+    /// `jump` it made (within a quarter of it), beyond its neighbours'
+    /// steps.
+    fn opposite(&self, channel: usize, jump: f64, mut rows: impl Iterator<Item = usize>) -> Option<usize> {
+        rows.find(|&i| {
+            self.jump(channel, i)
+                .is_some_and(|j| (jump + j).abs() <= 0.25 * jump.abs())
+        })
+    }
+
+    /// The disagreement of usable row `i` as recorded (no lag taken out),
+    /// degrees.
+    fn raw(&self, i: usize) -> Vector3<f64> {
+        (self.seen[i][0] - self.seen[i][1]).map(f64::to_degrees)
+    }
+
+    /// The channel (0–5) whose jump at usable row `k`, taken out of its
+    /// readings from there on, takes out the disagreement's step across
+    /// the rows two either side (over which the lag terms spread it), and
+    /// that jump; `None` when the step is within the threshold or no one
+    /// channel's jump explains it. A first look, on a fit a held step may
+    /// have turned.
+    fn suspected_at(&self, k: usize) -> Option<(usize, f64)> {
+        let (from, to) = (k.checked_sub(3)?, k + 3);
+        if to >= self.d.len() {
+            return None;
+        }
+        let step = (self.raw(k + 2) - self.raw(k - 2)).norm();
+        if step <= self.threshold_deg {
+            return None;
+        }
+        let repaired = |channel: usize| -> Option<(f64, f64)> {
+            let jump = self.jump(channel, k)?;
+            let mut seen = self.seen[from..=to].to_vec();
+            for i in k..=to {
+                let mut reading = self.sensors.reading(self.rows[i]);
+                reading[channel] -= jump;
+                seen[i - from] = self.frame.seen(reading)?;
+            }
+            let raw = |i: usize| (seen[i - from][0] - seen[i - from][1]).map(f64::to_degrees);
+            let left = (raw(k + 2) - raw(k - 2)).norm();
+            // Where the fit is pulled (a shift or a lag chosen wrongly),
+            // a manoeuvre leaves some of the step: a suspicion needs
+            // three quarters of it taken out, the judgement (against a
+            // fit that did not see it) the rest.
+            (left <= 0.5 * self.threshold_deg || left <= 0.25 * step).then_some((jump, left))
+        };
+        (0..6)
+            .filter_map(|channel| Some((channel, repaired(channel)?)))
+            .min_by(|a, b| a.1 .1.total_cmp(&b.1 .1))
+            .map(|(channel, (jump, _))| (channel, jump))
+    }
+
+    /// The channel (0–5) that alone makes the held step at usable row `k`
+    /// (brackets of `width` rows either side), and its jump there; `None`
+    /// when the step is not held or no one channel makes it.
+    fn held_at(&self, k: usize, width: usize) -> Option<(usize, f64)> {
+        let (before, after) = (k - 1 - width..k - 1, k + 1..k + 1 + width);
+        if self.time(after.end - 1) - self.time(before.start) > 4.0 * BRACKET_S {
+            return None;
+        }
+        // Each second's line, drawn to the step: the disagreement drifts
+        // smoothly as the aircraft manoeuvres, and the second is steady
+        // when it keeps to its line.
+        let at = (self.time(k - 1) + self.time(k)) / 2.0;
+        let (left, right) = (
+            self.drawn(before.clone(), &self.d[before.clone()], at)?,
+            self.drawn(after.clone(), &self.d[after.clone()], at)?,
+        );
+        if (right - left).norm() <= self.threshold_deg {
+            return None;
+        }
+        // Each channel read less its jump from the step on: the one that
+        // brings the second after back to the second before's line.
+        let from = k - 2;
+        let repaired = |channel: usize| -> Option<(f64, f64)> {
+            let jump = self.jump(channel, k)?;
+            let mut seen = self.seen[from..after.end + 1].to_vec();
+            for i in k..from + seen.len() {
+                let mut reading = self.sensors.reading(self.rows[i]);
+                reading[channel] -= jump;
+                seen[i - from] = self.frame.seen(reading)?;
+            }
+            let d: Vec<Vector3<f64>> = after.clone().map(|i| self.lagged(&seen, from, i)).collect();
+            let left_over = (self.drawn(after.clone(), &d, at)? - left).norm();
+            (left_over <= self.threshold_deg).then_some((jump, left_over))
+        };
+        (0..6)
+            .filter_map(|channel| Some((channel, repaired(channel)?)))
+            .min_by(|a, b| a.1 .1.total_cmp(&b.1 .1))
+            .map(|(channel, (jump, _))| (channel, jump))
+    }
+
+    /// The least-squares line of `d` (the disagreement on usable rows
+    /// `range`) at time `at`, when every row keeps within the threshold of
+    /// the line.
+    fn drawn(&self, range: std::ops::Range<usize>, d: &[Vector3<f64>], at: f64) -> Option<Vector3<f64>> {
+        let times: Vec<f64> = range.map(|i| self.time(i) - at).collect();
+        let n = times.len() as f64;
+        let mean_t = times.iter().sum::<f64>() / n;
+        let mean_d = d.iter().sum::<Vector3<f64>>() / n;
+        let spread = times.iter().map(|t| (t - mean_t).powi(2)).sum::<f64>();
+        if spread.is_nan() || spread <= 0.0 {
+            return None;
+        }
+        let slope = (times.iter().zip(d))
+            .map(|(t, v)| (t - mean_t) * (v - mean_d))
+            .sum::<Vector3<f64>>()
+            / spread;
+        let line = |t: f64| mean_d + (t - mean_t) * slope;
+        (times.iter().zip(d))
+            .all(|(t, v)| (v - line(*t)).norm() <= self.threshold_deg)
+            .then(|| line(0.0))
+    }
+
+    /// The jump of `channel` (0–5) from usable row `k − 1` to `k` beyond
+    /// the mean of its steps either side (a heading across north).
+    fn jump(&self, channel: usize, k: usize) -> Option<f64> {
+        if k < 2 || k + 1 >= self.rows.len() {
+            return None;
+        }
+        let value = |i: usize| self.sensors.reading(self.rows[i])[channel];
+        let change = |a: usize, b: usize| match channel {
+            2 => (value(b) - value(a) + 180.0).rem_euclid(360.0) - 180.0,
+            _ => value(b) - value(a),
+        };
+        Some(change(k - 1, k) - 0.5 * (change(k - 2, k - 1) + change(k, k + 1)))
     }
 
     /// The fewest rows of `run` whose repair of `channel` restores the

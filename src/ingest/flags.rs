@@ -26,6 +26,9 @@ pub enum FlagKind {
     /// A run of identical readings no working sensor makes (stuck or
     /// dead), masked.
     Stuck,
+    /// A step one sensor alone makes and holds (an INS heading
+    /// realigned), masked from the step until it steps back.
+    Step,
     /// The scalar sample is missing.
     MissingScalar,
     /// A component of the vector sample is missing.
@@ -61,6 +64,7 @@ impl FlagKind {
             FlagKind::Spike => "spike",
             FlagKind::Dropout => "dropout",
             FlagKind::Stuck => "stuck",
+            FlagKind::Step => "step",
             FlagKind::MissingScalar => "missing_scalar",
             FlagKind::MissingVector => "missing_vector",
             FlagKind::MissingSource => "missing_source",

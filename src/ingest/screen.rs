@@ -149,6 +149,10 @@ pub enum MaskReason {
     /// steps out and back by more than the aircraft can make
     /// ([`super::magnitude`]).
     Departure,
+    /// Rows after a step of one INS angle or fluxgate axis the other
+    /// sensor does not see, held until it steps back or the record ends
+    /// ([`super::agreement`]).
+    HeldStep,
 }
 
 impl MaskReason {
@@ -164,6 +168,7 @@ impl MaskReason {
             MaskReason::Burst => FlagKind::Spike,
             MaskReason::Disagreement => FlagKind::Spike,
             MaskReason::Departure => FlagKind::Spike,
+            MaskReason::HeldStep => FlagKind::Step,
         }
     }
 
@@ -188,6 +193,9 @@ impl MaskReason {
             }
             MaskReason::Disagreement => {
                 "glitches the sensors' agreement shows: the turn the INS reports and the turn of the field the fluxgate sees part abruptly (by 1° or more, and 8 times the flight's median step) and agree again within 5 s; masked in the sensor whose reading, drawn across the run, restores the agreement (in the INS and the fluxgate both where neither alone does)"
+            }
+            MaskReason::HeldStep => {
+                "a step the other sensor does not see, held: the INS attitude and the fluxgate's field direction part abruptly (by 1° or more, and 8 times the flight's median step) and stay parted, as one channel alone explains (a heading realigned by the INS); masked in that channel from the step until it steps back; a step that never steps back leaves two parts the agreement alone cannot tell apart, and the shorter is masked (the vector's direction check against IGRF-14 says where that is the wrong one)"
             }
             MaskReason::Departure => {
                 "glitches held too long for continuity: the scalar's departure from the fluxgate's magnitude steps by more than 1,000 nT (and 8 times the flight's median step) while the other sensor holds still, and steps back within 600 s; masked in the sensor that stepped"
