@@ -450,3 +450,52 @@ fn summarize_names_a_done_flight_without_channels() {
         "{summary}"
     );
 }
+
+/// A `**` pattern walks a folder with links back up (two at one level, so
+/// that following them would list without end) once, and a pipeline named
+/// by a relative path finds the flights its patterns match beside it.
+#[test]
+#[cfg(unix)]
+fn a_glob_through_looping_links_lists_each_flight_once_from_a_relative_pipeline() {
+    let folder = tempfile::tempdir().unwrap();
+    let campaign = folder.path().join("survey");
+    simulated(&campaign.join("flights/day1/a.csv"), 61);
+    simulated(&campaign.join("flights/b.csv"), 62);
+    std::os::unix::fs::symlink(".", campaign.join("flights/loop1")).unwrap();
+    std::os::unix::fs::symlink("..", campaign.join("flights/day1/loop2")).unwrap();
+    std::os::unix::fs::symlink("../..", campaign.join("flights/day1/loop3")).unwrap();
+    std::fs::write(
+        campaign.join("pipeline.toml"),
+        "[output]\ndirectory = \"out\"\n[campaign]\ninputs = [\"flights/**/*.csv\"]\n[diagnose]\napply = \"never\"\n",
+    )
+    .unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_magcomp"))
+        .args(["run", "survey/pipeline.toml"])
+        .current_dir(folder.path())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let started = Instant::now();
+    while child.try_wait().unwrap().is_none() {
+        if started.elapsed() > Duration::from_secs(120) {
+            child.kill().unwrap();
+            panic!("magcomp run walked the looping links for over 120 s");
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let output = child.wait_with_output().unwrap();
+    assert!(
+        output.status.success(),
+        "{}\n{}",
+        text(&output.stdout),
+        text(&output.stderr)
+    );
+    let mut statuses: Vec<String> = std::fs::read_dir(campaign.join("out"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|name| name.ends_with("_status.json"))
+        .collect();
+    statuses.sort();
+    assert_eq!(statuses, ["a_status.json", "b_status.json"], "{}", text(&output.stdout));
+}

@@ -200,7 +200,7 @@ pub(crate) fn campaign_flights(
         let mut left_out = 0;
         let mut settings_matched = Vec::new();
         for path in glob_matches(pattern, base, source_name)? {
-            let key = path_key(&path);
+            let key = path_key(&base.join(&path));
             if outputs.as_ref().is_some_and(|folder| key.starts_with(folder)) {
                 left_out += 1;
             } else if settings.contains(&key) {
@@ -232,49 +232,139 @@ fn path_key(path: &Path) -> PathBuf {
     std::fs::canonicalize(path).unwrap_or_else(|_| path.to_path_buf())
 }
 
-/// The files `pattern` (relative to `base`) matches, in path order. A
-/// pattern that matches nothing is an error: a campaign that silently
-/// processes no flights of a folder is worse than none.
+/// The files `pattern` matches, in path order: relative to `base` as
+/// written for a relative pattern (flights' inputs are resolved against
+/// it), absolute for an absolute one. A pattern that matches nothing is an
+/// error: a campaign that silently processes no flights of a folder is
+/// worse than none.
 fn glob_matches(pattern: &str, base: &Path, source_name: &str) -> Result<Vec<PathBuf>> {
     let bad = |message: String| Error::Config {
         source_name: source_name.into(),
         message,
     };
-    let text = match Path::new(pattern).is_absolute() {
-        true => pattern.to_string(),
-        false => {
-            // The folder is taken literally: a `[` in its name is no pattern.
-            let folder = base.to_str().ok_or_else(|| {
+    let absolute = Path::new(pattern).is_absolute();
+    let parts: Vec<&str> = pattern.split('/').filter(|p| !p.is_empty()).collect();
+    let mut components = Vec::with_capacity(parts.len());
+    for part in parts {
+        components.push(match part {
+            "**" => Component::AnyFolders,
+            _ if !part.contains(['*', '?', '[']) => Component::Literal(part.to_string()),
+            _ => Component::Pattern(glob::Pattern::new(part).map_err(|e| {
                 bad(format!(
-                    "[campaign] inputs: the folder {} is not valid UTF-8",
-                    base.display()
+                    "[campaign] inputs: {pattern:?} is not a glob pattern ({e}); write e.g. \"flights/*.csv\" or \"archive/**/*.mcap\""
                 ))
-            })?;
-            match folder.is_empty() {
-                true => pattern.to_string(),
-                false => format!("{}/{pattern}", glob::Pattern::escape(folder)),
-            }
-        }
-    };
-    let paths = glob::glob(&text).map_err(|e| {
-        bad(format!(
-            "[campaign] inputs: {pattern:?} is not a glob pattern ({e}); write e.g. \"flights/*.csv\" or \"archive/**/*.mcap\""
-        ))
-    })?;
-    let mut matches = Vec::new();
-    for path in paths {
-        let path = path.map_err(|e| Error::io(e.path(), "listing", std::io::Error::other(e.to_string())))?;
-        if path.is_file() {
-            matches.push(path);
-        }
+            })?),
+        });
     }
+    let root = match (absolute, base.as_os_str().is_empty()) {
+        (true, _) => PathBuf::from("/"),
+        (false, true) => PathBuf::from("."),
+        (false, false) => base.to_path_buf(),
+    };
+    let mut walk = Walk {
+        root: &root,
+        seen: std::collections::HashSet::new(),
+        matches: Vec::new(),
+    };
+    walk.from(
+        &match absolute {
+            true => PathBuf::from("/"),
+            false => PathBuf::new(),
+        },
+        &components,
+    )?;
+    let mut matches = walk.matches;
     if matches.is_empty() {
         return Err(bad(format!(
-            "[campaign] inputs: {pattern:?} matches no file (looked for {text}); check the pattern, or remove it"
+            "[campaign] inputs: {pattern:?} matches no file (looked under {}); check the pattern, or remove it",
+            root.display()
         )));
     }
     matches.sort();
+    matches.dedup();
     Ok(matches)
+}
+
+/// One `/`-separated part of a glob pattern.
+enum Component {
+    /// `**`: this folder and every folder below it.
+    AnyFolders,
+    /// A name without wildcards, taken as written.
+    Literal(String),
+    /// A name with `*`, `?` or `[…]`.
+    Pattern(glob::Pattern),
+}
+
+/// A glob's walk through the folders. Symbolic links are followed, but a
+/// folder `**` reaches twice (by a link back up, a loop, or two links to
+/// one place) is walked once: a loop would otherwise list without end.
+struct Walk<'a> {
+    /// The folder relative paths are read from.
+    root: &'a Path,
+    /// The folders (resolved) `**` has walked.
+    seen: std::collections::HashSet<PathBuf>,
+    matches: Vec<PathBuf>,
+}
+
+impl Walk<'_> {
+    /// Matches `components` below `folder` (relative to the root, or
+    /// absolute).
+    fn from(&mut self, folder: &Path, components: &[Component]) -> Result<()> {
+        let Some((first, rest)) = components.split_first() else {
+            return Ok(());
+        };
+        match first {
+            Component::AnyFolders => {
+                let resolved = std::fs::canonicalize(self.root.join(folder));
+                if !resolved.is_ok_and(|r| self.seen.insert(r)) {
+                    return Ok(());
+                }
+                self.from(folder, rest)?;
+                for name in self.names(folder)? {
+                    let below = folder.join(&name);
+                    if self.root.join(&below).is_dir() {
+                        self.from(&below, components)?;
+                    }
+                }
+            }
+            Component::Literal(name) => self.take(folder.join(name), rest)?,
+            Component::Pattern(pattern) => {
+                for name in self.names(folder)? {
+                    let matched = name.to_str().is_some_and(|n| pattern.matches(n));
+                    if matched {
+                        self.take(folder.join(&name), rest)?;
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// A path the pattern's part reached: a file when it was the last
+    /// part, else a folder to go on in.
+    fn take(&mut self, path: PathBuf, rest: &[Component]) -> Result<()> {
+        let on_disk = self.root.join(&path);
+        match rest.is_empty() {
+            true if on_disk.is_file() => self.matches.push(path),
+            true => {}
+            false if on_disk.is_dir() => self.from(&path, rest)?,
+            false => {}
+        }
+        Ok(())
+    }
+
+    /// The names in `folder`, sorted; a folder that cannot be listed is an
+    /// error naming it.
+    fn names(&self, folder: &Path) -> Result<Vec<std::ffi::OsString>> {
+        let on_disk = self.root.join(folder);
+        let listing = std::fs::read_dir(&on_disk).map_err(|e| Error::io(&on_disk, "listing", e))?;
+        let mut names = Vec::new();
+        for entry in listing {
+            names.push(entry.map_err(|e| Error::io(&on_disk, "listing", e))?.file_name());
+        }
+        names.sort();
+        Ok(names)
+    }
 }
 
 fn raw_flight(input: PathBuf) -> RawFlight {
