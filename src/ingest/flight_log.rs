@@ -468,18 +468,25 @@ pub fn check_time(source: &Path, column: &str, time_s: &[f64], locate: impl Fn(u
             return Err(bad(index, ("is missing or not finite".into(), fix)));
         }
         if index > 0 && t <= time_s[index - 1] {
-            return Err(bad(index, backward_time(column, time_s, index)));
+            return Err(bad(index, backward_time(column, time_s, index, &locate)));
         }
     }
     Ok(())
 }
 
 /// What is wrong where `time_s` first goes back, at `index`, and the fix
-/// its cause calls for: a column that goes back on a fifth of its steps
-/// or more is not a time at all (a data column named as time); one damaged
-/// stamp, with its neighbours in order around it, is repaired or dropped;
+/// its cause calls for (`locate` names a sample where the user can find
+/// it): a column that goes back on a fifth of its steps or more is not a
+/// time at all (a data column named as time); a few damaged stamps (at
+/// most [`MOST_DAMAGED_STAMPS`], or a hundredth of the samples), each out
+/// of line with the samples either side, are repaired or dropped;
 /// anything else is an unsorted file.
-fn backward_time(column: &str, time_s: &[f64], index: usize) -> (String, String) {
+pub(crate) fn backward_time(
+    column: &str,
+    time_s: &[f64],
+    index: usize,
+    locate: impl Fn(usize) -> String,
+) -> (String, String) {
     use crate::error::Number;
     let moved = format!("goes from {} to {}", Number(time_s[index - 1]), Number(time_s[index]));
     let back = time_s.windows(2).filter(|w| w[1] <= w[0]).count();
@@ -488,26 +495,81 @@ fn backward_time(column: &str, time_s: &[f64], index: usize) -> (String, String)
         let fix = format!("'{column}' is not a time column; name the file's time in [columns] time = \"...\"");
         return (problem, fix);
     }
-    // The stamp at `index` (or the one before it) is out of line with
-    // the samples on either side, which are in order.
-    let in_order = |a: usize, b: usize| b < time_s.len() && time_s[a] < time_s[b];
-    let lone = |k: usize| k >= 1 && in_order(k - 1, k + 1) && back <= 2;
-    match (lone(index), index >= 1 && lone(index - 1)) {
-        (true, _) | (_, true) => {
-            let k = if lone(index) { index } else { index - 1 };
-            let problem = format!(
-                "{moved}: the stamp {} lies out of line between {} and {}, which are in order",
-                Number(time_s[k]),
-                Number(time_s[k - 1]),
-                Number(time_s[k + 1])
-            );
-            (
-                problem,
-                format!("one damaged time stamp (sample {k}), not an unsorted file: repair it or drop that sample"),
-            )
+    let damaged = damaged_stamps(time_s);
+    let (Some(&first), Some(&last)) = (damaged.first(), damaged.last()) else {
+        return (moved, crate::error::SORT_BY_TIME.to_string());
+    };
+    let in_order = |k: usize| {
+        let before = (0..k).rev().find(|i| !damaged.contains(i));
+        let after = (k + 1..time_s.len()).find(|i| !damaged.contains(i));
+        match (before, after) {
+            (Some(b), Some(a)) => format!(
+                " between {} and {}, which are in order",
+                Number(time_s[b]),
+                Number(time_s[a])
+            ),
+            _ => String::new(),
         }
-        _ => (moved, crate::error::SORT_BY_TIME.to_string()),
+    };
+    match damaged.len() {
+        1 => (
+            format!(
+                "{moved}: the stamp {} lies out of line{}",
+                Number(time_s[first]),
+                in_order(first)
+            ),
+            format!(
+                "one damaged time stamp ({}), not an unsorted file: repair it or drop that sample",
+                locate(first)
+            ),
+        ),
+        n if last - first + 1 == n => (
+            format!(
+                "{moved}: the {n} stamps from {} to {} lie out of line{}",
+                locate(first),
+                locate(last),
+                in_order(first)
+            ),
+            format!("{n} damaged time stamps, not an unsorted file: repair them or drop those samples"),
+        ),
+        n => (
+            format!(
+                "{moved}: {n} stamps lie out of line with the samples either side, the first at {} and the last at {}",
+                locate(first),
+                locate(last)
+            ),
+            format!("{n} damaged time stamps, not an unsorted file: repair them or drop those samples"),
+        ),
     }
+}
+
+/// Most damaged stamps told apart from an unsorted file, unless a
+/// hundredth of the samples is more.
+pub const MOST_DAMAGED_STAMPS: usize = 10;
+
+/// The samples whose stamps lie out of line with the samples either side
+/// (read in order: a stamp not after the last one kept, or one after it
+/// but beyond the next, which is), when they are few enough
+/// ([`MOST_DAMAGED_STAMPS`]) for the rest to be a time read in order;
+/// none otherwise (an unsorted file).
+fn damaged_stamps(time_s: &[f64]) -> Vec<usize> {
+    let most = MOST_DAMAGED_STAMPS.max(time_s.len() / 100);
+    let Some(&first) = time_s.first() else {
+        return Vec::new();
+    };
+    let mut last = first;
+    let mut damaged = Vec::new();
+    for (i, &t) in time_s.iter().enumerate().skip(1) {
+        let high = time_s.get(i + 1).is_some_and(|&next| next < t && next > last);
+        match t <= last || high {
+            true => damaged.push(i),
+            false => last = t,
+        }
+        if damaged.len() > most {
+            return Vec::new();
+        }
+    }
+    damaged
 }
 
 /// How one channel was placed on the time base.
@@ -589,6 +651,30 @@ mod tests {
             assert!(text.contains("one damaged time stamp (sample 50)"), "{text}");
             assert!(!text.contains("sort the file"), "{text}");
         }
+        // A run of stamps zeroed, and stamps damaged here and there, on a
+        // longer flight: repair or drop those samples.
+        let long: Vec<f64> = (0..5_000).map(|k| 100.0 + 0.1 * k as f64).collect();
+        let mut time = long.clone();
+        time[2_000..2_040].fill(0.0);
+        let text = message(time);
+        assert!(
+            text.contains("the 40 stamps from sample 2000 to sample 2039 lie out of line between 299.9 and 304")
+                && text.contains("40 damaged time stamps, not an unsorted file"),
+            "{text}"
+        );
+        let mut time = long.clone();
+        for k in [250, 1_250, 3_000, 4_998] {
+            time[k] -= 37.2;
+        }
+        time[4_000] = 1e9;
+        let text = message(time);
+        assert!(
+            text.contains("sample 250")
+                && text.contains("5 stamps lie out of line")
+                && text.contains("the last at sample 4998"),
+            "{text}"
+        );
+        assert!(!text.contains("sort the file"), "{text}");
         // A block flown twice: sort.
         let mut time = steady.clone();
         time.extend((0..50).map(|k| 105.0 + 0.1 * k as f64));

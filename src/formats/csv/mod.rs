@@ -17,7 +17,7 @@ mod write;
 pub use write::{stage_compensated_csv, stage_log_csv};
 
 use super::columns::ColumnNames;
-use crate::error::{Error, Number, Result};
+use crate::error::{Error, Result};
 use crate::ingest::flight_log::{Channel, FlightLog};
 
 /// How the fields of a row are separated.
@@ -467,6 +467,8 @@ pub(crate) struct ColumnBuilder<'a> {
     values: Vec<Vec<f64>>,
     time_index: usize,
     previous_time: f64,
+    /// The line and row where time first goes back.
+    backward: Option<(u64, usize)>,
     /// Byte offset of each data row's record.
     pub(crate) row_offsets: Vec<u64>,
 }
@@ -509,6 +511,7 @@ impl<'a> ColumnBuilder<'a> {
             values,
             time_index,
             previous_time: f64::NEG_INFINITY,
+            backward: None,
             row_offsets: Vec::new(),
         })
     }
@@ -556,6 +559,7 @@ impl<'a> ColumnBuilder<'a> {
             values: (0..self.names.len()).map(|_| Vec::with_capacity(rows)).collect(),
             time_index: self.time_index,
             previous_time: f64::NEG_INFINITY,
+            backward: None,
             row_offsets: Vec::with_capacity(rows),
         }
     }
@@ -581,7 +585,7 @@ impl<'a> ColumnBuilder<'a> {
     /// not increasing across the boundary.
     pub(crate) fn absorb(&mut self, later: ColumnBuilder) -> bool {
         let first_time = later.values[self.time_index].first().copied();
-        if first_time.is_some_and(|t| t <= self.previous_time) {
+        if self.backward.is_some() || later.backward.is_some() || first_time.is_some_and(|t| t <= self.previous_time) {
             return false;
         }
         let rows = self.row_offsets.len();
@@ -606,23 +610,45 @@ impl<'a> ColumnBuilder<'a> {
         true
     }
 
+    /// Checks the time of the row just pushed (on `line`). A time that is
+    /// not finite is an error at once; the first time that goes back is
+    /// kept and the reading goes on, so that [`Self::finish`] can tell its
+    /// cause from the whole column (one damaged stamp, a data column
+    /// named as time, an unsorted file).
     fn check_row_time(&mut self, line: u64) -> Result<()> {
-        let time = *self.values[self.time_index].last().unwrap_or(&f64::NAN);
-        let previous = self.previous_time;
-        let problem = if !time.is_finite() {
-            "is missing or not finite".to_string()
-        } else if time <= previous {
-            format!("goes from {} to {}", Number(previous), Number(time))
-        } else {
-            self.previous_time = time;
-            return Ok(());
-        };
-        Err(Error::BadTime {
+        let times = &self.values[self.time_index];
+        let time = *times.last().unwrap_or(&f64::NAN);
+        if !time.is_finite() {
+            return Err(Error::BadTime {
+                path: self.path.to_path_buf(),
+                location: format!("line {line}"),
+                column: self.names[self.time_index].clone(),
+                problem: "is missing or not finite".to_string(),
+                fix: "repair that row's time, or drop the row".into(),
+            });
+        }
+        if time <= self.previous_time && self.backward.is_none() {
+            self.backward = Some((line, times.len() - 1));
+        }
+        self.previous_time = time;
+        Ok(())
+    }
+
+    /// The error for the first time that goes back, when one does, with
+    /// the fix its cause calls for.
+    fn backward_error(&self) -> Option<Error> {
+        let (line, row) = self.backward?;
+        let times = &self.values[self.time_index];
+        // Rows are lines from the first that went back (a quoted cell
+        // holding a line end would shift the count before it).
+        let locate = |k: usize| format!("line {}", (line + k as u64).saturating_sub(row as u64));
+        let (problem, fix) = crate::ingest::flight_log::backward_time(&self.names[self.time_index], times, row, locate);
+        Some(Error::BadTime {
             path: self.path.to_path_buf(),
             location: format!("line {line}"),
             column: self.names[self.time_index].clone(),
             problem,
-            fix: crate::error::SORT_BY_TIME.into(),
+            fix,
         })
     }
 
@@ -660,6 +686,9 @@ impl<'a> ColumnBuilder<'a> {
     }
 
     pub(crate) fn finish(self, roles: &ColumnNames) -> Result<FlightLog> {
+        if let Some(error) = self.backward_error() {
+            return Err(error);
+        }
         let rows = self.values[self.time_index].len();
         if rows == 0 {
             return Err(Error::NoData {
