@@ -361,6 +361,7 @@ pub(crate) struct RawPipeline {
     #[serde(rename = "gradient")]
     pub gradients: Vec<RawGradient>,
     /// Scalar sensors' positions in body axes (forward, right, down), m.
+    #[serde(deserialize_with = "positions")]
     pub sensor_positions: std::collections::BTreeMap<String, [f64; 3]>,
     /// Flights to process.
     #[serde(rename = "flight")]
@@ -755,6 +756,7 @@ fn model_channels(
 #[serde(deny_unknown_fields)]
 pub(crate) struct RawGradient {
     /// The two scalar channels, a then b: the gradient is (a − b)/d.
+    #[serde(deserialize_with = "two_channels")]
     pub channels: [String; 2],
     /// Their distance, m; else from `[sensor_positions]`.
     #[serde(default)]
@@ -762,6 +764,34 @@ pub(crate) struct RawGradient {
     /// How to compensate it.
     #[serde(default)]
     pub method: GradientMethod,
+}
+
+/// `[sensor_positions]`: three numbers a sensor, refused with any other
+/// count (a fourth would otherwise be dropped without a word).
+fn positions<'de, D: serde::Deserializer<'de>>(
+    deserializer: D,
+) -> std::result::Result<std::collections::BTreeMap<String, [f64; 3]>, D::Error> {
+    let given: std::collections::BTreeMap<String, Vec<f64>> = Deserialize::deserialize(deserializer)?;
+    (given.into_iter())
+        .map(|(name, values)| match <[f64; 3]>::try_from(values.as_slice()) {
+            Ok(position) => Ok((name, position)),
+            Err(_) => Err(serde::de::Error::custom(format!(
+                "{name}: give three values in metres (forward, right, down), not {}",
+                values.len()
+            ))),
+        })
+        .collect()
+}
+
+/// `[[gradient]] channels`: two names, refused with any other count.
+fn two_channels<'de, D: serde::Deserializer<'de>>(deserializer: D) -> std::result::Result<[String; 2], D::Error> {
+    let names: Vec<String> = Deserialize::deserialize(deserializer)?;
+    let count = names.len();
+    <[String; 2]>::try_from(names).map_err(|_| {
+        serde::de::Error::custom(format!(
+            "give the two scalar channels of one gradient, not {count}; write one [[gradient]] a pair"
+        ))
+    })
 }
 
 /// The gradients to compensate: each `[[gradient]]`, its separation given
@@ -1101,6 +1131,33 @@ mod tests {
         assert!(
             text.contains("give each of the model's channels and the flight's column by name"),
             "{text}"
+        );
+    }
+
+    /// A fourth coordinate or a third channel is refused, not dropped.
+    #[test]
+    fn a_position_or_a_gradient_given_too_many_values_is_refused() {
+        let text = parse("[sensor_positions]\nmag_1_uc = [0.0, -7.5, 0.0, 1.0]\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            text.contains("mag_1_uc: give three values in metres (forward, right, down), not 4"),
+            "{text}"
+        );
+        let text = parse("[[gradient]]\nchannels = [\"mag_1_uc\", \"mag_2_uc\", \"mag_3_uc\"]\nseparation_m = 15.0\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            text.contains("give the two scalar channels of one gradient, not 3"),
+            "{text}"
+        );
+        let pairs = parse("[[gradient]]\nchannels = [\"mag_1_uc\", \"mag_2_uc\"]\nseparation_m = 15.0\n")
+            .unwrap()
+            .settings
+            .gradients;
+        assert_eq!(
+            (pairs.len(), pairs[0].a.as_str(), pairs[0].b.as_str()),
+            (1, "mag_1_uc", "mag_2_uc")
         );
     }
 
