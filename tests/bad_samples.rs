@@ -321,3 +321,53 @@ fn a_manoeuvre_cut_by_a_fluxgate_gap_is_counted_with_what_it_kept_and_one_lost_t
         println!("  {}", named.unwrap());
     }
 }
+
+/// A window whose cells are missing here and there, too often for any
+/// run to be filtered, is refused naming the file, whose readings are
+/// missing and how many, and filling them as the fix.
+#[test]
+fn a_window_broken_by_scattered_missing_cells_names_them_and_the_fix() {
+    let sample = Path::new(env!("CARGO_MANIFEST_DIR")).join("sample_flights/clean.csv");
+    let text = std::fs::read_to_string(&sample).unwrap();
+    let mut lines: Vec<String> = text.lines().map(String::from).collect();
+    let header: Vec<&str> = lines[0].split(',').collect();
+    let (time, scalar) = (
+        header.iter().position(|h| *h == "tt").unwrap(),
+        header.iter().position(|h| *h == "mag_1_uc").unwrap(),
+    );
+    // Every 15th reading of the scalar blanked over the first box.
+    let mut blanked = Vec::new();
+    for (k, line) in lines.iter_mut().enumerate().skip(1) {
+        let mut cells: Vec<String> = line.split(',').map(String::from).collect();
+        let t: f64 = cells[time].parse().unwrap();
+        if (46_000.0..46_700.0).contains(&t) && k % 15 == 0 {
+            cells[scalar].clear();
+            blanked.push(t);
+            *line = cells.join(",");
+        }
+    }
+    let folder = tempfile::tempdir().unwrap();
+    let path = folder.path().join("scattered.csv");
+    std::fs::write(&path, lines.join("\n") + "\n").unwrap();
+    let mut pipeline = Pipeline::default();
+    pipeline.settings.diagnose.apply = ApplyDiagnosis::Never;
+    let outputs = FlightOutputs::in_directory(&folder.path().join("out"), &path);
+    let error = process_flight(&FlightJob::new(path.clone()), &pipeline.settings, &outputs).unwrap_err();
+    let text = error.to_string();
+    println!("{} readings blanked: {text}", blanked.len());
+    let (from, to) = (text.find("(").unwrap(), text.find(" s)").unwrap());
+    let span: Vec<f64> = text[from + 1..to].split(" to ").map(|t| t.parse().unwrap()).collect();
+    let inside = blanked.iter().filter(|t| **t >= span[0] && **t <= span[1]).count();
+    let expected = format!("in {}, {inside} of its", path.display());
+    assert!(text.contains(&expected), "{text}\nexpected: {expected}");
+    assert!(
+        text.contains(&format!(
+            "miss a reading (the scalar at {inside}), in gaps of up to 1 sample"
+        )),
+        "{text}"
+    );
+    assert!(
+        text.contains("Fill the missing cells in the file (gaps of 1 sample can be interpolated)"),
+        "{text}"
+    );
+}

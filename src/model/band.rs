@@ -397,7 +397,16 @@ impl<'w> WindowPlan<'w> {
         if kept.is_empty() {
             let longest = runs.iter().map(Range::len).max().unwrap_or(0);
             let problem = format!("its longest run of valid samples has {longest} samples, but filtering and trimming {trim} samples at each end need at least {needed}");
-            return Err(too_short(window, problem));
+            let missing = valid.iter().filter(|ok| !**ok).count();
+            if rows.len() < needed || missing == 0 {
+                return Err(too_short(window, problem));
+            }
+            return Err(broken_by_missing(
+                log,
+                (sensor, scalar, extra),
+                window,
+                (&valid, problem),
+            ));
         }
         Ok(WindowPlan {
             window,
@@ -550,6 +559,62 @@ fn outside_the_flight(log: &FlightLog, window: &CalibrationWindow) -> Error {
         hint: "Windows are in the flight's own time unit: check that the windows (--window, --windows-file or [[flight]] windows) were made for this flight.".into(),
     }
 }
+
+/// A window long enough to fit but broken into short runs by missing
+/// readings (`valid`, over its rows): whose readings are missing, in gaps
+/// how long, and that filling them is the fix.
+fn broken_by_missing(
+    log: &FlightLog,
+    (sensor, scalar, extra): (&VectorSensor, &[f64], &[&[f64]]),
+    window: &CalibrationWindow,
+    (valid, problem): (&[bool], String),
+) -> Error {
+    let rows = window.rows(log.time_s());
+    let field = log.vector_components(sensor);
+    let mut whose = vec![("the scalar".to_string(), &scalar[rows.clone()])];
+    for (&axis, column) in sensor.axes.iter().zip(field) {
+        whose.push((log.channels()[axis].name.clone(), &column[rows.clone()]));
+    }
+    whose.extend(
+        extra
+            .iter()
+            .map(|column| ("another column fitted".to_string(), &column[rows.clone()])),
+    );
+    let counts: Vec<String> = (whose.iter())
+        .map(|(name, values)| (name, values.iter().filter(|v| !v.is_finite()).count()))
+        .filter(|(_, count)| *count > 0)
+        .map(|(name, count)| format!("{name} at {count}"))
+        .collect();
+    let missing = valid.iter().filter(|ok| !**ok).count();
+    let widest = (valid.split(|ok| *ok)).map(<[bool]>::len).max().unwrap_or(0);
+    let samples = |n: usize| match n {
+        1 => "1 sample".to_string(),
+        _ => format!("{n} samples"),
+    };
+    let fill = match widest <= MOST_INTERPOLATED_GAP {
+        true => format!(
+            "Fill the missing cells in the file (gaps of {} can be interpolated)",
+            samples(widest)
+        ),
+        false => "Fill the missing cells in the file".to_string(),
+    };
+    Error::BadWindow {
+        label: window.display_label(),
+        t_start: window.t_start,
+        t_end: window.t_end,
+        problem: format!(
+            "in {}, {missing} of its {} samples miss a reading ({}), in gaps of up to {}, so that {problem}",
+            log.source().display(),
+            rows.len(),
+            counts.join(", "),
+            samples(widest)
+        ),
+        hint: format!("{fill}, lower trim_samples in [filter], or remove the window."),
+    }
+}
+
+/// Longest gap a missing-cells error calls fit to interpolate, samples.
+const MOST_INTERPOLATED_GAP: usize = 5;
 
 fn too_short(window: &CalibrationWindow, problem: String) -> Error {
     Error::BadWindow {
