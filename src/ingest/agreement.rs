@@ -825,6 +825,10 @@ impl<'a> Check<'a> {
                 }
             }
         }
+        // A step and its step back within the reach of a run are a
+        // glitch's, judged as runs are, not a held step.
+        let time_s = self.sensors.time_s;
+        found.retain(|&(_, (from, to))| from == 0 || to == end || time_s[to - 1] - time_s[from] > REACH_S);
         found
     }
 
